@@ -1,0 +1,21 @@
+# The two README commands. Both install what is missing into .venv first (idempotent).
+VENV  := .venv
+PY    := $(VENV)/bin/python
+STAMP := $(VENV)/.installed
+OUT   ?= results
+
+.PHONY: setup run test clean
+setup: $(STAMP)
+
+$(STAMP): pyproject.toml scripts/setup.sh
+	bash scripts/setup.sh
+	touch $(STAMP)
+
+run: setup
+	$(PY) -m bench run-default --out $(OUT)
+
+test: setup
+	$(PY) -m pytest -q
+
+clean:
+	rm -rf $(OUT) .pytest_cache

@@ -1,0 +1,33 @@
+"""The per-frame image buffers the project knows, with their channel counts and storage precision.
+
+A run config names the buffers it needs; only those are rendered and stored (SPEC §2: leave out what a
+consumer does not need). All are linear, HxWxC, in the frame's camera:
+
+- ``di``: direct illumination (diffuse + glossy, with shadows), linear radiance.
+- ``gt``: path-traced global illumination (the "GI map" the networks learn), linear radiance.
+- ``albedo``: diffuse reflectance.
+- ``normal``: shading normal in view space (OpenGL convention: camera looks down -z), zero on background.
+- ``depth``: linear view depth (distance along the view axis, > 0), zero on background.
+- ``position``: world-space position, zero on background.
+- ``mask``: 1 where a surface was hit, else 0.
+
+float16 loses nothing that matters for radiance (relative error 5e-4, max 65504), albedo, normals and
+network-input depth. World position stays float32 because warping reprojects it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+CHANNELS: dict[str, int] = {"di": 3, "gt": 3, "albedo": 3, "normal": 3, "depth": 1, "position": 3, "mask": 1}
+STORAGE_DTYPE: dict[str, type] = {name: np.float16 for name in CHANNELS} | {"position": np.float32}
+
+
+def check_buffer_names(names: list[str] | tuple[str, ...]) -> tuple[str, ...]:
+    """Validate a buffer list, returning it as a tuple; ValueError names the unknown entries."""
+    unknown = [n for n in names if n not in CHANNELS]
+    if unknown:
+        raise ValueError(f"unknown buffer(s) {unknown}; known buffers: {sorted(CHANNELS)}")
+    if len(set(names)) != len(names):
+        raise ValueError(f"buffer list has duplicates: {list(names)}")
+    return tuple(names)

@@ -1,0 +1,147 @@
+"""Pinhole cameras and their OpenGL-convention matrices (SPEC §3).
+
+A :class:`Camera` is a look-at pinhole with a horizontal field of view. Mitsuba's ``to_world`` maps camera
+space (+x left, +y up, +z forward) to world space; the OpenGL matrices used by warping are::
+
+    view = diag(-1, 1, -1, 1) @ inverse(to_world)        # camera looks down -z, +x right
+    proj = GL perspective, fx = 1 / tan(fov_x / 2), fy = fx * width / height
+    uv   = clip.xy / (2 * clip.w) + 0.5                  # v grows bottom-up
+    pixel column = u * width, pixel row = (1 - v) * height  (row 0 at the top, as in images)
+
+A world point seen at pixel (row, col) of a render projects back within half a pixel of that pixel's
+centre (tested).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, replace
+from typing import Any
+
+import numpy as np
+
+GL_FROM_MITSUBA = np.diag([-1.0, 1.0, -1.0, 1.0])
+
+
+def _vec3(name: str, value: Any) -> tuple[float, float, float]:
+    arr = np.asarray(value, dtype=np.float64)
+    if arr.shape != (3,):
+        raise ValueError(f"camera.{name} must have 3 components, got {value!r}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"camera.{name} must be finite, got {value!r}")
+    return (float(arr[0]), float(arr[1]), float(arr[2]))
+
+
+@dataclass(frozen=True)
+class Camera:
+    """A look-at pinhole camera.
+
+    ``fov`` is the horizontal field of view in degrees, strictly between 0 and 180. ``near``/``far`` are
+    clip distances (only the GL projection and Mitsuba's clipping use them). ``up`` need not be
+    orthogonal to the view direction but must not be parallel to it.
+    """
+
+    origin: tuple[float, float, float]
+    target: tuple[float, float, float]
+    up: tuple[float, float, float] = (0.0, 1.0, 0.0)
+    fov: float = 60.0
+    near: float = 0.01
+    far: float = 100.0
+    width: int = 256
+    height: int = 256
+
+    def __post_init__(self) -> None:
+        for name in ("origin", "target", "up"):
+            object.__setattr__(self, name, _vec3(name, getattr(self, name)))
+        for name in ("fov", "near", "far"):
+            value = float(getattr(self, name))
+            if not math.isfinite(value):
+                raise ValueError(f"camera.{name} must be finite, got {value}")
+            object.__setattr__(self, name, value)
+        if not 0.0 < self.fov < 180.0:
+            raise ValueError(f"camera.fov must lie strictly between 0 and 180 degrees, got {self.fov}")
+        if self.near <= 0.0 or self.far <= self.near:
+            raise ValueError(f"camera.near/far must satisfy 0 < near < far, got near={self.near}, far={self.far}")
+        for name in ("width", "height"):
+            value = getattr(self, name)
+            if int(value) != value or not 1 <= int(value) <= 8192:
+                raise ValueError(f"camera.{name} must be an integer in [1, 8192], got {value}")
+            object.__setattr__(self, name, int(value))
+        direction = np.subtract(self.target, self.origin)
+        length = np.linalg.norm(direction)
+        if length < 1e-9:
+            raise ValueError("camera.origin and camera.target coincide; the view direction is undefined")
+        up = np.asarray(self.up)
+        if np.linalg.norm(up) < 1e-12 or np.linalg.norm(np.cross(direction / length, up / np.linalg.norm(up))) < 1e-6:
+            raise ValueError(f"camera.up {self.up} is parallel to the view direction (degenerate look-at); pick another up")
+
+    # -- matrices -------------------------------------------------------------------------------
+    def to_world(self) -> np.ndarray:
+        """Mitsuba's look-at camera-to-world matrix (+x left, +y up, +z forward)."""
+        o = np.asarray(self.origin)
+        d = np.subtract(self.target, o)
+        d /= np.linalg.norm(d)
+        left = np.cross(self.up, d)
+        left /= np.linalg.norm(left)
+        new_up = np.cross(d, left)
+        m = np.eye(4)
+        m[:3, 0], m[:3, 1], m[:3, 2], m[:3, 3] = left, new_up, d, o
+        return m
+
+    def view(self) -> np.ndarray:
+        """OpenGL view matrix: world to eye space, camera looking down -z."""
+        return GL_FROM_MITSUBA @ np.linalg.inv(self.to_world())
+
+    def proj(self) -> np.ndarray:
+        """OpenGL perspective projection (clip space, depth mapped to [-1, 1])."""
+        fx = 1.0 / math.tan(math.radians(self.fov) / 2.0)
+        fy = fx * self.width / self.height
+        n, f = self.near, self.far
+        return np.array(
+            [
+                [fx, 0.0, 0.0, 0.0],
+                [0.0, fy, 0.0, 0.0],
+                [0.0, 0.0, -(f + n) / (f - n), -2.0 * f * n / (f - n)],
+                [0.0, 0.0, -1.0, 0.0],
+            ]
+        )
+
+    def view_proj(self) -> np.ndarray:
+        return self.proj() @ self.view()
+
+    # -- projections ----------------------------------------------------------------------------
+    def view_depth(self, points: np.ndarray) -> np.ndarray:
+        """Linear view depth (distance along the viewing axis) of world points (..., 3)."""
+        v = self.view()
+        return -(np.asarray(points) @ v[2, :3] + v[2, 3])
+
+    def project_uv(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """World points (..., 3) to texture coordinates uv (..., 2) (eq. 5) and clip w (...,).
+
+        uv is only meaningful where ``w > 0`` (in front of the camera); elsewhere it is NaN-free but
+        undefined, so callers must mask with ``w > 0``.
+        """
+        p = np.asarray(points, dtype=np.float64)
+        clip = p @ self.view_proj()[:, :3].T + self.view_proj()[:, 3]
+        w = clip[..., 3]
+        safe_w = np.where(np.abs(w) > 1e-12, w, 1e-12)
+        uv = clip[..., :2] / (2.0 * safe_w[..., None]) + 0.5
+        return uv, w
+
+    def project_pixels(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """World points to continuous pixel coordinates (col, row) with pixel centres at +0.5; and w."""
+        uv, w = self.project_uv(points)
+        cols = uv[..., 0] * self.width
+        rows = (1.0 - uv[..., 1]) * self.height
+        return np.stack([cols, rows], axis=-1), w
+
+    # -- conveniences ---------------------------------------------------------------------------
+    def with_fov(self, fov: float) -> "Camera":
+        return replace(self, fov=fov)
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "Camera":
+        return cls(**d)

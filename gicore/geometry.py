@@ -1,0 +1,110 @@
+"""World-space geometry of a scene spec, independent of any renderer.
+
+Every surface (anatomy, user meshes, ground plane, Cornell-box walls) becomes a triangle mesh in world
+space, so the renderer and the structure-aware warp (which needs the vertices) see the same triangles.
+The ground plane is deliberately two large triangles: warping must cope with triangles that reach
+behind the GI camera. Meshes are cached per process and on disk (``GIGAN_CACHE_DIR``, default
+``~/.cache/gigan``) because procedural anatomy takes seconds to mesh.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import os
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+from gicore.anatomy import generate_anatomy
+from gicore.mesh import Mesh, load_mesh
+from gicore.scene import ObjectSpec, SceneSpec
+
+WHITE = (0.8, 0.8, 0.8)
+RED = (0.63, 0.065, 0.05)
+GREEN = (0.14, 0.45, 0.091)
+#: Half the side of the white ground plane, and the Cornell box's half-width and height.
+PLANE_HALF = 8.0
+BOX_HALF, BOX_HEIGHT = 1.25, 2.5
+
+
+@dataclass(frozen=True)
+class SceneObject:
+    """A world-space triangle mesh with its material: diffuse ``albedo`` plus, when ``roughness`` is
+    set, a mild glossy coating."""
+
+    name: str
+    mesh: Mesh
+    albedo: tuple[float, float, float]
+    roughness: float | None = None
+
+
+def cache_dir() -> Path:
+    return Path(os.environ.get("GIGAN_CACHE_DIR", Path.home() / ".cache" / "gigan"))
+
+
+@lru_cache(maxsize=1)
+def _generator_version() -> str:
+    """Hash of the anatomy generator's source: a code change invalidates cached meshes."""
+    sources = sorted((Path(__file__).parent / "anatomy").glob("*.py"))
+    return hashlib.sha1(b"".join(p.read_bytes() for p in sources)).hexdigest()[:12]
+
+
+def _anatomy_cached(kind: str, seed: int, detail: float) -> Mesh:
+    key = hashlib.sha1(f"{kind}-{seed}-{detail!r}-{_generator_version()}".encode()).hexdigest()[:12]
+    path = cache_dir() / "meshes" / f"{kind}-{key}.npz"
+    if path.is_file():
+        with np.load(path) as d:
+            return Mesh(d["vertices"], d["faces"])
+    mesh = generate_anatomy(kind, seed=seed, detail=detail)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f"{path.stem}.{os.getpid()}.tmp.npz")
+    np.savez(tmp, vertices=mesh.vertices, faces=mesh.faces)
+    os.replace(tmp, path)
+    return mesh
+
+
+def object_transform(obj: ObjectSpec) -> np.ndarray:
+    """Rotation about y by ``rotate_y`` degrees followed by translation to ``position``."""
+    a = math.radians(obj.rotate_y)
+    m = np.eye(4)
+    m[0, 0], m[0, 2], m[2, 0], m[2, 2] = math.cos(a), math.sin(a), -math.sin(a), math.cos(a)
+    m[:3, 3] = obj.position
+    return m
+
+
+@lru_cache(maxsize=32)
+def object_mesh(obj: ObjectSpec) -> Mesh:
+    """The object's world-space mesh: generated or loaded, normalised to its height, placed."""
+    base = _anatomy_cached(obj.anatomy, obj.seed, obj.detail) if obj.anatomy else load_mesh(obj.mesh)
+    return base.normalized(obj.height).transformed(object_transform(obj))
+
+
+def _quad(corners: np.ndarray) -> Mesh:
+    """Two triangles over four corners given counter-clockwise as seen from the lit side."""
+    return Mesh(np.asarray(corners, dtype=np.float32), np.array([[0, 1, 2], [0, 2, 3]], dtype=np.int32))
+
+
+def environment_objects(environment: str) -> list[SceneObject]:
+    """The environment's surfaces; a white-plane scene has no walls, an empty one nothing."""
+    if environment == "none":
+        return []
+    if environment == "white_plane":
+        h = PLANE_HALF
+        return [SceneObject("ground", _quad([[-h, 0, -h], [-h, 0, h], [h, 0, h], [h, 0, -h]]), WHITE)]
+    h, top = BOX_HALF, BOX_HEIGHT
+    return [
+        SceneObject("floor", _quad([[-h, 0, -h], [-h, 0, h], [h, 0, h], [h, 0, -h]]), WHITE),
+        SceneObject("ceiling", _quad([[-h, top, -h], [h, top, -h], [h, top, h], [-h, top, h]]), WHITE),
+        SceneObject("back", _quad([[-h, 0, -h], [h, 0, -h], [h, top, -h], [-h, top, -h]]), WHITE),
+        SceneObject("left", _quad([[-h, 0, -h], [-h, top, -h], [-h, top, h], [-h, 0, h]]), RED),
+        SceneObject("right", _quad([[h, 0, -h], [h, 0, h], [h, top, h], [h, top, -h]]), GREEN),
+    ]
+
+
+def scene_objects(spec: SceneSpec) -> list[SceneObject]:
+    """All surfaces of ``spec`` in world space: its objects, then the environment's."""
+    objs = [SceneObject(o.name, object_mesh(o), o.albedo, o.roughness) for o in spec.objects]
+    return objs + environment_objects(spec.environment)

@@ -1,0 +1,257 @@
+"""Mitsuba 3 rendering of scene specs: path-traced GT, direct illumination, G-buffers (SPEC §3).
+
+This is the only module that imports Mitsuba and the only place the variant is chosen. ``llvm_ad_rgb``
+needs LLVM >= 16 (Debian: ``apt-get install libllvm19``); older LLVMs abort the process inside Dr.Jit,
+so the library is located *before* import and, if none is found, the ~45x slower ``scalar_rgb`` is used
+with a warning. ``GIGAN_MITSUBA_VARIANT`` overrides the choice.
+
+One :class:`Renderer` holds one compiled scene at one resolution. Cameras, the light and vertex
+texture coordinates are updated in place through ``mi.traverse`` (no recompilation). All passes share
+one box-filtered film, so G-buffers are unblended per-sample values and a pixel's position projects
+back inside that pixel.
+"""
+
+from __future__ import annotations
+
+import glob
+import os
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+
+from gicore.buffers import check_buffer_names
+from gicore.camera import Camera
+from gicore.geometry import SceneObject, scene_objects
+from gicore.scene import SceneSpec
+
+
+def _find_libllvm() -> str | None:
+    """Path of a libLLVM >= 16 shared library, or None."""
+    if os.environ.get("DRJIT_LIBLLVM_PATH"):
+        return os.environ["DRJIT_LIBLLVM_PATH"]
+    for pattern in ("/usr/lib/*/libLLVM-{v}.so*", "/usr/lib/*/libLLVM.so.{v}*", "/usr/lib/llvm-{v}/lib/libLLVM*.so*"):
+        for version in range(22, 15, -1):
+            hits = sorted(glob.glob(pattern.format(v=version)))
+            if hits:
+                return hits[0]
+    return None
+
+
+def _select_variant() -> str:
+    wanted = os.environ.get("GIGAN_MITSUBA_VARIANT")
+    if wanted:
+        return wanted
+    lib = _find_libllvm()
+    if lib is None:
+        warnings.warn(
+            "No libLLVM >= 16 found (install it: apt-get install libllvm19, or set DRJIT_LIBLLVM_PATH); "
+            "falling back to Mitsuba's scalar_rgb variant, about 45x slower.",
+            RuntimeWarning,
+            stacklevel=2,
+        )
+        return "scalar_rgb"
+    os.environ["DRJIT_LIBLLVM_PATH"] = lib
+    return "llvm_ad_rgb"
+
+
+VARIANT = _select_variant()
+import mitsuba as mi  # noqa: E402  (after DRJIT_LIBLLVM_PATH is set)
+
+mi.set_variant(VARIANT)
+
+#: Path depth of the ground truth; DI is depth 2 (camera ray + one bounce to the light).
+GT_MAX_DEPTH = 12
+DI_MAX_DEPTH = 2
+
+
+@dataclass(frozen=True)
+class LightState:
+    """Where the light is for one render."""
+
+    position: tuple[float, float, float]
+
+
+def _mesh_to_mitsuba(obj: SceneObject) -> "mi.Mesh":
+    bsdf: dict = {"type": "diffuse", "reflectance": {"type": "rgb", "value": list(obj.albedo)}}
+    if obj.roughness is not None:
+        bsdf = {
+            "type": "roughplastic",
+            "distribution": "ggx",
+            "alpha": obj.roughness,
+            "int_ior": 1.45,
+            "diffuse_reflectance": {"type": "rgb", "value": list(obj.albedo)},
+        }
+    props = mi.Properties()
+    props["bsdf"] = mi.load_dict(bsdf)
+    mesh = obj.mesh
+    m = mi.Mesh(obj.name, len(mesh.vertices), len(mesh.faces), props=props, has_vertex_normals=obj.roughness is not None, has_vertex_texcoords=True)
+    params = mi.traverse(m)
+    params["vertex_positions"] = mi.Float(mesh.vertices.ravel())
+    params["faces"] = mi.UInt32(mesh.faces.astype(np.uint32).ravel())
+    if obj.roughness is not None:  # smooth shading for curved anatomy; flat quads need none
+        params["vertex_normals"] = mi.Float(mesh.vertex_normals().ravel())
+    params["vertex_texcoords"] = mi.Float(np.zeros(2 * len(mesh.vertices), dtype=np.float32))
+    params.update()
+    return m
+
+
+class Renderer:
+    """Renders one scene spec at a fixed square ``resolution``.
+
+    Every render call takes the camera (and light) explicitly; the renderer moves Mitsuba's sensor and
+    emitter to them first. Outputs are float32 HxWxC numpy arrays of linear values.
+    """
+
+    def __init__(self, spec: SceneSpec, resolution: int | None = None):
+        self.spec = spec
+        self.resolution = int(resolution or spec.resolution)
+        self.objects = scene_objects(spec)
+        scene: dict = {
+            "type": "scene",
+            "sensor": {
+                "type": "perspective",
+                "fov_axis": "x",
+                "fov": spec.camera.gi_fov,
+                "film": {
+                    "type": "hdrfilm",
+                    "width": self.resolution,
+                    "height": self.resolution,
+                    "rfilter": {"type": "box"},
+                    "pixel_format": "rgb",
+                },
+            },
+        }
+        for obj in self.objects:
+            scene[obj.name] = _mesh_to_mitsuba(obj)
+        light = spec.light
+        if light.size > 0:
+            area = light.size**2
+            scene["light"] = {
+                "type": "rectangle",
+                "to_world": self._area_light_transform(light.position),
+                "emitter": {"type": "area", "radiance": {"type": "rgb", "value": light.intensity / area}},
+            }
+        else:
+            scene["light"] = {"type": "point", "position": list(light.position), "intensity": {"type": "rgb", "value": light.intensity}}
+        self.scene = mi.load_dict(scene)
+        self.params = mi.traverse(self.scene)
+        self._integrators = {
+            "gt": mi.load_dict({"type": "path", "max_depth": GT_MAX_DEPTH}),
+            "di": mi.load_dict({"type": "path", "max_depth": DI_MAX_DEPTH}),
+            "aov": mi.load_dict({"type": "aov", "aovs": "albedo:albedo,normal:sh_normal,position:position,dist:depth"}),
+            "uv": mi.load_dict({"type": "aov", "aovs": "uv:uv,shape:shape_index"}),
+        }
+        self._camera: Camera | None = None
+        self._light: tuple[float, float, float] = tuple(light.position)
+
+    # -- state updates ---------------------------------------------------------------------------
+    def _area_light_transform(self, position) -> "mi.ScalarTransform4f":
+        s = self.spec.light.size / 2.0
+        return mi.ScalarTransform4f().translate(list(position)).rotate([1, 0, 0], 90).scale([s, s, 1.0])
+
+    def _set_camera(self, camera: Camera) -> None:
+        if (camera.width, camera.height) != (self.resolution, self.resolution):
+            raise ValueError(f"camera is {camera.width}x{camera.height} but this renderer renders {self.resolution}x{self.resolution}")
+        if camera == self._camera:
+            return
+        self.params["sensor.to_world"] = mi.ScalarTransform4f(camera.to_world().tolist())
+        self.params["sensor.x_fov"] = camera.fov
+        self.params["sensor.near_clip"] = camera.near
+        self.params["sensor.far_clip"] = camera.far
+        self.params.update()
+        self._camera = camera
+
+    def _set_light(self, position: tuple[float, float, float] | None) -> None:
+        if position is None or tuple(position) == self._light:
+            return
+        if not np.all(np.isfinite(position)):
+            raise ValueError(f"light position must be finite, got {position}")
+        if self.spec.light.size > 0:
+            self.params["light.to_world"] = self._area_light_transform(position)
+        else:
+            self.params["light.position"] = mi.ScalarPoint3f(list(position))
+        self.params.update()
+        self._light = tuple(position)
+
+    def set_texcoords(self, name: str, uv: np.ndarray) -> None:
+        """Replace the per-vertex texture coordinates of object ``name`` (N x 2); no BVH rebuild."""
+        key = f"{name}.vertex_texcoords"
+        if key not in self.params:
+            raise KeyError(f"no object {name!r}; objects: {[o.name for o in self.objects]}")
+        uv = np.ascontiguousarray(uv, dtype=np.float32)
+        if uv.shape != (len(self.params[f"{name}.vertex_positions"]) // 3, 2):
+            raise ValueError(f"texcoords for {name!r} must be (n_vertices, 2), got {uv.shape}")
+        self.params[key] = mi.Float(uv.ravel())
+        self.params.update()
+
+    # -- passes ----------------------------------------------------------------------------------
+    def _render(self, integrator: str, spp: int, seed: int) -> np.ndarray:
+        if spp < 1:
+            raise ValueError(f"spp must be >= 1, got {spp}")
+        img = mi.render(self.scene, integrator=self._integrators[integrator], spp=spp, seed=seed)
+        return np.array(img, dtype=np.float32)
+
+    def render_gt(self, camera: Camera, light=None, spp: int = 64, seed: int = 0, max_depth: int | None = None) -> np.ndarray:
+        """Path-traced global illumination (max depth ``GT_MAX_DEPTH`` unless given)."""
+        self._set_camera(camera)
+        self._set_light(light)
+        if max_depth is None:
+            return self._render("gt", spp, seed)
+        self._integrators["custom"] = mi.load_dict({"type": "path", "max_depth": max_depth})
+        return self._render("custom", spp, seed)
+
+    def render_di(self, camera: Camera, light=None, spp: int = 1, seed: int = 0) -> np.ndarray:
+        """Direct illumination: emitted light plus one bounce (diffuse + glossy) with shadow rays."""
+        self._set_camera(camera)
+        self._set_light(light)
+        return self._render("di", spp, seed)
+
+    def render_indirect(self, camera: Camera, light=None, spp: int = 64, seed: int = 0) -> np.ndarray:
+        """Indirect-only light: GT minus DI with the same seed and spp, so the shared first bounce
+        cancels sample for sample and the result is non-negative (up to float rounding)."""
+        gt = self.render_gt(camera, light, spp, seed)
+        di = self._render("di", spp, seed)
+        return gt - di
+
+    def render_gbuffers(self, camera: Camera, seed: int = 0) -> dict[str, np.ndarray]:
+        """Albedo, view-space normal (GL), linear view depth, world position and hit mask (1 spp)."""
+        self._set_camera(camera)
+        img = self._render("aov", 1, seed)
+        albedo, normal_w, position, dist = img[..., 0:3], img[..., 3:6], img[..., 6:9], img[..., 9:10]
+        mask = (dist > 0).astype(np.float32)
+        view = camera.view()
+        normal_v = normal_w @ view[:3, :3].T * mask
+        # Mitsuba's depth AOV is distance along the ray; the networks want linear view depth (view z).
+        depth = camera.view_depth(position)[..., None].astype(np.float32) * mask
+        return {"albedo": albedo * mask, "normal": normal_v.astype(np.float32), "depth": depth, "position": position * mask, "mask": mask}
+
+    def render_uv(self, camera: Camera, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+        """Interpolated vertex texture coordinates (HxWx2) and shape index + 1 (HxW, 0 = background)."""
+        self._set_camera(camera)
+        img = self._render("uv", 1, seed)
+        dist_hit = img[..., 2]
+        return img[..., 0:2], dist_hit
+
+    def denoise(self, color: np.ndarray, gbuffers: dict[str, np.ndarray]) -> np.ndarray:
+        """Intel Open Image Denoise (HDR, albedo- and normal-guided)."""
+        import pyoidn
+
+        normal = gbuffers["normal"]
+        return pyoidn.denoise(np.ascontiguousarray(color), np.ascontiguousarray(gbuffers["albedo"]), np.ascontiguousarray(normal), hdr=True)
+
+    def render_frame(self, camera: Camera, light=None, buffers=("di", "albedo", "normal", "depth", "gt"), spp: int = 64, seed: int = 0, denoise: bool = False) -> dict[str, np.ndarray]:
+        """Render exactly the named buffers for one frame (see :mod:`gicore.buffers`)."""
+        wanted = check_buffer_names(list(buffers))
+        out: dict[str, np.ndarray] = {}
+        gbuffer_names = {"albedo", "normal", "depth", "position", "mask"}
+        gb = self.render_gbuffers(camera, seed) if (gbuffer_names & set(wanted) or (denoise and "gt" in wanted)) else {}
+        if "di" in wanted:
+            out["di"] = self.render_di(camera, light, spp=1, seed=seed)
+        if "gt" in wanted:
+            gt = self.render_gt(camera, light, spp=spp, seed=seed)
+            out["gt"] = self.denoise(gt, gb) if denoise else gt
+        for name in wanted:
+            if name in gb:
+                out[name] = gb[name]
+        return {name: out[name] for name in wanted}

@@ -1,0 +1,128 @@
+"""Network I/O: the one place that turns frame buffers into network values and back (numpy only).
+
+Training (``gigan_local.data``), export and the onnxruntime client (``gigan_local.inference``) all call
+these functions, so a model sees exactly the same encoding everywhere. Every network value lies in
+``[-1, 1]``, the range of the generator's tanh output:
+
+========== ====== ===========================================================================
+buffer     chans  encoding
+========== ====== ===========================================================================
+``di``     3      ``to_signed(tonemap(x))`` -- the same tone map as the target and the metrics
+``gt``     3      (target only) ``to_signed(tonemap(x))``; :func:`output_to_radiance` inverts it
+``albedo`` 3      ``2a - 1`` (reflectance in [0, 1], clipped)
+``normal`` 3      as is: unit view-space normals are already in [-1, 1]; background stays 0
+``depth``  1      ``to_signed(d / (d + s))``: background (d = 0) is -1, d = s is 0, far is -> 1
+``mask``   1      ``2m - 1``
+========== ====== ===========================================================================
+
+Depth uses a scale ``s`` (``InputSpec.depth_scale``) rather than a per-frame min/max so that one depth
+means one value in every frame; training sets ``s`` to the median foreground depth of its data (so the
+encoded depths spread around 0) and the exported model carries it in ``model.json``. World position is
+not an input: it depends on where the scene sits in the world, not on what the camera sees.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from gicore.buffers import CHANNELS, check_buffer_names
+from gicore.tonemap import from_signed, inverse_tonemap, to_signed, tonemap
+
+#: The paper's generator input (IV.A): direct illumination + albedo + view normal + depth.
+DEFAULT_BUFFERS: tuple[str, ...] = ("di", "albedo", "normal", "depth")
+#: Buffers a network may take as input (see the table above).
+INPUT_BUFFERS: tuple[str, ...] = ("di", "albedo", "normal", "depth", "mask")
+#: The buffer the networks learn to predict.
+TARGET_BUFFER = "gt"
+
+
+@dataclass(frozen=True)
+class InputSpec:
+    """What a generator takes as input: which buffers, in which channel order, and the depth scale."""
+
+    #: Buffers concatenated along channels in this order (see the module table for each encoding).
+    buffers: tuple[str, ...] = DEFAULT_BUFFERS
+    #: View depth that encodes to 0 (i.e. d / (d + s) = 0.5); in scene units, > 0.
+    depth_scale: float = 1.0
+
+    def __post_init__(self) -> None:
+        buffers = check_buffer_names(list(self.buffers))
+        bad = [b for b in buffers if b not in INPUT_BUFFERS]
+        if bad:
+            raise ValueError(f"buffer(s) {bad} cannot be network inputs; choose from {list(INPUT_BUFFERS)}")
+        if not buffers:
+            raise ValueError(f"the input buffer list is empty; give at least one of {list(INPUT_BUFFERS)}")
+        if not (np.isfinite(self.depth_scale) and self.depth_scale > 0):
+            raise ValueError(f"depth_scale must be a positive number (a typical view depth), got {self.depth_scale}")
+        object.__setattr__(self, "buffers", buffers)
+
+    @property
+    def in_channels(self) -> int:
+        """Number of network input channels these buffers make."""
+        return sum(CHANNELS[b] for b in self.buffers)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"buffers": list(self.buffers), "depth_scale": float(self.depth_scale)}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "InputSpec":
+        return cls(buffers=tuple(d["buffers"]), depth_scale=float(d["depth_scale"]))
+
+
+def _checked(name: str, arr: np.ndarray) -> np.ndarray:
+    arr = np.asarray(arr, dtype=np.float32)
+    if arr.ndim != 3 or arr.shape[-1] != CHANNELS[name]:
+        raise ValueError(f"buffer {name!r} must be an HxWx{CHANNELS[name]} array, got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"buffer {name!r} contains NaN or Inf; fix the renderer output before feeding a network")
+    return arr
+
+
+def encode_buffer(name: str, arr: np.ndarray, depth_scale: float = 1.0) -> np.ndarray:
+    """Encode one HxWxC buffer into network values in [-1, 1] (HxWxC float32)."""
+    arr = _checked(name, arr)
+    if name in ("di", "gt"):
+        return to_signed(tonemap(arr)).astype(np.float32)
+    if name in ("albedo", "mask"):
+        return 2.0 * np.clip(arr, 0.0, 1.0) - 1.0
+    if name == "normal":
+        return arr
+    if name == "depth":
+        d = np.maximum(arr, 0.0)
+        return to_signed(d / (d + np.float32(depth_scale))).astype(np.float32)
+    raise ValueError(f"buffer {name!r} has no network encoding; inputs are {list(INPUT_BUFFERS)}, target {TARGET_BUFFER!r}")
+
+
+def frame_to_input(frame: dict[str, np.ndarray], spec: InputSpec) -> np.ndarray:
+    """Frame buffers (name -> HxWxC linear arrays) to the network input, CxHxW float32 in [-1, 1]."""
+    missing = [b for b in spec.buffers if b not in frame]
+    if missing:
+        raise KeyError(f"the frame lacks buffer(s) {missing} that the model needs (it has {sorted(frame)})")
+    parts = [encode_buffer(b, frame[b], spec.depth_scale) for b in spec.buffers]
+    shapes = {p.shape[:2] for p in parts}
+    if len(shapes) != 1:
+        raise ValueError(f"the frame's buffers differ in size: {dict(zip(spec.buffers, (p.shape for p in parts)))}")
+    return np.ascontiguousarray(np.concatenate(parts, axis=-1).transpose(2, 0, 1))
+
+
+def frame_to_target(frame: dict[str, np.ndarray]) -> np.ndarray:
+    """The frame's ground-truth GI as the network target, 3xHxW float32 in [-1, 1]."""
+    if TARGET_BUFFER not in frame:
+        raise KeyError(f"the frame lacks the target buffer {TARGET_BUFFER!r} (it has {sorted(frame)})")
+    return np.ascontiguousarray(encode_buffer(TARGET_BUFFER, frame[TARGET_BUFFER]).transpose(2, 0, 1))
+
+
+def output_to_display(y: np.ndarray) -> np.ndarray:
+    """Network output 3xHxW in [-1, 1] to tone-mapped display values HxWx3 in [0, 1] (what metrics use)."""
+    y = np.asarray(y, dtype=np.float32)
+    if y.ndim != 3 or y.shape[0] != 3:
+        raise ValueError(f"expected a 3xHxW network output, got shape {y.shape}")
+    return from_signed(y.transpose(1, 2, 0)).astype(np.float32)
+
+
+def output_to_radiance(y: np.ndarray) -> np.ndarray:
+    """Network output 3xHxW in [-1, 1] to linear GI radiance HxWx3 (inverse of the target encoding)."""
+    return inverse_tonemap(output_to_display(y))

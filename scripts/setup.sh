@@ -1,0 +1,24 @@
+#!/usr/bin/env bash
+# Idempotent installer for the two README commands: system LLVM for Mitsuba's LLVM backend, then a
+# virtual environment with the pinned CPU torch first (so nothing pulls CUDA wheels), then the project.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+PYTHON=${PYTHON:-python3}
+
+if ! ldconfig -p 2>/dev/null | grep -q 'libLLVM.so.19\|libLLVM-19.so'; then
+  if [ "$(id -u)" = 0 ]; then
+    echo "setup: installing libllvm19 (Mitsuba's llvm_ad_rgb variant needs LLVM >= 16)"
+    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libllvm19 >/dev/null
+  else
+    echo "setup: libllvm19 is missing and this is not root. Run 'sudo apt-get install -y libllvm19'" >&2
+    echo "       (or set DRJIT_LIBLLVM_PATH); until then Mitsuba falls back to the ~45x slower scalar_rgb." >&2
+  fi
+fi
+
+if [ ! -x .venv/bin/python ]; then
+  "$PYTHON" -m venv .venv
+fi
+.venv/bin/python -m pip install -q --upgrade pip
+.venv/bin/python -m pip install -q "torch==2.13.0"
+.venv/bin/python -m pip install -q -e ".[test]"
+echo "setup: done (.venv)"
