@@ -1,0 +1,52 @@
+"""The ``bench`` command: one subcommand per experiment, each writing tidy CSV, provenance and a plot."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+app = typer.Typer(add_completion=False, no_args_is_help=True, help="Experiments of the GIGAN testbed (CSV + provenance + plots).")
+
+OutOpt = Annotated[Path, typer.Option("--out", help="folder for CSV, provenance JSON and plots")]
+QuickOpt = Annotated[bool, typer.Option("--quick", help="small preset that finishes in minutes on 2 cores")]
+SeedOpt = Annotated[int, typer.Option("--seed")]
+
+
+@app.command()
+def convergence(
+    out: OutOpt = Path("results"),
+    quick: QuickOpt = False,
+    seed: SeedOpt = 0,
+    scenes: Annotated[str | None, typer.Option(help="comma-separated scene names (default: all paper scenes)")] = None,
+    resolution: Annotated[int | None, typer.Option(help="square resolution")] = None,
+) -> None:
+    """GT error (RMSE/SSIM against a high-spp reference) against render time, with and without OIDN."""
+    from bench.convergence import ConvergenceConfig, run
+
+    cfg = ConvergenceConfig.quick() if quick else ConvergenceConfig()
+    overrides = {}
+    if scenes:
+        overrides["scenes"] = tuple(s.strip() for s in scenes.split(","))
+    if resolution:
+        overrides["resolution"] = resolution
+    cfg = ConvergenceConfig(**{**cfg.__dict__, **overrides})
+    typer.echo(f"wrote {run(cfg, out, seed)}")
+
+
+@app.command("run-default")
+def run_default(out: OutOpt = Path("results"), scene: str = "lung_plane") -> None:
+    """The main job on the embedded default: a small dataset of the default scene, its contact sheet,
+    and the quick convergence bench."""
+    from bench.contact_sheet import contact_sheet
+    from bench.convergence import ConvergenceConfig, run
+    from gicore.dataset_cli import DatasetConfig, build_dataset
+    from gicore.scene import load_scene
+
+    spec = load_scene(scene)
+    ds = out / "dataset" / spec.name
+    build_dataset(spec, ds, DatasetConfig(n_train=8, n_val=2, resolution=128, spp=64, denoise=True))
+    typer.echo(f"wrote {contact_sheet(ds, out / 'contact_sheet.png')}")
+    quick = ConvergenceConfig.quick()
+    typer.echo(f"wrote {run(ConvergenceConfig(**{**quick.__dict__, 'scenes': (spec.name,)}), out)}")

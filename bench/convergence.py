@@ -1,0 +1,99 @@
+"""`bench convergence`: error of the path-traced GT against render time, with and without OIDN.
+
+For each scene, one frame of its fly-through is rendered at a range of spp and compared with a
+high-spp reference (different seed, no denoising) on tone-mapped images. Render times are medians of
+repeats after a warm-up; the OIDN variant's time includes its G-buffer pass and the denoiser.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from bench.results import Results
+from bench.timing import time_repeats
+from gicore.metrics import all_metrics
+from gicore.paths import camera_path, light_position
+from gicore.scene import builtin_scenes, load_scene
+from gicore.tonemap import tonemap
+
+
+@dataclass(frozen=True)
+class ConvergenceConfig:
+    """The parameter grid of one run."""
+
+    scenes: tuple[str, ...] = tuple(builtin_scenes())
+    resolution: int = 256
+    spps: tuple[int, ...] = (1, 4, 16, 64, 256)
+    reference_spp: int = 4096
+    repeats: int = 3
+
+    @classmethod
+    def quick(cls) -> "ConvergenceConfig":
+        return cls(scenes=("lung_plane", "lung_cornell"), resolution=96, spps=(1, 4, 16, 64), reference_spp=1024, repeats=2)
+
+
+def run(cfg: ConvergenceConfig, out: Path, seed: int = 0) -> Path:
+    from gicore.render import Renderer
+
+    res = Results("convergence", out, seed, settings=cfg.__dict__)
+    for name in cfg.scenes:
+        spec = load_scene(name)
+        renderer = Renderer(spec, cfg.resolution)
+        camera = camera_path(spec, 1, seed=seed, resolution=cfg.resolution)[0]
+        light = light_position(spec, 0)
+        reference = tonemap(renderer.render_gt(camera, light, spp=cfg.reference_spp, seed=seed + 10_000))
+        for spp in cfg.spps:
+            samples, raw = time_repeats(lambda: renderer.render_gt(camera, light, spp=spp, seed=seed), cfg.repeats)
+            res.add_timing(system="path", scene=name, metric="render_time", samples_s=samples, spp=spp, resolution=cfg.resolution)
+            for metric, value in all_metrics(tonemap(raw), reference).items():
+                res.add(system="path", scene=name, metric=metric, value=value, unit="dB" if metric == "psnr" else "1", spp=spp, resolution=cfg.resolution)
+
+            def denoised():
+                gb = renderer.render_gbuffers(camera, seed=seed)
+                return renderer.denoise(renderer.render_gt(camera, light, spp=spp, seed=seed), gb)
+
+            samples, clean = time_repeats(denoised, cfg.repeats)
+            res.add_timing(system="path+oidn", scene=name, metric="render_time", samples_s=samples, spp=spp, resolution=cfg.resolution)
+            for metric, value in all_metrics(tonemap(clean), reference).items():
+                res.add(system="path+oidn", scene=name, metric=metric, value=value, unit="dB" if metric == "psnr" else "1", spp=spp, resolution=cfg.resolution)
+    path = res.write()
+    plot(path, out / "convergence.png")
+    return path
+
+
+def plot(csv_path: Path, png: Path) -> None:
+    """RMSE and SSIM against median render time, one line per scene and denoiser setting."""
+    import matplotlib
+    import matplotlib.ticker
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from bench.results import read_rows
+
+    rows = read_rows(csv_path)
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    keys = sorted({(r["scene"], r["system"]) for r in rows})
+    for scene, system in keys:
+        sel = [r for r in rows if r["scene"] == scene and r["system"] == system]
+        times = {r["config"]["spp"]: r["value"] for r in sel if r["metric"] == "render_time" and r["stat"] == "median"}
+        for ax, metric in zip(axes, ("rmse", "ssim")):
+            vals = {r["config"]["spp"]: r["value"] for r in sel if r["metric"] == metric}
+            spps = sorted(vals)
+            ax.plot([times[s] for s in spps], [vals[s] for s in spps], "-o" if system == "path" else "--s", label=f"{scene} ({system})", ms=4)
+            for s in spps:
+                ax.annotate(str(s), (times[s], vals[s]), fontsize=6, alpha=0.6)
+    for ax, metric in zip(axes, ("RMSE (tone-mapped)", "SSIM")):
+        ax.set_xscale("log")
+        ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+        ax.set_xlabel("median render time per frame [ms]")
+        ax.set_ylabel(metric)
+        ax.grid(alpha=0.3)
+    axes[0].set_yscale("log")
+    axes[0].yaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+    axes[1].legend(fontsize=6, loc="lower right")
+    fig.suptitle("GT convergence: error vs render time (labels: spp; reference: high-spp path tracing)")
+    fig.tight_layout()
+    fig.savefig(png, dpi=120)
+    plt.close(fig)

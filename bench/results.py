@@ -1,0 +1,134 @@
+"""Tidy, long-format benchmark results with provenance (SPEC §8).
+
+Every bench writes ``<out>/<bench>.csv`` with one row per measurement and ``<out>/<bench>.provenance.json``
+describing how the numbers were produced. Plots and dashboards read only these files.
+
+CSV columns: ``run_id, bench, system, scene, metric, stat, value, unit, config`` where ``stat`` says what
+the value summarises (``value`` for a single measurement, ``median``/``p95``/``n`` for repeated timings)
+and ``config`` is a compact JSON object of the knobs that produced the row (spp, denoise, k, ...).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import platform
+import subprocess
+import sys
+import time
+import uuid
+from dataclasses import dataclass, field
+from importlib import metadata
+from pathlib import Path
+from typing import Any
+
+COLUMNS = ("run_id", "bench", "system", "scene", "metric", "stat", "value", "unit", "config")
+_PACKAGES = ("numpy", "torch", "mitsuba", "drjit", "onnxruntime", "scikit-image", "pyoidn", "fastapi", "zstandard")
+
+
+def git_revision() -> dict[str, Any]:
+    """Commit SHA of the working tree and whether it had uncommitted changes."""
+    root = Path(__file__).resolve().parent.parent
+    try:
+        sha = subprocess.run(["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True, check=True).stdout.strip()
+        dirty = bool(subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=root, capture_output=True, text=True).stdout.strip())
+    except (OSError, subprocess.CalledProcessError):
+        return {"sha": None, "dirty": None}
+    return {"sha": sha, "dirty": dirty}
+
+
+def machine_info() -> dict[str, Any]:
+    cpu = platform.processor()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return {"platform": platform.platform(), "python": platform.python_version(), "cpu": cpu, "cpu_count": os.cpu_count()}
+
+
+def package_versions() -> dict[str, str | None]:
+    versions: dict[str, str | None] = {}
+    for name in _PACKAGES:
+        try:
+            versions[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            versions[name] = None
+    return versions
+
+
+@dataclass
+class Results:
+    """Collects rows for one bench run and writes CSV + provenance JSON on :meth:`write`."""
+
+    bench: str
+    out: Path
+    seed: int = 0
+    settings: dict[str, Any] = field(default_factory=dict)
+    run_id: str = field(default_factory=lambda: time.strftime("%Y%m%dT%H%M%S") + "-" + uuid.uuid4().hex[:6])
+    rows: list[dict[str, Any]] = field(default_factory=list)
+    started: float = field(default_factory=time.time)
+
+    def add(self, *, system: str, scene: str, metric: str, value: float, unit: str, stat: str = "value", **config: Any) -> None:
+        self.rows.append(
+            {
+                "run_id": self.run_id,
+                "bench": self.bench,
+                "system": system,
+                "scene": scene,
+                "metric": metric,
+                "stat": stat,
+                "value": value,
+                "unit": unit,
+                "config": json.dumps(config, sort_keys=True, separators=(",", ":")),
+            }
+        )
+
+    def add_timing(self, *, system: str, scene: str, metric: str, samples_s: list[float], **config: Any) -> None:
+        """Median and p95 (ms) of repeated timings taken after warm-up, plus the repeat count."""
+        from bench.timing import summarize_ms
+
+        summary = summarize_ms(samples_s)
+        for stat in ("median", "p95"):
+            self.add(system=system, scene=scene, metric=metric, value=summary[stat], unit="ms", stat=stat, **config)
+        self.add(system=system, scene=scene, metric=metric, value=len(samples_s), unit="count", stat="n", **config)
+
+    @property
+    def csv_path(self) -> Path:
+        return self.out / f"{self.bench}.csv"
+
+    def write(self) -> Path:
+        """Write ``<bench>.csv`` and ``<bench>.provenance.json``; returns the CSV path."""
+        self.out.mkdir(parents=True, exist_ok=True)
+        with self.csv_path.open("w", newline="") as fh:
+            writer = csv.DictWriter(fh, fieldnames=COLUMNS)
+            writer.writeheader()
+            writer.writerows(self.rows)
+        provenance = {
+            "run_id": self.run_id,
+            "bench": self.bench,
+            "argv": sys.argv,
+            "seed": self.seed,
+            "settings": self.settings,
+            "git": git_revision(),
+            "versions": package_versions(),
+            "machine": machine_info(),
+            "started_unix": self.started,
+            "finished_unix": time.time(),
+            "rows": len(self.rows),
+        }
+        (self.out / f"{self.bench}.provenance.json").write_text(json.dumps(provenance, indent=1, default=str))
+        return self.csv_path
+
+
+def read_rows(path: Path) -> list[dict[str, Any]]:
+    """Rows of a results CSV with ``value`` as float and ``config`` decoded."""
+    with Path(path).open(newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    for row in rows:
+        row["value"] = float(row["value"])
+        row["config"] = json.loads(row["config"]) if row["config"] else {}
+    return rows

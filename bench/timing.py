@@ -1,0 +1,29 @@
+"""Timing conventions shared by every bench: warm-up runs, then repeats; report median and p95."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+
+def time_repeats(fn: Callable[[], Any], repeats: int = 5, warmup: int = 1) -> tuple[list[float], Any]:
+    """Run ``fn`` ``warmup`` times untimed, then ``repeats`` times timed; returns (seconds, last result)."""
+    if repeats < 1:
+        raise ValueError(f"repeats must be >= 1, got {repeats}")
+    result = None
+    for _ in range(warmup):
+        result = fn()
+    samples = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        result = fn()
+        samples.append(time.perf_counter() - t0)
+    return samples, result
+
+
+def summarize_ms(samples_s: list[float]) -> dict[str, float]:
+    ms = np.asarray(samples_s, dtype=np.float64) * 1e3
+    return {"median": float(np.median(ms)), "p95": float(np.percentile(ms, 95)), "n": float(len(ms))}
