@@ -50,3 +50,14 @@ def run_default(out: OutOpt = Path("results"), scene: str = "lung_plane") -> Non
     typer.echo(f"wrote {contact_sheet(ds, out / 'contact_sheet.png')}")
     quick = ConvergenceConfig.quick()
     typer.echo(f"wrote {run(ConvergenceConfig(**{**quick.__dict__, 'scenes': (spec.name,)}), out)}")
+
+
+@app.command()
+def render(out: OutOpt = Path("results"), quick: QuickOpt = False, seed: SeedOpt = 0, resolution: Annotated[int | None, typer.Option()] = None) -> None:
+    """Per-pass render times (DI, G-buffers, GT with/without OIDN) and triangle counts per scene."""
+    from bench.render_bench import RenderBenchConfig, run
+
+    cfg = RenderBenchConfig.quick() if quick else RenderBenchConfig()
+    if resolution:
+        cfg = RenderBenchConfig(**{**cfg.__dict__, "resolution": resolution})
+    typer.echo(f"wrote {run(cfg, out, seed)}")

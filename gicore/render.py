@@ -63,6 +63,7 @@ mi.set_variant(VARIANT)
 #: Path depth of the ground truth; DI is depth 2 (camera ray + one bounce to the light).
 GT_MAX_DEPTH = 12
 DI_MAX_DEPTH = 2
+GBUFFER_AOVS = "albedo:albedo,normal:sh_normal,position:position,dist:depth"
 
 
 @dataclass(frozen=True)
@@ -139,7 +140,9 @@ class Renderer:
         self._integrators = {
             "gt": mi.load_dict({"type": "path", "max_depth": GT_MAX_DEPTH}),
             "di": mi.load_dict({"type": "path", "max_depth": DI_MAX_DEPTH}),
-            "aov": mi.load_dict({"type": "aov", "aovs": "albedo:albedo,normal:sh_normal,position:position,dist:depth"}),
+            "aov": mi.load_dict({"type": "aov", "aovs": GBUFFER_AOVS}),
+            # DI and G-buffers from the same camera rays in one pass (identical to the two passes).
+            "di_aov": mi.load_dict({"type": "aov", "aovs": GBUFFER_AOVS, "integrator": {"type": "path", "max_depth": DI_MAX_DEPTH}}),
             "uv": mi.load_dict({"type": "aov", "aovs": "uv:uv,shape:shape_index"}),
         }
         self._camera: Camera | None = None
@@ -217,7 +220,17 @@ class Renderer:
     def render_gbuffers(self, camera: Camera, seed: int = 0) -> dict[str, np.ndarray]:
         """Albedo, view-space normal (GL), linear view depth, world position and hit mask (1 spp)."""
         self._set_camera(camera)
-        img = self._render("aov", 1, seed)
+        return self._split_gbuffers(camera, self._render("aov", 1, seed))
+
+    def render_di_gbuffers(self, camera: Camera, light=None, seed: int = 0) -> dict[str, np.ndarray]:
+        """DI (1 spp) and the G-buffers of :meth:`render_gbuffers` from one pass of camera rays."""
+        self._set_camera(camera)
+        self._set_light(light)
+        img = self._render("di_aov", 1, seed)
+        return {"di": img[..., 0:3]} | self._split_gbuffers(camera, img[..., 3:])
+
+    @staticmethod
+    def _split_gbuffers(camera: Camera, img: np.ndarray) -> dict[str, np.ndarray]:
         albedo, normal_w, position, dist = img[..., 0:3], img[..., 3:6], img[..., 6:9], img[..., 9:10]
         mask = (dist > 0).astype(np.float32)
         view = camera.view()
@@ -243,15 +256,13 @@ class Renderer:
     def render_frame(self, camera: Camera, light=None, buffers=("di", "albedo", "normal", "depth", "gt"), spp: int = 64, seed: int = 0, denoise: bool = False) -> dict[str, np.ndarray]:
         """Render exactly the named buffers for one frame (see :mod:`gicore.buffers`)."""
         wanted = check_buffer_names(list(buffers))
-        out: dict[str, np.ndarray] = {}
-        gbuffer_names = {"albedo", "normal", "depth", "position", "mask"}
-        gb = self.render_gbuffers(camera, seed) if (gbuffer_names & set(wanted) or (denoise and "gt" in wanted)) else {}
-        if "di" in wanted:
-            out["di"] = self.render_di(camera, light, spp=1, seed=seed)
+        needs_gbuffers = bool({"albedo", "normal", "depth", "position", "mask"} & set(wanted)) or (denoise and "gt" in wanted)
+        if needs_gbuffers and "di" in wanted:
+            out = gb = self.render_di_gbuffers(camera, light, seed)
+        else:
+            gb = self.render_gbuffers(camera, seed) if needs_gbuffers else {}
+            out = {"di": self.render_di(camera, light, spp=1, seed=seed)} if "di" in wanted else {}
         if "gt" in wanted:
             gt = self.render_gt(camera, light, spp=spp, seed=seed)
-            out["gt"] = self.denoise(gt, gb) if denoise else gt
-        for name in wanted:
-            if name in gb:
-                out[name] = gb[name]
-        return {name: out[name] for name in wanted}
+            out = out | {"gt": self.denoise(gt, gb) if denoise else gt}
+        return {name: out[name] if name in out else gb[name] for name in wanted}

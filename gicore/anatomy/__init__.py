@@ -11,13 +11,17 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 
+from gicore.anatomy.digestive import build_digestive
 from gicore.anatomy.lungs import build_lungs
+from gicore.anatomy.vessels import build_vessels
 from gicore.mesh import Mesh
 
-ANATOMY_KINDS = ("lung",)
+ANATOMY_KINDS = ("lung", "digestive", "vessels")
 
 _BUILDERS: dict[str, Callable[[int, float], Mesh]] = {
     "lung": build_lungs,
+    "digestive": build_digestive,
+    "vessels": build_vessels,
 }
 
 
