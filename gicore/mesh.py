@@ -122,7 +122,7 @@ class Mesh:
         scale = height / extent
         centre = np.array([(lo[0] + hi[0]) / 2, lo[1], (lo[2] + hi[2]) / 2])
         vertices = (self.vertices.astype(np.float64) - centre) * scale
-        vertices[:, 1] = np.maximum(vertices[:, 1], 0.0)  # float rounding must not sink below ground
+        vertices[:, 1] = np.maximum(vertices[:, 1], 0.0)  # rounding must not sink below ground
         return Mesh(vertices, self.faces)
 
     def save(self, path: str | Path) -> None:
@@ -142,7 +142,9 @@ def load_mesh(path: str | Path) -> Mesh:
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix not in MESH_SUFFIXES:
-        raise ValueError(f"unsupported mesh suffix {suffix!r} for {path}; use one of {MESH_SUFFIXES}")
+        raise ValueError(
+            f"unsupported mesh suffix {suffix!r} for {path}; use one of {MESH_SUFFIXES}"
+        )
     if not path.is_file():
         raise FileNotFoundError(f"mesh file not found: {path}")
     try:

@@ -1,9 +1,9 @@
 """Seeded procedural anatomy: watertight organ meshes standing on the ground plane.
 
-`generate_anatomy(kind, seed, detail)` returns a mesh normalized to one unit tall, resting on y = 0 and
-centred on the vertical axis. Each kind is built as a signed distance field on a voxel grid (see
-`sdf`) and meshed with marching cubes, so every mesh is closed. The same seed gives identical arrays;
-`detail` scales the grid resolution, so the triangle count grows roughly as detail**2.
+`generate_anatomy(kind, seed, detail)` returns a mesh normalized to one unit tall, resting on y = 0
+and centred on the vertical axis. Each kind is built as a signed distance field on a voxel grid (see
+`sdf`) and meshed with marching cubes, so every mesh is closed. The same seed gives identical
+arrays; `detail` scales the grid resolution, so the triangle count grows roughly as detail**2.
 """
 
 from __future__ import annotations

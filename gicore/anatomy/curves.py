@@ -8,7 +8,8 @@ import numpy as np
 def catmull_rom(control: np.ndarray, samples_per_span: int = 16) -> np.ndarray:
     """A centripetal Catmull-Rom spline through every control point, as a dense (K, 3) polyline.
 
-    Centripetal parametrisation avoids the cusps and self-loops of the uniform form on uneven spacing.
+    Centripetal parametrisation avoids the cusps and self-loops that the uniform form makes on
+    uneven spacing.
     """
     p = np.asarray(control, dtype=np.float64)
     if len(p) < 2:
@@ -33,7 +34,7 @@ def catmull_rom(control: np.ndarray, samples_per_span: int = 16) -> np.ndarray:
 
 
 def resample(polyline: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
-    """Points at (nearly) even arc-length spacing <= `step`, and each point's arc length from the start."""
+    """Points evenly spaced along the arc, at most `step` apart, and their arc lengths."""
     p = np.asarray(polyline, dtype=np.float64)
     s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))])
     n = max(int(np.ceil(s[-1] / step)), 1) + 1

@@ -1,7 +1,7 @@
 """Procedural digestive tract: esophagus, stomach, duodenum, small intestine and colon.
 
-Modelled parts (patient's left on +x, anterior +z, y up, about one unit tall), each a tube swept along
-a Catmull-Rom spline with a radius that varies along its length:
+Modelled parts (patient's left on +x, anterior +z, y up, about one unit tall), each a tube swept
+along a Catmull-Rom spline with a radius that varies along its length:
 - the esophagus, descending to the cardia;
 - a J-shaped stomach: a wide fundus and body on the patient's left narrowing through the antrum to
   the pylorus;
@@ -93,7 +93,7 @@ def build_digestive(seed: int, detail: float) -> Mesh:
     sweep(jittered(DUODENUM), 0.024)
 
     coil = _coil_path(rng)
-    # The jejunum leaves the duodenojejunal flexure; the ileum enters the cecum from the medial side.
+    # The jejunum leaves the duodenojejunal flexure; the ileum enters the cecum medially.
     sweep(np.vstack([DUODENUM[-1], coil, (-0.2, 0.17, 0.03)]), COIL_RADIUS, k=0.01)
 
     colon, s = resample(catmull_rom(jittered(COLON)), step)

@@ -6,8 +6,9 @@ Modelled parts (patient's right lung on -x, anterior is +z, y up, about one unit
   fissures stay visible as grooves;
 - a cardiac notch carved from the anterior, medial, lower part of the left lung, a domed diaphragm
   carved from both bases and a mediastinal gap that flattens the medial faces;
-- a ringed trachea splitting at the carina into the right main bronchus (shorter, wider, steeper) and
-  the left main bronchus (longer, more horizontal), each branching into lobar bronchi at the hilum.
+- a ringed trachea splitting at the carina into the right main bronchus (shorter, wider, steeper)
+  and the left main bronchus (longer, more horizontal), each branching into lobar bronchi at the
+  hilum.
 
 Parameters: `seed` jitters lobe sizes, positions and tilts and the bronchial end points; `detail`
 scales the grid resolution (voxel = 0.0085 / detail units), so triangle count grows as detail**2.
@@ -66,12 +67,13 @@ def build_lungs(seed: int, detail: float) -> Mesh:
     airways = vol.empty()
     _trachea(vol, airways, rng)
     carina = np.array(CARINA)
-    for side, hilum, radius, lobes in (
-        (-1, (-0.125, 0.60, -0.035), (0.024, 0.02), RIGHT_LOBES),
-        (1, (0.135, 0.625, -0.035), (0.021, 0.018), LEFT_LOBES),
+    # (hilum, bronchus radii at its middle and end, upward arch of its middle, lobes it feeds)
+    for hilum, radius, arch, lobes in (
+        ((-0.125, 0.60, -0.035), (0.024, 0.02), 0.0, RIGHT_LOBES),
+        ((0.135, 0.625, -0.035), (0.021, 0.018), 0.015, LEFT_LOBES),
     ):
         hilum = np.array(hilum) + rng.normal(0.0, 0.006, 3)
-        mid = (carina + hilum) / 2 + (0.0, 0.015 * (side > 0), 0.0)  # the left one arches more
+        mid = (carina + hilum) / 2 + (0.0, arch, 0.0)
         vol.tube(airways, np.array([carina, mid, hilum]), np.array([0.03, radius[0], radius[1]]))
         for centre, *_ in lobes.values():
             # Lobar bronchi run from the hilum halfway to each lobe centre, ending inside the lobe.

@@ -1,7 +1,7 @@
 """Narrow-band signed distance volumes, meshed with marching cubes into watertight meshes.
 
 A `Volume` is a regular voxel grid over a padded box. Fields on it hold signed distances (negative
-inside) that are only accurate within `band` of a surface: far away they are clamped near +band. Each
+inside) that are only accurate within `band` of a surface: far away they stay near +band. Each
 primitive is evaluated only in its own bounding box grown by the band, which keeps hundreds of tube
 segments cheap. Because the padding keeps every surface off the grid boundary, marching cubes always
 closes the surface.
@@ -10,6 +10,7 @@ closes the surface.
 from __future__ import annotations
 
 from collections.abc import Callable
+from functools import partial
 
 import numpy as np
 from skimage.measure import marching_cubes
@@ -62,7 +63,7 @@ class Volume:
         return np.full(self.shape, self.band, dtype=np.float32)
 
     def _window(self, lo: np.ndarray, hi: np.ndarray) -> tuple[tuple[slice, ...], Coords] | None:
-        """Index slices and broadcastable coordinates of the voxels inside [lo, hi] grown by the band."""
+        """Slices and broadcastable coordinates of the voxels in [lo, hi] grown by the band."""
         first = np.floor((np.asarray(lo) - self.band - self.origin) / self.voxel).astype(int)
         last = np.ceil((np.asarray(hi) + self.band - self.origin) / self.voxel).astype(int) + 1
         first = np.clip(first, 0, self.shape)
@@ -112,7 +113,7 @@ class Volume:
         """
         c = np.asarray(centre, dtype=np.float32)
         r = np.asarray(radii, dtype=np.float32)
-        rot = np.eye(3, dtype=np.float32) if orientation is None else np.asarray(orientation, np.float32)
+        rot = np.asarray(np.eye(3) if orientation is None else orientation, dtype=np.float32)
         # Half extent of the rotated (and possibly tapered) ellipsoid's bounding box.
         reach = np.abs(rot) @ (r * np.float32([1 + abs(taper), 1, 1 + abs(taper)]))
 
@@ -150,9 +151,9 @@ class Volume:
                 own,
                 np.minimum(a, b) - reach,
                 np.maximum(a, b) + reach,
-                lambda x, y, z, a=a, b=b, ra=ra, rb=rb: _segment_distance(x, y, z, a, b, ra, rb),
-                0.0,
-                False,
+                partial(_segment_distance, a=a, b=b, ra=ra, rb=rb),
+                k=0.0,
+                carve=False,
             )
         if k > 0:
             field[...] = smooth_min(field, own, k)

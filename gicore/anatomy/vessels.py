@@ -55,7 +55,9 @@ def build_vessels(seed: int, detail: float) -> Mesh:
     # Murray's law at the arch: what leaves through the branches no longer flows down the aorta.
     r_descending = (AORTA_RADIUS**3 - sum(r**3 for _, r, _ in ARCH_BRANCHES)) ** (1 / 3)
     arch_end = np.interp(ARCH_BRANCHES[-1][0], [0, 1], [0, s[-1]])
-    aorta_radii = np.interp(s, [0.0, arch_end, s[-1]], [AORTA_RADIUS, r_descending, r_descending / TAPER])
+    aorta_radii = np.interp(
+        s, [0.0, arch_end, s[-1]], [AORTA_RADIUS, r_descending, r_descending * TAPER]
+    )
     branches: list[Segment] = [(aorta, aorta_radii)]
 
     for fraction, radius, direction in ARCH_BRANCHES:
