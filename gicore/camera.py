@@ -64,7 +64,11 @@ class Camera:
             raise ValueError(f"camera.near/far must satisfy 0 < near < far, got near={self.near}, far={self.far}")
         for name in ("width", "height"):
             value = getattr(self, name)
-            if int(value) != value or not 1 <= int(value) <= 8192:
+            try:
+                ok = float(value).is_integer() and 1 <= int(value) <= 8192
+            except (TypeError, ValueError, OverflowError):
+                ok = False
+            if not ok:
                 raise ValueError(f"camera.{name} must be an integer in [1, 8192], got {value}")
             object.__setattr__(self, name, int(value))
         direction = np.subtract(self.target, self.origin)

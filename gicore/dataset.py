@@ -58,7 +58,7 @@ class DatasetMeta:
     format_version: int = FORMAT_VERSION
 
     def settings(self) -> dict[str, Any]:
-        """The fields that must match for a rerun to resume into the same folder."""
+        """The render settings (everything but the per-frame records)."""
         d = asdict(self)
         d.pop("frames")
         return d
@@ -88,7 +88,9 @@ def write_meta(root: Path, meta: DatasetMeta) -> None:
     path = root / "meta.json"
     if path.exists():
         old = read_meta(root)
-        if old.settings() != meta.settings():
+        # Frame i's camera depends on the whole plan (frame count, FOV): a changed plan would leave
+        # stored images that no longer match their records.
+        if old.to_dict() != json.loads(json.dumps(meta.to_dict())):
             raise ValueError(
                 f"{root} holds a dataset made with other settings; choose another --out or delete it.\n"
                 f"  existing: {old.settings()}\n  requested: {meta.settings()}"

@@ -8,6 +8,8 @@ compiled scene), written atomically, and skipped when already present, so an int
 
 from __future__ import annotations
 
+import multiprocessing
+import os
 import time
 import zlib
 from concurrent.futures import ProcessPoolExecutor
@@ -96,11 +98,17 @@ def build_dataset(spec: SceneSpec, root: Path, cfg: DatasetConfig, workers: int 
     ]
     if not jobs:
         return meta
-    import os
-
+    bar = dict(total=len(jobs), desc=spec.name, disable=not progress, unit="frame")
+    if workers == 1:  # no pool: cheaper, and Mitsuba already uses every core
+        _init_worker(spec.to_dict(), cfg.resolution, os.cpu_count() or 1)
+        for job in tqdm(jobs, **bar):
+            _render_one(job)
+        return meta
     threads = max(1, (os.cpu_count() or 1) // workers)
-    with ProcessPoolExecutor(workers, initializer=_init_worker, initargs=(spec.to_dict(), cfg.resolution, threads)) as pool:
-        for _ in tqdm(pool.map(_render_one, jobs), total=len(jobs), desc=spec.name, disable=not progress, unit="frame"):
+    # spawn, not fork: a forked worker inherits OIDN's thread pool state and can deadlock in it.
+    ctx = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker, initargs=(spec.to_dict(), cfg.resolution, threads)) as pool:
+        for _ in tqdm(pool.map(_render_one, jobs), **bar):
             pass
     return meta
 

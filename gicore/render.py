@@ -143,7 +143,8 @@ class Renderer:
             "aov": mi.load_dict({"type": "aov", "aovs": GBUFFER_AOVS}),
             # DI and G-buffers from the same camera rays in one pass (identical to the two passes).
             "di_aov": mi.load_dict({"type": "aov", "aovs": GBUFFER_AOVS, "integrator": {"type": "path", "max_depth": DI_MAX_DEPTH}}),
-            "uv": mi.load_dict({"type": "aov", "aovs": "uv:uv,shape:shape_index"}),
+            # The warp pass (render_uv): interpolated texcoords, world position and shape id in one render.
+            "uv": mi.load_dict({"type": "aov", "aovs": "uv:uv,pos:position,shape:shape_index"}),
         }
         self._camera: Camera | None = None
         self._light: tuple[float, float, float] = tuple(light.position)
@@ -166,7 +167,9 @@ class Renderer:
         self._camera = camera
 
     def _set_light(self, position: tuple[float, float, float] | None) -> None:
-        if position is None or tuple(position) == self._light:
+        """Move the light; ``None`` means the spec's rest position (never "wherever it was last")."""
+        position = tuple(self.spec.light.position) if position is None else tuple(position)
+        if position == self._light:
             return
         if not np.all(np.isfinite(position)):
             raise ValueError(f"light position must be finite, got {position}")
@@ -239,12 +242,42 @@ class Renderer:
         depth = camera.view_depth(position)[..., None].astype(np.float32) * mask
         return {"albedo": albedo * mask, "normal": normal_v.astype(np.float32), "depth": depth, "position": position * mask, "mask": mask}
 
-    def render_uv(self, camera: Camera, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
-        """Interpolated vertex texture coordinates (HxWx2) and shape index + 1 (HxW, 0 = background)."""
-        self._set_camera(camera)
-        img = self._render("uv", 1, seed)
-        dist_hit = img[..., 2]
-        return img[..., 0:2], dist_hit
+    def render_uv(self, camera: Camera) -> dict[str, np.ndarray]:
+        """One AOV pass sampled exactly at pixel centres, for warping at ``camera``.
+
+        Returns ``uv`` (HxWx2): the vertex texture coordinates (see :meth:`set_texcoords`) interpolated
+        with the hit's barycentrics, i.e. affinely in world position over each triangle; ``position``
+        (HxWx3): world position (0 on background); ``mask`` (HxW bool): a surface was hit; ``textured``
+        (HxW bool): the hit surface is a scene object, whose texcoords :meth:`set_texcoords` controls (an
+        area light's quad is not).
+
+        Unlike the other passes it does not jitter samples inside the pixel: a pixel's position is the
+        hit of its centre ray (it projects back onto the centre, up to float rounding), so warping a GI
+        map to its own camera reads each texel at its centre and is the identity. Deterministic.
+        """
+        import drjit as dr
+
+        self._set_camera(camera)  # validates the resolution
+        if getattr(self, "_centre_sensor", None) is None:
+            film = {"type": "hdrfilm", "width": self.resolution, "height": self.resolution, "rfilter": {"type": "box"}, "pixel_format": "rgb"}
+            sampler = {"type": "stratified", "sample_count": 1, "jitter": False}  # 1 spp, unjittered: the pixel centre
+            self._centre_sensor = mi.load_dict({"type": "perspective", "fov_axis": "x", "fov": camera.fov, "film": film, "sampler": sampler})
+            self._centre_params = mi.traverse(self._centre_sensor)
+            self._centre_camera: Camera | None = None
+            names = {o.name for o in self.objects}
+            # shape_index AOV values are Dr.Jit registry ids of the hit shape's pointer (0 = no hit)
+            self._object_shape_ids = np.array([dr.reinterpret_array(mi.UInt32, mi.ShapePtr(s))[0] for s in self.scene.shapes() if s.id() in names])
+        if camera != self._centre_camera:
+            p = self._centre_params
+            p["to_world"] = mi.ScalarTransform4f(camera.to_world().tolist())
+            p["x_fov"], p["near_clip"], p["far_clip"] = camera.fov, camera.near, camera.far
+            p.update()
+            self._centre_camera = camera
+        img = np.array(mi.render(self.scene, sensor=self._centre_sensor, integrator=self._integrators["uv"], spp=1), dtype=np.float32)
+        shape = img[..., 5].astype(np.int64)
+        # contiguous copies: per-pixel gathers from them are several times faster than from strided views
+        uv, position = np.ascontiguousarray(img[..., 0:2]), np.ascontiguousarray(img[..., 2:5])
+        return {"uv": uv, "position": position, "mask": shape > 0, "textured": np.isin(shape, self._object_shape_ids)}
 
     def denoise(self, color: np.ndarray, gbuffers: dict[str, np.ndarray]) -> np.ndarray:
         """Intel Open Image Denoise (HDR, albedo- and normal-guided)."""

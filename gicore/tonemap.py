@@ -21,8 +21,13 @@ Y_MAX = 1.0 - 1e-5
 
 
 def tonemap(x: np.ndarray) -> np.ndarray:
-    """Linear radiance (negative values clipped to 0) to display values in [0, 1)."""
-    x = np.maximum(np.asarray(x, dtype=np.float32), 0.0)
+    """Linear radiance (negative values clipped to 0) to display values in [0, 1).
+
+    NaN/Inf input is an upstream bug (a diverged network, a broken render) and is rejected."""
+    x = np.asarray(x, dtype=np.float32)
+    if not np.all(np.isfinite(x)):
+        raise ValueError("tonemap input contains NaN or Inf; check the renderer or network that produced it")
+    x = np.maximum(x, 0.0)
     return (x / (1.0 + x)) ** (1.0 / GAMMA)
 
 

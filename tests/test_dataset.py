@@ -1,0 +1,331 @@
+"""Dataset format and builder: determinism, resumability, settings guard, buffers, light records (SPEC §3)."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from gicore.buffers import STORAGE_DTYPE
+from gicore.camera import Camera
+from gicore.dataset import DatasetMeta, frame_paths, load_frame, read_meta, save_frame
+from gicore.dataset_cli import DatasetConfig, build_dataset, frame_seed, plan_frames
+
+RES = 24
+CFG = DatasetConfig(n_train=2, n_val=1, resolution=RES, spp=4, denoise=False, seed=0)
+
+
+def npz_arrays(root: Path) -> dict[str, dict[str, np.ndarray]]:
+    out = {}
+    for path in sorted(root.rglob("*.npz")):
+        with np.load(path) as data:
+            out[str(path.relative_to(root))] = {k: data[k] for k in data.files}
+    return out
+
+
+@pytest.fixture(scope="module")
+def moving_spec(make_spec):
+    return make_spec(light={"amplitude": [0.6, 0.3], "period": [40.0, 60.0]})
+
+
+@pytest.fixture(scope="module")
+def static_spec(make_spec):
+    return make_spec(light={"amplitude": [0.0, 0.0]})
+
+
+@pytest.fixture(scope="module")
+def base_dataset(moving_spec, tmp_path_factory):
+    root = tmp_path_factory.mktemp("ds") / "a"
+    meta = build_dataset(moving_spec, root, CFG, workers=1, progress=False)
+    return root, meta
+
+
+# -- determinism -------------------------------------------------------------------------------------------
+def test_layout_and_meta(base_dataset):
+    root, meta = base_dataset
+    assert sorted(str(p.relative_to(root)) for p in root.rglob("*") if p.is_file()) == [
+        "meta.json",
+        "train/000000.npz",
+        "train/000001.npz",
+        "val/000000.npz",
+    ]
+    back = read_meta(root)
+    assert back.settings() == meta.settings()
+    assert [(f.split, f.index) for f in back.frames] == [("train", 0), ("train", 1), ("val", 0)]
+    assert [p.name for p in frame_paths(root, "train")] == ["000000.npz", "000001.npz"]
+    # The recorded matrices are the cameras' GL matrices.
+    for rec in back.frames:
+        cam = Camera.from_dict(rec.camera)
+        np.testing.assert_allclose(rec.view, cam.view())
+        np.testing.assert_allclose(rec.proj, cam.proj())
+        assert cam.width == cam.height == RES
+    # Validation cameras are held out: not on the training path.
+    val_origin = np.array(back.split_frames("val")[0].camera["origin"])
+    assert all(np.linalg.norm(val_origin - np.array(f.camera["origin"])) > 1e-3 for f in back.split_frames("train"))
+
+
+def test_stored_buffers_and_precision(base_dataset):
+    root, meta = base_dataset
+    frame = npz_arrays(root)["train/000000.npz"]
+    assert list(frame) == list(CFG.buffers)
+    for name, arr in frame.items():
+        assert arr.dtype == STORAGE_DTYPE[name], name
+        assert arr.shape[:2] == (RES, RES)
+        assert np.all(np.isfinite(arr))
+    loaded = load_frame(root / "train/000000.npz")
+    assert all(a.dtype == np.float32 for a in loaded.values())
+    assert list(load_frame(root / "train/000000.npz", ["gt"])) == ["gt"]
+
+
+def test_same_seed_gives_identical_arrays(base_dataset, moving_spec, tmp_path):
+    root_a, meta_a = base_dataset
+    root_b = tmp_path / "b"
+    meta_b = build_dataset(moving_spec, root_b, CFG, workers=1, progress=False)
+    assert meta_a.to_dict() == meta_b.to_dict()
+    a, b = npz_arrays(root_a), npz_arrays(root_b)
+    assert list(a) == list(b)
+    for file in a:
+        for name in a[file]:
+            np.testing.assert_array_equal(a[file][name], b[file][name], err_msg=f"{file}:{name}")
+
+
+def test_different_seed_gives_different_noise(base_dataset, moving_spec, tmp_path, renderer):
+    root_a, _ = base_dataset
+    root_c = tmp_path / "c"
+    build_dataset(moving_spec, root_c, replace(CFG, seed=1), workers=1, progress=False)
+    a, c = npz_arrays(root_a), npz_arrays(root_c)
+    for file in a:
+        assert not np.array_equal(a[file]["gt"], c[file]["gt"]), file
+    # The per-frame render seed differs with the dataset seed, split and index ...
+    seeds = {frame_seed(s, split, i) for s in (0, 1) for split in ("train", "val") for i in range(3)}
+    assert len(seeds) == 12
+    # ... and for one and the same camera, different frame seeds give different GT noise.
+    cam = Camera.from_dict(read_meta(root_a).frames[0].camera | {"width": renderer.resolution, "height": renderer.resolution})
+    g0 = renderer.render_frame(cam, buffers=("gt",), spp=4, seed=frame_seed(0, "train", 0))["gt"]
+    g1 = renderer.render_frame(cam, buffers=("gt",), spp=4, seed=frame_seed(1, "train", 0))["gt"]
+    assert not np.array_equal(g0, g1)
+
+
+# -- light records ------------------------------------------------------------------------------------------
+def test_static_light_has_no_light_schedule(static_spec, tmp_path):
+    root = tmp_path / "static"
+    build_dataset(static_spec, root, replace(CFG, n_train=2, n_val=1), workers=1, progress=False)
+    raw = json.loads((root / "meta.json").read_text())
+    assert raw["frames"] and all("light" not in f for f in raw["frames"])
+    assert "light" not in json.dumps(raw["frames"])
+    assert all(f.light is None for f in read_meta(root).frames)
+
+
+def test_moving_light_is_recorded(base_dataset, moving_spec):
+    root, _ = base_dataset
+    raw = json.loads((root / "meta.json").read_text())
+    lights = [f["light"] for f in raw["frames"]]
+    assert all(len(l) == 3 for l in lights)
+    assert lights[0] != lights[1]  # it moves between training frames
+    assert all(l[2] == moving_spec.light.position[2] for l in lights)  # along x and y only
+
+
+def test_plan_frames_light_only_when_moving(static_spec, moving_spec):
+    assert all(r.light is None for r in plan_frames(static_spec, CFG))
+    assert all(r.light is not None for r in plan_frames(moving_spec, CFG))
+
+
+# -- resumability and settings guard ----------------------------------------------------------------------------
+def test_resume_rerenders_only_missing_frames(moving_spec, tmp_path):
+    root = tmp_path / "resume"
+    cfg = replace(CFG, n_train=3, n_val=0)
+    build_dataset(moving_spec, root, cfg, workers=1, progress=False)
+    files = sorted(root.rglob("*.npz"))
+    assert len(files) == 3
+    before = {p: p.stat().st_mtime_ns for p in files}
+    original = npz_arrays(root)
+    victim = root / "train/000001.npz"
+    victim.unlink()
+    with pytest.raises(FileNotFoundError, match="missing"):
+        frame_paths(root, "train")
+    build_dataset(moving_spec, root, cfg, workers=1, progress=False)
+    assert victim.is_file()
+    for p, mtime in before.items():
+        if p != victim:
+            assert p.stat().st_mtime_ns == mtime, f"{p} was rewritten"
+    # The re-rendered frame is bit-identical to the lost one (per-frame seeds).
+    redone = npz_arrays(root)
+    for name, arr in original["train/000001.npz"].items():
+        np.testing.assert_array_equal(arr, redone["train/000001.npz"][name])
+    assert not list(root.rglob("*.tmp*")), "no temporary files left behind"
+    # A complete dataset is a no-op rerun.
+    mtimes = {p: p.stat().st_mtime_ns for p in root.rglob("*.npz")}
+    build_dataset(moving_spec, root, cfg, workers=1, progress=False)
+    assert {p: p.stat().st_mtime_ns for p in root.rglob("*.npz")} == mtimes
+
+
+@pytest.mark.parametrize(
+    "change",
+    [
+        pytest.param(dict(spp=8), id="spp"),
+        pytest.param(dict(resolution=16), id="resolution"),
+        pytest.param(dict(seed=3), id="seed"),
+        pytest.param(dict(buffers=("gt", "di")), id="buffers"),
+        pytest.param(dict(denoise=True), id="denoise"),
+    ],
+)
+def test_refuses_to_mix_settings(base_dataset, moving_spec, change):
+    root, _ = base_dataset
+    before = (root / "meta.json").read_text()
+    with pytest.raises(ValueError, match="other settings"):
+        build_dataset(moving_spec, root, replace(CFG, **change), workers=1, progress=False)
+    assert (root / "meta.json").read_text() == before
+
+
+@pytest.mark.parametrize(
+    "change",
+    [
+        pytest.param(dict(n_train=3), id="n_train"),
+        pytest.param(dict(fov=40.0), id="fov"),
+    ],
+)
+def test_changed_frame_plan_never_leaves_stale_frames(moving_spec, tmp_path, change):
+    """Frame i's camera depends on the frame count and FOV, so a rerun with another count or FOV must
+    either be refused or re-render every frame whose record changed: never keep an image rendered
+    for another camera under the new meta.json."""
+    root = tmp_path / "plan"
+    build_dataset(moving_spec, root, CFG, workers=1, progress=False)
+    new_cfg = replace(CFG, **change)
+    try:
+        build_dataset(moving_spec, root, new_cfg, workers=1, progress=False)
+    except ValueError as err:
+        assert "settings" in str(err)
+        return
+    fresh = tmp_path / "fresh"
+    build_dataset(moving_spec, fresh, new_cfg, workers=1, progress=False)
+    assert read_meta(root).to_dict() == read_meta(fresh).to_dict()
+    a, b = npz_arrays(root), npz_arrays(fresh)
+    assert list(a) == list(b)
+    for file in b:
+        for name in b[file]:
+            np.testing.assert_array_equal(a[file][name], b[file][name], err_msg=f"stale {file}:{name}")
+
+
+def test_refuses_another_scene(base_dataset, make_spec):
+    root, _ = base_dataset
+    with pytest.raises(ValueError, match="other settings"):
+        build_dataset(make_spec(light={"intensity": 3.0, "amplitude": [0.6, 0.3], "period": [40.0, 60.0]}), root, CFG, workers=1, progress=False)
+
+
+# -- buffers ------------------------------------------------------------------------------------------------------
+def test_only_requested_buffers_are_stored(moving_spec, tmp_path):
+    root = tmp_path / "subset"
+    cfg = replace(CFG, n_train=1, n_val=0, buffers=("gt", "depth"))
+    meta = build_dataset(moving_spec, root, cfg, workers=1, progress=False)
+    assert meta.buffers == ["gt", "depth"]
+    with np.load(root / "train/000000.npz") as data:
+        assert sorted(data.files) == ["depth", "gt"]
+        assert data["depth"].shape == (RES, RES, 1)
+    with pytest.raises(KeyError, match="albedo"):
+        load_frame(root / "train/000000.npz", ["gt", "albedo"])
+    with pytest.raises(ValueError, match="unknown buffer"):
+        load_frame(root / "train/000000.npz", ["specular"])
+
+
+DENOISE_SCRIPT = """
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from gicore.dataset import load_frame
+from gicore.dataset_cli import DatasetConfig, build_dataset
+from gicore.paths import camera_path
+from gicore.render import Renderer
+from gicore.scene import SceneSpec
+
+
+def main(mesh, out):
+    spec = SceneSpec.from_dict({"name": "d", "objects": [{"name": "ball", "mesh": mesh}],
+                                "light": {"position": [0.8, 2.6, 1.2], "intensity": 12.0}})
+    # Denoising needs albedo/normal internally, but only gt and depth are asked for.
+    cfg = DatasetConfig(n_train=1, n_val=0, resolution=24, spp=2, denoise=True, buffers=("gt", "depth"))
+    build_dataset(spec, out / "a", cfg, workers=1, progress=False)
+    with np.load(out / "a/train/000000.npz") as d:
+        assert sorted(d.files) == ["depth", "gt"], d.files
+        assert np.all(np.isfinite(d["gt"]))
+    print("built-1", flush=True)
+    # The same process now denoises in-process (as a bench or client would) ...
+    r = Renderer(spec, 24)
+    gt = r.render_frame(camera_path(spec, 1, resolution=24)[0], buffers=("gt",), spp=2, denoise=True)["gt"]
+    assert gt.shape == (24, 24, 3) and np.all(np.isfinite(gt))
+    print("denoised-in-process", flush=True)
+    # ... and then builds another dataset with denoising workers.
+    build_dataset(spec, out / "b", cfg, workers=1, progress=False)
+    a, b = load_frame(out / "a/train/000000.npz")["gt"], load_frame(out / "b/train/000000.npz")["gt"]
+    np.testing.assert_array_equal(a, b)
+    print("built-2", flush=True)
+
+
+if __name__ == "__main__":
+    main(sys.argv[1], Path(sys.argv[2]))
+"""
+
+
+def test_denoised_dataset_and_build_after_in_process_denoise(sphere_mesh_path, tmp_path):
+    """Denoised GT in worker processes, also when the calling process has used the denoiser itself.
+
+    Runs in a subprocess with a timeout (in its own process group, killed on timeout), because a
+    worker forked from a process whose OIDN/Dr.Jit thread pools are running can deadlock.
+    """
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    proc = subprocess.Popen(
+        [sys.executable, "-c", DENOISE_SCRIPT, str(sphere_mesh_path), str(tmp_path)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        start_new_session=True,
+        cwd=Path(__file__).resolve().parents[1],
+    )
+    try:
+        out, _ = proc.communicate(timeout=25)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        out, _ = proc.communicate()
+        pytest.fail(f"build_dataset hung (deadlocked worker?); progress before the hang: {out.split()!r}")
+    assert proc.returncode == 0, out
+    assert out.split()[-3:] == ["built-1", "denoised-in-process", "built-2"], out
+
+
+def test_unknown_buffer_rejected_before_rendering(moving_spec, tmp_path):
+    with pytest.raises(ValueError, match="bogus"):
+        build_dataset(moving_spec, tmp_path / "x", replace(CFG, buffers=("gt", "bogus")), workers=1, progress=False)
+    assert not (tmp_path / "x").exists()
+
+
+def test_save_frame_validation(tmp_path):
+    with pytest.raises(ValueError, match="NaN"):
+        save_frame(tmp_path / "f.npz", {"gt": np.full((4, 4, 3), np.nan, np.float32)})
+    with pytest.raises(ValueError, match="depth"):
+        save_frame(tmp_path / "f.npz", {"depth": np.zeros((4, 4, 3), np.float32)})
+    with pytest.raises(ValueError, match="unknown buffer"):
+        save_frame(tmp_path / "f.npz", {"specular": np.zeros((4, 4, 3), np.float32)})
+    assert not (tmp_path / "f.npz").exists()
+    pos = np.random.default_rng(0).normal(size=(4, 4, 3)).astype(np.float32) * 1e3 + 1e-3
+    save_frame(tmp_path / "f.npz", {"position": pos, "mask": np.ones((4, 4, 1), np.float32)})
+    back = load_frame(tmp_path / "f.npz")
+    np.testing.assert_array_equal(back["position"], pos)  # float32: reprojection needs it exact
+    with pytest.raises(FileNotFoundError, match="missing"):
+        load_frame(tmp_path / "nope.npz")
+
+
+def test_read_meta_errors(tmp_path):
+    with pytest.raises(FileNotFoundError, match="meta.json"):
+        read_meta(tmp_path)
+    (tmp_path / "meta.json").write_text(json.dumps({"format_version": 999}))
+    with pytest.raises(ValueError, match="format_version"):
+        read_meta(tmp_path)
+    with pytest.raises(ValueError, match="split"):
+        DatasetMeta({}, 8, 1, False, 0, ["gt"]).split_frames("test")

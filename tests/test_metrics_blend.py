@@ -1,0 +1,196 @@
+"""Metrics, the tone map and DI/GI composition against hand-computed cases and edge inputs."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from gicore.blend import blend, residual
+from gicore.metrics import all_metrics, psnr, rmse, ssim
+from gicore.tonemap import GAMMA, Y_MAX, from_signed, inverse_tonemap, to_signed, tonemap
+
+RNG = np.random.default_rng(1234)
+
+
+def image(h=32, w=32, c=3):
+    return RNG.uniform(0.0, 1.0, size=(h, w, c))
+
+
+# -- metrics ---------------------------------------------------------------------------------------------
+def test_hand_computed_rmse_psnr():
+    a = np.zeros((16, 16, 3))
+    b = np.full((16, 16, 3), 0.1)
+    assert rmse(a, b) == pytest.approx(0.1)
+    assert psnr(a, b) == pytest.approx(20.0)
+    assert psnr(a, np.full_like(a, 0.01)) == pytest.approx(40.0)
+    assert psnr(a, b, data_range=10.0) == pytest.approx(40.0)
+    # Half the pixels off by 0.2: RMSE = sqrt(0.5 * 0.04).
+    c = a.copy()
+    c[:8] = 0.2
+    assert rmse(a, c) == pytest.approx(math.sqrt(0.02))
+    assert rmse(a, b) == rmse(b, a)
+
+
+def test_identical_images():
+    a = image()
+    m = all_metrics(a, a.copy())
+    assert m["rmse"] == 0.0
+    assert m["psnr"] == math.inf
+    assert m["ssim"] == pytest.approx(1.0)
+    gray = a[..., 0]
+    assert psnr(gray, gray) == math.inf and ssim(gray, gray) == pytest.approx(1.0)
+
+
+@pytest.mark.parametrize("ca,cb", [(0.0, 0.0), (0.5, 0.5), (1.0, 1.0), (0.2, 0.5), (0.0, 1.0)])
+def test_constant_images_have_defined_ssim(ca, cb):
+    a = np.full((24, 24, 3), ca)
+    b = np.full((24, 24, 3), cb)
+    s = ssim(a, b)
+    assert np.isfinite(s)
+    # Zero variance: SSIM reduces to the luminance term (2 mu_a mu_b + C1) / (mu_a^2 + mu_b^2 + C1).
+    c1 = (0.01 * 1.0) ** 2
+    expected = (2 * ca * cb + c1) / (ca**2 + cb**2 + c1)
+    assert s == pytest.approx(expected, abs=1e-6)
+
+
+def test_ssim_hand_computed_contrast_case():
+    a = image()
+    noisy = np.clip(a + RNG.normal(0, 0.05, a.shape), 0, 1)
+    very_noisy = np.clip(a + RNG.normal(0, 0.3, a.shape), 0, 1)
+    assert 1.0 > ssim(a, noisy) > ssim(a, very_noisy) > -1.0
+    assert psnr(a, noisy) > psnr(a, very_noisy)
+    assert ssim(a, noisy) == pytest.approx(ssim(noisy, a))
+
+
+def test_ssim_uses_the_paper_settings():
+    from skimage.metrics import structural_similarity
+
+    a, b = image(), image()
+    ref = structural_similarity(a, b, data_range=1.0, gaussian_weights=True, sigma=1.5, use_sample_covariance=False, channel_axis=-1)
+    assert ssim(a, b) == pytest.approx(ref)
+    # Channels are averaged: a per-channel mean equals the multichannel value.
+    per = [ssim(a[..., i], b[..., i]) for i in range(3)]
+    assert ssim(a, b) == pytest.approx(np.mean(per))
+
+
+@pytest.mark.parametrize("fn", [rmse, psnr, ssim, all_metrics])
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+@pytest.mark.parametrize("which", [0, 1])
+def test_nan_inf_input_rejected(fn, bad, which):
+    imgs = [image(), image()]
+    imgs[which][3, 4, 1] = bad
+    with pytest.raises(ValueError, match="NaN or Inf"):
+        fn(*imgs)
+
+
+def test_shape_mismatch_rejected():
+    with pytest.raises(ValueError, match="shape"):
+        rmse(image(16, 16), image(16, 17))
+    with pytest.raises(ValueError, match="HxW"):
+        ssim(np.zeros(10), np.zeros(10))
+
+
+def test_black_vs_black_and_black_vs_white():
+    black = np.zeros((16, 16, 3))
+    white = np.ones((16, 16, 3))
+    assert all_metrics(black, black) == {"rmse": 0.0, "psnr": math.inf, "ssim": pytest.approx(1.0)}
+    m = all_metrics(black, white)
+    assert m["rmse"] == pytest.approx(1.0) and m["psnr"] == pytest.approx(0.0)
+    assert m["ssim"] == pytest.approx(1e-4 / (1.0 + 1e-4), abs=1e-6)
+
+
+# -- tone map --------------------------------------------------------------------------------------------
+def test_tonemap_roundtrip_wide_range():
+    x = np.logspace(-4, 3, 2000).astype(np.float32)
+    back = inverse_tonemap(tonemap(x))
+    np.testing.assert_allclose(back, x, rtol=1e-3)
+    y = np.linspace(0.0, 0.999, 1001, dtype=np.float32)
+    np.testing.assert_allclose(tonemap(inverse_tonemap(y)), y, atol=1e-5)
+
+
+def test_tonemap_is_monotone_and_bounded():
+    x = np.concatenate([[0.0], np.logspace(-6, 5, 5000)]).astype(np.float32)
+    y = tonemap(x)
+    assert np.all(np.diff(y) >= 0)
+    coarse = tonemap(np.logspace(-4, 3, 200).astype(np.float32))
+    assert np.all(np.diff(coarse) > 0)  # strictly increasing where float32 resolves it
+    assert y[0] == 0.0 and np.all((y >= 0) & (y < 1))
+    assert np.all(np.isfinite(y))
+    yi = np.linspace(0, 1, 500, dtype=np.float32)
+    assert np.all(np.diff(inverse_tonemap(yi)) >= 0)
+
+
+def test_tonemap_hand_values_and_clipping():
+    assert float(tonemap(np.float32(1.0))) == pytest.approx(0.5 ** (1 / GAMMA))
+    assert float(tonemap(np.float32(-3.0))) == 0.0  # negatives clip to black
+    assert float(inverse_tonemap(np.float32(0.0))) == 0.0
+    top = float(inverse_tonemap(np.float32(1.0)))  # clipped at Y_MAX: large but finite
+    assert np.isfinite(top) and top > 1e3
+    assert top == pytest.approx(float(inverse_tonemap(np.float32(Y_MAX))))
+    assert np.isfinite(float(inverse_tonemap(np.float32(2.0))))
+    assert float(tonemap(np.float32(1e30))) <= 1.0
+
+
+def test_tonemap_non_finite_input():
+    # SPEC §9: NaN/Inf inputs are rejected with a clear error. +inf radiance must not silently become
+    # NaN (x / (1 + x) = inf / inf): either reject it or map it to the top of the range.
+    try:
+        top = tonemap(np.array([np.inf], dtype=np.float32))
+    except ValueError:
+        pass
+    else:
+        assert np.all(np.isfinite(top)) and top[0] == pytest.approx(1.0), top
+    with pytest.raises(ValueError, match="NaN"):
+        tonemap(np.array([0.5, np.nan], dtype=np.float32))
+
+
+def test_signed_conversions():
+    y = np.linspace(0, 1, 11)
+    np.testing.assert_allclose(from_signed(to_signed(y)), y)
+    assert to_signed(np.array(0.0)) == -1.0 and to_signed(np.array(1.0)) == 1.0
+    np.testing.assert_array_equal(from_signed(np.array([-5.0, 5.0])), [0.0, 1.0])
+
+
+# -- blending (eq. 1) and residual composition ----------------------------------------------------------------
+def test_blend_endpoints_and_midpoint():
+    di, gi = image() * 4, image() * 4
+    np.testing.assert_allclose(blend(di, gi, 1.0), di, rtol=1e-6)
+    np.testing.assert_allclose(blend(di, gi, 0.0), gi, rtol=1e-6)
+    np.testing.assert_allclose(blend(di, gi, 0.25), 0.25 * di + 0.75 * gi, rtol=1e-6)
+
+
+@pytest.mark.parametrize("tau", [-0.01, 1.01, 2.0, float("nan"), float("inf")])
+def test_blend_tau_outside_unit_interval(tau):
+    with pytest.raises(ValueError, match="tau"):
+        blend(image(), image(), tau)
+
+
+def test_blend_rejects_bad_inputs():
+    bad = image()
+    bad[0, 0, 0] = np.nan
+    with pytest.raises(ValueError, match="gi"):
+        blend(image(), bad, 0.5)
+    with pytest.raises(ValueError, match="shape"):
+        blend(image(8, 8), image(8, 9), 0.5)
+
+
+def test_residual_keeps_di_exact():
+    di = (image() * 3).astype(np.float32)
+    gi = (image() * 3).astype(np.float32)
+    np.testing.assert_array_equal(residual(di, gi, gi.copy()), di)
+    # Indirect light is added, never subtracted.
+    di_of_gi = (gi * 0.5).astype(np.float32)
+    out = residual(di, gi, di_of_gi)
+    np.testing.assert_allclose(out, di + (gi - di_of_gi), rtol=1e-6)
+    assert np.all(residual(di, di_of_gi, gi) == di)  # negative "indirect" clamps to 0
+
+
+def test_residual_rejects_bad_inputs():
+    bad = image()
+    bad[1, 1, 1] = np.inf
+    with pytest.raises(ValueError, match="di_of_gi"):
+        residual(image(), image(), bad)
+    with pytest.raises(ValueError, match="shapes"):
+        residual(image(8, 8), image(8, 8), image(8, 9))
