@@ -61,3 +61,58 @@ def render(out: OutOpt = Path("results"), quick: QuickOpt = False, seed: SeedOpt
     if resolution:
         cfg = RenderBenchConfig(**{**cfg.__dict__, "resolution": resolution})
     typer.echo(f"wrote {run(cfg, out, seed)}")
+
+
+@app.command()
+def warp(
+    out: OutOpt = Path("results"),
+    quick: QuickOpt = False,
+    seed: SeedOpt = 0,
+    scenes: Annotated[str | None, typer.Option(help="comma-separated scene names (default: lung, digestive, vessels on the plane)")] = None,
+    resolution: Annotated[int | None, typer.Option(help="square resolution")] = None,
+) -> None:
+    """Fig. 7: CPU time, CPU load, memory and SSIM of pixel-level vs structure-aware warping."""
+    from bench.warp_bench import WarpBenchConfig, run
+
+    cfg = WarpBenchConfig.quick() if quick else WarpBenchConfig()
+    overrides = ({"scenes": tuple(s.strip() for s in scenes.split(","))} if scenes else {}) | ({"resolution": resolution} if resolution else {})
+    typer.echo(f"wrote {run(WarpBenchConfig(**{**cfg.__dict__, **overrides}), out, seed)}")
+
+
+@app.command()
+def frequency(
+    out: OutOpt = Path("results"),
+    quick: QuickOpt = False,
+    seed: SeedOpt = 0,
+    scene: Annotated[str | None, typer.Option(help="scene name or spec file (default: lung_plane)")] = None,
+    resolution: Annotated[int | None, typer.Option(help="square resolution")] = None,
+    gi_source: Annotated[str | None, typer.Option(help="gt (path-traced stand-in, default) or model")] = None,
+    model: Annotated[Path | None, typer.Option(help="ONNX model for --gi-source model")] = None,
+    inference_ms: Annotated[float | None, typer.Option(help="GI-map cost in the fps instead of the source's measured cost")] = None,
+) -> None:
+    """Table 3: GI-map period k against fps and SSIM, with and without warping, both compositions."""
+    from bench.frequency import FrequencyConfig, run
+
+    cfg = FrequencyConfig.quick() if quick else FrequencyConfig()
+    given = {"scene": scene, "resolution": resolution, "gi_source": gi_source, "model": model, "inference_ms": inference_ms}
+    cfg = FrequencyConfig(**{**cfg.__dict__, **{k: v for k, v in given.items() if v is not None}})
+    typer.echo(f"wrote {run(cfg, out, seed)}")
+    typer.echo((out / "frequency_table.md").read_text())
+
+
+@app.command()
+def fov(
+    out: OutOpt = Path("results"),
+    quick: QuickOpt = False,
+    seed: SeedOpt = 0,
+    scene: Annotated[str | None, typer.Option(help="scene name or spec file (default: lung_plane)")] = None,
+    resolution: Annotated[int | None, typer.Option(help="square resolution")] = None,
+    gi_source: Annotated[str | None, typer.Option(help="gt (path-traced stand-in, default) or model")] = None,
+    model: Annotated[Path | None, typer.Option(help="ONNX model for --gi-source model")] = None,
+) -> None:
+    """Fig. 9 and Fig. 8: GI-camera FOV against GI-map quality and warped quality after camera motion."""
+    from bench.fov import FovConfig, run
+
+    cfg = FovConfig.quick() if quick else FovConfig()
+    given = {"scene": scene, "resolution": resolution, "gi_source": gi_source, "model": model}
+    typer.echo(f"wrote {run(FovConfig(**{**cfg.__dict__, **{k: v for k, v in given.items() if v is not None}}), out, seed)}")

@@ -1,0 +1,159 @@
+"""`bench fov` (paper Fig. 9 and Fig. 8): the GI camera's field of view F_GI against the quality of the GI
+map itself and of the map warped to a camera that has since turned or moved.
+
+At several views along the camera path a GI map is made at the GI camera (FOV F_GI, same position and
+orientation as the local camera) by the configured source -- the generator (``gi_source = "model"``) or
+the path-traced GT stand-in, whose "quality" is only the noise floor of two independent renders -- and
+compared with a path-traced GT at that camera (Fig. 9). Then the local camera (FOV ``local_fov``) turns
+about the vertical axis or moves sideways by several amounts, the map is warped there by each method,
+and the result is compared with the GT at the moved camera (Fig. 8). Without warping the best one can do
+is paste a map made at the local FOV; that reference is reported too. The light stays where it was for
+the map, so the error is the warp's and the FOV's alone.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import defaultdict
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from bench.results import Results
+from gicore.camera import Camera
+
+LABELS = {"structure": "structure-aware", "pixel": "pixel-level", "none": "no warping"}
+
+
+@dataclass(frozen=True)
+class FovConfig:
+    """The parameter grid of one run."""
+
+    scene: str = "lung_plane"
+    resolution: int = 256
+    gi_fovs: tuple[float, ...] = (60.0, 90.0, 120.0)
+    local_fov: float = 60.0
+    base_frames: tuple[int, ...] = (0, 60, 120, 180, 240)
+    orbit_frames: int = 300
+    #: Camera turns (degrees about the vertical axis) and sideways moves (scene units).
+    rotations: tuple[float, ...] = (5.0, 10.0, 20.0, 30.0)
+    translations: tuple[float, ...] = (0.1, 0.2, 0.4)
+    warps: tuple[str, ...] = ("structure", "pixel")
+    spp: int = 64
+    denoise: bool = True
+    gi_source: str = "gt"
+    model: Path | None = None
+
+    @classmethod
+    def quick(cls) -> "FovConfig":
+        return cls(resolution=128, base_frames=(0, 150), rotations=(5.0, 15.0, 30.0), translations=(0.1, 0.3), spp=16)
+
+
+def turned(camera: Camera, degrees: float) -> Camera:
+    """``camera`` turned about the vertical axis through its origin (positive: to the left)."""
+    a = math.radians(degrees)
+    d = np.subtract(camera.target, camera.origin)
+    rot = np.array([[math.cos(a), 0.0, math.sin(a)], [0.0, 1.0, 0.0], [-math.sin(a), 0.0, math.cos(a)]])
+    return Camera(camera.origin, tuple(np.add(camera.origin, rot @ d)), camera.up, camera.fov, camera.near, camera.far, camera.width, camera.height)
+
+
+def moved(camera: Camera, distance: float) -> Camera:
+    """``camera`` moved sideways (along its right vector) by ``distance``, looking the same way."""
+    right = -camera.to_world()[:3, 0]  # Mitsuba's camera x points left
+    shift = distance * right
+    return Camera(tuple(np.add(camera.origin, shift)), tuple(np.add(camera.target, shift)), camera.up, camera.fov, camera.near, camera.far, camera.width, camera.height)
+
+
+def run(cfg: FovConfig, out: Path, seed: int = 0) -> Path:
+    from gicore.metrics import ssim
+    from gicore.paths import camera_path, light_position
+    from gicore.render import Renderer
+    from gicore.scene import load_scene
+    from gicore.tonemap import tonemap
+    from gigan_local.client import ClientConfig, ViewWarp, frame_seed, make_gi_source, render_gt
+
+    res = Results("fov", out, seed, settings=cfg.__dict__)
+    spec = load_scene(cfg.scene)
+    renderer = Renderer(spec, cfg.resolution)
+    source = make_gi_source(ClientConfig(scene=cfg.scene, resolution=cfg.resolution, gi_source=cfg.gi_source, model=cfg.model, spp=cfg.spp, denoise=cfg.denoise, seed=seed), renderer)
+    cams = camera_path(spec, cfg.orbit_frames, seed=seed, fov=cfg.local_fov, resolution=cfg.resolution)
+    motions = [("rotation", r, "deg") for r in cfg.rotations] + [("translation", t, "units") for t in cfg.translations]
+    warps = {m: ViewWarp(m, renderer) for m in cfg.warps}
+    paste = ViewWarp("none", renderer)
+    quality: dict[tuple, list[float]] = defaultdict(list)
+    for b in cfg.base_frames:
+        base = cams[b % cfg.orbit_frames]
+        light = light_position(spec, b)
+        moves = {}  # every moved camera with its DI and tone-mapped GT, shared by all F_GI
+        for kind, amount, _ in motions:
+            cam = turned(base, amount) if kind == "rotation" else moved(base, amount)
+            gt = tonemap(render_gt(renderer, cam, light, cfg.spp, frame_seed(seed, f"gt/{kind}/{amount}", b), cfg.denoise))
+            moves[kind, amount] = (cam, renderer.render_di(cam, light, seed=b), gt)
+        for gi_fov in cfg.gi_fovs:
+            gi = source(base.with_fov(gi_fov), light, b)
+            reference = render_gt(renderer, gi.camera, light, cfg.spp, frame_seed(seed, "gt/gi", b), cfg.denoise)
+            quality["map", gi_fov].append(ssim(tonemap(gi.radiance), tonemap(reference)))
+            for method, warp in warps.items():
+                warp.bind(gi)
+                for kind, amount, _ in motions:
+                    cam, di, ref = moves[kind, amount]
+                    image, valid, _ = warp(cam, di)
+                    quality[method, gi_fov, kind, amount].append(ssim(tonemap(image), ref))
+                    quality["valid", method, gi_fov, kind, amount].append(float(valid.mean()))
+            if gi_fov == cfg.local_fov:
+                paste.bind(gi)
+                for kind, amount, _ in motions:
+                    cam, di, ref = moves[kind, amount]
+                    quality["none", gi_fov, kind, amount].append(ssim(tonemap(paste(cam, di)[0]), ref))
+
+    common = {"resolution": cfg.resolution, "local_fov": cfg.local_fov, "views": len(cfg.base_frames), "spp": cfg.spp, "gi_source": cfg.gi_source}
+    source_label = "generator" if cfg.gi_source == "model" else "GT stand-in"
+    for gi_fov in cfg.gi_fovs:
+        res.add(system=source_label, scene=spec.name, metric="ssim_gi_map", value=float(np.mean(quality["map", gi_fov])), unit="1", stat="mean", gi_fov=gi_fov, **common)
+        for method in (*cfg.warps, "none"):
+            for kind, amount, unit in motions:
+                if (method, gi_fov, kind, amount) not in quality:
+                    continue
+                cfg_row = common | {"gi_fov": gi_fov, "motion": kind, "amount": amount, "amount_unit": unit}
+                res.add(system=LABELS[method], scene=spec.name, metric="ssim_warped", value=float(np.mean(quality[method, gi_fov, kind, amount])), unit="1", stat="mean", **cfg_row)
+                if method != "none":
+                    res.add(system=LABELS[method], scene=spec.name, metric="valid_fraction", value=float(np.mean(quality["valid", method, gi_fov, kind, amount])), unit="1", stat="mean", **cfg_row)
+    path = res.write()
+    plot(path, out / "fov.png")
+    return path
+
+
+def plot(csv_path: Path, png: Path) -> None:
+    """Fig. 9 (GI-map SSIM against F_GI) and Fig. 8 (warped SSIM, and the share of the frame the GI map
+    covers, against camera motion; one line per method and F_GI)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from bench.results import read_rows
+
+    rows = read_rows(csv_path)
+    fig, axes = plt.subplots(1, 4, figsize=(19, 4.2))
+    maps = sorted((r["config"]["gi_fov"], r["value"]) for r in rows if r["metric"] == "ssim_gi_map")
+    axes[0].plot(*zip(*maps), "-o")
+    axes[0].set_xlabel("GI-camera FOV F_GI [deg]")
+    axes[0].set_ylabel(f"SSIM of the GI map ({next(r['system'] for r in rows if r['metric'] == 'ssim_gi_map')})")
+    panels = (("rotation", "ssim_warped", "SSIM of the warped GI vs GT"), ("translation", "ssim_warped", "SSIM of the warped GI vs GT"), ("rotation", "valid_fraction", "frame covered by the GI map"))
+    for ax, (kind, metric, label) in zip(axes[1:], panels):
+        sel = [r for r in rows if r["metric"] == metric and r["config"]["motion"] == kind]
+        for system, style in (("structure-aware", "-o"), ("pixel-level", "--s"), ("no warping", ":^")):
+            for gi_fov in sorted({r["config"]["gi_fov"] for r in sel}):
+                pts = sorted((r["config"]["amount"], r["value"]) for r in sel if (r["system"], r["config"]["gi_fov"]) == (system, gi_fov))
+                if pts:
+                    ax.plot(*zip(*pts), style, ms=4, label=f"{system}, F_GI {gi_fov:g}°")
+        ax.set_xlabel(f"camera {kind} [{next((r['config']['amount_unit'] for r in sel), '')}]")
+        ax.set_ylabel(label)
+    axes[2].legend(fontsize=6)
+    for ax in axes:
+        ax.grid(alpha=0.3)
+    fig.suptitle("GI-camera FOV: GI-map quality (Fig. 9) and warping after camera motion (Fig. 8)")
+    fig.tight_layout()
+    fig.savefig(png, dpi=120)
+    plt.close(fig)

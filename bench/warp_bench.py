@@ -1,0 +1,228 @@
+"""`bench warp` (paper Fig. 7): CPU cost, load, memory and quality of pixel-level (cloud baking) vs
+structure-aware (GIGAN, Alg. 1) 3D image warping, side by side in one run.
+
+Per scene, GT GI maps (the oracle stand-in for generated maps) are rendered at GI cameras along the
+camera path (FOV ``gi_fov``) and warped to the local cameras ``offsets`` frames later (FOV
+``local_fov``), where they are compared with the path-traced GT. The light stays where it was for the GI
+map, so the error is the warp's alone.
+
+What is timed, per local frame, after a warm-up, ``repeats`` times each, alternating the two methods:
+
+- ``structure-aware``: per-pixel projection, depth-tested bilinear lookup and the fallback for invalid
+  pixels (:mod:`gigan_local.warp`);
+- ``pixel-level``: reprojection of the GI map's point cloud, z-buffered splat and push-pull hole
+  filling (:mod:`baseline_cloudbaking.warp`).
+
+Not in those times: the local render pass that both read their target geometry from (``raster``: uv +
+position for structure-aware, the surface mask for pixel-level; a WebGL client gets it from its DI
+draw) and the once-per-GI-map work (``bind``: structure-aware's texture and per-vertex coordinates,
+pixel-level's unprojection into a point cloud); both are reported on their own.
+CPU % is process CPU time over wall time of each method's timed calls (``time.process_time``, all
+threads; 100 % = one core),
+peak memory the largest numpy allocation total during one call (``tracemalloc``). Also measured: how far
+the interpolated GI-map coordinates land from per-pixel projection of the position AOV, for
+interpolated homogeneous clip coordinates (ours) and for eq. 5's per-vertex uv interpolated directly.
+"""
+
+from __future__ import annotations
+
+import time
+import tracemalloc
+from collections import defaultdict
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from bench.results import Results
+from gicore.camera import Camera
+from gicore.metrics import ssim
+from gicore.paths import camera_path, light_position
+from gicore.scene import load_scene
+from gicore.tonemap import tonemap
+
+SYSTEMS = {"structure": "structure-aware", "pixel": "pixel-level"}
+
+
+@dataclass(frozen=True)
+class WarpBenchConfig:
+    """The parameter grid of one run."""
+
+    scenes: tuple[str, ...] = ("lung_plane", "digestive_plane", "vessels_plane")
+    resolution: int = 256
+    local_fov: float = 60.0
+    gi_fov: float = 90.0
+    #: Frames along the path where GI maps are made, and local frames after each (camera motion).
+    gi_frames: tuple[int, ...] = (0, 100, 200)
+    offsets: tuple[int, ...] = (1, 5, 10, 15, 20, 25, 29)
+    orbit_frames: int = 300
+    spp: int = 64
+    denoise: bool = True
+    repeats: int = 10
+    warmup: int = 2
+
+    @classmethod
+    def quick(cls) -> "WarpBenchConfig":
+        return cls(gi_frames=(0,), offsets=(1, 10, 20, 29), spp=16, repeats=5)
+
+
+def _peak_mib(fn: Callable[[], object]) -> float:
+    """Peak traced allocation (MiB) above the level before one call of ``fn``."""
+    tracemalloc.start()
+    base = tracemalloc.get_traced_memory()[0]
+    fn()
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    return (peak - base) / 2**20
+
+
+def uv_errors(renderer, warper, gi_cam: Camera, local: Camera) -> dict[str, np.ndarray]:
+    """|interpolated - per-pixel projected| GI-map coordinates (px) on pixels in front of the GI camera
+    and inside its map, for homogeneous clip coordinates (the bound state) and per-vertex eq. 5 uv."""
+    uv_pass = renderer.render_uv(local)
+    coords, _ = warper.texel_coords(uv_pass)
+    ref, w = gi_cam.project_pixels(uv_pass["position"].astype(np.float64))
+    inside = uv_pass["textured"] & (w > gi_cam.near) & np.all((ref >= 0) & (ref <= gi_cam.width), axis=-1)
+    out = {"homogeneous clip (ours)": np.abs(coords - ref)[inside].max(axis=-1)}
+    for obj in renderer.objects:  # eq. 5 per vertex, interpolated as is (undefined where w <= 0)
+        uv, _ = gi_cam.project_uv(obj.mesh.vertices)
+        renderer.set_texcoords(obj.name, uv)
+    naive = renderer.render_uv(local)["uv"].astype(np.float64)
+    naive_px = np.stack([naive[..., 0] * gi_cam.width, (1.0 - naive[..., 1]) * gi_cam.height], axis=-1)
+    out["per-vertex uv (eq. 5)"] = np.abs(naive_px - ref)[inside].max(axis=-1)
+    warper.bind(warper.texture)  # restore the homogeneous coordinates
+    return out
+
+
+def run(cfg: WarpBenchConfig, out: Path, seed: int = 0) -> Path:
+    from baseline_cloudbaking.warp import PixelWarp
+    from gicore.render import Renderer
+    from gigan_local.client import GTSource, render_gt
+    from gigan_local.warp import GITexture, StructureAwareWarp
+
+    res = Results("warp", out, seed, settings=cfg.__dict__)
+    common = {"resolution": cfg.resolution, "gi_fov": cfg.gi_fov, "local_fov": cfg.local_fov}
+    for name in cfg.scenes:
+        spec = load_scene(name)
+        renderer = Renderer(spec, cfg.resolution)
+        cams = camera_path(spec, cfg.orbit_frames, seed=seed, fov=cfg.local_fov, resolution=cfg.resolution)
+        source = GTSource(renderer, cfg.spp, cfg.denoise, seed)
+        warper = StructureAwareWarp(renderer)
+        samples: dict[str, list[float]] = defaultdict(list)
+        stages: dict[str, dict[str, list[float]]] = {m: defaultdict(list) for m in SYSTEMS}
+        cpu = {m: [0.0, 0.0, 0] for m in SYSTEMS}  # cpu seconds, wall seconds, calls
+        peaks: dict[str, list[float]] = defaultdict(list)
+        quality: dict[str, list[float]] = defaultdict(list)
+        uv_err: dict[str, list[np.ndarray]] = defaultdict(list)
+        n_vertices = sum(len(o.mesh.vertices) for o in renderer.objects)
+        for g in cfg.gi_frames:
+            light = light_position(spec, g)
+            gi = source(cams[g % cfg.orbit_frames].with_fov(cfg.gi_fov), light, g)
+            t0 = time.perf_counter()
+            warper.bind(GITexture.build(gi.camera, gi.radiance, gi.depth, np.maximum(gi.radiance - gi.di, 0.0)))
+            t1 = time.perf_counter()
+            cloud = PixelWarp(gi.radiance, gi.depth, gi.camera)
+            samples["bind/structure"].append(t1 - t0)
+            samples["bind/pixel"].append(time.perf_counter() - t1)
+            for offset in cfg.offsets:
+                frame = g + offset
+                cam = cams[frame % cfg.orbit_frames]
+                di = renderer.render_di(cam, light, seed=frame)
+                t0 = time.perf_counter()
+                uv_pass = renderer.render_uv(cam)
+                samples["raster"].append(time.perf_counter() - t0)
+                mask = uv_pass["mask"]
+
+                def structure():
+                    return warper.warp(uv_pass, base=di)
+
+                def pixel():
+                    return cloud.warp(cam, target_mask=mask)
+
+                methods = {"structure": structure, "pixel": pixel}
+                for fn in methods.values():
+                    for _ in range(cfg.warmup):
+                        fn()
+                for _ in range(cfg.repeats):
+                    for m, fn in methods.items():  # alternate, so both see the same machine load
+                        c0, t0 = time.process_time(), time.perf_counter()
+                        _, _, t = fn()
+                        wall, c1 = time.perf_counter() - t0, time.process_time()
+                        samples[m].append(wall)
+                        cpu[m][0] += c1 - c0
+                        cpu[m][1] += wall
+                        cpu[m][2] += 1
+                        for stage, ms in t.items():
+                            stages[m][stage].append(ms / 1e3)
+                gt = tonemap(render_gt(renderer, cam, light, cfg.spp, seed + 7919 * frame + 1, cfg.denoise))
+                for m, fn in methods.items():
+                    peaks[m].append(_peak_mib(fn))
+                    gi_w, valid, _ = fn()
+                    quality[f"{m}/ssim"].append(ssim(tonemap(gi_w), gt))
+                    quality[f"{m}/valid"].append(float(valid[mask].mean()) if mask.any() else 1.0)
+                    res.add(system=SYSTEMS[m], scene=name, metric="ssim", value=quality[f"{m}/ssim"][-1], unit="1", offset=offset, gi_frame=g, **common)
+            for method, errors in uv_errors(renderer, warper, gi.camera, cams[(g + cfg.offsets[-1]) % cfg.orbit_frames]).items():
+                uv_err[method].append(errors)
+
+        cfg_row = common | {"repeats": cfg.repeats, "frames": len(cfg.gi_frames) * len(cfg.offsets), "spp": cfg.spp}
+        for m, system in SYSTEMS.items():
+            res.add_timing(system=system, scene=name, metric="warp_time", samples_s=samples[m], **cfg_row)
+            for stage, values in stages[m].items():
+                res.add_timing(system=system, scene=name, metric=f"stage_time:{stage}", samples_s=values, **cfg_row)
+            cpu_s, wall_s, calls = cpu[m]
+            res.add(system=system, scene=name, metric="cpu_time", value=cpu_s / calls * 1e3, unit="ms", stat="mean", **cfg_row)
+            res.add(system=system, scene=name, metric="cpu_percent", value=100.0 * cpu_s / wall_s, unit="%", stat="mean", **cfg_row)
+            res.add(system=system, scene=name, metric="peak_memory", value=float(np.max(peaks[m])), unit="MiB", stat="max", **cfg_row)
+            res.add(system=system, scene=name, metric="ssim", value=float(np.mean(quality[f"{m}/ssim"])), unit="1", stat="mean", **cfg_row)
+            res.add(system=system, scene=name, metric="valid_fraction", value=float(np.mean(quality[f"{m}/valid"])), unit="1", stat="mean", **cfg_row)
+        res.add_timing(system="structure-aware", scene=name, metric="bind_time", samples_s=samples["bind/structure"], vertices=n_vertices, **cfg_row)
+        res.add_timing(system="pixel-level", scene=name, metric="bind_time", samples_s=samples["bind/pixel"], **cfg_row)
+        res.add_timing(system="shared", scene=name, metric="raster_time", samples_s=samples["raster"], **cfg_row)
+        ratio = np.median(samples["pixel"]) / np.median(samples["structure"])
+        res.add(system="pixel/structure", scene=name, metric="time_ratio", value=float(ratio), unit="x", stat="median", **cfg_row)
+        res.add(system="pixel/structure", scene=name, metric="cpu_ratio", value=cpu["pixel"][0] / cpu["pixel"][2] / (cpu["structure"][0] / cpu["structure"][2]), unit="x", stat="mean", **cfg_row)
+        for method, errors in uv_err.items():
+            e = np.concatenate(errors)
+            for stat, value in (("median", np.median(e)), ("p99", np.percentile(e, 99)), ("max", e.max())):
+                res.add(system=method, scene=name, metric="uv_error", value=float(value), unit="px", stat=stat, **cfg_row)
+    path = res.write()
+    plot(path, out / "warp.png")
+    return path
+
+
+def plot(csv_path: Path, png: Path) -> None:
+    """Fig. 7 from the CSV: warp time (median, p95 whisker), CPU %, and SSIM per scene and method."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from bench.results import read_rows
+
+    rows = read_rows(csv_path)
+    scenes = list(dict.fromkeys(r["scene"] for r in rows))
+    systems = list(SYSTEMS.values())
+
+    def value(scene: str, system: str, metric: str, stat: str) -> float:
+        return next((r["value"] for r in rows if (r["scene"], r["system"], r["metric"], r["stat"]) == (scene, system, metric, stat)), float("nan"))
+
+    fig, axes = plt.subplots(1, 3, figsize=(13, 4))
+    x = np.arange(len(scenes))
+    width = 0.38
+    for i, system in enumerate(systems):
+        med = np.array([value(s, system, "warp_time", "median") for s in scenes])
+        p95 = np.array([value(s, system, "warp_time", "p95") for s in scenes])
+        axes[0].bar(x + (i - 0.5) * width, med, width, yerr=[np.zeros_like(med), p95 - med], capsize=3, label=system)
+        axes[1].bar(x + (i - 0.5) * width, [value(s, system, "cpu_percent", "mean") for s in scenes], width, label=system)
+        axes[2].bar(x + (i - 0.5) * width, [value(s, system, "ssim", "mean") for s in scenes], width, label=system)
+    for ax, label in zip(axes, ("warp time per frame [ms] (median, p95)", "process CPU [% of one core]", "SSIM of warped GI vs GT")):
+        ax.set_xticks(x, scenes, fontsize=8)
+        ax.set_ylabel(label)
+        ax.grid(axis="y", alpha=0.3)
+    axes[2].set_ylim(bottom=max(0.0, min(r["value"] for r in rows if r["metric"] == "ssim") - 0.05))
+    axes[0].legend(fontsize=8)
+    fig.suptitle("Pixel-level vs structure-aware 3D image warping (CPU, one process)")
+    fig.tight_layout()
+    fig.savefig(png, dpi=120)
+    plt.close(fig)

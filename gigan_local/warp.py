@@ -1,0 +1,321 @@
+"""Structure-aware 3D image warping (paper V, Algorithm 1, eq. 5).
+
+The GIGAN client re-uses the newest GI map, generated at the GI camera ``C_GI``, at the current local
+camera. Instead of warping the map pixel by pixel (cloud baking, ``baseline_cloudbaking.warp``), the GI
+map becomes a projective texture on the scene's own triangles:
+
+1. **bind** (once per GI map, per vertex): every vertex P of every scene object is transformed by the GI
+   camera, ``clip = M_p · M_v · M_w · P`` (eq. 5; our meshes are stored in world space, so M_w = I), and
+   ``(clip.x, clip.y)`` is uploaded as the vertex texture coordinates (no BVH rebuild).
+2. **raster** (per frame): the local render interpolates them across each triangle with the hit's
+   barycentrics (:meth:`gicore.render.Renderer.render_uv`), in the same pass as the world position.
+3. **project** (per pixel): ``uv = clip.xy / (2 w) + 0.5`` as in eq. 5, with ``w`` (the GI camera's view
+   depth of the pixel's point) computed exactly from the position.
+4. **depth test + lookup**: bilinear lookup in the GI map whose four taps each pass a depth test;
+   the pixel is valid when at least one tap does.
+5. **fill**: invalid pixels get the fallback below.
+
+Why the homogeneous coordinates are interpolated and not eq. 5's per-vertex uv: clip coordinates are
+affine in world position, so barycentric interpolation of them is exact anywhere on a triangle, whereas
+``clip.xy / w`` is not affine (perspective), so interpolating per-vertex uv is wrong inside big triangles
+and undefined at ``w <= 0`` -- the scene's 2-triangle ground plane reaches behind the GI camera. The
+per-pixel divide is what a GPU's projective texturing (``texture2DProj``) does; a pixel whose point has
+``w <= near`` is simply invalid, so no inf/NaN or smeared uv can arise. ``bench warp`` measures both
+against per-pixel projection of the position.
+
+Depth test (occlusion): a tap (GI texel) is accepted when the GI depth map there agrees with the
+pixel's own GI-camera depth ``w``: ``|d_tap - w| <= DEPTH_REL_TOL * w + slack_tap``. ``slack`` is a
+slope-scaled bias as in shadow mapping: the depth change to the next texel along each axis, taking the
+smaller of the two sides so that a silhouette's depth jump does not count as slope. It lets a grazing
+surface (whose depth changes a lot within one texel) pass, while an occluder in front of a surface (a
+relative gap well above the 2 % tolerance) fails. Rejected taps drop out of the bilinear weights, so
+colour never bleeds across a depth edge.
+
+Fallback for invalid pixels (outside the GI frustum, behind the GI camera, occluded in the GI map, or an
+untextured surface such as an area light): the *current* frame's DI (``base``) plus the GI map's indirect
+light (GI minus the DI it was generated with, >= 0) looked up, bilinearly and without depth test, in a
+coarse mip level of it (about ``FALLBACK_TEXELS`` texels across, built once per GI map from surface
+texels only) at the pixel's uv clamped to the map's edge; behind the GI camera, where uv is undefined,
+the map's mean indirect light. Direct light and shadows are then right (they come from this frame's
+render) and only the low-frequency indirect part is extrapolated, which is where a coarse neighbourhood
+average errs least; per frame it costs one gather per invalid pixel, as a GPU mipmap lookup would. Per-
+pixel projection would not help: it finds the same uv and the same occlusion.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from gicore.camera import Camera
+
+if TYPE_CHECKING:
+    from gicore.render import Renderer
+
+#: Relative depth tolerance of the occlusion test (see the module docstring).
+DEPTH_REL_TOL = 0.02
+#: Sub-texel precision of bilinear filtering: weights are rounded to 1/256 as GPU texture units do. It
+#: makes a lookup at a texel centre (up to float32 rounding of the interpolated coordinates) read that
+#: texel exactly, so warping a GI map to its own camera is the identity.
+SUBTEXEL = 256.0
+#: Size (texels across) of the coarse mip level that invalid pixels read their indirect light from.
+FALLBACK_TEXELS = 32
+
+Timings = dict[str, float]
+
+
+def _ms(t0: float) -> float:
+    return (time.perf_counter() - t0) * 1e3
+
+
+def clip_coordinates(camera: Camera, points: np.ndarray) -> np.ndarray:
+    """Homogeneous clip coordinates (..., 4) of world points (..., 3) under ``camera``'s M_p · M_v."""
+    vp = camera.view_proj()
+    return np.asarray(points, dtype=np.float64) @ vp[:, :3].T + vp[:, 3]
+
+
+def depth_slack(depth: np.ndarray) -> np.ndarray:
+    """Per-texel depth change to the next texel, summed over x and y (HxW), the smaller side of each.
+
+    Background texels (depth 0) and their neighbours contribute 0: a jump to the background is an edge,
+    not a slope.
+    """
+    d = np.asarray(depth, dtype=np.float32)
+    pad = np.pad(d, 1, mode="edge")
+    slack = np.zeros_like(d)
+    for lo, hi in (((1, 0), (1, 2)), ((0, 1), (2, 1))):  # (left, right) then (up, down) neighbours
+        a = pad[lo[0] : lo[0] + d.shape[0], lo[1] : lo[1] + d.shape[1]]
+        b = pad[hi[0] : hi[0] + d.shape[0], hi[1] : hi[1] + d.shape[1]]
+        da = np.where(a > 0, np.abs(d - a), np.inf)
+        db = np.where(b > 0, np.abs(d - b), np.inf)
+        step = np.minimum(da, db)
+        slack += np.where(np.isfinite(step), step, 0.0)
+    return np.where(d > 0, slack, 0.0).astype(np.float32)
+
+
+@dataclass(frozen=True)
+class GITexture:
+    """A GI map prepared for lookups, built once per GI map (:meth:`build`).
+
+    ``camera``: the GI camera; ``image``: the map, HxWxC (any channels); ``depth``: the GI camera's linear
+    view depth at texel centres (HxW, 0 = background). Precomputed for the per-frame lookups: ``planes``
+    ((2 + C) x H*W, contiguous), one plane per quantity gathered: each texel's depth minus and plus its
+    slack (``+inf``/``-inf`` on background, so the depth test always fails there), then the C channels;
+    ``coarse`` (h x w x C), the fallback's mip level with ``coarse_step`` texels per coarse texel, and
+    ``mean`` (C), the fallback behind the GI camera.
+    """
+
+    camera: Camera
+    image: np.ndarray
+    depth: np.ndarray
+    planes: np.ndarray
+    coarse: np.ndarray
+    coarse_step: int
+    mean: np.ndarray
+
+    @classmethod
+    def build(cls, camera: Camera, image: np.ndarray, depth: np.ndarray, indirect: np.ndarray | None = None) -> "GITexture":
+        """``indirect`` (HxWxC, default ``image``) is what the fallback extrapolates: the GI map's
+        indirect light when ``image`` is a full GI map that invalid pixels add to their current DI."""
+        image = np.asarray(image, dtype=np.float32)
+        depth = np.asarray(depth, dtype=np.float32)
+        indirect = image if indirect is None else np.asarray(indirect, dtype=np.float32)
+        if image.ndim != 3 or image.shape[:2] != (camera.height, camera.width):
+            raise ValueError(f"GI map must be {camera.height}x{camera.width}xC for its camera, got {image.shape}")
+        if depth.shape != image.shape[:2] or indirect.shape != image.shape:
+            raise ValueError(f"GI depth must be {image.shape[:2]} and indirect {image.shape}, got {depth.shape} and {indirect.shape}")
+        if not (np.all(np.isfinite(image)) and np.all(np.isfinite(depth)) and np.all(np.isfinite(indirect))):
+            raise ValueError("GI map, GI depth or indirect map contains NaN or Inf")
+        slack = depth_slack(depth)
+        hit = depth > 0
+        lo = np.where(hit, depth - slack, np.inf).ravel()
+        hi = np.where(hit, depth + slack, -np.inf).ravel()
+        planes = np.ascontiguousarray(np.concatenate([lo[None], hi[None], image.reshape(-1, image.shape[2]).T]), dtype=np.float32)
+        step = max(1, -(-max(image.shape[:2]) // FALLBACK_TEXELS))
+        coarse, mean = _coarse_level(indirect, hit, step)
+        return cls(camera, image, depth, planes, coarse, step, mean)
+
+
+def _coarse_level(image: np.ndarray, hit: np.ndarray, step: int) -> tuple[np.ndarray, np.ndarray]:
+    """Averages of ``image`` over the ``hit`` texels of ``step`` x ``step`` blocks (blocks without any
+    hit filled from their neighbours), and the mean over all hit texels (0 without any)."""
+    h, w, c = image.shape
+    ph, pw = -h % step, -w % step
+    img = np.pad(image * hit[..., None], ((0, ph), (0, pw), (0, 0)))
+    wgt = np.pad(hit.astype(np.float32), ((0, ph), (0, pw)))
+    hb, wb = img.shape[0] // step, img.shape[1] // step
+    csum = img.reshape(hb, step, wb, step, c).sum(axis=(1, 3))
+    wsum = wgt.reshape(hb, step, wb, step).sum(axis=(1, 3))
+    mean = csum.sum(axis=(0, 1)) / max(float(wsum.sum()), 1.0)
+    return push_pull(csum / np.maximum(wsum, 1.0)[..., None], np.minimum(wsum, 1.0)), mean.astype(np.float32)
+
+
+class StructureAwareWarp:
+    """Algorithm 1 on one renderer: :meth:`bind` a GI map once, then :meth:`warp` it to every frame.
+
+    Binding changes the renderer's vertex texture coordinates, so one renderer serves one bound GI map
+    at a time.
+    """
+
+    def __init__(self, renderer: "Renderer", depth_rel_tol: float = DEPTH_REL_TOL):
+        if not depth_rel_tol >= 0.0:
+            raise ValueError(f"depth_rel_tol must be >= 0, got {depth_rel_tol}")
+        self.renderer = renderer
+        self.depth_rel_tol = float(depth_rel_tol)
+        self.texture: GITexture | None = None
+        self._w_row = np.zeros(4, dtype=np.float32)
+
+    def bind(self, texture: GITexture) -> Timings:
+        """Eq. 5 per vertex: upload every object's GI-camera clip (x, y) as its texture coordinates."""
+        t0 = time.perf_counter()
+        clips = [clip_coordinates(texture.camera, obj.mesh.vertices)[:, :2] for obj in self.renderer.objects]
+        t1 = time.perf_counter()
+        for obj, clip in zip(self.renderer.objects, clips):
+            self.renderer.set_texcoords(obj.name, clip)
+        self.texture = texture
+        self._w_row = texture.camera.view_proj()[3].astype(np.float32)  # clip w = this row . (p, 1)
+        return {"bind_project": (t1 - t0) * 1e3, "bind_upload": _ms(t1)}
+
+    def raster(self, camera: Camera) -> tuple[dict[str, np.ndarray], Timings]:
+        """The local render pass that interpolates the bound coordinates (see ``Renderer.render_uv``)."""
+        t0 = time.perf_counter()
+        uv_pass = self.renderer.render_uv(camera)
+        return uv_pass, {"raster": _ms(t0)}
+
+    def texel_coords(self, uv_pass: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+        """Continuous GI-map pixel coordinates (col, row) (HxWx2, texel centres at +0.5) and GI-camera w
+        (HxW) of every pixel of a :meth:`raster` pass; both 0 where ``w <= near`` or no textured surface
+        was hit."""
+        idx, x, y, w, front = self._project(uv_pass)
+        h, wd = uv_pass["mask"].shape
+        coords = np.zeros((h * wd, 2))
+        ws = np.zeros(h * wd)
+        idx = idx[front]
+        coords[idx, 0], coords[idx, 1], ws[idx] = x[front] + 0.5, y[front] + 0.5, w[front]
+        return coords.reshape(h, wd, 2), ws.reshape(h, wd)
+
+    def _bound(self) -> GITexture:
+        if self.texture is None:
+            raise RuntimeError("no GI map is bound; call bind() first")
+        return self.texture
+
+    def _project(self, uv_pass: dict[str, np.ndarray]) -> tuple[np.ndarray, ...]:
+        """Flat indices of textured pixels; their texel coordinates x, y (texel centres at integers), w,
+        and whether they lie in front of the GI camera (elsewhere x, y are finite but meaningless)."""
+        cam = self._bound().camera
+        idx = np.flatnonzero(uv_pass["textured"])
+        clip = np.take(uv_pass["uv"].reshape(-1, 2), idx, axis=0)
+        p = np.take(uv_pass["position"].reshape(-1, 3), idx, axis=0)
+        a = self._w_row
+        # w exactly from the position rendered in the same pass (GL clip w = GI-camera view depth)
+        w = p[:, 0] * a[0] + p[:, 1] * a[1] + p[:, 2] * a[2] + a[3]
+        front = w > cam.near
+        half_w = 0.5 / np.where(front, w, 1.0)
+        x = (clip[:, 0] * half_w + 0.5) * cam.width - 0.5
+        y = (0.5 - clip[:, 1] * half_w) * cam.height - 0.5
+        return idx, x, y, w, front
+
+    def warp(self, uv_pass: dict[str, np.ndarray], base: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, Timings]:
+        """The bound GI map seen from the camera of ``uv_pass``: (HxWxC image, HxW valid mask, timings).
+
+        ``uv_pass`` must be rendered after :meth:`bind` (e.g. by :meth:`raster`): it carries the bound
+        coordinates. Invalid surface pixels get the fallback (module docstring): ``base`` (the current DI,
+        when the map is a full GI map; omit it for an indirect-only map) plus the coarse indirect light.
+        Background is 0.
+        """
+        tex = self._bound()
+        h, wd = uv_pass["mask"].shape
+        th, tw = tex.depth.shape
+        n_channels = len(tex.planes) - 2
+        if base is not None and base.shape != (h, wd, n_channels):
+            raise ValueError(f"base must be {h}x{wd}x{n_channels}, got {base.shape}")
+        t0 = time.perf_counter()
+        idx, x, y, w, front = self._project(uv_pass)
+        ok = front & (x >= -0.5) & (x <= tw - 0.5) & (y >= -0.5) & (y <= th - 0.5)  # uv in [0, 1]
+        np.clip(x, 0.0, tw - 1, out=x)  # clamp to edge (the fallback reads the clamped uv too)
+        np.clip(y, 0.0, th - 1, out=y)
+        t1 = time.perf_counter()
+
+        x0, y0 = np.floor(x), np.floor(y)
+        fx = np.rint((x - x0) * SUBTEXEL) * (1.0 / SUBTEXEL)
+        fy = np.rint((y - y0) * SUBTEXEL) * (1.0 / SUBTEXEL)
+        xa, ra = x0.astype(np.intp), y0.astype(np.intp) * tw
+        xb, rb = np.minimum(xa + 1, tw - 1), np.minimum(ra + tw, (th - 1) * tw)
+        taps = np.stack([ra + xa, ra + xb, rb + xa, rb + xb])
+        gx, gy = 1.0 - fx, 1.0 - fy
+        weights = np.stack([gx * gy, fx * gy, gx * fy, fx * fy])
+        # |d - w| <= tol * w + slack, written on the precomputed [d - slack, d + slack]
+        weights *= (tex.planes[0].take(taps) <= w * (1.0 + self.depth_rel_tol)) & (tex.planes[1].take(taps) >= w * (1.0 - self.depth_rel_tol))
+        total = weights.sum(axis=0)
+        ok &= total > 0.0
+        weights /= np.where(ok, total, 1.0)  # rejected taps drop out; invalid pixels get weight 0
+        t2 = time.perf_counter()
+
+        out = np.zeros((h * wd, n_channels), dtype=np.float32)
+        for c, plane in enumerate(tex.planes[2:]):
+            out[idx, c] = (plane.take(taps) * weights).sum(axis=0)
+        valid = np.zeros(h * wd, dtype=bool)
+        valid[idx] = ok
+        t3 = time.perf_counter()
+
+        bad = np.flatnonzero(~ok)
+        fallback = self._coarse(tex, x[bad], y[bad])
+        fallback[~front[bad]] = tex.mean  # behind the GI camera uv is undefined
+        invalid = np.concatenate([idx[bad], np.flatnonzero(uv_pass["mask"] & ~uv_pass["textured"])])  # + e.g. an area light
+        fallback = np.concatenate([fallback, np.broadcast_to(tex.mean, (len(invalid) - len(bad), n_channels))])
+        if base is not None:
+            fallback += np.take(base.reshape(-1, n_channels), invalid, axis=0)
+        out[invalid] = fallback
+        t4 = time.perf_counter()
+        timings = {"project": (t1 - t0) * 1e3, "depth_test": (t2 - t1) * 1e3, "lookup": (t3 - t2) * 1e3, "fill": (t4 - t3) * 1e3}
+        return out.reshape(h, wd, -1), valid.reshape(h, wd), timings
+
+    @staticmethod
+    def _coarse(tex: GITexture, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Bilinear lookup (N x C) of the coarse fallback level at texel coordinates x, y."""
+        ch, cw, n_channels = tex.coarse.shape
+        cx = np.clip((x + 0.5) * (1.0 / tex.coarse_step) - 0.5, 0.0, cw - 1)
+        cy = np.clip((y + 0.5) * (1.0 / tex.coarse_step) - 0.5, 0.0, ch - 1)
+        x0, y0 = np.floor(cx), np.floor(cy)
+        fx, fy = cx - x0, cy - y0
+        xa, ra = x0.astype(np.intp), y0.astype(np.intp) * cw
+        xb, rb = np.minimum(xa + 1, cw - 1), np.minimum(ra + cw, (ch - 1) * cw)
+        flat = tex.coarse.reshape(-1, n_channels)
+        out = np.take(flat, ra + xa, axis=0) * ((1 - fx) * (1 - fy))[:, None]
+        for taps, weight in ((ra + xb, fx * (1 - fy)), (rb + xa, (1 - fx) * fy), (rb + xb, fx * fy)):
+            out += np.take(flat, taps, axis=0) * weight[:, None]
+        return out
+
+
+def push_pull(image: np.ndarray, weight: np.ndarray) -> np.ndarray:
+    """Fill pixels of zero ``weight`` (HxW, in [0, 1]) from weighted neighbours by a push-pull pyramid.
+
+    Pull: halve the resolution with weight-normalised 2x2 averages until one pixel is left. Push: from
+    coarse to fine, each pixel keeps ``weight * own + (1 - weight) * coarser``. Pixels of weight 1 are
+    unchanged; holes get smooth values from the nearest valid pixels at every scale. All-zero weight
+    gives zeros.
+    """
+    img = np.asarray(image, dtype=np.float32)
+    wgt = np.clip(np.asarray(weight, dtype=np.float32), 0.0, 1.0)
+    levels: list[tuple[np.ndarray, np.ndarray]] = []
+    col, w = img * wgt[..., None], wgt
+    while max(col.shape[:2]) > 1:
+        levels.append((col, w))
+        h, wd = col.shape[:2]
+        if h % 2 or wd % 2:  # odd sizes: zero-weight padding so 2x2 blocks tile the level
+            col = np.pad(col, ((0, h % 2), (0, wd % 2), (0, 0)))
+            w = np.pad(w, ((0, h % 2), (0, wd % 2)))
+        csum = col[0::2, 0::2] + col[1::2, 0::2] + col[0::2, 1::2] + col[1::2, 1::2]
+        wsum = w[0::2, 0::2] + w[1::2, 0::2] + w[0::2, 1::2] + w[1::2, 1::2]
+        # store colour premultiplied by the (clipped) weight: a texel with any support counts fully
+        w = np.minimum(wsum, 1.0)
+        col = csum * (w / np.maximum(wsum, 1e-12))[..., None]
+    coarse = col / np.maximum(w, 1e-12)[..., None]
+    for col, w in reversed(levels):
+        h, wd = col.shape[:2]
+        up = np.repeat(np.repeat(coarse, 2, axis=0), 2, axis=1)[:h, :wd]
+        coarse = col + (1.0 - w)[..., None] * up  # col is premultiplied by w
+    return coarse

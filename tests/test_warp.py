@@ -1,0 +1,208 @@
+"""Structure-aware (Alg. 1) and pixel-level 3D image warping: identity, benefit over not warping, the
+ground plane behind the GI camera, occlusion, and extreme cameras (SPEC §5, §9)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from baseline_cloudbaking.warp import pixel_warp
+from baseline_cloudbaking.warp import push_pull as baseline_push_pull
+from gicore.camera import Camera
+from gicore.metrics import all_metrics, ssim
+from gicore.tonemap import tonemap
+from gigan_local.client import ClientConfig, GIClient, GIMap, GTSource
+from gigan_local.warp import GITexture, StructureAwareWarp, push_pull
+
+RES = 48
+METHODS = ("structure", "pixel")
+LIGHT = (0.8, 2.6, 1.2)
+EYE, TARGET = (0.0, 1.2, 2.4), (0.0, 0.5, 0.0)
+
+
+@pytest.fixture(scope="module")
+def warp_renderer(make_spec):
+    """Sphere and box on the 2-triangle ground plane, at RES²."""
+    from gicore.render import Renderer
+
+    return Renderer(make_spec(with_box=True), RES)
+
+
+def cam(origin=EYE, target=TARGET, fov=60.0, **kw) -> Camera:
+    return Camera(origin, target, fov=fov, width=RES, height=RES, **kw)
+
+
+def yawed(camera: Camera, degrees: float) -> Camera:
+    """``camera`` turned about the vertical axis through its origin."""
+    a = math.radians(degrees)
+    d = np.subtract(camera.target, camera.origin)
+    rot = np.array([[math.cos(a), 0.0, math.sin(a)], [0.0, 1.0, 0.0], [-math.sin(a), 0.0, math.cos(a)]])
+    return Camera(camera.origin, tuple(np.add(camera.origin, rot @ d)), fov=camera.fov, near=camera.near, far=camera.far, width=RES, height=RES)
+
+
+def texel_depth(renderer, camera: Camera) -> np.ndarray:
+    p = renderer.render_uv(camera)
+    return np.where(p["mask"], camera.view_depth(p["position"]), 0.0).astype(np.float32)
+
+
+def warp_both(method: str, renderer, image: np.ndarray, depth: np.ndarray, gi_cam: Camera, local: Camera):
+    """(warped image, valid mask, the local uv pass) by ``method`` (pixel-level without hole filling)."""
+    if method == "structure":
+        warper = StructureAwareWarp(renderer)
+        warper.bind(GITexture.build(gi_cam, image, depth))
+        uv_pass, _ = warper.raster(local)  # after bind: the pass interpolates the bound coordinates
+        out, valid, timings = warper.warp(uv_pass)
+    else:
+        uv_pass = renderer.render_uv(local)
+        out, valid, timings = pixel_warp(image, depth, gi_cam, local, target_mask=uv_pass["mask"], fill=False)
+    assert timings and all(t >= 0.0 for t in timings.values())
+    return out, valid, uv_pass
+
+
+# -- identity ---------------------------------------------------------------------------------------
+@pytest.mark.parametrize("method", METHODS)
+def test_identical_cameras_give_the_identity(warp_renderer, method):
+    c = cam()
+    image = np.random.default_rng(0).uniform(0.0, 4.0, size=(RES, RES, 6)).astype(np.float32)  # neighbours differ
+    out, valid, uv_pass = warp_both(method, warp_renderer, image, texel_depth(warp_renderer, c), c, c)
+    assert valid[uv_pass["mask"]].mean() > 0.97
+    assert np.max(np.abs(out[valid] - image[valid])) <= 1e-5
+
+
+# -- warping beats not warping --------------------------------------------------------------------------
+class _Fixed:
+    """A GI source that always returns the same map (the GT GI map of v_{t-1})."""
+
+    name = "fixed"
+
+    def __init__(self, gi: GIMap):
+        self.gi = gi
+
+    def __call__(self, camera, light, frame):
+        return self.gi
+
+
+@pytest.fixture(scope="module")
+def gt_source(warp_renderer):
+    return GTSource(warp_renderer, spp=32, denoise=True, seed=3, cache={})
+
+
+@pytest.mark.parametrize("motion", ["rotate5", "rotate15", "translate"])
+@pytest.mark.parametrize("method", METHODS)
+def test_warping_beats_not_warping(warp_renderer, gt_source, method, motion):
+    before = cam()
+    after = {"rotate5": yawed(before, 5.0), "rotate15": yawed(before, 15.0), "translate": cam(origin=(0.35, 1.2, 2.3), target=(0.35, 0.5, -0.1))}[motion]
+    gt = gt_source(after, LIGHT, 1).radiance
+
+    def composed(warp: str) -> np.ndarray:
+        cfg = ClientConfig(warp=warp, resolution=RES, every=100, tau=0.0)
+        gi_fov = cfg.fovs(warp_renderer.spec)[1]
+        client = GIClient(cfg, warp_renderer, _Fixed(gt_source(before.with_fov(gi_fov), LIGHT, 0)))
+        client.step(0, before, LIGHT)
+        return client.step(1, after, LIGHT).image
+
+    warped, pasted = ssim(tonemap(composed(method)), tonemap(gt)), ssim(tonemap(composed("none")), tonemap(gt))
+    assert warped > pasted + 0.01, (warped, pasted)
+
+
+# -- ground plane spanning w = 0 ---------------------------------------------------------------------
+def test_plane_behind_gi_camera_matches_per_pixel_projection(warp_renderer):
+    gi_cam = cam(origin=(0.0, 0.15, 3.0), target=(0.0, 0.15, 0.0), fov=90.0)  # low, looking along the plane
+    ground = next(o for o in warp_renderer.objects if o.name == "ground")
+    _, w_vertices = gi_cam.project_uv(ground.mesh.vertices)
+    assert (w_vertices <= 0).any() and (w_vertices > 0).any(), "the plane's triangles must span w = 0"
+
+    local = yawed(cam(origin=(0.1, 0.2, 2.8), target=(0.1, 0.2, 0.0)), 8.0)
+    depth = texel_depth(warp_renderer, gi_cam)
+    warper = StructureAwareWarp(warp_renderer)
+    warper.bind(GITexture.build(gi_cam, np.ones((RES, RES, 3), np.float32), depth))
+    uv_pass = warp_renderer.render_uv(local)
+    coords, w = warper.texel_coords(uv_pass)
+    expected, w_ref = gi_cam.project_pixels(uv_pass["position"].astype(np.float64))
+    on_ground = uv_pass["textured"] & (np.abs(uv_pass["position"][..., 1]) < 1e-4)
+    front = on_ground & (w_ref > gi_cam.near)
+    assert front.sum() > RES * RES // 10, "the local view must see much of the plane"
+    assert np.all(np.isfinite(coords)) and np.all(np.isfinite(w))
+    np.testing.assert_allclose(w[front], w_ref[front], rtol=1e-5)
+    assert np.max(np.abs(coords[front] - expected[front])) <= 1.0
+
+    out, valid, _ = warper.warp(uv_pass)
+    assert np.all(np.isfinite(out)) and valid[front].mean() > 0.9
+
+
+# -- occlusion ---------------------------------------------------------------------------------------------
+def test_occluded_surface_is_invalid_and_gets_the_fallback(warp_renderer):
+    gi_cam = cam(origin=(0.0, 0.5, 2.0), target=(0.0, 0.5, 0.0), fov=90.0)  # level with the ball
+    local = cam(origin=(1.5, 1.5, 0.5), target=(0.0, 0.0, -0.8))  # from above: sees ground the ball hides
+    depth = texel_depth(warp_renderer, gi_cam)
+    warper = StructureAwareWarp(warp_renderer)
+    # a GI map of 5 whose indirect part is 1 everywhere: the fallback gives base + 1 exactly
+    warper.bind(GITexture.build(gi_cam, np.full((RES, RES, 3), 5.0, np.float32), depth, indirect=np.ones((RES, RES, 3), np.float32)))
+    uv_pass, _ = warper.raster(local)
+    base = np.random.default_rng(4).uniform(size=(RES, RES, 3)).astype(np.float32)
+    out, valid, timings = warper.warp(uv_pass, base=base)
+    assert set(timings) == {"project", "depth_test", "lookup", "fill"}
+    np.testing.assert_allclose(out[valid], 5.0, rtol=1e-6)
+    hole = uv_pass["mask"] & ~valid
+    np.testing.assert_allclose(out[hole], base[hole] + 1.0, rtol=1e-6)
+    assert np.all(out[~uv_pass["mask"]] == 0.0)
+
+    # Ground truth: a local pixel is clearly occluded when all four GI texels around its projection hold
+    # something at least 20 % nearer to the GI camera than the pixel's own point.
+    px, w = gi_cam.project_pixels(uv_pass["position"].astype(np.float64))
+    x0 = np.clip(np.floor(px[..., 0] - 0.5).astype(int), 0, RES - 2)
+    y0 = np.clip(np.floor(px[..., 1] - 0.5).astype(int), 0, RES - 2)
+    taps = np.stack([depth[y0, x0], depth[y0, x0 + 1], depth[y0 + 1, x0], depth[y0 + 1, x0 + 1]])
+    inside = (px[..., 0] >= 0) & (px[..., 0] <= RES) & (px[..., 1] >= 0) & (px[..., 1] <= RES) & (w > gi_cam.near)
+    occluded = uv_pass["textured"] & inside & np.all((taps > 0) & (taps < 0.8 * w), axis=0)
+    assert occluded.sum() >= 10, "the scene must hide some of the local view from the GI camera"
+    assert not valid[occluded].any()
+    # ...and visible when the texel it projects into holds its own point (within 1 %)
+    nearest = depth[np.clip(px[..., 1].astype(int), 0, RES - 1), np.clip(px[..., 0].astype(int), 0, RES - 1)]
+    visible = uv_pass["textured"] & inside & (np.abs(nearest - w) < 0.01 * w)
+    assert visible.sum() >= 10 and valid[visible].mean() > 0.95, "pixels the GI camera sees stay valid"
+
+
+# -- extreme inputs ----------------------------------------------------------------------------------------
+@pytest.mark.parametrize("method", METHODS)
+def test_extreme_camera_black_map_zero_motion_is_finite(warp_renderer, method):
+    c = cam(fov=170.0, near=1e-4, far=1e4)
+    black = np.zeros((RES, RES, 3), np.float32)
+    out, valid, uv_pass = warp_both(method, warp_renderer, black, texel_depth(warp_renderer, c), c, c)
+    assert np.all(np.isfinite(out)) and valid.any()
+    di = warp_renderer.render_di(c, LIGHT)
+    if method == "structure":  # with the fallback's base: the current DI
+        warper = StructureAwareWarp(warp_renderer)
+        warper.bind(GITexture.build(c, black, texel_depth(warp_renderer, c)))
+        out, _, _ = warper.warp(warper.raster(c)[0], base=di)
+    assert np.all(np.isfinite(out))
+    metrics = all_metrics(tonemap(out), tonemap(di))
+    assert all(math.isfinite(v) or v == math.inf for v in metrics.values())
+    assert math.isfinite(metrics["ssim"])
+
+
+def test_push_pull_keeps_valid_pixels_and_fills_holes():
+    rng = np.random.default_rng(1)
+    image = rng.uniform(size=(37, 21, 2)).astype(np.float32)  # odd sizes
+    weight = (rng.uniform(size=(37, 21)) > 0.7).astype(np.float32)
+    for fill in (push_pull, baseline_push_pull):
+        filled = fill(image, weight.astype(bool)) if fill is baseline_push_pull else fill(image, weight)
+        assert np.all(np.isfinite(filled))
+        np.testing.assert_array_equal(filled[weight == 1], image[weight == 1])
+        assert filled.min() >= image.min() - 1e-6 and filled.max() <= image.max() + 1e-6  # convex combinations
+    assert np.all(push_pull(image, np.zeros((37, 21))) == 0.0)
+    assert np.all(baseline_push_pull(image, np.zeros((37, 21), bool)) == 0.0)
+
+
+def test_bad_inputs_are_rejected(warp_renderer):
+    c = cam()
+    with pytest.raises(ValueError, match="NaN"):
+        GITexture.build(c, np.full((RES, RES, 3), np.nan, np.float32), np.ones((RES, RES)))
+    with pytest.raises(ValueError, match="GI map"):
+        GITexture.build(c, np.zeros((RES + 1, RES, 3)), np.ones((RES + 1, RES)))
+    with pytest.raises(RuntimeError, match="bind"):
+        StructureAwareWarp(warp_renderer).warp(warp_renderer.render_uv(c))
+    with pytest.raises(ValueError, match="NaN"):
+        pixel_warp(np.zeros((RES, RES, 3)), np.full((RES, RES), np.inf), c, c)
