@@ -25,6 +25,7 @@ import time
 import numpy as np
 
 from gicore.camera import Camera
+from gicore.fill import push_pull
 
 #: Largest splat side in pixels (points closer to the target camera than to the GI camera grow).
 MAX_FOOTPRINT = 4
@@ -107,7 +108,7 @@ class PixelWarp:
         t2 = time.perf_counter()
 
         if fill:
-            out = push_pull(out, valid)
+            out = push_pull(out, valid.astype(np.float32))
             if target_mask is not None:
                 out[~target_mask.astype(bool)] = 0.0
         t3 = time.perf_counter()
@@ -119,35 +120,3 @@ def pixel_warp(image: np.ndarray, depth: np.ndarray, source: Camera, target: Cam
     pw = PixelWarp(image, depth, source)
     out, valid, timings = pw.warp(target, target_mask, fill)
     return out, valid, {"unproject": pw.bind_ms} | timings
-
-
-def push_pull(image: np.ndarray, valid: np.ndarray) -> np.ndarray:
-    """Fill the pixels outside ``valid`` (HxW bool) from valid neighbours by a push-pull pyramid.
-
-    Pull: halve the resolution with weight-normalised 2x2 averages until one pixel is left. Push: from
-    coarse to fine, each pixel becomes ``weight * own + (1 - weight) * coarser``. Valid pixels are
-    unchanged (only holes read the next level up); no valid pixel at all gives zeros.
-    """
-    img = np.asarray(image, dtype=np.float32)
-    levels: list[tuple[np.ndarray, np.ndarray]] = []
-    w = valid.astype(np.float32)
-    col = img * w[..., None]  # colour premultiplied by weight
-    while max(col.shape[:2]) > 1:
-        levels.append((col, w))
-        h, wd = col.shape[:2]
-        if h % 2 or wd % 2:  # odd sizes: zero-weight padding so 2x2 blocks tile the level
-            col = np.pad(col, ((0, h % 2), (0, wd % 2), (0, 0)))
-            w = np.pad(w, ((0, h % 2), (0, wd % 2)))
-        csum = col[0::2, 0::2] + col[1::2, 0::2] + col[0::2, 1::2] + col[1::2, 1::2]
-        wsum = w[0::2, 0::2] + w[1::2, 0::2] + w[0::2, 1::2] + w[1::2, 1::2]
-        w = np.minimum(wsum, 1.0)
-        col = csum * (w / np.maximum(wsum, 1e-12))[..., None]
-    coarse = col / np.maximum(w, 1e-12)[..., None]
-    for col, w in reversed(levels[1:]):
-        h, wd = col.shape[:2]
-        up = np.repeat(np.repeat(coarse, 2, axis=0), 2, axis=1)[:h, :wd]
-        coarse = col + (1.0 - w)[..., None] * up
-    out = img.copy()
-    ys, xs = np.nonzero(~valid)  # the finest level: weights are 0 or 1, so only holes change
-    out[ys, xs] = coarse[ys // 2, xs // 2] if levels else 0.0
-    return out

@@ -116,3 +116,27 @@ def fov(
     cfg = FovConfig.quick() if quick else FovConfig()
     given = {"scene": scene, "resolution": resolution, "gi_source": gi_source, "model": model}
     typer.echo(f"wrote {run(FovConfig(**{**cfg.__dict__, **{k: v for k, v in given.items() if v is not None}}), out, seed)}")
+
+
+@app.command()
+def quality(
+    out: OutOpt = Path("results"),
+    quick: QuickOpt = False,
+    seed: SeedOpt = 0,
+    datasets: Annotated[Path, typer.Option(help="root of per-scene datasets (gicore-dataset --out)")] = Path("data/datasets"),
+    model: Annotated[list[str] | None, typer.Option(help="NAME=PATH.onnx, repeatable (default: the shipped GIGAN model)")] = None,
+    scenes: Annotated[str | None, typer.Option(help="comma-separated scene names (default: all paper scenes)")] = None,
+) -> None:
+    """Fig. 6: RMSE/SSIM/PSNR of each model and of DI alone on held-out frames, plus inference ms."""
+    from bench.quality import QualityConfig, run
+
+    cfg = QualityConfig.quick() if quick else QualityConfig()
+    overrides: dict = {"datasets": datasets}
+    if model:
+        pairs = [m.split("=", 1) for m in model]
+        if any(len(p) != 2 for p in pairs):
+            raise typer.BadParameter("--model takes NAME=PATH.onnx")
+        overrides["models"] = {name: Path(path) for name, path in pairs}
+    if scenes:
+        overrides["scenes"] = tuple(s.strip() for s in scenes.split(","))
+    typer.echo(f"wrote {run(QualityConfig(**{**cfg.__dict__, **overrides}), out, seed)}")

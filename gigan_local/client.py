@@ -15,6 +15,9 @@ Along a scene's camera path, every frame the client
 Every stage is timed (ms, one CSV row per frame, columns :data:`FRAME_COLUMNS`); when asked, the composed
 frame is compared with the path-traced GT at the local camera (SSIM/PSNR on tone-mapped images). The GT
 renders for evaluation are not part of any stage time.
+
+The one import against SPEC §1's arrows: ``--warp pixel`` loads cloud baking's pixel-level warp, lazily
+and only for that comparison, so Table 3 can run both warps inside the same client loop.
 """
 
 from __future__ import annotations
@@ -44,7 +47,6 @@ if TYPE_CHECKING:
 
 WARPS = ("structure", "pixel", "none")
 GI_SOURCES = ("model", "gt")
-DEFAULT_MODEL = Path(__file__).parent / "models" / "gigan_default.onnx"
 #: Per-frame CSV columns: stage times in ms (empty where a stage did not run), then quality.
 #: ``valid_frac`` is the fraction of the frame whose GI came from the GI map rather than the fallback or
 #: hole filling (background, with nothing to warp, counts as valid).
@@ -190,10 +192,11 @@ def make_gi_source(cfg: ClientConfig, renderer: "Renderer", cache: dict | None =
     """The configured GI source; ``model`` needs an exported model (``--model`` or the default file)."""
     if cfg.gi_source == "gt":
         return GTSource(renderer, cfg.spp, cfg.denoise, cfg.seed, cache)
+    from gigan_local.inference import DEFAULT_MODEL, GIModel
+
     path = Path(cfg.model or DEFAULT_MODEL)
     if not path.is_file():
         raise FileNotFoundError(f"no GI model at {path}: export one with gigan-export, pass --model, or use --gi-source gt")
-    from gigan_local.inference import GIModel
 
     model = GIModel(path, cfg.threads)
     if model.resolution != renderer.resolution:

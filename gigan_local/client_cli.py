@@ -39,7 +39,7 @@ def main(
     composition: Annotated[str, typer.Option(help="blend (eq. 1) or residual (current DI + warped indirect)")] = "blend",
     warp: Annotated[str, typer.Option(help="structure (Alg. 1), pixel (cloud baking) or none")] = "structure",
     gi_source: Annotated[str, typer.Option(help="model (ONNX generator) or gt (path-traced GT stand-in)")] = "gt",
-    model: Annotated[Path | None, typer.Option(help="ONNX model (default: gigan_local/models/gigan_default.onnx)")] = None,
+    model: Annotated[Path | None, typer.Option(help="ONNX model (default: the shipped gigan_local/models/gigan_default/model_fp16.onnx)")] = None,
     spp: Annotated[int, typer.Option(min=1, help="samples per pixel of path-traced GT renders")] = 64,
     denoise: Annotated[bool, typer.Option("--denoise/--no-denoise", help="OIDN-denoise the GT renders")] = True,
     gt_every: Annotated[int, typer.Option(min=0, help="compare with the GT every N frames (0: never)")] = 0,

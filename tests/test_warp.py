@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 
 from baseline_cloudbaking.warp import pixel_warp
-from baseline_cloudbaking.warp import push_pull as baseline_push_pull
 from gicore.camera import Camera
 from gicore.metrics import all_metrics, ssim
 from gicore.tonemap import tonemap
 from gigan_local.client import ClientConfig, GIClient, GIMap, GTSource
-from gigan_local.warp import GITexture, StructureAwareWarp, push_pull
+from gicore.fill import push_pull
+from gigan_local.warp import GITexture, StructureAwareWarp
 
 RES = 48
 METHODS = ("structure", "pixel")
@@ -187,13 +187,11 @@ def test_push_pull_keeps_valid_pixels_and_fills_holes():
     rng = np.random.default_rng(1)
     image = rng.uniform(size=(37, 21, 2)).astype(np.float32)  # odd sizes
     weight = (rng.uniform(size=(37, 21)) > 0.7).astype(np.float32)
-    for fill in (push_pull, baseline_push_pull):
-        filled = fill(image, weight.astype(bool)) if fill is baseline_push_pull else fill(image, weight)
-        assert np.all(np.isfinite(filled))
-        np.testing.assert_array_equal(filled[weight == 1], image[weight == 1])
-        assert filled.min() >= image.min() - 1e-6 and filled.max() <= image.max() + 1e-6  # convex combinations
+    filled = push_pull(image, weight)
+    assert np.all(np.isfinite(filled))
+    np.testing.assert_array_equal(filled[weight == 1], image[weight == 1])
+    assert filled.min() >= image.min() - 1e-6 and filled.max() <= image.max() + 1e-6  # convex combinations
     assert np.all(push_pull(image, np.zeros((37, 21))) == 0.0)
-    assert np.all(baseline_push_pull(image, np.zeros((37, 21), bool)) == 0.0)
 
 
 def test_bad_inputs_are_rejected(warp_renderer):

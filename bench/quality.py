@@ -1,0 +1,144 @@
+"""`bench quality` (paper Fig. 6): GI-map quality of GIGAN, Deep Shading, Deep Illumination and DI alone.
+
+Every model is an exported ONNX generator (``gigan-export``) run by onnxruntime exactly as the client
+runs it, on the held-out validation frames of each scene's dataset. Metrics (RMSE/SSIM/PSNR, SPEC §3)
+compare tone-mapped predictions with tone-mapped path-traced GT; "di_only" scores the DI input itself
+(what a client without GI shows). Inference time is the median of repeated ``predict`` calls after
+warm-up, so each model is also a point of error against run time (width and precision knobs).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from bench.results import Results, read_rows
+from bench.timing import time_repeats
+from gicore.dataset import frame_paths, load_frame, read_meta
+from gicore.metrics import all_metrics
+from gicore.scene import builtin_scenes
+from gicore.tonemap import tonemap
+from gigan_local.inference import DEFAULT_MODEL
+
+UNITS = {"rmse": "1", "ssim": "1", "psnr": "dB"}
+
+
+@dataclass(frozen=True)
+class QualityConfig:
+    """Which models to score on which datasets. ``models`` maps a system name to an ONNX file."""
+
+    datasets: Path = Path("data/datasets")
+    scenes: tuple[str, ...] = tuple(builtin_scenes())
+    models: dict[str, Path] = field(default_factory=lambda: {"gigan": DEFAULT_MODEL})
+    max_frames: int | None = None
+    timing_repeats: int = 20
+    threads: int = 2
+    grid_frames: int = 2
+
+    @classmethod
+    def quick(cls) -> "QualityConfig":
+        return cls(max_frames=3, timing_repeats=5, grid_frames=1)
+
+
+def _model_info(path: Path) -> dict:
+    import json
+
+    doc = json.loads((path.parent / "model.json").read_text())
+    precision = next((k for k, v in doc["files"].items() if v == path.name), "unknown")
+    return {"ngf": doc["ngf"], "precision": precision, "model": doc["model"], "size_mib": round(path.stat().st_size / 2**20, 2)}
+
+
+def run(cfg: QualityConfig, out: Path, seed: int = 0) -> Path:
+    from gigan_local.inference import GIModel
+
+    res = Results("quality", out, seed, settings={k: str(v) for k, v in cfg.__dict__.items()})
+    models = {name: GIModel(path, threads=cfg.threads) for name, path in cfg.models.items()}
+    infos = {name: _model_info(Path(path)) for name, path in cfg.models.items()}
+    grid: list[list[np.ndarray]] = []
+    for scene in cfg.scenes:
+        root = cfg.datasets / scene
+        meta = read_meta(root)
+        paths = frame_paths(root, "val")[: cfg.max_frames]
+        if not paths:
+            raise ValueError(f"{root} has no validation frames; render some with `gicore-dataset {scene} --val N`")
+        scores: dict[str, list[dict[str, float]]] = {"di_only": []} | {name: [] for name in models}
+        for i, path in enumerate(paths):
+            frame = load_frame(path, meta.buffers)
+            reference = tonemap(frame["gt"])
+            outputs = {"di_only": frame["di"]} | {name: m.predict(frame) for name, m in models.items()}
+            for name, radiance in outputs.items():
+                scores[name].append(all_metrics(tonemap(radiance), reference))
+            if i < cfg.grid_frames:
+                grid.append([tonemap(frame["di"]), frame["albedo"], frame["normal"] * 0.5 + 0.5] + [tonemap(outputs[n]) for n in models] + [reference])
+        for name, per_frame in scores.items():
+            config = infos.get(name, {})
+            for metric in UNITS:
+                values = [s[metric] for s in per_frame]
+                res.add(system=name, scene=scene, metric=metric, value=float(np.mean(values)), unit=UNITS[metric], stat="mean", frames=len(values), **config)
+        for name, model in models.items():
+            frame = load_frame(paths[0], meta.buffers)
+            samples, _ = time_repeats(lambda: model.predict(frame), cfg.timing_repeats, warmup=3)
+            res.add_timing(system=name, scene=scene, metric="inference_time", samples_s=samples, threads=cfg.threads, **infos[name])
+    path = res.write()
+    plot(path, out / "quality.png", out / "quality_pareto.png")
+    _save_grid(grid, ["DI", "albedo", "normal", *models, "GT"], out / "quality_grid.png")
+    return path
+
+
+def plot(csv_path: Path, bars_png: Path, pareto_png: Path) -> None:
+    """Fig. 6 style bars per scene and metric; and mean SSIM against inference time per model."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = read_rows(csv_path)
+    scenes = sorted({r["scene"] for r in rows})
+    systems = list(dict.fromkeys(r["system"] for r in rows if r["stat"] == "mean"))
+    fig, axes = plt.subplots(1, 3, figsize=(14, 4))
+    width = 0.8 / len(systems)
+    for ax, metric in zip(axes, UNITS):
+        for j, system in enumerate(systems):
+            vals = [next((r["value"] for r in rows if r["scene"] == s and r["system"] == system and r["metric"] == metric and r["stat"] == "mean"), np.nan) for s in scenes]
+            ax.bar(np.arange(len(scenes)) + j * width, vals, width, label=system)
+        ax.set_xticks(np.arange(len(scenes)) + 0.4 - width / 2, scenes, rotation=25, ha="right", fontsize=7)
+        ax.set_title(f"{metric.upper()} ({'lower' if metric == 'rmse' else 'higher'} is better)")
+        ax.grid(axis="y", alpha=0.3)
+    axes[2].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(bars_png, dpi=120)
+    plt.close(fig)
+
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for system in systems:
+        times = [r["value"] for r in rows if r["system"] == system and r["metric"] == "inference_time" and r["stat"] == "median"]
+        ssims = [r["value"] for r in rows if r["system"] == system and r["metric"] == "ssim"]
+        if times:
+            cfg = next(r["config"] for r in rows if r["system"] == system and r["metric"] == "inference_time")
+            ax.scatter(np.median(times), np.mean(ssims), s=40)
+            ax.annotate(f"{system}\n(ngf {cfg.get('ngf')}, {cfg.get('precision')}, {cfg.get('size_mib')} MiB)", (np.median(times), np.mean(ssims)), fontsize=7)
+    ax.set_xlabel("median onnxruntime inference time per 256² frame [ms]")
+    ax.set_ylabel("mean SSIM over scenes")
+    ax.grid(alpha=0.3)
+    ax.set_title("GI-map error against run time")
+    fig.tight_layout()
+    fig.savefig(pareto_png, dpi=120)
+    plt.close(fig)
+
+
+def _save_grid(rows: list[list[np.ndarray]], labels: list[str], png: Path) -> None:
+    from PIL import Image, ImageDraw
+
+    if not rows:
+        return
+    sheet = np.concatenate([np.concatenate(r, axis=1) for r in rows], axis=0)
+    header = 16
+    img = Image.new("RGB", (sheet.shape[1], sheet.shape[0] + header), "white")
+    img.paste(Image.fromarray((np.clip(sheet, 0, 1) * 255).astype(np.uint8)), (0, header))
+    draw = ImageDraw.Draw(img)
+    w = sheet.shape[1] // len(labels)
+    for i, label in enumerate(labels):
+        draw.text((i * w + 3, 2), label, fill="black")
+    img.save(png)

@@ -1,0 +1,88 @@
+"""Client-side GI inference with onnxruntime (the paper's TensorFlow.js role); needs no torch.
+
+``GIModel`` loads a file written by ``gigan-export`` together with the ``model.json`` beside it, checks
+that the two agree, and turns frame buffers into linear GI radiance with the same encoding as training
+(``gigan_local.preprocess``).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import onnxruntime as ort
+
+from gigan_local.preprocess import InputSpec, frame_to_input, output_to_radiance
+
+MODEL_JSON = "model.json"
+FORMAT = "gigan-onnx/1"
+#: The shipped model (see its MODEL_CARD.md): fp16 weights, half the size of fp32 at the same speed.
+DEFAULT_MODEL = Path(__file__).parent / "models" / "gigan_default" / "model_fp16.onnx"
+
+
+class GIModel:
+    """An exported generator ready to predict GI maps on the CPU.
+
+    ``path`` is a ``.onnx`` file from ``gigan-export`` (``model.json`` must sit beside it); ``threads``
+    sets onnxruntime's intra-op threads; ``warmup`` runs that many dummy inferences so the first real
+    frame is not slowed by lazy initialisation.
+    """
+
+    def __init__(self, path: str | Path, threads: int = 2, warmup: int = 2) -> None:
+        self.path = Path(path)
+        if not self.path.is_file():
+            raise FileNotFoundError(f"model file {self.path} is missing; export one with `gigan-export RUN --out DIR`")
+        config_path = self.path.parent / MODEL_JSON
+        if not config_path.is_file():
+            raise FileNotFoundError(f"{config_path} is missing; keep the model.json that `gigan-export` wrote beside {self.path.name}")
+        try:
+            self.config: dict[str, Any] = json.loads(config_path.read_text())
+            if self.config.get("format") != FORMAT:
+                raise ValueError(f"format is {self.config.get('format')!r}, expected {FORMAT!r}")
+            self.spec = InputSpec.from_dict(self.config["input"])
+            self.resolution = int(self.config["resolution"])
+        except (ValueError, KeyError, TypeError) as e:
+            raise ValueError(f"{config_path} is not a valid gigan model config ({e}); re-export the model with `gigan-export`") from e
+        if threads < 1:
+            raise ValueError(f"threads must be >= 1, got {threads}")
+
+        options = ort.SessionOptions()
+        options.intra_op_num_threads = threads
+        options.inter_op_num_threads = 1
+        options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+        try:
+            self.session = ort.InferenceSession(str(self.path), options, providers=["CPUExecutionProvider"])
+        except Exception as e:  # onnxruntime raises its own exception types for unreadable graphs
+            raise ValueError(f"{self.path} is not a loadable ONNX model ({type(e).__name__}: {e}); re-export it with `gigan-export`") from e
+
+        inputs, outputs = self.session.get_inputs(), self.session.get_outputs()
+        if len(inputs) != 1 or len(outputs) != 1:
+            raise ValueError(f"{self.path} has {len(inputs)} inputs and {len(outputs)} outputs; a gigan generator has one of each")
+        self.input_name = inputs[0].name
+        expected = [self.spec.in_channels, self.resolution, self.resolution]
+        if list(inputs[0].shape[1:]) != expected:
+            raise ValueError(
+                f"{self.path} takes input of shape {inputs[0].shape[1:]} (CxHxW) but {config_path} describes {expected} "
+                f"(buffers {list(self.spec.buffers)} at {self.resolution}px); the model and its model.json do not belong "
+                "together: re-export with `gigan-export` so both come from one run"
+            )
+        for _ in range(warmup):
+            self.session.run(None, {self.input_name: np.zeros((1, *expected), np.float32)})
+
+    @property
+    def buffers(self) -> tuple[str, ...]:
+        """Buffers ``predict`` needs, in channel order."""
+        return self.spec.buffers
+
+    def predict(self, frame_buffers: dict[str, np.ndarray]) -> np.ndarray:
+        """Linear GI radiance (HxWx3 float32) from the frame's buffers (name -> HxWxC linear arrays)."""
+        x = frame_to_input(frame_buffers, self.spec)
+        if x.shape[1:] != (self.resolution, self.resolution):
+            raise ValueError(
+                f"frame buffers are {x.shape[1]}x{x.shape[2]} but the model runs at {self.resolution}x{self.resolution}; "
+                "render the GI-camera buffers at the model's resolution"
+            )
+        y = self.session.run(None, {self.input_name: x[None]})[0][0]
+        return output_to_radiance(y)

@@ -1,0 +1,239 @@
+"""Generator and critic architectures, built by name from a JSON-serialisable :class:`NetworkConfig`.
+
+- ``unet``: the GIGAN / Deep Illumination generator (paper IV.A), layer for layer the pix2pix
+  ``UnetGenerator``: with 3 input channels, ngf 64 and 8 downs it is pix2pix ``unet_256`` (54,413,955
+  parameters).
+- ``patchgan``: Markovian PatchGAN critic (pix2pix ``NLayerDiscriminator``), conditioned on the
+  generator input by channel concatenation. GIGAN uses it without normalisation, because batch norm
+  couples the samples of a batch and so breaks the per-sample gradient penalty (paper IV.A); Deep
+  Illumination keeps pix2pix's batch norm (its original is pix2pix-based and uses no penalty).
+- ``deep_shading``: the Deep Shading generator (Nalbach et al. 2017): a plain CNN U-Net with one 3x3
+  convolution per level and side, leaky ReLU, average-pool down, bilinear up and skip concatenation; no
+  normalisation, no dropout.
+
+Every network maps values in [-1, 1] (``gigan_local.preprocess``); generators end in tanh.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, fields
+from typing import Any
+
+import torch
+from torch import nn
+
+GENERATORS = ("unet", "deep_shading")
+CRITICS = ("patchgan",)
+NORMS = ("batch", "none")
+
+
+@dataclass
+class NetworkConfig:
+    """One network's architecture; stored as JSON beside checkpoints and exported models."""
+
+    #: Architecture name: ``unet`` or ``deep_shading`` (generators), ``patchgan`` (critic).
+    name: str
+    #: Generator input channels (from the buffer list). For the critic: the channels of the condition
+    #: (the generator input) it is given beside the image.
+    in_channels: int
+    #: Image channels: what a generator outputs and what a critic judges.
+    out_channels: int = 3
+    #: Channels of the first layer (pix2pix ``ngf`` for generators, ``ndf`` for critics); deeper layers
+    #: use ``width * min(2**level, 8)``.
+    width: int = 64
+    #: Generators: number of 2x down-samplings (the input side must be divisible by 2**n_down; unet
+    #: with n_down = log2(side) has a 1x1 bottleneck). patchgan: number of stride-2 convolutions
+    #: (pix2pix ``n_layers``), giving n_down + 2 convolutions in all.
+    n_down: int = 8
+    #: Normalisation: ``batch`` (pix2pix BatchNorm; unet, and Deep Illumination's critic) or ``none``.
+    norm: str = "batch"
+    #: unet only: dropout probability in the first ``n_dropout`` up layers after the innermost one
+    #: (they replace the noise input z, paper IV.A); 0 disables it.
+    dropout: float = 0.5
+    #: unet only: how many up layers after the innermost one carry dropout.
+    n_dropout: int = 3
+
+    def __post_init__(self) -> None:
+        if self.name not in GENERATORS + CRITICS:
+            raise ValueError(f"unknown network {self.name!r}; choose one of {list(GENERATORS + CRITICS)}")
+        if self.norm not in NORMS:
+            raise ValueError(f"norm must be one of {list(NORMS)}, got {self.norm!r}")
+        for f in ("in_channels", "out_channels", "width", "n_down"):
+            if int(getattr(self, f)) < 1:
+                raise ValueError(f"{f} must be >= 1, got {getattr(self, f)}")
+        if self.name == "unet" and self.n_down < 2:
+            raise ValueError(f"unet needs n_down >= 2 (an outermost and an innermost layer), got {self.n_down}")
+        if not 0.0 <= self.dropout < 1.0:
+            raise ValueError(f"dropout must be in [0, 1), got {self.dropout}")
+
+    @property
+    def is_generator(self) -> bool:
+        return self.name in GENERATORS
+
+    def check_size(self, side: int) -> None:
+        """Raise ValueError unless this network can run on side x side images."""
+        if not self.is_generator:
+            # Two stride-1 4x4 convs (padding 1) after the strided ones each shrink the map by one pixel.
+            if side < 3 * 2**self.n_down:
+                raise ValueError(f"{self.name} with n_down={self.n_down} needs images of at least {3 * 2**self.n_down} px, got {side}; use a larger --crop")
+            return
+        if side % (2**self.n_down) != 0:
+            raise ValueError(
+                f"{self.name} with n_down={self.n_down} needs image sides divisible by {2**self.n_down}, got {side}; "
+                f"lower n_down (at most {int(math.log2(side & -side))} for this size) or change the size"
+            )
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "NetworkConfig":
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(d) - known)
+        if unknown:
+            raise ValueError(f"unknown network config field(s) {unknown}; known: {sorted(known)}")
+        return cls(**d)
+
+
+def _widths(width: int, n: int) -> list[int]:
+    """Channels per level, doubling up to 8x the first (pix2pix)."""
+    return [width * min(2**i, 8) for i in range(n)]
+
+
+def _norm(kind: str, channels: int) -> list[nn.Module]:
+    return [nn.BatchNorm2d(channels)] if kind == "batch" else []
+
+
+class UnetGenerator(nn.Module):
+    """pix2pix U-Net: down i and up i are joined by a skip (paper: layer i <-> layer N - i).
+
+    Down layer i (i = 0..N-1): [LeakyReLU 0.2], 4x4 stride-2 conv, [BatchNorm] -- no activation before
+    the first, no norm after the first and the innermost. Up layer i (i = N-1..0): ReLU, 4x4 stride-2
+    transposed conv, then BatchNorm (all but the outermost), Dropout (the first ``n_dropout`` after the
+    innermost) or tanh (outermost). Convs followed by BatchNorm carry no bias (as pix2pix; this is what
+    makes the parameter count match).
+    """
+
+    def __init__(self, cfg: NetworkConfig) -> None:
+        super().__init__()
+        n, w = cfg.n_down, _widths(cfg.width, cfg.n_down)
+        bias = cfg.norm == "none"
+        self.downs = nn.ModuleList()
+        for i in range(n):
+            c_in = cfg.in_channels if i == 0 else w[i - 1]
+            layers: list[nn.Module] = [] if i == 0 else [nn.LeakyReLU(0.2)]
+            layers.append(nn.Conv2d(c_in, w[i], kernel_size=4, stride=2, padding=1, bias=bias))
+            if 0 < i < n - 1:
+                layers += _norm(cfg.norm, w[i])
+            self.downs.append(nn.Sequential(*layers))
+        # ups[i] mirrors downs[i]; its input is the innermost feature (i = N-1) or [skip_i, up_{i+1}].
+        self.ups = nn.ModuleList()
+        for i in range(n):
+            c_in = w[i] if i == n - 1 else 2 * w[i]
+            if i == 0:
+                layers = [nn.ReLU(), nn.ConvTranspose2d(c_in, cfg.out_channels, kernel_size=4, stride=2, padding=1), nn.Tanh()]
+            else:
+                layers = [nn.ReLU(), nn.ConvTranspose2d(c_in, w[i - 1], kernel_size=4, stride=2, padding=1, bias=bias)]
+                layers += _norm(cfg.norm, w[i - 1])
+                if cfg.dropout > 0 and n - 1 - cfg.n_dropout <= i < n - 1:
+                    layers.append(nn.Dropout(cfg.dropout))
+            self.ups.append(nn.Sequential(*layers))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        skips = []
+        for down in self.downs:
+            x = down(x)
+            skips.append(x)
+        x = self.ups[-1](skips[-1])
+        for i in range(len(self.ups) - 2, -1, -1):
+            x = self.ups[i](torch.cat([skips[i], x], dim=1))
+        return x
+
+
+class DeepShadingGenerator(nn.Module):
+    """Deep Shading U-Net (Nalbach et al. 2017): one 3x3 conv + leaky ReLU 0.01 per level on each side,
+    2x2 average pooling down, bilinear 2x upsampling, skip concatenation, 1x1 conv + tanh out.
+
+    Its bottom level sits at side / 2**n_down and still convolves, so it wants two levels fewer than the
+    unet. At ngf 64, n_down 6 it has 25.1 M parameters (unet at n_down 8: 54.4 M), but its convs run at
+    the full resolution of each level, so a training step costs several times the unet's at equal ngf.
+    """
+
+    def __init__(self, cfg: NetworkConfig) -> None:
+        super().__init__()
+        w = _widths(cfg.width, cfg.n_down + 1)
+
+        def conv(c_in: int, c_out: int) -> nn.Sequential:
+            return nn.Sequential(nn.Conv2d(c_in, c_out, 3, padding=1), nn.LeakyReLU(0.01))
+
+        self.encoders = nn.ModuleList([conv(cfg.in_channels if i == 0 else w[i - 1], w[i]) for i in range(cfg.n_down + 1)])
+        self.decoders = nn.ModuleList([conv(w[i] + w[i + 1], w[i]) for i in range(cfg.n_down)])
+        self.pool = nn.AvgPool2d(2)
+        self.up = nn.Upsample(scale_factor=2, mode="bilinear", align_corners=False)
+        self.head = nn.Sequential(nn.Conv2d(w[0], cfg.out_channels, 1), nn.Tanh())
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        skips = []
+        for i, enc in enumerate(self.encoders):
+            x = enc(x if i == 0 else self.pool(x))
+            skips.append(x)
+        for i in range(len(self.decoders) - 1, -1, -1):
+            x = self.decoders[i](torch.cat([skips[i], self.up(x)], dim=1))
+        return self.head(x)
+
+
+class PatchCritic(nn.Module):
+    """Markovian PatchGAN (pix2pix NLayerDiscriminator): ``n_down`` 4x4 stride-2 convs, one 4x4
+    stride-1 conv, then a 4x4 conv to one channel; LeakyReLU 0.2 after all but the last; optional
+    BatchNorm after convs 2..n_down+1. Outputs one unbounded score per (70x70 for n_down 3) patch.
+    """
+
+    def __init__(self, cfg: NetworkConfig) -> None:
+        super().__init__()
+        w = _widths(cfg.width, cfg.n_down + 1)
+        bias = cfg.norm == "none"
+        layers: list[nn.Module] = [nn.Conv2d(cfg.in_channels + cfg.out_channels, w[0], 4, stride=2, padding=1), nn.LeakyReLU(0.2)]
+        for i in range(1, cfg.n_down + 1):
+            stride = 2 if i < cfg.n_down else 1
+            layers += [nn.Conv2d(w[i - 1], w[i], 4, stride=stride, padding=1, bias=bias), *_norm(cfg.norm, w[i]), nn.LeakyReLU(0.2)]
+        layers.append(nn.Conv2d(w[-1], 1, 4, stride=1, padding=1))
+        self.model = nn.Sequential(*layers)
+
+    def forward(self, cond: torch.Tensor, image: torch.Tensor) -> torch.Tensor:
+        """Patch scores (Bx1xH'xW') of ``image`` given the generator input ``cond``."""
+        return self.model(torch.cat([cond, image], dim=1))
+
+
+def init_weights(net: nn.Module, gain: float = 0.02) -> nn.Module:
+    """pix2pix 'normal' init: conv weights ~ N(0, gain), BatchNorm weights ~ N(1, gain), biases 0."""
+    for m in net.modules():
+        if isinstance(m, (nn.Conv2d, nn.ConvTranspose2d)):
+            nn.init.normal_(m.weight, 0.0, gain)
+            if m.bias is not None:
+                nn.init.zeros_(m.bias)
+        elif isinstance(m, nn.BatchNorm2d):
+            nn.init.normal_(m.weight, 1.0, gain)
+            nn.init.zeros_(m.bias)
+    return net
+
+
+def define_G(cfg: NetworkConfig) -> nn.Module:
+    """Build and initialise the generator ``cfg.name`` (``unet`` or ``deep_shading``)."""
+    if cfg.name == "unet":
+        return init_weights(UnetGenerator(cfg))
+    if cfg.name == "deep_shading":
+        return init_weights(DeepShadingGenerator(cfg))
+    raise ValueError(f"{cfg.name!r} is not a generator; choose one of {list(GENERATORS)}")
+
+
+def define_D(cfg: NetworkConfig) -> PatchCritic:
+    """Build and initialise the critic ``cfg.name`` (``patchgan``)."""
+    if cfg.name == "patchgan":
+        return init_weights(PatchCritic(cfg))
+    raise ValueError(f"{cfg.name!r} is not a critic; choose one of {list(CRITICS)}")
+
+
+def count_parameters(net: nn.Module) -> int:
+    """Number of trainable parameters."""
+    return sum(p.numel() for p in net.parameters() if p.requires_grad)

@@ -1,0 +1,287 @@
+"""Train GIGAN, Deep Shading or Deep Illumination on dataset folders, within a step and time budget.
+
+A run lives in one output folder::
+
+    config.json     TrainConfig + the NetworkConfig of every network (plain JSON)
+    checkpoint.pt   weights, optimizer states, step/epoch counters, torch RNG state
+    metrics.csv     tidy long rows: run_id, model, epoch, step, split, metric, value, unit
+                    (epoch = epochs completed when the row was written; split "train" rows are
+                    means of the logged losses and step_seconds since the previous train rows)
+
+Validation (whole val frames, generator in eval mode as exported) runs before the first step, after
+every epoch and when the run stops; it scores RMSE/PSNR/SSIM (``gicore.metrics``) on tone-mapped [0, 1]
+images. Data order and crops follow (seed, epoch), and the checkpoint keeps the RNG state, so a
+resumed run continues exactly where a straight run would be. Non-finite or exploding losses and
+non-finite weights stop training with :class:`TrainingDiverged`, keeping the last good checkpoint.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+import time
+from dataclasses import asdict, dataclass, field, fields, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from gicore.metrics import all_metrics
+from gigan_local.config import BUDGET_FIELDS, TrainConfig
+from gigan_local.data import FrameDataset, dataset_resolution, median_foreground_depth
+from gigan_local.models import BaseModel, create_model
+from gigan_local.networks import NetworkConfig
+from gigan_local.preprocess import output_to_display
+
+CHECKPOINT = "checkpoint.pt"
+CONFIG = "config.json"
+METRICS = "metrics.csv"
+METRIC_COLUMNS = ("run_id", "model", "epoch", "step", "split", "metric", "value", "unit")
+UNITS = {"rmse": "1", "psnr": "dB", "ssim": "1", "step_seconds": "s"}
+
+
+class TrainingDiverged(RuntimeError):
+    """Training produced non-finite or exploding losses or weights."""
+
+
+@dataclass
+class RunState:
+    """Where a run stands; saved in the checkpoint."""
+
+    step: int = 0
+    #: Completed epochs; ``batch`` batches of the current epoch are done.
+    epoch: int = 0
+    batch: int = 0
+    #: Running sums of logged losses (and step seconds) over the current epoch, for the epoch means.
+    loss_sums: dict[str, float] = field(default_factory=dict)
+    loss_counts: dict[str, int] = field(default_factory=dict)
+    #: Step of the latest validation (-1: none yet) and how long a validation + checkpoint took.
+    last_val_step: int = -1
+    finish_seconds: float = 0.0
+    #: Metrics of the latest validation.
+    val_metrics: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass
+class TrainResult:
+    """What a call to :func:`train` ended with."""
+
+    step: int
+    epoch: int
+    #: ``epochs``, ``max_steps`` or ``max_minutes``.
+    stop_reason: str
+    val_metrics: dict[str, float]
+    checkpoint: Path
+
+
+def write_run_config(out_dir: Path, cfg: TrainConfig, nets: dict[str, NetworkConfig]) -> None:
+    """Write ``config.json``: the training config and each network's architecture."""
+    doc = {"train": cfg.to_dict(), "networks": {k: v.to_dict() for k, v in nets.items()}}
+    (out_dir / CONFIG).write_text(json.dumps(doc, indent=1))
+
+
+def read_run_config(run_dir: Path) -> tuple[TrainConfig, dict[str, NetworkConfig]]:
+    """Read a run folder's ``config.json`` (see :func:`write_run_config`)."""
+    path = Path(run_dir) / CONFIG
+    if not path.is_file():
+        raise FileNotFoundError(f"{path} is missing; {run_dir} is not a training run folder made by `gigan-train`")
+    doc = json.loads(path.read_text())
+    return TrainConfig.from_dict(doc["train"]), {k: NetworkConfig.from_dict(v) for k, v in doc["networks"].items()}
+
+
+def load_checkpoint(path: Path) -> dict[str, Any]:
+    """Load a checkpoint on the CPU (tensors and plain containers only, no arbitrary pickles)."""
+    if not Path(path).is_file():
+        raise FileNotFoundError(f"checkpoint {path} is missing; train one with `gigan-train`")
+    try:
+        return torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as e:
+        raise ValueError(f"{path} is not a readable checkpoint ({type(e).__name__}: {e}); retrain or restore it") from e
+
+
+def prepare_config(cfg: TrainConfig, out_dir: Path) -> TrainConfig:
+    """Fill the fields derived from the data (resolution, depth scale) and the run id."""
+    roots = [Path(d) for d in cfg.datasets]
+    resolution = dataset_resolution(roots, tuple(cfg.buffers))
+    if cfg.resolution is not None and cfg.resolution != resolution:
+        raise ValueError(f"config says resolution {cfg.resolution} but the datasets are {resolution}x{resolution}")
+    depth_scale = cfg.depth_scale
+    if depth_scale is None:
+        depth_scale = float(f"{median_foreground_depth(roots):.3g}") if "depth" in cfg.buffers else 1.0
+    return replace(cfg, resolution=resolution, depth_scale=depth_scale, run_id=cfg.run_id or Path(out_dir).resolve().name)
+
+
+def _check_resume(saved: TrainConfig, cfg: TrainConfig) -> None:
+    diffs = {
+        f.name: (getattr(saved, f.name), getattr(cfg, f.name))
+        for f in fields(TrainConfig)
+        if f.name not in BUDGET_FIELDS and getattr(saved, f.name) != getattr(cfg, f.name)
+    }
+    if diffs:
+        detail = ", ".join(f"{k}: saved {a!r} vs given {b!r}" for k, (a, b) in diffs.items())
+        raise ValueError(f"--resume may change only {list(BUDGET_FIELDS)}; these differ: {detail}. Start a new run in another folder instead")
+
+
+@torch.no_grad()
+def validate(generator: torch.nn.Module, dataset: FrameDataset, max_frames: int | None = None) -> dict[str, float]:
+    """Mean RMSE/PSNR/SSIM over (evenly spaced, at most ``max_frames``) whole frames, in eval mode."""
+    n = len(dataset) if max_frames is None else min(len(dataset), max_frames)
+    indices = np.unique(np.linspace(0, len(dataset) - 1, n).round().astype(int))
+    was_training = generator.training
+    generator.eval()
+    totals: dict[str, float] = {}
+    for i in indices:
+        x, y = dataset[int(i)]
+        pred = generator(x[None])[0].numpy()
+        for k, v in all_metrics(output_to_display(pred), output_to_display(y.numpy())).items():
+            totals[k] = totals.get(k, 0.0) + v
+    generator.train(was_training)
+    return {k: v / len(indices) for k, v in totals.items()}
+
+
+def _append_rows(path: Path, rows: list[dict[str, Any]]) -> None:
+    new = not path.is_file() or path.stat().st_size == 0
+    with path.open("a", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=METRIC_COLUMNS)
+        if new:
+            writer.writeheader()
+        writer.writerows(rows)
+
+
+def _check_divergence(step: int, losses: dict[str, float], model: BaseModel, cfg: TrainConfig, last_ckpt: str) -> None:
+    advice = f"The last good checkpoint ({last_ckpt}) is kept. Check the data for extreme values or start a new run with a lower --lr."
+    for name, value in losses.items():
+        if not math.isfinite(value):
+            raise TrainingDiverged(f"training diverged at step {step}: loss {name} = {value} (non-finite). {advice}")
+        if abs(value) > cfg.max_abs_loss:
+            raise TrainingDiverged(f"training diverged at step {step}: loss {name} = {value:.4g} exceeds max_abs_loss {cfg.max_abs_loss:g}. {advice}")
+    if not model.parameters_finite():
+        raise TrainingDiverged(f"training diverged at step {step}: the weights became non-finite (losses {losses}). {advice}")
+
+
+def train(cfg: TrainConfig, out_dir: Path, resume: bool = False, progress: bool = True) -> TrainResult:
+    """Train ``cfg.model`` into ``out_dir`` until the first of epochs / max_steps / max_minutes.
+
+    With ``resume``, ``out_dir`` must hold a run whose config equals ``cfg`` except for the budget
+    fields; training continues from its checkpoint (same step counter, optimizer and RNG state).
+    ``max_minutes`` counts from this call's start; a step starts only if the estimated step time plus
+    the measured duration of the last validation + checkpoint still fits before the deadline.
+    """
+    t_start = time.monotonic()
+    out_dir = Path(out_dir)
+    ckpt_path, metrics_path = out_dir / CHECKPOINT, out_dir / METRICS
+    if resume:
+        saved, _ = read_run_config(out_dir)
+        ckpt = load_checkpoint(ckpt_path)
+        filled = replace(
+            cfg,
+            resolution=saved.resolution if cfg.resolution is None else cfg.resolution,
+            depth_scale=saved.depth_scale if cfg.depth_scale is None else cfg.depth_scale,
+            run_id=cfg.run_id or saved.run_id,
+        )
+        cfg = prepare_config(filled, out_dir)
+        _check_resume(saved, cfg)
+    else:
+        if ckpt_path.exists():
+            raise FileExistsError(f"{out_dir} already holds a run; pass --resume to continue it or choose another --out")
+        cfg = prepare_config(cfg, out_dir)
+
+    torch.manual_seed(cfg.seed)
+    roots = [Path(d) for d in cfg.datasets]
+    spec = cfg.input_spec()
+    train_set = FrameDataset(roots, "train", spec, crop=cfg.crop, seed=cfg.seed)
+    val_set = FrameDataset(roots, "val", spec)
+    model = create_model(cfg)
+    state = RunState()
+    if resume:
+        model.load_state_dict(ckpt["model"])
+        state = RunState(**ckpt["state"])
+        torch.set_rng_state(ckpt["torch_rng"])
+    out_dir.mkdir(parents=True, exist_ok=True)
+    write_run_config(out_dir, cfg, model.net_configs)  # on resume: records this invocation's budget
+
+    def row(split: str, metric: str, value: float, unit: str) -> dict[str, Any]:
+        return {"run_id": cfg.run_id, "model": cfg.model, "epoch": state.epoch, "step": state.step, "split": split, "metric": metric, "value": value, "unit": unit}
+
+    def flush_train_means() -> None:
+        rows = [row("train", k, s / state.loss_counts[k], UNITS.get(k, "1")) for k, s in state.loss_sums.items()]
+        if rows:
+            _append_rows(metrics_path, rows)
+        state.loss_sums, state.loss_counts = {}, {}
+
+    saved_step = state.step if resume else -1
+
+    def save() -> None:
+        nonlocal saved_step
+        data = {"model": model.state_dict(), "state": asdict(state), "torch_rng": torch.get_rng_state()}
+        tmp = ckpt_path.with_name(ckpt_path.name + ".tmp")
+        torch.save(data, tmp)
+        os.replace(tmp, ckpt_path)  # atomic: a crash mid-save keeps the previous checkpoint
+        saved_step = state.step
+
+    def finish_work() -> None:
+        """Validate and checkpoint (each unless already done at this step), timing both for the budget."""
+        t = time.monotonic()
+        if state.last_val_step != state.step:
+            state.val_metrics = validate(model.generator, val_set, cfg.max_val_frames)
+            _append_rows(metrics_path, [row("val", k, v, UNITS[k]) for k, v in state.val_metrics.items()])
+            state.last_val_step = state.step
+            state.finish_seconds = time.monotonic() - t
+        if saved_step != state.step:
+            save()
+            state.finish_seconds = time.monotonic() - t
+
+    deadline = math.inf if cfg.max_minutes is None else t_start + 60.0 * cfg.max_minutes
+    if state.last_val_step < 0:
+        finish_work()  # baseline before any step; also measures validation + checkpoint time
+    last_ckpt = f"step {state.step}"
+    steps_per_epoch = math.ceil(len(train_set) / cfg.batch_size)
+    total = cfg.epochs * steps_per_epoch if cfg.max_steps is None else min(cfg.max_steps, cfg.epochs * steps_per_epoch)
+    step_seconds = 0.0
+    stop_reason = ""
+    model.train()
+    with tqdm(total=total, initial=state.step, disable=not progress, desc=f"{cfg.model} {cfg.run_id}", unit="step") as bar:
+        while not stop_reason:
+            if state.epoch >= cfg.epochs:
+                stop_reason = "epochs"
+                break
+            order = np.random.default_rng([cfg.seed, state.epoch]).permutation(len(train_set))
+            train_set.set_epoch(state.epoch)
+            while state.batch < steps_per_epoch:
+                if cfg.max_steps is not None and state.step >= cfg.max_steps:
+                    stop_reason = "max_steps"
+                    break
+                if time.monotonic() + step_seconds + state.finish_seconds > deadline:
+                    stop_reason = "max_minutes"
+                    break
+                t = time.monotonic()
+                idx = order[state.batch * cfg.batch_size : (state.batch + 1) * cfg.batch_size]
+                xs, ys = zip(*(train_set[int(i)] for i in idx))
+                losses = model.optimize((torch.stack(xs), torch.stack(ys)))
+                state.step += 1
+                state.batch += 1
+                _check_divergence(state.step, losses, model, cfg, last_ckpt)
+                dt = time.monotonic() - t
+                step_seconds = dt if step_seconds == 0 else 0.8 * step_seconds + 0.2 * dt
+                for k, v in (losses | {"step_seconds": dt}).items():
+                    state.loss_sums[k] = state.loss_sums.get(k, 0.0) + v
+                    state.loss_counts[k] = state.loss_counts.get(k, 0) + 1
+                bar.update(1)
+                bar.set_postfix({k: f"{v:.3g}" for k, v in losses.items() if k in ("G_L1", "D_W", "G_SSIM")})
+                if cfg.checkpoint_every and state.step % cfg.checkpoint_every == 0:
+                    save()
+                    last_ckpt = f"step {state.step}"
+            if stop_reason:
+                break
+            state.epoch += 1
+            state.batch = 0
+            flush_train_means()
+            finish_work()
+            last_ckpt = f"step {state.step}"
+        flush_train_means()
+        finish_work()
+    return TrainResult(state.step, state.epoch, stop_reason, state.val_metrics, ckpt_path)

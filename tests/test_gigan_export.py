@@ -1,0 +1,140 @@
+"""ONNX export (fp32 / fp16 weights) and the onnxruntime client GIModel."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import onnxruntime as ort
+import pytest
+import torch
+from typer.testing import CliRunner
+
+from gicore.dataset import load_frame
+from gigan_local.export import export_onnx, load_generator
+from gigan_local.export_cli import app
+from gigan_local.inference import GIModel
+from gigan_local.preprocess import frame_to_input, output_to_radiance
+from gigan_local.train import train
+from tests.test_gigan_training import make_dataset, one_thread, tiny_config  # noqa: F401  (autouse fixture)
+
+
+@pytest.fixture(scope="module")
+def exported(tmp_path_factory) -> tuple[Path, Path, Path]:
+    """(dataset, run folder, export folder) of a briefly trained ngf-16 GIGAN at 32 px."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        root = tmp_path_factory.mktemp("gigan_export")
+        dataset = make_dataset(root / "ds")
+        run = root / "run"
+        train(tiny_config(dataset, ngf=16, max_steps=2), run, progress=False)
+        result = CliRunner().invoke(app, [str(run), "--out", str(root / "onnx")])
+    finally:
+        torch.set_num_threads(threads)
+    assert result.exit_code == 0, result.output
+    return dataset, run, root / "onnx"
+
+
+def test_onnx_fp32_matches_torch(exported):
+    _, run, onnx_dir = exported
+    generator, _ = load_generator(run)
+    x = np.random.default_rng(3).uniform(-1, 1, (2, 10, 32, 32)).astype(np.float32)  # batch 2: dynamic batch axis
+    with torch.no_grad():
+        ref = generator(torch.from_numpy(x)).numpy()
+    out = ort.InferenceSession(str(onnx_dir / "model_fp32.onnx"), providers=["CPUExecutionProvider"]).run(None, {"input": x})[0]
+    assert np.abs(out - ref).max() < 1e-4
+    out16 = ort.InferenceSession(str(onnx_dir / "model_fp16.onnx"), providers=["CPUExecutionProvider"]).run(None, {"input": x})[0]
+    assert out16.dtype == np.float32 and np.abs(out16 - ref).max() < 1e-2
+
+
+def test_fp16_file_is_about_half_the_size(exported):
+    _, _, onnx_dir = exported
+    ratio = (onnx_dir / "model_fp16.onnx").stat().st_size / (onnx_dir / "model_fp32.onnx").stat().st_size
+    assert 0.45 < ratio < 0.55
+
+
+def test_model_json_describes_the_model(exported):
+    _, run, onnx_dir = exported
+    doc = json.loads((onnx_dir / "model.json").read_text())
+    assert doc["input"]["buffers"] == ["di", "albedo", "normal", "depth"]
+    assert (doc["in_channels"], doc["resolution"], doc["ngf"], doc["n_down"]) == (10, 32, 16, 5)
+    assert doc["files"] == {"fp32": "model_fp32.onnx", "fp16": "model_fp16.onnx"}
+    assert "tonemap" in doc["tonemap"] and doc["opset"] >= 17
+
+
+@pytest.mark.parametrize("variant", ["model_fp32.onnx", "model_fp16.onnx"])
+def test_gimodel_predicts_linear_radiance_like_torch(exported, variant):
+    dataset, run, onnx_dir = exported
+    model = GIModel(onnx_dir / variant, threads=1)
+    frame = load_frame(dataset / "val" / "000000.npz")
+    radiance = model.predict(frame)
+    assert radiance.shape == (32, 32, 3) and radiance.dtype == np.float32
+    assert np.all(np.isfinite(radiance)) and radiance.min() >= 0
+    generator, _ = load_generator(run)
+    with torch.no_grad():
+        y = generator(torch.from_numpy(frame_to_input(frame, model.spec))[None])[0].numpy()
+    assert np.allclose(radiance, output_to_radiance(y), rtol=1e-2, atol=1e-3)
+
+
+def test_inference_path_does_not_import_torch():
+    code = "import sys, gigan_local.inference; assert 'torch' not in sys.modules, 'torch was imported'"
+    subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def _copy(onnx_dir: Path, dst: Path) -> Path:
+    shutil.copytree(onnx_dir, dst)
+    return dst
+
+
+def test_missing_files_give_clear_errors(exported, tmp_path):
+    _, _, onnx_dir = exported
+    with pytest.raises(FileNotFoundError, match="gigan-export"):
+        GIModel(tmp_path / "nope.onnx")
+    d = _copy(onnx_dir, tmp_path / "m")
+    (d / "model.json").unlink()
+    with pytest.raises(FileNotFoundError, match="model.json"):
+        GIModel(d / "model_fp32.onnx")
+
+
+def test_corrupt_model_file_gives_a_clear_error(exported, tmp_path):
+    _, _, onnx_dir = exported
+    d = _copy(onnx_dir, tmp_path / "m")
+    (d / "model_fp32.onnx").write_bytes(np.random.default_rng(0).bytes(4096))
+    with pytest.raises(ValueError, match="not a loadable ONNX model.*gigan-export"):
+        GIModel(d / "model_fp32.onnx")
+    (d / "model.json").write_text("{not json")
+    with pytest.raises(ValueError, match="not a valid gigan model config"):
+        GIModel(d / "model_fp16.onnx")
+
+
+@pytest.mark.parametrize(("field", "value"), [("input", {"buffers": ["di", "albedo"], "depth_scale": 1.0}), ("resolution", 64)])
+def test_model_and_config_mismatch_gives_a_clear_error(exported, tmp_path, field, value):
+    _, _, onnx_dir = exported
+    d = _copy(onnx_dir, tmp_path / "m")
+    doc = json.loads((d / "model.json").read_text())
+    (d / "model.json").write_text(json.dumps(doc | {field: value}))
+    with pytest.raises(ValueError, match="do not belong together"):
+        GIModel(d / "model_fp32.onnx")
+
+
+def test_frame_of_the_wrong_size_or_buffers_is_refused(exported):
+    dataset, _, onnx_dir = exported
+    model = GIModel(onnx_dir / "model_fp32.onnx", threads=1, warmup=0)
+    frame = load_frame(dataset / "val" / "000000.npz")
+    with pytest.raises(ValueError, match="model runs at 32x32"):
+        model.predict({k: v[:16, :16] for k, v in frame.items()})
+    with pytest.raises(KeyError, match="depth"):
+        model.predict({k: v for k, v in frame.items() if k != "depth"})
+
+
+def test_deep_shading_exports_too(exported, tmp_path):
+    dataset, _, _ = exported
+    train(tiny_config(dataset, model="deep_shading", max_steps=1), tmp_path / "run", progress=False)
+    result = export_onnx(tmp_path / "run", tmp_path / "onnx", fp16=False)
+    assert set(result.files) == {"fp32"} and result.max_abs_diff["fp32"] < 1e-4
+    assert GIModel(result.files["fp32"], threads=1).predict(load_frame(dataset / "val" / "000001.npz")).shape == (32, 32, 3)

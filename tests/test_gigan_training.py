@@ -1,0 +1,233 @@
+"""Training of gigan_local models on tiny synthetic datasets: learning, budgets, resume, divergence."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from typer.testing import CliRunner
+
+from gicore.dataset import DatasetMeta, FrameRecord, save_frame, write_meta
+from gigan_local.config import TrainConfig
+from gigan_local.data import FrameDataset
+from gigan_local.models import GIGAN, create_model
+from gigan_local.preprocess import InputSpec, frame_to_input, frame_to_target, output_to_radiance
+from gigan_local.train import METRIC_COLUMNS, TrainingDiverged, load_checkpoint, read_run_config, train
+from gigan_local.train_cli import app
+
+BUFFERS = ["di", "gt", "albedo", "normal", "depth"]
+
+
+@pytest.fixture(autouse=True)
+def one_thread():
+    """Tiny convolutions run fastest on one thread, and the machine is shared."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+def _smooth(rng: np.random.Generator, res: int, channels: int, cells: int = 4) -> np.ndarray:
+    """A smooth random field in [0, 1] (bilinear upsampling of a cells x cells grid)."""
+    grid = rng.random((cells, cells, channels))
+    pos = np.linspace(0, cells - 1, res)
+    i0 = np.floor(pos).astype(int)
+    i1 = np.minimum(i0 + 1, cells - 1)
+    t = (pos - i0)[:, None, None]
+    rows = grid[i0] * (1 - t) + grid[i1] * t
+    t = t.transpose(1, 0, 2)
+    return (rows[:, i0] * (1 - t) + rows[:, i1] * t).astype(np.float32)
+
+
+def synthetic_frame(rng: np.random.Generator, res: int) -> dict[str, np.ndarray]:
+    """Plausible smooth buffers whose GI is a fixed function of them (so a network can learn it)."""
+    di = 2.0 * _smooth(rng, res, 3)
+    albedo = _smooth(rng, res, 3)
+    normal = 2.0 * _smooth(rng, res, 3) - 1.0
+    normal /= np.linalg.norm(normal, axis=-1, keepdims=True)
+    depth = 1.0 + 3.0 * _smooth(rng, res, 1)
+    gt = di * (0.5 + albedo) + 0.2 * albedo * (normal[..., 2:3] + 1.0)
+    return {"di": di, "gt": gt, "albedo": albedo, "normal": normal, "depth": depth}
+
+
+def make_dataset(root: Path, res: int = 32, n_train: int = 4, n_val: int = 2, seed: int = 0) -> Path:
+    """A gicore dataset folder of synthetic frames."""
+    rng = np.random.default_rng(seed)
+    eye = np.eye(4).tolist()
+    frames = [FrameRecord(split, i, {}, eye, eye) for split, n in (("train", n_train), ("val", n_val)) for i in range(n)]
+    write_meta(root, DatasetMeta(scene={}, resolution=res, spp=1, denoise=False, seed=seed, buffers=BUFFERS, frames=frames))
+    for f in frames:
+        save_frame(root / f.file, synthetic_frame(rng, res))
+    return root
+
+
+def tiny_config(dataset: Path, **kw) -> TrainConfig:
+    return TrainConfig(**({"datasets": [str(dataset)], "ngf": 4, "ndf": 4, "batch_size": 2, "checkpoint_every": 0} | kw))
+
+
+@pytest.fixture
+def dataset(tmp_path: Path) -> Path:
+    return make_dataset(tmp_path / "ds")
+
+
+def read_metrics(run: Path) -> list[dict[str, str]]:
+    with (run / "metrics.csv").open() as f:
+        return list(csv.DictReader(f))
+
+
+def test_preprocess_encodings_and_round_trip():
+    frame = synthetic_frame(np.random.default_rng(1), 16)
+    frame["depth"][:4] = 0.0  # background
+    x = frame_to_input(frame, InputSpec(depth_scale=2.0))
+    assert x.shape == (10, 16, 16) and x.dtype == np.float32
+    assert x.min() >= -1 and x.max() <= 1
+    assert np.all(x[9, :4] == -1.0)  # background depth
+    frame["depth"][4:] = 2.0
+    assert np.allclose(frame_to_input(frame, InputSpec(depth_scale=2.0))[9, 4:], 0.0)
+    assert np.allclose(output_to_radiance(frame_to_target(frame)), frame["gt"], rtol=1e-3, atol=1e-4)
+    frame["di"][0, 0, 0] = np.nan
+    with pytest.raises(ValueError, match="'di' contains NaN"):
+        frame_to_input(frame, InputSpec())
+    with pytest.raises(ValueError, match="cannot be network inputs"):
+        InputSpec(buffers=("di", "position"))
+
+
+def _fixed_batch(n: int, res: int) -> tuple[torch.Tensor, torch.Tensor]:
+    rng = np.random.default_rng(0)
+    frames = [synthetic_frame(rng, res) for _ in range(n)]
+    spec = InputSpec(depth_scale=2.0)
+    return (torch.from_numpy(np.stack([frame_to_input(f, spec) for f in frames])),
+            torch.from_numpy(np.stack([frame_to_target(f) for f in frames])))
+
+
+def test_gigan_halves_l1_on_one_batch():
+    torch.manual_seed(0)
+    model = create_model(TrainConfig(model="gigan", resolution=32, depth_scale=2.0, ngf=8, ndf=8, batch_size=2))
+    model.train()
+    batch = _fixed_batch(2, 32)
+    first = model.optimize(batch)
+    assert set(first) == set(GIGAN.loss_names)
+    assert first["D_GP"] > 0  # the penalty is part of the critic step
+    for _ in range(120):
+        last = model.optimize(batch)
+    assert last["G_L1"] < 0.5 * first["G_L1"]
+
+
+def test_gigan_n_critic_steps_per_generator_step():
+    torch.manual_seed(0)
+    model = create_model(TrainConfig(model="gigan", resolution=32, depth_scale=2.0, ngf=4, ndf=4, batch_size=2, n_critic=2))
+    model.train()
+    batch = _fixed_batch(2, 32)
+    g0 = [p.detach().clone() for p in model.generator.parameters()]
+    assert "G_GAN" not in model.optimize(batch)  # critic only
+    assert all(torch.equal(a, b) for a, b in zip(g0, model.generator.parameters()))
+    assert "G_GAN" in model.optimize(batch)  # critic, then generator
+    assert any(not torch.equal(a, b) for a, b in zip(g0, model.generator.parameters()))
+
+
+@pytest.mark.parametrize("name", ["deep_shading", "deep_illumination"])
+def test_baselines_take_a_step(name):
+    torch.manual_seed(0)
+    model = create_model(TrainConfig(model=name, resolution=32, depth_scale=2.0, ngf=4, ndf=4, batch_size=2))
+    model.train()
+    before = [p.detach().clone() for p in model.generator.parameters()]
+    losses = model.optimize(_fixed_batch(2, 32))
+    assert set(losses) == set(type(model).loss_names)
+    assert all(np.isfinite(v) for v in losses.values())
+    assert any(not torch.equal(a, b) for a, b in zip(before, model.generator.parameters()))
+
+
+def test_train_writes_config_metrics_and_checkpoint(dataset, tmp_path):
+    run = tmp_path / "run"
+    result = train(tiny_config(dataset, max_steps=3), run, progress=False)
+    assert (result.step, result.stop_reason) == (3, "max_steps")
+    assert set(result.val_metrics) == {"rmse", "psnr", "ssim"}
+    cfg, nets = read_run_config(run)
+    assert cfg.resolution == 32 and cfg.depth_scale > 0 and cfg.run_id == "run"
+    assert nets["G"].name == "unet" and nets["G"].n_down == 5 and nets["D"].norm == "none"
+    assert json.loads((run / "config.json").read_text())["networks"]["G"]["in_channels"] == 10
+    rows = read_metrics(run)
+    assert tuple(rows[0]) == METRIC_COLUMNS
+    val = [r for r in rows if r["split"] == "val"]
+    assert {r["step"] for r in val} == {"0", "2", "3"}  # baseline, end of epoch 1 (2 batches), stop
+    assert {r["metric"] for r in val} == {"rmse", "psnr", "ssim"}
+    assert {r["unit"] for r in val if r["metric"] == "psnr"} == {"dB"}
+    assert {"G_L1", "D_GP", "step_seconds"} <= {r["metric"] for r in rows if r["split"] == "train"}
+    assert load_checkpoint(run / "checkpoint.pt")["state"]["step"] == 3
+    with pytest.raises(FileExistsError, match="--resume"):
+        train(tiny_config(dataset, max_steps=3), run, progress=False)
+
+
+def test_resume_continues_exactly(dataset, tmp_path):
+    straight = train(tiny_config(dataset, max_steps=5), tmp_path / "a", progress=False)
+    train(tiny_config(dataset, max_steps=3), tmp_path / "b", progress=False)
+    resumed = train(tiny_config(dataset, max_steps=5, run_id="b"), tmp_path / "b", resume=True, progress=False)
+    assert resumed.step == straight.step == 5
+    wa = load_checkpoint(tmp_path / "a" / "checkpoint.pt")["model"]
+    wb = load_checkpoint(tmp_path / "b" / "checkpoint.pt")["model"]
+    for net in ("G", "D"):
+        for k, v in wa["nets"][net].items():
+            assert torch.equal(v, wb["nets"][net][k]), f"{net}.{k} differs after resume"
+    assert max(int(r["step"]) for r in read_metrics(tmp_path / "b")) == 5
+    with pytest.raises(ValueError, match="ngf"):
+        train(tiny_config(dataset, max_steps=6, ngf=8), tmp_path / "b", resume=True, progress=False)
+
+
+def test_nan_stops_training_with_a_clear_message(dataset, tmp_path, monkeypatch):
+    real_optimize = GIGAN.optimize
+
+    def poisoned(self, batch):
+        if self.critic_steps == 2:  # third step: corrupt a generator weight
+            with torch.no_grad():
+                next(self.generator.parameters()).view(-1)[0] = float("nan")
+        return real_optimize(self, batch)
+
+    monkeypatch.setattr(GIGAN, "optimize", poisoned)
+    with pytest.raises(TrainingDiverged, match=r"step 3: loss \w+ = nan .*checkpoint \(step 2\)"):
+        train(tiny_config(dataset, max_steps=10), tmp_path / "run", progress=False)
+    assert load_checkpoint(tmp_path / "run" / "checkpoint.pt")["state"]["step"] == 2  # last good one kept
+
+
+def test_time_budget_stops_cleanly_with_a_checkpoint(dataset, tmp_path):
+    result = train(tiny_config(dataset, max_minutes=0.0), tmp_path / "run", progress=False)
+    assert (result.stop_reason, result.step) == ("max_minutes", 0)
+    assert (tmp_path / "run" / "checkpoint.pt").is_file() and result.val_metrics
+
+
+def test_crop_training_validates_whole_frames(tmp_path):
+    dataset = make_dataset(tmp_path / "ds64", res=64, n_train=2, n_val=1)
+    train_set = FrameDataset([dataset], "train", InputSpec(depth_scale=2.0), crop=32, seed=0)
+    x, y = train_set[0]
+    assert x.shape == (10, 32, 32) and y.shape == (3, 32, 32)
+    result = train(tiny_config(dataset, crop=32, max_steps=2), tmp_path / "run", progress=False)
+    assert result.step == 2 and result.val_metrics
+    _, nets = read_run_config(tmp_path / "run")
+    assert nets["G"].n_down == 5  # from the crop; the 64-px validation frames still divide by 32
+    with pytest.raises(ValueError, match="at least 24 px"):
+        train(tiny_config(dataset, crop=16), tmp_path / "run16", progress=False)
+
+
+def test_dataset_without_a_needed_buffer_is_refused(dataset, tmp_path):
+    with pytest.raises(ValueError, match=r"no \['mask'\] buffer"):
+        train(tiny_config(dataset, buffers=["di", "mask"]), tmp_path / "run", progress=False)
+
+
+def test_cli_trains_and_resumes(dataset, tmp_path):
+    runner = CliRunner()
+    out = tmp_path / "run"
+    args = [str(dataset), "--out", str(out), "--model", "deep_shading", "--ngf", "4", "--batch-size", "2", "--no-progress"]
+    res = runner.invoke(app, [*args, "--max-steps", "1"])
+    assert res.exit_code == 0, res.output
+    assert "stopped (max_steps) at step 1" in res.output
+    # The saved --max-steps 1 bounded the first invocation only; this one runs to the end of epoch 2.
+    res = runner.invoke(app, ["--out", str(out), "--resume", "--epochs", "2", "--no-progress"])
+    assert res.exit_code == 0, res.output
+    assert "stopped (epochs) at step 4" in res.output
+    res = runner.invoke(app, ["--out", str(out), "--resume", "--ngf", "8"])
+    assert res.exit_code == 1 and "--resume may change only" in res.output
+    res = runner.invoke(app, ["--out", str(tmp_path / "new")])
+    assert res.exit_code == 1 and "dataset folder" in res.output
