@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -12,6 +13,19 @@ app = typer.Typer(add_completion=False, no_args_is_help=True, help="Experiments 
 OutOpt = Annotated[Path, typer.Option("--out", help="folder for CSV, provenance JSON and plots")]
 QuickOpt = Annotated[bool, typer.Option("--quick", help="small preset that finishes in minutes on 2 cores")]
 SeedOpt = Annotated[int, typer.Option("--seed")]
+ScenesOpt = Annotated[str | None, typer.Option(help="comma-separated scene names (default: the bench's own list)")]
+ResolutionOpt = Annotated[int | None, typer.Option(help="square resolution")]
+SceneOpt = Annotated[str | None, typer.Option(help="scene name or spec file (default: lung_plane)")]
+GISourceOpt = Annotated[str | None, typer.Option(help="gt (path-traced stand-in, default) or model")]
+ModelOpt = Annotated[Path | None, typer.Option(help="ONNX model for --gi-source model")]
+
+
+def _config(cls: Any, quick: bool, **options: Any) -> Any:
+    """A bench config: its quick or default preset with every option the user gave (not None) applied;
+    ``scenes`` is given as a comma-separated string."""
+    if options.get("scenes") is not None:
+        options["scenes"] = tuple(s.strip() for s in options["scenes"].split(",") if s.strip())
+    return replace(cls.quick() if quick else cls(), **{k: v for k, v in options.items() if v is not None})
 
 
 @app.command()
@@ -19,20 +33,13 @@ def convergence(
     out: OutOpt = Path("results"),
     quick: QuickOpt = False,
     seed: SeedOpt = 0,
-    scenes: Annotated[str | None, typer.Option(help="comma-separated scene names (default: all paper scenes)")] = None,
-    resolution: Annotated[int | None, typer.Option(help="square resolution")] = None,
+    scenes: ScenesOpt = None,
+    resolution: ResolutionOpt = None,
 ) -> None:
     """GT error (RMSE/SSIM against a high-spp reference) against render time, with and without OIDN."""
     from bench.convergence import ConvergenceConfig, run
 
-    cfg = ConvergenceConfig.quick() if quick else ConvergenceConfig()
-    overrides = {}
-    if scenes:
-        overrides["scenes"] = tuple(s.strip() for s in scenes.split(","))
-    if resolution:
-        overrides["resolution"] = resolution
-    cfg = ConvergenceConfig(**{**cfg.__dict__, **overrides})
-    typer.echo(f"wrote {run(cfg, out, seed)}")
+    typer.echo(f"wrote {run(_config(ConvergenceConfig, quick, scenes=scenes, resolution=resolution), out, seed)}")
 
 
 @app.command("run-default")
@@ -52,21 +59,17 @@ def run_default(out: OutOpt = Path("results"), scene: str = "lung_plane") -> Non
     # 256² because the shipped model runs at that resolution.
     build_dataset(spec, datasets / spec.name, DatasetConfig(n_train=6, n_val=3, resolution=256, spp=64, denoise=True))
     typer.echo(f"wrote {contact_sheet(datasets / spec.name, out / 'contact_sheet.png')}")
-    quick = ConvergenceConfig.quick()
-    typer.echo(f"wrote {run_convergence(ConvergenceConfig(**{**quick.__dict__, 'scenes': (spec.name,)}), out)}")
+    typer.echo(f"wrote {run_convergence(_config(ConvergenceConfig, True, scenes=spec.name), out)}")
     quality = QualityConfig(datasets=datasets, scenes=(spec.name,), timing_repeats=10, grid_frames=2)
     typer.echo(f"wrote {run_quality(quality, out)}")
 
 
 @app.command()
-def render(out: OutOpt = Path("results"), quick: QuickOpt = False, seed: SeedOpt = 0, resolution: Annotated[int | None, typer.Option()] = None) -> None:
+def render(out: OutOpt = Path("results"), quick: QuickOpt = False, seed: SeedOpt = 0, scenes: ScenesOpt = None, resolution: ResolutionOpt = None) -> None:
     """Per-pass render times (DI, G-buffers, GT with/without OIDN) and triangle counts per scene."""
     from bench.render_bench import RenderBenchConfig, run
 
-    cfg = RenderBenchConfig.quick() if quick else RenderBenchConfig()
-    if resolution:
-        cfg = RenderBenchConfig(**{**cfg.__dict__, "resolution": resolution})
-    typer.echo(f"wrote {run(cfg, out, seed)}")
+    typer.echo(f"wrote {run(_config(RenderBenchConfig, quick, scenes=scenes, resolution=resolution), out, seed)}")
 
 
 @app.command()
@@ -74,15 +77,13 @@ def warp(
     out: OutOpt = Path("results"),
     quick: QuickOpt = False,
     seed: SeedOpt = 0,
-    scenes: Annotated[str | None, typer.Option(help="comma-separated scene names (default: lung, digestive, vessels on the plane)")] = None,
-    resolution: Annotated[int | None, typer.Option(help="square resolution")] = None,
+    scenes: ScenesOpt = None,
+    resolution: ResolutionOpt = None,
 ) -> None:
     """Fig. 7: CPU time, CPU load, memory and SSIM of pixel-level vs structure-aware warping."""
     from bench.warp_bench import WarpBenchConfig, run
 
-    cfg = WarpBenchConfig.quick() if quick else WarpBenchConfig()
-    overrides = ({"scenes": tuple(s.strip() for s in scenes.split(","))} if scenes else {}) | ({"resolution": resolution} if resolution else {})
-    typer.echo(f"wrote {run(WarpBenchConfig(**{**cfg.__dict__, **overrides}), out, seed)}")
+    typer.echo(f"wrote {run(_config(WarpBenchConfig, quick, scenes=scenes, resolution=resolution), out, seed)}")
 
 
 @app.command()
@@ -90,18 +91,17 @@ def frequency(
     out: OutOpt = Path("results"),
     quick: QuickOpt = False,
     seed: SeedOpt = 0,
-    scene: Annotated[str | None, typer.Option(help="scene name or spec file (default: lung_plane)")] = None,
-    resolution: Annotated[int | None, typer.Option(help="square resolution")] = None,
-    gi_source: Annotated[str | None, typer.Option(help="gt (path-traced stand-in, default) or model")] = None,
-    model: Annotated[Path | None, typer.Option(help="ONNX model for --gi-source model")] = None,
+    scene: SceneOpt = None,
+    resolution: ResolutionOpt = None,
+    gi_source: SceneOpt = Annotated[str | None, typer.Option(help="scene name or spec file (default: lung_plane)")]
+GISourceOpt = None,
+    model: ModelOpt = None,
     inference_ms: Annotated[float | None, typer.Option(help="GI-map cost in the fps instead of the source's measured cost")] = None,
 ) -> None:
     """Table 3: GI-map period k against fps and SSIM, with and without warping, both compositions."""
     from bench.frequency import FrequencyConfig, run
 
-    cfg = FrequencyConfig.quick() if quick else FrequencyConfig()
-    given = {"scene": scene, "resolution": resolution, "gi_source": gi_source, "model": model, "inference_ms": inference_ms}
-    cfg = FrequencyConfig(**{**cfg.__dict__, **{k: v for k, v in given.items() if v is not None}})
+    cfg = _config(FrequencyConfig, quick, scene=scene, resolution=resolution, gi_source=gi_source, model=model, inference_ms=inference_ms)
     typer.echo(f"wrote {run(cfg, out, seed)}")
     typer.echo((out / "frequency_table.md").read_text())
 
@@ -111,17 +111,17 @@ def fov(
     out: OutOpt = Path("results"),
     quick: QuickOpt = False,
     seed: SeedOpt = 0,
-    scene: Annotated[str | None, typer.Option(help="scene name or spec file (default: lung_plane)")] = None,
-    resolution: Annotated[int | None, typer.Option(help="square resolution")] = None,
-    gi_source: Annotated[str | None, typer.Option(help="gt (path-traced stand-in, default) or model")] = None,
-    model: Annotated[Path | None, typer.Option(help="ONNX model for --gi-source model")] = None,
+    scene: SceneOpt = None,
+    resolution: ResolutionOpt = None,
+    gi_source: SceneOpt = Annotated[str | None, typer.Option(help="scene name or spec file (default: lung_plane)")]
+GISourceOpt = None,
+    model: ModelOpt = None,
 ) -> None:
     """Fig. 9 and Fig. 8: GI-camera FOV against GI-map quality and warped quality after camera motion."""
     from bench.fov import FovConfig, run
 
-    cfg = FovConfig.quick() if quick else FovConfig()
-    given = {"scene": scene, "resolution": resolution, "gi_source": gi_source, "model": model}
-    typer.echo(f"wrote {run(FovConfig(**{**cfg.__dict__, **{k: v for k, v in given.items() if v is not None}}), out, seed)}")
+    cfg = _config(FovConfig, quick, scene=scene, resolution=resolution, gi_source=gi_source, model=model)
+    typer.echo(f"wrote {run(cfg, out, seed)}")
 
 
 @app.command()
@@ -131,18 +131,13 @@ def quality(
     seed: SeedOpt = 0,
     datasets: Annotated[Path, typer.Option(help="root of per-scene datasets (gicore-dataset --out)")] = Path("data/datasets"),
     model: Annotated[list[str] | None, typer.Option(help="NAME=PATH.onnx, repeatable (default: the shipped GIGAN model)")] = None,
-    scenes: Annotated[str | None, typer.Option(help="comma-separated scene names (default: all paper scenes)")] = None,
+    scenes: ScenesOpt = None,
 ) -> None:
     """Fig. 6: RMSE/SSIM/PSNR of each model and of DI alone on held-out frames, plus inference ms."""
     from bench.quality import QualityConfig, run
 
-    cfg = QualityConfig.quick() if quick else QualityConfig()
-    overrides: dict = {"datasets": datasets}
-    if model:
-        pairs = [m.split("=", 1) for m in model]
-        if any(len(p) != 2 for p in pairs):
-            raise typer.BadParameter("--model takes NAME=PATH.onnx")
-        overrides["models"] = {name: Path(path) for name, path in pairs}
-    if scenes:
-        overrides["scenes"] = tuple(s.strip() for s in scenes.split(","))
-    typer.echo(f"wrote {run(QualityConfig(**{**cfg.__dict__, **overrides}), out, seed)}")
+    pairs = [m.split("=", 1) for m in model or []]
+    if any(len(p) != 2 for p in pairs):
+        raise typer.BadParameter("--model takes NAME=PATH.onnx")
+    models = {name: Path(path) for name, path in pairs} or None
+    typer.echo(f"wrote {run(_config(QualityConfig, quick, datasets=datasets, models=models, scenes=scenes), out, seed)}")
