@@ -93,8 +93,7 @@ def frequency(
     seed: SeedOpt = 0,
     scene: SceneOpt = None,
     resolution: ResolutionOpt = None,
-    gi_source: SceneOpt = Annotated[str | None, typer.Option(help="scene name or spec file (default: lung_plane)")]
-GISourceOpt = None,
+    gi_source: GISourceOpt = None,
     model: ModelOpt = None,
     inference_ms: Annotated[float | None, typer.Option(help="GI-map cost in the fps instead of the source's measured cost")] = None,
 ) -> None:
@@ -113,8 +112,7 @@ def fov(
     seed: SeedOpt = 0,
     scene: SceneOpt = None,
     resolution: ResolutionOpt = None,
-    gi_source: SceneOpt = Annotated[str | None, typer.Option(help="scene name or spec file (default: lung_plane)")]
-GISourceOpt = None,
+    gi_source: GISourceOpt = None,
     model: ModelOpt = None,
 ) -> None:
     """Fig. 9 and Fig. 8: GI-camera FOV against GI-map quality and warped quality after camera motion."""
