@@ -1,0 +1,62 @@
+"""The bench framework: CLI wiring, config presets, tidy CSV + provenance, and a tiny real bench run."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from bench.cli import _config, app
+from bench.convergence import ConvergenceConfig, run
+from bench.results import COLUMNS, Results, read_rows
+from bench.timing import summarize_ms, time_repeats
+
+SUBCOMMANDS = ("convergence", "render", "warp", "frequency", "fov", "quality", "run-default")
+
+
+@pytest.mark.parametrize("name", SUBCOMMANDS)
+def test_every_subcommand_parses_and_documents_out_and_quick(name: str) -> None:
+    result = CliRunner().invoke(app, [name, "--help"])
+    assert result.exit_code == 0, result.output
+    assert "--out" in result.output
+    if name != "run-default":
+        assert "--quick" in result.output
+
+
+def test_config_applies_preset_then_only_given_options() -> None:
+    cfg = _config(ConvergenceConfig, True, scenes="lung_plane, vessels_plane", resolution=None)
+    assert cfg.scenes == ("lung_plane", "vessels_plane")
+    assert cfg.resolution == ConvergenceConfig.quick().resolution  # None leaves the preset's value
+    assert _config(ConvergenceConfig, False, resolution=64).spps == ConvergenceConfig().spps
+
+
+def test_results_are_tidy_with_provenance(tmp_path: Path) -> None:
+    res = Results("demo", tmp_path, seed=3, settings={"k": 1})
+    res.add(system="a", scene="s", metric="ssim", value=0.5, unit="1", spp=4)
+    res.add_timing(system="a", scene="s", metric="t", samples_s=[0.001, 0.002, 0.003])
+    rows = read_rows(res.write())
+    assert list(rows[0]) == list(COLUMNS)
+    assert rows[0]["config"] == {"spp": 4} and rows[0]["value"] == 0.5
+    assert {(r["stat"], r["value"]) for r in rows if r["metric"] == "t"} >= {("median", 2.0), ("n", 3.0)}
+    prov = json.loads((tmp_path / "demo.provenance.json").read_text())
+    assert prov["seed"] == 3 and prov["rows"] == 4 and {"sha", "dirty"} <= set(prov["git"]) and prov["versions"]["numpy"]
+
+
+def test_timing_warms_up_and_summarises() -> None:
+    calls = []
+    samples, result = time_repeats(lambda: calls.append(1) or len(calls), repeats=3, warmup=2)
+    assert len(samples) == 3 and len(calls) == 5 and result == 5
+    assert summarize_ms([0.001, 0.003])["median"] == pytest.approx(2.0)
+    with pytest.raises(ValueError, match="repeats"):
+        time_repeats(lambda: None, repeats=0)
+
+
+def test_tiny_convergence_run_writes_csv_and_plot(tmp_path: Path) -> None:
+    cfg = ConvergenceConfig(scenes=("lung_plane",), resolution=16, spps=(1, 4), reference_spp=16, repeats=1)
+    rows = read_rows(run(cfg, tmp_path))
+    assert (tmp_path / "convergence.png").stat().st_size > 0
+    rmse = {(r["system"], r["config"]["spp"]): r["value"] for r in rows if r["metric"] == "rmse"}
+    assert set(rmse) == {("path", 1), ("path", 4), ("path+oidn", 1), ("path+oidn", 4)}
+    assert rmse[("path", 4)] < rmse[("path", 1)]  # more samples, less error against the reference
