@@ -139,3 +139,14 @@ def quality(
         raise typer.BadParameter("--model takes NAME=PATH.onnx")
     models = {name: Path(path) for name, path in pairs} or None
     typer.echo(f"wrote {run(_config(QualityConfig, quick, datasets=datasets, models=models, scenes=scenes), out, seed)}")
+
+
+@app.command()
+def training(
+    runs: Annotated[list[Path], typer.Argument(help="gigan-train run folders")],
+    out: OutOpt = Path("results"),
+) -> None:
+    """Learning curves of training runs (labelled by folder): validation SSIM and training L1 against step."""
+    from bench.training import run
+
+    typer.echo(f"wrote {run(runs, out)}")

@@ -13,7 +13,7 @@ from bench.convergence import ConvergenceConfig, run
 from bench.results import COLUMNS, Results, read_rows
 from bench.timing import summarize_ms, time_repeats
 
-SUBCOMMANDS = ("convergence", "render", "warp", "frequency", "fov", "quality", "run-default")
+SUBCOMMANDS = ("convergence", "render", "warp", "frequency", "fov", "quality", "training", "run-default")
 
 
 @pytest.mark.parametrize("name", SUBCOMMANDS)
@@ -21,7 +21,7 @@ def test_every_subcommand_parses_and_documents_out_and_quick(name: str) -> None:
     result = CliRunner().invoke(app, [name, "--help"])
     assert result.exit_code == 0, result.output
     assert "--out" in result.output
-    if name != "run-default":
+    if name not in ("run-default", "training"):
         assert "--quick" in result.output
 
 
@@ -60,3 +60,19 @@ def test_tiny_convergence_run_writes_csv_and_plot(tmp_path: Path) -> None:
     rmse = {(r["system"], r["config"]["spp"]): r["value"] for r in rows if r["metric"] == "rmse"}
     assert set(rmse) == {("path", 1), ("path", 4), ("path+oidn", 1), ("path+oidn", 4)}
     assert rmse[("path", 4)] < rmse[("path", 1)]  # more samples, less error against the reference
+
+
+def test_training_curves_from_run_folders(tmp_path: Path) -> None:
+    from bench.training import run as run_training
+
+    run_dir = tmp_path / "runA"
+    run_dir.mkdir()
+    (run_dir / "config.json").write_text(json.dumps({"train": {"ngf": 8, "n_critic": 5}}))
+    (run_dir / "metrics.csv").write_text(
+        "run_id,model,epoch,step,split,metric,value,unit\nx,gigan,0,0,val,ssim,0.5,1\nx,gigan,1,10,train,G_L1,0.2,1\nx,gigan,1,10,val,ssim,0.7,1\n"
+    )
+    rows = read_rows(run_training([run_dir], tmp_path / "out"))
+    assert {(r["system"], r["metric"], r["config"]["step"]) for r in rows} == {("runA", "val_ssim", 0), ("runA", "train_G_L1", 10), ("runA", "val_ssim", 10)}
+    assert (tmp_path / "out" / "training.png").stat().st_size > 0
+    with pytest.raises(FileNotFoundError, match="metrics.csv"):
+        run_training([tmp_path], tmp_path / "out2")
