@@ -150,3 +150,18 @@ def training(
     from bench.training import run
 
     typer.echo(f"wrote {run(runs, out)}")
+
+
+@app.command("model-card")
+def model_card(
+    run: Annotated[Path, typer.Argument(help="gigan-train run folder of the model")],
+    export: Annotated[Path, typer.Argument(help="gigan-export folder of the model (MODEL_CARD.md goes here)")],
+    quality_csv: Annotated[Path, typer.Argument(help="a bench quality CSV that scored the model")],
+    system: Annotated[str, typer.Option(help="the model's system name in the quality CSV")] = "gigan",
+    dataset_command: Annotated[str, typer.Option(help="the command that rendered the training data")] = "",
+    train_command: Annotated[str, typer.Option(help="the command that trained the model")] = "",
+) -> None:
+    """Write MODEL_CARD.md for an exported model from its run, export and quality results."""
+    from bench.model_card import write_model_card
+
+    typer.echo(f"wrote {write_model_card(run, export, quality_csv, system, dataset_command, train_command)}")
