@@ -96,7 +96,9 @@ class GIGAN(BaseModel):
     def optimize(self, batch: Batch) -> dict[str, float]:
         cond, real = batch
         G, D = self.nets["G"], self.nets["D"]
-        fake = G(cond)
+        generator_step = (self.critic_steps + 1) % self.cfg.n_critic == 0
+        with torch.set_grad_enabled(generator_step):  # critic-only calls need no graph through G
+            fake = G(cond)
 
         _set_requires_grad(D, True)
         self.optimizers["D"].zero_grad(set_to_none=True)
@@ -108,7 +110,7 @@ class GIGAN(BaseModel):
         d_real, d_fake = critic_score(real_out).mean().item(), critic_score(fake_out).mean().item()
         logs = {"D_real": d_real, "D_fake": d_fake, "D_GP": gp.item(), "D_W": d_real - d_fake}
 
-        if self.critic_steps % self.cfg.n_critic == 0:
+        if generator_step:
             _set_requires_grad(D, False)  # the generator step must not accumulate critic gradients
             self.optimizers["G"].zero_grad(set_to_none=True)
             g_gan = wgan_generator_loss(D(cond, fake))
