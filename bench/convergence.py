@@ -10,6 +10,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from bench.results import Results
 from bench.timing import time_repeats
 from gicore.metrics import all_metrics
@@ -44,19 +46,18 @@ def run(cfg: ConvergenceConfig, out: Path, seed: int = 0) -> Path:
         light = light_position(spec, 0)
         reference = tonemap(renderer.render_gt(camera, light, spp=cfg.reference_spp, seed=seed + 10_000))
         for spp in cfg.spps:
-            samples, raw = time_repeats(lambda: renderer.render_gt(camera, light, spp=spp, seed=seed), cfg.repeats)
-            res.add_timing(system="path", scene=name, metric="render_time", samples_s=samples, spp=spp, resolution=cfg.resolution)
-            for metric, value in all_metrics(tonemap(raw), reference).items():
-                res.add(system="path", scene=name, metric=metric, value=value, unit="dB" if metric == "psnr" else "1", spp=spp, resolution=cfg.resolution)
 
-            def denoised():
-                gb = renderer.render_gbuffers(camera, seed=seed)
-                return renderer.denoise(renderer.render_gt(camera, light, spp=spp, seed=seed), gb)
+            def raw(spp: int = spp) -> np.ndarray:
+                return renderer.render_gt(camera, light, spp=spp, seed=seed)
 
-            samples, clean = time_repeats(denoised, cfg.repeats)
-            res.add_timing(system="path+oidn", scene=name, metric="render_time", samples_s=samples, spp=spp, resolution=cfg.resolution)
-            for metric, value in all_metrics(tonemap(clean), reference).items():
-                res.add(system="path+oidn", scene=name, metric=metric, value=value, unit="dB" if metric == "psnr" else "1", spp=spp, resolution=cfg.resolution)
+            def denoised(spp: int = spp) -> np.ndarray:  # the guide pass is part of its cost
+                return renderer.denoise(raw(spp), renderer.render_gbuffers(camera, seed=seed))
+
+            for system, render in (("path", raw), ("path+oidn", denoised)):
+                samples, image = time_repeats(render, cfg.repeats)
+                res.add_timing(system=system, scene=name, metric="render_time", samples_s=samples, spp=spp, resolution=cfg.resolution)
+                for metric, value in all_metrics(tonemap(image), reference).items():
+                    res.add(system=system, scene=name, metric=metric, value=value, unit="dB" if metric == "psnr" else "1", spp=spp, resolution=cfg.resolution)
     path = res.write()
     plot(path, out / "convergence.png")
     return path

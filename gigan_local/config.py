@@ -6,10 +6,10 @@ it builds, so a run can be resumed, exported or rebuilt without the command line
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field
 from typing import Any
 
-from gigan_local.networks import NetworkConfig
+from gigan_local.networks import NetworkConfig, strict_from_dict
 from gigan_local.preprocess import DEFAULT_BUFFERS, InputSpec
 
 MODELS = ("gigan", "deep_shading", "deep_illumination")
@@ -123,8 +123,4 @@ class TrainConfig:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "TrainConfig":
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(d) - known)
-        if unknown:
-            raise ValueError(f"unknown training config field(s) {unknown}; known: {sorted(known)}")
-        return cls(**d)
+        return strict_from_dict(cls, d, "training")

@@ -23,6 +23,15 @@ from typing import Any
 import torch
 from torch import nn
 
+
+def strict_from_dict(cls: type, d: dict[str, Any], what: str) -> Any:
+    """Build config dataclass ``cls`` from plain JSON data, refusing fields it does not declare."""
+    known = {f.name for f in fields(cls)}
+    unknown = sorted(set(d) - known)
+    if unknown:
+        raise ValueError(f"unknown {what} config field(s) {unknown}; known: {sorted(known)}")
+    return cls(**d)
+
 GENERATORS = ("unet", "deep_shading")
 CRITICS = ("patchgan",)
 NORMS = ("batch", "none")
@@ -89,11 +98,7 @@ class NetworkConfig:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "NetworkConfig":
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(d) - known)
-        if unknown:
-            raise ValueError(f"unknown network config field(s) {unknown}; known: {sorted(known)}")
-        return cls(**d)
+        return strict_from_dict(cls, d, "network")
 
 
 def _widths(width: int, n: int) -> list[int]:
