@@ -1,7 +1,9 @@
 """Torch dataset over one or more ``gicore.dataset`` folders: (network input, GI target) pairs.
 
 The encoding of each buffer lives in :mod:`gigan_local.preprocess` (shared with the onnxruntime
-client). Random crops, when asked for, are drawn from a generator seeded by (seed, epoch, index), so
+client). Decoded and encoded frames can be kept in memory (``cache``): decoding an npz frame and
+encoding its buffers costs ~30 ms, more than a whole training step of a small model, and the cached
+arrays are the very ones a fresh decode would give, so results do not depend on it. Random crops, when asked for, are drawn from a generator seeded by (seed, epoch, index), so
 a run and its resumption see the same crops in the same order whatever the loader does.
 """
 
@@ -47,9 +49,13 @@ def median_foreground_depth(roots: list[Path], max_frames: int = 16) -> float:
 
 
 class FrameDataset(Dataset):
-    """Frames of ``split`` from every folder in ``roots``, as (input CxHxW, target 3xHxW) in [-1, 1]."""
+    """Frames of ``split`` from every folder in ``roots``, as (input CxHxW, target 3xHxW) in [-1, 1].
 
-    def __init__(self, roots: list[Path], split: str, spec: InputSpec, crop: int | None = None, seed: int = 0) -> None:
+    With ``cache``, each whole encoded frame is kept after its first use (float32, 4 bytes per channel
+    and pixel: ~3.4 MB per 256² frame with the default buffers).
+    """
+
+    def __init__(self, roots: list[Path], split: str, spec: InputSpec, crop: int | None = None, seed: int = 0, cache: bool = False) -> None:
         self.roots = [Path(r) for r in roots]
         self.spec = spec
         self.resolution = dataset_resolution(self.roots, spec.buffers)
@@ -58,6 +64,7 @@ class FrameDataset(Dataset):
         self.crop = crop
         self.seed = seed
         self.epoch = 0
+        self._cache: dict[int, tuple[np.ndarray, np.ndarray]] | None = {} if cache else None
         self.paths = [p for r in self.roots for p in frame_paths(r, split)]
         if not self.paths:
             raise ValueError(f"the {split!r} split of {[str(r) for r in self.roots]} has no frames")
@@ -69,16 +76,24 @@ class FrameDataset(Dataset):
     def __len__(self) -> int:
         return len(self.paths)
 
-    def __getitem__(self, index: int) -> tuple[torch.Tensor, torch.Tensor]:
+    def _encoded(self, index: int) -> tuple[np.ndarray, np.ndarray]:
+        if self._cache is not None and index in self._cache:
+            return self._cache[index]
         path = self.paths[index]
         frame = load_frame(path, [*self.spec.buffers, TARGET_BUFFER])
         try:
-            x, y = frame_to_input(frame, self.spec), frame_to_target(frame)
+            pair = frame_to_input(frame, self.spec), frame_to_target(frame)
         except ValueError as e:
             raise ValueError(f"{path}: {e}") from e
+        if self._cache is not None:
+            self._cache[index] = pair
+        return pair
+
+    def __getitem__(self, index: int) -> tuple[torch.Tensor, torch.Tensor]:
+        x, y = self._encoded(index)
         if self.crop is not None and self.crop < self.resolution:
             rng = np.random.default_rng([self.seed, self.epoch, index])
             top, left = rng.integers(0, self.resolution - self.crop + 1, size=2)
             x = x[:, top : top + self.crop, left : left + self.crop]
             y = y[:, top : top + self.crop, left : left + self.crop]
-        return torch.from_numpy(np.ascontiguousarray(x)), torch.from_numpy(np.ascontiguousarray(y))
+        return torch.tensor(x), torch.tensor(y)  # copies: callers may not alias the cached arrays

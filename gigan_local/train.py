@@ -163,13 +163,15 @@ def _check_divergence(step: int, losses: dict[str, float], model: BaseModel, cfg
         raise TrainingDiverged(f"training diverged at step {step}: the weights became non-finite (losses {losses}). {advice}")
 
 
-def train(cfg: TrainConfig, out_dir: Path, resume: bool = False, progress: bool = True) -> TrainResult:
+def train(cfg: TrainConfig, out_dir: Path, resume: bool = False, progress: bool = True, cache_frames: bool = True) -> TrainResult:
     """Train ``cfg.model`` into ``out_dir`` until the first of epochs / max_steps / max_minutes.
 
     With ``resume``, ``out_dir`` must hold a run whose config equals ``cfg`` except for the budget
     fields; training continues from its checkpoint (same step counter, optimizer and RNG state).
     ``max_minutes`` counts from this call's start; a step starts only if the estimated step time plus
     the measured duration of the last validation + checkpoint still fits before the deadline.
+    ``cache_frames`` keeps the encoded frames in memory (:class:`FrameDataset`); it changes speed and
+    memory use, not results.
     """
     t_start = time.monotonic()
     out_dir = Path(out_dir)
@@ -193,8 +195,8 @@ def train(cfg: TrainConfig, out_dir: Path, resume: bool = False, progress: bool 
     torch.manual_seed(cfg.seed)
     roots = [Path(d) for d in cfg.datasets]
     spec = cfg.input_spec()
-    train_set = FrameDataset(roots, "train", spec, crop=cfg.crop, seed=cfg.seed)
-    val_set = FrameDataset(roots, "val", spec)
+    train_set = FrameDataset(roots, "train", spec, crop=cfg.crop, seed=cfg.seed, cache=cache_frames)
+    val_set = FrameDataset(roots, "val", spec, cache=cache_frames)
     model = create_model(cfg)
     state = RunState()
     if resume:

@@ -211,6 +211,31 @@ def test_crop_training_validates_whole_frames(tmp_path):
         train(tiny_config(dataset, crop=16), tmp_path / "run16", progress=False)
 
 
+def test_frame_cache_returns_the_same_items_and_cannot_be_corrupted(tmp_path):
+    dataset = make_dataset(tmp_path / "ds64", res=64, n_train=2, n_val=1)
+    spec = InputSpec(depth_scale=2.0)
+    plain = FrameDataset([dataset], "train", spec, crop=32, seed=3)
+    cached = FrameDataset([dataset], "train", spec, crop=32, seed=3, cache=True)
+    whole = FrameDataset([dataset], "train", spec, cache=True)
+    for epoch in (0, 1):
+        plain.set_epoch(epoch), cached.set_epoch(epoch)
+        for i in range(len(plain)):
+            for a, b in zip(plain[i], cached[i]):
+                assert torch.equal(a, b)
+    x, _ = whole[0]
+    x.fill_(7.0)  # a caller scribbling on a returned frame must not reach the cache
+    assert not torch.equal(whole[0][0], x) and torch.equal(whole[0][0], FrameDataset([dataset], "train", spec)[0][0])
+
+
+def test_training_with_and_without_the_frame_cache_is_identical(dataset, tmp_path):
+    runs = [train(tiny_config(dataset, max_steps=3), tmp_path / f"run{c}", progress=False, cache_frames=c) for c in (False, True)]
+    assert runs[0].val_metrics == runs[1].val_metrics
+    weights = [load_checkpoint(r.checkpoint)["model"]["nets"] for r in runs]
+    for net, params in weights[0].items():
+        for key, value in params.items():
+            assert torch.equal(value, weights[1][net][key]), (net, key)
+
+
 def test_dataset_without_a_needed_buffer_is_refused(dataset, tmp_path):
     with pytest.raises(ValueError, match=r"no \['mask'\] buffer"):
         train(tiny_config(dataset, buffers=["di", "mask"]), tmp_path / "run", progress=False)
