@@ -62,6 +62,13 @@ def test_tiny_convergence_run_writes_csv_and_plot(tmp_path: Path) -> None:
     assert rmse[("path", 4)] < rmse[("path", 1)]  # more samples, less error against the reference
 
 
+def test_training_minutes_sum_the_logged_step_times() -> None:
+    from bench.training import training_minutes
+
+    # 10 steps at 6 s, then 20 at 3 s; step 40 extrapolates at the last rate.
+    assert training_minutes([(10, 6.0), (30, 3.0)], [0, 5, 10, 30, 40]) == pytest.approx([0, 0.5, 1.0, 2.0, 2.5])
+
+
 def test_training_curves_from_run_folders(tmp_path: Path) -> None:
     from bench.training import run as run_training
 
@@ -69,10 +76,12 @@ def test_training_curves_from_run_folders(tmp_path: Path) -> None:
     run_dir.mkdir()
     (run_dir / "config.json").write_text(json.dumps({"train": {"ngf": 8, "n_critic": 5}}))
     (run_dir / "metrics.csv").write_text(
-        "run_id,model,epoch,step,split,metric,value,unit\nx,gigan,0,0,val,ssim,0.5,1\nx,gigan,1,10,train,G_L1,0.2,1\nx,gigan,1,10,val,ssim,0.7,1\n"
+        "run_id,model,epoch,step,split,metric,value,unit\nx,gigan,0,0,val,ssim,0.5,1\nx,gigan,1,10,train,G_L1,0.2,1\nx,gigan,1,10,train,step_seconds,0.5,s\nx,gigan,1,10,val,ssim,0.7,1\n"
     )
     rows = read_rows(run_training([run_dir], tmp_path / "out"))
-    assert {(r["system"], r["metric"], r["config"]["step"]) for r in rows} == {("runA", "val_ssim", 0), ("runA", "train_G_L1", 10), ("runA", "val_ssim", 10)}
+    assert {(r["system"], r["metric"], r["config"]["step"]) for r in rows} == {
+        ("runA", "val_ssim", 0), ("runA", "train_G_L1", 10), ("runA", "train_step_seconds", 10), ("runA", "val_ssim", 10)
+    }
     assert (tmp_path / "out" / "training.png").stat().st_size > 0
     with pytest.raises(FileNotFoundError, match="metrics.csv"):
         run_training([tmp_path], tmp_path / "out2")
