@@ -4,6 +4,7 @@ Output folder::
 
     model_fp32.onnx   eval-mode generator, input ``input`` (Bx C x R x R), output ``output`` (Bx3xRxR)
     model_fp16.onnx   the same graph with float16 weights, each followed by a Cast back to float32
+    model_int8.onnx   (``int8``) static int8 quantization calibrated on training frames
     model.json        what the client needs: input buffers and encoding, resolution, network config
 
 The batch axis is dynamic, the image size fixed (the U-Net needs sides divisible by 2**n_down, and the
@@ -11,6 +12,12 @@ client checks frames against it). In the fp16 file only the stored weights are h
 Casts are constant-folded when onnxruntime loads the model, so it computes in fp32 at fp32 speed from a
 file half the size. (Measured with onnxruntime 1.31 on the 2-core CPU at 256 px: a graph converted to
 compute in fp16 ran no faster and matched fp32 no better, so the simpler Cast form is kept.)
+
+The int8 file is the one precision knob that changes speed on a CPU: onnxruntime's static quantization
+in operator form (QLinearConv: int8 per-channel weights, uint8 activations with MinMax ranges from
+training frames). It quantizes the encoder convolutions; onnxruntime has no quantized ConvTranspose
+kernel in this form, so the decoder stays fp32. (The QDQ form, which would cover the decoder, ran
+slower than fp32 on this CPU.)
 """
 
 from __future__ import annotations
@@ -31,7 +38,7 @@ from gigan_local.inference import FORMAT, MODEL_JSON
 from gigan_local.networks import define_G
 from gigan_local.train import CHECKPOINT, load_checkpoint, read_run_config
 
-FILES = {"fp32": "model_fp32.onnx", "fp16": "model_fp16.onnx"}
+FILES = {"fp32": "model_fp32.onnx", "fp16": "model_fp16.onnx", "int8": "model_int8.onnx"}
 INPUT_NAME, OUTPUT_NAME = "input", "output"
 TONEMAP_NOTE = (
     "Inputs and output are network values in [-1, 1] (gigan_local.preprocess): radiance is "
@@ -46,8 +53,10 @@ class ExportResult:
 
     files: dict[str, Path]
     sizes: dict[str, int]
-    #: Max |onnxruntime - torch| per variant, on one random input in [-1, 1].
+    #: Max |onnxruntime - torch| per variant, on one random input in [-1, 1] (fp32 and fp16: parity).
     max_abs_diff: dict[str, float]
+    #: Mean |int8 - fp32| output difference on the run's validation frames (int8 only).
+    int8_mean_abs_diff: float | None = None
 
 
 def load_generator(run_dir: Path) -> tuple[torch.nn.Module, dict[str, Any]]:
@@ -90,15 +99,59 @@ def fp16_weights(model: onnx.ModelProto) -> onnx.ModelProto:
     return out
 
 
+def calibration_inputs(run_dir: Path, split: str, n: int) -> list[np.ndarray]:
+    """Up to ``n`` evenly spaced encoded frames (1xCxRxR) of a run's ``split`` data, for int8 calibration."""
+    from gigan_local.data import FrameDataset
+
+    cfg, _ = read_run_config(run_dir)
+    try:
+        dataset = FrameDataset([Path(d) for d in cfg.datasets], split, cfg.input_spec())
+    except (FileNotFoundError, ValueError) as e:
+        raise ValueError(f"int8 export calibrates on the run's {split} frames, which are not readable ({e}); render the datasets of {run_dir}/config.json or export without --int8") from e
+    indices = np.unique(np.linspace(0, len(dataset) - 1, min(n, len(dataset))).round().astype(int))
+    return [dataset[int(i)][0].numpy()[None] for i in indices]
+
+
+def int8_static(fp32_path: Path, out_path: Path, calibration: list[np.ndarray]) -> None:
+    """Write a statically quantized copy of ``fp32_path`` (see the module docstring), calibrated on ``calibration``."""
+    from onnxruntime.quantization import CalibrationDataReader, QuantFormat, QuantType, quantize_static
+    from onnxruntime.quantization.shape_inference import quant_pre_process
+
+    class Reader(CalibrationDataReader):
+        def __init__(self) -> None:
+            self.inputs = iter(calibration)
+
+        def get_next(self) -> dict[str, np.ndarray] | None:
+            x = next(self.inputs, None)
+            return None if x is None else {INPUT_NAME: x}
+
+    prepared = out_path.with_name(out_path.stem + "__prepared.onnx")
+    try:
+        quant_pre_process(str(fp32_path), str(prepared))
+        quantize_static(
+            str(prepared), str(out_path), Reader(), quant_format=QuantFormat.QOperator, per_channel=True,
+            activation_type=QuantType.QUInt8, weight_type=QuantType.QInt8,
+        )
+    finally:
+        prepared.unlink(missing_ok=True)
+
+
 def _ort_run(path: Path, x: np.ndarray) -> np.ndarray:
     sess = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
     return sess.run(None, {INPUT_NAME: x})[0]
 
 
-def export_onnx(run_dir: Path, out_dir: Path, opset: int = 17, fp16: bool = True, seed: int = 0) -> ExportResult:
-    """Export the generator of ``run_dir`` to ``out_dir`` (fp32, optionally fp16) with ``model.json``."""
+def export_onnx(
+    run_dir: Path, out_dir: Path, opset: int = 17, fp16: bool = True, int8: bool = False, calibration_frames: int = 32, seed: int = 0
+) -> ExportResult:
+    """Export the generator of ``run_dir`` to ``out_dir`` (fp32, optionally fp16 and int8) with ``model.json``.
+
+    int8 calibrates on ``calibration_frames`` of the run's training frames, so their datasets must exist.
+    """
     if opset < 17:
         raise ValueError(f"opset must be >= 17, got {opset}")
+    if int8 and calibration_frames < 1:
+        raise ValueError(f"calibration_frames must be >= 1, got {calibration_frames}")
     generator, info = load_generator(run_dir)
     cfg, net = info["train"], info["network"]
     out_dir = Path(out_dir)
@@ -121,6 +174,13 @@ def export_onnx(run_dir: Path, out_dir: Path, opset: int = 17, fp16: bool = True
     with torch.no_grad():
         ref = generator(x).numpy()
     diffs = {k: float(np.abs(_ort_run(p, x.numpy()) - ref).max()) for k, p in files.items()}
+    int8_diff = None
+    if int8:
+        files["int8"] = out_dir / FILES["int8"]
+        calibration = calibration_inputs(run_dir, "train", calibration_frames)
+        int8_static(files["fp32"], files["int8"], calibration)
+        val = calibration_inputs(run_dir, "val", 8)
+        int8_diff = float(np.mean([np.abs(_ort_run(files["int8"], v) - _ort_run(files["fp32"], v)).mean() for v in val]))
     doc = {
         "format": FORMAT,
         "model": cfg.model,
@@ -138,5 +198,7 @@ def export_onnx(run_dir: Path, out_dir: Path, opset: int = 17, fp16: bool = True
         "tonemap": TONEMAP_NOTE,
         "max_abs_diff_vs_torch": diffs,
     }
+    if int8:
+        doc["int8"] = {"calibration_frames": len(calibration), "mean_abs_diff_vs_fp32_on_val": int8_diff}
     (out_dir / MODEL_JSON).write_text(json.dumps(doc, indent=1))
-    return ExportResult(files, {k: p.stat().st_size for k, p in files.items()}, diffs)
+    return ExportResult(files, {k: p.stat().st_size for k, p in files.items()}, diffs, int8_diff)

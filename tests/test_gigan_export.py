@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import onnx
 import onnxruntime as ort
 import pytest
 import torch
@@ -79,6 +80,31 @@ def test_gimodel_predicts_linear_radiance_like_torch(exported, variant):
     with torch.no_grad():
         y = generator(torch.from_numpy(frame_to_input(frame, model.spec))[None])[0].numpy()
     assert np.allclose(radiance, output_to_radiance(y), rtol=1e-2, atol=1e-3)
+
+
+def test_int8_export_is_calibrated_quantized_and_close_to_fp32(exported, tmp_path):
+    dataset, run, _ = exported
+    result = CliRunner().invoke(app, [str(run), "--out", str(tmp_path / "q"), "--int8", "--calibration-frames", "2", "--no-fp16"])
+    assert result.exit_code == 0, result.output
+    doc = json.loads((tmp_path / "q" / "model.json").read_text())
+    assert doc["files"] == {"fp32": "model_fp32.onnx", "int8": "model_int8.onnx"}
+    assert doc["int8"]["calibration_frames"] == 2 and 0 < doc["int8"]["mean_abs_diff_vs_fp32_on_val"] < 0.05
+    ops = {n.op_type for n in onnx.load(str(tmp_path / "q" / "model_int8.onnx")).graph.node}
+    assert "QLinearConv" in ops  # really quantized, not a renamed fp32 graph
+    assert sorted(p.name for p in (tmp_path / "q").iterdir()) == ["model.json", "model_fp32.onnx", "model_int8.onnx"]
+    frame = load_frame(dataset / "val" / "000000.npz")
+    q, f = GIModel(tmp_path / "q" / "model_int8.onnx", threads=1).predict(frame), GIModel(tmp_path / "q" / "model_fp32.onnx", threads=1).predict(frame)
+    assert np.abs(q - f).mean() < 0.05 * max(float(f.mean()), 1e-3) + 1e-3
+
+
+def test_int8_export_without_the_training_data_says_so(exported, tmp_path):
+    _, run, _ = exported
+    moved = _copy(run, tmp_path / "run")
+    cfg = json.loads((moved / "config.json").read_text())
+    cfg["train"]["datasets"] = [str(tmp_path / "gone")]
+    (moved / "config.json").write_text(json.dumps(cfg))
+    with pytest.raises(ValueError, match="int8 export calibrates on the run's train frames.*--int8"):
+        export_onnx(moved, tmp_path / "q", int8=True)
 
 
 def test_inference_path_does_not_import_torch():
