@@ -111,17 +111,24 @@ def plot(csv_path: Path, bars_png: Path, pareto_png: Path) -> None:
     fig.savefig(bars_png, dpi=120)
     plt.close(fig)
 
-    fig, ax = plt.subplots(figsize=(6, 4))
+    fig, ax = plt.subplots(figsize=(10, 5))
+    markers = {"fp32": "o", "fp16": "s", "int8": "^"}
     for system in systems:
         times = [r["value"] for r in rows if r["system"] == system and r["metric"] == "inference_time" and r["stat"] == "median"]
         ssims = [r["value"] for r in rows if r["system"] == system and r["metric"] == "ssim"]
         if times:
             cfg = next(r["config"] for r in rows if r["system"] == system and r["metric"] == "inference_time")
-            ax.scatter(np.median(times), np.mean(ssims), s=40)
-            ax.annotate(f"{system}\n(ngf {cfg.get('ngf')}, {cfg.get('precision')}, {cfg.get('size_mib')} MiB)", (np.median(times), np.mean(ssims)), fontsize=7)
-    ax.set_xlabel("median onnxruntime inference time per 256² frame [ms]")
+            x, y = float(np.median(times)), float(np.mean(ssims))
+            label = f"{system} (ngf {cfg.get('ngf')}, {cfg.get('precision')}, {cfg.get('size_mib')} MiB)"
+            ax.scatter(x, y, s=45, marker=markers.get(cfg.get("precision"), "x"), label=label, alpha=0.8)
+    ax.legend(fontsize=6, loc="center left", bbox_to_anchor=(1.01, 0.5))
+    ax.set_xscale("log")
+    ax.xaxis.set_major_formatter(matplotlib.ticker.ScalarFormatter())
+    ax.xaxis.set_minor_formatter(matplotlib.ticker.ScalarFormatter())
+    ax.tick_params(axis="x", which="minor", labelsize=6)
+    ax.set_xlabel("median onnxruntime inference time per frame [ms] (log)")
     ax.set_ylabel("mean SSIM over scenes")
-    ax.grid(alpha=0.3)
+    ax.grid(alpha=0.3, which="both")
     ax.set_title("GI-map error against run time")
     fig.tight_layout()
     fig.savefig(pareto_png, dpi=120)
