@@ -11,6 +11,7 @@ import json
 from pathlib import Path
 
 from bench.results import read_rows
+from bench.training import training_minutes
 
 
 def write_model_card(run_dir: Path, export_dir: Path, quality_csv: Path, system: str, dataset_command: str, train_command: str) -> Path:
@@ -20,7 +21,9 @@ def write_model_card(run_dir: Path, export_dir: Path, quality_csv: Path, system:
     with (run_dir / "metrics.csv").open(newline="") as fh:
         metrics = list(csv.DictReader(fh))
     last_step = max(int(r["step"]) for r in metrics)
-    step_s = [float(r["value"]) for r in metrics if r["metric"] == "step_seconds"]
+    step_rows = sorted((int(r["step"]), float(r["value"])) for r in metrics if r["metric"] == "step_seconds")
+    step_s = [v for _, v in step_rows]
+    compute_min = training_minutes(step_rows, [last_step])[0] if step_rows else float("nan")
     val = {r["metric"]: float(r["value"]) for r in metrics if r["split"] == "val" and int(r["step"]) == last_step}
     rows = read_rows(quality_csv)
     scenes = sorted({r["scene"] for r in rows})
@@ -50,7 +53,8 @@ def write_model_card(run_dir: Path, export_dir: Path, quality_csv: Path, system:
         f"Loss: {train['model']} (λ_L1 {train['lambda_L1']}, λ_GP {train['lambda_gp']}, n_critic {train['n_critic']}), "
         f"Adam lr {train['lr']} β=({train['beta1']}, {train['beta2']}), batch {train['batch_size']}, random {train['crop']}² crops, seed {train['seed']}. "
         f"Stopped at optimizer step {last_step} (epoch {max(int(r['epoch']) for r in metrics)}); "
-        f"median step time {sorted(step_s)[len(step_s) // 2]:.2f} s on this machine's CPU (logged per epoch in metrics.csv). "
+        f"median step time {sorted(step_s)[len(step_s) // 2]:.2f} s on this machine's CPU, {compute_min:.0f} min of steps in all "
+        "(validation and checkpoints not counted; logged per epoch in metrics.csv). "
         f"Validation at the last step (first {train['max_val_frames']} val frames): SSIM {val.get('ssim', float('nan')):.4f}, "
         f"PSNR {val.get('psnr', float('nan')):.2f} dB, RMSE {val.get('rmse', float('nan')):.4f}.",
         "",
