@@ -1,10 +1,11 @@
 """Torch dataset over one or more ``gicore.dataset`` folders: (network input, GI target) pairs.
 
 The encoding of each buffer lives in :mod:`gigan_local.preprocess` (shared with the onnxruntime
-client). Decoded and encoded frames can be kept in memory (``cache``): decoding an npz frame and
-encoding its buffers costs ~30 ms, more than a whole training step of a small model, and the cached
-arrays are the very ones a fresh decode would give, so results do not depend on it. Random crops, when asked for, are drawn from a generator seeded by (seed, epoch, index), so
-a run and its resumption see the same crops in the same order whatever the loader does.
+client). Encoded frames can be kept in memory (``cache``): decoding an npz frame and encoding its
+buffers costs ~30 ms, and caching cut an ngf-16 GIGAN step (batch 8) by about a quarter; the cached
+arrays are the very ones a fresh decode gives, so results do not depend on it. Random crops, when
+asked for, are drawn from a generator seeded by (seed, epoch, index), so a run and its resumption
+see the same crops in the same order whatever the loader does.
 """
 
 from __future__ import annotations

@@ -16,8 +16,9 @@ compute in fp16 ran no faster and matched fp32 no better, so the simpler Cast fo
 The int8 file is onnxruntime's static quantization in operator form (QLinearConv: int8 per-channel
 weights, uint8 activations with MinMax ranges from training frames). It quantizes the encoder
 convolutions only: this form has no quantized ConvTranspose, so the decoder, most of the work, stays
-fp32. Measured by `bench quality` on the 2-core CPU at 256² it ran at fp32 speed (within ±5 %) with
-SSIM within 0.0015 of fp32, so it is an opt-in knob, not the shipped precision. (The QDQ form, which
+fp32. Measured by `bench quality` on the 2-core CPU at 256² it was no faster than fp32 beyond the
+run-to-run spread (median ratios 0.94-1.25 over four models), with SSIM within 0.0015 of fp32, so it
+is an opt-in knob, not the shipped precision. (The QDQ form, which
 would cover the decoder too, ran slower than fp32 on this CPU.)
 """
 
