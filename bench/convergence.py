@@ -65,11 +65,7 @@ def run(cfg: ConvergenceConfig, out: Path, seed: int = 0) -> Path:
 
 def plot(csv_path: Path, png: Path) -> None:
     """RMSE and SSIM against median render time, one line per scene and denoiser setting."""
-    import matplotlib
-    import matplotlib.ticker
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from bench.plotting import plt, save, ticker
 
     from bench.results import read_rows
 
@@ -87,14 +83,12 @@ def plot(csv_path: Path, png: Path) -> None:
                 ax.annotate(str(s), (times[s], vals[s]), fontsize=6, alpha=0.6)
     for ax, metric in zip(axes, ("RMSE (tone-mapped)", "SSIM")):
         ax.set_xscale("log")
-        ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+        ax.xaxis.set_minor_formatter(ticker.NullFormatter())
         ax.set_xlabel("median render time per frame [ms]")
         ax.set_ylabel(metric)
         ax.grid(alpha=0.3)
     axes[0].set_yscale("log")
-    axes[0].yaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+    axes[0].yaxis.set_minor_formatter(ticker.NullFormatter())
     axes[1].legend(fontsize=6, loc="lower right")
     fig.suptitle("GT convergence: error vs render time (labels: spp; reference: high-spp path tracing)")
-    fig.tight_layout()
-    fig.savefig(png, dpi=120)
-    plt.close(fig)
+    save(fig, png)

@@ -127,10 +127,7 @@ def run(cfg: FovConfig, out: Path, seed: int = 0) -> Path:
 def plot(csv_path: Path, png: Path) -> None:
     """Fig. 9 (GI-map SSIM against F_GI) and Fig. 8 (warped SSIM, and the share of the frame the GI map
     covers, against camera motion; one line per method and F_GI)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from bench.plotting import plt, save
 
     from bench.results import read_rows
 
@@ -154,6 +151,4 @@ def plot(csv_path: Path, png: Path) -> None:
     for ax in axes:
         ax.grid(alpha=0.3)
     fig.suptitle("GI-camera FOV: GI-map quality (Fig. 9) and warping after camera motion (Fig. 8)")
-    fig.tight_layout()
-    fig.savefig(png, dpi=120)
-    plt.close(fig)
+    save(fig, png)

@@ -106,11 +106,7 @@ def table(csv_path: Path) -> str:
 
 def plot(csv_path: Path, png: Path) -> None:
     """Frame rate and SSIM against the GI-map period k, per warp and composition."""
-    import matplotlib
-    import matplotlib.ticker
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from bench.plotting import plt, save, ticker
 
     from bench.results import read_rows
 
@@ -127,10 +123,8 @@ def plot(csv_path: Path, png: Path) -> None:
         ax.set_ylabel(label)
         ax.grid(alpha=0.3)
     axes[0].set_yscale("log")
-    axes[0].yaxis.set_major_formatter(matplotlib.ticker.ScalarFormatter())
-    axes[0].yaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+    axes[0].yaxis.set_major_formatter(ticker.ScalarFormatter())
+    axes[0].yaxis.set_minor_formatter(ticker.NullFormatter())
     axes[1].legend(fontsize=7)
     fig.suptitle("Inference frequency vs system performance (Table 3)")
-    fig.tight_layout()
-    fig.savefig(png, dpi=120)
-    plt.close(fig)
+    save(fig, png)

@@ -89,10 +89,7 @@ def run(cfg: QualityConfig, out: Path, seed: int = 0) -> Path:
 
 def plot(csv_path: Path, bars_png: Path, pareto_png: Path) -> None:
     """Fig. 6 style bars per scene and metric; and mean SSIM against inference time per model."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from bench.plotting import plt, save, ticker
 
     rows = read_rows(csv_path)
     scenes = sorted({r["scene"] for r in rows})
@@ -107,9 +104,7 @@ def plot(csv_path: Path, bars_png: Path, pareto_png: Path) -> None:
         ax.set_title(f"{metric.upper()} ({'lower' if metric == 'rmse' else 'higher'} is better)")
         ax.grid(axis="y", alpha=0.3)
     axes[2].legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(bars_png, dpi=120)
-    plt.close(fig)
+    save(fig, bars_png)
 
     fig, ax = plt.subplots(figsize=(10, 5))
     markers = {"fp32": "o", "fp16": "s", "int8": "^"}
@@ -123,16 +118,14 @@ def plot(csv_path: Path, bars_png: Path, pareto_png: Path) -> None:
             ax.scatter(x, y, s=45, marker=markers.get(cfg.get("precision"), "x"), label=label, alpha=0.8)
     ax.legend(fontsize=6, loc="center left", bbox_to_anchor=(1.01, 0.5))
     ax.set_xscale("log")
-    ax.xaxis.set_major_formatter(matplotlib.ticker.ScalarFormatter())
-    ax.xaxis.set_minor_formatter(matplotlib.ticker.ScalarFormatter())
+    ax.xaxis.set_major_formatter(ticker.ScalarFormatter())
+    ax.xaxis.set_minor_formatter(ticker.ScalarFormatter())
     ax.tick_params(axis="x", which="minor", labelsize=6)
     ax.set_xlabel("median onnxruntime inference time per frame [ms] (log)")
     ax.set_ylabel("mean SSIM over scenes")
     ax.grid(alpha=0.3, which="both")
     ax.set_title("GI-map error against run time")
-    fig.tight_layout()
-    fig.savefig(pareto_png, dpi=120)
-    plt.close(fig)
+    save(fig, pareto_png)
 
 
 def _save_grid(rows: list[list[np.ndarray]], labels: list[str], png: Path) -> None:

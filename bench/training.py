@@ -37,10 +37,7 @@ def run(runs: list[Path], out: Path) -> Path:
 
 
 def plot(csv_path: Path, png: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from bench.plotting import plt, save
 
     rows = read_rows(csv_path)
     fig, axes = plt.subplots(1, 3, figsize=(16, 4))
@@ -62,9 +59,7 @@ def plot(csv_path: Path, png: Path) -> None:
     for ax in axes:
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(png, dpi=120)
-    plt.close(fig)
+    save(fig, png)
 
 
 def training_minutes(step_seconds: list[tuple[int, float]], steps: tuple[int, ...] | list[int]) -> list[float]:

@@ -193,10 +193,7 @@ def run(cfg: WarpBenchConfig, out: Path, seed: int = 0) -> Path:
 
 def plot(csv_path: Path, png: Path) -> None:
     """Fig. 7 from the CSV: warp time (median, p95 whisker), CPU %, and SSIM per scene and method."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from bench.plotting import plt, save
 
     from bench.results import read_rows
 
@@ -223,6 +220,4 @@ def plot(csv_path: Path, png: Path) -> None:
     axes[2].set_ylim(bottom=max(0.0, min(r["value"] for r in rows if r["metric"] == "ssim") - 0.05))
     axes[0].legend(fontsize=8)
     fig.suptitle("Pixel-level vs structure-aware 3D image warping (CPU, one process)")
-    fig.tight_layout()
-    fig.savefig(png, dpi=120)
-    plt.close(fig)
+    save(fig, png)
