@@ -12,8 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.results import Results
-from bench.timing import time_repeats
+from gicore.results import Results
+from gicore.timing import time_repeats
 from gicore.metrics import all_metrics
 from gicore.paths import camera_path, light_position
 from gicore.scene import builtin_scenes, load_scene
@@ -65,9 +65,9 @@ def run(cfg: ConvergenceConfig, out: Path, seed: int = 0) -> Path:
 
 def plot(csv_path: Path, png: Path) -> None:
     """RMSE and SSIM against median render time, one line per scene and denoiser setting."""
-    from bench.plotting import plt, save, ticker
+    from gicore.plotting import plt, save, ticker
 
-    from bench.results import read_rows
+    from gicore.results import read_rows
 
     rows = read_rows(csv_path)
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.results import Results
+from gicore.results import Results
 from gicore.camera import Camera
 
 LABELS = {"structure": "structure-aware", "pixel": "pixel-level", "none": "no warping"}
@@ -127,9 +127,9 @@ def run(cfg: FovConfig, out: Path, seed: int = 0) -> Path:
 def plot(csv_path: Path, png: Path) -> None:
     """Fig. 9 (GI-map SSIM against F_GI) and Fig. 8 (warped SSIM, and the share of the frame the GI map
     covers, against camera motion; one line per method and F_GI)."""
-    from bench.plotting import plt, save
+    from gicore.plotting import plt, save
 
-    from bench.results import read_rows
+    from gicore.results import read_rows
 
     rows = read_rows(csv_path)
     fig, axes = plt.subplots(1, 4, figsize=(19, 4.2))

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.results import Results
+from gicore.results import Results
 
 LABELS = {"structure": "structure-aware", "pixel": "pixel-level", "none": "no warping"}
 
@@ -86,7 +86,7 @@ def run(cfg: FrequencyConfig, out: Path, seed: int = 0) -> Path:
 
 def table(csv_path: Path) -> str:
     """Table 3 from the CSV, one block per composition: k, fps (structure-aware), SSIM per warp."""
-    from bench.results import read_rows
+    from gicore.results import read_rows
 
     rows = read_rows(csv_path)
     systems = list(dict.fromkeys(r["system"] for r in rows))
@@ -106,9 +106,9 @@ def table(csv_path: Path) -> str:
 
 def plot(csv_path: Path, png: Path) -> None:
     """Frame rate and SSIM against the GI-map period k, per warp and composition."""
-    from bench.plotting import plt, save, ticker
+    from gicore.plotting import plt, save, ticker
 
-    from bench.results import read_rows
+    from gicore.results import read_rows
 
     rows = read_rows(csv_path)
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))

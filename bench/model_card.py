@@ -10,7 +10,7 @@ import csv
 import json
 from pathlib import Path
 
-from bench.results import read_rows
+from gicore.results import read_rows
 from bench.training import training_minutes
 
 

@@ -14,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.results import Results, read_rows
-from bench.timing import time_repeats
+from gicore.results import Results, read_rows
+from gicore.timing import time_repeats
 from gicore.dataset import frame_paths, load_frame, read_meta
 from gicore.metrics import all_metrics
 from gicore.scene import builtin_scenes
@@ -89,7 +89,7 @@ def run(cfg: QualityConfig, out: Path, seed: int = 0) -> Path:
 
 def plot(csv_path: Path, bars_png: Path, pareto_png: Path) -> None:
     """Fig. 6 style bars per scene and metric; and mean SSIM against inference time per model."""
-    from bench.plotting import plt, save, ticker
+    from gicore.plotting import plt, save, ticker
 
     rows = read_rows(csv_path)
     scenes = sorted({r["scene"] for r in rows})

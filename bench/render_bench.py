@@ -10,8 +10,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from bench.results import Results
-from bench.timing import time_repeats
+from gicore.results import Results
+from gicore.timing import time_repeats
 from gicore.paths import camera_path, light_position
 from gicore.scene import builtin_scenes, load_scene
 

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.results import Results, read_rows
+from gicore.results import Results, read_rows
 
 
 def run(runs: list[Path], out: Path) -> Path:
@@ -37,7 +37,7 @@ def run(runs: list[Path], out: Path) -> Path:
 
 
 def plot(csv_path: Path, png: Path) -> None:
-    from bench.plotting import plt, save
+    from gicore.plotting import plt, save
 
     rows = read_rows(csv_path)
     fig, axes = plt.subplots(1, 3, figsize=(16, 4))

@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.results import Results
+from gicore.results import Results
 from gicore.camera import Camera
 from gicore.metrics import ssim
 from gicore.paths import camera_path, light_position
@@ -193,9 +193,9 @@ def run(cfg: WarpBenchConfig, out: Path, seed: int = 0) -> Path:
 
 def plot(csv_path: Path, png: Path) -> None:
     """Fig. 7 from the CSV: warp time (median, p95 whisker), CPU %, and SSIM per scene and method."""
-    from bench.plotting import plt, save
+    from gicore.plotting import plt, save
 
-    from bench.results import read_rows
+    from gicore.results import read_rows
 
     rows = read_rows(csv_path)
     scenes = list(dict.fromkeys(r["scene"] for r in rows))

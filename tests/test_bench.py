@@ -10,8 +10,8 @@ from typer.testing import CliRunner
 
 from bench.cli import _config, app
 from bench.convergence import ConvergenceConfig, run
-from bench.results import COLUMNS, Results, read_rows
-from bench.timing import summarize_ms, time_repeats
+from gicore.results import COLUMNS, Results, read_rows
+from gicore.timing import summarize_ms, time_repeats
 
 SUBCOMMANDS = ("convergence", "render", "warp", "frequency", "fov", "quality", "training", "run-default")
 

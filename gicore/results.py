@@ -24,7 +24,9 @@ from pathlib import Path
 from typing import Any
 
 COLUMNS = ("run_id", "bench", "system", "scene", "metric", "stat", "value", "unit", "config")
-_PACKAGES = ("numpy", "torch", "mitsuba", "drjit", "onnxruntime", "scikit-image", "pyoidn", "fastapi", "zstandard")
+_PACKAGES = (
+    "numpy", "torch", "mitsuba", "drjit", "onnxruntime", "scikit-image", "pyoidn", "fastapi", "uvicorn", "httpx", "zstandard", "pillow",
+)
 
 
 def git_revision() -> dict[str, Any]:
@@ -89,7 +91,7 @@ class Results:
 
     def add_timing(self, *, system: str, scene: str, metric: str, samples_s: list[float], **config: Any) -> None:
         """Median and p95 (ms) of repeated timings taken after warm-up, plus the repeat count."""
-        from bench.timing import summarize_ms
+        from gicore.timing import summarize_ms
 
         summary = summarize_ms(samples_s)
         for stat in ("median", "p95"):

@@ -1,0 +1,67 @@
+"""Writing files so that nothing half-written is ever seen, and one run per output folder.
+
+``atomic_write`` writes to a uniquely named temporary file beside the target, fsyncs it and renames it
+over the target, so a reader (or a resumed run) sees either the old file or the whole new one, and two
+processes writing into one folder never share a temporary name. ``exclusive_run`` holds an advisory
+lock on a folder for the life of a run and refuses a second run with a one-line error.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import os
+import tempfile
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import IO
+
+from gicore.cli import UserError
+
+#: Temporary files carry this marker so that a sweep can remove those a killed writer left behind.
+TMP_MARKER = ".tmp-"
+
+
+def atomic_write(path: Path, write: Callable[[IO[bytes]], object], *, fsync: bool = True) -> Path:
+    """Write ``path`` through ``write(file)`` atomically (temp file in the same folder, fsync, rename)."""
+    path = Path(path)
+    fd, tmp_name = tempfile.mkstemp(prefix=f"{path.name}{TMP_MARKER}", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as handle:
+            write(handle)
+            if fsync:
+                handle.flush()
+                os.fsync(handle.fileno())
+        os.replace(tmp_name, path)
+    except BaseException:
+        Path(tmp_name).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def atomic_write_bytes(path: Path, data: bytes, *, fsync: bool = True) -> Path:
+    return atomic_write(path, lambda handle: handle.write(data), fsync=fsync)
+
+
+def sweep_temporaries(folder: Path) -> list[Path]:
+    """Remove temporary files that a killed writer left in ``folder`` (not recursive); returns them."""
+    removed = [p for p in Path(folder).glob(f"*{TMP_MARKER}*") if p.is_file()]
+    for p in removed:
+        p.unlink(missing_ok=True)
+    return removed
+
+
+@contextmanager
+def exclusive_run(folder: Path) -> Iterator[None]:
+    """Hold ``folder/.lock`` for the duration of a run; a second run into the same folder is refused."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    with open(folder / ".lock", "a+b") as handle:
+        try:
+            fcntl.flock(handle.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError as exc:
+            raise UserError(f"another run holds {folder}", "wait for it to finish or choose another --out") from exc
+        try:
+            yield
+        finally:
+            fcntl.flock(handle.fileno(), fcntl.LOCK_UN)
