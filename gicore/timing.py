@@ -27,3 +27,33 @@ def time_repeats(fn: Callable[[], Any], repeats: int = 5, warmup: int = 1) -> tu
 def summarize_ms(samples_s: list[float]) -> dict[str, float]:
     ms = np.asarray(samples_s, dtype=np.float64) * 1e3
     return {"median": float(np.median(ms)), "p95": float(np.percentile(ms, 95)), "n": float(len(ms))}
+
+
+class Stopwatch:
+    """The one per-stage timer of the client loops: :meth:`lap` closes the running stage.
+
+    ``ms`` maps each stage name to its milliseconds (summed if a stage is lapped twice), in the order the
+    stages first ran::
+
+        sw = Stopwatch()
+        project()
+        sw.lap("project")
+        lookup()
+        sw.lap("lookup")  # sw.ms == {"project": ..., "lookup": ...}
+    """
+
+    def __init__(self) -> None:
+        self.ms: dict[str, float] = {}
+        self._t = time.perf_counter()
+
+    def lap(self, stage: str) -> float:
+        """Record the time since the previous lap (or the start, or :meth:`restart`) as ``stage``; returns it in ms."""
+        now = time.perf_counter()
+        ms = (now - self._t) * 1e3
+        self.ms[stage] = self.ms.get(stage, 0.0) + ms
+        self._t = now
+        return ms
+
+    def restart(self) -> None:
+        """Start the next stage now: time since the last lap is not counted (e.g. untimed evaluation)."""
+        self._t = time.perf_counter()
