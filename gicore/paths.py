@@ -8,11 +8,18 @@ linearly over the path while radius and height wobble with two seeded low-freque
 from __future__ import annotations
 
 import math
+import zlib
 
 import numpy as np
 
 from gicore.camera import Camera
 from gicore.scene import SceneSpec
+
+
+def frame_seed(seed: int, purpose: str, frame: int) -> int:
+    """An independent, reproducible render seed per (run seed, purpose, frame): same inputs, same noise;
+    any change, independent noise. ``purpose`` names the render (e.g. ``"di"``, ``"gt"``, a dataset split)."""
+    return zlib.crc32(f"{seed}/{purpose}/{frame}".encode())
 
 
 def light_position(spec: SceneSpec, frame: int) -> tuple[float, float, float]:
