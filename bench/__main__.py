@@ -1,3 +1,6 @@
-from bench.cli import app
+import sys
 
-app(prog_name="bench")
+from bench.cli import main
+
+sys.argv[0] = "bench"  # usage and error lines name the command as the console script does
+main()

@@ -8,7 +8,17 @@ from typing import Annotated, Any
 
 import typer
 
+from bench import convergence, render_bench
+from bench.runner import execute, register
+from gicore.cli import entry_point
+
 app = typer.Typer(add_completion=False, no_args_is_help=True, help="Experiments of the GIGAN testbed (CSV + provenance + plots).")
+main = entry_point(app, resume="run the same command again; each bench rewrites its CSV, provenance and plots whole")
+
+CONVERGENCE = register(app, "convergence", convergence.ConvergenceConfig, convergence.measure, convergence.plot,
+                       help="GT error (RMSE/SSIM against a high-spp reference) against render time, with and without OIDN.")
+register(app, "render", render_bench.RenderBenchConfig, render_bench.measure, render_bench.plot,
+         help="Per-pass render times (DI, G-buffers, GT with/without OIDN) and triangle counts per scene.")
 
 OutOpt = Annotated[Path, typer.Option("--out", help="folder for CSV, provenance JSON and plots")]
 QuickOpt = Annotated[bool, typer.Option("--quick", help="small preset that finishes in minutes on 2 cores")]
@@ -28,27 +38,11 @@ def _config(cls: Any, quick: bool, **options: Any) -> Any:
     return replace(cls.quick() if quick else cls(), **{k: v for k, v in options.items() if v is not None})
 
 
-@app.command()
-def convergence(
-    out: OutOpt = Path("results"),
-    quick: QuickOpt = False,
-    seed: SeedOpt = 0,
-    scenes: ScenesOpt = None,
-    resolution: ResolutionOpt = None,
-) -> None:
-    """GT error (RMSE/SSIM against a high-spp reference) against render time, with and without OIDN."""
-    from bench.convergence import ConvergenceConfig, run
-
-    typer.echo(f"wrote {run(_config(ConvergenceConfig, quick, scenes=scenes, resolution=resolution), out, seed)}")
-
-
 @app.command("run-default")
 def run_default(out: OutOpt = Path("results"), scene: str = "lung_plane") -> None:
     """The main job on the embedded default scene: a small dataset and its contact sheet, the quick
     convergence bench, and the shipped GIGAN model scored on the dataset's held-out frames."""
     from bench.contact_sheet import contact_sheet
-    from bench.convergence import ConvergenceConfig
-    from bench.convergence import run as run_convergence
     from bench.quality import QualityConfig
     from bench.quality import run as run_quality
     from gicore.dataset_cli import DatasetConfig, build_dataset
@@ -59,17 +53,10 @@ def run_default(out: OutOpt = Path("results"), scene: str = "lung_plane") -> Non
     # 256² because the shipped model runs at that resolution.
     build_dataset(spec, datasets / spec.name, DatasetConfig(n_train=6, n_val=3, resolution=256, spp=64, denoise=True))
     typer.echo(f"wrote {contact_sheet(datasets / spec.name, out / 'contact_sheet.png')}")
-    typer.echo(f"wrote {run_convergence(_config(ConvergenceConfig, True, scenes=spec.name), out)}")
+    for path in execute(CONVERGENCE, replace(convergence.ConvergenceConfig.quick(), scenes=(spec.name,)), out):
+        typer.echo(f"wrote {path}")
     quality = QualityConfig(datasets=datasets, scenes=(spec.name,), timing_repeats=10, grid_frames=2)
     typer.echo(f"wrote {run_quality(quality, out)}")
-
-
-@app.command()
-def render(out: OutOpt = Path("results"), quick: QuickOpt = False, seed: SeedOpt = 0, scenes: ScenesOpt = None, resolution: ResolutionOpt = None) -> None:
-    """Per-pass render times (DI, G-buffers, GT with/without OIDN) and triangle counts per scene."""
-    from bench.render_bench import RenderBenchConfig, run
-
-    typer.echo(f"wrote {run(_config(RenderBenchConfig, quick, scenes=scenes, resolution=resolution), out, seed)}")
 
 
 @app.command()

@@ -12,11 +12,11 @@ from pathlib import Path
 
 import numpy as np
 
-from gicore.results import Results
-from gicore.timing import time_repeats
 from gicore.metrics import all_metrics
 from gicore.paths import camera_path, light_position
+from gicore.results import Results, read_rows
 from gicore.scene import builtin_scenes, load_scene
+from gicore.timing import time_repeats
 from gicore.tonemap import tonemap
 
 
@@ -24,10 +24,15 @@ from gicore.tonemap import tonemap
 class ConvergenceConfig:
     """The parameter grid of one run."""
 
+    #: Scene names or spec files.
     scenes: tuple[str, ...] = tuple(builtin_scenes())
+    #: Square resolution in pixels.
     resolution: int = 256
+    #: Samples per pixel of the measured GT renders.
     spps: tuple[int, ...] = (1, 4, 16, 64, 256)
+    #: Samples per pixel of the reference (other seed, no denoising).
     reference_spp: int = 4096
+    #: Timed repeats per render, after one warm-up.
     repeats: int = 3
 
     @classmethod
@@ -35,10 +40,10 @@ class ConvergenceConfig:
         return cls(scenes=("lung_plane", "lung_cornell"), resolution=96, spps=(1, 4, 16, 64), reference_spp=1024, repeats=2)
 
 
-def run(cfg: ConvergenceConfig, out: Path, seed: int = 0) -> Path:
+def measure(cfg: ConvergenceConfig, res: Results) -> None:
     from gicore.render import Renderer
 
-    res = Results("convergence", out, seed, settings=cfg.__dict__)
+    seed = res.seed
     for name in cfg.scenes:
         spec = load_scene(name)
         renderer = Renderer(spec, cfg.resolution)
@@ -58,16 +63,11 @@ def run(cfg: ConvergenceConfig, out: Path, seed: int = 0) -> Path:
                 res.add_timing(system=system, scene=name, metric="render_time", samples_s=samples, spp=spp, resolution=cfg.resolution)
                 for metric, value in all_metrics(tonemap(image), reference).items():
                     res.add(system=system, scene=name, metric=metric, value=value, unit="dB" if metric == "psnr" else "1", spp=spp, resolution=cfg.resolution)
-    path = res.write()
-    plot(path, out / "convergence.png")
-    return path
 
 
-def plot(csv_path: Path, png: Path) -> None:
+def plot(csv_path: Path, out_dir: Path) -> list[Path]:
     """RMSE and SSIM against median render time, one line per scene and denoiser setting."""
     from gicore.plotting import plt, save, ticker
-
-    from gicore.results import read_rows
 
     rows = read_rows(csv_path)
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
@@ -91,4 +91,4 @@ def plot(csv_path: Path, png: Path) -> None:
     axes[0].yaxis.set_minor_formatter(ticker.NullFormatter())
     axes[1].legend(fontsize=6, loc="lower right")
     fig.suptitle("GT convergence: error vs render time (labels: spp; reference: high-spp path tracing)")
-    save(fig, png)
+    return [save(fig, out_dir / "convergence.png")]

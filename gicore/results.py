@@ -11,6 +11,7 @@ and ``config`` is a compact JSON object of the knobs that produced the row (spp,
 from __future__ import annotations
 
 import csv
+import io
 import json
 import os
 import platform
@@ -22,6 +23,8 @@ from dataclasses import dataclass, field
 from importlib import metadata
 from pathlib import Path
 from typing import Any
+
+from gicore.fileio import atomic_write_bytes
 
 COLUMNS = ("run_id", "bench", "system", "scene", "metric", "stat", "value", "unit", "config")
 _PACKAGES = (
@@ -64,7 +67,11 @@ def package_versions() -> dict[str, str | None]:
 
 @dataclass
 class Results:
-    """Collects rows for one bench run and writes CSV + provenance JSON on :meth:`write`."""
+    """Collects rows for one bench run and writes CSV + provenance JSON on :meth:`write`.
+
+    ``settings`` is the run's final configuration (what the provenance records); ``files`` are the other
+    files the run wrote, each named through :meth:`output`.
+    """
 
     bench: str
     out: Path
@@ -73,6 +80,14 @@ class Results:
     run_id: str = field(default_factory=lambda: time.strftime("%Y%m%dT%H%M%S") + "-" + uuid.uuid4().hex[:6])
     rows: list[dict[str, Any]] = field(default_factory=list)
     started: float = field(default_factory=time.time)
+    files: list[Path] = field(default_factory=list)
+
+    def output(self, name: str) -> Path:
+        """The path of an extra file ``name`` in the output folder (a table, an image grid), recorded in
+        :attr:`files` and in the provenance."""
+        path = self.out / name
+        self.files.append(path)
+        return path
 
     def add(self, *, system: str, scene: str, metric: str, value: float, unit: str, stat: str = "value", **config: Any) -> None:
         self.rows.append(
@@ -102,13 +117,18 @@ class Results:
     def csv_path(self) -> Path:
         return self.out / f"{self.bench}.csv"
 
+    @property
+    def provenance_path(self) -> Path:
+        return self.out / f"{self.bench}.provenance.json"
+
     def write(self) -> Path:
-        """Write ``<bench>.csv`` and ``<bench>.provenance.json``; returns the CSV path."""
+        """Write ``<bench>.csv`` and ``<bench>.provenance.json`` (each atomically); returns the CSV path."""
         self.out.mkdir(parents=True, exist_ok=True)
-        with self.csv_path.open("w", newline="") as fh:
-            writer = csv.DictWriter(fh, fieldnames=COLUMNS)
-            writer.writeheader()
-            writer.writerows(self.rows)
+        text = io.StringIO(newline="")
+        writer = csv.DictWriter(text, fieldnames=COLUMNS)
+        writer.writeheader()
+        writer.writerows(self.rows)
+        atomic_write_bytes(self.csv_path, text.getvalue().encode())
         provenance = {
             "run_id": self.run_id,
             "bench": self.bench,
@@ -121,8 +141,9 @@ class Results:
             "started_unix": self.started,
             "finished_unix": time.time(),
             "rows": len(self.rows),
+            "files": [str(p) for p in self.files],
         }
-        (self.out / f"{self.bench}.provenance.json").write_text(json.dumps(provenance, indent=1, default=str))
+        atomic_write_bytes(self.provenance_path, json.dumps(provenance, indent=1, default=str).encode())
         return self.csv_path
 
 

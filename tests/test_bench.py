@@ -1,35 +1,192 @@
-"""The bench framework: CLI wiring, config presets, tidy CSV + provenance, and a tiny real bench run."""
+"""The bench framework: the runner (options from configs, presets, checks, --out), tidy CSV + provenance,
+and tiny real bench runs through the ``bench`` command."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
+import subprocess
+import sys
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Literal
 
 import pytest
+import typer
 from typer.testing import CliRunner
 
-from bench.cli import _config, app
-from bench.convergence import ConvergenceConfig, run
+from bench.cli import app
+from bench.runner import build_config, execute, field_docs, register
+from gicore.cli import UserError
 from gicore.results import COLUMNS, Results, read_rows
 from gicore.timing import summarize_ms, time_repeats
 
-SUBCOMMANDS = ("convergence", "render", "warp", "frequency", "fov", "quality", "training", "run-default")
+REPO = Path(__file__).resolve().parent.parent
 
 
-@pytest.mark.parametrize("name", SUBCOMMANDS)
-def test_every_subcommand_parses_and_documents_out_and_quick(name: str) -> None:
-    result = CliRunner().invoke(app, [name, "--help"])
+@dataclass(frozen=True)
+class DemoConfig:
+    """A config exercising every field form the runner supports."""
+
+    #: Scene names or spec files.
+    scenes: tuple[str, ...] = ("lung_plane",)
+    #: Square resolution in pixels.
+    resolution: int = 64
+    #: A threshold that may be zero.
+    tau: float = field(default=0.0, metadata={"min": 0.0, "max": 1.0})
+    #: Denoise or not.
+    denoise: bool = True
+    #: Which warp.
+    warp: Literal["structure", "pixel"] = "structure"
+    #: Optional cost in ms.
+    cost_ms: float | None = None
+    #: Named files.
+    models: dict[str, Path] = field(default_factory=lambda: {"a": Path("a.onnx")})
+    #: Frame indices (0 allowed).
+    frames: tuple[int, ...] = field(default=(0, 5), metadata={"min": 0})
+
+    @classmethod
+    def quick(cls) -> "DemoConfig":
+        return cls(resolution=16, denoise=False)
+
+
+def _demo_measure(cfg: DemoConfig, res: Results) -> None:
+    res.add(system="demo", scene=cfg.scenes[0], metric="resolution", value=cfg.resolution, unit="px")
+    res.output("note.md").write_text("a table")
+
+
+def _demo_plot(csv_path: Path, out_dir: Path) -> list[Path]:
+    from gicore.plotting import plt, save
+
+    fig, ax = plt.subplots()
+    ax.plot([r["value"] for r in read_rows(csv_path)])
+    return [save(fig, out_dir / "demo.png")]
+
+
+def _demo_app() -> typer.Typer:
+    demo = typer.Typer()
+    register(demo, "demo", DemoConfig, _demo_measure, _demo_plot, help="A demo bench.")
+    register(demo, "other", DemoConfig, _demo_measure, None, help="Typer needs two commands for subcommand names.")
+    return demo
+
+
+def _options(typer_app: typer.Typer, name: str) -> dict:
+    command = typer.main.get_command(typer_app).commands[name]  # type: ignore[attr-defined]
+    return {opt: p for p in command.params for opt in p.opts}
+
+
+def test_runner_builds_typed_documented_options_from_the_config(tmp_path: Path) -> None:
+    opts = _options(_demo_app(), "demo")
+    assert {"--scenes", "--resolution", "--tau", "--denoise", "--warp", "--cost-ms", "--models", "--frames", "--out", "--quick", "--seed"} <= set(opts)
+    assert opts["--denoise"].secondary_opts == ["--no-denoise"]
+    args = ["demo", "--quick", "--resolution", "24", "--tau", "0.5", "--denoise", "--warp", "pixel", "--cost-ms", "2.5"]
+    args += ["--models", "x=y.onnx", "--frames", "0,7", "--seed", "4", "--out", str(tmp_path)]
+    result = CliRunner().invoke(_demo_app(), args)
     assert result.exit_code == 0, result.output
-    assert "--out" in result.output
-    if name not in ("run-default", "training"):
-        assert "--quick" in result.output
+    settings = json.loads((tmp_path / "demo.provenance.json").read_text())["settings"]
+    assert settings == {"scenes": ["lung_plane"], "resolution": 24, "tau": 0.5, "denoise": True, "warp": "pixel", "cost_ms": 2.5,
+                        "models": {"x": "y.onnx"}, "frames": [0, 7]}
+    for bad in (["--resolution", "2.5"], ["--tau", "x"], ["--warp", "diagonal"]):  # typed options: usage errors
+        assert CliRunner().invoke(_demo_app(), ["demo", *bad, "--out", str(tmp_path)]).exit_code == 2, bad
+    help_text = CliRunner(env={"COLUMNS": "250"}).invoke(_demo_app(), ["demo", "--help"]).output
+    assert "Square resolution in pixels. (default: 64; --quick: 16)" in help_text
+    assert "Frame indices (0 allowed). (default: 0,5)" in help_text
 
 
-def test_config_applies_preset_then_only_given_options() -> None:
-    cfg = _config(ConvergenceConfig, True, scenes="lung_plane, vessels_plane", resolution=None)
-    assert cfg.scenes == ("lung_plane", "vessels_plane")
-    assert cfg.resolution == ConvergenceConfig.quick().resolution  # None leaves the preset's value
-    assert _config(ConvergenceConfig, False, resolution=64).spps == ConvergenceConfig().spps
+def test_field_docs_come_from_comments_or_metadata() -> None:
+    @dataclass(frozen=True)
+    class C:
+        #: Documented
+        #: over two lines.
+        a: int = 1
+        b: int = field(default=2, metadata={"help": "from metadata"})
+
+    assert field_docs(C) == {"a": "Documented over two lines.", "b": "from metadata"}
+    with pytest.raises(TypeError, match="C.b has no #: comment"):
+        undocumented = dataclasses.make_dataclass("C", [("b", int, 2)], frozen=True, namespace={"quick": classmethod(lambda cls: cls())})
+        register(typer.Typer(), "c", undocumented, _demo_measure, None, help="")
+
+
+def test_quick_preset_then_only_the_options_given() -> None:
+    cfg = build_config(DemoConfig, True, {"scenes": "lung_plane, vessels_plane", "models": "x=1.onnx,y=2.onnx", "frames": "0,3"})
+    assert cfg.scenes == ("lung_plane", "vessels_plane") and cfg.frames == (0, 3)
+    assert cfg.models == {"x": Path("1.onnx"), "y": Path("2.onnx")}
+    assert (cfg.resolution, cfg.denoise) == (16, False)  # absent options keep the preset's values
+    assert build_config(DemoConfig, False, {"resolution": 32}) == DemoConfig(resolution=32)
+    assert build_config(DemoConfig, True, {"denoise": True}).denoise is True  # an explicit flag beats the preset
+    assert build_config(DemoConfig, False, {"tau": 0.0}).tau == 0.0  # zero where the field allows it
+
+
+@pytest.mark.parametrize(
+    ("given", "message"),
+    [
+        ({"resolution": 0}, "--resolution = 0 is not positive"),
+        ({"resolution": -3}, "--resolution = -3 is not positive"),
+        ({"cost_ms": float("nan")}, "--cost-ms = nan is not finite"),
+        ({"tau": -0.1}, "--tau = -0.1 is below 0.0"),
+        ({"tau": 2.0}, "--tau = 2.0 is above 1.0"),
+        ({"frames": "0,-1"}, "--frames = -1 is below 0"),
+        ({"frames": "1,x"}, "--frames 'x' is not a valid int"),
+        ({"scenes": " , "}, "--scenes is empty"),
+        ({"scenes": "lung_plane,no_such_scene"}, "--scenes 'no_such_scene'"),
+        ({"models": "a.onnx"}, "--models 'a.onnx' is not a list of NAME=VALUE pairs"),
+    ],
+)
+def test_bad_values_are_user_errors_naming_the_option(given: dict, message: str) -> None:
+    with pytest.raises(UserError, match="^" + message.replace("(", r"\(").replace(".", r"\.")):
+        build_config(DemoConfig, False, given)
+
+
+def test_execute_writes_csv_provenance_of_the_final_config_and_plots(tmp_path: Path) -> None:
+    bench = register(typer.Typer(), "demo", DemoConfig, _demo_measure, _demo_plot, help="")
+    cfg = build_config(DemoConfig, True, {"resolution": 24})
+    paths = execute(bench, cfg, tmp_path, seed=5)
+    assert [p.name for p in paths] == ["demo.csv", "demo.provenance.json", "note.md", "demo.png"]
+    prov = json.loads((tmp_path / "demo.provenance.json").read_text())
+    assert prov["settings"]["resolution"] == 24 and prov["settings"]["denoise"] is False and prov["seed"] == 5
+    assert prov["settings"]["models"] == {"a": "a.onnx"} and prov["files"] == [str(tmp_path / "note.md")]
+    assert read_rows(tmp_path / "demo.csv")[0]["value"] == 24.0
+
+
+def _bench(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "bench", *args], cwd=REPO, capture_output=True, text=True, timeout=120)
+
+
+@pytest.mark.parametrize(
+    ("args", "culprit"),
+    [
+        (["convergence", "--resolution", "0"], "--resolution = 0 is not positive"),
+        (["render", "--resolution", "-5"], "--resolution = -5 is not positive"),
+        (["convergence", "--spps", "1,0"], "--spps = 0 is not positive"),
+        (["convergence", "--scenes", ""], "--scenes is empty"),
+        (["render", "--resolution", "abc"], "--resolution"),
+        (["render", "--out", "README.md"], "--out README.md is a file"),
+    ],
+)
+def test_bench_command_rejects_bad_input_with_one_error_line(args: list[str], culprit: str) -> None:
+    result = _bench(*args)
+    assert result.returncode == 2, result.stderr
+    errors = [line for line in result.stderr.splitlines() if line.startswith("error:")]
+    assert len(errors) == 1 and culprit in errors[0], result.stderr
+    assert "Traceback" not in result.stderr + result.stdout
+
+
+def test_every_subcommand_has_out_quick_and_seed() -> None:
+    group = typer.main.get_command(app)
+    assert set(group.commands) >= {"convergence", "render"}  # type: ignore[attr-defined]
+    for name in ("convergence", "render"):  # converting the rest to the runner is under way
+        assert {"--out", "--quick", "--seed"} <= set(_options(app, name)), name
+
+
+def test_tiny_render_run_through_the_command(tmp_path: Path) -> None:
+    result = _bench("render", "--quick", "--resolution", "16", "--repeats", "1", "--gt-repeats", "1", "--out", str(tmp_path))
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.split() == ["wrote", str(tmp_path / "render.csv"), "wrote", str(tmp_path / "render.provenance.json"), "wrote", str(tmp_path / "render.png")]
+    rows = read_rows(tmp_path / "render.csv")
+    assert {r["metric"] for r in rows} >= {"triangles", "di_1spp", "gt_256spp"}
+    prov = json.loads((tmp_path / "render.provenance.json").read_text())
+    assert prov["settings"] == {"scenes": ["lung_plane"], "resolution": 16, "repeats": 1, "gt_repeats": 1}
+    assert (tmp_path / "render.png").stat().st_size > 10_000
 
 
 def test_results_are_tidy_with_provenance(tmp_path: Path) -> None:
@@ -54,8 +211,12 @@ def test_timing_warms_up_and_summarises() -> None:
 
 
 def test_tiny_convergence_run_writes_csv_and_plot(tmp_path: Path) -> None:
+    from bench.cli import CONVERGENCE
+    from bench.convergence import ConvergenceConfig
+
     cfg = ConvergenceConfig(scenes=("lung_plane",), resolution=16, spps=(1, 4), reference_spp=16, repeats=1)
-    rows = read_rows(run(cfg, tmp_path))
+    execute(CONVERGENCE, cfg, tmp_path)
+    rows = read_rows(tmp_path / "convergence.csv")
     assert (tmp_path / "convergence.png").stat().st_size > 0
     rmse = {(r["system"], r["config"]["spp"]): r["value"] for r in rows if r["metric"] == "rmse"}
     assert set(rmse) == {("path", 1), ("path", 4), ("path+oidn", 1), ("path+oidn", 4)}
