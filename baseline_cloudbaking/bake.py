@@ -1,0 +1,132 @@
+"""The map the server bakes, and the scene catalog it bakes from (SPEC §6).
+
+A GI map is exactly what GIGAN predicts: the ``gt`` buffer of the GIGAN dataset, i.e. the path-traced
+image (max depth :data:`gicore.render.GT_MAX_DEPTH`) at the GI camera, OIDN-denoised with albedo and
+normal guides (``gicore-dataset``'s default ``--denoise``), clipped at 0. With it travel the linear view
+depth at texel centres (what both warps unproject) and, when asked, the DI of the GI view at 1 spp
+(what the client renders per frame, so ``gi - di`` is the indirect light the residual composition
+warps). A map with DI costs one more encoded image: about twice the bytes of a GI-only map.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import re
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from baseline_cloudbaking.codecs import DEPTH_CODEC, get_codec
+from baseline_cloudbaking.protocol import pack
+from gicore.camera import Camera
+from gicore.scene import SceneSpec, builtin_scenes, load_scene
+
+if TYPE_CHECKING:
+    from gicore.render import Renderer
+
+Vec3 = tuple[float, float, float]
+#: Scene names: no path separators or dots, so a name can never reach outside the scenes folder.
+SCENE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_-]{0,63}$")
+SPEC_SUFFIXES = (".toml", ".json")
+
+
+@dataclass(frozen=True)
+class BakedMap:
+    """A rendered GI map at ``camera`` (linear HxWx3), its GI view's DI (or None), texel-centre view
+    depth (HxW, 0 = background) and what it cost (ms: render = path tracing + DI + depth pass,
+    denoise = G-buffer guide pass + OIDN)."""
+
+    camera: Camera
+    gi: np.ndarray
+    di: np.ndarray | None
+    depth: np.ndarray
+    render_ms: float
+    denoise_ms: float
+
+
+def bake_map(renderer: Renderer, camera: Camera, light: Vec3, spp: int, seed: int, di: bool) -> BakedMap:
+    """Render the map at ``camera`` with the light at ``light`` (see the module docstring)."""
+    t0 = time.perf_counter()
+    gt = renderer.render_gt(camera, light, spp=spp, seed=seed)
+    t1 = time.perf_counter()
+    gi = np.maximum(renderer.denoise(gt, renderer.render_gbuffers(camera, seed=seed)), 0.0)
+    t2 = time.perf_counter()
+    di_img = renderer.render_di(camera, light, spp=1, seed=seed) if di else None
+    texels = renderer.render_uv(camera)
+    depth = np.where(texels["mask"], camera.view_depth(texels["position"]), 0.0).astype(np.float32)
+    t3 = time.perf_counter()
+    return BakedMap(camera, gi, di_img, depth, ((t1 - t0) + (t3 - t2)) * 1e3, (t2 - t1) * 1e3)
+
+
+def encode_map(baked: BakedMap, scene: str, codec_name: str, spp: int, light: Vec3 | None) -> bytes:
+    """The stored payload of a baked map (:mod:`baseline_cloudbaking.protocol`); ``light`` None for a
+    static light (the header then names none)."""
+    codec = get_codec(codec_name)
+    t0 = time.perf_counter()
+    sections = {"gi": codec.encode(baked.gi), "depth": DEPTH_CODEC.encode(baked.depth)}
+    if baked.di is not None:
+        sections["di"] = codec.encode(baked.di)
+    encode_ms = (time.perf_counter() - t0) * 1e3
+    cam = baked.camera
+    header = {
+        "format": "gimap/1",
+        "scene": scene,
+        "codec": codec_name,
+        "resolution": cam.width,
+        "spp": spp,
+        "camera": cam.to_dict(),
+        "view": cam.view().tolist(),
+        "proj": cam.proj().tolist(),
+        "bake_ms": {"render": baked.render_ms, "denoise": baked.denoise_ms, "encode": encode_ms},
+    } | ({"light": list(light)} if light is not None else {})
+    return pack(header, sections)
+
+
+def gi_camera(spec: SceneSpec, eye: Vec3, target: Vec3, up: Vec3, fov: float, resolution: int) -> Camera:
+    """The GI camera of a request: the scene's near/far clip, a square film (ValueError if degenerate)."""
+    return Camera(eye, target, up, fov=fov, near=spec.camera.near, far=spec.camera.far, width=resolution, height=resolution)
+
+
+def spec_sha(spec: SceneSpec) -> str:
+    """SHA-256 of a spec's canonical JSON: a store refuses to mix maps of two versions of a scene."""
+    return hashlib.sha256(json.dumps(spec.to_dict(), sort_keys=True).encode()).hexdigest()
+
+
+class UnknownScene(KeyError):
+    """A scene name that is malformed or names no scene of the catalog."""
+
+    def __str__(self) -> str:
+        return str(self.args[0])
+
+
+class SceneCatalog:
+    """The scenes a server or prebake can bake: the built-in ones and the ``.toml``/``.json`` specs in
+    ``scenes_dir`` (by file stem; a file shadows a built-in of the same name). Specs load lazily."""
+
+    def __init__(self, scenes_dir: Path | None = None):
+        self._files: dict[str, Path | str] = {name: name for name in builtin_scenes()}
+        if scenes_dir is not None:
+            for path in sorted(Path(scenes_dir).iterdir()):
+                if path.suffix in SPEC_SUFFIXES and SCENE_NAME.match(path.stem):
+                    self._files[path.stem] = path
+        self._specs: dict[str, SceneSpec] = {}
+        self._lock = threading.Lock()
+
+    def names(self) -> list[str]:
+        return sorted(self._files)
+
+    def get(self, name: str) -> SceneSpec:
+        """The spec of scene ``name``; UnknownScene if malformed or unknown, SceneSpecError if invalid."""
+        if not SCENE_NAME.match(name):
+            raise UnknownScene(f"scene name {name!r} is malformed: letters, digits, '_' and '-' only, at most 64")
+        if name not in self._files:
+            raise UnknownScene(f"unknown scene {name!r}; known scenes: {', '.join(self.names())}")
+        with self._lock:
+            if name not in self._specs:
+                self._specs[name] = load_scene(self._files[name])
+            return self._specs[name]

@@ -1,0 +1,131 @@
+"""The GI-map payload: one binary format for the stored files and the HTTP responses (no base64).
+
+Layout (little endian)::
+
+    b"GIM1"  | u32 header length | header (UTF-8 JSON) | section bytes, in the header's order
+
+The header says what the sections are (``sections``: name, codec, byte count) and what the map is:
+scene, GI camera (``camera`` as :class:`gicore.camera.Camera` fields, ``view``/``proj`` OpenGL
+matrices), the light it was rendered with (``light``, absent for a static light), resolution, spp,
+and the bake cost (``bake_ms``: render, denoise, encode). A served payload's header adds ``hit`` and
+``timings_ms`` (lookup, read, render, denoise, encode, total). Sections:
+
+- ``gi``: the GI map (the image codec named in the header), linear radiance HxWx3;
+- ``di``: the direct illumination of the GI view (same codec), present when asked for: the residual
+  composition subtracts it from ``gi`` to get the indirect light;
+- ``depth``: linear view depth at texel centres (:data:`~baseline_cloudbaking.codecs.DEPTH_CODEC`).
+
+:func:`decode_payload` is the client side: bytes in, arrays and camera out. Bad bytes raise
+:class:`PayloadError` (a ValueError) naming what is wrong.
+"""
+
+from __future__ import annotations
+
+import json
+import struct
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from baseline_cloudbaking.codecs import DEPTH_CODEC, CodecError, get_codec
+from gicore.camera import Camera
+
+MAGIC = b"GIM1"
+MEDIA_TYPE = "application/vnd.gigan.gimap"
+_LEN = struct.Struct("<I")
+#: Headers are small JSON objects; anything larger is not a payload of ours.
+MAX_HEADER_BYTES = 1 << 16
+SECTIONS = ("gi", "di", "depth")
+
+
+class PayloadError(ValueError):
+    """Bytes that are not a well-formed GI-map payload."""
+
+
+def pack(header: dict[str, Any], sections: dict[str, bytes]) -> bytes:
+    """A payload from a header (``sections`` is filled in here) and named section bytes."""
+    unknown = set(sections) - set(SECTIONS)
+    if unknown:
+        raise ValueError(f"unknown payload sections {sorted(unknown)}; known: {SECTIONS}")
+    codecs = {"gi": header["codec"], "di": header["codec"], "depth": DEPTH_CODEC.name}
+    header = header | {"sections": [{"name": n, "codec": codecs[n], "bytes": len(sections[n])} for n in SECTIONS if n in sections]}
+    head = json.dumps(header, separators=(",", ":"), allow_nan=False).encode()
+    return b"".join([MAGIC, _LEN.pack(len(head)), head, *(sections[n] for n in SECTIONS if n in sections)])
+
+
+def unpack(data: bytes) -> tuple[dict[str, Any], dict[str, memoryview]]:
+    """Header and section views of a payload, without decoding any image."""
+    view = memoryview(data)
+    if len(view) < len(MAGIC) + _LEN.size or bytes(view[:4]) != MAGIC:
+        raise PayloadError(f"not a GI-map payload: it does not start with {MAGIC!r}")
+    (n,) = _LEN.unpack_from(view, 4)
+    start = 4 + _LEN.size
+    if n > MAX_HEADER_BYTES or start + n > len(view):
+        raise PayloadError(f"header length {n} does not fit a {len(view)}-byte payload")
+    try:
+        header = json.loads(bytes(view[start : start + n]))
+        specs = [(s["name"], int(s["bytes"])) for s in header["sections"]]
+    except (ValueError, KeyError, TypeError) as exc:
+        raise PayloadError(f"payload header is not valid: {exc}") from None
+    offset = start + n
+    sections = {}
+    for name, size in specs:
+        if size < 0 or offset + size > len(view):
+            raise PayloadError(f"section {name!r} ({size} bytes) runs past the end of the payload")
+        sections[name] = view[offset : offset + size]
+        offset += size
+    if offset != len(view):
+        raise PayloadError(f"{len(view) - offset} bytes follow the last section")
+    return header, sections
+
+
+def with_header(data: bytes, extra: dict[str, Any], drop: tuple[str, ...] = ()) -> bytes:
+    """The payload ``data`` with ``extra`` merged into its header and the sections in ``drop`` removed
+    (the sections are copied, not re-encoded)."""
+    header, sections = unpack(data)
+    header.pop("sections")
+    return pack(header | extra, {n: bytes(v) for n, v in sections.items() if n not in drop})
+
+
+@dataclass(frozen=True)
+class GIMapPayload:
+    """A decoded payload: the GI map and what warping and composition need, at the GI ``camera``."""
+
+    header: dict[str, Any]
+    camera: Camera
+    view: np.ndarray
+    proj: np.ndarray
+    gi: np.ndarray
+    di: np.ndarray | None
+    depth: np.ndarray
+
+    @property
+    def hit(self) -> bool | None:
+        """Served from the GI tree (True), rendered for this request (False), or a stored file (None)."""
+        return self.header.get("hit")
+
+    @property
+    def timings_ms(self) -> dict[str, float]:
+        return self.header.get("timings_ms", {})
+
+
+def decode_payload(data: bytes) -> GIMapPayload:
+    """Decode a payload (a server response or a stored file) into arrays and the GI camera."""
+    header, sections = unpack(data)
+    if "gi" not in sections or "depth" not in sections:
+        raise PayloadError(f"payload lacks the gi or depth section; it has {sorted(sections)}")
+    try:
+        codec = get_codec(header["codec"])
+        camera = Camera.from_dict(header["camera"])
+        gi = codec.decode(bytes(sections["gi"]))
+        di = codec.decode(bytes(sections["di"])) if "di" in sections else None
+        depth = DEPTH_CODEC.decode(bytes(sections["depth"]))
+    except CodecError:
+        raise
+    except (KeyError, TypeError, ValueError) as exc:
+        raise PayloadError(f"payload header is not valid: {exc}") from None
+    shape = (camera.height, camera.width)
+    if gi.shape[:2] != shape or depth.shape != shape or (di is not None and di.shape != gi.shape):
+        raise PayloadError(f"sections do not match the {shape[1]}x{shape[0]} camera: gi {gi.shape}, depth {depth.shape}")
+    return GIMapPayload(header, camera, np.asarray(header["view"]), np.asarray(header["proj"]), gi, di, depth)

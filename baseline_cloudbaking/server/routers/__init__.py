@@ -1,0 +1,1 @@
+"""One router per resource: ``gimap`` (bake or serve a GI map), ``health``, ``stats``, ``scenes``."""

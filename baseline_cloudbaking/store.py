@@ -1,0 +1,489 @@
+"""The GI tree: a persistent store of baked GI maps keyed by scene, light cell and viewpoint (SPEC §6).
+
+After the sprite tree of cloud baking: per scene, a light level only when the scene's light moves
+(maps rendered with the light in the same cell of side ``light_cell_size`` are interchangeable), then
+viewpoints (eye position, unit view direction). Maps of different formats (resolution, GI-camera FOV,
+codec, spp) never stand in for each other; a map that carries the GI view's DI also serves a request
+that does not need it. A lookup returns the nearest stored map within a :class:`Tolerance` (eye
+distance Δp and view-direction angle Δθ, both must hold) or a miss; the client warps what it gets.
+
+Storage, under one folder::
+
+    index.sqlite            entries, per-(scene, codec) byte accounting, scenes (WAL)
+    payloads/ab/<sha256>.gim  one payload file per entry, named by the SHA-256 of its bytes
+    index.lock              flock: exclusive while sweeping at open, shared while open
+
+Crash safety: a payload is written to a temporary file, fsynced and renamed (:func:`atomic_write_bytes`)
+and only then indexed in one SQLite transaction, so an entry never points at a partial file. A kill -9
+can leave a temporary file or a complete but unindexed payload: the first process to open the store
+(nobody else holding it) sweeps both, and drops any entry whose file is missing or has the wrong size.
+
+Optional byte budget: an insert evicts least-recently-used entries (lookups count as use) until the
+payload bytes fit. Hit times and counts are buffered in memory and written with the next insert (or
+:meth:`GITree.flush`), so a cache hit does not write to SQLite.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import hashlib
+import math
+import sqlite3
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Self
+
+import numpy as np
+
+from gicore.fileio import atomic_write_bytes, sweep_temporaries
+
+Vec3 = tuple[float, float, float]
+PAYLOAD_SUFFIX = ".gim"
+_SCHEMA = """
+CREATE TABLE IF NOT EXISTS scenes(
+    scene TEXT PRIMARY KEY,
+    spec_sha TEXT NOT NULL,
+    light_cell_size REAL           -- NULL: static light, no light level in this scene's keys
+);
+CREATE TABLE IF NOT EXISTS entries(
+    id INTEGER PRIMARY KEY,
+    scene TEXT NOT NULL REFERENCES scenes(scene),
+    light_cell TEXT,               -- "i,j,k"; NULL for a static light
+    resolution INTEGER NOT NULL, fov REAL NOT NULL, codec TEXT NOT NULL, spp INTEGER NOT NULL, di INTEGER NOT NULL,
+    ex REAL NOT NULL, ey REAL NOT NULL, ez REAL NOT NULL,
+    dx REAL NOT NULL, dy REAL NOT NULL, dz REAL NOT NULL,
+    sha TEXT NOT NULL UNIQUE, bytes INTEGER NOT NULL,
+    created REAL NOT NULL, last_used REAL NOT NULL, hits INTEGER NOT NULL DEFAULT 0
+);
+CREATE INDEX IF NOT EXISTS entries_key ON entries(scene, light_cell, resolution, codec, spp, ex);
+CREATE INDEX IF NOT EXISTS entries_lru ON entries(last_used);
+CREATE TABLE IF NOT EXISTS usage(
+    scene TEXT NOT NULL, codec TEXT NOT NULL, entries INTEGER NOT NULL, bytes INTEGER NOT NULL,
+    PRIMARY KEY(scene, codec)
+);
+"""
+
+
+class StoreConflict(ValueError):
+    """The store already holds a scene under another spec or light-cell size."""
+
+
+@dataclass(frozen=True)
+class Tolerance:
+    """How far a stored viewpoint may be from a requested one and still serve it."""
+
+    #: Largest eye distance, scene units.
+    position: float = 0.05
+    #: Largest angle between the view directions, degrees.
+    angle_deg: float = 2.0
+
+    def __post_init__(self) -> None:
+        for name in ("position", "angle_deg"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0.0):
+                raise ValueError(f"tolerance {name} must be finite and >= 0, got {v}")
+
+
+@dataclass(frozen=True)
+class Viewpoint:
+    """Eye position and unit view direction of a GI camera."""
+
+    eye: Vec3
+    direction: Vec3
+
+    @classmethod
+    def look_at(cls, eye: Vec3, target: Vec3) -> Viewpoint:
+        d = np.subtract(target, eye, dtype=np.float64)
+        n = float(np.linalg.norm(d))
+        if not (math.isfinite(n) and n > 0.0):
+            raise ValueError(f"eye {eye} and target {target} must be distinct finite points")
+        return cls(tuple(map(float, eye)), tuple(map(float, d / n)))
+
+
+@dataclass(frozen=True)
+class MapKey:
+    """Everything but the viewpoint that selects maps: the tree path (scene, light cell) and the map
+    format (resolution, GI-camera FOV, codec, spp, whether the GI view's DI is included)."""
+
+    scene: str
+    light_cell: tuple[int, int, int] | None
+    resolution: int
+    fov: float
+    codec: str
+    spp: int
+    di: bool
+
+    @property
+    def cell_text(self) -> str | None:
+        return None if self.light_cell is None else ",".join(map(str, self.light_cell))
+
+
+def light_cell(light: Vec3, cell_size: float | None) -> tuple[int, int, int] | None:
+    """The light level of a key: the grid cell of side ``cell_size`` holding ``light``; ``None`` (no
+    light level) when ``cell_size`` is None, i.e. the scene's light does not move."""
+    if cell_size is None:
+        return None
+    if not (math.isfinite(cell_size) and cell_size > 0.0):
+        raise ValueError(f"light cell size must be finite and > 0, got {cell_size}")
+    return tuple(math.floor(c / cell_size) for c in light)  # type: ignore[return-value]
+
+
+def nearest(eyes: np.ndarray, dirs: np.ndarray, view: Viewpoint, tol: Tolerance) -> tuple[int, float, float] | None:
+    """Index, eye distance and angle (degrees) of the stored viewpoint (rows of ``eyes``/``dirs``) that
+    best matches ``view`` within ``tol``, or None. Best = smallest sum of squared tolerance-relative
+    distance and angle. Angles use atan2(|a x b|, a.b), exact for tiny angles."""
+    if len(eyes) == 0:
+        return None
+    dp = np.linalg.norm(eyes - np.asarray(view.eye), axis=1)
+    d = np.asarray(view.direction)
+    angle = np.degrees(np.arctan2(np.linalg.norm(np.cross(dirs, d), axis=1), dirs @ d))
+    ok = (dp <= tol.position) & (angle <= tol.angle_deg)
+    if not ok.any():
+        return None
+    score = (dp / max(tol.position, 1e-12)) ** 2 + (angle / max(tol.angle_deg, 1e-12)) ** 2
+    i = int(np.argmin(np.where(ok, score, np.inf)))
+    return i, float(dp[i]), float(angle[i])
+
+
+class ViewSet:
+    """Viewpoints in memory (one light cell, one format), for planning a fill without a store."""
+
+    def __init__(self) -> None:
+        self._eyes = np.empty((16, 3))
+        self._dirs = np.empty((16, 3))
+        self.n = 0
+
+    def add(self, view: Viewpoint) -> None:
+        if self.n == len(self._eyes):
+            self._eyes = np.concatenate([self._eyes, np.empty_like(self._eyes)])
+            self._dirs = np.concatenate([self._dirs, np.empty_like(self._dirs)])
+        self._eyes[self.n], self._dirs[self.n] = view.eye, view.direction
+        self.n += 1
+
+    def nearest(self, view: Viewpoint, tol: Tolerance) -> tuple[int, float, float] | None:
+        return nearest(self._eyes[: self.n], self._dirs[: self.n], view, tol)
+
+
+def simulate_fill(views: list[Viewpoint], cells: list[Any], tol: Tolerance) -> list[int]:
+    """Walk a path through an empty tree, inserting on every miss: returns, per frame, the index of
+    the entry that serves it (entries are numbered in insertion order; a new index marks a miss)."""
+    sets: dict[Any, tuple[ViewSet, list[int]]] = {}
+    served: list[int] = []
+    n_entries = 0
+    for view, cell in zip(views, cells, strict=True):
+        vs, ids = sets.setdefault(cell, (ViewSet(), []))
+        found = vs.nearest(view, tol)
+        if found is None:
+            vs.add(view)
+            ids.append(n_entries)
+            n_entries += 1
+            served.append(ids[-1])
+        else:
+            served.append(ids[found[0]])
+    return served
+
+
+@dataclass(frozen=True)
+class Hit:
+    """A lookup that found a map: its entry id, payload bytes, how far it is from the request, and
+    what the lookup (SQL + nearest test) and the payload read cost."""
+
+    entry_id: int
+    payload: bytes
+    distance: float
+    angle_deg: float
+    lookup_ms: float
+    read_ms: float
+
+
+@dataclass(frozen=True)
+class Entry:
+    """One stored map (a row of the index)."""
+
+    id: int
+    key: MapKey
+    view: Viewpoint
+    sha: str
+    bytes: int
+    hits: int
+
+
+class GITree:
+    """The GI tree in folder ``root`` (created if missing). Thread-safe: one SQLite connection per
+    thread; many processes may open one store (SQLite WAL)."""
+
+    def __init__(self, root: Path, budget_bytes: int | None = None, tolerance: Tolerance = Tolerance()):
+        if budget_bytes is not None and budget_bytes <= 0:
+            raise ValueError(f"budget_bytes must be > 0 (or None for no budget), got {budget_bytes}")
+        self.root = Path(root)
+        self.payload_dir = self.root / "payloads"
+        self.payload_dir.mkdir(parents=True, exist_ok=True)
+        self.budget_bytes = budget_bytes
+        self.tolerance = tolerance
+        self._local = threading.local()
+        self._connections: list[sqlite3.Connection] = []
+        self._lock = threading.Lock()
+        self._touched: dict[int, tuple[float, int]] = {}
+        self.counters = {"inserts": 0, "evictions": 0, "rejected": 0}
+        with self._db() as db:
+            db.execute("PRAGMA journal_mode=WAL")
+            db.executescript(_SCHEMA)
+        self._lock_file = open(self.root / "index.lock", "a+b")  # noqa: SIM115 (held for the store's life)
+        try:
+            fcntl.flock(self._lock_file.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            self.swept: dict[str, int] = {}  # another process has it open: its writes may be in flight
+        else:
+            self.swept = self._sweep()
+        fcntl.flock(self._lock_file.fileno(), fcntl.LOCK_SH)
+
+    # -- connections -------------------------------------------------------------------------------
+    def _db(self) -> sqlite3.Connection:
+        db = getattr(self._local, "db", None)
+        if db is None:
+            # autocommit mode: transactions are explicit BEGIN IMMEDIATE ... COMMIT
+            db = sqlite3.connect(self.root / "index.sqlite", timeout=30.0, isolation_level=None, check_same_thread=False)
+            db.execute("PRAGMA synchronous=NORMAL")  # WAL: commits survive a killed process; payloads are fsynced
+            db.execute("PRAGMA foreign_keys=ON")
+            self._local.db = db
+            with self._lock:
+                self._connections.append(db)
+        return db
+
+    def close(self) -> None:
+        """Write buffered hit times and close every connection and the lock."""
+        self.flush()
+        with self._lock:
+            for db in self._connections:
+                db.close()
+            self._connections.clear()
+        self._local = threading.local()
+        self._lock_file.close()
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # -- files -------------------------------------------------------------------------------------
+    def payload_path(self, sha: str) -> Path:
+        return self.payload_dir / sha[:2] / f"{sha}{PAYLOAD_SUFFIX}"
+
+    def _sweep(self) -> dict[str, int]:
+        """Remove temporaries and unindexed payloads; drop entries whose file is gone or wrong-sized."""
+        temporaries = sum(len(sweep_temporaries(d)) for d in self.payload_dir.iterdir() if d.is_dir())
+        db = self._db()
+        rows = {sha: size for sha, size in db.execute("SELECT sha, bytes FROM entries")}
+        orphans = 0
+        on_disk: dict[str, int] = {}
+        for path in self.payload_dir.glob(f"*/*{PAYLOAD_SUFFIX}"):
+            sha = path.name.removesuffix(PAYLOAD_SUFFIX)
+            if sha in rows:
+                on_disk[sha] = path.stat().st_size
+            else:
+                path.unlink()
+                orphans += 1
+        broken = [sha for sha, size in rows.items() if on_disk.get(sha) != size]
+        if broken:
+            db.execute("BEGIN IMMEDIATE")
+            db.executemany("DELETE FROM entries WHERE sha = ?", [(s,) for s in broken])
+            self._recount(db)
+            db.execute("COMMIT")
+        return {"temporaries": temporaries, "orphans": orphans, "broken_entries": len(broken)}
+
+    @staticmethod
+    def _recount(db: sqlite3.Connection) -> None:
+        db.execute("DELETE FROM usage")
+        db.execute("INSERT INTO usage SELECT scene, codec, COUNT(*), SUM(bytes) FROM entries GROUP BY scene, codec")
+
+    # -- scenes ------------------------------------------------------------------------------------
+    def register_scene(self, scene: str, spec_sha: str, light_cell_size: float | None) -> None:
+        """Declare ``scene`` (idempotent). ``light_cell_size`` None means a static light: the scene's
+        keys have no light level. Refuses (StoreConflict) a scene stored under another spec or cell size."""
+        db = self._db()
+        row = db.execute("SELECT spec_sha, light_cell_size FROM scenes WHERE scene = ?", (scene,)).fetchone()
+        if row is None:
+            db.execute("INSERT OR IGNORE INTO scenes VALUES (?, ?, ?)", (scene, spec_sha, light_cell_size))
+            row = db.execute("SELECT spec_sha, light_cell_size FROM scenes WHERE scene = ?", (scene,)).fetchone()
+        if tuple(row) != (spec_sha, light_cell_size):
+            raise StoreConflict(
+                f"the store at {self.root} holds scene {scene!r} baked from another spec or light-cell size "
+                f"(stored {row[0][:12]}, cell {row[1]}; now {spec_sha[:12]}, cell {light_cell_size})"
+            )
+
+    def scene_light_cell_size(self, scene: str) -> float | None:
+        row = self._db().execute("SELECT light_cell_size FROM scenes WHERE scene = ?", (scene,)).fetchone()
+        if row is None:
+            raise KeyError(f"scene {scene!r} is not registered in {self.root}")
+        return row[0]
+
+    # -- lookup ------------------------------------------------------------------------------------
+    def find(self, key: MapKey, view: Viewpoint, tol: Tolerance | None = None) -> tuple[int, str, float, float] | None:
+        """(entry id, sha, distance, angle) of the best stored map for ``key``/``view``, or None.
+        Pure query: no LRU update."""
+        tol = tol or self.tolerance
+        (x, y, z), r = view.eye, tol.position
+        rows = self._db().execute(
+            "SELECT id, sha, ex, ey, ez, dx, dy, dz FROM entries WHERE scene = ? AND light_cell IS ? AND resolution = ? AND codec = ? "
+            "AND spp = ? AND di >= ? AND abs(fov - ?) < 1e-6 AND ex BETWEEN ? AND ? AND ey BETWEEN ? AND ? AND ez BETWEEN ? AND ?",
+            (key.scene, key.cell_text, key.resolution, key.codec, key.spp, int(key.di), key.fov, x - r, x + r, y - r, y + r, z - r, z + r),
+        ).fetchall()
+        if not rows:
+            return None
+        arr = np.array([row[2:] for row in rows], dtype=np.float64)
+        found = nearest(arr[:, :3], arr[:, 3:], view, tol)
+        if found is None:
+            return None
+        i, dist, angle = found
+        return rows[i][0], rows[i][1], dist, angle
+
+    def lookup(self, key: MapKey, view: Viewpoint, tol: Tolerance | None = None) -> Hit | None:
+        """The nearest stored map within tolerance (its payload read from disk), or None (a miss)."""
+        t0 = time.perf_counter()
+        found = self.find(key, view, tol)
+        t1 = time.perf_counter()
+        payload = None
+        if found is not None:
+            try:
+                payload = self.payload_path(found[1]).read_bytes()
+            except FileNotFoundError:  # removed behind our back (or evicted by another process just now)
+                payload = None
+        t2 = time.perf_counter()
+        if payload is None:
+            return None
+        with self._lock:
+            hits = self._touched.get(found[0], (0.0, 0))[1]
+            self._touched[found[0]] = (time.time(), hits + 1)
+        return Hit(found[0], payload, found[2], found[3], (t1 - t0) * 1e3, (t2 - t1) * 1e3)
+
+    # -- insert and eviction -------------------------------------------------------------------------
+    def insert(self, key: MapKey, view: Viewpoint, payload: bytes) -> int | None:
+        """Store a payload for ``key``/``view`` (the scene must be registered); returns its entry id, or
+        None if the payload alone exceeds the budget (nothing is stored then)."""
+        size = len(payload)
+        if self.budget_bytes is not None and size > self.budget_bytes:
+            with self._lock:
+                self.counters["rejected"] += 1
+            return None
+        cell_size = self.scene_light_cell_size(key.scene)
+        if (cell_size is None) != (key.light_cell is None):
+            kind = "a static light (no light level)" if cell_size is None else "a moving light (keys need a light cell)"
+            raise ValueError(f"scene {key.scene!r} has {kind}; got light_cell={key.light_cell}")
+        sha = hashlib.sha256(payload).hexdigest()
+        path = self.payload_path(sha)
+        path.parent.mkdir(exist_ok=True)
+        atomic_write_bytes(path, payload)  # complete and fsynced before the index names it
+        now = time.time()
+        db = self._db()
+        evicted: list[str] = []
+        db.execute("BEGIN IMMEDIATE")
+        try:
+            self._apply_touches(db)
+            existing = db.execute("SELECT id FROM entries WHERE sha = ?", (sha,)).fetchone()
+            if existing is not None:  # the same bytes again (a re-bake of an identical request)
+                db.execute("COMMIT")
+                return int(existing[0])
+            (x, y, z), (dx, dy, dz) = view.eye, view.direction
+            cur = db.execute(
+                "INSERT INTO entries(scene, light_cell, resolution, fov, codec, spp, di, ex, ey, ez, dx, dy, dz, sha, bytes, created, last_used) "
+                "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                (key.scene, key.cell_text, key.resolution, key.fov, key.codec, key.spp, int(key.di), x, y, z, dx, dy, dz, sha, size, now, now),
+            )
+            entry_id = int(cur.lastrowid)
+            db.execute(
+                "INSERT INTO usage VALUES (?, ?, 1, ?) ON CONFLICT(scene, codec) DO UPDATE SET entries = entries + 1, bytes = bytes + excluded.bytes",
+                (key.scene, key.codec, size),
+            )
+            if self.budget_bytes is not None:
+                evicted = self._evict(db, self.budget_bytes, keep=entry_id)
+            db.execute("COMMIT")
+        except BaseException:
+            db.execute("ROLLBACK")
+            raise
+        for old in evicted:  # after the commit: a kill before this leaves orphans, which are swept
+            self.payload_path(old).unlink(missing_ok=True)
+        with self._lock:
+            self.counters["inserts"] += 1
+            self.counters["evictions"] += len(evicted)
+        return entry_id
+
+    def _evict(self, db: sqlite3.Connection, budget: int, keep: int) -> list[str]:
+        """Delete least-recently-used entries (never ``keep``) until the total fits ``budget``."""
+        total = db.execute("SELECT COALESCE(SUM(bytes), 0) FROM usage").fetchone()[0]
+        evicted = []
+        while total > budget:
+            rows = db.execute("SELECT id, scene, codec, sha, bytes FROM entries WHERE id != ? ORDER BY last_used, id LIMIT 64", (keep,)).fetchall()
+            for entry_id, scene, codec, sha, size in rows:
+                if total <= budget:
+                    break
+                db.execute("DELETE FROM entries WHERE id = ?", (entry_id,))
+                db.execute("UPDATE usage SET entries = entries - 1, bytes = bytes - ? WHERE scene = ? AND codec = ?", (size, scene, codec))
+                total -= size
+                evicted.append(sha)
+        db.execute("DELETE FROM usage WHERE entries = 0")
+        return evicted
+
+    def _apply_touches(self, db: sqlite3.Connection) -> None:
+        with self._lock:
+            touched, self._touched = self._touched, {}
+        db.executemany("UPDATE entries SET last_used = max(last_used, ?), hits = hits + ? WHERE id = ?", [(t, n, i) for i, (t, n) in touched.items()])
+
+    def flush(self) -> None:
+        """Write buffered hit times and counts to the index."""
+        if not self._touched:
+            return
+        db = self._db()
+        db.execute("BEGIN IMMEDIATE")
+        self._apply_touches(db)
+        db.execute("COMMIT")
+
+    # -- inspection --------------------------------------------------------------------------------
+    def entries(self, scene: str | None = None) -> list[Entry]:
+        self.flush()
+        sql = "SELECT id, scene, light_cell, resolution, fov, codec, spp, di, ex, ey, ez, dx, dy, dz, sha, bytes, hits FROM entries"
+        rows = self._db().execute(sql + (" WHERE scene = ?" if scene else "") + " ORDER BY id", (scene,) if scene else ()).fetchall()
+        out = []
+        for r in rows:
+            cell = None if r[2] is None else tuple(int(c) for c in r[2].split(","))
+            key = MapKey(r[1], cell, r[3], r[4], r[5], r[6], bool(r[7]))
+            out.append(Entry(r[0], key, Viewpoint(tuple(r[8:11]), tuple(r[11:14])), r[14], r[15], r[16]))
+        return out
+
+    def stats(self) -> dict[str, Any]:
+        """Entries and bytes (total and per scene and codec), the budget, and this instance's counters."""
+        self.flush()
+        db = self._db()
+        usage = [{"scene": s, "codec": c, "entries": n, "bytes": b} for s, c, n, b in db.execute("SELECT * FROM usage ORDER BY scene, codec")]
+        scenes = [{"scene": s, "light_level": size is not None, "light_cell_size": size} for s, size in db.execute("SELECT scene, light_cell_size FROM scenes ORDER BY scene")]
+        with self._lock:
+            counters = dict(self.counters)
+        return {
+            "entries": sum(u["entries"] for u in usage),
+            "bytes": sum(u["bytes"] for u in usage),
+            "budget_bytes": self.budget_bytes,
+            "by_scene_codec": usage,
+            "scenes": scenes,
+            **counters,
+        }
+
+    def verify(self) -> list[str]:
+        """Problems found by re-reading every indexed payload (missing, wrong size, wrong SHA-256) and
+        re-adding the accounting; empty when the store is consistent."""
+        db = self._db()
+        problems = []
+        for entry_id, sha, size in db.execute("SELECT id, sha, bytes FROM entries").fetchall():
+            path = self.payload_path(sha)
+            if not path.is_file():
+                problems.append(f"entry {entry_id}: {path} is missing")
+                continue
+            data = path.read_bytes()
+            if len(data) != size or hashlib.sha256(data).hexdigest() != sha:
+                problems.append(f"entry {entry_id}: {path} has {len(data)} bytes / another SHA-256 than indexed")
+        counted = db.execute("SELECT scene, codec, COUNT(*), SUM(bytes) FROM entries GROUP BY scene, codec ORDER BY scene, codec").fetchall()
+        accounted = db.execute("SELECT * FROM usage ORDER BY scene, codec").fetchall()
+        if counted != accounted:
+            problems.append(f"usage table {accounted} does not match the entries {counted}")
+        return problems
