@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.runner import Bench
 from gicore.metrics import all_metrics
 from gicore.paths import camera_path, light_position
 from gicore.results import Results, read_rows
@@ -62,7 +63,15 @@ def measure(cfg: ConvergenceConfig, res: Results) -> None:
                 samples, image = time_repeats(render, cfg.repeats)
                 res.add_timing(system=system, scene=name, metric="render_time", samples_s=samples, spp=spp, resolution=cfg.resolution)
                 for metric, value in all_metrics(tonemap(image), reference).items():
-                    res.add(system=system, scene=name, metric=metric, value=value, unit="dB" if metric == "psnr" else "1", spp=spp, resolution=cfg.resolution)
+                    res.add(
+                        system=system,
+                        scene=name,
+                        metric=metric,
+                        value=value,
+                        unit="dB" if metric == "psnr" else "1",
+                        spp=spp,
+                        resolution=cfg.resolution,
+                    )
 
 
 def plot(csv_path: Path, out_dir: Path) -> list[Path]:
@@ -92,3 +101,12 @@ def plot(csv_path: Path, out_dir: Path) -> list[Path]:
     axes[1].legend(fontsize=6, loc="lower right")
     fig.suptitle("GT convergence: error vs render time (labels: spp; reference: high-spp path tracing)")
     return [save(fig, out_dir / "convergence.png")]
+
+
+BENCH = Bench(
+    "convergence",
+    ConvergenceConfig,
+    measure,
+    plot,
+    help="GT error (RMSE/SSIM against a high-spp reference) against render time, with and without OIDN.",
+)

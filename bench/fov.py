@@ -15,39 +15,59 @@ from __future__ import annotations
 
 import math
 from collections import defaultdict
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 
-from gicore.results import Results
+from bench.models import check_model_resolution
+from bench.runner import FOV_DEGREES, Bench
+from bench.warp_bench import WARP_LABELS
 from gicore.camera import Camera
-
-LABELS = {"structure": "structure-aware", "pixel": "pixel-level", "none": "no warping"}
+from gicore.results import Results, read_rows
+from gigan_local.client import GI_SOURCES
+from gigan_local.inference import DEFAULT_MODEL
 
 
 @dataclass(frozen=True)
 class FovConfig:
     """The parameter grid of one run."""
 
-    scene: str = "lung_plane"
+    #: Scene names or spec files.
+    scenes: tuple[str, ...] = ("lung_plane",)
+    #: Square resolution in pixels.
     resolution: int = 256
-    gi_fovs: tuple[float, ...] = (60.0, 90.0, 120.0)
-    local_fov: float = 60.0
-    base_frames: tuple[int, ...] = (0, 60, 120, 180, 240)
+    #: GI-camera FOVs F_GI compared, degrees.
+    gi_fovs: tuple[float, ...] = field(default=(60.0, 90.0, 120.0), metadata=FOV_DEGREES)
+    #: FOV of the local (client) camera, degrees; at this F_GI the no-warping reference is scored too.
+    local_fov: float = field(default=60.0, metadata=FOV_DEGREES)
+    #: Frames along the camera path where GI maps are made (the views).
+    base_frames: tuple[int, ...] = field(default=(0, 60, 120, 180, 240), metadata={"min": 0})
+    #: Frames per full orbit of the camera path.
     orbit_frames: int = 300
-    #: Camera turns (degrees about the vertical axis) and sideways moves (scene units).
+    #: Camera turns after the GI map, degrees about the vertical axis.
     rotations: tuple[float, ...] = (5.0, 10.0, 20.0, 30.0)
+    #: Sideways camera moves after the GI map, scene units.
     translations: tuple[float, ...] = (0.1, 0.2, 0.4)
-    warps: tuple[str, ...] = ("structure", "pixel")
+    #: Warp methods compared.
+    warps: tuple[Literal["structure", "pixel"], ...] = ("structure", "pixel")
+    #: Samples per pixel of path-traced GT (the gt GI source and the evaluation GT).
     spp: int = 64
+    #: Denoise the path-traced renders with OIDN.
     denoise: bool = True
-    gi_source: str = "gt"
-    model: Path | None = None
+    #: Where GI maps come from: the path-traced GT stand-in, or the generator (--model).
+    gi_source: Literal[GI_SOURCES] = "gt"
+    #: ONNX generator for --gi-source model (gigan-export output).
+    model: Path = DEFAULT_MODEL
 
     @classmethod
     def quick(cls) -> "FovConfig":
         return cls(resolution=128, base_frames=(0, 150), rotations=(5.0, 15.0, 30.0), translations=(0.1, 0.3), spp=16)
+
+    def check(self) -> None:
+        if self.gi_source == "model":
+            check_model_resolution(self.model, self.resolution)
 
 
 def turned(camera: Camera, degrees: float) -> Camera:
@@ -62,21 +82,44 @@ def moved(camera: Camera, distance: float) -> Camera:
     """``camera`` moved sideways (along its right vector) by ``distance``, looking the same way."""
     right = -camera.to_world()[:3, 0]  # Mitsuba's camera x points left
     shift = distance * right
-    return Camera(tuple(np.add(camera.origin, shift)), tuple(np.add(camera.target, shift)), camera.up, camera.fov, camera.near, camera.far, camera.width, camera.height)
+    return Camera(
+        tuple(np.add(camera.origin, shift)),
+        tuple(np.add(camera.target, shift)),
+        camera.up,
+        camera.fov,
+        camera.near,
+        camera.far,
+        camera.width,
+        camera.height,
+    )
 
 
-def run(cfg: FovConfig, out: Path, seed: int = 0) -> Path:
+def measure(cfg: FovConfig, res: Results) -> None:
+    for scene in cfg.scenes:
+        _measure_scene(cfg, res, scene)
+
+
+def _measure_scene(cfg: FovConfig, res: Results, scene: str) -> None:
     from gicore.metrics import ssim
     from gicore.paths import camera_path, light_position
     from gicore.render import Renderer
     from gicore.scene import load_scene
     from gicore.tonemap import tonemap
-    from gigan_local.client import ClientConfig, ViewWarp, frame_seed, make_gi_source, render_gt
+    from gigan_local.client import (
+        ClientConfig,
+        ViewWarp,
+        frame_seed,
+        make_gi_source,
+        render_gt,
+    )
 
-    res = Results("fov", out, seed, settings=cfg.__dict__)
-    spec = load_scene(cfg.scene)
+    seed = res.seed
+    spec = load_scene(scene)
     renderer = Renderer(spec, cfg.resolution)
-    source = make_gi_source(ClientConfig(scene=cfg.scene, resolution=cfg.resolution, gi_source=cfg.gi_source, model=cfg.model, spp=cfg.spp, denoise=cfg.denoise, seed=seed), renderer)
+    source = make_gi_source(
+        ClientConfig(scene=scene, resolution=cfg.resolution, gi_source=cfg.gi_source, model=cfg.model, spp=cfg.spp, denoise=cfg.denoise, seed=seed),
+        renderer,
+    )
     cams = camera_path(spec, cfg.orbit_frames, seed=seed, fov=cfg.local_fov, resolution=cfg.resolution)
     motions = [("rotation", r, "deg") for r in cfg.rotations] + [("translation", t, "units") for t in cfg.translations]
     warps = {m: ViewWarp(m, renderer) for m in cfg.warps}
@@ -110,45 +153,82 @@ def run(cfg: FovConfig, out: Path, seed: int = 0) -> Path:
     common = {"resolution": cfg.resolution, "local_fov": cfg.local_fov, "views": len(cfg.base_frames), "spp": cfg.spp, "gi_source": cfg.gi_source}
     source_label = "generator" if cfg.gi_source == "model" else "GT stand-in"
     for gi_fov in cfg.gi_fovs:
-        res.add(system=source_label, scene=spec.name, metric="ssim_gi_map", value=float(np.mean(quality["map", gi_fov])), unit="1", stat="mean", gi_fov=gi_fov, **common)
+        res.add(
+            system=source_label,
+            scene=spec.name,
+            metric="ssim_gi_map",
+            value=float(np.mean(quality["map", gi_fov])),
+            unit="1",
+            stat="mean",
+            gi_fov=gi_fov,
+            **common,
+        )
         for method in (*cfg.warps, "none"):
             for kind, amount, unit in motions:
                 if (method, gi_fov, kind, amount) not in quality:
                     continue
                 cfg_row = common | {"gi_fov": gi_fov, "motion": kind, "amount": amount, "amount_unit": unit}
-                res.add(system=LABELS[method], scene=spec.name, metric="ssim_warped", value=float(np.mean(quality[method, gi_fov, kind, amount])), unit="1", stat="mean", **cfg_row)
+                res.add(
+                    system=WARP_LABELS[method],
+                    scene=spec.name,
+                    metric="ssim_warped",
+                    value=float(np.mean(quality[method, gi_fov, kind, amount])),
+                    unit="1",
+                    stat="mean",
+                    **cfg_row,
+                )
                 if method != "none":
-                    res.add(system=LABELS[method], scene=spec.name, metric="valid_fraction", value=float(np.mean(quality["valid", method, gi_fov, kind, amount])), unit="1", stat="mean", **cfg_row)
-    path = res.write()
-    plot(path, out / "fov.png")
-    return path
+                    res.add(
+                        system=WARP_LABELS[method],
+                        scene=spec.name,
+                        metric="valid_fraction",
+                        value=float(np.mean(quality["valid", method, gi_fov, kind, amount])),
+                        unit="1",
+                        stat="mean",
+                        **cfg_row,
+                    )
 
 
-def plot(csv_path: Path, png: Path) -> None:
+def plot(csv_path: Path, out_dir: Path) -> list[Path]:
     """Fig. 9 (GI-map SSIM against F_GI) and Fig. 8 (warped SSIM, and the share of the frame the GI map
-    covers, against camera motion; one line per method and F_GI)."""
+    covers, against camera motion; one line per scene, method and F_GI)."""
     from gicore.plotting import plt, save
 
-    from gicore.results import read_rows
-
     rows = read_rows(csv_path)
+    scenes = list(dict.fromkeys(r["scene"] for r in rows))
     fig, axes = plt.subplots(1, 4, figsize=(19, 4.2))
-    maps = sorted((r["config"]["gi_fov"], r["value"]) for r in rows if r["metric"] == "ssim_gi_map")
-    axes[0].plot(*zip(*maps), "-o")
+    for scene in scenes:
+        maps = sorted((r["config"]["gi_fov"], r["value"]) for r in rows if r["metric"] == "ssim_gi_map" and r["scene"] == scene)
+        axes[0].plot(*zip(*maps), "-o", label=scene)
     axes[0].set_xlabel("GI-camera FOV F_GI [deg]")
     axes[0].set_ylabel(f"SSIM of the GI map ({next(r['system'] for r in rows if r['metric'] == 'ssim_gi_map')})")
-    panels = (("rotation", "ssim_warped", "SSIM of the warped GI vs GT"), ("translation", "ssim_warped", "SSIM of the warped GI vs GT"), ("rotation", "valid_fraction", "frame covered by the GI map"))
+    panels = (
+        ("rotation", "ssim_warped", "SSIM of the warped GI vs GT"),
+        ("translation", "ssim_warped", "SSIM of the warped GI vs GT"),
+        ("rotation", "valid_fraction", "frame covered by the GI map"),
+    )
     for ax, (kind, metric, label) in zip(axes[1:], panels):
         sel = [r for r in rows if r["metric"] == metric and r["config"]["motion"] == kind]
-        for system, style in (("structure-aware", "-o"), ("pixel-level", "--s"), ("no warping", ":^")):
-            for gi_fov in sorted({r["config"]["gi_fov"] for r in sel}):
-                pts = sorted((r["config"]["amount"], r["value"]) for r in sel if (r["system"], r["config"]["gi_fov"]) == (system, gi_fov))
-                if pts:
-                    ax.plot(*zip(*pts), style, ms=4, label=f"{system}, F_GI {gi_fov:g}°")
+        for scene in scenes:
+            for system, style in zip(WARP_LABELS.values(), ("-o", "--s", ":^")):
+                for gi_fov in sorted({r["config"]["gi_fov"] for r in sel}):
+                    pts = sorted(
+                        (r["config"]["amount"], r["value"])
+                        for r in sel
+                        if (r["scene"], r["system"], r["config"]["gi_fov"]) == (scene, system, gi_fov)
+                    )
+                    if pts:
+                        label = f"{system}, F_GI {gi_fov:g}°" if len(scenes) == 1 else f"{scene}: {system}, F_GI {gi_fov:g}°"
+                        ax.plot(*zip(*pts), style, ms=4, label=label)
         ax.set_xlabel(f"camera {kind} [{next((r['config']['amount_unit'] for r in sel), '')}]")
         ax.set_ylabel(label)
     axes[2].legend(fontsize=6)
     for ax in axes:
         ax.grid(alpha=0.3)
+    if len(scenes) > 1:
+        axes[0].legend(fontsize=7)
     fig.suptitle("GI-camera FOV: GI-map quality (Fig. 9) and warping after camera motion (Fig. 8)")
-    save(fig, png)
+    return [save(fig, out_dir / "fov.png")]
+
+
+BENCH = Bench("fov", FovConfig, measure, plot, help="Fig. 9 and Fig. 8: GI-camera FOV against GI-map quality and warped quality after camera motion.")

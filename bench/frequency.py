@@ -14,33 +14,51 @@ maps and the same references.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 
-from gicore.results import Results
-
-LABELS = {"structure": "structure-aware", "pixel": "pixel-level", "none": "no warping"}
+from bench.models import check_model_resolution
+from bench.runner import Bench
+from bench.warp_bench import WARP_LABELS
+from gicore.blend import COMPOSITIONS
+from gicore.results import Results, read_rows
+from gigan_local.client import GI_SOURCES, WARPS
+from gigan_local.inference import DEFAULT_MODEL
 
 
 @dataclass(frozen=True)
 class FrequencyConfig:
     """The parameter grid of one run."""
 
-    scene: str = "lung_plane"
+    #: Scene names or spec files.
+    scenes: tuple[str, ...] = ("lung_plane",)
+    #: Square resolution in pixels.
     resolution: int = 256
+    #: GI-map periods k (a new GI map every k frames).
     ks: tuple[int, ...] = (1, 10, 20, 30, 60)
+    #: Client frames per configuration.
     frames: int = 120
-    warps: tuple[str, ...] = ("structure", "pixel", "none")
-    compositions: tuple[str, ...] = ("blend", "residual")
-    tau: float = 0.0
+    #: Warp methods compared.
+    warps: tuple[Literal[WARPS], ...] = ("structure", "pixel", "none")
+    #: How the GI map and the DI frame are composed.
+    compositions: tuple[Literal[COMPOSITIONS], ...] = ("blend", "residual")
+    #: Blend threshold of the composition (0: plain blend).
+    tau: float = field(default=0.0, metadata={"min": 0.0, "max": 1.0})
+    #: Score the composed frame against path-traced GT every this many frames.
     gt_every: int = 4
+    #: Frames per full orbit of the camera path (360° / orbit_frames per frame).
     orbit_frames: int = 300
+    #: Samples per pixel of path-traced GT (the gt GI source and the evaluation GT).
     spp: int = 64
+    #: Denoise the path-traced renders with OIDN.
     denoise: bool = True
-    gi_source: str = "gt"
-    model: Path | None = None
+    #: Where GI maps come from: the path-traced GT stand-in, or the generator (--model).
+    gi_source: Literal[GI_SOURCES] = "gt"
+    #: ONNX generator for --gi-source model (gigan-export output).
+    model: Path = DEFAULT_MODEL
     #: When set, the cost of one GI map in the fps (ms) instead of the source's measured cost.
     inference_ms: float | None = None
 
@@ -48,76 +66,109 @@ class FrequencyConfig:
     def quick(cls) -> "FrequencyConfig":
         return cls(frames=60, gt_every=6, spp=16)
 
+    def check(self) -> None:
+        if self.gi_source == "model":
+            check_model_resolution(self.model, self.resolution)
 
-def run(cfg: FrequencyConfig, out: Path, seed: int = 0) -> Path:
+
+def measure(cfg: FrequencyConfig, res: Results) -> None:
     from gicore.render import Renderer
     from gicore.scene import load_scene
     from gigan_local.client import ClientConfig, amortized_fps, run_frames
 
-    res = Results("frequency", out, seed, settings=cfg.__dict__)
-    spec = load_scene(cfg.scene)
-    renderer = Renderer(spec, cfg.resolution)
-    cache: dict = {}
-    base = ClientConfig(scene=cfg.scene, frames=cfg.frames, resolution=cfg.resolution, orbit_frames=cfg.orbit_frames, tau=cfg.tau, gi_source=cfg.gi_source, model=cfg.model, spp=cfg.spp, denoise=cfg.denoise, gt_every=cfg.gt_every, seed=seed)
-    for k in cfg.ks:
-        for warp in cfg.warps:
-            for composition in cfg.compositions:
-                client = replace(base, every=k, warp=warp, composition=composition)
-                rows = run_frames(client, renderer, cache)
-                fps = amortized_fps(rows, k)
-                gi_ms = cfg.inference_ms if cfg.inference_ms is not None else fps["gi_ms"]
-                scored = [r for r in rows if r["ssim"] != ""]
-                config = {"k": k, "composition": composition, "tau": cfg.tau, "gi_source": cfg.gi_source, "resolution": cfg.resolution, "frames": cfg.frames, "spp": cfg.spp, "orbit_frames": cfg.orbit_frames}
+    for scene in cfg.scenes:
+        spec = load_scene(scene)
+        renderer = Renderer(spec, cfg.resolution)
+        cache: dict = {}
+        base = ClientConfig(
+            scene=scene,
+            frames=cfg.frames,
+            resolution=cfg.resolution,
+            orbit_frames=cfg.orbit_frames,
+            tau=cfg.tau,
+            gi_source=cfg.gi_source,
+            model=cfg.model,
+            spp=cfg.spp,
+            denoise=cfg.denoise,
+            gt_every=cfg.gt_every,
+            seed=res.seed,
+        )
+        for k in cfg.ks:
+            for warp in cfg.warps:
+                for composition in cfg.compositions:
+                    rows = run_frames(replace(base, every=k, warp=warp, composition=composition), renderer, cache)
+                    fps = amortized_fps(rows, k)
+                    gi_ms = cfg.inference_ms if cfg.inference_ms is not None else fps["gi_ms"]
+                    scored = [r for r in rows if r["ssim"] != ""]
+                    config = {
+                        "k": k,
+                        "composition": composition,
+                        "tau": cfg.tau,
+                        "gi_source": cfg.gi_source,
+                        "resolution": cfg.resolution,
+                        "frames": cfg.frames,
+                        "spp": cfg.spp,
+                        "orbit_frames": cfg.orbit_frames,
+                    }
 
-                def add(metric: str, value: float, unit: str, stat: str = "value") -> None:
-                    res.add(system=LABELS[warp], scene=spec.name, metric=metric, value=value, unit=unit, stat=stat, **config)
+                    def add(metric: str, value: float, unit: str, stat: str = "value") -> None:
+                        res.add(system=WARP_LABELS[warp], scene=spec.name, metric=metric, value=value, unit=unit, stat=stat, **config)
 
-                add("fps", 1000.0 / (fps["local_ms"] + gi_ms / k), "1/s")
-                add("frame_time", fps["local_ms"], "ms", "median")
-                add("gi_time", gi_ms, "ms", "mean" if cfg.inference_ms is None else "given")
-                add("ssim", float(np.mean([r["ssim"] for r in scored])), "1", "mean")
-                add("psnr", float(np.mean([r["psnr"] for r in scored if np.isfinite(r["psnr"])])), "dB", "mean")
-                add("valid_fraction", float(np.mean([r["valid_frac"] for r in rows])), "1", "mean")
-    path = res.write()
-    plot(path, out / "frequency.png")
-    (out / "frequency_table.md").write_text(table(path))
-    return path
+                    add("fps", 1000.0 / (fps["local_ms"] + gi_ms / k), "1/s")
+                    add("frame_time", fps["local_ms"], "ms", "median")
+                    add("gi_time", gi_ms, "ms", "mean" if cfg.inference_ms is None else "given")
+                    add("ssim", float(np.mean([r["ssim"] for r in scored])), "1", "mean")
+                    add("psnr", float(np.mean([r["psnr"] for r in scored if np.isfinite(r["psnr"])])), "dB", "mean")
+                    add("valid_fraction", float(np.mean([r["valid_frac"] for r in rows])), "1", "mean")
 
 
 def table(csv_path: Path) -> str:
-    """Table 3 from the CSV, one block per composition: k, fps (structure-aware), SSIM per warp."""
-    from gicore.results import read_rows
-
+    """Table 3 from the CSV, one block per scene and composition: k, then fps and SSIM per warp."""
     rows = read_rows(csv_path)
     systems = list(dict.fromkeys(r["system"] for r in rows))
     lines = []
-    for composition in dict.fromkeys(r["config"]["composition"] for r in rows):
-        sel = [r for r in rows if r["config"]["composition"] == composition]
-        lines += [f"### composition: {composition}", "", "| k | " + " | ".join(f"fps ({s})" for s in systems) + " | " + " | ".join(f"SSIM ({s})" for s in systems) + " |", "|---" * (1 + 2 * len(systems)) + "|"]
+    for scene, composition in dict.fromkeys((r["scene"], r["config"]["composition"]) for r in rows):
+        sel = [r for r in rows if r["scene"] == scene and r["config"]["composition"] == composition]
+        lines += [
+            f"### {scene}, composition: {composition}",
+            "",
+            "| k | " + " | ".join(f"fps ({s})" for s in systems) + " | " + " | ".join(f"SSIM ({s})" for s in systems) + " |",
+            "|---" * (1 + 2 * len(systems)) + "|",
+        ]
         for k in sorted({r["config"]["k"] for r in sel}):
 
             def get(system: str, metric: str) -> float:
                 return next((r["value"] for r in sel if (r["system"], r["metric"], r["config"]["k"]) == (system, metric, k)), float("nan"))
 
-            lines.append(f"| {k} | " + " | ".join(f"{get(s, 'fps'):.1f}" for s in systems) + " | " + " | ".join(f"{get(s, 'ssim'):.3f}" for s in systems) + " |")
+            lines.append(
+                f"| {k} | "
+                + " | ".join(f"{get(s, 'fps'):.1f}" for s in systems)
+                + " | "
+                + " | ".join(f"{get(s, 'ssim'):.3f}" for s in systems)
+                + " |"
+            )
         lines.append("")
     return "\n".join(lines)
 
 
-def plot(csv_path: Path, png: Path) -> None:
-    """Frame rate and SSIM against the GI-map period k, per warp and composition."""
+def plot(csv_path: Path, out_dir: Path) -> list[Path]:
+    """Frame rate and SSIM against the GI-map period k, per scene, warp and composition; and the Table 3
+    Markdown (``frequency_table.md``), both from the CSV."""
     from gicore.plotting import plt, save, ticker
 
-    from gicore.results import read_rows
-
     rows = read_rows(csv_path)
+    scenes = list(dict.fromkeys(r["scene"] for r in rows))
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
-    for system in dict.fromkeys(r["system"] for r in rows):
-        for composition, style in (("blend", "-o"), ("residual", "--s")):
-            for ax, metric in zip(axes, ("fps", "ssim")):
-                pts = sorted((r["config"]["k"], r["value"]) for r in rows if r["system"] == system and r["metric"] == metric and r["config"]["composition"] == composition)
-                if pts:
-                    ax.plot(*zip(*pts), style, ms=4, label=f"{system} ({composition})")
+    for scene in scenes:
+        for system in dict.fromkeys(r["system"] for r in rows):
+            for composition, style in (("blend", "-o"), ("residual", "--s")):
+                for ax, metric in zip(axes, ("fps", "ssim")):
+                    sel = [
+                        r for r in rows if (r["scene"], r["system"], r["metric"], r["config"]["composition"]) == (scene, system, metric, composition)
+                    ]
+                    if sel:
+                        label = f"{system} ({composition})" if len(scenes) == 1 else f"{scene}: {system} ({composition})"
+                        ax.plot(*zip(*sorted((r["config"]["k"], r["value"]) for r in sel)), style, ms=4, label=label)
     for ax, label in zip(axes, ("frames per second (GI cost amortised over k)", "mean SSIM vs path-traced GT")):
         ax.set_xlabel("GI-map period k [frames]")
         ax.set_ylabel(label)
@@ -127,4 +178,11 @@ def plot(csv_path: Path, png: Path) -> None:
     axes[0].yaxis.set_minor_formatter(ticker.NullFormatter())
     axes[1].legend(fontsize=7)
     fig.suptitle("Inference frequency vs system performance (Table 3)")
-    save(fig, png)
+    md = out_dir / "frequency_table.md"
+    md.write_text(table(csv_path))
+    return [save(fig, out_dir / "frequency.png"), md]
+
+
+BENCH = Bench(
+    "frequency", FrequencyConfig, measure, plot, help="Table 3: GI-map period k against fps and SSIM, with and without warping, both compositions."
+)

@@ -1,20 +1,97 @@
-"""Write a model card (Markdown) for an exported model from files the project produced.
+"""`bench model-card`: a model card (Markdown) for an exported model, from files the project produced.
 
 Every number comes from the training run (``config.json``, ``metrics.csv``), the export (``model.json``,
-file sizes) and a ``bench quality`` CSV; nothing is typed by hand.
+file sizes) and a ``bench quality`` CSV; nothing is typed by hand. ``MODEL_CARD.md`` is written into the
+export folder (it travels with the model); the card's numbers also go to the tidy CSV, and the plot
+compares the model's per-scene SSIM with DI alone.
+
+On a fresh checkout (``--quick`` without ``--run``) the whole chain runs here, small: a GIGAN trained for
+``--train-steps`` on the small dataset of ``--scenes`` (``bench training``'s runs), exported into
+``<out>/export``, scored by ``bench quality`` into ``<out>/quality``.
 """
 
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
+from dataclasses import dataclass
 from pathlib import Path
 
-from gicore.results import read_rows
-from bench.training import training_minutes
+from bench.quality import BENCH as QUALITY
+from bench.quality import QualityConfig
+from bench.runner import Bench, execute
+from bench.training import train_small, training_minutes
+from gicore.cli import UserError
+from gicore.results import Results, read_rows
 
 
-def write_model_card(run_dir: Path, export_dir: Path, quality_csv: Path, system: str, dataset_command: str, train_command: str) -> Path:
+@dataclass(frozen=True)
+class ModelCardConfig:
+    """The model's run, export and quality results, or the small model to make first."""
+
+    #: gigan-train run folder of the model; none: train a small one here (needs --train-steps; --quick sets it).
+    run: Path | None = None
+    #: gigan-export folder of the model (MODEL_CARD.md is written there); none: export the run into <out>/export.
+    export: Path | None = None
+    #: A bench quality CSV that scored the exported model; none: score it here (bench quality on the small datasets).
+    quality_csv: Path | None = None
+    #: The model's system name in the quality CSV.
+    system: str = "gigan"
+    #: The command that rendered the training data (quoted in the card).
+    dataset_command: str = "(not given)"
+    #: The command that trained the model (quoted in the card).
+    train_command: str = "(not given)"
+    #: Steps of the small GIGAN trained here when --run is not given.
+    train_steps: int | None = None
+    #: Generator width (ngf) of the small GIGAN trained here.
+    width: int = 8
+    #: Scenes of the small datasets the model trained here learns from and is scored on.
+    scenes: tuple[str, ...] = ("lung_plane",)
+
+    @classmethod
+    def quick(cls) -> "ModelCardConfig":
+        return cls(train_steps=60)
+
+    def check(self) -> None:
+        if self.run is None and self.train_steps is None:
+            raise UserError(
+                "--run is not given: no model to describe", "give --run, --export and --quality-csv, or --quick to make a small model here"
+            )
+        if self.run is None and (self.export is not None or self.quality_csv is not None):
+            raise UserError("--export/--quality-csv given without --run", "give the run folder the exported model came from")
+        if self.run is not None and self.quality_csv is None:
+            raise UserError("--run given without --quality-csv", "score the exported model with `bench quality --models NAME=FILE` and pass its CSV")
+        required = {"--run": (self.run, ("config.json", "metrics.csv")), "--export": (self.export, ("model.json",))}
+        for option, (folder, names) in required.items():
+            for name in names if folder is not None else ():
+                if not (folder / name).is_file():
+                    raise UserError(f"{option} {folder}: {folder / name} is missing", f"give the {option[2:]} folder of the model")
+        if self.quality_csv is not None and not self.quality_csv.is_file():
+            raise UserError(f"--quality-csv {self.quality_csv} is missing", "give a CSV written by bench quality")
+
+
+def measure(cfg: ModelCardConfig, res: Results) -> None:
+    run, export, quality_csv = cfg.run, cfg.export, cfg.quality_csv
+    dataset_command, train_command = cfg.dataset_command, cfg.train_command
+    if run is None:  # the small chain; check() made sure train_steps is set
+        [run] = train_small(cfg.scenes, (cfg.width,), cfg.train_steps, res)
+        dataset_command = f"bench model-card --quick: bench.quality.QUICK_DATASET of {', '.join(cfg.scenes)} into {res.out / 'dataset'}"
+        train_command = f"bench model-card --quick: bench.training.train_small, GIGAN ngf {cfg.width}, {cfg.train_steps} steps"
+    if export is None:
+        from gigan_local.export import export_onnx
+
+        export = res.out / "export"
+        export_onnx(run, export)
+    if quality_csv is None:  # only in the small chain (check()): score on the small datasets it trained on
+        model = export / json.loads((export / "model.json").read_text())["files"]["fp32"]
+        quality = dataclasses.replace(QualityConfig.quick(), scenes=cfg.scenes, models={cfg.system: model})
+        quality_csv = execute(QUALITY, quality, res.out / "quality", res.seed)[0]
+    res.files.append(write_model_card(run, export, quality_csv, cfg.system, dataset_command, train_command, res))
+
+
+def write_model_card(run_dir: Path, export_dir: Path, quality_csv: Path, system: str, dataset_command: str, train_command: str, res: Results) -> Path:
+    """Write ``export_dir/MODEL_CARD.md`` and add its numbers to ``res``; returns the card's path."""
     config = json.loads((run_dir / "config.json").read_text())
     train = config["train"]
     model_doc = json.loads((export_dir / "model.json").read_text())
@@ -27,6 +104,25 @@ def write_model_card(run_dir: Path, export_dir: Path, quality_csv: Path, system:
     val = {r["metric"]: float(r["value"]) for r in metrics if r["split"] == "val" and int(r["step"]) == last_step}
     rows = read_rows(quality_csv)
     scenes = sorted({r["scene"] for r in rows})
+    if not any(r["system"] == system for r in rows):
+        raise UserError(f"--quality-csv {quality_csv} has no rows of system {system!r}", "pass --system with the model's name in that CSV")
+    model_name = export_dir.name
+    res.add(system=model_name, scene="all", metric="training_steps", value=last_step, unit="count", run=run_dir.name)
+    res.add(system=model_name, scene="all", metric="training_time", value=compute_min, unit="min", stat="sum", run=run_dir.name)
+    for metric, value in val.items():
+        res.add(system=model_name, scene="all", metric=f"val_{metric}", value=value, unit="dB" if metric == "psnr" else "1", step=last_step)
+    for r in rows:
+        if r["system"] in (system, "di_only") and (r["stat"] == "mean" or r["metric"] == "inference_time" and r["stat"] == "median"):
+            res.add(
+                system=model_name if r["system"] == system else "di_only",
+                scene=r["scene"],
+                metric=r["metric"],
+                value=r["value"],
+                unit=r["unit"],
+                stat=r["stat"],
+                source=str(quality_csv),
+                source_run=r["run_id"],
+            )
 
     def cell(sys: str, scene: str, metric: str, stat: str = "mean") -> str:
         v = [r["value"] for r in rows if r["system"] == sys and r["scene"] == scene and r["metric"] == metric and r["stat"] == stat]
@@ -34,6 +130,8 @@ def write_model_card(run_dir: Path, export_dir: Path, quality_csv: Path, system:
         return f"{v[0]:.{digits}f}" if v else "n/a"
 
     sizes = {k: (export_dir / v).stat().st_size / 2**20 for k, v in model_doc["files"].items()}
+    for precision, mib in sizes.items():
+        res.add(system=model_name, scene="all", metric="file_size", value=mib, unit="MiB", precision=precision)
     lines = [
         f"# Model card: {export_dir.name}",
         "",
@@ -51,7 +149,8 @@ def write_model_card(run_dir: Path, export_dir: Path, quality_csv: Path, system:
         f"`{train_command}`",
         "",
         f"Loss: {train['model']} (λ_L1 {train['lambda_L1']}, λ_GP {train['lambda_gp']}, n_critic {train['n_critic']}), "
-        f"Adam lr {train['lr']} β=({train['beta1']}, {train['beta2']}), batch {train['batch_size']}, random {train['crop']}² crops, seed {train['seed']}. "
+        f"Adam lr {train['lr']} β=({train['beta1']}, {train['beta2']}), batch {train['batch_size']}, "
+        f"random {train['crop']}² crops, seed {train['seed']}. "
         f"Stopped at optimizer step {last_step} (epoch {max(int(r['epoch']) for r in metrics)}); "
         f"median step time {sorted(step_s)[len(step_s) // 2]:.2f} s on this machine's CPU, {compute_min:.0f} min of steps in all "
         "(validation and checkpoints not counted; logged per epoch in metrics.csv). "
@@ -71,7 +170,10 @@ def write_model_card(run_dir: Path, export_dir: Path, quality_csv: Path, system:
     lines += [
         "",
         "## Files",
-        *[f"- `{model_doc['files'][k]}`: {k} weights, {sizes[k]:.2f} MiB, max |onnxruntime − torch| = {model_doc['max_abs_diff_vs_torch'][k]:.2e}" for k in sizes],
+        *[
+            f"- `{model_doc['files'][k]}`: {k} weights, {sizes[k]:.2f} MiB, max |onnxruntime − torch| = {model_doc['max_abs_diff_vs_torch'][k]:.2e}"
+            for k in sizes
+        ],
         "- `model.json`: architecture, input encoding (incl. depth scale), I/O names; `GIModel` checks the ONNX file against it.",
         "",
         f"Metrics source: `{quality_csv.name}` (run {rows[0]['run_id'] if rows else '?'}).",
@@ -79,3 +181,27 @@ def write_model_card(run_dir: Path, export_dir: Path, quality_csv: Path, system:
     card = export_dir / "MODEL_CARD.md"
     card.write_text("\n".join(lines) + "\n")
     return card
+
+
+def plot(csv_path: Path, out_dir: Path) -> list[Path]:
+    """SSIM per scene of the model and of DI alone (the card's table, as bars)."""
+    import numpy as np
+
+    from gicore.plotting import plt, save
+
+    rows = [r for r in read_rows(csv_path) if r["metric"] == "ssim" and r["scene"] != "all"]
+    scenes = sorted({r["scene"] for r in rows})
+    systems = list(dict.fromkeys(r["system"] for r in rows))
+    fig, ax = plt.subplots(figsize=(max(6.0, 1.2 * len(scenes) + 3), 4))
+    width = 0.8 / max(1, len(systems))
+    for j, system in enumerate(systems):
+        values = [next((r["value"] for r in rows if (r["scene"], r["system"]) == (s, system)), np.nan) for s in scenes]
+        ax.bar(np.arange(len(scenes)) + (j + 0.5) * width - 0.4, values, width, label=system)
+    ax.set_xticks(np.arange(len(scenes)), scenes, rotation=20, ha="right", fontsize=8)
+    ax.set_ylabel("mean SSIM on held-out frames (tone-mapped)")
+    ax.grid(axis="y", alpha=0.3)
+    ax.legend(fontsize=8)
+    return [save(fig, out_dir / "model_card.png")]
+
+
+BENCH = Bench("model-card", ModelCardConfig, measure, plot, help="MODEL_CARD.md for an exported model from its run, export and quality results.")

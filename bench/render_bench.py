@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.runner import Bench
 from gicore.paths import camera_path, light_position
 from gicore.results import Results, read_rows
 from gicore.scene import builtin_scenes, load_scene
@@ -104,3 +105,8 @@ def plot(csv_path: Path, out_dir: Path) -> list[Path]:
     resolution = next((r["config"].get("resolution") for r in rows if r["stat"] == "median"), "?")
     ax.set_title(f"Render passes at {resolution}² (Mitsuba {next((r['config'].get('variant') for r in rows if r['stat'] == 'median'), '')})")
     return [save(fig, out_dir / "render.png")]
+
+
+BENCH = Bench(
+    "render", RenderBenchConfig, measure, plot, help="Per-pass render times (DI, G-buffers, GT with/without OIDN) and triangle counts per scene."
+)

@@ -25,7 +25,10 @@ How to add a bench (say ``bench latency``), in ``bench/latency.py``::
     def plot(csv_path: Path, out_dir: Path) -> list[Path]:
         ...  # reads only the CSV; returns the PNGs it wrote
 
-then one line in ``bench/cli.py``: ``register(app, "latency", LatencyConfig, latency.measure, latency.plot, help=...)``.
+    BENCH = Bench("latency", LatencyConfig, measure, plot, help="Table 1: ...")
+
+and add ``latency.BENCH`` to the list in ``bench/cli.py``. A bench that runs others (``run-default``)
+calls :func:`execute` on their ``BENCH`` objects.
 
 What the runner derives from the config (so no bench declares options by hand):
 
@@ -36,7 +39,8 @@ What the runner derives from the config (so no bench declares options by hand):
   comma-separated option (``--scenes a,b``), ``dict[str, X]`` as comma-separated ``NAME=VALUE`` pairs;
 - checks on the final config (preset, then the options the user gave; an absent option never falls back
   to a default by truthiness): numbers must be > 0 unless the field's metadata sets ``min`` (inclusive;
-  ``max`` inclusive too), tuples must be non-empty unless ``metadata["min_len"] = 0``, and every entry of
+  ``max`` inclusive too), tuples must be non-empty unless ``metadata["min_len"] = 0`` and hold at most
+  ``metadata["max_len"]`` entries (``max_len=1``: a bench of one scene), and every entry of
   a ``scenes`` field must load as a scene; a config may add a ``check(self)`` method raising ``UserError``;
 - always ``--out DIR`` (checked with :func:`gicore.cli.writable_dir`), ``--quick`` (start from
   ``quick()`` instead of the defaults) and ``--seed``.
@@ -66,6 +70,8 @@ from gicore.results import Results
 
 #: Option names the runner adds to every bench; config fields may not use them.
 RESERVED = ("out", "quick", "seed")
+#: Field metadata of a camera field of view in degrees (cameras take 0 < FOV < 180).
+FOV_DEGREES = {"max": 179.0}
 
 
 @dataclass(frozen=True)
@@ -232,6 +238,8 @@ def check_config(cfg: Any) -> None:
         items = value if isinstance(value, tuple) else value.values() if isinstance(value, dict) else (value,)
         if isinstance(value, (tuple, dict)) and len(value) < f.metadata.get("min_len", 1):
             raise UserError(f"{option} is empty", f"give at least one value to {option}")
+        if isinstance(value, (tuple, dict)) and len(value) > f.metadata.get("max_len", len(value)):
+            raise UserError(f"{option} has {len(value)} values", f"give at most {f.metadata['max_len']} to {option}")
         for item in items:
             _check_number(option, item, f.metadata)
         if f.name == "scenes":
@@ -263,10 +271,9 @@ def execute(bench: Bench, cfg: Any, out: Path, seed: int = 0) -> list[Path]:
     return [csv_path, results.provenance_path, *results.files, *plots]
 
 
-def register(app: typer.Typer, name: str, config: type, measure: Callable[[Any, Results], None],
-             plot: Callable[[Path, Path], list[Path]] | None, *, help: str) -> Bench:
-    """Add ``bench <name>`` to ``app`` with options built from ``config``'s fields (module docstring)."""
-    bench = Bench(name, config, measure, plot, help)
+def register(app: typer.Typer, bench: Bench) -> Bench:
+    """Add ``bench <name>`` to ``app`` with options built from the bench's config (module docstring)."""
+    config = bench.config
     docs = field_docs(config)
     hints = typing.get_type_hints(config)
     defaults, quick = config(), config.quick()
@@ -282,12 +289,24 @@ def register(app: typer.Typer, name: str, config: type, measure: Callable[[Any, 
         annotation = _option_type(hints[f.name], _option(f.name), f"{docs[f.name]} ({shown})")
         params.append(inspect.Parameter(f.name, inspect.Parameter.KEYWORD_ONLY, default=None, annotation=annotation))
     params += [
-        inspect.Parameter("out", inspect.Parameter.KEYWORD_ONLY, default=Path("results"),
-                          annotation=Annotated[Path, typer.Option("--out", help="folder for the CSV, provenance JSON and plots")]),
-        inspect.Parameter("quick", inspect.Parameter.KEYWORD_ONLY, default=False,
-                          annotation=Annotated[bool, typer.Option("--quick", help="start from the small preset (minutes on 2 cores)")]),
-        inspect.Parameter("seed", inspect.Parameter.KEYWORD_ONLY, default=0,
-                          annotation=Annotated[int, typer.Option("--seed", help="seeds cameras, noise and training")]),
+        inspect.Parameter(
+            "out",
+            inspect.Parameter.KEYWORD_ONLY,
+            default=Path("results"),
+            annotation=Annotated[Path, typer.Option("--out", help="folder for the CSV, provenance JSON and plots")],
+        ),
+        inspect.Parameter(
+            "quick",
+            inspect.Parameter.KEYWORD_ONLY,
+            default=False,
+            annotation=Annotated[bool, typer.Option("--quick", help="start from the small preset (minutes on 2 cores)")],
+        ),
+        inspect.Parameter(
+            "seed",
+            inspect.Parameter.KEYWORD_ONLY,
+            default=0,
+            annotation=Annotated[int, typer.Option("--seed", help="seeds cameras, noise and training")],
+        ),
     ]
 
     def command(*, out: Path, quick: bool, seed: int, **options: Any) -> None:
@@ -297,7 +316,7 @@ def register(app: typer.Typer, name: str, config: type, measure: Callable[[Any, 
 
     command.__signature__ = inspect.Signature(params)  # type: ignore[attr-defined]
     command.__annotations__ = {p.name: p.annotation for p in params}
-    command.__doc__ = help
-    command.__name__ = name.replace("-", "_")
-    app.command(name, help=help)(command)
+    command.__doc__ = bench.help
+    command.__name__ = bench.name.replace("-", "_")
+    app.command(bench.name, help=bench.help)(command)
     return bench

@@ -5,44 +5,120 @@ SSIM and training L1 against step, one line per run, so unstable adversarial tra
 validation SSIM against training compute time (the logged step times summed), the axis on which model
 widths compete for a fixed budget. Step times are as logged: runs that shared the CPU with other
 runs report slower steps than they would alone.
+
+On a fresh checkout there are no runs to compare, so ``--quick`` trains small GIGAN runs itself (one
+per ``--widths``, ``--train-steps`` steps on the small datasets of ``--scenes``, into ``<out>/runs``;
+rerunning resumes them) and plots those: a real, if tiny, width comparison.
 """
 
 from __future__ import annotations
 
 import csv
 import json
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from bench.runner import Bench
+from gicore.cli import UserError
 from gicore.results import Results, read_rows
 
 
-def run(runs: list[Path], out: Path) -> Path:
-    res = Results("training", out, settings={"runs": [str(r) for r in runs]})
+@dataclass(frozen=True)
+class TrainingBenchConfig:
+    """Which runs to plot, and the small runs to train first when asked."""
+
+    #: gigan-train run folders to compare (labelled by folder name).
+    runs: tuple[Path, ...] = field(default=(), metadata={"min_len": 0})
+    #: When set, first train one small GIGAN per --widths for this many steps (into <out>/runs) and plot it too.
+    train_steps: int | None = None
+    #: Generator widths (ngf) of the runs trained here.
+    widths: tuple[int, ...] = (8, 16)
+    #: Scenes whose small datasets (rendered into <out>/dataset) the runs trained here learn from.
+    scenes: tuple[str, ...] = ("lung_plane",)
+
+    @classmethod
+    def quick(cls) -> "TrainingBenchConfig":
+        return cls(train_steps=60)
+
+    def check(self) -> None:
+        if not self.runs and self.train_steps is None:
+            raise UserError(
+                "--runs is empty: no training runs to plot", "give --runs RUN[,RUN...] (gigan-train folders), or --quick to train small runs here"
+            )
+        for run_dir in self.runs:
+            for name in ("metrics.csv", "config.json"):
+                if not (run_dir / name).is_file():
+                    raise UserError(f"--runs {run_dir}: {run_dir / name} is missing", "give gigan-train run folders")
+
+
+def train_small(scenes: tuple[str, ...], widths: tuple[int, ...], steps: int, res: Results) -> list[Path]:
+    """Train one small GIGAN per width on the small datasets of ``scenes`` (``bench.quality.QUICK_DATASET``,
+    rendered into ``<out>/dataset``) into ``<out>/runs/gigan_ngf<W>``; a finished run is kept, a partial one
+    resumed. Returns the run folders."""
+    from bench.quality import QUICK_DATASET
+    from gicore.dataset_cli import build_dataset
+    from gicore.scene import load_scene
+    from gigan_local.config import TrainConfig
+    from gigan_local.train import train
+
+    datasets = []
+    for scene in scenes:
+        spec = load_scene(scene)
+        build_dataset(spec, res.out / "dataset" / spec.name, QUICK_DATASET, progress=False)
+        datasets.append(str(res.out / "dataset" / spec.name))
+    runs = []
+    for width in widths:
+        run_dir = res.out / "runs" / f"gigan_ngf{width}"
+        cfg = TrainConfig(
+            model="gigan",
+            datasets=datasets,
+            ngf=width,
+            crop=64,
+            batch_size=2,
+            epochs=100_000,
+            max_steps=steps,
+            max_val_frames=QUICK_DATASET.n_val,
+            checkpoint_every=0,
+            seed=res.seed,
+        )
+        train(cfg, run_dir, resume=(run_dir / "checkpoint.pt").is_file(), progress=False)
+        runs.append(run_dir)
+    return runs
+
+
+def measure(cfg: TrainingBenchConfig, res: Results) -> None:
+    runs = list(cfg.runs) + (train_small(cfg.scenes, cfg.widths, cfg.train_steps, res) if cfg.train_steps is not None else [])
     for run_dir in runs:
-        metrics = run_dir / "metrics.csv"
-        if not metrics.is_file():
-            raise FileNotFoundError(f"{metrics} is missing; is {run_dir} a gigan-train run folder?")
         config = json.loads((run_dir / "config.json").read_text())["train"]
-        with metrics.open(newline="") as fh:
+        with (run_dir / "metrics.csv").open(newline="") as fh:
             for row in csv.DictReader(fh):
                 res.add(
-                    system=run_dir.name, scene="all", metric=f"{row['split']}_{row['metric']}", value=float(row["value"]), unit=row["unit"],
-                    step=int(row["step"]), epoch=int(row["epoch"]), model=row["model"], ngf=config["ngf"], n_critic=config["n_critic"],
+                    system=run_dir.name,
+                    scene="all",
+                    metric=f"{row['split']}_{row['metric']}",
+                    value=float(row["value"]),
+                    unit=row["unit"],
+                    step=int(row["step"]),
+                    epoch=int(row["epoch"]),
+                    model=row["model"],
+                    ngf=config["ngf"],
+                    n_critic=config["n_critic"],
                 )
-    path = res.write()
-    plot(path, out / "training.png")
-    return path
 
 
-def plot(csv_path: Path, png: Path) -> None:
+def plot(csv_path: Path, out_dir: Path) -> list[Path]:
+    """Validation SSIM and training L1 against step, and validation SSIM against training minutes."""
     from gicore.plotting import plt, save
 
     rows = read_rows(csv_path)
     fig, axes = plt.subplots(1, 3, figsize=(16, 4))
     for run_id in dict.fromkeys(r["system"] for r in rows):
-        curves = {m: sorted((r["config"]["step"], r["value"]) for r in rows if r["system"] == run_id and r["metric"] == m) for m in ("val_ssim", "train_G_L1", "train_step_seconds")}
+        curves = {
+            m: sorted((r["config"]["step"], r["value"]) for r in rows if r["system"] == run_id and r["metric"] == m)
+            for m in ("val_ssim", "train_G_L1", "train_step_seconds")
+        }
         for ax, metric in zip(axes, ("val_ssim", "train_G_L1")):
             if curves[metric]:
                 ax.plot(*zip(*curves[metric]), label=run_id)
@@ -59,7 +135,7 @@ def plot(csv_path: Path, png: Path) -> None:
     for ax in axes:
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=7)
-    save(fig, png)
+    return [save(fig, out_dir / "training.png")]
 
 
 def training_minutes(step_seconds: list[tuple[int, float]], steps: tuple[int, ...] | list[int]) -> list[float]:
@@ -70,3 +146,12 @@ def training_minutes(step_seconds: list[tuple[int, float]], steps: tuple[int, ..
     cumulative = np.concatenate([[0.0], np.cumsum(np.diff(ends) * np.array([v for _, v in step_seconds]))])
     last_rate = step_seconds[-1][1]
     return [float(np.interp(s, ends, cumulative) + max(0, s - ends[-1]) * last_rate) / 60.0 for s in steps]
+
+
+BENCH = Bench(
+    "training",
+    TrainingBenchConfig,
+    measure,
+    plot,
+    help="Learning curves of training runs: validation SSIM and training L1 against step and against training minutes.",
+)

@@ -30,37 +30,50 @@ import time
 import tracemalloc
 from collections import defaultdict
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from gicore.results import Results
+from bench.runner import FOV_DEGREES, Bench
 from gicore.camera import Camera
 from gicore.metrics import ssim
 from gicore.paths import camera_path, light_position
+from gicore.results import Results, read_rows
 from gicore.scene import load_scene
 from gicore.tonemap import tonemap
 
-SYSTEMS = {"structure": "structure-aware", "pixel": "pixel-level"}
+#: Plot and CSV names of the client's warp methods (``gigan_local.client.WARPS``).
+WARP_LABELS = {"structure": "structure-aware", "pixel": "pixel-level", "none": "no warping"}
+SYSTEMS = {m: WARP_LABELS[m] for m in ("structure", "pixel")}
 
 
 @dataclass(frozen=True)
 class WarpBenchConfig:
     """The parameter grid of one run."""
 
+    #: Scene names or spec files.
     scenes: tuple[str, ...] = ("lung_plane", "digestive_plane", "vessels_plane")
+    #: Square resolution in pixels.
     resolution: int = 256
-    local_fov: float = 60.0
-    gi_fov: float = 90.0
-    #: Frames along the path where GI maps are made, and local frames after each (camera motion).
-    gi_frames: tuple[int, ...] = (0, 100, 200)
+    #: FOV of the local (client) camera, degrees.
+    local_fov: float = field(default=60.0, metadata=FOV_DEGREES)
+    #: FOV of the GI camera whose map is warped, degrees.
+    gi_fov: float = field(default=90.0, metadata=FOV_DEGREES)
+    #: Frames along the camera path where GI maps are made.
+    gi_frames: tuple[int, ...] = field(default=(0, 100, 200), metadata={"min": 0})
+    #: Local frames after each GI frame that the map is warped to (camera motion).
     offsets: tuple[int, ...] = (1, 5, 10, 15, 20, 25, 29)
+    #: Frames per full orbit of the camera path (360° / orbit_frames per frame).
     orbit_frames: int = 300
+    #: Samples per pixel of the path-traced GI maps and GT.
     spp: int = 64
+    #: Denoise the path-traced renders with OIDN.
     denoise: bool = True
+    #: Timed calls of each method per local frame (alternating the two).
     repeats: int = 10
-    warmup: int = 2
+    #: Untimed calls of each method per local frame before timing.
+    warmup: int = field(default=2, metadata={"min": 0})
 
     @classmethod
     def quick(cls) -> "WarpBenchConfig":
@@ -95,13 +108,13 @@ def uv_errors(renderer, warper, gi_cam: Camera, local: Camera) -> dict[str, np.n
     return out
 
 
-def run(cfg: WarpBenchConfig, out: Path, seed: int = 0) -> Path:
+def measure(cfg: WarpBenchConfig, res: Results) -> None:
     from baseline_cloudbaking.warp import PixelWarp
     from gicore.render import Renderer
     from gigan_local.client import GTSource, render_gt
     from gigan_local.warp import GITexture, StructureAwareWarp
 
-    res = Results("warp", out, seed, settings=cfg.__dict__)
+    seed = res.seed
     common = {"resolution": cfg.resolution, "gi_fov": cfg.gi_fov, "local_fov": cfg.local_fov}
     for name in cfg.scenes:
         spec = load_scene(name)
@@ -161,7 +174,9 @@ def run(cfg: WarpBenchConfig, out: Path, seed: int = 0) -> Path:
                     gi_w, valid, _ = fn()
                     quality[f"{m}/ssim"].append(ssim(tonemap(gi_w), gt))
                     quality[f"{m}/valid"].append(float(valid[mask].mean()) if mask.any() else 1.0)
-                    res.add(system=SYSTEMS[m], scene=name, metric="ssim", value=quality[f"{m}/ssim"][-1], unit="1", offset=offset, gi_frame=g, **common)
+                    res.add(
+                        system=SYSTEMS[m], scene=name, metric="ssim", value=quality[f"{m}/ssim"][-1], unit="1", offset=offset, gi_frame=g, **common
+                    )
             for method, errors in uv_errors(renderer, warper, gi.camera, cams[(g + cfg.offsets[-1]) % cfg.orbit_frames]).items():
                 uv_err[method].append(errors)
 
@@ -181,21 +196,24 @@ def run(cfg: WarpBenchConfig, out: Path, seed: int = 0) -> Path:
         res.add_timing(system="shared", scene=name, metric="raster_time", samples_s=samples["raster"], **cfg_row)
         ratio = np.median(samples["pixel"]) / np.median(samples["structure"])
         res.add(system="pixel/structure", scene=name, metric="time_ratio", value=float(ratio), unit="x", stat="median", **cfg_row)
-        res.add(system="pixel/structure", scene=name, metric="cpu_ratio", value=cpu["pixel"][0] / cpu["pixel"][2] / (cpu["structure"][0] / cpu["structure"][2]), unit="x", stat="mean", **cfg_row)
+        res.add(
+            system="pixel/structure",
+            scene=name,
+            metric="cpu_ratio",
+            value=cpu["pixel"][0] / cpu["pixel"][2] / (cpu["structure"][0] / cpu["structure"][2]),
+            unit="x",
+            stat="mean",
+            **cfg_row,
+        )
         for method, errors in uv_err.items():
             e = np.concatenate(errors)
             for stat, value in (("median", np.median(e)), ("p99", np.percentile(e, 99)), ("max", e.max())):
                 res.add(system=method, scene=name, metric="uv_error", value=float(value), unit="px", stat=stat, **cfg_row)
-    path = res.write()
-    plot(path, out / "warp.png")
-    return path
 
 
-def plot(csv_path: Path, png: Path) -> None:
+def plot(csv_path: Path, out_dir: Path) -> list[Path]:
     """Fig. 7 from the CSV: warp time (median, p95 whisker), CPU %, and SSIM per scene and method."""
     from gicore.plotting import plt, save
-
-    from gicore.results import read_rows
 
     rows = read_rows(csv_path)
     scenes = list(dict.fromkeys(r["scene"] for r in rows))
@@ -220,4 +238,7 @@ def plot(csv_path: Path, png: Path) -> None:
     axes[2].set_ylim(bottom=max(0.0, min(r["value"] for r in rows if r["metric"] == "ssim") - 0.05))
     axes[0].legend(fontsize=8)
     fig.suptitle("Pixel-level vs structure-aware 3D image warping (CPU, one process)")
-    save(fig, png)
+    return [save(fig, out_dir / "warp.png")]
+
+
+BENCH = Bench("warp", WarpBenchConfig, measure, plot, help="Fig. 7: CPU time, CPU load, memory and SSIM of pixel-level vs structure-aware warping.")

@@ -28,7 +28,18 @@ from gicore.fileio import atomic_write_bytes
 
 COLUMNS = ("run_id", "bench", "system", "scene", "metric", "stat", "value", "unit", "config")
 _PACKAGES = (
-    "numpy", "torch", "mitsuba", "drjit", "onnxruntime", "scikit-image", "pyoidn", "fastapi", "uvicorn", "httpx", "zstandard", "pillow",
+    "numpy",
+    "torch",
+    "mitsuba",
+    "drjit",
+    "onnxruntime",
+    "scikit-image",
+    "pyoidn",
+    "fastapi",
+    "uvicorn",
+    "httpx",
+    "zstandard",
+    "pillow",
 )
 
 
@@ -37,7 +48,9 @@ def git_revision() -> dict[str, Any]:
     root = Path(__file__).resolve().parent.parent
     try:
         sha = subprocess.run(["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True, check=True).stdout.strip()
-        dirty = bool(subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=root, capture_output=True, text=True).stdout.strip())
+        dirty = bool(
+            subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=root, capture_output=True, text=True).stdout.strip()
+        )
     except (OSError, subprocess.CalledProcessError):
         return {"sha": None, "dirty": None}
     return {"sha": sha, "dirty": dirty}

@@ -16,7 +16,7 @@ import typer
 from typer.testing import CliRunner
 
 from bench.cli import app
-from bench.runner import build_config, execute, field_docs, register
+from bench.runner import Bench, build_config, execute, field_docs, register
 from gicore.cli import UserError
 from gicore.results import COLUMNS, Results, read_rows
 from gicore.timing import summarize_ms, time_repeats
@@ -63,10 +63,13 @@ def _demo_plot(csv_path: Path, out_dir: Path) -> list[Path]:
     return [save(fig, out_dir / "demo.png")]
 
 
+DEMO = Bench("demo", DemoConfig, _demo_measure, _demo_plot, help="A demo bench.")
+
+
 def _demo_app() -> typer.Typer:
     demo = typer.Typer()
-    register(demo, "demo", DemoConfig, _demo_measure, _demo_plot, help="A demo bench.")
-    register(demo, "other", DemoConfig, _demo_measure, None, help="Typer needs two commands for subcommand names.")
+    register(demo, DEMO)
+    register(demo, Bench("other", DemoConfig, _demo_measure, None, help="Typer needs two commands for subcommand names."))
     return demo
 
 
@@ -77,15 +80,25 @@ def _options(typer_app: typer.Typer, name: str) -> dict:
 
 def test_runner_builds_typed_documented_options_from_the_config(tmp_path: Path) -> None:
     opts = _options(_demo_app(), "demo")
-    assert {"--scenes", "--resolution", "--tau", "--denoise", "--warp", "--cost-ms", "--models", "--frames", "--out", "--quick", "--seed"} <= set(opts)
+    assert {"--scenes", "--resolution", "--tau", "--denoise", "--warp", "--cost-ms", "--models", "--frames", "--out", "--quick", "--seed"} <= set(
+        opts
+    )
     assert opts["--denoise"].secondary_opts == ["--no-denoise"]
     args = ["demo", "--quick", "--resolution", "24", "--tau", "0.5", "--denoise", "--warp", "pixel", "--cost-ms", "2.5"]
     args += ["--models", "x=y.onnx", "--frames", "0,7", "--seed", "4", "--out", str(tmp_path)]
     result = CliRunner().invoke(_demo_app(), args)
     assert result.exit_code == 0, result.output
     settings = json.loads((tmp_path / "demo.provenance.json").read_text())["settings"]
-    assert settings == {"scenes": ["lung_plane"], "resolution": 24, "tau": 0.5, "denoise": True, "warp": "pixel", "cost_ms": 2.5,
-                        "models": {"x": "y.onnx"}, "frames": [0, 7]}
+    assert settings == {
+        "scenes": ["lung_plane"],
+        "resolution": 24,
+        "tau": 0.5,
+        "denoise": True,
+        "warp": "pixel",
+        "cost_ms": 2.5,
+        "models": {"x": "y.onnx"},
+        "frames": [0, 7],
+    }
     for bad in (["--resolution", "2.5"], ["--tau", "x"], ["--warp", "diagonal"]):  # typed options: usage errors
         assert CliRunner().invoke(_demo_app(), ["demo", *bad, "--out", str(tmp_path)]).exit_code == 2, bad
     help_text = CliRunner(env={"COLUMNS": "250"}).invoke(_demo_app(), ["demo", "--help"]).output
@@ -104,7 +117,7 @@ def test_field_docs_come_from_comments_or_metadata() -> None:
     assert field_docs(C) == {"a": "Documented over two lines.", "b": "from metadata"}
     with pytest.raises(TypeError, match="C.b has no #: comment"):
         undocumented = dataclasses.make_dataclass("C", [("b", int, 2)], frozen=True, namespace={"quick": classmethod(lambda cls: cls())})
-        register(typer.Typer(), "c", undocumented, _demo_measure, None, help="")
+        register(typer.Typer(), Bench("c", undocumented, _demo_measure, None, help=""))
 
 
 def test_quick_preset_then_only_the_options_given() -> None:
@@ -138,9 +151,8 @@ def test_bad_values_are_user_errors_naming_the_option(given: dict, message: str)
 
 
 def test_execute_writes_csv_provenance_of_the_final_config_and_plots(tmp_path: Path) -> None:
-    bench = register(typer.Typer(), "demo", DemoConfig, _demo_measure, _demo_plot, help="")
     cfg = build_config(DemoConfig, True, {"resolution": 24})
-    paths = execute(bench, cfg, tmp_path, seed=5)
+    paths = execute(DEMO, cfg, tmp_path, seed=5)
     assert [p.name for p in paths] == ["demo.csv", "demo.provenance.json", "note.md", "demo.png"]
     prov = json.loads((tmp_path / "demo.provenance.json").read_text())
     assert prov["settings"]["resolution"] == 24 and prov["settings"]["denoise"] is False and prov["seed"] == 5
@@ -155,7 +167,15 @@ def _bench(*args: str) -> subprocess.CompletedProcess:
 @pytest.mark.parametrize(
     ("args", "culprit"),
     [
-        (["convergence", "--resolution", "0"], "--resolution = 0 is not positive"),
+        (["warp", "--resolution", "0"], "--resolution = 0 is not positive"),
+        (["fov", "--gi-fovs", "90,180"], "--gi-fovs = 180.0 is above 179.0"),
+        (["frequency", "--tau", "1.5"], "--tau = 1.5 is above 1.0"),
+        (["run-default", "--scenes", "lung_plane,lung_cornell"], "--scenes has 2 values"),
+        (["quality", "--models", "gigan=missing.onnx"], "--models gigan missing.onnx: no such model file"),
+        (["quality", "--datasets", "tests"], "--datasets tests: no dataset of"),
+        (["training"], "--runs is empty"),
+        (["training", "--runs", "tests"], "--runs tests: tests/metrics.csv is missing"),
+        (["model-card"], "--run is not given"),
         (["render", "--resolution", "-5"], "--resolution = -5 is not positive"),
         (["convergence", "--spps", "1,0"], "--spps = 0 is not positive"),
         (["convergence", "--scenes", ""], "--scenes is empty"),
@@ -173,15 +193,22 @@ def test_bench_command_rejects_bad_input_with_one_error_line(args: list[str], cu
 
 def test_every_subcommand_has_out_quick_and_seed() -> None:
     group = typer.main.get_command(app)
-    assert set(group.commands) >= {"convergence", "render"}  # type: ignore[attr-defined]
-    for name in ("convergence", "render"):  # converting the rest to the runner is under way
+    assert set(group.commands) >= {"convergence", "render", "warp", "frequency", "fov", "quality", "training", "model-card", "run-default"}  # type: ignore[attr-defined]
+    for name in group.commands:  # type: ignore[attr-defined]
         assert {"--out", "--quick", "--seed"} <= set(_options(app, name)), name
 
 
 def test_tiny_render_run_through_the_command(tmp_path: Path) -> None:
     result = _bench("render", "--quick", "--resolution", "16", "--repeats", "1", "--gt-repeats", "1", "--out", str(tmp_path))
     assert result.returncode == 0, result.stderr
-    assert result.stdout.split() == ["wrote", str(tmp_path / "render.csv"), "wrote", str(tmp_path / "render.provenance.json"), "wrote", str(tmp_path / "render.png")]
+    assert result.stdout.split() == [
+        "wrote",
+        str(tmp_path / "render.csv"),
+        "wrote",
+        str(tmp_path / "render.provenance.json"),
+        "wrote",
+        str(tmp_path / "render.png"),
+    ]
     rows = read_rows(tmp_path / "render.csv")
     assert {r["metric"] for r in rows} >= {"triangles", "di_1spp", "gt_256spp"}
     prov = json.loads((tmp_path / "render.provenance.json").read_text())
@@ -211,11 +238,10 @@ def test_timing_warms_up_and_summarises() -> None:
 
 
 def test_tiny_convergence_run_writes_csv_and_plot(tmp_path: Path) -> None:
-    from bench.cli import CONVERGENCE
-    from bench.convergence import ConvergenceConfig
+    from bench.convergence import BENCH, ConvergenceConfig
 
     cfg = ConvergenceConfig(scenes=("lung_plane",), resolution=16, spps=(1, 4), reference_spp=16, repeats=1)
-    execute(CONVERGENCE, cfg, tmp_path)
+    execute(BENCH, cfg, tmp_path)
     rows = read_rows(tmp_path / "convergence.csv")
     assert (tmp_path / "convergence.png").stat().st_size > 0
     rmse = {(r["system"], r["config"]["spp"]): r["value"] for r in rows if r["metric"] == "rmse"}
@@ -231,7 +257,7 @@ def test_training_minutes_sum_the_logged_step_times() -> None:
 
 
 def test_training_curves_from_run_folders(tmp_path: Path) -> None:
-    from bench.training import run as run_training
+    from bench.training import BENCH, TrainingBenchConfig
 
     run_dir = tmp_path / "runA"
     run_dir.mkdir()
@@ -239,10 +265,12 @@ def test_training_curves_from_run_folders(tmp_path: Path) -> None:
     (run_dir / "metrics.csv").write_text(
         "run_id,model,epoch,step,split,metric,value,unit\nx,gigan,0,0,val,ssim,0.5,1\nx,gigan,1,10,train,G_L1,0.2,1\nx,gigan,1,10,train,step_seconds,0.5,s\nx,gigan,1,10,val,ssim,0.7,1\n"
     )
-    rows = read_rows(run_training([run_dir], tmp_path / "out"))
+    execute(BENCH, TrainingBenchConfig(runs=(run_dir,)), tmp_path / "out")
+    rows = read_rows(tmp_path / "out" / "training.csv")
     assert {(r["system"], r["metric"], r["config"]["step"]) for r in rows} == {
-        ("runA", "val_ssim", 0), ("runA", "train_G_L1", 10), ("runA", "train_step_seconds", 10), ("runA", "val_ssim", 10)
+        ("runA", "val_ssim", 0),
+        ("runA", "train_G_L1", 10),
+        ("runA", "train_step_seconds", 10),
+        ("runA", "val_ssim", 10),
     }
     assert (tmp_path / "out" / "training.png").stat().st_size > 0
-    with pytest.raises(FileNotFoundError, match="metrics.csv"):
-        run_training([tmp_path], tmp_path / "out2")
