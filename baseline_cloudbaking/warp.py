@@ -1,48 +1,54 @@
 """Pixel-level 3D image warping: cloud baking's way to re-use a GI map at another viewpoint (paper V,
-Fig. 5(a)). Numpy only.
+Fig. 5(a)). Numpy only, apart from the client's surface-mask pass.
 
-1. **unproject** (once per GI map, :meth:`PixelWarp.bind`): every GI-map pixel with a depth becomes a 3D
+1. **unproject** (once per GI map, :class:`PointCloud`): every GI-map pixel with a depth becomes a 3D
    point, its centre ray at its linear view depth, kept in homogeneous world coordinates.
 2. **project** (per frame): the points go through the target camera's ``M_p · M_v``; points with
    ``w <= near`` are dropped.
 3. **splat**: z-buffered forward splatting. Each point covers a square of ``k x k`` target pixels, ``k``
-   its footprint (target/source pixel scale, ``ceil`` of it, at most ``MAX_FOOTPRINT``), so a GI map with
-   a wider FOV than the target does not leave a crack between every other pixel. Nearest point wins:
-   one ``np.minimum.at`` per footprint offset on a packed 64-bit key (float32 depth bits, which order like
-   the depths for positive values, in the high word; the source index in the low word).
+   its footprint: the target/source pixel scale at the point, rounded up, so that neighbouring points'
+   squares tile the surface at any magnification (a GI map with a wider FOV than the target, a target
+   camera much closer to a surface, a 1° zoom where one texel covers the whole frame). Squares are
+   clipped to the frame and only their covered pixels are visited, so the work is the covered area, not
+   the footprint's. Nearest point wins: one ``np.minimum.at`` over every covered pixel on a packed 64-bit
+   key (float32 depth bits, which order like the depths for positive values, in the high word; the
+   source index in the low word).
 4. **fill**: holes (target pixels no point reached) are filled by a push-pull pyramid; with a target mask
-   (where the target view sees a surface, known from the client's own DI render) only there, and the
-   background stays 0.
+   (where the target view sees a surface) only there, and the background stays 0.
 
-Returns the warped image, the valid mask (pixels that received a splat) and per-stage timings (ms).
+:class:`PixelWarp` is the :class:`gicore.loop.Warp` of the cloud-baking client: it binds a GI map's
+point cloud and, per frame, renders the surface mask of the target view (``raster``, the centre-sampled
+pass of :meth:`gicore.render.Renderer.render_uv`) before splatting.
 With identical cameras every point lands on its own pixel with footprint 1: the identity.
 """
 
 from __future__ import annotations
 
-import time
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from gicore.camera import Camera
 from gicore.fill import push_pull
+from gicore.loop import LAYERS, GIMap, Timings
+from gicore.timing import Stopwatch
 
-#: Largest splat side in pixels (points closer to the target camera than to the GI camera grow).
-MAX_FOOTPRINT = 4
+if TYPE_CHECKING:
+    from gicore.render import Renderer
+
+#: Footprint bound that only keeps integer coordinates finite: squares are clipped to the frame before
+#: any pixel is visited, so even a texel magnified past the whole frame costs only the frame's pixels.
+MAX_FOOTPRINT = float(1 << 30)
 #: A footprint within this of an integer rounds down (float noise must not turn 1 into 2).
 FOOTPRINT_EPS = 1e-3
+#: Covered pixels splatted per batch: bounds the temporary index arrays (~40 bytes per pixel).
+SPLAT_BATCH = 1 << 21
 _EMPTY = np.iinfo(np.uint64).max
 
-Timings = dict[str, float]
 
-
-def _ms(t0: float) -> float:
-    return (time.perf_counter() - t0) * 1e3
-
-
-class PixelWarp:
+class PointCloud:
     """One GI map (``image`` HxWxC seen by ``source`` with linear view ``depth`` HxW, 0 = background) as
-    a point cloud, warped to any target camera by :meth:`warp`."""
+    a point cloud, splatted into any target camera by :meth:`splat`."""
 
     def __init__(self, image: np.ndarray, depth: np.ndarray, source: Camera):
         img = np.asarray(image, dtype=np.float32)
@@ -52,7 +58,6 @@ class PixelWarp:
             raise ValueError(f"image {img.shape} and depth {depth.shape} must both be {source.height}x{source.width} (the source camera)")
         if not (np.all(np.isfinite(img)) and np.all(np.isfinite(depth))):
             raise ValueError("image or depth contains NaN or Inf")
-        t0 = time.perf_counter()
         src = np.flatnonzero(depth > 0)
         d = depth.ravel()[src].astype(np.float64)
         p = source.proj()
@@ -64,15 +69,14 @@ class PixelWarp:
         self.src_depth_over_focal = (d / (p[0, 0] * w / 2.0)).astype(np.float32)
         self.colours = img.reshape(h * w, -1)[src]
         self.channels = img.shape[2]
-        self.bind_ms = _ms(t0)
 
-    def warp(self, target: Camera, target_mask: np.ndarray | None = None, fill: bool = True) -> tuple[np.ndarray, np.ndarray, Timings]:
+    def splat(self, target: Camera, target_mask: np.ndarray | None = None, fill: bool = True) -> tuple[np.ndarray, np.ndarray, Timings]:
         """(target-sized image, valid mask, timings). Invalid pixels hold the hole filling (``fill``) or 0;
         outside ``target_mask`` everything is 0 and invalid."""
         th, tw = target.height, target.width
         if target_mask is not None and target_mask.shape != (th, tw):
             raise ValueError(f"target_mask must be {th}x{tw}, got {target_mask.shape}")
-        t0 = time.perf_counter()
+        sw = Stopwatch()
         clip = target.view_proj().astype(np.float32) @ self.points
         cw = clip[3]
         front = np.flatnonzero(cw > target.near)
@@ -83,21 +87,14 @@ class PixelWarp:
         # footprint: target pixels per source pixel at this point (world size of a source pixel over the
         # world size of a target pixel at the point's target depth)
         scale = self.src_depth_over_focal[front] * (target.proj()[0, 0] * tw / 2.0) / cw
-        k = np.clip(np.ceil(scale - FOOTPRINT_EPS), 1, MAX_FOOTPRINT).astype(np.intp)
+        k = np.ceil(np.minimum(scale, MAX_FOOTPRINT) - FOOTPRINT_EPS).clip(1.0).astype(np.intp)
         x0 = np.floor(col - 0.5 * k + 0.5).astype(np.intp)
         y0 = np.floor(row - 0.5 * k + 0.5).astype(np.intp)
-        t1 = time.perf_counter()
+        sw.lap("project")
 
         key = (cw.view(np.uint32).astype(np.uint64) << np.uint64(32)) | front.astype(np.uint64)
         zbuf = np.full(th * tw, _EMPTY, dtype=np.uint64)
-        kmax = int(k.max(initial=1))
-        for dy in range(kmax):
-            for dx in range(kmax):
-                x, y = x0 + dx, y0 + dy
-                sel = (x >= 0) & (x < tw) & (y >= 0) & (y < th)
-                if dx or dy:
-                    sel &= k > max(dx, dy)
-                np.minimum.at(zbuf, y[sel] * tw + x[sel], key[sel])
+        _zbuffer(zbuf, key, x0, y0, k, tw, th)
         valid = zbuf != _EMPTY
         if target_mask is not None:
             valid &= target_mask.ravel().astype(bool)
@@ -105,18 +102,64 @@ class PixelWarp:
         winners = (zbuf[valid] & np.uint64(0xFFFFFFFF)).astype(np.intp)
         out[valid] = self.colours[winners]
         out, valid = out.reshape(th, tw, -1), valid.reshape(th, tw)
-        t2 = time.perf_counter()
+        sw.lap("splat")
 
         if fill:
             out = push_pull(out, valid.astype(np.float32))
             if target_mask is not None:
                 out[~target_mask.astype(bool)] = 0.0
-        t3 = time.perf_counter()
-        return out, valid, {"project": (t1 - t0) * 1e3, "splat": (t2 - t1) * 1e3, "fill": (t3 - t2) * 1e3}
+        sw.lap("fill")
+        return out, valid, sw.ms
 
 
-def pixel_warp(image: np.ndarray, depth: np.ndarray, source: Camera, target: Camera, target_mask: np.ndarray | None = None, fill: bool = True) -> tuple[np.ndarray, np.ndarray, Timings]:
-    """Unproject and warp in one call (see :class:`PixelWarp`); timings include ``unproject``."""
-    pw = PixelWarp(image, depth, source)
-    out, valid, timings = pw.warp(target, target_mask, fill)
-    return out, valid, {"unproject": pw.bind_ms} | timings
+def _zbuffer(zbuf: np.ndarray, key: np.ndarray, x0: np.ndarray, y0: np.ndarray, k: np.ndarray, tw: int, th: int) -> None:
+    """Keep, per pixel of ``zbuf`` (th*tw), the smallest ``key`` of the squares [x0, x0+k) x [y0, y0+k)
+    that cover it, visiting only each square's part inside the frame."""
+    xs, ys = np.clip(x0, 0, tw), np.clip(y0, 0, th)
+    wide = np.clip(x0 + k, 0, tw) - xs
+    high = np.clip(y0 + k, 0, th) - ys
+    area = wide * high
+    keep = np.flatnonzero(area > 0)
+    xs, ys, wide, area, key = xs[keep], ys[keep], wide[keep], area[keep], key[keep]
+    ends = np.cumsum(area)
+    start = 0
+    while start < len(keep):
+        # a batch of whole squares covering about SPLAT_BATCH pixels (at least one square)
+        stop = max(start + 1, int(np.searchsorted(ends, (ends[start - 1] if start else 0) + SPLAT_BATCH, side="right")))
+        first = ends[start - 1] if start else 0
+        owner = np.repeat(np.arange(start, stop), area[start:stop])
+        offset = np.arange(first, ends[stop - 1]) - (ends[owner] - area[owner])
+        dy, dx = np.divmod(offset, wide[owner])
+        np.minimum.at(zbuf, (ys[owner] + dy) * tw + xs[owner] + dx, key[owner])
+        start = stop
+
+
+class PixelWarp:
+    """Pixel-level warping as the cloud-baking client's :class:`gicore.loop.Warp`: :meth:`bind` unprojects a
+    GI map's ``layer`` into a :class:`PointCloud`; :meth:`warp` renders the target view's surface mask on
+    ``renderer`` (``raster``), splats and fills the holes on surfaces (push-pull). The current DI is not used."""
+
+    name = "pixel"
+    stages = ("bind", "raster", "project", "splat", "fill")
+
+    def __init__(self, renderer: Renderer, layer: str = "radiance"):
+        if layer not in LAYERS.values():
+            raise ValueError(f"layer must be one of {tuple(LAYERS.values())}, got {layer!r}")
+        self.renderer = renderer
+        self.layer = layer
+        self.cloud: PointCloud | None = None
+
+    def bind(self, gi: GIMap) -> Timings:
+        sw = Stopwatch()
+        self.cloud = PointCloud(gi.layer(self.layer), gi.depth, gi.camera)
+        sw.lap("bind")
+        return sw.ms
+
+    def warp(self, camera: Camera, di: np.ndarray) -> tuple[np.ndarray, np.ndarray, Timings]:
+        if self.cloud is None:
+            raise RuntimeError("no GI map is bound; call bind() first")
+        sw = Stopwatch()
+        mask = self.renderer.render_uv(camera)["mask"]
+        sw.lap("raster")
+        out, valid, timings = self.cloud.splat(camera, target_mask=mask)
+        return out, valid | ~mask, sw.ms | timings

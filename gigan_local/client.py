@@ -1,62 +1,68 @@
-"""The GIGAN client loop (paper III, Fig. 1; SPEC §5).
+"""The GIGAN client (paper III, Fig. 1): its GI sources, and `gigan-client`'s run on the shared loop.
 
-Along a scene's camera path, every frame the client
+The loop itself -- DI every frame, a GI map every ``k`` frames, warp, compose, per-frame rows -- is
+:mod:`gicore.loop`'s, shared with the cloud-baking client. GIGAN brings:
 
-1. renders direct illumination (DI) at the local camera (FOV 60°);
-2. every ``k`` frames obtains a GI map at the GI camera -- same position and orientation as the local
-   camera at that frame, FOV ``F_GI`` (default 90°) -- from the ONNX generator (DI + G-buffers rendered
-   at the GI camera, :class:`gigan_local.inference.GIModel`) or from the path-traced GT GI map rendered
-   there (``gt``: an oracle stand-in for a perfect model, so the loop runs without a trained model);
-3. warps the newest GI map (its indirect part for the residual composition) to the current view:
-   structure-aware (:mod:`gigan_local.warp`), pixel-level (:mod:`baseline_cloudbaking.warp`), or not at
-   all (``none``: the map is pasted as is, so it is generated with the local camera's FOV);
-4. composes: eq. 1 (``blend``, ``tau``) or ``residual`` (current DI + warped indirect light).
+- :class:`ModelSource`: the ONNX generator (:class:`gigan_local.inference.GIModel`) on DI + G-buffers it
+  renders at the GI camera (FOV ``F_GI``, default 90°); both the render (``gi_render``: DI, G-buffers and
+  the centre-sampled depth the warp tests occlusion against) and the inference count as GIGAN's stages;
+- :class:`GTSource`: the path-traced GT GI map at the GI camera, an oracle stand-in for a perfect model
+  (so the loop runs without a trained model; its cost is path tracing, not a network's);
+- the structure-aware warp (:class:`gigan_local.warp.StructureAwareWarp`), or none (the map pasted as
+  is, so it is made with the local camera's FOV).
 
-Every stage is timed (ms, one CSV row per frame, columns :data:`FRAME_COLUMNS`); when asked, the composed
-frame is compared with the path-traced GT at the local camera (SSIM/PSNR on tone-mapped images). The GT
-renders for evaluation are not part of any stage time.
-
-The one import against SPEC §1's arrows: ``--warp pixel`` loads cloud baking's pixel-level warp, lazily
-and only for that comparison, so Table 3 can run both warps inside the same client loop.
+GIGAN maps with cloud baking's pixel-level warp (Table 3's comparison) are assembled in ``bench``, which
+may import both systems; this package does not import ``baseline_cloudbaking``.
 """
 
 from __future__ import annotations
 
-import csv
 import importlib.util
 import json
-import math
-import time
-import zlib
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from gicore.blend import COMPOSITIONS, blend, residual
+from gicore.blend import COMPOSITIONS
 from gicore.camera import Camera
-from gicore.metrics import psnr, ssim
-from gicore.paths import camera_path, light_position
+from gicore.cli import UserError
+from gicore.loop import (
+    LAYERS,
+    ClientLoop,
+    FrameResult,
+    GIMap,
+    GroundTruth,
+    Light,
+    LoopConfig,
+    PasteWarp,
+    SynchronousSource,
+    Warp,
+    path_views,
+    render_gt,
+    run_frames,
+    summarize,
+    texel_depth,
+    write_rows,
+)
+from gicore.paths import frame_seed
 from gicore.scene import SceneSpec, load_scene
+from gicore.timing import Stopwatch
 from gicore.tonemap import tonemap
-from gigan_local.warp import GITexture, StructureAwareWarp, Timings
+from gigan_local.warp import StructureAwareWarp
 
 if TYPE_CHECKING:
     from gicore.render import Renderer
+    from gigan_local.inference import GIModel
 
-WARPS = ("structure", "pixel", "none")
+WARPS = ("structure", "none")
 GI_SOURCES = ("model", "gt")
-#: Per-frame CSV columns: stage times in ms (empty where a stage did not run), then quality.
-#: ``valid_frac`` is the fraction of the frame whose GI came from the GI map rather than the fallback or
-#: hole filling (background, with nothing to warp, counts as valid).
-STAGES = ("di", "gi", "bind", "raster", "project", "depth_test", "lookup", "splat", "fill", "compose")
-FRAME_COLUMNS = ("frame", "gi_frame", "gi_age", "valid_frac", *(f"{s}_ms" for s in STAGES), "frame_ms", "ssim", "psnr")
 
 
 @dataclass(frozen=True)
 class ClientConfig:
-    """One client run. ``None`` FOVs come from the scene spec (local 60°, GI 90°)."""
+    """One `gigan-client` run. ``None`` FOVs come from the scene spec (local 60°, GI 90°)."""
 
     scene: str = "lung_plane"
     frames: int = 60
@@ -88,7 +94,11 @@ class ClientConfig:
             raise ValueError(f"gt_every must be >= 0 and spp >= 1, got {self.gt_every}, {self.spp}")
         if not 0.0 <= self.tau <= 1.0:
             raise ValueError(f"tau must lie in [0, 1], got {self.tau}")
-        for name, value, allowed in (("composition", self.composition, COMPOSITIONS), ("warp", self.warp, WARPS), ("gi_source", self.gi_source, GI_SOURCES)):
+        for name, value, allowed in (
+            ("composition", self.composition, COMPOSITIONS),
+            ("warp", self.warp, WARPS),
+            ("gi_source", self.gi_source, GI_SOURCES),
+        ):
             if value not in allowed:
                 raise ValueError(f"{name} must be one of {allowed}, got {value!r}")
 
@@ -98,306 +108,125 @@ class ClientConfig:
         if self.warp != "none":
             return local, self.gi_fov or spec.camera.gi_fov
         if self.gi_fov is not None and self.gi_fov != local:
-            raise ValueError(f"warp 'none' pastes the GI map unchanged, so it must be generated with the local FOV ({local}°); drop gi_fov={self.gi_fov}")
+            raise UserError(
+                f"--warp none pastes the GI map unchanged, so it must be made with the local FOV ({local}°)", f"drop --gi-fov {self.gi_fov}"
+            )
         return local, local
 
-
-def frame_seed(seed: int, purpose: str, frame: int) -> int:
-    """Independent, reproducible render seeds per (run seed, purpose, frame)."""
-    return zlib.crc32(f"{seed}/{purpose}/{frame}".encode())
+    def loop_config(self, spec: SceneSpec) -> LoopConfig:
+        return LoopConfig(every=self.every, gi_fov=self.fovs(spec)[1], composition=self.composition, tau=self.tau, seed=self.seed)
 
 
-# -- GI sources -----------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class GIMap:
-    """A GI map and what warping and composition need, all at the GI ``camera``.
+# -- GI sources ---------------------------------------------------------------------------------------------
+class GTSource(SynchronousSource):
+    """The path-traced GT GI map at the GI camera (OIDN-denoised when asked), the DI it holds and its
+    depth: an oracle stand-in for the generator.
 
-    ``radiance``: linear GI (HxWx3); ``di``: the DI the map was generated with (HxWx3); ``depth``: linear
-    view depth at texel centres (HxW, 0 = background); ``ms``: what producing it cost (render at the GI
-    camera + inference, or the GT stand-in's path tracing).
+    ``cache`` (optional, shared between runs of a bench) keeps finished maps by render key; a cached map
+    keeps the cost measured when it was rendered (its ``stages``).
     """
 
-    camera: Camera
-    radiance: np.ndarray
-    di: np.ndarray
-    depth: np.ndarray
-    ms: float
+    name = "gt"
+    stages = ("gt_render",)
 
+    def __init__(self, renderer: Renderer, spp: int = 64, denoise: bool = True, seed: int = 0, cache: dict | None = None):
+        super().__init__()
+        self.renderer, self.spp, self.denoise, self.seed, self.cache = renderer, spp, denoise, seed, cache
 
-class GISource(Protocol):
-    """Makes the GI map at a GI camera for a frame (``frame`` seeds its noise, if any)."""
-
-    name: str
-
-    def __call__(self, camera: Camera, light: tuple[float, float, float], frame: int) -> GIMap: ...
-
-
-def _texel_depth(renderer: "Renderer", camera: Camera) -> np.ndarray:
-    """View depth at texel centres (the centre-sampled pass, so warps unproject exact centre rays)."""
-    p = renderer.render_uv(camera)
-    return np.where(p["mask"], camera.view_depth(p["position"]), 0.0).astype(np.float32)
-
-
-def render_gt(renderer: "Renderer", camera: Camera, light, spp: int, seed: int, denoise: bool) -> np.ndarray:
-    """Path-traced GT at ``camera``, OIDN-denoised when asked."""
-    gt = renderer.render_gt(camera, light, spp=spp, seed=seed)
-    return renderer.denoise(gt, renderer.render_gbuffers(camera, seed=seed)) if denoise else gt
-
-
-@dataclass
-class GTSource:
-    """The path-traced GT GI map at the GI camera: an oracle stand-in for the generator.
-
-    ``cache`` (optional, shared between runs of a bench) maps render keys to finished GI maps; a cached
-    map keeps the cost measured when it was rendered.
-    """
-
-    renderer: "Renderer"
-    spp: int = 64
-    denoise: bool = True
-    seed: int = 0
-    cache: dict | None = None
-    name: str = "gt"
-
-    def __call__(self, camera: Camera, light, frame: int) -> GIMap:
+    def produce(self, camera: Camera, light: Light, frame: int) -> GIMap:
         key = ("gi", camera, tuple(light), self.spp, self.denoise, self.seed, frame)
         if self.cache is not None and key in self.cache:
             return self.cache[key]
-        t0 = time.perf_counter()
+        sw = Stopwatch()
         radiance = render_gt(self.renderer, camera, light, self.spp, frame_seed(self.seed, "gi", frame), self.denoise)
         di = self.renderer.render_di(camera, light, seed=frame_seed(self.seed, "gi_di", frame))
-        gi = GIMap(camera, radiance, di, _texel_depth(self.renderer, camera), (time.perf_counter() - t0) * 1e3)
+        depth = texel_depth(self.renderer, camera)
+        sw.lap("gt_render")
+        gi = GIMap(camera, radiance, depth, di, stages=sw.ms)
         if self.cache is not None:
             self.cache[key] = gi
         return gi
 
 
-@dataclass
-class ModelSource:
-    """The GIGAN generator (ONNX) on DI + G-buffers rendered at the GI camera."""
+class ModelSource(SynchronousSource):
+    """The GIGAN generator (ONNX) on DI + G-buffers rendered at the GI camera.
 
-    renderer: "Renderer"
-    model: Any  # gigan_local.inference.GIModel
-    seed: int = 0
-    name: str = "model"
+    Stages: ``gi_render`` (DI + G-buffers at the GI camera, and the centre-sampled depth pass the warp's
+    occlusion test reads) and ``inference`` (:meth:`GIModel.predict`, encoding and decoding included).
+    """
 
-    def __call__(self, camera: Camera, light, frame: int) -> GIMap:
-        t0 = time.perf_counter()
+    name = "model"
+    stages = ("gi_render", "inference")
+
+    def __init__(self, renderer: Renderer, model: GIModel, seed: int = 0):
+        super().__init__()
+        self.renderer, self.model, self.seed = renderer, model, seed
+
+    def produce(self, camera: Camera, light: Light, frame: int) -> GIMap:
+        sw = Stopwatch()
         buffers = self.renderer.render_di_gbuffers(camera, light, seed=frame_seed(self.seed, "gi_di", frame))
-        radiance = np.asarray(self.model.predict(buffers), dtype=np.float32)
-        return GIMap(camera, radiance, buffers["di"], _texel_depth(self.renderer, camera), (time.perf_counter() - t0) * 1e3)
+        depth = texel_depth(self.renderer, camera)
+        sw.lap("gi_render")
+        radiance = self.model.predict(buffers)
+        sw.lap("inference")
+        return GIMap(camera, radiance, depth, buffers["di"], stages=sw.ms)
 
 
-def make_gi_source(cfg: ClientConfig, renderer: "Renderer", cache: dict | None = None) -> GISource:
+def load_model(path: Path | None, threads: int, resolution: int) -> GIModel:
+    """The ONNX model at ``path`` (default: the shipped one), checked against the client's resolution."""
+    from gigan_local.inference import DEFAULT_MODEL, GIModel
+
+    path = Path(path or DEFAULT_MODEL)
+    if not path.is_file():
+        raise UserError(f"no GI model at {path}", "export one with gigan-export, pass --model, or use --gi-source gt")
+    model = GIModel(path, threads)
+    if model.resolution != resolution:
+        raise UserError(
+            f"the model at {path} runs at {model.resolution}² but the client renders {resolution}²", f"pass --resolution {model.resolution}"
+        )
+    return model
+
+
+def make_gi_source(cfg: ClientConfig, renderer: Renderer, cache: dict | None = None) -> SynchronousSource:
     """The configured GI source; ``model`` needs an exported model (``--model`` or the default file)."""
     if cfg.gi_source == "gt":
         return GTSource(renderer, cfg.spp, cfg.denoise, cfg.seed, cache)
-    from gigan_local.inference import DEFAULT_MODEL, GIModel
-
-    path = Path(cfg.model or DEFAULT_MODEL)
-    if not path.is_file():
-        raise FileNotFoundError(f"no GI model at {path}: export one with gigan-export, pass --model, or use --gi-source gt")
-
-    model = GIModel(path, cfg.threads)
-    if model.resolution != renderer.resolution:
-        raise ValueError(f"the model at {path} runs at {model.resolution}² but the client renders {renderer.resolution}²; pass --resolution {model.resolution}")
-    return ModelSource(renderer, model, cfg.seed)
+    return ModelSource(renderer, load_model(cfg.model, cfg.threads, renderer.resolution), cfg.seed)
 
 
-# -- per frame ------------------------------------------------------------------------------------------
-def _ms(t0: float) -> float:
-    return (time.perf_counter() - t0) * 1e3
+def make_warp(method: str, renderer: Renderer, composition: str) -> Warp:
+    """GIGAN's warp ``method`` (:data:`WARPS`) for ``composition`` (which layer of the map it warps)."""
+    if method not in WARPS:
+        raise ValueError(f"warp must be one of {WARPS}, got {method!r}")
+    layer = LAYERS[composition]
+    return StructureAwareWarp(renderer, layer) if method == "structure" else PasteWarp(layer)
 
 
-@dataclass
-class FrameResult:
-    """One composed frame (linear radiance, HxWx3) and its CSV row."""
-
-    image: np.ndarray
-    row: dict[str, Any] = field(default_factory=dict)
-
-
-class ViewWarp:
-    """Brings the newest GI map to the current view by one ``method`` of :data:`WARPS`: :meth:`bind`
-    once per GI map, then call once per frame.
-
-    What is warped depends on the ``composition``: the GI map itself for ``blend``; its indirect part
-    ``max(GI - DI of the GI map, 0)`` for ``residual``, which adds it to the current DI.
-    """
-
-    def __init__(self, method: str, renderer: "Renderer", composition: str = "blend"):
-        if method not in WARPS:
-            raise ValueError(f"warp must be one of {WARPS}, got {method!r}")
-        if composition not in COMPOSITIONS:
-            raise ValueError(f"composition must be one of {COMPOSITIONS}, got {composition!r}")
-        self.method = method
-        self.composition = composition
-        self.renderer = renderer
-        self.warper = StructureAwareWarp(renderer) if method == "structure" else None
-        self.pixel_warp: Any = None  # baseline_cloudbaking.warp.PixelWarp of the bound map
-        self.gi: GIMap | None = None
-        self.image: np.ndarray | None = None
-
-    def bind(self, gi: GIMap) -> Timings:
-        """Per-GI-map work: pick what to warp; structure-aware uploads per-vertex coordinates, pixel-level
-        unprojects the map into a point cloud."""
-        t0 = time.perf_counter()
-        self.gi = gi
-        indirect = np.maximum(gi.radiance - gi.di, 0.0)
-        self.image = gi.radiance if self.composition == "blend" else indirect
-        if self.warper is not None:
-            self.warper.bind(GITexture.build(gi.camera, self.image, gi.depth, indirect))
-        elif self.method == "pixel":
-            from baseline_cloudbaking.warp import PixelWarp  # the cloud-baking client's warp, as an ablation
-
-            self.pixel_warp = PixelWarp(self.image, gi.depth, gi.camera)
-        return {"bind": _ms(t0)} if self.method != "none" else {}
-
-    def __call__(self, camera: Camera, di: np.ndarray) -> tuple[np.ndarray, np.ndarray, Timings]:
-        """The bound map at ``camera``, complete (fallback / hole filling applied), the mask of pixels
-        that came from the map (background counts; false where the fallback was needed), and the stage
-        timings. ``di`` is the current frame's DI (the fallback uses it)."""
-        gi, image = self.gi, self.image
-        if gi is None or image is None:
-            raise RuntimeError("no GI map is bound; call bind() first")
-        if self.method == "none":
-            return image, np.ones(gi.depth.shape, dtype=bool), {}
-        t0 = time.perf_counter()
-        uv_pass = self.renderer.render_uv(camera)
-        timings = {"raster": _ms(t0)}
-        mask = uv_pass["mask"]
-        if self.warper is not None:
-            warped, valid, t = self.warper.warp(uv_pass, base=di if self.composition == "blend" else None)
-            timings |= t
-        else:
-            warped, valid, t = self.pixel_warp.warp(camera, target_mask=mask)
-            timings |= t
-        return warped, valid | ~mask, timings
+# -- a run --------------------------------------------------------------------------------------------------
+def check_denoiser(denoise: bool) -> None:
+    """Denoising needs pyoidn: say so before any frame is rendered."""
+    if denoise and importlib.util.find_spec("pyoidn") is None:
+        raise UserError("denoising the GT renders needs pyoidn", "pip install pyoidn, or turn it off with --no-denoise")
 
 
-class GIClient:
-    """The per-frame loop of one configured client on one renderer (see the module docstring)."""
-
-    def __init__(self, cfg: ClientConfig, renderer: "Renderer", source: GISource):
-        self.cfg = cfg
-        self.renderer = renderer
-        self.source = source
-        self.local_fov, self.gi_fov = cfg.fovs(renderer.spec)
-        self.warp = ViewWarp(cfg.warp, renderer, cfg.composition)
-        self.gi_frame: int | None = None
-
-    def warm_up(self, camera: Camera, light) -> None:
-        """Run every pass once, untimed, so that kernel compilation (Mitsuba JIT-compiles each pass on
-        first use) does not land in the first frame's or the first GI map's time."""
-        gi = self.source(camera.with_fov(self.gi_fov), light, -1)
-        self.warp.bind(gi)
-        self.warp(camera, self.renderer.render_di(camera, light))
-        self.gi_frame = None
-
-    def step(self, frame: int, camera: Camera, light) -> FrameResult:
-        """Render, (maybe) refresh the GI map, warp, compose one frame at the local ``camera``."""
-        cfg = self.cfg
-        stages: dict[str, float] = {}
-        t0 = time.perf_counter()
-        di = self.renderer.render_di(camera, light, seed=frame_seed(cfg.seed, "di", frame))
-        stages["di"] = _ms(t0)
-
-        is_gi_frame = self.gi_frame is None or frame - self.gi_frame >= cfg.every
-        if is_gi_frame:
-            gi = self.source(camera.with_fov(self.gi_fov), light, frame)
-            self.gi_frame = frame
-            stages["gi"] = gi.ms
-            stages |= self.warp.bind(gi)
-
-        warped, valid, timings = self.warp(camera, di)
-        stages |= timings
-
-        t0 = time.perf_counter()
-        # residual: the warped map is already indirect-only, so nothing is subtracted from it
-        image = blend(di, warped, cfg.tau) if cfg.composition == "blend" else residual(di, warped, np.zeros_like(di))
-        stages["compose"] = _ms(t0)
-
-        row: dict[str, Any] = {"frame": frame, "gi_frame": int(is_gi_frame), "gi_age": frame - self.gi_frame, "valid_frac": float(valid.mean())}
-        row |= {f"{s}_ms": stages.get(s, "") for s in STAGES}
-        row["frame_ms"] = sum(stages.values())
-        return FrameResult(image, row)
-
-
-def evaluate(image: np.ndarray, gt: np.ndarray) -> dict[str, float]:
-    """SSIM and PSNR of a composed frame against the GT, both tone-mapped (PSNR may be inf)."""
-    a, b = tonemap(image), tonemap(gt)
-    return {"ssim": ssim(a, b), "psnr": psnr(a, b)}
-
-
-def amortized_fps(rows: list[dict[str, Any]], every: int) -> dict[str, float]:
-    """Frame rate with the GI-map cost spread over its ``every`` frames.
-
-    ``local_ms``: median per-frame work (everything but GI generation and binding); ``gi_ms``: mean cost
-    of one GI map (generation + binding); ``fps = 1000 / (local_ms + gi_ms / every)``.
-    """
-    local = [r["frame_ms"] - float(r["gi_ms"] or 0.0) - float(r["bind_ms"] or 0.0) for r in rows]
-    gi = [float(r["gi_ms"]) + float(r["bind_ms"] or 0.0) for r in rows if r["gi_frame"]]
-    local_ms = float(np.median(local))
-    gi_ms = float(np.mean(gi)) if gi else 0.0
-    return {"local_ms": local_ms, "gi_ms": gi_ms, "fps": 1000.0 / (local_ms + gi_ms / every)}
-
-
-def run_frames(cfg: ClientConfig, renderer: "Renderer | None" = None, cache: dict | None = None, on_frame=None) -> list[dict[str, Any]]:
-    """Run the loop; returns the per-frame rows. ``renderer`` and ``cache`` may be shared between runs
-    (a bench); ``on_frame(frame, result)`` sees every composed frame."""
+def run_client(cfg: ClientConfig, renderer: Renderer | None = None, on_frame=None) -> list[dict[str, Any]]:
+    """Run the configured client along the scene's camera path; returns the per-frame rows."""
     spec = load_scene(cfg.scene)
     if renderer is None:
         from gicore.render import Renderer
 
         renderer = Renderer(spec, cfg.resolution)
     elif (renderer.spec.name, renderer.resolution) != (spec.name, cfg.resolution):
-        raise ValueError(f"the shared renderer renders {renderer.spec.name} at {renderer.resolution}² but the config asks for {spec.name} at {cfg.resolution}²")
-    if cfg.denoise and (cfg.gi_source == "gt" or cfg.gt_every) and importlib.util.find_spec("pyoidn") is None:
-        raise ValueError("denoising the GT renders needs pyoidn (pip install pyoidn); or turn it off (--no-denoise)")
-    client = GIClient(cfg, renderer, make_gi_source(cfg, renderer, cache))
-    cams = camera_path(renderer.spec, cfg.orbit_frames, seed=cfg.seed, fov=client.local_fov, resolution=cfg.resolution)
-    client.warm_up(cams[0], light_position(renderer.spec, 0))
-    rows = []
-    for frame in range(cfg.frames):
-        camera, light = cams[frame % cfg.orbit_frames], light_position(renderer.spec, frame)
-        result = client.step(frame, camera, light)
-        if cfg.gt_every and frame % cfg.gt_every == 0:
-            key = ("gt", camera, tuple(light), cfg.spp, cfg.denoise, cfg.seed, frame)
-            if cache is not None and key in cache:
-                gt = cache[key]
-            else:
-                gt = render_gt(renderer, camera, light, cfg.spp, frame_seed(cfg.seed, "gt", frame), cfg.denoise)
-                if cache is not None:
-                    cache[key] = gt
-            result.row |= evaluate(result.image, gt)
-        else:
-            result.row |= {"ssim": "", "psnr": ""}
-        rows.append(result.row)
-        if on_frame is not None:
-            on_frame(frame, result)
-    return rows
-
-
-def summarize(cfg: ClientConfig, rows: list[dict[str, Any]]) -> dict[str, Any]:
-    """Run summary: amortised fps, median stage times, mean quality over the evaluated frames."""
-    scored = [r for r in rows if r["ssim"] != ""]
-    out: dict[str, Any] = {"config": {k: (str(v) if isinstance(v, Path) else v) for k, v in asdict(cfg).items()}}
-    out |= amortized_fps(rows, cfg.every)
-    out["median_ms"] = {s: float(np.median(v)) for s in STAGES if (v := [float(r[f"{s}_ms"]) for r in rows if r[f"{s}_ms"] != ""])}
-    if scored:
-        out["mean_ssim"] = float(np.mean([r["ssim"] for r in scored]))
-        finite = [r["psnr"] for r in scored if math.isfinite(r["psnr"])]
-        out["mean_psnr"] = float(np.mean(finite)) if finite else math.inf
-    return out
-
-
-def write_rows(rows: list[dict[str, Any]], path: Path) -> Path:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with path.open("w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=FRAME_COLUMNS)
-        writer.writeheader()
-        writer.writerows(rows)
-    return path
+        raise ValueError(
+            f"the shared renderer renders {renderer.spec.name} at {renderer.resolution}² but the config asks for {spec.name} at {cfg.resolution}²"
+        )
+    if cfg.gi_source == "gt" or cfg.gt_every:
+        check_denoiser(cfg.denoise)
+    local_fov, _ = cfg.fovs(spec)
+    loop = ClientLoop(cfg.loop_config(spec), renderer, make_gi_source(cfg, renderer), make_warp(cfg.warp, renderer, cfg.composition))
+    views = path_views(spec, cfg.frames, cfg.orbit_frames, cfg.seed, local_fov, cfg.resolution)
+    ground_truth = GroundTruth(renderer, cfg.gt_every, cfg.spp, cfg.denoise, cfg.seed) if cfg.gt_every else None
+    return run_frames(loop, views, ground_truth, on_frame)
 
 
 def run(cfg: ClientConfig, out: Path, save_frames: bool = False, video: bool = False) -> dict[str, Any]:
@@ -416,9 +245,9 @@ def run(cfg: ClientConfig, out: Path, save_frames: bool = False, video: bool = F
         if video:
             images.append(rgb)
 
-    rows = run_frames(cfg, on_frame=keep if (save_frames or video) else None)
+    rows = run_client(cfg, on_frame=keep if (save_frames or video) else None)
     write_rows(rows, out / "frames.csv")
-    summary = summarize(cfg, rows)
+    summary = {"config": {k: (str(v) if isinstance(v, Path) else v) for k, v in asdict(cfg).items()}} | summarize(rows, cfg.every)
     if video:
         summary["video"] = _write_video(images, out / "frames.mp4")
     (out / "summary.json").write_text(json.dumps(summary, indent=1))

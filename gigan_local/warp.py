@@ -44,7 +44,6 @@ pixel projection would not help: it finds the same uv and the same occlusion.
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -52,6 +51,8 @@ import numpy as np
 
 from gicore.camera import Camera
 from gicore.fill import push_pull
+from gicore.loop import LAYERS, GIMap, Timings
+from gicore.timing import Stopwatch
 
 if TYPE_CHECKING:
     from gicore.render import Renderer
@@ -64,12 +65,6 @@ DEPTH_REL_TOL = 0.02
 SUBTEXEL = 256.0
 #: Size (texels across) of the coarse mip level that invalid pixels read their indirect light from.
 FALLBACK_TEXELS = 32
-
-Timings = dict[str, float]
-
-
-def _ms(t0: float) -> float:
-    return (time.perf_counter() - t0) * 1e3
 
 
 def clip_coordinates(camera: Camera, points: np.ndarray) -> np.ndarray:
@@ -118,7 +113,7 @@ class GITexture:
     mean: np.ndarray
 
     @classmethod
-    def build(cls, camera: Camera, image: np.ndarray, depth: np.ndarray, indirect: np.ndarray | None = None) -> "GITexture":
+    def build(cls, camera: Camera, image: np.ndarray, depth: np.ndarray, indirect: np.ndarray | None = None) -> GITexture:
         """``indirect`` (HxWxC, default ``image``) is what the fallback extrapolates: the GI map's
         indirect light when ``image`` is a full GI map that invalid pixels add to their current DI."""
         image = np.asarray(image, dtype=np.float32)
@@ -155,36 +150,57 @@ def _coarse_level(image: np.ndarray, hit: np.ndarray, step: int) -> tuple[np.nda
 
 
 class StructureAwareWarp:
-    """Algorithm 1 on one renderer: :meth:`bind` a GI map once, then :meth:`warp` it to every frame.
+    """Algorithm 1 on one renderer, as a :class:`gicore.loop.Warp`: :meth:`bind` a GI map once, then
+    :meth:`warp` it to every frame.
 
-    Binding changes the renderer's vertex texture coordinates, so one renderer serves one bound GI map
-    at a time.
+    ``layer`` is what is warped (:data:`gicore.loop.LAYERS`): the map itself (``radiance``, eq. 1), whose
+    invalid pixels get the current DI plus the coarse indirect light, or its indirect part (``indirect``,
+    the residual composition), whose invalid pixels get the coarse indirect light alone. Binding changes
+    the renderer's vertex texture coordinates, so one renderer serves one bound GI map at a time.
     """
 
-    def __init__(self, renderer: "Renderer", depth_rel_tol: float = DEPTH_REL_TOL):
+    name = "structure"
+    stages = ("bind", "raster", "project", "depth_test", "lookup", "fill")
+
+    def __init__(self, renderer: Renderer, layer: str = "radiance", depth_rel_tol: float = DEPTH_REL_TOL):
+        if layer not in LAYERS.values():
+            raise ValueError(f"layer must be one of {tuple(LAYERS.values())}, got {layer!r}")
         if not depth_rel_tol >= 0.0:
             raise ValueError(f"depth_rel_tol must be >= 0, got {depth_rel_tol}")
         self.renderer = renderer
+        self.layer = layer
         self.depth_rel_tol = float(depth_rel_tol)
         self.texture: GITexture | None = None
         self._w_row = np.zeros(4, dtype=np.float32)
 
-    def bind(self, texture: GITexture) -> Timings:
+    def bind(self, gi: GIMap) -> Timings:
+        """Per GI map: the lookup texture of the map's ``layer`` (with its indirect light for the fallback),
+        and eq. 5 per vertex (:meth:`bind_texture`)."""
+        sw = Stopwatch()
+        self.bind_texture(GITexture.build(gi.camera, gi.layer(self.layer), gi.depth, gi.indirect))
+        sw.lap("bind")
+        return sw.ms
+
+    def bind_texture(self, texture: GITexture) -> None:
         """Eq. 5 per vertex: upload every object's GI-camera clip (x, y) as its texture coordinates."""
-        t0 = time.perf_counter()
-        clips = [clip_coordinates(texture.camera, obj.mesh.vertices)[:, :2] for obj in self.renderer.objects]
-        t1 = time.perf_counter()
-        for obj, clip in zip(self.renderer.objects, clips):
-            self.renderer.set_texcoords(obj.name, clip)
+        for obj in self.renderer.objects:
+            self.renderer.set_texcoords(obj.name, clip_coordinates(texture.camera, obj.mesh.vertices)[:, :2])
         self.texture = texture
         self._w_row = texture.camera.view_proj()[3].astype(np.float32)  # clip w = this row . (p, 1)
-        return {"bind_project": (t1 - t0) * 1e3, "bind_upload": _ms(t1)}
+
+    def warp(self, camera: Camera, di: np.ndarray) -> tuple[np.ndarray, np.ndarray, Timings]:
+        """The bound layer at ``camera`` (see :class:`gicore.loop.Warp`): the :meth:`raster` pass, then
+        :meth:`resample`; background counts as valid."""
+        uv_pass, timings = self.raster(camera)
+        out, valid, t = self.resample(uv_pass, base=di if self.layer == "radiance" else None)
+        return out, valid | ~uv_pass["mask"], timings | t
 
     def raster(self, camera: Camera) -> tuple[dict[str, np.ndarray], Timings]:
         """The local render pass that interpolates the bound coordinates (see ``Renderer.render_uv``)."""
-        t0 = time.perf_counter()
+        sw = Stopwatch()
         uv_pass = self.renderer.render_uv(camera)
-        return uv_pass, {"raster": _ms(t0)}
+        sw.lap("raster")
+        return uv_pass, sw.ms
 
     def texel_coords(self, uv_pass: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
         """Continuous GI-map pixel coordinates (col, row) (HxWx2, texel centres at +0.5) and GI-camera w
@@ -219,7 +235,7 @@ class StructureAwareWarp:
         y = (0.5 - clip[:, 1] * half_w) * cam.height - 0.5
         return idx, x, y, w, front
 
-    def warp(self, uv_pass: dict[str, np.ndarray], base: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, Timings]:
+    def resample(self, uv_pass: dict[str, np.ndarray], base: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, Timings]:
         """The bound GI map seen from the camera of ``uv_pass``: (HxWxC image, HxW valid mask, timings).
 
         ``uv_pass`` must be rendered after :meth:`bind` (e.g. by :meth:`raster`): it carries the bound
@@ -233,12 +249,14 @@ class StructureAwareWarp:
         n_channels = len(tex.planes) - 2
         if base is not None and base.shape != (h, wd, n_channels):
             raise ValueError(f"base must be {h}x{wd}x{n_channels}, got {base.shape}")
-        t0 = time.perf_counter()
+        if base is not None and not np.all(np.isfinite(base)):
+            raise ValueError("base (the current DI) contains NaN or Inf; check the render that produced it")
+        sw = Stopwatch()
         idx, x, y, w, front = self._project(uv_pass)
         ok = front & (x >= -0.5) & (x <= tw - 0.5) & (y >= -0.5) & (y <= th - 0.5)  # uv in [0, 1]
         np.clip(x, 0.0, tw - 1, out=x)  # clamp to edge (the fallback reads the clamped uv too)
         np.clip(y, 0.0, th - 1, out=y)
-        t1 = time.perf_counter()
+        sw.lap("project")
 
         x0, y0 = np.floor(x), np.floor(y)
         fx = np.rint((x - x0) * SUBTEXEL) * (1.0 / SUBTEXEL)
@@ -253,14 +271,14 @@ class StructureAwareWarp:
         total = weights.sum(axis=0)
         ok &= total > 0.0
         weights /= np.where(ok, total, 1.0)  # rejected taps drop out; invalid pixels get weight 0
-        t2 = time.perf_counter()
+        sw.lap("depth_test")
 
         out = np.zeros((h * wd, n_channels), dtype=np.float32)
         for c, plane in enumerate(tex.planes[2:]):
             out[idx, c] = (plane.take(taps) * weights).sum(axis=0)
         valid = np.zeros(h * wd, dtype=bool)
         valid[idx] = ok
-        t3 = time.perf_counter()
+        sw.lap("lookup")
 
         bad = np.flatnonzero(~ok)
         fallback = self._coarse(tex, x[bad], y[bad])
@@ -270,9 +288,8 @@ class StructureAwareWarp:
         if base is not None:
             fallback += np.take(base.reshape(-1, n_channels), invalid, axis=0)
         out[invalid] = fallback
-        t4 = time.perf_counter()
-        timings = {"project": (t1 - t0) * 1e3, "depth_test": (t2 - t1) * 1e3, "lookup": (t3 - t2) * 1e3, "fill": (t4 - t3) * 1e3}
-        return out.reshape(h, wd, -1), valid.reshape(h, wd), timings
+        sw.lap("fill")
+        return out.reshape(h, wd, -1), valid.reshape(h, wd), sw.ms
 
     @staticmethod
     def _coarse(tex: GITexture, x: np.ndarray, y: np.ndarray) -> np.ndarray:
