@@ -31,7 +31,7 @@ if TYPE_CHECKING:
 
 Vec3 = tuple[float, float, float]
 #: Scene names: no path separators or dots, so a name can never reach outside the scenes folder.
-SCENE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_-]{0,63}$")
+SCENE_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]{0,63}$")
 SPEC_SUFFIXES = (".toml", ".json")
 
 
@@ -123,7 +123,7 @@ class SceneCatalog:
     def get(self, name: str) -> SceneSpec:
         """The spec of scene ``name``; UnknownScene if malformed or unknown, SceneSpecError if invalid."""
         if not SCENE_NAME.match(name):
-            raise UnknownScene(f"scene name {name!r} is malformed: letters, digits, '_' and '-' only, at most 64")
+            raise UnknownScene(f"scene name {name!r} is malformed: a letter or '_', then letters, digits or '_', at most 64")
         if name not in self._files:
             raise UnknownScene(f"unknown scene {name!r}; known scenes: {', '.join(self.names())}")
         with self._lock:

@@ -29,9 +29,8 @@ from baseline_cloudbaking.codecs import CODEC_NAMES
 from baseline_cloudbaking.store import GITree, MapKey, StoreConflict, Tolerance, Viewpoint, ViewSet, light_cell
 from gicore.camera import Camera
 from gicore.cli import UserError, entry_point, writable_dir
-from gicore.dataset_cli import frame_seed
 from gicore.fileio import exclusive_run
-from gicore.paths import camera_path, light_position
+from gicore.paths import camera_path, frame_seed, light_position
 from gicore.scene import SceneSpec, SceneSpecError, load_scene
 
 app = typer.Typer(add_completion=False, help=__doc__)
@@ -84,13 +83,13 @@ def _scene(scene: str) -> tuple[str, SceneSpec]:
     """(store name, spec) of a built-in scene name or a spec file (named by its stem)."""
     name = Path(scene).stem
     if not SCENE_NAME.match(name):
-        raise UserError(f"scene name {name!r} (from {scene!r}) is malformed", "name spec files with letters, digits, '_' and '-' only")
+        raise UserError(f"scene name {name!r} (from {scene!r}) is malformed", "name spec files with a letter or '_', then letters, digits or '_'")
     try:
         return name, load_scene(scene)
-    except FileNotFoundError as exc:
-        raise UserError(str(exc), "give a built-in scene name or a .toml/.json spec file") from None
-    except SceneSpecError as exc:
-        raise UserError(str(exc), "fix the scene spec") from None
+    except UserError:  # SceneSpecError is one: it names the file and the fields
+        raise
+    except (FileNotFoundError, SceneSpecError) as exc:
+        raise UserError(str(exc), "give a built-in scene name or a valid .toml/.json spec file") from None
 
 
 @app.command()

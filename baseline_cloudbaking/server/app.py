@@ -4,7 +4,7 @@
 (specs load lazily on first use, renderers are compiled on a scene's first miss) and closes the tree
 on shutdown. Requests larger than ``max_body_bytes`` are refused with 413 before they are parsed;
 every refused field is a 4xx whose ``detail`` names it (``{"detail": [{"loc": ["body", FIELD], "msg":
-...}]}``, FastAPI's own 422 shape).
+..., "type": ...}]}``, FastAPI's 422 shape without the echoed input).
 """
 
 from __future__ import annotations
@@ -14,6 +14,7 @@ from contextlib import asynccontextmanager
 from importlib import metadata
 
 from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
@@ -90,6 +91,12 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     )
     for module in (gimap, health, stats, scenes):
         app.include_router(module.router)
+
+    @app.exception_handler(RequestValidationError)
+    async def invalid_request(_: Request, exc: RequestValidationError) -> JSONResponse:
+        # FastAPI's default echoes each bad input, which cannot be JSON when it is NaN or Infinity
+        detail = [{"loc": list(e["loc"]), "msg": e["msg"], "type": e["type"]} for e in exc.errors()]
+        return JSONResponse({"detail": detail}, status_code=422)
 
     @app.exception_handler(FieldError)
     async def field_error(_: Request, exc: FieldError) -> JSONResponse:

@@ -21,7 +21,7 @@ from baseline_cloudbaking.protocol import with_header
 from baseline_cloudbaking.server.schemas import GIMapRequest
 from baseline_cloudbaking.server.settings import Settings
 from baseline_cloudbaking.store import GITree, MapKey, StoreConflict, Viewpoint, light_cell
-from gicore.dataset_cli import frame_seed
+from gicore.paths import frame_seed
 from gicore.scene import SceneSpec, SceneSpecError
 
 if TYPE_CHECKING:

@@ -1,0 +1,62 @@
+"""Helpers of the cloud-baking tests: small sphere scenes as spec files, a server process, requests."""
+
+from __future__ import annotations
+
+import json
+import os
+import select
+import subprocess
+import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+import trimesh
+
+BIN = Path(sys.executable).parent
+#: The test maps' size and spp: enough to exercise every stage, cheap on 2 cores.
+RES, SPP = 64, 4
+
+
+def write_scenes(folder: Path) -> Path:
+    """``ball_moving`` (a sphere and a box in a Cornell box, light moving) and ``ball_static`` (the
+    same on a white plane, static light) as JSON spec files in ``folder``; returns the folder."""
+    folder.mkdir(parents=True, exist_ok=True)
+    trimesh.creation.icosphere(subdivisions=3).export(folder / "sphere.obj")
+    base: dict[str, Any] = {
+        "objects": [{"name": "ball", "mesh": "sphere.obj", "height": 1.0}],
+        "camera": {"target": [0.0, 0.5, 0.0], "radius": 2.0, "height": 1.1, "azimuth_range": 70.0},
+        "resolution": RES,
+    }
+    moving = base | {"name": "ball_moving", "environment": "cornell_box", "light": {"position": [0.0, 2.2, 0.3], "intensity": 8.0, "amplitude": [0.6, 0.15]}}
+    static = base | {"name": "ball_static", "environment": "white_plane", "light": {"position": [0.8, 2.6, 1.2], "intensity": 12.0}}
+    for spec in (moving, static):
+        (folder / f"{spec['name']}.json").write_text(json.dumps(spec))
+    return folder
+
+
+def gimap_body(scene: str = "ball_moving", eye=(1.6, 1.1, 1.2), **fields: Any) -> dict[str, Any]:
+    """A valid GI-map request at ``RES``/``SPP`` (``fields`` override or add top-level fields)."""
+    body = {"scene": scene, "camera": {"eye": list(eye), "target": [0.0, 0.5, 0.0]}, "resolution": RES, "spp": SPP, "codec": "jpeg"}
+    return body | fields
+
+
+@contextmanager
+def server_process(store: Path, scenes: Path, *args: str, env: dict[str, str] | None = None, timeout: float = 60.0) -> Iterator[str]:
+    """Run ``cloudbaking-server --port 0`` and yield its base URL (from its first stdout line)."""
+    cmd = [str(BIN / "cloudbaking-server"), "--host", "127.0.0.1", "--port", "0", "--store", str(store), "--scenes", str(scenes), *args]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=os.environ | (env or {}))
+    try:
+        ready, _, _ = select.select([proc.stdout], [], [], timeout)
+        assert ready, f"no output from cloudbaking-server within {timeout} s"
+        line = proc.stdout.readline()
+        assert line.startswith("listening on http://127.0.0.1:"), (line, proc.poll())
+        yield line.split()[-1].strip()
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(timeout=15)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(timeout=15)

@@ -1,0 +1,213 @@
+"""The GI tree: nearest lookup within tolerance, keys, byte accounting, LRU budget, crash sweeping."""
+
+from __future__ import annotations
+
+import sqlite3
+import threading
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from baseline_cloudbaking.store import GITree, MapKey, StoreConflict, Tolerance, Viewpoint, light_cell, simulate_fill
+
+TOL = Tolerance(position=0.1, angle_deg=5.0)
+
+
+def key(cell=(0, 0, 0), codec="jpeg", resolution=64, spp=4, di=False, scene="s") -> MapKey:
+    return MapKey(scene, cell, resolution, 90.0, codec, spp, di)
+
+
+def view(x=0.0, y=1.0, z=2.0, target=(0.0, 0.5, 0.0)) -> Viewpoint:
+    return Viewpoint.look_at((x, y, z), target)
+
+
+def blob(i: int, size: int = 1000) -> bytes:
+    """An opaque payload (the store never parses payloads): distinct content per ``i``."""
+    return np.random.default_rng(i).integers(0, 256, size, dtype=np.uint8).tobytes()
+
+
+@pytest.fixture
+def tree(tmp_path: Path):
+    with GITree(tmp_path / "store", tolerance=TOL) as t:
+        t.register_scene("s", "sha-s", light_cell_size=0.25)
+        yield t
+
+
+def test_nearest_within_both_tolerances(tree: GITree) -> None:
+    a = tree.insert(key(), view(0.0), blob(1))
+    b = tree.insert(key(), view(0.15), blob(2))
+    hit = tree.lookup(key(), view(0.04))
+    assert hit is not None and hit.entry_id == a and hit.payload == blob(1)
+    assert hit.distance == pytest.approx(0.04) and hit.lookup_ms > 0
+    assert tree.lookup(key(), view(0.12)).entry_id == b  # nearer to b
+    assert tree.lookup(key(), view(0.0, z=2.2)) is None  # 0.2 away from both
+    # same eye, view turned by ~8.5° (> 5°): a miss although the position matches exactly
+    assert tree.lookup(key(), Viewpoint.look_at((0.0, 1.0, 2.0), (0.3, 0.5, 0.0))) is None
+    # ... and by ~2.9° (< 5°): a hit
+    turned = tree.lookup(key(), Viewpoint.look_at((0.0, 1.0, 2.0), (0.1, 0.5, 0.0)))
+    assert turned.entry_id == a and turned.angle_deg == pytest.approx(2.79, abs=0.05)
+
+
+def test_keys_separate_light_cells_and_formats(tree: GITree) -> None:
+    tree.insert(key(), view(), blob(1))
+    assert tree.lookup(key(cell=(1, 0, 0)), view()) is None
+    for other in (key(codec="webp"), key(resolution=128), key(spp=8), key(di=True)):
+        assert tree.lookup(other, view()) is None, other
+    # a map that carries DI also serves a request without it
+    with_di = tree.insert(key(cell=(2, 0, 0), di=True), view(), blob(2))
+    assert tree.lookup(key(cell=(2, 0, 0), di=False), view()).entry_id == with_di
+
+
+def test_light_cells_and_static_scenes(tmp_path: Path) -> None:
+    assert light_cell((0.3, 2.6, -0.1), 0.25) == (1, 10, -1)
+    assert light_cell((0.3, 2.6, -0.1), None) is None
+    with GITree(tmp_path / "st") as tree:
+        tree.register_scene("still", "sha", light_cell_size=None)
+        tree.insert(key(cell=None, scene="still"), view(), blob(1))
+        with pytest.raises(ValueError, match="static light"):
+            tree.insert(key(cell=(0, 0, 0), scene="still"), view(1.0), blob(2))
+        assert [e.key.light_cell for e in tree.entries("still")] == [None]
+        assert tree.stats()["scenes"] == [{"scene": "still", "light_level": False, "light_cell_size": None}]
+    row = sqlite3.connect(tmp_path / "st" / "index.sqlite").execute("SELECT light_cell FROM entries").fetchone()
+    assert row == (None,)
+
+
+def test_scene_registered_under_another_spec_is_refused(tree: GITree) -> None:
+    tree.register_scene("s", "sha-s", 0.25)  # idempotent
+    with pytest.raises(StoreConflict, match="another spec"):
+        tree.register_scene("s", "sha-other", 0.25)
+    with pytest.raises(StoreConflict):
+        tree.register_scene("s", "sha-s", 0.5)
+
+
+def test_accounting_per_scene_and_codec(tree: GITree) -> None:
+    tree.register_scene("t", "sha-t", 0.25)
+    tree.insert(key(), view(0.0), blob(1, 100))
+    tree.insert(key(), view(1.0), blob(2, 200))
+    tree.insert(key(codec="png"), view(0.0), blob(3, 400))
+    tree.insert(key(scene="t"), view(0.0), blob(4, 800))
+    stats = tree.stats()
+    assert stats["entries"] == 4 and stats["bytes"] == 1500 and stats["inserts"] == 4
+    by = {(u["scene"], u["codec"]): (u["entries"], u["bytes"]) for u in stats["by_scene_codec"]}
+    assert by == {("s", "jpeg"): (2, 300), ("s", "png"): (1, 400), ("t", "jpeg"): (1, 800)}
+    assert tree.verify() == []
+    # the same bytes again are the same entry (content addressed), not a second one
+    assert tree.insert(key(), view(0.0), blob(1, 100)) == tree.entries()[0].id and tree.stats()["entries"] == 4
+
+
+def test_budget_evicts_least_recently_used(tmp_path: Path) -> None:
+    with GITree(tmp_path / "b", budget_bytes=3500, tolerance=TOL) as tree:
+        tree.register_scene("s", "sha", 0.25)
+        ids = [tree.insert(key(), view(float(i)), blob(i)) for i in range(3)]  # 3000 bytes
+        assert tree.lookup(key(), view(0.0)).entry_id == ids[0]  # entry 0 is now the most recently used
+        ids.append(tree.insert(key(), view(3.0), blob(3)))  # 4000 > 3500: evict the LRU one, entry 1
+        kept = [e.id for e in tree.entries()]
+        assert kept == [ids[0], ids[2], ids[3]]
+        for i in range(4, 12):
+            tree.insert(key(), view(float(i)), blob(i, 700 + 37 * i))
+            stats = tree.stats()
+            assert stats["bytes"] <= 3500 and stats["bytes"] == sum(e.bytes for e in tree.entries())
+        assert len(list(tree.payload_dir.glob("*/*.gim"))) == stats["entries"]
+        assert tree.insert(key(), view(50.0), blob(99, 4000)) is None  # larger than the whole budget
+        assert tree.stats()["rejected"] == 1 and tree.verify() == []
+        assert stats["evictions"] >= 8
+
+
+def test_hit_times_persist_for_lru_across_reopen(tmp_path: Path) -> None:
+    with GITree(tmp_path / "p", tolerance=TOL) as tree:
+        tree.register_scene("s", "sha", 0.25)
+        tree.insert(key(), view(0.0), blob(0))
+        tree.lookup(key(), view(0.0))
+        tree.lookup(key(), view(0.01))
+    with GITree(tmp_path / "p", tolerance=TOL) as tree:
+        assert [e.hits for e in tree.entries()] == [2]
+
+
+def test_reopen_sweeps_what_a_killed_writer_left(tmp_path: Path) -> None:
+    root = tmp_path / "crash"
+    with GITree(root, tolerance=TOL) as tree:
+        tree.register_scene("s", "sha", 0.25)
+        kept = tree.insert(key(), view(0.0), blob(0))
+        lost = tree.insert(key(), view(1.0), blob(1))
+        lost_path = tree.payload_path(tree.entries()[1].sha)
+    (root / "payloads" / "ab").mkdir(exist_ok=True)
+    temp = root / "payloads" / "ab" / "abcd.gim.tmp-x1y2"  # killed mid-write: the temporary file
+    temp.write_bytes(b"partial")
+    orphan = root / "payloads" / "ab" / ("ab" + "0" * 62 + ".gim")  # killed after the rename, before the commit
+    orphan.write_bytes(b"complete but never indexed")
+    lost_path.unlink()  # an indexed file that vanished
+    with GITree(root, tolerance=TOL) as tree:
+        assert tree.swept == {"temporaries": 1, "orphans": 1, "broken_entries": 1}
+        assert not temp.exists() and not orphan.exists()
+        assert [e.id for e in tree.entries()] == [kept] and lost not in [e.id for e in tree.entries()]
+        assert tree.verify() == [] and tree.stats()["bytes"] == len(blob(0))
+
+
+def test_a_second_opener_does_not_sweep_in_flight_files(tmp_path: Path) -> None:
+    root = tmp_path / "shared"
+    with GITree(root) as first:
+        first.register_scene("s", "sha", 0.25)
+        (root / "payloads" / "cd").mkdir()
+        in_flight = root / "payloads" / "cd" / ("cd" + "1" * 62 + ".gim")  # renamed by `first`, not yet indexed
+        in_flight.write_bytes(b"x")
+        with GITree(root) as second:
+            assert second.swept == {} and in_flight.exists()
+    with GITree(root) as alone:
+        assert alone.swept["orphans"] == 1 and not in_flight.exists()
+
+
+def test_verify_detects_a_tampered_payload(tree: GITree) -> None:
+    tree.insert(key(), view(), blob(0))
+    path = tree.payload_path(tree.entries()[0].sha)
+    path.write_bytes(b"X" + path.read_bytes()[1:])
+    assert len(tree.verify()) == 1 and "SHA-256" in tree.verify()[0]
+
+
+def test_simulated_fill_matches_the_store(tmp_path: Path) -> None:
+    """Planning a path's entries without a store (bench storage) agrees with really filling one."""
+    rng = np.random.default_rng(5)
+    angles = np.cumsum(rng.uniform(0.0, 0.08, 200))
+    views = [Viewpoint.look_at((2 * np.sin(a), 1.0 + 0.1 * np.sin(3 * a), 2 * np.cos(a)), (0.0, 0.5, 0.0)) for a in angles]
+    cells = [light_cell((np.sin(i / 15), 2.5, 0.0), 0.25) for i in range(len(views))]
+    served = simulate_fill(views, cells, TOL)
+    with GITree(tmp_path / "fill", tolerance=TOL) as tree:
+        tree.register_scene("s", "sha", 0.25)
+        ids = {}
+        for i, (v, c) in enumerate(zip(views, cells, strict=True)):
+            hit = tree.lookup(key(cell=c), v)
+            ids[i] = hit.entry_id if hit else tree.insert(key(cell=c), v, blob(i, 50))
+        assert tree.stats()["entries"] == len(set(served)) == max(served) + 1
+    assert 20 < len(set(served)) < 190  # the tolerance really merges frames, and really splits them
+
+
+def test_concurrent_lookups_and_inserts(tmp_path: Path) -> None:
+    with GITree(tmp_path / "conc", tolerance=TOL) as tree:
+        tree.register_scene("s", "sha", 0.25)
+        errors: list[BaseException] = []
+
+        def work(t: int) -> None:
+            try:
+                for i in range(30):
+                    v = view(float(t * 100 + i))
+                    if tree.lookup(key(), v) is None:
+                        tree.insert(key(), v, blob(t * 1000 + i, 200))
+                    assert tree.lookup(key(), v) is not None
+            except BaseException as exc:  # noqa: BLE001 (reported by the assertion below)
+                errors.append(exc)
+
+        threads = [threading.Thread(target=work, args=(t,)) for t in range(6)]
+        for th in threads:
+            th.start()
+        for th in threads:
+            th.join(timeout=60)
+        assert errors == [] and tree.stats()["entries"] == 180 and tree.verify() == []
+
+
+def test_bad_arguments() -> None:
+    with pytest.raises(ValueError, match="position"):
+        Tolerance(position=float("nan"))
+    with pytest.raises(ValueError, match="distinct"):
+        Viewpoint.look_at((1.0, 1.0, 1.0), (1.0, 1.0, 1.0))
+    with pytest.raises(ValueError, match="cell size"):
+        light_cell((0.0, 0.0, 0.0), 0.0)
