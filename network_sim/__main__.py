@@ -1,0 +1,5 @@
+"""``python -m network_sim`` is ``network-sim``."""
+
+from network_sim.cli import main
+
+main()

@@ -1,0 +1,77 @@
+"""Start a server-like process and wait for its ``listening on HOST:PORT`` line (tests, self-test, benches)."""
+
+from __future__ import annotations
+
+import os
+import select
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Sequence
+from types import TracebackType
+
+LISTENING = "listening on "
+
+
+class Running:
+    """A started process, the address it listens on, and its remaining stdout lines."""
+
+    def __init__(self, argv: Sequence[str], timeout: float = 30.0) -> None:
+        self._stderr = tempfile.TemporaryFile()
+        self.proc = subprocess.Popen(list(argv), stdout=subprocess.PIPE, stderr=self._stderr)
+        self._buffer = b""
+        first = self.readline(timeout)
+        if not first.startswith(LISTENING):
+            self.stop()
+            raise RuntimeError(f"{' '.join(argv)} did not start: {first!r}; stderr: {self.stderr()}")
+        host, _, port = first[len(LISTENING):].strip().rpartition(":")
+        self.addr = (host, int(port))
+
+    def readline(self, timeout: float) -> str:
+        """The next stdout line ('' if the process ended first); raises TimeoutError after ``timeout`` s."""
+        assert self.proc.stdout is not None
+        fd = self.proc.stdout.fileno()
+        deadline = time.monotonic() + timeout
+        while b"\n" not in self._buffer:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                raise TimeoutError(f"no line from {self.proc.args} within {timeout} s; stderr: {self.stderr()}")
+            if select.select([fd], [], [], left)[0]:
+                data = os.read(fd, 65536)
+                if not data:
+                    line, self._buffer = self._buffer, b""
+                    return line.decode()
+                self._buffer += data
+        line, _, self._buffer = self._buffer.partition(b"\n")
+        return line.decode()
+
+    def stderr(self) -> str:
+        self._stderr.seek(0)
+        return self._stderr.read().decode(errors="replace")
+
+    def stop(self, timeout: float = 10.0) -> int:
+        """SIGTERM, wait up to ``timeout`` s (then SIGKILL); returns the exit status."""
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(timeout)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        if self.proc.stdout is not None:
+            self.proc.stdout.close()
+        return self.proc.returncode
+
+    def __enter__(self) -> Running:
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None) -> None:
+        self.stop()
+        self._stderr.close()
+
+
+def network_sim(*args: str, timeout: float = 30.0) -> Running:
+    """``network-sim ARGS...`` with this interpreter, started and listening."""
+    return Running([sys.executable, "-m", "network_sim", *args], timeout)

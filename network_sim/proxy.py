@@ -1,0 +1,394 @@
+"""The link-emulating TCP proxy: every byte between a client and its upstream crosses :mod:`network_sim.link`.
+
+One asyncio event loop; per accepted client connection one upstream connection, TCP_NODELAY on both legs,
+and per direction a pipe that offers what it reads to the link model (:meth:`Stream.send`) and writes
+each chunk at the release time the model gave it. So the process does exactly what the model computes;
+what it actually did is in the optional per-chunk log (``sent_s`` next to ``release_s``).
+
+Rate, queue and delay are shared by the connections of a direction, as on one real bottleneck link;
+each connection has its own FIFO (a stream is never reordered), window and loss draws.
+
+Timing: each release is a ``loop.call_at`` on an absolute deadline (errors never accumulate), and the
+event loop waits with :class:`PreciseSelector`, whose timeouts have microsecond rather than epoll's
+millisecond resolution, so a timer fires within tens of microseconds of its deadline without busy-waiting.
+
+Backpressure: a pipe stops reading its sender while the model has not admitted what it holds (queue or
+window full) or while the receiver's socket buffer is full; it never drops stream bytes.
+
+SIGTERM/SIGINT: stop accepting, close every connection with FIN (bytes still inside the emulated link
+are discarded, as when a link goes down), write the log, exit 0.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import csv
+import math
+import select
+import selectors
+import signal
+import socket
+import sys
+from collections import deque
+from pathlib import Path
+from typing import TextIO
+
+from gicore.cli import UserError
+from network_sim.link import DOWN, UP, Chunk, Link, LinkConfig, Stream
+
+#: Columns of the per-chunk log; times are seconds from the link origin (the model's clock).
+LOG_COLUMNS = ("seq", "conn", "direction", "bytes", "arrival_s", "admitted_s", "finish_s", "ready_s", "release_s", "sent_s", "lost")
+#: A timer that fires this close before its deadline counts as on time (asyncio runs handles due within
+#: its clock resolution).
+_EARLY_S = 1e-6
+#: How long the proxy waits for an upstream connection to be accepted.
+CONNECT_TIMEOUT_S = 5.0
+
+
+class PreciseSelector(selectors.EpollSelector):
+    """Epoll with microsecond timeouts.
+
+    ``epoll_wait`` takes whole milliseconds and Python rounds up, so asyncio timers would fire up to 1 ms
+    late. Waiting first with ``select()`` on the epoll descriptor itself (readable when any registered
+    socket is ready; ``select`` timeouts have microsecond resolution), then collecting the events with a
+    zero timeout, keeps epoll's scalability and makes sleeps precise.
+    """
+
+    def select(self, timeout: float | None = None) -> list[tuple[selectors.SelectorKey, int]]:
+        if timeout is not None and timeout > 0:
+            try:
+                select.select([self.fileno()], [], [], timeout)
+            except ValueError:  # descriptor beyond FD_SETSIZE: fall back to millisecond epoll
+                return super().select(timeout)
+            timeout = 0
+        return super().select(timeout)
+
+
+def new_event_loop() -> asyncio.AbstractEventLoop:
+    """An asyncio loop that waits with :class:`PreciseSelector`."""
+    return asyncio.SelectorEventLoop(PreciseSelector())
+
+
+class ChunkLog:
+    """The per-chunk CSV log: one row per chunk when it is written (or, at shutdown, never written)."""
+
+    def __init__(self, path: Path) -> None:
+        self._fh: TextIO = path.open("w", newline="")
+        self._writer = csv.writer(self._fh)
+        self._writer.writerow(LOG_COLUMNS)
+
+    def row(self, chunk: Chunk, sent: float | None) -> None:
+        c = chunk
+        self._writer.writerow((c.seq, c.conn, c.direction, c.nbytes, repr(c.arrival), repr(c.admitted), repr(c.finish), repr(c.ready),
+                               repr(c.release), "" if sent is None else repr(sent), repr(c.lost)))
+
+    def close(self) -> None:
+        self._fh.close()
+
+
+class _Side(asyncio.Protocol):
+    """One TCP leg of a proxied connection (``UP`` names the client's leg: it feeds the up pipe)."""
+
+    def __init__(self, conn: _Connection, feeds: str) -> None:
+        self.conn = conn
+        self.feeds = feeds
+        self.transport: asyncio.Transport | None = None
+        self.lost = False
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        assert isinstance(transport, asyncio.Transport)
+        self.transport = transport
+        sock = transport.get_extra_info("socket")
+        if sock is not None:
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        self.conn.side_connected(self)
+
+    def data_received(self, data: bytes) -> None:
+        self.conn.pipes[self.feeds].feed(data)
+
+    def eof_received(self) -> bool:
+        self.conn.pipes[self.feeds].end()
+        return True  # keep the transport open: the other direction may still be sending
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        self.lost = True
+        self.conn.side_lost(self)
+
+    def pause_writing(self) -> None:
+        self.conn.pipe_into(self).hold("receiver")
+
+    def resume_writing(self) -> None:
+        self.conn.pipe_into(self).unhold("receiver")
+
+
+class _Pipe:
+    """One direction of one connection: read from ``src``, offer to the model, write to ``dst`` on time."""
+
+    def __init__(self, proxy: Proxy, stream: Stream, src: _Side, dst: _Side) -> None:
+        self.proxy = proxy
+        self.stream = stream
+        self.src = src
+        self.dst = dst
+        self.max_chunk = stream.direction.max_chunk
+        self.waiting: deque[bytes] = deque()  # read, not yet admitted by the model
+        self.pending: deque[tuple[Chunk, bytes]] = deque()  # admitted, waiting for release
+        self.holds: set[str] = set()
+        self.offer_timer: asyncio.TimerHandle | None = None
+        self.flush_timer: asyncio.TimerHandle | None = None
+        self.eof = False
+        self.done = False
+
+    # -- reading --------------------------------------------------------------------------------------
+    def hold(self, reason: str) -> None:
+        if not self.holds and self.src.transport is not None and not self.src.lost:
+            self.src.transport.pause_reading()
+        self.holds.add(reason)
+
+    def unhold(self, reason: str) -> None:
+        if reason in self.holds:
+            self.holds.discard(reason)
+            if not self.holds and self.src.transport is not None and not self.src.lost:
+                self.src.transport.resume_reading()
+
+    def feed(self, data: bytes) -> None:
+        if len(data) <= self.max_chunk:
+            self.waiting.append(data)
+        else:
+            view = memoryview(data)
+            self.waiting.extend(bytes(view[i : i + self.max_chunk]) for i in range(0, len(data), self.max_chunk))
+        if self.offer_timer is None:
+            self._offer()
+
+    def _offer(self) -> None:
+        """Offer waiting chunks to the model while it admits them now; otherwise hold the sender."""
+        self.offer_timer = None
+        now = self.proxy.now()
+        while self.waiting:
+            size = len(self.waiting[0])
+            opens = self.stream.window_open_at(size, now)
+            if opens > now + _EARLY_S:
+                self._hold_until(opens)
+                break
+            chunk = self.stream.send(size, now)
+            self.pending.append((chunk, self.waiting.popleft()))
+            if chunk.admitted > now + _EARLY_S:  # the queue was full: the sender waits until admission
+                self._hold_until(chunk.admitted)
+                break
+        else:
+            self.unhold("model")
+        self._schedule_flush(now)
+        self._maybe_finish()
+
+    def _hold_until(self, t: float) -> None:
+        self.hold("model")
+        if math.isfinite(t):
+            self.offer_timer = self.proxy.call_at(t, self._offer)
+
+    def end(self) -> None:
+        """The sender closed its side (EOF)."""
+        self.eof = True
+        self._maybe_finish()
+
+    # -- writing --------------------------------------------------------------------------------------
+    def _schedule_flush(self, now: float) -> None:
+        if self.flush_timer is not None or not self.pending:
+            return
+        head = self.pending[0][0].release
+        if head <= now + _EARLY_S:
+            self._flush()
+        elif math.isfinite(head):
+            self.flush_timer = self.proxy.call_at(head, self._flush)
+
+    def _flush(self) -> None:
+        self.flush_timer = None
+        now = self.proxy.now()
+        transport = self.dst.transport
+        while self.pending and self.pending[0][0].release <= now + _EARLY_S:
+            chunk, data = self.pending.popleft()
+            if transport is not None and not self.dst.lost:
+                transport.write(data)
+            self.proxy.logged(chunk, now)
+        self._schedule_flush(now)
+        self._maybe_finish()
+
+    def _maybe_finish(self) -> None:
+        """Forward the EOF once everything before it is delivered; give up on bytes that can never be."""
+        if self.done or not self.eof:
+            return
+        # never deliverable: the next chunk is released at infinity, or the model will never admit more
+        never = bool(self.pending) and not math.isfinite(self.pending[0][0].release)
+        never = never or (not self.pending and bool(self.waiting) and "model" in self.holds and self.offer_timer is None)
+        if not never and (self.pending or self.waiting):
+            return
+        if not never and self.dst.transport is not None and not self.dst.lost and self.dst.transport.can_write_eof():
+            self.dst.transport.write_eof()
+        self.discard()
+        self.done = True
+        self.proxy.connection_step(self.src.conn)
+
+    def discard(self) -> None:
+        """Drop what is still inside the emulated link (shutdown, a vanished receiver, a dead link)."""
+        for timer in (self.offer_timer, self.flush_timer):
+            if timer is not None:
+                timer.cancel()
+        self.offer_timer = self.flush_timer = None
+        for chunk, _ in self.pending:
+            self.proxy.logged(chunk, None)
+        self.pending.clear()
+        self.waiting.clear()
+
+
+class _Connection:
+    """A client connection, its upstream connection and the two pipes between them."""
+
+    def __init__(self, proxy: Proxy, conn_id: int) -> None:
+        self.proxy = proxy
+        self.id = conn_id
+        self.client = _Side(self, UP)
+        self.upstream = _Side(self, DOWN)
+        link = proxy.link
+        self.pipes = {UP: _Pipe(proxy, link.stream(conn_id, UP), self.client, self.upstream),
+                      DOWN: _Pipe(proxy, link.stream(conn_id, DOWN), self.upstream, self.client)}
+        self.closed = False
+
+    def pipe_into(self, side: _Side) -> _Pipe:
+        return self.pipes[DOWN] if side is self.client else self.pipes[UP]
+
+    def side_connected(self, side: _Side) -> None:
+        if side is self.client:
+            self.pipes[UP].hold("connect")  # nothing can be written upstream before it is connected
+            self.proxy.spawn(self._connect())
+        else:
+            self.pipes[UP].unhold("connect")
+
+    async def _connect(self) -> None:
+        host, port = self.proxy.upstream
+        try:
+            await asyncio.wait_for(asyncio.get_running_loop().create_connection(lambda: self.upstream, host, port), CONNECT_TIMEOUT_S)
+        except (OSError, asyncio.TimeoutError) as exc:
+            print(f"network-sim proxy: connection {self.id}: upstream {host}:{port} unreachable ({exc or 'timeout'}); closing the client",
+                  file=sys.stderr, flush=True)
+            self.close()
+
+    def side_lost(self, side: _Side) -> None:
+        self.pipe_into(side).discard()
+        self.pipe_into(side).done = True
+        feeding = self.pipes[side.feeds]
+        if not feeding.eof:
+            feeding.end()
+        self.proxy.connection_step(self)
+
+    def close(self) -> None:
+        """Close both legs (FIN after what the kernel already holds) and drop what the link still holds."""
+        if self.closed:
+            return
+        self.closed = True
+        for pipe in self.pipes.values():
+            pipe.discard()
+            pipe.done = True
+        for side in (self.client, self.upstream):
+            if side.transport is not None and not side.lost:
+                side.transport.close()
+        self.proxy.forget(self)
+
+
+class Proxy:
+    """Accepts client connections and proxies each through the shared :class:`Link` model."""
+
+    def __init__(self, config: LinkConfig, upstream: tuple[str, int], log: ChunkLog | None = None) -> None:
+        self.loop = asyncio.get_running_loop()
+        self.link = Link(config)
+        self.upstream = upstream
+        self.log = log
+        self.origin = self.loop.time()
+        self.connections: dict[int, _Connection] = {}
+        self._next_id = 0
+        self._tasks: set[asyncio.Task[None]] = set()
+
+    def now(self) -> float:
+        """The model's clock: seconds since the origin."""
+        return self.loop.time() - self.origin
+
+    def call_at(self, t: float, callback: object) -> asyncio.TimerHandle:
+        return self.loop.call_at(self.origin + t, callback)  # type: ignore[arg-type]
+
+    def spawn(self, coro: object) -> None:
+        task = self.loop.create_task(coro)  # type: ignore[arg-type]
+        self._tasks.add(task)
+        task.add_done_callback(self._tasks.discard)
+
+    def accept(self) -> _Side:
+        """Protocol factory of the listening socket: a new connection's client leg."""
+        conn = _Connection(self, self._next_id)
+        self._next_id += 1
+        self.connections[conn.id] = conn
+        return conn.client
+
+    def logged(self, chunk: Chunk, sent: float | None) -> None:
+        if self.log is not None:
+            self.log.row(chunk, sent)
+
+    def connection_step(self, conn: _Connection) -> None:
+        """Close a connection once both directions are finished."""
+        if all(p.done for p in conn.pipes.values()):
+            conn.close()
+
+    def forget(self, conn: _Connection) -> None:
+        self.connections.pop(conn.id, None)
+        self.link.forget(conn.id)
+
+    def close_all(self) -> None:
+        for conn in list(self.connections.values()):
+            conn.close()
+
+
+def parse_hostport(value: str, flag: str) -> tuple[str, int]:
+    """``HOST:PORT`` (port 0 = any free port) or a :class:`UserError` naming ``flag``."""
+    host, sep, port = value.rpartition(":")
+    if not sep or not host or not port.isdigit() or not 0 <= int(port) <= 65535:
+        raise UserError(f"{flag} {value!r} is not HOST:PORT", f"give e.g. {flag} 127.0.0.1:8000 (port 0 picks a free port)")
+    return host.strip("[]"), int(port)
+
+
+def check_upstream(upstream: tuple[str, int], timeout_s: float = 3.0) -> None:
+    """Fail with one line if nothing accepts connections at ``upstream``."""
+    host, port = upstream
+    try:
+        with socket.create_connection((host, port), timeout=timeout_s):
+            pass
+    except OSError as exc:
+        raise UserError(f"--upstream {host}:{port} is unreachable ({exc.strerror or exc})", "start the server first, or fix --upstream") from None
+
+
+async def serve(config: LinkConfig, listen: tuple[str, int], upstream: tuple[str, int], log_path: Path | None) -> None:
+    """Run the proxy until SIGTERM or SIGINT; prints ``listening on HOST:PORT`` first."""
+    loop = asyncio.get_running_loop()
+    log = ChunkLog(log_path) if log_path is not None else None
+    proxy = Proxy(config, upstream, log)
+    try:
+        server = await loop.create_server(proxy.accept, listen[0], listen[1])
+    except OSError as exc:
+        raise UserError(f"--listen {listen[0]}:{listen[1]}: cannot listen ({exc.strerror or exc})", "pick a free port, or 0 for any") from None
+    host, port = server.sockets[0].getsockname()[:2]
+    print(f"listening on {host}:{port}", flush=True)
+    print(f"clock origin {proxy.origin!r} (CLOCK_MONOTONIC s; log and trace times count from it)", flush=True)
+    stop = asyncio.Event()
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        loop.add_signal_handler(sig, stop.set)
+    try:
+        await stop.wait()
+    finally:
+        server.close()
+        proxy.close_all()
+        if log is not None:
+            log.close()
+
+
+def run(config: LinkConfig, listen: tuple[str, int], upstream: tuple[str, int], log_path: Path | None = None) -> None:
+    """Check the upstream, then proxy on a precise event loop until signalled."""
+    check_upstream(upstream)
+    loop = new_event_loop()
+    try:
+        loop.run_until_complete(serve(config, listen, upstream, log_path))
+    finally:
+        loop.close()

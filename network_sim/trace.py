@@ -1,0 +1,100 @@
+"""Mahimahi-format capacity traces: when a link may deliver bytes.
+
+A trace file has one line per *delivery opportunity*: a whole number of milliseconds from the start of
+the trace at which the link may pass one 1500-byte packet (Mahimahi ``traces/README``; a file holding just
+``1`` is a 12 Mbit/s link). Timestamps never decrease; the same timestamp on several lines means several
+packets in that millisecond. The trace repeats with a period equal to its last timestamp, as ``mm-link``
+does by default (``base_timestamp_ += schedule_.back()`` in Mahimahi's ``link_queue.cc``).
+
+Parsing follows ``mm-link``'s rules (no empty lines, non-decreasing, at least one line, last timestamp
+> 0) but every error names the file *and the line*.
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+from gicore.cli import UserError
+
+#: Bytes one delivery opportunity may carry (Mahimahi's ``PACKET_SIZE``, one MTU).
+OPPORTUNITY_BYTES = 1500
+
+
+@dataclass(frozen=True)
+class Trace:
+    """A parsed trace: opportunity times in seconds within one period, and the period."""
+
+    #: Where it came from (shown in errors, logs and ``network-sim profiles``).
+    name: str
+    #: Opportunity times of one period, seconds, non-decreasing, last == ``period_s``.
+    times_s: tuple[float, ...]
+    #: Length of one period in seconds (the last timestamp).
+    period_s: float
+
+    @classmethod
+    def from_ms(cls, name: str, ms: list[int]) -> Trace:
+        """A trace from integer millisecond timestamps (already validated)."""
+        return cls(name, tuple(m / 1000.0 for m in ms), ms[-1] / 1000.0)
+
+    @classmethod
+    def load(cls, path: Path | str) -> Trace:
+        """Parse a Mahimahi trace file; a malformed one raises :class:`UserError` naming file and line."""
+        path = Path(path)
+        try:
+            text = path.read_text()
+        except OSError as exc:
+            raise UserError(f"trace {path} cannot be read ({exc.strerror})", "give an existing Mahimahi trace file") from exc
+        return cls.from_ms(str(path), parse_lines(str(path), text.splitlines()))
+
+    @property
+    def opportunities(self) -> int:
+        """Delivery opportunities per period."""
+        return len(self.times_s)
+
+    @property
+    def mean_mbit(self) -> float:
+        """Mean capacity over one period, Mbit/s."""
+        return self.opportunities * OPPORTUNITY_BYTES * 8 / self.period_s / 1e6
+
+    def opportunity_time(self, k: int) -> float:
+        """Time (s from the trace origin) of opportunity number ``k`` (0-based, counting across periods)."""
+        cycle, index = divmod(k, len(self.times_s))
+        return cycle * self.period_s + self.times_s[index]
+
+    def count_until(self, t: float) -> int:
+        """Number of opportunities at times <= ``t`` (s from the origin); 0 for ``t`` < 0."""
+        if t < 0:
+            return 0
+        cycle = math.floor(t / self.period_s)
+        return cycle * len(self.times_s) + bisect.bisect_right(self.times_s, t - cycle * self.period_s)
+
+    def capacity_bytes(self, t0: float, t1: float) -> int:
+        """Bytes the link can deliver at opportunities in the window (t0, t1]."""
+        return (self.count_until(t1) - self.count_until(t0)) * OPPORTUNITY_BYTES
+
+
+def parse_lines(name: str, lines: list[str]) -> list[int]:
+    """Validate trace lines and return the millisecond timestamps; errors name ``name`` and the line."""
+    fix = "each line must be one whole number of milliseconds, never smaller than the line before (Mahimahi trace format)"
+    ms: list[int] = []
+    for number, raw in enumerate(lines, start=1):
+        line = raw.strip()
+        if not line:
+            raise UserError(f"trace {name} line {number} is empty", fix)
+        try:
+            value = int(line)
+        except ValueError:
+            raise UserError(f"trace {name} line {number}: {line[:40]!r} is not a whole number of milliseconds", fix) from None
+        if value < 0:
+            raise UserError(f"trace {name} line {number}: timestamp {value} is negative", fix)
+        if ms and value < ms[-1]:
+            raise UserError(f"trace {name} line {number}: timestamp {value} is smaller than the line before ({ms[-1]})", fix)
+        ms.append(value)
+    if not ms:
+        raise UserError(f"trace {name} has no timestamps", fix)
+    if ms[-1] == 0:
+        raise UserError(f"trace {name} line {len(ms)}: the last timestamp is 0, so the trace lasts no time", "end the trace with a timestamp > 0")
+    return ms
