@@ -7,7 +7,7 @@ compares the model's per-scene SSIM with DI alone.
 
 On a fresh checkout (``--quick`` without ``--run``) the whole chain runs here, small: a GIGAN trained for
 ``--train-steps`` on the small dataset of ``--scenes`` (``bench training``'s runs), exported into
-``<out>/export``, scored by ``bench quality`` into ``<out>/quality``.
+``<out>/export/<run>``, scored by ``bench quality`` into ``<out>/quality``.
 """
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ class ModelCardConfig:
 
     #: gigan-train run folder of the model; none: train a small one here (needs --train-steps; --quick sets it).
     run: Path | None = None
-    #: gigan-export folder of the model (MODEL_CARD.md is written there); none: export the run into <out>/export.
+    #: gigan-export folder of the model (MODEL_CARD.md is written there); none: export the run into <out>/export/<run name>.
     export: Path | None = None
     #: A bench quality CSV that scored the exported model; none: score it here (bench quality on the small datasets).
     quality_csv: Path | None = None
@@ -81,12 +81,14 @@ def measure(cfg: ModelCardConfig, res: Results) -> None:
     if export is None:
         from gigan_local.export import export_onnx
 
-        export = res.out / "export"
+        export = res.out / "export" / run.name
         export_onnx(run, export)
     if quality_csv is None:  # only in the small chain (check()): score on the small datasets it trained on
         model = export / json.loads((export / "model.json").read_text())["files"]["fp32"]
         quality = dataclasses.replace(QualityConfig.quick(), scenes=cfg.scenes, models={cfg.system: model})
-        quality_csv = execute(QUALITY, quality, res.out / "quality", res.seed)[0]
+        scored = execute(QUALITY, quality, res.out / "quality", res.seed)
+        res.files += scored
+        quality_csv = scored[0]
     res.files.append(write_model_card(run, export, quality_csv, cfg.system, dataset_command, train_command, res))
 
 
@@ -137,7 +139,8 @@ def write_model_card(run_dir: Path, export_dir: Path, quality_csv: Path, system:
         "",
         f"Generator `{model_doc['model']}` (U-Net, ngf {model_doc['ngf']}, {model_doc['n_down']} down-samplings), "
         f"inputs {model_doc['input']['buffers']} ({model_doc['in_channels']} channels) at {model_doc['resolution']}², "
-        "output: the path-traced GI image, tone-mapped to [-1, 1] (`gicore.tonemap`). One model for all five paper scenes.",
+        "output: the path-traced GI image, tone-mapped to [-1, 1] (`gicore.tonemap`). "
+        f"One model for the {len(train['datasets'])} scene(s) of its training data.",
         "",
         "## Data",
         f"`{dataset_command}`",
@@ -152,7 +155,7 @@ def write_model_card(run_dir: Path, export_dir: Path, quality_csv: Path, system:
         f"Adam lr {train['lr']} β=({train['beta1']}, {train['beta2']}), batch {train['batch_size']}, "
         f"random {train['crop']}² crops, seed {train['seed']}. "
         f"Stopped at optimizer step {last_step} (epoch {max(int(r['epoch']) for r in metrics)}); "
-        f"median step time {sorted(step_s)[len(step_s) // 2]:.2f} s on this machine's CPU, {compute_min:.0f} min of steps in all "
+        f"median step time {sorted(step_s)[len(step_s) // 2]:.2f} s on this machine's CPU, {compute_min:.3g} min of steps in all "
         "(validation and checkpoints not counted; logged per epoch in metrics.csv). "
         f"Validation at the last step (first {train['max_val_frames']} val frames): SSIM {val.get('ssim', float('nan')):.4f}, "
         f"PSNR {val.get('psnr', float('nan')):.2f} dB, RMSE {val.get('rmse', float('nan')):.4f}.",

@@ -274,3 +274,37 @@ def test_training_curves_from_run_folders(tmp_path: Path) -> None:
         ("runA", "val_ssim", 10),
     }
     assert (tmp_path / "out" / "training.png").stat().st_size > 0
+
+
+@pytest.mark.slow
+def test_quick_runs_work_on_a_fresh_checkout(tmp_path: Path) -> None:
+    """No data, no runs: --quick renders the small dataset, trains, exports and scores what it needs (~1 min)."""
+    out = tmp_path / "out"
+    result = _bench("training", "--quick", "--train-steps", "6", "--widths", "4", "--out", str(out))
+    assert result.returncode == 0, result.stderr
+    steps = {r["config"]["step"] for r in read_rows(out / "training.csv") if r["system"] == "gigan_ngf4" and r["metric"] == "val_ssim"}
+    assert max(steps) == 6 and (out / "dataset" / "lung_plane" / "meta.json").is_file()
+
+    result = _bench("quality", "--quick", "--scenes", "lung_plane", "--timing-repeats", "1", "--out", str(out))
+    assert result.returncode == 0, result.stderr
+    ssim = {r["system"]: r["value"] for r in read_rows(out / "quality.csv") if r["metric"] == "ssim"}
+    assert ssim["gigan"] > ssim["di_only"]  # the shipped model adds GI that DI lacks, on the rendered held-out frames
+    assert {"quality_grid.png", "quality.png", "quality_pareto.png"} <= {p.name for p in out.iterdir()}
+
+    result = _bench("model-card", "--quick", "--train-steps", "6", "--width", "4", "--out", str(out))  # resumes the run above
+    assert result.returncode == 0, result.stderr
+    card = (out / "export" / "gigan_ngf4" / "MODEL_CARD.md").read_text()
+    assert "Stopped at optimizer step 6" in card and "| lung_plane |" in card
+    assert {r["metric"] for r in read_rows(out / "model-card.csv")} >= {"training_steps", "val_ssim", "ssim", "file_size"}
+    assert (out / "model_card.png").is_file() and (out / "quality" / "quality.csv").is_file()
+
+
+@pytest.mark.slow
+def test_run_default_is_the_make_run_job(tmp_path: Path) -> None:
+    result = _bench("run-default", "--out", str(tmp_path))
+    assert result.returncode == 0, result.stderr
+    names = {p.name for p in tmp_path.iterdir()}
+    assert {"contact_sheet.png", "convergence.csv", "convergence.png", "quality.csv", "quality_grid.png", "run-default.csv"} <= names
+    rows = {r["metric"]: r["value"] for r in read_rows(tmp_path / "run-default.csv")}
+    assert rows["frames"] == 9 and rows["frames_rendered"] == 9
+    assert {r["scene"] for r in read_rows(tmp_path / "quality.csv")} == {"lung_plane"}
