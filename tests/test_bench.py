@@ -308,3 +308,27 @@ def test_run_default_is_the_make_run_job(tmp_path: Path) -> None:
     rows = {r["metric"]: r["value"] for r in read_rows(tmp_path / "run-default.csv")}
     assert rows["frames"] == 9 and rows["frames_rendered"] == 9
     assert {r["scene"] for r in read_rows(tmp_path / "quality.csv")} == {"lung_plane"}
+
+
+def test_tiny_warp_frequency_and_fov_runs(tmp_path: Path) -> None:
+    """The three client benches end to end at 32², a few frames each: CSV, plots, and a sanity bound each."""
+    from bench import fov, frequency, warp_bench
+
+    cfg = warp_bench.WarpBenchConfig(scenes=("lung_plane",), resolution=32, gi_frames=(0,), offsets=(1, 5), spp=4, repeats=1, warmup=0)
+    execute(warp_bench.BENCH, cfg, tmp_path / "warp")
+    rows = read_rows(tmp_path / "warp" / "warp.csv")
+    assert {r["system"] for r in rows if r["metric"] == "ssim" and r["stat"] == "mean"} == {"structure-aware", "pixel-level"}
+    assert all(0 < r["value"] <= 1 for r in rows if r["metric"] == "valid_fraction")
+
+    cfg = frequency.FrequencyConfig(resolution=32, ks=(1, 10), frames=12, gt_every=6, spp=4, compositions=("blend",))
+    paths = execute(frequency.BENCH, cfg, tmp_path / "frequency")
+    fps = {(r["system"], r["config"]["k"]): r["value"] for r in read_rows(paths[0]) if r["metric"] == "fps"}
+    assert fps["structure-aware", 10] > fps["structure-aware", 1]  # the GI map's cost spread over 10 frames
+    assert "| 10 |" in (tmp_path / "frequency" / "frequency_table.md").read_text()
+
+    cfg = fov.FovConfig(resolution=32, gi_fovs=(60.0, 90.0), base_frames=(0,), rotations=(10.0,), translations=(0.2,), spp=4)
+    paths = execute(fov.BENCH, cfg, tmp_path / "fov")
+    valid = {r["config"]["gi_fov"]: r["value"] for r in read_rows(paths[0])
+             if r["metric"] == "valid_fraction" and r["system"] == "structure-aware" and r["config"]["motion"] == "rotation"}
+    assert valid[90.0] >= valid[60.0]  # a wider GI camera still covers the turned view
+    assert all(p.is_file() for p in paths) and (tmp_path / "fov" / "fov.png").is_file()
