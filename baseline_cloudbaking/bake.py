@@ -23,7 +23,9 @@ import numpy as np
 
 from baseline_cloudbaking.codecs import DEPTH_CODEC, get_codec
 from baseline_cloudbaking.protocol import pack
+from baseline_cloudbaking.store import Viewpoint, light_cell
 from gicore.camera import Camera
+from gicore.paths import camera_path, light_position
 from gicore.scene import SceneSpec, builtin_scenes, load_scene
 
 if TYPE_CHECKING:
@@ -90,6 +92,28 @@ def encode_map(baked: BakedMap, scene: str, codec_name: str, spp: int, light: Ve
 def gi_camera(spec: SceneSpec, eye: Vec3, target: Vec3, up: Vec3, fov: float, resolution: int) -> Camera:
     """The GI camera of a request: the scene's near/far clip, a square film (ValueError if degenerate)."""
     return Camera(eye, target, up, fov=fov, near=spec.camera.near, far=spec.camera.far, width=resolution, height=resolution)
+
+
+@dataclass(frozen=True)
+class PathFrame:
+    """One frame of a fly-through as the GI tree sees it: the GI camera, the light, the light cell
+    (None for a static light) and the viewpoint."""
+
+    camera: Camera
+    light: Vec3
+    cell: tuple[int, int, int] | None
+    view: Viewpoint
+
+
+def fly_through(spec: SceneSpec, frames: int, resolution: int, light_cell_size: float, seed: int = 0, fov: float | None = None) -> list[PathFrame]:
+    """The scene's camera path (GI-camera FOV unless ``fov``) and light schedule, as ``gicore-dataset``
+    plans its training frames; the light cell applies only when the scene's light moves."""
+    size = light_cell_size if spec.light.moves else None
+    out = []
+    for i, cam in enumerate(camera_path(spec, frames, seed=seed, fov=fov, resolution=resolution)):
+        light = light_position(spec, i)
+        out.append(PathFrame(cam, light, light_cell(light, size), Viewpoint.look_at(cam.origin, cam.target)))
+    return out
 
 
 def spec_sha(spec: SceneSpec) -> str:

@@ -41,6 +41,8 @@ from gicore.fileio import atomic_write_bytes, sweep_temporaries
 
 Vec3 = tuple[float, float, float]
 PAYLOAD_SUFFIX = ".gim"
+#: Default light-cell side, scene units: the paper scenes' lights sweep ±0.6 to ±1 along x, so 4 to 8 cells.
+DEFAULT_LIGHT_CELL = 0.25
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS scenes(
     scene TEXT PRIMARY KEY,

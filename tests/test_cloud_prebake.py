@@ -11,9 +11,9 @@ from pathlib import Path
 
 import pytest
 
+from baseline_cloudbaking.bake import fly_through
 from baseline_cloudbaking.protocol import decode_payload
-from baseline_cloudbaking.store import GITree, Tolerance, Viewpoint, light_cell, simulate_fill
-from gicore.paths import camera_path, light_position
+from baseline_cloudbaking.store import DEFAULT_LIGHT_CELL, GITree, Tolerance, simulate_fill
 from gicore.scene import load_scene
 from tests.cloud_fixtures import BIN, RES, SPP, write_scenes
 
@@ -29,10 +29,8 @@ def prebake_cmd(spec: Path, store: Path, frames: int, *extra: str) -> list[str]:
 
 def expected_entries(spec_path: Path, frames: int) -> int:
     """Maps the path needs, planned without a store (the same rule as the prebake's)."""
-    spec = load_scene(spec_path)
-    cams = camera_path(spec, frames, resolution=RES)
-    cells = [light_cell(light_position(spec, i), 0.25 if spec.light.moves else None) for i in range(frames)]
-    return len(set(simulate_fill([Viewpoint.look_at(c.origin, c.target) for c in cams], cells, Tolerance())))
+    path = fly_through(load_scene(spec_path), frames, RES, DEFAULT_LIGHT_CELL)
+    return len(set(simulate_fill([f.view for f in path], [f.cell for f in path], Tolerance())))
 
 
 def check_store(store: Path) -> int:
