@@ -55,6 +55,7 @@ from __future__ import annotations
 
 import dataclasses
 import inspect
+import math
 import re
 import types
 import typing
@@ -112,13 +113,13 @@ def field_docs(cls: type) -> dict[str, str]:
     return docs
 
 
-def _strip_optional(tp: Any) -> tuple[Any, bool]:
-    """``X | None`` -> (X, True); anything else -> (tp, False)."""
+def _strip_optional(tp: Any) -> Any:
+    """``X | None`` -> X (an absent option already means "the preset's value", which may be None)."""
     if typing.get_origin(tp) in (typing.Union, types.UnionType):
         args = [a for a in typing.get_args(tp) if a is not type(None)]
         if len(args) == 1 and len(typing.get_args(tp)) == 2:
-            return args[0], True
-    return tp, False
+            return args[0]
+    return tp
 
 
 def _scalar_kind(tp: Any) -> str:
@@ -142,7 +143,7 @@ def _parse_scalar(tp: Any, text: str, option: str) -> Any:
 
 def _parse(tp: Any, raw: Any, option: str) -> Any:
     """The value of field type ``tp`` from what the option gave (typer already converted scalars)."""
-    inner, _ = _strip_optional(tp)
+    inner = _strip_optional(tp)
     origin = typing.get_origin(inner)
     if origin is tuple:
         return tuple(_parse_scalar(typing.get_args(inner)[0], s, option) for s in raw.split(",") if s.strip())
@@ -157,7 +158,7 @@ def _parse(tp: Any, raw: Any, option: str) -> Any:
 
 def _option_type(tp: Any, option: str, help_text: str) -> Any:
     """The annotation of the command parameter for a field of type ``tp`` (always optional: None = absent)."""
-    inner, _ = _strip_optional(tp)
+    inner = _strip_optional(tp)
     origin = typing.get_origin(inner)
     if origin is tuple:
         metavar = f"{_scalar_kind(typing.get_args(inner)[0])},..."
@@ -216,8 +217,6 @@ def _option(name: str) -> str:
 
 
 def _check_number(option: str, value: Any, meta: typing.Mapping[str, Any]) -> None:
-    import math
-
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         return
     lo, hi = meta.get("min"), meta.get("max")
