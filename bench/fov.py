@@ -23,7 +23,7 @@ import numpy as np
 
 from bench.models import check_model_resolution
 from bench.runner import FOV_DEGREES, Bench
-from bench.warp_bench import WARP_LABELS
+from bench.warp_bench import WARP_LABELS, make_warp
 from gicore.camera import Camera
 from gicore.results import Results, read_rows
 from gigan_local.client import GI_SOURCES
@@ -100,18 +100,13 @@ def measure(cfg: FovConfig, res: Results) -> None:
 
 
 def _measure_scene(cfg: FovConfig, res: Results, scene: str) -> None:
+    from gicore.loop import render_gt
     from gicore.metrics import ssim
-    from gicore.paths import camera_path, light_position
+    from gicore.paths import camera_path, frame_seed, light_position
     from gicore.render import Renderer
     from gicore.scene import load_scene
     from gicore.tonemap import tonemap
-    from gigan_local.client import (
-        ClientConfig,
-        ViewWarp,
-        frame_seed,
-        make_gi_source,
-        render_gt,
-    )
+    from gigan_local.client import ClientConfig, make_gi_source
 
     seed = res.seed
     spec = load_scene(scene)
@@ -122,8 +117,8 @@ def _measure_scene(cfg: FovConfig, res: Results, scene: str) -> None:
     )
     cams = camera_path(spec, cfg.orbit_frames, seed=seed, fov=cfg.local_fov, resolution=cfg.resolution)
     motions = [("rotation", r, "deg") for r in cfg.rotations] + [("translation", t, "units") for t in cfg.translations]
-    warps = {m: ViewWarp(m, renderer) for m in cfg.warps}
-    paste = ViewWarp("none", renderer)
+    warps = {m: make_warp(m, renderer) for m in cfg.warps}
+    paste = make_warp("none", renderer)
     quality: dict[tuple, list[float]] = defaultdict(list)
     for b in cfg.base_frames:
         base = cams[b % cfg.orbit_frames]
@@ -134,21 +129,21 @@ def _measure_scene(cfg: FovConfig, res: Results, scene: str) -> None:
             gt = tonemap(render_gt(renderer, cam, light, cfg.spp, frame_seed(seed, f"gt/{kind}/{amount}", b), cfg.denoise))
             moves[kind, amount] = (cam, renderer.render_di(cam, light, seed=b), gt)
         for gi_fov in cfg.gi_fovs:
-            gi = source(base.with_fov(gi_fov), light, b)
+            gi = source.produce(base.with_fov(gi_fov), light, b)
             reference = render_gt(renderer, gi.camera, light, cfg.spp, frame_seed(seed, "gt/gi", b), cfg.denoise)
             quality["map", gi_fov].append(ssim(tonemap(gi.radiance), tonemap(reference)))
             for method, warp in warps.items():
                 warp.bind(gi)
                 for kind, amount, _ in motions:
                     cam, di, ref = moves[kind, amount]
-                    image, valid, _ = warp(cam, di)
+                    image, valid, _ = warp.warp(cam, di)
                     quality[method, gi_fov, kind, amount].append(ssim(tonemap(image), ref))
                     quality["valid", method, gi_fov, kind, amount].append(float(valid.mean()))
             if gi_fov == cfg.local_fov:
                 paste.bind(gi)
                 for kind, amount, _ in motions:
                     cam, di, ref = moves[kind, amount]
-                    quality["none", gi_fov, kind, amount].append(ssim(tonemap(paste(cam, di)[0]), ref))
+                    quality["none", gi_fov, kind, amount].append(ssim(tonemap(paste.warp(cam, di)[0]), ref))
 
     common = {"resolution": cfg.resolution, "local_fov": cfg.local_fov, "views": len(cfg.base_frames), "spp": cfg.spp, "gi_source": cfg.gi_source}
     source_label = "generator" if cfg.gi_source == "model" else "GT stand-in"

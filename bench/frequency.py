@@ -1,12 +1,14 @@
 """`bench frequency` (paper Table 3): GI-map period k against frame rate and quality, with and without
 warping, for both compositions.
 
-Each configuration runs the real client loop (:func:`gigan_local.client.run_frames`) along the scene's
-camera path (``orbit_frames`` frames per full orbit) with a new GI map every k frames. Frame rate: the
-median per-frame client work plus the mean cost of one GI map spread over its k frames
-(:func:`gigan_local.client.amortized_fps`); the GI-map cost is whatever the configured source costs --
-the generator's inference (``gi_source = "model"``) or, by default, the path-traced GT stand-in, which is
-far slower than a network -- unless ``inference_ms`` replaces it with a given inference time. Quality:
+Each configuration runs the shared client loop (:func:`gicore.loop.run_frames`) along the scene's camera
+path (``orbit_frames`` frames per full orbit) with a new GI map every k frames, from GIGAN's source
+(:mod:`gigan_local.client`) brought to the view by GIGAN's warp, cloud baking's, or none
+(:func:`bench.warp_bench.make_warp`). Frame rate: the median per-frame client work plus the mean cost of
+one GI map spread over its k frames (:func:`gicore.loop.amortized_fps`); the GI-map cost is whatever the
+configured source costs -- the generator's inference (``gi_source = "model"``) or, by default, the
+path-traced GT stand-in, which is far slower than a network -- unless ``inference_ms`` replaces it with a
+given inference time. Quality:
 SSIM/PSNR of the composed frame against the path-traced GT at the local camera every ``gt_every`` frames,
 averaged. GI maps and GT renders are cached across configurations, so every configuration sees the same
 maps and the same references.
@@ -14,7 +16,7 @@ maps and the same references.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
@@ -22,10 +24,10 @@ import numpy as np
 
 from bench.models import check_model_resolution
 from bench.runner import Bench
-from bench.warp_bench import WARP_LABELS
+from bench.warp_bench import WARP_LABELS, WARPS, make_warp
 from gicore.blend import COMPOSITIONS
 from gicore.results import Results, read_rows
-from gigan_local.client import GI_SOURCES, WARPS
+from gigan_local.client import GI_SOURCES
 from gigan_local.inference import DEFAULT_MODEL
 
 
@@ -72,31 +74,29 @@ class FrequencyConfig:
 
 
 def measure(cfg: FrequencyConfig, res: Results) -> None:
+    from gicore.loop import ClientLoop, GroundTruth, LoopConfig, amortized_fps, path_views, run_frames
     from gicore.render import Renderer
     from gicore.scene import load_scene
-    from gigan_local.client import ClientConfig, amortized_fps, run_frames
+    from gigan_local.client import ClientConfig, check_denoiser, make_gi_source
 
+    check_denoiser(cfg.denoise)
     for scene in cfg.scenes:
         spec = load_scene(scene)
         renderer = Renderer(spec, cfg.resolution)
-        cache: dict = {}
-        base = ClientConfig(
-            scene=scene,
-            frames=cfg.frames,
-            resolution=cfg.resolution,
-            orbit_frames=cfg.orbit_frames,
-            tau=cfg.tau,
-            gi_source=cfg.gi_source,
-            model=cfg.model,
-            spp=cfg.spp,
-            denoise=cfg.denoise,
-            gt_every=cfg.gt_every,
-            seed=res.seed,
+        cache: dict = {}  # GI maps and GT renders, shared by every configuration
+        client = ClientConfig(
+            scene=scene, resolution=cfg.resolution, gi_source=cfg.gi_source, model=cfg.model, spp=cfg.spp, denoise=cfg.denoise, seed=res.seed
         )
+        source = make_gi_source(client, renderer, cache)
+        ground_truth = GroundTruth(renderer, cfg.gt_every, cfg.spp, cfg.denoise, res.seed, cache)
+        local_fov = spec.camera.local_fov
+        views = path_views(spec, cfg.frames, cfg.orbit_frames, res.seed, local_fov, cfg.resolution)
         for k in cfg.ks:
             for warp in cfg.warps:
                 for composition in cfg.compositions:
-                    rows = run_frames(replace(base, every=k, warp=warp, composition=composition), renderer, cache)
+                    gi_fov = local_fov if warp == "none" else spec.camera.gi_fov  # pasting needs a map made at the local FOV
+                    loop_cfg = LoopConfig(every=k, gi_fov=gi_fov, composition=composition, tau=cfg.tau, seed=res.seed)
+                    rows = run_frames(ClientLoop(loop_cfg, renderer, source, make_warp(warp, renderer, composition)), views, ground_truth)
                     fps = amortized_fps(rows, k)
                     gi_ms = cfg.inference_ms if cfg.inference_ms is not None else fps["gi_ms"]
                     scored = [r for r in rows if r["ssim"] != ""]

@@ -37,15 +37,30 @@ import numpy as np
 
 from bench.runner import FOV_DEGREES, Bench
 from gicore.camera import Camera
+from gicore.loop import LAYERS, Warp
 from gicore.metrics import ssim
 from gicore.paths import camera_path, light_position
 from gicore.results import Results, read_rows
 from gicore.scene import load_scene
 from gicore.tonemap import tonemap
 
-#: Plot and CSV names of the client's warp methods (``gigan_local.client.WARPS``).
+#: Plot and CSV names of the warp methods the benches compare: GIGAN's structure-aware warp, cloud
+#: baking's pixel-level warp, and none (the map pasted as is).
 WARP_LABELS = {"structure": "structure-aware", "pixel": "pixel-level", "none": "no warping"}
+WARPS = tuple(WARP_LABELS)
 SYSTEMS = {m: WARP_LABELS[m] for m in ("structure", "pixel")}
+
+
+def make_warp(method: str, renderer, composition: str = "blend") -> Warp:
+    """The :class:`gicore.loop.Warp` ``method`` (:data:`WARPS`) for ``composition``. Cross-system
+    ablations (GIGAN maps with cloud baking's pixel-level warp) are assembled here, in ``bench``."""
+    if method == "pixel":
+        from baseline_cloudbaking.warp import PixelWarp
+
+        return PixelWarp(renderer, LAYERS[composition])
+    from gigan_local.client import make_warp as gigan_warp
+
+    return gigan_warp(method, renderer, composition)
 
 
 @dataclass(frozen=True)
@@ -104,15 +119,16 @@ def uv_errors(renderer, warper, gi_cam: Camera, local: Camera) -> dict[str, np.n
     naive = renderer.render_uv(local)["uv"].astype(np.float64)
     naive_px = np.stack([naive[..., 0] * gi_cam.width, (1.0 - naive[..., 1]) * gi_cam.height], axis=-1)
     out["per-vertex uv (eq. 5)"] = np.abs(naive_px - ref)[inside].max(axis=-1)
-    warper.bind(warper.texture)  # restore the homogeneous coordinates
+    warper.bind_texture(warper.texture)  # restore the homogeneous coordinates
     return out
 
 
 def measure(cfg: WarpBenchConfig, res: Results) -> None:
-    from baseline_cloudbaking.warp import PixelWarp
+    from baseline_cloudbaking.warp import PointCloud
+    from gicore.loop import render_gt
     from gicore.render import Renderer
-    from gigan_local.client import GTSource, render_gt
-    from gigan_local.warp import GITexture, StructureAwareWarp
+    from gigan_local.client import GTSource
+    from gigan_local.warp import StructureAwareWarp
 
     seed = res.seed
     common = {"resolution": cfg.resolution, "gi_fov": cfg.gi_fov, "local_fov": cfg.local_fov}
@@ -131,11 +147,11 @@ def measure(cfg: WarpBenchConfig, res: Results) -> None:
         n_vertices = sum(len(o.mesh.vertices) for o in renderer.objects)
         for g in cfg.gi_frames:
             light = light_position(spec, g)
-            gi = source(cams[g % cfg.orbit_frames].with_fov(cfg.gi_fov), light, g)
+            gi = source.produce(cams[g % cfg.orbit_frames].with_fov(cfg.gi_fov), light, g)
             t0 = time.perf_counter()
-            warper.bind(GITexture.build(gi.camera, gi.radiance, gi.depth, np.maximum(gi.radiance - gi.di, 0.0)))
+            warper.bind(gi)
             t1 = time.perf_counter()
-            cloud = PixelWarp(gi.radiance, gi.depth, gi.camera)
+            cloud = PointCloud(gi.radiance, gi.depth, gi.camera)
             samples["bind/structure"].append(t1 - t0)
             samples["bind/pixel"].append(time.perf_counter() - t1)
             for offset in cfg.offsets:
@@ -148,10 +164,10 @@ def measure(cfg: WarpBenchConfig, res: Results) -> None:
                 mask = uv_pass["mask"]
 
                 def structure():
-                    return warper.warp(uv_pass, base=di)
+                    return warper.resample(uv_pass, base=di)
 
                 def pixel():
-                    return cloud.warp(cam, target_mask=mask)
+                    return cloud.splat(cam, target_mask=mask)
 
                 methods = {"structure": structure, "pixel": pixel}
                 for fn in methods.values():
