@@ -19,15 +19,26 @@ from __future__ import annotations
 
 import numpy as np
 
+from gicore.cli import UserError
+
 CHANNELS: dict[str, int] = {"di": 3, "gt": 3, "albedo": 3, "normal": 3, "depth": 1, "position": 3, "mask": 1}
 STORAGE_DTYPE: dict[str, type] = {name: np.float16 for name in CHANNELS} | {"position": np.float32}
+#: The buffers of the G-buffer (AOV) pass; the rest (``di``, ``gt``) are path-traced.
+GBUFFERS: tuple[str, ...] = ("albedo", "normal", "depth", "position", "mask")
+#: The paper's generator input (IV.A): direct illumination + albedo + view normal + depth.
+GENERATOR_INPUTS: tuple[str, ...] = ("di", "albedo", "normal", "depth")
+#: What the networks learn to predict: the path-traced GI map.
+TARGET = "gt"
+#: What a dataset stores unless told otherwise: the generator input and its target.
+DATASET_BUFFERS: tuple[str, ...] = (*GENERATOR_INPUTS, TARGET)
 
 
 def check_buffer_names(names: list[str] | tuple[str, ...]) -> tuple[str, ...]:
-    """Validate a buffer list, returning it as a tuple; ValueError names the unknown entries."""
+    """Validate a buffer list (from a flag or a config file), returning it as a tuple; UserError names
+    the unknown or repeated entries."""
     unknown = [n for n in names if n not in CHANNELS]
     if unknown:
-        raise ValueError(f"unknown buffer(s) {unknown}; known buffers: {sorted(CHANNELS)}")
+        raise UserError(f"unknown buffer(s) {unknown}", f"choose from {sorted(CHANNELS)}")
     if len(set(names)) != len(names):
-        raise ValueError(f"buffer list has duplicates: {list(names)}")
+        raise UserError(f"buffer list {list(names)} names a buffer twice", "name each buffer once")
     return tuple(names)

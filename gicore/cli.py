@@ -20,7 +20,6 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import NoReturn
 
-import click
 import typer
 
 #: Exit status of a user error (as click's usage errors), and of an interrupt (128 + SIGINT).
@@ -32,12 +31,16 @@ class UserError(Exception):
     """Something the user can fix: ``what`` is wrong (naming the file or field), ``todo`` says how.
 
     Raise it wherever the problem is found; the entry point turns it into one line and exit status 2.
+    Both parts are the exception's ``args``, so it pickles across worker processes intact.
     """
 
     def __init__(self, what: str, todo: str) -> None:
-        super().__init__(f"{what}: {todo}")
+        super().__init__(what, todo)
         self.what = what
         self.todo = todo
+
+    def __str__(self) -> str:
+        return f"{self.what}: {self.todo}"
 
 
 def _oserror_line(exc: OSError) -> str:
@@ -48,7 +51,11 @@ def _oserror_line(exc: OSError) -> str:
 
 
 def run(app: typer.Typer, argv: Sequence[str] | None = None, *, prog_name: str | None = None, resume: str | None = None) -> NoReturn:
-    """Run a Typer app under the error policy and exit with its status."""
+    """Run a Typer app under the error policy and exit with its status.
+
+    The command is parsed and invoked here rather than through Typer's own ``main``, which would turn
+    Ctrl-C into a silent exit status and print usage errors as a multi-line box.
+    """
     args = list(sys.argv[1:] if argv is None else argv)
     debug = "--debug" in args
     if debug:
@@ -56,23 +63,28 @@ def run(app: typer.Typer, argv: Sequence[str] | None = None, *, prog_name: str |
     prog = prog_name or Path(sys.argv[0]).name
     command = typer.main.get_command(app)
     try:
-        command.main(args=args, prog_name=prog, standalone_mode=False)
-    except click.exceptions.Exit as exc:
+        with command.make_context(prog, args) as ctx:
+            command.invoke(ctx)
+    except typer.Exit as exc:  # --help, or a command that chose its exit status
         sys.exit(exc.exit_code)
-    except click.exceptions.UsageError as exc:
+    except typer.TyperException as exc:  # usage errors: bad or missing option values, unknown options
         if debug:
             raise
-        hint = f"see '{exc.ctx.command_path if exc.ctx else prog} --help'"
-        _fail(f"{exc.format_message()}: {hint}")
+        ctx = getattr(exc, "ctx", None)
+        message = exc.format_message().replace("Value error, ", "")  # pydantic's prefix on a rejected choice
+        _fail(f"{message}: see '{ctx.command_path if ctx else prog} --help'")
     except UserError as exc:
         if debug:
             raise
         _fail(str(exc))
+    except BrokenPipeError:  # the reader of our output went away (`| head`): stop quietly, as Typer does
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        sys.exit(1)
     except OSError as exc:
         if debug or exc.filename is None:
             raise
         _fail(_oserror_line(exc))
-    except (KeyboardInterrupt, click.exceptions.Abort):
+    except (KeyboardInterrupt, typer.Abort):
         print(f"\ninterrupted: {resume or 'nothing half-written was kept; run the command again'}", file=sys.stderr)
         sys.exit(EXIT_INTERRUPTED)
     sys.exit(0)
@@ -99,6 +111,13 @@ def require_positive(name: str, value: float) -> float:
     """``value`` must be finite and > 0 (an absent option means the default; zero never does)."""
     if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
         raise UserError(f"{name} = {value!r} is not a positive finite number", f"give {name} a value > 0")
+    return value
+
+
+def require_between(name: str, value: float, low: float, high: float) -> float:
+    """``value`` must be finite and strictly between ``low`` and ``high`` (e.g. a field of view in degrees)."""
+    if not (isinstance(value, (int, float)) and math.isfinite(value) and low < value < high):
+        raise UserError(f"{name} = {value!r} is outside ({low:g}, {high:g})", f"give {name} a value between {low:g} and {high:g}, both excluded")
     return value
 
 

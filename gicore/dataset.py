@@ -6,15 +6,16 @@ Layout::
     <root>/train/000000.npz    one compressed array archive per frame, keys = buffer names
     <root>/val/000000.npz
 
-Frames are written atomically (temporary file + rename), so an interrupted run leaves only complete
-frames and a rerun skips them (resumable). ``meta.json`` is written before any frame; a rerun with
-different settings is refused rather than mixing two datasets.
+Frames are written atomically (:func:`gicore.fileio.atomic_write`: a uniquely named temporary file +
+rename), so an interrupted run leaves only complete frames and a rerun skips them (resumable).
+``meta.json`` is written before any frame; a rerun with different settings is refused rather than
+mixing two datasets. Reading a missing, corrupt or truncated ``meta.json`` or frame raises a
+:class:`~gicore.cli.UserError` that names the file.
 """
 
 from __future__ import annotations
 
 import json
-import os
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -22,6 +23,9 @@ from typing import Any
 import numpy as np
 
 from gicore.buffers import CHANNELS, STORAGE_DTYPE, check_buffer_names
+from gicore.cli import UserError
+from gicore.config import strict_from_dict
+from gicore.fileio import atomic_write, atomic_write_bytes
 
 FORMAT_VERSION = 1
 SPLITS = ("train", "val")
@@ -70,11 +74,13 @@ class DatasetMeta:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "DatasetMeta":
-        d = dict(d)
-        if d.get("format_version") != FORMAT_VERSION:
-            raise ValueError(f"dataset format_version {d.get('format_version')} is not {FORMAT_VERSION}; regenerate it")
-        d["frames"] = [FrameRecord(**f) for f in d.get("frames", [])]
-        return cls(**d)
+        """Parse a ``meta.json`` document; ValueError names a wrong version or an unknown/missing field."""
+        if not isinstance(d, dict) or d.get("format_version") != FORMAT_VERSION:
+            version = d.get("format_version") if isinstance(d, dict) else None
+            raise ValueError(f"dataset format_version {version} is not {FORMAT_VERSION}")
+        meta = strict_from_dict(cls, d, "dataset meta")
+        meta.frames = [strict_from_dict(FrameRecord, f, "frame record") for f in meta.frames]
+        return meta
 
     def split_frames(self, split: str) -> list[FrameRecord]:
         if split not in SPLITS:
@@ -83,26 +89,31 @@ class DatasetMeta:
 
 
 def write_meta(root: Path, meta: DatasetMeta) -> None:
-    """Write ``meta.json`` atomically; refuse if a different dataset already lives in ``root``."""
+    """Write ``meta.json`` atomically; refuse (UserError) if a different dataset already lives in ``root``."""
     root.mkdir(parents=True, exist_ok=True)
     path = root / "meta.json"
     if path.exists():
-        old = read_meta(root)
+        old = read_meta(root).to_dict()
+        new = json.loads(json.dumps(meta.to_dict()))
         # Frame i's camera depends on the whole plan (frame count, FOV): a changed plan would leave
         # stored images that no longer match their records.
-        if old.to_dict() != json.loads(json.dumps(meta.to_dict())):
-            raise ValueError(
-                f"{root} holds a dataset made with other settings; choose another --out or delete it.\n"
-                f"  existing: {old.settings()}\n  requested: {meta.settings()}"
-            )
-    _atomic_write_bytes(path, json.dumps(meta.to_dict(), indent=1).encode())
+        differ = [k for k in new if old.get(k) != new[k]]
+        if differ:
+            shown = ", ".join(f"{k} {old.get(k)!r} -> {new[k]!r}" for k in differ if k not in ("scene", "frames"))
+            shown += "".join(f", {k} differs" for k in ("scene", "frames") if k in differ)
+            raise UserError(f"{root} holds a dataset made with other settings ({shown.lstrip(', ')})", "choose another --out or delete that folder")
+    atomic_write_bytes(path, json.dumps(meta.to_dict(), indent=1).encode())
 
 
 def read_meta(root: Path) -> DatasetMeta:
+    """The dataset description in ``root/meta.json``; UserError naming the file if missing or unreadable."""
     path = Path(root) / "meta.json"
     if not path.is_file():
-        raise FileNotFoundError(f"no dataset at {root}: {path} is missing (create one with `gicore-dataset`)")
-    return DatasetMeta.from_dict(json.loads(path.read_text()))
+        raise UserError(f"no dataset at {root}: {path} is missing", "create one with `gicore-dataset`")
+    try:
+        return DatasetMeta.from_dict(json.loads(path.read_text()))
+    except (ValueError, TypeError) as err:  # JSON syntax, encoding, version, fields and their values
+        raise UserError(f"{path} is not a readable dataset description ({err})", f"delete {root} and render it again with `gicore-dataset`") from None
 
 
 def save_frame(path: Path, arrays: dict[str, np.ndarray]) -> None:
@@ -117,22 +128,28 @@ def save_frame(path: Path, arrays: dict[str, np.ndarray]) -> None:
             raise ValueError(f"buffer {name!r} contains NaN or Inf; refusing to store it")
         packed[name] = arr.astype(STORAGE_DTYPE[name])
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp.npz")
-    np.savez_compressed(tmp, **packed)
-    os.replace(tmp, path)
+    atomic_write(path, lambda handle: np.savez_compressed(handle, **packed))
 
 
 def load_frame(path: Path, buffers: list[str] | tuple[str, ...] | None = None) -> dict[str, np.ndarray]:
-    """Load a frame's buffers (all, or those named) as float32 HxWxC arrays."""
+    """Load a frame's buffers (all, or those named) as float32 HxWxC arrays.
+
+    A missing, truncated or corrupt file, or one without a requested buffer, is a UserError naming it."""
     path = Path(path)
+    names = None if buffers is None else list(check_buffer_names(list(buffers)))
+    redo = "delete it and rerun `gicore-dataset` with the same options to render it again"
     if not path.is_file():
-        raise FileNotFoundError(f"frame file {path} is missing")
-    with np.load(path) as data:
-        names = list(data.files) if buffers is None else list(check_buffer_names(list(buffers)))
-        missing = [n for n in names if n not in data.files]
-        if missing:
-            raise KeyError(f"{path} lacks buffer(s) {missing}; it has {data.files}")
-        return {n: data[n].astype(np.float32) for n in names}
+        raise UserError(f"frame file {path} is missing", "rerun `gicore-dataset` with the same options to render it")
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            stored = list(data.files)
+            missing = [n for n in names or () if n not in stored]
+            arrays = {} if missing else {n: data[n].astype(np.float32) for n in names or stored}
+    except Exception:  # numpy's npz reader raises many types (BadZipFile, EOFError, zlib.error, ...) on bad bytes
+        raise UserError(f"{path} is corrupt or truncated (not a complete .npz frame archive)", redo) from None
+    if missing:
+        raise UserError(f"{path} lacks buffer(s) {missing} (it has {stored})", redo)
+    return arrays
 
 
 def frame_paths(root: Path, split: str) -> list[Path]:
@@ -141,11 +158,5 @@ def frame_paths(root: Path, split: str) -> list[Path]:
     paths = [root / f.file for f in read_meta(root).split_frames(split)]
     missing = [p for p in paths if not p.is_file()]
     if missing:
-        raise FileNotFoundError(f"{len(missing)} frame(s) of {root} are missing, e.g. {missing[0]}; rerun the dataset command to finish it")
+        raise UserError(f"{len(missing)} frame(s) of {root} are missing, e.g. {missing[0]}", "rerun `gicore-dataset` with the same options to finish it")
     return paths
-
-
-def _atomic_write_bytes(path: Path, data: bytes) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_bytes(data)
-    os.replace(tmp, path)

@@ -12,11 +12,11 @@ import fcntl
 import os
 import tempfile
 from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from pathlib import Path
 from typing import IO
 
-from gicore.cli import UserError
+from gicore.cli import UserError, writable_dir
 
 #: Temporary files carry this marker so that a sweep can remove those a killed writer left behind.
 TMP_MARKER = ".tmp-"
@@ -53,15 +53,35 @@ def sweep_temporaries(folder: Path) -> list[Path]:
 
 @contextmanager
 def exclusive_run(folder: Path) -> Iterator[None]:
-    """Hold ``folder/.lock`` for the duration of a run; a second run into the same folder is refused."""
+    """Hold ``folder/.lock`` for the duration of a run; a second run into the same folder is refused.
+
+    ``folder`` is created if need be (UserError if it is a file or not writable). The lock file is
+    removed when the run ends, and so is ``folder`` if this run created it and left it
+    empty (a run refused for bad input leaves no trace). Removing a lock file races with a process that
+    opened it just before: a run that locks a file no longer at ``folder/.lock`` therefore tries again.
+    """
     folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
-    with open(folder / ".lock", "a+b") as handle:
+    created = not folder.exists()
+    writable_dir(folder)
+    lock = folder / ".lock"
+    while True:
+        handle = open(lock, "a+b")  # closed below, or after the run
         try:
             fcntl.flock(handle.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError as exc:
+            handle.close()
             raise UserError(f"another run holds {folder}", "wait for it to finish or choose another --out") from exc
         try:
-            yield
-        finally:
-            fcntl.flock(handle.fileno(), fcntl.LOCK_UN)
+            if os.fstat(handle.fileno()).st_ino == os.stat(lock).st_ino:
+                break
+        except FileNotFoundError:
+            pass
+        handle.close()  # the previous holder removed this file after we opened it: lock the new one
+    try:
+        yield
+    finally:
+        lock.unlink(missing_ok=True)  # while still holding it, so a waiting opener sees the inode change
+        handle.close()
+        if created:
+            with suppress(OSError):
+                folder.rmdir()  # only if empty

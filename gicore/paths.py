@@ -43,7 +43,7 @@ def camera_path(spec: SceneSpec, n_frames: int, seed: int = 0, fov: float | None
     rng = np.random.default_rng(seed)
     start = rng.uniform(0.0, 1.0)
     phases = rng.uniform(0.0, 2 * math.pi, size=4)
-    res = resolution or spec.resolution
+    res = spec.resolution if resolution is None else resolution
     cams = []
     for i in range(n_frames):
         t = i / max(n_frames, 1)
@@ -61,5 +61,5 @@ def camera_path(spec: SceneSpec, n_frames: int, seed: int = 0, fov: float | None
             c.target[1] + wob * math.sin(2 * math.pi * 3 * t + phases[3]),
             c.target[2],
         )
-        cams.append(Camera(origin, target, fov=fov or c.gi_fov, near=c.near, far=c.far, width=res, height=res))
+        cams.append(Camera(origin, target, fov=c.gi_fov if fov is None else fov, near=c.near, far=c.far, width=res, height=res))
     return cams

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from gicore.buffers import check_buffer_names
+from gicore.buffers import DATASET_BUFFERS, GBUFFERS, check_buffer_names
 from gicore.camera import Camera
 from gicore.geometry import SceneObject, scene_objects
 from gicore.scene import SceneSpec
@@ -106,7 +106,9 @@ class Renderer:
 
     def __init__(self, spec: SceneSpec, resolution: int | None = None):
         self.spec = spec
-        self.resolution = int(resolution or spec.resolution)
+        self.resolution = spec.resolution if resolution is None else int(resolution)
+        if not 1 <= self.resolution <= 8192:  # the Camera's limits; 0 must not mean "the spec's"
+            raise ValueError(f"resolution must be an integer in [1, 8192], got {resolution}")
         self.objects = scene_objects(spec)
         scene: dict = {
             "type": "scene",
@@ -284,10 +286,10 @@ class Renderer:
         normal = gbuffers["normal"]
         return pyoidn.denoise(np.ascontiguousarray(color), np.ascontiguousarray(gbuffers["albedo"]), np.ascontiguousarray(normal), hdr=True)
 
-    def render_frame(self, camera: Camera, light=None, buffers=("di", "albedo", "normal", "depth", "gt"), spp: int = 64, seed: int = 0, denoise: bool = False) -> dict[str, np.ndarray]:
+    def render_frame(self, camera: Camera, light=None, buffers=DATASET_BUFFERS, spp: int = 64, seed: int = 0, denoise: bool = False) -> dict[str, np.ndarray]:
         """Render exactly the named buffers for one frame (see :mod:`gicore.buffers`)."""
         wanted = check_buffer_names(list(buffers))
-        needs_gbuffers = bool({"albedo", "normal", "depth", "position", "mask"} & set(wanted)) or (denoise and "gt" in wanted)
+        needs_gbuffers = bool(set(GBUFFERS) & set(wanted)) or (denoise and "gt" in wanted)
         if needs_gbuffers and "di" in wanted:
             out = gb = self.render_di_gbuffers(camera, light, seed)
         else:

@@ -1,20 +1,93 @@
-"""Training configuration: one JSON-serialisable dataclass that, with the data, fixes a training run.
+"""Training and network configuration: JSON-serialisable dataclasses that, with the data, fix a training run.
 
-``config.json`` beside each checkpoint holds this config and the :class:`NetworkConfig` of every network
-it builds, so a run can be resumed, exported or rebuilt without the command line that started it.
+``config.json`` beside each checkpoint holds the :class:`TrainConfig` and the :class:`NetworkConfig` of
+every network it builds, so a run can be resumed, exported or rebuilt without the command line that
+started it. Both are read back with :func:`gicore.config.strict_from_dict`. This module does not import
+torch (``gigan_local.networks`` builds the networks), so reading a config stays cheap.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
-from gigan_local.networks import NetworkConfig, strict_from_dict
-from gigan_local.preprocess import DEFAULT_BUFFERS, InputSpec
+from gicore.buffers import GENERATOR_INPUTS
+from gicore.config import strict_from_dict
+from gigan_local.preprocess import InputSpec
 
 MODELS = ("gigan", "deep_shading", "deep_illumination")
 #: Fields that only bound how long a run goes on; ``--resume`` may change them, nothing else.
 BUDGET_FIELDS = ("epochs", "max_steps", "max_minutes", "max_val_frames", "checkpoint_every")
+
+
+GENERATORS = ("unet", "deep_shading")
+CRITICS = ("patchgan",)
+NORMS = ("batch", "none")
+
+
+@dataclass
+class NetworkConfig:
+    """One network's architecture; stored as JSON beside checkpoints and exported models."""
+
+    #: Architecture name: ``unet`` or ``deep_shading`` (generators), ``patchgan`` (critic).
+    name: str
+    #: Generator input channels (from the buffer list). For the critic: the channels of the condition
+    #: (the generator input) it is given beside the image.
+    in_channels: int
+    #: Image channels: what a generator outputs and what a critic judges.
+    out_channels: int = 3
+    #: Channels of the first layer (pix2pix ``ngf`` for generators, ``ndf`` for critics); deeper layers
+    #: use ``width * min(2**level, 8)``.
+    width: int = 64
+    #: Generators: number of 2x down-samplings (the input side must be divisible by 2**n_down; unet
+    #: with n_down = log2(side) has a 1x1 bottleneck). patchgan: number of stride-2 convolutions
+    #: (pix2pix ``n_layers``), giving n_down + 2 convolutions in all.
+    n_down: int = 8
+    #: Normalisation: ``batch`` (pix2pix BatchNorm; unet, and Deep Illumination's critic) or ``none``.
+    norm: str = "batch"
+    #: unet only: dropout probability in the first ``n_dropout`` up layers after the innermost one
+    #: (they replace the noise input z, paper IV.A); 0 disables it.
+    dropout: float = 0.5
+    #: unet only: how many up layers after the innermost one carry dropout.
+    n_dropout: int = 3
+
+    def __post_init__(self) -> None:
+        if self.name not in GENERATORS + CRITICS:
+            raise ValueError(f"unknown network {self.name!r}; choose one of {list(GENERATORS + CRITICS)}")
+        if self.norm not in NORMS:
+            raise ValueError(f"norm must be one of {list(NORMS)}, got {self.norm!r}")
+        for f in ("in_channels", "out_channels", "width", "n_down"):
+            if int(getattr(self, f)) < 1:
+                raise ValueError(f"{f} must be >= 1, got {getattr(self, f)}")
+        if self.name == "unet" and self.n_down < 2:
+            raise ValueError(f"unet needs n_down >= 2 (an outermost and an innermost layer), got {self.n_down}")
+        if not 0.0 <= self.dropout < 1.0:
+            raise ValueError(f"dropout must be in [0, 1), got {self.dropout}")
+
+    @property
+    def is_generator(self) -> bool:
+        return self.name in GENERATORS
+
+    def check_size(self, side: int) -> None:
+        """Raise ValueError unless this network can run on side x side images."""
+        if not self.is_generator:
+            # Two stride-1 4x4 convs (padding 1) after the strided ones each shrink the map by one pixel.
+            if side < 3 * 2**self.n_down:
+                raise ValueError(f"{self.name} with n_down={self.n_down} needs images of at least {3 * 2**self.n_down} px, got {side}; use a larger --crop")
+            return
+        if side % (2**self.n_down) != 0:
+            raise ValueError(
+                f"{self.name} with n_down={self.n_down} needs image sides divisible by {2**self.n_down}, got {side}; "
+                f"lower n_down (at most {int(math.log2(side & -side))} for this size) or change the size"
+            )
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "NetworkConfig":
+        return strict_from_dict(cls, d, "network")
 
 
 @dataclass
@@ -27,7 +100,7 @@ class TrainConfig:
     #: Dataset folders (``gicore.dataset``): their train splits train, their val splits validate.
     datasets: list[str] = field(default_factory=list)
     #: Generator input buffers, in channel order (encodings: ``gigan_local.preprocess``).
-    buffers: list[str] = field(default_factory=lambda: list(DEFAULT_BUFFERS))
+    buffers: list[str] = field(default_factory=lambda: list(GENERATOR_INPUTS))
     #: Depth that encodes to 0; None: the median foreground depth of the training data.
     depth_scale: float | None = None
     #: Frame side in pixels; None: read from the datasets (which must agree).

@@ -17,22 +17,24 @@ import torch
 from torch.utils.data import Dataset
 
 from gicore.dataset import frame_paths, load_frame, read_meta
-from gigan_local.preprocess import TARGET_BUFFER, InputSpec, frame_to_input, frame_to_target
+from gicore.buffers import TARGET
+from gicore.cli import UserError
+from gigan_local.preprocess import InputSpec, frame_to_input, frame_to_target
 
 
 def dataset_resolution(roots: list[Path], buffers: tuple[str, ...]) -> int:
-    """The common frame size of ``roots``; ValueError if they differ or lack a needed buffer."""
+    """The common frame size of ``roots``; UserError if they differ or lack a needed buffer."""
     if not roots:
-        raise ValueError("no dataset folders given; pass at least one folder made by `gicore-dataset`")
+        raise UserError("no dataset folders given", "pass at least one folder made by `gicore-dataset`")
     sizes = {}
     for root in roots:
         meta = read_meta(root)
-        missing = [b for b in (*buffers, TARGET_BUFFER) if b not in meta.buffers]
+        missing = [b for b in (*buffers, TARGET) if b not in meta.buffers]
         if missing:
-            raise ValueError(f"dataset {root} has no {missing} buffer(s) (it has {meta.buffers}); render them or drop them from --buffers")
+            raise UserError(f"dataset {root} has no {missing} buffer(s) (it has {meta.buffers})", "render them or drop them from --buffers")
         sizes[str(root)] = meta.resolution
     if len(set(sizes.values())) != 1:
-        raise ValueError(f"datasets differ in resolution {sizes}; train on folders rendered at one resolution")
+        raise UserError(f"datasets differ in resolution {sizes}", "train on folders rendered at one resolution")
     return next(iter(sizes.values()))
 
 
@@ -45,7 +47,7 @@ def median_foreground_depth(roots: list[Path], max_frames: int = 16) -> float:
             depths.append(d[d > 0])
     fg = np.concatenate(depths) if depths else np.empty(0)
     if fg.size == 0:
-        raise ValueError(f"no foreground depth found in the training frames of {[str(r) for r in roots]}; are the frames empty?")
+        raise UserError(f"no foreground depth in the training frames of {[str(r) for r in roots]}", "render datasets whose frames show the scene")
     return float(np.median(fg))
 
 
@@ -61,14 +63,14 @@ class FrameDataset(Dataset):
         self.spec = spec
         self.resolution = dataset_resolution(self.roots, spec.buffers)
         if crop is not None and not 0 < crop <= self.resolution:
-            raise ValueError(f"crop {crop} must be between 1 and the frame size {self.resolution}")
+            raise UserError(f"--crop {crop} is not between 1 and the frame size {self.resolution}", f"give a crop of at most {self.resolution}")
         self.crop = crop
         self.seed = seed
         self.epoch = 0
         self._cache: dict[int, tuple[np.ndarray, np.ndarray]] | None = {} if cache else None
         self.paths = [p for r in self.roots for p in frame_paths(r, split)]
         if not self.paths:
-            raise ValueError(f"the {split!r} split of {[str(r) for r in self.roots]} has no frames")
+            raise UserError(f"the {split!r} split of {[str(r) for r in self.roots]} has no frames", f"render datasets with {split} frames (gicore-dataset --{split} N)")
 
     def set_epoch(self, epoch: int) -> None:
         """Select the epoch whose random crops ``__getitem__`` returns."""
@@ -81,11 +83,11 @@ class FrameDataset(Dataset):
         if self._cache is not None and index in self._cache:
             return self._cache[index]
         path = self.paths[index]
-        frame = load_frame(path, [*self.spec.buffers, TARGET_BUFFER])
+        frame = load_frame(path, [*self.spec.buffers, TARGET])
         try:
             pair = frame_to_input(frame, self.spec), frame_to_target(frame)
-        except ValueError as e:
-            raise ValueError(f"{path}: {e}") from e
+        except ValueError as e:  # NaN/Inf or a wrong shape in a stored frame
+            raise UserError(f"{path}: {e}", "delete the frame and rerun `gicore-dataset` to render it again") from e
         if self._cache is not None:
             self._cache[index] = pair
         return pair

@@ -25,6 +25,7 @@ would cover the decoder too, ran slower than fp32 on this CPU.)
 from __future__ import annotations
 
 import json
+import os
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -36,6 +37,8 @@ import onnxruntime as ort
 import torch
 from onnx import TensorProto, helper, numpy_helper
 
+from gicore.cli import UserError
+from gicore.fileio import TMP_MARKER, atomic_write, atomic_write_bytes, exclusive_run
 from gigan_local.inference import FORMAT, MODEL_JSON
 from gigan_local.networks import define_G
 from gigan_local.train import CHECKPOINT, load_checkpoint, read_run_config
@@ -67,9 +70,13 @@ def load_generator(run_dir: Path) -> tuple[torch.nn.Module, dict[str, Any]]:
     cfg, nets = read_run_config(run_dir)
     ckpt = load_checkpoint(run_dir / CHECKPOINT)
     generator = define_G(nets["G"])
-    generator.load_state_dict(ckpt["model"]["nets"]["G"])
+    try:
+        generator.load_state_dict(ckpt["model"]["nets"]["G"])
+        step = int(ckpt["state"]["step"])
+    except (KeyError, TypeError, RuntimeError) as e:  # not a gigan-train checkpoint, or not of this config
+        raise UserError(f"{run_dir / CHECKPOINT} does not hold the generator described by {run_dir}/config.json ({type(e).__name__})", "export a run folder made by one `gigan-train` run") from None
     generator.eval()
-    info = {"train": cfg, "network": nets["G"], "step": int(ckpt["state"]["step"])}
+    info = {"train": cfg, "network": nets["G"], "step": step}
     return generator, info
 
 
@@ -108,8 +115,8 @@ def calibration_inputs(run_dir: Path, split: str, n: int) -> list[np.ndarray]:
     cfg, _ = read_run_config(run_dir)
     try:
         dataset = FrameDataset([Path(d) for d in cfg.datasets], split, cfg.input_spec())
-    except (FileNotFoundError, ValueError) as e:
-        raise ValueError(f"int8 export calibrates on the run's {split} frames, which are not readable ({e}); render the datasets of {run_dir}/config.json or export without --int8") from e
+    except UserError as e:
+        raise UserError(f"int8 export calibrates on the run's {split} frames, which are not readable ({e.what})", f"render the datasets of {run_dir}/config.json or export without --int8") from e
     indices = np.unique(np.linspace(0, len(dataset) - 1, min(n, len(dataset))).round().astype(int))
     return [dataset[int(i)][0].numpy()[None] for i in indices]
 
@@ -150,30 +157,37 @@ def export_onnx(
     """Export the generator of ``run_dir`` to ``out_dir`` (fp32, optionally fp16 and int8) with ``model.json``.
 
     int8 calibrates on ``calibration_frames`` of the run's training frames, so their datasets must exist.
+    Each file is written atomically and ``model.json`` last; one export at a time holds ``out_dir``.
     """
+    with exclusive_run(Path(out_dir)):
+        return _export(Path(run_dir), Path(out_dir), opset, fp16, int8, calibration_frames, seed)
+
+
+def _export(run_dir: Path, out_dir: Path, opset: int, fp16: bool, int8: bool, calibration_frames: int, seed: int) -> ExportResult:
     if opset < 17:
         raise ValueError(f"opset must be >= 17, got {opset}")
     if int8 and calibration_frames < 1:
         raise ValueError(f"calibration_frames must be >= 1, got {calibration_frames}")
     generator, info = load_generator(run_dir)
     cfg, net = info["train"], info["network"]
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
     x = torch.from_numpy(np.random.default_rng(seed).uniform(-1, 1, (1, net.in_channels, cfg.resolution, cfg.resolution)).astype(np.float32))
     files = {"fp32": out_dir / FILES["fp32"]}
     with warnings.catch_warnings():
         # The dynamo exporter needs onnxscript, which is not a dependency; the TorchScript one is exact here.
         warnings.simplefilter("ignore", DeprecationWarning)
-        torch.onnx.export(
-            generator, (x,), str(files["fp32"]), dynamo=False, opset_version=opset, do_constant_folding=True,
-            input_names=[INPUT_NAME], output_names=[OUTPUT_NAME],
-            dynamic_axes={INPUT_NAME: {0: "batch"}, OUTPUT_NAME: {0: "batch"}},
+        atomic_write(
+            files["fp32"],
+            lambda handle: torch.onnx.export(
+                generator, (x,), handle, dynamo=False, opset_version=opset, do_constant_folding=True,
+                input_names=[INPUT_NAME], output_names=[OUTPUT_NAME],
+                dynamic_axes={INPUT_NAME: {0: "batch"}, OUTPUT_NAME: {0: "batch"}},
+            ),
         )
     model32 = onnx.load(str(files["fp32"]))
     onnx.checker.check_model(model32)
     if fp16:
         files["fp16"] = out_dir / FILES["fp16"]
-        onnx.save(fp16_weights(model32), str(files["fp16"]))
+        atomic_write_bytes(files["fp16"], fp16_weights(model32).SerializeToString())
     with torch.no_grad():
         ref = generator(x).numpy()
     diffs = {k: float(np.abs(_ort_outputs(p, [x.numpy()])[0] - ref).max()) for k, p in files.items()}
@@ -181,7 +195,12 @@ def export_onnx(
     if int8:
         files["int8"] = out_dir / FILES["int8"]
         calibration = calibration_inputs(run_dir, "train", calibration_frames)
-        int8_static(files["fp32"], files["int8"], calibration)
+        tmp = files["int8"].with_name(f"{files['int8'].name}{TMP_MARKER}{os.getpid()}")
+        try:
+            int8_static(files["fp32"], tmp, calibration)
+            os.replace(tmp, files["int8"])
+        finally:
+            tmp.unlink(missing_ok=True)
         val = calibration_inputs(run_dir, "val", 8)
         pairs = zip(_ort_outputs(files["int8"], val), _ort_outputs(files["fp32"], val))
         int8_diff = float(np.mean([np.abs(q - f).mean() for q, f in pairs]))
@@ -204,5 +223,5 @@ def export_onnx(
     }
     if int8:
         doc["int8"] = {"calibration_frames": len(calibration), "mean_abs_diff_vs_fp32_on_val": int8_diff}
-    (out_dir / MODEL_JSON).write_text(json.dumps(doc, indent=1))
+    atomic_write_bytes(out_dir / MODEL_JSON, json.dumps(doc, indent=1).encode())
     return ExportResult(files, {k: p.stat().st_size for k, p in files.items()}, diffs, int8_diff)

@@ -2,7 +2,8 @@
 
 ``GIModel`` loads a file written by ``gigan-export`` together with the ``model.json`` beside it, checks
 that the two agree, and turns frame buffers into linear GI radiance with the same encoding as training
-(``gigan_local.preprocess``).
+(``gigan_local.preprocess``). A missing, corrupt or mismatched model is a :class:`~gicore.cli.UserError`
+naming the file.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from typing import Any
 import numpy as np
 import onnxruntime as ort
 
+from gicore.cli import UserError
 from gigan_local.preprocess import InputSpec, frame_to_input, output_to_radiance
 
 MODEL_JSON = "model.json"
@@ -33,18 +35,18 @@ class GIModel:
     def __init__(self, path: str | Path, threads: int = 2, warmup: int = 2) -> None:
         self.path = Path(path)
         if not self.path.is_file():
-            raise FileNotFoundError(f"model file {self.path} is missing; export one with `gigan-export RUN --out DIR`")
+            raise UserError(f"model file {self.path} is missing", "export one with `gigan-export RUN --out DIR`")
         config_path = self.path.parent / MODEL_JSON
         if not config_path.is_file():
-            raise FileNotFoundError(f"{config_path} is missing; keep the model.json that `gigan-export` wrote beside {self.path.name}")
+            raise UserError(f"{config_path} is missing", f"keep the model.json that `gigan-export` wrote beside {self.path.name}")
         try:
             self.config: dict[str, Any] = json.loads(config_path.read_text())
             if self.config.get("format") != FORMAT:
                 raise ValueError(f"format is {self.config.get('format')!r}, expected {FORMAT!r}")
             self.spec = InputSpec.from_dict(self.config["input"])
             self.resolution = int(self.config["resolution"])
-        except (ValueError, KeyError, TypeError) as e:
-            raise ValueError(f"{config_path} is not a valid gigan model config ({e}); re-export the model with `gigan-export`") from e
+        except (ValueError, KeyError, TypeError, AttributeError) as e:
+            raise UserError(f"{config_path} is not a valid gigan model config ({type(e).__name__}: {e})", "re-export the model with `gigan-export`") from None
         if threads < 1:
             raise ValueError(f"threads must be >= 1, got {threads}")
 
@@ -55,18 +57,18 @@ class GIModel:
         try:
             self.session = ort.InferenceSession(str(self.path), options, providers=["CPUExecutionProvider"])
         except Exception as e:  # onnxruntime raises its own exception types for unreadable graphs
-            raise ValueError(f"{self.path} is not a loadable ONNX model ({type(e).__name__}: {e}); re-export it with `gigan-export`") from e
+            raise UserError(f"{self.path} is not a loadable ONNX model ({type(e).__name__})", "re-export it with `gigan-export`") from None
 
         inputs, outputs = self.session.get_inputs(), self.session.get_outputs()
         if len(inputs) != 1 or len(outputs) != 1:
-            raise ValueError(f"{self.path} has {len(inputs)} inputs and {len(outputs)} outputs; a gigan generator has one of each")
+            raise UserError(f"{self.path} has {len(inputs)} inputs and {len(outputs)} outputs, not one of each as a gigan generator", "re-export it with `gigan-export`")
         self.input_name = inputs[0].name
         expected = [self.spec.in_channels, self.resolution, self.resolution]
         if list(inputs[0].shape[1:]) != expected:
-            raise ValueError(
+            raise UserError(
                 f"{self.path} takes input of shape {inputs[0].shape[1:]} (CxHxW) but {config_path} describes {expected} "
-                f"(buffers {list(self.spec.buffers)} at {self.resolution}px); the model and its model.json do not belong "
-                "together: re-export with `gigan-export` so both come from one run"
+                f"(buffers {list(self.spec.buffers)} at {self.resolution}px), so the model and its model.json do not belong together",
+                "re-export with `gigan-export` so both come from one run",
             )
         for _ in range(warmup):
             self.session.run(None, {self.input_name: np.zeros((1, *expected), np.float32)})

@@ -11,7 +11,7 @@ from typing import Any, ClassVar
 import torch
 from torch import nn
 
-from gigan_local.config import TrainConfig
+from gigan_local.config import MODELS, TrainConfig
 from gigan_local.losses import (
     bce_gan_loss,
     critic_score,
@@ -170,7 +170,8 @@ class DeepIllumination(BaseModel):
         return {"G_GAN": g_gan.item(), "G_L1": g_l1.item(), "D_real": d_real.item(), "D_fake": d_fake.item()}
 
 
-MODEL_CLASSES: dict[str, type[BaseModel]] = {"gigan": GIGAN, "deep_shading": DeepShading, "deep_illumination": DeepIllumination}
+#: The class of each name in :data:`gigan_local.config.MODELS`, in that order.
+MODEL_CLASSES: dict[str, type[BaseModel]] = dict(zip(MODELS, (GIGAN, DeepShading, DeepIllumination), strict=True))
 
 
 def create_model(cfg: TrainConfig) -> BaseModel:

@@ -16,89 +16,10 @@ Every network maps values in [-1, 1] (``gigan_local.preprocess``); generators en
 
 from __future__ import annotations
 
-import math
-from dataclasses import asdict, dataclass, fields
-from typing import Any
-
 import torch
 from torch import nn
 
-
-def strict_from_dict(cls: type, d: dict[str, Any], what: str) -> Any:
-    """Build config dataclass ``cls`` from plain JSON data, refusing fields it does not declare."""
-    known = {f.name for f in fields(cls)}
-    unknown = sorted(set(d) - known)
-    if unknown:
-        raise ValueError(f"unknown {what} config field(s) {unknown}; known: {sorted(known)}")
-    return cls(**d)
-
-GENERATORS = ("unet", "deep_shading")
-CRITICS = ("patchgan",)
-NORMS = ("batch", "none")
-
-
-@dataclass
-class NetworkConfig:
-    """One network's architecture; stored as JSON beside checkpoints and exported models."""
-
-    #: Architecture name: ``unet`` or ``deep_shading`` (generators), ``patchgan`` (critic).
-    name: str
-    #: Generator input channels (from the buffer list). For the critic: the channels of the condition
-    #: (the generator input) it is given beside the image.
-    in_channels: int
-    #: Image channels: what a generator outputs and what a critic judges.
-    out_channels: int = 3
-    #: Channels of the first layer (pix2pix ``ngf`` for generators, ``ndf`` for critics); deeper layers
-    #: use ``width * min(2**level, 8)``.
-    width: int = 64
-    #: Generators: number of 2x down-samplings (the input side must be divisible by 2**n_down; unet
-    #: with n_down = log2(side) has a 1x1 bottleneck). patchgan: number of stride-2 convolutions
-    #: (pix2pix ``n_layers``), giving n_down + 2 convolutions in all.
-    n_down: int = 8
-    #: Normalisation: ``batch`` (pix2pix BatchNorm; unet, and Deep Illumination's critic) or ``none``.
-    norm: str = "batch"
-    #: unet only: dropout probability in the first ``n_dropout`` up layers after the innermost one
-    #: (they replace the noise input z, paper IV.A); 0 disables it.
-    dropout: float = 0.5
-    #: unet only: how many up layers after the innermost one carry dropout.
-    n_dropout: int = 3
-
-    def __post_init__(self) -> None:
-        if self.name not in GENERATORS + CRITICS:
-            raise ValueError(f"unknown network {self.name!r}; choose one of {list(GENERATORS + CRITICS)}")
-        if self.norm not in NORMS:
-            raise ValueError(f"norm must be one of {list(NORMS)}, got {self.norm!r}")
-        for f in ("in_channels", "out_channels", "width", "n_down"):
-            if int(getattr(self, f)) < 1:
-                raise ValueError(f"{f} must be >= 1, got {getattr(self, f)}")
-        if self.name == "unet" and self.n_down < 2:
-            raise ValueError(f"unet needs n_down >= 2 (an outermost and an innermost layer), got {self.n_down}")
-        if not 0.0 <= self.dropout < 1.0:
-            raise ValueError(f"dropout must be in [0, 1), got {self.dropout}")
-
-    @property
-    def is_generator(self) -> bool:
-        return self.name in GENERATORS
-
-    def check_size(self, side: int) -> None:
-        """Raise ValueError unless this network can run on side x side images."""
-        if not self.is_generator:
-            # Two stride-1 4x4 convs (padding 1) after the strided ones each shrink the map by one pixel.
-            if side < 3 * 2**self.n_down:
-                raise ValueError(f"{self.name} with n_down={self.n_down} needs images of at least {3 * 2**self.n_down} px, got {side}; use a larger --crop")
-            return
-        if side % (2**self.n_down) != 0:
-            raise ValueError(
-                f"{self.name} with n_down={self.n_down} needs image sides divisible by {2**self.n_down}, got {side}; "
-                f"lower n_down (at most {int(math.log2(side & -side))} for this size) or change the size"
-            )
-
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
-
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "NetworkConfig":
-        return strict_from_dict(cls, d, "network")
+from gigan_local.config import CRITICS, GENERATORS, NetworkConfig
 
 
 def _widths(width: int, n: int) -> list[int]:

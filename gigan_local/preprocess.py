@@ -28,15 +28,11 @@ from typing import Any
 
 import numpy as np
 
-from gicore.buffers import CHANNELS, check_buffer_names
+from gicore.buffers import CHANNELS, GENERATOR_INPUTS, TARGET, check_buffer_names
 from gicore.tonemap import from_signed, inverse_tonemap, to_signed, tonemap
 
-#: The paper's generator input (IV.A): direct illumination + albedo + view normal + depth.
-DEFAULT_BUFFERS: tuple[str, ...] = ("di", "albedo", "normal", "depth")
-#: Buffers a network may take as input (see the table above).
+#: Buffers a network may take as input (those with an encoding in the table above).
 INPUT_BUFFERS: tuple[str, ...] = ("di", "albedo", "normal", "depth", "mask")
-#: The buffer the networks learn to predict.
-TARGET_BUFFER = "gt"
 
 
 @dataclass(frozen=True)
@@ -44,7 +40,7 @@ class InputSpec:
     """What a generator takes as input: which buffers, in which channel order, and the depth scale."""
 
     #: Buffers concatenated along channels in this order (see the module table for each encoding).
-    buffers: tuple[str, ...] = DEFAULT_BUFFERS
+    buffers: tuple[str, ...] = GENERATOR_INPUTS
     #: View depth that encodes to 0 (i.e. d / (d + s) = 0.5); in scene units, > 0.
     depth_scale: float = 1.0
 
@@ -93,7 +89,7 @@ def encode_buffer(name: str, arr: np.ndarray, depth_scale: float = 1.0) -> np.nd
     if name == "depth":
         d = np.maximum(arr, 0.0)
         return to_signed(d / (d + np.float32(depth_scale))).astype(np.float32)
-    raise ValueError(f"buffer {name!r} has no network encoding; inputs are {list(INPUT_BUFFERS)}, target {TARGET_BUFFER!r}")
+    raise ValueError(f"buffer {name!r} has no network encoding; inputs are {list(INPUT_BUFFERS)}, target {TARGET!r}")
 
 
 def frame_to_input(frame: dict[str, np.ndarray], spec: InputSpec) -> np.ndarray:
@@ -110,9 +106,9 @@ def frame_to_input(frame: dict[str, np.ndarray], spec: InputSpec) -> np.ndarray:
 
 def frame_to_target(frame: dict[str, np.ndarray]) -> np.ndarray:
     """The frame's ground-truth GI as the network target, 3xHxW float32 in [-1, 1]."""
-    if TARGET_BUFFER not in frame:
-        raise KeyError(f"the frame lacks the target buffer {TARGET_BUFFER!r} (it has {sorted(frame)})")
-    return np.ascontiguousarray(encode_buffer(TARGET_BUFFER, frame[TARGET_BUFFER]).transpose(2, 0, 1))
+    if TARGET not in frame:
+        raise KeyError(f"the frame lacks the target buffer {TARGET!r} (it has {sorted(frame)})")
+    return np.ascontiguousarray(encode_buffer(TARGET, frame[TARGET]).transpose(2, 0, 1))
 
 
 def output_to_display(y: np.ndarray) -> np.ndarray:

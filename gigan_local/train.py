@@ -8,6 +8,10 @@ A run lives in one output folder::
                     (epoch = epochs completed when the row was written; split "train" rows are
                     means of the logged losses and step_seconds since the previous train rows)
 
+A run folder is held by one run at a time (:func:`gicore.fileio.exclusive_run`); the config and the
+checkpoint are written atomically, and ``metrics.csv`` is cut back to the rows the checkpoint counts
+when a run resumes, so an interrupted run (Ctrl-C, kill) resumes with ``--resume`` as if never stopped.
+
 Validation (whole val frames, generator in eval mode as exported) runs before the first step, after
 every epoch and when the run stops; it scores RMSE/PSNR/SSIM (``gicore.metrics``) on tone-mapped [0, 1]
 images. Data order and crops follow (seed, epoch), and the checkpoint keeps the RNG state, so a
@@ -18,9 +22,9 @@ non-finite weights stop training with :class:`TrainingDiverged`, keeping the las
 from __future__ import annotations
 
 import csv
+import io
 import json
 import math
-import os
 import time
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
@@ -30,6 +34,8 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from gicore.cli import UserError
+from gicore.fileio import atomic_write, atomic_write_bytes, exclusive_run
 from gicore.metrics import all_metrics
 from gigan_local.config import BUDGET_FIELDS, TrainConfig
 from gigan_local.data import FrameDataset, dataset_resolution, median_foreground_depth
@@ -44,8 +50,8 @@ METRIC_COLUMNS = ("run_id", "model", "epoch", "step", "split", "metric", "value"
 UNITS = {"rmse": "1", "psnr": "dB", "ssim": "1", "step_seconds": "s"}
 
 
-class TrainingDiverged(RuntimeError):
-    """Training produced non-finite or exploding losses or weights."""
+class TrainingDiverged(UserError):
+    """Training produced non-finite or exploding losses or weights (the user lowers --lr or fixes the data)."""
 
 
 @dataclass
@@ -64,6 +70,8 @@ class RunState:
     finish_seconds: float = 0.0
     #: Metrics of the latest validation.
     val_metrics: dict[str, float] = field(default_factory=dict)
+    #: Data rows of metrics.csv written up to this state (None: a checkpoint from before it was counted).
+    metrics_rows: int | None = None
 
 
 @dataclass
@@ -81,26 +89,29 @@ class TrainResult:
 def write_run_config(out_dir: Path, cfg: TrainConfig, nets: dict[str, NetworkConfig]) -> None:
     """Write ``config.json``: the training config and each network's architecture."""
     doc = {"train": cfg.to_dict(), "networks": {k: v.to_dict() for k, v in nets.items()}}
-    (out_dir / CONFIG).write_text(json.dumps(doc, indent=1))
+    atomic_write_bytes(out_dir / CONFIG, json.dumps(doc, indent=1).encode())
 
 
 def read_run_config(run_dir: Path) -> tuple[TrainConfig, dict[str, NetworkConfig]]:
-    """Read a run folder's ``config.json`` (see :func:`write_run_config`)."""
+    """Read a run folder's ``config.json`` (see :func:`write_run_config`); UserError naming it if missing or unreadable."""
     path = Path(run_dir) / CONFIG
     if not path.is_file():
-        raise FileNotFoundError(f"{path} is missing; {run_dir} is not a training run folder made by `gigan-train`")
-    doc = json.loads(path.read_text())
-    return TrainConfig.from_dict(doc["train"]), {k: NetworkConfig.from_dict(v) for k, v in doc["networks"].items()}
+        raise UserError(f"{path} is missing", f"give a training run folder made by `gigan-train` ({run_dir} is not one)")
+    try:
+        doc = json.loads(path.read_text())
+        return TrainConfig.from_dict(doc["train"]), {k: NetworkConfig.from_dict(v) for k, v in doc["networks"].items()}
+    except (ValueError, TypeError, KeyError, AttributeError) as e:  # JSON syntax, missing sections, unknown or bad fields
+        raise UserError(f"{path} is not a readable run config ({type(e).__name__}: {e})", "restore it, or train a new run with `gigan-train`") from None
 
 
 def load_checkpoint(path: Path) -> dict[str, Any]:
     """Load a checkpoint on the CPU (tensors and plain containers only, no arbitrary pickles)."""
     if not Path(path).is_file():
-        raise FileNotFoundError(f"checkpoint {path} is missing; train one with `gigan-train`")
+        raise UserError(f"checkpoint {path} is missing", "train one with `gigan-train`")
     try:
         return torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as e:
-        raise ValueError(f"{path} is not a readable checkpoint ({type(e).__name__}: {e}); retrain or restore it") from e
+    except Exception as e:  # torch raises many types on truncated or foreign files
+        raise UserError(f"{path} is not a readable checkpoint ({type(e).__name__})", "restore it, or train a new run with `gigan-train`") from e
 
 
 def prepare_config(cfg: TrainConfig, out_dir: Path) -> TrainConfig:
@@ -108,11 +119,16 @@ def prepare_config(cfg: TrainConfig, out_dir: Path) -> TrainConfig:
     roots = [Path(d) for d in cfg.datasets]
     resolution = dataset_resolution(roots, tuple(cfg.buffers))
     if cfg.resolution is not None and cfg.resolution != resolution:
-        raise ValueError(f"config says resolution {cfg.resolution} but the datasets are {resolution}x{resolution}")
+        raise UserError(f"the run was made at resolution {cfg.resolution} but the datasets are {resolution}x{resolution}", "train on datasets of the run's resolution")
     depth_scale = cfg.depth_scale
     if depth_scale is None:
         depth_scale = float(f"{median_foreground_depth(roots):.3g}") if "depth" in cfg.buffers else 1.0
-    return replace(cfg, resolution=resolution, depth_scale=depth_scale, run_id=cfg.run_id or Path(out_dir).resolve().name)
+    cfg = replace(cfg, resolution=resolution, depth_scale=depth_scale, run_id=cfg.run_id or Path(out_dir).resolve().name)
+    try:
+        cfg.network_configs()  # the architecture must fit the frames (and crops) of these datasets
+    except ValueError as e:
+        raise UserError(str(e), "change --n-down or --crop to fit the frame size") from None
+    return cfg
 
 
 def _check_resume(saved: TrainConfig, cfg: TrainConfig) -> None:
@@ -123,7 +139,7 @@ def _check_resume(saved: TrainConfig, cfg: TrainConfig) -> None:
     }
     if diffs:
         detail = ", ".join(f"{k}: saved {a!r} vs given {b!r}" for k, (a, b) in diffs.items())
-        raise ValueError(f"--resume may change only {list(BUDGET_FIELDS)}; these differ: {detail}. Start a new run in another folder instead")
+        raise UserError(f"--resume may change only {list(BUDGET_FIELDS)}; these differ: {detail}", "start a new run in another --out instead")
 
 
 @torch.no_grad()
@@ -143,24 +159,36 @@ def validate(generator: torch.nn.Module, dataset: FrameDataset, max_frames: int 
     return {k: v / len(indices) for k, v in totals.items()}
 
 
-def _append_rows(path: Path, rows: list[dict[str, Any]]) -> None:
-    new = not path.is_file() or path.stat().st_size == 0
+def _append_rows(path: Path, rows: list[dict[str, Any]]) -> int:
+    """Append ``rows`` to metrics.csv (with the header if it is new) in one write; returns how many."""
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=METRIC_COLUMNS)
+    if not path.is_file() or path.stat().st_size == 0:
+        writer.writeheader()
+    writer.writerows(rows)
     with path.open("a", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=METRIC_COLUMNS)
-        if new:
-            writer.writeheader()
-        writer.writerows(rows)
+        f.write(buf.getvalue())
+    return len(rows)
+
+
+def _keep_rows(path: Path, n: int) -> None:
+    """Cut metrics.csv back to its header and first ``n`` rows: those a resumed checkpoint counts."""
+    if not path.is_file():
+        return
+    lines = path.read_text().splitlines(keepends=True)
+    if len(lines) > n + 1:
+        atomic_write_bytes(path, "".join(lines[: n + 1]).encode())
 
 
 def _check_divergence(step: int, losses: dict[str, float], model: BaseModel, cfg: TrainConfig, last_ckpt: str) -> None:
-    advice = f"The last good checkpoint ({last_ckpt}) is kept. Check the data for extreme values or start a new run with a lower --lr."
+    advice = f"the last good checkpoint ({last_ckpt}) is kept; check the data for extreme values or start a new run with a lower --lr"
     for name, value in losses.items():
         if not math.isfinite(value):
-            raise TrainingDiverged(f"training diverged at step {step}: loss {name} = {value} (non-finite). {advice}")
+            raise TrainingDiverged(f"training diverged at step {step}: loss {name} = {value} (non-finite)", advice)
         if abs(value) > cfg.max_abs_loss:
-            raise TrainingDiverged(f"training diverged at step {step}: loss {name} = {value:.4g} exceeds max_abs_loss {cfg.max_abs_loss:g}. {advice}")
+            raise TrainingDiverged(f"training diverged at step {step}: loss {name} = {value:.4g} exceeds max_abs_loss {cfg.max_abs_loss:g}", advice)
     if not model.parameters_finite():
-        raise TrainingDiverged(f"training diverged at step {step}: the weights became non-finite (losses {losses}). {advice}")
+        raise TrainingDiverged(f"training diverged at step {step}: the weights became non-finite (losses {losses})", advice)
 
 
 def train(cfg: TrainConfig, out_dir: Path, resume: bool = False, progress: bool = True, cache_frames: bool = True) -> TrainResult:
@@ -171,10 +199,14 @@ def train(cfg: TrainConfig, out_dir: Path, resume: bool = False, progress: bool 
     ``max_minutes`` counts from this call's start; a step starts only if the estimated step time plus
     the measured duration of the last validation + checkpoint still fits before the deadline.
     ``cache_frames`` keeps the encoded frames in memory (:class:`FrameDataset`); it changes speed and
-    memory use, not results.
+    memory use, not results. A second run into ``out_dir`` while this one runs is refused (UserError).
     """
+    with exclusive_run(Path(out_dir)):
+        return _train(cfg, Path(out_dir), resume, progress, cache_frames)
+
+
+def _train(cfg: TrainConfig, out_dir: Path, resume: bool, progress: bool, cache_frames: bool) -> TrainResult:
     t_start = time.monotonic()
-    out_dir = Path(out_dir)
     ckpt_path, metrics_path = out_dir / CHECKPOINT, out_dir / METRICS
     if resume:
         saved, _ = read_run_config(out_dir)
@@ -189,7 +221,7 @@ def train(cfg: TrainConfig, out_dir: Path, resume: bool = False, progress: bool 
         _check_resume(saved, cfg)
     else:
         if ckpt_path.exists():
-            raise FileExistsError(f"{out_dir} already holds a run; pass --resume to continue it or choose another --out")
+            raise UserError(f"--out {out_dir} already holds a run", "pass --resume to continue it or choose another --out")
         cfg = prepare_config(cfg, out_dir)
 
     torch.manual_seed(cfg.seed)
@@ -198,21 +230,29 @@ def train(cfg: TrainConfig, out_dir: Path, resume: bool = False, progress: bool 
     train_set = FrameDataset(roots, "train", spec, crop=cfg.crop, seed=cfg.seed, cache=cache_frames)
     val_set = FrameDataset(roots, "val", spec, cache=cache_frames)
     model = create_model(cfg)
-    state = RunState()
+    state = RunState(metrics_rows=0)
     if resume:
         model.load_state_dict(ckpt["model"])
         state = RunState(**ckpt["state"])
         torch.set_rng_state(ckpt["torch_rng"])
-    out_dir.mkdir(parents=True, exist_ok=True)
+        if state.metrics_rows is not None:  # rows an interrupted run wrote after its checkpoint are redone
+            _keep_rows(metrics_path, state.metrics_rows)
+    else:  # no checkpoint: rows of a run interrupted before its first one count for nothing
+        metrics_path.unlink(missing_ok=True)
     write_run_config(out_dir, cfg, model.net_configs)  # on resume: records this invocation's budget
 
     def row(split: str, metric: str, value: float, unit: str) -> dict[str, Any]:
         return {"run_id": cfg.run_id, "model": cfg.model, "epoch": state.epoch, "step": state.step, "split": split, "metric": metric, "value": value, "unit": unit}
 
+    def append(rows: list[dict[str, Any]]) -> None:
+        n = _append_rows(metrics_path, rows)
+        if state.metrics_rows is not None:
+            state.metrics_rows += n
+
     def flush_train_means() -> None:
         rows = [row("train", k, s / state.loss_counts[k], UNITS.get(k, "1")) for k, s in state.loss_sums.items()]
         if rows:
-            _append_rows(metrics_path, rows)
+            append(rows)
         state.loss_sums, state.loss_counts = {}, {}
 
     saved_step = state.step if resume else -1
@@ -220,9 +260,7 @@ def train(cfg: TrainConfig, out_dir: Path, resume: bool = False, progress: bool 
     def save() -> None:
         nonlocal saved_step
         data = {"model": model.state_dict(), "state": asdict(state), "torch_rng": torch.get_rng_state()}
-        tmp = ckpt_path.with_name(ckpt_path.name + ".tmp")
-        torch.save(data, tmp)
-        os.replace(tmp, ckpt_path)  # atomic: a crash mid-save keeps the previous checkpoint
+        atomic_write(ckpt_path, lambda handle: torch.save(data, handle))  # a crash mid-save keeps the previous checkpoint
         saved_step = state.step
 
     def finish_work() -> None:
@@ -230,7 +268,7 @@ def train(cfg: TrainConfig, out_dir: Path, resume: bool = False, progress: bool 
         t = time.monotonic()
         if state.last_val_step != state.step:
             state.val_metrics = validate(model.generator, val_set, cfg.max_val_frames)
-            _append_rows(metrics_path, [row("val", k, v, UNITS[k]) for k, v in state.val_metrics.items()])
+            append([row("val", k, v, UNITS[k]) for k, v in state.val_metrics.items()])
             state.last_val_step = state.step
             state.finish_seconds = time.monotonic() - t
         if saved_step != state.step:

@@ -12,7 +12,9 @@ import pytest
 from gicore.buffers import STORAGE_DTYPE
 from gicore.camera import Camera
 from gicore.dataset import DatasetMeta, frame_paths, load_frame, read_meta, save_frame
-from gicore.dataset_cli import DatasetConfig, build_dataset, frame_seed, plan_frames
+from gicore.cli import UserError
+from gicore.dataset_cli import DatasetConfig, build_dataset, plan_frames
+from gicore.paths import frame_seed
 
 RES = 24
 CFG = DatasetConfig(n_train=2, n_val=1, resolution=RES, spp=4, denoise=False, seed=0)
@@ -123,9 +125,9 @@ def test_moving_light_is_recorded(base_dataset, moving_spec):
     root, _ = base_dataset
     raw = json.loads((root / "meta.json").read_text())
     lights = [f["light"] for f in raw["frames"]]
-    assert all(len(l) == 3 for l in lights)
+    assert all(len(light) == 3 for light in lights)
     assert lights[0] != lights[1]  # it moves between training frames
-    assert all(l[2] == moving_spec.light.position[2] for l in lights)  # along x and y only
+    assert all(light[2] == moving_spec.light.position[2] for light in lights)  # along x and y only
 
 
 def test_plan_frames_light_only_when_moving(static_spec, moving_spec):
@@ -144,7 +146,7 @@ def test_resume_rerenders_only_missing_frames(moving_spec, tmp_path):
     original = npz_arrays(root)
     victim = root / "train/000001.npz"
     victim.unlink()
-    with pytest.raises(FileNotFoundError, match="missing"):
+    with pytest.raises(UserError, match=r"1 frame\(s\) of .* are missing.*gicore-dataset"):
         frame_paths(root, "train")
     build_dataset(moving_spec, root, cfg, workers=1, progress=False)
     assert victim.is_file()
@@ -175,8 +177,9 @@ def test_resume_rerenders_only_missing_frames(moving_spec, tmp_path):
 def test_refuses_to_mix_settings(base_dataset, moving_spec, change):
     root, _ = base_dataset
     before = (root / "meta.json").read_text()
-    with pytest.raises(ValueError, match="other settings"):
+    with pytest.raises(UserError, match="other settings") as info:
         build_dataset(moving_spec, root, replace(CFG, **change), workers=1, progress=False)
+    assert next(iter(change)) in str(info.value)  # the message names the setting that differs
     assert (root / "meta.json").read_text() == before
 
 
@@ -196,7 +199,7 @@ def test_changed_frame_plan_never_leaves_stale_frames(moving_spec, tmp_path, cha
     new_cfg = replace(CFG, **change)
     try:
         build_dataset(moving_spec, root, new_cfg, workers=1, progress=False)
-    except ValueError as err:
+    except UserError as err:
         assert "settings" in str(err)
         return
     fresh = tmp_path / "fresh"
@@ -211,7 +214,7 @@ def test_changed_frame_plan_never_leaves_stale_frames(moving_spec, tmp_path, cha
 
 def test_refuses_another_scene(base_dataset, make_spec):
     root, _ = base_dataset
-    with pytest.raises(ValueError, match="other settings"):
+    with pytest.raises(UserError, match="other settings.*scene differs"):
         build_dataset(make_spec(light={"intensity": 3.0, "amplitude": [0.6, 0.3], "period": [40.0, 60.0]}), root, CFG, workers=1, progress=False)
 
 
@@ -224,9 +227,9 @@ def test_only_requested_buffers_are_stored(moving_spec, tmp_path):
     with np.load(root / "train/000000.npz") as data:
         assert sorted(data.files) == ["depth", "gt"]
         assert data["depth"].shape == (RES, RES, 1)
-    with pytest.raises(KeyError, match="albedo"):
+    with pytest.raises(UserError, match=r"000000\.npz lacks buffer\(s\) \['albedo'\]"):
         load_frame(root / "train/000000.npz", ["gt", "albedo"])
-    with pytest.raises(ValueError, match="unknown buffer"):
+    with pytest.raises(UserError, match="unknown buffer"):
         load_frame(root / "train/000000.npz", ["specular"])
 
 
@@ -300,7 +303,7 @@ def test_denoised_dataset_and_build_after_in_process_denoise(sphere_mesh_path, t
 
 
 def test_unknown_buffer_rejected_before_rendering(moving_spec, tmp_path):
-    with pytest.raises(ValueError, match="bogus"):
+    with pytest.raises(UserError, match="bogus"):
         build_dataset(moving_spec, tmp_path / "x", replace(CFG, buffers=("gt", "bogus")), workers=1, progress=False)
     assert not (tmp_path / "x").exists()
 
@@ -310,22 +313,126 @@ def test_save_frame_validation(tmp_path):
         save_frame(tmp_path / "f.npz", {"gt": np.full((4, 4, 3), np.nan, np.float32)})
     with pytest.raises(ValueError, match="depth"):
         save_frame(tmp_path / "f.npz", {"depth": np.zeros((4, 4, 3), np.float32)})
-    with pytest.raises(ValueError, match="unknown buffer"):
+    with pytest.raises(UserError, match="unknown buffer"):
         save_frame(tmp_path / "f.npz", {"specular": np.zeros((4, 4, 3), np.float32)})
     assert not (tmp_path / "f.npz").exists()
     pos = np.random.default_rng(0).normal(size=(4, 4, 3)).astype(np.float32) * 1e3 + 1e-3
     save_frame(tmp_path / "f.npz", {"position": pos, "mask": np.ones((4, 4, 1), np.float32)})
     back = load_frame(tmp_path / "f.npz")
     np.testing.assert_array_equal(back["position"], pos)  # float32: reprojection needs it exact
-    with pytest.raises(FileNotFoundError, match="missing"):
+    with pytest.raises(UserError, match=r"nope\.npz is missing"):
         load_frame(tmp_path / "nope.npz")
 
 
 def test_read_meta_errors(tmp_path):
-    with pytest.raises(FileNotFoundError, match="meta.json"):
+    with pytest.raises(UserError, match="meta.json is missing"):
         read_meta(tmp_path)
     (tmp_path / "meta.json").write_text(json.dumps({"format_version": 999}))
-    with pytest.raises(ValueError, match="format_version"):
+    with pytest.raises(UserError, match=r"meta\.json is not a readable dataset description \(dataset format_version 999"):
         read_meta(tmp_path)
     with pytest.raises(ValueError, match="split"):
         DatasetMeta({}, 8, 1, False, 0, ["gt"]).split_frames("test")
+
+
+# -- bad files and bad settings are user errors naming the culprit (issue 8) -------------------------------------
+@pytest.mark.parametrize(
+    "damage",
+    [
+        pytest.param(lambda b: b[: len(b) // 2], id="truncated"),
+        pytest.param(lambda b: b"", id="empty"),
+        pytest.param(lambda b: b"not an archive at all " * 20, id="garbage"),
+        pytest.param(lambda b: b[:200] + bytes(60) + b[260:], id="zeroed_bytes"),
+    ],
+)
+def test_corrupt_frame_names_the_file(base_dataset, tmp_path, damage):
+    root, _ = base_dataset
+    bad = tmp_path / "000000.npz"
+    bad.write_bytes(damage((root / "train/000000.npz").read_bytes()))
+    with pytest.raises(UserError, match=r"000000\.npz is corrupt or truncated") as info:
+        load_frame(bad)
+    assert "pickle" not in str(info.value)  # never a hint to load untrusted pickles
+
+
+@pytest.mark.parametrize(
+    "text,reason",
+    [
+        pytest.param("{not json", "Expecting property name", id="syntax"),
+        pytest.param("[1, 2]", "format_version None", id="not_an_object"),
+        pytest.param(json.dumps({"format_version": 1, "scene": {}}), "lacks field", id="missing_fields"),
+    ],
+)
+def test_corrupt_meta_names_the_file(tmp_path, text, reason):
+    (tmp_path / "meta.json").write_text(text)
+    with pytest.raises(UserError, match=rf"{tmp_path}/meta\.json is not a readable dataset description \(.*{reason}"):
+        read_meta(tmp_path)
+
+
+def test_meta_with_an_unknown_field_is_refused(base_dataset, tmp_path):
+    root, _ = base_dataset
+    doc = json.loads((root / "meta.json").read_text()) | {"exposure": 2.0}
+    (tmp_path / "meta.json").write_text(json.dumps(doc))
+    with pytest.raises(UserError, match=r"unknown dataset meta config field\(s\) \['exposure'\]"):
+        read_meta(tmp_path)
+
+
+@pytest.mark.parametrize(
+    "change,culprit",
+    [
+        pytest.param(dict(n_train=0, n_val=0), "--train 0 --val 0", id="no_frames"),
+        pytest.param(dict(fov=0.0), "--fov", id="fov_0"),
+        pytest.param(dict(fov=-30.0), "--fov", id="fov_negative"),
+        pytest.param(dict(fov=180.0), "--fov", id="fov_180"),
+        pytest.param(dict(resolution=0), "--resolution 0", id="resolution_0"),
+        pytest.param(dict(spp=0), "--spp 0", id="spp_0"),
+    ],
+)
+def test_bad_dataset_settings_are_refused_before_anything_is_written(tmp_path, change, culprit):
+    with pytest.raises(UserError, match=culprit):
+        DatasetConfig(**change)
+
+
+def test_zero_fov_is_not_the_default(moving_spec):
+    """Only an absent FOV means the scene's: an explicit FOV reaches every camera of the plan."""
+    assert {r.camera["fov"] for r in plan_frames(moving_spec, CFG)} == {moving_spec.camera.gi_fov}
+    assert {r.camera["fov"] for r in plan_frames(moving_spec, replace(CFG, fov=1.0))} == {1.0}
+
+
+def test_second_run_into_one_folder_is_refused(moving_spec, tmp_path):
+    from gicore.fileio import exclusive_run
+
+    root = tmp_path / "held"
+    with exclusive_run(root):  # as a concurrent gicore-dataset run holds it
+        with pytest.raises(UserError, match=f"another run holds {root}"):
+            build_dataset(moving_spec, root, CFG, workers=1, progress=False)
+        assert not (root / "meta.json").exists()
+
+
+def test_temporaries_of_a_killed_run_are_swept(moving_spec, tmp_path):
+    from gicore.fileio import TMP_MARKER
+
+    root = tmp_path / "swept"
+    build_dataset(moving_spec, root, replace(CFG, n_train=1, n_val=0), workers=1, progress=False)
+    leftovers = [root / f"meta.json{TMP_MARKER}abc", root / "train" / f"000001.npz{TMP_MARKER}xyz"]
+    for path in leftovers:
+        path.write_bytes(b"half a frame")
+    build_dataset(moving_spec, root, replace(CFG, n_train=1, n_val=0), workers=1, progress=False)
+    assert not any(p.exists() for p in leftovers)
+    assert sorted(p.name for p in root.rglob("*")) == ["000000.npz", "meta.json", "train"]
+
+
+def test_two_writers_of_one_frame_do_not_share_a_temporary_file(tmp_path):
+    """A second writer of the same frame (a concurrent run) starts while the first is mid-write: with a
+    shared temporary name one would rename the other's half-written file away."""
+    from gicore.fileio import atomic_write
+
+    target = tmp_path / "000000.npz"
+    gt = np.ones((4, 4, 3), np.float32)
+
+    def outer(handle):
+        handle.write(b"first writer, partial ")
+        save_frame(target, {"gt": gt * 2})  # the other writer runs to completion meanwhile
+        handle.write(b"and done")
+
+    atomic_write(target, outer)
+    assert target.read_bytes() == b"first writer, partial and done"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["000000.npz"]

@@ -15,6 +15,7 @@ import pytest
 import torch
 from typer.testing import CliRunner
 
+from gicore.cli import UserError
 from gicore.dataset import load_frame
 from gigan_local.export import export_onnx, load_generator
 from gigan_local.export_cli import app
@@ -103,7 +104,7 @@ def test_int8_export_without_the_training_data_says_so(exported, tmp_path):
     cfg = json.loads((moved / "config.json").read_text())
     cfg["train"]["datasets"] = [str(tmp_path / "gone")]
     (moved / "config.json").write_text(json.dumps(cfg))
-    with pytest.raises(ValueError, match="int8 export calibrates on the run's train frames.*--int8"):
+    with pytest.raises(UserError, match="int8 export calibrates on the run's train frames.*--int8"):
         export_onnx(moved, tmp_path / "q", int8=True)
 
 
@@ -119,11 +120,11 @@ def _copy(onnx_dir: Path, dst: Path) -> Path:
 
 def test_missing_files_give_clear_errors(exported, tmp_path):
     _, _, onnx_dir = exported
-    with pytest.raises(FileNotFoundError, match="gigan-export"):
+    with pytest.raises(UserError, match=r"nope\.onnx is missing.*gigan-export"):
         GIModel(tmp_path / "nope.onnx")
     d = _copy(onnx_dir, tmp_path / "m")
     (d / "model.json").unlink()
-    with pytest.raises(FileNotFoundError, match="model.json"):
+    with pytest.raises(UserError, match="model.json is missing"):
         GIModel(d / "model_fp32.onnx")
 
 
@@ -131,10 +132,10 @@ def test_corrupt_model_file_gives_a_clear_error(exported, tmp_path):
     _, _, onnx_dir = exported
     d = _copy(onnx_dir, tmp_path / "m")
     (d / "model_fp32.onnx").write_bytes(np.random.default_rng(0).bytes(4096))
-    with pytest.raises(ValueError, match="not a loadable ONNX model.*gigan-export"):
+    with pytest.raises(UserError, match=r"model_fp32\.onnx is not a loadable ONNX model.*gigan-export"):
         GIModel(d / "model_fp32.onnx")
     (d / "model.json").write_text("{not json")
-    with pytest.raises(ValueError, match="not a valid gigan model config"):
+    with pytest.raises(UserError, match=r"model\.json is not a valid gigan model config"):
         GIModel(d / "model_fp16.onnx")
 
 
@@ -144,7 +145,7 @@ def test_model_and_config_mismatch_gives_a_clear_error(exported, tmp_path, field
     d = _copy(onnx_dir, tmp_path / "m")
     doc = json.loads((d / "model.json").read_text())
     (d / "model.json").write_text(json.dumps(doc | {field: value}))
-    with pytest.raises(ValueError, match="do not belong together"):
+    with pytest.raises(UserError, match="do not belong together"):
         GIModel(d / "model_fp32.onnx")
 
 

@@ -11,6 +11,7 @@ import pytest
 import torch
 from typer.testing import CliRunner
 
+from gicore.cli import UserError
 from gicore.dataset import DatasetMeta, FrameRecord, save_frame, write_meta
 from gigan_local.config import TrainConfig
 from gigan_local.data import FrameDataset
@@ -158,7 +159,7 @@ def test_train_writes_config_metrics_and_checkpoint(dataset, tmp_path):
     assert {r["unit"] for r in val if r["metric"] == "psnr"} == {"dB"}
     assert {"G_L1", "D_GP", "step_seconds"} <= {r["metric"] for r in rows if r["split"] == "train"}
     assert load_checkpoint(run / "checkpoint.pt")["state"]["step"] == 3
-    with pytest.raises(FileExistsError, match="--resume"):
+    with pytest.raises(UserError, match="already holds a run: pass --resume"):
         train(tiny_config(dataset, max_steps=3), run, progress=False)
 
 
@@ -173,7 +174,7 @@ def test_resume_continues_exactly(dataset, tmp_path):
         for k, v in wa["nets"][net].items():
             assert torch.equal(v, wb["nets"][net][k]), f"{net}.{k} differs after resume"
     assert max(int(r["step"]) for r in read_metrics(tmp_path / "b")) == 5
-    with pytest.raises(ValueError, match="ngf"):
+    with pytest.raises(UserError, match="ngf: saved 4 vs given 8"):
         train(tiny_config(dataset, max_steps=6, ngf=8), tmp_path / "b", resume=True, progress=False)
 
 
@@ -207,7 +208,7 @@ def test_crop_training_validates_whole_frames(tmp_path):
     assert result.step == 2 and result.val_metrics
     _, nets = read_run_config(tmp_path / "run")
     assert nets["G"].n_down == 5  # from the crop; the 64-px validation frames still divide by 32
-    with pytest.raises(ValueError, match="at least 24 px"):
+    with pytest.raises(UserError, match="at least 24 px"):
         train(tiny_config(dataset, crop=16), tmp_path / "run16", progress=False)
 
 
@@ -237,7 +238,7 @@ def test_training_with_and_without_the_frame_cache_is_identical(dataset, tmp_pat
 
 
 def test_dataset_without_a_needed_buffer_is_refused(dataset, tmp_path):
-    with pytest.raises(ValueError, match=r"no \['mask'\] buffer"):
+    with pytest.raises(UserError, match=r"no \['mask'\] buffer"):
         train(tiny_config(dataset, buffers=["di", "mask"]), tmp_path / "run", progress=False)
 
 
@@ -252,7 +253,9 @@ def test_cli_trains_and_resumes(dataset, tmp_path):
     res = runner.invoke(app, ["--out", str(out), "--resume", "--epochs", "2", "--no-progress"])
     assert res.exit_code == 0, res.output
     assert "stopped (epochs) at step 4" in res.output
+    # Refusals are user errors (their exit status and one-line message: tests/test_cli_errors.py).
     res = runner.invoke(app, ["--out", str(out), "--resume", "--ngf", "8"])
-    assert res.exit_code == 1 and "--resume may change only" in res.output
+    assert isinstance(res.exception, UserError) and "--resume may change only" in str(res.exception)
     res = runner.invoke(app, ["--out", str(tmp_path / "new")])
-    assert res.exit_code == 1 and "dataset folder" in res.output
+    assert isinstance(res.exception, UserError) and "no dataset folders given" in str(res.exception)
+    assert not (tmp_path / "new").exists()
