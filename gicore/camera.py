@@ -21,6 +21,10 @@ from typing import Any
 import numpy as np
 
 GL_FROM_MITSUBA = np.diag([-1.0, 1.0, -1.0, 1.0])
+#: Clip distances the renderer represents, with a wide margin. Measured with Mitsuba 3.9 (llvm_ad_rgb) on a
+#: 32² scene against near 0.01 / far 100: DI and G-buffers match to 1e-6 for near down to 1e-17 and far up
+#: to 3e38 (float32's largest); near 1e-18 shifts DI by 1e-3, near 1e-19 or far 1e39 render black frames.
+NEAR_MIN, FAR_MAX = 1e-10, 1e30
 
 
 def _vec3(name: str, value: Any) -> tuple[float, float, float]:
@@ -37,7 +41,8 @@ class Camera:
     """A look-at pinhole camera.
 
     ``fov`` is the horizontal field of view in degrees, strictly between 0 and 180. ``near``/``far`` are
-    clip distances (only the GL projection and Mitsuba's clipping use them). ``up`` need not be
+    clip distances (only the GL projection and Mitsuba's clipping use them), within
+    [:data:`NEAR_MIN`, :data:`FAR_MAX`]. ``up`` need not be
     orthogonal to the view direction but must not be parallel to it.
     """
 
@@ -60,8 +65,8 @@ class Camera:
             object.__setattr__(self, name, value)
         if not 0.0 < self.fov < 180.0:
             raise ValueError(f"camera.fov must lie strictly between 0 and 180 degrees, got {self.fov}")
-        if self.near <= 0.0 or self.far <= self.near:
-            raise ValueError(f"camera.near/far must satisfy 0 < near < far, got near={self.near}, far={self.far}")
+        if not NEAR_MIN <= self.near < self.far <= FAR_MAX:
+            raise ValueError(f"camera.near/far must satisfy {NEAR_MIN:g} <= near < far <= {FAR_MAX:g} (what the renderer represents), got near={self.near}, far={self.far}")
         for name in ("width", "height"):
             value = getattr(self, name)
             try:

@@ -8,6 +8,7 @@ that convention (resting on the ground, centred on the vertical axis).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -138,21 +139,35 @@ class Mesh:
 
 
 def load_mesh(path: str | Path) -> Mesh:
-    """Load an .obj, .ply or .stl file as one mesh, with coincident vertices merged."""
+    """Load an .obj, .ply or .stl file as one mesh, with coincident vertices merged.
+
+    FileNotFoundError or ValueError name the file when it is missing, unreadable, has no triangles or
+    has a NaN/Inf vertex (which trimesh's own processing would silently drop with its faces). A file
+    unchanged since its last load is not read again (the spec validation and the renderer share it).
+    """
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix not in MESH_SUFFIXES:
-        raise ValueError(
-            f"unsupported mesh suffix {suffix!r} for {path}; use one of {MESH_SUFFIXES}"
-        )
+        raise ValueError(f"mesh file {path}: unsupported suffix {suffix!r}; use one of {MESH_SUFFIXES}")
     if not path.is_file():
-        raise FileNotFoundError(f"mesh file not found: {path}")
+        raise FileNotFoundError(f"mesh file {path}: not found")
+    stat = path.stat()
+    return _load_mesh(path.resolve(), stat.st_mtime_ns, stat.st_size)
+
+
+@lru_cache(maxsize=16)
+def _load_mesh(path: Path, mtime_ns: int, size: int) -> Mesh:
+    """``load_mesh`` of one version (modification time, size) of a file."""
     try:
-        loaded = trimesh.load(path, force="mesh", process=True)
+        loaded = trimesh.load(path, force="mesh", process=False)
     except Exception as exc:  # trimesh raises a variety of types on empty or malformed files
-        raise ValueError(f"cannot read a triangle mesh from {path}: {exc}") from exc
+        raise ValueError(f"mesh file {path}: cannot read a triangle mesh ({exc})") from exc
     if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
-        raise ValueError(f"mesh file has no triangles: {path}")
+        raise ValueError(f"mesh file {path}: no triangles")
+    bad = ~np.isfinite(np.asarray(loaded.vertices)).all(axis=1)
+    if bad.any():
+        raise ValueError(f"mesh file {path}: {int(bad.sum())} vertex(es) with NaN or Inf coordinates, e.g. vertex {int(np.argmax(bad)) + 1}")
+    loaded.process()
     # OBJ seams (per-corner UVs or normals) keep split vertices unless merged explicitly.
     loaded.merge_vertices(merge_tex=True, merge_norm=True)
     return Mesh(np.asarray(loaded.vertices), np.asarray(loaded.faces))

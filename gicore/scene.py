@@ -8,27 +8,44 @@ scenes live in ``gicore/scenes/*.toml`` and load by name::
     spec = load_scene("my_scene.toml")         # a file
     spec = SceneSpec.from_dict({...})          # plain dict
 
-Invalid specs raise :class:`SceneSpecError` naming each offending field.
+Invalid specs raise :class:`SceneSpecError` (a :class:`~gicore.cli.UserError`) naming each offending
+field. User meshes are read and checked when the spec loads, not when the first frame renders.
 """
 
 from __future__ import annotations
 
 import json
+import re
 import tomllib
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, get_args
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from gicore.anatomy import ANATOMY_KINDS
+from gicore.anatomy import AnatomyKind
+from gicore.camera import FAR_MAX, NEAR_MIN
+from gicore.cli import UserError
+from gicore.mesh import load_mesh
 
 BUILTIN_DIR = Path(__file__).parent / "scenes"
 Vec3 = tuple[float, float, float]
 Unit = Annotated[float, Field(ge=0.0, le=1.0)]
+NAME_PATTERN = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 
 
-class SceneSpecError(ValueError):
-    """A scene spec failed validation; the message lists every bad field."""
+def _check_name(name: str) -> str:
+    if not NAME_PATTERN.fullmatch(name):
+        raise ValueError(f"{name!r} is not a name: use a letter or _ followed by letters, digits or _ (it names a folder and a shape)")
+    return name
+
+
+#: Scene and object names: they become folder names (datasets, caches) and Mitsuba shape ids, so no
+#: path separators, dots or empty names.
+Name = Annotated[str, AfterValidator(_check_name)]
+
+
+class SceneSpecError(UserError, ValueError):
+    """A scene spec failed validation or could not be read; the message names the file and every bad field."""
 
 
 class _Strict(BaseModel):
@@ -38,13 +55,15 @@ class _Strict(BaseModel):
 class ObjectSpec(_Strict):
     """One object: procedural ``anatomy`` (with seed and detail) or a user ``mesh`` file (OBJ/PLY/STL).
 
-    The mesh is normalised to ``height`` scene units resting on y = 0, rotated about y by
-    ``rotate_y`` degrees and moved by ``position``. The material is diffuse ``albedo`` plus a mild
+    The mesh is normalised to ``height`` scene units resting on the ground (see
+    ``gicore.geometry.SEAT_GAP``), rotated about y by ``rotate_y`` degrees and moved by ``position``.
+    A user mesh is read when the spec is validated: a missing, empty, unreadable or flat file, or one
+    with a NaN/Inf vertex, is refused naming the file. The material is diffuse ``albedo`` plus a mild
     glossy lobe (rough dielectric coating with GGX ``roughness``).
     """
 
-    name: str = Field(pattern=r"^[A-Za-z_][A-Za-z0-9_]*$")
-    anatomy: Literal["lung", "digestive", "vessels"] | None = None
+    name: Name
+    anatomy: AnatomyKind | None = None
     mesh: Path | None = None
     seed: int = 0
     detail: float = Field(1.0, gt=0.0, le=4.0)
@@ -55,9 +74,14 @@ class ObjectSpec(_Strict):
     roughness: float = Field(0.35, gt=0.0, le=1.0)
 
     @model_validator(mode="after")
-    def _one_source(self) -> "ObjectSpec":
+    def _one_readable_source(self) -> "ObjectSpec":
         if (self.anatomy is None) == (self.mesh is None):
-            raise ValueError("give exactly one of 'anatomy' (one of %s) or 'mesh' (a file path)" % (ANATOMY_KINDS,))
+            raise ValueError(f"give exactly one of 'anatomy' (one of {get_args(AnatomyKind)}) or 'mesh' (a file path)")
+        if self.mesh is not None:
+            try:
+                load_mesh(self.mesh).normalized()  # read (cached for the renderer), finite, has triangles, not flat
+            except (OSError, ValueError) as err:
+                raise ValueError(str(err) if str(self.mesh) in str(err) else f"mesh file {self.mesh}: {err}") from None
         return self
 
 
@@ -101,20 +125,21 @@ class CameraPathSpec(_Strict):
     wobble: float = Field(0.15, ge=0.0, lt=1.0)
     local_fov: float = Field(60.0, gt=0.0, lt=180.0)
     gi_fov: float = Field(90.0, gt=0.0, lt=180.0)
-    near: float = Field(0.01, gt=0.0)
-    far: float = Field(100.0, gt=0.0)
+    #: Clip distances; the renderer represents [gicore.camera.NEAR_MIN, FAR_MAX] (measured, see there).
+    near: float = 0.01
+    far: float = 100.0
 
     @model_validator(mode="after")
     def _near_far(self) -> "CameraPathSpec":
-        if self.far <= self.near:
-            raise ValueError(f"far ({self.far}) must exceed near ({self.near})")
+        if not NEAR_MIN <= self.near < self.far <= FAR_MAX:
+            raise ValueError(f"near = {self.near:g}, far = {self.far:g}: the renderer represents {NEAR_MIN:g} <= near < far <= {FAR_MAX:g}")
         return self
 
 
 class SceneSpec(_Strict):
     """A whole scene; see the module docstring."""
 
-    name: str
+    name: Name
     objects: list[ObjectSpec] = Field(min_length=1)
     environment: Literal["white_plane", "cornell_box", "none"] = "white_plane"
     light: LightSpec
@@ -133,11 +158,11 @@ class SceneSpec(_Strict):
         try:
             return cls.model_validate(data)
         except ValidationError as err:
-            lines = [f"{source}: {len(err.errors())} invalid field(s)"]
+            fields = []
             for e in err.errors():
                 where = ".".join(str(p) for p in e["loc"]) or "(top level)"
-                lines.append(f"  {where}: {e['msg']}")
-            raise SceneSpecError("\n".join(lines)) from None
+                fields.append(f"{where}: {e['msg'].removeprefix('Value error, ')}")
+            raise SceneSpecError(f"{source}: {len(fields)} invalid field(s): " + "; ".join(fields), "fix them (each field is documented in gicore/scene.py)") from None
 
     def to_dict(self) -> dict[str, Any]:
         return self.model_dump(mode="json")
@@ -155,13 +180,13 @@ def load_scene(name_or_path: str | Path) -> SceneSpec:
     if not path.suffix and (BUILTIN_DIR / f"{path}.toml").is_file():
         path = BUILTIN_DIR / f"{path}.toml"
     if not path.is_file():
-        raise FileNotFoundError(f"no scene spec {name_or_path!r}: not a file and not one of the built-in scenes {builtin_scenes()}")
-    text = path.read_text()
+        raise SceneSpecError(f"no scene spec {str(name_or_path)!r}", f"give a .toml/.json file or one of the built-in scenes {builtin_scenes()}")
     try:
+        text = path.read_text()
         data = tomllib.loads(text) if path.suffix == ".toml" else json.loads(text)
-    except (tomllib.TOMLDecodeError, json.JSONDecodeError) as err:
-        raise SceneSpecError(f"{path}: cannot parse: {err}") from None
+    except (tomllib.TOMLDecodeError, ValueError) as err:  # syntax, or bytes that are not UTF-8 text
+        raise SceneSpecError(f"{path}: cannot parse: {err}", "fix the TOML/JSON syntax") from None
     for obj in data.get("objects", []) if isinstance(data, dict) else []:
-        if isinstance(obj, dict) and "mesh" in obj and not Path(obj["mesh"]).is_absolute():
+        if isinstance(obj, dict) and isinstance(obj.get("mesh"), str) and not Path(obj["mesh"]).is_absolute():
             obj["mesh"] = str(path.parent / obj["mesh"])
     return SceneSpec.from_dict(data, source=str(path))

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from gicore.camera import Camera
+from gicore.cli import UserError
 from gicore.metrics import all_metrics
 from gicore.paths import camera_path
 from gicore.render import Renderer
@@ -111,7 +112,7 @@ def test_di_gbuffers_single_pass_equals_separate_passes(renderer):
 
 def test_bad_render_arguments(renderer):
     cam = first_camera(renderer)
-    with pytest.raises(ValueError, match="unknown buffer"):
+    with pytest.raises(UserError, match=r"unknown buffer\(s\) \['specular'\]"):
         renderer.render_frame(cam, buffers=("gt", "specular"))
     with pytest.raises(ValueError, match="spp"):
         renderer.render_gt(cam, spp=0)
@@ -169,6 +170,40 @@ def test_extreme_cameras_render_finite(renderer, overrides):
     assert frame["gt"].min() >= 0 and frame["di"].min() >= 0
     mask = frame["mask"][..., 0] > 0
     assert np.all(frame["depth"][mask] > 0)
+
+
+def test_supported_near_far_range_renders_like_the_default(renderer):
+    """The clip range the specs accept ([NEAR_MIN, FAR_MAX]) renders the same frame as near 0.01 / far
+    100 (nothing in the scene is clipped by either); outside it a Camera is refused."""
+    from gicore.camera import FAR_MAX, NEAR_MIN
+
+    ref = renderer.render_frame(first_camera(renderer), buffers=("di", "depth", "position"), spp=1, seed=3)
+    for near, far in ((NEAR_MIN, 100.0), (0.01, FAR_MAX), (NEAR_MIN, FAR_MAX)):
+        out = renderer.render_frame(first_camera(renderer, near=near, far=far), buffers=("di", "depth", "position"), spp=1, seed=3)
+        for name in ref:
+            np.testing.assert_allclose(out[name], ref[name], atol=1e-4, err_msg=f"{name} at near {near:g}, far {far:g}")
+    for near, far in ((NEAR_MIN / 10, 100.0), (0.01, FAR_MAX * 10)):
+        with pytest.raises(ValueError, match=r"1e-10 <= near < far <= 1e\+30"):
+            first_camera(renderer, near=near, far=far)
+
+
+def test_resolution_zero_is_not_the_specs(sphere_spec):
+    with pytest.raises(ValueError, match="resolution must be an integer in \\[1, 8192\\], got 0"):
+        Renderer(sphere_spec, 0)
+
+
+@pytest.mark.parametrize("environment", ["white_plane", "cornell_box"])
+def test_light_inside_a_closed_mesh_does_not_leak(make_spec, box_mesh_path, environment):
+    """A closed box normalised onto the ground with a light inside it: no light reaches the camera
+    outside (issue 8: with its base coplanar with the floor, 611 of 4096 GT pixels were lit)."""
+    cam = Camera((0.0, 1.5, 2.2), (0.0, 0.3, 0.0), fov=60.0, width=64, height=64)
+    box = {"name": "box", "mesh": str(box_mesh_path), "height": 1.0}
+    inside = make_spec(objects=[box], environment=environment, light={"position": [0.0, 0.5, 0.0], "intensity": 10.0})
+    gt = Renderer(inside, 64).render_gt(cam, spp=64, seed=1)
+    assert gt.max() == 0.0, f"{int((gt.max(-1) > 0).sum())} pixels lit by a light sealed inside the box"
+    # The same light outside the box lights the scene: the camera does see the box and the floor.
+    outside = make_spec(objects=[box], environment=environment, light={"position": [0.0, 1.2, 0.8], "intensity": 10.0})
+    assert (Renderer(outside, 64).render_gt(cam, spp=16, seed=1).max(-1) > 1e-3).mean() > 0.5
 
 
 # -- light state ------------------------------------------------------------------------------------------

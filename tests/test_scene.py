@@ -7,8 +7,10 @@ import math
 
 import numpy as np
 import pytest
+from pydantic import ValidationError
 
 from gicore import geometry
+from gicore.cli import UserError
 from gicore.paths import camera_path, light_position
 from gicore.scene import SceneSpec, SceneSpecError, builtin_scenes, load_scene
 
@@ -57,7 +59,7 @@ def test_load_scene_from_file_and_relative_mesh(tmp_path, sphere_mesh_path):
 
 
 def test_unknown_scene_name():
-    with pytest.raises(FileNotFoundError, match="no_such_scene"):
+    with pytest.raises(SceneSpecError, match="no scene spec 'no_such_scene'.*lung_plane"):
         load_scene("no_such_scene")
 
 
@@ -85,7 +87,15 @@ def test_unknown_scene_name():
         pytest.param(lambda d: d.update(camera={"gi_fov": 180.0}), r"camera\.gi_fov", id="gi_fov_180"),
         pytest.param(lambda d: d.update(camera={"local_fov": 0.0}), r"camera\.local_fov", id="local_fov_0"),
         pytest.param(lambda d: d.update(camera={"local_fov": math.nan}), r"camera\.local_fov", id="local_fov_nan"),
-        pytest.param(lambda d: d.update(camera={"near": 1.0, "far": 0.5}), r"far.*near", id="far_below_near"),
+        pytest.param(lambda d: d.update(camera={"near": 1.0, "far": 0.5}), r"near = 1, far = 0\.5", id="far_below_near"),
+        pytest.param(lambda d: d.update(camera={"near": 1e-20}), r"camera: near = 1e-20.*represents 1e-10 <= near < far <= 1e\+30", id="near_1e-20"),
+        pytest.param(lambda d: d.update(camera={"near": 0.0}), r"camera: near = 0,", id="near_0"),
+        pytest.param(lambda d: d.update(camera={"far": 1e39}), r"camera: near = 0\.01, far = 1e\+39.*represents", id="far_1e39"),
+        pytest.param(lambda d: d.update(name="../../x"), r"name: '\.\./\.\./x' is not a name", id="scene_name_path"),
+        pytest.param(lambda d: d.update(name=""), r"name: '' is not a name", id="scene_name_empty"),
+        pytest.param(lambda d: d.update(name="a/b"), r"name: 'a/b' is not a name", id="scene_name_slash"),
+        pytest.param(lambda d: d["objects"][0].update(name="../o"), r"objects\.0\.name: '\.\./o' is not a name", id="object_name_path"),
+        pytest.param(lambda d: d["objects"][0].update(anatomy=None, mesh=5), r"objects\.0\.mesh", id="mesh_is_a_number"),
         pytest.param(lambda d: d.update(resolution=4), "resolution", id="resolution_too_small"),
     ],
 )
@@ -102,9 +112,10 @@ def test_error_lists_every_bad_field():
     with pytest.raises(SceneSpecError) as info:
         SceneSpec.from_dict(data, source="my.toml")
     msg = str(info.value)
-    assert msg.startswith("my.toml: 2 invalid field(s)")
+    assert msg.startswith("my.toml: 2 invalid field(s): ")
     assert "colour" in msg and "light.intensity" in msg
-    assert isinstance(info.value, ValueError)
+    assert "\n" not in msg  # one line, as the CLI prints it
+    assert isinstance(info.value, ValueError) and isinstance(info.value, UserError)
 
 
 @pytest.mark.parametrize(
@@ -143,20 +154,41 @@ def test_bad_field_in_a_file_names_file_and_field(tmp_path):
         load_scene(path)
 
 
-def test_missing_mesh_file_names_the_path(tmp_path):
-    missing = tmp_path / "nowhere" / "organ.obj"
-    spec = SceneSpec.from_dict(minimal(objects=[{"name": "organ", "mesh": str(missing)}]))
-    with pytest.raises(FileNotFoundError, match="organ.obj"):
-        geometry.scene_objects(spec)
-    from gicore.render import Renderer
+MESH_FILES = {
+    "missing": None,
+    "empty": b"",
+    "text": b"this is not a mesh\n",
+    "nan_vertex": b"v 0 0 0\nv 1 0 0\nv 0 1 0\nv nan 0 1\nf 1 2 3\nf 1 2 4\n",
+    "inf_vertex": b"v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 inf 1\nf 1 2 3\nf 1 2 4\n",
+    "flat": b"v 0 0 0\nv 1 0 0\nv 0 0 1\nf 1 2 3\n",
+}
 
-    with pytest.raises(FileNotFoundError, match=str(missing).replace(".", r"\.")):
-        Renderer(spec, 16)
+
+@pytest.mark.parametrize(
+    "kind,reason",
+    [
+        ("missing", "not found"),
+        ("empty", "no triangles"),
+        ("text", "no triangles"),
+        ("nan_vertex", r"1 vertex\(es\) with NaN or Inf coordinates, e\.g\. vertex 4"),
+        ("inf_vertex", r"1 vertex\(es\) with NaN or Inf coordinates, e\.g\. vertex 4"),
+        ("flat", "flat in y"),
+    ],
+)
+def test_bad_mesh_is_refused_when_the_spec_loads(tmp_path, kind, reason):
+    """Not at render time: the spec names the object, the file and what is wrong with it."""
+    path = tmp_path / "organ.obj"
+    if MESH_FILES[kind] is not None:
+        path.write_bytes(MESH_FILES[kind])
+    spec_file = tmp_path / "scene.toml"
+    spec_file.write_text('name = "s"\n[[objects]]\nname = "organ"\nmesh = "organ.obj"\n[light]\nposition = [0, 2, 0]\nintensity = 3.0\n')
+    with pytest.raises(SceneSpecError, match=rf"scene\.toml: 1 invalid field\(s\): objects\.0: mesh file {path}: .*{reason}"):
+        load_scene(spec_file)
 
 
 def test_spec_is_frozen():
     spec = SceneSpec.from_dict(minimal())
-    with pytest.raises(Exception):
+    with pytest.raises(ValidationError, match="frozen"):
         spec.name = "other"  # type: ignore[misc]
 
 
@@ -194,9 +226,9 @@ def test_scene_objects_user_mesh_placed(make_spec):
     objs = geometry.scene_objects(spec)
     assert [o.name for o in objs] == ["ball", "box", "ground"]
     lo, hi = objs[0].mesh.bounds
-    assert lo[1] == pytest.approx(0.0, abs=1e-6) and hi[1] == pytest.approx(1.0, abs=1e-6)
+    assert lo[1] == pytest.approx(geometry.SEAT_GAP, abs=1e-6) and hi[1] == pytest.approx(1.0 + geometry.SEAT_GAP, abs=1e-6)
     lo, hi = objs[1].mesh.bounds
-    assert hi[1] == pytest.approx(0.8, abs=1e-6)
+    assert hi[1] == pytest.approx(0.8 + geometry.SEAT_GAP, abs=1e-6)
     np.testing.assert_allclose((lo[[0, 2]] + hi[[0, 2]]) / 2, [0.9, -0.4], atol=0.05)
 
 
@@ -205,8 +237,8 @@ def test_anatomy_object_mesh_is_placed_and_cached_per_process():
     mesh = geometry.object_mesh(obj)
     assert geometry.object_mesh(obj) is mesh
     assert mesh.n_triangles > 100
-    assert mesh.bounds[0][1] == pytest.approx(0.0, abs=1e-6)
-    assert mesh.bounds[1][1] == pytest.approx(obj.height, rel=1e-5)
+    assert mesh.bounds[0][1] == pytest.approx(geometry.SEAT_GAP, abs=1e-6)
+    assert mesh.bounds[1][1] == pytest.approx(obj.height + geometry.SEAT_GAP, rel=1e-5)
 
 
 @pytest.mark.parametrize("name", PAPER_SCENES)
@@ -296,3 +328,22 @@ def test_light_schedule():
     static = SceneSpec.from_dict(minimal())
     assert not static.light.moves
     assert {light_position(static, f) for f in range(0, 500, 50)} == {tuple(static.light.position)}
+
+
+def test_mesh_that_is_not_a_path_names_the_field(tmp_path):
+    """``mesh = 5`` was a TypeError while resolving relative mesh paths."""
+    spec_file = tmp_path / "scene.toml"
+    spec_file.write_text('name = "s"\n[[objects]]\nname = "organ"\nmesh = 5\n[light]\nposition = [0, 2, 0]\nintensity = 3.0\n')
+    with pytest.raises(SceneSpecError, match=r"scene\.toml: 1 invalid field\(s\): objects\.0\.mesh: Input is not a valid path"):
+        load_scene(spec_file)
+
+
+def test_a_valid_mesh_loads_once_for_spec_and_renderer(sphere_mesh_path):
+    """The spec validation reads the mesh; building the scene's geometry reuses that read."""
+    from gicore.mesh import _load_mesh
+
+    _load_mesh.cache_clear()
+    spec = SceneSpec.from_dict(minimal(objects=[{"name": "ball", "mesh": str(sphere_mesh_path)}]))
+    geometry.object_mesh.cache_clear()
+    geometry.scene_objects(spec)
+    assert _load_mesh.cache_info().misses == 1 and _load_mesh.cache_info().hits >= 1

@@ -10,19 +10,18 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from typing import Literal, get_args
 
 from gicore.anatomy.digestive import build_digestive
 from gicore.anatomy.lungs import build_lungs
 from gicore.anatomy.vessels import build_vessels
 from gicore.mesh import Mesh
 
-ANATOMY_KINDS = ("lung", "digestive", "vessels")
+#: The procedural organs, as a type (scene specs validate against it) and as a tuple.
+AnatomyKind = Literal["lung", "digestive", "vessels"]
+ANATOMY_KINDS: tuple[str, ...] = get_args(AnatomyKind)
 
-_BUILDERS: dict[str, Callable[[int, float], Mesh]] = {
-    "lung": build_lungs,
-    "digestive": build_digestive,
-    "vessels": build_vessels,
-}
+_BUILDERS: dict[str, Callable[[int, float], Mesh]] = dict(zip(ANATOMY_KINDS, (build_lungs, build_digestive, build_vessels), strict=True))
 
 
 def generate_anatomy(kind: str, seed: int = 0, detail: float = 1.0) -> Mesh:
