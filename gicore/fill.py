@@ -11,10 +11,17 @@ def push_pull(image: np.ndarray, weight: np.ndarray) -> np.ndarray:
     Pull: halve the resolution with weight-normalised 2x2 averages until one pixel is left. Push: from
     coarse to fine, each pixel keeps ``weight * own + (1 - weight) * coarser``. Pixels of weight 1 are
     unchanged; holes get smooth values from the nearest valid pixels at every scale. All-zero weight
-    gives zeros.
+    gives zeros. NaN or Inf in either input is refused (ValueError): even at zero weight it would spread
+    through the pyramid into every hole.
     """
     img = np.asarray(image, dtype=np.float32)
-    wgt = np.clip(np.asarray(weight, dtype=np.float32), 0.0, 1.0)
+    wgt = np.asarray(weight, dtype=np.float32)
+    for name, arr in (("image", img), ("weight", wgt)):
+        if not np.all(np.isfinite(arr)):
+            raise ValueError(f"push_pull {name} contains NaN or Inf")
+    if img.ndim != 3 or wgt.shape != img.shape[:2]:
+        raise ValueError(f"push_pull needs an HxWxC image and an HxW weight, got {img.shape} and {wgt.shape}")
+    wgt = np.clip(wgt, 0.0, 1.0)
     levels: list[tuple[np.ndarray, np.ndarray]] = []
     col, w = img * wgt[..., None], wgt
     while max(col.shape[:2]) > 1:

@@ -1,5 +1,8 @@
 """Image-quality metrics on tone-mapped images in [0, 1] (SPEC §3).
 
+Inputs outside [0, 1] (e.g. linear HDR radiance, where SSIM's ``data_range=1`` is meaningless) and
+NaN/Inf are refused with a ValueError rather than scored (SPEC §9): tone-map with ``gicore.tonemap`` first.
+
 SSIM follows the Wang et al. settings that scikit-image reproduces: Gaussian window with sigma 1.5,
 population covariance, ``data_range=1``. Identical images give PSNR = inf (not an error); constant
 images give a defined SSIM thanks to the C1/C2 stabilisers.
@@ -23,6 +26,8 @@ def _check_pair(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     for name, img in (("first", a), ("second", b)):
         if not np.all(np.isfinite(img)):
             raise ValueError(f"the {name} image contains NaN or Inf; tone-map finite radiance first")
+        if img.size and (img.min() < 0.0 or img.max() > 1.0):
+            raise ValueError(f"the {name} image has values in [{img.min():.4g}, {img.max():.4g}], outside [0, 1]; tone-map it first (gicore.tonemap)")
     return a, b
 
 

@@ -9,6 +9,7 @@ import pytest
 
 from gicore.blend import blend, residual
 from gicore.metrics import all_metrics, psnr, rmse, ssim
+from gicore.fill import push_pull
 from gicore.tonemap import GAMMA, Y_MAX, from_signed, inverse_tonemap, to_signed, tonemap
 
 RNG = np.random.default_rng(1234)
@@ -83,6 +84,51 @@ def test_nan_inf_input_rejected(fn, bad, which):
     imgs[which][3, 4, 1] = bad
     with pytest.raises(ValueError, match="NaN or Inf"):
         fn(*imgs)
+
+
+@pytest.mark.parametrize("fn", [rmse, psnr, ssim, all_metrics])
+@pytest.mark.parametrize("value", [-0.01, 1.01, 40.0])
+def test_values_outside_unit_range_rejected(fn, value):
+    """SPEC §9: linear HDR radiance (or any value outside [0, 1]) is not scored as if it were display values."""
+    imgs = [image(), image()]
+    imgs[1][5, 6, 0] = value
+    with pytest.raises(ValueError, match=r"second image has values in \[.*\], outside \[0, 1\]; tone-map it first"):
+        fn(*imgs)
+
+
+def test_unit_range_endpoints_are_accepted():
+    zeros, ones = np.zeros((8, 8, 3)), np.ones((8, 8, 3))
+    assert rmse(zeros, ones) == 1.0
+
+
+@pytest.mark.parametrize("fn", [inverse_tonemap, from_signed])
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+def test_inverse_tone_map_and_from_signed_reject_non_finite(fn, bad):
+    """NaN used to pass straight through (np.clip keeps NaN) into the GI maps."""
+    with pytest.raises(ValueError, match=f"{fn.__name__} input contains NaN or Inf"):
+        fn(np.array([0.2, bad, 0.7], dtype=np.float32))
+
+
+@pytest.mark.parametrize("which", ["image", "weight"])
+@pytest.mark.parametrize("bad", [np.nan, np.inf])
+def test_push_pull_rejects_non_finite(which, bad):
+    """Even a NaN in a zero-weight pixel used to spread through the pyramid into every hole."""
+    img, wgt = np.ones((8, 8, 3), np.float32), np.ones((8, 8), np.float32)
+    wgt[2:5, 2:5] = 0.0
+    (img if which == "image" else wgt)[3, 3] = bad
+    with pytest.raises(ValueError, match=f"push_pull {which} contains NaN or Inf"):
+        push_pull(img, wgt)
+
+
+def test_push_pull_fills_holes_from_neighbours():
+    img = np.zeros((8, 8, 3), np.float32)
+    img[..., 0] = 2.0
+    wgt = np.ones((8, 8), np.float32)
+    wgt[2:5, 2:5] = 0.0
+    img[2:5, 2:5] = 7.0  # values under zero weight are ignored
+    out = push_pull(img, wgt)
+    np.testing.assert_allclose(out[..., 0], 2.0, rtol=1e-6)
+    np.testing.assert_allclose(out[..., 1:], 0.0, atol=1e-6)
 
 
 def test_shape_mismatch_rejected():
