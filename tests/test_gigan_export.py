@@ -165,3 +165,27 @@ def test_deep_shading_exports_too(exported, tmp_path):
     result = export_onnx(tmp_path / "run", tmp_path / "onnx", fp16=False)
     assert set(result.files) == {"fp32"} and result.max_abs_diff["fp32"] < 1e-4
     assert GIModel(result.files["fp32"], threads=1).predict(load_frame(dataset / "val" / "000001.npz")).shape == (32, 32, 3)
+
+
+def test_wheel_ships_the_default_model_and_scenes(tmp_path):
+    """A non-editable install must find the shipped model: build the wheel (from a copy of the sources,
+    so no build/ folder lands in the checkout) and list it (``models/*`` once matched no file)."""
+    import zipfile
+
+    from gigan_local.inference import DEFAULT_MODEL
+
+    repo = Path(__file__).resolve().parents[1]
+    src = tmp_path / "src"
+    src.mkdir()
+    for name in ("pyproject.toml", "README.md"):
+        shutil.copy(repo / name, src / name)
+    for package in ("gicore", "gigan_local", "baseline_cloudbaking", "network_sim", "bench"):
+        shutil.copytree(repo / package, src / package, ignore=shutil.ignore_patterns("__pycache__"))
+    cmd = [sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "--no-build-isolation", "-w", str(tmp_path / "dist"), str(src)]
+    subprocess.run(cmd, check=True, timeout=300, capture_output=True)
+    (wheel,) = (tmp_path / "dist").glob("*.whl")
+    names = set(zipfile.ZipFile(wheel).namelist())
+    model_dir = DEFAULT_MODEL.parent.relative_to(repo).as_posix()
+    for path in DEFAULT_MODEL.parent.iterdir():  # model_fp16.onnx, model_fp32.onnx, model.json, MODEL_CARD.md
+        assert f"{model_dir}/{path.name}" in names, f"{path.name} is missing from the wheel"
+    assert {f"gicore/scenes/{p.name}" for p in (repo / "gicore" / "scenes").glob("*.toml")} <= names
