@@ -20,6 +20,8 @@ from typing import Any
 
 import numpy as np
 
+from gicore.config import strict_from_dict
+
 GL_FROM_MITSUBA = np.diag([-1.0, 1.0, -1.0, 1.0])
 #: Clip distances the renderer represents, with a wide margin. Measured with Mitsuba 3.9 (llvm_ad_rgb) on a
 #: 32² scene against near 0.01 / far 100: DI and G-buffers match to 1e-6 for near down to 1e-17 and far up
@@ -153,4 +155,4 @@ class Camera:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "Camera":
-        return cls(**d)
+        return strict_from_dict(cls, d, "camera")

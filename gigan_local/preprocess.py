@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from gicore.buffers import CHANNELS, GENERATOR_INPUTS, TARGET, check_buffer_names
+from gicore.config import strict_from_dict
 from gicore.tonemap import from_signed, inverse_tonemap, to_signed, tonemap
 
 #: Buffers a network may take as input (those with an encoding in the table above).
@@ -65,7 +66,7 @@ class InputSpec:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "InputSpec":
-        return cls(buffers=tuple(d["buffers"]), depth_scale=float(d["depth_scale"]))
+        return strict_from_dict(cls, d, "input")
 
 
 def _checked(name: str, arr: np.ndarray) -> np.ndarray:

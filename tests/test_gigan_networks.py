@@ -2,15 +2,18 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 import torch
 from torch import nn
 
 from gicore.metrics import ssim as metric_ssim
-from gigan_local.config import TrainConfig
+from gigan_local.config import NetworkConfig, TrainConfig
 from gigan_local.losses import bce_gan_loss, gradient_penalty, ssim, ssim_loss, wgan_critic_loss, wgan_generator_loss
-from gigan_local.networks import NetworkConfig, count_parameters, define_D, define_G
+from gigan_local.networks import count_parameters, define_D, define_G
 from tests.test_gigan_training import one_thread  # noqa: F401  (autouse fixture: tiny nets, shared CPU)
 
 NORM_TYPES = (nn.BatchNorm2d, nn.InstanceNorm2d, nn.GroupNorm, nn.LayerNorm)
@@ -157,3 +160,29 @@ def test_ssim_loss_matches_the_metric_and_is_differentiable():
     loss.backward()
     assert loss.item() == pytest.approx(1 - metric_ssim(a, b), abs=1e-5)
     assert torch.isfinite(pred.grad).all() and pred.grad.abs().sum() > 0
+
+
+def test_importing_the_configs_does_not_load_torch():
+    """One config mechanism (gicore.config.strict_from_dict) without torch: reading a run's config.json, a
+    model.json or a dataset's meta.json must not pay for (or need) torch."""
+    code = (
+        "import sys\n"
+        "import gicore.config, gicore.dataset, gigan_local.config, gigan_local.preprocess\n"
+        "from gigan_local.config import NetworkConfig, TrainConfig\n"
+        "TrainConfig.from_dict(TrainConfig().to_dict()); NetworkConfig.from_dict(NetworkConfig('unet', 8).to_dict())\n"
+        "assert 'torch' not in sys.modules, 'torch was imported'\n"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True, timeout=60)
+
+
+@pytest.mark.parametrize(
+    "doc,message",
+    [
+        pytest.param({"name": "unet"}, r"lacks field\(s\) \['in_channels'\]", id="missing"),
+        pytest.param({"name": "unet", "in_channels": 8, "depth": 3}, r"unknown network config field\(s\) \['depth'\]", id="unknown"),
+        pytest.param(["unet", 8], "must be a JSON object, got list", id="not_an_object"),
+    ],
+)
+def test_strict_from_dict_names_the_field(doc, message):
+    with pytest.raises(ValueError, match=message):
+        NetworkConfig.from_dict(doc)
