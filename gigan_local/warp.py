@@ -77,18 +77,18 @@ def depth_slack(depth: np.ndarray) -> np.ndarray:
     """Per-texel depth change to the next texel, summed over x and y (HxW), the smaller side of each.
 
     Background texels (depth 0) and their neighbours contribute 0: a jump to the background is an edge,
-    not a slope.
+    not a slope; so does the frame's border (the texel beyond it counts as the texel itself).
     """
     d = np.asarray(depth, dtype=np.float32)
-    pad = np.pad(d, 1, mode="edge")
     slack = np.zeros_like(d)
-    for lo, hi in (((1, 0), (1, 2)), ((0, 1), (2, 1))):  # (left, right) then (up, down) neighbours
-        a = pad[lo[0] : lo[0] + d.shape[0], lo[1] : lo[1] + d.shape[1]]
-        b = pad[hi[0] : hi[0] + d.shape[0], hi[1] : hi[1] + d.shape[1]]
-        da = np.where(a > 0, np.abs(d - a), np.inf)
-        db = np.where(b > 0, np.abs(d - b), np.inf)
-        step = np.minimum(da, db)
-        slack += np.where(np.isfinite(step), step, 0.0)
+    for axis in (1, 0):
+        dv = np.moveaxis(d, axis, 0)  # the neighbours along ``axis`` are consecutive rows of this view
+        out = np.moveaxis(slack, axis, 0)[1:-1]
+        steps = np.abs(np.diff(dv, axis=0))  # |d[i+1] - d[i]|
+        before = np.where(dv[:-2] > 0, steps[:-1], np.inf)  # to the previous texel, unless it is background
+        after = np.where(dv[2:] > 0, steps[1:], np.inf)
+        step = np.minimum(before, after)
+        out += np.where(step < np.inf, step, 0.0)
     return np.where(d > 0, slack, 0.0).astype(np.float32)
 
 
@@ -127,24 +127,31 @@ class GITexture:
             raise ValueError("GI map, GI depth or indirect map contains NaN or Inf")
         slack = depth_slack(depth)
         hit = depth > 0
-        lo = np.where(hit, depth - slack, np.inf).ravel()
-        hi = np.where(hit, depth + slack, -np.inf).ravel()
-        planes = np.ascontiguousarray(np.concatenate([lo[None], hi[None], image.reshape(-1, image.shape[2]).T]), dtype=np.float32)
+        planes = np.empty((2 + image.shape[2], depth.size), dtype=np.float32)
+        np.copyto(planes[0], np.where(hit, depth - slack, np.inf).ravel())
+        np.copyto(planes[1], np.where(hit, depth + slack, -np.inf).ravel())
+        planes[2:] = image.reshape(depth.size, -1).T
         step = max(1, -(-max(image.shape[:2]) // FALLBACK_TEXELS))
         coarse, mean = _coarse_level(indirect, hit, step)
         return cls(camera, image, depth, planes, coarse, step, mean)
 
 
+def _block_sums(x: np.ndarray, step: int) -> np.ndarray:
+    """Sums of ``x`` (h x w x ...) over ``step`` x ``step`` blocks (zero-padded at the far edges)."""
+    h, w = x.shape[:2]
+    hb, wb = -(-h // step), -(-w // step)
+    if h % step or w % step:
+        x = np.pad(x, ((0, hb * step - h), (0, wb * step - w)) + ((0, 0),) * (x.ndim - 2))
+    x = x.reshape(hb, step, wb * step, *x.shape[2:]).sum(axis=1)  # rows first: whole rows add at once
+    return x.reshape(hb, wb, step, *x.shape[2:]).sum(axis=2)
+
+
 def _coarse_level(image: np.ndarray, hit: np.ndarray, step: int) -> tuple[np.ndarray, np.ndarray]:
     """Averages of ``image`` over the ``hit`` texels of ``step`` x ``step`` blocks (blocks without any
     hit filled from their neighbours), and the mean over all hit texels (0 without any)."""
-    h, w, c = image.shape
-    ph, pw = -h % step, -w % step
-    img = np.pad(image * hit[..., None], ((0, ph), (0, pw), (0, 0)))
-    wgt = np.pad(hit.astype(np.float32), ((0, ph), (0, pw)))
-    hb, wb = img.shape[0] // step, img.shape[1] // step
-    csum = img.reshape(hb, step, wb, step, c).sum(axis=(1, 3))
-    wsum = wgt.reshape(hb, step, wb, step).sum(axis=(1, 3))
+    weight = hit.astype(np.float32)
+    csum = _block_sums(image * weight[..., None], step)
+    wsum = _block_sums(weight, step)
     mean = csum.sum(axis=(0, 1)) / max(float(wsum.sum()), 1.0)
     return push_pull(csum / np.maximum(wsum, 1.0)[..., None], np.minimum(wsum, 1.0)), mean.astype(np.float32)
 
