@@ -70,8 +70,10 @@ class GIModel:
                 f"(buffers {list(self.spec.buffers)} at {self.resolution}px), so the model and its model.json do not belong together",
                 "re-export with `gigan-export` so both come from one run",
             )
+        # the network input, encoded in place by every predict (one model serves one caller at a time)
+        self._input = np.zeros((1, *expected), np.float32)
         for _ in range(warmup):
-            self.session.run(None, {self.input_name: np.zeros((1, *expected), np.float32)})
+            self.session.run(None, {self.input_name: self._input})
 
     @property
     def buffers(self) -> tuple[str, ...]:
@@ -79,12 +81,14 @@ class GIModel:
         return self.spec.buffers
 
     def predict(self, frame_buffers: dict[str, np.ndarray]) -> np.ndarray:
-        """Linear GI radiance (HxWx3 float32) from the frame's buffers (name -> HxWxC linear arrays)."""
-        x = frame_to_input(frame_buffers, self.spec)
-        if x.shape[1:] != (self.resolution, self.resolution):
+        """Linear GI radiance (HxWx3 float32, C-contiguous) from the frame's buffers (name -> HxWxC linear
+        arrays). Not reentrant: the buffers are encoded into the model's one input array."""
+        sizes = {np.shape(frame_buffers[b])[:2] for b in self.spec.buffers if b in frame_buffers}
+        if sizes - {(self.resolution, self.resolution)}:
             raise ValueError(
-                f"frame buffers are {x.shape[1]}x{x.shape[2]} but the model runs at {self.resolution}x{self.resolution}; "
-                "render the GI-camera buffers at the model's resolution"
+                f"frame buffers are {' and '.join(f'{h}x{w}' for h, w in sorted(sizes))} but the model runs at "
+                f"{self.resolution}x{self.resolution}; render the GI-camera buffers at the model's resolution"
             )
-        y = self.session.run(None, {self.input_name: x[None]})[0][0]
+        frame_to_input(frame_buffers, self.spec, out=self._input[0])
+        y = self.session.run(None, {self.input_name: self._input})[0][0]
         return output_to_radiance(y)

@@ -78,31 +78,47 @@ def _checked(name: str, arr: np.ndarray) -> np.ndarray:
     return arr
 
 
-def encode_buffer(name: str, arr: np.ndarray, depth_scale: float = 1.0) -> np.ndarray:
-    """Encode one HxWxC buffer into network values in [-1, 1] (HxWxC float32)."""
+def encode_buffer(name: str, arr: np.ndarray, depth_scale: float = 1.0, out: np.ndarray | None = None) -> np.ndarray:
+    """Encode one HxWxC buffer into network values in [-1, 1] (HxWxC float32); into ``out`` when given (an
+    HxWxC float32 array or view, e.g. the buffer's channels of a CxHxW network input, transposed)."""
     arr = _checked(name, arr)
     if name in ("di", "gt"):
-        return to_signed(tonemap(arr)).astype(np.float32)
-    if name in ("albedo", "mask"):
-        return 2.0 * np.clip(arr, 0.0, 1.0) - 1.0
-    if name == "normal":
-        return arr
-    if name == "depth":
+        value = to_signed(tonemap(arr))
+    elif name in ("albedo", "mask"):
+        value = 2.0 * np.clip(arr, 0.0, 1.0) - 1.0
+    elif name == "normal":
+        value = arr
+    elif name == "depth":
         d = np.maximum(arr, 0.0)
-        return to_signed(d / (d + np.float32(depth_scale))).astype(np.float32)
-    raise ValueError(f"buffer {name!r} has no network encoding; inputs are {list(INPUT_BUFFERS)}, target {TARGET!r}")
+        value = to_signed(d / (d + np.float32(depth_scale)))
+    else:
+        raise ValueError(f"buffer {name!r} has no network encoding; inputs are {list(INPUT_BUFFERS)}, target {TARGET!r}")
+    if out is None:
+        return value.astype(np.float32, copy=False)
+    np.copyto(out, value)
+    return out
 
 
-def frame_to_input(frame: dict[str, np.ndarray], spec: InputSpec) -> np.ndarray:
-    """Frame buffers (name -> HxWxC linear arrays) to the network input, CxHxW float32 in [-1, 1]."""
+def frame_to_input(frame: dict[str, np.ndarray], spec: InputSpec, out: np.ndarray | None = None) -> np.ndarray:
+    """Frame buffers (name -> HxWxC linear arrays) to the network input, CxHxW float32 in [-1, 1], written
+    into ``out`` (CxHxW float32, e.g. a model's preallocated input) when given: each buffer is encoded
+    straight into its channels, with no concatenated copy."""
     missing = [b for b in spec.buffers if b not in frame]
     if missing:
         raise KeyError(f"the frame lacks buffer(s) {missing} that the model needs (it has {sorted(frame)})")
-    parts = [encode_buffer(b, frame[b], spec.depth_scale) for b in spec.buffers]
-    shapes = {p.shape[:2] for p in parts}
-    if len(shapes) != 1:
-        raise ValueError(f"the frame's buffers differ in size: {dict(zip(spec.buffers, (p.shape for p in parts)))}")
-    return np.ascontiguousarray(np.concatenate(parts, axis=-1).transpose(2, 0, 1))
+    sizes = {b: np.shape(frame[b])[:2] for b in spec.buffers}
+    if len(set(sizes.values())) != 1:
+        raise ValueError(f"the frame's buffers differ in size: {sizes}")
+    shape = (spec.in_channels, *sizes[spec.buffers[0]])
+    if out is None:
+        out = np.empty(shape, dtype=np.float32)
+    elif out.shape != shape or out.dtype != np.float32:
+        raise ValueError(f"the input buffer is {out.dtype} {out.shape}, but these buffers make float32 {shape}")
+    start = 0
+    for b in spec.buffers:
+        encode_buffer(b, frame[b], spec.depth_scale, out=out[start : start + CHANNELS[b]].transpose(1, 2, 0))
+        start += CHANNELS[b]
+    return out
 
 
 def frame_to_target(frame: dict[str, np.ndarray]) -> np.ndarray:
@@ -113,11 +129,12 @@ def frame_to_target(frame: dict[str, np.ndarray]) -> np.ndarray:
 
 
 def output_to_display(y: np.ndarray) -> np.ndarray:
-    """Network output 3xHxW in [-1, 1] to tone-mapped display values HxWx3 in [0, 1] (what metrics use)."""
+    """Network output 3xHxW in [-1, 1] to tone-mapped display values HxWx3 in [0, 1] (what metrics use),
+    C-contiguous (the transpose is copied once, so what follows runs on contiguous memory)."""
     y = np.asarray(y, dtype=np.float32)
     if y.ndim != 3 or y.shape[0] != 3:
         raise ValueError(f"expected a 3xHxW network output, got shape {y.shape}")
-    return from_signed(y.transpose(1, 2, 0)).astype(np.float32)
+    return from_signed(np.ascontiguousarray(y.transpose(1, 2, 0))).astype(np.float32, copy=False)
 
 
 def output_to_radiance(y: np.ndarray) -> np.ndarray:

@@ -158,3 +158,21 @@ def test_model_source_feeds_the_generator_its_buffers(spec_file, client_renderer
     cam = camera_path(client_renderer.spec, cfg.orbit_frames, fov=60.0, resolution=RES)[1]
     di = client_renderer.render_di_gbuffers(cam, light_position(client_renderer.spec, 1), seed=frame_seed(0, "gi_di", 1))["di"]
     np.testing.assert_allclose(images[1], di, rtol=1e-3, atol=1e-4)
+
+
+def test_network_input_is_encoded_in_place():
+    """The model source's input encoding writes every buffer straight into its channels of one CxHxW array
+    (the model's preallocated input): the same values as encoding each buffer and concatenating."""
+    from gigan_local.preprocess import InputSpec, encode_buffer, frame_to_input
+
+    rng = np.random.default_rng(3)
+    frame = {"di": rng.uniform(0, 3, (8, 6, 3)), "albedo": rng.uniform(0, 1, (8, 6, 3)), "normal": rng.uniform(-1, 1, (8, 6, 3))}
+    frame["depth"] = rng.uniform(0, 4, (8, 6, 1))
+    spec = InputSpec(depth_scale=2.0)
+    reference = np.concatenate([encode_buffer(b, frame[b], 2.0) for b in spec.buffers], axis=-1).transpose(2, 0, 1)
+    buffer = np.full((10, 8, 6), np.nan, np.float32)
+    assert frame_to_input(frame, spec, out=buffer) is buffer
+    np.testing.assert_array_equal(buffer, reference)
+    np.testing.assert_array_equal(frame_to_input(frame, spec), reference)
+    with pytest.raises(ValueError, match="input buffer"):
+        frame_to_input(frame, spec, out=np.empty((10, 8, 7), np.float32))
