@@ -73,7 +73,11 @@ def encode_map(baked: BakedMap, scene: str, codec_name: str, spp: int, light: Ve
     sections = {"gi": codec.encode(baked.gi), "depth": DEPTH_CODEC.encode(baked.depth)}
     if baked.di is not None:
         sections["di"] = codec.encode(baked.di)
-    encode_ms = (time.perf_counter() - t0) * 1e3
+    return pack(map_header(baked, scene, codec_name, spp, light, (time.perf_counter() - t0) * 1e3), sections)
+
+
+def map_header(baked: BakedMap, scene: str, codec_name: str, spp: int, light: Vec3 | None, encode_ms: float) -> dict:
+    """The payload header of a baked map (what :func:`encode_map` packs with the encoded sections)."""
     cam = baked.camera
     header = {
         "format": "gimap/1",
@@ -85,8 +89,8 @@ def encode_map(baked: BakedMap, scene: str, codec_name: str, spp: int, light: Ve
         "view": cam.view().tolist(),
         "proj": cam.proj().tolist(),
         "bake_ms": {"render": baked.render_ms, "denoise": baked.denoise_ms, "encode": encode_ms},
-    } | ({"light": list(light)} if light is not None else {})
-    return pack(header, sections)
+    }
+    return header | ({"light": list(light)} if light is not None else {})
 
 
 def gi_camera(spec: SceneSpec, eye: Vec3, target: Vec3, up: Vec3, fov: float, resolution: int) -> Camera:

@@ -271,8 +271,8 @@ class CodecReport:
     ssim: float
 
 
-def measure(codec: Codec, image: np.ndarray) -> tuple[CodecReport, np.ndarray]:
-    """Encode and decode ``image`` once with ``codec``; returns the report and the decoded map."""
+def measure(codec: Codec, image: np.ndarray) -> tuple[CodecReport, bytes, np.ndarray]:
+    """Encode and decode ``image`` once with ``codec``; returns the report, the bytes and the decoded map."""
     t0 = time.perf_counter()
     data = codec.encode(image)
     t1 = time.perf_counter()
@@ -280,4 +280,4 @@ def measure(codec: Codec, image: np.ndarray) -> tuple[CodecReport, np.ndarray]:
     t2 = time.perf_counter()
     src, dec = tonemap(_check_map(image)), tonemap(decoded)
     report = CodecReport(codec.name, len(data), (t1 - t0) * 1e3, (t2 - t1) * 1e3, rmse(dec, src), ssim(dec, src))
-    return report, decoded
+    return report, data, decoded
