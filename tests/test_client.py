@@ -133,9 +133,9 @@ def test_gigan_client_process_writes_csv(spec_file, tmp_path):
     assert bad.returncode != 0 and "structure" in (bad.stderr + bad.stdout)
 
 
-def test_model_source_feeds_the_generator_its_buffers(spec_file, client_renderer, tmp_path):
-    """A stand-in ONNX "generator" that returns its DI input channels: the GI map is then the DI at the
-    GI camera, and without warping the composed frame is that DI (through the network encoding)."""
+@pytest.fixture(scope="module")
+def passthrough_model(tmp_path_factory) -> Path:
+    """A stand-in ONNX "generator" that returns its DI input channels, with its model.json."""
     onnx = pytest.importorskip("onnx")
     from onnx import TensorProto, helper
 
@@ -147,17 +147,43 @@ def test_model_source_feeds_the_generator_its_buffers(spec_file, client_renderer
     y = helper.make_tensor_value_info("y", TensorProto.FLOAT, [1, 3, RES, RES])
     consts = [helper.make_tensor(n, TensorProto.INT64, [1], [v]) for n, v in (("start", 0), ("end", 3), ("axis", 1))]
     graph = helper.make_graph([helper.make_node("Slice", ["x", "start", "end", "axis"], ["y"])], "di_passthrough", [x], [y], consts)
-    path = tmp_path / "passthrough.onnx"
-    onnx.save(helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)], ir_version=8), path)
-    (tmp_path / MODEL_JSON).write_text(json.dumps({"format": FORMAT, "input": spec.to_dict(), "resolution": RES}))
+    folder = tmp_path_factory.mktemp("model")
+    onnx.save(helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)], ir_version=8), folder / "passthrough.onnx")
+    (folder / MODEL_JSON).write_text(json.dumps({"format": FORMAT, "input": spec.to_dict(), "resolution": RES}))
+    return folder / "passthrough.onnx"
 
-    cfg = ClientConfig(scene=str(spec_file), frames=2, resolution=RES, every=1, warp="none", gi_source="model", model=path, denoise=False)
+
+def test_model_source_feeds_the_generator_its_buffers(spec_file, client_renderer, passthrough_model):
+    """With the DI pass-through "generator" the GI map is the DI at the GI camera, and without warping the
+    composed frame is that DI (through the network encoding)."""
+    cfg = ClientConfig(
+        scene=str(spec_file), frames=2, resolution=RES, every=1, warp="none", gi_source="model", model=passthrough_model, denoise=False
+    )
     images = []
     rows = run_client(cfg, client_renderer, on_frame=lambda frame, result: images.append(result.image))
     assert all(r["gi_render_ms"] > 0 and r["inference_ms"] > 0 and r["gi_wait_ms"] >= r["gi_ms"] for r in rows)
     cam = camera_path(client_renderer.spec, cfg.orbit_frames, fov=60.0, resolution=RES)[1]
     di = client_renderer.render_di_gbuffers(cam, light_position(client_renderer.spec, 1), seed=frame_seed(0, "gi_di", 1))["di"]
     np.testing.assert_allclose(images[1], di, rtol=1e-3, atol=1e-4)
+
+
+def test_model_source_depth_is_the_texel_centre_depth(client_renderer, passthrough_model):
+    """The model source renders its G-buffers at pixel centres, so their depth is the warp's texel-centre
+    depth (what a separate centre-sampled pass gave before) and the map warps to its own view unchanged."""
+    from gicore.loop import texel_depth
+    from gigan_local.client import ModelSource, load_model
+    from gigan_local.warp import StructureAwareWarp
+
+    source = ModelSource(client_renderer, load_model(passthrough_model, 1, RES))
+    camera = camera_path(client_renderer.spec, 40, fov=90.0, resolution=RES)[3]
+    source.request(camera, light_position(client_renderer.spec, 3), 3)
+    gi = source.latest()
+    np.testing.assert_array_equal(gi.depth, texel_depth(client_renderer, camera))
+    warp = StructureAwareWarp(client_renderer)
+    warp.bind(gi)
+    image, valid, _ = warp.warp(camera, gi.di)
+    surface = client_renderer.render_uv(camera)["mask"]
+    assert valid[surface].mean() > 0.97 and np.abs(image - gi.radiance)[valid & surface].max() <= 1e-5
 
 
 def test_network_input_is_encoded_in_place():
