@@ -142,7 +142,8 @@ def prebake_scene(store_dir: Path, name: str, spec: SceneSpec, cfg: PrebakeConfi
             threads = max(1, (os.cpu_count() or 1) // cfg.workers)
             # spawn, not fork: a forked worker inherits OIDN's thread pool state and can deadlock in it.
             ctx = multiprocessing.get_context("spawn")
-            with ProcessPoolExecutor(cfg.workers, mp_context=ctx, initializer=_init_pool_worker, initargs=(spec.to_dict(), name, cfg, threads)) as pool:
+            init = (spec.to_dict(), name, cfg, threads)
+            with ProcessPoolExecutor(cfg.workers, mp_context=ctx, initializer=_init_pool_worker, initargs=init) as pool:
                 futures = [pool.submit(_bake_job, job) for job in jobs]
                 try:
                     for future in as_completed(futures):

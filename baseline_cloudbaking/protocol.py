@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from baseline_cloudbaking.codecs import DEPTH_CODEC, CodecError, get_codec
+from baseline_cloudbaking.codecs import DEPTH_CODEC, get_codec
 from gicore.camera import Camera
 
 MAGIC = b"GIM1"
@@ -118,13 +118,11 @@ def decode_payload(data: bytes) -> GIMapPayload:
     try:
         codec = get_codec(header["codec"])
         camera = Camera.from_dict(header["camera"])
-        gi = codec.decode(bytes(sections["gi"]))
-        di = codec.decode(bytes(sections["di"])) if "di" in sections else None
-        depth = DEPTH_CODEC.decode(bytes(sections["depth"]))
-    except CodecError:
-        raise
     except (KeyError, TypeError, ValueError) as exc:
         raise PayloadError(f"payload header is not valid: {exc}") from None
+    gi = codec.decode(bytes(sections["gi"]))  # CodecError (a ValueError) names the codec
+    di = codec.decode(bytes(sections["di"])) if "di" in sections else None
+    depth = DEPTH_CODEC.decode(bytes(sections["depth"]))
     shape = (camera.height, camera.width)
     if gi.shape[:2] != shape or depth.shape != shape or (di is not None and di.shape != gi.shape):
         raise PayloadError(f"sections do not match the {shape[1]}x{shape[0]} camera: gi {gi.shape}, depth {depth.shape}")

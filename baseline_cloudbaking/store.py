@@ -328,11 +328,15 @@ class GITree:
         Pure query: no LRU update."""
         tol = tol or self.tolerance
         (x, y, z), r = view.eye, tol.position
-        rows = self._db().execute(
-            "SELECT id, sha, ex, ey, ez, dx, dy, dz FROM entries WHERE scene = ? AND light_cell IS ? AND resolution = ? AND codec = ? "
-            "AND spp = ? AND di >= ? AND abs(fov - ?) < 1e-6 AND ex BETWEEN ? AND ? AND ey BETWEEN ? AND ? AND ez BETWEEN ? AND ?",
-            (key.scene, key.cell_text, key.resolution, key.codec, key.spp, int(key.di), key.fov, x - r, x + r, y - r, y + r, z - r, z + r),
-        ).fetchall()
+        rows = (
+            self._db()
+            .execute(
+                "SELECT id, sha, ex, ey, ez, dx, dy, dz FROM entries WHERE scene = ? AND light_cell IS ? AND resolution = ? AND codec = ? "
+                "AND spp = ? AND di >= ? AND abs(fov - ?) < 1e-6 AND ex BETWEEN ? AND ? AND ey BETWEEN ? AND ? AND ez BETWEEN ? AND ?",
+                (key.scene, key.cell_text, key.resolution, key.codec, key.spp, int(key.di), key.fov, x - r, x + r, y - r, y + r, z - r, z + r),
+            )
+            .fetchall()
+        )
         if not rows:
             return None
         arr = np.array([row[2:] for row in rows], dtype=np.float64)
@@ -459,7 +463,10 @@ class GITree:
         self.flush()
         db = self._db()
         usage = [{"scene": s, "codec": c, "entries": n, "bytes": b} for s, c, n, b in db.execute("SELECT * FROM usage ORDER BY scene, codec")]
-        scenes = [{"scene": s, "light_level": size is not None, "light_cell_size": size} for s, size in db.execute("SELECT scene, light_cell_size FROM scenes ORDER BY scene")]
+        scenes = [
+            {"scene": s, "light_level": size is not None, "light_cell_size": size}
+            for s, size in db.execute("SELECT scene, light_cell_size FROM scenes ORDER BY scene")
+        ]
         with self._lock:
             counters = dict(self.counters)
         return {

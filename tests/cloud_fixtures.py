@@ -29,7 +29,8 @@ def write_scenes(folder: Path) -> Path:
         "camera": {"target": [0.0, 0.5, 0.0], "radius": 2.0, "height": 1.1, "azimuth_range": 70.0},
         "resolution": RES,
     }
-    moving = base | {"name": "ball_moving", "environment": "cornell_box", "light": {"position": [0.0, 2.2, 0.3], "intensity": 8.0, "amplitude": [0.6, 0.15]}}
+    moving_light = {"position": [0.0, 2.2, 0.3], "intensity": 8.0, "amplitude": [0.6, 0.15]}
+    moving = base | {"name": "ball_moving", "environment": "cornell_box", "light": moving_light}
     static = base | {"name": "ball_static", "environment": "white_plane", "light": {"position": [0.8, 2.6, 1.2], "intensity": 12.0}}
     for spec in (moving, static):
         (folder / f"{spec['name']}.json").write_text(json.dumps(spec))

@@ -24,7 +24,8 @@ def scenes_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def prebake_cmd(spec: Path, store: Path, frames: int, *extra: str) -> list[str]:
-    return [str(BIN / "cloudbaking-prebake"), str(spec), "--store", str(store), "--frames", str(frames), "--resolution", str(RES), "--spp", str(SPP), *extra]
+    size = ["--frames", str(frames), "--resolution", str(RES), "--spp", str(SPP)]
+    return [str(BIN / "cloudbaking-prebake"), str(spec), "--store", str(store), *size, *extra]
 
 
 def expected_entries(spec_path: Path, frames: int) -> int:

@@ -64,7 +64,8 @@ def serve(
     except ValidationError as exc:
         err = exc.errors()[0]
         field = ".".join(map(str, err["loc"]))
-        raise UserError(f"setting {field} (from --{field.replace('_', '-')} or CLOUDBAKING_{field.upper()}) is invalid: {err['msg']}", "fix its value") from None
+        source = f"--{field.replace('_', '-')} or CLOUDBAKING_{field.upper()}"
+        raise UserError(f"setting {field} (from {source}) is invalid: {err['msg']}", "fix its value") from None
     sock = bind(host, port)
     actual_host, actual_port = sock.getsockname()[:2]
     shown = f"[{actual_host}]" if ":" in actual_host else actual_host
