@@ -67,9 +67,10 @@ SUBTEXEL = 256.0
 FALLBACK_TEXELS = 32
 
 
-def clip_coordinates(camera: Camera, points: np.ndarray) -> np.ndarray:
-    """Homogeneous clip coordinates (..., 4) of world points (..., 3) under ``camera``'s M_p · M_v."""
-    vp = camera.view_proj()
+def clip_xy(camera: Camera, points: np.ndarray) -> np.ndarray:
+    """Clip coordinates x, y (..., 2) of world points (..., 3) under ``camera``'s M_p · M_v (eq. 5 before
+    the divide by w, which the per-pixel projection does)."""
+    vp = camera.view_proj()[:2]
     return np.asarray(points, dtype=np.float64) @ vp[:, :3].T + vp[:, 3]
 
 
@@ -191,7 +192,7 @@ class StructureAwareWarp:
     def bind_texture(self, texture: GITexture) -> None:
         """Eq. 5 per vertex: upload every object's GI-camera clip (x, y) as its texture coordinates."""
         for obj in self.renderer.objects:
-            self.renderer.set_texcoords(obj.name, clip_coordinates(texture.camera, obj.mesh.vertices)[:, :2])
+            self.renderer.set_texcoords(obj.name, clip_xy(texture.camera, obj.mesh.vertices))
         self.texture = texture
         self._w_row = texture.camera.view_proj()[3].astype(np.float32)  # clip w = this row . (p, 1)
 
