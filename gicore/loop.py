@@ -235,7 +235,7 @@ class LoopConfig:
     tau: float = 0.0
     #: Seeds the per-frame DI renders (``frame_seed(seed, "di", frame)``).
     seed: int = 0
-    #: Longest a frame waits for the first map of the run (s); past it, frames show the DI alone.
+    #: Longest the run waits for its first map (s, once); past it, frames show the DI alone until a map arrives.
     first_map_timeout_s: float = 30.0
 
     def __post_init__(self) -> None:
@@ -288,6 +288,7 @@ class ClientLoop:
         self.warp = warp
         self.bound: GIMap | None = None
         self._no_indirect: np.ndarray | None = None
+        self._first_map_waited_out = False  # the first map did not come in time: later frames do not wait
 
     def columns(self) -> tuple[str, ...]:
         """The row columns: :data:`HEAD_COLUMNS`, ``<stage>_ms`` for every stage, :data:`TAIL_COLUMNS`."""
@@ -317,9 +318,10 @@ class ClientLoop:
         """The newest arrived map; with none bound yet, wait for the first one (up to the timeout)."""
         gi = self.source.latest()
         deadline = time.perf_counter() + self.cfg.first_map_timeout_s
-        while gi is None and self.bound is None and time.perf_counter() < deadline:
+        while gi is None and self.bound is None and not self._first_map_waited_out and time.perf_counter() < deadline:
             time.sleep(0.0005)
             gi = self.source.latest()
+        self._first_map_waited_out |= gi is None and self.bound is None
         return gi
 
     def step(self, frame: int, camera: Camera, light: Light) -> FrameResult:

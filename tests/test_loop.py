@@ -144,12 +144,18 @@ def test_a_background_source_does_not_block_frames_after_the_first_map(loop_rend
 
 
 def test_frames_show_the_di_alone_until_a_map_arrives(loop_renderer):
+    """A source that never delivers (a dead server): the run waits for its first map once, up to the
+    timeout, then every frame shows its DI without waiting again, and the source is asked again."""
     loop = make_loop(loop_renderer, ThreadedSource(0.0, fail=True), "structure", first_map_timeout_s=0.05)
-    camera, light = path_views(loop_renderer.spec, 1, 40, 0, 60.0, RES)[0]
-    result = loop.step(0, camera, light)
-    assert 45.0 <= result.row["gi_wait_ms"] < 1000.0
-    assert result.row["valid_frac"] == 0.0 and result.row["gi_age_frames"] == "" and result.row["raster_ms"] == ""
-    np.testing.assert_array_equal(result.image, loop_renderer.render_di(camera, light, seed=frame_seed_di(0)))
+    views = path_views(loop_renderer.spec, 3, 40, 0, 60.0, RES)
+    rows = []
+    for frame, (camera, light) in enumerate(views):
+        result = loop.step(frame, camera, light)
+        rows.append(result.row)
+        np.testing.assert_array_equal(result.image, loop_renderer.render_di(camera, light, seed=frame_seed_di(frame)))
+    assert 45.0 <= rows[0]["gi_wait_ms"] < 1000.0 and all(r["gi_wait_ms"] < 20.0 for r in rows[1:])
+    assert all(r["valid_frac"] == 0.0 and r["gi_age_frames"] == "" and r["raster_ms"] == "" for r in rows)
+    assert sum(r["gi_requested"] for r in rows) >= 2
 
 
 def test_leaving_the_maps_tolerance_asks_for_a_new_map(loop_renderer):
