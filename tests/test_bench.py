@@ -193,7 +193,7 @@ def test_bench_command_rejects_bad_input_with_one_error_line(args: list[str], cu
 
 def test_every_subcommand_has_out_quick_and_seed() -> None:
     group = typer.main.get_command(app)
-    assert set(group.commands) >= {"convergence", "render", "warp", "frequency", "fov", "quality", "training", "model-card", "run-default"}  # type: ignore[attr-defined]
+    assert set(group.commands) >= {"convergence", "render", "warp", "frequency", "fov", "quality", "training", "model-card", "run-default", "storage"}  # type: ignore[attr-defined]
     for name in group.commands:  # type: ignore[attr-defined]
         assert {"--out", "--quick", "--seed"} <= set(_options(app, name)), name
 
