@@ -1,0 +1,193 @@
+"""The cloud-baking client (baseline_cloudbaking.client): its remote GI source against a real server process,
+the client process end to end through a network proxy beside gigan-client, a server shut down mid-run, and
+dead links that must end in a timeout, never a hang. All on 127.0.0.1 with ephemeral ports, at 64²."""
+
+from __future__ import annotations
+
+import csv
+import json
+import logging
+import subprocess
+import time
+from pathlib import Path
+
+import httpx
+import pytest
+
+from baseline_cloudbaking.client import STAGES, RemoteConfig, RemoteSource
+from gicore.loop import path_views
+from gicore.scene import load_scene
+from network_sim.process import Running, network_sim
+from tests.cloud_fixtures import BIN, RES, SPP, server_process, write_scenes
+
+#: Stages every frame that binds a cloud map reports: the local DI, the map's own stages (a miss), the
+#: pixel-level warp's (``raster`` is its surface-mask pass), the composition.
+CLOUD_FRAME_STAGES = ("di", "request", "lookup", "render", "denoise", "encode", "server_other", "transfer", "decode")
+CLOUD_FRAME_STAGES += ("bind", "raster", "project", "splat", "fill", "compose")
+GIGAN_FRAME_STAGES = ("di", "gi_render", "inference", "bind", "raster", "project", "depth_test", "lookup", "fill", "compose")
+
+
+def passthrough_model(folder: Path, resolution: int = RES) -> Path:
+    """A real ONNX "generator" (one Slice node: it returns its DI input channels) with the model.json that
+    ``gigan-export`` writes: onnxruntime runs it at ``resolution`` like the shipped model at 256²."""
+    import onnx
+    from onnx import TensorProto, helper
+
+    from gigan_local.inference import FORMAT, MODEL_JSON
+    from gigan_local.preprocess import InputSpec
+
+    spec = InputSpec()
+    x = helper.make_tensor_value_info("x", TensorProto.FLOAT, [1, spec.in_channels, resolution, resolution])
+    y = helper.make_tensor_value_info("y", TensorProto.FLOAT, [1, 3, resolution, resolution])
+    consts = [helper.make_tensor(n, TensorProto.INT64, [1], [v]) for n, v in (("start", 0), ("end", 3), ("axis", 1))]
+    graph = helper.make_graph([helper.make_node("Slice", ["x", "start", "end", "axis"], ["y"])], "di_passthrough", [x], [y], consts)
+    folder.mkdir(parents=True, exist_ok=True)
+    onnx.save(helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)], ir_version=8), folder / "model.onnx")
+    doc = {"format": FORMAT, "model": "passthrough", "input": spec.to_dict(), "resolution": resolution, "ngf": 0, "files": {"fp32": "model.onnx"}}
+    (folder / MODEL_JSON).write_text(json.dumps(doc))
+    return folder / "model.onnx"
+
+
+def read_csv(path: Path) -> list[dict[str, str]]:
+    with path.open(newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+@pytest.fixture(scope="module")
+def scenes_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return write_scenes(tmp_path_factory.mktemp("client_scenes"))
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory: pytest.TempPathFactory, scenes_dir: Path):
+    with server_process(tmp_path_factory.mktemp("client_store"), scenes_dir, "--max-spp", "16") as url:
+        yield url
+
+
+def remote(url: str, **changes) -> RemoteConfig:
+    return RemoteConfig(url, "ball_moving", RES, "jpeg", SPP, **changes)
+
+
+def views(scenes_dir: Path, frames: int):
+    spec = load_scene(scenes_dir / "ball_moving.json")
+    return spec, [(cam.with_fov(90.0), light) for cam, light in path_views(spec, frames, 300, 0, 60.0, RES)]
+
+
+def test_remote_source_splits_a_miss_and_a_hit_into_stages(server: str, scenes_dir: Path) -> None:
+    _, [(camera, light)] = views(scenes_dir, 1)
+    camera = camera.with_fov(71.0)  # a GI format no other test asks for: the first request must miss
+    with RemoteSource(remote(server)) as source:
+        source.warm_up(camera, light)
+        assert source.request(camera, light, 0) is True
+        assert source.request(camera, light, 1) is False  # one request in flight at most
+        assert source.wait(60.0)
+        assert source.request(camera, light, 2) is True and source.wait(60.0)
+        miss, hit = source.records
+        gi = source.latest()
+    assert (miss["status"], miss["hit"], hit["status"], hit["hit"]) == ("ok", 0, "ok", 1)
+    assert all(miss[f"{s}_ms"] > 0 for s in ("render", "denoise", "encode", "request", "decode")) and miss["read_ms"] == ""
+    assert hit["read_ms"] > 0 and hit["render_ms"] == "" and hit["server_ms"] < miss["server_ms"]
+    for record in (miss, hit):  # the stages add up to the request's latency; transmission is its network share
+        stages = sum(record[f"{s}_ms"] for s in STAGES if record[f"{s}_ms"] != "")
+        assert abs(stages - record["latency_ms"]) < 1.0, record
+        assert record["transmission_ms"] == pytest.approx(record["request_ms"] + record["transfer_ms"])
+        assert 200 < record["bytes_up"] < 1000 and record["bytes_down"] > 2 * 1024
+    assert gi.frame == 2 and gi.camera == camera.with_fov(71.0) and gi.radiance.shape == (RES, RES, 3) and (gi.depth > 0).mean() > 0.3
+    assert sum(gi.stages.values()) == pytest.approx(gi.latency_ms, abs=1.0)
+
+
+@pytest.mark.slow
+def test_both_clients_end_to_end_through_a_proxy(server: str, scenes_dir: Path, tmp_path: Path) -> None:
+    """Server + proxy (15 ms each way) + cloudbaking-client, and gigan-client on the same path: every stage in
+    every CSV; the request stage holds the proxy's round trip."""
+    scene = str(scenes_dir / "ball_moving.json")
+    common = ["--scene", scene, "--frames", "8", "--resolution", str(RES), "-k", "2", "--spp", str(SPP), "--gt-every", "4", "--no-denoise"]
+    with network_sim("proxy", "--upstream", server.removeprefix("http://"), "--delay-ms", "15") as proxy:
+        url = "http://{}:{}".format(*proxy.addr)
+        cloud = subprocess.run([str(BIN / "cloudbaking-client"), "--server", url, *common, "--out", str(tmp_path / "cloud")],
+                               capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert cloud.returncode == 0, cloud.stderr
+    model = passthrough_model(tmp_path / "model")
+    gigan = subprocess.run([str(BIN / "gigan-client"), *common, "--gi-source", "model", "--model", str(model), "--out", str(tmp_path / "gigan")],
+                           capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert gigan.returncode == 0, gigan.stderr
+
+    for system, stages in (("cloud", CLOUD_FRAME_STAGES), ("gigan", GIGAN_FRAME_STAGES)):
+        frames = read_csv(tmp_path / system / "frames.csv")
+        assert [r["frame"] for r in frames] == [str(f) for f in range(8)]
+        first = frames[0]  # binds the run's first map (a miss for the cloud client)
+        assert first["gi_new"] == "1" and all(float(first[f"{s}_ms"]) > 0 for s in stages), (system, first)
+        assert all(float(r["frame_ms"]) > 0 and float(r["valid_frac"]) > 0.5 for r in frames)
+        assert [bool(r["ssim"]) for r in frames] == [f % 4 == 0 for f in range(8)] and all(0.2 < float(r["ssim"]) <= 1 for r in frames if r["ssim"])
+    requests = read_csv(tmp_path / "cloud" / "requests.csv")
+    shown = [r for r in requests if r["total_ms"]]
+    assert shown and all(r["status"] in ("ok", "abandoned") for r in requests)
+    for r in shown:
+        assert float(r["request_ms"]) >= 29.0, r  # the proxy's 2 x 15 ms round trip is in the request stage
+        parts = sum(float(r[f"{s}_ms"]) for s in STAGES if r[f"{s}_ms"]) + sum(float(r[c]) for c in ("bind_ms", "warp_ms", "blend_ms"))
+        assert float(r["total_ms"]) == pytest.approx(parts)
+    assert shown[0]["hit"] == "0" and float(shown[0]["render_ms"]) > 0
+    summary = json.loads((tmp_path / "cloud" / "summary.json").read_text())
+    assert summary["requests"] == len(requests) and summary["misses"] >= 1 and 0 < summary["mean_ssim"] <= 1
+
+
+@pytest.mark.slow
+def test_client_survives_the_server_shutting_down(scenes_dir: Path, tmp_path: Path) -> None:
+    """kill -9 of the server once two maps were served: the client logs the failed requests and composes
+    every remaining frame with its last map."""
+    argv = [str(BIN / "cloudbaking-server"), "--port", "0", "--store", str(tmp_path / "store"), "--scenes", str(scenes_dir)]
+    with Running(argv, timeout=60.0) as srv:
+        url = "{}:{}".format(*srv.addr)
+        client = subprocess.Popen(
+            [str(BIN / "cloudbaking-client"), "--server", url, "--scene", str(scenes_dir / "ball_moving.json"), "--frames", "150",
+             "--resolution", str(RES), "-k", "2", "--spp", str(SPP), "--out", str(tmp_path / "run")],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        )  # fmt: skip
+        deadline = time.monotonic() + 90
+        while httpx.get(f"{url}/v1/stats", timeout=10).json()["requests"] < 2:
+            assert time.monotonic() < deadline and client.poll() is None, "the client did not get two maps"
+            time.sleep(0.02)
+        srv.proc.kill()
+        out, err = client.communicate(timeout=120)
+    assert client.returncode == 0, err
+    requests = read_csv(tmp_path / "run" / "requests.csv")
+    frames = read_csv(tmp_path / "run" / "frames.csv")
+    failed = [r for r in requests if r["status"] == "connection"]
+    assert failed and "failed: connection" in err and f"{len(failed)} connection" in out
+    last = max((r for r in requests if r["bound_frame"]), key=lambda r: int(r["bound_frame"]))
+    after = frames[int(last["bound_frame"]) + 1 :]
+    assert len(frames) == 150 and len(after) > 10
+    assert all(r["gi_new"] == "0" and float(r["valid_frac"]) > 0.5 and float(r["gi_wait_ms"]) < 50 for r in after)
+    assert int(after[-1]["gi_age_frames"]) == 149 - int(last["frame"])  # still the last map, ageing
+
+
+@pytest.mark.parametrize("link", [["--rate-mbit", "0"], ["--loss", "1"]], ids=["zero_rate", "full_loss"])
+def test_a_dead_link_ends_in_a_timeout_never_a_hang(server: str, scenes_dir: Path, link: list[str], caplog) -> None:
+    """Nothing passes the proxy: the request fails at the read timeout and is logged; the loop waits once for
+    the first map (its timeout), then shows the DI without waiting again."""
+    from baseline_cloudbaking.warp import PixelWarp
+    from gicore.loop import ClientLoop, LoopConfig
+    from gicore.render import Renderer
+
+    spec, path = views(scenes_dir, 3)
+    with network_sim("proxy", "--upstream", server.removeprefix("http://"), *link) as proxy:
+        cfg = remote("http://{}:{}".format(*proxy.addr), read_timeout_s=0.5, deadline_s=2.0, retry_after_s=30.0)
+        with caplog.at_level(logging.WARNING, logger="cloudbaking.client"), RemoteSource(cfg) as source:
+            renderer = Renderer(spec, RES)
+            loop = ClientLoop(LoopConfig(every=1, gi_fov=90.0, first_map_timeout_s=1.5), renderer, source, PixelWarp(renderer))
+            t0 = time.perf_counter()
+            rows = [loop.step(f, cam.with_fov(60.0), light).row for f, (cam, light) in enumerate(path)]
+            elapsed = time.perf_counter() - t0
+    assert elapsed < 5.0
+    [record] = source.records
+    assert record["status"] == "timeout" and 400 < record["latency_ms"] < 2500 and source.latest() is None
+    assert any("failed: timeout" in m for m in caplog.messages)
+    assert 1000 < rows[0]["gi_wait_ms"] < 2500 and all(r["gi_wait_ms"] < 50 and r["valid_frac"] == 0 for r in rows[1:])
+    assert [r["gi_requested"] for r in rows] == [1, 0, 0]  # retry_after holds the next request back
+
+
+def test_timeouts_are_explicit() -> None:
+    timeout = RemoteConfig("http://127.0.0.1:1", "s", connect_timeout_s=2.0, read_timeout_s=3.0).timeout()
+    assert (timeout.connect, timeout.read, timeout.write, timeout.pool) == (2.0, 3.0, 3.0, 2.0)
+    with pytest.raises(ValueError, match="read_timeout_s"):
+        RemoteConfig("http://127.0.0.1:1", "s", read_timeout_s=0.0)
