@@ -1,9 +1,11 @@
 """Serving GI maps: look up the GI tree, or bake (render, denoise, encode), insert and serve.
 
 No FastAPI here: the routers call :meth:`MapService.serve` from a worker thread (plain ``def`` routes),
-never on the event loop. Mitsuba renderers are not thread-safe, so each scene has a lock held while one
-of its maps is baked; lookups take no lock, so hits are served while a miss of the same scene renders.
-A miss re-checks the tree once it holds the lock, so concurrent identical misses bake once.
+never on the event loop. Mitsuba is not thread-safe, not even across scenes: two threads rendering two
+different scenes fail inside Dr.Jit ("jit_var_sub ... incompatible sizes", measured), so one render lock
+serializes all baking (a render already uses every core). Lookups take no lock, so hits are served
+while a miss renders. A miss re-checks the tree once it holds the lock, so concurrent identical misses
+bake once.
 """
 
 from __future__ import annotations
@@ -50,7 +52,7 @@ class MapService:
         self.store = store
         self.catalog = catalog
         self._renderers: OrderedDict[tuple[str, int], Renderer] = OrderedDict()
-        self._scene_locks: dict[str, threading.Lock] = {}
+        self._render_lock = threading.Lock()
         self._lock = threading.Lock()
         self.counters = {"requests": 0, "hits": 0, "misses": 0}
 
@@ -74,7 +76,7 @@ class MapService:
         return self.settings.light_cell if spec.light.moves else None
 
     def _renderer(self, name: str, spec: SceneSpec, resolution: int) -> Renderer:
-        """The compiled scene at ``resolution`` (caller holds the scene lock); least recently used ones
+        """The compiled scene at ``resolution`` (caller holds the render lock); least recently used ones
         beyond ``max_renderers`` are dropped."""
         from gicore.render import Renderer
 
@@ -93,10 +95,6 @@ class MapService:
             while len(self._renderers) > self.settings.max_renderers:
                 self._renderers.popitem(last=False)
         return renderer
-
-    def _scene_lock(self, name: str) -> threading.Lock:
-        with self._lock:
-            return self._scene_locks.setdefault(name, threading.Lock())
 
     def stats(self) -> dict[str, Any]:
         """The store's statistics and this service's request counters."""
@@ -137,7 +135,7 @@ class MapService:
             self.counters["requests"] += 1
         hit = self.store.lookup(key, view)
         if hit is None:
-            with self._scene_lock(req.scene):
+            with self._render_lock:
                 hit = self.store.lookup(key, view)  # baked by a concurrent request while we waited?
                 if hit is None:
                     return self._bake(req, spec, camera, light, key, view, t0)
@@ -151,7 +149,7 @@ class MapService:
         return with_header(hit.payload, extra, drop=() if req.di else ("di",)), extra
 
     def _bake(self, req: GIMapRequest, spec: SceneSpec, camera, light, key: MapKey, view: Viewpoint, t0: float) -> tuple[bytes, dict[str, Any]]:
-        """Render, encode and insert the map for ``req`` (the scene lock is held)."""
+        """Render, encode and insert the map for ``req`` (the render lock is held)."""
         lookup_ms = _ms(t0)
         renderer = self._renderer(req.scene, spec, req.resolution)
         c = req.camera
