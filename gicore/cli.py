@@ -85,9 +85,28 @@ def run(app: typer.Typer, argv: Sequence[str] | None = None, *, prog_name: str |
             raise
         _fail(_oserror_line(exc))
     except (KeyboardInterrupt, typer.Abort):
-        print(f"\ninterrupted: {resume or 'nothing half-written was kept; run the command again'}", file=sys.stderr)
-        sys.exit(EXIT_INTERRUPTED)
+        _interrupted(resume)
+    except Exception as exc:
+        if not debug and _caused_by_interrupt(exc):  # e.g. Dr.Jit wraps a Ctrl-C during a render in a RuntimeError
+            _interrupted(resume)
+        raise
     sys.exit(0)
+
+
+def _caused_by_interrupt(exc: BaseException) -> bool:
+    seen: set[int] = set()
+    cause: BaseException | None = exc
+    while cause is not None and id(cause) not in seen:
+        if isinstance(cause, KeyboardInterrupt):
+            return True
+        seen.add(id(cause))
+        cause = cause.__cause__ or cause.__context__
+    return False
+
+
+def _interrupted(resume: str | None) -> NoReturn:
+    print(f"\ninterrupted: {resume or 'nothing half-written was kept; run the command again'}", file=sys.stderr)
+    sys.exit(EXIT_INTERRUPTED)
 
 
 def _fail(line: str) -> NoReturn:

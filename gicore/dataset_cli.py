@@ -99,12 +99,10 @@ def _init_pool_worker(spec_dict: dict, resolution: int, threads: int) -> None:
     _init_worker(spec_dict, resolution, threads)
 
 
-def _render_one(job: tuple[str, dict, list | None, tuple[str, ...], int, bool, int]) -> float:
+def _render_one(job: tuple[str, dict, list | None, tuple[str, ...], int, bool, int]) -> None:
     path, cam, light, buffers, spp, denoise, seed = job
-    t0 = time.perf_counter()
     frame = _worker_renderer.render_frame(Camera.from_dict(cam), light, buffers, spp=spp, seed=seed, denoise=denoise)
     save_frame(Path(path), frame)
-    return time.perf_counter() - t0
 
 
 def build_dataset(spec: SceneSpec, root: Path, cfg: DatasetConfig, workers: int = 1, progress: bool = True) -> DatasetMeta:

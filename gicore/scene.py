@@ -175,7 +175,7 @@ def builtin_scenes() -> list[str]:
 
 def load_scene(name_or_path: str | Path) -> SceneSpec:
     """Load a built-in scene by name, or a ``.toml``/``.json`` file; relative mesh paths resolve
-    against the spec file's folder."""
+    against the spec file's folder (and are stored absolute)."""
     path = Path(name_or_path)
     if not path.suffix and (BUILTIN_DIR / f"{path}.toml").is_file():
         path = BUILTIN_DIR / f"{path}.toml"
@@ -187,6 +187,6 @@ def load_scene(name_or_path: str | Path) -> SceneSpec:
     except (tomllib.TOMLDecodeError, ValueError) as err:  # syntax, or bytes that are not UTF-8 text
         raise SceneSpecError(f"{path}: cannot parse: {err}", "fix the TOML/JSON syntax") from None
     for obj in data.get("objects", []) if isinstance(data, dict) else []:
-        if isinstance(obj, dict) and isinstance(obj.get("mesh"), str) and not Path(obj["mesh"]).is_absolute():
-            obj["mesh"] = str(path.parent / obj["mesh"])
+        if isinstance(obj, dict) and isinstance(obj.get("mesh"), str):  # absolute: the spec (and a dataset's
+            obj["mesh"] = str((path.parent / obj["mesh"]).absolute())  # meta.json) must not depend on the cwd
     return SceneSpec.from_dict(data, source=str(path))

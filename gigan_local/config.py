@@ -8,14 +8,20 @@ torch (``gigan_local.networks`` builds the networks), so reading a config stays 
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import asdict, dataclass, field
+from pathlib import Path
 from typing import Any
 
 from gicore.buffers import GENERATOR_INPUTS
+from gicore.cli import UserError
 from gicore.config import strict_from_dict
+from gicore.fileio import atomic_write_bytes
 from gigan_local.preprocess import InputSpec
 
+#: A run folder's config file: the TrainConfig and every NetworkConfig (see :func:`write_run_config`).
+CONFIG = "config.json"
 MODELS = ("gigan", "deep_shading", "deep_illumination")
 #: Fields that only bound how long a run goes on; ``--resume`` may change them, nothing else.
 BUDGET_FIELDS = ("epochs", "max_steps", "max_minutes", "max_val_frames", "checkpoint_every")
@@ -147,7 +153,7 @@ class TrainConfig:
     def __post_init__(self) -> None:
         if self.model not in MODELS:
             raise ValueError(f"unknown model {self.model!r}; choose one of {list(MODELS)}")
-        for name in ("ngf", "ndf", "batch_size", "n_critic", "epochs"):
+        for name in ("ngf", "ndf", "n_down", "crop", "batch_size", "n_critic", "epochs"):
             if getattr(self, name) is not None and getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
         if self.max_steps is not None and self.max_steps < 0:
@@ -157,6 +163,7 @@ class TrainConfig:
         if not self.lr > 0:
             raise ValueError(f"lr must be > 0, got {self.lr}")
         self.buffers = list(self.buffers)
+        InputSpec(tuple(self.buffers))  # names network inputs (the depth scale is checked once derived)
         self.datasets = [str(d) for d in self.datasets]
 
     @property
@@ -164,7 +171,7 @@ class TrainConfig:
         """Side of the training images (the crop, else the frame)."""
         if self.resolution is None:
             raise ValueError("resolution is unknown; train() reads it from the datasets")
-        return self.crop or self.resolution
+        return self.resolution if self.crop is None else self.crop
 
     def input_spec(self) -> InputSpec:
         """The generator's input contract (buffers and depth scale)."""
@@ -175,19 +182,21 @@ class TrainConfig:
     def network_configs(self) -> dict[str, NetworkConfig]:
         """Architectures this run builds: ``G`` always, ``D`` for the adversarial models."""
         side = self.train_side
+        if side > self.resolution:
+            raise ValueError(f"crop {side} exceeds the frame size {self.resolution}")
         full_down = (side & -side).bit_length() - 1  # log2 of the largest power of two dividing side
         in_ch = self.input_spec().in_channels
         if self.model == "deep_shading":
-            g = NetworkConfig("deep_shading", in_ch, 3, self.ngf, self.n_down or max(1, full_down - 2))
+            g = NetworkConfig("deep_shading", in_ch, 3, self.ngf, max(1, full_down - 2) if self.n_down is None else self.n_down)
         else:
-            g = NetworkConfig("unet", in_ch, 3, self.ngf, self.n_down or full_down)
+            g = NetworkConfig("unet", in_ch, 3, self.ngf, full_down if self.n_down is None else self.n_down)
         for s in {side, self.resolution}:
             g.check_size(s)
         nets = {"G": g}
         if self.model != "deep_shading":
             # GIGAN's critic has no norm (per-sample gradient penalty); Deep Illumination keeps pix2pix's BN.
             norm = "none" if self.model == "gigan" else "batch"
-            nets["D"] = NetworkConfig("patchgan", in_ch, 3, self.ndf or self.ngf, 3, norm=norm)
+            nets["D"] = NetworkConfig("patchgan", in_ch, 3, self.ngf if self.ndf is None else self.ndf, 3, norm=norm)
             nets["D"].check_size(side)
         return nets
 
@@ -197,3 +206,21 @@ class TrainConfig:
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "TrainConfig":
         return strict_from_dict(cls, d, "training")
+
+
+def write_run_config(out_dir: Path, cfg: TrainConfig, nets: dict[str, NetworkConfig]) -> None:
+    """Write ``config.json``: the training config and each network's architecture."""
+    doc = {"train": cfg.to_dict(), "networks": {k: v.to_dict() for k, v in nets.items()}}
+    atomic_write_bytes(out_dir / CONFIG, json.dumps(doc, indent=1).encode())
+
+
+def read_run_config(run_dir: Path) -> tuple[TrainConfig, dict[str, NetworkConfig]]:
+    """Read a run folder's ``config.json`` (see :func:`write_run_config`); UserError naming it if missing or unreadable."""
+    path = Path(run_dir) / CONFIG
+    if not path.is_file():
+        raise UserError(f"{path} is missing", f"give a training run folder made by `gigan-train` ({run_dir} is not one)")
+    try:
+        doc = json.loads(path.read_text())
+        return TrainConfig.from_dict(doc["train"]), {k: NetworkConfig.from_dict(v) for k, v in doc["networks"].items()}
+    except (ValueError, TypeError, KeyError, AttributeError) as e:  # JSON syntax, missing sections, unknown or bad fields
+        raise UserError(f"{path} is not a readable run config ({type(e).__name__}: {e})", "restore it, or train a new run with `gigan-train`") from None

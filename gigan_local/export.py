@@ -41,7 +41,8 @@ from gicore.cli import UserError
 from gicore.fileio import TMP_MARKER, atomic_write, atomic_write_bytes, exclusive_run
 from gigan_local.inference import FORMAT, MODEL_JSON
 from gigan_local.networks import define_G
-from gigan_local.train import CHECKPOINT, load_checkpoint, read_run_config
+from gigan_local.config import read_run_config
+from gigan_local.train import CHECKPOINT, load_checkpoint
 
 FILES = {"fp32": "model_fp32.onnx", "fp16": "model_fp16.onnx", "int8": "model_int8.onnx"}
 INPUT_NAME, OUTPUT_NAME = "input", "output"
@@ -170,6 +171,9 @@ def _export(run_dir: Path, out_dir: Path, opset: int, fp16: bool, int8: bool, ca
         raise ValueError(f"calibration_frames must be >= 1, got {calibration_frames}")
     generator, info = load_generator(run_dir)
     cfg, net = info["train"], info["network"]
+    # Read the int8 calibration frames before writing anything: a failed export leaves no files.
+    calibration = calibration_inputs(run_dir, "train", calibration_frames) if int8 else []
+    val = calibration_inputs(run_dir, "val", 8) if int8 else []
     x = torch.from_numpy(np.random.default_rng(seed).uniform(-1, 1, (1, net.in_channels, cfg.resolution, cfg.resolution)).astype(np.float32))
     files = {"fp32": out_dir / FILES["fp32"]}
     with warnings.catch_warnings():
@@ -194,14 +198,12 @@ def _export(run_dir: Path, out_dir: Path, opset: int, fp16: bool, int8: bool, ca
     int8_diff = None
     if int8:
         files["int8"] = out_dir / FILES["int8"]
-        calibration = calibration_inputs(run_dir, "train", calibration_frames)
         tmp = files["int8"].with_name(f"{files['int8'].name}{TMP_MARKER}{os.getpid()}")
         try:
             int8_static(files["fp32"], tmp, calibration)
             os.replace(tmp, files["int8"])
         finally:
             tmp.unlink(missing_ok=True)
-        val = calibration_inputs(run_dir, "val", 8)
         pairs = zip(_ort_outputs(files["int8"], val), _ort_outputs(files["fp32"], val))
         int8_diff = float(np.mean([np.abs(q - f).mean() for q, f in pairs]))
     doc = {

@@ -8,7 +8,7 @@ from typing import Annotated
 import typer
 
 from gicore.cli import entry_point
-from gigan_local.export import MODEL_JSON, export_onnx
+from gigan_local.inference import MODEL_JSON
 
 app = typer.Typer(add_completion=False, help="Export a trained generator to ONNX (fp32, fp16 weights, optionally int8) with model.json.")
 
@@ -23,6 +23,8 @@ def export_command(
     calibration_frames: Annotated[int, typer.Option(min=1, help="Training frames that calibrate the int8 activation ranges.")] = 32,
 ) -> None:
     """Export, then report file sizes and the onnxruntime-vs-torch difference of each variant."""
+    from gigan_local.export import export_onnx  # torch loads only once the options are known to be valid
+
     result = export_onnx(run, out, opset=opset, fp16=fp16, int8=int8, calibration_frames=calibration_frames)
     for k, path in result.files.items():
         if k == "int8":

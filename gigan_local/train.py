@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import csv
 import io
-import json
 import math
 import time
 from dataclasses import asdict, dataclass, field, fields, replace
@@ -37,14 +36,12 @@ from tqdm import tqdm
 from gicore.cli import UserError
 from gicore.fileio import atomic_write, atomic_write_bytes, exclusive_run
 from gicore.metrics import all_metrics
-from gigan_local.config import BUDGET_FIELDS, TrainConfig
+from gigan_local.config import BUDGET_FIELDS, TrainConfig, read_run_config, write_run_config
 from gigan_local.data import FrameDataset, dataset_resolution, median_foreground_depth
 from gigan_local.models import BaseModel, create_model
-from gigan_local.networks import NetworkConfig
 from gigan_local.preprocess import output_to_display
 
 CHECKPOINT = "checkpoint.pt"
-CONFIG = "config.json"
 METRICS = "metrics.csv"
 METRIC_COLUMNS = ("run_id", "model", "epoch", "step", "split", "metric", "value", "unit")
 UNITS = {"rmse": "1", "psnr": "dB", "ssim": "1", "step_seconds": "s"}
@@ -84,24 +81,6 @@ class TrainResult:
     stop_reason: str
     val_metrics: dict[str, float]
     checkpoint: Path
-
-
-def write_run_config(out_dir: Path, cfg: TrainConfig, nets: dict[str, NetworkConfig]) -> None:
-    """Write ``config.json``: the training config and each network's architecture."""
-    doc = {"train": cfg.to_dict(), "networks": {k: v.to_dict() for k, v in nets.items()}}
-    atomic_write_bytes(out_dir / CONFIG, json.dumps(doc, indent=1).encode())
-
-
-def read_run_config(run_dir: Path) -> tuple[TrainConfig, dict[str, NetworkConfig]]:
-    """Read a run folder's ``config.json`` (see :func:`write_run_config`); UserError naming it if missing or unreadable."""
-    path = Path(run_dir) / CONFIG
-    if not path.is_file():
-        raise UserError(f"{path} is missing", f"give a training run folder made by `gigan-train` ({run_dir} is not one)")
-    try:
-        doc = json.loads(path.read_text())
-        return TrainConfig.from_dict(doc["train"]), {k: NetworkConfig.from_dict(v) for k, v in doc["networks"].items()}
-    except (ValueError, TypeError, KeyError, AttributeError) as e:  # JSON syntax, missing sections, unknown or bad fields
-        raise UserError(f"{path} is not a readable run config ({type(e).__name__}: {e})", "restore it, or train a new run with `gigan-train`") from None
 
 
 def load_checkpoint(path: Path) -> dict[str, Any]:

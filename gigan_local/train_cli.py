@@ -9,8 +9,7 @@ from typing import Annotated, Literal
 import typer
 
 from gicore.cli import UserError, entry_point, require_positive
-from gigan_local.config import BUDGET_FIELDS, MODELS, TrainConfig
-from gigan_local.train import CHECKPOINT, read_run_config, train
+from gigan_local.config import BUDGET_FIELDS, MODELS, TrainConfig, read_run_config
 
 app = typer.Typer(add_completion=False, help="Train GIGAN, Deep Shading or Deep Illumination on gicore dataset folders.")
 
@@ -74,6 +73,8 @@ def train_command(
         if not datasets:
             raise UserError("no dataset folders given", "give at least one folder made by gicore-dataset (or --resume an existing run)")
         cfg = _config(**given)
+    from gigan_local.train import CHECKPOINT, train  # torch loads only once the options are known to be valid
+
     result = train(cfg, out, resume=resume, progress=progress, cache_frames=cache_frames)
     metrics = ", ".join(f"{k} {v:.4g}" for k, v in result.val_metrics.items())
     typer.echo(f"stopped ({result.stop_reason}) at step {result.step}, epoch {result.epoch}; val {metrics}; checkpoint {out / CHECKPOINT}")

@@ -13,11 +13,11 @@ from typer.testing import CliRunner
 
 from gicore.cli import UserError
 from gicore.dataset import DatasetMeta, FrameRecord, save_frame, write_meta
-from gigan_local.config import TrainConfig
+from gigan_local.config import TrainConfig, read_run_config
 from gigan_local.data import FrameDataset
 from gigan_local.models import GIGAN, create_model
 from gigan_local.preprocess import InputSpec, frame_to_input, frame_to_target, output_to_radiance
-from gigan_local.train import METRIC_COLUMNS, TrainingDiverged, load_checkpoint, read_run_config, train
+from gigan_local.train import METRIC_COLUMNS, TrainingDiverged, load_checkpoint, train
 from gigan_local.train_cli import app
 
 BUFFERS = ["di", "gt", "albedo", "normal", "depth"]

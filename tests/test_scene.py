@@ -347,3 +347,14 @@ def test_a_valid_mesh_loads_once_for_spec_and_renderer(sphere_mesh_path):
     geometry.object_mesh.cache_clear()
     geometry.scene_objects(spec)
     assert _load_mesh.cache_info().misses == 1 and _load_mesh.cache_info().hits >= 1
+
+
+def test_relative_mesh_paths_do_not_depend_on_the_working_directory(tmp_path, sphere_mesh_path, monkeypatch):
+    """A dataset's meta.json stores the spec: loading the same spec file from another folder must give the
+    same spec, or a resumed run would be refused as "made with other settings"."""
+    (tmp_path / "ball.obj").write_bytes(sphere_mesh_path.read_bytes())
+    (tmp_path / "s.toml").write_text('name = "s"\n[[objects]]\nname = "b"\nmesh = "ball.obj"\n[light]\nposition = [0, 2, 0]\nintensity = 3.0\n')
+    monkeypatch.chdir(tmp_path)
+    here = load_scene("s.toml")
+    monkeypatch.chdir(tmp_path.parent)
+    assert load_scene(f"{tmp_path.name}/s.toml") == here and here.objects[0].mesh.is_absolute()
