@@ -14,7 +14,10 @@ $(STAMP): pyproject.toml scripts/setup.sh
 run: setup
 	$(PY) -m bench run-default --out $(OUT)
 
+# Lint and format checks first (fast), then the tests.
 test: setup
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/ruff format --check .
 	$(PY) -m pytest -q
 
 clean:

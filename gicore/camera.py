@@ -68,7 +68,10 @@ class Camera:
         if not 0.0 < self.fov < 180.0:
             raise ValueError(f"camera.fov must lie strictly between 0 and 180 degrees, got {self.fov}")
         if not NEAR_MIN <= self.near < self.far <= FAR_MAX:
-            raise ValueError(f"camera.near/far must satisfy {NEAR_MIN:g} <= near < far <= {FAR_MAX:g} (what the renderer represents), got near={self.near}, far={self.far}")
+            raise ValueError(
+                f"camera.near/far must satisfy {NEAR_MIN:g} <= near < far <= {FAR_MAX:g} (what the renderer represents), "
+                f"got near={self.near}, far={self.far}"
+            )
         for name in ("width", "height"):
             value = getattr(self, name)
             try:
@@ -147,12 +150,12 @@ class Camera:
         return np.stack([cols, rows], axis=-1), w
 
     # -- conveniences ---------------------------------------------------------------------------
-    def with_fov(self, fov: float) -> "Camera":
+    def with_fov(self, fov: float) -> Camera:
         return replace(self, fov=fov)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "Camera":
+    def from_dict(cls, d: dict[str, Any]) -> Camera:
         return strict_from_dict(cls, d, "camera")

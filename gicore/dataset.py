@@ -73,7 +73,7 @@ class DatasetMeta:
         return d
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "DatasetMeta":
+    def from_dict(cls, d: dict[str, Any]) -> DatasetMeta:
         """Parse a ``meta.json`` document; ValueError names a wrong version or an unknown/missing field."""
         if not isinstance(d, dict) or d.get("format_version") != FORMAT_VERSION:
             version = d.get("format_version") if isinstance(d, dict) else None
@@ -158,5 +158,7 @@ def frame_paths(root: Path, split: str) -> list[Path]:
     paths = [root / f.file for f in read_meta(root).split_frames(split)]
     missing = [p for p in paths if not p.is_file()]
     if missing:
-        raise UserError(f"{len(missing)} frame(s) of {root} are missing, e.g. {missing[0]}", "rerun `gicore-dataset` with the same options to finish it")
+        raise UserError(
+            f"{len(missing)} frame(s) of {root} are missing, e.g. {missing[0]}", "rerun `gicore-dataset` with the same options to finish it"
+        )
     return paths

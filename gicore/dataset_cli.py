@@ -169,7 +169,9 @@ def dataset_command(
         t0 = time.perf_counter()
         meta = build_dataset(spec, root, cfg, workers)
         size = sum(p.stat().st_size for p in root.rglob("*.npz"))
-        typer.echo(f"{spec.name}: {len(meta.frames)} frames in {root} ({size / len(meta.frames) / 1024:.0f} KiB/frame, {time.perf_counter() - t0:.1f} s)")
+        typer.echo(
+            f"{spec.name}: {len(meta.frames)} frames in {root} ({size / len(meta.frames) / 1024:.0f} KiB/frame, {time.perf_counter() - t0:.1f} s)"
+        )
 
 
 main = entry_point(app, resume="finished frames are kept: run the same command again to render the rest")

@@ -44,10 +44,7 @@ class Mesh:
         if not np.all(np.isfinite(vertices)):
             raise ValueError("vertices contain NaN or infinite values")
         if faces.size and (faces.min() < 0 or faces.max() >= len(vertices)):
-            raise ValueError(
-                f"face indices must lie in [0, {len(vertices) - 1}], "
-                f"got range [{faces.min()}, {faces.max()}]"
-            )
+            raise ValueError(f"face indices must lie in [0, {len(vertices) - 1}], got range [{faces.min()}, {faces.max()}]")
         # Frozen dataclass: the coerced arrays replace the inputs once, here.
         object.__setattr__(self, "vertices", np.ascontiguousarray(vertices))
         object.__setattr__(self, "faces", np.ascontiguousarray(faces, dtype=np.int32))
@@ -75,9 +72,7 @@ class Mesh:
         normals = np.zeros_like(v)
         for corner in range(3):
             for axis in range(3):
-                normals[:, axis] += np.bincount(
-                    self.faces[:, corner], weights=face_n[:, axis], minlength=len(v)
-                )
+                normals[:, axis] += np.bincount(self.faces[:, corner], weights=face_n[:, axis], minlength=len(v))
         length = np.linalg.norm(normals, axis=1)
         lonely = length < 1e-20
         normals[lonely] = (0.0, 1.0, 0.0)

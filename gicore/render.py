@@ -73,7 +73,7 @@ class LightState:
     position: tuple[float, float, float]
 
 
-def _mesh_to_mitsuba(obj: SceneObject) -> "mi.Mesh":
+def _mesh_to_mitsuba(obj: SceneObject) -> mi.Mesh:
     bsdf: dict = {"type": "diffuse", "reflectance": {"type": "rgb", "value": list(obj.albedo)}}
     if obj.roughness is not None:
         bsdf = {
@@ -150,7 +150,7 @@ class Renderer:
         self._light: tuple[float, float, float] = tuple(light.position)
 
     # -- state updates ---------------------------------------------------------------------------
-    def _area_light_transform(self, position) -> "mi.ScalarTransform4f":
+    def _area_light_transform(self, position) -> mi.ScalarTransform4f:
         s = self.spec.light.size / 2.0
         return mi.ScalarTransform4f().translate(list(position)).rotate([1, 0, 0], 90).scale([s, s, 1.0])
 
@@ -296,7 +296,9 @@ class Renderer:
         normal = gbuffers["normal"]
         return pyoidn.denoise(np.ascontiguousarray(color), np.ascontiguousarray(gbuffers["albedo"]), np.ascontiguousarray(normal), hdr=True)
 
-    def render_frame(self, camera: Camera, light=None, buffers=DATASET_BUFFERS, spp: int = 64, seed: int = 0, denoise: bool = False) -> dict[str, np.ndarray]:
+    def render_frame(
+        self, camera: Camera, light=None, buffers=DATASET_BUFFERS, spp: int = 64, seed: int = 0, denoise: bool = False
+    ) -> dict[str, np.ndarray]:
         """Render exactly the named buffers for one frame (see :mod:`gicore.buffers`)."""
         wanted = check_buffer_names(list(buffers))
         needs_gbuffers = bool(set(GBUFFERS) & set(wanted)) or (denoise and "gt" in wanted)

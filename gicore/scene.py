@@ -74,7 +74,7 @@ class ObjectSpec(_Strict):
     roughness: float = Field(0.35, gt=0.0, le=1.0)
 
     @model_validator(mode="after")
-    def _one_readable_source(self) -> "ObjectSpec":
+    def _one_readable_source(self) -> ObjectSpec:
         if (self.anatomy is None) == (self.mesh is None):
             raise ValueError(f"give exactly one of 'anatomy' (one of {get_args(AnatomyKind)}) or 'mesh' (a file path)")
         if self.mesh is not None:
@@ -130,7 +130,7 @@ class CameraPathSpec(_Strict):
     far: float = 100.0
 
     @model_validator(mode="after")
-    def _near_far(self) -> "CameraPathSpec":
+    def _near_far(self) -> CameraPathSpec:
         if not NEAR_MIN <= self.near < self.far <= FAR_MAX:
             raise ValueError(f"near = {self.near:g}, far = {self.far:g}: the renderer represents {NEAR_MIN:g} <= near < far <= {FAR_MAX:g}")
         return self
@@ -147,14 +147,14 @@ class SceneSpec(_Strict):
     resolution: int = Field(256, ge=8, le=2048)
 
     @model_validator(mode="after")
-    def _unique_names(self) -> "SceneSpec":
+    def _unique_names(self) -> SceneSpec:
         names = [o.name for o in self.objects]
         if len(set(names)) != len(names):
             raise ValueError(f"object names must be unique, got {names}")
         return self
 
     @classmethod
-    def from_dict(cls, data: dict[str, Any], source: str = "scene spec") -> "SceneSpec":
+    def from_dict(cls, data: dict[str, Any], source: str = "scene spec") -> SceneSpec:
         try:
             return cls.model_validate(data)
         except ValidationError as err:
@@ -162,7 +162,9 @@ class SceneSpec(_Strict):
             for e in err.errors():
                 where = ".".join(str(p) for p in e["loc"]) or "(top level)"
                 fields.append(f"{where}: {e['msg'].removeprefix('Value error, ')}")
-            raise SceneSpecError(f"{source}: {len(fields)} invalid field(s): " + "; ".join(fields), "fix them (each field is documented in gicore/scene.py)") from None
+            raise SceneSpecError(
+                f"{source}: {len(fields)} invalid field(s): " + "; ".join(fields), "fix them (each field is documented in gicore/scene.py)"
+            ) from None
 
     def to_dict(self) -> dict[str, Any]:
         return self.model_dump(mode="json")

@@ -31,7 +31,9 @@ def client_command(
     gi_fov: Annotated[float | None, typer.Option(help="GI-camera FOV in degrees, in (0, 180) (default: the scene's, 90)")] = None,
     local_fov: Annotated[float | None, typer.Option(help="local-camera FOV in degrees, in (0, 180) (default: the scene's, 60)")] = None,
     orbit_frames: Annotated[int, typer.Option(min=1, help="frames per full orbit of the camera path (motion per frame)")] = 300,
-    tau: Annotated[float, typer.Option(min=0.0, max=1.0, help="eq. 1 weight of DI in the blend (0: the GI map alone, which already holds direct light)")] = 0.0,
+    tau: Annotated[
+        float, typer.Option(min=0.0, max=1.0, help="eq. 1 weight of DI in the blend (0: the GI map alone, which already holds direct light)")
+    ] = 0.0,
     composition: Annotated[Literal[COMPOSITIONS], typer.Option(help="blend (eq. 1) or residual (current DI + warped indirect)")] = "blend",  # type: ignore[valid-type]
     warp: Annotated[Literal[WARPS], typer.Option(help="structure (Alg. 1) or none (the map pasted as is, made at the local FOV)")] = "structure",  # type: ignore[valid-type]
     gi_source: Annotated[Literal[GI_SOURCES], typer.Option(help="model (ONNX generator) or gt (path-traced GT stand-in)")] = "gt",  # type: ignore[valid-type]
@@ -54,9 +56,23 @@ def client_command(
         raise UserError(f"--model {model} is not a file", "give an ONNX file written by gigan-export, or leave --model out for the shipped model")
     try:
         cfg = ClientConfig(
-            scene=scene, frames=frames, resolution=resolution, every=every, gi_fov=gi_fov, local_fov=local_fov,
-            orbit_frames=orbit_frames, tau=tau, composition=composition, warp=warp, gi_source=gi_source, model=model,
-            spp=spp, denoise=denoise, gt_every=1 if with_gt else gt_every, seed=seed, threads=threads,
+            scene=scene,
+            frames=frames,
+            resolution=resolution,
+            every=every,
+            gi_fov=gi_fov,
+            local_fov=local_fov,
+            orbit_frames=orbit_frames,
+            tau=tau,
+            composition=composition,
+            warp=warp,
+            gi_source=gi_source,
+            model=model,
+            spp=spp,
+            denoise=denoise,
+            gt_every=1 if with_gt else gt_every,
+            seed=seed,
+            threads=threads,
         )
     except ValueError as err:  # a combination of options the client refuses
         raise UserError(f"invalid client options: {err}", "see 'gigan-client --help'") from None

@@ -80,7 +80,9 @@ class NetworkConfig:
         if not self.is_generator:
             # Two stride-1 4x4 convs (padding 1) after the strided ones each shrink the map by one pixel.
             if side < 3 * 2**self.n_down:
-                raise ValueError(f"{self.name} with n_down={self.n_down} needs images of at least {3 * 2**self.n_down} px, got {side}; use a larger --crop")
+                raise ValueError(
+                    f"{self.name} with n_down={self.n_down} needs images of at least {3 * 2**self.n_down} px, got {side}; use a larger --crop"
+                )
             return
         if side % (2**self.n_down) != 0:
             raise ValueError(
@@ -92,7 +94,7 @@ class NetworkConfig:
         return asdict(self)
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "NetworkConfig":
+    def from_dict(cls, d: dict[str, Any]) -> NetworkConfig:
         return strict_from_dict(cls, d, "network")
 
 
@@ -204,7 +206,7 @@ class TrainConfig:
         return asdict(self)
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "TrainConfig":
+    def from_dict(cls, d: dict[str, Any]) -> TrainConfig:
         return strict_from_dict(cls, d, "training")
 
 
@@ -223,4 +225,6 @@ def read_run_config(run_dir: Path) -> tuple[TrainConfig, dict[str, NetworkConfig
         doc = json.loads(path.read_text())
         return TrainConfig.from_dict(doc["train"]), {k: NetworkConfig.from_dict(v) for k, v in doc["networks"].items()}
     except (ValueError, TypeError, KeyError, AttributeError) as e:  # JSON syntax, missing sections, unknown or bad fields
-        raise UserError(f"{path} is not a readable run config ({type(e).__name__}: {e})", "restore it, or train a new run with `gigan-train`") from None
+        raise UserError(
+            f"{path} is not a readable run config ({type(e).__name__}: {e})", "restore it, or train a new run with `gigan-train`"
+        ) from None

@@ -16,9 +16,9 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
-from gicore.dataset import frame_paths, load_frame, read_meta
 from gicore.buffers import TARGET
 from gicore.cli import UserError
+from gicore.dataset import frame_paths, load_frame, read_meta
 from gigan_local.preprocess import InputSpec, frame_to_input, frame_to_target
 
 
@@ -70,7 +70,10 @@ class FrameDataset(Dataset):
         self._cache: dict[int, tuple[np.ndarray, np.ndarray]] | None = {} if cache else None
         self.paths = [p for r in self.roots for p in frame_paths(r, split)]
         if not self.paths:
-            raise UserError(f"the {split!r} split of {[str(r) for r in self.roots]} has no frames", f"render datasets with {split} frames (gicore-dataset --{split} N)")
+            raise UserError(
+                f"the {split!r} split of {[str(r) for r in self.roots]} has no frames",
+                f"render datasets with {split} frames (gicore-dataset --{split} N)",
+            )
 
     def set_epoch(self, epoch: int) -> None:
         """Select the epoch whose random crops ``__getitem__`` returns."""

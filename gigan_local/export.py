@@ -39,9 +39,9 @@ from onnx import TensorProto, helper, numpy_helper
 
 from gicore.cli import UserError
 from gicore.fileio import TMP_MARKER, atomic_write, atomic_write_bytes, exclusive_run
+from gigan_local.config import read_run_config
 from gigan_local.inference import FORMAT, MODEL_JSON
 from gigan_local.networks import define_G
-from gigan_local.config import read_run_config
 from gigan_local.train import CHECKPOINT, load_checkpoint
 
 FILES = {"fp32": "model_fp32.onnx", "fp16": "model_fp16.onnx", "int8": "model_int8.onnx"}
@@ -75,7 +75,10 @@ def load_generator(run_dir: Path) -> tuple[torch.nn.Module, dict[str, Any]]:
         generator.load_state_dict(ckpt["model"]["nets"]["G"])
         step = int(ckpt["state"]["step"])
     except (KeyError, TypeError, RuntimeError) as e:  # not a gigan-train checkpoint, or not of this config
-        raise UserError(f"{run_dir / CHECKPOINT} does not hold the generator described by {run_dir}/config.json ({type(e).__name__})", "export a run folder made by one `gigan-train` run") from None
+        raise UserError(
+            f"{run_dir / CHECKPOINT} does not hold the generator described by {run_dir}/config.json ({type(e).__name__})",
+            "export a run folder made by one `gigan-train` run",
+        ) from None
     generator.eval()
     info = {"train": cfg, "network": nets["G"], "step": step}
     return generator, info
@@ -117,7 +120,10 @@ def calibration_inputs(run_dir: Path, split: str, n: int) -> list[np.ndarray]:
     try:
         dataset = FrameDataset([Path(d) for d in cfg.datasets], split, cfg.input_spec())
     except UserError as e:
-        raise UserError(f"int8 export calibrates on the run's {split} frames, which are not readable ({e.what})", f"render the datasets of {run_dir}/config.json or export without --int8") from e
+        raise UserError(
+            f"int8 export calibrates on the run's {split} frames, which are not readable ({e.what})",
+            f"render the datasets of {run_dir}/config.json or export without --int8",
+        ) from e
     indices = np.unique(np.linspace(0, len(dataset) - 1, min(n, len(dataset))).round().astype(int))
     return [dataset[int(i)][0].numpy()[None] for i in indices]
 
@@ -139,8 +145,13 @@ def int8_static(fp32_path: Path, out_path: Path, calibration: list[np.ndarray]) 
     try:
         quant_pre_process(str(fp32_path), str(prepared))
         quantize_static(
-            str(prepared), str(out_path), Reader(), quant_format=QuantFormat.QOperator, per_channel=True,
-            activation_type=QuantType.QUInt8, weight_type=QuantType.QInt8,
+            str(prepared),
+            str(out_path),
+            Reader(),
+            quant_format=QuantFormat.QOperator,
+            per_channel=True,
+            activation_type=QuantType.QUInt8,
+            weight_type=QuantType.QInt8,
         )
     finally:
         prepared.unlink(missing_ok=True)
@@ -182,8 +193,14 @@ def _export(run_dir: Path, out_dir: Path, opset: int, fp16: bool, int8: bool, ca
         atomic_write(
             files["fp32"],
             lambda handle: torch.onnx.export(
-                generator, (x,), handle, dynamo=False, opset_version=opset, do_constant_folding=True,
-                input_names=[INPUT_NAME], output_names=[OUTPUT_NAME],
+                generator,
+                (x,),
+                handle,
+                dynamo=False,
+                opset_version=opset,
+                do_constant_folding=True,
+                input_names=[INPUT_NAME],
+                output_names=[OUTPUT_NAME],
                 dynamic_axes={INPUT_NAME: {0: "batch"}, OUTPUT_NAME: {0: "batch"}},
             ),
         )

@@ -19,7 +19,9 @@ def export_command(
     out: Annotated[Path, typer.Option("--out", help="Folder for model_fp32.onnx, model_fp16.onnx and model.json.")],
     opset: Annotated[int, typer.Option(min=17, help="ONNX opset (>= 17).")] = 17,
     fp16: Annotated[bool, typer.Option(help="Also write the fp16-weights variant.")] = True,
-    int8: Annotated[bool, typer.Option(help="Also write a static int8 variant, calibrated on the run's training frames (its datasets must exist).")] = False,
+    int8: Annotated[
+        bool, typer.Option(help="Also write a static int8 variant, calibrated on the run's training frames (its datasets must exist).")
+    ] = False,
     calibration_frames: Annotated[int, typer.Option(min=1, help="Training frames that calibrate the int8 activation ranges.")] = 32,
 ) -> None:
     """Export, then report file sizes and the onnxruntime-vs-torch difference of each variant."""

@@ -98,7 +98,10 @@ def prepare_config(cfg: TrainConfig, out_dir: Path) -> TrainConfig:
     roots = [Path(d) for d in cfg.datasets]
     resolution = dataset_resolution(roots, tuple(cfg.buffers))
     if cfg.resolution is not None and cfg.resolution != resolution:
-        raise UserError(f"the run was made at resolution {cfg.resolution} but the datasets are {resolution}x{resolution}", "train on datasets of the run's resolution")
+        raise UserError(
+            f"the run was made at resolution {cfg.resolution} but the datasets are {resolution}x{resolution}",
+            "train on datasets of the run's resolution",
+        )
     depth_scale = cfg.depth_scale
     if depth_scale is None:
         depth_scale = float(f"{median_foreground_depth(roots):.3g}") if "depth" in cfg.buffers else 1.0
@@ -221,7 +224,16 @@ def _train(cfg: TrainConfig, out_dir: Path, resume: bool, progress: bool, cache_
     write_run_config(out_dir, cfg, model.net_configs)  # on resume: records this invocation's budget
 
     def row(split: str, metric: str, value: float, unit: str) -> dict[str, Any]:
-        return {"run_id": cfg.run_id, "model": cfg.model, "epoch": state.epoch, "step": state.step, "split": split, "metric": metric, "value": value, "unit": unit}
+        return {
+            "run_id": cfg.run_id,
+            "model": cfg.model,
+            "epoch": state.epoch,
+            "step": state.step,
+            "split": split,
+            "metric": metric,
+            "value": value,
+            "unit": unit,
+        }
 
     def append(rows: list[dict[str, Any]]) -> None:
         n = _append_rows(metrics_path, rows)

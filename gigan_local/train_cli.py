@@ -52,20 +52,35 @@ def train_command(
     for name, value in (("--lr", lr), ("--max-minutes", max_minutes)):
         if value is not None:
             require_positive(name, value)
-    budget = {"epochs": epochs, "max_steps": max_steps, "max_minutes": max_minutes, "max_val_frames": max_val_frames, "checkpoint_every": checkpoint_every}
+    budget = {
+        "epochs": epochs,
+        "max_steps": max_steps,
+        "max_minutes": max_minutes,
+        "max_val_frames": max_val_frames,
+        "checkpoint_every": checkpoint_every,
+    }
     settings = {
         "datasets": [str(d) for d in datasets] if datasets else None,
         "model": model,
         "buffers": [b.strip() for b in buffers.split(",") if b.strip()] if buffers is not None else None,
-        "ngf": ngf, "ndf": ndf, "n_down": n_down, "crop": crop, "batch_size": batch_size, "lr": lr,
-        "n_critic": n_critic, "seed": seed, "run_id": run_id,
+        "ngf": ngf,
+        "ndf": ndf,
+        "n_down": n_down,
+        "crop": crop,
+        "batch_size": batch_size,
+        "lr": lr,
+        "n_critic": n_critic,
+        "seed": seed,
+        "run_id": run_id,
     }
     given = {k: v for k, v in (settings | budget).items() if v is not None}
     if resume:
         saved, _ = read_run_config(out)
         changed = {k: v for k, v in given.items() if k not in BUDGET_FIELDS and v != getattr(saved, k)}
         if changed:
-            raise UserError(f"--resume may change only {list(BUDGET_FIELDS)}, not {sorted(changed)}", "drop those options or start a new run in another --out")
+            raise UserError(
+                f"--resume may change only {list(BUDGET_FIELDS)}, not {sorted(changed)}", "drop those options or start a new run in another --out"
+            )
         # Budgets bound this invocation: those not given take their defaults, not the saved values.
         defaults = TrainConfig()
         cfg = replace(saved, **({f: getattr(defaults, f) for f in BUDGET_FIELDS} | given))

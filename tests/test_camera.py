@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 
 from gicore.camera import Camera
-
 from tests.conftest import RES
 
 

@@ -120,7 +120,9 @@ def workspace(tmp_path_factory: pytest.TempPathFactory, sphere_mesh_path: Path) 
     (ws / "broken.toml").write_text('name = "s"\n[light\n')
 
     # A dataset rendered by gicore-dataset (tiny), and synthetic ones with a broken meta.json or frame.
-    build_dataset(load_scene(ws / "scene.toml"), ws / "rendered" / "s", DatasetConfig(n_train=1, n_val=0, resolution=8, spp=1, denoise=False), progress=False)
+    build_dataset(
+        load_scene(ws / "scene.toml"), ws / "rendered" / "s", DatasetConfig(n_train=1, n_val=0, resolution=8, spp=1, denoise=False), progress=False
+    )
     make_dataset(ws / "ds", res=32, n_train=2, n_val=1)
     shutil.copytree(ws / "ds", ws / "ds_badmeta")
     (ws / "ds_badmeta" / "meta.json").write_text('{"format_version": 1, "scene": ')
@@ -172,14 +174,39 @@ CASES = [
     case(*DATASET, "--spp", "0", culprit="'--spp'", id="dataset-spp-0"),
     case(*DATASET, "--buffers", "gt,bogus", culprit="['bogus']", id="dataset-unknown-buffer"),
     case(*DATASET[:3], "afile", *DATASET[4:], culprit="afile/s", id="dataset-out-is-a-file"),
-    case(*DATASET[:3], "rendered", *DATASET[4:], "--spp", "2", culprit="rendered/s holds a dataset made with other settings (spp 1 -> 2", id="dataset-other-settings"),
+    case(
+        *DATASET[:3],
+        "rendered",
+        *DATASET[4:],
+        "--spp",
+        "2",
+        culprit="rendered/s holds a dataset made with other settings (spp 1 -> 2",
+        id="dataset-other-settings",
+    ),
     case(*DATASET[:3], "rendered", *DATASET[4:], culprit="another run holds rendered/s", id="dataset-folder-held", hold="rendered/s"),
     # gigan-train: datasets, run folders and option values
     case("gigan-train", "--out", "out", culprit="no dataset folders given", id="train-no-datasets"),
     case("gigan-train", "nowhere", "--out", "out", culprit="nowhere/meta.json is missing", id="train-dataset-missing"),
     case("gigan-train", "ds_badmeta", "--out", "out", culprit="ds_badmeta/meta.json is not a readable dataset description", id="train-meta-corrupt"),
-    case("gigan-train", "ds_truncated", "--out", "out", "--no-progress", culprit="ds_truncated/train/000001.npz is corrupt or truncated", id="train-frame-truncated"),
-    case("gigan-train", "rendered/s", "--out", "out", "--model", "deep_shading", culprit="the 'val' split of ['rendered/s'] has no frames", id="train-no-val-frames"),
+    case(
+        "gigan-train",
+        "ds_truncated",
+        "--out",
+        "out",
+        "--no-progress",
+        culprit="ds_truncated/train/000001.npz is corrupt or truncated",
+        id="train-frame-truncated",
+    ),
+    case(
+        "gigan-train",
+        "rendered/s",
+        "--out",
+        "out",
+        "--model",
+        "deep_shading",
+        culprit="the 'val' split of ['rendered/s'] has no frames",
+        id="train-no-val-frames",
+    ),
     case(*TRAIN[:3], "afile", *TRAIN[4:], culprit="--out afile is a file", id="train-out-is-a-file"),
     case(*TRAIN, "--ngf", "0", culprit="'--ngf'", id="train-ngf-0"),
     case(*TRAIN, "--lr", "0", culprit="--lr = 0.0", id="train-lr-0"),
@@ -191,14 +218,36 @@ CASES = [
     case(*TRAIN[:3], "run", *TRAIN[4:], culprit="--out run already holds a run", id="train-rerun-refused"),
     case("gigan-train", "--out", "run", "--resume", "--ngf", "8", culprit="not ['ngf']", id="train-resume-changes-ngf"),
     case("gigan-train", "--out", "ds", "--resume", culprit="ds/config.json is missing", id="train-resume-not-a-run"),
-    case("gigan-train", "--out", "run_badckpt", "--resume", culprit="run_badckpt/checkpoint.pt is not a readable checkpoint", id="train-checkpoint-corrupt"),
+    case(
+        "gigan-train",
+        "--out",
+        "run_badckpt",
+        "--resume",
+        culprit="run_badckpt/checkpoint.pt is not a readable checkpoint",
+        id="train-checkpoint-corrupt",
+    ),
     case("gigan-train", "--out", "run", "--resume", culprit="another run holds run", id="train-run-held", hold="run"),
     # gigan-export
     case("gigan-export", "nowhere", "--out", "out", culprit="nowhere/config.json is missing", id="export-run-missing"),
-    case("gigan-export", "run_badckpt", "--out", "out", culprit="run_badckpt/checkpoint.pt is not a readable checkpoint", id="export-checkpoint-corrupt"),
+    case(
+        "gigan-export",
+        "run_badckpt",
+        "--out",
+        "out",
+        culprit="run_badckpt/checkpoint.pt is not a readable checkpoint",
+        id="export-checkpoint-corrupt",
+    ),
     case("gigan-export", "run", "--out", "afile", culprit="--out afile is a file", id="export-out-is-a-file"),
     case("gigan-export", "run", "--out", "out", "--opset", "5", culprit="'--opset'", id="export-opset-5"),
-    case("gigan-export", "run_nodata", "--out", "out", "--int8", culprit="int8 export calibrates on the run's train frames", id="export-int8-without-data"),
+    case(
+        "gigan-export",
+        "run_nodata",
+        "--out",
+        "out",
+        "--int8",
+        culprit="int8 export calibrates on the run's train frames",
+        id="export-int8-without-data",
+    ),
     case("gigan-export", "run", "--out", "out", culprit="another run holds out", id="export-out-held", hold="out"),
     # gigan-client
     case(*CLIENT, "--gi-fov", "0", culprit="--gi-fov = 0.0", id="client-gi-fov-0"),
@@ -210,7 +259,15 @@ CASES = [
     case(*CLIENT[:2], "bad_field.toml", *CLIENT[3:], culprit="light.intensity", id="client-spec-field"),
     case(*CLIENT[:2], "mesh_nan.toml", *CLIENT[3:], culprit="meshes/nan.obj", id="client-mesh-nan-vertex"),
     case(*CLIENT, "--gi-source", "model", "--model", "missing.onnx", culprit="--model missing.onnx", id="client-model-missing"),
-    case(*CLIENT, "--gi-source", "model", "--model", "model_bad/model_fp16.onnx", culprit="model_bad/model_fp16.onnx is not a loadable ONNX model", id="client-model-corrupt"),
+    case(
+        *CLIENT,
+        "--gi-source",
+        "model",
+        "--model",
+        "model_bad/model_fp16.onnx",
+        culprit="model_bad/model_fp16.onnx is not a loadable ONNX model",
+        id="client-model-corrupt",
+    ),
     case(*CLIENT[:-1], "afile", culprit="--out afile is a file", id="client-out-is-a-file"),
 ]
 
@@ -233,7 +290,9 @@ def outcomes(workspace: Path, tmp_path_factory: pytest.TempPathFactory) -> dict[
 
 @pytest.mark.slow  # ~60 subprocesses: about a minute on 2 cores
 @pytest.mark.parametrize("argv,culprit,hold", CASES)
-def test_bad_input_is_one_clean_error_line(outcomes: dict[str, Outcome], request: pytest.FixtureRequest, argv: list[str], culprit: str, hold: str | None):
+def test_bad_input_is_one_clean_error_line(
+    outcomes: dict[str, Outcome], request: pytest.FixtureRequest, argv: list[str], culprit: str, hold: str | None
+):
     outcome = outcomes[request.node.callspec.id]
     assert list(outcome.argv) == argv
     check_user_error(outcome, culprit)
@@ -295,7 +354,13 @@ def test_interrupted_training_resumes_from_its_checkpoint(workspace: Path, tmp_p
     assert done.returncode == 130, done.stderr
     assert "Traceback" not in done.stderr and "run the same command with --resume" in done.stderr
     assert sorted(p.name for p in (tmp_path / "run_int").iterdir()) == ["checkpoint.pt", "config.json", "metrics.csv"]
-    resumed = subprocess.run([str(BIN / "gigan-train"), "--out", "run_int", "--resume", "--epochs", "2", "--no-progress"], cwd=tmp_path, capture_output=True, text=True, timeout=TIMEOUT_S)
+    resumed = subprocess.run(
+        [str(BIN / "gigan-train"), "--out", "run_int", "--resume", "--epochs", "2", "--no-progress"],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=TIMEOUT_S,
+    )
     assert resumed.returncode == 0, resumed.stderr
     assert "stopped (epochs) at step 4, epoch 2" in resumed.stdout
     with (tmp_path / "run_int" / "metrics.csv").open() as f:
@@ -321,7 +386,12 @@ def _failing_app(error: BaseException):
     [
         pytest.param(None, 2, "error: Invalid value for '--n': Input should be greater than or equal to 1: see 'prog --help'", id="usage"),
         pytest.param("user", 2, "error: scene.toml is broken: fix it", id="user-error"),
-        pytest.param(FileNotFoundError(2, "No such file or directory", "in.npz"), 2, "error: in.npz: No such file or directory: check the path and its permissions", id="oserror"),
+        pytest.param(
+            FileNotFoundError(2, "No such file or directory", "in.npz"),
+            2,
+            "error: in.npz: No such file or directory: check the path and its permissions",
+            id="oserror",
+        ),
         pytest.param(KeyboardInterrupt(), 130, "interrupted: run it again", id="ctrl-c"),
         pytest.param("wrapped-interrupt", 130, "interrupted: run it again", id="ctrl-c-wrapped"),
     ],

@@ -11,8 +11,8 @@ import pytest
 
 from gicore.buffers import STORAGE_DTYPE
 from gicore.camera import Camera
-from gicore.dataset import DatasetMeta, frame_paths, load_frame, read_meta, save_frame
 from gicore.cli import UserError
+from gicore.dataset import DatasetMeta, frame_paths, load_frame, read_meta, save_frame
 from gicore.dataset_cli import DatasetConfig, build_dataset, plan_frames
 from gicore.paths import frame_seed
 

@@ -94,7 +94,10 @@ def test_int8_export_is_calibrated_quantized_and_close_to_fp32(exported, tmp_pat
     assert "QLinearConv" in ops  # really quantized, not a renamed fp32 graph
     assert sorted(p.name for p in (tmp_path / "q").iterdir()) == ["model.json", "model_fp32.onnx", "model_int8.onnx"]
     frame = load_frame(dataset / "val" / "000000.npz")
-    q, f = GIModel(tmp_path / "q" / "model_int8.onnx", threads=1).predict(frame), GIModel(tmp_path / "q" / "model_fp32.onnx", threads=1).predict(frame)
+    q, f = (
+        GIModel(tmp_path / "q" / "model_int8.onnx", threads=1).predict(frame),
+        GIModel(tmp_path / "q" / "model_fp32.onnx", threads=1).predict(frame),
+    )
     assert np.abs(q - f).mean() < 0.05 * max(float(f.mean()), 1e-3) + 1e-3
 
 

@@ -101,8 +101,7 @@ def _fixed_batch(n: int, res: int) -> tuple[torch.Tensor, torch.Tensor]:
     rng = np.random.default_rng(0)
     frames = [synthetic_frame(rng, res) for _ in range(n)]
     spec = InputSpec(depth_scale=2.0)
-    return (torch.from_numpy(np.stack([frame_to_input(f, spec) for f in frames])),
-            torch.from_numpy(np.stack([frame_to_target(f) for f in frames])))
+    return (torch.from_numpy(np.stack([frame_to_input(f, spec) for f in frames])), torch.from_numpy(np.stack([frame_to_target(f) for f in frames])))
 
 
 def test_gigan_halves_l1_on_one_batch():

@@ -29,9 +29,7 @@ def full_detail() -> dict[str, Mesh]:
 
 
 @pytest.mark.parametrize("kind", ANATOMY_KINDS)
-def test_full_detail_is_watertight_dense_and_outward(
-    full_detail: dict[str, Mesh], kind: str
-) -> None:
+def test_full_detail_is_watertight_dense_and_outward(full_detail: dict[str, Mesh], kind: str) -> None:
     mesh = full_detail[kind]
     assert mesh.is_watertight()
     assert mesh.n_triangles >= 20_000
@@ -48,9 +46,7 @@ def test_full_detail_is_normalized(full_detail: dict[str, Mesh], kind: str) -> N
 
 
 @pytest.mark.parametrize("kind", ANATOMY_KINDS)
-def test_lower_detail_is_coarser_and_still_watertight(
-    full_detail: dict[str, Mesh], kind: str
-) -> None:
+def test_lower_detail_is_coarser_and_still_watertight(full_detail: dict[str, Mesh], kind: str) -> None:
     coarse = generate_anatomy(kind, seed=0, detail=0.5)
     assert coarse.is_watertight()
     assert coarse.n_triangles < full_detail[kind].n_triangles
@@ -122,9 +118,7 @@ def test_transformed_translates_and_mirroring_keeps_normals_outward() -> None:
 
 def test_normalized_rests_on_ground() -> None:
     # An off-centre, stretched sphere: scale (3, 2, 1), then translate (5, -7, 2).
-    moved = _sphere().transformed(
-        np.array([[3, 0, 0, 5], [0, 2, 0, -7], [0, 0, 1, 2], [0, 0, 0, 1.0]])
-    )
+    moved = _sphere().transformed(np.array([[3, 0, 0, 5], [0, 2, 0, -7], [0, 0, 1, 2], [0, 0, 0, 1.0]]))
     lo, hi = moved.normalized(height=2.0).bounds
     assert lo[1] == 0.0 and hi[1] == pytest.approx(2.0, abs=1e-5)
     assert lo[0] + hi[0] == pytest.approx(0.0, abs=1e-5)
@@ -143,9 +137,7 @@ def test_save_load_round_trip(tmp_path, suffix: str) -> None:
     assert loaded.n_triangles == mesh.n_triangles
     assert len(loaded.vertices) == len(mesh.vertices)  # STL's per-face corners were merged back
     assert loaded.is_watertight()
-    np.testing.assert_allclose(
-        np.sort(loaded.vertices, axis=0), np.sort(mesh.vertices, axis=0), atol=1e-5
-    )
+    np.testing.assert_allclose(np.sort(loaded.vertices, axis=0), np.sort(mesh.vertices, axis=0), atol=1e-5)
     assert _signed_volume(loaded) == pytest.approx(_signed_volume(mesh), rel=1e-4)
 
 

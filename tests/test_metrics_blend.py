@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from gicore.blend import blend, residual
-from gicore.metrics import all_metrics, psnr, rmse, ssim
 from gicore.fill import push_pull
+from gicore.metrics import all_metrics, psnr, rmse, ssim
 from gicore.tonemap import GAMMA, Y_MAX, from_signed, inverse_tonemap, to_signed, tonemap
 
 RNG = np.random.default_rng(1234)

@@ -11,7 +11,6 @@ from gicore.metrics import all_metrics
 from gicore.paths import camera_path
 from gicore.render import Renderer
 from gicore.tonemap import tonemap
-
 from tests.conftest import RES
 
 ALL_BUFFERS = ("di", "gt", "albedo", "normal", "depth", "position", "mask")

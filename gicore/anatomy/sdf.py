@@ -53,10 +53,7 @@ class Volume:
         self.origin = lo - pad
         shape = np.ceil((hi - lo + 2 * pad) / self.voxel).astype(int) + 1
         self.shape = tuple(int(n) for n in shape)
-        self.axes = [
-            (self.origin[k] + self.voxel * np.arange(n)).astype(np.float32)
-            for k, n in enumerate(self.shape)
-        ]
+        self.axes = [(self.origin[k] + self.voxel * np.arange(n)).astype(np.float32) for k, n in enumerate(self.shape)]
 
     def empty(self) -> np.ndarray:
         """A field with nothing in it (everything outside)."""
@@ -172,17 +169,13 @@ class Volume:
         verts, faces, _, _ = marching_cubes(f, 0.0, spacing=(self.voxel,) * 3)
         verts = verts + self.origin
         tri = verts[faces]
-        signed_volume = np.einsum(
-            "ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])
-        ).sum()
+        signed_volume = np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])).sum()
         if signed_volume < 0:
             faces = faces[:, ::-1]
         return Mesh(verts, faces)
 
 
-def _segment_distance(
-    x: np.ndarray, y: np.ndarray, z: np.ndarray, a: np.ndarray, b: np.ndarray, ra: float, rb: float
-) -> np.ndarray:
+def _segment_distance(x: np.ndarray, y: np.ndarray, z: np.ndarray, a: np.ndarray, b: np.ndarray, ra: float, rb: float) -> np.ndarray:
     """Distance to a capsule from a to b whose radius goes linearly from ra to rb."""
     ba = b - a
     px, py, pz = x - a[0], y - a[1], z - a[2]

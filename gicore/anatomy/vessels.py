@@ -34,8 +34,15 @@ ARCH_BRANCHES = (
     (0.50, 0.015, (0.0, 1.0, 0.0)),  # left common carotid
     (0.60, 0.016, (0.5, 1.0, -0.1)),  # left subclavian
 )
-AORTA = ((-0.045, 0.66, 0.06), (-0.05, 0.84, 0.05), (-0.01, 0.93, 0.0), (0.04, 0.87, -0.05),
-         (0.035, 0.72, -0.06), (0.02, 0.55, -0.05), (0.0, 0.44, -0.04))
+AORTA = (
+    (-0.045, 0.66, 0.06),
+    (-0.05, 0.84, 0.05),
+    (-0.01, 0.93, 0.0),
+    (0.04, 0.87, -0.05),
+    (0.035, 0.72, -0.06),
+    (0.02, 0.55, -0.05),
+    (0.0, 0.44, -0.04),
+)
 ILIAC_GENERATIONS = 6
 ARCH_GENERATIONS = 3
 LENGTH_PER_RADIUS = 7.0
@@ -55,18 +62,25 @@ def build_vessels(seed: int, detail: float) -> Mesh:
     # Murray's law at the arch: what leaves through the branches no longer flows down the aorta.
     r_descending = (AORTA_RADIUS**3 - sum(r**3 for _, r, _ in ARCH_BRANCHES)) ** (1 / 3)
     arch_end = np.interp(ARCH_BRANCHES[-1][0], [0, 1], [0, s[-1]])
-    aorta_radii = np.interp(
-        s, [0.0, arch_end, s[-1]], [AORTA_RADIUS, r_descending, r_descending * TAPER]
-    )
+    aorta_radii = np.interp(s, [0.0, arch_end, s[-1]], [AORTA_RADIUS, r_descending, r_descending * TAPER])
     branches: list[Segment] = [(aorta, aorta_radii)]
 
     for fraction, radius, direction in ARCH_BRANCHES:
         origin = aorta[int(round(fraction * (len(aorta) - 1)))]
-        _grow(rng, branches, origin, np.asarray(direction, float), radius, ARCH_GENERATIONS,
-              bias=np.array((0.0, 0.6, 0.0)), roll=rng.uniform(0, np.pi))
+        _grow(
+            rng, branches, origin, np.asarray(direction, float), radius, ARCH_GENERATIONS, bias=np.array((0.0, 0.6, 0.0)), roll=rng.uniform(0, np.pi)
+        )
     # The aortic bifurcation is the first Murray split of the lower tree.
-    _split(rng, branches, aorta[-1], aorta[-1] - aorta[-4], aorta_radii[-1], ILIAC_GENERATIONS,
-           bias=np.array((0.0, -0.35, 0.0)), roll=np.pi / 2 + rng.normal(0.0, 0.1))
+    _split(
+        rng,
+        branches,
+        aorta[-1],
+        aorta[-1] - aorta[-4],
+        aorta_radii[-1],
+        ILIAC_GENERATIONS,
+        bias=np.array((0.0, -0.35, 0.0)),
+        roll=np.pi / 2 + rng.normal(0.0, 0.1),
+    )
 
     points = np.vstack([p for p, _ in branches])
     lo, hi = points.min(axis=0) - AORTA_RADIUS, points.max(axis=0) + AORTA_RADIUS
@@ -123,5 +137,4 @@ def _split(
         cos_theta = (radius**4 + r_child**4 - r_other**4) / (2 * radius**2 * r_child**2)
         theta = np.arccos(np.clip(cos_theta, -1.0, 1.0)) + rng.normal(0.0, 0.12)
         child = np.cos(theta) * d + sign * np.sin(theta) * side + bias
-        _grow(rng, branches, at, child, r_child, generations - 1, bias,
-              roll + np.pi / 2 + rng.normal(0.0, 0.4))
+        _grow(rng, branches, at, child, r_child, generations - 1, bias, roll + np.pi / 2 + rng.normal(0.0, 0.4))
