@@ -143,8 +143,9 @@ def load_frame(path: Path, buffers: list[str] | tuple[str, ...] | None = None) -
     try:
         with np.load(path, allow_pickle=False) as data:
             stored = list(data.files)
-            missing = [n for n in names or () if n not in stored]
-            arrays = {} if missing else {n: data[n].astype(np.float32) for n in names or stored}
+            wanted = stored if names is None else names
+            missing = [n for n in wanted if n not in stored]
+            arrays = {} if missing else {n: data[n].astype(np.float32) for n in wanted}
     except Exception:  # numpy's npz reader raises many types (BadZipFile, EOFError, zlib.error, ...) on bad bytes
         raise UserError(f"{path} is corrupt or truncated (not a complete .npz frame archive)", redo) from None
     if missing:
