@@ -5,8 +5,8 @@ from __future__ import annotations
 import asyncio
 import math
 import textwrap
-from enum import Enum
 from dataclasses import replace
+from enum import Enum
 from pathlib import Path
 
 import typer
@@ -40,7 +40,8 @@ def link_config(
 
     def direction(name: str, current: DirectionConfig, rate: float | None, trace: Path | None) -> DirectionConfig:
         if rate is not None and trace is not None:
-            raise UserError(f"--trace-{name} and a rate for the {name} direction were both given", f"drop one: a trace replaces the rate of the {name} direction")
+            raise UserError(f"--trace-{name} and a rate for the {name} direction were both given",
+                            f"drop one: a trace replaces the rate of the {name} direction")
         changes: dict[str, object] = {k: v for k, v in (("delay_ms", delay_ms), ("jitter_ms", jitter_ms), ("jitter_dist", jitter_dist),
                                                           ("queue_bytes", queue_bytes), ("loss", loss)) if v is not None}
         if rate is not None:
@@ -76,11 +77,11 @@ def proxy(
     """Proxy TCP connections through an emulated link until SIGTERM/SIGINT."""
     from network_sim.proxy import parse_hostport, run
 
-    config = link_config(profile, delay_ms=delay_ms, jitter_ms=jitter_ms, jitter_dist=jitter_dist and jitter_dist.value, rate_mbit=rate_mbit, rate_up_mbit=rate_up_mbit,
-                         rate_down_mbit=rate_down_mbit, queue_bytes=queue_bytes, loss=loss, trace_up=trace_up, trace_down=trace_down,
-                         window_bytes=window_bytes, seed=seed)
+    config = link_config(profile, delay_ms=delay_ms, jitter_ms=jitter_ms, jitter_dist=jitter_dist and jitter_dist.value, rate_mbit=rate_mbit,
+                         rate_up_mbit=rate_up_mbit, rate_down_mbit=rate_down_mbit, queue_bytes=queue_bytes, loss=loss, trace_up=trace_up,
+                         trace_down=trace_down, window_bytes=window_bytes, seed=seed)
     if log is not None:
-        writable_dir(log.parent if str(log.parent) else Path("."), name="--log folder")
+        writable_dir(log.parent, name="--log folder")
     run(config, parse_hostport(listen, "--listen"), parse_hostport(upstream, "--upstream"), log)
 
 

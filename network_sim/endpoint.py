@@ -106,12 +106,12 @@ async def _handle(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) ->
 async def serve(host: str, port: int) -> None:
     """Serve every mode until SIGTERM or SIGINT; prints ``listening on HOST:PORT`` first."""
     loop = asyncio.get_running_loop()
-    server = await asyncio.start_server(_handle, host, port, limit=4 * _READ_BYTES)
-    bound_host, bound_port = server.sockets[0].getsockname()[:2]
-    print(f"listening on {bound_host}:{bound_port}", flush=True)
     stop = asyncio.Event()
     for sig in (signal.SIGTERM, signal.SIGINT):
         loop.add_signal_handler(sig, stop.set)
+    server = await asyncio.start_server(_handle, host, port, limit=4 * _READ_BYTES)
+    bound_host, bound_port = server.sockets[0].getsockname()[:2]
+    print(f"listening on {bound_host}:{bound_port}", flush=True)
     await stop.wait()
     server.close()
 

@@ -30,17 +30,18 @@ Each direction of a chunk of stream bytes passes four stages:
    ``tests/test_network_link.py``), so the realised jitter keeps the configured spread instead of
    collapsing and drifting up as with per-chunk independent delays behind a FIFO (Toxiproxy).
 
-Random numbers come from :class:`random.Random` streams seeded by ``(seed, direction[, connection])``,
-so a run is reproduced by its seed and its sequence of chunk arrivals.
+Random numbers are seeded by ``(seed, direction[, connection])`` (jitter knots are hashes, loss draws a
+:class:`random.Random` stream per connection), so a run is reproduced by its seed and its chunk arrivals.
 """
 
 from __future__ import annotations
 
+import hashlib
 import math
 import random
-from array import array
 from collections import deque
 from dataclasses import dataclass, field, replace
+from statistics import NormalDist
 from typing import Literal
 
 from network_sim.trace import OPPORTUNITY_BYTES, Trace
@@ -70,6 +71,7 @@ PARETO_CAP = 4.5
 _PARETO_MEAN = PARETO_ALPHA / (PARETO_ALPHA - 1) - PARETO_CAP ** (1 - PARETO_ALPHA) / (PARETO_ALPHA - 1)
 _PARETO_STD = math.sqrt(PARETO_ALPHA / (PARETO_ALPHA - 2) - 2 * PARETO_CAP ** (2 - PARETO_ALPHA) / (PARETO_ALPHA - 2) - _PARETO_MEAN**2)
 UP, DOWN = "up", "down"
+_STANDARD_NORMAL = NormalDist()
 
 
 @dataclass(frozen=True)
@@ -273,26 +275,30 @@ def standardized(dist: str, z: float) -> float:
 class DelayProcess:
     """One direction's one-way delay as a function of the time a byte leaves the bottleneck.
 
-    Independent standard-normal knots ``Z_k`` sit every ``T = KNOT_SPACING_PER_SIGMA * jitter`` seconds;
-    between two knots ``z(t) = ((1-w) Z_k + w Z_k+1) / sqrt((1-w)^2 + w^2)`` is again exactly standard
-    normal (a unit-norm combination of independent normals), and the quantile transform
+    Independent standard-normal knots ``Z_k`` sit every ``T = max(KNOT_SPACING_PER_SIGMA * jitter, 1 ms)``
+    seconds; between two knots ``z(t) = ((1-w) Z_k + w Z_k+1) / sqrt((1-w)^2 + w^2)`` is again exactly
+    standard normal (a unit-norm combination of independent normals), and the quantile transform
     :func:`standardized` turns it into the configured distribution. So the delay at every instant has the
     configured distribution, neighbouring instants are correlated over about ``T``, and sparse probes see
     independent draws. The delay is clamped at 0 (only matters when the jitter is comparable to the delay).
+    Knot ``k`` is a hash of (seed, direction, k): the process needs no memory however long it runs.
     """
 
     def __init__(self, config: DirectionConfig, seed: int, name: str) -> None:
         self.base_s = config.delay_ms / 1000.0
         self.sigma_s = config.jitter_ms / 1000.0
         self.dist = config.jitter_dist
-        self.spacing_s = KNOT_SPACING_PER_SIGMA * self.sigma_s
-        self._rng = random.Random(f"network_sim/jitter/{seed}/{name}")
-        self._knots = array("d")
+        self.spacing_s = max(KNOT_SPACING_PER_SIGMA * self.sigma_s, 0.001)
+        self._key = f"network_sim/jitter/{seed}/{name}/".encode()
+        self._recent: dict[int, float] = {}
 
     def _knot(self, k: int) -> float:
-        while len(self._knots) <= k:
-            self._knots.append(self._rng.normalvariate(0.0, 1.0))
-        return self._knots[k]
+        if k not in self._recent:
+            if len(self._recent) > 64:
+                self._recent.clear()
+            word = int.from_bytes(hashlib.blake2b(self._key + str(k).encode(), digest_size=8).digest(), "big")
+            self._recent[k] = _STANDARD_NORMAL.inv_cdf((word + 0.5) / 2.0**64)
+        return self._recent[k]
 
     def at(self, t: float) -> float:
         """One-way delay (s) of a byte leaving the bottleneck at time ``t`` (s from the origin)."""

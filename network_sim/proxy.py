@@ -265,7 +265,7 @@ class _Connection:
         host, port = self.proxy.upstream
         try:
             await asyncio.wait_for(asyncio.get_running_loop().create_connection(lambda: self.upstream, host, port), CONNECT_TIMEOUT_S)
-        except (OSError, asyncio.TimeoutError) as exc:
+        except (TimeoutError, OSError) as exc:
             print(f"network-sim proxy: connection {self.id}: upstream {host}:{port} unreachable ({exc or 'timeout'}); closing the client",
                   file=sys.stderr, flush=True)
             self.close()
@@ -365,6 +365,9 @@ async def serve(config: LinkConfig, listen: tuple[str, int], upstream: tuple[str
     loop = asyncio.get_running_loop()
     log = ChunkLog(log_path) if log_path is not None else None
     proxy = Proxy(config, upstream, log)
+    stop = asyncio.Event()
+    for sig in (signal.SIGTERM, signal.SIGINT):  # before announcing the port: a signal right after it must stop cleanly
+        loop.add_signal_handler(sig, stop.set)
     try:
         server = await loop.create_server(proxy.accept, listen[0], listen[1])
     except OSError as exc:
@@ -372,9 +375,6 @@ async def serve(config: LinkConfig, listen: tuple[str, int], upstream: tuple[str
     host, port = server.sockets[0].getsockname()[:2]
     print(f"listening on {host}:{port}", flush=True)
     print(f"clock origin {proxy.origin!r} (CLOCK_MONOTONIC s; log and trace times count from it)", flush=True)
-    stop = asyncio.Event()
-    for sig in (signal.SIGTERM, signal.SIGINT):
-        loop.add_signal_handler(sig, stop.set)
     try:
         await stop.wait()
     finally:

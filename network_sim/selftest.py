@@ -230,8 +230,9 @@ class _Run:
                 start, end = result.first_s - origin - delay, result.last_s - origin - delay  # when the link delivered them
                 capacity = trace.capacity_bytes(start, end) * 8 / (end - start) / 1e6
                 config = {"profile": c.trace_profile, "direction": direction, "bytes": nbytes, "window_s": [start, end]}
+                ok = _within(result.goodput_mbit, capacity, 0.05 * capacity)
                 self.add(Check(f"trace goodput {c.trace_profile} {direction} (configured: capacity)", c.trace_profile, "trace_goodput", "value",
-                               "Mbit/s", result.goodput_mbit, capacity, "within 5 %", _within(result.goodput_mbit, capacity, 0.05 * capacity), config))
+                               "Mbit/s", result.goodput_mbit, capacity, "within 5 %", ok, config))
 
     def summary(self) -> None:
         intact = sum(self.transfers)
@@ -247,8 +248,9 @@ def _plot(checks: list[Check], png: Path) -> None:
     from gicore.plotting import plt, save
 
     fig, axes = plt.subplots(1, 3, figsize=(13, 4))
-    for metric, stat, ax, title in (("one_way_delay", "median", axes[0], "one-way delay (median), ms"), ("goodput", "value", axes[1], "goodput, Mbit/s"),
-                                    ("jitter_std", "std", axes[2], "jitter std, ms")):
+    panels = (("one_way_delay", "median", "one-way delay (median), ms"), ("goodput", "value", "goodput, Mbit/s"),
+              ("jitter_std", "std", "jitter std, ms"))
+    for (metric, stat, title), ax in zip(panels, axes):
         rows = [c for c in checks if c.metric == metric and c.stat == stat and c.configured is not None]
         if metric == "goodput":
             rows += [c for c in checks if c.metric == "trace_goodput"]

@@ -25,19 +25,20 @@ OPPORTUNITY_BYTES = 1500
 
 @dataclass(frozen=True)
 class Trace:
-    """A parsed trace: opportunity times in seconds within one period, and the period."""
+    """A parsed trace: opportunity times within one period, and the period (whole milliseconds, as in the
+    file, so period boundaries are exact)."""
 
     #: Where it came from (shown in errors, logs and ``network-sim profiles``).
     name: str
-    #: Opportunity times of one period, seconds, non-decreasing, last == ``period_s``.
-    times_s: tuple[float, ...]
-    #: Length of one period in seconds (the last timestamp).
-    period_s: float
+    #: Opportunity times of one period, ms, non-decreasing, the last one equal to ``period_ms``.
+    times_ms: tuple[int, ...]
+    #: Length of one period in ms (the last timestamp).
+    period_ms: int
 
     @classmethod
     def from_ms(cls, name: str, ms: list[int]) -> Trace:
         """A trace from integer millisecond timestamps (already validated)."""
-        return cls(name, tuple(m / 1000.0 for m in ms), ms[-1] / 1000.0)
+        return cls(name, tuple(ms), ms[-1])
 
     @classmethod
     def load(cls, path: Path | str) -> Trace:
@@ -52,7 +53,11 @@ class Trace:
     @property
     def opportunities(self) -> int:
         """Delivery opportunities per period."""
-        return len(self.times_s)
+        return len(self.times_ms)
+
+    @property
+    def period_s(self) -> float:
+        return self.period_ms / 1000.0
 
     @property
     def mean_mbit(self) -> float:
@@ -61,15 +66,17 @@ class Trace:
 
     def opportunity_time(self, k: int) -> float:
         """Time (s from the trace origin) of opportunity number ``k`` (0-based, counting across periods)."""
-        cycle, index = divmod(k, len(self.times_s))
-        return cycle * self.period_s + self.times_s[index]
+        cycle, index = divmod(k, len(self.times_ms))
+        return (cycle * self.period_ms + self.times_ms[index]) / 1000.0
 
     def count_until(self, t: float) -> int:
-        """Number of opportunities at times <= ``t`` (s from the origin); 0 for ``t`` < 0."""
-        if t < 0:
+        """Number of opportunities at times <= ``t`` (s from the origin; a time within 1 ns of a
+        millisecond counts as that millisecond, so float rounding never skips an opportunity)."""
+        ms = math.floor(t * 1000.0 + 1e-6)
+        if ms < 0:
             return 0
-        cycle = math.floor(t / self.period_s)
-        return cycle * len(self.times_s) + bisect.bisect_right(self.times_s, t - cycle * self.period_s)
+        cycle, rest = divmod(ms, self.period_ms)
+        return cycle * len(self.times_ms) + bisect.bisect_right(self.times_ms, rest)
 
     def capacity_bytes(self, t0: float, t1: float) -> int:
         """Bytes the link can deliver at opportunities in the window (t0, t1]."""

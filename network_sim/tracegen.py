@@ -99,8 +99,8 @@ def generate(model: TraceModel) -> list[int]:
 
 def trace_stats(trace: Trace) -> dict[str, float]:
     """Mean capacity (Mbit/s) and the 100 ms-bin statistics the models are fitted on."""
-    times = np.asarray(trace.times_s)
-    bins = np.bincount(np.minimum((times / BIN_S).astype(np.int64), int(trace.period_s / BIN_S) - 1))
+    bin_ms = round(BIN_S * 1000)
+    bins = np.bincount(np.minimum(np.asarray(trace.times_ms) // bin_ms, trace.period_ms // bin_ms - 1))
     mbit = bins * OPPORTUNITY_BYTES * 8 / BIN_S / 1e6
     return {
         "mean_mbit": trace.mean_mbit,
