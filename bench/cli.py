@@ -12,6 +12,7 @@ from bench import (
     convergence,
     fov,
     frequency,
+    latency,
     model_card,
     quality,
     render_bench,
@@ -24,7 +25,7 @@ from bench.runner import register
 from gicore.cli import entry_point
 
 #: Every ``bench`` subcommand, in the order ``bench --help`` lists them.
-BENCHES = tuple(m.BENCH for m in (run_default, convergence, render_bench, quality, training, model_card, warp_bench, frequency, fov, storage))
+BENCHES = tuple(m.BENCH for m in (run_default, convergence, render_bench, quality, training, model_card, warp_bench, frequency, fov, latency, storage))
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, help="Experiments of the GIGAN testbed (CSV + provenance + plots).")
 for _bench in BENCHES:
