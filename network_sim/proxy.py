@@ -5,12 +5,17 @@ and per direction a pipe that offers what it reads to the link model (:meth:`Str
 each chunk at the release time the model gave it. So the process does exactly what the model computes;
 what it actually did is in the optional per-chunk log (``sent_s`` next to ``release_s``).
 
-Rate, queue and delay are shared by the connections of a direction, as on one real bottleneck link;
-each connection has its own FIFO (a stream is never reordered), window and loss draws.
+Rate, queue and delay are shared by the connections of a direction, as on one real bottleneck link (two
+concurrent downloads together get the configured rate; measured by the self-test); the shared queue
+serves chunks in the order they were read, without congestion control, so concurrent bulk senders are
+served in arrival order rather than in fair shares. Each connection has its own FIFO (a stream is never
+reordered), window and loss draws.
 
 Timing: each release is a ``loop.call_at`` on an absolute deadline (errors never accumulate), and the
 event loop waits with :class:`PreciseSelector`, whose timeouts have microsecond rather than epoll's
-millisecond resolution, so a timer fires within tens of microseconds of its deadline without busy-waiting.
+millisecond resolution, so a timer fires within tens of microseconds of its deadline without busy-waiting
+(measured on the loaded 2-core machine, 5 ms delay probes: median excess 0.20 ms vs 0.48 ms with plain
+epoll, p95 0.43 vs 1.07 ms; the excess includes both loopback hops).
 
 Backpressure: a pipe stops reading its sender while the model has not admitted what it holds (queue or
 window full) or while the receiver's socket buffer is full; it never drops stream bytes.

@@ -7,7 +7,9 @@ For each setting it compares configured with realised values and checks the issu
 - one-way delay, per direction, median within max(1 ms, 3 %) of the configured delay (5 to 300 ms);
 - jitter: standard deviation of the one-way delay within 15 % of the configured one;
 - goodput of a bulk transfer (at least 2 MB or 5 s) within 5 % of the configured rate (1 to 100 Mbit/s),
-  and within 5 % of a trace's capacity over the same window;
+  and within 5 % of a trace's capacity over the same window; two concurrent downloads share the rate
+  (their sum within 5 % of it: the rate belongs to the link, not to each connection);
+- jitter on a dense stream (a rate-limited download): its mean delay and spread as configured;
 - loss: the share of delayed probes consistent with the loss probability (99 % binomial interval), and
   the delay they pay equal to the retransmission timeout within max(1 ms, 3 %);
 - the proxy's own overhead unshaped: added round-trip time p50 <= 0.3 ms, bulk >= 1 Gbit/s on loopback;
@@ -61,6 +63,8 @@ class SelftestConfig:
     bulk_bytes: int = 2_000_000
     bulk_s: float = 5.0
     bulk_max_s: float = 5.0
+    #: Rate two concurrent downloads share (their bulk is split between them).
+    shared_rate_mbit: float = 10.0
     #: Loss check: loss probability, one-way delay (ms), probes (each on its own connection).
     loss: float = 0.1
     loss_delay_ms: float = 20.0
@@ -199,6 +203,40 @@ class _Run:
                                "within 5 %", _within(result.goodput_mbit, rate, 0.05 * rate),
                                {"rate_mbit": rate, "direction": direction, "bytes": nbytes, "seconds": result.last_s - result.first_s}))
 
+    def shared_rate(self, workdir: Path) -> None:
+        """Connections of a direction share its rate, as on one bottleneck link: two concurrent downloads
+        together get the configured rate (not twice it). The shared queue is FIFO in the order chunks are
+        read and there is no congestion control, so the two are served in arrival order, not in fair shares."""
+        c = self.config
+        rate = c.shared_rate_mbit
+        nbytes = c.bulk_bytes_at(rate) // 2
+        with self.proxy("--rate-mbit", f"{rate:g}") as (addr, _):
+            with ThreadPoolExecutor(2) as pool:
+                pair = [self.transfer(r) for r in pool.map(lambda seed: endpoint.download(addr, nbytes, seed, _TIMEOUT_S), (1, 2))]
+        span = max(t.last_s for t in pair) - min(t.first_s for t in pair)
+        total = sum(t.nbytes - t.first_chunk for t in pair) * 8 / span / 1e6
+        config = {"rate_mbit": rate, "direction": "down", "connections": 2, "bytes_each": nbytes}
+        self.add(Check(f"shared rate: 2 downloads at {rate:g} Mbit/s, sum", "shared_rate", "goodput_sum", "value", "Mbit/s", total, rate,
+                       "within 5 %", _within(total, rate, 0.05 * rate), config))
+
+    def bulk_jitter(self, workdir: Path) -> None:
+        """Jitter on a dense stream (a rate-limited download, from the proxy log: write time minus the time the
+        chunk left the bottleneck): the mean delay must not drift up and the spread must not collapse, as
+        they do when per-chunk independent delays queue behind one another (Toxiproxy's latency toxic)."""
+        c = self.config
+        delay, jitter, rate = 30.0, 3.0, 10.0
+        log = workdir / "bulk_jitter.csv"
+        with self.proxy("--delay-ms", f"{delay:g}", "--jitter-ms", f"{jitter:g}", "--rate-mbit", f"{rate:g}", log=log) as (addr, _):
+            self.transfer(endpoint.download(addr, c.bulk_bytes_at(rate), self.seed, _TIMEOUT_S))
+        with log.open(newline="") as fh:
+            delays = [(float(r["sent_s"]) - float(r["ready_s"])) * 1e3 for r in csv.DictReader(fh) if r["direction"] == "down" and r["sent_s"]]
+        config = {"delay_ms": delay, "jitter_ms": jitter, "rate_mbit": rate, "direction": "down", "chunks": len(delays)}
+        mean, std = statistics.fmean(delays), statistics.pstdev(delays)
+        self.add(Check("bulk stream: mean one-way delay", "bulk_jitter", "one_way_delay", "mean", "ms", mean, delay,
+                       f"|err| <= {max(1.0, 0.03 * delay):.3g} ms", _within(mean, delay, max(1.0, 0.03 * delay)), config))
+        self.add(Check("bulk stream: jitter std", "bulk_jitter", "jitter_std", "std", "ms", std, jitter, "within 15 %",
+                       _within(std, jitter, 0.15 * jitter), config))
+
     def loss(self, workdir: Path) -> None:
         c = self.config
         rto_ms = max(MIN_RTO_S, 4 * c.loss_delay_ms / 1e3) * 1e3  # max(200 ms, 2 RTT), RTT = 2 * one-way delay
@@ -279,7 +317,7 @@ def run_selftest(config: SelftestConfig, out: Path, seed: int = 0) -> int:
     with network_sim("server") as server:
         run = _Run(config, server, seed)
         print(f"  {'check':<44} {'configured':>10} {'measured':>11} {'unit':<7} {'target':<26}", flush=True)
-        for step in (run.overhead, run.delays, run.jitter, run.goodput, run.loss, run.trace):
+        for step in (run.overhead, run.delays, run.jitter, run.bulk_jitter, run.goodput, run.shared_rate, run.loss, run.trace):
             step(workdir)
         run.summary()
     for c in run.checks:

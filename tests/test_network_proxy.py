@@ -78,13 +78,24 @@ def test_one_way_delay_within_tolerance(server: Running, delay_ms: float) -> Non
 
 @pytest.mark.parametrize("rate_mbit", [4.0, 40.0])
 def test_goodput_within_tolerance(server: Running, rate_mbit: float) -> None:
-    nbytes = int(rate_mbit * 1e6 / 8 * 1.5)  # 1.5 s of link time
+    nbytes = int(rate_mbit * 1e6 / 8 * 1.0)  # 1 s of link time
     with _proxy(server, "--rate-mbit", f"{rate_mbit:g}", "--delay-ms", "5") as proxy:
         down = endpoint.download(proxy.addr, nbytes, 1, TIMEOUT)
         up = endpoint.upload(proxy.addr, nbytes, 2, TIMEOUT)
     for result in (down, up):
         assert result.intact
         assert result.goodput_mbit == pytest.approx(rate_mbit, rel=0.07)
+
+
+def test_connections_share_the_rate(server: Running) -> None:
+    """The rate belongs to the link: two concurrent downloads together get it, not twice it."""
+    nbytes = 750_000
+    with _proxy(server, "--rate-mbit", "8") as proxy:
+        with ThreadPoolExecutor(2) as pool:
+            pair = list(pool.map(lambda seed: endpoint.download(proxy.addr, nbytes, seed, TIMEOUT), (1, 2)))
+    span = max(t.last_s for t in pair) - min(t.first_s for t in pair)
+    assert all(t.intact for t in pair)
+    assert sum(t.nbytes - t.first_chunk for t in pair) * 8 / span / 1e6 == pytest.approx(8.0, rel=0.07)
 
 
 def _read_log(path: Path) -> list[dict[str, str]]:
@@ -234,7 +245,7 @@ def test_selftest_writes_tidy_results_and_counts_missed_targets(tmp_path: Path) 
     rows = read_rows(tmp_path / f"{BENCH}.csv")
     verdicts = [r for r in rows if r["stat"] == "target_met"]
     assert {r["metric"] for r in verdicts} >= {"added_rtt", "bulk_throughput", "one_way_delay", "jitter_std", "goodput", "loss_share",
-                                               "loss_delay", "trace_goodput", "intact_transfers"}
+                                               "loss_delay", "trace_goodput", "intact_transfers", "goodput_sum"}
     assert missed == sum(r["value"] == 0.0 for r in verdicts)
     intact = next(r for r in rows if r["metric"] == "intact_transfers" and r["stat"] == "value")
     assert intact["value"] == next(r for r in rows if r["metric"] == "intact_transfers" and r["stat"] == "configured")["value"] >= 6
