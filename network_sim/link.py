@@ -18,12 +18,13 @@ Each direction of a chunk of stream bytes passes four stages:
 3. **Loss** as TCP sees it: bytes are never lost, but each lost segment (``MSS`` bytes of the stream,
    numbered by stream offset so chunking does not change which are lost; each transmission lost with
    probability ``loss``) holds the stream for one retransmission timeout ``max(200 ms, 2 RTT)`` per lost
-   transmission (200 ms is Linux's ``TCP_RTO_MIN``; RFC 6298 §2.4 asks for 1 s, every Linux stack uses
-   200 ms). Losses in one chunk are recovered in parallel (the chunk waits for its latest segment), and
-   exponential RTO back-off is not modelled (a segment lost twice has probability ``loss``² ).
+   transmission (200 ms is Linux's ``TCP_RTO_MIN``; RFC 6298 §2.4 would round up to 1 s, Linux does not).
+   Losses in one chunk are recovered in parallel (the chunk waits for its latest segment); exponential
+   RTO back-off and congestion-window cuts are not modelled, so loss delays a stream but does not lower
+   its rate.
 4. **Propagation**: the one-way ``delay_ms`` plus seeded jitter. The jitter is a stationary random
    process of time (see :class:`DelayProcess`) whose value at any instant has exactly the configured
-   distribution (normal, Pareto or uniform, standard deviation ``jitter_ms``); it varies smoothly enough
+   distribution (normal, netem's Pareto or uniform, standard deviation ``jitter_ms``); it varies smoothly enough
    that a stream is not reordered, and bytes that leave the bottleneck together see the same delay, as
    packets of one burst do behind the same router queue. A stream is released in order:
    ``release_i = max(release_{i-1}, ready_i + delay(ready_i))`` — the max rarely binds (measured in
@@ -40,7 +41,7 @@ import hashlib
 import math
 import random
 from collections import deque
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from statistics import NormalDist
 from typing import Literal
 
@@ -157,10 +158,6 @@ class LinkConfig:
 
     def direction(self, name: str) -> DirectionConfig:
         return {UP: self.up, DOWN: self.down}[name]
-
-    def with_both(self, **changes: object) -> LinkConfig:
-        """A copy with the same field changes applied to both directions."""
-        return replace(self, up=replace(self.up, **changes), down=replace(self.down, **changes))
 
 
 # --- stage 2: serializers (one per direction, shared by its connections) ---------------------------------
