@@ -283,28 +283,35 @@ class _Run:
 
 
 def _plot(checks: list[Check], png: Path) -> None:
-    from gicore.plotting import plt, save
+    """Realised minus configured for delay, goodput and jitter, each against its target band."""
+    from gicore.plotting import plt, save, ticker
 
-    fig, axes = plt.subplots(1, 3, figsize=(13, 4))
-    panels = (("one_way_delay", "median", "one-way delay (median), ms"), ("goodput", "value", "goodput, Mbit/s"),
-              ("jitter_std", "std", "jitter std, ms"))
-    for (metric, stat, title), ax in zip(panels, axes):
-        rows = [c for c in checks if c.metric == metric and c.stat == stat and c.configured is not None]
-        if metric == "goodput":
-            rows += [c for c in checks if c.metric == "trace_goodput"]
+    def error(c: Check, relative: bool) -> float:
+        assert c.configured is not None
+        return 100.0 * (c.measured / c.configured - 1.0) if relative else c.measured - c.configured
+
+    panels = (
+        ("one-way delay: median - configured (ms)", [("one_way_delay", "median")], False, lambda x: max(1.0, 0.03 * x), "configured delay (ms)"),
+        ("goodput: realised / configured - 1 (%)", [("goodput", "value"), ("trace_goodput", "value"), ("goodput_sum", "value")], True,
+         lambda x: 5.0, "configured rate or trace capacity (Mbit/s)"),
+        ("jitter std: realised / configured - 1 (%)", [("jitter_std", "std")], True, lambda x: 15.0, "configured jitter std (ms)"),
+    )
+    fig, axes = plt.subplots(1, 3, figsize=(14, 4))
+    for (title, kinds, relative, band, xlabel), ax in zip(panels, axes):
+        rows = [c for c in checks if (c.metric, c.stat) in kinds and c.configured]
         for direction, marker in (("up", "o"), ("down", "s")):
             sel = [c for c in rows if c.config.get("direction") == direction]
-            ax.scatter([c.configured for c in sel], [c.measured for c in sel], marker=marker, label=direction, alpha=0.8)
+            ax.scatter([c.configured for c in sel], [error(c, relative) for c in sel], marker=marker, label=direction, alpha=0.8)
         if rows:
-            lo = min(min(c.configured for c in rows), min(c.measured for c in rows))  # type: ignore[type-var]
-            hi = max(max(c.configured for c in rows), max(c.measured for c in rows))  # type: ignore[type-var]
-            ax.plot([lo, hi], [lo, hi], "k--", lw=0.8, label="realised = configured")
-        if metric != "jitter_std":
-            ax.set_xscale("log")
-            ax.set_yscale("log")
-        ax.set_xlabel("configured")
-        ax.set_ylabel("realised")
-        ax.set_title(title)
+            xs = sorted({c.configured for c in rows if c.configured})
+            xs = [xs[0] * 0.8, *xs, xs[-1] * 1.25]
+            ax.fill_between(xs, [-band(x) for x in xs], [band(x) for x in xs], color="tab:green", alpha=0.12, label="target")
+        ax.axhline(0.0, color="k", lw=0.6)
+        ax.set_xscale("log")
+        ax.xaxis.set_major_formatter(ticker.FormatStrFormatter("%g"))
+        ax.xaxis.set_minor_formatter(ticker.NullFormatter())
+        ax.set_title(title, fontsize=10)
+        ax.set_xlabel(xlabel)
         ax.legend(fontsize=8)
     save(fig, png)
 
