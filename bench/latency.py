@@ -59,6 +59,7 @@ import os
 import shutil
 import subprocess
 import sys
+import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
@@ -226,8 +227,6 @@ def _fill_store(url: str, cfg: LatencyConfig, scene: str, seed: int, off_path: b
 
 # -- measuring ----------------------------------------------------------------------------------------------
 def measure(cfg: LatencyConfig, res: Results) -> None:
-    import time
-
     from gicore.scene import load_scene
 
     scene = cfg.scenes[0]
@@ -243,19 +242,12 @@ def measure(cfg: LatencyConfig, res: Results) -> None:
                  "--orbit-frames", str(cfg.orbit_frames), "--spp", str(cfg.spp), "--gt-every", str(cfg.gt_every),
                  "--composition", cfg.composition, "--seed", str(res.seed)]  # fmt: skip
 
-    gigan_argv = [
-        str(BIN / "gigan-client"),
-        *path_args,
-        "--gi-source",
-        "model",
-        "--model",
-        str(cfg.model),
-        "--threads",
-        str(_threads(plan, "client")),
-    ]
+    gigan_argv = [str(BIN / "gigan-client"), *path_args, "--gi-source", "model", "--model", str(cfg.model),
+                  "--threads", str(_threads(plan, "client"))]  # fmt: skip
     runs = {(GIGAN, "none", "local"): _client(plan, gigan_argv, work / "gigan", per_run)}
     cloud_argv = [str(BIN / "cloudbaking-client"), *path_args, "--codec", cfg.codec, "--read-timeout", str(cfg.read_timeout_s),
                   "--deadline", str(2 * cfg.read_timeout_s)]  # fmt: skip
+    shutil.rmtree(work / "store_prebaked", ignore_errors=True)  # every run prebakes its own store
     with _server(plan, work / "store_prebaked", scenes_dir) as warm:
         t0 = time.perf_counter()
         first = _fill_store(warm, cfg, scene, res.seed, off_path=False)
@@ -273,6 +265,7 @@ def measure(cfg: LatencyConfig, res: Results) -> None:
                 with _proxy(plan, profile, cold, res.seed) as url:
                     runs[CLOUD, profile, "cold"] = _client(plan, [*cloud_argv, "--server", url], work / f"cloud_{profile}_cold", per_run)
             shutil.rmtree(store, ignore_errors=True)
+    shutil.rmtree(work / "store_prebaked", ignore_errors=True)
     record(res, spec.name, cfg, runs, common)
 
 

@@ -301,13 +301,17 @@ def test_quick_runs_work_on_a_fresh_checkout(tmp_path: Path) -> None:
 
 @pytest.mark.slow
 def test_run_default_is_the_make_run_job(tmp_path: Path) -> None:
-    result = _bench("run-default", "--out", str(tmp_path))
+    """bench latency --quick and bench storage --quick on lung_plane (a few minutes on 2 cores), both tables printed once, at the end."""
+    argv = [sys.executable, "-m", "bench", "run-default", "--out", str(tmp_path)]
+    result = subprocess.run(argv, cwd=REPO, capture_output=True, text=True, timeout=1200)
     assert result.returncode == 0, result.stderr
     names = {p.name for p in tmp_path.iterdir()}
-    assert {"contact_sheet.png", "convergence.csv", "convergence.png", "quality.csv", "quality_grid.png", "run-default.csv"} <= names
-    rows = {r["metric"]: r["value"] for r in read_rows(tmp_path / "run-default.csv")}
-    assert rows["frames"] == 9 and rows["frames_rendered"] == 9
-    assert {r["scene"] for r in read_rows(tmp_path / "quality.csv")} == {"lung_plane"}
+    assert {"latency.csv", "latency_table.md", "latency_stages.png", "storage.csv", "storage_table2.md", "run-default.csv"} <= names
+    assert {r["system"] for r in read_rows(tmp_path / "run-default.csv") if r["metric"] == "wall_time"} == {"latency", "storage"}
+    totals = {(r["system"], r["config"]["profile"], r["config"].get("cache")) for r in read_rows(tmp_path / "latency.csv") if r["metric"] == "total"}
+    assert totals >= {("gigan", "none", None)} | {("cloud_baking", p, c) for p in ("lan", "wan") for c in ("hit", "miss")}
+    assert {r["scene"] for r in read_rows(tmp_path / "storage.csv") if r["scene"] != "all"} == {"lung_plane"}
+    assert result.stdout.count("## Table 1") == 1 and result.stdout.count("# Table 2") == 1
 
 
 def test_tiny_warp_frequency_and_fov_runs(tmp_path: Path) -> None:
