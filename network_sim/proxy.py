@@ -22,6 +22,10 @@ window full) or while the receiver's socket buffer is full; it never drops strea
 
 SIGTERM/SIGINT: stop accepting, close every connection with FIN (bytes still inside the emulated link
 are discarded, as when a link goes down), write the log, exit 0.
+
+Not emulated: the TCP handshake (the kernel accepts the client at once, so a fresh connection's first
+request misses the one RTT a real path adds; clients that keep connections alive do not pay it anyway),
+congestion control (loss delays a stream but does not cut its rate), and loss bursts (Gilbert-Elliott).
 """
 
 from __future__ import annotations
