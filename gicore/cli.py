@@ -71,7 +71,7 @@ def run(app: typer.Typer, argv: Sequence[str] | None = None, *, prog_name: str |
         if debug:
             raise
         ctx = getattr(exc, "ctx", None)
-        message = exc.format_message().replace("Value error, ", "")  # pydantic's prefix on a rejected choice
+        message = exc.format_message().replace("Value error, ", "").rstrip(".")  # pydantic's prefix on a rejected choice
         _fail(f"{message}: see '{ctx.command_path if ctx else prog} --help'")
     except UserError as exc:
         if debug:

@@ -413,6 +413,18 @@ def test_runner_turns_errors_into_one_line(capsys: pytest.CaptureFixture[str], e
     assert [ln for ln in capsys.readouterr().err.splitlines() if ln] == [line]
 
 
+def test_user_errors_cross_process_boundaries_intact():
+    """gicore-dataset's render workers raise UserErrors that the parent prints: they must unpickle whole."""
+    import pickle
+
+    from gicore.cli import UserError
+    from gicore.scene import SceneSpecError
+
+    for error in (UserError("frame x.npz is corrupt", "render it again"), SceneSpecError("s.toml: 1 invalid field(s): name", "fix them")):
+        back = pickle.loads(pickle.dumps(error))
+        assert type(back) is type(error) and (back.what, back.todo, str(back)) == (error.what, error.todo, str(error))
+
+
 def test_runner_keeps_bugs_and_debug_as_tracebacks():
     from gicore.cli import UserError, run
 
