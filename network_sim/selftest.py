@@ -5,7 +5,7 @@ it, and blocking clients here. All three share CLOCK_MONOTONIC, so one-way delay
 For each setting it compares configured with realised values and checks the issue's targets:
 
 - one-way delay, per direction, median within max(1 ms, 3 %) of the configured delay (5 to 300 ms);
-- jitter: standard deviation of the one-way delay within 15 % of the configured one;
+- jitter: standard deviation of the one-way delay (both directions pooled) within 15 % of the configured one;
 - goodput of a bulk transfer (at least 2 MB or 5 s) within 5 % of the configured rate (1 to 100 Mbit/s),
   and within 5 % of a trace's capacity over the same window; two concurrent downloads share the rate
   (their sum within 5 % of it: the rate belongs to the link, not to each connection);
@@ -79,7 +79,7 @@ class SelftestConfig:
     @classmethod
     def quick(cls) -> SelftestConfig:
         """About a minute and a half on two cores."""
-        return cls(probe_s=2.0, jitters=((30.0, 3.0, "normal"), (30.0, 3.0, "pareto")), jitter_s=5.0, bulk_s=2.0,
+        return cls(probe_s=2.0, jitters=((30.0, 3.0, "normal"), (30.0, 3.0, "pareto")), jitter_s=10.0, bulk_s=2.0,
                    loss_probes=150, trace_s=5.0, pings=2000, overhead_bytes=256 << 20)
 
     def bulk_bytes_at(self, rate_mbit: float) -> int:
@@ -177,19 +177,25 @@ class _Run:
                                float(np.percentile(values, 95)), delay, config=config))
 
     def jitter(self, workdir: Path) -> None:
+        """Both directions carry the same jitter, independently; the target is checked on their pooled
+        delays (twice the samples: a window's std of a heavy-tailed process scatters widely, and the
+        Pareto's 10 s pooled miss the 15 % band in under 1 % of seeds in the model, a single direction's 10 s
+        in 6 %); each direction's std is reported too."""
         c = self.config
         for delay, jitter, dist in c.jitters:
             scene = f"jitter_{dist}{jitter:g}"
             args = ("--delay-ms", f"{delay:g}", "--jitter-ms", f"{jitter:g}", "--jitter-dist", dist)
             with self.proxy(*args, log=workdir / f"{scene}.csv") as (addr, _):
                 results = endpoint.probes(addr, int(c.jitter_s / c.probe_interval_s), c.probe_interval_s, _TIMEOUT_S, self.seed)
-            for direction, values in (("up", [p.up_s * 1e3 for p in results]), ("down", [p.down_s * 1e3 for p in results])):
-                std = statistics.pstdev(values)
-                config = {"delay_ms": delay, "jitter_ms": jitter, "dist": dist, "direction": direction, "probes": len(values)}
-                self.add(Check(f"jitter std {dist} {jitter:g} ms (delay {delay:g}) {direction}", scene, "jitter_std", "std", "ms", std,
-                               jitter, "within 15 %", _within(std, jitter, 0.15 * jitter), config))
-                self.add(Check(f"  mean delay, {dist} {direction}", scene, "one_way_delay", "mean", "ms", statistics.fmean(values), delay,
-                               config=config))
+            config = {"delay_ms": delay, "jitter_ms": jitter, "dist": dist, "probes": len(results)}
+            both = {"up": [p.up_s * 1e3 for p in results], "down": [p.down_s * 1e3 for p in results]}
+            pooled = statistics.pstdev(both["up"] + both["down"])
+            self.add(Check(f"jitter std {dist} {jitter:g} ms (delay {delay:g}), both ways", scene, "jitter_std", "std", "ms", pooled,
+                           jitter, "within 15 %", _within(pooled, jitter, 0.15 * jitter), config | {"direction": "both"}))
+            for direction, values in both.items():
+                more = config | {"direction": direction}
+                self.add(Check(f"  {direction}: std", scene, "jitter_std", "std", "ms", statistics.pstdev(values), jitter, config=more))
+                self.add(Check(f"  {direction}: mean delay", scene, "one_way_delay", "mean", "ms", statistics.fmean(values), delay, config=more))
 
     def goodput(self, workdir: Path) -> None:
         c = self.config
@@ -299,9 +305,10 @@ def _plot(checks: list[Check], png: Path) -> None:
     fig, axes = plt.subplots(1, 3, figsize=(14, 4))
     for (title, kinds, relative, band, xlabel), ax in zip(panels, axes):
         rows = [c for c in checks if (c.metric, c.stat) in kinds and c.configured]
-        for direction, marker in (("up", "o"), ("down", "s")):
+        for direction, marker in (("up", "o"), ("down", "s"), ("both", "D")):
             sel = [c for c in rows if c.config.get("direction") == direction]
-            ax.scatter([c.configured for c in sel], [error(c, relative) for c in sel], marker=marker, label=direction, alpha=0.8)
+            if sel:
+                ax.scatter([c.configured for c in sel], [error(c, relative) for c in sel], marker=marker, label=direction, alpha=0.8)
         if rows:
             xs = sorted({c.configured for c in rows if c.configured})
             xs = [xs[0] * 0.8, *xs, xs[-1] * 1.25]
