@@ -398,11 +398,12 @@ def run_client(cfg: CloudClientConfig, remote: RemoteConfig, tolerance: ServerIn
     spec = load_scene(cfg.scene)
     renderer = Renderer(spec, cfg.resolution)
     loop_cfg = LoopConfig(
-        every=cfg.every, gi_fov=cfg.gi_fov or spec.camera.gi_fov, max_move=tolerance.tolerance_position or None,
+        every=cfg.every, gi_fov=spec.camera.gi_fov if cfg.gi_fov is None else cfg.gi_fov, max_move=tolerance.tolerance_position or None,
         max_turn=tolerance.tolerance_angle_deg or None, composition=cfg.composition, tau=cfg.tau, seed=cfg.seed,
         first_map_timeout_s=remote.connect_timeout_s + remote.deadline_s,
     )  # fmt: skip
-    views = path_views(spec, cfg.frames, cfg.orbit_frames, cfg.seed, cfg.local_fov or spec.camera.local_fov, cfg.resolution)
+    local_fov = spec.camera.local_fov if cfg.local_fov is None else cfg.local_fov
+    views = path_views(spec, cfg.frames, cfg.orbit_frames, cfg.seed, local_fov, cfg.resolution)
     kept: dict[int, np.ndarray] = {}
 
     def keep(frame: int, result) -> None:

@@ -71,6 +71,8 @@ def run(app: typer.Typer, argv: Sequence[str] | None = None, *, prog_name: str |
         if debug:
             raise
         ctx = getattr(exc, "ctx", None)
+        if not exc.format_message().strip():  # no arguments at all: the help was already printed
+            sys.exit(EXIT_USER_ERROR)
         message = exc.format_message().replace("Value error, ", "").rstrip(".")  # pydantic's prefix on a rejected choice
         _fail(f"{message}: see '{ctx.command_path if ctx else prog} --help'")
     except UserError as exc:

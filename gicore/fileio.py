@@ -21,12 +21,16 @@ from gicore.cli import UserError, writable_dir
 #: Temporary files carry this marker so that a sweep can remove those a killed writer left behind.
 TMP_MARKER = ".tmp-"
 
+_UMASK = os.umask(0o022)  # read the process umask (set it back at once)
+os.umask(_UMASK)
+
 
 def atomic_write(path: Path, write: Callable[[IO[bytes]], object], *, fsync: bool = True) -> Path:
     """Write ``path`` through ``write(file)`` atomically (temp file in the same folder, fsync, rename)."""
     path = Path(path)
     fd, tmp_name = tempfile.mkstemp(prefix=f"{path.name}{TMP_MARKER}", dir=path.parent)
     try:
+        os.fchmod(fd, 0o666 & ~_UMASK)  # mkstemp makes 0600; the result is an ordinary file, as open() makes it
         with os.fdopen(fd, "wb") as handle:
             write(handle)
             if fsync:
