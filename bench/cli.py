@@ -14,9 +14,12 @@ from bench import (
     frequency,
     latency,
     model_card,
+    pareto,
     quality,
     render_bench,
+    report,
     run_default,
+    stability,
     storage,
     training,
     warp_bench,
@@ -25,7 +28,25 @@ from bench.runner import register
 from gicore.cli import entry_point
 
 #: Every ``bench`` subcommand, in the order ``bench --help`` lists them.
-BENCHES = tuple(m.BENCH for m in (run_default, convergence, render_bench, quality, training, model_card, warp_bench, frequency, fov, latency, storage))
+BENCHES = tuple(
+    m.BENCH
+    for m in (
+        run_default,
+        convergence,
+        render_bench,
+        quality,
+        training,
+        model_card,
+        warp_bench,
+        frequency,
+        fov,
+        latency,
+        storage,
+        stability,
+        pareto,
+        report,
+    )
+)
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, help="Experiments of the GIGAN testbed (CSV + provenance + plots).")
 for _bench in BENCHES:

@@ -15,10 +15,22 @@ if ! ldconfig -p 2>/dev/null | grep -q 'libLLVM.so.19\|libLLVM-19.so'; then
   fi
 fi
 
+# Chromium for the dashboard's browser test (tests/test_report.py drives it with Playwright).
+if [ ! -x /usr/bin/chromium ]; then
+  if [ "$(id -u)" = 0 ]; then
+    echo "setup: installing chromium (the dashboard test opens bench report's HTML in it)"
+    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null
+  else
+    echo "setup: chromium is missing and this is not root. Run 'sudo apt-get install -y chromium'" >&2
+    echo "       (until then the dashboard's browser test is skipped; under CI=true it fails)." >&2
+  fi
+fi
+
 if [ ! -x .venv/bin/python ]; then
   "$PYTHON" -m venv .venv
 fi
 .venv/bin/python -m pip install -q --upgrade pip
 .venv/bin/python -m pip install -q "torch==2.13.0"
-.venv/bin/python -m pip install -q -e ".[test]"
+# ray: the optional extra behind --ray (gicore.executor), installed so that its tests run.
+.venv/bin/python -m pip install -q -e ".[test,ray]"
 echo "setup: done (.venv)"

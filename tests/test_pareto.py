@@ -1,0 +1,131 @@
+"""`bench pareto`: dominance, reading points back, codec qualities, option checks, and a tiny real sweep."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bench.pareto import BENCH, CLOUD, GIGAN, PER_FRAME, PER_MAP, ParetoConfig, best_within, front_points, make_codec, mark_dominated
+from bench.report import budgets
+from bench.runner import build_config, execute
+from gicore.cli import UserError
+from gicore.results import read_rows
+
+BIN = Path(sys.executable).parent
+FIXTURES = Path(__file__).parent / "fixtures" / "report_results"
+
+
+def _point(system: str, time: float, error: float, per: str = PER_MAP) -> dict:
+    return {"system": system, "per": per, "time": time, "error": error}
+
+
+def test_dominated_means_another_point_is_no_slower_and_no_worse_and_better_in_one() -> None:
+    pts = [
+        _point(GIGAN, 10.0, 0.10),  # front
+        _point(GIGAN, 20.0, 0.10),  # dominated by the first (slower, same error)
+        _point(GIGAN, 20.0, 0.05),  # front
+        _point(CLOUD, 5.0, 0.20),  # own front; combined front too (fastest)
+        _point(CLOUD, 15.0, 0.12),  # own front; combined: dominated by gigan (10 ms, 0.10)
+        _point(CLOUD, 15.0, 0.12),  # an exact tie dominates nothing
+        _point(CLOUD, 1.0, 0.01, PER_FRAME),  # another unit: compared with nothing above
+    ]
+    mark_dominated(pts)
+    assert [p["dominated"] for p in pts] == [False, True, False, False, False, False, False]
+    assert [p["dominated_combined"] for p in pts] == [False, True, False, False, True, True, False]
+
+
+def test_points_read_back_from_the_csv_with_their_flags_and_budgets() -> None:
+    rows = read_rows(FIXTURES / "pareto" / "pareto.csv")
+    points = front_points(rows)
+    assert {p["system"] for p in points} == {GIGAN, CLOUD} and {p["per"] for p in points} == {PER_MAP, PER_FRAME}
+    assert len(points) == len(rows) // 4  # run_time, error and the two dominated flags per point
+    for unit in (PER_MAP, PER_FRAME):
+        here = [p for p in points if p["per"] == unit]
+        fronts = [p for p in here if not p["dominated_combined"]]
+        assert fronts and any(p["dominated_combined"] for p in here)
+        for p in fronts:  # nothing on the front is beaten by another point of its unit
+            assert not any(q["time"] <= p["time"] and q["error"] < p["error"] for q in here)
+        best = best_within(here, budgets([p["time"] for p in here])[-1])
+        assert best is not None and best["error"] == min(p["error"] for p in here)
+    assert best_within(points, 0.0) is None
+    assert '"knob":' in points[0]["tip"] and points[0]["label"].startswith(points[0]["config"]["knob"] + ": ")
+
+
+def test_budgets_are_round_and_the_last_holds_every_time() -> None:
+    assert budgets([5.01, 3252.39]) == [30.0, 100.0, 4000.0]
+    assert budgets([2.0, 2.0]) == [2.0]
+
+
+def test_codec_quality_is_the_knob_it_claims() -> None:
+    rng = np.random.default_rng(0)
+    image = np.clip(rng.normal(0.5, 0.2, (64, 64, 3)), 0, None).astype(np.float32)
+    sizes = {q: len(make_codec(f"jpeg:{q}").encode(image)) for q in (20, 60, 95)}
+    assert sizes[20] < sizes[60] < sizes[95]
+    assert make_codec("jpeg:60").name == "jpeg:60" and dict(make_codec("jpeg:60").options)["quality"] == 60
+    assert make_codec("png").name == "png"
+
+
+@pytest.mark.parametrize(
+    ("given", "message"),
+    [
+        ({"codecs": "jpeg:101"}, "--codecs 'jpeg:101' is not NAME or NAME:QUALITY"),
+        ({"codecs": "png:50"}, "--codecs 'png:50' is not NAME or NAME:QUALITY"),
+        ({"profiles": "moon"}, "--profiles 'moon' is not a network profile"),
+        ({"tolerances": "0.1"}, "--tolerances '0.1' is not DP:DTHETA"),
+        ({"warps": "bilinear"}, "--warps bilinear holds an unknown value"),
+        ({"resolution": "128"}, "runs at 256² but --resolution is 128"),
+    ],
+)
+def test_bad_options_are_user_errors_naming_them(given: dict, message: str) -> None:
+    with pytest.raises(UserError, match=message.replace("(", r"\(").replace("?", r"\?")):
+        build_config(ParetoConfig, True, given)
+
+
+def test_bad_option_on_the_command_line_is_one_error_line(tmp_path: Path) -> None:
+    proc = subprocess.run(
+        [str(BIN / "bench"), "pareto", "--quick", "--from-dir", str(tmp_path / "nope"), "--out", str(tmp_path)], capture_output=True, text=True
+    )
+    errors = [line for line in proc.stderr.splitlines() if line.startswith("error:")]
+    assert proc.returncode == 2 and len(errors) == 1 and "--from-dir" in errors[0] and "Traceback" not in proc.stderr
+
+
+@pytest.mark.slow
+def test_tiny_sweep_measures_both_systems_reads_convergence_and_marks_dominated_points(tmp_path: Path) -> None:
+    cfg = ParetoConfig(
+        from_dir=FIXTURES, views=1, reference_spp=16, models={"fp16": ParetoConfig().models["fp16"]}, gi_fovs=(90.0,), spps=(1, 4), bake_spp=4,
+        resolutions=(128, 256), codecs=("jpeg:40", "png"), profiles=("lan", "3g"), tolerances=("0.1:5",), path_frames=40, ks=(4,),
+        warps=("structure",), compositions=("blend",), frames=8, gt_every=4, frame_spp=2, repeats=1,
+    )  # fmt: skip
+    files = execute(BENCH, cfg, tmp_path)
+    assert {p.name for p in files} >= {"pareto.csv", "pareto_gi_map.png", "pareto_frame.png", "pareto_best.md"}
+    points = front_points(read_rows(tmp_path / "pareto.csv"))
+    knobs = {(p["system"], p["config"]["knob"]) for p in points}
+    assert knobs == {
+        (GIGAN, "model × GI-camera FOV"),
+        (CLOUD, "bake spp × denoise"),
+        (CLOUD, "bake resolution"),
+        (CLOUD, "codec × quality × profile × cache"),
+        (CLOUD, "store tolerance"),
+        (GIGAN, "k × warp × composition"),
+        (CLOUD, "k × warp × composition"),
+    }
+    read = [p for p in points if p["config"]["knob"] == "bake spp × denoise"]
+    assert read and {p["config"]["source"] for p in read} == {"convergence/convergence.csv"}  # not measured again
+    assert {p["config"]["source"] for p in points if p["config"]["knob"] == "k × warp × composition"} == {
+        "pareto_runs/frequency_model/frequency.csv",
+        "pareto_runs/frequency_gt/frequency.csv",
+    }
+    assert any(p["dominated"] for p in points) and all(0.0 <= p["error"] <= 1.0 and p["time"] > 0 for p in points)
+    # the 3G link's ~300 ms RTT and 0.7 Mbit/s make every delivered map slower than on the LAN
+    links = {
+        (p["config"]["codec"], p["config"]["cache"], p["config"]["profile"]): p["time"]
+        for p in points
+        if "profile" in p["config"] and "cache" in p["config"]
+    }
+    for codec in ("jpeg:40", "png"):
+        assert links[codec, "hit", "3g"] > links[codec, "hit", "lan"] + 300.0
+    assert "| GI map |" in (tmp_path / "pareto_best.md").read_text()
