@@ -5,22 +5,20 @@
 The fly-through is the scene's camera path (``gicore.paths.camera_path`` with the GI-camera FOV) with
 its light schedule. Walking it in order, a frame needs a new map unless the store, or a map planned
 earlier in this run, serves it within the tolerance (same light cell): the same rule the server's
-lookups apply, so a client flying the path afterwards only hits. Maps are rendered by a pool of spawned
-worker processes (one compiled scene each) and inserted as they finish; a rerun (after Ctrl-C, a crash
-or kill -9) plans again from what the store holds and bakes only the rest.
+lookups apply, so a client flying the path afterwards only hits. Maps are rendered by the render
+executor (``gicore.executor``: this process, ``--workers`` local processes, or Ray tasks with ``--ray
+auto|HOST:PORT`` for a bake farm; one compiled scene per worker) and inserted by this process as they
+arrive; a rerun (after Ctrl-C, a crash or kill -9) plans again from what the store holds and bakes only
+the rest.
 """
 
 from __future__ import annotations
 
-import multiprocessing
-import os
-import signal
 import time
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 from tqdm import tqdm
@@ -30,9 +28,13 @@ from baseline_cloudbaking.codecs import CODEC_NAMES
 from baseline_cloudbaking.store import DEFAULT_LIGHT_CELL, GITree, MapKey, StoreConflict, Tolerance, Viewpoint, ViewSet
 from gicore.camera import Camera
 from gicore.cli import UserError, entry_point, writable_dir
+from gicore.executor import RAY_HELP, WORKERS_HELP, Executor, InProcess, Task, open_executor
 from gicore.fileio import exclusive_run
 from gicore.paths import frame_seed
 from gicore.scene import SceneSpec, SceneSpecError, load_scene
+
+if TYPE_CHECKING:
+    from gicore.render import Renderer
 
 app = typer.Typer(add_completion=False, help=__doc__)
 
@@ -59,8 +61,6 @@ class PrebakeConfig:
     light_cell: float = DEFAULT_LIGHT_CELL
     #: Camera-path seed (as gicore-dataset) and render-noise seed.
     seed: int = 0
-    #: Rendering processes.
-    workers: int = 1
 
 
 @dataclass(frozen=True)
@@ -76,31 +76,27 @@ class PrebakeResult:
 
 #: (frame, camera fields, light, render seed) of one map to bake.
 Job = tuple[int, dict, tuple[float, float, float], int]
-_worker: dict = {}
+#: A worker's state: the compiled scene, its spec, its store name and the bake settings.
+Baker = tuple["Renderer", SceneSpec, str, PrebakeConfig]
 
 
-def _init_worker(spec_dict: dict, name: str, cfg: PrebakeConfig, threads: int) -> None:
-    """Compile the scene for :func:`_bake_job` in this process."""
-    import drjit
+def _build_baker(spec_dict: dict, name: str, cfg: PrebakeConfig) -> Baker:
+    from gicore.render import Renderer
 
-    from gicore.render import Renderer  # before any Dr.Jit call: it locates libLLVM
-
-    drjit.set_thread_count(threads)
     spec = SceneSpec.from_dict(spec_dict)
-    _worker.update(renderer=Renderer(spec, cfg.resolution), spec=spec, name=name, cfg=cfg)
+    return Renderer(spec, cfg.resolution), spec, name, cfg
 
 
-def _init_pool_worker(*args) -> None:
-    """A pool worker: Ctrl-C is the parent's to handle (it cancels the pool and exits resumable)."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    _init_worker(*args)
+def _bake_job(baker: Baker, job: Job) -> bytes:
+    renderer, spec, name, cfg = baker
+    _, camera, light, seed = job
+    baked = bake_map(renderer, Camera.from_dict(camera), light, cfg.spp, seed, cfg.di)
+    return encode_map(baked, name, cfg.codec, cfg.spp, light if spec.light.moves else None)
 
 
-def _bake_job(job: Job) -> tuple[int, bytes]:
-    frame, camera, light, seed = job
-    cfg: PrebakeConfig = _worker["cfg"]
-    baked = bake_map(_worker["renderer"], Camera.from_dict(camera), light, cfg.spp, seed, cfg.di)
-    return frame, encode_map(baked, _worker["name"], cfg.codec, cfg.spp, light if _worker["spec"].light.moves else None)
+def bake_task(spec: SceneSpec, name: str, cfg: PrebakeConfig) -> Task:
+    """The render task of a prebake (a compiled scene per worker; a job's result is the map's stored payload)."""
+    return Task(_build_baker, (spec.to_dict(), name, cfg), _bake_job)
 
 
 def plan(store: GITree, keys: list[MapKey], views: list[Viewpoint]) -> list[int]:
@@ -118,8 +114,11 @@ def plan(store: GITree, keys: list[MapKey], views: list[Viewpoint]) -> list[int]
     return todo
 
 
-def prebake_scene(store_dir: Path, name: str, spec: SceneSpec, cfg: PrebakeConfig, progress: bool = True) -> PrebakeResult:
-    """Bake what ``store_dir`` lacks of ``spec``'s fly-through (stored as scene ``name``)."""
+def prebake_scene(
+    store_dir: Path, name: str, spec: SceneSpec, cfg: PrebakeConfig, executor: Executor | None = None, progress: bool = True
+) -> PrebakeResult:
+    """Bake what ``store_dir`` lacks of ``spec``'s fly-through (stored as scene ``name``) on ``executor``
+    (default: this process)."""
     path = fly_through(spec, cfg.frames, cfg.resolution, cfg.light_cell, cfg.seed, cfg.fov)
     with GITree(store_dir, tolerance=cfg.tolerance) as tree:
         try:
@@ -131,29 +130,13 @@ def prebake_scene(store_dir: Path, name: str, spec: SceneSpec, cfg: PrebakeConfi
         jobs: list[Job] = [(i, path[i].camera.to_dict(), path[i].light, frame_seed(cfg.seed, f"prebake/{name}", i)) for i in plan(tree, keys, views)]
         if progress:
             typer.echo(f"{name}: {cfg.frames} frames; {len(jobs)} maps to bake", err=True)
-        bar = tqdm(total=len(jobs), desc=name, unit="map", disable=not (progress and jobs))
-        if cfg.workers == 1 or len(jobs) <= 1:  # no pool: cheaper, and Mitsuba already uses every core
-            _init_worker(spec.to_dict(), name, cfg, os.cpu_count() or 1)
-            for job in jobs:
-                frame, payload = _bake_job(job)
-                tree.insert(keys[frame], views[frame], payload)
+        with tqdm(total=len(jobs), desc=name, unit="map", disable=not (progress and jobs)) as bar:
+
+            def receive(job: Job, payload: bytes) -> None:
+                tree.insert(keys[job[0]], views[job[0]], payload)
                 bar.update()
-        else:
-            threads = max(1, (os.cpu_count() or 1) // cfg.workers)
-            # spawn, not fork: a forked worker inherits OIDN's thread pool state and can deadlock in it.
-            ctx = multiprocessing.get_context("spawn")
-            init = (spec.to_dict(), name, cfg, threads)
-            with ProcessPoolExecutor(cfg.workers, mp_context=ctx, initializer=_init_pool_worker, initargs=init) as pool:
-                futures = [pool.submit(_bake_job, job) for job in jobs]
-                try:
-                    for future in as_completed(futures):
-                        frame, payload = future.result()
-                        tree.insert(keys[frame], views[frame], payload)
-                        bar.update()
-                except KeyboardInterrupt:
-                    pool.shutdown(wait=False, cancel_futures=True)
-                    raise
-        bar.close()
+
+            (executor or InProcess()).run(bake_task(spec, name, cfg), jobs, receive)
         usage = [u["bytes"] for u in tree.stats()["by_scene_codec"] if (u["scene"], u["codec"]) == (name, cfg.codec)]
         served = sum(tree.find(key, view) is not None for key, view in zip(keys, views, strict=True))
         return PrebakeResult(cfg.frames, served, len(jobs), sum(usage))
@@ -186,21 +169,22 @@ def prebake(
     tolerance_deg: Annotated[float, typer.Option(min=0.0, max=180.0, help="Δθ: view angle a map serves, degrees")] = Tolerance.angle_deg,
     light_cell: Annotated[float, typer.Option(min=1e-6, help="light-cell side for a moving light, scene units")] = DEFAULT_LIGHT_CELL,
     seed: Annotated[int, typer.Option(help="camera-path seed (as gicore-dataset) and render-noise seed")] = PrebakeConfig.seed,
-    workers: Annotated[int, typer.Option(min=1, max=64, help="rendering processes")] = PrebakeConfig.workers,
+    workers: Annotated[int | None, typer.Option(min=1, help=WORKERS_HELP)] = None,
+    ray: Annotated[str | None, typer.Option(help=RAY_HELP)] = None,
 ) -> None:
     """Bake the maps of SCENE's fly-through into --store (resumable)."""
     if codec not in CODEC_NAMES:
         raise UserError(f"--codec {codec!r} is unknown", f"choose one of {', '.join(CODEC_NAMES)}")
     name, spec = _scene(scene)
     writable_dir(store, name="--store")
-    cfg = PrebakeConfig(frames, codec, resolution, spp, di, fov, Tolerance(tolerance_p, tolerance_deg), light_cell, seed, workers)
+    cfg = PrebakeConfig(frames, codec, resolution, spp, di, fov, Tolerance(tolerance_p, tolerance_deg), light_cell, seed)
     t0 = time.perf_counter()
     with ExitStack() as stack:
         try:
             stack.enter_context(exclusive_run(store / ".prebake" / name))
         except UserError:
             raise UserError(f"another cloudbaking-prebake is baking {name} into {store}", "wait for it to finish, then rerun to check") from None
-        result = prebake_scene(store, name, spec, cfg)
+        result = prebake_scene(store, name, spec, cfg, stack.enter_context(open_executor(workers, ray)))
     typer.echo(
         f"{name}: {result.served}/{result.frames} frames served by the store; {result.baked} maps baked now; "
         f"{result.bytes / 2**20:.1f} MiB of {codec} maps for {name} in {store} ({time.perf_counter() - t0:.1f} s)"

@@ -6,7 +6,7 @@ Layout::
     <root>/train/000000.npz    one compressed array archive per frame, keys = buffer names
     <root>/val/000000.npz
 
-Frames are written atomically (:func:`gicore.fileio.atomic_write`: a uniquely named temporary file +
+Frames are written atomically (:func:`gicore.fileio.atomic_write_bytes`: a uniquely named temporary file +
 rename), so an interrupted run leaves only complete frames and a rerun skips them (resumable).
 ``meta.json`` is written before any frame; a rerun with different settings is refused rather than
 mixing two datasets. Reading a missing, corrupt or truncated ``meta.json`` or frame raises a
@@ -15,6 +15,7 @@ mixing two datasets. Reading a missing, corrupt or truncated ``meta.json`` or fr
 
 from __future__ import annotations
 
+import io
 import json
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -25,7 +26,7 @@ import numpy as np
 from gicore.buffers import CHANNELS, STORAGE_DTYPE, check_buffer_names
 from gicore.cli import UserError
 from gicore.config import strict_from_dict
-from gicore.fileio import atomic_write, atomic_write_bytes
+from gicore.fileio import atomic_write_bytes
 
 FORMAT_VERSION = 1
 SPLITS = ("train", "val")
@@ -118,6 +119,18 @@ def read_meta(root: Path) -> DatasetMeta:
 
 def save_frame(path: Path, arrays: dict[str, np.ndarray]) -> None:
     """Store a frame's buffers compressed, each in its storage precision, atomically."""
+    write_frame(path, encode_frame(arrays))
+
+
+def write_frame(path: Path, data: bytes) -> None:
+    """Write a frame file's bytes (:func:`encode_frame`) atomically, creating its split folder."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_bytes(path, data)
+
+
+def encode_frame(arrays: dict[str, np.ndarray]) -> bytes:
+    """A frame file's bytes: the buffers compressed, each in its storage precision (a render worker
+    encodes; the process that owns the folder writes them with :func:`write_frame`)."""
     check_buffer_names(list(arrays))
     packed = {}
     for name, arr in arrays.items():
@@ -127,8 +140,9 @@ def save_frame(path: Path, arrays: dict[str, np.ndarray]) -> None:
         if not np.all(np.isfinite(arr)):
             raise ValueError(f"buffer {name!r} contains NaN or Inf; refusing to store it")
         packed[name] = arr.astype(STORAGE_DTYPE[name])
-    path.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write(path, lambda handle: np.savez_compressed(handle, **packed))
+    data = io.BytesIO()
+    np.savez_compressed(data, **packed)
+    return data.getvalue()
 
 
 def load_frame(path: Path, buffers: list[str] | tuple[str, ...] | None = None) -> dict[str, np.ndarray]:

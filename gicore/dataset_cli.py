@@ -2,21 +2,19 @@
 
     gicore-dataset lung_plane digestive_cornell --out data/ds --train 120 --val 12 --resolution 256
 
-One folder per scene under ``--out``. Frames are rendered by a pool of worker processes (each holds one
-compiled scene), written atomically, and skipped when already present, so an interrupted run resumes.
-One run at a time renders into a scene folder (a second is refused: "another run holds DIR").
+One folder per scene under ``--out``. Frames are rendered by the render executor (``gicore.executor``:
+this process, ``--workers`` local processes, or Ray tasks with ``--ray auto|HOST:PORT``; each worker
+holds one compiled scene), written atomically by this process as they arrive, and skipped when already
+present, so an interrupted run resumes. The same seeds give the same frames on every executor. One run
+at a time renders into a scene folder (a second is refused: "another run holds DIR").
 """
 
 from __future__ import annotations
 
-import multiprocessing
-import os
-import signal
 import time
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 from tqdm import tqdm
@@ -24,10 +22,14 @@ from tqdm import tqdm
 from gicore.buffers import DATASET_BUFFERS, check_buffer_names
 from gicore.camera import Camera
 from gicore.cli import UserError, entry_point, require_between
-from gicore.dataset import SPLITS, DatasetMeta, FrameRecord, save_frame, write_meta
+from gicore.dataset import SPLITS, DatasetMeta, FrameRecord, encode_frame, write_frame, write_meta
+from gicore.executor import RAY_HELP, WORKERS_HELP, Executor, InProcess, Task, open_executor
 from gicore.fileio import exclusive_run, sweep_temporaries
 from gicore.paths import camera_path, frame_seed, light_position
 from gicore.scene import SceneSpec, load_scene
+
+if TYPE_CHECKING:
+    from gicore.render import Renderer
 
 app = typer.Typer(add_completion=False, help=__doc__)
 #: Validation paths use a different trajectory seed, so they are held out from the training path.
@@ -80,33 +82,38 @@ def plan_frames(spec: SceneSpec, cfg: DatasetConfig) -> list[FrameRecord]:
     return records
 
 
-_worker_renderer = None
+#: One frame to render: (file under the dataset root, camera fields, light or None, buffers, spp, denoise, render seed).
+FrameJob = tuple[str, dict, list | None, tuple[str, ...], int, bool, int]
 
 
-def _init_worker(spec_dict: dict, resolution: int, threads: int) -> None:
-    global _worker_renderer
-    import drjit as dr
-
+def _build_renderer(spec_dict: dict, resolution: int) -> Renderer:
     from gicore.render import Renderer
 
-    dr.set_thread_count(threads)
-    _worker_renderer = Renderer(SceneSpec.from_dict(spec_dict), resolution)
+    return Renderer(SceneSpec.from_dict(spec_dict), resolution)
 
 
-def _init_pool_worker(spec_dict: dict, resolution: int, threads: int) -> None:
-    """A pool worker leaves Ctrl-C to the parent, which stops the run; the worker finishes its frame."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    _init_worker(spec_dict, resolution, threads)
+def _render_frame(renderer: Renderer, job: FrameJob) -> bytes:
+    _, cam, light, buffers, spp, denoise, seed = job
+    return encode_frame(renderer.render_frame(Camera.from_dict(cam), light, buffers, spp=spp, seed=seed, denoise=denoise))
 
 
-def _render_one(job: tuple[str, dict, list | None, tuple[str, ...], int, bool, int]) -> None:
-    path, cam, light, buffers, spp, denoise, seed = job
-    frame = _worker_renderer.render_frame(Camera.from_dict(cam), light, buffers, spp=spp, seed=seed, denoise=denoise)
-    save_frame(Path(path), frame)
+def frame_task(spec: SceneSpec, cfg: DatasetConfig) -> Task:
+    """The render task of ``spec``'s frames (a compiled scene per worker; a job's result is its file's bytes)."""
+    return Task(_build_renderer, (spec.to_dict(), cfg.resolution), _render_frame)
 
 
-def build_dataset(spec: SceneSpec, root: Path, cfg: DatasetConfig, workers: int = 1, progress: bool = True) -> DatasetMeta:
-    """Render (or finish rendering) ``spec``'s dataset into ``root``; returns its metadata.
+def frame_jobs(meta: DatasetMeta, cfg: DatasetConfig, root: Path) -> list[FrameJob]:
+    """The jobs of the frames of ``meta`` that ``root`` does not hold yet, train then val."""
+    return [
+        (r.file, r.camera, r.light, cfg.buffers, cfg.spp, cfg.denoise, frame_seed(cfg.seed, r.split, r.index))
+        for r in meta.frames
+        if not (root / r.file).is_file()
+    ]
+
+
+def build_dataset(spec: SceneSpec, root: Path, cfg: DatasetConfig, executor: Executor | None = None, progress: bool = True) -> DatasetMeta:
+    """Render (or finish rendering) ``spec``'s dataset into ``root`` on ``executor`` (default: this
+    process); returns its metadata.
 
     Holds ``root`` for the whole run (a concurrent second run is refused) and first removes temporary
     files that a killed run left behind."""
@@ -116,35 +123,15 @@ def build_dataset(spec: SceneSpec, root: Path, cfg: DatasetConfig, workers: int 
             if folder.is_dir():
                 sweep_temporaries(folder)
         write_meta(root, meta)
-        _render_missing(spec, root, cfg, meta, workers, progress)
+        jobs = frame_jobs(meta, cfg, root)
+        with tqdm(total=len(jobs), desc=spec.name, disable=not (progress and jobs), unit="frame") as bar:
+
+            def receive(job: FrameJob, data: bytes) -> None:
+                write_frame(root / job[0], data)
+                bar.update()
+
+            (executor or InProcess()).run(frame_task(spec, cfg), jobs, receive)
     return meta
-
-
-def _render_missing(spec: SceneSpec, root: Path, cfg: DatasetConfig, meta: DatasetMeta, workers: int, progress: bool) -> None:
-    jobs = [
-        (str(root / r.file), r.camera, r.light, cfg.buffers, cfg.spp, cfg.denoise, frame_seed(cfg.seed, r.split, r.index))
-        for r in meta.frames
-        if not (root / r.file).is_file()
-    ]
-    if not jobs:
-        return
-    bar = dict(total=len(jobs), desc=spec.name, disable=not progress, unit="frame")
-    if workers == 1:  # no pool: cheaper, and Mitsuba already uses every core
-        _init_worker(spec.to_dict(), cfg.resolution, os.cpu_count() or 1)
-        for job in tqdm(jobs, **bar):
-            _render_one(job)
-        return
-    threads = max(1, (os.cpu_count() or 1) // workers)
-    # spawn, not fork: a forked worker inherits OIDN's thread pool state and can deadlock in it.
-    ctx = multiprocessing.get_context("spawn")
-    pool = ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_pool_worker, initargs=(spec.to_dict(), cfg.resolution, threads))
-    try:
-        for _ in tqdm(pool.map(_render_one, jobs), **bar):
-            pass
-    except BaseException:  # Ctrl-C or a failed frame: drop the queued frames, let running ones finish their atomic write
-        pool.shutdown(wait=True, cancel_futures=True)
-        raise
-    pool.shutdown()
 
 
 @app.command()
@@ -159,19 +146,21 @@ def dataset_command(
     seed: Annotated[int, typer.Option(help="seeds trajectories and per-frame noise")] = 0,
     fov: Annotated[float | None, typer.Option(help="camera FOV in degrees, in (0, 180) (default: the scene's GI-camera FOV)")] = None,
     buffers: Annotated[str, typer.Option(help="comma-separated buffers to render and store")] = ",".join(DATASET_BUFFERS),
-    workers: Annotated[int, typer.Option(min=1, help="rendering processes")] = 1,
+    workers: Annotated[int | None, typer.Option(min=1, help=WORKERS_HELP)] = None,
+    ray: Annotated[str | None, typer.Option(help=RAY_HELP)] = None,
 ) -> None:
     """Render datasets for the given scenes."""
     cfg = DatasetConfig(train, val, resolution, spp, denoise, seed, fov, tuple(b.strip() for b in buffers.split(",") if b.strip()))
     specs = [load_scene(name) for name in scenes]  # every spec (and mesh) is checked before any rendering
-    for spec in specs:
-        root = out / spec.name
-        t0 = time.perf_counter()
-        meta = build_dataset(spec, root, cfg, workers)
-        size = sum(p.stat().st_size for p in root.rglob("*.npz"))
-        typer.echo(
-            f"{spec.name}: {len(meta.frames)} frames in {root} ({size / len(meta.frames) / 1024:.0f} KiB/frame, {time.perf_counter() - t0:.1f} s)"
-        )
+    with open_executor(workers, ray) as executor:
+        for spec in specs:
+            root = out / spec.name
+            t0 = time.perf_counter()
+            meta = build_dataset(spec, root, cfg, executor)
+            size = sum(p.stat().st_size for p in root.rglob("*.npz"))
+            typer.echo(
+                f"{spec.name}: {len(meta.frames)} frames in {root} ({size / len(meta.frames) / 1024:.0f} KiB/frame, {time.perf_counter() - t0:.1f} s)"
+            )
 
 
 main = entry_point(app, resume="finished frames are kept: run the same command again to render the rest")

@@ -41,7 +41,7 @@ def static_spec(make_spec):
 @pytest.fixture(scope="module")
 def base_dataset(moving_spec, tmp_path_factory):
     root = tmp_path_factory.mktemp("ds") / "a"
-    meta = build_dataset(moving_spec, root, CFG, workers=1, progress=False)
+    meta = build_dataset(moving_spec, root, CFG, progress=False)
     return root, meta
 
 
@@ -85,7 +85,7 @@ def test_stored_buffers_and_precision(base_dataset):
 def test_same_seed_gives_identical_arrays(base_dataset, moving_spec, tmp_path):
     root_a, meta_a = base_dataset
     root_b = tmp_path / "b"
-    meta_b = build_dataset(moving_spec, root_b, CFG, workers=1, progress=False)
+    meta_b = build_dataset(moving_spec, root_b, CFG, progress=False)
     assert meta_a.to_dict() == meta_b.to_dict()
     a, b = npz_arrays(root_a), npz_arrays(root_b)
     assert list(a) == list(b)
@@ -97,7 +97,7 @@ def test_same_seed_gives_identical_arrays(base_dataset, moving_spec, tmp_path):
 def test_different_seed_gives_different_noise(base_dataset, moving_spec, tmp_path, renderer):
     root_a, _ = base_dataset
     root_c = tmp_path / "c"
-    build_dataset(moving_spec, root_c, replace(CFG, seed=1), workers=1, progress=False)
+    build_dataset(moving_spec, root_c, replace(CFG, seed=1), progress=False)
     a, c = npz_arrays(root_a), npz_arrays(root_c)
     for file in a:
         assert not np.array_equal(a[file]["gt"], c[file]["gt"]), file
@@ -114,7 +114,7 @@ def test_different_seed_gives_different_noise(base_dataset, moving_spec, tmp_pat
 # -- light records ------------------------------------------------------------------------------------------
 def test_static_light_has_no_light_schedule(static_spec, tmp_path):
     root = tmp_path / "static"
-    build_dataset(static_spec, root, replace(CFG, n_train=2, n_val=1), workers=1, progress=False)
+    build_dataset(static_spec, root, replace(CFG, n_train=2, n_val=1), progress=False)
     raw = json.loads((root / "meta.json").read_text())
     assert raw["frames"] and all("light" not in f for f in raw["frames"])
     assert "light" not in json.dumps(raw["frames"])
@@ -139,7 +139,7 @@ def test_plan_frames_light_only_when_moving(static_spec, moving_spec):
 def test_resume_rerenders_only_missing_frames(moving_spec, tmp_path):
     root = tmp_path / "resume"
     cfg = replace(CFG, n_train=3, n_val=0)
-    build_dataset(moving_spec, root, cfg, workers=1, progress=False)
+    build_dataset(moving_spec, root, cfg, progress=False)
     files = sorted(root.rglob("*.npz"))
     assert len(files) == 3
     before = {p: p.stat().st_mtime_ns for p in files}
@@ -148,7 +148,7 @@ def test_resume_rerenders_only_missing_frames(moving_spec, tmp_path):
     victim.unlink()
     with pytest.raises(UserError, match=r"1 frame\(s\) of .* are missing.*gicore-dataset"):
         frame_paths(root, "train")
-    build_dataset(moving_spec, root, cfg, workers=1, progress=False)
+    build_dataset(moving_spec, root, cfg, progress=False)
     assert victim.is_file()
     for p, mtime in before.items():
         if p != victim:
@@ -160,7 +160,7 @@ def test_resume_rerenders_only_missing_frames(moving_spec, tmp_path):
     assert not list(root.rglob("*.tmp*")), "no temporary files left behind"
     # A complete dataset is a no-op rerun.
     mtimes = {p: p.stat().st_mtime_ns for p in root.rglob("*.npz")}
-    build_dataset(moving_spec, root, cfg, workers=1, progress=False)
+    build_dataset(moving_spec, root, cfg, progress=False)
     assert {p: p.stat().st_mtime_ns for p in root.rglob("*.npz")} == mtimes
 
 
@@ -178,7 +178,7 @@ def test_refuses_to_mix_settings(base_dataset, moving_spec, change):
     root, _ = base_dataset
     before = (root / "meta.json").read_text()
     with pytest.raises(UserError, match="other settings") as info:
-        build_dataset(moving_spec, root, replace(CFG, **change), workers=1, progress=False)
+        build_dataset(moving_spec, root, replace(CFG, **change), progress=False)
     assert next(iter(change)) in str(info.value)  # the message names the setting that differs
     assert (root / "meta.json").read_text() == before
 
@@ -195,15 +195,15 @@ def test_changed_frame_plan_never_leaves_stale_frames(moving_spec, tmp_path, cha
     either be refused or re-render every frame whose record changed: never keep an image rendered
     for another camera under the new meta.json."""
     root = tmp_path / "plan"
-    build_dataset(moving_spec, root, CFG, workers=1, progress=False)
+    build_dataset(moving_spec, root, CFG, progress=False)
     new_cfg = replace(CFG, **change)
     try:
-        build_dataset(moving_spec, root, new_cfg, workers=1, progress=False)
+        build_dataset(moving_spec, root, new_cfg, progress=False)
     except UserError as err:
         assert "settings" in str(err)
         return
     fresh = tmp_path / "fresh"
-    build_dataset(moving_spec, fresh, new_cfg, workers=1, progress=False)
+    build_dataset(moving_spec, fresh, new_cfg, progress=False)
     assert read_meta(root).to_dict() == read_meta(fresh).to_dict()
     a, b = npz_arrays(root), npz_arrays(fresh)
     assert list(a) == list(b)
@@ -215,14 +215,14 @@ def test_changed_frame_plan_never_leaves_stale_frames(moving_spec, tmp_path, cha
 def test_refuses_another_scene(base_dataset, make_spec):
     root, _ = base_dataset
     with pytest.raises(UserError, match="other settings.*scene differs"):
-        build_dataset(make_spec(light={"intensity": 3.0, "amplitude": [0.6, 0.3], "period": [40.0, 60.0]}), root, CFG, workers=1, progress=False)
+        build_dataset(make_spec(light={"intensity": 3.0, "amplitude": [0.6, 0.3], "period": [40.0, 60.0]}), root, CFG, progress=False)
 
 
 # -- buffers ------------------------------------------------------------------------------------------------------
 def test_only_requested_buffers_are_stored(moving_spec, tmp_path):
     root = tmp_path / "subset"
     cfg = replace(CFG, n_train=1, n_val=0, buffers=("gt", "depth"))
-    meta = build_dataset(moving_spec, root, cfg, workers=1, progress=False)
+    meta = build_dataset(moving_spec, root, cfg, progress=False)
     assert meta.buffers == ["gt", "depth"]
     with np.load(root / "train/000000.npz") as data:
         assert sorted(data.files) == ["depth", "gt"]
@@ -251,7 +251,7 @@ def main(mesh, out):
                                 "light": {"position": [0.8, 2.6, 1.2], "intensity": 12.0}})
     # Denoising needs albedo/normal internally, but only gt and depth are asked for.
     cfg = DatasetConfig(n_train=1, n_val=0, resolution=24, spp=2, denoise=True, buffers=("gt", "depth"))
-    build_dataset(spec, out / "a", cfg, workers=1, progress=False)
+    build_dataset(spec, out / "a", cfg, progress=False)
     with np.load(out / "a/train/000000.npz") as d:
         assert sorted(d.files) == ["depth", "gt"], d.files
         assert np.all(np.isfinite(d["gt"]))
@@ -262,7 +262,7 @@ def main(mesh, out):
     assert gt.shape == (24, 24, 3) and np.all(np.isfinite(gt))
     print("denoised-in-process", flush=True)
     # ... and then builds another dataset with denoising workers.
-    build_dataset(spec, out / "b", cfg, workers=1, progress=False)
+    build_dataset(spec, out / "b", cfg, progress=False)
     a, b = load_frame(out / "a/train/000000.npz")["gt"], load_frame(out / "b/train/000000.npz")["gt"]
     np.testing.assert_array_equal(a, b)
     print("built-2", flush=True)
@@ -304,7 +304,7 @@ def test_denoised_dataset_and_build_after_in_process_denoise(sphere_mesh_path, t
 
 def test_unknown_buffer_rejected_before_rendering(moving_spec, tmp_path):
     with pytest.raises(UserError, match="bogus"):
-        build_dataset(moving_spec, tmp_path / "x", replace(CFG, buffers=("gt", "bogus")), workers=1, progress=False)
+        build_dataset(moving_spec, tmp_path / "x", replace(CFG, buffers=("gt", "bogus")), progress=False)
     assert not (tmp_path / "x").exists()
 
 
@@ -403,7 +403,7 @@ def test_second_run_into_one_folder_is_refused(moving_spec, tmp_path):
     root = tmp_path / "held"
     with exclusive_run(root):  # as a concurrent gicore-dataset run holds it
         with pytest.raises(UserError, match=f"another run holds {root}"):
-            build_dataset(moving_spec, root, CFG, workers=1, progress=False)
+            build_dataset(moving_spec, root, CFG, progress=False)
         assert not (root / "meta.json").exists()
 
 
@@ -411,11 +411,11 @@ def test_temporaries_of_a_killed_run_are_swept(moving_spec, tmp_path):
     from gicore.fileio import TMP_MARKER
 
     root = tmp_path / "swept"
-    build_dataset(moving_spec, root, replace(CFG, n_train=1, n_val=0), workers=1, progress=False)
+    build_dataset(moving_spec, root, replace(CFG, n_train=1, n_val=0), progress=False)
     leftovers = [root / f"meta.json{TMP_MARKER}abc", root / "train" / f"000001.npz{TMP_MARKER}xyz"]
     for path in leftovers:
         path.write_bytes(b"half a frame")
-    build_dataset(moving_spec, root, replace(CFG, n_train=1, n_val=0), workers=1, progress=False)
+    build_dataset(moving_spec, root, replace(CFG, n_train=1, n_val=0), progress=False)
     assert not any(p.exists() for p in leftovers)
     assert sorted(p.name for p in root.rglob("*")) == ["000000.npz", "meta.json", "train"]
 

@@ -1,0 +1,251 @@
+"""The render executor (SPEC §1): where the embarrassingly parallel render jobs of a run execute.
+
+A run (the frames of a scene's data set, the maps of a prebake) is a :class:`Task` and a list of jobs.
+The task says how a worker process builds its state once (``build(*args)``: a compiled scene) and how
+it turns one job into a result (``work(state, job)``: a frame's file bytes, a map's payload). Every
+backend runs the same :func:`run_job` in its workers, so they cannot diverge; results come back to the
+calling process (the driver) in completion order, and the driver writes them, so a worker that dies
+mid-job leaves no file behind. Each worker process keeps the state of the last :data:`CACHED_STATES`
+tasks it built (keyed by the task's value), so a scene is compiled once per process, not per job.
+
+Backends (:func:`open_executor` picks one from the command line's ``--workers`` and ``--ray``):
+
+- :class:`InProcess`: the calling process; one job at a time with every core to the renderer.
+- :class:`LocalPool`: spawned worker processes (``spawn``, not ``fork``: a forked worker inherits OIDN's
+  thread-pool state and can deadlock in it). Workers ignore Ctrl-C; the driver drops the queued jobs
+  and waits for the running ones, whose results it discards.
+- :class:`RayExecutor`: Ray tasks on a local instance or a cluster (the optional extra
+  ``pip install '.[ray]'``; Ray is imported only when chosen). A task whose worker dies is retried
+  (``max_retries``); Ctrl-C (or any error in the driver) cancels every outstanding task. Every node needs
+  this package installed in the same environment (the tasks import it by name).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import multiprocessing
+import os
+import pickle
+import signal
+import socket
+from collections import OrderedDict
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+from gicore.cli import UserError
+
+#: Task states a worker process keeps (least recently used dropped first): a run's scene, plus one
+#: more so that two drivers sharing a Ray cluster do not rebuild each other's scenes on every job.
+CACHED_STATES = 2
+#: Seconds to wait for a Ray head's port before calling it unreachable (ray.init itself retries for minutes).
+RAY_CONNECT_TIMEOUT_S = 5.0
+#: How often the driver wakes from waiting on Ray, so that Ctrl-C is handled promptly.
+RAY_POLL_S = 0.2
+START_RAY = "start one with `ray start --head` and give its address, or use --ray auto"
+#: ``--workers`` and ``--ray`` of every command that renders through an executor (:func:`open_executor`).
+WORKERS_HELP = "rendering processes (default 1); with --ray, tasks at once (default: as many as the cluster has CPUs)"
+RAY_HELP = "run the renders as Ray tasks: 'auto' (the cluster in RAY_ADDRESS or one `ray start` runs here, else a new local one) or HOST:PORT"
+INSTALL_RAY = "install it with pip install '.[ray]' (or leave out --ray to use local processes)"
+
+
+@dataclass(frozen=True)
+class Task:
+    """What every job of a run needs. ``build(*args)`` makes a worker's state (e.g. a Renderer of the
+    scene); ``work(state, job)`` returns one job's picklable result. Both must be module-level functions
+    (workers import them by name) and ``args`` picklable; ``key`` identifies the state by value."""
+
+    build: Callable[..., Any]
+    args: tuple
+    work: Callable[[Any, Any], Any]
+    key: str = field(init=False)
+
+    def __post_init__(self) -> None:
+        ident = (self.build.__module__, self.build.__qualname__, self.args)
+        object.__setattr__(self, "key", hashlib.sha256(pickle.dumps(ident)).hexdigest())
+
+
+_states: OrderedDict[str, Any] = OrderedDict()
+_threads: int | None = None
+
+
+def run_job(task: Task, threads: int, job: Any) -> Any:
+    """One job in a worker process (any backend): the process's renderer threads set to ``threads``,
+    the task's state built once per process, then ``task.work(state, job)``."""
+    global _threads
+    if threads != _threads:
+        import drjit
+
+        import gicore.render  # noqa: F401  (locates libLLVM before Dr.Jit's first call)
+
+        drjit.set_thread_count(threads)
+        _threads = threads
+    if task.key not in _states:
+        _states[task.key] = task.build(*task.args)
+        while len(_states) > CACHED_STATES:
+            _states.popitem(last=False)
+    _states.move_to_end(task.key)
+    return task.work(_states[task.key], job)
+
+
+#: What the driver does with each finished job: ``receive(job, result)``, in completion order.
+Receive = Callable[[Any, Any], None]
+
+
+class Executor(Protocol):
+    """Runs a task's jobs; ``workers`` is how many run at once (None: as many as a Ray cluster has CPUs)."""
+
+    workers: int | None
+
+    def run(self, task: Task, jobs: Sequence[Any], receive: Receive) -> None:
+        """Run every job and hand each result to ``receive`` in this process as it finishes. An
+        exception (a failed job, one raised by ``receive``, Ctrl-C) cancels the jobs not yet finished
+        before it propagates."""
+        ...
+
+
+@dataclass
+class InProcess:
+    """Jobs run one after another in this process, on ``threads`` renderer threads."""
+
+    threads: int = field(default_factory=lambda: os.cpu_count() or 1)
+    workers: int = 1
+
+    def run(self, task: Task, jobs: Sequence[Any], receive: Receive) -> None:
+        for job in jobs:
+            receive(job, run_job(task, self.threads, job))
+
+
+def _ignore_sigint() -> None:
+    """Pool workers leave Ctrl-C to the driver, which stops the run."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+class LocalPool:
+    """``workers`` spawned processes on ``threads`` renderer threads each (default: the cores shared
+    out); one pool serves every run of the executor's life (use it as a context manager)."""
+
+    def __init__(self, workers: int, threads: int | None = None):
+        self.workers = workers
+        self.threads = threads or max(1, (os.cpu_count() or 1) // workers)
+        self._pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"), initializer=_ignore_sigint)
+
+    def __enter__(self) -> LocalPool:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._pool.shutdown(wait=True, cancel_futures=True)
+
+    def run(self, task: Task, jobs: Sequence[Any], receive: Receive) -> None:
+        pending: dict[Future, Any] = {self._pool.submit(run_job, task, self.threads, job): job for job in jobs}
+        try:
+            while pending:
+                done, _ = wait(pending, return_when=FIRST_COMPLETED)
+                for future in done:
+                    receive(pending.pop(future), future.result())
+        finally:
+            for future in pending:  # queued ones are dropped; running ones finish and are discarded
+                future.cancel()
+
+
+class RayExecutor:
+    """Jobs as Ray tasks of ``threads`` CPUs each, at most ``workers`` in flight (None: all submitted at
+    once, and the cluster runs as many as it has CPUs). Needs Ray connected (:func:`connect_ray`)."""
+
+    def __init__(self, workers: int | None = None, threads: int = 1, max_retries: int = 3):
+        import ray
+
+        self.workers = workers
+        self.threads = threads
+        # A worker that dies (killed, out of memory, node lost) is a system failure: Ray reruns its task.
+        # An exception raised by the job itself is not retried: it is a bug or a user error to report.
+        self._remote = ray.remote(run_job).options(num_cpus=threads, max_retries=max_retries, retry_exceptions=False)
+
+    def run(self, task: Task, jobs: Sequence[Any], receive: Receive) -> None:
+        import ray
+
+        task_ref = ray.put(task)  # shipped once, not with every job
+        queue = list(reversed(jobs))
+        pending: dict[Any, Any] = {}
+        try:
+            while queue or pending:
+                while queue and (self.workers is None or len(pending) < self.workers):
+                    job = queue.pop()
+                    pending[self._remote.remote(task_ref, self.threads, job)] = job
+                done, _ = ray.wait(list(pending), num_returns=1, timeout=RAY_POLL_S)
+                for ref in done:
+                    job = pending.pop(ref)
+                    try:
+                        result = ray.get(ref)
+                    except ray.exceptions.RayTaskError as exc:
+                        if isinstance(exc.cause, UserError):  # one line, as if raised here
+                            raise exc.cause from None
+                        raise
+                    receive(job, result)
+        finally:
+            for ref in pending:
+                ray.cancel(ref, force=True)  # force: stop the render now rather than finish a discarded frame
+
+
+def _host_port(text: str) -> tuple[str, int] | None:
+    """(host, port) of a HOST:PORT address, else None."""
+    host, _, port = text.rpartition(":")
+    return (host.strip("[]"), int(port)) if host and port.isdigit() and 0 < int(port) < 65536 else None
+
+
+def _check_reachable(address: str, option: str) -> None:
+    """Fail fast on a head that does not answer: ``ray.init`` would retry for minutes."""
+    try:
+        socket.create_connection(_host_port(address), timeout=RAY_CONNECT_TIMEOUT_S).close()
+    except OSError as exc:
+        reason = exc.strerror or type(exc).__name__
+        raise UserError(f"{option} {address}: no Ray cluster answers there ({reason})", START_RAY) from None
+
+
+def connect_ray(address: str) -> bool:
+    """Connect this process to Ray: ``auto`` joins the cluster named by ``RAY_ADDRESS`` or the one
+    ``ray start`` runs on this machine, else starts a local instance; HOST:PORT joins that cluster's
+    head. Returns whether this call connected (and so must ``ray.shutdown()``); a process already
+    connected (a notebook, a test) keeps its connection."""
+    if address != "auto" and _host_port(address) is None:
+        raise UserError(f"--ray {address!r} is neither 'auto' nor HOST:PORT", "give --ray auto, or the address `ray start --head` printed")
+    try:
+        import ray
+    except ImportError:
+        raise UserError("--ray needs Ray, which is not installed", INSTALL_RAY) from None
+    if ray.is_initialized():
+        return False
+    if address != "auto":
+        _check_reachable(address, "--ray")
+    elif _host_port(os.environ.get("RAY_ADDRESS", "")) is not None:
+        _check_reachable(os.environ["RAY_ADDRESS"], "RAY_ADDRESS")
+    try:
+        ray.init(address=None if address == "auto" else address, include_dashboard=False, log_to_driver=False, logging_level=logging.ERROR)
+    except ConnectionError as exc:
+        raise UserError(f"--ray {address}: {' '.join(str(exc).split())}", START_RAY) from None
+    return True
+
+
+@contextmanager
+def open_executor(workers: int | None = None, ray: str | None = None) -> Iterator[Executor]:
+    """The executor a command line asks for. Without ``ray``: ``workers`` local processes (None or 1:
+    this process). With ``ray`` (``auto`` or HOST:PORT): Ray tasks, at most ``workers`` at once (None:
+    as many as the cluster's CPUs). Ray is disconnected (a local instance stopped) at the end."""
+    if ray is None:
+        if (workers or 1) == 1:
+            yield InProcess()
+            return
+        with LocalPool(workers) as pool:
+            yield pool
+        return
+    connected = connect_ray(ray)
+    try:
+        yield RayExecutor(workers)
+    finally:
+        if connected:
+            import ray as ray_module
+
+            ray_module.shutdown()
