@@ -320,7 +320,7 @@ def bake_resolution(ctx: Context, pts: Points) -> dict[str, float]:
 
 def codecs_and_links(ctx: Context, pts: Points, bake_ms: float) -> dict[str, Any]:
     """Cloud baking per map: codec and quality × network profile × cache state. Returns the first codec's
-    payload bytes and decode time (the tolerance points' hit path)."""
+    payload bytes, encode and decode times (the tolerance points' hit and miss paths)."""
     from baseline_cloudbaking.codecs import DEPTH_CODEC
     from baseline_cloudbaking.protocol import pack
     from bench.latency import CloudCost
@@ -347,7 +347,7 @@ def codecs_and_links(ctx: Context, pts: Points, bake_ms: float) -> dict[str, Any
             sizes.append(len(payload) + 200)  # + the HTTP response header
             errors.append(ctx.error(decoded, gi_cam, light))
         encode_ms, decode_ms, nbytes, error = float(np.median(enc)), float(np.median(dec)), int(np.median(sizes)), float(np.mean(errors))
-        first = first or {"bytes": nbytes, "decode_ms": decode_ms, "codec": spec}
+        first = first or {"bytes": nbytes, "encode_ms": encode_ms, "decode_ms": decode_ms, "codec": spec}
         for profile in cfg.profiles:
             link = profiles.get(profile).link(seed=ctx.seed)
             for cache in ("miss", "hit"):
@@ -371,7 +371,8 @@ def tolerances(ctx: Context, pts: Points, bake_ms: float, hit_path: dict[str, An
     gi_fov = ctx.spec.camera.gi_fov
     link = profiles.get("lan").link(seed=ctx.seed)
     hit_ms = CloudCost(0.0, 0.0, REQUEST_BYTES, hit_path["bytes"]).network_ms(link) + hit_path["decode_ms"]
-    miss_ms = CloudCost(0.0, bake_ms, REQUEST_BYTES, hit_path["bytes"]).network_ms(link) + bake_ms + hit_path["decode_ms"]
+    server_ms = bake_ms + hit_path["encode_ms"]
+    miss_ms = CloudCost(0.0, server_ms, REQUEST_BYTES, hit_path["bytes"]).network_ms(link) + server_ms + hit_path["decode_ms"]
     path = camera_path(ctx.spec, cfg.path_frames, seed=ctx.seed, fov=gi_fov, resolution=cfg.resolution)
     rng = np.random.default_rng(ctx.seed)
     for text in cfg.tolerances:

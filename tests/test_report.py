@@ -163,3 +163,15 @@ def test_dashboard_in_chromium_says_what_is_missing(browser, broken) -> None:
     assert page.locator("section#table1 table tbody tr").count() > 10  # the others still render
     assert page.locator("nav a.missing").inner_text().startswith("Error against run time")
     assert page.errors == []
+
+
+def test_the_newest_of_several_runs_is_shown_and_the_older_named(tmp_path: Path) -> None:
+    results = tmp_path / "results"
+    for name, finished in (("old", 1.0e9), ("new", 2.0e9)):
+        folder = results / name
+        shutil.copytree(FIXTURES / "warp", folder)
+        provenance = folder / "warp.provenance.json"
+        provenance.write_text(provenance.read_text().replace('"finished_unix":', f'"finished_unix": {finished}, "was":', 1))
+    html, sections = build(results, tmp_path / "out")
+    assert sections["fig7"]["config"]["file"] == "new/warp.csv" and sections["fig7"]["config"]["older_runs"] == ["old/warp.csv"]
+    assert "Newest of 2 runs; older: old/warp.csv." in html.read_text()
