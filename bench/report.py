@@ -85,9 +85,11 @@ def _ticks(lo: float, hi: float, log: bool) -> list[float]:
     """Round tick values covering [lo, hi]."""
     if log:
         a, b = math.floor(math.log10(lo)), math.ceil(math.log10(hi))
-        steps = (1, 2, 5) if b - a <= 2 else (1,)
-        ticks = [m * 10.0**k for k in range(a, b + 1) for m in steps]
-        return [t for t in ticks if lo * 0.999 <= t <= hi * 1.001]
+        for steps in ((1,), (1, 2, 5)):  # decades, else 1-2-5 within them
+            ticks = [t for t in (m * 10.0**k for k in range(a, b + 1) for m in steps) if lo * 0.999 <= t <= hi * 1.001]
+            if len(ticks) >= 3:
+                return ticks
+        return [t for t in _ticks(lo, hi, False) if t > 0]  # within one decade: round linear values, placed on the log scale
     raw = (hi - lo) / 5
     mag = 10.0 ** math.floor(math.log10(raw))
     step = next(m * mag for m in (1, 2, 2.5, 5, 10) if m * mag >= raw)
