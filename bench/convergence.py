@@ -37,7 +37,7 @@ class ConvergenceConfig:
     repeats: int = 3
 
     @classmethod
-    def quick(cls) -> "ConvergenceConfig":
+    def quick(cls) -> ConvergenceConfig:
         return cls(scenes=("lung_plane", "lung_cornell"), resolution=96, spps=(1, 4, 16, 64), reference_spp=1024, repeats=2)
 
 

@@ -62,7 +62,7 @@ class FovConfig:
     model: Path = DEFAULT_MODEL
 
     @classmethod
-    def quick(cls) -> "FovConfig":
+    def quick(cls) -> FovConfig:
         return cls(resolution=128, base_frames=(0, 150), rotations=(5.0, 15.0, 30.0), translations=(0.1, 0.3), spp=16)
 
     def check(self) -> None:

@@ -65,7 +65,7 @@ class FrequencyConfig:
     inference_ms: float | None = None
 
     @classmethod
-    def quick(cls) -> "FrequencyConfig":
+    def quick(cls) -> FrequencyConfig:
         return cls(frames=60, gt_every=6, spp=16)
 
     def check(self) -> None:

@@ -50,7 +50,7 @@ class ModelCardConfig:
     scenes: tuple[str, ...] = ("lung_plane",)
 
     @classmethod
-    def quick(cls) -> "ModelCardConfig":
+    def quick(cls) -> ModelCardConfig:
         return cls(train_steps=60)
 
     def check(self) -> None:

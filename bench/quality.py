@@ -52,7 +52,7 @@ class QualityConfig:
     grid_frames: int = field(default=2, metadata={"min": 0})
 
     @classmethod
-    def quick(cls) -> "QualityConfig":
+    def quick(cls) -> QualityConfig:
         return cls(datasets=None, max_frames=3, timing_repeats=5, grid_frames=1)
 
     def check(self) -> None:

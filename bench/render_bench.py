@@ -36,7 +36,7 @@ class RenderBenchConfig:
     gt_repeats: int = 3
 
     @classmethod
-    def quick(cls) -> "RenderBenchConfig":
+    def quick(cls) -> RenderBenchConfig:
         return cls(scenes=("lung_plane",), resolution=128, repeats=5, gt_repeats=2)
 
 

@@ -39,7 +39,7 @@ class TrainingBenchConfig:
     scenes: tuple[str, ...] = ("lung_plane",)
 
     @classmethod
-    def quick(cls) -> "TrainingBenchConfig":
+    def quick(cls) -> TrainingBenchConfig:
         return cls(train_steps=60)
 
     def check(self) -> None:

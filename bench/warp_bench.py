@@ -91,7 +91,7 @@ class WarpBenchConfig:
     warmup: int = field(default=2, metadata={"min": 0})
 
     @classmethod
-    def quick(cls) -> "WarpBenchConfig":
+    def quick(cls) -> WarpBenchConfig:
         return cls(gi_frames=(0,), offsets=(1, 10, 20, 29), spp=16, repeats=5)
 
 

@@ -17,7 +17,7 @@ import matplotlib.ticker as ticker  # noqa: E402
 __all__ = ["plt", "save", "ticker"]
 
 
-def save(fig: "plt.Figure", png: Path) -> Path:
+def save(fig: plt.Figure, png: Path) -> Path:
     """Lay out ``fig``, write it to ``png`` at 120 dpi and free it."""
     fig.tight_layout()
     fig.savefig(png, dpi=120)

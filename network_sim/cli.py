@@ -28,22 +28,43 @@ def _finite(flag: str, value: float | None) -> float | None:
 
 
 def link_config(
-    profile: str | None = None, *, delay_ms: float | None = None, jitter_ms: float | None = None, jitter_dist: str | None = None,
-    rate_mbit: float | None = None, rate_up_mbit: float | None = None, rate_down_mbit: float | None = None, queue_bytes: int | None = None,
-    loss: float | None = None, trace_up: Path | None = None, trace_down: Path | None = None, window_bytes: int = DEFAULT_WINDOW_BYTES, seed: int = 0,
+    profile: str | None = None,
+    *,
+    delay_ms: float | None = None,
+    jitter_ms: float | None = None,
+    jitter_dist: str | None = None,
+    rate_mbit: float | None = None,
+    rate_up_mbit: float | None = None,
+    rate_down_mbit: float | None = None,
+    queue_bytes: int | None = None,
+    loss: float | None = None,
+    trace_up: Path | None = None,
+    trace_down: Path | None = None,
+    window_bytes: int = DEFAULT_WINDOW_BYTES,
+    seed: int = 0,
 ) -> LinkConfig:
     """The link the proxy flags describe: the profile's settings (or none), overridden by each given flag."""
-    for flag, value in (("--delay-ms", delay_ms), ("--jitter-ms", jitter_ms), ("--rate-mbit", rate_mbit), ("--rate-up-mbit", rate_up_mbit),
-                        ("--rate-down-mbit", rate_down_mbit), ("--loss", loss)):
+    for flag, value in (
+        ("--delay-ms", delay_ms),
+        ("--jitter-ms", jitter_ms),
+        ("--rate-mbit", rate_mbit),
+        ("--rate-up-mbit", rate_up_mbit),
+        ("--rate-down-mbit", rate_down_mbit),
+        ("--loss", loss),
+    ):
         _finite(flag, value)
     base = profile_table.get(profile) if profile is not None else None
 
     def direction(name: str, current: DirectionConfig, rate: float | None, trace: Path | None) -> DirectionConfig:
         if rate is not None and trace is not None:
-            raise UserError(f"--trace-{name} and a rate for the {name} direction were both given",
-                            f"drop one: a trace replaces the rate of the {name} direction")
-        changes: dict[str, object] = {k: v for k, v in (("delay_ms", delay_ms), ("jitter_ms", jitter_ms), ("jitter_dist", jitter_dist),
-                                                          ("queue_bytes", queue_bytes), ("loss", loss)) if v is not None}
+            raise UserError(
+                f"--trace-{name} and a rate for the {name} direction were both given", f"drop one: a trace replaces the rate of the {name} direction"
+            )
+        changes: dict[str, object] = {
+            k: v
+            for k, v in (("delay_ms", delay_ms), ("jitter_ms", jitter_ms), ("jitter_dist", jitter_dist), ("queue_bytes", queue_bytes), ("loss", loss))
+            if v is not None
+        }
         if rate is not None:
             changes.update(rate_mbit=rate, trace=None)
         if trace is not None:
@@ -77,9 +98,21 @@ def proxy(
     """Proxy TCP connections through an emulated link until SIGTERM/SIGINT."""
     from network_sim.proxy import parse_hostport, run
 
-    config = link_config(profile, delay_ms=delay_ms, jitter_ms=jitter_ms, jitter_dist=jitter_dist and jitter_dist.value, rate_mbit=rate_mbit,
-                         rate_up_mbit=rate_up_mbit, rate_down_mbit=rate_down_mbit, queue_bytes=queue_bytes, loss=loss, trace_up=trace_up,
-                         trace_down=trace_down, window_bytes=window_bytes, seed=seed)
+    config = link_config(
+        profile,
+        delay_ms=delay_ms,
+        jitter_ms=jitter_ms,
+        jitter_dist=jitter_dist and jitter_dist.value,
+        rate_mbit=rate_mbit,
+        rate_up_mbit=rate_up_mbit,
+        rate_down_mbit=rate_down_mbit,
+        queue_bytes=queue_bytes,
+        loss=loss,
+        trace_up=trace_up,
+        trace_down=trace_down,
+        window_bytes=window_bytes,
+        seed=seed,
+    )
     if log is not None:
         writable_dir(log.parent, name="--log folder")
     run(config, parse_hostport(listen, "--listen"), parse_hostport(upstream, "--upstream"), log)
@@ -128,5 +161,7 @@ def traces(out: Path = typer.Option(..., help="Folder to write the generated tra
 
     for model, path in zip(MODELS.values(), write_traces(writable_dir(out))):
         stats = trace_stats(Trace.load(path))
-        typer.echo(f"{path}: mean {stats['mean_mbit']:.2f} Mbit/s, cv100 {stats['cv100']:.2f}, ac100 {stats['ac100']:.2f}, "
-                   f"empty100 {stats['empty100']:.3f}  (fitted to {model.source})")
+        typer.echo(
+            f"{path}: mean {stats['mean_mbit']:.2f} Mbit/s, cv100 {stats['cv100']:.2f}, ac100 {stats['ac100']:.2f}, "
+            f"empty100 {stats['empty100']:.3f}  (fitted to {model.source})"
+        )

@@ -168,8 +168,13 @@ def upload(addr: tuple[str, int], nbytes: int, seed: int, timeout: float) -> Tra
                 raise ConnectionError("sink closed without a report")
             line += data
     report = json.loads(line)
-    return Transfer(report["bytes"], report["bytes"] == nbytes and report["sha256"] == digest(nbytes, seed),
-                    report["first_ns"] / 1e9, report["last_ns"] / 1e9, report["first_chunk"])
+    return Transfer(
+        report["bytes"],
+        report["bytes"] == nbytes and report["sha256"] == digest(nbytes, seed),
+        report["first_ns"] / 1e9,
+        report["last_ns"] / 1e9,
+        report["first_chunk"],
+    )
 
 
 def download(addr: tuple[str, int], nbytes: int, seed: int, timeout: float) -> Transfer:
@@ -225,6 +230,7 @@ def probes(addr: tuple[str, int], count: int, interval_s: float, timeout: float,
     rng = random.Random(seed)
     results: list[Probe] = []
     with connect(addr, b"P", timeout) as sock:
+
         def send_all() -> None:
             deadline = time.monotonic()
             for seq in range(count):

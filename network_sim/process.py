@@ -26,7 +26,7 @@ class Running:
         if not first.startswith(LISTENING):
             self.stop()
             raise RuntimeError(f"{' '.join(argv)} did not start: {first!r}; stderr: {self.stderr()}")
-        host, _, port = first[len(LISTENING):].strip().rpartition(":")
+        host, _, port = first[len(LISTENING) :].strip().rpartition(":")
         self.addr = (host, int(port))
 
     def readline(self, timeout: float) -> str:

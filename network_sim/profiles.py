@@ -57,18 +57,40 @@ def profiles() -> dict[str, Profile]:
     wifi_up = 15.0  # Firefox DevTools "Wi-Fi": 30 Mbit/s down, 15 Mbit/s up
     profiles = [
         Profile("loopback", DirectionConfig(), DirectionConfig(), "no shaping: the proxy alone (its overhead is measured by network-sim selftest)"),
-        _symmetric("lan", 0.5, 1000.0, "Gigabit Ethernet line rate (IEEE 802.3ab 1000BASE-T); 0.5 ms RTT is an assumption "
-                   "(no measured source; the order of a ping across one switch)"),
-        _symmetric("wifi", 2.0, 30.0, "Firefox DevTools throttling preset 'Wi-Fi': 30 Mbit/s down, 15 Mbit/s up, 2 ms latency "
-                   "(taken as the RTT)", rate_up_mbit=wifi_up),
-        _symmetric("wan", 130.0, 5.0, "GamingAnywhere (Huang et al., MMSys 2013, §5.1): the path to OnLive's server had "
-                   "'around 130 ms' delay (taken as the RTT) and carried OnLive's recommended 5 Mbit/s with loss < 1e-6"),
-        _traced("lte", 70.0, "traces generated to match Mahimahi's Verizon-LTE-short (mean 5.03 down / 5.95 up Mbit/s, "
-                "network_sim.tracegen); 70 ms RTT from WebPageTest's 'LTE (12 Mbps, 70ms RTT)' connectivity profile"),
-        _traced("lte-fast", 70.0, "traces generated to match Mahimahi's TMobile-LTE-short (mean 16.70 down / 13.32 up "
-                "Mbit/s, network_sim.tracegen); 70 ms RTT from WebPageTest's LTE connectivity profile"),
-        _symmetric("3g", 300.0, 0.7, "Lighthouse's 'mobileRegular3G' throttling (core/config/constants.js): rttMs 300, "
-                   "throughputKbps 700"),
+        _symmetric(
+            "lan",
+            0.5,
+            1000.0,
+            "Gigabit Ethernet line rate (IEEE 802.3ab 1000BASE-T); 0.5 ms RTT is an assumption "
+            "(no measured source; the order of a ping across one switch)",
+        ),
+        _symmetric(
+            "wifi",
+            2.0,
+            30.0,
+            "Firefox DevTools throttling preset 'Wi-Fi': 30 Mbit/s down, 15 Mbit/s up, 2 ms latency (taken as the RTT)",
+            rate_up_mbit=wifi_up,
+        ),
+        _symmetric(
+            "wan",
+            130.0,
+            5.0,
+            "GamingAnywhere (Huang et al., MMSys 2013, §5.1): the path to OnLive's server had "
+            "'around 130 ms' delay (taken as the RTT) and carried OnLive's recommended 5 Mbit/s with loss < 1e-6",
+        ),
+        _traced(
+            "lte",
+            70.0,
+            "traces generated to match Mahimahi's Verizon-LTE-short (mean 5.03 down / 5.95 up Mbit/s, "
+            "network_sim.tracegen); 70 ms RTT from WebPageTest's 'LTE (12 Mbps, 70ms RTT)' connectivity profile",
+        ),
+        _traced(
+            "lte-fast",
+            70.0,
+            "traces generated to match Mahimahi's TMobile-LTE-short (mean 16.70 down / 13.32 up "
+            "Mbit/s, network_sim.tracegen); 70 ms RTT from WebPageTest's LTE connectivity profile",
+        ),
+        _symmetric("3g", 300.0, 0.7, "Lighthouse's 'mobileRegular3G' throttling (core/config/constants.js): rttMs 300, throughputKbps 700"),
     ]
     profiles += [_symmetric(f"rtt{rtt}", float(rtt), None, _OUTATIME) for rtt in (60, 100, 120, 250)]
     return {p.name: p for p in profiles}

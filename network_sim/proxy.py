@@ -88,8 +88,21 @@ class ChunkLog:
 
     def row(self, chunk: Chunk, sent: float | None) -> None:
         c = chunk
-        self._writer.writerow((c.seq, c.conn, c.direction, c.nbytes, repr(c.arrival), repr(c.admitted), repr(c.finish), repr(c.ready),
-                               repr(c.release), "" if sent is None else repr(sent), repr(c.lost)))
+        self._writer.writerow(
+            (
+                c.seq,
+                c.conn,
+                c.direction,
+                c.nbytes,
+                repr(c.arrival),
+                repr(c.admitted),
+                repr(c.finish),
+                repr(c.ready),
+                repr(c.release),
+                "" if sent is None else repr(sent),
+                repr(c.lost),
+            )
+        )
 
     def close(self) -> None:
         self._fh.close()
@@ -256,8 +269,10 @@ class _Connection:
         self.client = _Side(self, UP)
         self.upstream = _Side(self, DOWN)
         link = proxy.link
-        self.pipes = {UP: _Pipe(proxy, link.stream(conn_id, UP), self.client, self.upstream),
-                      DOWN: _Pipe(proxy, link.stream(conn_id, DOWN), self.upstream, self.client)}
+        self.pipes = {
+            UP: _Pipe(proxy, link.stream(conn_id, UP), self.client, self.upstream),
+            DOWN: _Pipe(proxy, link.stream(conn_id, DOWN), self.upstream, self.client),
+        }
         self.closed = False
 
     def pipe_into(self, side: _Side) -> _Pipe:
@@ -275,8 +290,11 @@ class _Connection:
         try:
             await asyncio.wait_for(asyncio.get_running_loop().create_connection(lambda: self.upstream, host, port), CONNECT_TIMEOUT_S)
         except (TimeoutError, OSError) as exc:
-            print(f"network-sim proxy: connection {self.id}: upstream {host}:{port} unreachable ({exc or 'timeout'}); closing the client",
-                  file=sys.stderr, flush=True)
+            print(
+                f"network-sim proxy: connection {self.id}: upstream {host}:{port} unreachable ({exc or 'timeout'}); closing the client",
+                file=sys.stderr,
+                flush=True,
+            )
             self.close()
 
     def side_lost(self, side: _Side) -> None:

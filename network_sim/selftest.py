@@ -79,8 +79,16 @@ class SelftestConfig:
     @classmethod
     def quick(cls) -> SelftestConfig:
         """About a minute and a half on two cores."""
-        return cls(probe_s=2.0, jitters=((30.0, 3.0, "normal"), (30.0, 3.0, "pareto")), jitter_s=10.0, bulk_s=2.0,
-                   loss_probes=150, trace_s=5.0, pings=2000, overhead_bytes=256 << 20)
+        return cls(
+            probe_s=2.0,
+            jitters=((30.0, 3.0, "normal"), (30.0, 3.0, "pareto")),
+            jitter_s=10.0,
+            bulk_s=2.0,
+            loss_probes=150,
+            trace_s=5.0,
+            pings=2000,
+            overhead_bytes=256 << 20,
+        )
 
     def bulk_bytes_at(self, rate_mbit: float) -> int:
         bytes_per_s = rate_mbit * 1e6 / 8
@@ -153,13 +161,45 @@ class _Run:
         reference = self.transfer(endpoint.upload(self.server.addr, c.overhead_bytes, self.seed, _TIMEOUT_S))
         for q, limit in ((50, 0.3), (99, None)):
             added = (np.percentile(proxied, q) - np.percentile(direct, q)) * 1e3
-            self.add(Check(f"added RTT p{q} (loopback proxy vs direct)", "loopback", "added_rtt", f"p{q}", "ms", float(added),
-                           0.0, f"<= {limit} ms" if limit else "", added <= limit if limit else None,
-                           {"direct_ms": float(np.percentile(direct, q) * 1e3), "pings": len(direct)}))
-        self.add(Check("bulk throughput through loopback proxy", "loopback", "bulk_throughput", "value", "Mbit/s", bulk.goodput_mbit,
-                       None, ">= 1000 Mbit/s", bulk.goodput_mbit >= 1000, {"bytes": c.overhead_bytes}))
-        self.add(Check("bulk throughput direct (reference)", "direct", "bulk_throughput", "value", "Mbit/s", reference.goodput_mbit,
-                       config={"bytes": c.overhead_bytes}))
+            self.add(
+                Check(
+                    f"added RTT p{q} (loopback proxy vs direct)",
+                    "loopback",
+                    "added_rtt",
+                    f"p{q}",
+                    "ms",
+                    float(added),
+                    0.0,
+                    f"<= {limit} ms" if limit else "",
+                    added <= limit if limit else None,
+                    {"direct_ms": float(np.percentile(direct, q) * 1e3), "pings": len(direct)},
+                )
+            )
+        self.add(
+            Check(
+                "bulk throughput through loopback proxy",
+                "loopback",
+                "bulk_throughput",
+                "value",
+                "Mbit/s",
+                bulk.goodput_mbit,
+                None,
+                ">= 1000 Mbit/s",
+                bulk.goodput_mbit >= 1000,
+                {"bytes": c.overhead_bytes},
+            )
+        )
+        self.add(
+            Check(
+                "bulk throughput direct (reference)",
+                "direct",
+                "bulk_throughput",
+                "value",
+                "Mbit/s",
+                reference.goodput_mbit,
+                config={"bytes": c.overhead_bytes},
+            )
+        )
 
     def delays(self, workdir: Path) -> None:
         c = self.config
@@ -171,10 +211,32 @@ class _Run:
             for direction, values in (("up", [p.up_s * 1e3 for p in results]), ("down", [p.down_s * 1e3 for p in results])):
                 median = statistics.median(values)
                 config = {"delay_ms": delay, "direction": direction, "probes": len(values)}
-                self.add(Check(f"one-way delay {delay:g} ms {direction}, median", f"delay{delay:g}", "one_way_delay", "median", "ms", median,
-                               delay, f"|err| <= {tolerance:.3g} ms", _within(median, delay, tolerance), config))
-                self.add(Check(f"one-way delay {delay:g} ms {direction}, p95", f"delay{delay:g}", "one_way_delay", "p95", "ms",
-                               float(np.percentile(values, 95)), delay, config=config))
+                self.add(
+                    Check(
+                        f"one-way delay {delay:g} ms {direction}, median",
+                        f"delay{delay:g}",
+                        "one_way_delay",
+                        "median",
+                        "ms",
+                        median,
+                        delay,
+                        f"|err| <= {tolerance:.3g} ms",
+                        _within(median, delay, tolerance),
+                        config,
+                    )
+                )
+                self.add(
+                    Check(
+                        f"one-way delay {delay:g} ms {direction}, p95",
+                        f"delay{delay:g}",
+                        "one_way_delay",
+                        "p95",
+                        "ms",
+                        float(np.percentile(values, 95)),
+                        delay,
+                        config=config,
+                    )
+                )
 
     def jitter(self, workdir: Path) -> None:
         """Both directions carry the same jitter, independently; the target is checked on their pooled
@@ -190,8 +252,20 @@ class _Run:
             config = {"delay_ms": delay, "jitter_ms": jitter, "dist": dist, "probes": len(results)}
             both = {"up": [p.up_s * 1e3 for p in results], "down": [p.down_s * 1e3 for p in results]}
             pooled = statistics.pstdev(both["up"] + both["down"])
-            self.add(Check(f"jitter std {dist} {jitter:g} ms (delay {delay:g}), both ways", scene, "jitter_std", "std", "ms", pooled,
-                           jitter, "within 15 %", _within(pooled, jitter, 0.15 * jitter), config | {"direction": "both"}))
+            self.add(
+                Check(
+                    f"jitter std {dist} {jitter:g} ms (delay {delay:g}), both ways",
+                    scene,
+                    "jitter_std",
+                    "std",
+                    "ms",
+                    pooled,
+                    jitter,
+                    "within 15 %",
+                    _within(pooled, jitter, 0.15 * jitter),
+                    config | {"direction": "both"},
+                )
+            )
             for direction, values in both.items():
                 more = config | {"direction": direction}
                 self.add(Check(f"  {direction}: std", scene, "jitter_std", "std", "ms", statistics.pstdev(values), jitter, config=more))
@@ -205,9 +279,20 @@ class _Run:
                 up = self.transfer(endpoint.upload(addr, nbytes, self.seed, _TIMEOUT_S))
                 down = self.transfer(endpoint.download(addr, nbytes, self.seed, _TIMEOUT_S))
             for direction, result in (("up", up), ("down", down)):
-                self.add(Check(f"goodput {rate:g} Mbit/s {direction}", f"rate{rate:g}", "goodput", "value", "Mbit/s", result.goodput_mbit, rate,
-                               "within 5 %", _within(result.goodput_mbit, rate, 0.05 * rate),
-                               {"rate_mbit": rate, "direction": direction, "bytes": nbytes, "seconds": result.last_s - result.first_s}))
+                self.add(
+                    Check(
+                        f"goodput {rate:g} Mbit/s {direction}",
+                        f"rate{rate:g}",
+                        "goodput",
+                        "value",
+                        "Mbit/s",
+                        result.goodput_mbit,
+                        rate,
+                        "within 5 %",
+                        _within(result.goodput_mbit, rate, 0.05 * rate),
+                        {"rate_mbit": rate, "direction": direction, "bytes": nbytes, "seconds": result.last_s - result.first_s},
+                    )
+                )
 
     def shared_rate(self, workdir: Path) -> None:
         """Connections of a direction share its rate, as on one bottleneck link: two concurrent downloads
@@ -222,8 +307,20 @@ class _Run:
         span = max(t.last_s for t in pair) - min(t.first_s for t in pair)
         total = sum(t.nbytes - t.first_chunk for t in pair) * 8 / span / 1e6
         config = {"rate_mbit": rate, "direction": "down", "connections": 2, "bytes_each": nbytes}
-        self.add(Check(f"shared rate: 2 downloads at {rate:g} Mbit/s, sum", "shared_rate", "goodput_sum", "value", "Mbit/s", total, rate,
-                       "within 5 %", _within(total, rate, 0.05 * rate), config))
+        self.add(
+            Check(
+                f"shared rate: 2 downloads at {rate:g} Mbit/s, sum",
+                "shared_rate",
+                "goodput_sum",
+                "value",
+                "Mbit/s",
+                total,
+                rate,
+                "within 5 %",
+                _within(total, rate, 0.05 * rate),
+                config,
+            )
+        )
 
     def bulk_jitter(self, workdir: Path) -> None:
         """Jitter on a dense stream (a rate-limited download, from the proxy log: write time minus the time the
@@ -238,10 +335,34 @@ class _Run:
             delays = [(float(r["sent_s"]) - float(r["ready_s"])) * 1e3 for r in csv.DictReader(fh) if r["direction"] == "down" and r["sent_s"]]
         config = {"delay_ms": delay, "jitter_ms": jitter, "rate_mbit": rate, "direction": "down", "chunks": len(delays)}
         mean, std = statistics.fmean(delays), statistics.pstdev(delays)
-        self.add(Check("bulk stream: mean one-way delay", "bulk_jitter", "one_way_delay", "mean", "ms", mean, delay,
-                       f"|err| <= {max(1.0, 0.03 * delay):.3g} ms", _within(mean, delay, max(1.0, 0.03 * delay)), config))
-        self.add(Check("bulk stream: jitter std", "bulk_jitter", "jitter_std", "std", "ms", std, jitter, "within 15 %",
-                       _within(std, jitter, 0.15 * jitter), config))
+        self.add(
+            Check(
+                "bulk stream: mean one-way delay",
+                "bulk_jitter",
+                "one_way_delay",
+                "mean",
+                "ms",
+                mean,
+                delay,
+                f"|err| <= {max(1.0, 0.03 * delay):.3g} ms",
+                _within(mean, delay, max(1.0, 0.03 * delay)),
+                config,
+            )
+        )
+        self.add(
+            Check(
+                "bulk stream: jitter std",
+                "bulk_jitter",
+                "jitter_std",
+                "std",
+                "ms",
+                std,
+                jitter,
+                "within 15 %",
+                _within(std, jitter, 0.15 * jitter),
+                config,
+            )
+        )
 
     def loss(self, workdir: Path) -> None:
         c = self.config
@@ -254,11 +375,35 @@ class _Run:
         share = len(delayed) / len(extra)
         half_width = 2.576 * math.sqrt(c.loss * (1 - c.loss) / len(extra))
         config = {"loss": c.loss, "delay_ms": c.loss_delay_ms, "probes": len(extra), "rto_ms": rto_ms}
-        self.add(Check(f"share of probes delayed by loss (p = {c.loss:g})", "loss", "loss_share", "value", "ratio", share, c.loss,
-                       f"|err| <= {half_width:.3f} (99 %)", _within(share, c.loss, half_width), config))
+        self.add(
+            Check(
+                f"share of probes delayed by loss (p = {c.loss:g})",
+                "loss",
+                "loss_share",
+                "value",
+                "ratio",
+                share,
+                c.loss,
+                f"|err| <= {half_width:.3f} (99 %)",
+                _within(share, c.loss, half_width),
+                config,
+            )
+        )
         paid = statistics.median(delayed) if delayed else math.nan
-        self.add(Check("extra delay of a lost segment (RTO)", "loss", "loss_delay", "median", "ms", paid, rto_ms,
-                       f"|err| <= {max(1.0, 0.03 * rto_ms):.3g} ms", _within(paid, rto_ms, max(1.0, 0.03 * rto_ms)), config))
+        self.add(
+            Check(
+                "extra delay of a lost segment (RTO)",
+                "loss",
+                "loss_delay",
+                "median",
+                "ms",
+                paid,
+                rto_ms,
+                f"|err| <= {max(1.0, 0.03 * rto_ms):.3g} ms",
+                _within(paid, rto_ms, max(1.0, 0.03 * rto_ms)),
+                config,
+            )
+        )
 
     def trace(self, workdir: Path) -> None:
         c = self.config
@@ -275,17 +420,50 @@ class _Run:
                 capacity = trace.capacity_bytes(start, end) * 8 / (end - start) / 1e6
                 config = {"profile": c.trace_profile, "direction": direction, "bytes": nbytes, "window_s": [start, end]}
                 ok = _within(result.goodput_mbit, capacity, 0.05 * capacity)
-                self.add(Check(f"trace goodput {c.trace_profile} {direction} (configured: capacity)", c.trace_profile, "trace_goodput", "value",
-                               "Mbit/s", result.goodput_mbit, capacity, "within 5 %", ok, config))
+                self.add(
+                    Check(
+                        f"trace goodput {c.trace_profile} {direction} (configured: capacity)",
+                        c.trace_profile,
+                        "trace_goodput",
+                        "value",
+                        "Mbit/s",
+                        result.goodput_mbit,
+                        capacity,
+                        "within 5 %",
+                        ok,
+                        config,
+                    )
+                )
 
     def summary(self) -> None:
         intact = sum(self.transfers)
-        self.add(Check("byte-exact transfers (SHA-256)", "all", "intact_transfers", "value", "count", intact, len(self.transfers),
-                       "all", intact == len(self.transfers)))
+        self.add(
+            Check(
+                "byte-exact transfers (SHA-256)",
+                "all",
+                "intact_transfers",
+                "value",
+                "count",
+                intact,
+                len(self.transfers),
+                "all",
+                intact == len(self.transfers),
+            )
+        )
         if self.lateness_ms:
             for q in (50, 99):
-                self.add(Check(f"proxy write lateness vs model release, p{q}", "all", "release_lateness", f"p{q}", "ms",
-                               float(np.percentile(self.lateness_ms, q)), 0.0, config={"chunks": len(self.lateness_ms)}))
+                self.add(
+                    Check(
+                        f"proxy write lateness vs model release, p{q}",
+                        "all",
+                        "release_lateness",
+                        f"p{q}",
+                        "ms",
+                        float(np.percentile(self.lateness_ms, q)),
+                        0.0,
+                        config={"chunks": len(self.lateness_ms)},
+                    )
+                )
 
 
 def _plot(checks: list[Check], png: Path) -> None:
@@ -298,8 +476,13 @@ def _plot(checks: list[Check], png: Path) -> None:
 
     panels = (
         ("one-way delay: median - configured (ms)", [("one_way_delay", "median")], False, lambda x: max(1.0, 0.03 * x), "configured delay (ms)"),
-        ("goodput: realised / configured - 1 (%)", [("goodput", "value"), ("trace_goodput", "value"), ("goodput_sum", "value")], True,
-         lambda x: 5.0, "configured rate or trace capacity (Mbit/s)"),
+        (
+            "goodput: realised / configured - 1 (%)",
+            [("goodput", "value"), ("trace_goodput", "value"), ("goodput_sum", "value")],
+            True,
+            lambda x: 5.0,
+            "configured rate or trace capacity (Mbit/s)",
+        ),
         ("jitter std: realised / configured - 1 (%)", [("jitter_std", "std")], True, lambda x: 15.0, "configured jitter std (ms)"),
     )
     fig, axes = plt.subplots(1, 3, figsize=(14, 4))

@@ -56,14 +56,34 @@ class TraceModel:
 #: The shipped traces. ``lte``: Verizon LTE (the low end of Mahimahi's LTE means); ``lte-fast``: T-Mobile
 #: LTE (the high end). Recorded statistics in ``source``; the fitted model's own are checked by a test.
 MODELS: dict[str, TraceModel] = {
-    "lte.down": TraceModel("lte.down.txt", 5.03, 0.6, 1.3, 0.003, 0.2, 60, 1,
-                           "Mahimahi Verizon-LTE-short.down: mean 5.03 Mbit/s, cv100 0.71, ac100 0.87, empty100 0.016"),
-    "lte.up": TraceModel("lte.up.txt", 5.95, 0.55, 0.9, 0.0015, 0.4, 60, 2,
-                         "Mahimahi Verizon-LTE-short.up: mean 5.95 Mbit/s, cv100 0.60, ac100 0.87, empty100 0.021"),
-    "lte-fast.down": TraceModel("lte-fast.down.txt", 16.70, 0.6, 0.8, 0.008, 0.15, 60, 3,
-                                "Mahimahi TMobile-LTE-short.down: mean 16.70 Mbit/s, cv100 0.69, ac100 0.84, empty100 0.036"),
-    "lte-fast.up": TraceModel("lte-fast.up.txt", 13.32, 0.65, 2.0, 0.003, 0.1, 60, 4,
-                              "Mahimahi TMobile-LTE-short.up: mean 13.32 Mbit/s, cv100 0.64, ac100 0.93, empty100 0.005"),
+    "lte.down": TraceModel(
+        "lte.down.txt", 5.03, 0.6, 1.3, 0.003, 0.2, 60, 1, "Mahimahi Verizon-LTE-short.down: mean 5.03 Mbit/s, cv100 0.71, ac100 0.87, empty100 0.016"
+    ),
+    "lte.up": TraceModel(
+        "lte.up.txt", 5.95, 0.55, 0.9, 0.0015, 0.4, 60, 2, "Mahimahi Verizon-LTE-short.up: mean 5.95 Mbit/s, cv100 0.60, ac100 0.87, empty100 0.021"
+    ),
+    "lte-fast.down": TraceModel(
+        "lte-fast.down.txt",
+        16.70,
+        0.6,
+        0.8,
+        0.008,
+        0.15,
+        60,
+        3,
+        "Mahimahi TMobile-LTE-short.down: mean 16.70 Mbit/s, cv100 0.69, ac100 0.84, empty100 0.036",
+    ),
+    "lte-fast.up": TraceModel(
+        "lte-fast.up.txt",
+        13.32,
+        0.65,
+        2.0,
+        0.003,
+        0.1,
+        60,
+        4,
+        "Mahimahi TMobile-LTE-short.up: mean 13.32 Mbit/s, cv100 0.64, ac100 0.93, empty100 0.005",
+    ),
 }
 
 

@@ -81,5 +81,9 @@ def cornell_renderer(make_spec):
     """The sphere inside a Cornell box (strong indirect light from coloured walls)."""
     from gicore.render import Renderer
 
-    spec = make_spec(environment="cornell_box", light={"position": [0.0, 2.2, 0.3], "intensity": 8.0}, camera={"radius": 2.05, "height": 1.05, "target": [0.0, 0.6, 0.0], "azimuth_range": 70.0})
+    spec = make_spec(
+        environment="cornell_box",
+        light={"position": [0.0, 2.2, 0.3], "intensity": 8.0},
+        camera={"radius": 2.05, "height": 1.05, "target": [0.0, 0.6, 0.0], "azimuth_range": 70.0},
+    )
     return Renderer(spec, RES)

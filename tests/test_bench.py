@@ -46,7 +46,7 @@ class DemoConfig:
     frames: tuple[int, ...] = field(default=(0, 5), metadata={"min": 0})
 
     @classmethod
-    def quick(cls) -> "DemoConfig":
+    def quick(cls) -> DemoConfig:
         return cls(resolution=16, denoise=False)
 
 
@@ -332,7 +332,10 @@ def test_tiny_warp_frequency_and_fov_runs(tmp_path: Path) -> None:
 
     cfg = fov.FovConfig(resolution=32, gi_fovs=(60.0, 90.0), base_frames=(0,), rotations=(10.0,), translations=(0.2,), spp=4)
     paths = execute(fov.BENCH, cfg, tmp_path / "fov")
-    valid = {r["config"]["gi_fov"]: r["value"] for r in read_rows(paths[0])
-             if r["metric"] == "valid_fraction" and r["system"] == "structure-aware" and r["config"]["motion"] == "rotation"}
+    valid = {
+        r["config"]["gi_fov"]: r["value"]
+        for r in read_rows(paths[0])
+        if r["metric"] == "valid_fraction" and r["system"] == "structure-aware" and r["config"]["motion"] == "rotation"
+    }
     assert valid[90.0] >= valid[60.0]  # a wider GI camera still covers the turned view
     assert all(p.is_file() for p in paths) and (tmp_path / "fov" / "fov.png").is_file()

@@ -60,13 +60,16 @@ def test_a_one_line_trace_is_12_mbit() -> None:
     assert last == pytest.approx(1.0)  # 1.5 MB in 1000 opportunities of 1500 bytes
 
 
-@pytest.mark.parametrize(("lines", "line", "what"), [
-    (["10", "", "30"], 2, "empty"),
-    (["10", "2x0"], 2, "not a whole number"),
-    (["10", "5"], 2, "smaller than the line before"),
-    (["-3"], 1, "negative"),
-    (["0", "0"], 2, "lasts no time"),
-])
+@pytest.mark.parametrize(
+    ("lines", "line", "what"),
+    [
+        (["10", "", "30"], 2, "empty"),
+        (["10", "2x0"], 2, "not a whole number"),
+        (["10", "5"], 2, "smaller than the line before"),
+        (["-3"], 1, "negative"),
+        (["0", "0"], 2, "lasts no time"),
+    ],
+)
 def test_malformed_trace_names_file_and_line(lines: list[str], line: int, what: str) -> None:
     with pytest.raises(UserError) as err:
         parse_lines("bad.trace", lines)
@@ -90,9 +93,14 @@ def test_queue_bound_gives_backpressure_not_loss() -> None:
 
 
 @settings(max_examples=60, deadline=None)
-@given(st.lists(st.tuples(st.integers(0, 2), st.integers(1, 16384), st.floats(0, 0.02)), min_size=1, max_size=60),
-       st.sampled_from([None, 1.0, 50.0]), st.integers(1500, 60_000), st.floats(0, 20), st.sampled_from(["normal", "pareto", "uniform"]),
-       st.floats(0, 0.3))
+@given(
+    st.lists(st.tuples(st.integers(0, 2), st.integers(1, 16384), st.floats(0, 0.02)), min_size=1, max_size=60),
+    st.sampled_from([None, 1.0, 50.0]),
+    st.integers(1500, 60_000),
+    st.floats(0, 20),
+    st.sampled_from(["normal", "pareto", "uniform"]),
+    st.floats(0, 0.3),
+)
 def test_model_invariants(offers: list[tuple[int, int, float]], rate: float | None, queue: int, jitter: float, dist: str, loss: float) -> None:
     """Whatever the traffic: streams stay in order, nothing leaves before arrival + delay, the shared queue
     never holds more than its bound, and bytes are never dropped (every chunk gets a release time)."""
@@ -202,8 +210,9 @@ def test_message_helper_and_window_limit() -> None:
     assert slow.message(0, UP, 1_310_720, 0.0) == pytest.approx(19 * 0.05 + 0.025, abs=1e-9)
 
 
-@pytest.mark.parametrize("bad", [dict(delay_ms=-1.0), dict(jitter_ms=math.nan), dict(loss=1.5), dict(rate_mbit=-2.0),
-                                 dict(queue_bytes=100), dict(jitter_dist="cauchy")])
+@pytest.mark.parametrize(
+    "bad", [dict(delay_ms=-1.0), dict(jitter_ms=math.nan), dict(loss=1.5), dict(rate_mbit=-2.0), dict(queue_bytes=100), dict(jitter_dist="cauchy")]
+)
 def test_invalid_direction_configs_are_rejected(bad: dict[str, object]) -> None:
     with pytest.raises(ValueError):
         DirectionConfig(**bad)  # type: ignore[arg-type]
@@ -241,9 +250,11 @@ def test_profiles_cover_the_issue_and_cite_sources() -> None:
 
 
 def test_importing_network_sim_pulls_in_no_other_project_package() -> None:
-    code = ("import sys, network_sim, network_sim.cli, network_sim.proxy, network_sim.selftest, network_sim.profiles, network_sim.endpoint;"
-            "bad = sorted(m for m in sys.modules if m.split('.')[0] in "
-            "('mitsuba', 'torch', 'fastapi', 'baseline_cloudbaking', 'gigan_local', 'bench', 'onnxruntime', 'drjit'));"
-            "print(','.join(bad))")
+    code = (
+        "import sys, network_sim, network_sim.cli, network_sim.proxy, network_sim.selftest, network_sim.profiles, network_sim.endpoint;"
+        "bad = sorted(m for m in sys.modules if m.split('.')[0] in "
+        "('mitsuba', 'torch', 'fastapi', 'baseline_cloudbaking', 'gigan_local', 'bench', 'onnxruntime', 'drjit'));"
+        "print(','.join(bad))"
+    )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True).stdout.strip()
     assert out == ""

@@ -111,6 +111,7 @@ def test_jitter_never_reorders(server: Running, tmp_path: Path, dist: str) -> No
     count = 1500
     with _proxy(server, "--delay-ms", "40", "--jitter-ms", "30", "--jitter-dist", dist, "--log", str(log)) as proxy:
         with endpoint.connect(proxy.addr, b"E", TIMEOUT) as sock:
+
             def send() -> None:
                 for i in range(count):
                     sock.sendall(struct.pack("!I", i))
@@ -195,11 +196,31 @@ def test_model_replays_the_logged_release_times(server: Running, tmp_path: Path)
     serialization, loss and release time exactly; and the proxy wrote chunks on time, never early."""
     flags = dict(delay_ms=10.0, jitter_ms=4.0, jitter_dist="pareto", rate_mbit=30.0, queue_bytes=60_000, loss=0.02, seed=11)
     log = tmp_path / "chunks.csv"
-    args = ["--delay-ms", "10", "--jitter-ms", "4", "--jitter-dist", "pareto", "--rate-mbit", "30", "--queue-bytes", "60000",
-            "--loss", "0.02", "--seed", "11", "--log", str(log)]
+    args = [
+        "--delay-ms",
+        "10",
+        "--jitter-ms",
+        "4",
+        "--jitter-dist",
+        "pareto",
+        "--rate-mbit",
+        "30",
+        "--queue-bytes",
+        "60000",
+        "--loss",
+        "0.02",
+        "--seed",
+        "11",
+        "--log",
+        str(log),
+    ]
     with _proxy(server, *args) as proxy:
-        jobs = [lambda: endpoint.download(proxy.addr, 600_000, 1, TIMEOUT), lambda: endpoint.upload(proxy.addr, 400_000, 2, TIMEOUT),
-                lambda: endpoint.probes(proxy.addr, 100, 0.005, TIMEOUT), lambda: endpoint.echo(proxy.addr, _payload(200_000, 3), TIMEOUT)]
+        jobs = [
+            lambda: endpoint.download(proxy.addr, 600_000, 1, TIMEOUT),
+            lambda: endpoint.upload(proxy.addr, 400_000, 2, TIMEOUT),
+            lambda: endpoint.probes(proxy.addr, 100, 0.005, TIMEOUT),
+            lambda: endpoint.echo(proxy.addr, _payload(200_000, 3), TIMEOUT),
+        ]
         with ThreadPoolExecutor(4) as pool:
             outcomes = [f.result() for f in [pool.submit(job) for job in jobs]]
     assert outcomes[0].intact and outcomes[1].intact
@@ -208,8 +229,13 @@ def test_model_replays_the_logged_release_times(server: Running, tmp_path: Path)
     link = Link(link_config(**flags))  # type: ignore[arg-type]
     for r in rows:
         chunk = link.stream(int(r["conn"]), r["direction"]).send(int(r["bytes"]), float(r["arrival_s"]))
-        assert (chunk.seq, repr(chunk.admitted), repr(chunk.finish), repr(chunk.ready), repr(chunk.release)) == \
-            (int(r["seq"]), r["admitted_s"], r["finish_s"], r["ready_s"], r["release_s"])
+        assert (chunk.seq, repr(chunk.admitted), repr(chunk.finish), repr(chunk.ready), repr(chunk.release)) == (
+            int(r["seq"]),
+            r["admitted_s"],
+            r["finish_s"],
+            r["ready_s"],
+            r["release_s"],
+        )
     lateness = [float(r["sent_s"]) - float(r["release_s"]) for r in rows]
     assert min(lateness) >= -1e-6
     assert statistics.median(lateness) < 0.002
@@ -239,13 +265,35 @@ def test_selftest_writes_tidy_results_and_counts_missed_targets(tmp_path: Path) 
     from gicore.results import read_rows
     from network_sim.selftest import BENCH, SelftestConfig, run_selftest
 
-    tiny = SelftestConfig(probe_s=0.3, delays_ms=(5.0,), jitters=((20.0, 2.0, "normal"),), jitter_s=0.6, rates_mbit=(20.0,), bulk_bytes=200_000,
-                          bulk_s=0.3, bulk_max_s=1.0, loss_probes=20, trace_s=1.0, pings=100, overhead_bytes=8 << 20)
+    tiny = SelftestConfig(
+        probe_s=0.3,
+        delays_ms=(5.0,),
+        jitters=((20.0, 2.0, "normal"),),
+        jitter_s=0.6,
+        rates_mbit=(20.0,),
+        bulk_bytes=200_000,
+        bulk_s=0.3,
+        bulk_max_s=1.0,
+        loss_probes=20,
+        trace_s=1.0,
+        pings=100,
+        overhead_bytes=8 << 20,
+    )
     missed = run_selftest(tiny, tmp_path, seed=1)
     rows = read_rows(tmp_path / f"{BENCH}.csv")
     verdicts = [r for r in rows if r["stat"] == "target_met"]
-    assert {r["metric"] for r in verdicts} >= {"added_rtt", "bulk_throughput", "one_way_delay", "jitter_std", "goodput", "loss_share",
-                                               "loss_delay", "trace_goodput", "intact_transfers", "goodput_sum"}
+    assert {r["metric"] for r in verdicts} >= {
+        "added_rtt",
+        "bulk_throughput",
+        "one_way_delay",
+        "jitter_std",
+        "goodput",
+        "loss_share",
+        "loss_delay",
+        "trace_goodput",
+        "intact_transfers",
+        "goodput_sum",
+    }
     assert missed == sum(r["value"] == 0.0 for r in verdicts)
     intact = next(r for r in rows if r["metric"] == "intact_transfers" and r["stat"] == "value")
     assert intact["value"] == next(r for r in rows if r["metric"] == "intact_transfers" and r["stat"] == "configured")["value"] >= 6
