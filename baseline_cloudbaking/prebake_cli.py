@@ -15,6 +15,7 @@ the rest.
 from __future__ import annotations
 
 import time
+from collections.abc import Iterable
 from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -23,7 +24,7 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 from tqdm import tqdm
 
-from baseline_cloudbaking.bake import SCENE_NAME, bake_map, encode_map, fly_through, spec_sha
+from baseline_cloudbaking.bake import SCENE_NAME, PathFrame, bake_map, encode_map, fly_through, spec_sha
 from baseline_cloudbaking.codecs import CODEC_NAMES
 from baseline_cloudbaking.store import DEFAULT_LIGHT_CELL, GITree, MapKey, StoreConflict, Tolerance, Viewpoint, ViewSet
 from gicore.camera import Camera
@@ -99,6 +100,11 @@ def bake_task(spec: SceneSpec, name: str, cfg: PrebakeConfig) -> Task:
     return Task(_build_baker, (spec.to_dict(), name, cfg), _bake_job)
 
 
+def bake_jobs(path: list[PathFrame], frames: Iterable[int], name: str, seed: int) -> list[Job]:
+    """The jobs that bake ``frames`` of the fly-through ``path`` of scene ``name`` (render seeds from ``seed``)."""
+    return [(i, path[i].camera.to_dict(), path[i].light, frame_seed(seed, f"prebake/{name}", i)) for i in frames]
+
+
 def plan(store: GITree, keys: list[MapKey], views: list[Viewpoint]) -> list[int]:
     """Frames of a path (``keys``/``views`` per frame) that need a new map: neither the store nor a map
     planned for an earlier frame serves them."""
@@ -127,7 +133,7 @@ def prebake_scene(
             raise UserError(str(exc), "use another --store, or the --light-cell and spec it was baked with") from None
         keys = [MapKey(name, f.cell, cfg.resolution, f.camera.fov, cfg.codec, cfg.spp, cfg.di) for f in path]
         views = [f.view for f in path]
-        jobs: list[Job] = [(i, path[i].camera.to_dict(), path[i].light, frame_seed(cfg.seed, f"prebake/{name}", i)) for i in plan(tree, keys, views)]
+        jobs = bake_jobs(path, plan(tree, keys, views), name, cfg.seed)
         if progress:
             typer.echo(f"{name}: {cfg.frames} frames; {len(jobs)} maps to bake", err=True)
         with tqdm(total=len(jobs), desc=name, unit="map", disable=not (progress and jobs)) as bar:

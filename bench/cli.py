@@ -19,6 +19,7 @@ from bench import (
     render_bench,
     report,
     run_default,
+    scaling,
     stability,
     storage,
     training,
@@ -43,6 +44,7 @@ BENCHES = tuple(
         latency,
         storage,
         stability,
+        scaling,
         pareto,
         report,
     )

@@ -102,12 +102,12 @@ def frame_task(spec: SceneSpec, cfg: DatasetConfig) -> Task:
     return Task(_build_renderer, (spec.to_dict(), cfg.resolution), _render_frame)
 
 
-def frame_jobs(meta: DatasetMeta, cfg: DatasetConfig, root: Path) -> list[FrameJob]:
-    """The jobs of the frames of ``meta`` that ``root`` does not hold yet, train then val."""
+def frame_jobs(records: list[FrameRecord], cfg: DatasetConfig, root: Path | None = None) -> list[FrameJob]:
+    """The jobs of the frames ``records`` (:func:`plan_frames`) that ``root`` does not hold yet (None: all)."""
     return [
         (r.file, r.camera, r.light, cfg.buffers, cfg.spp, cfg.denoise, frame_seed(cfg.seed, r.split, r.index))
-        for r in meta.frames
-        if not (root / r.file).is_file()
+        for r in records
+        if root is None or not (root / r.file).is_file()
     ]
 
 
@@ -123,7 +123,7 @@ def build_dataset(spec: SceneSpec, root: Path, cfg: DatasetConfig, executor: Exe
             if folder.is_dir():
                 sweep_temporaries(folder)
         write_meta(root, meta)
-        jobs = frame_jobs(meta, cfg, root)
+        jobs = frame_jobs(meta.frames, cfg, root)
         with tqdm(total=len(jobs), desc=spec.name, disable=not (progress and jobs), unit="frame") as bar:
 
             def receive(job: FrameJob, data: bytes) -> None:

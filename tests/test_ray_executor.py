@@ -1,9 +1,11 @@
 """The render executor on Ray (issue 13): a local Ray instance (2 CPUs, started once for the module)
 renders a tiny data set and a tiny prebake identical to the local pool's, survives a worker killed
-mid-frame, cancels its tasks on Ctrl-C, and the command lines fail in one line where they should."""
+mid-frame, cancels its tasks on Ctrl-C, and the command lines fail in one line where they should;
+`bench scaling` measures both executors and labels its projections."""
 
 from __future__ import annotations
 
+import math
 import os
 import signal
 import subprocess
@@ -23,7 +25,8 @@ from gicore.cli import UserError
 from gicore.dataset_cli import DatasetConfig, build_dataset
 from gicore.executor import InProcess, LocalPool, RayExecutor, Task
 from gicore.fileio import TMP_MARKER
-from gicore.scene import SceneSpec, load_scene
+from gicore.results import read_rows
+from gicore.scene import SceneSpec, builtin_scenes, load_scene
 from tests.cloud_fixtures import BIN, write_scenes
 from tests.test_dataset import npz_arrays
 
@@ -239,7 +242,7 @@ def test_a_user_error_in_a_job_reaches_the_driver_whole(backend: str, request: p
 
 #: Runs a console script's main with Ray made unimportable, as on an install without the extra.
 WITHOUT_RAY = "import sys; sys.modules['ray'] = None; from {} import main; main()"
-MODULES = {"gicore-dataset": "gicore.dataset_cli", "cloudbaking-prebake": "baseline_cloudbaking.prebake_cli"}
+MODULES = {"gicore-dataset": "gicore.dataset_cli", "cloudbaking-prebake": "baseline_cloudbaking.prebake_cli", "bench": "bench.cli"}
 
 
 def run_cli(argv: list[str], cwd: Path, *, without_ray: bool = False) -> subprocess.CompletedProcess:
@@ -275,10 +278,21 @@ def test_a_bad_ray_address_is_one_error_line(argv: list[str], address: str, culp
     assert not (scenes / "out").exists() and not (scenes / "store" / "index.sqlite").exists()
 
 
-@pytest.mark.parametrize("argv", [DATASET, PREBAKE], ids=["dataset", "prebake"])
-def test_ray_not_installed_names_the_extra(argv: list[str], scenes: Path) -> None:
-    proc = run_cli([*argv, "--ray", "auto"], scenes, without_ray=True)
-    one_error_line(proc, "--ray needs Ray, which is not installed: install it with pip install '.[ray]'")
+NOT_INSTALLED = "needs Ray, which is not installed: install it with pip install '.[ray]'"
+
+
+@pytest.mark.parametrize(
+    ("argv", "culprit"),
+    [
+        ([*DATASET, "--ray", "auto"], f"--ray {NOT_INSTALLED}"),
+        ([*PREBAKE, "--ray", "auto"], f"--ray {NOT_INSTALLED}"),
+        (["bench", "scaling", "--quick", "--out", "out"], f"--executors ray {NOT_INSTALLED}"),
+    ],
+    ids=["dataset", "prebake", "bench-scaling"],
+)
+def test_ray_not_installed_names_the_extra(argv: list[str], culprit: str, scenes: Path) -> None:
+    one_error_line(run_cli(argv, scenes, without_ray=True), culprit)
+    assert not (scenes / "out").exists()
 
 
 def test_without_ray_the_local_paths_import_and_render(scenes: Path, tmp_path: Path) -> None:
@@ -328,3 +342,49 @@ def test_ctrl_c_of_a_ray_run_keeps_whole_frames_and_the_rerun_finishes_identical
     assert rerun.returncode == 0, rerun.stderr
     assert "ball_moving: 4 frames in" in rerun.stdout
     assert_same_dataset(slow_reference, root)
+
+
+# --- bench scaling ------------------------------------------------------------------------------------
+
+
+@pytest.mark.slow
+def test_bench_scaling_measures_both_executors_and_labels_the_projection(tmp_path: Path) -> None:
+    """A tiny `bench scaling` (its own Ray instance, as a user runs it): every measured point, the per-task
+    overhead, and projections that follow from the measured 1-worker item time and say they are projections."""
+    tiny = ["--resolution", "16", "--spp", "1", "--frames", "2", "--maps", "2", "--overhead-jobs", "3", "--project-workers", "1,4"]
+    proc = subprocess.run([str(BIN / "bench"), "scaling", "--quick", *tiny, "--out", str(tmp_path)], capture_output=True, text=True, timeout=240)
+    assert proc.returncode == 0, proc.stderr
+    rows = read_rows(tmp_path / "scaling.csv")
+
+    def only(**match: object) -> dict:
+        found = [r for r in rows if all((r[k] if k in r else r["config"].get(k)) == v for k, v in match.items())]
+        assert len(found) == 1, match
+        return found[0]
+
+    for ex in ("local", "ray"):
+        assert 0 < only(system=ex, metric="task_roundtrip", stat="median", workers=1)["value"] < 1000  # ms
+        for kind, unit in (("frame", "frames/s"), ("map", "maps/s")):
+            for workers in (1, 2):
+                row = only(system=ex, metric="throughput", workers=workers, kind=kind)
+                assert row["stat"] == "value" and row["unit"] == unit and row["value"] > 0
+            assert only(system=ex, metric="efficiency", workers=2, kind=kind)["value"] > 0
+    assert only(system="ray", metric="instance_start")["value"] > 0
+    maps = {r["scene"]: r["value"] for r in rows if r["metric"] == "bake_maps"}
+    assert sorted(maps) == builtin_scenes() and all(0 < n <= 1500 for n in maps.values())
+
+    projected = [r for r in rows if r["metric"] in ("dataset_wall", "bake_wall")]
+    assert projected and all(r["stat"] == "projection" and "linear scaling" in r["config"]["assumption"] for r in projected)
+    for r in projected:
+        kind = "frame" if r["metric"] == "dataset_wall" else "map"
+        measured = only(system=r["system"], metric="item_time", workers=1, kind=kind)["value"]
+        assert r["config"]["measured_item_s"] == pytest.approx(measured)
+        per_item = measured * (r["config"]["resolution"] / 16) ** 2
+        if r["scene"] != "paper_5_scenes" or kind == "frame":
+            assert r["value"] == pytest.approx(math.ceil(r["config"]["items"] / r["config"]["workers"]) * per_item / 3600)
+    data = only(system="ray", metric="dataset_wall", workers=1)
+    assert data["config"]["items"] == 5 * 1600 and data["config"]["resolution"] == 512
+    assert data["value"] == pytest.approx(4 * only(system="ray", metric="dataset_wall", workers=4)["value"])
+    bake_total = only(system="local", scene="paper_5_scenes", metric="bake_wall", workers=4)["value"]
+    assert bake_total == pytest.approx(sum(only(system="local", scene=s, metric="bake_wall", workers=4)["value"] for s in maps))
+    assert "PROJECTION (not measured)" in (tmp_path / "scaling.md").read_text()
+    assert (tmp_path / "scaling.png").stat().st_size > 10_000

@@ -1,0 +1,294 @@
+"""`bench scaling`: the render executor (``gicore.executor``) with 1 and 2 workers, local processes
+against Ray, and what the measured cost projects for the paper's data set and for baking GI trees.
+
+Measured, on the real tasks that ``gicore-dataset`` and ``cloudbaking-prebake`` submit (a data-set
+frame: GT path-traced + OIDN and every G-buffer, encoded; a GI map: GT + OIDN + depth, JPEG payload):
+
+- ``throughput`` (items/s) of each executor with each worker count; every worker is a single-threaded
+  process (Dr.Jit threads = 1), so "N workers" means N cores. Each point first runs two warm-up items
+  per worker (process start, scene build, kernel compile), then times the same items on every point;
+- ``item_time``: worker-seconds per item (workers × wall / items), and ``efficiency`` against 1 worker;
+- the per-task overhead: ``task_roundtrip`` (one no-op job submitted and its result received, median
+  and p95) and ``task_overhead_batched`` (ms per no-op job when many are submitted at once);
+- ``instance_start`` of the local Ray instance and ``warmup`` of each point.
+
+Projected (``stat = projection``, never a measurement): the wall time of the paper's data set
+(1500 + 100 frames per scene at 512², five scenes) and of baking each scene's 1500-frame fly-through
+(the maps its plan needs, counted with the prebake's rule: ``bake_maps``), on N workers, from each
+executor's 1-worker item time scaled by the pixel count (cost ∝ pixels) and assuming linear scaling:
+``ceil(items / N) × item_time``. The measured efficiency at 2 workers says how far that holds here.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import time
+from contextlib import AbstractContextManager, nullcontext
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+
+from bench.runner import Bench
+from gicore.cli import UserError
+from gicore.executor import INSTALL_RAY, Executor, LocalPool, RayExecutor, Task
+from gicore.results import Results, read_rows
+from gicore.scene import builtin_scenes, load_scene
+
+Kind = Literal["frame", "map"]
+UNITS = {"frame": "frames/s", "map": "maps/s"}
+#: What every projection row assumes, stated in its config.
+#: The scene column of totals over the paper's five scenes.
+ALL = "paper_5_scenes"
+ASSUMPTION = "ceil(items/N) x 1-worker item time x pixel ratio; linear scaling, no startup"
+
+
+@dataclass(frozen=True)
+class ScalingConfig:
+    """What one scaling run renders and projects."""
+
+    #: The scene rendered (one; its cost stands for every scene in the projections).
+    scenes: tuple[str, ...] = field(default=("lung_plane",), metadata={"max_len": 1})
+    #: Square resolution of the measured frames and maps (projections scale by pixel count).
+    resolution: int = 256
+    #: Path-tracing samples per pixel of frames and maps (then OIDN), measured and projected.
+    spp: int = 64
+    #: Data-set frames timed per point (after two warm-up frames per worker).
+    frames: int = 8
+    #: GI maps timed per point (after two warm-up maps per worker).
+    maps: int = 4
+    #: Worker counts (single-threaded processes).
+    workers: tuple[int, ...] = (1, 2)
+    #: Executors compared: local spawned processes, Ray tasks on a local instance.
+    executors: tuple[Literal["local", "ray"], ...] = ("local", "ray")
+    #: No-op jobs timed for the per-task overhead.
+    overhead_jobs: int = 100
+    #: Worker counts of the projections.
+    project_workers: tuple[int, ...] = (1, 2, 8, 32, 128, 512)
+    #: Projected data set: frames per scene (paper: 1500 training + 100 validation) over the five scenes.
+    project_frames: int = 1600
+    #: Projected data-set resolution (paper: 512).
+    project_resolution: int = 512
+    #: Projected bake: fly-through frames per scene (paper: 1500).
+    bake_frames: int = 1500
+    #: Projected GI-map resolution (cloudbaking-prebake's default).
+    bake_resolution: int = 256
+
+    @classmethod
+    def quick(cls) -> ScalingConfig:
+        return cls(resolution=64, spp=16, frames=16, maps=8, overhead_jobs=40)
+
+    def check(self) -> None:
+        if "ray" in self.executors:
+            try:
+                import ray  # noqa: F401
+            except ImportError:
+                raise UserError("--executors ray needs Ray, which is not installed", INSTALL_RAY) from None
+
+
+def _nothing() -> None:
+    """State of the no-op task."""
+
+
+def _echo(_: None, job: int) -> int:
+    return job
+
+
+def _tasks(cfg: ScalingConfig, name: str, seed: int, n: int) -> dict[Kind, tuple[Task, list]]:
+    """The data-set frame task and the prebake map task of scene ``name`` with ``n`` jobs each, built as
+    gicore-dataset and cloudbaking-prebake build them."""
+    from baseline_cloudbaking.bake import fly_through
+    from baseline_cloudbaking.prebake_cli import PrebakeConfig, bake_jobs, bake_task
+    from gicore.dataset_cli import DatasetConfig, frame_jobs, frame_task, plan_frames
+
+    spec = load_scene(name)
+    data = DatasetConfig(n_train=n, n_val=0, resolution=cfg.resolution, spp=cfg.spp, denoise=True, seed=seed)
+    bake = PrebakeConfig(frames=n, resolution=cfg.resolution, spp=cfg.spp, seed=seed)
+    path = fly_through(spec, n, cfg.resolution, bake.light_cell, seed)
+    return {
+        "frame": (frame_task(spec, data), frame_jobs(plan_frames(spec, data), data)),
+        "map": (bake_task(spec, spec.name, bake), bake_jobs(path, range(n), spec.name, seed)),
+    }
+
+
+def _wall(executor: Executor, task: Task, jobs: list) -> float:
+    """Seconds from submitting ``jobs`` to receiving the last result."""
+    t0 = time.perf_counter()
+    executor.run(task, jobs, lambda job, result: None)
+    return time.perf_counter() - t0
+
+
+def _executor(kind: str, workers: int) -> AbstractContextManager[Executor]:
+    """``workers`` single-threaded workers of executor ``kind`` (Ray: on the instance :func:`measure` started)."""
+    return LocalPool(workers, threads=1) if kind == "local" else nullcontext(RayExecutor(workers, threads=1))
+
+
+def measure(cfg: ScalingConfig, res: Results) -> None:
+    name = cfg.scenes[0]
+    warm = 2 * max(cfg.workers)
+    tasks = _tasks(cfg, name, res.seed, warm + max(cfg.frames, cfg.maps))
+    counts: dict[Kind, int] = {"frame": cfg.frames, "map": cfg.maps}
+    common = {"resolution": cfg.resolution, "spp": cfg.spp, "threads_per_worker": 1}
+    item_s: dict[tuple[str, Kind], float] = {}
+    if "ray" in cfg.executors:
+        import ray
+
+        t0 = time.perf_counter()
+        ray.init(address="local", num_cpus=max(cfg.workers), include_dashboard=False, log_to_driver=False, logging_level=logging.ERROR)
+        res.add(system="ray", scene=name, metric="instance_start", value=time.perf_counter() - t0, unit="s", num_cpus=max(cfg.workers))
+    try:
+        for ex in cfg.executors:
+            for workers in sorted(cfg.workers):
+                with _executor(ex, workers) as executor:
+                    _overhead(res, ex, name, executor, cfg.overhead_jobs)
+                    for kind, (task, jobs) in tasks.items():
+                        warmup = _wall(executor, task, jobs[:warm])
+                        wall = _wall(executor, task, jobs[warm : warm + counts[kind]])
+                        config = common | {"workers": workers, "kind": kind, "items": counts[kind]}
+                        res.add(system=ex, scene=name, metric="warmup", value=warmup, unit="s", **config | {"items": warm})
+                        res.add(system=ex, scene=name, metric="throughput", value=counts[kind] / wall, unit=UNITS[kind], **config)
+                        res.add(system=ex, scene=name, metric="item_time", value=workers * wall / counts[kind], unit="s", **config)
+                        if workers == 1:
+                            item_s[ex, kind] = wall / counts[kind]
+                        elif (ex, kind) in item_s:
+                            efficiency = item_s[ex, kind] * counts[kind] / (workers * wall)
+                            res.add(system=ex, scene=name, metric="efficiency", value=efficiency, unit="ratio", **config)
+    finally:
+        if "ray" in cfg.executors:
+            ray.shutdown()
+    _project(cfg, res, name, item_s)
+    _write_table(cfg, res)
+
+
+def _overhead(res: Results, ex: str, name: str, executor: Executor, n: int) -> None:
+    """The no-op task: one job at a time (round trip), then ``n`` submitted at once (ms per job); each
+    after an untimed warm-up batch (worker start, imports)."""
+    noop = Task(_nothing, (), _echo)
+    _wall(executor, noop, list(range(2 * executor.workers)))
+    samples = [_wall(executor, noop, [i]) for i in range(n)]
+    res.add_timing(system=ex, scene=name, metric="task_roundtrip", samples_s=samples, workers=executor.workers)
+    ms = _wall(executor, noop, list(range(n))) / n * 1e3
+    res.add(system=ex, scene=name, metric="task_overhead_batched", value=ms, unit="ms", workers=executor.workers, jobs=n)
+
+
+def bake_maps(frames: int, resolution: int) -> dict[str, int]:
+    """Maps a prebake of each built-in scene's ``frames``-frame fly-through bakes into an empty store
+    (the prebake's plan rule, default tolerance and light cell): counted, nothing rendered."""
+    from baseline_cloudbaking.bake import fly_through
+    from baseline_cloudbaking.store import DEFAULT_LIGHT_CELL, Tolerance, simulate_fill
+
+    out = {}
+    for scene in builtin_scenes():
+        path = fly_through(load_scene(scene), frames, resolution, DEFAULT_LIGHT_CELL)
+        out[scene] = len(set(simulate_fill([f.view for f in path], [f.cell for f in path], Tolerance())))
+    return out
+
+
+def _project(cfg: ScalingConfig, res: Results, name: str, item_s: dict[tuple[str, Kind], float]) -> None:
+    """Projection rows (see the module docstring) from each executor's 1-worker item times."""
+    maps = bake_maps(cfg.bake_frames, cfg.bake_resolution)
+    for scene, n in maps.items():
+        res.add(system="plan", scene=scene, metric="bake_maps", value=n, unit="count", fly_through_frames=cfg.bake_frames)
+    targets: dict[Kind, tuple[str, int, dict[str, int]]] = {
+        "frame": ("dataset_wall", cfg.project_resolution, {ALL: cfg.project_frames * len(builtin_scenes())}),
+        "map": ("bake_wall", cfg.bake_resolution, maps),
+    }
+    for (ex, kind), measured in item_s.items():
+        metric, resolution, items = targets[kind]
+        scale = (resolution / cfg.resolution) ** 2
+        basis = {"measured_on": name, "measured_resolution": cfg.resolution, "measured_item_s": measured, "pixel_scale": scale}
+        basis |= {"resolution": resolution, "spp": cfg.spp, "item_s": measured * scale, "assumption": ASSUMPTION}
+        for workers in cfg.project_workers:
+            hours = {scene: math.ceil(n / workers) * measured * scale / 3600 for scene, n in items.items()}
+            if ALL not in hours:  # the bake: scene after scene
+                hours[ALL] = sum(hours.values())
+            for scene, value in hours.items():
+                n = items.get(scene, sum(items.values()))
+                res.add(system=ex, scene=scene, metric=metric, stat="projection", value=value, unit="h", workers=workers, items=n, **basis)
+
+
+def _value(rows: list[dict], **match: Any) -> float:
+    """The value of the one row whose fields (and config keys) match, else NaN."""
+    for row in rows:
+        if all((row[k] if k in row else row["config"].get(k)) == v for k, v in match.items()):
+            return float(row["value"])
+    return float("nan")
+
+
+def _write_table(cfg: ScalingConfig, res: Results) -> None:
+    """``scaling.md``: the measured table and the projection table."""
+    rows = [r | {"config": json.loads(r["config"])} for r in res.rows]
+    lines = [
+        f"Measured on {cfg.scenes[0]} at {cfg.resolution}², {cfg.spp} spp + OIDN; single-threaded workers.",
+        "",
+        "| executor | workers | frames/s | maps/s | efficiency (frames) | no-op round trip [ms] | no-op batched [ms/job] |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for ex in cfg.executors:
+        for w in sorted(cfg.workers):
+            frame = _value(rows, system=ex, metric="throughput", workers=w, kind="frame")
+            maps = _value(rows, system=ex, metric="throughput", workers=w, kind="map")
+            eff = 1.0 if w == 1 else _value(rows, system=ex, metric="efficiency", workers=w, kind="frame")
+            trip = _value(rows, system=ex, metric="task_roundtrip", stat="median", workers=w)
+            batched = _value(rows, system=ex, metric="task_overhead_batched", workers=w)
+            lines.append(f"| {ex} | {w} | {frame:.3g} | {maps:.3g} | {eff:.2f} | {trip:.3g} | {batched:.3g} |")
+    lines += [
+        "",
+        f"PROJECTION (not measured): {cfg.project_frames} frames x 5 scenes at {cfg.project_resolution}²; baking each scene's "
+        f"{cfg.bake_frames}-frame fly-through ({int(sum(_value(rows, system='plan', scene=s) for s in builtin_scenes()))} maps) at "
+        f"{cfg.bake_resolution}²; {ASSUMPTION}.",
+        "",
+        "| N workers | " + " | ".join(f"data set, {ex} [h] | bake, {ex} [h]" for ex in cfg.executors) + " |",
+        "|---|" + "---|---|" * len(cfg.executors),
+    ]
+    for n in cfg.project_workers:
+        cells = [f"{_value(rows, system=ex, scene=ALL, metric=m, workers=n):.3g}" for ex in cfg.executors for m in ("dataset_wall", "bake_wall")]
+        lines.append(f"| {n} | " + " | ".join(cells) + " |")
+    res.output("scaling.md").write_text("\n".join(lines) + "\n")
+
+
+def plot(csv_path: Path, out_dir: Path) -> list[Path]:
+    """Left: measured throughput per executor and worker count. Right: the projections (labelled so)."""
+    from gicore.plotting import plt, save
+
+    rows = read_rows(csv_path)
+    executors = list(dict.fromkeys(r["system"] for r in rows if r["metric"] == "throughput"))
+    workers = sorted({r["config"]["workers"] for r in rows if r["metric"] == "throughput"})
+    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.2))
+    bars = [(ex, kind) for ex in executors for kind in UNITS]
+    width = 0.8 / max(1, len(bars))
+    for i, (ex, kind) in enumerate(bars):
+        values = [_value(rows, system=ex, metric="throughput", workers=w, kind=kind) for w in workers]
+        left.bar(np.arange(len(workers)) + (i + 0.5) * width - 0.4, values, width, label=f"{ex}: {UNITS[kind]}")
+    trips = ", ".join(f"{ex} {_value(rows, system=ex, metric='task_roundtrip', stat='median', workers=1):.2g} ms" for ex in executors)
+    left.set_xticks(np.arange(len(workers)), [f"{w} worker{'s' * (w > 1)}" for w in workers])
+    left.set_ylabel("items per second (measured)")
+    left.set_title(f"Measured throughput; no-op round trip: {trips}", fontsize=9)
+    left.legend(fontsize=7)
+    left.grid(axis="y", alpha=0.3)
+    for ex, style in zip(executors, ("-", "--")):
+        for metric, label in (("dataset_wall", "paper data set"), ("bake_wall", "GI-tree bake, 5 scenes")):
+            points = sorted((r["config"]["workers"], r["value"]) for r in rows if (r["system"], r["metric"], r["scene"]) == (ex, metric, ALL))
+            if points:
+                right.plot(*zip(*points), style, marker="o", label=f"{label} ({ex})")
+    right.set_xscale("log")
+    right.set_yscale("log")
+    right.set_xlabel("workers (single-threaded)")
+    right.set_ylabel("PROJECTED wall time [h]")
+    right.set_title("PROJECTION from the measured 1-worker cost (linear scaling assumed)", fontsize=9)
+    right.legend(fontsize=7)
+    right.grid(alpha=0.3, which="both")
+    return [save(fig, out_dir / "scaling.png")]
+
+
+BENCH = Bench(
+    "scaling",
+    ScalingConfig,
+    measure,
+    plot,
+    help="Render executor: frames/maps per second with 1 and 2 workers, local processes vs Ray, per-task overhead, and the projected "
+    "wall time of the paper's data set and of GI-tree bakes on N workers.",
+)
