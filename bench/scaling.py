@@ -237,7 +237,7 @@ def _write_table(cfg: ScalingConfig, res: Results) -> None:
             lines.append(f"| {ex} | {w} | {frame:.3g} | {maps:.3g} | {eff:.2f} | {trip:.3g} | {batched:.3g} |")
     lines += [
         "",
-        f"PROJECTION (not measured): {cfg.project_frames} frames x 5 scenes at {cfg.project_resolution}²; baking each scene's "
+        f"PROJECTION (not measured), {cfg.spp} spp + OIDN: {cfg.project_frames} frames x 5 scenes at {cfg.project_resolution}²; baking each scene's "
         f"{cfg.bake_frames}-frame fly-through ({int(sum(_value(rows, system='plan', scene=s) for s in builtin_scenes()))} maps) at "
         f"{cfg.bake_resolution}²; {ASSUMPTION}.",
         "",
