@@ -1,0 +1,370 @@
+"""`bench service` (issue 10's targets): how fast a real ``cloudbaking-server`` answers GI-map requests.
+
+One run starts ``cloudbaking-server`` as its own process on 127.0.0.1 (an ephemeral port, a fresh GI tree
+in a temporary folder under ``--out``, removed afterwards; pinned as :func:`bench.latency.pinning` says,
+the bench's own client threads on the client cores) and sends ``POST /v1/gimap`` over loopback with httpx
+(keep-alive clients). Three phases, rows per ``metric``:
+
+- **misses**: the first request of each of ``views`` distinct GI cameras of the scene's fly-through (far
+  enough apart to miss). ``miss_e2e``: the client's round trip (request sent to last response byte);
+  ``miss_server``: the server's own ``timings_ms`` from the payload header (``part`` = lookup, render,
+  denoise, encode, total). The first miss also loads and compiles the scene: it is its own row
+  (``stat = first``), the median and p95 are over the others.
+- **hits**: one untimed pass over the baked views, then ``sequential`` requests cycling over them from one
+  client. ``hit_server`` (``part`` = ``lookup_read``: the GI-tree lookup plus the read of the stored
+  encoded payload, the issue's "cache hit inside the server"; ``total``: the server's whole handling);
+  ``hit_e2e``: the round trip.
+- **load**: ``concurrency`` threads, each with its own ``httpx.Client``, start together and send
+  ``per_client`` hit requests each. ``load_latency``: every request's round trip; ``load_throughput``:
+  requests over the wall time from the start to the last answer; ``load_errors``: requests that raised,
+  were not a 200, or were not a hit (every load request asks for a baked view).
+
+Per-request samples of ``hit_server``, ``hit_e2e`` and ``load_latency`` are rows with ``stat = sample``
+(the plot's CDFs); summaries are ``median``/``p95``/``p99``/``n``. Each of the issue's targets gets a row
+``stat = target_met`` (1 or 0, the target in its config); a missed target is reported, not an error.
+Also written: ``service_table.md`` (printed too) and ``service.png``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tempfile
+import threading
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+
+from baseline_cloudbaking.codecs import CODEC_NAMES
+from baseline_cloudbaking.protocol import unpack
+from bench.latency import _server, pinning
+from bench.runner import Bench
+from gicore.results import Results, read_rows
+
+CodecName = Literal[CODEC_NAMES]  # type: ignore[valid-type]
+SYSTEM = "cloud_baking"
+STATS = ("median", "p95", "p99")
+
+
+@dataclass(frozen=True)
+class Target:
+    """One of issue 10's targets: ``metric``'s ``stat`` compared with ``bound`` (``at_most`` or not)."""
+
+    metric: str
+    stat: str
+    bound: float
+    unit: str
+    at_most: bool
+    label: str
+    #: Extra config keys that select the row (e.g. the hit_server part).
+    where: tuple[tuple[str, str], ...] = ()
+
+    def met(self, value: float) -> bool:
+        return value <= self.bound if self.at_most else value >= self.bound
+
+
+#: Issue 10's service targets (the hit-time ones are stated at 256²).
+TARGETS = (
+    Target("hit_server", "median", 5.0, "ms", True, "cache hit inside the server (lookup + read) p50 <= 5 ms", (("part", "lookup_read"),)),
+    Target("hit_e2e", "median", 10.0, "ms", True, "hit end to end on loopback p50 <= 10 ms"),
+    Target("load_errors", "value", 0.0, "count", True, "concurrent load: no errors"),
+    Target("load_throughput", "value", 300.0, "req/s", False, "concurrent load >= 300 requests/s"),
+)
+
+
+@dataclass(frozen=True)
+class ServiceConfig:
+    """What one service run measures (see the module docstring)."""
+
+    #: The scene the server bakes and serves (name or spec file).
+    scenes: tuple[str, ...] = field(default=("lung_plane",), metadata={"max_len": 1})
+    #: Square GI-map resolution (the issue's targets are stated at 256).
+    resolution: int = 256
+    #: GI-map codec.
+    codec: CodecName = "jpeg"
+    #: Path-tracing samples per pixel of each baked map (only the misses pay for it).
+    spp: int = 64
+    #: Distinct GI cameras baked by the misses and cycled over by the hits.
+    views: int = 5
+    #: Timed sequential hit requests from one client.
+    sequential: int = 200
+    #: Concurrent clients of the load phase.
+    concurrency: int = 32
+    #: Hit requests each concurrent client sends.
+    per_client: int = 50
+    #: Pin the server and the bench's client threads to separate cores (taskset) where the machine has them.
+    pin: bool = True
+    #: Read timeout of one request, s (bounds a miss's render).
+    read_timeout_s: float = 600.0
+
+    @classmethod
+    def quick(cls) -> ServiceConfig:
+        return cls(spp=16, sequential=50, per_client=20)
+
+
+def view_bodies(cfg: ServiceConfig, seed: int) -> list[dict[str, Any]]:
+    """Request bodies of ``cfg.views`` GI cameras spread along the scene's fly-through (light at rest)."""
+    from gicore.paths import camera_path
+    from gicore.scene import load_scene
+
+    scene = cfg.scenes[0]
+    spec = load_scene(scene)
+    cams = camera_path(spec, cfg.views, seed=seed, fov=spec.camera.gi_fov, resolution=cfg.resolution)
+    name = Path(scene).stem
+    return [
+        {
+            "scene": name,
+            "camera": {"eye": [float(v) for v in c.origin], "target": [float(v) for v in c.target], "up": [float(v) for v in c.up], "fov": c.fov},
+            "resolution": cfg.resolution,
+            "codec": cfg.codec,
+            "spp": cfg.spp,
+        }
+        for c in cams
+    ]
+
+
+def _client(url: str, cfg: ServiceConfig):
+    import httpx
+
+    return httpx.Client(base_url=url, timeout=httpx.Timeout(cfg.read_timeout_s, connect=10.0))
+
+
+def timed_post(client, body: dict[str, Any]) -> tuple[float, dict[str, Any]]:
+    """Round trip of one GI-map request (seconds, request sent to last byte read) and the payload header;
+    raises RuntimeError on a non-200 answer."""
+    t0 = time.perf_counter()
+    r = client.post("/v1/gimap", json=body)
+    elapsed = time.perf_counter() - t0
+    if r.status_code != 200:
+        raise RuntimeError(f"POST /v1/gimap answered {r.status_code}: {r.text[:500]}")
+    return elapsed, unpack(r.content)[0]
+
+
+@contextmanager
+def client_cores(plan: dict[str, Any]) -> Iterator[None]:
+    """Run this thread (and the threads it starts) on the plan's client cores, then restore."""
+    if plan["method"] == "none":
+        yield
+        return
+    before = os.sched_getaffinity(0)
+    os.sched_setaffinity(0, plan["client"])
+    try:
+        yield
+    finally:
+        os.sched_setaffinity(0, before)
+
+
+def run_load(url: str, cfg: ServiceConfig, bodies: list[dict[str, Any]]) -> tuple[list[float], int, float, list[str]]:
+    """``cfg.concurrency`` threads × ``cfg.per_client`` hit requests: latencies (s) of the good ones, the
+    error count, the wall time (s) from the common start to the last answer, and the first errors."""
+    start = threading.Barrier(cfg.concurrency + 1)
+    latencies: list[list[float]] = [[] for _ in range(cfg.concurrency)]
+    errors: list[list[str]] = [[] for _ in range(cfg.concurrency)]
+
+    def worker(i: int) -> None:
+        with _client(url, cfg) as client:
+            client.get("/health")  # open the keep-alive connection before the clock starts
+            start.wait()
+            for j in range(cfg.per_client):
+                try:
+                    seconds, header = timed_post(client, bodies[(i + j) % len(bodies)])
+                except Exception as exc:  # noqa: BLE001 - any failure of a request is a counted error
+                    errors[i].append(f"{type(exc).__name__}: {exc}"[:300])
+                    continue
+                if header.get("hit") is not True:
+                    errors[i].append("not a hit")
+                else:
+                    latencies[i].append(seconds)
+
+    threads = [threading.Thread(target=worker, args=(i,), daemon=True) for i in range(cfg.concurrency)]
+    for t in threads:
+        t.start()
+    start.wait(timeout=60.0)
+    t0 = time.perf_counter()
+    for t in threads:
+        t.join()
+    wall = time.perf_counter() - t0
+    flat_errors = [e for errs in errors for e in errs]
+    return [s for lat in latencies for s in lat], len(flat_errors), wall, flat_errors[:5]
+
+
+def _summary(res: Results, scene: str, metric: str, samples_ms: list[float], samples: bool, **config: Any) -> None:
+    """Median, p95, p99 and n of ``samples_ms`` (and each sample when ``samples``)."""
+    ms = np.asarray(samples_ms, dtype=np.float64)
+    for stat, q in zip(STATS, (50, 95, 99)):
+        res.add(system=SYSTEM, scene=scene, metric=metric, value=float(np.percentile(ms, q)), unit="ms", stat=stat, **config)
+    res.add(system=SYSTEM, scene=scene, metric=metric, value=len(ms), unit="count", stat="n", **config)
+    if samples:
+        for v in ms:
+            res.add(system=SYSTEM, scene=scene, metric=metric, value=float(v), unit="ms", stat="sample", **config)
+
+
+def measure(cfg: ServiceConfig, res: Results) -> None:
+    scene_arg = cfg.scenes[0]
+    scene = Path(scene_arg).stem
+    scenes_dir = Path(scene_arg).resolve().parent if Path(scene_arg).suffix else None
+    bodies = view_bodies(cfg, res.seed)
+    plan = pinning(cfg.pin)
+    res.settings["pinning"] = plan
+    common = {"resolution": cfg.resolution, "codec": cfg.codec, "spp": cfg.spp}
+    res.out.mkdir(parents=True, exist_ok=True)
+    work = Path(tempfile.mkdtemp(prefix="service_store_", dir=res.out))
+    try:
+        with _server(plan, work / "store", scenes_dir) as url, client_cores(plan), _client(url, cfg) as client:
+            misses: list[tuple[float, dict[str, float]]] = []
+            for body in bodies:
+                seconds, header = timed_post(client, body)
+                if header.get("hit") is False:  # a view within the tolerance of an earlier one is no miss
+                    misses.append((seconds * 1e3, header["timings_ms"]))
+            if not misses:
+                raise RuntimeError(f"none of the {len(bodies)} views missed: the store at {work} was not fresh")
+            _misses(res, scene, misses, common)
+
+            for body in bodies:  # warm-up: every view once, untimed
+                timed_post(client, body)
+            e2e, lookup_read, total = [], [], []
+            for i in range(cfg.sequential):
+                seconds, header = timed_post(client, bodies[i % len(bodies)])
+                if header.get("hit") is not True:
+                    raise RuntimeError(f"a request for a baked view (view {i % len(bodies)}) did not hit: {header.get('timings_ms')}")
+                e2e.append(seconds * 1e3)
+                lookup_read.append(header["timings_ms"]["lookup"] + header["timings_ms"]["read"])
+                total.append(header["timings_ms"]["total"])
+            seq = common | {"views": len(bodies)}
+            _summary(res, scene, "hit_server", lookup_read, True, part="lookup_read", **seq)
+            _summary(res, scene, "hit_server", total, True, part="total", **seq)
+            _summary(res, scene, "hit_e2e", e2e, True, **seq)
+
+            latencies, n_errors, wall, first_errors = run_load(url, cfg, bodies)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    load = common | {"clients": cfg.concurrency, "per_client": cfg.per_client, "views": len(bodies)}
+    if latencies:
+        _summary(res, scene, "load_latency", [s * 1e3 for s in latencies], True, **load)
+    requests = cfg.concurrency * cfg.per_client
+    res.add(system=SYSTEM, scene=scene, metric="load_errors", value=n_errors, unit="count", requests=requests, first_errors=first_errors, **load)
+    res.add(system=SYSTEM, scene=scene, metric="load_throughput", value=requests / wall, unit="req/s", wall_s=round(wall, 4), **load)
+    _targets(res, scene, cfg)
+    text = table(res.rows)
+    res.output("service_table.md").write_text(text)
+    print(text)
+
+
+def _misses(res: Results, scene: str, misses: list[tuple[float, dict[str, float]]], common: dict[str, Any]) -> None:
+    """``miss_e2e`` and ``miss_server`` rows: the first miss (scene load and compile included) alone, the
+    median and p95 over the others."""
+    parts = list(misses[0][1])
+    first_ms, first_timings = misses[0]
+    res.add(system=SYSTEM, scene=scene, metric="miss_e2e", value=first_ms, unit="ms", stat="first", **common)
+    for part in parts:
+        res.add(system=SYSTEM, scene=scene, metric="miss_server", value=first_timings[part], unit="ms", stat="first", part=part, **common)
+    warm = misses[1:]
+    if warm:
+        res.add_timing(system=SYSTEM, scene=scene, metric="miss_e2e", samples_s=[ms / 1e3 for ms, _ in warm], **common)
+        for part in parts:
+            res.add_timing(system=SYSTEM, scene=scene, metric="miss_server", samples_s=[t[part] / 1e3 for _, t in warm], part=part, **common)
+
+
+def _targets(res: Results, scene: str, cfg: ServiceConfig) -> None:
+    """One ``target_met`` row per issue target, from the rows just measured."""
+    for target in TARGETS:
+        value = _value(res.rows, target.metric, target.stat, **dict(target.where))
+        met = value is not None and target.met(value)
+        res.add(system=SYSTEM, scene=scene, metric=target.metric, value=int(met), unit="bool", stat="target_met", target=target.label,
+                bound=target.bound, bound_unit=target.unit, measured=value, resolution=cfg.resolution, stated_at_resolution=256)  # fmt: skip
+
+
+def _config(row: dict[str, Any]) -> dict[str, Any]:
+    """A row's config, whether from :class:`Results` (JSON text) or :func:`read_rows` (decoded)."""
+    return row["config"] if isinstance(row["config"], dict) else json.loads(row["config"])
+
+
+def _fmt(value: float | None) -> str:
+    return "" if value is None else f"{value:.2f}"
+
+
+def _value(rows: list[dict[str, Any]], metric: str, stat: str, **config: Any) -> float | None:
+    for r in rows:
+        if r["metric"] == metric and r["stat"] == stat and config.items() <= _config(r).items():
+            return float(r["value"])
+    return None
+
+
+def table(rows: list[dict[str, Any]]) -> str:
+    """Markdown: each timed metric's p50/p95/p99/n, the load figures, and the targets with met / MISSED."""
+    lines = ["| metric | part | first | p50 | p95 | p99 | n |", "|---|---|---|---|---|---|---|"]
+    for metric, part in (("miss_e2e", None), *(("miss_server", p) for p in ("lookup", "render", "denoise", "encode", "total")),
+                         ("hit_server", "lookup_read"), ("hit_server", "total"), ("hit_e2e", None), ("load_latency", None)):  # fmt: skip
+        where = {"part": part} if part else {}
+        p50 = _value(rows, metric, "median", **where)
+        first = _value(rows, metric, "first", **where)
+        if p50 is None and first is None:
+            continue
+        n = _value(rows, metric, "n", **where)
+        cells = [_fmt(first), _fmt(p50), *(_fmt(_value(rows, metric, s, **where)) for s in ("p95", "p99")), "" if n is None else f"{n:.0f}"]
+        lines.append(f"| {metric} (ms) | {part or ''} | " + " | ".join(cells) + " |")
+    lines += [
+        "",
+        f"load: {_fmt(_value(rows, 'load_throughput', 'value'))} requests/s, {_value(rows, 'load_errors', 'value') or 0:.0f} errors",
+        "",
+        "| target | measured | met |",
+        "|---|---|---|",
+    ]
+    for r in rows:
+        if r["stat"] == "target_met":
+            cfg = _config(r)
+            measured = "n/a" if cfg["measured"] is None else f"{cfg['measured']:.2f} {cfg['bound_unit']}"
+            lines.append(f"| {cfg['target']} | {measured} | {'yes' if r['value'] else 'MISSED'} |")
+    return "\n".join(lines) + "\n"
+
+
+def plot(csv_path: Path, out_dir: Path) -> list[Path]:
+    """CDFs: left, sequential hits (server lookup + read, server total, end to end) with the 5 and 10 ms
+    targets; right, the concurrent load's latencies with p50/p99 and the throughput against its target."""
+    from gicore.plotting import plt, save
+
+    rows = read_rows(csv_path)
+
+    def samples(metric: str, **config: Any) -> np.ndarray:
+        return np.sort([r["value"] for r in rows if r["metric"] == metric and r["stat"] == "sample" and config.items() <= r["config"].items()])
+
+    def cdf(ax, values: np.ndarray, label: str) -> None:
+        if len(values):
+            ax.step(values, np.arange(1, len(values) + 1) / len(values), where="post", label=f"{label} (n={len(values)})")
+
+    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.2))
+    cdf(left, samples("hit_server", part="lookup_read"), "server lookup + read")
+    cdf(left, samples("hit_server", part="total"), "server total")
+    cdf(left, samples("hit_e2e"), "end to end (loopback)")
+    left.axvline(5.0, color="k", ls=":", label="target: server p50 <= 5 ms")
+    left.axvline(10.0, color="k", ls="--", label="target: e2e p50 <= 10 ms")
+    left.set_title("Sequential cache hits", fontsize=9)
+    load = samples("load_latency")
+    cdf(right, load, "request latency")
+    for stat, style in (("median", ":"), ("p99", "--")):
+        v = _value(rows, "load_latency", stat)
+        if v is not None:
+            right.axvline(v, color="C3", ls=style, label=f"{'p50' if stat == 'median' else stat} {v:.1f} ms")
+    rate = _value(rows, "load_throughput", "value")
+    errors = _value(rows, "load_errors", "value")
+    clients = next((r["config"] for r in rows if r["metric"] == "load_throughput"), {})
+    right.set_title(
+        f"{clients.get('clients')} clients x {clients.get('per_client')} hits: {rate or 0:.0f} req/s (target >= 300), {errors or 0:.0f} errors",
+        fontsize=9,
+    )
+    for ax in (left, right):
+        ax.set_xscale("log")
+        ax.set_xlabel("latency [ms]")
+        ax.set_ylabel("fraction of requests")
+        ax.grid(alpha=0.3, which="both")
+        ax.legend(fontsize=7, loc="lower right")
+    return [save(fig, out_dir / "service.png")]
+
+
+BENCH = Bench("service", ServiceConfig, measure, plot, help="Issue 10 targets: GI-map server hit/miss service times and concurrent load")
