@@ -22,18 +22,25 @@ units of work, each its own plot and front:
     tree's lookup rule gives along the fly-through with views perturbed by that half tolerance.
 
 - **per frame** (a client frame: the median of its local work -- DI, warp, composition -- plus, for
-  GIGAN, its map's cost amortised over the period k; cloud baking's map is made on the server and paid
-  in latency, per GI map above): ``bench frequency`` runs over GI period k × warp method × composition,
-  with GIGAN's generator (``gi_source = model``) and with path-traced maps as the server sends them
-  (``gi_source = gt``: cloud baking). Read from ``frequency.csv`` under ``from_dir`` when one has that
-  source at this scene and resolution, else run here into ``pareto_runs/``.
+  the generator's maps, their cost amortised over the period k; a path-traced map is made on the server
+  and paid in latency, per GI map above): ``bench frequency`` runs over GI period k × warp method ×
+  composition, with GIGAN's generator (``gi_source = model``) and with path-traced maps as the server
+  sends them (``gi_source = gt``). Read from ``frequency.csv`` under ``from_dir`` when one has that
+  source at this scene and resolution, else run here into ``pareto_runs/``. A point is labelled by the
+  system it is (SPEC §5-§6): ``gigan`` = model maps, structure-aware warp (or none); ``cloud_baking`` =
+  path-traced maps, pixel-level warp (or none). The other pairings (model maps warped pixel-level,
+  path-traced maps warped structure-aware) are cross-system ablations, ``system = ablation``: kept in
+  the CSV and plotted grey, but on no front and in no best-configuration row. A path-traced-map point's
+  config holds ``map_latency_budget_ms`` = k × its frame time: the GI-map latency it assumes, since the
+  client keeps rendering with the old map only until the next one is due.
 
-Rows (``system`` = ``gigan`` | ``cloud_baking``; ``config`` = the point's full config, with ``knob``, the
-unit ``per`` and ``source``: ``measured`` or the CSV it was read from): ``run_time`` (ms, median),
-``error`` (1 - SSIM), and ``dominated`` with ``stat`` ``system`` (by the system's own points) and
-``combined`` (by both systems' points of the same unit). Plots: one per system and unit, and the
-combined front per unit; ``pareto_best.md`` names the best configuration of each system within three
-time budgets per unit.
+Rows (``system`` = ``gigan`` | ``cloud_baking`` | ``ablation``; ``config`` = the point's full config, with
+``knob``, the unit ``per`` and ``source``: ``measured`` or the CSV it was read from): ``run_time`` (ms,
+median), ``error`` (1 - SSIM), and ``dominated`` with ``stat`` ``system`` (by points of its own system)
+and ``combined`` (by ``gigan`` and ``cloud_baking`` points of the same unit; an ablation dominates
+nothing). Plots: one per system and unit, and the combined front per unit (ablations grey);
+``pareto_best.md`` names the best configuration of each system within three time budgets per unit, with
+the caveat of each row's run time.
 """
 
 from __future__ import annotations
@@ -48,11 +55,12 @@ from typing import Any
 import numpy as np
 
 from bench.runner import FOV_DEGREES, Bench
+from bench.warp_bench import WARP_LABELS
 from gicore.cli import UserError
 from gicore.results import Results, read_rows
 from gigan_local.inference import DEFAULT_MODEL
 
-GIGAN, CLOUD = "gigan", "cloud_baking"
+GIGAN, CLOUD, ABLATION = "gigan", "cloud_baking", "ablation"
 PER_MAP, PER_FRAME = "GI map", "frame"
 #: Bytes of a GI-map request (JSON body + HTTP header), as the cloud client sends it (measured: ~430 B).
 REQUEST_BYTES = 450
@@ -415,13 +423,21 @@ def _offset_camera(camera, distance: float, angle_deg: float):
     return replace(camera, origin=tuple(o2), target=tuple(o2 + turned))
 
 
+def frame_system(gi_source: str, warp: str) -> str:
+    """The system a per-frame point is: GIGAN = the generator's maps (``gi_source`` ``model``) warped
+    structure-aware; cloud baking = path-traced maps (``gt``) warped pixel-level (SPEC §5-§6); either
+    without warping too. Any other pairing (``warp`` is a ``WARP_LABELS`` value) is a cross-system ablation."""
+    system, own = {"model": (GIGAN, "structure"), "gt": (CLOUD, "pixel")}[gi_source]
+    return system if warp in (WARP_LABELS[own], WARP_LABELS["none"]) else ABLATION
+
+
 def per_frame(ctx: Context, pts: Points, res: Results) -> None:
     """Per frame: GI period k × warp × composition, GIGAN's maps and the server's (frequency.csv, read or run)."""
     from bench import frequency
     from bench.runner import execute
 
     cfg = ctx.cfg
-    for system, source in ((GIGAN, "model"), (CLOUD, "gt")):
+    for source in ("model", "gt"):
         rows, origin = _frequency_rows(cfg.from_dir, ctx.spec.name, source, cfg.resolution) if cfg.from_dir else ([], "")
         if not rows:
             run = frequency.FrequencyConfig(
@@ -440,9 +456,12 @@ def per_frame(ctx: Context, pts: Points, res: Results) -> None:
             by_point.setdefault(key, {"warp": r["system"], "config": r["config"]})[r["metric"]] = r["value"]
         for p in by_point.values():
             c = p["config"]
-            time_ms = p["frame_time"] + (p["gi_time"] / c["k"] if system == GIGAN else 0.0)
-            pts.add(system, PER_FRAME, "k × warp × composition", time_ms, 1.0 - p["ssim"], origin if origin else "measured", warp=p["warp"], k=c["k"],
-                    composition=c["composition"], tau=c["tau"], gi_source=c["gi_source"], resolution=c["resolution"], spp=c["spp"])  # fmt: skip
+            # the generator's map is made on the client, so its cost is paid per frame; the server's map is paid in latency
+            extra = {"map_latency_budget_ms": round(c["k"] * p["frame_time"], 3)} if source == "gt" else {}
+            time_ms = p["frame_time"] + (p["gi_time"] / c["k"] if source == "model" else 0.0)
+            pts.add(frame_system(source, p["warp"]), PER_FRAME, "k × warp × composition", time_ms, 1.0 - p["ssim"], origin or "measured",
+                    warp=p["warp"], k=c["k"], composition=c["composition"], tau=c["tau"], gi_source=c["gi_source"], resolution=c["resolution"],
+                    spp=c["spp"], **extra)  # fmt: skip
 
 
 def _frequency_rows(from_dir: Path, scene: str, source: str, resolution: int) -> tuple[list[dict[str, Any]], str]:
@@ -460,15 +479,15 @@ def _frequency_rows(from_dir: Path, scene: str, source: str, resolution: int) ->
 
 
 def mark_dominated(items: list[dict[str, Any]]) -> None:
-    """Set ``dominated`` (within the point's system and unit) and ``dominated_combined`` (within its unit)."""
-    for flag, same in (
-        ("dominated", lambda a, b: a["system"] == b["system"] and a["per"] == b["per"]),
-        ("dominated_combined", lambda a, b: a["per"] == b["per"]),
+    """Set ``dominated`` (by a point of the same system and unit) and ``dominated_combined`` (by a ``gigan`` or
+    ``cloud_baking`` point of the same unit: an ablation is no system's configuration, so it dominates nothing)."""
+    for flag, by in (
+        ("dominated", lambda p, q: q["system"] == p["system"] and q["per"] == p["per"]),
+        ("dominated_combined", lambda p, q: q["system"] != ABLATION and q["per"] == p["per"]),
     ):
         for p in items:
             p[flag] = any(
-                same(p, q) and q["time"] <= p["time"] and q["error"] <= p["error"] and (q["time"] < p["time"] or q["error"] < p["error"])
-                for q in items
+                by(p, q) and q["time"] <= p["time"] and q["error"] <= p["error"] and (q["time"] < p["time"] or q["error"] < p["error"]) for q in items
             )
 
 
@@ -528,8 +547,35 @@ def best_within(points: list[dict[str, Any]], budget_ms: float) -> dict[str, Any
     return min(fitting, key=lambda p: (p["error"], p["time"])) if fitting else None
 
 
+def caveat(p: dict[str, Any], points: list[dict[str, Any]]) -> str:
+    """What point ``p``'s run time covers and what it assumes (a column of the best-configuration table).
+    A cloud per-frame point assumes its maps arrive within k frames (``map_latency_budget_ms``; its run time
+    is its frame time); this says whether the fastest cloud map hit and miss measured per GI map (in
+    ``points``) arrive that fast."""
+    c = p["config"]
+    if p["per"] == PER_MAP:
+        if p["system"] == GIGAN:
+            return "client: DI + G-buffers + inference"
+        if c.get("knob") == "store tolerance":
+            return f"hit-rate-weighted delivery on {c.get('profile')}, stale map warped"
+        if "cache" in c:
+            return f"delivered on {c['profile']}: " + ("bake + encode + network + decode" if c["cache"] == "miss" else "store hit: network + decode")
+        return "server bake only: no encode, network or decode"
+    if c.get("gi_source") == "model":
+        return f"client frame + its map's cost / k (k={c['k']})"
+    due = c["k"] * p["time"]
+    verdicts = []
+    for cache in ("hit", "miss"):
+        maps = [q for q in points if q["system"] == CLOUD and q["per"] == PER_MAP and q["config"].get("cache") == cache]
+        if maps:
+            q = min(maps, key=lambda q: q["time"])
+            verdicts.append(f"fastest map {cache} {q['time']:.3g} ms ({q['config']['codec']}, {q['config']['profile']}): "
+                            + ("met" if q["time"] <= due else "NOT met"))  # fmt: skip
+    return f"client frame only; assumes a GI map within k={c['k']} frames = {due:.3g} ms; " + ("; ".join(verdicts) or "no map delivery measured")
+
+
 def plot(csv_path: Path, out_dir: Path) -> list[Path]:
-    """Per unit: one panel per system and the combined front (dominated points hollow); ``pareto_best.md``."""
+    """Per unit: one panel per system and the combined front (dominated points hollow, ablations grey); ``pareto_best.md``."""
     from bench.report import best_table
     from gicore.plotting import plt, save
 
@@ -537,7 +583,7 @@ def plot(csv_path: Path, out_dir: Path) -> list[Path]:
     written = []
     for unit in dict.fromkeys(p["per"] for p in points):
         here = [p for p in points if p["per"] == unit]
-        systems = list(dict.fromkeys(p["system"] for p in here))
+        systems = list(dict.fromkeys(p["system"] for p in here if p["system"] != ABLATION))
         fig, axes = plt.subplots(1, len(systems) + 1, figsize=(5.2 * (len(systems) + 1), 4.2), squeeze=False)
         for ax, scope in zip(axes[0], [*systems, "combined"]):
             for i, system in enumerate(systems):
@@ -549,6 +595,9 @@ def plot(csv_path: Path, out_dir: Path) -> list[Path]:
                     ax.plot(*zip(*front), "o-", color=f"C{i}", label=f"{system}: front")
                 if rest:
                     ax.plot(*zip(*rest), "o", mfc="none", color=f"C{i}", alpha=0.6, label=f"{system}: dominated")
+            ablations = [(p["time"], p["error"]) for p in here if p["system"] == ABLATION]
+            if scope == "combined" and ablations:
+                ax.plot(*zip(*ablations), "x", color="0.6", label="ablation (cross-system; on no front)")
             ax.set_xscale("log")
             ax.set_xlabel(f"median run time per {unit} [ms]")
             ax.set_ylabel("error: 1 - SSIM vs path-traced GT")

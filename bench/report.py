@@ -364,7 +364,7 @@ def fov_section(rows: Rows, csv_path: Path) -> str:
 
 
 def pareto_section(rows: Rows, csv_path: Path) -> str:
-    from bench.pareto import front_points
+    from bench.pareto import ABLATION, front_points
 
     points = front_points(rows)
     if not points:
@@ -373,10 +373,12 @@ def pareto_section(rows: Rows, csv_path: Path) -> str:
     for unit in dict.fromkeys(p["per"] for p in points):
         here = [p for p in points if p["per"] == unit]
         figures = []
-        systems = list(dict.fromkeys(p["system"] for p in here))
+        systems = list(dict.fromkeys(p["system"] for p in here if p["system"] != ABLATION))
+        ablations = [Point(p["time"], p["error"], p["tip"], hollow=True) for p in here if p["system"] == ABLATION]
         for scope in [*systems, "combined"]:
             chosen = here if scope == "combined" else [p for p in here if p["system"] == scope]
-            series = []
+            # cross-system ablations: grey, on no front
+            series = [Series("ablation (cross-system)", ablations, line=False, colour="#999999")] if scope == "combined" and ablations else []
             for i, system in enumerate(systems):
                 mine = [p for p in chosen if p["system"] == system]
                 if not mine:
@@ -398,17 +400,20 @@ def pareto_section(rows: Rows, csv_path: Path) -> str:
 
 
 def best_table(points: list[dict[str, Any]]) -> str:
-    """The lowest-error point of each system within each time budget, per unit of work (Markdown)."""
-    from bench.pareto import best_within
+    """The lowest-error point of each system (cross-system ablations excluded) within each time budget, per unit
+    of work, with what its run time covers and assumes (Markdown)."""
+    from bench.pareto import ABLATION, best_within, caveat
 
-    lines = ["| unit | time budget (ms) | system | error | run time (ms) | config |", "|---|---|---|---|---|---|"]
-    for unit in dict.fromkeys(p["per"] for p in points):
-        here = [p for p in points if p["per"] == unit]
+    lines = ["| unit | time budget (ms) | system | error | run time (ms) | config | run time covers |", "|---|---|---|---|---|---|---|"]
+    systems = [p for p in points if p["system"] != ABLATION]
+    for unit in dict.fromkeys(p["per"] for p in systems):
+        here = [p for p in systems if p["per"] == unit]
         for budget in budgets([p["time"] for p in here]):
             for system in dict.fromkeys(p["system"] for p in here):
                 p = best_within([q for q in here if q["system"] == system], budget)
                 if p is not None:
-                    lines.append(f"| {unit} | {budget:g} | {system} | {p['error']:.4g} | {p['time']:.3g} | {p['label'].replace('|', '/')} |")
+                    cells = [unit, f"{budget:g}", system, f"{p['error']:.4g}", f"{p['time']:.3g}", p["label"], caveat(p, points)]
+                    lines.append("| " + " | ".join(cell.replace("|", "/") for cell in cells) + " |")
     note = (
         "Per frame, cloud baking's time is the client's work alone: its maps are made on the server and arrive after the per-GI-map "
         "latency above, so its point at period k holds only if that latency stays under k frames."
