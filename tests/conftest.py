@@ -6,6 +6,7 @@ Render tests use a small icosphere written as a user mesh (no procedural anatomy
 
 from __future__ import annotations
 
+import signal
 from pathlib import Path
 from typing import Any
 
@@ -13,6 +14,14 @@ import pytest
 
 #: Resolution of the shared test renderer (square).
 RES = 32
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """Let the Ctrl-C tests' subprocesses see SIGINT even when the suite itself was started with SIGINT
+    ignored (as a shell starts background jobs, `nohup ... &`): an ignored signal stays ignored across
+    exec, a handled one is reset to the default, which Python turns into KeyboardInterrupt."""
+    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 @pytest.fixture(scope="session")

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import math
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -325,12 +326,19 @@ def test_ctrl_c_of_a_ray_run_keeps_whole_frames_and_the_rerun_finishes_identical
         str(SLOW.seed),
     ]
     root = tmp_path / "ball_moving"
-    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    deadline = time.monotonic() + TIMEOUT_S
-    while not list(root.rglob("*.npz")) and proc.poll() is None and time.monotonic() < deadline:
-        time.sleep(0.01)
-    proc.send_signal(signal.SIGINT)
-    _, err = proc.communicate(timeout=60)
+    # Ray 2.60's core worker sometimes aborts a driver interrupted while a task reply is in flight
+    # ("Check failed: ... Tried to complete task that was not pending", about 1 run in 5 here): an
+    # upstream bug, not ours. Such a run is tried again from scratch; any other outcome is judged.
+    for _attempt in range(3):
+        shutil.rmtree(root, ignore_errors=True)
+        proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        deadline = time.monotonic() + TIMEOUT_S
+        while not list(root.rglob("*.npz")) and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.01)
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+        if "Tried to complete task that was not pending" not in err:
+            break
     assert proc.returncode == 130, err
     assert "interrupted: finished frames are kept" in err and "Traceback" not in err
     partial = npz_arrays(root)
