@@ -45,7 +45,7 @@ import numpy as np
 from baseline_cloudbaking.codecs import CodecError, get_codec
 from baseline_cloudbaking.protocol import MEDIA_TYPE, PayloadError, decode_payload
 from gicore.camera import Camera
-from gicore.loop import GIMap, Light
+from gicore.loop import GIMap, Light, PathRunConfig
 
 log = logging.getLogger("cloudbaking.client")
 
@@ -355,29 +355,12 @@ def check_server(server: str, scene: str, resolution: int, codec: str, spp: int,
 
 
 @dataclass(frozen=True)
-class CloudClientConfig:
-    """One ``cloudbaking-client`` run. ``None`` FOVs come from the scene spec (local 60°, GI 90°)."""
+class CloudClientConfig(PathRunConfig):
+    """One ``cloudbaking-client`` run: the shared path run (the same path as ``gigan-client``'s; ``spp`` is
+    also the server's; the server's maps are always denoised) plus the GI-map codec. The server knows the
+    scene by its name (a spec file's stem)."""
 
-    #: Built-in scene name or spec file; the server knows it by its name (a file's stem).
-    scene: str = "lung_plane"
-    frames: int = 60
-    resolution: int = 256
-    #: GI-map period k: ask for a new map when the newest is k frames old (or the view left the tolerance).
-    every: int = 30
-    gi_fov: float | None = None
-    local_fov: float | None = None
-    #: Frames per full orbit of the camera path (the same path as ``gigan-client``'s).
-    orbit_frames: int = 300
-    tau: float = 0.0
-    composition: str = "blend"
     codec: str = "jpeg"
-    #: Samples per pixel of path tracing: the server's maps and the evaluation GT.
-    spp: int = 64
-    #: Denoise the evaluation GT with OIDN (the server's maps always are).
-    denoise: bool = True
-    #: Compare the composed frame with the path-traced GT every ``gt_every`` frames (0: never).
-    gt_every: int = 0
-    seed: int = 0
 
     @property
     def server_name(self) -> str:
@@ -398,12 +381,11 @@ def run_client(cfg: CloudClientConfig, remote: RemoteConfig, tolerance: ServerIn
     spec = load_scene(cfg.scene)
     renderer = Renderer(spec, cfg.resolution)
     loop_cfg = LoopConfig(
-        every=cfg.every, gi_fov=spec.camera.gi_fov if cfg.gi_fov is None else cfg.gi_fov, max_move=tolerance.tolerance_position or None,
+        every=cfg.every, gi_fov=cfg.gi_fov_of(spec), max_move=tolerance.tolerance_position or None,
         max_turn=tolerance.tolerance_angle_deg or None, composition=cfg.composition, tau=cfg.tau, seed=cfg.seed,
         first_map_timeout_s=remote.connect_timeout_s + remote.deadline_s,
     )  # fmt: skip
-    local_fov = spec.camera.local_fov if cfg.local_fov is None else cfg.local_fov
-    views = path_views(spec, cfg.frames, cfg.orbit_frames, cfg.seed, local_fov, cfg.resolution)
+    views = path_views(spec, cfg.frames, cfg.orbit_frames, cfg.seed, cfg.local_fov_of(spec), cfg.resolution)
     kept: dict[int, np.ndarray] = {}
 
     def keep(frame: int, result) -> None:

@@ -260,6 +260,51 @@ HEAD_COLUMNS = ("frame", "gi_requested", "gi_new", "gi_age_frames", "gi_age_ms",
 TAIL_COLUMNS = ("frame_ms", "ssim", "psnr")
 
 
+@dataclass(frozen=True)
+class PathRunConfig:
+    """What every client run (``gigan-client``, ``cloudbaking-client``) shares: the scene, the camera path
+    both clients fly, the GI period, composition and GT scoring. ``None`` FOVs come from the scene spec
+    (local 60°, GI 90°). Each system's config adds its own GI source and warp fields."""
+
+    #: Built-in scene name or spec file.
+    scene: str = "lung_plane"
+    frames: int = 60
+    resolution: int = 256
+    #: GI-map period k: a new GI map every ``every`` frames (Table 3's inference frequency).
+    every: int = 30
+    gi_fov: float | None = None
+    local_fov: float | None = None
+    #: Frames per full orbit of the camera path (sets the motion per frame: 360° / orbit_frames).
+    orbit_frames: int = 300
+    tau: float = 0.0
+    composition: str = "blend"
+    #: Samples per pixel of path tracing (GT renders; the cloud server's maps).
+    spp: int = 64
+    #: Denoise the path-traced GT with OIDN (albedo/normal guided).
+    denoise: bool = True
+    #: Compare the composed frame with the path-traced GT every ``gt_every`` frames (0: never).
+    gt_every: int = 0
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.frames < 1 or self.every < 1 or self.orbit_frames < 1:
+            raise ValueError(f"frames, every and orbit_frames must be >= 1, got {self.frames}, {self.every}, {self.orbit_frames}")
+        if self.gt_every < 0 or self.spp < 1:
+            raise ValueError(f"gt_every must be >= 0 and spp >= 1, got {self.gt_every}, {self.spp}")
+        if not 0.0 <= self.tau <= 1.0:
+            raise ValueError(f"tau must lie in [0, 1], got {self.tau}")
+        if self.composition not in COMPOSITIONS:
+            raise ValueError(f"composition must be one of {COMPOSITIONS}, got {self.composition!r}")
+
+    def local_fov_of(self, spec: SceneSpec) -> float:
+        """The local camera's FOV: the given one, else the scene's (zero is not absent)."""
+        return spec.camera.local_fov if self.local_fov is None else self.local_fov
+
+    def gi_fov_of(self, spec: SceneSpec) -> float:
+        """The GI camera's FOV: the given one, else the scene's."""
+        return spec.camera.gi_fov if self.gi_fov is None else self.gi_fov
+
+
 @dataclass
 class FrameResult:
     """One composed frame (linear radiance, HxWx3) and its row."""

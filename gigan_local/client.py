@@ -25,7 +25,6 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from gicore.blend import COMPOSITIONS
 from gicore.camera import Camera
 from gicore.cli import UserError
 from gicore.loop import (
@@ -37,6 +36,7 @@ from gicore.loop import (
     Light,
     LoopConfig,
     PasteWarp,
+    PathRunConfig,
     SynchronousSource,
     Warp,
     path_views,
@@ -61,52 +61,25 @@ GI_SOURCES = ("model", "gt")
 
 
 @dataclass(frozen=True)
-class ClientConfig:
-    """One `gigan-client` run. ``None`` FOVs come from the scene spec (local 60°, GI 90°)."""
+class ClientConfig(PathRunConfig):
+    """One `gigan-client` run: the shared path run plus GIGAN's GI source and warp."""
 
-    scene: str = "lung_plane"
-    frames: int = 60
-    resolution: int = 256
-    #: GI-map period k: a new GI map every ``every`` frames (Table 3's inference frequency).
-    every: int = 30
-    gi_fov: float | None = None
-    local_fov: float | None = None
-    #: Frames per full orbit of the camera path (sets the motion per frame: 360° / orbit_frames).
-    orbit_frames: int = 300
-    tau: float = 0.0
-    composition: str = "blend"
     warp: str = "structure"
     gi_source: str = "gt"
     model: Path | None = None
-    #: Samples per pixel of path-traced GT renders (the ``gt`` GI source and the evaluation GT).
-    spp: int = 64
-    #: Denoise path-traced GT renders with OIDN (albedo/normal guided).
-    denoise: bool = True
-    #: Compare the composed frame with the GT every ``gt_every`` frames (0: never).
-    gt_every: int = 0
-    seed: int = 0
     threads: int = 2
 
     def __post_init__(self) -> None:
-        if self.frames < 1 or self.every < 1 or self.orbit_frames < 1:
-            raise ValueError(f"frames, every and orbit_frames must be >= 1, got {self.frames}, {self.every}, {self.orbit_frames}")
-        if self.gt_every < 0 or self.spp < 1:
-            raise ValueError(f"gt_every must be >= 0 and spp >= 1, got {self.gt_every}, {self.spp}")
-        if not 0.0 <= self.tau <= 1.0:
-            raise ValueError(f"tau must lie in [0, 1], got {self.tau}")
-        for name, value, allowed in (
-            ("composition", self.composition, COMPOSITIONS),
-            ("warp", self.warp, WARPS),
-            ("gi_source", self.gi_source, GI_SOURCES),
-        ):
+        super().__post_init__()
+        for name, value, allowed in (("warp", self.warp, WARPS), ("gi_source", self.gi_source, GI_SOURCES)):
             if value not in allowed:
                 raise ValueError(f"{name} must be one of {allowed}, got {value!r}")
 
     def fovs(self, spec: SceneSpec) -> tuple[float, float]:
         """(local FOV, GI FOV) for ``spec``: without warping the GI camera is the local camera."""
-        local = self.local_fov or spec.camera.local_fov
+        local = self.local_fov_of(spec)
         if self.warp != "none":
-            return local, self.gi_fov or spec.camera.gi_fov
+            return local, self.gi_fov_of(spec)
         if self.gi_fov is not None and self.gi_fov != local:
             raise UserError(
                 f"--warp none pastes the GI map unchanged, so it must be made with the local FOV ({local}°)", f"drop --gi-fov {self.gi_fov}"
