@@ -97,13 +97,20 @@ def test_ablations_dominate_nothing_and_are_in_no_best_configuration() -> None:
 def test_points_read_back_from_the_csv_with_their_flags_and_budgets() -> None:
     rows = read_rows(FIXTURES / "pareto" / "pareto.csv")
     points = front_points(rows)
-    assert {p["system"] for p in points} == {GIGAN, CLOUD} and {p["per"] for p in points} == {PER_MAP, PER_FRAME}
+    assert {p["system"] for p in points} == {GIGAN, CLOUD, ABLATION} and {p["per"] for p in points} == {PER_MAP, PER_FRAME}
     assert len(points) == len(rows) // 4  # run_time, error and the two dominated flags per point
+    frames = [p for p in points if p["per"] == PER_FRAME]
+    assert {p["system"] for p in points if p["per"] == PER_MAP} == {GIGAN, CLOUD}  # ablations are per-frame pairings only
+    assert all(p["system"] == frame_system(p["config"]["gi_source"], p["config"]["warp"]) for p in frames)  # labelled as bench pareto labels
+    assert {(p["config"]["gi_source"], p["config"]["warp"]) for p in frames if p["system"] == ABLATION} == {
+        ("model", "pixel-level"),
+        ("gt", "structure-aware"),
+    }
     for unit in (PER_MAP, PER_FRAME):
-        here = [p for p in points if p["per"] == unit]
+        here = [p for p in points if p["per"] == unit and p["system"] != ABLATION]
         fronts = [p for p in here if not p["dominated_combined"]]
         assert fronts and any(p["dominated_combined"] for p in here)
-        for p in fronts:  # nothing on the front is beaten by another point of its unit
+        for p in fronts:  # nothing on the front is beaten by another system point of its unit (an ablation dominates nothing)
             assert not any(q["time"] <= p["time"] and q["error"] < p["error"] for q in here)
         best = best_within(here, budgets([p["time"] for p in here])[-1])
         assert best is not None and best["error"] == min(p["error"] for p in here)
