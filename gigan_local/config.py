@@ -151,6 +151,10 @@ class TrainConfig:
     max_abs_loss: float = 1e4
     #: Name of the run in metrics.csv; empty: the output folder's name.
     run_id: str = ""
+    #: Start the generator from this exported model (a ``gigan-export`` ONNX file with its model.json)
+    #: instead of random weights, to fine-tune it; its architecture and input encoding must be this
+    #: run's (the depth scale defaults to the model's). A critic starts fresh. None: random weights.
+    init_generator: str | None = None
 
     def __post_init__(self) -> None:
         if self.model not in MODELS:
@@ -167,6 +171,8 @@ class TrainConfig:
         self.buffers = list(self.buffers)
         InputSpec(tuple(self.buffers))  # names network inputs (the depth scale is checked once derived)
         self.datasets = [str(d) for d in self.datasets]
+        if self.init_generator is not None:
+            self.init_generator = str(self.init_generator)
 
     @property
     def train_side(self) -> int:

@@ -13,7 +13,7 @@ checkpoint are written atomically, and ``metrics.csv`` is cut back to the rows t
 when a run resumes, so an interrupted run (Ctrl-C, kill) resumes with ``--resume`` as if never stopped.
 
 Validation (whole val frames, generator in eval mode as exported) runs before the first step, after
-every epoch and when the run stops; it scores RMSE/PSNR/SSIM (``gicore.metrics``) on tone-mapped [0, 1]
+every epoch and when the run stops; it scores RMSE/PSNR/SSIM and lf_error (``gicore.metrics``) on tone-mapped [0, 1]
 images. Data order and crops follow (seed, epoch), and the checkpoint keeps the RNG state, so a
 resumed run continues exactly where a straight run would be. Non-finite or exploding losses and
 non-finite weights stop training with :class:`TrainingDiverged`, keeping the last good checkpoint.
@@ -40,11 +40,12 @@ from gigan_local.config import BUDGET_FIELDS, TrainConfig, read_run_config, writ
 from gigan_local.data import FrameDataset, dataset_resolution, median_foreground_depth
 from gigan_local.models import BaseModel, create_model
 from gigan_local.preprocess import output_to_display
+from gigan_local.warmstart import init_depth_scale, load_into
 
 CHECKPOINT = "checkpoint.pt"
 METRICS = "metrics.csv"
 METRIC_COLUMNS = ("run_id", "model", "epoch", "step", "split", "metric", "value", "unit")
-UNITS = {"rmse": "1", "psnr": "dB", "ssim": "1", "step_seconds": "s"}
+UNITS = {"rmse": "1", "psnr": "dB", "ssim": "1", "lf_error": "1", "step_seconds": "s"}
 
 
 class TrainingDiverged(UserError):
@@ -103,6 +104,8 @@ def prepare_config(cfg: TrainConfig, out_dir: Path) -> TrainConfig:
             "train on datasets of the run's resolution",
         )
     depth_scale = cfg.depth_scale
+    if depth_scale is None and cfg.init_generator is not None:  # a warm start keeps the model's input encoding
+        depth_scale = init_depth_scale(Path(cfg.init_generator))
     if depth_scale is None:
         depth_scale = float(f"{median_foreground_depth(roots):.3g}") if "depth" in cfg.buffers else 1.0
     cfg = replace(cfg, resolution=resolution, depth_scale=depth_scale, run_id=cfg.run_id or Path(out_dir).resolve().name)
@@ -126,7 +129,7 @@ def _check_resume(saved: TrainConfig, cfg: TrainConfig) -> None:
 
 @torch.no_grad()
 def validate(generator: torch.nn.Module, dataset: FrameDataset, max_frames: int | None = None) -> dict[str, float]:
-    """Mean RMSE/PSNR/SSIM over (evenly spaced, at most ``max_frames``) whole frames, in eval mode."""
+    """Mean RMSE/PSNR/SSIM/lf_error over (evenly spaced, at most ``max_frames``) whole frames, in eval mode."""
     n = len(dataset) if max_frames is None else min(len(dataset), max_frames)
     indices = np.unique(np.linspace(0, len(dataset) - 1, n).round().astype(int))
     was_training = generator.training
@@ -221,6 +224,10 @@ def _train(cfg: TrainConfig, out_dir: Path, resume: bool, progress: bool, cache_
             _keep_rows(metrics_path, state.metrics_rows)
     else:  # no checkpoint: rows of a run interrupted before its first one count for nothing
         metrics_path.unlink(missing_ok=True)
+        if cfg.init_generator is not None:
+            # batch-norm statistics of the folded layers from a few training samples (see load_into)
+            calibration = torch.stack([train_set[i][0] for i in range(min(len(train_set), 2 * cfg.batch_size))])
+            load_into(model.generator, Path(cfg.init_generator), model.net_configs["G"], spec, calibration)
     write_run_config(out_dir, cfg, model.net_configs)  # on resume: records this invocation's budget
 
     def row(split: str, metric: str, value: float, unit: str) -> dict[str, Any]:

@@ -43,6 +43,9 @@ def train_command(
     max_val_frames: Annotated[int | None, typer.Option(min=1, help="Validate on at most this many frames.")] = None,
     checkpoint_every: Annotated[int | None, typer.Option(min=0, help="Also checkpoint every N steps (0: epoch ends only) (default: 500).")] = None,
     run_id: Annotated[str | None, typer.Option(help="Run name in metrics.csv (default: the --out folder name).")] = None,
+    init_generator: Annotated[
+        Path | None, typer.Option(help="Fine-tune this exported model (gigan-export's ONNX, model.json beside it) instead of random weights.")
+    ] = None,
     progress: Annotated[bool, typer.Option(help="Show a progress bar.")] = True,
     cache_frames: Annotated[bool, typer.Option(help="Keep encoded frames in memory (~3.4 MB per 256² frame); faster, same results.")] = True,
 ) -> None:
@@ -72,6 +75,7 @@ def train_command(
         "n_critic": n_critic,
         "seed": seed,
         "run_id": run_id,
+        "init_generator": str(init_generator) if init_generator is not None else None,
     }
     given = {k: v for k, v in (settings | budget).items() if v is not None}
     if resume:

@@ -1,0 +1,159 @@
+"""Warm starts: a generator's weights read back from a model that ``gigan-export`` wrote.
+
+``gigan-train --init-generator MODEL.onnx`` fine-tunes an exported generator instead of starting from
+random weights (e.g. to adapt a model trained on crops to whole frames): the ONNX initializers carry
+the torch state-dict names and values (batch-norm statistics included; fp16 files are widened back to
+fp32), and the ``model.json`` beside the file says which architecture and input encoding they belong to.
+A critic, when the model has one, starts fresh: exported files hold only the generator.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from gicore.cli import UserError
+from gigan_local.config import NetworkConfig
+from gigan_local.inference import FORMAT, MODEL_JSON
+from gigan_local.preprocess import InputSpec
+
+#: State-dict entries that exports do not carry and that a warm start may leave at their initial value.
+NOT_EXPORTED = ("num_batches_tracked",)
+
+
+def read_model_json(path: Path) -> dict[str, Any]:
+    """The ``model.json`` beside the exported model ``path`` (UserError naming the file if unreadable)."""
+    path = Path(path)
+    if not path.is_file():
+        raise UserError(f"--init-generator {path} is not a file", "give a model_fp32.onnx or model_fp16.onnx written by gigan-export")
+    config_path = path.parent / MODEL_JSON
+    try:
+        doc = json.loads(config_path.read_text())
+        if doc.get("format") != FORMAT:
+            raise ValueError(f"format is {doc.get('format')!r}, expected {FORMAT!r}")
+        NetworkConfig.from_dict(doc["network"])
+        InputSpec.from_dict(doc["input"])
+        return doc
+    except (OSError, ValueError, KeyError, TypeError, AttributeError) as e:
+        what = f"{config_path} is not a readable gigan model config ({type(e).__name__}: {e})"
+        raise UserError(what, "re-export the model with gigan-export") from None
+
+
+def init_depth_scale(path: Path) -> float:
+    """The depth scale the exported model's inputs were encoded with (a warm start must keep it)."""
+    return float(InputSpec.from_dict(read_model_json(path)["input"]).depth_scale)
+
+
+def generator_weights(path: Path, network: NetworkConfig, spec: InputSpec) -> tuple[dict[str, np.ndarray], list[tuple[str, str, str]]]:
+    """The exported generator's weights, checked against the run's generator ``network`` and input
+    ``spec`` (a mismatch is a UserError saying which field differs): (initializer name -> float32 array,
+    and the graph's ``Conv`` nodes in graph order as (weight, bias or "", output) initializer names)."""
+    import onnx
+    from onnx import numpy_helper
+
+    doc = read_model_json(path)
+    saved_net, saved_spec = NetworkConfig.from_dict(doc["network"]), InputSpec.from_dict(doc["input"])
+    if saved_net != network:
+        diff = {k: (v, getattr(network, k)) for k, v in vars(saved_net).items() if getattr(network, k) != v}
+        raise UserError(
+            f"--init-generator {path} is a different generator than this run builds (model vs run: {diff})",
+            "give the run the model's architecture (--model, --ngf, --n-down, --buffers) or start from random weights",
+        )
+    if saved_spec.buffers != spec.buffers or not np.isclose(saved_spec.depth_scale, spec.depth_scale):
+        raise UserError(
+            f"--init-generator {path} encodes inputs {saved_spec.to_dict()}, this run {spec.to_dict()}",
+            "train on the model's buffers and leave the depth scale to the model",
+        )
+    try:
+        graph = onnx.load(str(path)).graph
+    except Exception as e:  # onnx raises protobuf's own exception types for unreadable files
+        raise UserError(f"{path} is not a loadable ONNX model ({type(e).__name__})", "re-export it with gigan-export") from None
+    # an fp16 file stores each weight in half precision followed by a Cast: a weight is named by what it feeds
+    cast_of = {n.input[0]: n.output[0] for n in graph.node if n.op_type == "Cast"}
+    weights = {cast_of.get(t.name, t.name): numpy_helper.to_array(t).astype(np.float32) for t in graph.initializer}
+    convs = [(n.input[1], n.input[2] if len(n.input) > 2 else "", n.output[0]) for n in graph.node if n.op_type == "Conv"]
+    return weights, convs
+
+
+def load_into(generator: Any, path: Path, network: NetworkConfig, spec: InputSpec, calibration: Any) -> int:
+    """Load the exported generator at ``path`` into the torch ``generator`` (a U-Net of ``network``).
+
+    Every parameter and buffer but :data:`NOT_EXPORTED` must be in the file with its shape, except for
+    a down layer whose convolution the exporter folded together with its batch norm (torch.onnx does
+    that in eval mode): its folded weight W' and bias b' are loaded as the convolution's weight and a
+    batch norm that adds b' -- running mean m and variance v, scale sqrt(v + eps), shift b' + m, exact in
+    eval mode for any m, v. ``calibration`` (an input batch, N x C x H x W) sets m and v to the batch
+    statistics of W' x, so that training-mode batch norm starts out computing what the model computed.
+    Returns the number of folded layers restored that way. Any other mismatch is a UserError.
+    """
+    import torch
+
+    weights, convs = generator_weights(path, network, spec)
+    state = generator.state_dict()
+    downs = list(getattr(generator, "downs", []))
+    folded: list[tuple[torch.nn.Conv2d, torch.nn.BatchNorm2d, str, np.ndarray]] = []
+    for k, (w_name, b_name, _) in enumerate(convs):
+        if w_name in state or k >= len(downs):
+            continue
+        modules = list(downs[k])
+        j = next((i for i, m in enumerate(modules) if isinstance(m, torch.nn.Conv2d)), None)
+        if j is None or j + 1 >= len(modules) or not isinstance(modules[j + 1], torch.nn.BatchNorm2d) or not b_name:
+            continue
+        prefix = f"downs.{k}"
+        weights[f"{prefix}.{j}.weight"] = weights.pop(w_name)
+        b = weights.pop(b_name)
+        bn = modules[j + 1]
+        for field, value in (("running_mean", np.zeros_like(b)), ("running_var", np.ones_like(b)), ("bias", b)):
+            weights[f"{prefix}.{j + 1}.{field}"] = value
+        weights[f"{prefix}.{j + 1}.weight"] = np.full_like(b, np.sqrt(1.0 + bn.eps))
+        folded.append((modules[j], bn, prefix, b))
+    needed = {k for k in state if not k.endswith(NOT_EXPORTED)}
+    missing, extra = sorted(needed - set(weights)), sorted(set(weights) - set(state))
+    if missing or extra:
+        raise UserError(
+            f"{path} does not hold this generator's weights (missing {missing[:3]}, unexpected {extra[:3]})", "re-export it with gigan-export"
+        )
+    for name in needed:
+        if tuple(weights[name].shape) != tuple(state[name].shape):
+            what = f"{path}: weight {name} is {weights[name].shape}, the generator's {tuple(state[name].shape)}"
+            raise UserError(what, "re-export it with gigan-export")
+        state[name] = torch.from_numpy(weights[name]).to(state[name].dtype)
+    generator.load_state_dict(state)
+    if folded and calibration is not None:
+        _calibrate(generator, folded, calibration)
+    return len(folded)
+
+
+def _calibrate(generator: Any, folded: list, inputs: Any) -> None:
+    """Set each folded layer's running statistics to those of its convolution's output on ``inputs``,
+    keeping the eval-mode function unchanged (see :func:`load_into`)."""
+    import torch
+
+    stats: dict[int, tuple[torch.Tensor, torch.Tensor]] = {}
+
+    def record(i: int):
+        def hook(module: Any, args: Any, out: torch.Tensor) -> None:
+            stats[i] = out.mean(dim=(0, 2, 3)), out.var(dim=(0, 2, 3), unbiased=False)
+
+        return hook
+
+    hooks = [conv.register_forward_hook(record(i)) for i, (conv, _, _, _) in enumerate(folded)]
+    was_training = generator.training
+    generator.eval()
+    try:
+        with torch.no_grad():
+            generator(inputs)
+    finally:
+        for h in hooks:
+            h.remove()
+        generator.train(was_training)
+    with torch.no_grad():
+        for i, (_, bn, _, b) in enumerate(folded):
+            mean, var = stats[i]
+            bn.running_mean.copy_(mean)
+            bn.running_var.copy_(var)
+            bn.weight.copy_(torch.sqrt(var + bn.eps))
+            bn.bias.copy_(torch.from_numpy(b) + mean)
