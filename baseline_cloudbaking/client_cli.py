@@ -97,7 +97,7 @@ def client_command(
     if summary["median_total_ms"] is not None:
         line += f", median interaction latency {summary['median_total_ms']:.0f} ms"
     if "mean_ssim" in summary:
-        line += f", mean SSIM {summary['mean_ssim']:.3f}, PSNR {summary['mean_psnr']:.2f} dB"
+        line += f", mean SSIM {summary['mean_ssim']:.3f}, PSNR {summary['mean_psnr']:.2f} dB, LF error {summary['mean_lf_error']:.4f}"
     typer.echo(line)
     typer.echo(f"wrote {out / 'frames.csv'}, {out / 'requests.csv'} and {out / 'summary.json'}")
 

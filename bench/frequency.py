@@ -119,21 +119,29 @@ def measure(cfg: FrequencyConfig, res: Results) -> None:
                     add("gi_time", gi_ms, "ms", "mean" if cfg.inference_ms is None else "given")
                     add("ssim", float(np.mean([r["ssim"] for r in scored])), "1", "mean")
                     add("psnr", float(np.mean([r["psnr"] for r in scored if np.isfinite(r["psnr"])])), "dB", "mean")
+                    add("lf_error", float(np.mean([r["lf_error"] for r in scored])), "1", "mean")
                     add("valid_fraction", float(np.mean([r["valid_frac"] for r in rows])), "1", "mean")
 
 
 def table(csv_path: Path) -> str:
-    """Table 3 from the CSV, one block per scene and composition: k, then fps and SSIM per warp."""
+    """Table 3 from the CSV, one block per scene and composition: k, then fps and SSIM per warp, and the
+    low-frequency error per warp where the CSV has it (CSVs older than the metric do not)."""
     rows = read_rows(csv_path)
     systems = list(dict.fromkeys(r["system"] for r in rows))
+    lf = [s for s in systems if any(r["metric"] == "lf_error" and r["system"] == s for r in rows)]
     lines = []
     for scene, composition in dict.fromkeys((r["scene"], r["config"]["composition"]) for r in rows):
         sel = [r for r in rows if r["scene"] == scene and r["config"]["composition"] == composition]
         lines += [
             f"### {scene}, composition: {composition}",
             "",
-            "| k | " + " | ".join(f"fps ({s})" for s in systems) + " | " + " | ".join(f"SSIM ({s})" for s in systems) + " |",
-            "|---" * (1 + 2 * len(systems)) + "|",
+            "| k | "
+            + " | ".join(f"fps ({s})" for s in systems)
+            + " | "
+            + " | ".join(f"SSIM ({s})" for s in systems)
+            + "".join(f" | LF error ({s})" for s in lf)
+            + " |",
+            "|---" * (1 + 2 * len(systems) + len(lf)) + "|",
         ]
         for k in sorted({r["config"]["k"] for r in sel}):
 
@@ -145,6 +153,7 @@ def table(csv_path: Path) -> str:
                 + " | ".join(f"{get(s, 'fps'):.1f}" for s in systems)
                 + " | "
                 + " | ".join(f"{get(s, 'ssim'):.3f}" for s in systems)
+                + "".join(f" | {get(s, 'lf_error'):.4f}" for s in lf)
                 + " |"
             )
         lines.append("")

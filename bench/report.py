@@ -295,14 +295,17 @@ def quality_section(rows: Rows, csv_path: Path) -> str:
     scenes = list(dict.fromkeys(r["scene"] for r in _pick(rows, "ssim")))
     systems = list(dict.fromkeys(r["system"] for r in _pick(rows, "ssim")))
     figures = []
-    for metric, label in (("rmse", "RMSE (tone-mapped)"), ("ssim", "SSIM"), ("psnr", "PSNR [dB]")):
+    # lf_error: the low-frequency error (gicore.metrics.lf_error); quality CSVs older than it have none ("—").
+    shown_metrics = (("rmse", "RMSE (tone-mapped)"), ("ssim", "SSIM"), ("psnr", "PSNR [dB]"), ("lf_error", "LF error (tone-mapped)"))
+    for metric, label in shown_metrics:
         value = {(r["scene"], r["system"]): r["value"] for r in _pick(rows, metric, "mean")}
-        figures.append(bar_chart(scenes, {s: [value.get((sc, s)) for sc in scenes] for s in systems}, label))
-    lines = ["| system | scene | RMSE | SSIM | PSNR (dB) | inference ms (median) | config |", "|---|---|---|---|---|---|---|"]
+        if value:
+            figures.append(bar_chart(scenes, {s: [value.get((sc, s)) for sc in scenes] for s in systems}, label))
+    lines = ["| system | scene | RMSE | SSIM | PSNR (dB) | LF error | inference ms (median) | config |", "|---|---|---|---|---|---|---|---|"]
     mean = {(r["scene"], r["system"], r["metric"]): r for r in rows if r["stat"] in ("mean", "median")}
     for system in systems:
         for scene in scenes:
-            cells = [mean.get((scene, system, m)) for m in ("rmse", "ssim", "psnr", "inference_time")]
+            cells = [mean.get((scene, system, m)) for m in ("rmse", "ssim", "psnr", "lf_error", "inference_time")]
             shown = ["—" if c is None else f"{c['value']:.4g}" for c in cells]
             config = next((c["config"] for c in cells if c is not None and c["config"]), {})
             knobs = ", ".join(f"{k}={v}" for k, v in config.items() if k not in ("frames",))

@@ -44,7 +44,7 @@ import numpy as np
 from gicore.blend import COMPOSITIONS, blend, residual
 from gicore.camera import Camera
 from gicore.fileio import atomic_write_bytes
-from gicore.metrics import psnr, ssim
+from gicore.metrics import lf_error, psnr, ssim
 from gicore.paths import camera_path, frame_seed, light_position
 from gicore.scene import SceneSpec
 from gicore.timing import Stopwatch
@@ -257,7 +257,9 @@ class LoopConfig:
 
 #: Row columns before the stage times, and after them.
 HEAD_COLUMNS = ("frame", "gi_requested", "gi_new", "gi_age_frames", "gi_age_ms", "gi_latency_ms", "gi_wait_ms", "gi_ms", "valid_frac")
-TAIL_COLUMNS = ("frame_ms", "ssim", "psnr")
+TAIL_COLUMNS = ("frame_ms", "ssim", "psnr", "lf_error")
+#: The quality columns of a frame that is not scored against GT (:data:`TAIL_COLUMNS` after ``frame_ms``).
+UNSCORED = dict.fromkeys(TAIL_COLUMNS[1:], "")
 
 
 @dataclass(frozen=True)
@@ -454,16 +456,17 @@ class GroundTruth:
         return gt
 
     def score(self, frame: int, camera: Camera, light: Light, image: np.ndarray) -> dict[str, float | str]:
-        """SSIM and PSNR (tone-mapped; PSNR may be inf) on scored frames, ``""`` on the others."""
+        """SSIM, PSNR and low-frequency error (tone-mapped; PSNR may be inf) on scored frames, ``""`` on the others."""
         if frame % self.every:
-            return {"ssim": "", "psnr": ""}
+            return dict(UNSCORED)
         return evaluate(image, self.reference(frame, camera, light))
 
 
 def evaluate(image: np.ndarray, gt: np.ndarray) -> dict[str, float]:
-    """SSIM and PSNR of a composed frame against the GT, both tone-mapped (PSNR may be inf)."""
+    """SSIM, PSNR and low-frequency error (:func:`gicore.metrics.lf_error`) of a composed frame against the
+    GT, both tone-mapped (PSNR may be inf)."""
     a, b = tonemap(image), tonemap(gt)
-    return {"ssim": ssim(a, b), "psnr": psnr(a, b)}
+    return {"ssim": ssim(a, b), "psnr": psnr(a, b), "lf_error": lf_error(a, b)}
 
 
 def run_frames(
@@ -478,7 +481,7 @@ def run_frames(
     rows = []
     for frame, (camera, light) in enumerate(views):
         result = loop.step(frame, camera, light)
-        result.row |= ground_truth.score(frame, camera, light, result.image) if ground_truth else {"ssim": "", "psnr": ""}
+        result.row |= ground_truth.score(frame, camera, light, result.image) if ground_truth else dict(UNSCORED)
         rows.append(result.row)
         if on_frame is not None:
             on_frame(frame, result)
@@ -505,7 +508,8 @@ def amortized_fps(rows: list[dict[str, Any]], every: int) -> dict[str, float]:
 
 
 def summarize(rows: list[dict[str, Any]], every: int) -> dict[str, Any]:
-    """Amortised fps, median of every ``*_ms`` column and of the map's age, mean quality of scored frames."""
+    """Amortised fps, median of every ``*_ms`` column and of the map's age, mean quality (SSIM, PSNR,
+    low-frequency error) of scored frames."""
     out: dict[str, Any] = amortized_fps(rows, every)
     columns = [c for c in rows[0] if c.endswith("_ms")] + ["gi_age_frames"]
     out["median"] = {c: float(np.median(v)) for c in columns if (v := _values(rows, c))}
@@ -515,6 +519,7 @@ def summarize(rows: list[dict[str, Any]], every: int) -> dict[str, Any]:
         out["mean_ssim"] = float(np.mean(ssims))
         finite = [p for p in _values(rows, "psnr") if math.isfinite(p)]
         out["mean_psnr"] = float(np.mean(finite)) if finite else math.inf
+        out["mean_lf_error"] = float(np.mean(_values(rows, "lf_error")))
     return out
 
 

@@ -80,7 +80,7 @@ def client_command(
         summary = run(cfg, out, save_frames=save_frames, video=video)
     line = f"{cfg.frames} frames, {summary['fps']:.1f} fps (local {summary['local_ms']:.1f} ms + GI {summary['gi_ms']:.0f} ms / {cfg.every})"
     if "mean_ssim" in summary:
-        line += f", mean SSIM {summary['mean_ssim']:.3f}, PSNR {summary['mean_psnr']:.2f} dB"
+        line += f", mean SSIM {summary['mean_ssim']:.3f}, PSNR {summary['mean_psnr']:.2f} dB, LF error {summary['mean_lf_error']:.4f}"
     typer.echo(line)
     typer.echo(f"wrote {out / 'frames.csv'} and {out / 'summary.json'}")
 

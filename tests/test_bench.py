@@ -289,12 +289,14 @@ def test_quick_runs_work_on_a_fresh_checkout(tmp_path: Path) -> None:
     assert result.returncode == 0, result.stderr
     ssim = {r["system"]: r["value"] for r in read_rows(out / "quality.csv") if r["metric"] == "ssim"}
     assert ssim["gigan"] > ssim["di_only"]  # the shipped model adds GI that DI lacks, on the rendered held-out frames
+    lf = {r["system"]: r["value"] for r in read_rows(out / "quality.csv") if r["metric"] == "lf_error"}
+    assert set(lf) == {"gigan", "di_only"} and all(0 < v < 0.1 for v in lf.values())
     assert {"quality_grid.png", "quality.png", "quality_pareto.png"} <= {p.name for p in out.iterdir()}
 
     result = _bench("model-card", "--quick", "--train-steps", "6", "--width", "4", "--out", str(out))  # resumes the run above
     assert result.returncode == 0, result.stderr
     card = (out / "export" / "gigan_ngf4" / "MODEL_CARD.md").read_text()
-    assert "Stopped at optimizer step 6" in card and "| lung_plane |" in card
+    assert "Stopped at optimizer step 6" in card and "| lung_plane |" in card and "| LF error |" in card
     assert {r["metric"] for r in read_rows(out / "model-card.csv")} >= {"training_steps", "val_ssim", "ssim", "file_size"}
     assert (out / "model_card.png").is_file() and (out / "quality" / "quality.csv").is_file()
 
@@ -328,7 +330,11 @@ def test_tiny_warp_frequency_and_fov_runs(tmp_path: Path) -> None:
     paths = execute(frequency.BENCH, cfg, tmp_path / "frequency")
     fps = {(r["system"], r["config"]["k"]): r["value"] for r in read_rows(paths[0]) if r["metric"] == "fps"}
     assert fps["structure-aware", 10] > fps["structure-aware", 1]  # the GI map's cost spread over 10 frames
-    assert "| 10 |" in (tmp_path / "frequency" / "frequency_table.md").read_text()
+    quality = {(r["system"], r["config"]["k"], r["metric"]): r["value"] for r in read_rows(paths[0]) if r["stat"] == "mean"}
+    for (system, k), _ in fps.items():  # the low-frequency error beside SSIM and PSNR, at most RMSE = 10^(-PSNR/20)
+        assert 0 < quality[system, k, "lf_error"] <= 10 ** (-quality[system, k, "psnr"] / 20), (system, k)
+    table = (tmp_path / "frequency" / "frequency_table.md").read_text()
+    assert "| 10 |" in table and "| LF error (structure-aware) |" in table
 
     cfg = fov.FovConfig(resolution=32, gi_fovs=(60.0, 90.0), base_frames=(0,), rotations=(10.0,), translations=(0.2,), spp=4)
     paths = execute(fov.BENCH, cfg, tmp_path / "fov")

@@ -59,6 +59,8 @@ def test_client_runs_every_warp_and_composition(spec_file, client_renderer, warp
     assert [r["gi_new"] for r in rows] == [1, 0, 1, 0] and [r["gi_age_frames"] for r in rows] == [0, 1, 0, 1]
     assert all(np.all(np.isfinite(im)) and im.shape == (RES, RES, 3) for im in images)
     assert all(0.0 <= r["ssim"] <= 1.0 for r in rows[::2]) and rows[1]["ssim"] == ""
+    # the low-frequency error is part of the error: at most mean |diff| <= RMSE = 10^(-PSNR/20)
+    assert all(0.0 <= r["lf_error"] <= 10 ** (-r["psnr"] / 20) + 1e-9 for r in rows[::2]) and rows[1]["lf_error"] == rows[1]["psnr"] == ""
     assert all(r["frame_ms"] > 0 and 0.0 <= r["valid_frac"] <= 1.0 for r in rows)
     ran = {s for s in ("raster_ms", "lookup_ms") if s in rows[1] and rows[1][s] != ""}
     assert ran == {"structure": {"raster_ms", "lookup_ms"}, "none": set()}[warp]
@@ -123,11 +125,16 @@ def test_gigan_client_process_writes_csv(spec_file, tmp_path):
         "lookup_ms",
         "frame_ms",
         "ssim",
+        "psnr",
+        "lf_error",
     } <= set(reader.fieldnames)
     assert [r["frame"] for r in rows] == ["0", "1", "2", "3"]
     assert rows[0]["ssim"] and not rows[1]["ssim"] and float(rows[2]["ssim"]) > 0
+    assert [bool(r["lf_error"]) for r in rows] == [True, False, True, False] and 0 <= float(rows[2]["lf_error"]) < 0.5
     summary = json.loads((out / "summary.json").read_text())
     assert summary["fps"] > 0 and 0 < summary["mean_ssim"] <= 1
+    assert summary["mean_lf_error"] == pytest.approx((float(rows[0]["lf_error"]) + float(rows[2]["lf_error"])) / 2)
+    assert "LF error" in proc.stdout
 
     bad = subprocess.run(cmd + ["--warp", "bilinear", "--out", str(out)], capture_output=True, text=True, timeout=60, check=False)
     assert bad.returncode != 0 and "structure" in (bad.stderr + bad.stdout)

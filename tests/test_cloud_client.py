@@ -119,6 +119,8 @@ def test_both_clients_end_to_end_through_a_proxy(server: str, scenes_dir: Path, 
         assert first["gi_new"] == "1" and all(float(first[f"{s}_ms"]) > 0 for s in stages), (system, first)
         assert all(float(r["frame_ms"]) > 0 and float(r["valid_frac"]) > 0.5 for r in frames)
         assert [bool(r["ssim"]) for r in frames] == [f % 4 == 0 for f in range(8)] and all(0.2 < float(r["ssim"]) <= 1 for r in frames if r["ssim"])
+        assert [bool(r["lf_error"]) for r in frames] == [f % 4 == 0 for f in range(8)]
+        assert all(0 <= float(r["lf_error"]) <= 10 ** (-float(r["psnr"]) / 20) + 1e-9 for r in frames if r["lf_error"])
     requests = read_csv(tmp_path / "cloud" / "requests.csv")
     shown = [r for r in requests if r["total_ms"]]
     assert shown and all(r["status"] in ("ok", "abandoned") for r in requests)

@@ -145,7 +145,7 @@ def test_train_writes_config_metrics_and_checkpoint(dataset, tmp_path):
     run = tmp_path / "run"
     result = train(tiny_config(dataset, max_steps=3), run, progress=False)
     assert (result.step, result.stop_reason) == (3, "max_steps")
-    assert set(result.val_metrics) == {"rmse", "psnr", "ssim"}
+    assert set(result.val_metrics) == {"rmse", "psnr", "ssim", "lf_error"}
     cfg, nets = read_run_config(run)
     assert cfg.resolution == 32 and cfg.depth_scale > 0 and cfg.run_id == "run"
     assert nets["G"].name == "unet" and nets["G"].n_down == 5 and nets["D"].norm == "none"
@@ -154,8 +154,8 @@ def test_train_writes_config_metrics_and_checkpoint(dataset, tmp_path):
     assert tuple(rows[0]) == METRIC_COLUMNS
     val = [r for r in rows if r["split"] == "val"]
     assert {r["step"] for r in val} == {"0", "2", "3"}  # baseline, end of epoch 1 (2 batches), stop
-    assert {r["metric"] for r in val} == {"rmse", "psnr", "ssim"}
-    assert {r["unit"] for r in val if r["metric"] == "psnr"} == {"dB"}
+    assert {r["metric"] for r in val} == {"rmse", "psnr", "ssim", "lf_error"}
+    assert {r["unit"] for r in val if r["metric"] == "psnr"} == {"dB"} and {r["unit"] for r in val if r["metric"] == "lf_error"} == {"1"}
     assert {"G_L1", "D_GP", "step_seconds"} <= {r["metric"] for r in rows if r["split"] == "train"}
     assert load_checkpoint(run / "checkpoint.pt")["state"]["step"] == 3
     with pytest.raises(UserError, match="already holds a run: pass --resume"):

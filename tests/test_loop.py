@@ -4,6 +4,7 @@ seed, identity through the loop, and the timing semantics a background-thread (r
 from __future__ import annotations
 
 import json
+import math
 import threading
 import time
 from pathlib import Path
@@ -12,7 +13,7 @@ import numpy as np
 import pytest
 
 from baseline_cloudbaking.warp import PixelWarp
-from gicore.loop import LAYERS, ClientLoop, GIMap, GroundTruth, LoopConfig, PasteWarp, SynchronousSource, path_views, run_frames, summarize
+from gicore.loop import LAYERS, ClientLoop, GIMap, GroundTruth, LoopConfig, PasteWarp, SynchronousSource, evaluate, path_views, run_frames, summarize
 from gicore.timing import Stopwatch
 from gigan_local.client import GTSource
 from gigan_local.warp import StructureAwareWarp
@@ -52,6 +53,7 @@ def test_shared_loop_reproduces_the_old_loops_ssim(loop_renderer, warp, composit
     loop = make_loop(loop_renderer, GTSource(loop_renderer, spp=4, denoise=False, seed=0), warp, composition, every=3, gi_fov=90.0, tau=0.25, seed=0)
     rows = run_frames(loop, path_views(spec, 6, 40, 0, 60.0, RES), GroundTruth(loop_renderer, 1, spp=4, denoise=False, seed=0))
     np.testing.assert_allclose([r["ssim"] for r in rows], OLD_LOOP_SSIM[warp, composition], atol=1e-5)
+    assert all(0.0 < r["lf_error"] <= 10 ** (-r["psnr"] / 20) for r in rows)  # part of the error: <= mean |diff| <= RMSE
     assert [r["gi_new"] for r in rows] == [1, 0, 0, 1, 0, 0] and [r["gi_age_frames"] for r in rows] == [0, 1, 2, 0, 1, 2]
 
 
@@ -166,12 +168,24 @@ def test_leaving_the_maps_tolerance_asks_for_a_new_map(loop_renderer):
         assert [loop.step(f, c, light).row["gi_requested"] for f, (c, light) in enumerate(views)] == expected, cfg
 
 
+def test_evaluate_scores_the_tone_mapped_frame_with_the_low_frequency_error():
+    from gicore.tonemap import inverse_tonemap
+
+    gt = inverse_tonemap(np.full((24, 24, 3), 0.5, np.float32))
+    brighter = inverse_tonemap(np.full((24, 24, 3), 0.55, np.float32))  # +0.05 once tone-mapped
+    m = evaluate(brighter, gt)
+    assert m["lf_error"] == pytest.approx(0.05, abs=1e-5) and m["psnr"] == pytest.approx(26.02, abs=0.01)
+    assert m["ssim"] > 0.99  # a flat offset: only SSIM's luminance term moves
+    assert evaluate(gt, gt) == {"ssim": pytest.approx(1.0), "psnr": math.inf, "lf_error": 0.0}
+
+
 def test_rows_summary_and_config_errors(loop_renderer):
     loop = make_loop(loop_renderer, GTSource(loop_renderer, spp=1, denoise=False), "structure", every=2, gi_fov=90.0)
     rows = run_frames(loop, path_views(loop_renderer.spec, 4, 40, 0, 60.0, RES))
     assert all(list(r) == list(loop.columns()) for r in rows)
     summary = summarize(rows, 2)
-    assert summary["fps"] > 0 and summary["median"]["gt_render_ms"] > 0 and "mean_ssim" not in summary
+    assert summary["fps"] > 0 and summary["median"]["gt_render_ms"] > 0 and "mean_ssim" not in summary and "mean_lf_error" not in summary
+    assert all(r["ssim"] == r["psnr"] == r["lf_error"] == "" for r in rows)  # no GT: nothing scored
     with pytest.raises(ValueError, match="indirect"):
         ClientLoop(LoopConfig(composition="residual"), loop_renderer, loop.source, PasteWarp("radiance"))
     with pytest.raises(ValueError, match="every"):

@@ -9,7 +9,7 @@ import pytest
 
 from gicore.blend import blend, residual
 from gicore.fill import push_pull
-from gicore.metrics import all_metrics, psnr, rmse, ssim
+from gicore.metrics import LF_SIGMA, all_metrics, lf_difference, lf_error, psnr, rmse, ssim
 from gicore.tonemap import GAMMA, Y_MAX, from_signed, inverse_tonemap, to_signed, tonemap
 
 RNG = np.random.default_rng(1234)
@@ -40,8 +40,9 @@ def test_identical_images():
     assert m["rmse"] == 0.0
     assert m["psnr"] == math.inf
     assert m["ssim"] == pytest.approx(1.0)
+    assert m["lf_error"] == 0.0
     gray = a[..., 0]
-    assert psnr(gray, gray) == math.inf and ssim(gray, gray) == pytest.approx(1.0)
+    assert psnr(gray, gray) == math.inf and ssim(gray, gray) == pytest.approx(1.0) and lf_error(gray, gray) == 0.0
 
 
 @pytest.mark.parametrize("ca,cb", [(0.0, 0.0), (0.5, 0.5), (1.0, 1.0), (0.2, 0.5), (0.0, 1.0)])
@@ -76,7 +77,7 @@ def test_ssim_uses_the_paper_settings():
     assert ssim(a, b) == pytest.approx(np.mean(per))
 
 
-@pytest.mark.parametrize("fn", [rmse, psnr, ssim, all_metrics])
+@pytest.mark.parametrize("fn", [rmse, psnr, ssim, lf_error, lf_difference, all_metrics])
 @pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
 @pytest.mark.parametrize("which", [0, 1])
 def test_nan_inf_input_rejected(fn, bad, which):
@@ -86,7 +87,7 @@ def test_nan_inf_input_rejected(fn, bad, which):
         fn(*imgs)
 
 
-@pytest.mark.parametrize("fn", [rmse, psnr, ssim, all_metrics])
+@pytest.mark.parametrize("fn", [rmse, psnr, ssim, lf_error, lf_difference, all_metrics])
 @pytest.mark.parametrize("value", [-0.01, 1.01, 40.0])
 def test_values_outside_unit_range_rejected(fn, value):
     """SPEC §9: linear HDR radiance (or any value outside [0, 1]) is not scored as if it were display values."""
@@ -141,10 +142,72 @@ def test_shape_mismatch_rejected():
 def test_black_vs_black_and_black_vs_white():
     black = np.zeros((16, 16, 3))
     white = np.ones((16, 16, 3))
-    assert all_metrics(black, black) == {"rmse": 0.0, "psnr": math.inf, "ssim": pytest.approx(1.0)}
+    assert all_metrics(black, black) == {"rmse": 0.0, "psnr": math.inf, "ssim": pytest.approx(1.0), "lf_error": 0.0}
     m = all_metrics(black, white)
-    assert m["rmse"] == pytest.approx(1.0) and m["psnr"] == pytest.approx(0.0)
+    assert m["rmse"] == pytest.approx(1.0) and m["psnr"] == pytest.approx(0.0) and m["lf_error"] == pytest.approx(1.0, abs=1e-12)
     assert m["ssim"] == pytest.approx(1e-4 / (1.0 + 1e-4), abs=1e-6)
+
+
+# -- low-frequency error (issue 14) -------------------------------------------------------------------------
+@pytest.mark.parametrize("c", [0.05, -0.05, 0.2])
+@pytest.mark.parametrize("shape", [(64, 64, 3), (40, 72), (7, 9, 3)])
+def test_lf_error_of_a_constant_offset_is_the_offset(c, shape):
+    """The kernel sums to 1 and 'reflect' keeps a constant field constant to the border: |c| exactly."""
+    a = RNG.uniform(0.3, 0.7, size=shape)
+    assert lf_error(a + c, a) == pytest.approx(abs(c), abs=1e-6)
+    np.testing.assert_allclose(lf_difference(a + c, a), c, atol=1e-6)  # signed: prediction minus reference
+    assert lf_error(a, a + c) == pytest.approx(abs(c), abs=1e-6)
+
+
+def test_lf_error_averages_out_a_checkerboard():
+    """A zero-mean +-h checkerboard difference (mean |diff| = h) on N x N. The blur is separable, so the
+    blurred map is h * B(i) * B(j) with B the 1-D blur of (-1)^k, and mean |.| = h * mean|B|^2. Inside, B
+    is the kernel's alternating sum (about 2 exp(-pi^2 sigma^2 / 2), 0 in float64). Near an edge, 'reflect'
+    repeats the edge pixel, flipping the pattern's phase beyond it; the error that adds at distance n is
+    twice an alternating tail of the decreasing kernel, at most 2 g(n + 1), and summed over n at most
+    2 * sum_{j>=1} g(j) < 1 per edge. So mean|B| <= 2 / N and lf_error <= h (2 / N)^2 = h / 1024 at N = 64."""
+    n, h = 64, 0.1
+    i, j = np.indices((n, n))
+    diff = h * (-1.0) ** (i + j)
+    a = RNG.uniform(0.2, 0.8, size=(n, n, 3))
+    b = a + diff[..., None]
+    assert np.mean(np.abs(b - a)) == pytest.approx(h)
+    assert lf_error(b, a) <= h * (2 / n) ** 2
+    assert lf_error(b, a) < 0.01 * rmse(b, a)  # RMSE counts all of it
+
+
+def test_lf_error_blurs_each_channel_alone_and_sigma_zero_is_mean_abs_difference():
+    a = RNG.uniform(0.2, 0.8, size=(32, 32, 3))
+    b = a.copy()
+    b[..., 0] += 0.1  # red only
+    blurred = lf_difference(b, a)
+    np.testing.assert_allclose(blurred[..., 0], 0.1, atol=1e-12)
+    np.testing.assert_allclose(blurred[..., 1:], 0.0, atol=1e-12)  # nothing leaks into green and blue
+    assert lf_error(b, a) == pytest.approx(0.1 / 3)
+    noisy = np.clip(a + RNG.normal(0.0, 0.05, a.shape), 0.0, 1.0)
+    assert lf_error(noisy, a, sigma=0.0) == pytest.approx(np.mean(np.abs(noisy - a)), rel=1e-12)
+    assert lf_error(noisy, a) < lf_error(noisy, a, sigma=1.0) < lf_error(noisy, a, sigma=0.0)
+    assert LF_SIGMA == 6.0
+    with pytest.raises(ValueError, match="sigma"):
+        lf_error(a, b, sigma=-1.0)
+
+
+def test_lf_error_sees_a_brightness_offset_that_ssim_barely_moves():
+    """On a real photograph (scikit-image's astronaut, bundled, squeezed into [0.05, 0.9] so +0.05 does not
+    clip), at 256², a +0.05 brightness offset: lf_error 0.05, SSIM still 0.966 (measured; only SSIM's
+    luminance term moves, (2 mu (mu + c) + C1) / (mu^2 + (mu + c)^2 + C1), >= 0.99 where the local mean
+    mu >= 0.35, lower only in dark regions). Noise of the same RMSE is the other way round: SSIM 0.649,
+    lf_error 0.0022. (The checkerboard bound above is met with room: 2.4e-5 against 9.8e-5.)"""
+    from skimage import data
+
+    ref = 0.05 + 0.85 * data.astronaut()[::2, ::2] / 255.0
+    brighter = ref + 0.05
+    noisy = np.clip(ref + np.random.default_rng(0).normal(0.0, 0.05, ref.shape), 0.0, 1.0)
+    assert rmse(brighter, ref) == pytest.approx(0.05) and rmse(noisy, ref) == pytest.approx(0.05, rel=0.05)
+    assert lf_error(brighter, ref) == pytest.approx(0.05, abs=1e-6)
+    assert ssim(brighter, ref) > 0.95
+    assert ssim(noisy, ref) < 0.7 and lf_error(noisy, ref) < 0.005
+    assert lf_error(brighter, ref) > 10 * lf_error(noisy, ref)
 
 
 # -- tone map --------------------------------------------------------------------------------------------

@@ -297,7 +297,7 @@ def test_black_frame_from_tiny_light(make_spec):
     assert frame["gt"].max() < 1e-20 and frame["gt"].min() >= 0
     black = tonemap(frame["gt"])
     m = all_metrics(black, tonemap(frame["di"]))
-    assert np.isfinite(m["rmse"]) and np.isfinite(m["ssim"]) and not np.isnan(m["psnr"])
+    assert np.isfinite(m["rmse"]) and np.isfinite(m["ssim"]) and not np.isnan(m["psnr"]) and 0.0 <= m["lf_error"] <= m["rmse"]
 
 
 def test_black_frame_from_empty_view(make_spec):
@@ -309,7 +309,7 @@ def test_black_frame_from_empty_view(make_spec):
     for name in ALL_BUFFERS:
         assert np.all(frame[name] == 0), name
     m = all_metrics(tonemap(frame["gt"]), tonemap(frame["di"]))
-    assert m == {"rmse": 0.0, "psnr": float("inf"), "ssim": pytest.approx(1.0)}
+    assert m == {"rmse": 0.0, "psnr": float("inf"), "ssim": pytest.approx(1.0), "lf_error": 0.0}
     lit = tonemap(np.full_like(frame["gt"], 0.5))
     m = all_metrics(tonemap(frame["gt"]), lit)
     assert all(np.isfinite(v) for v in m.values())

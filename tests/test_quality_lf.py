@@ -1,0 +1,142 @@
+"""The low-frequency error (issue 14) in the quality tables: ``bench quality`` (rows, bars, error-map grid),
+``bench model-card`` and the report's quality section, on a synthetic dataset whose GT is its DI made
+brighter by a known amount, scored with a real ONNX pass-through "generator" (no rendering: seconds)."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from bench import model_card, quality
+from bench.runner import execute
+from gicore.dataset import DatasetMeta, FrameRecord, load_frame, save_frame, write_meta
+from gicore.metrics import lf_error
+from gicore.results import Results, read_rows
+from gicore.tonemap import inverse_tonemap, tonemap
+from tests.test_cloud_client import passthrough_model
+
+RES = 64
+OFFSET = 0.05  # the GT is the DI brighter by this much, tone-mapped
+N_FRAMES = 2
+
+
+def write_dataset(root: Path) -> None:
+    """``N_FRAMES`` val frames: DI a smooth ramp with a bright square, GT = DI + OFFSET (tone-mapped)."""
+    rng = np.random.default_rng(3)
+    buffers = ["di", "albedo", "normal", "depth", "gt"]
+    records = []
+    y, x = np.mgrid[0:RES, 0:RES] / RES
+    for i in range(N_FRAMES):
+        di_tm = np.clip(0.2 + 0.4 * x + 0.1 * y + 0.2 * ((x > 0.5) & (y > 0.5)), 0.0, 0.9)[..., None] * np.array([1.0, 0.9, 0.8])
+        di_tm = di_tm + rng.uniform(0.0, 0.02, di_tm.shape)
+        frame = {
+            "di": inverse_tonemap(di_tm),
+            "gt": inverse_tonemap(di_tm + OFFSET),
+            "albedo": np.full((RES, RES, 3), 0.7),
+            "normal": np.dstack([np.zeros((RES, RES)), np.ones((RES, RES)), np.zeros((RES, RES))]),
+            "depth": np.full((RES, RES, 1), 3.0),
+        }
+        save_frame(root / "val" / f"{i:06d}.npz", frame)
+        eye = np.eye(4).tolist()
+        records.append(FrameRecord(split="val", index=i, camera={}, view=eye, proj=eye))
+    write_meta(root, DatasetMeta(scene={"name": "synthetic"}, resolution=RES, spp=1, denoise=False, seed=0, buffers=buffers, frames=records))
+
+
+@pytest.fixture(scope="module")
+def scored(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    """(bench quality output folder, data root) for the synthetic scene scored with DI alone and the pass-through."""
+    tmp = tmp_path_factory.mktemp("quality_lf")
+    write_dataset(tmp / "data" / "synthetic")
+    model = passthrough_model(tmp / "model", RES)
+    cfg = quality.QualityConfig(datasets=tmp / "data", scenes=("synthetic",), models={"copy": model}, timing_repeats=1, grid_frames=1)
+    execute(quality.BENCH, cfg, tmp / "out")
+    return tmp / "out", tmp / "data" / "synthetic"
+
+
+def test_quality_rows_carry_the_low_frequency_error(scored: tuple[Path, Path]) -> None:
+    out, data = scored
+    rows = read_rows(out / "quality.csv")
+    lf = {r["system"]: r for r in rows if r["metric"] == "lf_error"}
+    assert set(lf) == {"di_only", "copy"} and all(r["unit"] == "1" and r["stat"] == "mean" for r in lf.values())
+    # The value is the mean of the per-frame lf_error of the stored (float16) frames: about the offset.
+    frames = [load_frame(p) for p in sorted((data / "val").glob("*.npz"))]
+    expected = float(np.mean([lf_error(tonemap(f["di"]), tonemap(f["gt"])) for f in frames]))
+    assert lf["di_only"]["value"] == pytest.approx(expected, abs=1e-9)
+    assert expected == pytest.approx(OFFSET, abs=2e-3)
+    assert lf["copy"]["value"] == pytest.approx(expected, abs=1e-4)  # the pass-through returns the DI
+    # Every metric the table had before is still there, beside the new one, for both systems.
+    assert {(r["system"], r["metric"]) for r in rows if r["stat"] == "mean"} == {
+        (s, m) for s in ("di_only", "copy") for m in ("rmse", "ssim", "psnr", "lf_error")
+    }
+    assert {"quality.png", "quality_pareto.png", "quality_grid.png"} <= {p.name for p in out.iterdir()}
+
+
+def test_quality_grid_shows_the_error_maps_on_the_fixed_scale(scored: tuple[Path, Path]) -> None:
+    """Columns DI | albedo | normal | copy | GT; per frame rows: images, |error|, low-frequency error."""
+    out, _ = scored
+    grid = np.asarray(Image.open(out / "quality_grid.png").convert("RGB")).astype(float) / 255.0
+    header = 16
+    assert grid.shape[1] == 5 * RES and grid.shape[0] > header + 3 * RES
+    y_abs, y_lf = header + RES + RES - 4, header + 2 * RES + RES - 4  # near each cell's bottom, below its text
+    for col in (0, 3):  # DI alone's and the pass-through's error maps
+        x = col * RES + RES // 2
+        # |error| x4 of a 0.05 offset: 0.2 in every channel
+        np.testing.assert_allclose(grid[y_abs, x], 4 * OFFSET, atol=0.02)
+        # darker than GT by 0.05: half-way to the blue end of the +-0.1 scale
+        np.testing.assert_allclose(grid[y_lf, x], quality.lf_colours(np.array(-OFFSET)), atol=0.03)
+        assert grid[y_lf, x, 2] > grid[y_lf, x, 0] + 0.2  # blue, not red
+    assert np.all(grid[y_lf, 4 * RES + RES // 2] == 1.0)  # nothing under GT
+
+
+def test_grid_rows_sign_and_layout() -> None:
+    ref = np.full((16, 16, 3), 0.5)
+    frame = {"albedo": np.full((16, 16, 3), 0.3), "normal": np.zeros((16, 16, 3))}
+    rows = quality.grid_rows(frame, {"di_only": ref - 0.1, "a": ref + 0.05, "b": ref}, ref, "t")
+    assert [len(r) for r in rows] == [6, 6, 6]
+    (lf_di, text_di), (lf_a, text_a), (lf_b, text_b) = rows[2][0], rows[2][3], rows[2][4]
+    assert (text_di, text_a, text_b) == ("LF 0.1000", "LF 0.0500", "LF 0.0000")
+    np.testing.assert_allclose(lf_di, quality.lf_colours(np.full((16, 16), -0.1)))  # the scale's blue end
+    np.testing.assert_allclose(lf_b, quality.lf_colours(np.zeros((16, 16))))  # no error: the scale's middle,
+    assert lf_b.min() > 0.95 and np.ptp(lf_b) < 0.01  # near-white grey (RdBu_r's middle is 0.97, 0.97, 0.96)
+    assert lf_a[0, 0, 0] > lf_a[0, 0, 2] + 0.2  # brighter than GT: red
+    np.testing.assert_allclose(rows[1][3][0], 4 * 0.05)
+
+
+def test_model_card_and_report_show_the_low_frequency_error(scored: tuple[Path, Path], tmp_path: Path) -> None:
+    out, _ = scored
+    run, export = tmp_path / "run", tmp_path / "export"
+    run.mkdir()
+    export.mkdir()
+    train = {"datasets": ["data/synthetic"], "model": "gigan", "lambda_L1": 100, "lambda_gp": 10, "n_critic": 5, "lr": 2e-4}
+    train |= {"beta1": 0.5, "beta2": 0.999, "batch_size": 8, "crop": 64, "seed": 0, "max_val_frames": 2}
+    (run / "config.json").write_text(json.dumps({"train": train}))
+    with (run / "metrics.csv").open("w", newline="") as fh:
+        writer = csv.writer(fh)
+        writer.writerow(["run_id", "model", "epoch", "step", "split", "metric", "value", "unit"])
+        for metric, value in (("ssim", 0.9), ("psnr", 25.0), ("rmse", 0.05), ("lf_error", 0.0123)):
+            writer.writerow(["run", "gigan", 1, 4, "val", metric, value, "1"])
+        writer.writerow(["run", "gigan", 1, 4, "train", "step_seconds", 0.5, "s"])
+    (export / "model.onnx").write_bytes(b"x" * 1024)
+    doc = {"model": "unet", "ngf": 8, "n_down": 6, "input": {"buffers": ["di"]}, "in_channels": 3, "resolution": RES}
+    doc |= {"files": {"fp32": "model.onnx"}, "max_abs_diff_vs_torch": {"fp32": 1e-6}}
+    (export / "model.json").write_text(json.dumps(doc))
+    res = Results("model-card", tmp_path / "card")
+    card = model_card.write_model_card(run, export, out / "quality.csv", "copy", "d", "t", res).read_text()
+    lf = {r["system"]: r["value"] for r in read_rows(out / "quality.csv") if r["metric"] == "lf_error"}
+    assert "| scene | SSIM | PSNR dB | RMSE | LF error | DI alone SSIM | DI alone LF error |" in card
+    row = next(line for line in card.splitlines() if line.startswith("| synthetic |")).split(" | ")
+    assert (row[4], row[6]) == (f"{lf['copy']:.4f}", f"{lf['di_only']:.4f}")
+    assert "LF error 0.0123." in card
+    res_rows = {(r["system"], r["metric"]): r for r in res.rows}
+    assert res_rows["export", "lf_error"]["value"] == pytest.approx(lf["copy"]) and res_rows["export", "val_lf_error"]["unit"] == "1"
+
+    from bench.report import quality_section
+
+    html = quality_section(read_rows(out / "quality.csv"), out / "quality.csv")
+    assert "LF error (tone-mapped)" in html and "<th>LF error</th>" in html
+    assert f"<td>{lf['copy']:.4g}</td>" in html
