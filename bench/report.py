@@ -1,24 +1,30 @@
 """`bench report`: a static HTML dashboard built only from the CSV files (and provenance JSON) under a
 results folder (SPEC §8).
 
-Each section reads one bench's ``<bench>.csv`` (found anywhere under ``--results``; the newest run's when
-there are several) and the ``<bench>.provenance.json`` beside it, and shows the paper's table or figure
-drawn from those rows alone: Table 1 (``latency``), Table 2 (``storage``), Table 3 (``frequency``),
-Fig. 6 (``quality``), Fig. 7 (``warp``), Fig. 9 (``fov``), the Pareto fronts of error against run time
-(``pareto``; hovering a point shows its full config) and the stability table (``stability``). Tables are
-the benches' own Markdown tables (the functions their ``plot`` writes ``*_table.md`` with), rendered to
-HTML; charts are inline SVG. Each section names its provenance: command, git SHA, machine, date.
+Each section reads one bench's ``<bench>.csv`` (found anywhere under ``--results`` outside the ``--ignore``
+folders; the newest run's when there are several) and the ``<bench>.provenance.json`` beside it, and shows
+the paper's table or figure drawn from those rows alone: Table 1 (``latency``), Table 2 (``storage``),
+Table 3 (``frequency``), Fig. 6 (``quality``), Fig. 7 (``warp``), Fig. 9 (``fov``), the Pareto fronts of
+error against run time (``pareto``; hovering a point shows its full config) and the stability table
+(``stability``). Tables are the benches' own Markdown tables (the functions their ``plot`` writes
+``*_table.md`` with) or, for Fig. 6, 7 and 9, this module's (``quality_table``, ``warp_table``,
+``fov_table``), rendered to HTML; charts are inline SVG. Each section names its provenance: command, git SHA, machine, date.
 
 A section whose CSV is missing, or malformed (wrong columns, unparsable values, or rows its bench never
 writes), says so and names the file; the others still render. The page is one self-contained file
 (``report.html``: style sheet and script from ``bench/report_assets`` inlined, no network access), so it
 opens offline. The run's own CSV (``report.csv``) has one row per section: the rows read, and the
 section's status (``ok`` / ``missing`` / ``malformed``) as ``stat``.
+
+From the same CSVs it also writes ``results.md``, the README's results section (``bench/report_md.py``),
+and with ``--readme FILE`` puts that between the file's ``<!-- results:begin -->`` and
+``<!-- results:end -->`` lines.
 """
 
 from __future__ import annotations
 
 import csv
+import fnmatch
 import html
 import json
 import math
@@ -43,14 +49,23 @@ class ReportConfig:
 
     #: Folder of bench outputs (searched recursively for <bench>.csv and <bench>.provenance.json).
     results: Path = Path("results")
+    #: Folders under --results to leave out (relative to it; glob patterns allowed), e.g. a side run such as
+    #: latency_nopin, or the frequency runs bench pareto makes in pareto/pareto_runs.
+    ignore: tuple[str, ...] = field(default=(), metadata={"min_len": 0})
+    #: Markdown file (e.g. README.md) whose text between the lines <!-- results:begin --> and <!-- results:end -->
+    #: becomes results.md; none: no file is changed.
+    readme: Path | None = None
 
     @classmethod
     def quick(cls) -> ReportConfig:
         return cls()
 
     def check(self) -> None:
+        from bench.report_md import check_readme
+
         if not self.results.is_dir():
             raise UserError(f"--results {self.results} is not a folder", "give the folder your bench runs wrote into (their --out)")
+        check_readme(self.readme)
 
 
 # -- SVG charts -----------------------------------------------------------------------------------------------
@@ -301,6 +316,14 @@ def quality_section(rows: Rows, csv_path: Path) -> str:
         value = {(r["scene"], r["system"]): r["value"] for r in _pick(rows, metric, "mean")}
         if value:
             figures.append(bar_chart(scenes, {s: [value.get((sc, s)) for sc in scenes] for s in systems}, label))
+    return charts(*figures) + markdown(quality_table(rows))
+
+
+def quality_table(rows: Rows) -> str:
+    """Fig. 6 as Markdown: per system and scene, the mean RMSE, SSIM, PSNR, LF error and the median inference time."""
+    _need(rows, "ssim", "rmse", "psnr")
+    scenes = list(dict.fromkeys(r["scene"] for r in _pick(rows, "ssim")))
+    systems = list(dict.fromkeys(r["system"] for r in _pick(rows, "ssim")))
     lines = ["| system | scene | RMSE | SSIM | PSNR (dB) | LF error | inference ms (median) | config |", "|---|---|---|---|---|---|---|---|"]
     mean = {(r["scene"], r["system"], r["metric"]): r for r in rows if r["stat"] in ("mean", "median")}
     for system in systems:
@@ -310,7 +333,7 @@ def quality_section(rows: Rows, csv_path: Path) -> str:
             config = next((c["config"] for c in cells if c is not None and c["config"]), {})
             knobs = ", ".join(f"{k}={v}" for k, v in config.items() if k not in ("frames",))
             lines.append(f"| {system} | {scene} | " + " | ".join(shown) + f" | {knobs.replace('|', '/')} |")
-    return charts(*figures) + markdown("\n".join(lines))
+    return "\n".join(lines)
 
 
 def warp_section(rows: Rows, csv_path: Path) -> str:
@@ -329,11 +352,26 @@ def warp_section(rows: Rows, csv_path: Path) -> str:
                     for sc in scenes]
                 for s in systems}  # fmt: skip
         figures.append(bar_chart(scenes, {s: [value.get((sc, s)) for sc in scenes] for s in systems}, label, tips=tips))
-    lines = ["| scene | pixel / structure time (median) | pixel / structure CPU (mean) |", "|---|---|---|"]
+    return charts(*figures) + markdown(warp_table(rows))
+
+
+def warp_table(rows: Rows) -> str:
+    """Fig. 7 as Markdown: per scene and warp, time per frame, CPU and SSIM; then the pixel / structure ratios."""
+    _need(rows, "warp_time")
+    scenes = list(dict.fromkeys(r["scene"] for r in _pick(rows, "warp_time")))
+    systems = list(dict.fromkeys(r["system"] for r in _pick(rows, "warp_time")))
+    value = {(r["scene"], r["system"], r["metric"], r["stat"]): r["value"] for r in rows}
+    lines = ["| scene | warp | time per frame ms (median, p95) | CPU % of one core (mean) | SSIM vs GT (mean) |", "|---|---|---|---|---|"]
+    for scene in scenes:
+        for s in systems:
+            cells = [value.get((scene, s, "warp_time", stat), math.nan) for stat in ("median", "p95")]
+            cells += [value.get((scene, s, metric, "mean"), math.nan) for metric in ("cpu_percent", "ssim")]
+            lines.append(f"| {scene} | {s} | {cells[0]:.2f} ({cells[1]:.2f}) | {cells[2]:.0f} | {cells[3]:.3f} |")
+    lines += ["", "| scene | pixel / structure time (median) | pixel / structure CPU (mean) |", "|---|---|---|"]
     for scene in scenes:
         ratio = {r["metric"]: r["value"] for r in rows if r["scene"] == scene and r["metric"] in ("time_ratio", "cpu_ratio")}
         lines.append(f"| {scene} | {ratio.get('time_ratio', math.nan):.2f}× | {ratio.get('cpu_ratio', math.nan):.2f}× |")
-    return charts(*figures) + markdown("\n".join(lines))
+    return "\n".join(lines)
 
 
 def fov_section(rows: Rows, csv_path: Path) -> str:
@@ -363,15 +401,56 @@ def fov_section(rows: Rows, csv_path: Path) -> str:
             ]
             lines.append(Series(name, pts))
         figures.append(xy_chart(lines, f"camera {motion} [{sel[0]['config']['amount_unit']}]", "SSIM of the warped GI vs GT"))
-    return charts(*figures)
+    return charts(*figures) + markdown(fov_table(rows))
 
 
-def pareto_section(rows: Rows, csv_path: Path) -> str:
-    from bench.pareto import ABLATION, front_points
+def fov_table(rows: Rows) -> str:
+    """Fig. 9 as Markdown: per scene and GI-camera FOV, the GI map's SSIM and each warp's SSIM (and the share of
+    pixels the map covers), each the mean over every camera motion measured."""
+    _need(rows, "ssim_gi_map", "ssim_warped")
+    warped = _pick(rows, "ssim_warped")
+    systems = list(dict.fromkeys(r["system"] for r in warped))
+    source = ", ".join(dict.fromkeys(r["system"] for r in _pick(rows, "ssim_gi_map")))
+    motions = []
+    for motion in dict.fromkeys(r["config"]["motion"] for r in warped):
+        sel = [r["config"] for r in warped if r["config"]["motion"] == motion]
+        amounts = ", ".join(dict.fromkeys(f"{c['amount']:g}" for c in sel))
+        motions.append(f"{motion} {amounts} {sel[0]['amount_unit']}")
+    lines = [
+        f"GI maps: {source}. Warped: the mean over {'; '.join(motions)}; in brackets, the share of pixels the map covers.",
+        "",
+        "| scene | F_GI | SSIM of the GI map | " + " | ".join(f"SSIM warped: {s}" for s in systems) + " |",
+        "|---" * (3 + len(systems)) + "|",
+    ]
+    for scene, fov in dict.fromkeys((r["scene"], r["config"]["gi_fov"]) for r in rows if r["metric"] in ("ssim_gi_map", "ssim_warped")):
+
+        def mean(metric: str, system: str | None = None) -> float | None:
+            vs = [r["value"] for r in _pick(rows, metric) if (r["scene"], r["config"]["gi_fov"]) == (scene, fov) and system in (None, r["system"])]
+            return sum(vs) / len(vs) if vs else None
+
+        cells = []
+        for s in systems:
+            ssim, covered = mean("ssim_warped", s), mean("valid_fraction", s)
+            cells.append("—" if ssim is None else f"{ssim:.3f}" + ("" if covered is None else f" ({covered:.0%})"))
+        gi_map = mean("ssim_gi_map")
+        lines.append(f"| {scene} | {fov:g}° | {'—' if gi_map is None else f'{gi_map:.3f}'} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def pareto_points(rows: Rows) -> list[dict[str, Any]]:
+    """The points of a pareto CSV (:func:`bench.pareto.front_points`); a ValueError when it has none."""
+    from bench.pareto import front_points
 
     points = front_points(rows)
     if not points:
         raise ValueError("it has no points with both run_time and error rows")
+    return points
+
+
+def pareto_section(rows: Rows, csv_path: Path) -> str:
+    from bench.pareto import ABLATION
+
+    points = pareto_points(rows)
     blocks = []
     for unit in dict.fromkeys(p["per"] for p in points):
         here = [p for p in points if p["per"] == unit]
@@ -489,9 +568,15 @@ def _finished(csv_path: Path) -> float:
     return float(value) if isinstance(value, (int, float)) else csv_path.stat().st_mtime
 
 
-def find(results: Path, bench: str) -> list[Path]:
-    """Every ``<bench>.csv`` under ``results``, newest run first."""
-    return sorted(results.rglob(f"{bench}.csv"), key=_finished, reverse=True)
+def find(results: Path, bench: str, ignore: tuple[str, ...] = ()) -> list[Path]:
+    """Every ``<bench>.csv`` under ``results``, newest run first, except those inside a folder that one of the
+    ``ignore`` patterns (paths relative to ``results``, glob allowed) names."""
+
+    def ignored(path: Path) -> bool:
+        folders = [f.as_posix() for f in path.relative_to(results).parents if f != Path(".")]
+        return any(fnmatch.fnmatchcase(folder, pattern.strip("/")) for folder in folders for pattern in ignore)
+
+    return sorted((p for p in results.rglob(f"{bench}.csv") if not ignored(p)), key=_finished, reverse=True)
 
 
 def load(path: Path) -> Rows:
@@ -513,23 +598,38 @@ def load(path: Path) -> Rows:
     return rows
 
 
-def provenance_html(csv_path: Path, results: Path) -> str:
+def provenance_fields(csv_path: Path) -> dict[str, str] | None:
+    """What the provenance JSON beside ``csv_path`` says, as text: the command (the program by its name, not
+    the path it was started by, and its arguments), git (short SHA; whether the tree had uncommitted
+    changes), machine, date, run and seed; None without one."""
     prov = _provenance(csv_path)
+    if prov is None:
+        return None
+    argv = [str(a) for a in prov.get("argv") or []]
+    if argv:
+        argv[0] = "bench" if Path(argv[0]).name == "__main__.py" else Path(argv[0]).name
+    git = prov.get("git") or {}
+    m = prov.get("machine") or {}
+    finished = prov.get("finished_unix")
+    return {
+        "command": " ".join(argv) or "(unknown)",
+        "git": (git.get("sha") or "unknown")[:12] + (" (uncommitted changes)" if git.get("dirty") else ""),
+        "machine": f"{m.get('cpu', '?')}, {m.get('cpu_count', '?')} cores, {m.get('platform', '?')}, Python {m.get('python', '?')}",
+        "date": time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime(finished)) if isinstance(finished, (int, float)) else "unknown",
+        "run": str(prov.get("run_id", "?")),
+        "seed": str(prov.get("seed", "?")),
+    }
+
+
+def provenance_html(csv_path: Path, results: Path) -> str:
+    prov = provenance_fields(csv_path)
     shown = _e(csv_path.relative_to(results))
     if prov is None:
         missing = f"missing ({_e(csv_path.stem)}.provenance.json)"
         return f'<dl class="prov"><dt>file</dt><dd><code>{shown}</code></dd><dt>provenance</dt><dd>{missing}</dd></dl>'
-    argv = [str(a) for a in prov.get("argv") or []]
-    command = " ".join(["bench", *argv[1:]] if argv and Path(argv[0]).name in ("bench", "__main__.py") else argv) or "(unknown)"
-    git = prov.get("git") or {}
-    sha = (git.get("sha") or "unknown")[:12] + (" (uncommitted changes)" if git.get("dirty") else "")
-    machine = prov.get("machine") or {}
-    host = f"{machine.get('cpu', '?')}, {machine.get('cpu_count', '?')} cores, {machine.get('platform', '?')}, Python {machine.get('python', '?')}"
-    finished = prov.get("finished_unix")
-    date = time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime(finished)) if isinstance(finished, (int, float)) else "unknown"
-    items = [("file", f"<code>{shown}</code>"), ("command", f"<code>{_e(command)}</code>"), ("git", f"<code>{_e(sha)}</code>"),
-             ("machine", _e(host)), ("date", _e(date)),
-             ("run", f"<code>{_e(prov.get('run_id', '?'))}</code>, seed {_e(prov.get('seed', '?'))}")]  # fmt: skip
+    items = [("file", f"<code>{shown}</code>"), ("command", f"<code>{_e(prov['command'])}</code>"), ("git", f"<code>{_e(prov['git'])}</code>"),
+             ("machine", _e(prov["machine"])), ("date", _e(prov["date"])),
+             ("run", f"<code>{_e(prov['run'])}</code>, seed {_e(prov['seed'])}")]  # fmt: skip
     return '<dl class="prov">' + "".join(f"<dt>{k}</dt><dd>{v}</dd>" for k, v in items) + "</dl>"
 
 
@@ -546,24 +646,50 @@ class Rendered:
     others: list[str] = field(default_factory=list)
 
 
-def render(section: Section, results: Path) -> Rendered:
-    found = find(results, section.bench)
+@dataclass
+class Attempt:
+    """A bench's newest CSV under a results folder, drawn: status ``ok`` / ``missing`` / ``malformed``, what the
+    drawing made of it (when ``ok``), the file (None when missing), the problem in one line, the older runs."""
+
+    status: str
+    body: str = ""
+    path: Path | None = None
+    rel: str = ""
+    rows: int = 0
+    problem: str = ""
+    others: list[str] = field(default_factory=list)
+
+
+def attempt(bench: str, results: Path, draw: Callable[[Rows, Path], str], ignore: tuple[str, ...] = ()) -> Attempt:
+    """Find the newest ``<bench>.csv`` under ``results`` (outside the ``ignore`` folders), load it and ``draw`` its
+    rows (the dashboard's HTML or the README's Markdown): a CSV that is missing, or does not load or draw,
+    comes back with its problem."""
+    found = find(results, bench, ignore)
     if not found:
-        problem = f"missing: no {section.bench}.csv under {results}"
-        todo = f"run <code>bench {section.bench} --out {_e(results)}</code> (or into a folder under it)"
-        return Rendered(section, "missing", f'<p class="problem">{_e(problem)}; {todo}.</p>', problem=problem)
+        left_out = f" (leaving out {', '.join(ignore)})" if ignore else ""
+        return Attempt("missing", problem=f"missing: no {bench}.csv under {results}{left_out}")
     path = found[0]
     rel = str(path.relative_to(results))
-    prov = provenance_html(path, results)
     others = [str(p.relative_to(results)) for p in found[1:]]
-    note = f"<p>Newest of {len(found)} runs; older: {_e(', '.join(others))}.</p>" if others else ""
     try:
         rows = load(path)
-        body = section.draw(rows, path)
+        body = draw(rows, path)
     except Exception as exc:  # noqa: BLE001 -- any reason a CSV cannot be drawn is reported in its section, and the others still render
-        problem = f"malformed: {rel}: {exc if isinstance(exc, Malformed) else f'{type(exc).__name__}: {exc}'}"
-        return Rendered(section, "malformed", prov + f'<p class="problem">{_e(problem)}</p>', rel, problem=problem, others=others)
-    return Rendered(section, "ok", prov + note + body, rel, len(rows), others=others)
+        why = " ".join(str(exc if isinstance(exc, Malformed) else f"{type(exc).__name__}: {exc}").split())
+        return Attempt("malformed", path=path, rel=rel, problem=f"malformed: {rel}: {why}", others=others)
+    return Attempt("ok", body, path, rel, len(rows), others=others)
+
+
+def render(section: Section, results: Path, ignore: tuple[str, ...] = ()) -> Rendered:
+    a = attempt(section.bench, results, section.draw, ignore)
+    if a.path is None:
+        todo = f"run <code>bench {section.bench} --out {_e(results)}</code> (or into a folder under it)"
+        return Rendered(section, "missing", f'<p class="problem">{_e(a.problem)}; {todo}.</p>', problem=a.problem)
+    prov = provenance_html(a.path, results)
+    if a.status != "ok":
+        return Rendered(section, a.status, prov + f'<p class="problem">{_e(a.problem)}</p>', a.rel, problem=a.problem, others=a.others)
+    note = f"<p>Newest of {len(a.others) + 1} runs; older: {_e(', '.join(a.others))}.</p>" if a.others else ""
+    return Rendered(section, "ok", prov + note + a.body, a.rel, a.rows, others=a.others)
 
 
 def page(parts: list[Rendered], results: Path) -> str:
@@ -585,9 +711,16 @@ def page(parts: list[Rendered], results: Path) -> str:
 
 
 def measure(cfg: ReportConfig, res: Results) -> None:
+    from bench.report_md import results_markdown, update_readme
+
     results = cfg.results.resolve()
-    parts = [render(section, results) for section in SECTIONS]
+    parts = [render(section, results, cfg.ignore) for section in SECTIONS]
     atomic_write_bytes(res.output("report.html"), page(parts, results).encode())
+    text = results_markdown(cfg.results, cfg.ignore)
+    atomic_write_bytes(res.output("results.md"), text.encode())
+    if cfg.readme is not None:
+        update_readme(cfg.readme, text)
+        res.files.append(cfg.readme)
     for p in parts:
         config = {"section": p.section.key, "bench": p.section.bench, "file": p.file, "problem": p.problem, "older_runs": p.others}
         res.add(system="report", scene="all", metric="section_rows", value=p.rows, unit="rows", stat=p.status, **config)
@@ -599,5 +732,6 @@ BENCH = Bench(
     measure,
     None,
     help="A static HTML dashboard (report.html, opens offline) from the CSV files and provenance under --results: Tables 1-3, Fig. 6, 7, 9, "
-    "the Pareto fronts (hover a point for its config), the stability table; a missing or malformed CSV is named in its section.",
+    "the Pareto fronts (hover a point for its config), the stability table; a missing or malformed CSV is named in its section. Also "
+    "results.md, the README's results section (each block with the command that made it); --readme puts it between the file's markers.",
 )

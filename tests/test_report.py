@@ -1,8 +1,8 @@
 """`bench report`: the dashboard from CSV files only, checked as HTML and in a real browser (Chromium via Playwright).
 
 The results folder is ``tests/fixtures/report_results``: small real outputs of ``bench latency``, ``storage``,
-``frequency``, ``quality``, ``warp``, ``fov``, ``pareto``, ``stability`` and ``convergence`` (the commands are
-in each provenance JSON), copied into a temporary folder per test. The browser is Debian's ``chromium``
+``frequency``, ``quality``, ``warp``, ``fov``, ``pareto``, ``stability``, ``convergence``, ``service``, ``scaling`` and
+``network-sim selftest`` (the commands are in each provenance JSON), copied into a temporary folder per test. The browser is Debian's ``chromium``
 (``scripts/setup.sh`` installs it when root); without it the browser tests skip, except under ``CI=true``,
 where a missing browser fails. The dashboard's screenshot is kept in ``results/test_artifacts/``.
 """
@@ -49,15 +49,19 @@ def broken(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, di
     results = tmp_path_factory.mktemp("broken")
     shutil.copytree(FIXTURES, results, dirs_exist_ok=True)
     (results / "pareto" / "pareto.csv").unlink()
-    warp = results / "warp" / "warp.csv"
-    with warp.open(newline="") as fh:
+    spoil_value(results / "warp" / "warp.csv")
+    return build(results, tmp_path_factory.mktemp("report"))
+
+
+def spoil_value(path: Path, row: int = 3) -> None:
+    """Make the value of one row of a results CSV unparsable."""
+    with path.open(newline="") as fh:
         rows = list(csv.DictReader(fh))
-    rows[3]["value"] = "not-a-number"
-    with warp.open("w", newline="") as fh:
+    rows[row]["value"] = "not-a-number"
+    with path.open("w", newline="") as fh:
         writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
         writer.writeheader()
         writer.writerows(rows)
-    return build(results, tmp_path_factory.mktemp("report"))
 
 
 def test_every_section_renders_from_the_fixture_csvs(complete) -> None:

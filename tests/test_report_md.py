@@ -1,0 +1,177 @@
+"""`bench report`'s Markdown results section (``results.md``, ``--readme``) from the fixture results.
+
+The fixtures (``tests/fixtures/report_results``) are small real outputs of the benches; their commands are
+in each provenance JSON. The expected numbers below are read off those CSVs (some recomputed here from the
+rows, some as the fixture holds them).
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from bench.report_md import BEGIN, BLOCKS, END, results_markdown, update_readme
+from gicore.cli import UserError
+from gicore.results import read_rows
+from tests.test_report import spoil_value
+
+FIXTURES = Path(__file__).parent / "fixtures" / "report_results"
+BIN = Path(sys.executable).parent
+README = (
+    "# Project\n\nIntro.\n\n## Results\n\nWhat the numbers mean: hand-written, kept.\n\n{begin}\nold hand-written tables\n{end}\n\n"
+    "## After\n\nKept too.\n"
+)
+
+
+def sections(markdown: str) -> dict[str, str]:
+    """Block title -> its text (up to the next block)."""
+    parts = markdown.split("\n### ")[1:]
+    return {part.split("\n", 1)[0]: part.split("\n", 1)[1].strip() for part in parts}
+
+
+def expected_command(provenance: Path) -> str:
+    """The command as the provenance recorded it: the program's name, then its arguments."""
+    argv = json.loads(provenance.read_text())["argv"]
+    return " ".join([Path(argv[0]).name, *argv[1:]])
+
+
+def report(results: Path, out: Path, *extra: str) -> subprocess.CompletedProcess:
+    argv = [str(BIN / "bench"), "report", "--results", str(results), "--out", str(out), *extra]
+    return subprocess.run(argv, capture_output=True, text=True, timeout=120, cwd=results.parent)
+
+
+@pytest.fixture(scope="module")
+def generated(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, Path, list[bytes]]:
+    """The fixtures copied to ``<tmp>/results``; ``bench report ... --readme README.md`` run twice (from
+    ``<tmp>``): the folder, the README, the first run's results.md, and the README's bytes after each run."""
+    root = tmp_path_factory.mktemp("md")
+    shutil.copytree(FIXTURES, root / "results")
+    readme = root / "README.md"
+    readme.write_text(README.format(begin=BEGIN, end=END))
+    after = []
+    for run in ("one", "two"):
+        proc = report(root / "results", root / run, "--readme", str(readme))
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        after.append(readme.read_bytes())
+    return root, readme, root / "one" / "results.md", after
+
+
+def test_every_block_has_its_numbers_and_the_command_that_made_them(generated) -> None:
+    root, _, results_md, _ = generated
+    text = results_md.read_text()
+    blocks = sections(text)
+    assert list(blocks) == [b.title for b in BLOCKS]
+    for block in BLOCKS:  # every fixture CSV is there: each block ends with its command, from the provenance beside the CSV
+        provenance = next((root / "results").rglob(f"{block.bench}.provenance.json"))
+        last = blocks[block.title].splitlines()[-1]
+        assert last.startswith(f"Command: `{expected_command(provenance)}` (git "), (block.title, last)
+        assert f"`{provenance.parent.name}/{block.bench}.csv`" in last and "2 cores" in last
+    assert (
+        "Command: `bench latency --quick --profiles lan,wan --frames 16 --every 4 --spp 4 --gt-every 8 --out /tmp/fx/latency` (git 6b8b71443bae"
+        in text
+    )
+    assert "Command: `network-sim selftest --out results/final/netself`" in text  # not bench: the program by its name
+
+    # Table 1: one row per profile, recomputed from the CSV's medians
+    rows = read_rows(root / "results" / "latency" / "latency.csv")
+    gigan = next(r["value"] for r in rows if (r["system"], r["metric"], r["stat"]) == ("gigan", "total", "median"))
+    assert f"| `lan` (0.5 ms) | {gigan:.1f} | 38.9 | 342.1 | 0.61 / 5.34 | 0.879 / 0.961 / 0.938 |" in blocks["Interaction latency, Table 1"]
+    assert "| `wan` (130 ms) | 64.0 | 176.9 | 687.1 | 2.76 / 10.73 |" in text
+    assert "beats a cloud hit beyond an RTT of 38 ms; a cloud miss at any RTT." in text
+    # Table 2: GI tree per codec against the fp16 model
+    assert "fp32 10 MiB, fp16 5.01 MiB" in text and "| lung_plane | 60 | 60 | 0.166 (×0.033) | 0.293 (×0.059) | 0.852 (×0.17) |" in text
+    # error against run time: the points by system (ablations counted apart) and the best row per budget
+    pareto = blocks["Error against run time"]
+    assert "60 points: 8 gigan, 44 cloud_baking, 8 ablation" in pareto
+    assert "| GI map | 20 | cloud_baking | 0.002831 | 4.55 | codec × quality × profile × cache:" in pareto
+    assert "| frame | 90 | gigan | 0.1181 | 75.2 |" in pareto and "| ablation |" not in pareto and "#### Best configuration per time budget" in pareto
+    # Table 3, Fig. 6, Fig. 7, Fig. 9
+    assert "| gigan | lung_plane | 0.04092 | 0.9532 | 28.99 | — | 67.54 | model=gigan, ngf=16," in blocks["GI-map quality, Fig. 6"]
+    assert "| 10 | 57.9 | 71.2 | 90.8 | 0.907 | 0.866 | 0.926 |" in blocks["Inference frequency, Table 3"]
+    assert "| lung_plane | structure-aware | 1.07 (2.36) | 37 | 0.896 |" in text and "| lung_plane | 0.78× | 2.01× |" in text
+    assert "| lung_plane | 60° | 0.960 | 0.935 (87%) | 0.899 (87%) | 0.427 |" in text and "| lung_plane | 120° | 0.992 | 0.844 (99%) |" in text
+    # the stability counts agree with the CSV's rows, one case per (stage, case)
+    cases = {(r["system"], r["config"]["case"]): r["config"]["status"] for r in read_rows(root / "results" / "stability" / "stability.csv")}
+    statuses = list(cases.values())
+    counts = f"**{len(cases)} cases: {statuses.count('finite')} finite, {statuses.count('rejected')} cleanly rejected, 0 failed**"
+    assert counts == "**135 cases: 79 finite, 56 cleanly rejected, 0 failed**" and counts in blocks["Numerical stability"]
+    assert "| server | 19 | 5 | 14 | 0 |" in text
+    # server, network self-test, scaling (projections labelled)
+    assert "| hit_e2e (ms) |  |  | 2.33 | 4.77 | 5.58 | 10 |" in text and "load: 450.83 requests/s, 0 errors" in text
+    assert "26 of 26 targets met." in text and "| delay5 | one_way_delay (median) | 5 ms | 5.225 ms | \\|err\\| <= 1 ms | yes |" in text
+    assert "| local | 2 | 65.9 | 67 | 0.85 | 0.219 |" in text and "PROJECTED, not measured" in blocks["Scaling"]
+    # the results folder is named as seen from where bench report ran, not by this machine's path
+    assert (
+        text.split("\n\n")[1]
+        == "Generated from the CSV files under `results` by `bench report`; each block ends with the command that wrote its CSV."
+    )
+
+
+def test_the_readme_between_its_markers_is_replaced_the_rest_kept_and_a_second_run_changes_nothing(generated) -> None:
+    root, readme, results_md, after = generated
+    assert after[0] == after[1]  # the second run of bench report --readme left the file as the first made it
+    text = after[0].decode()
+    assert text.startswith("# Project\n\nIntro.\n\n## Results\n\nWhat the numbers mean: hand-written, kept.\n\n" + BEGIN + "\n\n")
+    assert text.endswith("\n\n" + END + "\n\n## After\n\nKept too.\n") and "old hand-written tables" not in text
+    assert text.count(BEGIN) == 1 and text.count(END) == 1
+    assert results_md.read_text().strip() in text
+    assert (root / "two" / "results.md").read_bytes() == results_md.read_bytes()
+    assert update_readme(readme, results_md.read_text()) is False and readme.read_bytes() == after[0]
+    assert json.loads((root / "one" / "report.provenance.json").read_text())["files"][-1] == str(readme)
+
+
+def test_a_malformed_csv_makes_only_its_block_say_so_and_a_missing_one_is_named(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    results = tmp_path / "results"
+    shutil.copytree(FIXTURES, results)
+    spoil_value(results / "warp" / "warp.csv")  # as the dashboard's test does
+    (results / "scaling" / "scaling.csv").unlink()
+    monkeypatch.chdir(tmp_path)
+    blocks = sections(results_markdown(results))
+    fig7 = blocks["Cost of warping, Fig. 7"]
+    assert "\n" not in fig7 and fig7.startswith("Not shown: malformed: warp/warp.csv: a row does not parse (ValueError:")
+    assert blocks["Scaling"] == "Not in these results: missing: no scaling.csv under results; `bench scaling --out results` makes it."
+    for title, body in blocks.items():
+        if title not in ("Cost of warping, Fig. 7", "Scaling"):
+            assert body.splitlines()[-1].startswith("Command: `") and "|" in body, title
+
+
+def test_a_readme_without_the_markers_is_refused_in_one_line_before_anything_is_built(tmp_path: Path) -> None:
+    results = tmp_path / "results"
+    shutil.copytree(FIXTURES / "warp", results / "warp")
+    readme = tmp_path / "README.md"
+    readme.write_text("# Project\n\nno markers here\n")
+    proc = report(results, tmp_path / "out", "--readme", str(readme))
+    errors = [line for line in proc.stderr.splitlines() if line.startswith("error:")]
+    assert proc.returncode == 2 and len(errors) == 1 and "Traceback" not in proc.stderr, proc.stderr
+    assert f"has 0 '{BEGIN}' and 0 '{END}' lines" in errors[0] and "then run again" in errors[0]
+    assert readme.read_text() == "# Project\n\nno markers here\n" and not (tmp_path / "out" / "report.html").exists()
+    for text in (f"{BEGIN}\nonly the first\n", f"{END}\n{BEGIN}\n", f"{BEGIN}\n{END}\n{BEGIN}\n{END}\n"):
+        readme.write_text(text)
+        with pytest.raises(UserError, match="not one of each in that order") as caught:
+            update_readme(readme, "new")
+        assert "\n" not in str(caught.value) and str(caught.value).endswith("then run again")
+        assert readme.read_text() == text
+
+
+def test_ignored_folders_are_left_out_and_the_newest_of_the_rest_is_shown(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    results = tmp_path / "results"
+    for name, finished in (("warp", 1.0e9), ("side/warp_run", 2.0e9)):  # the side run is newer
+        shutil.copytree(FIXTURES / "warp", results / name)
+        provenance = results / name / "warp.provenance.json"
+        provenance.write_text(provenance.read_text().replace('"finished_unix":', f'"finished_unix": {finished}, "was":', 1))
+    monkeypatch.chdir(tmp_path)
+    fig7 = "Cost of warping, Fig. 7"
+    assert sections(results_markdown(results))[fig7].endswith("; `side/warp_run/warp.csv`, the newest of 2 runs).")
+    for ignore in (("side",), ("side/*",), ("*/warp_run",)):
+        text = results_markdown(results, ignore)
+        assert sections(text)[fig7].endswith("2001-09-09 01:46:40 UTC, Intel(R) Xeon(R) Processor, 2 cores, "
+                                             "Linux-6.18.44-fc-v669-x86_64-with-glibc2.36, Python 3.11.7; `warp/warp.csv`).")  # fmt: skip
+        assert f"bench report --results results --ignore {ignore[0]} --readme FILE" in text
+    assert sections(results_markdown(results, ("warp", "side")))[fig7] == (
+        "Not in these results: missing: no warp.csv under results (leaving out warp, side); `bench warp --out results` makes it."
+    )
