@@ -135,6 +135,7 @@ def write_model_card(run_dir: Path, export_dir: Path, quality_csv: Path, system:
     sizes = {k: (export_dir / v).stat().st_size / 2**20 for k, v in model_doc["files"].items()}
     for precision, mib in sizes.items():
         res.add(system=model_name, scene="all", metric="file_size", value=mib, unit="MiB", precision=precision)
+    lf_missing = any(cell(s, scene, "lf_error") == "n/a" for s in (system, "di_only") for scene in scenes)
     lines = [
         f"# Model card: {export_dir.name}",
         "",
@@ -154,7 +155,9 @@ def write_model_card(run_dir: Path, export_dir: Path, quality_csv: Path, system:
         "",
         f"Loss: {train['model']} (λ_L1 {train['lambda_L1']}, λ_GP {train['lambda_gp']}, n_critic {train['n_critic']}), "
         f"Adam lr {train['lr']} β=({train['beta1']}, {train['beta2']}), batch {train['batch_size']}, "
-        f"random {train['crop']}² crops, seed {train['seed']}. "
+        + (f"warm-started from `{train['init_generator']}`, " if train.get("init_generator") else "")
+        + (f"random {train['crop']}² crops" if train["crop"] else "whole frames")
+        + f", seed {train['seed']}. "
         f"Stopped at optimizer step {last_step} (epoch {max(int(r['epoch']) for r in metrics)}); "
         f"median step time {sorted(step_s)[len(step_s) // 2]:.2f} s on this machine's CPU, {compute_min:.3g} min of steps in all "
         "(validation and checkpoints not counted; logged per epoch in metrics.csv). "
@@ -165,8 +168,8 @@ def write_model_card(run_dir: Path, export_dir: Path, quality_csv: Path, system:
         "## Metrics per scene (`bench quality`, all held-out frames, tone-mapped, SPEC §3)",
         "",
         f"LF error: low-frequency error, mean |Gaussian(σ = {LF_SIGMA:g} px) of the tone-mapped difference| "
-        "(`gicore.metrics.lf_error`; lower is better): the brightness blotches SSIM barely sees. "
-        "n/a: the quality CSV predates it.",
+        "(`gicore.metrics.lf_error`; lower is better): the brightness blotches SSIM barely sees"
+        + (". n/a: the quality CSV predates it." if lf_missing else "."),
         "",
         "| scene | SSIM | PSNR dB | RMSE | LF error | DI alone SSIM | DI alone LF error | median inference ms |",
         "|---|---|---|---|---|---|---|---|",

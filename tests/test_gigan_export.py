@@ -192,3 +192,21 @@ def test_wheel_ships_the_default_model_and_scenes(tmp_path):
     for path in DEFAULT_MODEL.parent.iterdir():  # model_fp16.onnx, model_fp32.onnx, model.json, MODEL_CARD.md
         assert f"{model_dir}/{path.name}" in names, f"{path.name} is missing from the wheel"
     assert {f"gicore/scenes/{p.name}" for p in (repo / "gicore" / "scenes").glob("*.toml")} <= names
+
+
+def test_the_shipped_model_card_matches_its_files() -> None:
+    """MODEL_CARD.md beside the shipped model states the files' sizes, the architecture and the step of
+    the exported weights: each must be what the files and model.json say."""
+    import re
+
+    from gigan_local.inference import DEFAULT_MODEL
+
+    folder = DEFAULT_MODEL.parent
+    card = (folder / "MODEL_CARD.md").read_text()
+    doc = json.loads((folder / "model.json").read_text())
+    assert f"ngf {doc['ngf']}, {doc['n_down']} down-samplings" in card
+    assert f"Stopped at optimizer step {doc['step']} " in card
+    listed = dict(re.findall(r"- `(model_\w+\.onnx)`: \w+ weights, ([\d.]+) MiB", card))
+    assert set(listed) == {p.name for p in folder.glob("*.onnx")}
+    for name, mib in listed.items():
+        assert f"{(folder / name).stat().st_size / 2**20:.2f}" == mib, name
