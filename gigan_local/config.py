@@ -134,6 +134,10 @@ class TrainConfig:
     lambda_gp: float = 10.0
     #: Critic steps per generator step (gigan); 1 alternates them as the paper does.
     n_critic: int = 1
+    #: Critic-only steps at the start of a run (gigan): the generator takes no step until the critic has
+    #: taken this many, so a fresh critic (a fine-tune's) learns to judge before its gradients reach the
+    #: generator, as WGAN's own schedule front-loads critic iterations. 0: none.
+    critic_warmup: int = 0
     #: Weight of deep_shading's (1 - SSIM) term; equal to lambda_L1 by default (with Adam only the
     #: ratio of the two matters).
     lambda_ssim: float = 100.0
@@ -162,6 +166,8 @@ class TrainConfig:
         for name in ("ngf", "ndf", "n_down", "crop", "batch_size", "n_critic", "epochs"):
             if getattr(self, name) is not None and getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if self.critic_warmup < 0:
+            raise ValueError(f"critic_warmup must be >= 0, got {self.critic_warmup}")
         if self.max_steps is not None and self.max_steps < 0:
             raise ValueError(f"max_steps must be >= 0, got {self.max_steps}")
         if self.max_minutes is not None and self.max_minutes < 0:

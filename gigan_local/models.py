@@ -80,8 +80,8 @@ class BaseModel:
 class GIGAN(BaseModel):
     """Conditional WGAN-GP + lambda_L1 * L1 (paper eq. 4) with a normalisation-free PatchGAN critic.
 
-    Every ``optimize`` call takes a critic step (with the gradient penalty); every ``n_critic``-th call
-    also takes a generator step. ``G_L1`` is logged on every call (as a plain value between generator
+    Every ``optimize`` call takes a critic step (with the gradient penalty); after the first
+    ``critic_warmup`` calls, every ``n_critic``-th call also takes a generator step. ``G_L1`` is logged on every call (as a plain value between generator
     steps); ``D_W`` is the critic's Wasserstein estimate E[D(real)] - E[D(fake)].
     """
 
@@ -94,7 +94,8 @@ class GIGAN(BaseModel):
     def optimize(self, batch: Batch) -> dict[str, float]:
         cond, real = batch
         G, D = self.nets["G"], self.nets["D"]
-        generator_step = (self.critic_steps + 1) % self.cfg.n_critic == 0
+        warm = self.critic_steps >= self.cfg.critic_warmup
+        generator_step = warm and (self.critic_steps - self.cfg.critic_warmup + 1) % self.cfg.n_critic == 0
         with torch.set_grad_enabled(generator_step):  # critic-only calls need no graph through G
             fake = G(cond)
 

@@ -129,6 +129,29 @@ def test_gigan_n_critic_steps_per_generator_step():
     assert any(not torch.equal(a, b) for a, b in zip(g0, model.generator.parameters()))
 
 
+def test_critic_warmup_holds_the_generator_for_that_many_critic_steps():
+    """critic_warmup 3, n_critic 2: calls 1-4 train the critic only, call 5 is the first generator step,
+    then every second call (the period counts from the end of the warm-up)."""
+    torch.manual_seed(0)
+    cfg = TrainConfig(model="gigan", resolution=32, depth_scale=2.0, ngf=4, ndf=4, batch_size=2, n_critic=2, critic_warmup=3)
+    model = create_model(cfg)
+    model.train()
+    batch = _fixed_batch(2, 32)
+    g0 = [p.detach().clone() for p in model.generator.parameters()]
+    d0 = [p.detach().clone() for p in model.nets["D"].parameters()]
+    generator_steps = ["G_GAN" in model.optimize(batch) for _ in range(8)]
+    assert generator_steps == [False, False, False, False, True, False, True, False]
+    assert any(not torch.equal(a, b) for a, b in zip(d0, model.nets["D"].parameters()))
+    torch.manual_seed(0)
+    held = create_model(cfg)
+    held.train()
+    for _ in range(4):
+        held.optimize(batch)
+    assert all(torch.equal(a, b) for a, b in zip(g0, held.generator.parameters()))  # the generator has not moved
+    with pytest.raises(ValueError, match="critic_warmup must be >= 0"):
+        TrainConfig(critic_warmup=-1)
+
+
 @pytest.mark.parametrize("name", ["deep_shading", "deep_illumination"])
 def test_baselines_take_a_step(name):
     torch.manual_seed(0)
