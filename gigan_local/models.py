@@ -81,8 +81,9 @@ class GIGAN(BaseModel):
     """Conditional WGAN-GP + lambda_L1 * L1 (paper eq. 4) with a normalisation-free PatchGAN critic.
 
     Every ``optimize`` call takes a critic step (with the gradient penalty); after the first
-    ``critic_warmup`` calls, every ``n_critic``-th call also takes a generator step. ``G_L1`` is logged on every call (as a plain value between generator
-    steps); ``D_W`` is the critic's Wasserstein estimate E[D(real)] - E[D(fake)].
+    ``critic_warmup`` calls, every ``n_critic``-th call also takes a generator step. ``G_L1`` is logged
+    on every call (as a plain value between generator steps); ``D_W`` is the critic's Wasserstein
+    estimate E[D(real)] - E[D(fake)].
     """
 
     loss_names = ("G_GAN", "G_L1", "D_real", "D_fake", "D_GP", "D_W")
