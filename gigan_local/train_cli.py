@@ -36,9 +36,7 @@ def train_command(
     batch_size: Annotated[int | None, typer.Option(min=1, help="Batch size (default: 8).")] = None,
     lr: Annotated[float | None, typer.Option(help="Adam learning rate, > 0 (default: 2e-4).")] = None,
     n_critic: Annotated[int | None, typer.Option(min=1, help="GIGAN critic steps per generator step (default: 1).")] = None,
-    critic_warmup: Annotated[
-        int | None, typer.Option(min=0, help="GIGAN critic-only steps before the generator's first step (default: 0).")
-    ] = None,
+    critic_warmup: Annotated[int | None, typer.Option(min=0, help="GIGAN critic-only steps before the generator's first step (default: 0).")] = None,
     seed: Annotated[int | None, typer.Option(help="Random seed (default: 0).")] = None,
     epochs: Annotated[int | None, typer.Option(min=1, help="Stop after this many epochs (default: 100).")] = None,
     max_steps: Annotated[int | None, typer.Option(min=0, help="Stop after this many steps in all.")] = None,
