@@ -29,6 +29,7 @@ import os
 import pickle
 import signal
 import socket
+import time
 from collections import OrderedDict
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
@@ -45,6 +46,8 @@ CACHED_STATES = 2
 RAY_CONNECT_TIMEOUT_S = 5.0
 #: How often the driver wakes from waiting on Ray, so that Ctrl-C is handled promptly.
 RAY_POLL_S = 0.2
+#: How long an interrupted run keeps cancelling its outstanding Ray tasks until they have all ended (s).
+RAY_CANCEL_S = 10.0
 START_RAY = "start one with `ray start --head` and give its address, or use --ray auto"
 #: ``--workers`` and ``--ray`` of every command that renders through an executor (:func:`open_executor`).
 WORKERS_HELP = "rendering processes (default 1); with --ray, tasks at once (default: as many as the cluster has CPUs)"
@@ -186,8 +189,22 @@ class RayExecutor:
                         raise
                     receive(job, result)
         finally:
-            for ref in pending:
-                ray.cancel(ref, force=True)  # force: stop the render now rather than finish a discarded frame
+            _cancel(list(pending))
+
+
+def _cancel(refs: list[Any], deadline_s: float = RAY_CANCEL_S) -> None:
+    """Force-cancel Ray tasks (stop a discarded render now rather than let it finish), repeating the
+    cancel until every task has ended or ``deadline_s`` passed: a cancel that reaches a task while Ray is
+    handing it to a worker can be lost, and the task would then run to its end (seen with Ray 2.60)."""
+    import ray
+
+    deadline = time.monotonic() + deadline_s
+    while refs:
+        for ref in refs:
+            ray.cancel(ref, force=True)
+        if time.monotonic() > deadline:
+            return
+        _, refs = ray.wait(refs, num_returns=len(refs), timeout=RAY_POLL_S)
 
 
 def _host_port(text: str) -> tuple[str, int] | None:
