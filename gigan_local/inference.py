@@ -24,6 +24,25 @@ FORMAT = "gigan-onnx/1"
 DEFAULT_MODEL = Path(__file__).parent / "models" / "gigan_default" / "model_fp16.onnx"
 
 
+def read_model_json(path: str | Path) -> dict[str, Any]:
+    """The ``model.json`` beside the exported model ``path``, checked: its format, input encoding and
+    resolution (a UserError naming the file when it is missing or invalid)."""
+    config_path = Path(path).parent / MODEL_JSON
+    if not config_path.is_file():
+        raise UserError(f"{config_path} is missing", f"keep the model.json that `gigan-export` wrote beside {Path(path).name}")
+    try:
+        config = json.loads(config_path.read_text())
+        if config.get("format") != FORMAT:
+            raise ValueError(f"format is {config.get('format')!r}, expected {FORMAT!r}")
+        InputSpec.from_dict(config["input"])
+        int(config["resolution"])
+        return config
+    except (ValueError, KeyError, TypeError, AttributeError) as e:
+        raise UserError(
+            f"{config_path} is not a valid gigan model config ({type(e).__name__}: {e})", "re-export the model with `gigan-export`"
+        ) from None
+
+
 class GIModel:
     """An exported generator ready to predict GI maps on the CPU.
 
@@ -37,18 +56,9 @@ class GIModel:
         if not self.path.is_file():
             raise UserError(f"model file {self.path} is missing", "export one with `gigan-export RUN --out DIR`")
         config_path = self.path.parent / MODEL_JSON
-        if not config_path.is_file():
-            raise UserError(f"{config_path} is missing", f"keep the model.json that `gigan-export` wrote beside {self.path.name}")
-        try:
-            self.config: dict[str, Any] = json.loads(config_path.read_text())
-            if self.config.get("format") != FORMAT:
-                raise ValueError(f"format is {self.config.get('format')!r}, expected {FORMAT!r}")
-            self.spec = InputSpec.from_dict(self.config["input"])
-            self.resolution = int(self.config["resolution"])
-        except (ValueError, KeyError, TypeError, AttributeError) as e:
-            raise UserError(
-                f"{config_path} is not a valid gigan model config ({type(e).__name__}: {e})", "re-export the model with `gigan-export`"
-            ) from None
+        self.config: dict[str, Any] = read_model_json(self.path)
+        self.spec = InputSpec.from_dict(self.config["input"])
+        self.resolution = int(self.config["resolution"])
         if threads < 1:
             raise ValueError(f"threads must be >= 1, got {threads}")
 

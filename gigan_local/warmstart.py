@@ -9,7 +9,6 @@ A critic, when the model has one, starts fresh: exported files hold only the gen
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
@@ -17,44 +16,40 @@ import numpy as np
 
 from gicore.cli import UserError
 from gigan_local.config import NetworkConfig
-from gigan_local.inference import FORMAT, MODEL_JSON
+from gigan_local.inference import MODEL_JSON, read_model_json
 from gigan_local.preprocess import InputSpec
 
 #: State-dict entries that exports do not carry and that a warm start may leave at their initial value.
 NOT_EXPORTED = ("num_batches_tracked",)
 
 
-def read_model_json(path: Path) -> dict[str, Any]:
-    """The ``model.json`` beside the exported model ``path`` (UserError naming the file if unreadable)."""
+def _model_json(path: Path) -> dict[str, Any]:
+    """The exported model's ``model.json`` (:func:`gigan_local.inference.read_model_json`), with its
+    generator architecture checked too."""
     path = Path(path)
     if not path.is_file():
         raise UserError(f"--init-generator {path} is not a file", "give a model_fp32.onnx or model_fp16.onnx written by gigan-export")
-    config_path = path.parent / MODEL_JSON
+    doc = read_model_json(path)
     try:
-        doc = json.loads(config_path.read_text())
-        if doc.get("format") != FORMAT:
-            raise ValueError(f"format is {doc.get('format')!r}, expected {FORMAT!r}")
         NetworkConfig.from_dict(doc["network"])
-        InputSpec.from_dict(doc["input"])
-        return doc
-    except (OSError, ValueError, KeyError, TypeError, AttributeError) as e:
-        what = f"{config_path} is not a readable gigan model config ({type(e).__name__}: {e})"
-        raise UserError(what, "re-export the model with gigan-export") from None
+    except (ValueError, KeyError, TypeError, AttributeError) as e:
+        raise UserError(f"{path.parent / MODEL_JSON} has no valid generator architecture ({e})", "re-export the model with gigan-export") from None
+    return doc
 
 
 def init_depth_scale(path: Path) -> float:
     """The depth scale the exported model's inputs were encoded with (a warm start must keep it)."""
-    return float(InputSpec.from_dict(read_model_json(path)["input"]).depth_scale)
+    return float(InputSpec.from_dict(_model_json(path)["input"]).depth_scale)
 
 
-def generator_weights(path: Path, network: NetworkConfig, spec: InputSpec) -> tuple[dict[str, np.ndarray], list[tuple[str, str, str]]]:
+def generator_weights(path: Path, network: NetworkConfig, spec: InputSpec) -> tuple[dict[str, np.ndarray], list[tuple[str, str]]]:
     """The exported generator's weights, checked against the run's generator ``network`` and input
     ``spec`` (a mismatch is a UserError saying which field differs): (initializer name -> float32 array,
-    and the graph's ``Conv`` nodes in graph order as (weight, bias or "", output) initializer names)."""
+    and the graph's ``Conv`` nodes in graph order as (weight, bias or "") initializer names)."""
     import onnx
     from onnx import numpy_helper
 
-    doc = read_model_json(path)
+    doc = _model_json(path)
     saved_net, saved_spec = NetworkConfig.from_dict(doc["network"]), InputSpec.from_dict(doc["input"])
     if saved_net != network:
         diff = {k: (v, getattr(network, k)) for k, v in vars(saved_net).items() if getattr(network, k) != v}
@@ -74,7 +69,7 @@ def generator_weights(path: Path, network: NetworkConfig, spec: InputSpec) -> tu
     # an fp16 file stores each weight in half precision followed by a Cast: a weight is named by what it feeds
     cast_of = {n.input[0]: n.output[0] for n in graph.node if n.op_type == "Cast"}
     weights = {cast_of.get(t.name, t.name): numpy_helper.to_array(t).astype(np.float32) for t in graph.initializer}
-    convs = [(n.input[1], n.input[2] if len(n.input) > 2 else "", n.output[0]) for n in graph.node if n.op_type == "Conv"]
+    convs = [(n.input[1], n.input[2] if len(n.input) > 2 else "") for n in graph.node if n.op_type == "Conv"]
     return weights, convs
 
 
@@ -94,8 +89,8 @@ def load_into(generator: Any, path: Path, network: NetworkConfig, spec: InputSpe
     weights, convs = generator_weights(path, network, spec)
     state = generator.state_dict()
     downs = list(getattr(generator, "downs", []))
-    folded: list[tuple[torch.nn.Conv2d, torch.nn.BatchNorm2d, str, np.ndarray]] = []
-    for k, (w_name, b_name, _) in enumerate(convs):
+    folded: list[tuple[torch.nn.Conv2d, torch.nn.BatchNorm2d, np.ndarray]] = []
+    for k, (w_name, b_name) in enumerate(convs):
         if w_name in state or k >= len(downs):
             continue
         modules = list(downs[k])
@@ -109,7 +104,7 @@ def load_into(generator: Any, path: Path, network: NetworkConfig, spec: InputSpe
         for field, value in (("running_mean", np.zeros_like(b)), ("running_var", np.ones_like(b)), ("bias", b)):
             weights[f"{prefix}.{j + 1}.{field}"] = value
         weights[f"{prefix}.{j + 1}.weight"] = np.full_like(b, np.sqrt(1.0 + bn.eps))
-        folded.append((modules[j], bn, prefix, b))
+        folded.append((modules[j], bn, b))
     needed = {k for k in state if not k.endswith(NOT_EXPORTED)}
     missing, extra = sorted(needed - set(weights)), sorted(set(weights) - set(state))
     if missing or extra:
@@ -140,7 +135,7 @@ def _calibrate(generator: Any, folded: list, inputs: Any) -> None:
 
         return hook
 
-    hooks = [conv.register_forward_hook(record(i)) for i, (conv, _, _, _) in enumerate(folded)]
+    hooks = [conv.register_forward_hook(record(i)) for i, (conv, _, _) in enumerate(folded)]
     was_training = generator.training
     generator.eval()
     try:
@@ -151,7 +146,7 @@ def _calibrate(generator: Any, folded: list, inputs: Any) -> None:
             h.remove()
         generator.train(was_training)
     with torch.no_grad():
-        for i, (_, bn, _, b) in enumerate(folded):
+        for i, (_, bn, b) in enumerate(folded):
             mean, var = stats[i]
             bn.running_mean.copy_(mean)
             bn.running_var.copy_(var)

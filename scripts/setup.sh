@@ -5,25 +5,26 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 PYTHON=${PYTHON:-python3}
 
-if ! ldconfig -p 2>/dev/null | grep -q 'libLLVM.so.19\|libLLVM-19.so'; then
+# apt_install PACKAGE WHY NOTE: install a Debian package when root; otherwise say how, and what is lost.
+apt_install() {
   if [ "$(id -u)" = 0 ]; then
-    echo "setup: installing libllvm19 (Mitsuba's llvm_ad_rgb variant needs LLVM >= 16)"
-    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libllvm19 >/dev/null
+    echo "setup: installing $1 ($2)"
+    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "$1" >/dev/null
   else
-    echo "setup: libllvm19 is missing and this is not root. Run 'sudo apt-get install -y libllvm19'" >&2
-    echo "       (or set DRJIT_LIBLLVM_PATH); until then Mitsuba falls back to the ~45x slower scalar_rgb." >&2
+    echo "setup: $1 is missing and this is not root. Run 'sudo apt-get install -y $1'" >&2
+    echo "       $3" >&2
   fi
+}
+
+if ! ldconfig -p 2>/dev/null | grep -q 'libLLVM.so.19\|libLLVM-19.so'; then
+  apt_install libllvm19 "Mitsuba's llvm_ad_rgb variant needs LLVM >= 16" \
+    "(or set DRJIT_LIBLLVM_PATH); until then Mitsuba falls back to the ~45x slower scalar_rgb."
 fi
 
 # Chromium for the dashboard's browser test (tests/test_report.py drives it with Playwright).
 if [ ! -x /usr/bin/chromium ]; then
-  if [ "$(id -u)" = 0 ]; then
-    echo "setup: installing chromium (the dashboard test opens bench report's HTML in it)"
-    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null
-  else
-    echo "setup: chromium is missing and this is not root. Run 'sudo apt-get install -y chromium'" >&2
-    echo "       (until then the dashboard's browser test is skipped; under CI=true it fails)." >&2
-  fi
+  apt_install chromium "the dashboard test opens bench report's HTML in it" \
+    "(until then the dashboard's browser test is skipped; under CI=true it fails)."
 fi
 
 if [ ! -x .venv/bin/python ]; then
