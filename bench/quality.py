@@ -3,7 +3,9 @@
 Every model is an exported ONNX generator (``gigan-export``) run by onnxruntime exactly as the client
 runs it, on the held-out validation frames of each scene's dataset. Metrics (RMSE/SSIM/PSNR, SPEC §3,
 and the low-frequency error ``lf_error``, :func:`gicore.metrics.lf_error`, which sees the brightness
-blotches SSIM barely moves under) compare tone-mapped predictions with tone-mapped path-traced GT;
+blotches SSIM barely moves under, and the checkerboard error ``checker_error``,
+:func:`gicore.metrics.checker_error`, the error's part that repeats on a 4x4 pixel tile; and the signed red tint where only indirect light
+arrives, ``shadow_tint``, :func:`gicore.metrics.shadow_tint`) compare tone-mapped predictions with tone-mapped path-traced GT;
 "di_only" scores the DI input itself (what a client without GI shows). Inference time is the median of
 repeated ``predict`` calls after warm-up, so each model is also a point of error against run time (width
 and precision knobs).
@@ -25,16 +27,23 @@ from bench.runner import Bench
 from gicore.cli import UserError
 from gicore.dataset import frame_paths, load_frame, read_meta
 from gicore.dataset_cli import DatasetConfig, build_dataset
-from gicore.metrics import LF_SIGMA, all_metrics, lf_difference
+from gicore.metrics import CHECKER_PERIOD, LF_SIGMA, all_metrics, checker_error, lf_difference, shadow_tint
 from gicore.results import Results, read_rows
 from gicore.scene import builtin_scenes, load_scene
 from gicore.timing import time_repeats
 from gicore.tonemap import tonemap
 from gigan_local.inference import DEFAULT_MODEL
 
-UNITS = {"rmse": "1", "ssim": "1", "psnr": "dB", "lf_error": "1"}
-#: Metrics where lower is better (the bar plots' titles).
-LOWER_IS_BETTER = ("rmse", "lf_error")
+UNITS = {"rmse": "1", "ssim": "1", "psnr": "dB", "lf_error": "1", "checker_error": "1", "shadow_tint": "1"}
+#: Titles of the bar plots: what each metric is and which way is better.
+TITLES = {
+    "rmse": "RMSE (lower is better)",
+    "ssim": "SSIM (higher is better)",
+    "psnr": "PSNR (higher is better)",
+    "lf_error": f"LF error (σ = {LF_SIGMA:g} px; lower is better)",
+    "checker_error": f"checkerboard error ({CHECKER_PERIOD} px tile; lower is better)",
+    "shadow_tint": "red tint in indirect-only light (0 is best)",
+}
 #: The grid's |error| images show |tone-mapped prediction − GT| times this gain (white from 1 / gain = 0.25 up).
 GRID_ABS_GAIN = 4.0
 #: The grid's low-frequency images map the blurred signed error (prediction − GT, channel mean) from
@@ -109,7 +118,8 @@ def measure(cfg: QualityConfig, res: Results) -> None:
             outputs = {"di_only": frame["di"]} | {name: m.predict(frame) for name, m in models.items()}
             mapped = {name: tonemap(radiance) for name, radiance in outputs.items()}
             for name, image in mapped.items():
-                scores[name].append(all_metrics(image, reference))
+                extra = {"checker_error": checker_error(image, reference), "shadow_tint": shadow_tint(image, reference, mapped["di_only"])}
+                scores[name].append(all_metrics(image, reference) | extra)
             if i < cfg.grid_frames:
                 grid += grid_rows(frame, mapped, reference, f"{scene} #{i}")
         for name, per_frame in scores.items():
@@ -154,8 +164,9 @@ def plot(csv_path: Path, out_dir: Path) -> list[Path]:
             ]
             ax.bar(np.arange(len(scenes)) + j * width, vals, width, label=system)
         ax.set_xticks(np.arange(len(scenes)) + 0.4 - width / 2, scenes, rotation=25, ha="right", fontsize=7)
-        name = f"LF error (σ = {LF_SIGMA:g} px)" if metric == "lf_error" else metric.upper()
-        ax.set_title(f"{name} ({'lower' if metric in LOWER_IS_BETTER else 'higher'} is better)")
+        ax.set_title(TITLES[metric], fontsize=9)
+        if metric == "shadow_tint":
+            ax.axhline(0.0, color="k", lw=0.6)
         ax.grid(axis="y", alpha=0.3)
     axes[-1].legend(fontsize=7)
     bars = save(fig, out_dir / "quality.png")

@@ -320,15 +320,19 @@ def quality_section(rows: Rows, csv_path: Path) -> str:
 
 
 def quality_table(rows: Rows) -> str:
-    """Fig. 6 as Markdown: per system and scene, the mean RMSE, SSIM, PSNR, LF error and the median inference time."""
+    """Fig. 6 as Markdown: per system and scene, the mean RMSE, SSIM, PSNR, LF and checkerboard errors,
+    the shadow tint and the median inference time."""
     _need(rows, "ssim", "rmse", "psnr")
     scenes = list(dict.fromkeys(r["scene"] for r in _pick(rows, "ssim")))
     systems = list(dict.fromkeys(r["system"] for r in _pick(rows, "ssim")))
-    lines = ["| system | scene | RMSE | SSIM | PSNR (dB) | LF error | inference ms (median) | config |", "|---|---|---|---|---|---|---|---|"]
+    lines = [
+        "| system | scene | RMSE | SSIM | PSNR (dB) | LF error | checker error | shadow tint | inference ms (median) | config |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
     mean = {(r["scene"], r["system"], r["metric"]): r for r in rows if r["stat"] in ("mean", "median")}
     for system in systems:
         for scene in scenes:
-            cells = [mean.get((scene, system, m)) for m in ("rmse", "ssim", "psnr", "lf_error", "inference_time")]
+            cells = [mean.get((scene, system, m)) for m in ("rmse", "ssim", "psnr", "lf_error", "checker_error", "shadow_tint", "inference_time")]
             shown = ["—" if c is None else f"{c['value']:.4g}" for c in cells]
             config = next((c["config"] for c in cells if c is not None and c["config"]), {})
             knobs = ", ".join(f"{k}={v}" for k, v in config.items() if k not in ("frames",))

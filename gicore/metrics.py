@@ -9,7 +9,9 @@ images give a defined SSIM thanks to the C1/C2 stabilisers.
 
 The low-frequency error (:func:`lf_error`) is the mean absolute value of the Gaussian-blurred (sigma
 :data:`LF_SIGMA` pixels) difference: it measures brightness errors that cover many pixels ("blotches"),
-which SSIM barely sees and RMSE/PSNR mix with fine noise.
+which SSIM barely sees and RMSE/PSNR mix with fine noise. The checkerboard error
+(:func:`checker_error`) is the opposite end: the part of the error that repeats on a small pixel tile,
+the signature of stride-2 transposed convolutions.
 """
 
 from __future__ import annotations
@@ -27,6 +29,12 @@ LF_SIGMA = 6.0
 #: How :func:`lf_difference` extends the image past its border (scipy.ndimage's 'reflect': the edge pixel
 #: repeated, d c b a | a b c d), so a constant difference stays exactly constant up to the border.
 LF_MODE = "reflect"
+#: Tile side, in pixels, of :func:`checker_error`: 4 covers the period-2 and period-4 patterns that the
+#: two outermost stride-2 up-sampling layers of a U-Net print on its output.
+CHECKER_PERIOD = 4
+#: :func:`shadow_tint`'s mask: pixels whose tone-mapped DI luminance is below SHADOW_DI (direct light does
+#: not reach them) and whose GT luminance is above SHADOW_LIT (indirect light does).
+SHADOW_DI, SHADOW_LIT = 0.05, 0.02
 
 
 def _check_pair(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -95,6 +103,45 @@ def lf_error(a: np.ndarray, b: np.ndarray, sigma: float = LF_SIGMA) -> float:
     resolution (default :data:`LF_SIGMA`). Same inputs as the other metrics: tone-mapped, in [0, 1].
     """
     return float(np.mean(np.abs(lf_difference(a, b, sigma))))
+
+
+def checker_error(a: np.ndarray, b: np.ndarray, period: int = CHECKER_PERIOD) -> float:
+    """Checkerboard error: the mean absolute value of the part of ``a - b`` that repeats on a
+    ``period`` x ``period`` tile, per channel.
+
+    The difference is averaged over all tiles (the tile grid starts at pixel 0, 0; rows and columns past
+    the last whole tile are left out), giving one ``period`` x ``period`` pattern per channel; its mean is
+    subtracted (a constant offset is :func:`lf_error`'s business), and the mean |pattern| is returned. A
+    ``±h`` checkerboard (or ``±h`` stripes of period 2 or 4) scores exactly ``h``, a constant offset 0;
+    errors that do not repeat average out over the tiles: zero-mean noise of deviation s scores about
+    ``s * period / sqrt(H * W)``, and a smooth ramp rising ``g`` per pixel scores at most ``g * period / 2``.
+    """
+    a, b = _check_pair(a, b)
+    if not (isinstance(period, int) and period >= 2):
+        raise ValueError(f"period must be an integer >= 2, got {period!r}")
+    d = (a - b) if a.ndim == 3 else (a - b)[..., None]
+    h, w = (d.shape[0] // period) * period, (d.shape[1] // period) * period
+    if h == 0 or w == 0:
+        raise ValueError(f"images of {d.shape[0]}x{d.shape[1]} pixels hold no {period}x{period} tile")
+    tile = d[:h, :w].reshape(h // period, period, w // period, period, d.shape[2]).mean(axis=(0, 2))
+    return float(np.mean(np.abs(tile - tile.mean(axis=(0, 1)))))
+
+
+def shadow_tint(a: np.ndarray, b: np.ndarray, di: np.ndarray) -> float:
+    """Red tint of ``a`` against ``b`` where only indirect light arrives: the mean, over the pixels that
+    :data:`SHADOW_DI` / :data:`SHADOW_LIT` select from the tone-mapped ``di`` and ``b``, of the error's red
+    channel minus the mean of its green and blue, (R - (G + B) / 2) of ``a - b``. Positive: redder than
+    ``b``; 0 for a grey error (a brightness offset) or no such pixel (NaN would poison the means).
+    """
+    a, b = _check_pair(a, b)
+    _, di = _check_pair(a, di)
+    if a.ndim != 3 or a.shape[2] != 3:
+        raise ValueError(f"shadow_tint needs RGB images (HxWx3), got shape {a.shape}")
+    mask = (di.mean(axis=2) < SHADOW_DI) & (b.mean(axis=2) > SHADOW_LIT)
+    if not mask.any():
+        return 0.0
+    e = (a - b)[mask]
+    return float(np.mean(e[:, 0] - 0.5 * (e[:, 1] + e[:, 2])))
 
 
 def all_metrics(prediction: np.ndarray, reference: np.ndarray) -> dict[str, float]:

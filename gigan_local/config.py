@@ -30,6 +30,7 @@ BUDGET_FIELDS = ("epochs", "max_steps", "max_minutes", "max_val_frames", "checkp
 GENERATORS = ("unet", "deep_shading")
 CRITICS = ("patchgan",)
 NORMS = ("batch", "none")
+UPSAMPLINGS = ("transposed", "resize")
 
 
 @dataclass
@@ -39,7 +40,7 @@ class NetworkConfig:
     #: Architecture name: ``unet`` or ``deep_shading`` (generators), ``patchgan`` (critic).
     name: str
     #: Generator input channels (from the buffer list). For the critic: the channels of the condition
-    #: (the generator input) it is given beside the image.
+    #: (the generator input) it is given beside the image; 0 makes it unconditional (the image alone).
     in_channels: int
     #: Image channels: what a generator outputs and what a critic judges.
     out_channels: int = 3
@@ -57,15 +58,21 @@ class NetworkConfig:
     dropout: float = 0.5
     #: unet only: how many up layers after the innermost one carry dropout.
     n_dropout: int = 3
+    #: unet only: how up layers double the side: ``transposed`` (pix2pix 4x4 stride-2 transposed conv)
+    #: or ``resize`` (nearest 2x + 3x3 conv, which cannot make a checkerboard; issue 14's diagnosis).
+    upsample: str = "transposed"
 
     def __post_init__(self) -> None:
         if self.name not in GENERATORS + CRITICS:
             raise ValueError(f"unknown network {self.name!r}; choose one of {list(GENERATORS + CRITICS)}")
         if self.norm not in NORMS:
             raise ValueError(f"norm must be one of {list(NORMS)}, got {self.norm!r}")
+        if self.upsample not in UPSAMPLINGS:
+            raise ValueError(f"upsample must be one of {list(UPSAMPLINGS)}, got {self.upsample!r}")
         for f in ("in_channels", "out_channels", "width", "n_down"):
-            if int(getattr(self, f)) < 1:
-                raise ValueError(f"{f} must be >= 1, got {getattr(self, f)}")
+            least = 0 if f == "in_channels" and self.name in CRITICS else 1  # a critic may be unconditional
+            if int(getattr(self, f)) < least:
+                raise ValueError(f"{f} must be >= {least}, got {getattr(self, f)}")
         if self.name == "unet" and self.n_down < 2:
             raise ValueError(f"unet needs n_down >= 2 (an outermost and an innermost layer), got {self.n_down}")
         if not 0.0 <= self.dropout < 1.0:
@@ -123,6 +130,10 @@ class TrainConfig:
     #: Generator down-samplings; None: log2 of the training side (1x1 bottleneck) for unet, two fewer
     #: for deep_shading (see ``networks.DeepShadingGenerator``).
     n_down: int | None = None
+    #: unet up-sampling: ``transposed`` (pix2pix, the paper) or ``resize`` (nearest 2x + 3x3 conv).
+    upsample: str = "transposed"
+    #: Whether the critic sees the generator input beside the image (pix2pix and the paper: yes).
+    critic_condition: bool = True
     batch_size: int = 8
     #: Adam learning rate and betas, for generator and critic alike.
     lr: float = 2e-4
@@ -166,6 +177,10 @@ class TrainConfig:
         for name in ("ngf", "ndf", "n_down", "crop", "batch_size", "n_critic", "epochs"):
             if getattr(self, name) is not None and getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if self.upsample not in UPSAMPLINGS:
+            raise ValueError(f"upsample must be one of {list(UPSAMPLINGS)}, got {self.upsample!r}")
+        if self.model == "deep_shading" and self.upsample != "transposed":
+            raise ValueError("upsample applies to the unet generators; deep_shading always up-samples bilinearly")
         if self.critic_warmup < 0:
             raise ValueError(f"critic_warmup must be >= 0, got {self.critic_warmup}")
         if self.max_steps is not None and self.max_steps < 0:
@@ -203,14 +218,15 @@ class TrainConfig:
         if self.model == "deep_shading":
             g = NetworkConfig("deep_shading", in_ch, 3, self.ngf, max(1, full_down - 2) if self.n_down is None else self.n_down)
         else:
-            g = NetworkConfig("unet", in_ch, 3, self.ngf, full_down if self.n_down is None else self.n_down)
+            g = NetworkConfig("unet", in_ch, 3, self.ngf, full_down if self.n_down is None else self.n_down, upsample=self.upsample)
         for s in {side, self.resolution}:
             g.check_size(s)
         nets = {"G": g}
         if self.model != "deep_shading":
             # GIGAN's critic has no norm (per-sample gradient penalty); Deep Illumination keeps pix2pix's BN.
             norm = "none" if self.model == "gigan" else "batch"
-            nets["D"] = NetworkConfig("patchgan", in_ch, 3, self.ngf if self.ndf is None else self.ndf, 3, norm=norm)
+            cond_ch = in_ch if self.critic_condition else 0
+            nets["D"] = NetworkConfig("patchgan", cond_ch, 3, self.ngf if self.ndf is None else self.ndf, 3, norm=norm)
             nets["D"].check_size(side)
         return nets
 

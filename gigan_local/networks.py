@@ -4,9 +4,10 @@
   ``UnetGenerator``: with 3 input channels, ngf 64 and 8 downs it is pix2pix ``unet_256`` (54,413,955
   parameters).
 - ``patchgan``: Markovian PatchGAN critic (pix2pix ``NLayerDiscriminator``), conditioned on the
-  generator input by channel concatenation. GIGAN uses it without normalisation, because batch norm
-  couples the samples of a batch and so breaks the per-sample gradient penalty (paper IV.A); Deep
-  Illumination keeps pix2pix's batch norm (its original is pix2pix-based and uses no penalty).
+  generator input by channel concatenation (with ``in_channels`` 0 it judges the image alone). GIGAN
+  uses it without normalisation, because batch norm couples the samples of a batch and so breaks the
+  per-sample gradient penalty (paper IV.A); Deep Illumination keeps pix2pix's batch norm (its original
+  is pix2pix-based and uses no penalty).
 - ``deep_shading``: the Deep Shading generator (Nalbach et al. 2017): a plain CNN U-Net with one 3x3
   convolution per level and side, leaky ReLU, average-pool down, bilinear up and skip concatenation; no
   normalisation, no dropout.
@@ -31,14 +32,24 @@ def _norm(kind: str, channels: int) -> list[nn.Module]:
     return [nn.BatchNorm2d(channels)] if kind == "batch" else []
 
 
+def _upsampling_conv(kind: str, c_in: int, c_out: int, bias: bool) -> list[nn.Module]:
+    """A layer that doubles the side: ``transposed`` (pix2pix: 4x4, stride 2, so output pixels of the two
+    parities sum different kernel taps, the source of a period-2 checkerboard) or ``resize`` (nearest 2x,
+    then a 3x3 conv: every output pixel sees the same taps; Odena, Dumoulin and Olah 2016)."""
+    if kind == "transposed":
+        return [nn.ConvTranspose2d(c_in, c_out, kernel_size=4, stride=2, padding=1, bias=bias)]
+    return [nn.Upsample(scale_factor=2, mode="nearest"), nn.Conv2d(c_in, c_out, kernel_size=3, padding=1, bias=bias)]
+
+
 class UnetGenerator(nn.Module):
     """pix2pix U-Net: down i and up i are joined by a skip (paper: layer i <-> layer N - i).
 
     Down layer i (i = 0..N-1): [LeakyReLU 0.2], 4x4 stride-2 conv, [BatchNorm] -- no activation before
-    the first, no norm after the first and the innermost. Up layer i (i = N-1..0): ReLU, 4x4 stride-2
-    transposed conv, then BatchNorm (all but the outermost), Dropout (the first ``n_dropout`` after the
-    innermost) or tanh (outermost). Convs followed by BatchNorm carry no bias (as pix2pix; this is what
-    makes the parameter count match).
+    the first, no norm after the first and the innermost. Up layer i (i = N-1..0): ReLU, a 2x up-sampling
+    convolution (``cfg.upsample``: pix2pix's 4x4 stride-2 transposed conv, or a nearest-neighbour 2x
+    resize followed by a 3x3 conv), then BatchNorm (all but the outermost), Dropout (the first
+    ``n_dropout`` after the innermost) or tanh (outermost). Convs followed by BatchNorm carry no bias (as
+    pix2pix; this is what makes the parameter count match).
     """
 
     def __init__(self, cfg: NetworkConfig) -> None:
@@ -58,9 +69,9 @@ class UnetGenerator(nn.Module):
         for i in range(n):
             c_in = w[i] if i == n - 1 else 2 * w[i]
             if i == 0:
-                layers = [nn.ReLU(), nn.ConvTranspose2d(c_in, cfg.out_channels, kernel_size=4, stride=2, padding=1), nn.Tanh()]
+                layers = [nn.ReLU(), *_upsampling_conv(cfg.upsample, c_in, cfg.out_channels, bias=True), nn.Tanh()]
             else:
-                layers = [nn.ReLU(), nn.ConvTranspose2d(c_in, w[i - 1], kernel_size=4, stride=2, padding=1, bias=bias)]
+                layers = [nn.ReLU(), *_upsampling_conv(cfg.upsample, c_in, w[i - 1], bias=bias)]
                 layers += _norm(cfg.norm, w[i - 1])
                 if cfg.dropout > 0 and n - 1 - cfg.n_dropout <= i < n - 1:
                     layers.append(nn.Dropout(cfg.dropout))
@@ -117,6 +128,7 @@ class PatchCritic(nn.Module):
 
     def __init__(self, cfg: NetworkConfig) -> None:
         super().__init__()
+        self.conditional = cfg.in_channels > 0
         w = _widths(cfg.width, cfg.n_down + 1)
         bias = cfg.norm == "none"
         layers: list[nn.Module] = [nn.Conv2d(cfg.in_channels + cfg.out_channels, w[0], 4, stride=2, padding=1), nn.LeakyReLU(0.2)]
@@ -127,8 +139,9 @@ class PatchCritic(nn.Module):
         self.model = nn.Sequential(*layers)
 
     def forward(self, cond: torch.Tensor, image: torch.Tensor) -> torch.Tensor:
-        """Patch scores (Bx1xH'xW') of ``image`` given the generator input ``cond``."""
-        return self.model(torch.cat([cond, image], dim=1))
+        """Patch scores (Bx1xH'xW') of ``image`` given the generator input ``cond`` (which an
+        unconditional critic, ``in_channels`` 0, ignores)."""
+        return self.model(torch.cat([cond, image], dim=1) if self.conditional else image)
 
 
 def init_weights(net: nn.Module, gain: float = 0.02) -> nn.Module:

@@ -9,7 +9,7 @@ from typing import Annotated, Literal
 import typer
 
 from gicore.cli import UserError, entry_point, require_positive
-from gigan_local.config import BUDGET_FIELDS, MODELS, TrainConfig, read_run_config
+from gigan_local.config import BUDGET_FIELDS, MODELS, UPSAMPLINGS, TrainConfig, read_run_config
 
 app = typer.Typer(add_completion=False, help="Train GIGAN, Deep Shading or Deep Illumination on gicore dataset folders.")
 
@@ -32,6 +32,14 @@ def train_command(
     ngf: Annotated[int | None, typer.Option(min=1, help="Generator width (default: 64).")] = None,
     ndf: Annotated[int | None, typer.Option(min=1, help="Critic width (default: same as --ngf).")] = None,
     n_down: Annotated[int | None, typer.Option(min=1, help="Generator down-samplings (default: from the training size).")] = None,
+    upsample: Annotated[
+        Literal[UPSAMPLINGS] | None,  # type: ignore[valid-type]
+        typer.Option(help="U-Net up-sampling: transposed conv (pix2pix, the paper) or nearest resize + 3x3 conv (default: transposed)."),
+    ] = None,
+    critic_condition: Annotated[
+        bool | None,
+        typer.Option("--critic-condition/--no-critic-condition", help="Give the critic the generator input beside the image (default: on)."),
+    ] = None,
     crop: Annotated[int | None, typer.Option(min=1, help="Train on random crops of this size (validation uses whole frames).")] = None,
     batch_size: Annotated[int | None, typer.Option(min=1, help="Batch size (default: 8).")] = None,
     lr: Annotated[float | None, typer.Option(help="Adam learning rate, > 0 (default: 2e-4).")] = None,
@@ -70,6 +78,8 @@ def train_command(
         "ngf": ngf,
         "ndf": ndf,
         "n_down": n_down,
+        "upsample": upsample,
+        "critic_condition": critic_condition,
         "crop": crop,
         "batch_size": batch_size,
         "lr": lr,

@@ -210,3 +210,22 @@ def test_the_shipped_model_card_matches_its_files() -> None:
     assert set(listed) == {p.name for p in folder.glob("*.onnx")}
     for name, mib in listed.items():
         assert f"{(folder / name).stat().st_size / 2**20:.2f}" == mib, name
+
+
+def test_the_diagnosis_variant_trains_exports_and_runs_like_torch(tmp_path):
+    """Resize up-sampling (nearest 2x + 3x3 conv, an ONNX Resize) and an unconditional critic: the run
+    trains, its config records both, and the exported model computes what torch does."""
+    dataset = make_dataset(tmp_path / "ds")
+    run = tmp_path / "run"
+    train(tiny_config(dataset, max_steps=2, upsample="resize", critic_condition=False), run, progress=False)
+    config = json.loads((run / "config.json").read_text())
+    assert config["networks"]["G"]["upsample"] == "resize" and config["networks"]["D"]["in_channels"] == 0
+    result = CliRunner().invoke(app, [str(run), "--out", str(tmp_path / "onnx"), "--no-fp16"])
+    assert result.exit_code == 0, result.output
+    generator, _ = load_generator(run)
+    x = np.random.default_rng(4).uniform(-1, 1, (1, 10, 32, 32)).astype(np.float32)
+    with torch.no_grad():
+        ref = generator(torch.from_numpy(x)).numpy()
+    session = ort.InferenceSession(str(tmp_path / "onnx" / "model_fp32.onnx"), providers=["CPUExecutionProvider"])
+    assert any(n.op_type == "Resize" for n in onnx.load(str(tmp_path / "onnx" / "model_fp32.onnx")).graph.node)
+    assert np.abs(session.run(None, {"input": x})[0] - ref).max() < 1e-4
