@@ -13,10 +13,11 @@ What is timed, per local frame, after a warm-up, ``repeats`` times each, alterna
 - ``pixel-level``: reprojection of the GI map's point cloud, z-buffered splat and push-pull hole
   filling (:mod:`baseline_cloudbaking.warp`).
 
-Not in those times: the local render pass that both read their target geometry from (``raster``: uv +
-position for structure-aware, the surface mask for pixel-level; a WebGL client gets it from its DI
-draw) and the once-per-GI-map work (``bind``: structure-aware's texture and per-vertex coordinates,
-pixel-level's unprojection into a point cloud); both are reported on their own.
+Not in those times, and reported on their own: the local raster pass (``raster_time``, the uv + position
+pass that structure-aware needs, so its system is ``structure-aware``; pixel-level reads only the
+surface mask from it; ``bench latency`` times each client's own pass, uv + position in GIGAN's frame
+and a mask pass in cloud baking's) and the once-per-GI-map work (``bind``: structure-aware's texture and per-vertex
+coordinates, pixel-level's unprojection into a point cloud).
 CPU % is process CPU time over wall time of each method's timed calls (``time.process_time``, all
 threads; 100 % = one core),
 peak memory the largest numpy allocation total during one call (``tracemalloc``). Also measured: how far
@@ -209,7 +210,7 @@ def measure(cfg: WarpBenchConfig, res: Results) -> None:
             res.add(system=system, scene=name, metric="valid_fraction", value=float(np.mean(quality[f"{m}/valid"])), unit="1", stat="mean", **cfg_row)
         res.add_timing(system="structure-aware", scene=name, metric="bind_time", samples_s=samples["bind/structure"], vertices=n_vertices, **cfg_row)
         res.add_timing(system="pixel-level", scene=name, metric="bind_time", samples_s=samples["bind/pixel"], **cfg_row)
-        res.add_timing(system="shared", scene=name, metric="raster_time", samples_s=samples["raster"], **cfg_row)
+        res.add_timing(system="structure-aware", scene=name, metric="raster_time", samples_s=samples["raster"], **cfg_row)
         ratio = np.median(samples["pixel"]) / np.median(samples["structure"])
         res.add(system="pixel/structure", scene=name, metric="time_ratio", value=float(ratio), unit="x", stat="median", **cfg_row)
         res.add(
