@@ -166,7 +166,7 @@ def _threads(plan: dict[str, Any], role: str) -> int:
 
 
 @contextmanager
-def _server(plan: dict[str, Any], store: Path, scenes_dir: Path | None) -> Iterator[str]:
+def pinned_server(plan: dict[str, Any], store: Path, scenes_dir: Path | None) -> Iterator[str]:
     """A pinned ``cloudbaking-server`` on an ephemeral port; yields its base URL."""
     from network_sim.process import Running
 
@@ -248,7 +248,7 @@ def measure(cfg: LatencyConfig, res: Results) -> None:
     cloud_argv = [str(BIN / "cloudbaking-client"), *path_args, "--codec", cfg.codec, "--read-timeout", str(cfg.read_timeout_s),
                   "--deadline", str(2 * cfg.read_timeout_s)]  # fmt: skip
     shutil.rmtree(work / "store_prebaked", ignore_errors=True)  # every run prebakes its own store
-    with _server(plan, work / "store_prebaked", scenes_dir) as warm:
+    with pinned_server(plan, work / "store_prebaked", scenes_dir) as warm:
         t0 = time.perf_counter()
         first = _fill_store(warm, cfg, scene, res.seed, off_path=False)
         res.add(system=CLOUD, scene=spec.name, metric="prebake_maps", value=first["misses"], unit="count", store="prebaked", **common)
@@ -260,7 +260,7 @@ def measure(cfg: LatencyConfig, res: Results) -> None:
                 runs[CLOUD, profile, "prebaked"] = _client(plan, [*cloud_argv, "--server", url], work / f"cloud_{profile}_prebaked", per_run)
             store = work / f"store_cold_{profile}"
             shutil.rmtree(store, ignore_errors=True)
-            with _server(plan, store, scenes_dir) as cold:
+            with pinned_server(plan, store, scenes_dir) as cold:
                 _fill_store(cold, cfg, scene, res.seed, off_path=True)  # compiles the scene and every pass, off the path
                 with _proxy(plan, profile, cold, res.seed) as url:
                     runs[CLOUD, profile, "cold"] = _client(plan, [*cloud_argv, "--server", url], work / f"cloud_{profile}_cold", per_run)

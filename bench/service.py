@@ -43,7 +43,7 @@ import numpy as np
 
 from baseline_cloudbaking.codecs import CODEC_NAMES
 from baseline_cloudbaking.protocol import unpack
-from bench.latency import _server, pinning
+from bench.latency import pinned_server, pinning
 from bench.runner import Bench
 from gicore.results import Results, read_rows
 
@@ -216,7 +216,7 @@ def measure(cfg: ServiceConfig, res: Results) -> None:
     res.out.mkdir(parents=True, exist_ok=True)
     work = Path(tempfile.mkdtemp(prefix="service_store_", dir=res.out))
     try:
-        with _server(plan, work / "store", scenes_dir) as url, client_cores(plan), _client(url, cfg) as client:
+        with pinned_server(plan, work / "store", scenes_dir) as url, client_cores(plan), _client(url, cfg) as client:
             misses: list[tuple[float, dict[str, float]]] = []
             for body in bodies:
                 seconds, header = timed_post(client, body)
