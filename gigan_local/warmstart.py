@@ -77,8 +77,8 @@ def load_into(generator: Any, path: Path, network: NetworkConfig, spec: InputSpe
     """Load the exported generator at ``path`` into the torch ``generator`` (a U-Net of ``network``).
 
     Every parameter and buffer but :data:`NOT_EXPORTED` must be in the file with its shape, except for
-    a down layer whose convolution the exporter folded together with its batch norm (torch.onnx does
-    that in eval mode): its folded weight W' and bias b' are loaded as the convolution's weight and a
+    a layer (a down layer or a resize up layer) whose convolution the exporter folded together with its
+    batch norm (torch.onnx does that in eval mode): its folded weight W' and bias b' are loaded as the convolution's weight and a
     batch norm that adds b' -- running mean m and variance v, scale sqrt(v + eps), shift b' + m, exact in
     eval mode for any m, v. ``calibration`` (an input batch, N x C x H x W) sets m and v to the batch
     statistics of W' x, so that training-mode batch norm starts out computing what the model computed.
@@ -88,16 +88,16 @@ def load_into(generator: Any, path: Path, network: NetworkConfig, spec: InputSpe
 
     weights, convs = generator_weights(path, network, spec)
     state = generator.state_dict()
-    downs = list(getattr(generator, "downs", []))
+    layers = _conv_layers(generator)
     folded: list[tuple[torch.nn.Conv2d, torch.nn.BatchNorm2d, np.ndarray]] = []
     for k, (w_name, b_name) in enumerate(convs):
-        if w_name in state or k >= len(downs):
+        if w_name in state or k >= len(layers):
             continue
-        modules = list(downs[k])
+        prefix, layer = layers[k]
+        modules = list(layer)
         j = next((i for i, m in enumerate(modules) if isinstance(m, torch.nn.Conv2d)), None)
         if j is None or j + 1 >= len(modules) or not isinstance(modules[j + 1], torch.nn.BatchNorm2d) or not b_name:
             continue
-        prefix = f"downs.{k}"
         weights[f"{prefix}.{j}.weight"] = weights.pop(w_name)
         b = weights.pop(b_name)
         bn = modules[j + 1]
@@ -120,6 +120,17 @@ def load_into(generator: Any, path: Path, network: NetworkConfig, spec: InputSpe
     if folded and calibration is not None:
         _calibrate(generator, folded, calibration)
     return len(folded)
+
+
+def _conv_layers(generator: Any) -> list[tuple[str, Any]]:
+    """The U-Net's layers that hold a ``Conv2d``, as (state-dict prefix, layer), in the order the forward
+    pass runs them, which is the order of the exported graph's ``Conv`` nodes: the down layers, then the
+    up layers from the innermost out (only resize up layers: a transposed conv is a ``ConvTranspose``)."""
+    import torch
+
+    downs = [(f"downs.{i}", m) for i, m in enumerate(getattr(generator, "downs", []))]
+    ups = [(f"ups.{i}", m) for i, m in reversed(list(enumerate(getattr(generator, "ups", []))))]
+    return [(name, m) for name, m in downs + ups if any(isinstance(x, torch.nn.Conv2d) for x in m)]
 
 
 def _calibrate(generator: Any, folded: list, inputs: Any) -> None:

@@ -17,11 +17,14 @@ from typer.testing import CliRunner
 
 from gicore.cli import UserError
 from gicore.dataset import load_frame
+from gigan_local.config import NetworkConfig
 from gigan_local.export import export_onnx, load_generator
 from gigan_local.export_cli import app
 from gigan_local.inference import GIModel
-from gigan_local.preprocess import frame_to_input, output_to_radiance
+from gigan_local.networks import define_G
+from gigan_local.preprocess import InputSpec, frame_to_input, output_to_radiance
 from gigan_local.train import train
+from gigan_local.warmstart import load_into
 from tests.test_gigan_training import make_dataset, one_thread, tiny_config  # noqa: F401  (autouse fixture)
 
 
@@ -214,7 +217,9 @@ def test_the_shipped_model_card_matches_its_files() -> None:
 
 def test_the_diagnosis_variant_trains_exports_and_runs_like_torch(tmp_path):
     """Resize up-sampling (nearest 2x + 3x3 conv, an ONNX Resize) and an unconditional critic: the run
-    trains, its config records both, and the exported model computes what torch does."""
+    trains, its config records both, the exported model computes what torch does, and a warm start
+    (`--init-generator`) reads it back, restoring the batch norms the exporter folded into the down and
+    the resize up convolutions."""
     dataset = make_dataset(tmp_path / "ds")
     run = tmp_path / "run"
     train(tiny_config(dataset, max_steps=2, upsample="resize", critic_condition=False), run, progress=False)
@@ -229,3 +234,10 @@ def test_the_diagnosis_variant_trains_exports_and_runs_like_torch(tmp_path):
     session = ort.InferenceSession(str(tmp_path / "onnx" / "model_fp32.onnx"), providers=["CPUExecutionProvider"])
     assert any(n.op_type == "Resize" for n in onnx.load(str(tmp_path / "onnx" / "model_fp32.onnx")).graph.node)
     assert np.abs(session.run(None, {"input": x})[0] - ref).max() < 1e-4
+    doc = json.loads((tmp_path / "onnx" / "model.json").read_text())
+    net, spec = NetworkConfig.from_dict(doc["network"]), InputSpec.from_dict(doc["input"])
+    warm = define_G(net)
+    # folded: downs 1 .. n-2 and every up layer but the outermost (which has no batch norm)
+    assert load_into(warm, tmp_path / "onnx" / "model_fp32.onnx", net, spec, None) == 2 * net.n_down - 3
+    with torch.no_grad():
+        assert np.abs(warm.eval()(torch.from_numpy(x)).numpy() - ref).max() < 1e-4

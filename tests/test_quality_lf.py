@@ -69,10 +69,13 @@ def test_quality_rows_carry_the_low_frequency_error(scored: tuple[Path, Path]) -
     assert lf["di_only"]["value"] == pytest.approx(expected, abs=1e-9)
     assert expected == pytest.approx(OFFSET, abs=2e-3)
     assert lf["copy"]["value"] == pytest.approx(expected, abs=1e-4)  # the pass-through returns the DI
-    # Every metric the table had before is still there, beside the new one, for both systems.
+    # Every metric the table had before is still there, beside the new ones, for both systems.
     assert {(r["system"], r["metric"]) for r in rows if r["stat"] == "mean"} == {
-        (s, m) for s in ("di_only", "copy") for m in ("rmse", "ssim", "psnr", "lf_error")
+        (s, m) for s in ("di_only", "copy") for m in ("rmse", "ssim", "psnr", "lf_error", "checker_error", "shadow_tint")
     }
+    # A uniform offset is neither a checkerboard nor (grey) a tint.
+    for metric in ("checker_error", "shadow_tint"):
+        assert all(abs(r["value"]) < 1e-3 for r in rows if r["metric"] == metric)
     assert {"quality.png", "quality_pareto.png", "quality_grid.png"} <= {p.name for p in out.iterdir()}
 
 

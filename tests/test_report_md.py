@@ -91,7 +91,7 @@ def test_every_block_has_its_numbers_and_the_command_that_made_them(generated) -
     assert "| GI map | 20 | cloud_baking | 0.002831 | 4.55 | codec × quality × profile × cache:" in pareto
     assert "| frame | 90 | gigan | 0.1181 | 75.2 |" in pareto and "| ablation |" not in pareto and "#### Best configuration per time budget" in pareto
     # Table 3, Fig. 6, Fig. 7, Fig. 9
-    assert "| gigan | lung_plane | 0.04092 | 0.9532 | 28.99 | — | 67.54 | model=gigan, ngf=16," in blocks["GI-map quality, Fig. 6"]
+    assert "| gigan | lung_plane | 0.04092 | 0.9532 | 28.99 | — | — | — | 67.54 | model=gigan, ngf=16," in blocks["GI-map quality, Fig. 6"]
     assert "| 10 | 57.9 | 71.2 | 90.8 | 0.907 | 0.866 | 0.926 |" in blocks["Inference frequency, Table 3"]
     assert "| lung_plane | structure-aware | 1.07 (2.36) | 37 | 0.896 |" in text and "| lung_plane | 0.78× | 2.01× |" in text
     assert "| lung_plane | 60° | 0.960 | 0.935 (87%) | 0.899 (87%) | 0.427 |" in text and "| lung_plane | 120° | 0.992 | 0.844 (99%) |" in text
