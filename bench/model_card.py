@@ -26,6 +26,9 @@ from gicore.cli import UserError
 from gicore.metrics import LF_SIGMA
 from gicore.results import Results, read_rows
 
+#: How the card names each U-Net up-sampling (``NetworkConfig.upsample``; exports older than it are transposed).
+UPSAMPLING_WORDS = {"transposed": "4x4 stride-2 transposed-conv up-sampling", "resize": "nearest 2x resize + 3x3 conv up-sampling"}
+
 
 @dataclass(frozen=True)
 class ModelCardConfig:
@@ -139,7 +142,8 @@ def write_model_card(run_dir: Path, export_dir: Path, quality_csv: Path, system:
     lines = [
         f"# Model card: {export_dir.name}",
         "",
-        f"Generator `{model_doc['model']}` (U-Net, ngf {model_doc['ngf']}, {model_doc['n_down']} down-samplings), "
+        f"Generator `{model_doc['model']}` (U-Net, ngf {model_doc['ngf']}, {model_doc['n_down']} down-samplings, "
+        f"{UPSAMPLING_WORDS[model_doc.get('network', {}).get('upsample', 'transposed')]}), "
         f"inputs {model_doc['input']['buffers']} ({model_doc['in_channels']} channels) at {model_doc['resolution']}², "
         "output: the path-traced GI image, tone-mapped to [-1, 1] (`gicore.tonemap`). "
         f"One model for the {len(train['datasets'])} scene(s) of its training data.",
