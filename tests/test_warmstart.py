@@ -30,7 +30,9 @@ def _shipped() -> tuple[NetworkConfig, InputSpec]:
 def _loaded(name: str, calibration: torch.Tensor | None = None) -> torch.nn.Module:
     net, spec = _shipped()
     generator = define_G(net)
-    assert load_into(generator, SHIPPED / name, net, spec, calibration) == 5  # downs 1-5: conv and batch norm folded on export
+    # conv and batch norm folded on export: downs 1 .. n-2, and with resize up-sampling every up layer but the outermost
+    folded = (net.n_down - 2) + (net.n_down - 1 if net.upsample == "resize" else 0)
+    assert load_into(generator, SHIPPED / name, net, spec, calibration) == folded
     return generator.eval()
 
 
@@ -111,14 +113,31 @@ def test_gigan_train_fine_tunes_the_exported_model(tmp_path: Path) -> None:
 
     data = make_dataset(tmp_path / "ds", res=128, n_train=2, n_val=1)
     out = tmp_path / "run"
-    args = [str(data), "--out", str(out), "--ngf", "16", "--n-down", "7", "--crop", "128", "--batch-size", "2", "--no-progress"]
+    net = _shipped()[0]
+    args = [
+        str(data),
+        "--out",
+        str(out),
+        "--ngf",
+        "16",
+        "--n-down",
+        "7",
+        "--upsample",
+        net.upsample,
+        "--crop",
+        "128",
+        "--batch-size",
+        "2",
+        "--no-progress",
+    ]
     res = CliRunner().invoke(app, [*args, "--init-generator", str(SHIPPED / "model_fp16.onnx"), "--max-steps", "0"])
     assert res.exit_code == 0, res.output
     config = json.loads((out / "config.json").read_text())["train"]
     assert config["init_generator"] == str(SHIPPED / "model_fp16.onnx") and config["depth_scale"] == _shipped()[1].depth_scale
     g = load_checkpoint(out / CHECKPOINT)["model"]["nets"]["G"]
     expected = _loaded("model_fp16.onnx").state_dict()
-    assert torch.equal(g["ups.0.1.bias"], expected["ups.0.1.bias"]) and torch.equal(g["downs.0.0.weight"], expected["downs.0.0.weight"])
-    narrower = [str(data), "--out", str(tmp_path / "r2"), "--ngf", "8", "--n-down", "7", "--crop", "128", "--no-progress"]
+    outer_bias = next(k for k in expected if k.startswith("ups.0.") and k.endswith(".bias"))  # the outermost up conv's
+    assert torch.equal(g[outer_bias], expected[outer_bias]) and torch.equal(g["downs.0.0.weight"], expected["downs.0.0.weight"])
+    narrower = [str(data), "--out", str(tmp_path / "r2"), "--ngf", "8", "--n-down", "7", "--upsample", net.upsample, "--crop", "128", "--no-progress"]
     res = CliRunner().invoke(app, [*narrower, "--init-generator", str(SHIPPED / "model_fp16.onnx"), "--max-steps", "0"])
     assert isinstance(res.exception, UserError) and "different generator" in str(res.exception) and "width" in str(res.exception)
