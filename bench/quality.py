@@ -1,14 +1,14 @@
 """`bench quality` (paper Fig. 6): GI-map quality of GIGAN, Deep Shading, Deep Illumination and DI alone.
 
 Every model is an exported ONNX generator (``gigan-export``) run by onnxruntime exactly as the client
-runs it, on the held-out validation frames of each scene's dataset. Metrics (RMSE/SSIM/PSNR, SPEC §3,
-and the low-frequency error ``lf_error``, :func:`gicore.metrics.lf_error`, which sees the brightness
-blotches SSIM barely moves under, and the checkerboard error ``checker_error``,
-:func:`gicore.metrics.checker_error`, the error's part that repeats on a 4x4 pixel tile; and the signed red tint where only indirect light
-arrives, ``shadow_tint``, :func:`gicore.metrics.shadow_tint`) compare tone-mapped predictions with tone-mapped path-traced GT;
-"di_only" scores the DI input itself (what a client without GI shows). Inference time is the median of
-repeated ``predict`` calls after warm-up, so each model is also a point of error against run time (width
-and precision knobs).
+runs it, on the held-out validation frames of each scene's dataset. Metrics compare tone-mapped
+predictions with tone-mapped path-traced GT: RMSE/SSIM/PSNR (SPEC §3); the low-frequency error
+``lf_error`` (:func:`gicore.metrics.lf_error`), which sees the brightness blotches SSIM barely moves
+under; the checkerboard error ``checker_error`` (:func:`gicore.metrics.checker_error`), the part of the
+error that repeats on a 4x4 pixel tile; and ``shadow_tint`` (:func:`gicore.metrics.shadow_tint`), the
+signed red tint where only indirect light arrives. "di_only" scores the DI input itself (what a
+client without GI shows). Inference time is the median of repeated ``predict`` calls after warm-up, so
+each model is also a point of error against run time (width and precision knobs).
 
 The image grid (``quality_grid.png``) shows, per frame, the inputs, each model's map and the GT, and under
 DI and under each model two error maps (:func:`grid_rows`): the per-channel |tone-mapped prediction − GT|

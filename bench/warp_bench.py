@@ -13,11 +13,11 @@ What is timed, per local frame, after a warm-up, ``repeats`` times each, alterna
 - ``pixel-level``: reprojection of the GI map's point cloud, z-buffered splat and push-pull hole
   filling (:mod:`baseline_cloudbaking.warp`).
 
-Not in those times, and reported on their own: the local raster pass (``raster_time``, the uv + position
-pass that structure-aware needs, so its system is ``structure-aware``; pixel-level reads only the
-surface mask from it; ``bench latency`` times each client's own pass, uv + position in GIGAN's frame
-and a mask pass in cloud baking's) and the once-per-GI-map work (``bind``: structure-aware's texture and per-vertex
-coordinates, pixel-level's unprojection into a point cloud).
+Not in those times, and reported on their own: the local raster pass (``raster_time``, the uv +
+position pass that structure-aware needs, so its system is ``structure-aware``; pixel-level reads only
+the surface mask from it; ``bench latency`` times each client's own pass, uv + position in GIGAN's
+frame and a mask pass in cloud baking's) and the once-per-GI-map work (``bind``: structure-aware's
+texture and per-vertex coordinates, pixel-level's unprojection into a point cloud).
 CPU % is process CPU time over wall time of each method's timed calls (``time.process_time``, all
 threads; 100 % = one core),
 peak memory the largest numpy allocation total during one call (``tracemalloc``). Also measured: how far
