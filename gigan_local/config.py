@@ -23,8 +23,10 @@ from gigan_local.preprocess import InputSpec
 #: A run folder's config file: the TrainConfig and every NetworkConfig (see :func:`write_run_config`).
 CONFIG = "config.json"
 MODELS = ("gigan", "deep_shading", "deep_illumination")
-#: Fields that only bound how long a run goes on; ``--resume`` may change them, nothing else.
-BUDGET_FIELDS = ("epochs", "max_steps", "max_minutes", "max_val_frames", "checkpoint_every")
+#: Fields that only bound how long and where one invocation runs; ``--resume`` may change them, nothing else.
+BUDGET_FIELDS = ("epochs", "max_steps", "max_minutes", "max_val_frames", "checkpoint_every", "device")
+#: Where training runs: the CPU (everything here is built and tested for it) or a CUDA GPU.
+DEVICES = ("cpu", "cuda")
 
 
 GENERATORS = ("unet", "deep_shading")
@@ -162,6 +164,10 @@ class TrainConfig:
     max_val_frames: int | None = None
     #: Also checkpoint every this many steps (0: only at epoch ends and at the stop).
     checkpoint_every: int = 500
+    #: Where this invocation trains (``cpu`` or ``cuda``); validation scores and checkpoints are the same
+    #: either way (weights load on the CPU). A CUDA run is not bit-reproducible: cuDNN picks kernels
+    #: and the gradient penalty's interpolation draws from the GPU's generator, which checkpoints do not keep.
+    device: str = "cpu"
     #: A loss whose magnitude exceeds this counts as divergence and stops training.
     max_abs_loss: float = 1e4
     #: Name of the run in metrics.csv; empty: the output folder's name.
@@ -181,6 +187,8 @@ class TrainConfig:
             raise ValueError(f"upsample must be one of {list(UPSAMPLINGS)}, got {self.upsample!r}")
         if self.model == "deep_shading" and self.upsample != "transposed":
             raise ValueError("upsample applies to the unet generators; deep_shading always up-samples bilinearly")
+        if self.device not in DEVICES:
+            raise ValueError(f"device must be one of {list(DEVICES)}, got {self.device!r}")
         if self.critic_warmup < 0:
             raise ValueError(f"critic_warmup must be >= 0, got {self.critic_warmup}")
         if self.max_steps is not None and self.max_steps < 0:

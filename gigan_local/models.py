@@ -48,6 +48,11 @@ class BaseModel:
     def generator(self) -> nn.Module:
         return self.nets["G"]
 
+    def to(self, device: str) -> None:
+        """Move the networks to ``device``; the optimizers keep them (the parameters move in place)."""
+        for net in self.nets.values():
+            net.to(device)
+
     def train(self) -> None:
         for net in self.nets.values():
             net.train()

@@ -137,7 +137,8 @@ def validate(generator: torch.nn.Module, dataset: FrameDataset, max_frames: int 
     totals: dict[str, float] = {}
     for i in indices:
         x, y = dataset[int(i)]
-        pred = generator(x[None])[0].numpy()
+        device = next(generator.parameters()).device
+        pred = generator(x[None].to(device))[0].cpu().numpy()
         for k, v in all_metrics(output_to_display(pred), output_to_display(y.numpy())).items():
             totals[k] = totals.get(k, 0.0) + v
     generator.train(was_training)
@@ -163,6 +164,15 @@ def _keep_rows(path: Path, n: int) -> None:
     lines = path.read_text().splitlines(keepends=True)
     if len(lines) > n + 1:
         atomic_write_bytes(path, "".join(lines[: n + 1]).encode())
+
+
+def _device(name: str) -> torch.device:
+    """The torch device of ``--device``; CUDA only where torch sees a GPU."""
+    if name == "cuda":
+        if not torch.cuda.is_available():
+            raise UserError(f"--device cuda: torch {torch.__version__} sees no CUDA GPU on this machine", "train with --device cpu (the default)")
+        torch.backends.cudnn.benchmark = True  # fixed input sizes: let cuDNN pick its fastest kernels once
+    return torch.device(name)
 
 
 def _check_divergence(step: int, losses: dict[str, float], model: BaseModel, cfg: TrainConfig, last_ckpt: str) -> None:
@@ -214,8 +224,14 @@ def _train(cfg: TrainConfig, out_dir: Path, resume: bool, progress: bool, cache_
     spec = cfg.input_spec()
     train_set = FrameDataset(roots, "train", spec, crop=cfg.crop, seed=cfg.seed, cache=cache_frames)
     val_set = FrameDataset(roots, "val", spec, cache=cache_frames)
+    device = _device(cfg.device)
     model = create_model(cfg)
     state = RunState(metrics_rows=0)
+    if not resume and cfg.init_generator is not None:
+        # batch-norm statistics of the folded layers from a few training samples (see load_into)
+        calibration = torch.stack([train_set[i][0] for i in range(min(len(train_set), 2 * cfg.batch_size))])
+        load_into(model.generator, Path(cfg.init_generator), model.net_configs["G"], spec, calibration)
+    model.to(device)  # before the optimizer states load, so that they land beside their parameters
     if resume:
         model.load_state_dict(ckpt["model"])
         state = RunState(**ckpt["state"])
@@ -224,10 +240,6 @@ def _train(cfg: TrainConfig, out_dir: Path, resume: bool, progress: bool, cache_
             _keep_rows(metrics_path, state.metrics_rows)
     else:  # no checkpoint: rows of a run interrupted before its first one count for nothing
         metrics_path.unlink(missing_ok=True)
-        if cfg.init_generator is not None:
-            # batch-norm statistics of the folded layers from a few training samples (see load_into)
-            calibration = torch.stack([train_set[i][0] for i in range(min(len(train_set), 2 * cfg.batch_size))])
-            load_into(model.generator, Path(cfg.init_generator), model.net_configs["G"], spec, calibration)
     write_run_config(out_dir, cfg, model.net_configs)  # on resume: records this invocation's budget
 
     def row(split: str, metric: str, value: float, unit: str) -> dict[str, Any]:
@@ -299,7 +311,7 @@ def _train(cfg: TrainConfig, out_dir: Path, resume: bool, progress: bool, cache_
                 t = time.monotonic()
                 idx = order[state.batch * cfg.batch_size : (state.batch + 1) * cfg.batch_size]
                 xs, ys = zip(*(train_set[int(i)] for i in idx))
-                losses = model.optimize((torch.stack(xs), torch.stack(ys)))
+                losses = model.optimize((torch.stack(xs).to(device), torch.stack(ys).to(device)))
                 state.step += 1
                 state.batch += 1
                 _check_divergence(state.step, losses, model, cfg, last_ckpt)

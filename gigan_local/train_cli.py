@@ -9,7 +9,7 @@ from typing import Annotated, Literal
 import typer
 
 from gicore.cli import UserError, entry_point, require_positive
-from gigan_local.config import BUDGET_FIELDS, MODELS, UPSAMPLINGS, TrainConfig, read_run_config
+from gigan_local.config import BUDGET_FIELDS, DEVICES, MODELS, UPSAMPLINGS, TrainConfig, read_run_config
 
 app = typer.Typer(add_completion=False, help="Train GIGAN, Deep Shading or Deep Illumination on gicore dataset folders.")
 
@@ -51,6 +51,10 @@ def train_command(
     max_minutes: Annotated[float | None, typer.Option(help="Stop (validated and checkpointed) within this many minutes of wall time, > 0.")] = None,
     max_val_frames: Annotated[int | None, typer.Option(min=1, help="Validate on at most this many frames.")] = None,
     checkpoint_every: Annotated[int | None, typer.Option(min=0, help="Also checkpoint every N steps (0: epoch ends only) (default: 500).")] = None,
+    device: Annotated[
+        Literal[DEVICES] | None,  # type: ignore[valid-type]
+        typer.Option(help="Train on the CPU or a CUDA GPU (default: cpu); checkpoints load on either."),
+    ] = None,
     run_id: Annotated[str | None, typer.Option(help="Run name in metrics.csv (default: the --out folder name).")] = None,
     init_generator: Annotated[
         Path | None, typer.Option(help="Fine-tune this exported model (gigan-export's ONNX, model.json beside it) instead of random weights.")
@@ -59,8 +63,8 @@ def train_command(
     cache_frames: Annotated[bool, typer.Option(help="Keep encoded frames in memory (~3.4 MB per 256² frame); faster, same results.")] = True,
 ) -> None:
     """Train a model. With --resume, options left out keep the saved values, except the budget options
-    (--epochs, --max-steps, --max-minutes, --max-val-frames, --checkpoint-every), which bound this
-    invocation and take their defaults when left out."""
+    (--epochs, --max-steps, --max-minutes, --max-val-frames, --checkpoint-every, --device), which bound
+    this invocation and take their defaults when left out."""
     for name, value in (("--lr", lr), ("--max-minutes", max_minutes)):
         if value is not None:
             require_positive(name, value)
@@ -70,6 +74,7 @@ def train_command(
         "max_minutes": max_minutes,
         "max_val_frames": max_val_frames,
         "checkpoint_every": checkpoint_every,
+        "device": device,
     }
     settings = {
         "datasets": [str(d) for d in datasets] if datasets else None,
