@@ -27,6 +27,8 @@ from gicore.metrics import LF_SIGMA
 from gicore.results import Results, read_rows
 
 #: How the card names each U-Net up-sampling (``NetworkConfig.upsample``; exports older than it are transposed).
+#: Where the logged step times were measured, by the run's last ``--device``.
+STEP_WHERE = {"cpu": "on this machine's CPU", "cuda": "on the CUDA GPU it trained on (not this machine)"}
 UPSAMPLING_WORDS = {"transposed": "4x4 stride-2 transposed-conv up-sampling", "resize": "nearest 2x resize + 3x3 conv up-sampling"}
 
 
@@ -163,9 +165,9 @@ def write_model_card(run_dir: Path, export_dir: Path, quality_csv: Path, system:
         + (f"random {train['crop']}² crops" if train["crop"] else "whole frames")
         + f", seed {train['seed']}. "
         f"Stopped at optimizer step {last_step} (epoch {max(int(r['epoch']) for r in metrics)}); "
-        f"median step time {sorted(step_s)[len(step_s) // 2]:.2f} s on this machine's CPU, {compute_min:.3g} min of steps in all "
+        f"median step time {sorted(step_s)[len(step_s) // 2]:.3g} s {STEP_WHERE[train.get('device', 'cpu')]}, {compute_min:.3g} min of steps in all "
         "(validation and checkpoints not counted; logged per epoch in metrics.csv). "
-        f"Validation at the last step (first {train['max_val_frames']} val frames): SSIM {val.get('ssim', float('nan')):.4f}, "
+        f"Validation at the last step ({train['max_val_frames'] or 'all'} evenly spaced val frames of the training data sets): SSIM {val.get('ssim', float('nan')):.4f}, "
         f"PSNR {val.get('psnr', float('nan')):.2f} dB, RMSE {val.get('rmse', float('nan')):.4f}"
         + (f", LF error {val['lf_error']:.4f}." if "lf_error" in val else "."),
         "",

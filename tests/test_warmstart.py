@@ -53,7 +53,7 @@ def test_warm_started_generator_computes_the_exported_model(calibrated: bool) ->
 
 
 def test_fp16_file_gives_the_fp32_weights_up_to_half_precision() -> None:
-    x = torch.from_numpy(_input(3, 128))
+    x = torch.from_numpy(_input(3, 2 ** _shipped()[0].n_down))  # the smallest side the model runs on
     with torch.no_grad():
         y16, y32 = _loaded("model_fp16.onnx")(x), _loaded("model_fp32.onnx")(x)
     assert 0 < float((y16 - y32).abs().max()) < 2e-2
@@ -62,7 +62,7 @@ def test_fp16_file_gives_the_fp32_weights_up_to_half_precision() -> None:
 def test_calibration_makes_training_mode_batch_norm_start_where_the_model_is() -> None:
     """In training mode batch norm normalises with the batch's own statistics: after calibrating on a
     batch, that batch gives the eval-mode output again (the folded layers add exactly b')."""
-    x = torch.from_numpy(np.concatenate([_input(s, 128) for s in range(4)]))
+    x = torch.from_numpy(np.concatenate([_input(s, 2 ** _shipped()[0].n_down) for s in range(4)]))
     generator = _loaded("model_fp32.onnx", x)
     with torch.no_grad():
         y_eval = generator(x)
@@ -111,9 +111,10 @@ def test_gigan_train_fine_tunes_the_exported_model(tmp_path: Path) -> None:
     from gigan_local.train_cli import app
     from tests.test_gigan_training import make_dataset
 
-    data = make_dataset(tmp_path / "ds", res=128, n_train=2, n_val=1)
-    out = tmp_path / "run"
     net = _shipped()[0]
+    side = 2**net.n_down  # the smallest frame the shipped architecture runs on
+    data = make_dataset(tmp_path / "ds", res=side, n_train=2, n_val=1)
+    out = tmp_path / "run"
     args = [
         str(data),
         "--out",
@@ -121,11 +122,9 @@ def test_gigan_train_fine_tunes_the_exported_model(tmp_path: Path) -> None:
         "--ngf",
         "16",
         "--n-down",
-        "7",
+        str(net.n_down),
         "--upsample",
         net.upsample,
-        "--crop",
-        "128",
         "--batch-size",
         "2",
         "--no-progress",
@@ -138,6 +137,6 @@ def test_gigan_train_fine_tunes_the_exported_model(tmp_path: Path) -> None:
     expected = _loaded("model_fp16.onnx").state_dict()
     outer_bias = next(k for k in expected if k.startswith("ups.0.") and k.endswith(".bias"))  # the outermost up conv's
     assert torch.equal(g[outer_bias], expected[outer_bias]) and torch.equal(g["downs.0.0.weight"], expected["downs.0.0.weight"])
-    narrower = [str(data), "--out", str(tmp_path / "r2"), "--ngf", "8", "--n-down", "7", "--upsample", net.upsample, "--crop", "128", "--no-progress"]
+    narrower = [str(data), "--out", str(tmp_path / "r2"), "--ngf", "8", "--n-down", str(net.n_down), "--upsample", net.upsample, "--no-progress"]
     res = CliRunner().invoke(app, [*narrower, "--init-generator", str(SHIPPED / "model_fp16.onnx"), "--max-steps", "0"])
     assert isinstance(res.exception, UserError) and "different generator" in str(res.exception) and "width" in str(res.exception)
