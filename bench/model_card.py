@@ -167,7 +167,8 @@ def write_model_card(run_dir: Path, export_dir: Path, quality_csv: Path, system:
         f"Stopped at optimizer step {last_step} (epoch {max(int(r['epoch']) for r in metrics)}); "
         f"median step time {sorted(step_s)[len(step_s) // 2]:.3g} s {STEP_WHERE[train.get('device', 'cpu')]}, {compute_min:.3g} min of steps in all "
         "(validation and checkpoints not counted; logged per epoch in metrics.csv). "
-        f"Validation at the last step ({train['max_val_frames'] or 'all'} evenly spaced val frames of the training data sets): SSIM {val.get('ssim', float('nan')):.4f}, "
+        f"Validation at the last step ({train['max_val_frames'] or 'all'} evenly spaced val frames of the training data sets): "
+        f"SSIM {val.get('ssim', float('nan')):.4f}, "
         f"PSNR {val.get('psnr', float('nan')):.2f} dB, RMSE {val.get('rmse', float('nan')):.4f}"
         + (f", LF error {val['lf_error']:.4f}." if "lf_error" in val else "."),
         "",
