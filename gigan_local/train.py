@@ -17,6 +17,8 @@ every epoch and when the run stops; it scores RMSE/PSNR/SSIM and lf_error (``gic
 images. Data order and crops follow (seed, epoch), and the checkpoint keeps the RNG state, so a
 resumed run continues exactly where a straight run would be. Non-finite or exploding losses and
 non-finite weights stop training with :class:`TrainingDiverged`, keeping the last good checkpoint.
+Training runs on the CPU or a CUDA GPU (``TrainConfig.device``); the scores are computed on the CPU
+either way, and a run may move between the two on ``--resume``.
 """
 
 from __future__ import annotations
@@ -134,10 +136,10 @@ def validate(generator: torch.nn.Module, dataset: FrameDataset, max_frames: int 
     indices = np.unique(np.linspace(0, len(dataset) - 1, n).round().astype(int))
     was_training = generator.training
     generator.eval()
+    device = next(generator.parameters()).device
     totals: dict[str, float] = {}
     for i in indices:
         x, y = dataset[int(i)]
-        device = next(generator.parameters()).device
         pred = generator(x[None].to(device))[0].cpu().numpy()
         for k, v in all_metrics(output_to_display(pred), output_to_display(y.numpy())).items():
             totals[k] = totals.get(k, 0.0) + v
