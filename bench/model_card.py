@@ -26,9 +26,9 @@ from gicore.cli import UserError
 from gicore.metrics import LF_SIGMA
 from gicore.results import Results, read_rows
 
-#: How the card names each U-Net up-sampling (``NetworkConfig.upsample``; exports older than it are transposed).
 #: Where the logged step times were measured, by the run's last ``--device``.
 STEP_WHERE = {"cpu": "on this machine's CPU", "cuda": "on the CUDA GPU it trained on (not this machine)"}
+#: How the card names each U-Net up-sampling (``NetworkConfig.upsample``; exports older than it are transposed).
 UPSAMPLING_WORDS = {"transposed": "4x4 stride-2 transposed-conv up-sampling", "resize": "nearest 2x resize + 3x3 conv up-sampling"}
 
 

@@ -164,9 +164,9 @@ class TrainConfig:
     max_val_frames: int | None = None
     #: Also checkpoint every this many steps (0: only at epoch ends and at the stop).
     checkpoint_every: int = 500
-    #: Where this invocation trains (``cpu`` or ``cuda``); validation scores and checkpoints are the same
-    #: either way (weights load on the CPU). A CUDA run is not bit-reproducible: cuDNN picks kernels
-    #: and the gradient penalty's interpolation draws from the GPU's generator, which checkpoints do not keep.
+    #: Where this invocation trains (``cpu`` or ``cuda``); checkpoints load on either (on the CPU first).
+    #: A CUDA run is not bit-reproducible: cuDNN picks its kernels (and may use TF32), so a resumed or
+    #: repeated CUDA run matches a straight one only up to rounding; checkpoints keep the GPU's RNG state.
     device: str = "cpu"
     #: A loss whose magnitude exceeds this counts as divergence and stops training.
     max_abs_loss: float = 1e4

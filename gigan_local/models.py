@@ -67,7 +67,8 @@ class BaseModel:
 
     def parameters_finite(self) -> bool:
         """Whether every weight of every network is finite (divergence check)."""
-        return all(bool(torch.isfinite(p).all()) for net in self.nets.values() for p in net.parameters())
+        checks = [torch.isfinite(p).all() for net in self.nets.values() for p in net.parameters()]
+        return bool(torch.stack(checks).all())  # one device sync per step, not one per tensor
 
     def state_dict(self) -> dict[str, Any]:
         return {

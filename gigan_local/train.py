@@ -14,11 +14,12 @@ when a run resumes, so an interrupted run (Ctrl-C, kill) resumes with ``--resume
 
 Validation (whole val frames, generator in eval mode as exported) runs before the first step, after
 every epoch and when the run stops; it scores RMSE/PSNR/SSIM and lf_error (``gicore.metrics``) on tone-mapped [0, 1]
-images. Data order and crops follow (seed, epoch), and the checkpoint keeps the RNG state, so a
-resumed run continues exactly where a straight run would be. Non-finite or exploding losses and
+images. Data order and crops follow (seed, epoch), and the checkpoint keeps the RNG states (the CPU's,
+and the GPU's on CUDA), so a resumed CPU run continues exactly where a straight run would be (on
+CUDA, up to cuDNN's non-deterministic kernels). Non-finite or exploding losses and
 non-finite weights stop training with :class:`TrainingDiverged`, keeping the last good checkpoint.
-Training runs on the CPU or a CUDA GPU (``TrainConfig.device``); the scores are computed on the CPU
-either way, and a run may move between the two on ``--resume``.
+Training runs on the CPU or a CUDA GPU (``TrainConfig.device``); validation runs the generator on the
+training device and scores its output on the CPU, and a run may move between the two on ``--resume``.
 """
 
 from __future__ import annotations
@@ -238,6 +239,8 @@ def _train(cfg: TrainConfig, out_dir: Path, resume: bool, progress: bool, cache_
         model.load_state_dict(ckpt["model"])
         state = RunState(**ckpt["state"])
         torch.set_rng_state(ckpt["torch_rng"])
+        if device.type == "cuda" and "cuda_rng" in ckpt:  # dropout and the penalty's interpolation draw on the GPU
+            torch.cuda.set_rng_state(ckpt["cuda_rng"])
         if state.metrics_rows is not None:  # rows an interrupted run wrote after its checkpoint are redone
             _keep_rows(metrics_path, state.metrics_rows)
     else:  # no checkpoint: rows of a run interrupted before its first one count for nothing
@@ -272,6 +275,8 @@ def _train(cfg: TrainConfig, out_dir: Path, resume: bool, progress: bool, cache_
     def save() -> None:
         nonlocal saved_step
         data = {"model": model.state_dict(), "state": asdict(state), "torch_rng": torch.get_rng_state()}
+        if device.type == "cuda":
+            data["cuda_rng"] = torch.cuda.get_rng_state()
         atomic_write(ckpt_path, lambda handle: torch.save(data, handle))  # a crash mid-save keeps the previous checkpoint
         saved_step = state.step
 

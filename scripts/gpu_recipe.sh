@@ -26,6 +26,10 @@ MINUTES=${MINUTES:-6}
 MODELS=${MODELS:-gigan deep_illumination deep_shading}
 STAGES=${STAGES:-render train export}
 export GIGAN_MITSUBA_VARIANT=${GIGAN_MITSUBA_VARIANT:-cuda_ad_rgb}
+for stage in $STAGES; do
+  case "$stage" in render | train | export) ;; *) echo "error: unknown stage '$stage'; STAGES takes render, train, export (space-separated)" >&2; exit 2 ;; esac
+done
+mkdir -p "$WORK"
 
 # Per model: the paper's settings (batch 8, lr 2e-4, n_critic 1) on whole 256² frames with a 1x1
 # bottleneck (n_down 8, as pix2pix's unet_256 runs), width 16 for the CPU client's 25 ms budget.
@@ -35,8 +39,19 @@ model_args() {
     gigan) echo "--model gigan --upsample resize --n-down 8" ;;
     deep_illumination) echo "--model deep_illumination --n-down 8" ;;
     deep_shading) echo "--model deep_shading" ;;
-    *) echo "unknown model $1" >&2; return 2 ;;
+    *) echo "error: unknown model '$1'; MODELS takes gigan, deep_illumination, deep_shading" >&2; return 2 ;;
   esac
+}
+for model in $MODELS; do model_args "$model" >/dev/null || exit 2; done
+
+# Background jobs: wait for all of them, report every failure with its log, and stop the rest on Ctrl-C.
+pids=()
+trap 'kill "${pids[@]}" 2>/dev/null' INT TERM
+wait_all() {  # $1: what the jobs were; the logs are named in $WORK
+  local failed=0
+  for pid in "${pids[@]}"; do wait "$pid" || failed=1; done
+  pids=()
+  if [[ $failed == 1 ]]; then echo "error: a $1 job failed; see its log in $WORK" >&2; exit 1; fi
 }
 
 datasets=()
@@ -44,25 +59,23 @@ for scene in $SCENES; do datasets+=("$WORK/datasets/$scene"); done
 
 if [[ " $STAGES " == *" render "* ]]; then
   denoise_flag=$([[ "$DENOISE" == 1 ]] && echo --denoise || echo --no-denoise)
-  pids=()
   for scene in $SCENES; do  # one process per scene: each has its own CUDA context, and the GPU overlaps them
     "$PYTHON" -m gicore.dataset_cli "$scene" --out "$WORK/datasets" --train "$TRAIN_FRAMES" --val "$VAL_FRAMES" \
       --resolution 256 --spp "$SPP" "$denoise_flag" --seed "$SEED" >"$WORK/render_$scene.log" 2>&1 &
     pids+=($!)
   done
-  for pid in "${pids[@]}"; do wait "$pid"; done
+  wait_all render
 fi
 
 if [[ " $STAGES " == *" train "* ]]; then
-  pids=()
   for model in $MODELS; do  # side by side: the same minutes of the same GPU for each
-    # shellcheck disable=SC2046
-    OMP_NUM_THREADS=4 "$PYTHON" -m gigan_local.train_cli "${datasets[@]}" --out "$WORK/runs/$model" $(model_args "$model") \
+    read -ra args <<<"$(model_args "$model")"
+    OMP_NUM_THREADS=4 "$PYTHON" -m gigan_local.train_cli "${datasets[@]}" --out "$WORK/runs/$model" "${args[@]}" \
       --ngf 16 --batch-size 8 --lr 2e-4 --epochs 100000 --max-minutes "$MINUTES" --max-val-frames 10 --device cuda --no-progress \
       >"$WORK/train_$model.log" 2>&1 &
     pids+=($!)
   done
-  for pid in "${pids[@]}"; do wait "$pid"; done
+  wait_all train
 fi
 
 if [[ " $STAGES " == *" export "* ]]; then
