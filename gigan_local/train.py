@@ -222,12 +222,12 @@ def _train(cfg: TrainConfig, out_dir: Path, resume: bool, progress: bool, cache_
             raise UserError(f"--out {out_dir} already holds a run", "pass --resume to continue it or choose another --out")
         cfg = prepare_config(cfg, out_dir)
 
+    device = _device(cfg.device)  # refused before any data is read
     torch.manual_seed(cfg.seed)
     roots = [Path(d) for d in cfg.datasets]
     spec = cfg.input_spec()
     train_set = FrameDataset(roots, "train", spec, crop=cfg.crop, seed=cfg.seed, cache=cache_frames)
     val_set = FrameDataset(roots, "val", spec, cache=cache_frames)
-    device = _device(cfg.device)
     model = create_model(cfg)
     state = RunState(metrics_rows=0)
     if not resume and cfg.init_generator is not None:

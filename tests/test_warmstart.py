@@ -27,6 +27,11 @@ def _shipped() -> tuple[NetworkConfig, InputSpec]:
     return NetworkConfig.from_dict(doc["network"]), InputSpec.from_dict(doc["input"])
 
 
+def _smallest_side() -> int:
+    """The smallest frame side the shipped U-Net runs on (a 1x1 bottleneck)."""
+    return 2 ** _shipped()[0].n_down
+
+
 def _loaded(name: str, calibration: torch.Tensor | None = None) -> torch.nn.Module:
     net, spec = _shipped()
     generator = define_G(net)
@@ -53,7 +58,7 @@ def test_warm_started_generator_computes_the_exported_model(calibrated: bool) ->
 
 
 def test_fp16_file_gives_the_fp32_weights_up_to_half_precision() -> None:
-    x = torch.from_numpy(_input(3, 2 ** _shipped()[0].n_down))  # the smallest side the model runs on
+    x = torch.from_numpy(_input(3, _smallest_side()))
     with torch.no_grad():
         y16, y32 = _loaded("model_fp16.onnx")(x), _loaded("model_fp32.onnx")(x)
     assert 0 < float((y16 - y32).abs().max()) < 2e-2
@@ -62,7 +67,7 @@ def test_fp16_file_gives_the_fp32_weights_up_to_half_precision() -> None:
 def test_calibration_makes_training_mode_batch_norm_start_where_the_model_is() -> None:
     """In training mode batch norm normalises with the batch's own statistics: after calibrating on a
     batch, that batch gives the eval-mode output again (the folded layers add exactly b')."""
-    x = torch.from_numpy(np.concatenate([_input(s, 2 ** _shipped()[0].n_down) for s in range(4)]))
+    x = torch.from_numpy(np.concatenate([_input(s, _smallest_side()) for s in range(4)]))
     generator = _loaded("model_fp32.onnx", x)
     with torch.no_grad():
         y_eval = generator(x)
@@ -112,8 +117,7 @@ def test_gigan_train_fine_tunes_the_exported_model(tmp_path: Path) -> None:
     from tests.test_gigan_training import make_dataset
 
     net = _shipped()[0]
-    side = 2**net.n_down  # the smallest frame the shipped architecture runs on
-    data = make_dataset(tmp_path / "ds", res=side, n_train=2, n_val=1)
+    data = make_dataset(tmp_path / "ds", res=_smallest_side(), n_train=2, n_val=1)
     out = tmp_path / "run"
     args = [
         str(data),
