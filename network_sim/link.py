@@ -28,7 +28,7 @@ Each direction of a chunk of stream bytes passes four stages:
    that a stream is not reordered, and bytes that leave the bottleneck together see the same delay, as
    packets of one burst do behind the same router queue. A stream is released in order:
    ``release_i = max(release_{i-1}, ready_i + delay(ready_i))`` — the max rarely binds (measured in
-   ``tests/test_network_link.py``), so the realised jitter keeps the configured spread instead of
+   ``tests/network_sim/test_link.py``), so the realised jitter keeps the configured spread instead of
    collapsing and drifting up as with per-chunk independent delays behind a FIFO (Toxiproxy).
 
 Random numbers are seeded by ``(seed, direction[, connection])`` (jitter knots are hashes, loss draws a

@@ -114,7 +114,7 @@ def test_gigan_train_fine_tunes_the_exported_model(tmp_path: Path) -> None:
 
     from gigan_local.train import CHECKPOINT, load_checkpoint
     from gigan_local.train_cli import app
-    from tests.test_gigan_training import make_dataset
+    from tests.helpers.training import make_dataset
 
     net = _shipped()[0]
     data = make_dataset(tmp_path / "ds", res=_smallest_side(), n_train=2, n_val=1)

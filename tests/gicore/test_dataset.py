@@ -15,17 +15,10 @@ from gicore.cli import UserError
 from gicore.dataset import DatasetMeta, frame_paths, load_frame, read_meta, save_frame
 from gicore.dataset_cli import DatasetConfig, build_dataset, plan_frames
 from gicore.paths import frame_seed
+from tests.helpers.dataset import npz_arrays
 
 RES = 24
 CFG = DatasetConfig(n_train=2, n_val=1, resolution=RES, spp=4, denoise=False, seed=0)
-
-
-def npz_arrays(root: Path) -> dict[str, dict[str, np.ndarray]]:
-    out = {}
-    for path in sorted(root.rglob("*.npz")):
-        with np.load(path) as data:
-            out[str(path.relative_to(root))] = {k: data[k] for k in data.files}
-    return out
 
 
 @pytest.fixture(scope="module")

@@ -18,34 +18,13 @@ from baseline_cloudbaking.client import STAGES, RemoteConfig, RemoteSource
 from gicore.loop import path_views
 from gicore.scene import load_scene
 from network_sim.process import Running, network_sim
-from tests.cloud_fixtures import BIN, RES, SPP, server_process, write_scenes
+from tests.helpers.cloud import BIN, RES, SPP, passthrough_model, server_process, write_scenes
 
 #: Stages every frame that binds a cloud map reports: the local DI, the map's own stages (a miss), the
 #: pixel-level warp's (``raster`` is its surface-mask pass), the composition.
 CLOUD_FRAME_STAGES = ("di", "request", "lookup", "render", "denoise", "encode", "server_other", "transfer", "decode")
 CLOUD_FRAME_STAGES += ("bind", "raster", "project", "splat", "fill", "compose")
 GIGAN_FRAME_STAGES = ("di", "gi_render", "inference", "bind", "raster", "project", "depth_test", "lookup", "fill", "compose")
-
-
-def passthrough_model(folder: Path, resolution: int = RES) -> Path:
-    """A real ONNX "generator" (one Slice node: it returns its DI input channels) with the model.json that
-    ``gigan-export`` writes: onnxruntime runs it at ``resolution`` like the shipped model at 256²."""
-    import onnx
-    from onnx import TensorProto, helper
-
-    from gigan_local.inference import FORMAT, MODEL_JSON
-    from gigan_local.preprocess import InputSpec
-
-    spec = InputSpec()
-    x = helper.make_tensor_value_info("x", TensorProto.FLOAT, [1, spec.in_channels, resolution, resolution])
-    y = helper.make_tensor_value_info("y", TensorProto.FLOAT, [1, 3, resolution, resolution])
-    consts = [helper.make_tensor(n, TensorProto.INT64, [1], [v]) for n, v in (("start", 0), ("end", 3), ("axis", 1))]
-    graph = helper.make_graph([helper.make_node("Slice", ["x", "start", "end", "axis"], ["y"])], "di_passthrough", [x], [y], consts)
-    folder.mkdir(parents=True, exist_ok=True)
-    onnx.save(helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)], ir_version=8), folder / "model.onnx")
-    doc = {"format": FORMAT, "model": "passthrough", "input": spec.to_dict(), "resolution": resolution, "ngf": 0, "files": {"fp32": "model.onnx"}}
-    (folder / MODEL_JSON).write_text(json.dumps(doc))
-    return folder / "model.onnx"
 
 
 def read_csv(path: Path) -> list[dict[str, str]]:

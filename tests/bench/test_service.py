@@ -7,7 +7,7 @@ from pathlib import Path
 from bench.runner import execute
 from bench.service import BENCH, ServiceConfig
 from gicore.results import read_rows
-from tests.cloud_fixtures import write_scenes
+from tests.helpers.cloud import write_scenes
 
 METRICS = ("miss_e2e", "miss_server", "hit_server", "hit_e2e", "load_latency", "load_throughput", "load_errors")
 

@@ -10,8 +10,8 @@ from pathlib import Path
 import pytest
 
 from network_sim.process import network_sim
-from tests.cloud_fixtures import BIN, server_process, write_scenes
-from tests.test_cli_errors_cloudbaking import assert_user_error, run
+from tests.helpers.cli import assert_error_line, run_command
+from tests.helpers.cloud import BIN, server_process, write_scenes
 
 
 @pytest.fixture(scope="module")
@@ -26,7 +26,7 @@ def server(tmp_path_factory: pytest.TempPathFactory, scenes_dir: Path):
 
 
 def client(server: str, out: Path, *args: str, scene: str | None = None):
-    return run([str(BIN / "cloudbaking-client"), "--server", server, "--out", str(out), "--resolution", "64", "--spp", "4", *args]
+    return run_command([str(BIN / "cloudbaking-client"), "--server", server, "--out", str(out), "--resolution", "64", "--spp", "4", *args]
                + (["--scene", scene] if scene else []))  # fmt: skip
 
 
@@ -38,8 +38,8 @@ def closed_port() -> int:
 
 def test_unreachable_or_malformed_server_url(scenes_dir: Path, tmp_path: Path) -> None:
     scene = str(scenes_dir / "ball_moving.json")
-    assert_user_error(client(f"http://127.0.0.1:{closed_port()}", tmp_path / "o", scene=scene), "--server", "cannot connect")
-    assert_user_error(client("ftp://127.0.0.1:21", tmp_path / "o", scene=scene), "--server", "ftp://")
+    assert_error_line(client(f"http://127.0.0.1:{closed_port()}", tmp_path / "o", scene=scene), "--server", "cannot connect")
+    assert_error_line(client("ftp://127.0.0.1:21", tmp_path / "o", scene=scene), "--server", "ftp://")
     assert not (tmp_path / "o").exists()
 
 
@@ -47,7 +47,7 @@ def test_a_dead_link_is_one_line_at_start(server: str, scenes_dir: Path, tmp_pat
     with network_sim("proxy", "--upstream", server.removeprefix("http://"), "--rate-mbit", "0") as proxy:
         url = "http://{}:{}".format(*proxy.addr)
         args = ("--connect-timeout", "1", "--read-timeout", "1")
-        assert_user_error(client(url, tmp_path / "o", *args, scene=str(scenes_dir / "ball_moving.json")), "--server", "no answer")
+        assert_error_line(client(url, tmp_path / "o", *args, scene=str(scenes_dir / "ball_moving.json")), "--server", "no answer")
 
 
 def test_what_the_server_does_not_serve(server: str, scenes_dir: Path, tmp_path: Path) -> None:
@@ -55,9 +55,9 @@ def test_what_the_server_does_not_serve(server: str, scenes_dir: Path, tmp_path:
     unknown.write_text(json.dumps(json.loads((scenes_dir / "ball_static.json").read_text()) | {"name": "not_on_server"}))
     (tmp_path / "sphere.obj").write_bytes((scenes_dir / "sphere.obj").read_bytes())
     scene = str(scenes_dir / "ball_moving.json")
-    assert_user_error(client(server, tmp_path / "o", scene=str(unknown)), "--scene", "not_on_server")
-    assert_user_error(client(server, tmp_path / "o", "--resolution", "100", scene=scene), "--resolution 100")
-    assert_user_error(client(server, tmp_path / "o", "--spp", "32", scene=scene), "--spp 32", "max_spp 16")
+    assert_error_line(client(server, tmp_path / "o", scene=str(unknown)), "--scene", "not_on_server")
+    assert_error_line(client(server, tmp_path / "o", "--resolution", "100", scene=scene), "--resolution 100")
+    assert_error_line(client(server, tmp_path / "o", "--spp", "32", scene=scene), "--spp 32", "max_spp 16")
     assert not (tmp_path / "o").exists()
 
 
@@ -65,8 +65,8 @@ def test_bad_options(server: str, scenes_dir: Path, tmp_path: Path) -> None:
     scene = str(scenes_dir / "ball_moving.json")
     afile = tmp_path / "afile"
     afile.write_text("x")
-    assert_user_error(client(server, tmp_path / "o", "--codec", "gif", scene=scene), "--codec", "gif")
-    assert_user_error(client(server, tmp_path / "o", "--frames", "0", scene=scene), "--frames")
-    assert_user_error(client(server, tmp_path / "o", "--gi-fov", "180", scene=scene), "--gi-fov")
-    assert_user_error(client(server, tmp_path / "o", scene=str(tmp_path / "missing.toml")), "missing.toml")
-    assert_user_error(client(server, afile, scene=scene), "--out", str(afile))
+    assert_error_line(client(server, tmp_path / "o", "--codec", "gif", scene=scene), "--codec", "gif")
+    assert_error_line(client(server, tmp_path / "o", "--frames", "0", scene=scene), "--frames")
+    assert_error_line(client(server, tmp_path / "o", "--gi-fov", "180", scene=scene), "--gi-fov")
+    assert_error_line(client(server, tmp_path / "o", scene=str(tmp_path / "missing.toml")), "missing.toml")
+    assert_error_line(client(server, afile, scene=scene), "--out", str(afile))

@@ -15,7 +15,7 @@ from baseline_cloudbaking.bake import fly_through
 from baseline_cloudbaking.protocol import decode_payload
 from baseline_cloudbaking.store import DEFAULT_LIGHT_CELL, GITree, Tolerance, simulate_fill
 from gicore.scene import load_scene
-from tests.cloud_fixtures import BIN, RES, SPP, write_scenes
+from tests.helpers.cloud import BIN, RES, SPP, write_scenes
 
 
 @pytest.fixture(scope="module")

@@ -18,7 +18,7 @@ from gicore.dataset import DatasetMeta, FrameRecord, load_frame, save_frame, wri
 from gicore.metrics import lf_error
 from gicore.results import Results, read_rows
 from gicore.tonemap import inverse_tonemap, tonemap
-from tests.test_cloud_client import passthrough_model
+from tests.helpers.cloud import passthrough_model
 
 RES = 64
 OFFSET = 0.05  # the GT is the DI brighter by this much, tone-mapped

@@ -12,67 +12,16 @@ a few at a time (``outcomes``): each costs one interpreter start with its import
 
 from __future__ import annotations
 
-import os
 import shutil
 import subprocess
-import sys
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import nullcontext
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-BIN = Path(sys.executable).parent
-#: One subprocess run may take this long (imports of torch or Mitsuba dominate: ~1-2 s).
-TIMEOUT_S = 120
-
-
-def snapshot(root: Path) -> dict[str, tuple[int, int]]:
-    """Every file under ``root`` with its size and modification time, and every folder (whose own
-    modification time changes when a run takes and drops its lock file, so it is left out)."""
-    return {str(p.relative_to(root)): (p.stat().st_size, p.stat().st_mtime_ns) if p.is_file() else (-1, 0) for p in root.rglob("*")}
-
-
-@dataclass(frozen=True)
-class Outcome:
-    """What one console-script run did: its status, output, and the workspace before and after."""
-
-    argv: tuple[str, ...]
-    returncode: int
-    stdout: str
-    stderr: str
-    before: dict[str, tuple[int, int]]
-    after: dict[str, tuple[int, int]]
-
-
-def run_script(argv: list[str], cwd: Path) -> Outcome:
-    """Run console script ``argv[0]`` (from this interpreter's bin folder) with ``argv[1:]`` in ``cwd``."""
-    exe = BIN / argv[0]
-    assert exe.is_file(), f"console script {argv[0]} is not installed (pip install -e .)"
-    before = snapshot(cwd)
-    env = os.environ | {"COLUMNS": "200", "NO_COLOR": "1"}
-    proc = subprocess.run([str(exe), *argv[1:]], cwd=cwd, capture_output=True, text=True, timeout=TIMEOUT_S, env=env)
-    return Outcome(tuple(argv), proc.returncode, proc.stdout, proc.stderr, before, snapshot(cwd))
-
-
-def check_user_error(outcome: Outcome, culprit: str) -> str:
-    """Assert a clean user error that names ``culprit`` and left the workspace untouched; returns the line."""
-    output = outcome.stdout + outcome.stderr
-    assert "Traceback" not in output, output
-    errors = [line for line in outcome.stderr.splitlines() if line.startswith("error:")]
-    assert outcome.returncode == 2, f"exit status {outcome.returncode}, expected 2:\n{output}"
-    assert len(errors) == 1, f"expected exactly one error line:\n{output}"
-    assert culprit in errors[0], f"the error line does not name {culprit!r}: {errors[0]}"
-    changed = sorted(set(outcome.after.items()) ^ set(outcome.before.items()))
-    assert not changed, f"{list(outcome.argv)} changed the workspace: {changed}"
-    return errors[0]
-
-
-def assert_user_error(argv: list[str], culprit: str, cwd: Path) -> str:
-    """Run ``argv`` in ``cwd`` (see :func:`run_script`) and :func:`check_user_error` it; returns the error line."""
-    return check_user_error(run_script(argv, cwd), culprit)
+from tests.helpers.cli import BIN, TIMEOUT_S, Outcome, check_user_error, run_script
 
 
 def case(*argv: str, culprit: str, id: str, hold: str | None = None):
@@ -98,7 +47,7 @@ def workspace(tmp_path_factory: pytest.TempPathFactory, sphere_mesh_path: Path) 
     from gicore.scene import load_scene
     from gigan_local.inference import DEFAULT_MODEL
     from gigan_local.train import train
-    from tests.test_gigan_training import make_dataset, tiny_config
+    from tests.helpers.training import make_dataset, tiny_config
 
     ws = tmp_path_factory.mktemp("cli_errors")
     (ws / "afile").write_text("a file where a folder belongs\n")

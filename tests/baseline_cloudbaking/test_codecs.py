@@ -10,7 +10,7 @@ from baseline_cloudbaking.codecs import CODEC_NAMES, CODECS, DEPTH_CODEC, CodecE
 from baseline_cloudbaking.protocol import MAGIC, PayloadError, decode_payload, pack, unpack, with_header
 from gicore.camera import Camera
 from gicore.tonemap import inverse_tonemap
-from tests.cloud_fixtures import RES, SPP
+from tests.helpers.cloud import RES, SPP
 
 
 @pytest.fixture(scope="module")

@@ -18,7 +18,7 @@ import pytest
 from bench.report_md import BEGIN, BLOCKS, END, results_markdown, update_readme
 from gicore.cli import UserError
 from gicore.results import read_rows
-from tests.test_report import spoil_value
+from tests.bench.test_report import spoil_value
 
 FIXTURES = Path(__file__).parent / "fixtures" / "report_results"
 BIN = Path(sys.executable).parent

@@ -1,5 +1,5 @@
 """``network-sim`` fails cleanly on bad input (SPEC §8a): exit 2, one ``error:`` line naming the culprit,
-no traceback, nothing written. Uses the shared harness of ``tests/test_cli_errors.py``."""
+no traceback, nothing written. Uses the shared harness of ``tests/helpers/cli.py``."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.test_cli_errors import assert_user_error
+from tests.helpers.cli import assert_user_error
 
 
 @pytest.fixture(scope="module")

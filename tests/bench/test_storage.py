@@ -12,7 +12,7 @@ from bench.runner import execute
 from bench.storage import BENCH, StorageConfig
 from gicore.results import read_rows
 from gicore.scene import load_scene
-from tests.cloud_fixtures import write_scenes
+from tests.helpers.cloud import write_scenes
 
 
 def test_storage_bench_matches_a_real_prebake(tmp_path: Path) -> None:

@@ -14,8 +14,7 @@ from bench import latency
 from bench.latency import CloudCost, LatencyConfig, pinning, sweep_link
 from bench.runner import execute
 from gicore.results import read_rows
-from tests.cloud_fixtures import write_scenes
-from tests.test_cloud_client import passthrough_model
+from tests.helpers.cloud import passthrough_model, write_scenes
 
 
 @pytest.mark.slow

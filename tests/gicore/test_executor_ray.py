@@ -28,8 +28,8 @@ from gicore.executor import InProcess, LocalPool, RayExecutor, Task
 from gicore.fileio import TMP_MARKER
 from gicore.results import read_rows
 from gicore.scene import SceneSpec, builtin_scenes, load_scene
-from tests.cloud_fixtures import BIN, write_scenes
-from tests.test_dataset import npz_arrays
+from tests.helpers.cloud import BIN, write_scenes
+from tests.helpers.dataset import npz_arrays
 
 #: 32², 2 + 1 frames at 4 spp with OIDN: every buffer and the denoiser, cheap on 2 cores.
 CFG = DatasetConfig(n_train=2, n_val=1, resolution=32, spp=4, denoise=True, seed=3)

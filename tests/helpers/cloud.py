@@ -61,3 +61,24 @@ def server_process(store: Path, scenes: Path, *args: str, env: dict[str, str] | 
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait(timeout=15)
+
+
+def passthrough_model(folder: Path, resolution: int = RES) -> Path:
+    """A real ONNX "generator" (one Slice node: it returns its DI input channels) with the model.json that
+    ``gigan-export`` writes: onnxruntime runs it at ``resolution`` like the shipped model at 256²."""
+    import onnx
+    from onnx import TensorProto, helper
+
+    from gigan_local.inference import FORMAT, MODEL_JSON
+    from gigan_local.preprocess import InputSpec
+
+    spec = InputSpec()
+    x = helper.make_tensor_value_info("x", TensorProto.FLOAT, [1, spec.in_channels, resolution, resolution])
+    y = helper.make_tensor_value_info("y", TensorProto.FLOAT, [1, 3, resolution, resolution])
+    consts = [helper.make_tensor(n, TensorProto.INT64, [1], [v]) for n, v in (("start", 0), ("end", 3), ("axis", 1))]
+    graph = helper.make_graph([helper.make_node("Slice", ["x", "start", "end", "axis"], ["y"])], "di_passthrough", [x], [y], consts)
+    folder.mkdir(parents=True, exist_ok=True)
+    onnx.save(helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)], ir_version=8), folder / "model.onnx")
+    doc = {"format": FORMAT, "model": "passthrough", "input": spec.to_dict(), "resolution": resolution, "ngf": 0, "files": {"fp32": "model.onnx"}}
+    (folder / MODEL_JSON).write_text(json.dumps(doc))
+    return folder / "model.onnx"

@@ -25,7 +25,7 @@ from gigan_local.networks import define_G
 from gigan_local.preprocess import InputSpec, frame_to_input, output_to_radiance
 from gigan_local.train import train
 from gigan_local.warmstart import load_into
-from tests.test_gigan_training import make_dataset, one_thread, tiny_config  # noqa: F401  (autouse fixture)
+from tests.helpers.training import make_dataset, tiny_config
 
 
 @pytest.fixture(scope="module")

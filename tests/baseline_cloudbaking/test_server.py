@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 
 from baseline_cloudbaking.codecs import CODECS, DEPTH_CODEC
 from baseline_cloudbaking.protocol import MEDIA_TYPE, decode_payload
-from tests.cloud_fixtures import RES, SPP, gimap_body, server_process, write_scenes
+from tests.helpers.cloud import RES, SPP, gimap_body, server_process, write_scenes
 
 
 @pytest.fixture(scope="module")

@@ -12,62 +12,13 @@ import torch
 from typer.testing import CliRunner
 
 from gicore.cli import UserError
-from gicore.dataset import DatasetMeta, FrameRecord, save_frame, write_meta
 from gigan_local.config import TrainConfig, read_run_config
 from gigan_local.data import FrameDataset
 from gigan_local.models import GIGAN, create_model
 from gigan_local.preprocess import InputSpec, frame_to_input, frame_to_target, output_to_radiance
 from gigan_local.train import METRIC_COLUMNS, TrainingDiverged, load_checkpoint, train
 from gigan_local.train_cli import app
-
-BUFFERS = ["di", "gt", "albedo", "normal", "depth"]
-
-
-@pytest.fixture(autouse=True)
-def one_thread():
-    """Tiny convolutions run fastest on one thread, and the machine is shared."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
-
-
-def _smooth(rng: np.random.Generator, res: int, channels: int, cells: int = 4) -> np.ndarray:
-    """A smooth random field in [0, 1] (bilinear upsampling of a cells x cells grid)."""
-    grid = rng.random((cells, cells, channels))
-    pos = np.linspace(0, cells - 1, res)
-    i0 = np.floor(pos).astype(int)
-    i1 = np.minimum(i0 + 1, cells - 1)
-    t = (pos - i0)[:, None, None]
-    rows = grid[i0] * (1 - t) + grid[i1] * t
-    t = t.transpose(1, 0, 2)
-    return (rows[:, i0] * (1 - t) + rows[:, i1] * t).astype(np.float32)
-
-
-def synthetic_frame(rng: np.random.Generator, res: int) -> dict[str, np.ndarray]:
-    """Plausible smooth buffers whose GI is a fixed function of them (so a network can learn it)."""
-    di = 2.0 * _smooth(rng, res, 3)
-    albedo = _smooth(rng, res, 3)
-    normal = 2.0 * _smooth(rng, res, 3) - 1.0
-    normal /= np.linalg.norm(normal, axis=-1, keepdims=True)
-    depth = 1.0 + 3.0 * _smooth(rng, res, 1)
-    gt = di * (0.5 + albedo) + 0.2 * albedo * (normal[..., 2:3] + 1.0)
-    return {"di": di, "gt": gt, "albedo": albedo, "normal": normal, "depth": depth}
-
-
-def make_dataset(root: Path, res: int = 32, n_train: int = 4, n_val: int = 2, seed: int = 0) -> Path:
-    """A gicore dataset folder of synthetic frames."""
-    rng = np.random.default_rng(seed)
-    eye = np.eye(4).tolist()
-    frames = [FrameRecord(split, i, {}, eye, eye) for split, n in (("train", n_train), ("val", n_val)) for i in range(n)]
-    write_meta(root, DatasetMeta(scene={}, resolution=res, spp=1, denoise=False, seed=seed, buffers=BUFFERS, frames=frames))
-    for f in frames:
-        save_frame(root / f.file, synthetic_frame(rng, res))
-    return root
-
-
-def tiny_config(dataset: Path, **kw) -> TrainConfig:
-    return TrainConfig(**({"datasets": [str(dataset)], "ngf": 4, "ndf": 4, "batch_size": 2, "checkpoint_every": 0} | kw))
+from tests.helpers.training import make_dataset, synthetic_frame, tiny_config
 
 
 @pytest.fixture
@@ -275,7 +226,7 @@ def test_cli_trains_and_resumes(dataset, tmp_path):
     res = runner.invoke(app, ["--out", str(out), "--resume", "--epochs", "2", "--no-progress"])
     assert res.exit_code == 0, res.output
     assert "stopped (epochs) at step 4" in res.output
-    # Refusals are user errors (their exit status and one-line message: tests/test_cli_errors.py).
+    # Refusals are user errors (their exit status and one-line message: tests/integration/test_cli_errors.py).
     res = runner.invoke(app, ["--out", str(out), "--resume", "--ngf", "8"])
     assert isinstance(res.exception, UserError) and "--resume may change only" in str(res.exception)
     res = runner.invoke(app, ["--out", str(tmp_path / "new")])

@@ -14,7 +14,6 @@ from gicore.metrics import ssim as metric_ssim
 from gigan_local.config import NetworkConfig, TrainConfig
 from gigan_local.losses import bce_gan_loss, gradient_penalty, ssim, ssim_loss, wgan_critic_loss, wgan_generator_loss
 from gigan_local.networks import count_parameters, define_D, define_G
-from tests.test_gigan_training import one_thread  # noqa: F401  (autouse fixture: tiny nets, shared CPU)
 
 NORM_TYPES = (nn.BatchNorm2d, nn.InstanceNorm2d, nn.GroupNorm, nn.LayerNorm)
 

@@ -1,0 +1,1 @@
+"""Tests of baseline_cloudbaking (server, GI tree, codecs, client)."""

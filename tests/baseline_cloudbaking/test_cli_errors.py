@@ -1,0 +1,74 @@
+"""User errors of `cloudbaking-server` and `cloudbaking-prebake`: exit 2, one `error:` line naming the
+culprit, no traceback (SPEC §8a)."""
+
+from __future__ import annotations
+
+import json
+import socket
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from tests.helpers.cli import assert_error_line, run_command
+from tests.helpers.cloud import BIN, write_scenes
+
+
+@pytest.fixture(scope="module")
+def scenes_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return write_scenes(tmp_path_factory.mktemp("cli_scenes"))
+
+
+def prebake(*args: str) -> subprocess.CompletedProcess:
+    return run_command([str(BIN / "cloudbaking-prebake"), *args])
+
+
+def server(*args: str) -> subprocess.CompletedProcess:
+    return run_command([str(BIN / "cloudbaking-server"), *args])
+
+
+def test_prebake_unknown_scene(tmp_path: Path) -> None:
+    assert_error_line(prebake("no_such_scene", "--store", str(tmp_path / "s")), "no_such_scene")
+
+
+def test_prebake_invalid_spec_file(tmp_path: Path) -> None:
+    bad = tmp_path / "broken.json"
+    bad.write_text(json.dumps({"name": "broken", "objects": [], "light": {"position": [0, 1, 0], "intensity": -1}}))
+    assert_error_line(prebake(str(bad), "--store", str(tmp_path / "s")), "broken.json", "objects")
+
+
+def test_prebake_bad_options(tmp_path: Path) -> None:
+    store = str(tmp_path / "s")
+    assert_error_line(prebake("lung_plane", "--store", store, "--codec", "gif"), "--codec", "gif")
+    assert_error_line(prebake("lung_plane", "--store", store, "--frames", "0"), "--frames")
+    assert_error_line(prebake("lung_plane", "--store", store, "--resolution", "100000"), "--resolution")
+    assert_error_line(prebake("lung_plane"), "--store")
+    afile = tmp_path / "afile"
+    afile.write_text("x")
+    assert_error_line(prebake("lung_plane", "--store", str(afile)), "--store", str(afile))
+
+
+def test_prebake_refuses_a_store_baked_from_another_spec(scenes_dir: Path, tmp_path: Path) -> None:
+    store = tmp_path / "s"
+    spec = tmp_path / "ball.json"
+    data = json.loads((scenes_dir / "ball_static.json").read_text())
+    data["objects"][0]["mesh"] = str(scenes_dir / "sphere.obj")
+    spec.write_text(json.dumps(data))
+    ok = prebake(str(spec), "--store", str(store), "--frames", "1", "--resolution", "16", "--spp", "1")
+    assert ok.returncode == 0, ok.stderr
+    spec.write_text(json.dumps(data | {"environment": "cornell_box"}))
+    assert_error_line(prebake(str(spec), "--store", str(store), "--frames", "1", "--resolution", "16", "--spp", "1"), "'ball'", "another spec")
+
+
+def test_server_bad_store_scenes_and_port(scenes_dir: Path, tmp_path: Path) -> None:
+    afile = tmp_path / "afile"
+    afile.write_text("x")
+    assert_error_line(server("--store", str(afile), "--port", "0"), "--store", str(afile))
+    assert_error_line(server("--store", str(tmp_path / "s"), "--port", "0", "--scenes", str(tmp_path / "missing")), "--scenes")
+    assert_error_line(server("--store", str(tmp_path / "s"), "--port", "70000"), "--port")
+    assert_error_line(server("--port", "0"), "--store")
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen(1)
+        port = str(taken.getsockname()[1])
+        assert_error_line(server("--store", str(tmp_path / "s"), "--port", port), f"127.0.0.1:{port}", "--port")

@@ -1,0 +1,1 @@
+"""Tests of gigan_local (the GIGAN client)."""

@@ -1,0 +1,1 @@
+"""Helpers that several test packages share (plain functions; fixtures live in conftest.py)."""
