@@ -95,7 +95,9 @@ def map_header(baked: BakedMap, scene: str, codec_name: str, spp: int, light: Ve
 
 def gi_camera(spec: SceneSpec, eye: Vec3, target: Vec3, up: Vec3, fov: float, resolution: int) -> Camera:
     """The GI camera of a request: the scene's near/far clip, a square film (ValueError if degenerate)."""
-    return Camera(eye, target, up, fov=fov, near=spec.camera.near, far=spec.camera.far, width=resolution, height=resolution)
+    return Camera(
+        eye, target, up, fov=fov, near=spec.camera.near, far=spec.camera.far, width=resolution, height=resolution
+    )
 
 
 @dataclass(frozen=True)
@@ -109,7 +111,9 @@ class PathFrame:
     view: Viewpoint
 
 
-def fly_through(spec: SceneSpec, frames: int, resolution: int, light_cell_size: float, seed: int = 0, fov: float | None = None) -> list[PathFrame]:
+def fly_through(
+    spec: SceneSpec, frames: int, resolution: int, light_cell_size: float, seed: int = 0, fov: float | None = None
+) -> list[PathFrame]:
     """The scene's camera path (GI-camera FOV unless ``fov``) and light schedule, as ``gicore-dataset``
     plans its training frames; the light cell applies only when the scene's light moves."""
     size = light_cell_size if spec.light.moves else None
@@ -151,7 +155,9 @@ class SceneCatalog:
     def get(self, name: str) -> SceneSpec:
         """The spec of scene ``name``; UnknownScene if malformed or unknown, SceneSpecError if invalid."""
         if not SCENE_NAME.match(name):
-            raise UnknownScene(f"scene name {name!r} is malformed: a letter or '_', then letters, digits or '_', at most 64")
+            raise UnknownScene(
+                f"scene name {name!r} is malformed: a letter or '_', then letters, digits or '_', at most 64"
+            )
         if name not in self._files:
             raise UnknownScene(f"unknown scene {name!r}; known scenes: {', '.join(self.names())}")
         with self._lock:

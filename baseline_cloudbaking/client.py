@@ -96,13 +96,23 @@ class RemoteConfig:
             raise ValueError(f"retry_after_s must be >= 0, got {self.retry_after_s}")
 
     def timeout(self) -> httpx.Timeout:
-        return httpx.Timeout(connect=self.connect_timeout_s, read=self.read_timeout_s, write=self.read_timeout_s, pool=self.connect_timeout_s)
+        return httpx.Timeout(
+            connect=self.connect_timeout_s,
+            read=self.read_timeout_s,
+            write=self.read_timeout_s,
+            pool=self.connect_timeout_s,
+        )
 
     def body(self, camera: Camera, light: Light) -> bytes:
         """The JSON body of a ``POST /v1/gimap`` for the GI ``camera`` under ``light``."""
         request: dict[str, Any] = {
             "scene": self.scene,
-            "camera": {"eye": list(camera.origin), "target": list(camera.target), "up": list(camera.up), "fov": camera.fov},
+            "camera": {
+                "eye": list(camera.origin),
+                "target": list(camera.target),
+                "up": list(camera.up),
+                "fov": camera.fov,
+            },
             "resolution": self.resolution,
             "codec": self.codec,
             "spp": self.spp,
@@ -205,7 +215,11 @@ class RemoteSource:
             self._closed = True
             if self._in_flight is not None:
                 frame, t_request = self._in_flight[2:]
-                record = dict.fromkeys(RECORD_COLUMNS, "") | {"request_id": len(self.records), "frame": frame, "status": "abandoned"}
+                record = dict.fromkeys(RECORD_COLUMNS, "") | {
+                    "request_id": len(self.records),
+                    "frame": frame,
+                    "status": "abandoned",
+                }
                 record |= {"error": "still in flight when the run ended", "requested_s": t_request - self._t0}
                 record["latency_ms"] = (time.perf_counter() - t_request) * 1e3
                 self.records.append(record)
@@ -267,10 +281,14 @@ class RemoteSource:
                     for chunk in response.iter_bytes():
                         chunks.append(chunk)
                         if time.perf_counter() - t_request > cfg.deadline_s:
-                            raise RequestFailed("timeout", f"the response took longer than the {cfg.deadline_s:g} s deadline")
+                            raise RequestFailed(
+                                "timeout", f"the response took longer than the {cfg.deadline_s:g} s deadline"
+                            )
                     t_last = time.perf_counter()
                     data = b"".join(chunks)
-                    record["bytes_down"] = len(data) + _header_bytes(response.headers) + len(f"HTTP/1.1 {response.status_code} OK\r\n")
+                    record["bytes_down"] = (
+                        len(data) + _header_bytes(response.headers) + len(f"HTTP/1.1 {response.status_code} OK\r\n")
+                    )
             except httpx.TimeoutException as exc:
                 raise RequestFailed("timeout", f"{type(exc).__name__} ({exc or 'no detail'})") from None
             except httpx.TransportError as exc:
@@ -286,7 +304,11 @@ class RemoteSource:
         arrived = time.perf_counter()
         server = {s: float(payload.timings_ms[s]) for s in SERVER_STAGES if s in payload.timings_ms}
         server_ms = float(payload.timings_ms.get("total", sum(server.values())))
-        stages = {"request": (t_first - t_request) * 1e3 - server_ms, **server, "server_other": server_ms - sum(server.values())}
+        stages = {
+            "request": (t_first - t_request) * 1e3 - server_ms,
+            **server,
+            "server_other": server_ms - sum(server.values()),
+        }
         stages |= {"transfer": (t_last - t_first) * 1e3, "decode": (arrived - t_last) * 1e3}
         record |= {f"{s}_ms": ms for s, ms in stages.items()}
         record |= {
@@ -295,7 +317,16 @@ class RemoteSource:
             "transmission_ms": stages["request"] + stages["transfer"],
             "latency_ms": (arrived - t_request) * 1e3,
         }
-        gi = GIMap(payload.camera, payload.gi, payload.depth, payload.di, frame=frame, requested_at=t_request, arrived_at=arrived, stages=stages)
+        gi = GIMap(
+            payload.camera,
+            payload.gi,
+            payload.depth,
+            payload.di,
+            frame=frame,
+            requested_at=t_request,
+            arrived_at=arrived,
+            stages=stages,
+        )
         return record, gi
 
 
@@ -321,17 +352,26 @@ def check_server(server: str, scene: str, resolution: int, codec: str, spp: int,
     try:
         url = httpx.URL(server)
     except httpx.InvalidURL as exc:
-        raise UserError(f"--server {server!r} is not a URL ({exc})", "give the server's base URL, e.g. http://127.0.0.1:8000") from None
+        raise UserError(
+            f"--server {server!r} is not a URL ({exc})", "give the server's base URL, e.g. http://127.0.0.1:8000"
+        ) from None
     if url.scheme not in ("http", "https") or not url.host:
-        raise UserError(f"--server {server!r} is not an http(s) URL", "give the server's base URL, e.g. http://127.0.0.1:8000")
+        raise UserError(
+            f"--server {server!r} is not an http(s) URL", "give the server's base URL, e.g. http://127.0.0.1:8000"
+        )
     try:
         with httpx.Client(base_url=url, timeout=timeout_s) as client:
             health = client.get("/v1/health")
             scenes = client.get("/v1/scenes") if health.status_code == 200 else health
     except httpx.TimeoutException:
-        raise UserError(f"--server {server}: no answer to GET /v1/health within {timeout_s:g} s", "check the server and the network to it") from None
+        raise UserError(
+            f"--server {server}: no answer to GET /v1/health within {timeout_s:g} s",
+            "check the server and the network to it",
+        ) from None
     except httpx.TransportError as exc:
-        raise UserError(f"--server {server}: cannot connect ({exc})", "start cloudbaking-server there, or fix the URL") from None
+        raise UserError(
+            f"--server {server}: cannot connect ({exc})", "start cloudbaking-server there, or fix the URL"
+        ) from None
     try:
         if health.status_code != 200 or health.json().get("status") != "ok" or scenes.status_code != 200:
             raise ValueError
@@ -346,7 +386,9 @@ def check_server(server: str, scene: str, resolution: int, codec: str, spp: int,
         todo = f"use one of {', '.join(sorted(served))}, or start the server with its spec in --scenes"
         raise UserError(f"--scene {scene!r} is not served by {server}", todo)
     if resolution not in resolutions:
-        raise UserError(f"--resolution {resolution} is not served by {server}", f"use one of {', '.join(map(str, resolutions))}")
+        raise UserError(
+            f"--resolution {resolution} is not served by {server}", f"use one of {', '.join(map(str, resolutions))}"
+        )
     if codec not in codecs:
         raise UserError(f"--codec {codec!r} is not served by {server}", f"use one of {', '.join(codecs)}")
     if spp > max_spp:
@@ -367,7 +409,9 @@ class CloudClientConfig(PathRunConfig):
         return Path(self.scene).stem
 
 
-def run_client(cfg: CloudClientConfig, remote: RemoteConfig, tolerance: ServerInfo) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+def run_client(
+    cfg: CloudClientConfig, remote: RemoteConfig, tolerance: ServerInfo
+) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
     """Fly the scene's camera path composing with the server's maps; returns (per-frame rows, per-request rows).
 
     Composed frames of scored frames are kept and scored against the GT after the run, so the GT renders
@@ -402,7 +446,9 @@ def run_client(cfg: CloudClientConfig, remote: RemoteConfig, tolerance: ServerIn
     return rows, join_requests(source.records, rows, tuple(s for s in warp.stages if s != "bind"))
 
 
-def join_requests(records: list[dict[str, Any]], rows: list[dict[str, Any]], warp_stages: tuple[str, ...]) -> list[dict[str, Any]]:
+def join_requests(
+    records: list[dict[str, Any]], rows: list[dict[str, Any]], warp_stages: tuple[str, ...]
+) -> list[dict[str, Any]]:
     """Per-request rows: each record with what the frame that bound its map spent on bind, warp and blend,
     and ``total_ms``: every stage from the request to that frame's composition, summed (the wait for the
     next frame, ``pickup_ms``, is not a stage and is not in it)."""
@@ -414,7 +460,12 @@ def join_requests(records: list[dict[str, Any]], rows: list[dict[str, Any]], war
         if record["status"] == "ok" and frame is not None:
             warp_ms = sum(float(frame[f"{s}_ms"]) for s in warp_stages)
             stages = sum(float(record[f"{s}_ms"]) for s in STAGES if record[f"{s}_ms"] != "")
-            row |= {"bound_frame": frame["frame"], "bind_ms": frame["bind_ms"], "warp_ms": warp_ms, "blend_ms": frame["compose_ms"]}
+            row |= {
+                "bound_frame": frame["frame"],
+                "bind_ms": frame["bind_ms"],
+                "warp_ms": warp_ms,
+                "blend_ms": frame["compose_ms"],
+            }
             row["total_ms"] = stages + float(frame["bind_ms"]) + warp_ms + float(frame["compose_ms"])
         out.append(row)
     return out
@@ -424,7 +475,10 @@ def request_summary(requests: list[dict[str, Any]]) -> dict[str, Any]:
     """Counts by status and cache state, and median latency and total of the served requests."""
     ok = [r for r in requests if r["status"] == "ok"]
     statuses = [r["status"] for r in requests]
-    summary: dict[str, Any] = {"requests": len(requests), "status": {s: statuses.count(s) for s in dict.fromkeys(statuses)}}
+    summary: dict[str, Any] = {
+        "requests": len(requests),
+        "status": {s: statuses.count(s) for s in dict.fromkeys(statuses)},
+    }
     summary |= {"hits": sum(int(r["hit"]) for r in ok), "misses": sum(1 - int(r["hit"]) for r in ok)}
     for column in ("latency_ms", "transmission_ms", "total_ms"):
         values = [float(r[column]) for r in ok if r[column] != ""]

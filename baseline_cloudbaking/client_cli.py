@@ -44,24 +44,53 @@ app = typer.Typer(add_completion=False, help=__doc__)
 
 @app.command()
 def client_command(
-    server: Annotated[str, typer.Option(help="base URL of cloudbaking-server (or of a network-sim proxy in front of it)")],
+    server: Annotated[
+        str, typer.Option(help="base URL of cloudbaking-server (or of a network-sim proxy in front of it)")
+    ],
     out: Annotated[Path, typer.Option(help="output folder")],
-    scene: Annotated[str, typer.Option(help="built-in scene name or a .toml/.json spec (the server knows it by its file stem)")] = "lung_plane",
+    scene: Annotated[
+        str, typer.Option(help="built-in scene name or a .toml/.json spec (the server knows it by its file stem)")
+    ] = "lung_plane",
     frames: Annotated[int, typer.Option(min=1, help="frames to run")] = 60,
-    resolution: Annotated[int, typer.Option(min=8, max=2048, help="square resolution of every render and GI map")] = 256,
-    every: Annotated[int, typer.Option("--every", "-k", min=1, help="ask for a new GI map when the newest is k frames old")] = 30,
+    resolution: Annotated[
+        int, typer.Option(min=8, max=2048, help="square resolution of every render and GI map")
+    ] = 256,
+    every: Annotated[
+        int, typer.Option("--every", "-k", min=1, help="ask for a new GI map when the newest is k frames old")
+    ] = 30,
     codec: Annotated[str, typer.Option(help=f"GI-map codec: {', '.join(CODEC_NAMES)}")] = "jpeg",
-    gt_every: Annotated[int, typer.Option(min=0, help="compare with the path-traced GT every N frames, after the run (0: never)")] = 0,
-    gi_fov: Annotated[float | None, typer.Option(help="GI-camera FOV in degrees, in (0, 180) (default: the scene's, 90)")] = None,
-    local_fov: Annotated[float | None, typer.Option(help="local-camera FOV in degrees, in (0, 180) (default: the scene's, 60)")] = None,
-    orbit_frames: Annotated[int, typer.Option(min=1, help="frames per full orbit of the camera path (motion per frame)")] = 300,
-    tau: Annotated[float, typer.Option(min=0.0, max=1.0, help="eq. 1 weight of DI in the blend (0: the GI map alone)")] = 0.0,
-    composition: Annotated[Literal[COMPOSITIONS], typer.Option(help="blend (eq. 1) or residual (current DI + warped indirect)")] = "blend",  # type: ignore[valid-type]
-    spp: Annotated[int, typer.Option(min=1, max=4096, help="samples per pixel of path tracing: the server's maps and the evaluation GT")] = 64,
+    gt_every: Annotated[
+        int, typer.Option(min=0, help="compare with the path-traced GT every N frames, after the run (0: never)")
+    ] = 0,
+    gi_fov: Annotated[
+        float | None, typer.Option(help="GI-camera FOV in degrees, in (0, 180) (default: the scene's, 90)")
+    ] = None,
+    local_fov: Annotated[
+        float | None, typer.Option(help="local-camera FOV in degrees, in (0, 180) (default: the scene's, 60)")
+    ] = None,
+    orbit_frames: Annotated[
+        int, typer.Option(min=1, help="frames per full orbit of the camera path (motion per frame)")
+    ] = 300,
+    tau: Annotated[
+        float, typer.Option(min=0.0, max=1.0, help="eq. 1 weight of DI in the blend (0: the GI map alone)")
+    ] = 0.0,
+    composition: Annotated[
+        Literal[COMPOSITIONS], typer.Option(help="blend (eq. 1) or residual (current DI + warped indirect)")
+    ] = "blend",  # type: ignore[valid-type]
+    spp: Annotated[
+        int,
+        typer.Option(
+            min=1, max=4096, help="samples per pixel of path tracing: the server's maps and the evaluation GT"
+        ),
+    ] = 64,
     denoise: Annotated[bool, typer.Option("--denoise/--no-denoise", help="OIDN-denoise the evaluation GT")] = True,
     connect_timeout: Annotated[float, typer.Option(min=0.001, help="seconds to wait for a TCP connection")] = 5.0,
-    read_timeout: Annotated[float, typer.Option(min=0.001, help="seconds of silence that fail a request (bounds the server's render time)")] = 30.0,
-    deadline: Annotated[float, typer.Option(min=0.001, help="seconds after which a request fails however it is going")] = 60.0,
+    read_timeout: Annotated[
+        float, typer.Option(min=0.001, help="seconds of silence that fail a request (bounds the server's render time)")
+    ] = 30.0,
+    deadline: Annotated[
+        float, typer.Option(min=0.001, help="seconds after which a request fails however it is going")
+    ] = 60.0,
     seed: Annotated[int, typer.Option(help="camera-path and render seed")] = 0,
 ) -> None:
     """Run the cloud-baking client against --server and print its summary."""
@@ -115,7 +144,9 @@ def write_outputs(cfg: CloudClientConfig, rows: list[dict], requests: list[dict]
     return summary
 
 
-main = entry_point(app, resume="the CSV files and summary.json are written when the run ends: run the same command again")
+main = entry_point(
+    app, resume="the CSV files and summary.json are written when the run ends: run the same command again"
+)
 
 if __name__ == "__main__":
     main()

@@ -178,7 +178,9 @@ def _unpack_array(name: str, data: bytes, dtype: type, shuffle: bool) -> np.ndar
     except zstandard.ZstdError as exc:
         raise CodecError(f"{name}: cannot decompress ({exc})") from None
     if len(raw) != n * itemsize:
-        raise CodecError(f"{name}: {len(raw)} bytes decompressed, the header says {h}x{w}x{c} of {itemsize}-byte values")
+        raise CodecError(
+            f"{name}: {len(raw)} bytes decompressed, the header says {h}x{w}x{c} of {itemsize}-byte values"
+        )
     buf = np.frombuffer(raw, dtype=np.uint8)
     if shuffle:
         buf = np.ascontiguousarray(buf.reshape(itemsize, n).T)

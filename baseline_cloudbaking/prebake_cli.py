@@ -121,7 +121,12 @@ def plan(store: GITree, keys: list[MapKey], views: list[Viewpoint]) -> list[int]
 
 
 def prebake_scene(
-    store_dir: Path, name: str, spec: SceneSpec, cfg: PrebakeConfig, executor: Executor | None = None, progress: bool = True
+    store_dir: Path,
+    name: str,
+    spec: SceneSpec,
+    cfg: PrebakeConfig,
+    executor: Executor | None = None,
+    progress: bool = True,
 ) -> PrebakeResult:
     """Bake what ``store_dir`` lacks of ``spec``'s fly-through (stored as scene ``name``) on ``executor``
     (default: this process)."""
@@ -152,7 +157,10 @@ def _scene(scene: str) -> tuple[str, SceneSpec]:
     """(store name, spec) of a built-in scene name or a spec file (named by its stem)."""
     name = Path(scene).stem
     if not SCENE_NAME.match(name):
-        raise UserError(f"scene name {name!r} (from {scene!r}) is malformed", "name spec files with a letter or '_', then letters, digits or '_'")
+        raise UserError(
+            f"scene name {name!r} (from {scene!r}) is malformed",
+            "name spec files with a letter or '_', then letters, digits or '_'",
+        )
     try:
         return name, load_scene(scene)
     except UserError:  # SceneSpecError is one: it names the file and the fields
@@ -163,18 +171,38 @@ def _scene(scene: str) -> tuple[str, SceneSpec]:
 
 @app.command()
 def prebake(
-    scene: Annotated[str, typer.Argument(help="built-in scene name or spec file (.toml/.json); the file stem names it in the store")],
-    store: Annotated[Path, typer.Option(help="GI-tree folder (created if missing; shared with cloudbaking-server --store)")],
-    frames: Annotated[int, typer.Option(min=1, max=100_000, help="frames of the fly-through (paper: 1500)")] = PrebakeConfig.frames,
+    scene: Annotated[
+        str, typer.Argument(help="built-in scene name or spec file (.toml/.json); the file stem names it in the store")
+    ],
+    store: Annotated[
+        Path, typer.Option(help="GI-tree folder (created if missing; shared with cloudbaking-server --store)")
+    ],
+    frames: Annotated[
+        int, typer.Option(min=1, max=100_000, help="frames of the fly-through (paper: 1500)")
+    ] = PrebakeConfig.frames,
     codec: Annotated[str, typer.Option(help=f"GI-map codec: {', '.join(CODEC_NAMES)}")] = PrebakeConfig.codec,
     resolution: Annotated[int, typer.Option(min=16, max=2048, help="square map resolution")] = PrebakeConfig.resolution,
-    spp: Annotated[int, typer.Option(min=1, max=4096, help="path-tracing samples per pixel (then OIDN)")] = PrebakeConfig.spp,
-    di: Annotated[bool, typer.Option(help="also store the GI view's DI (needed by the residual composition)")] = PrebakeConfig.di,
-    fov: Annotated[float | None, typer.Option(min=1.0, max=170.0, help="GI-camera FOV in degrees (default: the scene's, 90)")] = None,
-    tolerance_p: Annotated[float, typer.Option(min=0.0, help="Δp: eye distance a map serves, scene units")] = Tolerance.position,
-    tolerance_deg: Annotated[float, typer.Option(min=0.0, max=180.0, help="Δθ: view angle a map serves, degrees")] = Tolerance.angle_deg,
-    light_cell: Annotated[float, typer.Option(min=1e-6, help="light-cell side for a moving light, scene units")] = DEFAULT_LIGHT_CELL,
-    seed: Annotated[int, typer.Option(help="camera-path seed (as gicore-dataset) and render-noise seed")] = PrebakeConfig.seed,
+    spp: Annotated[
+        int, typer.Option(min=1, max=4096, help="path-tracing samples per pixel (then OIDN)")
+    ] = PrebakeConfig.spp,
+    di: Annotated[
+        bool, typer.Option(help="also store the GI view's DI (needed by the residual composition)")
+    ] = PrebakeConfig.di,
+    fov: Annotated[
+        float | None, typer.Option(min=1.0, max=170.0, help="GI-camera FOV in degrees (default: the scene's, 90)")
+    ] = None,
+    tolerance_p: Annotated[
+        float, typer.Option(min=0.0, help="Δp: eye distance a map serves, scene units")
+    ] = Tolerance.position,
+    tolerance_deg: Annotated[
+        float, typer.Option(min=0.0, max=180.0, help="Δθ: view angle a map serves, degrees")
+    ] = Tolerance.angle_deg,
+    light_cell: Annotated[
+        float, typer.Option(min=1e-6, help="light-cell side for a moving light, scene units")
+    ] = DEFAULT_LIGHT_CELL,
+    seed: Annotated[
+        int, typer.Option(help="camera-path seed (as gicore-dataset) and render-noise seed")
+    ] = PrebakeConfig.seed,
     workers: Annotated[int | None, typer.Option(min=1, help=WORKERS_HELP)] = None,
     ray: Annotated[str | None, typer.Option(help=RAY_HELP)] = None,
 ) -> None:
@@ -183,13 +211,18 @@ def prebake(
         raise UserError(f"--codec {codec!r} is unknown", f"choose one of {', '.join(CODEC_NAMES)}")
     name, spec = _scene(scene)
     writable_dir(store, name="--store")
-    cfg = PrebakeConfig(frames, codec, resolution, spp, di, fov, Tolerance(tolerance_p, tolerance_deg), light_cell, seed)
+    cfg = PrebakeConfig(
+        frames, codec, resolution, spp, di, fov, Tolerance(tolerance_p, tolerance_deg), light_cell, seed
+    )
     t0 = time.perf_counter()
     with ExitStack() as stack:
         try:
             stack.enter_context(exclusive_run(store / ".prebake" / name))
         except UserError:
-            raise UserError(f"another cloudbaking-prebake is baking {name} into {store}", "wait for it to finish, then rerun to check") from None
+            raise UserError(
+                f"another cloudbaking-prebake is baking {name} into {store}",
+                "wait for it to finish, then rerun to check",
+            ) from None
         result = prebake_scene(store, name, spec, cfg, stack.enter_context(open_executor(workers, ray)))
     typer.echo(
         f"{name}: {result.served}/{result.frames} frames served by the store; {result.baked} maps baked now; "

@@ -49,7 +49,9 @@ def pack(header: dict[str, Any], sections: dict[str, bytes]) -> bytes:
     if unknown:
         raise ValueError(f"unknown payload sections {sorted(unknown)}; known: {SECTIONS}")
     codecs = {"gi": header["codec"], "di": header["codec"], "depth": DEPTH_CODEC.name}
-    header = header | {"sections": [{"name": n, "codec": codecs[n], "bytes": len(sections[n])} for n in SECTIONS if n in sections]}
+    header = header | {
+        "sections": [{"name": n, "codec": codecs[n], "bytes": len(sections[n])} for n in SECTIONS if n in sections]
+    }
     head = json.dumps(header, separators=(",", ":"), allow_nan=False).encode()
     return b"".join([MAGIC, _LEN.pack(len(head)), head, *(sections[n] for n in SECTIONS if n in sections)])
 
@@ -125,5 +127,7 @@ def decode_payload(data: bytes) -> GIMapPayload:
     depth = DEPTH_CODEC.decode(bytes(sections["depth"]))
     shape = (camera.height, camera.width)
     if gi.shape[:2] != shape or depth.shape != shape or (di is not None and di.shape != gi.shape):
-        raise PayloadError(f"sections do not match the {shape[1]}x{shape[0]} camera: gi {gi.shape}, depth {depth.shape}")
+        raise PayloadError(
+            f"sections do not match the {shape[1]}x{shape[0]} camera: gi {gi.shape}, depth {depth.shape}"
+        )
     return GIMapPayload(header, camera, np.asarray(header["view"]), np.asarray(header["proj"]), gi, di, depth)

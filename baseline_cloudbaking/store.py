@@ -246,7 +246,9 @@ class GITree:
         db = getattr(self._local, "db", None)
         if db is None:
             # autocommit mode: transactions are explicit BEGIN IMMEDIATE ... COMMIT
-            db = sqlite3.connect(self.root / "index.sqlite", timeout=30.0, isolation_level=None, check_same_thread=False)
+            db = sqlite3.connect(
+                self.root / "index.sqlite", timeout=30.0, isolation_level=None, check_same_thread=False
+            )
             db.execute("PRAGMA synchronous=NORMAL")  # WAL: commits survive a killed process; payloads are fsynced
             db.execute("PRAGMA foreign_keys=ON")
             self._local.db = db
@@ -333,7 +335,21 @@ class GITree:
             .execute(
                 "SELECT id, sha, ex, ey, ez, dx, dy, dz FROM entries WHERE scene = ? AND light_cell IS ? AND resolution = ? AND codec = ? "
                 "AND spp = ? AND di >= ? AND abs(fov - ?) < 1e-6 AND ex BETWEEN ? AND ? AND ey BETWEEN ? AND ? AND ez BETWEEN ? AND ?",
-                (key.scene, key.cell_text, key.resolution, key.codec, key.spp, int(key.di), key.fov, x - r, x + r, y - r, y + r, z - r, z + r),
+                (
+                    key.scene,
+                    key.cell_text,
+                    key.resolution,
+                    key.codec,
+                    key.spp,
+                    int(key.di),
+                    key.fov,
+                    x - r,
+                    x + r,
+                    y - r,
+                    y + r,
+                    z - r,
+                    z + r,
+                ),
             )
             .fetchall()
         )
@@ -396,7 +412,25 @@ class GITree:
             cur = db.execute(
                 "INSERT INTO entries(scene, light_cell, resolution, fov, codec, spp, di, ex, ey, ez, dx, dy, dz, sha, bytes, created, last_used) "
                 "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
-                (key.scene, key.cell_text, key.resolution, key.fov, key.codec, key.spp, int(key.di), x, y, z, dx, dy, dz, sha, size, now, now),
+                (
+                    key.scene,
+                    key.cell_text,
+                    key.resolution,
+                    key.fov,
+                    key.codec,
+                    key.spp,
+                    int(key.di),
+                    x,
+                    y,
+                    z,
+                    dx,
+                    dy,
+                    dz,
+                    sha,
+                    size,
+                    now,
+                    now,
+                ),
             )
             entry_id = int(cur.lastrowid)
             db.execute(
@@ -421,12 +455,18 @@ class GITree:
         total = db.execute("SELECT COALESCE(SUM(bytes), 0) FROM usage").fetchone()[0]
         evicted = []
         while total > budget:
-            rows = db.execute("SELECT id, scene, codec, sha, bytes FROM entries WHERE id != ? ORDER BY last_used, id LIMIT 64", (keep,)).fetchall()
+            rows = db.execute(
+                "SELECT id, scene, codec, sha, bytes FROM entries WHERE id != ? ORDER BY last_used, id LIMIT 64",
+                (keep,),
+            ).fetchall()
             for entry_id, scene, codec, sha, size in rows:
                 if total <= budget:
                     break
                 db.execute("DELETE FROM entries WHERE id = ?", (entry_id,))
-                db.execute("UPDATE usage SET entries = entries - 1, bytes = bytes - ? WHERE scene = ? AND codec = ?", (size, scene, codec))
+                db.execute(
+                    "UPDATE usage SET entries = entries - 1, bytes = bytes - ? WHERE scene = ? AND codec = ?",
+                    (size, scene, codec),
+                )
                 total -= size
                 evicted.append(sha)
         db.execute("DELETE FROM usage WHERE entries = 0")
@@ -435,7 +475,10 @@ class GITree:
     def _apply_touches(self, db: sqlite3.Connection) -> None:
         with self._lock:
             touched, self._touched = self._touched, {}
-        db.executemany("UPDATE entries SET last_used = max(last_used, ?), hits = hits + ? WHERE id = ?", [(t, n, i) for i, (t, n) in touched.items()])
+        db.executemany(
+            "UPDATE entries SET last_used = max(last_used, ?), hits = hits + ? WHERE id = ?",
+            [(t, n, i) for i, (t, n) in touched.items()],
+        )
 
     def flush(self) -> None:
         """Write buffered hit times and counts to the index."""
@@ -450,7 +493,11 @@ class GITree:
     def entries(self, scene: str | None = None) -> list[Entry]:
         self.flush()
         sql = "SELECT id, scene, light_cell, resolution, fov, codec, spp, di, ex, ey, ez, dx, dy, dz, sha, bytes, hits FROM entries"
-        rows = self._db().execute(sql + (" WHERE scene = ?" if scene else "") + " ORDER BY id", (scene,) if scene else ()).fetchall()
+        rows = (
+            self._db()
+            .execute(sql + (" WHERE scene = ?" if scene else "") + " ORDER BY id", (scene,) if scene else ())
+            .fetchall()
+        )
         out = []
         for r in rows:
             cell = None if r[2] is None else tuple(int(c) for c in r[2].split(","))
@@ -462,7 +509,10 @@ class GITree:
         """Entries and bytes (total and per scene and codec), the budget, and this instance's counters."""
         self.flush()
         db = self._db()
-        usage = [{"scene": s, "codec": c, "entries": n, "bytes": b} for s, c, n, b in db.execute("SELECT * FROM usage ORDER BY scene, codec")]
+        usage = [
+            {"scene": s, "codec": c, "entries": n, "bytes": b}
+            for s, c, n, b in db.execute("SELECT * FROM usage ORDER BY scene, codec")
+        ]
         scenes = [
             {"scene": s, "light_level": size is not None, "light_cell_size": size}
             for s, size in db.execute("SELECT scene, light_cell_size FROM scenes ORDER BY scene")
@@ -491,7 +541,9 @@ class GITree:
             data = path.read_bytes()
             if len(data) != size or hashlib.sha256(data).hexdigest() != sha:
                 problems.append(f"entry {entry_id}: {path} has {len(data)} bytes / another SHA-256 than indexed")
-        counted = db.execute("SELECT scene, codec, COUNT(*), SUM(bytes) FROM entries GROUP BY scene, codec ORDER BY scene, codec").fetchall()
+        counted = db.execute(
+            "SELECT scene, codec, COUNT(*), SUM(bytes) FROM entries GROUP BY scene, codec ORDER BY scene, codec"
+        ).fetchall()
         accounted = db.execute("SELECT * FROM usage ORDER BY scene, codec").fetchall()
         if counted != accounted:
             problems.append(f"usage table {accounted} does not match the entries {counted}")

@@ -55,7 +55,9 @@ class PointCloud:
         depth = np.asarray(depth, dtype=np.float32)
         h, w = depth.shape
         if img.ndim != 3 or img.shape[:2] != (h, w) or (h, w) != (source.height, source.width):
-            raise ValueError(f"image {img.shape} and depth {depth.shape} must both be {source.height}x{source.width} (the source camera)")
+            raise ValueError(
+                f"image {img.shape} and depth {depth.shape} must both be {source.height}x{source.width} (the source camera)"
+            )
         if not (np.all(np.isfinite(img)) and np.all(np.isfinite(depth))):
             raise ValueError("image or depth contains NaN or Inf")
         src = np.flatnonzero(depth > 0)
@@ -70,7 +72,9 @@ class PointCloud:
         self.colours = img.reshape(h * w, -1)[src]
         self.channels = img.shape[2]
 
-    def splat(self, target: Camera, target_mask: np.ndarray | None = None, fill: bool = True) -> tuple[np.ndarray, np.ndarray, Timings]:
+    def splat(
+        self, target: Camera, target_mask: np.ndarray | None = None, fill: bool = True
+    ) -> tuple[np.ndarray, np.ndarray, Timings]:
         """(target-sized image, valid mask, timings). Invalid pixels hold the hole filling (``fill``) or 0;
         outside ``target_mask`` everything is 0 and invalid."""
         th, tw = target.height, target.width
@@ -112,7 +116,9 @@ class PointCloud:
         return out, valid, sw.ms
 
 
-def _zbuffer(zbuf: np.ndarray, key: np.ndarray, x0: np.ndarray, y0: np.ndarray, k: np.ndarray, tw: int, th: int) -> None:
+def _zbuffer(
+    zbuf: np.ndarray, key: np.ndarray, x0: np.ndarray, y0: np.ndarray, k: np.ndarray, tw: int, th: int
+) -> None:
     """Keep, per pixel of ``zbuf`` (th*tw), the smallest ``key`` of the squares [x0, x0+k) x [y0, y0+k)
     that cover it, visiting only each square's part inside the frame."""
     xs, ys = np.clip(x0, 0, tw), np.clip(y0, 0, th)

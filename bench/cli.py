@@ -52,7 +52,9 @@ BENCHES = tuple(
     )
 )
 
-app = typer.Typer(add_completion=False, no_args_is_help=True, help="Experiments of the GIGAN testbed (CSV + provenance + plots).")
+app = typer.Typer(
+    add_completion=False, no_args_is_help=True, help="Experiments of the GIGAN testbed (CSV + provenance + plots)."
+)
 for _bench in BENCHES:
     register(app, _bench)
 main = entry_point(app, resume="run the same command again; each bench rewrites its CSV, provenance and plots whole")

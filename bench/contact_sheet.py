@@ -33,7 +33,10 @@ def contact_sheet(dataset: Path, png: Path, split: str = "train", n_frames: int 
     meta = read_meta(dataset)
     paths = frame_paths(dataset, split)
     picks = [paths[i] for i in np.linspace(0, len(paths) - 1, min(n_frames, len(paths))).astype(int)]
-    rows = [np.concatenate([visualize(b, f[b]) for b in meta.buffers], axis=1) for f in (load_frame(p, meta.buffers) for p in picks)]
+    rows = [
+        np.concatenate([visualize(b, f[b]) for b in meta.buffers], axis=1)
+        for f in (load_frame(p, meta.buffers) for p in picks)
+    ]
     sheet = np.concatenate(rows, axis=0)
     header = 18
     canvas = Image.new("RGB", (sheet.shape[1], sheet.shape[0] + header), "white")

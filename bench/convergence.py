@@ -38,7 +38,9 @@ class ConvergenceConfig:
 
     @classmethod
     def quick(cls) -> ConvergenceConfig:
-        return cls(scenes=("lung_plane", "lung_cornell"), resolution=96, spps=(1, 4, 16, 64), reference_spp=1024, repeats=2)
+        return cls(
+            scenes=("lung_plane", "lung_cornell"), resolution=96, spps=(1, 4, 16, 64), reference_spp=1024, repeats=2
+        )
 
 
 def measure(cfg: ConvergenceConfig, res: Results) -> None:
@@ -61,7 +63,14 @@ def measure(cfg: ConvergenceConfig, res: Results) -> None:
 
             for system, render in (("path", raw), ("path+oidn", denoised)):
                 samples, image = time_repeats(render, cfg.repeats)
-                res.add_timing(system=system, scene=name, metric="render_time", samples_s=samples, spp=spp, resolution=cfg.resolution)
+                res.add_timing(
+                    system=system,
+                    scene=name,
+                    metric="render_time",
+                    samples_s=samples,
+                    spp=spp,
+                    resolution=cfg.resolution,
+                )
                 for metric, value in all_metrics(tonemap(image), reference).items():
                     res.add(
                         system=system,
@@ -87,7 +96,13 @@ def plot(csv_path: Path, out_dir: Path) -> list[Path]:
         for ax, metric in zip(axes, ("rmse", "ssim")):
             vals = {r["config"]["spp"]: r["value"] for r in sel if r["metric"] == metric}
             spps = sorted(vals)
-            ax.plot([times[s] for s in spps], [vals[s] for s in spps], "-o" if system == "path" else "--s", label=f"{scene} ({system})", ms=4)
+            ax.plot(
+                [times[s] for s in spps],
+                [vals[s] for s in spps],
+                "-o" if system == "path" else "--s",
+                label=f"{scene} ({system})",
+                ms=4,
+            )
             for s in spps:
                 ax.annotate(str(s), (times[s], vals[s]), fontsize=6, alpha=0.6)
     for ax, metric in zip(axes, ("RMSE (tone-mapped)", "SSIM")):

@@ -75,7 +75,16 @@ def turned(camera: Camera, degrees: float) -> Camera:
     a = math.radians(degrees)
     d = np.subtract(camera.target, camera.origin)
     rot = np.array([[math.cos(a), 0.0, math.sin(a)], [0.0, 1.0, 0.0], [-math.sin(a), 0.0, math.cos(a)]])
-    return Camera(camera.origin, tuple(np.add(camera.origin, rot @ d)), camera.up, camera.fov, camera.near, camera.far, camera.width, camera.height)
+    return Camera(
+        camera.origin,
+        tuple(np.add(camera.origin, rot @ d)),
+        camera.up,
+        camera.fov,
+        camera.near,
+        camera.far,
+        camera.width,
+        camera.height,
+    )
 
 
 def moved(camera: Camera, distance: float) -> Camera:
@@ -112,7 +121,15 @@ def _measure_scene(cfg: FovConfig, res: Results, scene: str) -> None:
     spec = load_scene(scene)
     renderer = Renderer(spec, cfg.resolution)
     source = make_gi_source(
-        ClientConfig(scene=scene, resolution=cfg.resolution, gi_source=cfg.gi_source, model=cfg.model, spp=cfg.spp, denoise=cfg.denoise, seed=seed),
+        ClientConfig(
+            scene=scene,
+            resolution=cfg.resolution,
+            gi_source=cfg.gi_source,
+            model=cfg.model,
+            spp=cfg.spp,
+            denoise=cfg.denoise,
+            seed=seed,
+        ),
         renderer,
     )
     cams = camera_path(spec, cfg.orbit_frames, seed=seed, fov=cfg.local_fov, resolution=cfg.resolution)
@@ -126,7 +143,9 @@ def _measure_scene(cfg: FovConfig, res: Results, scene: str) -> None:
         moves = {}  # every moved camera with its DI and tone-mapped GT, shared by all F_GI
         for kind, amount, _ in motions:
             cam = turned(base, amount) if kind == "rotation" else moved(base, amount)
-            gt = tonemap(render_gt(renderer, cam, light, cfg.spp, frame_seed(seed, f"gt/{kind}/{amount}", b), cfg.denoise))
+            gt = tonemap(
+                render_gt(renderer, cam, light, cfg.spp, frame_seed(seed, f"gt/{kind}/{amount}", b), cfg.denoise)
+            )
             moves[kind, amount] = (cam, renderer.render_di(cam, light, seed=b), gt)
         for gi_fov in cfg.gi_fovs:
             gi = source.produce(base.with_fov(gi_fov), light, b)
@@ -145,7 +164,13 @@ def _measure_scene(cfg: FovConfig, res: Results, scene: str) -> None:
                     cam, di, ref = moves[kind, amount]
                     quality["none", gi_fov, kind, amount].append(ssim(tonemap(paste.warp(cam, di)[0]), ref))
 
-    common = {"resolution": cfg.resolution, "local_fov": cfg.local_fov, "views": len(cfg.base_frames), "spp": cfg.spp, "gi_source": cfg.gi_source}
+    common = {
+        "resolution": cfg.resolution,
+        "local_fov": cfg.local_fov,
+        "views": len(cfg.base_frames),
+        "spp": cfg.spp,
+        "gi_source": cfg.gi_source,
+    }
     source_label = "generator" if cfg.gi_source == "model" else "GT stand-in"
     for gi_fov in cfg.gi_fovs:
         res.add(
@@ -193,7 +218,9 @@ def plot(csv_path: Path, out_dir: Path) -> list[Path]:
     scenes = list(dict.fromkeys(r["scene"] for r in rows))
     fig, axes = plt.subplots(1, 4, figsize=(19, 4.2))
     for scene in scenes:
-        maps = sorted((r["config"]["gi_fov"], r["value"]) for r in rows if r["metric"] == "ssim_gi_map" and r["scene"] == scene)
+        maps = sorted(
+            (r["config"]["gi_fov"], r["value"]) for r in rows if r["metric"] == "ssim_gi_map" and r["scene"] == scene
+        )
         axes[0].plot(*zip(*maps), "-o", label=scene)
     axes[0].set_xlabel("GI-camera FOV F_GI [deg]")
     axes[0].set_ylabel(f"SSIM of the GI map ({next(r['system'] for r in rows if r['metric'] == 'ssim_gi_map')})")
@@ -213,7 +240,11 @@ def plot(csv_path: Path, out_dir: Path) -> list[Path]:
                         if (r["scene"], r["system"], r["config"]["gi_fov"]) == (scene, system, gi_fov)
                     )
                     if pts:
-                        label = f"{system}, F_GI {gi_fov:g}°" if len(scenes) == 1 else f"{scene}: {system}, F_GI {gi_fov:g}°"
+                        label = (
+                            f"{system}, F_GI {gi_fov:g}°"
+                            if len(scenes) == 1
+                            else f"{scene}: {system}, F_GI {gi_fov:g}°"
+                        )
                         ax.plot(*zip(*pts), style, ms=4, label=label)
         ax.set_xlabel(f"camera {kind} [{next((r['config']['amount_unit'] for r in sel), '')}]")
         ax.set_ylabel(label)
@@ -226,4 +257,10 @@ def plot(csv_path: Path, out_dir: Path) -> list[Path]:
     return [save(fig, out_dir / "fov.png")]
 
 
-BENCH = Bench("fov", FovConfig, measure, plot, help="Fig. 9 and Fig. 8: GI-camera FOV against GI-map quality and warped quality after camera motion.")
+BENCH = Bench(
+    "fov",
+    FovConfig,
+    measure,
+    plot,
+    help="Fig. 9 and Fig. 8: GI-camera FOV against GI-map quality and warped quality after camera motion.",
+)

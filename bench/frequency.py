@@ -85,7 +85,13 @@ def measure(cfg: FrequencyConfig, res: Results) -> None:
         renderer = Renderer(spec, cfg.resolution)
         cache: dict = {}  # GI maps and GT renders, shared by every configuration
         client = ClientConfig(
-            scene=scene, resolution=cfg.resolution, gi_source=cfg.gi_source, model=cfg.model, spp=cfg.spp, denoise=cfg.denoise, seed=res.seed
+            scene=scene,
+            resolution=cfg.resolution,
+            gi_source=cfg.gi_source,
+            model=cfg.model,
+            spp=cfg.spp,
+            denoise=cfg.denoise,
+            seed=res.seed,
         )
         source = make_gi_source(client, renderer, cache)
         ground_truth = GroundTruth(renderer, cfg.gt_every, cfg.spp, cfg.denoise, res.seed, cache)
@@ -94,9 +100,15 @@ def measure(cfg: FrequencyConfig, res: Results) -> None:
         for k in cfg.ks:
             for warp in cfg.warps:
                 for composition in cfg.compositions:
-                    gi_fov = local_fov if warp == "none" else spec.camera.gi_fov  # pasting needs a map made at the local FOV
+                    gi_fov = (
+                        local_fov if warp == "none" else spec.camera.gi_fov
+                    )  # pasting needs a map made at the local FOV
                     loop_cfg = LoopConfig(every=k, gi_fov=gi_fov, composition=composition, tau=cfg.tau, seed=res.seed)
-                    rows = run_frames(ClientLoop(loop_cfg, renderer, source, make_warp(warp, renderer, composition)), views, ground_truth)
+                    rows = run_frames(
+                        ClientLoop(loop_cfg, renderer, source, make_warp(warp, renderer, composition)),
+                        views,
+                        ground_truth,
+                    )
                     fps = amortized_fps(rows, k)
                     gi_ms = cfg.inference_ms if cfg.inference_ms is not None else fps["gi_ms"]
                     scored = [r for r in rows if r["ssim"] != ""]
@@ -112,7 +124,15 @@ def measure(cfg: FrequencyConfig, res: Results) -> None:
                     }
 
                     def add(metric: str, value: float, unit: str, stat: str = "value") -> None:
-                        res.add(system=WARP_LABELS[warp], scene=spec.name, metric=metric, value=value, unit=unit, stat=stat, **config)
+                        res.add(
+                            system=WARP_LABELS[warp],
+                            scene=spec.name,
+                            metric=metric,
+                            value=value,
+                            unit=unit,
+                            stat=stat,
+                            **config,
+                        )
 
                     add("fps", 1000.0 / (fps["local_ms"] + gi_ms / k), "1/s")
                     add("frame_time", fps["local_ms"], "ms", "median")
@@ -146,7 +166,10 @@ def table(csv_path: Path) -> str:
         for k in sorted({r["config"]["k"] for r in sel}):
 
             def get(system: str, metric: str) -> float:
-                return next((r["value"] for r in sel if (r["system"], r["metric"], r["config"]["k"]) == (system, metric, k)), float("nan"))
+                return next(
+                    (r["value"] for r in sel if (r["system"], r["metric"], r["config"]["k"]) == (system, metric, k)),
+                    float("nan"),
+                )
 
             lines.append(
                 f"| {k} | "
@@ -173,10 +196,15 @@ def plot(csv_path: Path, out_dir: Path) -> list[Path]:
             for composition, style in (("blend", "-o"), ("residual", "--s")):
                 for ax, metric in zip(axes, ("fps", "ssim")):
                     sel = [
-                        r for r in rows if (r["scene"], r["system"], r["metric"], r["config"]["composition"]) == (scene, system, metric, composition)
+                        r
+                        for r in rows
+                        if (r["scene"], r["system"], r["metric"], r["config"]["composition"])
+                        == (scene, system, metric, composition)
                     ]
                     if sel:
-                        label = f"{system} ({composition})" if len(scenes) == 1 else f"{scene}: {system} ({composition})"
+                        label = (
+                            f"{system} ({composition})" if len(scenes) == 1 else f"{scene}: {system} ({composition})"
+                        )
                         ax.plot(*zip(*sorted((r["config"]["k"], r["value"]) for r in sel)), style, ms=4, label=label)
     for ax, label in zip(axes, ("frames per second (GI cost amortised over k)", "mean SSIM vs path-traced GT")):
         ax.set_xlabel("GI-map period k [frames]")
@@ -193,5 +221,9 @@ def plot(csv_path: Path, out_dir: Path) -> list[Path]:
 
 
 BENCH = Bench(
-    "frequency", FrequencyConfig, measure, plot, help="Table 3: GI-map period k against fps and SSIM, with and without warping, both compositions."
+    "frequency",
+    FrequencyConfig,
+    measure,
+    plot,
+    help="Table 3: GI-map period k against fps and SSIM, with and without warping, both compositions.",
 )

@@ -81,7 +81,20 @@ BIN = Path(sys.executable).parent
 GIGAN, CLOUD = "gigan", "cloud_baking"
 #: GIGAN's stages, then cloud baking's, in the order a map goes through them (``total`` last).
 GIGAN_STAGES = ("gi_render", "inference", "warp", "blend")
-CLOUD_STAGES = ("transmission", "request", "transfer", "lookup", "read", "render", "denoise", "encode", "server_other", "decode", "warp", "blend")
+CLOUD_STAGES = (
+    "transmission",
+    "request",
+    "transfer",
+    "lookup",
+    "read",
+    "render",
+    "denoise",
+    "encode",
+    "server_other",
+    "decode",
+    "warp",
+    "blend",
+)
 #: Stages reported but left out of the totals (see the module docstring).
 UNCOUNTED = ("di", "pickup")
 #: Sub-stages of ``transmission`` (its parts, not added again).
@@ -133,7 +146,10 @@ class LatencyConfig:
         known = profiles.profiles()
         for name in self.profiles:
             if name not in known:
-                raise UserError(f"--profiles {name!r} is not a network profile", f"use some of {', '.join(known)} (see network-sim profiles)")
+                raise UserError(
+                    f"--profiles {name!r} is not a network profile",
+                    f"use some of {', '.join(known)} (see network-sim profiles)",
+                )
         check_model_resolution(self.model, self.resolution)
 
 
@@ -183,7 +199,19 @@ def _proxy(plan: dict[str, Any], profile: str, upstream: str, seed: int) -> Iter
     from network_sim.process import Running
 
     target = upstream.removeprefix("http://")
-    argv = [*_prefix(plan, "proxy"), sys.executable, "-m", "network_sim", "proxy", "--upstream", target, "--profile", profile, "--seed", str(seed)]
+    argv = [
+        *_prefix(plan, "proxy"),
+        sys.executable,
+        "-m",
+        "network_sim",
+        "proxy",
+        "--upstream",
+        target,
+        "--profile",
+        profile,
+        "--seed",
+        str(seed),
+    ]
     with Running(argv, timeout=60.0) as proxy:
         host, port = proxy.addr
         yield f"http://{host}:{port}"
@@ -192,7 +220,13 @@ def _proxy(plan: dict[str, Any], profile: str, upstream: str, seed: int) -> Iter
 def _client(plan: dict[str, Any], argv: list[str], out: Path, timeout_s: float) -> Path:
     """Run a pinned client process writing into ``out`` (a fresh folder); its output folder."""
     shutil.rmtree(out, ignore_errors=True)
-    proc = subprocess.run([*_prefix(plan, "client"), *argv, "--out", str(out)], capture_output=True, text=True, timeout=timeout_s, check=False)
+    proc = subprocess.run(
+        [*_prefix(plan, "client"), *argv, "--out", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=timeout_s,
+        check=False,
+    )
     if out.is_dir():
         (out / "console.txt").write_text(proc.stdout + proc.stderr)
     if proc.returncode != 0:
@@ -210,7 +244,9 @@ def _fill_store(url: str, cfg: LatencyConfig, scene: str, seed: int, off_path: b
     spec = load_scene(scene)
     remote = RemoteConfig(url, Path(scene).stem, cfg.resolution, cfg.codec, cfg.spp, cfg.composition == "residual", spec.light.moves,
                           read_timeout_s=cfg.read_timeout_s, deadline_s=2 * cfg.read_timeout_s, retry_after_s=0.0)  # fmt: skip
-    views = path_views(spec, 1 if off_path else cfg.frames, cfg.orbit_frames, seed, spec.camera.local_fov, cfg.resolution)
+    views = path_views(
+        spec, 1 if off_path else cfg.frames, cfg.orbit_frames, seed, spec.camera.local_fov, cfg.resolution
+    )
     with RemoteSource(remote) as source:
         for frame, (camera, light) in enumerate(views):
             gi_camera = camera.with_fov(spec.camera.gi_fov)
@@ -220,7 +256,9 @@ def _fill_store(url: str, cfg: LatencyConfig, scene: str, seed: int, off_path: b
             source.wait(2 * cfg.read_timeout_s + 10)
         failed = [r for r in source.records if r["status"] != "ok"]
         if failed:
-            raise RuntimeError(f"the server at {url} failed a request of the first pass: {failed[0]['status']}: {failed[0]['error']}")
+            raise RuntimeError(
+                f"the server at {url} failed a request of the first pass: {failed[0]['status']}: {failed[0]['error']}"
+            )
         hits = sum(int(r["hit"]) for r in source.records)
         return {"hits": hits, "misses": len(source.records) - hits}
 
@@ -236,8 +274,16 @@ def measure(cfg: LatencyConfig, res: Results) -> None:
     work.mkdir(parents=True, exist_ok=True)
     plan = pinning(cfg.pin)
     res.settings["pinning"] = plan
-    common = {"resolution": cfg.resolution, "k": cfg.every, "frames": cfg.frames, "composition": cfg.composition, "spp": cfg.spp}
-    per_run = 180.0 + cfg.frames * 2.0 + (cfg.frames // cfg.gt_every + 1 if cfg.gt_every else 0) * 20.0 + cfg.read_timeout_s
+    common = {
+        "resolution": cfg.resolution,
+        "k": cfg.every,
+        "frames": cfg.frames,
+        "composition": cfg.composition,
+        "spp": cfg.spp,
+    }
+    per_run = (
+        180.0 + cfg.frames * 2.0 + (cfg.frames // cfg.gt_every + 1 if cfg.gt_every else 0) * 20.0 + cfg.read_timeout_s
+    )
     path_args = ["--scene", scene, "--frames", str(cfg.frames), "--resolution", str(cfg.resolution), "-k", str(cfg.every),
                  "--orbit-frames", str(cfg.orbit_frames), "--spp", str(cfg.spp), "--gt-every", str(cfg.gt_every),
                  "--composition", cfg.composition, "--seed", str(res.seed)]  # fmt: skip
@@ -251,19 +297,40 @@ def measure(cfg: LatencyConfig, res: Results) -> None:
     with pinned_server(plan, work / "store_prebaked", scenes_dir) as warm:
         t0 = time.perf_counter()
         first = _fill_store(warm, cfg, scene, res.seed, off_path=False)
-        res.add(system=CLOUD, scene=spec.name, metric="prebake_maps", value=first["misses"], unit="count", store="prebaked", **common)
         res.add(
-            system=CLOUD, scene=spec.name, metric="prebake_time", value=time.perf_counter() - t0, unit="s", stat="wall", store="prebaked", **common
+            system=CLOUD,
+            scene=spec.name,
+            metric="prebake_maps",
+            value=first["misses"],
+            unit="count",
+            store="prebaked",
+            **common,
+        )
+        res.add(
+            system=CLOUD,
+            scene=spec.name,
+            metric="prebake_time",
+            value=time.perf_counter() - t0,
+            unit="s",
+            stat="wall",
+            store="prebaked",
+            **common,
         )
         for profile in cfg.profiles:
             with _proxy(plan, profile, warm, res.seed) as url:
-                runs[CLOUD, profile, "prebaked"] = _client(plan, [*cloud_argv, "--server", url], work / f"cloud_{profile}_prebaked", per_run)
+                runs[CLOUD, profile, "prebaked"] = _client(
+                    plan, [*cloud_argv, "--server", url], work / f"cloud_{profile}_prebaked", per_run
+                )
             store = work / f"store_cold_{profile}"
             shutil.rmtree(store, ignore_errors=True)
             with pinned_server(plan, store, scenes_dir) as cold:
-                _fill_store(cold, cfg, scene, res.seed, off_path=True)  # compiles the scene and every pass, off the path
+                _fill_store(
+                    cold, cfg, scene, res.seed, off_path=True
+                )  # compiles the scene and every pass, off the path
                 with _proxy(plan, profile, cold, res.seed) as url:
-                    runs[CLOUD, profile, "cold"] = _client(plan, [*cloud_argv, "--server", url], work / f"cloud_{profile}_cold", per_run)
+                    runs[CLOUD, profile, "cold"] = _client(
+                        plan, [*cloud_argv, "--server", url], work / f"cloud_{profile}_cold", per_run
+                    )
             shutil.rmtree(store, ignore_errors=True)
     shutil.rmtree(work / "store_prebaked", ignore_errors=True)
     record(res, spec.name, cfg, runs, common)
@@ -308,15 +375,25 @@ def cloud_samples(requests: list[dict[str, str]]) -> dict[str, dict[str, list[fl
             continue
         samples = out.setdefault("hit" if row["hit"] == "1" else "miss", {})
         values = {s: _f(row[f"{s}_ms"]) for s in CLOUD_STAGES if s != "warp"}
-        values |= {"warp": float(row["bind_ms"]) + float(row["warp_ms"]), "total": float(row["total_ms"]), "pickup": _f(row["pickup_ms"])}
-        values |= {"bytes_up": float(row["bytes_up"]), "bytes_down": float(row["bytes_down"]), "server": float(row["server_ms"])}
+        values |= {
+            "warp": float(row["bind_ms"]) + float(row["warp_ms"]),
+            "total": float(row["total_ms"]),
+            "pickup": _f(row["pickup_ms"]),
+        }
+        values |= {
+            "bytes_up": float(row["bytes_up"]),
+            "bytes_down": float(row["bytes_down"]),
+            "server": float(row["server_ms"]),
+        }
         for name, value in values.items():
             if value is not None:
                 samples.setdefault(name, []).append(value)
     return out
 
 
-def record(res: Results, scene: str, cfg: LatencyConfig, runs: dict[tuple[str, str, str], Path], common: dict[str, Any]) -> None:
+def record(
+    res: Results, scene: str, cfg: LatencyConfig, runs: dict[tuple[str, str, str], Path], common: dict[str, Any]
+) -> None:
     """Rows of every run: stage timings, ratios, the link model's check and crossover, quality along the path."""
     from network_sim import profiles as profile_table
 
@@ -325,7 +402,15 @@ def record(res: Results, scene: str, cfg: LatencyConfig, runs: dict[tuple[str, s
     gigan["di"] = [float(r["di_ms"]) for r in gigan_frames]
     model = {"model": cfg.model.name}
     for stage, values in gigan.items():
-        res.add_timing(system=GIGAN, scene=scene, metric=stage, samples_s=[v / 1e3 for v in values], profile="none", **common, **model)
+        res.add_timing(
+            system=GIGAN,
+            scene=scene,
+            metric=stage,
+            samples_s=[v / 1e3 for v in values],
+            profile="none",
+            **common,
+            **model,
+        )
     _ssim_rows(res, scene, GIGAN, gigan_frames, {"profile": "none", "store": "none"} | common)
     gigan_total = float(np.median(gigan["total"]))
 
@@ -342,25 +427,60 @@ def record(res: Results, scene: str, cfg: LatencyConfig, runs: dict[tuple[str, s
         merged_di = cloud.setdefault((profile, "any"), {}).setdefault("di", [])
         merged_di.extend(float(r["di_ms"]) for r in frames)
         failures = sum(r["status"] not in ("ok", "abandoned") for r in requests)
-        res.add(system=CLOUD, scene=scene, metric="failed_requests", value=failures, unit="count", profile=profile, store=store, **common)
+        res.add(
+            system=CLOUD,
+            scene=scene,
+            metric="failed_requests",
+            value=failures,
+            unit="count",
+            profile=profile,
+            store=store,
+            **common,
+        )
         _ssim_rows(res, scene, CLOUD, frames, {"profile": profile, "store": store, "codec": cfg.codec} | common)
 
     for (profile, cache), samples in cloud.items():
         config = {"profile": profile, "cache": cache, "codec": cfg.codec} | common
         for stage in (*CLOUD_STAGES, "total", "pickup", "di"):
             if samples.get(stage):
-                res.add_timing(system=CLOUD, scene=scene, metric=stage, samples_s=[v / 1e3 for v in samples[stage]], **config)
+                res.add_timing(
+                    system=CLOUD, scene=scene, metric=stage, samples_s=[v / 1e3 for v in samples[stage]], **config
+                )
         if cache == "any":
             continue
         for name in ("bytes_up", "bytes_down"):
-            res.add(system=CLOUD, scene=scene, metric=name, value=float(np.median(samples[name])), unit="B", stat="median", **config)
+            res.add(
+                system=CLOUD,
+                scene=scene,
+                metric=name,
+                value=float(np.median(samples[name])),
+                unit="B",
+                stat="median",
+                **config,
+            )
         link = profile_table.get(profile).link(seed=res.seed)
         rtt_ms = link.rtt_s * 1e3
         ratio = float(np.median(samples["total"])) / gigan_total
-        res.add(system=f"{CLOUD}/{GIGAN}", scene=scene, metric="total_ratio", value=ratio, unit="1", stat="median", rtt_ms=rtt_ms, **config)
+        res.add(
+            system=f"{CLOUD}/{GIGAN}",
+            scene=scene,
+            metric="total_ratio",
+            value=ratio,
+            unit="1",
+            stat="median",
+            rtt_ms=rtt_ms,
+            **config,
+        )
         cost = CloudCost.of(samples)
         res.add(
-            system=CLOUD, scene=scene, metric="total_model", value=cost.total_ms(link, starts=20), unit="ms", stat="median", rtt_ms=rtt_ms, **config
+            system=CLOUD,
+            scene=scene,
+            metric="total_model",
+            value=cost.total_ms(link, starts=20),
+            unit="ms",
+            stat="median",
+            rtt_ms=rtt_ms,
+            **config,
         )
 
     for cache in ("hit", "miss"):
@@ -370,7 +490,15 @@ def record(res: Results, scene: str, cfg: LatencyConfig, runs: dict[tuple[str, s
         cost = CloudCost.of(pooled)
         config = {"cache": cache, "rate_mbit": cfg.sweep_rate_mbit, "codec": cfg.codec} | common
         crossover = cost.crossover_rtt_ms(gigan_total, cfg.sweep_rate_mbit)
-        res.add(system=f"{CLOUD}/{GIGAN}", scene=scene, metric="crossover_rtt", value=crossover, unit="ms", stat="model", **config)
+        res.add(
+            system=f"{CLOUD}/{GIGAN}",
+            scene=scene,
+            metric="crossover_rtt",
+            value=crossover,
+            unit="ms",
+            stat="model",
+            **config,
+        )
         for rtt in np.linspace(0.0, cfg.sweep_max_rtt_ms, 26):
             total = cost.total_ms(sweep_link(float(rtt), cfg.sweep_rate_mbit))
             res.add(
@@ -398,7 +526,15 @@ def _ssim_rows(res: Results, scene: str, system: str, frames: list[dict[str, str
     for frame, value in scored:
         res.add(system=system, scene=scene, metric="ssim", value=value, unit="1", stat="frame", frame=frame, **config)
     if scored:
-        res.add(system=system, scene=scene, metric="ssim", value=float(np.mean([v for _, v in scored])), unit="1", stat="mean", **config)
+        res.add(
+            system=system,
+            scene=scene,
+            metric="ssim",
+            value=float(np.mean([v for _, v in scored])),
+            unit="1",
+            stat="mean",
+            **config,
+        )
 
 
 # -- the link model: cloud baking's total at any link ---------------------------------------------------------
@@ -426,7 +562,10 @@ class CloudCost:
     def of(cls, samples: dict[str, list[float]]) -> CloudCost:
         rest = np.subtract(samples["total"], samples["transmission"])
         return cls(
-            float(np.median(rest)), float(np.median(samples["server"])), int(np.median(samples["bytes_up"])), int(np.median(samples["bytes_down"]))
+            float(np.median(rest)),
+            float(np.median(samples["server"])),
+            int(np.median(samples["bytes_up"])),
+            int(np.median(samples["bytes_down"])),
         )
 
     def network_ms(self, link, starts: int = 1) -> float:
@@ -489,7 +628,9 @@ COLUMNS = ((GIGAN, None, "GIGAN"), (CLOUD, "hit", "cloud baking, hit"), (CLOUD, 
 
 def _lookup(rows: list[dict], system: str, metric: str, stat: str, **config: Any) -> float | None:
     for r in rows:
-        if (r["system"], r["metric"], r["stat"]) == (system, metric, stat) and all(r["config"].get(k) == v for k, v in config.items()):
+        if (r["system"], r["metric"], r["stat"]) == (system, metric, stat) and all(
+            r["config"].get(k) == v for k, v in config.items()
+        ):
             return r["value"]
     return None
 
@@ -500,12 +641,17 @@ def _column_config(system: str, cache: str | None, profile: str) -> dict[str, An
 
 def table(rows: list[dict]) -> str:
     """Table 1 per profile (median ms, p95 in brackets), the ratios, the link model's check and the crossovers."""
-    profiles = list(dict.fromkeys(r["config"]["profile"] for r in rows if r["system"] == CLOUD and "cache" in r["config"]))
+    profiles = list(
+        dict.fromkeys(r["config"]["profile"] for r in rows if r["system"] == CLOUD and "cache" in r["config"])
+    )
     scene = rows[0]["scene"] if rows else ""
     lines = [f"## Table 1: interaction latency, {scene} (ms: median, p95 in brackets)", ""]
     for profile in profiles:
         rtt = _lookup(rows, f"{CLOUD}/{GIGAN}", "total_ratio", "median", profile=profile)
-        rtt_ms = next((r["config"]["rtt_ms"] for r in rows if r["metric"] == "total_ratio" and r["config"]["profile"] == profile), None)
+        rtt_ms = next(
+            (r["config"]["rtt_ms"] for r in rows if r["metric"] == "total_ratio" and r["config"]["profile"] == profile),
+            None,
+        )
         lines += [f"### profile `{profile}`" + (f" (RTT {rtt_ms:g} ms)" if rtt is not None else ""), ""]
         lines += ["| stage | " + " | ".join(label for _, _, label in COLUMNS) + " |", "|---" * (1 + len(COLUMNS)) + "|"]
         for metric, label in TABLE_ROWS:
@@ -516,14 +662,28 @@ def table(rows: list[dict]) -> str:
                 cells.append("—" if median is None else f"{median:.1f} ({p95:.1f})")
             if any(c != "—" for c in cells):
                 lines.append(f"| {label} | " + " | ".join(cells) + " |")
-        ratio = [_lookup(rows, f"{CLOUD}/{GIGAN}", "total_ratio", "median", profile=profile, cache=c) for _, c, _ in COLUMNS[1:]]
-        lines.append("| ratio of totals, cloud / GIGAN | — | " + " | ".join("—" if r is None else f"**{r:.2f}**" for r in ratio) + " |")
+        ratio = [
+            _lookup(rows, f"{CLOUD}/{GIGAN}", "total_ratio", "median", profile=profile, cache=c)
+            for _, c, _ in COLUMNS[1:]
+        ]
+        lines.append(
+            "| ratio of totals, cloud / GIGAN | — | "
+            + " | ".join("—" if r is None else f"**{r:.2f}**" for r in ratio)
+            + " |"
+        )
         model = [_lookup(rows, CLOUD, "total_model", "median", profile=profile, cache=c) for _, c, _ in COLUMNS[1:]]
-        lines.append("| total by the link model (check) | — | " + " | ".join("—" if m is None else f"{m:.1f}" for m in model) + " |")
+        lines.append(
+            "| total by the link model (check) | — | "
+            + " | ".join("—" if m is None else f"{m:.1f}" for m in model)
+            + " |"
+        )
         counts = [_lookup(rows, s, "total", "n", **_column_config(s, c, profile)) for s, c, _ in COLUMNS]
         lines.append("| maps measured | " + " | ".join("0" if n is None else f"{n:.0f}" for n in counts) + " |")
         di = [
-            _lookup(rows, s, "di", "median", **({"profile": "none"} if s == GIGAN else {"profile": profile, "cache": "any"})) for s in (GIGAN, CLOUD)
+            _lookup(
+                rows, s, "di", "median", **({"profile": "none"} if s == GIGAN else {"profile": profile, "cache": "any"})
+            )
+            for s in (GIGAN, CLOUD)
         ]
         pickup = [_lookup(rows, CLOUD, "pickup", "median", profile=profile, cache=c) for c in ("hit", "miss")]
         note = "Not in the totals: the local DI render both systems run every frame (median "
@@ -534,12 +694,21 @@ def table(rows: list[dict]) -> str:
             + " ms, hit / miss)."
         )
         lines += ["", note, ""]
-    crossings = [(r["config"]["cache"], r["value"], r["config"].get("rate_mbit")) for r in rows if r["metric"] == "crossover_rtt"]
+    crossings = [
+        (r["config"]["cache"], r["value"], r["config"].get("rate_mbit")) for r in rows if r["metric"] == "crossover_rtt"
+    ]
     if crossings:
-        lines += ["### crossover: the RTT beyond which GIGAN's median total beats cloud baking's (link model, measured stages)", ""]
+        lines += [
+            "### crossover: the RTT beyond which GIGAN's median total beats cloud baking's (link model, measured stages)",
+            "",
+        ]
         lines += ["| cache | crossover RTT (ms) | link rate |", "|---|---|---|"]
         for cache, value, rate in crossings:
-            shown = "0 (GIGAN is faster at any RTT)" if value == 0 else ("none up to a minute" if math.isinf(value) else f"{value:.0f}")
+            shown = (
+                "0 (GIGAN is faster at any RTT)"
+                if value == 0
+                else ("none up to a minute" if math.isinf(value) else f"{value:.0f}")
+            )
             lines.append(f"| {cache} | {shown} | {'unlimited' if rate is None else f'{rate:g} Mbit/s'} |")
         lines.append("")
     return "\n".join(lines)
@@ -555,7 +724,9 @@ def plot(csv_path: Path, out_dir: Path) -> list[Path]:
     md.write_text(text + "\n")
     print(text)
     written = [md]
-    profiles = list(dict.fromkeys(r["config"]["profile"] for r in rows if r["system"] == CLOUD and "cache" in r["config"]))
+    profiles = list(
+        dict.fromkeys(r["config"]["profile"] for r in rows if r["system"] == CLOUD and "cache" in r["config"])
+    )
 
     # stacked stage bars: one bar per system and profile (GIGAN's once, it needs no network)
     bars = [("GIGAN", GIGAN, {"profile": "none"}, GIGAN_STAGES)]
@@ -569,7 +740,13 @@ def plot(csv_path: Path, out_dir: Path) -> list[Path]:
         left = 0.0
         for stage in names:
             value = _lookup(rows, system, stage, "median", **config) or 0.0
-            ax.barh(y, value, left=left, color=colours[stage], label=stage if y == next(i for i, b in enumerate(bars) if stage in b[3]) else None)
+            ax.barh(
+                y,
+                value,
+                left=left,
+                color=colours[stage],
+                label=stage if y == next(i for i, b in enumerate(bars) if stage in b[3]) else None,
+            )
             left += value
         total = _lookup(rows, system, "total", "median", **config)
         ax.text(left, y, f" {total:.0f} ms", va="center", fontsize=8)
@@ -583,7 +760,11 @@ def plot(csv_path: Path, out_dir: Path) -> list[Path]:
     # ratio of totals against RTT: the link model's curve, the measured profiles as points
     fig, ax = plt.subplots(figsize=(7, 4.2))
     for cache, colour in (("hit", "tab:blue"), ("miss", "tab:red")):
-        curve = sorted((r["config"]["rtt_ms"], r["value"]) for r in rows if r["metric"] == "ratio_model" and r["config"]["cache"] == cache)
+        curve = sorted(
+            (r["config"]["rtt_ms"], r["value"])
+            for r in rows
+            if r["metric"] == "ratio_model" and r["config"]["cache"] == cache
+        )
         if curve:
             ax.plot(*zip(*curve), "-", color=colour, label=f"{cache}: link model")
         points = [
@@ -609,7 +790,9 @@ def plot(csv_path: Path, out_dir: Path) -> list[Path]:
     # SSIM along the path: how stale maps cost quality while requests are in flight
     scored = [r for r in rows if r["metric"] == "ssim" and r["stat"] == "frame"]
     if scored:
-        fig, axes = plt.subplots(1, len(profiles) or 1, figsize=(4.5 * max(len(profiles), 1), 3.6), squeeze=False, sharey=True)
+        fig, axes = plt.subplots(
+            1, len(profiles) or 1, figsize=(4.5 * max(len(profiles), 1), 3.6), squeeze=False, sharey=True
+        )
         gigan = sorted((r["config"]["frame"], r["value"]) for r in scored if r["system"] == GIGAN)
         for ax, profile in zip(axes[0], profiles or ["none"]):
             if gigan:

@@ -29,7 +29,10 @@ from gicore.results import Results, read_rows
 #: Where the logged step times were measured, by the run's last ``--device``.
 STEP_WHERE = {"cpu": "on this machine's CPU", "cuda": "on the CUDA GPU it trained on (not this machine)"}
 #: How the card names each U-Net up-sampling (``NetworkConfig.upsample``; exports older than it are transposed).
-UPSAMPLING_WORDS = {"transposed": "4x4 stride-2 transposed-conv up-sampling", "resize": "nearest 2x resize + 3x3 conv up-sampling"}
+UPSAMPLING_WORDS = {
+    "transposed": "4x4 stride-2 transposed-conv up-sampling",
+    "resize": "nearest 2x resize + 3x3 conv up-sampling",
+}
 
 
 @dataclass(frozen=True)
@@ -62,17 +65,25 @@ class ModelCardConfig:
     def check(self) -> None:
         if self.run is None and self.train_steps is None:
             raise UserError(
-                "--run is not given: no model to describe", "give --run, --export and --quality-csv, or --quick to make a small model here"
+                "--run is not given: no model to describe",
+                "give --run, --export and --quality-csv, or --quick to make a small model here",
             )
         if self.run is None and (self.export is not None or self.quality_csv is not None):
-            raise UserError("--export/--quality-csv given without --run", "give the run folder the exported model came from")
+            raise UserError(
+                "--export/--quality-csv given without --run", "give the run folder the exported model came from"
+            )
         if self.run is not None and self.quality_csv is None:
-            raise UserError("--run given without --quality-csv", "score the exported model with `bench quality --models NAME=FILE` and pass its CSV")
+            raise UserError(
+                "--run given without --quality-csv",
+                "score the exported model with `bench quality --models NAME=FILE` and pass its CSV",
+            )
         required = {"--run": (self.run, ("config.json", "metrics.csv")), "--export": (self.export, ("model.json",))}
         for option, (folder, names) in required.items():
             for name in names if folder is not None else ():
                 if not (folder / name).is_file():
-                    raise UserError(f"{option} {folder}: {folder / name} is missing", f"give the {option[2:]} folder of the model")
+                    raise UserError(
+                        f"{option} {folder}: {folder / name} is missing", f"give the {option[2:]} folder of the model"
+                    )
         if self.quality_csv is not None and not self.quality_csv.is_file():
             raise UserError(f"--quality-csv {self.quality_csv} is missing", "give a CSV written by bench quality")
 
@@ -83,7 +94,9 @@ def measure(cfg: ModelCardConfig, res: Results) -> None:
     if run is None:  # the small chain; check() made sure train_steps is set
         [run] = train_small(cfg.scenes, (cfg.width,), cfg.train_steps, res)
         dataset_command = f"bench model-card --quick: bench.quality.QUICK_DATASET of {', '.join(cfg.scenes)} into {res.out / 'dataset'}"
-        train_command = f"bench model-card --quick: bench.training.train_small, GIGAN ngf {cfg.width}, {cfg.train_steps} steps"
+        train_command = (
+            f"bench model-card --quick: bench.training.train_small, GIGAN ngf {cfg.width}, {cfg.train_steps} steps"
+        )
     if export is None:
         from gigan_local.export import export_onnx
 
@@ -98,7 +111,15 @@ def measure(cfg: ModelCardConfig, res: Results) -> None:
     res.files.append(write_model_card(run, export, quality_csv, cfg.system, dataset_command, train_command, res))
 
 
-def write_model_card(run_dir: Path, export_dir: Path, quality_csv: Path, system: str, dataset_command: str, train_command: str, res: Results) -> Path:
+def write_model_card(
+    run_dir: Path,
+    export_dir: Path,
+    quality_csv: Path,
+    system: str,
+    dataset_command: str,
+    train_command: str,
+    res: Results,
+) -> Path:
     """Write ``export_dir/MODEL_CARD.md`` and add its numbers to ``res``; returns the card's path."""
     config = json.loads((run_dir / "config.json").read_text())
     train = config["train"]
@@ -113,14 +134,34 @@ def write_model_card(run_dir: Path, export_dir: Path, quality_csv: Path, system:
     rows = read_rows(quality_csv)
     scenes = sorted({r["scene"] for r in rows})
     if not any(r["system"] == system for r in rows):
-        raise UserError(f"--quality-csv {quality_csv} has no rows of system {system!r}", "pass --system with the model's name in that CSV")
+        raise UserError(
+            f"--quality-csv {quality_csv} has no rows of system {system!r}",
+            "pass --system with the model's name in that CSV",
+        )
     model_name = export_dir.name
     res.add(system=model_name, scene="all", metric="training_steps", value=last_step, unit="count", run=run_dir.name)
-    res.add(system=model_name, scene="all", metric="training_time", value=compute_min, unit="min", stat="sum", run=run_dir.name)
+    res.add(
+        system=model_name,
+        scene="all",
+        metric="training_time",
+        value=compute_min,
+        unit="min",
+        stat="sum",
+        run=run_dir.name,
+    )
     for metric, value in val.items():
-        res.add(system=model_name, scene="all", metric=f"val_{metric}", value=value, unit="dB" if metric == "psnr" else "1", step=last_step)
+        res.add(
+            system=model_name,
+            scene="all",
+            metric=f"val_{metric}",
+            value=value,
+            unit="dB" if metric == "psnr" else "1",
+            step=last_step,
+        )
     for r in rows:
-        if r["system"] in (system, "di_only") and (r["stat"] == "mean" or r["metric"] == "inference_time" and r["stat"] == "median"):
+        if r["system"] in (system, "di_only") and (
+            r["stat"] == "mean" or r["metric"] == "inference_time" and r["stat"] == "median"
+        ):
             res.add(
                 system=model_name if r["system"] == system else "di_only",
                 scene=r["scene"],
@@ -133,7 +174,11 @@ def write_model_card(run_dir: Path, export_dir: Path, quality_csv: Path, system:
             )
 
     def cell(sys: str, scene: str, metric: str, stat: str = "mean") -> str:
-        v = [r["value"] for r in rows if r["system"] == sys and r["scene"] == scene and r["metric"] == metric and r["stat"] == stat]
+        v = [
+            r["value"]
+            for r in rows
+            if r["system"] == sys and r["scene"] == scene and r["metric"] == metric and r["stat"] == stat
+        ]
         digits = {"psnr": 2, "inference_time": 1}.get(metric, 4)
         return f"{v[0]:.{digits}f}" if v else "n/a"
 
@@ -224,4 +269,10 @@ def plot(csv_path: Path, out_dir: Path) -> list[Path]:
     return [save(fig, out_dir / "model_card.png")]
 
 
-BENCH = Bench("model-card", ModelCardConfig, measure, plot, help="MODEL_CARD.md for an exported model from its run, export and quality results.")
+BENCH = Bench(
+    "model-card",
+    ModelCardConfig,
+    measure,
+    plot,
+    help="MODEL_CARD.md for an exported model from its run, export and quality results.",
+)

@@ -36,4 +36,6 @@ def check_model_resolution(path: Path, resolution: int, option: str = "--model")
     """The model must run at the bench's ``--resolution`` (a U-Net is built for one frame size)."""
     expected = model_info(path, option)["resolution"]
     if expected != resolution:
-        raise UserError(f"{option} {path} runs at {expected}² but --resolution is {resolution}", f"pass --resolution {expected}")
+        raise UserError(
+            f"{option} {path} runs at {expected}² but --resolution is {resolution}", f"pass --resolution {expected}"
+        )

@@ -81,7 +81,9 @@ class ParetoConfig:
     #: Samples per pixel of the per-map reference (path traced, OIDN).
     reference_spp: int = 1024
     #: GIGAN: name -> exported ONNX model (width and precision knob).
-    models: dict[str, Path] = field(default_factory=lambda: {"fp16": DEFAULT_MODEL, "fp32": DEFAULT_MODEL.with_name("model_fp32.onnx")})
+    models: dict[str, Path] = field(
+        default_factory=lambda: {"fp16": DEFAULT_MODEL, "fp32": DEFAULT_MODEL.with_name("model_fp32.onnx")}
+    )
     #: GIGAN: GI-camera FOVs, degrees.
     gi_fovs: tuple[float, ...] = field(default=(60.0, 90.0, 120.0), metadata=FOV_DEGREES)
     #: Cloud baking: bake spp (each with and without OIDN).
@@ -91,7 +93,19 @@ class ParetoConfig:
     #: Cloud baking: bake resolutions (lower ones are upsampled to --resolution).
     resolutions: tuple[int, ...] = (64, 128, 256)
     #: Cloud baking: codecs, NAME or NAME:QUALITY (jpeg, webp, avif take a quality).
-    codecs: tuple[str, ...] = ("jpeg:50", "jpeg:75", "jpeg:90", "jpeg:95", "webp:50", "webp:90", "avif:50", "avif:80", "png", "exr-half", "zstd-f16")
+    codecs: tuple[str, ...] = (
+        "jpeg:50",
+        "jpeg:75",
+        "jpeg:90",
+        "jpeg:95",
+        "webp:50",
+        "webp:90",
+        "avif:50",
+        "avif:80",
+        "png",
+        "exr-half",
+        "zstd-f16",
+    )
     #: Cloud baking: network profiles (network-sim profiles) the maps travel over.
     profiles: tuple[str, ...] = ("lan", "wifi", "lte", "wan", "3g")
     #: Cloud baking: store tolerances as DP:DTHETA (scene units : degrees).
@@ -130,9 +144,12 @@ class ParetoConfig:
             check_model_resolution(path, self.resolution, f"--models {name}")
         for spec in self.codecs:
             name, _, quality = spec.partition(":")
-            if name not in CODEC_NAMES or (quality and (name not in QUALITY_OPTION or not quality.isdigit() or not 1 <= int(quality) <= 100)):
+            if name not in CODEC_NAMES or (
+                quality and (name not in QUALITY_OPTION or not quality.isdigit() or not 1 <= int(quality) <= 100)
+            ):
                 raise UserError(
-                    f"--codecs {spec!r} is not NAME or NAME:QUALITY", f"use {', '.join(CODEC_NAMES)}; quality 1-100 for {', '.join(QUALITY_OPTION)}"
+                    f"--codecs {spec!r} is not NAME or NAME:QUALITY",
+                    f"use {', '.join(CODEC_NAMES)}; quality 1-100 for {', '.join(QUALITY_OPTION)}",
                 )
         known = profiles.profiles()
         for name in self.profiles:
@@ -145,11 +162,19 @@ class ParetoConfig:
             (self.compositions, "--compositions", ("blend", "residual")),
         ):
             if set(value) - set(allowed):
-                raise UserError(f"{option} {','.join(value)} holds an unknown value", f"use some of {', '.join(allowed)}")
+                raise UserError(
+                    f"{option} {','.join(value)} holds an unknown value", f"use some of {', '.join(allowed)}"
+                )
         if max(self.resolutions) > self.resolution:
-            raise UserError(f"--resolutions {max(self.resolutions)} exceeds --resolution {self.resolution}", "bake at the map resolution or below")
+            raise UserError(
+                f"--resolutions {max(self.resolutions)} exceeds --resolution {self.resolution}",
+                "bake at the map resolution or below",
+            )
         if self.from_dir is not None and not self.from_dir.is_dir():
-            raise UserError(f"--from-dir {self.from_dir} is not a folder", "give the folder of earlier bench outputs, or leave it out")
+            raise UserError(
+                f"--from-dir {self.from_dir} is not a folder",
+                "give the folder of earlier bench outputs, or leave it out",
+            )
 
 
 #: The Pillow option that sets each 8-bit codec's quality.
@@ -198,7 +223,9 @@ class Context:
 
         key = (camera, tuple(light))
         if key not in self.references:
-            self.references[key] = tonemap(render_gt(self.renderer, camera, light, self.cfg.reference_spp, self.seed + 10_007, True))
+            self.references[key] = tonemap(
+                render_gt(self.renderer, camera, light, self.cfg.reference_spp, self.seed + 10_007, True)
+            )
         return self.references[key]
 
     def error(self, image: np.ndarray, camera, light) -> float:
@@ -221,9 +248,17 @@ class Points:
     def __init__(self) -> None:
         self.items: list[dict[str, Any]] = []
 
-    def add(self, system: str, per: str, knob: str, time_ms: float, error: float, source: str = "measured", **config: Any) -> None:
+    def add(
+        self, system: str, per: str, knob: str, time_ms: float, error: float, source: str = "measured", **config: Any
+    ) -> None:
         self.items.append(
-            {"system": system, "per": per, "time": time_ms, "error": error, "config": {"knob": knob, "per": per, "source": source, **config}}
+            {
+                "system": system,
+                "per": per,
+                "time": time_ms,
+                "error": error,
+                "config": {"knob": knob, "per": per, "source": source, **config},
+            }
         )
 
 
@@ -270,7 +305,9 @@ def bake_spp(ctx: Context, pts: Points, from_dir: Path | None) -> None:
         for denoise in (False, True):
             times, errors = [], []
             for cam, light in zip(ctx.cameras, ctx.light):
-                ms, image = _median_ms(lambda cam=cam, light=light: _bake(ctx, cam.with_fov(gi_fov), light, spp, denoise), cfg.repeats)
+                ms, image = _median_ms(
+                    lambda cam=cam, light=light: _bake(ctx, cam.with_fov(gi_fov), light, spp, denoise), cfg.repeats
+                )
                 times.append(ms)
                 errors.append(ctx.error(image, cam.with_fov(gi_fov), light))
             pts.add(CLOUD, PER_MAP, "bake spp × denoise", float(np.median(times)), float(np.mean(errors)), spp=spp, denoise=denoise,
@@ -288,12 +325,18 @@ def _convergence_points(from_dir: Path, scene: str, resolution: int) -> list[dic
     else:
         return []
     source = str(path.relative_to(from_dir))
-    times = {(r["system"], r["config"]["spp"]): r for r in rows if r["metric"] == "render_time" and r["stat"] == "median"}
+    times = {
+        (r["system"], r["config"]["spp"]): r for r in rows if r["metric"] == "render_time" and r["stat"] == "median"
+    }
     out = []
     for r in rows:
         if r["metric"] == "ssim" and (r["system"], r["config"]["spp"]) in times:
             t = times[r["system"], r["config"]["spp"]]
-            config = {"spp": r["config"]["spp"], "denoise": r["system"] == "path+oidn", "resolution": r["config"]["resolution"]}
+            config = {
+                "spp": r["config"]["spp"],
+                "denoise": r["system"] == "path+oidn",
+                "resolution": r["config"]["resolution"],
+            }
             out.append({"time": t["value"], "error": 1.0 - r["value"], "source": source, "config": config})
     return out
 
@@ -312,10 +355,18 @@ def bake_resolution(ctx: Context, pts: Points) -> dict[str, float]:
         times, errors = [], []
         for cam, light in zip(ctx.cameras, ctx.light):
             small = replace(cam.with_fov(gi_fov), width=res, height=res)
-            ms, image = _median_ms(lambda small=small, light=light: _bake(ctx, small, light, cfg.bake_spp, True, renderer), cfg.repeats)
+            ms, image = _median_ms(
+                lambda small=small, light=light: _bake(ctx, small, light, cfg.bake_spp, True, renderer), cfg.repeats
+            )
             if res != cfg.resolution:
                 image = np.stack(
-                    [np.asarray(Image.fromarray(image[..., c]).resize((cfg.resolution, cfg.resolution), Image.BILINEAR)) for c in range(3)], -1
+                    [
+                        np.asarray(
+                            Image.fromarray(image[..., c]).resize((cfg.resolution, cfg.resolution), Image.BILINEAR)
+                        )
+                        for c in range(3)
+                    ],
+                    -1,
                 )
             times.append(ms)
             errors.append(ctx.error(image, cam.with_fov(gi_fov), light))
@@ -354,7 +405,12 @@ def codecs_and_links(ctx: Context, pts: Points, bake_ms: float) -> dict[str, Any
             dec.append(d_ms)
             sizes.append(len(payload) + 200)  # + the HTTP response header
             errors.append(ctx.error(decoded, gi_cam, light))
-        encode_ms, decode_ms, nbytes, error = float(np.median(enc)), float(np.median(dec)), int(np.median(sizes)), float(np.mean(errors))
+        encode_ms, decode_ms, nbytes, error = (
+            float(np.median(enc)),
+            float(np.median(dec)),
+            int(np.median(sizes)),
+            float(np.mean(errors)),
+        )
         first = first or {"bytes": nbytes, "encode_ms": encode_ms, "decode_ms": decode_ms, "codec": spec}
         for profile in cfg.profiles:
             link = profiles.get(profile).link(seed=ctx.seed)
@@ -380,7 +436,9 @@ def tolerances(ctx: Context, pts: Points, bake_ms: float, hit_path: dict[str, An
     link = profiles.get("lan").link(seed=ctx.seed)
     hit_ms = CloudCost(0.0, 0.0, REQUEST_BYTES, hit_path["bytes"]).network_ms(link) + hit_path["decode_ms"]
     server_ms = bake_ms + hit_path["encode_ms"]
-    miss_ms = CloudCost(0.0, server_ms, REQUEST_BYTES, hit_path["bytes"]).network_ms(link) + server_ms + hit_path["decode_ms"]
+    miss_ms = (
+        CloudCost(0.0, server_ms, REQUEST_BYTES, hit_path["bytes"]).network_ms(link) + server_ms + hit_path["decode_ms"]
+    )
     path = camera_path(ctx.spec, cfg.path_frames, seed=ctx.seed, fov=gi_fov, resolution=cfg.resolution)
     rng = np.random.default_rng(ctx.seed)
     for text in cfg.tolerances:
@@ -392,7 +450,9 @@ def tolerances(ctx: Context, pts: Points, bake_ms: float, hit_path: dict[str, An
         for c in path:
             eye = np.add(c.origin, rng.normal(0.0, dp / 2 / math.sqrt(3), 3))
             reach = float(np.linalg.norm(np.subtract(c.target, c.origin))) * math.tan(math.radians(angle / 2))
-            moved.append(Viewpoint.look_at(tuple(eye), tuple(np.add(c.target, rng.normal(0.0, reach / math.sqrt(3), 3)))))
+            moved.append(
+                Viewpoint.look_at(tuple(eye), tuple(np.add(c.target, rng.normal(0.0, reach / math.sqrt(3), 3))))
+            )
         served = simulate_fill(first + moved, [None] * (2 * len(path)), tol)
         known = set(served[: len(path)])
         hit_rate = float(np.mean([s in known for s in served[len(path) :]]))
@@ -402,7 +462,9 @@ def tolerances(ctx: Context, pts: Points, bake_ms: float, hit_path: dict[str, An
             request = _offset_camera(stored, dp / 2, angle / 2)
             cloud = PointCloud(_bake(ctx, stored, light, cfg.bake_spp, True), texel_depth(ctx.renderer, stored), stored)
             mask = ctx.renderer.render_uv(request)["mask"]
-            ms, (image, _, _) = _median_ms(lambda request=request, mask=mask: cloud.splat(request, target_mask=mask), cfg.repeats)
+            ms, (image, _, _) = _median_ms(
+                lambda request=request, mask=mask: cloud.splat(request, target_mask=mask), cfg.repeats
+            )
             warp_ms.append(ms)
             errors.append(ctx.error(image, request, light))
         mean_ms = hit_rate * (hit_ms + float(np.median(warp_ms))) + (1.0 - hit_rate) * miss_ms
@@ -438,7 +500,9 @@ def per_frame(ctx: Context, pts: Points, res: Results) -> None:
 
     cfg = ctx.cfg
     for source in ("model", "gt"):
-        rows, origin = _frequency_rows(cfg.from_dir, ctx.spec.name, source, cfg.resolution) if cfg.from_dir else ([], "")
+        rows, origin = (
+            _frequency_rows(cfg.from_dir, ctx.spec.name, source, cfg.resolution) if cfg.from_dir else ([], "")
+        )
         if not rows:
             run = frequency.FrequencyConfig(
                 scenes=cfg.scenes, resolution=cfg.resolution, ks=cfg.ks, frames=cfg.frames, warps=cfg.warps, compositions=cfg.compositions,
@@ -471,7 +535,9 @@ def _frequency_rows(from_dir: Path, scene: str, source: str, resolution: int) ->
         rows = [
             r
             for r in read_rows(path)
-            if r["scene"] == scene and r["config"].get("gi_source") == source and r["config"].get("resolution") == resolution
+            if r["scene"] == scene
+            and r["config"].get("gi_source") == source
+            and r["config"].get("resolution") == resolution
         ]
         if rows:
             return rows, str(path.relative_to(from_dir))
@@ -487,7 +553,11 @@ def mark_dominated(items: list[dict[str, Any]]) -> None:
     ):
         for p in items:
             p[flag] = any(
-                by(p, q) and q["time"] <= p["time"] and q["error"] <= p["error"] and (q["time"] < p["time"] or q["error"] < p["error"]) for q in items
+                by(p, q)
+                and q["time"] <= p["time"]
+                and q["error"] <= p["error"]
+                and (q["time"] < p["time"] or q["error"] < p["error"])
+                for q in items
             )
 
 
@@ -499,7 +569,14 @@ def measure(cfg: ParetoConfig, res: Results) -> None:
     spec = load_scene(cfg.scenes[0])
     frames = [int(i * 300 / cfg.views) for i in range(cfg.views)]
     path = camera_path(spec, 300, seed=res.seed, fov=spec.camera.local_fov, resolution=cfg.resolution)
-    ctx = Context(cfg, spec, Renderer(spec, cfg.resolution), [path[f] for f in frames], [light_position(spec, f) for f in frames], res.seed)
+    ctx = Context(
+        cfg,
+        spec,
+        Renderer(spec, cfg.resolution),
+        [path[f] for f in frames],
+        [light_position(spec, f) for f in frames],
+        res.seed,
+    )
     pts = Points()
     gigan_maps(ctx, pts)
     bake_spp(ctx, pts, cfg.from_dir)
@@ -522,7 +599,9 @@ def front_points(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     points: dict[str, dict[str, Any]] = {}
     for r in rows:
         key = json.dumps([r["system"], r["scene"], r["config"]], sort_keys=True)
-        p = points.setdefault(key, {"system": r["system"], "scene": r["scene"], "config": r["config"], "per": r["config"].get("per", "?")})
+        p = points.setdefault(
+            key, {"system": r["system"], "scene": r["scene"], "config": r["config"], "per": r["config"].get("per", "?")}
+        )
         if r["metric"] == "run_time":
             p["time"] = r["value"]
         elif r["metric"] == "error":
@@ -559,7 +638,9 @@ def caveat(p: dict[str, Any], points: list[dict[str, Any]]) -> str:
         if c.get("knob") == "store tolerance":
             return f"hit-rate-weighted delivery on {c.get('profile')}, stale map warped"
         if "cache" in c:
-            return f"delivered on {c['profile']}: " + ("bake + encode + network + decode" if c["cache"] == "miss" else "store hit: network + decode")
+            return f"delivered on {c['profile']}: " + (
+                "bake + encode + network + decode" if c["cache"] == "miss" else "store hit: network + decode"
+            )
         return "server bake only: no encode, network or decode"
     if c.get("gi_source") == "model":
         return f"client frame + its map's cost / k (k={c['k']})"
@@ -571,7 +652,9 @@ def caveat(p: dict[str, Any], points: list[dict[str, Any]]) -> str:
             q = min(maps, key=lambda q: q["time"])
             verdicts.append(f"fastest map {cache} {q['time']:.3g} ms ({q['config']['codec']}, {q['config']['profile']}): "
                             + ("met" if q["time"] <= due else "NOT met"))  # fmt: skip
-    return f"client frame only; assumes a GI map within k={c['k']} frames = {due:.3g} ms; " + ("; ".join(verdicts) or "no map delivery measured")
+    return f"client frame only; assumes a GI map within k={c['k']} frames = {due:.3g} ms; " + (
+        "; ".join(verdicts) or "no map delivery measured"
+    )
 
 
 def plot(csv_path: Path, out_dir: Path) -> list[Path]:

@@ -118,7 +118,10 @@ def measure(cfg: QualityConfig, res: Results) -> None:
             outputs = {"di_only": frame["di"]} | {name: m.predict(frame) for name, m in models.items()}
             mapped = {name: tonemap(radiance) for name, radiance in outputs.items()}
             for name, image in mapped.items():
-                extra = {"checker_error": checker_error(image, reference), "shadow_tint": shadow_tint(image, reference, mapped["di_only"])}
+                extra = {
+                    "checker_error": checker_error(image, reference),
+                    "shadow_tint": shadow_tint(image, reference, mapped["di_only"]),
+                }
                 scores[name].append(all_metrics(image, reference) | extra)
             if i < cfg.grid_frames:
                 grid += grid_rows(frame, mapped, reference, f"{scene} #{i}")
@@ -139,7 +142,9 @@ def measure(cfg: QualityConfig, res: Results) -> None:
         for name, model in models.items():
             frame = load_frame(paths[0], meta.buffers)
             samples, _ = time_repeats(lambda: model.predict(frame), cfg.timing_repeats, warmup=3)
-            res.add_timing(system=name, scene=scene, metric="inference_time", samples_s=samples, threads=cfg.threads, **infos[name])
+            res.add_timing(
+                system=name, scene=scene, metric="inference_time", samples_s=samples, threads=cfg.threads, **infos[name]
+            )
     if grid:
         save_grid(grid, ["DI", "albedo", "normal", *models, "GT"], res.output("quality_grid.png"), GRID_CAPTION)
 
@@ -158,7 +163,12 @@ def plot(csv_path: Path, out_dir: Path) -> list[Path]:
         for j, system in enumerate(systems):
             vals = [
                 next(
-                    (r["value"] for r in rows if r["scene"] == s and r["system"] == system and r["metric"] == metric and r["stat"] == "mean"), np.nan
+                    (
+                        r["value"]
+                        for r in rows
+                        if r["scene"] == s and r["system"] == system and r["metric"] == metric and r["stat"] == "mean"
+                    ),
+                    np.nan,
                 )
                 for s in scenes
             ]
@@ -174,7 +184,11 @@ def plot(csv_path: Path, out_dir: Path) -> list[Path]:
     fig, ax = plt.subplots(figsize=(10, 5))
     markers = {"fp32": "o", "fp16": "s", "int8": "^"}
     for system in systems:
-        times = [r["value"] for r in rows if r["system"] == system and r["metric"] == "inference_time" and r["stat"] == "median"]
+        times = [
+            r["value"]
+            for r in rows
+            if r["system"] == system and r["metric"] == "inference_time" and r["stat"] == "median"
+        ]
         ssims = [r["value"] for r in rows if r["system"] == system and r["metric"] == "ssim"]
         if times:
             cfg = next(r["config"] for r in rows if r["system"] == system and r["metric"] == "inference_time")
@@ -222,7 +236,9 @@ def _legend(shape: tuple[int, ...], ramp: np.ndarray) -> np.ndarray:
     return cell
 
 
-def grid_rows(frame: dict[str, np.ndarray], maps: dict[str, np.ndarray], reference: np.ndarray, title: str) -> list[list[GridCell]]:
+def grid_rows(
+    frame: dict[str, np.ndarray], maps: dict[str, np.ndarray], reference: np.ndarray, title: str
+) -> list[list[GridCell]]:
     """The three grid rows of one frame: ``[DI, albedo, normal, models..., GT]``; then under DI and under each
     model its |error| image (:func:`abs_error_image`); then its low-frequency signed error (:func:`lf_colours`
     of :func:`gicore.metrics.lf_difference`'s channel mean) with the frame's lf_error written on it. Legends
@@ -234,8 +250,14 @@ def grid_rows(frame: dict[str, np.ndarray], maps: dict[str, np.ndarray], referen
     abs_cells = {n: (abs_error_image(maps[n], reference), "|error|") for n in maps}
     lf_cells = {n: (lf_colours(d.mean(axis=-1)), f"LF {float(np.mean(np.abs(d))):.4f}") for n, d in signed.items()}
     x = np.linspace(0.0, 1.0, reference.shape[1])
-    abs_legend = (_legend(reference.shape, np.repeat(x[:, None], 3, axis=1)), f"|error| x{GRID_ABS_GAIN:g}: 0 .. {1 / GRID_ABS_GAIN:g}+")
-    lf_legend = (_legend(reference.shape, lf_colours((2 * x - 1) * GRID_LF_RANGE)), f"LF signed: -{GRID_LF_RANGE:g} .. +{GRID_LF_RANGE:g}")
+    abs_legend = (
+        _legend(reference.shape, np.repeat(x[:, None], 3, axis=1)),
+        f"|error| x{GRID_ABS_GAIN:g}: 0 .. {1 / GRID_ABS_GAIN:g}+",
+    )
+    lf_legend = (
+        _legend(reference.shape, lf_colours((2 * x - 1) * GRID_LF_RANGE)),
+        f"LF signed: -{GRID_LF_RANGE:g} .. +{GRID_LF_RANGE:g}",
+    )
     images = [(maps["di_only"], title), (frame["albedo"], ""), (frame["normal"] * 0.5 + 0.5, "")]
     return [
         images + [(maps[n], "") for n in models] + [(reference, "")],

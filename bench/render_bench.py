@@ -73,7 +73,14 @@ def measure(cfg: RenderBenchConfig, res: Results) -> None:
         for stage in PASSES:
             fn, repeats = passes[stage]
             samples, _ = time_repeats(fn, repeats, warmup=2)
-            res.add_timing(system="mitsuba", scene=name, metric=stage, samples_s=samples, resolution=cfg.resolution, variant=VARIANT)
+            res.add_timing(
+                system="mitsuba",
+                scene=name,
+                metric=stage,
+                samples_s=samples,
+                resolution=cfg.resolution,
+                variant=VARIANT,
+            )
 
 
 def plot(csv_path: Path, out_dir: Path) -> list[Path]:
@@ -85,7 +92,9 @@ def plot(csv_path: Path, out_dir: Path) -> list[Path]:
     stages = [s for s in PASSES if any(r["metric"] == s for r in rows)]
 
     def value(scene: str, stage: str, stat: str) -> float:
-        return next((r["value"] for r in rows if (r["scene"], r["metric"], r["stat"]) == (scene, stage, stat)), float("nan"))
+        return next(
+            (r["value"] for r in rows if (r["scene"], r["metric"], r["stat"]) == (scene, stage, stat)), float("nan")
+        )
 
     fig, ax = plt.subplots(figsize=(max(7.0, 1.6 * len(scenes) + 4), 4.2))
     width = 0.8 / len(stages)
@@ -103,10 +112,16 @@ def plot(csv_path: Path, out_dir: Path) -> list[Path]:
     ax.grid(axis="y", alpha=0.3, which="both")
     ax.legend(fontsize=7, ncols=2)
     resolution = next((r["config"].get("resolution") for r in rows if r["stat"] == "median"), "?")
-    ax.set_title(f"Render passes at {resolution}² (Mitsuba {next((r['config'].get('variant') for r in rows if r['stat'] == 'median'), '')})")
+    ax.set_title(
+        f"Render passes at {resolution}² (Mitsuba {next((r['config'].get('variant') for r in rows if r['stat'] == 'median'), '')})"
+    )
     return [save(fig, out_dir / "render.png")]
 
 
 BENCH = Bench(
-    "render", RenderBenchConfig, measure, plot, help="Per-pass render times (DI, G-buffers, GT with/without OIDN) and triangle counts per scene."
+    "render",
+    RenderBenchConfig,
+    measure,
+    plot,
+    help="Per-pass render times (DI, G-buffers, GT with/without OIDN) and triangle counts per scene.",
 )

@@ -64,7 +64,9 @@ class ReportConfig:
         from bench.report_md import check_readme
 
         if not self.results.is_dir():
-            raise UserError(f"--results {self.results} is not a folder", "give the folder your bench runs wrote into (their --out)")
+            raise UserError(
+                f"--results {self.results} is not a folder", "give the folder your bench runs wrote into (their --out)"
+            )
         check_readme(self.readme)
 
 
@@ -104,7 +106,9 @@ def _ticks(lo: float, hi: float, log: bool) -> list[float]:
             ticks = [t for t in (m * 10.0**k for k in range(a, b + 1) for m in steps) if lo * 0.999 <= t <= hi * 1.001]
             if len(ticks) >= 3:
                 return ticks
-        return [t for t in _ticks(lo, hi, False) if t > 0]  # within one decade: round linear values, placed on the log scale
+        return [
+            t for t in _ticks(lo, hi, False) if t > 0
+        ]  # within one decade: round linear values, placed on the log scale
     raw = (hi - lo) / 5
     mag = 10.0 ** math.floor(math.log10(raw))
     step = next(m * mag for m in (1, 2, 2.5, 5, 10) if m * mag >= raw)
@@ -128,15 +132,30 @@ def _legend(entries: Iterable[tuple[str, str, bool]]) -> str:
     """Swatches (name, colour, hollow): a hollow swatch stands for hollow marks."""
 
     def swatch(colour: str, hollow: bool) -> str:
-        return f'<i style="border:2px solid {colour};background:#fff"></i>' if hollow else f'<i style="background:{colour}"></i>'
+        return (
+            f'<i style="border:2px solid {colour};background:#fff"></i>'
+            if hollow
+            else f'<i style="background:{colour}"></i>'
+        )
 
-    return '<div class="legend">' + "".join(f"<span>{swatch(c, hollow)}{_e(n)}</span>" for n, c, hollow in entries) + "</div>"
+    return (
+        '<div class="legend">'
+        + "".join(f"<span>{swatch(c, hollow)}{_e(n)}</span>" for n, c, hollow in entries)
+        + "</div>"
+    )
 
 
-def xy_chart(series: list[Series], xlabel: str, ylabel: str, *, xlog: bool = False, ylog: bool = False, caption: str = "") -> str:
+def xy_chart(
+    series: list[Series], xlabel: str, ylabel: str, *, xlog: bool = False, ylog: bool = False, caption: str = ""
+) -> str:
     """An inline SVG scatter/line chart; every point is a hoverable ``.pt`` mark with its tooltip."""
     series = [Series(s.name, s.points, s.line, s.colour or PALETTE[i % len(PALETTE)]) for i, s in enumerate(series)]
-    ok = [p for s in series for p in s.points if math.isfinite(p.x) and math.isfinite(p.y) and (p.x > 0 or not xlog) and (p.y > 0 or not ylog)]
+    ok = [
+        p
+        for s in series
+        for p in s.points
+        if math.isfinite(p.x) and math.isfinite(p.y) and (p.x > 0 or not xlog) and (p.y > 0 or not ylog)
+    ]
     if not ok:
         return '<p class="problem">no finite values to plot</p>'
     w, h, left, right, top, bottom = 560, 330, 62, 14, 12, 44
@@ -150,7 +169,9 @@ def xy_chart(series: list[Series], xlabel: str, ylabel: str, *, xlog: bool = Fal
         f = (math.log10(v) - math.log10(y0)) / (math.log10(y1) - math.log10(y0)) if ylog else (v - y0) / (y1 - y0)
         return h - bottom - f * (h - top - bottom)
 
-    parts = [f'<svg class="chart" width="{w}" height="{h}" viewBox="0 0 {w} {h}" role="img" aria-label="{_e(ylabel)} against {_e(xlabel)}">']
+    parts = [
+        f'<svg class="chart" width="{w}" height="{h}" viewBox="0 0 {w} {h}" role="img" aria-label="{_e(ylabel)} against {_e(xlabel)}">'
+    ]
     for t in _ticks(x0, x1, xlog):
         parts.append(f'<line class="grid" x1="{sx(t):.1f}" x2="{sx(t):.1f}" y1="{top}" y2="{h - bottom}"/>')
         parts.append(f'<text x="{sx(t):.1f}" y="{h - bottom + 14}" text-anchor="middle">{_fmt(t)}</text>')
@@ -159,7 +180,9 @@ def xy_chart(series: list[Series], xlabel: str, ylabel: str, *, xlog: bool = Fal
         parts.append(f'<text x="{left - 5}" y="{sy(t) + 4:.1f}" text-anchor="end">{_fmt(t)}</text>')
     parts.append(f'<line class="axis" x1="{left}" x2="{w - right}" y1="{h - bottom}" y2="{h - bottom}"/>')
     parts.append(f'<line class="axis" x1="{left}" x2="{left}" y1="{top}" y2="{h - bottom}"/>')
-    parts.append(f'<text x="{(left + w - right) / 2}" y="{h - 8}" text-anchor="middle">{_e(xlabel)}{" (log)" if xlog else ""}</text>')
+    parts.append(
+        f'<text x="{(left + w - right) / 2}" y="{h - 8}" text-anchor="middle">{_e(xlabel)}{" (log)" if xlog else ""}</text>'
+    )
     parts.append(
         f'<text transform="translate(13 {(top + h - bottom) / 2}) rotate(-90)" text-anchor="middle">{_e(ylabel)}{" (log)" if ylog else ""}</text>'
     )
@@ -177,11 +200,20 @@ def xy_chart(series: list[Series], xlabel: str, ylabel: str, *, xlog: bool = Fal
             )
     parts.append("</svg>")
     legend = _legend((s.name, s.colour, bool(s.points) and all(p.hollow for p in s.points)) for s in series)
-    return f"<figure>{''.join(parts)}{legend}" + (f"<figcaption>{_e(caption)}</figcaption>" if caption else "") + "</figure>"
+    return (
+        f"<figure>{''.join(parts)}{legend}"
+        + (f"<figcaption>{_e(caption)}</figcaption>" if caption else "")
+        + "</figure>"
+    )
 
 
 def bar_chart(
-    groups: list[str], series: dict[str, list[float | None]], ylabel: str, *, tips: dict[str, list[str]] | None = None, caption: str = ""
+    groups: list[str],
+    series: dict[str, list[float | None]],
+    ylabel: str,
+    *,
+    tips: dict[str, list[str]] | None = None,
+    caption: str = "",
 ) -> str:
     """Grouped bars (one group per entry of ``groups``, one bar per series); each bar is a hoverable mark."""
     values = [v for vs in series.values() for v in vs if v is not None and math.isfinite(v)]
@@ -203,7 +235,9 @@ def bar_chart(
     colours = {name: PALETTE[i % len(PALETTE)] for i, name in enumerate(series)}
     for g, group in enumerate(groups):
         gx = left + g * band + band * 0.1
-        parts.append(f'<text x="{left + (g + 0.5) * band:.1f}" y="{h - bottom + 14}" text-anchor="middle">{_e(group)}</text>')
+        parts.append(
+            f'<text x="{left + (g + 0.5) * band:.1f}" y="{h - bottom + 14}" text-anchor="middle">{_e(group)}</text>'
+        )
         for i, (name, vs) in enumerate(series.items()):
             v = vs[g]
             if v is None or not math.isfinite(v):
@@ -215,7 +249,9 @@ def bar_chart(
                 f'fill="{colours[name]}" data-tip="{_e(tip)}"/>'
             )
     parts.append(f'<line class="axis" x1="{left}" x2="{w - right}" y1="{sy(0.0):.1f}" y2="{sy(0.0):.1f}"/>')
-    parts.append(f'<text transform="translate(13 {(top + h - bottom) / 2}) rotate(-90)" text-anchor="middle">{_e(ylabel)}</text>')
+    parts.append(
+        f'<text transform="translate(13 {(top + h - bottom) / 2}) rotate(-90)" text-anchor="middle">{_e(ylabel)}</text>'
+    )
     parts.append("</svg>")
     return (
         f"<figure>{''.join(parts)}{_legend((n, c, False) for n, c in colours.items())}"
@@ -267,7 +303,13 @@ def latency_section(rows: Rows, csv_path: Path) -> str:
             lines.append(Series(f"{cache}: link model", model))
         if measured:
             lines.append(Series(f"{cache}: measured profiles", measured, line=False))
-    figure = xy_chart(lines, "round-trip time [ms]", "cloud total / GIGAN total", ylog=True, caption="Above 1: GIGAN's interaction latency is lower.")
+    figure = xy_chart(
+        lines,
+        "round-trip time [ms]",
+        "cloud total / GIGAN total",
+        ylog=True,
+        caption="Above 1: GIGAN's interaction latency is lower.",
+    )
     return markdown(table(rows)) + (charts(figure) if lines else "")
 
 
@@ -279,13 +321,24 @@ def storage_section(rows: Rows, csv_path: Path) -> str:
     resolution = trees[0]["config"]["resolution"]
     scenes = list(dict.fromkeys(r["scene"] for r in trees))
     codecs = list(dict.fromkeys(r["config"]["codec"] for r in trees))
-    mib = {(r["scene"], r["config"]["codec"]): r["value"] / 2**20 for r in trees if r["config"]["resolution"] == resolution}
+    mib = {
+        (r["scene"], r["config"]["codec"]): r["value"] / 2**20 for r in trees if r["config"]["resolution"] == resolution
+    }
     series: dict[str, list[float | None]] = {c: [mib.get((s, c)) for s in scenes] for c in codecs}
     model = {r["config"]["precision"]: r["value"] / 2**20 for r in _pick(rows, "client_bytes")}
     if "fp16" in model:
         series["GIGAN model fp16"] = [model["fp16"]] * len(scenes)
-    figure = bar_chart(scenes, series, "MiB", caption=f"GI tree after the fly-through ({resolution}², GI + depth) per codec, against the model.")
-    return markdown(table2(rows)) + charts(figure) + markdown("### Codecs (sampled GI maps, per map)\n\n" + codec_table(rows))
+    figure = bar_chart(
+        scenes,
+        series,
+        "MiB",
+        caption=f"GI tree after the fly-through ({resolution}², GI + depth) per codec, against the model.",
+    )
+    return (
+        markdown(table2(rows))
+        + charts(figure)
+        + markdown("### Codecs (sampled GI maps, per map)\n\n" + codec_table(rows))
+    )
 
 
 def frequency_section(rows: Rows, csv_path: Path) -> str:
@@ -311,7 +364,12 @@ def quality_section(rows: Rows, csv_path: Path) -> str:
     systems = list(dict.fromkeys(r["system"] for r in _pick(rows, "ssim")))
     figures = []
     # lf_error: the low-frequency error (gicore.metrics.lf_error); quality CSVs older than it have none ("—").
-    shown_metrics = (("rmse", "RMSE (tone-mapped)"), ("ssim", "SSIM"), ("psnr", "PSNR [dB]"), ("lf_error", "LF error (tone-mapped)"))
+    shown_metrics = (
+        ("rmse", "RMSE (tone-mapped)"),
+        ("ssim", "SSIM"),
+        ("psnr", "PSNR [dB]"),
+        ("lf_error", "LF error (tone-mapped)"),
+    )
     for metric, label in shown_metrics:
         value = {(r["scene"], r["system"]): r["value"] for r in _pick(rows, metric, "mean")}
         if value:
@@ -332,7 +390,10 @@ def quality_table(rows: Rows) -> str:
     mean = {(r["scene"], r["system"], r["metric"]): r for r in rows if r["stat"] in ("mean", "median")}
     for system in systems:
         for scene in scenes:
-            cells = [mean.get((scene, system, m)) for m in ("rmse", "ssim", "psnr", "lf_error", "checker_error", "shadow_tint", "inference_time")]
+            cells = [
+                mean.get((scene, system, m))
+                for m in ("rmse", "ssim", "psnr", "lf_error", "checker_error", "shadow_tint", "inference_time")
+            ]
             shown = ["—" if c is None else f"{c['value']:.4g}" for c in cells]
             config = next((c["config"] for c in cells if c is not None and c["config"]), {})
             knobs = ", ".join(f"{k}={v}" for k, v in config.items() if k not in ("frames",))
@@ -365,7 +426,10 @@ def warp_table(rows: Rows) -> str:
     scenes = list(dict.fromkeys(r["scene"] for r in _pick(rows, "warp_time")))
     systems = list(dict.fromkeys(r["system"] for r in _pick(rows, "warp_time")))
     value = {(r["scene"], r["system"], r["metric"], r["stat"]): r["value"] for r in rows}
-    lines = ["| scene | warp | time per frame ms (median, p95) | CPU % of one core (mean) | SSIM vs GT (mean) |", "|---|---|---|---|---|"]
+    lines = [
+        "| scene | warp | time per frame ms (median, p95) | CPU % of one core (mean) | SSIM vs GT (mean) |",
+        "|---|---|---|---|---|",
+    ]
     for scene in scenes:
         for s in systems:
             cells = [value.get((scene, s, "warp_time", stat), math.nan) for stat in ("median", "p95")]
@@ -373,8 +437,12 @@ def warp_table(rows: Rows) -> str:
             lines.append(f"| {scene} | {s} | {cells[0]:.2f} ({cells[1]:.2f}) | {cells[2]:.0f} | {cells[3]:.3f} |")
     lines += ["", "| scene | pixel / structure time (median) | pixel / structure CPU (mean) |", "|---|---|---|"]
     for scene in scenes:
-        ratio = {r["metric"]: r["value"] for r in rows if r["scene"] == scene and r["metric"] in ("time_ratio", "cpu_ratio")}
-        lines.append(f"| {scene} | {ratio.get('time_ratio', math.nan):.2f}× | {ratio.get('cpu_ratio', math.nan):.2f}× |")
+        ratio = {
+            r["metric"]: r["value"] for r in rows if r["scene"] == scene and r["metric"] in ("time_ratio", "cpu_ratio")
+        }
+        lines.append(
+            f"| {scene} | {ratio.get('time_ratio', math.nan):.2f}× | {ratio.get('cpu_ratio', math.nan):.2f}× |"
+        )
     return "\n".join(lines)
 
 
@@ -384,14 +452,25 @@ def fov_section(rows: Rows, csv_path: Path) -> str:
         Series(
             scene,
             [
-                Point(r["config"]["gi_fov"], r["value"], f"{scene}, F_GI {r['config']['gi_fov']:g}°: SSIM {r['value']:.4f}")
+                Point(
+                    r["config"]["gi_fov"],
+                    r["value"],
+                    f"{scene}, F_GI {r['config']['gi_fov']:g}°: SSIM {r['value']:.4f}",
+                )
                 for r in _pick(rows, "ssim_gi_map")
                 if r["scene"] == scene
             ],
         )  # fmt: skip
         for scene in dict.fromkeys(r["scene"] for r in _pick(rows, "ssim_gi_map"))
     ]
-    figures = [xy_chart(maps, "GI-camera FOV F_GI [°]", "SSIM of the GI map vs GT", caption=f"Source: {_pick(rows, 'ssim_gi_map')[0]['system']}.")]
+    figures = [
+        xy_chart(
+            maps,
+            "GI-camera FOV F_GI [°]",
+            "SSIM of the GI map vs GT",
+            caption=f"Source: {_pick(rows, 'ssim_gi_map')[0]['system']}.",
+        )
+    ]
     for motion in dict.fromkeys(r["config"]["motion"] for r in _pick(rows, "ssim_warped")):
         sel = [r for r in _pick(rows, "ssim_warped") if r["config"]["motion"] == motion]
         lines = []
@@ -399,12 +478,18 @@ def fov_section(rows: Rows, csv_path: Path) -> str:
             name = f"{system}, F_GI {gi_fov:g}°"
             tip = "{name}, {motion} {amount:g} {unit}: SSIM {value:.4f}"
             pts = [
-                Point(c["amount"], r["value"], tip.format(name=name, motion=motion, amount=c["amount"], unit=c["amount_unit"], value=r["value"]))
+                Point(
+                    c["amount"],
+                    r["value"],
+                    tip.format(name=name, motion=motion, amount=c["amount"], unit=c["amount_unit"], value=r["value"]),
+                )
                 for r in sel
                 if (r["system"], (c := r["config"])["gi_fov"]) == (system, gi_fov)
             ]
             lines.append(Series(name, pts))
-        figures.append(xy_chart(lines, f"camera {motion} [{sel[0]['config']['amount_unit']}]", "SSIM of the warped GI vs GT"))
+        figures.append(
+            xy_chart(lines, f"camera {motion} [{sel[0]['config']['amount_unit']}]", "SSIM of the warped GI vs GT")
+        )
     return charts(*figures) + markdown(fov_table(rows))
 
 
@@ -426,10 +511,16 @@ def fov_table(rows: Rows) -> str:
         "| scene | F_GI | SSIM of the GI map | " + " | ".join(f"SSIM warped: {s}" for s in systems) + " |",
         "|---" * (3 + len(systems)) + "|",
     ]
-    for scene, fov in dict.fromkeys((r["scene"], r["config"]["gi_fov"]) for r in rows if r["metric"] in ("ssim_gi_map", "ssim_warped")):
+    for scene, fov in dict.fromkeys(
+        (r["scene"], r["config"]["gi_fov"]) for r in rows if r["metric"] in ("ssim_gi_map", "ssim_warped")
+    ):
 
         def mean(metric: str, system: str | None = None) -> float | None:
-            vs = [r["value"] for r in _pick(rows, metric) if (r["scene"], r["config"]["gi_fov"]) == (scene, fov) and system in (None, r["system"])]
+            vs = [
+                r["value"]
+                for r in _pick(rows, metric)
+                if (r["scene"], r["config"]["gi_fov"]) == (scene, fov) and system in (None, r["system"])
+            ]
             return sum(vs) / len(vs) if vs else None
 
         cells = []
@@ -437,7 +528,9 @@ def fov_table(rows: Rows) -> str:
             ssim, covered = mean("ssim_warped", s), mean("valid_fraction", s)
             cells.append("—" if ssim is None else f"{ssim:.3f}" + ("" if covered is None else f" ({covered:.0%})"))
         gi_map = mean("ssim_gi_map")
-        lines.append(f"| {scene} | {fov:g}° | {'—' if gi_map is None else f'{gi_map:.3f}'} | " + " | ".join(cells) + " |")
+        lines.append(
+            f"| {scene} | {fov:g}° | {'—' if gi_map is None else f'{gi_map:.3f}'} | " + " | ".join(cells) + " |"
+        )
     return "\n".join(lines)
 
 
@@ -464,7 +557,11 @@ def pareto_section(rows: Rows, csv_path: Path) -> str:
         for scope in [*systems, "combined"]:
             chosen = here if scope == "combined" else [p for p in here if p["system"] == scope]
             # cross-system ablations: grey, on no front
-            series = [Series("ablation (cross-system)", ablations, line=False, colour="#999999")] if scope == "combined" and ablations else []
+            series = (
+                [Series("ablation (cross-system)", ablations, line=False, colour="#999999")]
+                if scope == "combined" and ablations
+                else []
+            )
             for i, system in enumerate(systems):
                 mine = [p for p in chosen if p["system"] == system]
                 if not mine:
@@ -478,7 +575,14 @@ def pareto_section(rows: Rows, csv_path: Path) -> str:
                     series.append(Series(f"{system}: dominated", rest, line=False, colour=colour))
             title = f"{scope}: error against run time per {unit}"
             figures.append(
-                xy_chart(series, f"median run time per {unit} [ms]", "error: 1 - SSIM vs path-traced GT", xlog=True, ylog=True, caption=title)
+                xy_chart(
+                    series,
+                    f"median run time per {unit} [ms]",
+                    "error: 1 - SSIM vs path-traced GT",
+                    xlog=True,
+                    ylog=True,
+                    caption=title,
+                )
             )
         blocks.append(charts(*figures))
     best = best_table(points)
@@ -490,7 +594,10 @@ def best_table(points: list[dict[str, Any]]) -> str:
     of work, with what its run time covers and assumes (Markdown)."""
     from bench.pareto import ABLATION, best_within, caveat
 
-    lines = ["| unit | time budget (ms) | system | error | run time (ms) | config | run time covers |", "|---|---|---|---|---|---|---|"]
+    lines = [
+        "| unit | time budget (ms) | system | error | run time (ms) | config | run time covers |",
+        "|---|---|---|---|---|---|---|",
+    ]
     systems = [p for p in points if p["system"] != ABLATION]
     for unit in dict.fromkeys(p["per"] for p in systems):
         here = [p for p in systems if p["per"] == unit]
@@ -498,7 +605,15 @@ def best_table(points: list[dict[str, Any]]) -> str:
             for system in dict.fromkeys(p["system"] for p in here):
                 p = best_within([q for q in here if q["system"] == system], budget)
                 if p is not None:
-                    cells = [unit, f"{budget:g}", system, f"{p['error']:.4g}", f"{p['time']:.3g}", p["label"], caveat(p, points)]
+                    cells = [
+                        unit,
+                        f"{budget:g}",
+                        system,
+                        f"{p['error']:.4g}",
+                        f"{p['time']:.3g}",
+                        p["label"],
+                        caveat(p, points),
+                    ]
                     lines.append("| " + " | ".join(cell.replace("|", "/") for cell in cells) + " |")
     note = (
         "Per frame, cloud baking's time is the client's work alone: its maps are made on the server and arrive after the per-GI-map "
@@ -525,7 +640,9 @@ def stability_section(rows: Rows, csv_path: Path) -> str:
     head = (
         ""
         if not failed
-        else '<p class="problem">Failed cases: ' + _e("; ".join(f"{e['stage']}/{e['case']} ({e['status']})" for e in failed)) + "</p>"
+        else '<p class="problem">Failed cases: '
+        + _e("; ".join(f"{e['stage']}/{e['case']} ({e['status']})" for e in failed))
+        + "</p>"
     )
     return head + f'<div class="scroll">{markdown(table(entries))}</div>'
 
@@ -619,7 +736,9 @@ def provenance_fields(csv_path: Path) -> dict[str, str] | None:
         "command": " ".join(argv) or "(unknown)",
         "git": (git.get("sha") or "unknown")[:12] + (" (uncommitted changes)" if git.get("dirty") else ""),
         "machine": f"{m.get('cpu', '?')}, {m.get('cpu_count', '?')} cores, {m.get('platform', '?')}, Python {m.get('python', '?')}",
-        "date": time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime(finished)) if isinstance(finished, (int, float)) else "unknown",
+        "date": time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime(finished))
+        if isinstance(finished, (int, float))
+        else "unknown",
         "run": str(prov.get("run_id", "?")),
         "seed": str(prov.get("seed", "?")),
     }
@@ -691,7 +810,14 @@ def render(section: Section, results: Path, ignore: tuple[str, ...] = ()) -> Ren
         return Rendered(section, "missing", f'<p class="problem">{_e(a.problem)}; {todo}.</p>', problem=a.problem)
     prov = provenance_html(a.path, results)
     if a.status != "ok":
-        return Rendered(section, a.status, prov + f'<p class="problem">{_e(a.problem)}</p>', a.rel, problem=a.problem, others=a.others)
+        return Rendered(
+            section,
+            a.status,
+            prov + f'<p class="problem">{_e(a.problem)}</p>',
+            a.rel,
+            problem=a.problem,
+            others=a.others,
+        )
     note = f"<p>Newest of {len(a.others) + 1} runs; older: {_e(', '.join(a.others))}.</p>" if a.others else ""
     return Rendered(section, "ok", prov + note + a.body, a.rel, a.rows, others=a.others)
 
@@ -699,7 +825,10 @@ def render(section: Section, results: Path, ignore: tuple[str, ...] = ()) -> Ren
 def page(parts: list[Rendered], results: Path) -> str:
     css = (ASSETS / "report.css").read_text()
     js = (ASSETS / "report.js").read_text()
-    nav = "".join(f'<a class="{p.status}" href="#{p.section.key}">{_e(p.section.title.split(":")[0])}: {p.status}</a>' for p in parts)
+    nav = "".join(
+        f'<a class="{p.status}" href="#{p.section.key}">{_e(p.section.title.split(":")[0])}: {p.status}</a>'
+        for p in parts
+    )
     sections = "".join(
         f'<section id="{p.section.key}" data-status="{p.status}" data-bench="{p.section.bench}"><h2>{_e(p.section.title)}</h2>{p.body}</section>'
         for p in parts
@@ -726,7 +855,13 @@ def measure(cfg: ReportConfig, res: Results) -> None:
         update_readme(cfg.readme, text)
         res.files.append(cfg.readme)
     for p in parts:
-        config = {"section": p.section.key, "bench": p.section.bench, "file": p.file, "problem": p.problem, "older_runs": p.others}
+        config = {
+            "section": p.section.key,
+            "bench": p.section.bench,
+            "file": p.file,
+            "problem": p.problem,
+            "older_runs": p.others,
+        }
         res.add(system="report", scene="all", metric="section_rows", value=p.rows, unit="rows", stat=p.status, **config)
 
 

@@ -28,7 +28,19 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from bench.report import Attempt, Rows, _need, _pick, attempt, best_table, fov_table, pareto_points, provenance_fields, quality_table, warp_table
+from bench.report import (
+    Attempt,
+    Rows,
+    _need,
+    _pick,
+    attempt,
+    best_table,
+    fov_table,
+    pareto_points,
+    provenance_fields,
+    quality_table,
+    warp_table,
+)
 from gicore.cli import UserError
 from gicore.fileio import atomic_write_bytes
 
@@ -65,7 +77,10 @@ def latency_md(rows: Rows, csv_path: Path) -> str:
     ]
     for profile, rtt_ms in rtt.items():
         hit, miss = (_lookup(rows, CLOUD, "total", "median", profile=profile, cache=cache) for cache in ("hit", "miss"))
-        ratio = [_lookup(rows, f"{CLOUD}/{GIGAN}", "total_ratio", "median", profile=profile, cache=cache) for cache in ("hit", "miss")]
+        ratio = [
+            _lookup(rows, f"{CLOUD}/{GIGAN}", "total_ratio", "median", profile=profile, cache=cache)
+            for cache in ("hit", "miss")
+        ]
         ssim = [_lookup(rows, GIGAN, "ssim", "mean", profile="none")]
         ssim += [_lookup(rows, CLOUD, "ssim", "mean", profile=profile, store=store) for store in ("prebaked", "cold")]
         lines.append(
@@ -75,14 +90,23 @@ def latency_md(rows: Rows, csv_path: Path) -> str:
         )
     stages = [(label, _lookup(rows, GIGAN, metric, "median", profile="none"))
               for metric, label in (("gi_render", "GI-camera render"), ("inference", "inference"), ("warp", "warp"), ("blend", "blend"))]  # fmt: skip
-    lines += ["", f"GIGAN's total {_f(gigan)} ms = " + " + ".join(f"{label} {v:.1f}" for label, v in stages if v is not None) + "."]
+    lines += [
+        "",
+        f"GIGAN's total {_f(gigan)} ms = "
+        + " + ".join(f"{label} {v:.1f}" for label, v in stages if v is not None)
+        + ".",
+    ]
     crossings = []
     for r in _pick(rows, "crossover_rtt"):
         cache, value = r["config"].get("cache"), r["value"]
         crossings.append(f"a cloud {cache} at any RTT" if value == 0 else f"a cloud {cache} at no RTT up to a minute" if math.isinf(value)
                          else f"a cloud {cache} beyond an RTT of {value:.0f} ms")  # fmt: skip
     if crossings:
-        lines.append("Crossover (the link model with the measured stages): GIGAN's median total beats " + "; ".join(crossings) + ".")
+        lines.append(
+            "Crossover (the link model with the measured stages): GIGAN's median total beats "
+            + "; ".join(crossings)
+            + "."
+        )
     return "\n".join(lines)
 
 
@@ -95,7 +119,9 @@ def storage_md(rows: Rows, csv_path: Path) -> str:
     trees = _index(rows, "gi_tree_bytes", "estimate", "resolution", "codec", "composition")
     columns = list(dict.fromkeys((k[1], k[2]) for k in trees if k[3] == "blend"))
     lines = [
-        "GIGAN's model (the same for every scene): " + ", ".join(f"{p} {_mib(v)} MiB" for p, v in model.items()) + ". The GI tree of each "
+        "GIGAN's model (the same for every scene): "
+        + ", ".join(f"{p} {_mib(v)} MiB" for p, v in model.items())
+        + ". The GI tree of each "
         "scene's fly-through (GI + depth, blend composition): entries counted with the GI tree's lookup rule, MiB = entries × mean "
         "payload" + (", × = against the fp16 model" if model.get("fp16") else "") + ".",
         "",
@@ -177,7 +203,9 @@ def netself_md(rows: Rows, csv_path: Path) -> str:
         cells = [f"{c['value']:.4g} {c['unit']}" if c else "—" for c in (configured, measured)]
         target = str(t["config"]["target"]).replace("|", "\\|")  # e.g. |err| <= 1 ms, inside a table cell
         stat = t["config"]["measured_stat"]
-        lines.append(f"| {t['scene']} | {t['metric']} ({stat}) | {cells[0]} | {cells[1]} | {target} | {'yes' if t['value'] else 'MISSED'} |")
+        lines.append(
+            f"| {t['scene']} | {t['metric']} ({stat}) | {cells[0]} | {cells[1]} | {target} | {'yes' if t['value'] else 'MISSED'} |"
+        )
     return "\n".join(lines)
 
 
@@ -218,10 +246,14 @@ def scaling_md(rows: Rows, csv_path: Path) -> str:
     ]
     for ex in executors:
         for w in workers:
-            frames, maps = (_value(rows, system=ex, metric="throughput", workers=w, kind=kind) for kind in ("frame", "map"))
+            frames, maps = (
+                _value(rows, system=ex, metric="throughput", workers=w, kind=kind) for kind in ("frame", "map")
+            )
             efficiency = 1.0 if w == 1 else _value(rows, system=ex, metric="efficiency", workers=w, kind="frame")
             trip = _value(rows, system=ex, metric="task_roundtrip", stat="median", workers=w)
-            lines.append(f"| {ex} | {w} | {_f(frames, '.3g')} | {_f(maps, '.3g')} | {_f(efficiency, '.2f')} | {_f(trip, '.3g')} |")
+            lines.append(
+                f"| {ex} | {w} | {_f(frames, '.3g')} | {_f(maps, '.3g')} | {_f(efficiency, '.2f')} | {_f(trip, '.3g')} |"
+            )
     projected = [r for r in rows if r["stat"] == "projection" and r["scene"] == ALL]
     if projected:
         what = {r["metric"]: r["config"] for r in projected}
@@ -237,7 +269,9 @@ def scaling_md(rows: Rows, csv_path: Path) -> str:
             "|---" * (1 + len(executors) * len(shown)) + "|",
         ]
         for n in sorted({r["config"]["workers"] for r in projected}):
-            cells = [_f(_value(rows, system=ex, scene=ALL, metric=m, workers=n), ".3g") for ex in executors for m in shown]
+            cells = [
+                _f(_value(rows, system=ex, scene=ALL, metric=m, workers=n), ".3g") for ex in executors for m in shown
+            ]
             lines.append(f"| {n} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
@@ -331,7 +365,8 @@ def read_readme(readme: Path) -> str:
         return readme.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
         raise UserError(
-            f"--readme {readme} cannot be read ({getattr(exc, 'strerror', None) or exc})", "give the Markdown file to update, e.g. --readme README.md"
+            f"--readme {readme} cannot be read ({getattr(exc, 'strerror', None) or exc})",
+            "give the Markdown file to update, e.g. --readme README.md",
         ) from None
 
 

@@ -33,7 +33,10 @@ class RunDefaultConfig:
 
 
 #: The benches of the main job with their quick presets, and the table each writes.
-JOBS = ((latency.BENCH, latency.LatencyConfig, "latency_table.md"), (storage.BENCH, storage.StorageConfig, "storage_table2.md"))
+JOBS = (
+    (latency.BENCH, latency.LatencyConfig, "latency_table.md"),
+    (storage.BENCH, storage.StorageConfig, "storage_table2.md"),
+)
 
 
 def measure(cfg: RunDefaultConfig, res: Results) -> None:
@@ -44,7 +47,14 @@ def measure(cfg: RunDefaultConfig, res: Results) -> None:
         t0 = time.perf_counter()
         with contextlib.redirect_stdout(io.StringIO()):  # a bench's own printout of its table: shown once, below
             res.files += execute(bench, config, res.out, res.seed)
-        res.add(system=bench.name, scene=cfg.scenes[0], metric="wall_time", value=time.perf_counter() - t0, unit="s", stat="wall")
+        res.add(
+            system=bench.name,
+            scene=cfg.scenes[0],
+            metric="wall_time",
+            value=time.perf_counter() - t0,
+            unit="s",
+            stat="wall",
+        )
     for _, _, table in configs:
         print(f"\n{(res.out / table).read_text()}")
 

@@ -133,12 +133,16 @@ def _parse_scalar(tp: Any, text: str, option: str) -> Any:
     text = text.strip()
     if typing.get_origin(tp) is Literal:
         if text not in typing.get_args(tp):
-            raise UserError(f"{option} {text!r} is not one of {', '.join(map(str, typing.get_args(tp)))}", "pick one of those")
+            raise UserError(
+                f"{option} {text!r} is not one of {', '.join(map(str, typing.get_args(tp)))}", "pick one of those"
+            )
         return text
     try:
         return tp(text)
     except ValueError:
-        raise UserError(f"{option} {text!r} is not a valid {_scalar_kind(tp).lower()}", f"give {option} as {_scalar_kind(tp)}") from None
+        raise UserError(
+            f"{option} {text!r} is not a valid {_scalar_kind(tp).lower()}", f"give {option} as {_scalar_kind(tp)}"
+        ) from None
 
 
 def _parse(tp: Any, raw: Any, option: str) -> Any:
@@ -151,7 +155,9 @@ def _parse(tp: Any, raw: Any, option: str) -> Any:
         value_type = typing.get_args(inner)[1]
         pairs = [p.split("=", 1) for p in raw.split(",") if p.strip()]
         if any(len(p) != 2 or not p[0].strip() for p in pairs):
-            raise UserError(f"{option} {raw!r} is not a list of NAME=VALUE pairs", f"give {option} as NAME=VALUE[,NAME=VALUE...]")
+            raise UserError(
+                f"{option} {raw!r} is not a list of NAME=VALUE pairs", f"give {option} as NAME=VALUE[,NAME=VALUE...]"
+            )
         return {name.strip(): _parse_scalar(value_type, value, option) for name, value in pairs}
     return raw
 
@@ -255,7 +261,9 @@ def _check_scenes(scenes: tuple[str, ...]) -> None:
         try:
             load_scene(scene)
         except (OSError, ValueError) as exc:
-            raise UserError(f"--scenes {scene!r}: {' '.join(str(exc).split())}", "give built-in scene names or spec files") from None
+            raise UserError(
+                f"--scenes {scene!r}: {' '.join(str(exc).split())}", "give built-in scene names or spec files"
+            ) from None
 
 
 # --- running and registering ------------------------------------------------------------------------
@@ -298,7 +306,9 @@ def register(app: typer.Typer, bench: Bench) -> Bench:
             "quick",
             inspect.Parameter.KEYWORD_ONLY,
             default=False,
-            annotation=Annotated[bool, typer.Option("--quick", help="start from the small preset (minutes on 2 cores)")],
+            annotation=Annotated[
+                bool, typer.Option("--quick", help="start from the small preset (minutes on 2 cores)")
+            ],
         ),
         inspect.Parameter(
             "seed",

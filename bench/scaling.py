@@ -137,8 +137,21 @@ def measure(cfg: ScalingConfig, res: Results) -> None:
         import ray
 
         t0 = time.perf_counter()
-        ray.init(address="local", num_cpus=max(cfg.workers), include_dashboard=False, log_to_driver=False, logging_level=logging.ERROR)
-        res.add(system="ray", scene=name, metric="instance_start", value=time.perf_counter() - t0, unit="s", num_cpus=max(cfg.workers))
+        ray.init(
+            address="local",
+            num_cpus=max(cfg.workers),
+            include_dashboard=False,
+            log_to_driver=False,
+            logging_level=logging.ERROR,
+        )
+        res.add(
+            system="ray",
+            scene=name,
+            metric="instance_start",
+            value=time.perf_counter() - t0,
+            unit="s",
+            num_cpus=max(cfg.workers),
+        )
     try:
         for ex in cfg.executors:
             for workers in sorted(cfg.workers):
@@ -148,14 +161,32 @@ def measure(cfg: ScalingConfig, res: Results) -> None:
                         warmup = _wall(executor, task, jobs[:warm])
                         wall = _wall(executor, task, jobs[warm : warm + counts[kind]])
                         config = common | {"workers": workers, "kind": kind, "items": counts[kind]}
-                        res.add(system=ex, scene=name, metric="warmup", value=warmup, unit="s", **config | {"items": warm})
-                        res.add(system=ex, scene=name, metric="throughput", value=counts[kind] / wall, unit=UNITS[kind], **config)
-                        res.add(system=ex, scene=name, metric="item_time", value=workers * wall / counts[kind], unit="s", **config)
+                        res.add(
+                            system=ex, scene=name, metric="warmup", value=warmup, unit="s", **config | {"items": warm}
+                        )
+                        res.add(
+                            system=ex,
+                            scene=name,
+                            metric="throughput",
+                            value=counts[kind] / wall,
+                            unit=UNITS[kind],
+                            **config,
+                        )
+                        res.add(
+                            system=ex,
+                            scene=name,
+                            metric="item_time",
+                            value=workers * wall / counts[kind],
+                            unit="s",
+                            **config,
+                        )
                         if workers == 1:
                             item_s[ex, kind] = wall / counts[kind]
                         elif (ex, kind) in item_s:
                             efficiency = item_s[ex, kind] * counts[kind] / (workers * wall)
-                            res.add(system=ex, scene=name, metric="efficiency", value=efficiency, unit="ratio", **config)
+                            res.add(
+                                system=ex, scene=name, metric="efficiency", value=efficiency, unit="ratio", **config
+                            )
     finally:
         if "ray" in cfg.executors:
             ray.shutdown()
@@ -171,7 +202,9 @@ def _overhead(res: Results, ex: str, name: str, executor: Executor, n: int) -> N
     samples = [_wall(executor, noop, [i]) for i in range(n)]
     res.add_timing(system=ex, scene=name, metric="task_roundtrip", samples_s=samples, workers=executor.workers)
     ms = _wall(executor, noop, list(range(n))) / n * 1e3
-    res.add(system=ex, scene=name, metric="task_overhead_batched", value=ms, unit="ms", workers=executor.workers, jobs=n)
+    res.add(
+        system=ex, scene=name, metric="task_overhead_batched", value=ms, unit="ms", workers=executor.workers, jobs=n
+    )
 
 
 def bake_maps(frames: int, resolution: int) -> dict[str, int]:
@@ -191,7 +224,9 @@ def _project(cfg: ScalingConfig, res: Results, name: str, item_s: dict[tuple[str
     """Projection rows (see the module docstring) from each executor's 1-worker item times."""
     maps = bake_maps(cfg.bake_frames, cfg.bake_resolution)
     for scene, n in maps.items():
-        res.add(system="plan", scene=scene, metric="bake_maps", value=n, unit="count", fly_through_frames=cfg.bake_frames)
+        res.add(
+            system="plan", scene=scene, metric="bake_maps", value=n, unit="count", fly_through_frames=cfg.bake_frames
+        )
     targets: dict[Kind, tuple[str, int, dict[str, int]]] = {
         "frame": ("dataset_wall", cfg.project_resolution, {ALL: cfg.project_frames * len(builtin_scenes())}),
         "map": ("bake_wall", cfg.bake_resolution, maps),
@@ -199,7 +234,12 @@ def _project(cfg: ScalingConfig, res: Results, name: str, item_s: dict[tuple[str
     for (ex, kind), measured in item_s.items():
         metric, resolution, items = targets[kind]
         scale = (resolution / cfg.resolution) ** 2
-        basis = {"measured_on": name, "measured_resolution": cfg.resolution, "measured_item_s": measured, "pixel_scale": scale}
+        basis = {
+            "measured_on": name,
+            "measured_resolution": cfg.resolution,
+            "measured_item_s": measured,
+            "pixel_scale": scale,
+        }
         basis |= {"resolution": resolution, "spp": cfg.spp, "item_s": measured * scale, "assumption": ASSUMPTION}
         for workers in cfg.project_workers:
             hours = {scene: math.ceil(n / workers) * measured * scale / 3600 for scene, n in items.items()}
@@ -207,7 +247,17 @@ def _project(cfg: ScalingConfig, res: Results, name: str, item_s: dict[tuple[str
                 hours[ALL] = sum(hours.values())
             for scene, value in hours.items():
                 n = items.get(scene, sum(items.values()))
-                res.add(system=ex, scene=scene, metric=metric, stat="projection", value=value, unit="h", workers=workers, items=n, **basis)
+                res.add(
+                    system=ex,
+                    scene=scene,
+                    metric=metric,
+                    stat="projection",
+                    value=value,
+                    unit="h",
+                    workers=workers,
+                    items=n,
+                    **basis,
+                )
 
 
 def _value(rows: list[dict], **match: Any) -> float:
@@ -245,7 +295,11 @@ def _write_table(cfg: ScalingConfig, res: Results) -> None:
         "|---|" + "---|---|" * len(cfg.executors),
     ]
     for n in cfg.project_workers:
-        cells = [f"{_value(rows, system=ex, scene=ALL, metric=m, workers=n):.3g}" for ex in cfg.executors for m in ("dataset_wall", "bake_wall")]
+        cells = [
+            f"{_value(rows, system=ex, scene=ALL, metric=m, workers=n):.3g}"
+            for ex in cfg.executors
+            for m in ("dataset_wall", "bake_wall")
+        ]
         lines.append(f"| {n} | " + " | ".join(cells) + " |")
     res.output("scaling.md").write_text("\n".join(lines) + "\n")
 
@@ -263,7 +317,9 @@ def plot(csv_path: Path, out_dir: Path) -> list[Path]:
     for i, (ex, kind) in enumerate(bars):
         values = [_value(rows, system=ex, metric="throughput", workers=w, kind=kind) for w in workers]
         left.bar(np.arange(len(workers)) + (i + 0.5) * width - 0.4, values, width, label=f"{ex}: {UNITS[kind]}")
-    trips = ", ".join(f"{ex} {_value(rows, system=ex, metric='task_roundtrip', stat='median', workers=1):.2g} ms" for ex in executors)
+    trips = ", ".join(
+        f"{ex} {_value(rows, system=ex, metric='task_roundtrip', stat='median', workers=1):.2g} ms" for ex in executors
+    )
     left.set_xticks(np.arange(len(workers)), [f"{w} worker{'s' * (w > 1)}" for w in workers])
     left.set_ylabel("items per second (measured)")
     left.set_title(f"Measured throughput; no-op round trip: {trips}", fontsize=9)
@@ -271,7 +327,11 @@ def plot(csv_path: Path, out_dir: Path) -> list[Path]:
     left.grid(axis="y", alpha=0.3)
     for ex, style in zip(executors, ("-", "--")):
         for metric, label in (("dataset_wall", "paper data set"), ("bake_wall", "GI-tree bake, 5 scenes")):
-            points = sorted((r["config"]["workers"], r["value"]) for r in rows if (r["system"], r["metric"], r["scene"]) == (ex, metric, ALL))
+            points = sorted(
+                (r["config"]["workers"], r["value"])
+                for r in rows
+                if (r["system"], r["metric"], r["scene"]) == (ex, metric, ALL)
+            )
             if points:
                 right.plot(*zip(*points), style, marker="o", label=f"{label} ({ex})")
     right.set_xscale("log")

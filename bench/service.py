@@ -71,7 +71,15 @@ class Target:
 
 #: Issue 10's service targets (the hit-time ones are stated at 256²).
 TARGETS = (
-    Target("hit_server", "median", 5.0, "ms", True, "cache hit inside the server (lookup + read) p50 <= 5 ms", (("part", "lookup_read"),)),
+    Target(
+        "hit_server",
+        "median",
+        5.0,
+        "ms",
+        True,
+        "cache hit inside the server (lookup + read) p50 <= 5 ms",
+        (("part", "lookup_read"),),
+    ),
     Target("hit_e2e", "median", 10.0, "ms", True, "hit end to end on loopback p50 <= 10 ms"),
     Target("load_errors", "value", 0.0, "count", True, "concurrent load: no errors"),
     Target("load_throughput", "value", 300.0, "req/s", False, "concurrent load >= 300 requests/s"),
@@ -120,7 +128,12 @@ def view_bodies(cfg: ServiceConfig, seed: int) -> list[dict[str, Any]]:
     return [
         {
             "scene": name,
-            "camera": {"eye": [float(v) for v in c.origin], "target": [float(v) for v in c.target], "up": [float(v) for v in c.up], "fov": c.fov},
+            "camera": {
+                "eye": [float(v) for v in c.origin],
+                "target": [float(v) for v in c.target],
+                "up": [float(v) for v in c.up],
+                "fov": c.fov,
+            },
             "resolution": cfg.resolution,
             "codec": cfg.codec,
             "spp": cfg.spp,
@@ -198,7 +211,9 @@ def _summary(res: Results, scene: str, metric: str, samples_ms: list[float], sam
     """Median, p95, p99 and n of ``samples_ms`` (and each sample when ``samples``)."""
     ms = np.asarray(samples_ms, dtype=np.float64)
     for stat, q in zip(STATS, (50, 95, 99)):
-        res.add(system=SYSTEM, scene=scene, metric=metric, value=float(np.percentile(ms, q)), unit="ms", stat=stat, **config)
+        res.add(
+            system=SYSTEM, scene=scene, metric=metric, value=float(np.percentile(ms, q)), unit="ms", stat=stat, **config
+        )
     res.add(system=SYSTEM, scene=scene, metric=metric, value=len(ms), unit="count", stat="n", **config)
     if samples:
         for v in ms:
@@ -232,7 +247,9 @@ def measure(cfg: ServiceConfig, res: Results) -> None:
             for i in range(cfg.sequential):
                 seconds, header = timed_post(client, bodies[i % len(bodies)])
                 if header.get("hit") is not True:
-                    raise RuntimeError(f"a request for a baked view (view {i % len(bodies)}) did not hit: {header.get('timings_ms')}")
+                    raise RuntimeError(
+                        f"a request for a baked view (view {i % len(bodies)}) did not hit: {header.get('timings_ms')}"
+                    )
                 e2e.append(seconds * 1e3)
                 lookup_read.append(header["timings_ms"]["lookup"] + header["timings_ms"]["read"])
                 total.append(header["timings_ms"]["total"])
@@ -248,8 +265,25 @@ def measure(cfg: ServiceConfig, res: Results) -> None:
     if latencies:
         _summary(res, scene, "load_latency", [s * 1e3 for s in latencies], True, **load)
     requests = cfg.concurrency * cfg.per_client
-    res.add(system=SYSTEM, scene=scene, metric="load_errors", value=n_errors, unit="count", requests=requests, first_errors=first_errors, **load)
-    res.add(system=SYSTEM, scene=scene, metric="load_throughput", value=requests / wall, unit="req/s", wall_s=round(wall, 4), **load)
+    res.add(
+        system=SYSTEM,
+        scene=scene,
+        metric="load_errors",
+        value=n_errors,
+        unit="count",
+        requests=requests,
+        first_errors=first_errors,
+        **load,
+    )
+    res.add(
+        system=SYSTEM,
+        scene=scene,
+        metric="load_throughput",
+        value=requests / wall,
+        unit="req/s",
+        wall_s=round(wall, 4),
+        **load,
+    )
     _targets(res, scene, cfg)
     text = table(res.rows)
     res.output("service_table.md").write_text(text)
@@ -263,12 +297,28 @@ def _misses(res: Results, scene: str, misses: list[tuple[float, dict[str, float]
     first_ms, first_timings = misses[0]
     res.add(system=SYSTEM, scene=scene, metric="miss_e2e", value=first_ms, unit="ms", stat="first", **common)
     for part in parts:
-        res.add(system=SYSTEM, scene=scene, metric="miss_server", value=first_timings[part], unit="ms", stat="first", part=part, **common)
+        res.add(
+            system=SYSTEM,
+            scene=scene,
+            metric="miss_server",
+            value=first_timings[part],
+            unit="ms",
+            stat="first",
+            part=part,
+            **common,
+        )
     warm = misses[1:]
     if warm:
         res.add_timing(system=SYSTEM, scene=scene, metric="miss_e2e", samples_s=[ms / 1e3 for ms, _ in warm], **common)
         for part in parts:
-            res.add_timing(system=SYSTEM, scene=scene, metric="miss_server", samples_s=[t[part] / 1e3 for _, t in warm], part=part, **common)
+            res.add_timing(
+                system=SYSTEM,
+                scene=scene,
+                metric="miss_server",
+                samples_s=[t[part] / 1e3 for _, t in warm],
+                part=part,
+                **common,
+            )
 
 
 def _targets(res: Results, scene: str, cfg: ServiceConfig) -> None:
@@ -307,7 +357,12 @@ def table(rows: list[dict[str, Any]]) -> str:
         if p50 is None and first is None:
             continue
         n = _value(rows, metric, "n", **where)
-        cells = [_fmt(first), _fmt(p50), *(_fmt(_value(rows, metric, s, **where)) for s in ("p95", "p99")), "" if n is None else f"{n:.0f}"]
+        cells = [
+            _fmt(first),
+            _fmt(p50),
+            *(_fmt(_value(rows, metric, s, **where)) for s in ("p95", "p99")),
+            "" if n is None else f"{n:.0f}",
+        ]
         lines.append(f"| {metric} (ms) | {part or ''} | " + " | ".join(cells) + " |")
     lines += [
         "",
@@ -332,11 +387,19 @@ def plot(csv_path: Path, out_dir: Path) -> list[Path]:
     rows = read_rows(csv_path)
 
     def samples(metric: str, **config: Any) -> np.ndarray:
-        return np.sort([r["value"] for r in rows if r["metric"] == metric and r["stat"] == "sample" and config.items() <= r["config"].items()])
+        return np.sort(
+            [
+                r["value"]
+                for r in rows
+                if r["metric"] == metric and r["stat"] == "sample" and config.items() <= r["config"].items()
+            ]
+        )
 
     def cdf(ax, values: np.ndarray, label: str) -> None:
         if len(values):
-            ax.step(values, np.arange(1, len(values) + 1) / len(values), where="post", label=f"{label} (n={len(values)})")
+            ax.step(
+                values, np.arange(1, len(values) + 1) / len(values), where="post", label=f"{label} (n={len(values)})"
+            )
 
     fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.2))
     cdf(left, samples("hit_server", part="lookup_read"), "server lookup + read")
@@ -367,4 +430,10 @@ def plot(csv_path: Path, out_dir: Path) -> list[Path]:
     return [save(fig, out_dir / "service.png")]
 
 
-BENCH = Bench("service", ServiceConfig, measure, plot, help="Issue 10 targets: GI-map server hit/miss service times and concurrent load")
+BENCH = Bench(
+    "service",
+    ServiceConfig,
+    measure,
+    plot,
+    help="Issue 10 targets: GI-map server hit/miss service times and concurrent load",
+)

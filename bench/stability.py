@@ -90,7 +90,8 @@ class StabilityConfig:
         served = Settings.model_fields["resolutions"].default
         if self.processes and self.resolution not in served:
             raise UserError(
-                f"--resolution {self.resolution} is not served by cloudbaking-server", f"use one of {', '.join(map(str, served))}, or --no-processes"
+                f"--resolution {self.resolution} is not served by cloudbaking-server",
+                f"use one of {', '.join(map(str, served))}, or --no-processes",
             )
 
 
@@ -185,7 +186,9 @@ def judge(case: Case, timeout_s: float) -> Verdict:
         return Verdict("FAIL: non-finite output", out.note, **common)
     if out.error is not None and (not math.isfinite(out.error) or (out.bound is not None and out.error > out.bound)):
         limit = "finite" if out.bound is None else f"<= {out.bound:g}"
-        return Verdict("FAIL: error above bound", f"{out.error:.3g}, not {limit} ({out.error_kind}); {out.note}", **common)
+        return Verdict(
+            "FAIL: error above bound", f"{out.error:.3g}, not {limit} ({out.error_kind}); {out.note}", **common
+        )
     return Verdict("finite", out.note, **common)
 
 
@@ -233,14 +236,24 @@ class Scene:
 
         spec = load_scene(name)
         local = camera_path(spec, 30, seed=seed, fov=spec.camera.local_fov, resolution=resolution)[0]
-        return cls(spec, Renderer(spec, resolution), local, local.with_fov(spec.camera.gi_fov), light_position(spec, 0), spp, seed)
+        return cls(
+            spec,
+            Renderer(spec, resolution),
+            local,
+            local.with_fov(spec.camera.gi_fov),
+            light_position(spec, 0),
+            spp,
+            seed,
+        )
 
     def scaled(self, factor: float) -> Any:
         """A renderer of the same scene with the light's intensity times ``factor``."""
         from gicore.render import Renderer
 
         if factor not in self._renderers:
-            spec = self.spec.model_copy(update={"light": self.spec.light.model_copy(update={"intensity": self.spec.light.intensity * factor})})
+            spec = self.spec.model_copy(
+                update={"light": self.spec.light.model_copy(update={"intensity": self.spec.light.intensity * factor})}
+            )
             self._renderers[factor] = Renderer(spec, self.renderer.resolution)
         return self._renderers[factor]
 
@@ -272,7 +285,12 @@ class Scene:
 
         camera = camera or self.gi_camera
         r = self.renderer
-        return GIMap(camera, r.render_gt(camera, self.light, spp=self.spp, seed=self.seed), texel_depth(r, camera), r.render_di(camera, self.light))
+        return GIMap(
+            camera,
+            r.render_gt(camera, self.light, spp=self.spp, seed=self.seed),
+            texel_depth(r, camera),
+            r.render_di(camera, self.light),
+        )
 
 
 def _camera_moved(camera, *, back: float = 0.0, turn_deg: float = 0.0):
@@ -315,7 +333,10 @@ def render_cases(s: Scene) -> list[Case]:
     def touching() -> Outcome:
         light = s.touching_light()
         out = s.passes(base, light=light)
-        return Outcome(tuple(out.values()), note=f"light at {np.round(light, 4).tolist()}, peak GT radiance {float(out['gt'].max()):.3g}")
+        return Outcome(
+            tuple(out.values()),
+            note=f"light at {np.round(light, 4).tolist()}, peak GT radiance {float(out['gt'].max()):.3g}",
+        )
 
     def black() -> Outcome:
         o = base.origin
@@ -332,10 +353,20 @@ def render_cases(s: Scene) -> list[Case]:
         Case("render", "light ×1e-4", "finite", light_scaled(1e-4)),
         Case("render", "light 1e-4 from a surface", "finite", touching),
         Case("render", "black frame (view of empty space)", "finite", black),
-        Case("render", "degenerate look-at (up ∥ view)", "rejected", view(lambda: Camera((0.0, 3.0, 0.0), (0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0)))),
+        Case(
+            "render",
+            "degenerate look-at (up ∥ view)",
+            "rejected",
+            view(lambda: Camera((0.0, 3.0, 0.0), (0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0))),
+        ),
         Case("render", "camera origin = target", "rejected", view(lambda: Camera((1.0, 1.0, 1.0), (1.0, 1.0, 1.0)))),
         Case("render", "NaN camera origin", "rejected", view(lambda: replace(base, origin=(math.nan, 1.0, 1.0)))),
-        Case("render", "NaN light position", "rejected", lambda: Outcome((s.renderer.render_di(base, (math.nan, 2.0, 0.0)),))),
+        Case(
+            "render",
+            "NaN light position",
+            "rejected",
+            lambda: Outcome((s.renderer.render_di(base, (math.nan, 2.0, 0.0)),)),
+        ),
     ]
 
 
@@ -343,9 +374,13 @@ def tonemap_cases() -> list[Case]:
     from gicore.tonemap import from_signed, inverse_tonemap, tonemap
 
     def extreme() -> Outcome:
-        x = np.concatenate([[0.0, 1e-38, 1e-30], np.logspace(-4, 3, 200), [1e4, 1e30, float(np.finfo(np.float32).max)]]).astype(np.float32)
+        x = np.concatenate(
+            [[0.0, 1e-38, 1e-30], np.logspace(-4, 3, 200), [1e4, 1e30, float(np.finfo(np.float32).max)]]
+        ).astype(np.float32)
         y = tonemap(x)
-        inside = bool(np.all((y >= 0) & (y <= 1)) and np.all(np.diff(y) >= 0))  # float32 x / (1 + x) rounds to 1 past ~1.7e7
+        inside = bool(
+            np.all((y >= 0) & (y <= 1)) and np.all(np.diff(y) >= 0)
+        )  # float32 x / (1 + x) rounds to 1 past ~1.7e7
         mid = slice(3, 203)
         err = _max_rel(inverse_tonemap(y[mid]), x[mid])
         note = "monotone, in [0, 1]" if inside else "NOT monotone in [0, 1]"
@@ -389,14 +424,22 @@ def inference_cases(s: Scene, model_path: Path) -> list[Case]:
         state.update(model=model, renderer=renderer, camera=camera, buffers=buffers)
         gt = renderer.render_gt(camera, s.light, spp=s.spp, seed=s.seed)
         out = model.predict(buffers)
-        return Outcome((out,), _tm_rmse(out, gt), "RMSE vs path-traced GT (tone-mapped)", None, f"{model_path.name} at {model.resolution}²")
+        return Outcome(
+            (out,),
+            _tm_rmse(out, gt),
+            "RMSE vs path-traced GT (tone-mapped)",
+            None,
+            f"{model_path.name} at {model.resolution}²",
+        )
 
     def on(change: Callable[[dict[str, np.ndarray]], dict[str, np.ndarray]]) -> Callable[[], Outcome]:
         return lambda: Outcome((state["model"].predict(change(dict(state["buffers"]))),))
 
     def at_fov(fov: float) -> Callable[[], Outcome]:
         def run() -> Outcome:
-            buffers = state["renderer"].render_di_gbuffers(state["camera"].with_fov(fov), s.light, seed=s.seed, centre=True)
+            buffers = state["renderer"].render_di_gbuffers(
+                state["camera"].with_fov(fov), s.light, seed=s.seed, centre=True
+            )
             return Outcome((state["model"].predict(buffers),))
 
         return run
@@ -451,7 +494,11 @@ def warp_cases(s: Scene) -> list[Case]:
             image, valid = warped(kind, gi, camera)
             gt = s.renderer.render_gt(camera, s.light, spp=s.spp, seed=s.seed)
             return Outcome(
-                (image,), _tm_rmse(image, gt), "RMSE vs path-traced GT at the local camera (tone-mapped)", None, f"valid {valid.mean():.3f}"
+                (image,),
+                _tm_rmse(image, gt),
+                "RMSE vs path-traced GT at the local camera (tone-mapped)",
+                None,
+                f"valid {valid.mean():.3f}",
             )
 
         return run
@@ -463,7 +510,11 @@ def warp_cases(s: Scene) -> list[Case]:
     def bad_map(kind: str, what: str) -> Callable[[], Outcome]:
         def run() -> Outcome:
             gi = gi_map()
-            bad = replace(gi, radiance=_with_nan(gi.radiance)) if what == "radiance" else replace(gi, depth=_with_nan(gi.depth, math.inf))
+            bad = (
+                replace(gi, radiance=_with_nan(gi.radiance))
+                if what == "radiance"
+                else replace(gi, depth=_with_nan(gi.depth, math.inf))
+            )
             return Outcome(warped(kind, bad, s.local))
 
         return run
@@ -486,7 +537,12 @@ def warp_cases(s: Scene) -> list[Case]:
                 "finite",
                 against_gt(kind, lambda: _camera_moved(local, turn_deg=90.0)),
             ),
-            Case("warp", f"{kind}: local camera turned 180° (all behind)", "finite", against_gt(kind, lambda: _camera_moved(local, turn_deg=180.0))),
+            Case(
+                "warp",
+                f"{kind}: local camera turned 180° (all behind)",
+                "finite",
+                against_gt(kind, lambda: _camera_moved(local, turn_deg=180.0)),
+            ),
             Case("warp", f"{kind}: GI camera FOV 1°", "finite", against_gt(kind, lambda: local, gi_fov=1.0)),
             Case("warp", f"{kind}: GI camera FOV 170°", "finite", against_gt(kind, lambda: local, gi_fov=170.0)),
             Case("warp", f"{kind}: local FOV 1°", "finite", against_gt(kind, lambda: local.with_fov(1.0))),
@@ -530,7 +586,12 @@ def composition_cases() -> list[Case]:
             lambda: Outcome((b := blend(zeros, zeros, 0.3),), float(np.abs(b).max()), "max |blend|", 0.0),
         ),
         Case("composition", "NaN in the GI map", "rejected", lambda: Outcome((blend(hdr, _with_nan(other), 0.5),))),
-        Case("composition", "Inf in the DI (residual)", "rejected", lambda: Outcome((residual(_with_nan(hdr, math.inf), other, zeros),))),
+        Case(
+            "composition",
+            "Inf in the DI (residual)",
+            "rejected",
+            lambda: Outcome((residual(_with_nan(hdr, math.inf), other, zeros),)),
+        ),
         Case("composition", "τ = 1.5", "rejected", lambda: Outcome((blend(hdr, other, 1.5),))),
         Case("composition", "shape mismatch", "rejected", lambda: Outcome((blend(hdr, other[:8], 0.5),))),
     ]
@@ -575,7 +636,12 @@ def codec_cases(s: Scene) -> list[Case]:
             cases.append(Case("codecs", f"{name}: {label}", "finite", round_trip(codec, lambda im=image: im)))
         cases += [
             Case("codecs", f"{name}: rendered GI map", "finite", round_trip(codec, rendered_map)),
-            Case("codecs", f"{name}: NaN in the map", "rejected", lambda c=codec: Outcome((c.encode(_with_nan(maps["black"])),))),
+            Case(
+                "codecs",
+                f"{name}: NaN in the map",
+                "rejected",
+                lambda c=codec: Outcome((c.encode(_with_nan(maps["black"])),)),
+            ),
             Case("codecs", f"{name}: truncated bytes", "rejected", lambda c=codec: corrupt(c)),
         ]
 
@@ -588,9 +654,19 @@ def codec_cases(s: Scene) -> list[Case]:
 
     cases += [
         Case("codecs", "depth: 0 … 65504", "finite", depth_extremes),
-        Case("codecs", "depth: 1e5 (beyond float16)", "rejected", lambda: Outcome((DEPTH_CODEC.encode(np.full((4, 4), 1e5, np.float32)),))),
+        Case(
+            "codecs",
+            "depth: 1e5 (beyond float16)",
+            "rejected",
+            lambda: Outcome((DEPTH_CODEC.encode(np.full((4, 4), 1e5, np.float32)),)),
+        ),
         Case("codecs", "depth: NaN", "rejected", lambda: Outcome((DEPTH_CODEC.encode(_with_nan(np.ones((4, 4)))),))),
-        Case("codecs", "depth: negative", "rejected", lambda: Outcome((DEPTH_CODEC.encode(np.full((4, 4), -1.0, np.float32)),))),
+        Case(
+            "codecs",
+            "depth: negative",
+            "rejected",
+            lambda: Outcome((DEPTH_CODEC.encode(np.full((4, 4), -1.0, np.float32)),)),
+        ),
     ]
     return cases
 
@@ -617,29 +693,47 @@ def store_cases(work: Path) -> list[Case]:
                 hit = t.lookup(key, view)
                 if hit is None or hit.payload != payload:
                     raise RuntimeError("a stored viewpoint was not found again at distance 0")
-                return Outcome((hit.distance, hit.angle_deg), hit.distance + hit.angle_deg, "distance + angle of the hit", 1e-9)
+                return Outcome(
+                    (hit.distance, hit.angle_deg), hit.distance + hit.angle_deg, "distance + angle of the hit", 1e-9
+                )
 
         return run
 
     def over_budget() -> Outcome:
         with tree("budget", budget_bytes=1024) as t:
             if t.insert(key, Viewpoint.look_at((1.0, 1.0, 1.0), (0.0, 0.0, 0.0)), payload) is None:
-                raise Rejected(f"a {len(payload)}-byte payload over the 1024-byte budget is not stored (counted as rejected)")
+                raise Rejected(
+                    f"a {len(payload)}-byte payload over the 1024-byte budget is not stored (counted as rejected)"
+                )
             return Outcome(note="stored beyond its budget")
 
     return [
         Case("store", "zero tolerance: exact hit", "finite", exact((1.0, 2.0, 3.0), Tolerance(0.0, 0.0), "zero_tol")),
         Case("store", "eye at 1e4 (the request bound)", "finite", exact((1e4, 1e4, 1e4), Tolerance(), "far")),
         Case("store", "eye at 1e-4 from the target", "finite", exact((1e-4, 0.0, 0.0), Tolerance(), "near")),
-        Case("store", "NaN viewpoint", "rejected", lambda: Outcome((Viewpoint.look_at((math.nan, 0.0, 0.0), (0.0, 0.0, 0.0)).eye,))),
-        Case("store", "eye = target", "rejected", lambda: Outcome((Viewpoint.look_at((1.0, 1.0, 1.0), (1.0, 1.0, 1.0)).eye,))),
+        Case(
+            "store",
+            "NaN viewpoint",
+            "rejected",
+            lambda: Outcome((Viewpoint.look_at((math.nan, 0.0, 0.0), (0.0, 0.0, 0.0)).eye,)),
+        ),
+        Case(
+            "store",
+            "eye = target",
+            "rejected",
+            lambda: Outcome((Viewpoint.look_at((1.0, 1.0, 1.0), (1.0, 1.0, 1.0)).eye,)),
+        ),
         Case("store", "NaN tolerance", "rejected", lambda: Outcome((Tolerance(math.nan, 1.0).position,))),
         Case("store", "payload over the byte budget", "rejected", over_budget),
     ]
 
 
 #: The dead and stiff links of the network cases: name -> one direction's settings (both directions alike).
-DEAD_LINKS = {"zero bandwidth": {"rate_mbit": 0.0}, "100 % loss": {"loss": 1.0}, "1000 s one-way delay": {"delay_ms": 1e6}}
+DEAD_LINKS = {
+    "zero bandwidth": {"rate_mbit": 0.0},
+    "100 % loss": {"loss": 1.0},
+    "1000 s one-way delay": {"delay_ms": 1e6},
+}
 
 
 def link_model_cases() -> list[Case]:
@@ -654,14 +748,29 @@ def link_model_cases() -> list[Case]:
             arrived = link.message(0, UP, request, 0.0)
             done = link.message(0, DOWN, response, arrived) if math.isfinite(arrived) else math.inf
             if not math.isfinite(done):
-                raise Rejected("the model never delivers the request/response (release time inf): a client sees its timeout")
+                raise Rejected(
+                    "the model never delivers the request/response (release time inf): a client sees its timeout"
+                )
             expected = 2 * direction.delay_ms / 1e3
-            return Outcome((done,), abs(done - expected) / expected, "relative error vs 2 × one-way delay", 1e-9, f"response after {done:.6g} s")
+            return Outcome(
+                (done,),
+                abs(done - expected) / expected,
+                "relative error vs 2 × one-way delay",
+                1e-9,
+                f"response after {done:.6g} s",
+            )
 
         return run
 
-    expect: dict[str, Expect] = {"zero bandwidth": "rejected", "100 % loss": "rejected", "1000 s one-way delay": "finite"}
-    return [Case("network", f"link model: {name}", expect[name], exchange(settings)) for name, settings in DEAD_LINKS.items()]
+    expect: dict[str, Expect] = {
+        "zero bandwidth": "rejected",
+        "100 % loss": "rejected",
+        "1000 s one-way delay": "finite",
+    }
+    return [
+        Case("network", f"link model: {name}", expect[name], exchange(settings))
+        for name, settings in DEAD_LINKS.items()
+    ]
 
 
 def process_cases(s: Scene, cfg: StabilityConfig, server_url: str, scene_name: str, stack: ExitStack) -> list[Case]:
@@ -679,36 +788,60 @@ def process_cases(s: Scene, cfg: StabilityConfig, server_url: str, scene_name: s
 
     def through_proxy(flags: list[str], timeout: float) -> Callable[[], Outcome]:
         def run() -> Outcome:
-            proxy = stack.enter_context(network_sim("proxy", "--upstream", server_url.removeprefix("http://"), *flags, timeout=30.0))
+            proxy = stack.enter_context(
+                network_sim("proxy", "--upstream", server_url.removeprefix("http://"), *flags, timeout=30.0)
+            )
             remote = RemoteConfig(f"http://{proxy.addr[0]}:{proxy.addr[1]}", scene_name, cfg.resolution, "jpeg", cfg.spp, False, s.spec.light.moves,
                                   connect_timeout_s=timeout, read_timeout_s=timeout, deadline_s=2 * timeout, retry_after_s=0.0)  # fmt: skip
             with RemoteSource(remote) as source:
                 source.request(s.gi_camera, s.light, 0)
                 if not source.wait(4 * timeout + 5.0):
-                    raise RuntimeError(f"the client's request is still in flight {4 * timeout + 5:g} s later despite its timeouts")
+                    raise RuntimeError(
+                        f"the client's request is still in flight {4 * timeout + 5:g} s later despite its timeouts"
+                    )
                 record = source.records[-1]
                 gi = source.latest()
             if record["status"] != "ok":
-                raise Rejected(f"client gave up after {float(record['latency_ms']) / 1e3:.2f} s: {record['status']}: {record['error']}")
+                raise Rejected(
+                    f"client gave up after {float(record['latency_ms']) / 1e3:.2f} s: {record['status']}: {record['error']}"
+                )
             return Outcome((gi.radiance, gi.depth), note=f"map in {float(record['latency_ms']):.0f} ms")
 
         return run
 
     # the control asks for the map the server case "valid request" baked (a hit), with room for a miss's render
-    network = [Case("network", "proxy + client: LAN profile (control)", "finite", through_proxy(["--profile", "lan"], cfg.case_timeout_s / 3))]
+    network = [
+        Case(
+            "network",
+            "proxy + client: LAN profile (control)",
+            "finite",
+            through_proxy(["--profile", "lan"], cfg.case_timeout_s / 3),
+        )
+    ]
     for name, settings in DEAD_LINKS.items():
         flag, value = next(iter(settings.items()))
         flags = [f"--{flag.replace('_', '-')}", f"{value:g}"]
-        network.append(Case("network", f"proxy + client: {name}", "rejected", through_proxy(flags, cfg.client_timeout_s)))
+        network.append(
+            Case("network", f"proxy + client: {name}", "rejected", through_proxy(flags, cfg.client_timeout_s))
+        )
 
     def post(content: bytes | str, expect_ok: bool = False) -> Callable[[], Outcome]:
         def run() -> Outcome:
-            r = httpx.post(f"{server_url}/v1/gimap", content=content, headers={"content-type": "application/json"}, timeout=cfg.case_timeout_s)
+            r = httpx.post(
+                f"{server_url}/v1/gimap",
+                content=content,
+                headers={"content-type": "application/json"},
+                timeout=cfg.case_timeout_s,
+            )
             if r.status_code >= 500:
                 raise RuntimeError(f"HTTP {r.status_code}: {r.text[:200]}")
             if r.status_code != 200:
                 detail = r.json().get("detail")
-                where = "/".join(map(str, detail[0]["loc"])) if isinstance(detail, list) and detail and "loc" in detail[0] else "?"
+                where = (
+                    "/".join(map(str, detail[0]["loc"]))
+                    if isinstance(detail, list) and detail and "loc" in detail[0]
+                    else "?"
+                )
                 msg = detail[0].get("msg", "") if isinstance(detail, list) and detail else str(detail)
                 raise Rejected(f"HTTP {r.status_code} at {where}: {msg}")
             payload = decode_payload(r.content)
@@ -732,7 +865,10 @@ def process_cases(s: Scene, cfg: StabilityConfig, server_url: str, scene_name: s
         Case("server", "FOV 0°", "rejected", post(with_camera(fov=0.0))),
         Case("server", "FOV 180°", "rejected", post(with_camera(fov=180.0))),
         Case(
-            "server", "degenerate look-at (up ∥ view)", "rejected", post(with_camera(eye=[0.0, 3.0, 0.0], target=[0.0, 0.0, 0.0], up=[0.0, 1.0, 0.0]))
+            "server",
+            "degenerate look-at (up ∥ view)",
+            "rejected",
+            post(with_camera(eye=[0.0, 3.0, 0.0], target=[0.0, 0.0, 0.0], up=[0.0, 1.0, 0.0])),
         ),
         Case("server", "eye = target", "rejected", post(with_camera(eye=[0.5, 0.5, 0.5], target=[0.5, 0.5, 0.5]))),
         Case("server", "eye at 1e5 (beyond the bound)", "rejected", post(with_camera(eye=[1e5, 0.0, 0.0]))),
@@ -743,7 +879,14 @@ def process_cases(s: Scene, cfg: StabilityConfig, server_url: str, scene_name: s
         Case("server", "1 MB body", "rejected", post(json.dumps(body | {"pad": "x" * 1_000_000}))),
     ]
     if s.spec.light.moves:
-        cases.append(Case("server", "light 1e-4 from a surface", "finite", post(json.dumps(body | {"light": list(s.touching_light())}))))
+        cases.append(
+            Case(
+                "server",
+                "light 1e-4 from a surface",
+                "finite",
+                post(json.dumps(body | {"light": list(s.touching_light())})),
+            )
+        )
     return cases + network
 
 
@@ -785,7 +928,15 @@ def record(res: Results, scene: str, case: Case, v: Verdict) -> None:
     res.add(**add, metric="rejected", value=float(v.status == "rejected"), unit="1", **config)
     res.add(**add, metric="time", value=v.time_ms, unit="ms", **config)
     if v.error is not None:
-        res.add(**add, metric="error", value=v.error, unit=v.error_kind, stat="max" if v.bound is not None else "value", bound=v.bound, **config)
+        res.add(
+            **add,
+            metric="error",
+            value=v.error,
+            unit=v.error_kind,
+            stat="max" if v.bound is not None else "value",
+            bound=v.bound,
+            **config,
+        )
 
 
 def measure(cfg: StabilityConfig, res: Results) -> None:
@@ -802,7 +953,12 @@ def measure(cfg: StabilityConfig, res: Results) -> None:
             todo += process_cases(s, cfg, url, Path(scene).stem, stack)
         for case in todo:
             v = judge(case, cfg.case_timeout_s)
-            record(res, s.spec.name if case.stage in ("render", "inference", "warp", "network", "server") else "none", case, v)
+            record(
+                res,
+                s.spec.name if case.stage in ("render", "inference", "warp", "network", "server") else "none",
+                case,
+                v,
+            )
             if v.trace:
                 failures.append(f"== {case.stage}: {case.name}: {v.status}\n{v.trace}")
             print(f"{case.stage:>11} | {v.status:<28} | {v.time_ms:9.1f} ms | {case.name}", flush=True)
@@ -849,9 +1005,13 @@ def table(entries: list[dict[str, Any]]) -> str:
         "|---|---|---|---|---|---|---|",
     ]
     for e in entries:
-        err = "—" if e["error"] is None else f"{e['error']:.3g}" + ("" if e["bound"] is None else f" (≤ {e['bound']:g})")
+        err = (
+            "—" if e["error"] is None else f"{e['error']:.3g}" + ("" if e["bound"] is None else f" (≤ {e['bound']:g})")
+        )
         message = e["message"].replace("|", "\\|")
-        lines.append(f"| {e['stage']} | {e['case']} | {e['expect']} | {e['status']} | {err} | {e['time_ms']:.1f} | {message} |")
+        lines.append(
+            f"| {e['stage']} | {e['case']} | {e['expect']} | {e['status']} | {err} | {e['time_ms']:.1f} | {message} |"
+        )
     return "\n".join(lines) + "\n"
 
 
@@ -883,7 +1043,10 @@ def plot(csv_path: Path, out_dir: Path) -> list[Path]:
     failed = [e for e in entries if e["status"] not in PASSED]
     if failed:
         names = "; ".join(f"{e['stage']}/{e['case']} ({e['status'].removeprefix('FAIL: ')})" for e in failed)
-        raise UserError(f"{len(failed)} of {n['cases']} stability cases failed: {names}", f"see {md} (and stability_failures.txt for tracebacks)")
+        raise UserError(
+            f"{len(failed)} of {n['cases']} stability cases failed: {names}",
+            f"see {md} (and stability_failures.txt for tracebacks)",
+        )
     return written
 
 

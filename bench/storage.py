@@ -110,7 +110,10 @@ class StorageConfig:
             )
         missing = [p for p in ("model_fp32.onnx", "model_fp16.onnx") if not (self.model_dir / p).is_file()]
         if missing:
-            raise UserError(f"--model-dir {self.model_dir} lacks {', '.join(missing)}", "give the folder of an exported GIGAN model (gigan-export)")
+            raise UserError(
+                f"--model-dir {self.model_dir} lacks {', '.join(missing)}",
+                "give the folder of an exported GIGAN model (gigan-export)",
+            )
 
     @property
     def tolerance(self) -> Tolerance:
@@ -132,11 +135,27 @@ def _bake(renderer, frame: PathFrame, cfg: StorageConfig, seed: int) -> BakedMap
 def measure(cfg: StorageConfig, res: Results) -> None:
     from gicore.render import Renderer
 
-    model_bytes = {p: (cfg.model_dir / f"model_{p}.onnx").stat().st_size + _size(cfg.model_dir / "model.json") for p in ("fp32", "fp16")}
+    model_bytes = {
+        p: (cfg.model_dir / f"model_{p}.onnx").stat().st_size + _size(cfg.model_dir / "model.json")
+        for p in ("fp32", "fp16")
+    }
     for precision, size in model_bytes.items():
-        res.add(system="gigan", scene="all", metric="client_bytes", value=size, unit="bytes", precision=precision, basis="measured: model files")
+        res.add(
+            system="gigan",
+            scene="all",
+            metric="client_bytes",
+            value=size,
+            unit="bytes",
+            precision=precision,
+            basis="measured: model files",
+        )
     tol = cfg.tolerance
-    common = {"frames": cfg.frames, "tolerance_position": tol.position, "tolerance_angle_deg": tol.angle_deg, "light_cell": cfg.light_cell}
+    common = {
+        "frames": cfg.frames,
+        "tolerance_position": tol.position,
+        "tolerance_angle_deg": tol.angle_deg,
+        "light_cell": cfg.light_cell,
+    }
     for si, scene in enumerate(cfg.scenes):
         spec, name = load_scene(scene), Path(scene).stem  # the name a prebake stores the scene under
         path = fly_through(spec, cfg.frames, cfg.resolutions[0], cfg.light_cell, res.seed)
@@ -144,11 +163,22 @@ def measure(cfg: StorageConfig, res: Results) -> None:
         entry_frames = _entry_frames(served)
         n_entries = len(entry_frames)
         basis = "counted: GI-tree lookup rule along the path"
-        res.add(system="cloud_baking", scene=name, metric="entries", value=n_entries, unit="count", basis=basis, **common)
+        res.add(
+            system="cloud_baking", scene=name, metric="entries", value=n_entries, unit="count", basis=basis, **common
+        )
         running = np.maximum.accumulate(served) + 1
         for f in sorted({int(x) for x in np.linspace(1, cfg.frames, 16)}):
-            res.add(system="cloud_baking", scene=name, metric="entries_at", value=int(running[f - 1]), unit="count", at_frame=f)
-        picks = sorted({entry_frames[int(round(k))] for k in np.linspace(0, n_entries - 1, min(cfg.samples, n_entries))})
+            res.add(
+                system="cloud_baking",
+                scene=name,
+                metric="entries_at",
+                value=int(running[f - 1]),
+                unit="count",
+                at_frame=f,
+            )
+        picks = sorted(
+            {entry_frames[int(round(k))] for k in np.linspace(0, n_entries - 1, min(cfg.samples, n_entries))}
+        )
         for resolution in cfg.resolutions:
             renderer = Renderer(spec, resolution)
             frames = fly_through(spec, cfg.frames, resolution, cfg.light_cell, res.seed)
@@ -160,7 +190,9 @@ def measure(cfg: StorageConfig, res: Results) -> None:
                 _tolerance_knob(cfg, res, name, spec, frames, renderer, float(np.mean(sizes[(cfg.codecs[0], "blend")])))
 
 
-def _measure_entries(cfg: StorageConfig, res: Results, name: str, spec, renderer, frames: list[PathFrame], indices: list[int]) -> dict:
+def _measure_entries(
+    cfg: StorageConfig, res: Results, name: str, spec, renderer, frames: list[PathFrame], indices: list[int]
+) -> dict:
     """Render the sampled entries, encode them with every codec; record the codec table and the bake
     time; return the payload bytes of each sampled entry per (codec, composition)."""
     sizes: dict[tuple[str, str], list[int]] = defaultdict(list)
@@ -179,27 +211,46 @@ def _measure_entries(cfg: StorageConfig, res: Results, name: str, spec, renderer
             report, gi, _ = measure_codec(codec, baked.gi)
             reports[codec_name].append(report)
             data = {"gi": gi, "di": codec.encode(baked.di), "depth": depth}
-            header = map_header(baked, name, codec_name, cfg.spp, frame.light if spec.light.moves else None, report.encode_ms)
+            header = map_header(
+                baked, name, codec_name, cfg.spp, frame.light if spec.light.moves else None, report.encode_ms
+            )
             for composition, names in COMPOSITIONS.items():
                 sizes[(codec_name, composition)].append(len(pack(header, {n: data[n] for n in names})))
             for section, blob in data.items():
                 sections[(codec_name, section)].append(len(blob))
     resolution = renderer.resolution
-    res.add_timing(system="cloud_baking", scene=name, metric="bake_ms", samples_s=bake_s, resolution=resolution, spp=cfg.spp)
+    res.add_timing(
+        system="cloud_baking", scene=name, metric="bake_ms", samples_s=bake_s, resolution=resolution, spp=cfg.spp
+    )
     for codec_name, reps in reports.items():
         row = {"resolution": resolution, "codec": codec_name}
-        res.add_timing(system="cloud_baking", scene=name, metric="encode_ms", samples_s=[r.encode_ms / 1e3 for r in reps], **row)
-        res.add_timing(system="cloud_baking", scene=name, metric="decode_ms", samples_s=[r.decode_ms / 1e3 for r in reps], **row)
+        res.add_timing(
+            system="cloud_baking", scene=name, metric="encode_ms", samples_s=[r.encode_ms / 1e3 for r in reps], **row
+        )
+        res.add_timing(
+            system="cloud_baking", scene=name, metric="decode_ms", samples_s=[r.decode_ms / 1e3 for r in reps], **row
+        )
         for metric in ("rmse", "ssim"):
             mean = float(np.mean([getattr(r, metric) for r in reps]))
             res.add(system="cloud_baking", scene=name, metric=metric, value=mean, unit="1", stat="mean", **row)
         for section in ("gi", "di", "depth"):
             mean = float(np.mean(sections[(codec_name, section)]))
-            res.add(system="cloud_baking", scene=name, metric="section_bytes", value=mean, unit="bytes", stat="mean", section=section, **row)
+            res.add(
+                system="cloud_baking",
+                scene=name,
+                metric="section_bytes",
+                value=mean,
+                unit="bytes",
+                stat="mean",
+                section=section,
+                **row,
+            )
     return sizes
 
 
-def _add_tree_bytes(res: Results, name: str, values: np.ndarray, n_entries: int, model_bytes: dict[str, int], row: dict) -> None:
+def _add_tree_bytes(
+    res: Results, name: str, values: np.ndarray, n_entries: int, model_bytes: dict[str, int], row: dict
+) -> None:
     """Bytes per entry (mean, std, n) and the GI tree's bytes: measured when every entry was rendered,
     else extrapolated with a 95 % interval; and its ratio to the model."""
     n = len(values)
@@ -209,11 +260,33 @@ def _add_tree_bytes(res: Results, name: str, values: np.ndarray, n_entries: int,
     measured = n == n_entries
     total = float(values.sum()) if measured else n_entries * float(values.mean())
     ci95 = 0.0 if measured else n_entries * 1.96 * std / math.sqrt(n)
-    basis = "measured: every entry rendered" if measured else f"extrapolated: {n_entries} counted entries x mean of {n} rendered maps"
+    basis = (
+        "measured: every entry rendered"
+        if measured
+        else f"extrapolated: {n_entries} counted entries x mean of {n} rendered maps"
+    )
     for stat, value in (("estimate", total), ("ci95", ci95)):
-        res.add(system="cloud_baking", scene=name, metric="gi_tree_bytes", value=value, unit="bytes", stat=stat, basis=basis, **row)
+        res.add(
+            system="cloud_baking",
+            scene=name,
+            metric="gi_tree_bytes",
+            value=value,
+            unit="bytes",
+            stat=stat,
+            basis=basis,
+            **row,
+        )
     for precision, size in model_bytes.items():
-        res.add(system="cloud_baking", scene=name, metric="ratio_to_model", value=total / size, unit="1", stat="estimate", precision=precision, **row)
+        res.add(
+            system="cloud_baking",
+            scene=name,
+            metric="ratio_to_model",
+            value=total / size,
+            unit="1",
+            stat="estimate",
+            precision=precision,
+            **row,
+        )
 
 
 def _size(path: Path) -> int:
@@ -234,7 +307,9 @@ def _perturbed(spec, frames: list[PathFrame], cfg: StorageConfig, seed: int) -> 
     return out
 
 
-def _tolerance_knob(cfg: StorageConfig, res: Results, name: str, spec, frames: list[PathFrame], renderer, bytes_per_entry: float) -> None:
+def _tolerance_knob(
+    cfg: StorageConfig, res: Results, name: str, spec, frames: list[PathFrame], renderer, bytes_per_entry: float
+) -> None:
     """Entries, bytes, second-pass hit rate and warped-map SSIM for each (Δp, Δθ) of the knob."""
     from baseline_cloudbaking.warp import PointCloud
 
@@ -272,10 +347,24 @@ def _tolerance_knob(cfg: StorageConfig, res: Results, name: str, spec, frames: l
             "codec": codec.name,
         }
         res.add(system="cloud_baking", scene=name, metric="knob_entries", value=len(entries), unit="count", **row)
-        res.add(system="cloud_baking", scene=name, metric="knob_bytes", value=len(entries) * bytes_per_entry, unit="bytes", stat="estimate", **row)
-        res.add(system="cloud_baking", scene=name, metric="knob_hit_rate", value=len(hits) / len(second), unit="1", **row)
+        res.add(
+            system="cloud_baking",
+            scene=name,
+            metric="knob_bytes",
+            value=len(entries) * bytes_per_entry,
+            unit="bytes",
+            stat="estimate",
+            **row,
+        )
+        res.add(
+            system="cloud_baking", scene=name, metric="knob_hit_rate", value=len(hits) / len(second), unit="1", **row
+        )
         scores = defaultdict(list)
-        for k in sorted({int(round(x)) for x in np.linspace(0, len(hits) - 1, min(cfg.warp_samples, len(hits)))}) if hits else []:
+        for k in (
+            sorted({int(round(x)) for x in np.linspace(0, len(hits) - 1, min(cfg.warp_samples, len(hits)))})
+            if hits
+            else []
+        ):
             i, j = hits[k]
             stored, reference = baked("stored", j), baked("request", i)
             gi, depth = codec.decode(codec.encode(stored.gi)), DEPTH_CODEC.decode(DEPTH_CODEC.encode(stored.depth))
@@ -284,7 +373,15 @@ def _tolerance_knob(cfg: StorageConfig, res: Results, name: str, spec, frames: l
             scores["knob_ssim_warped"].append(ssim(tonemap(warped), ref))
             scores["knob_ssim_stale"].append(ssim(tonemap(gi), ref))
         for metric, values in scores.items():
-            res.add(system="cloud_baking", scene=name, metric=metric, value=float(np.mean(values)), unit="1", stat="mean", **row)
+            res.add(
+                system="cloud_baking",
+                scene=name,
+                metric=metric,
+                value=float(np.mean(values)),
+                unit="1",
+                stat="mean",
+                **row,
+            )
             res.add(system="cloud_baking", scene=name, metric=metric, value=len(values), unit="count", stat="n", **row)
 
 
@@ -297,7 +394,11 @@ def _mib(n: float) -> str:
 
 def _index(rows: list[dict], metric: str, stat: str, *keys: str) -> dict[tuple, float]:
     """``{(scene, config[key], ...): value}`` of the rows of ``metric`` with ``stat``."""
-    return {(r["scene"], *(r["config"].get(k) for k in keys)): r["value"] for r in rows if r["metric"] == metric and r["stat"] == stat}
+    return {
+        (r["scene"], *(r["config"].get(k) for k in keys)): r["value"]
+        for r in rows
+        if r["metric"] == metric and r["stat"] == stat
+    }
 
 
 def table2(rows: list[dict]) -> str:
@@ -349,7 +450,10 @@ def codec_table(rows: list[dict]) -> str:
         "SSIM": _index(rows, "ssim", "mean", "codec", "resolution"),
     }
     pairs = list(dict.fromkeys(k[1:3] for k in columns["RMSE"]))
-    lines = ["| codec | resolution | GI bytes | depth bytes | encode ms | decode ms | RMSE (tone-mapped) | SSIM |", "|---" * 8 + "|"]
+    lines = [
+        "| codec | resolution | GI bytes | depth bytes | encode ms | decode ms | RMSE (tone-mapped) | SSIM |",
+        "|---" * 8 + "|",
+    ]
     for codec, resolution in pairs:
 
         def mean(column: str, *extra: str) -> float:
@@ -384,7 +488,9 @@ def plot(csv_path: Path, out_dir: Path) -> list[Path]:
     fig, axes = plt.subplots(1, len(scenes), figsize=(4.2 * len(scenes), 4.0), squeeze=False, sharey=True)
     colours = {c: f"C{i}" for i, c in enumerate(codecs)}
     for ax, scene in zip(axes[0], scenes, strict=True):
-        at = sorted((r["config"]["at_frame"], r["value"]) for r in rows if r["metric"] == "entries_at" and r["scene"] == scene)
+        at = sorted(
+            (r["config"]["at_frame"], r["value"]) for r in rows if r["metric"] == "entries_at" and r["scene"] == scene
+        )
         x, n = np.array([a for a, _ in at]), np.array([v for _, v in at])
         for resolution, style in zip(resolutions, ("-", "--", ":"), strict=False):
             for codec in codecs:
@@ -393,7 +499,9 @@ def plot(csv_path: Path, out_dir: Path) -> list[Path]:
                     ax.plot(x, n * b, style, color=colours[codec], label=f"{codec} {resolution}²")
         for precision, style in (("fp32", "k-"), ("fp16", "k:")):
             if precision in model:
-                ax.axhline(model[precision], color="k", linestyle=style[1:], linewidth=1.5, label=f"GIGAN model {precision}")
+                ax.axhline(
+                    model[precision], color="k", linestyle=style[1:], linewidth=1.5, label=f"GIGAN model {precision}"
+                )
         ax.set_yscale("log")
         ax.set_xlabel("fly-through frames")
         ax.set_title(scene, fontsize=9)
@@ -426,7 +534,10 @@ def plot(csv_path: Path, out_dir: Path) -> list[Path]:
         a2.set_ylabel("SSIM vs render at the request")
         a2.legend(fontsize=7)
         a2.grid(alpha=0.3)
-        fig.suptitle(f"GI-tree tolerance knob ({knob[0]['scene']}, {knob[0]['config']['codec']} {knob[0]['config']['resolution']}²)", fontsize=9)
+        fig.suptitle(
+            f"GI-tree tolerance knob ({knob[0]['scene']}, {knob[0]['config']['codec']} {knob[0]['config']['resolution']}²)",
+            fontsize=9,
+        )
         written.append(save(fig, out_dir / "storage_tolerance.png"))
     return written
 

@@ -45,7 +45,8 @@ class TrainingBenchConfig:
     def check(self) -> None:
         if not self.runs and self.train_steps is None:
             raise UserError(
-                "--runs is empty: no training runs to plot", "give --runs RUN[,RUN...] (gigan-train folders), or --quick to train small runs here"
+                "--runs is empty: no training runs to plot",
+                "give --runs RUN[,RUN...] (gigan-train folders), or --quick to train small runs here",
             )
         for run_dir in self.runs:
             for name in ("metrics.csv", "config.json"):
@@ -89,7 +90,9 @@ def train_small(scenes: tuple[str, ...], widths: tuple[int, ...], steps: int, re
 
 
 def measure(cfg: TrainingBenchConfig, res: Results) -> None:
-    runs = list(cfg.runs) + (train_small(cfg.scenes, cfg.widths, cfg.train_steps, res) if cfg.train_steps is not None else [])
+    runs = list(cfg.runs) + (
+        train_small(cfg.scenes, cfg.widths, cfg.train_steps, res) if cfg.train_steps is not None else []
+    )
     for run_dir in runs:
         config = json.loads((run_dir / "config.json").read_text())["train"]
         with (run_dir / "metrics.csv").open(newline="") as fh:

@@ -192,9 +192,18 @@ def measure(cfg: WarpBenchConfig, res: Results) -> None:
                     quality[f"{m}/ssim"].append(ssim(tonemap(gi_w), gt))
                     quality[f"{m}/valid"].append(float(valid[mask].mean()) if mask.any() else 1.0)
                     res.add(
-                        system=SYSTEMS[m], scene=name, metric="ssim", value=quality[f"{m}/ssim"][-1], unit="1", offset=offset, gi_frame=g, **common
+                        system=SYSTEMS[m],
+                        scene=name,
+                        metric="ssim",
+                        value=quality[f"{m}/ssim"][-1],
+                        unit="1",
+                        offset=offset,
+                        gi_frame=g,
+                        **common,
                     )
-            for method, errors in uv_errors(renderer, warper, gi.camera, cams[(g + cfg.offsets[-1]) % cfg.orbit_frames]).items():
+            for method, errors in uv_errors(
+                renderer, warper, gi.camera, cams[(g + cfg.offsets[-1]) % cfg.orbit_frames]
+            ).items():
                 uv_err[method].append(errors)
 
         cfg_row = common | {"repeats": cfg.repeats, "frames": len(cfg.gi_frames) * len(cfg.offsets), "spp": cfg.spp}
@@ -203,16 +212,73 @@ def measure(cfg: WarpBenchConfig, res: Results) -> None:
             for stage, values in stages[m].items():
                 res.add_timing(system=system, scene=name, metric=f"stage_time:{stage}", samples_s=values, **cfg_row)
             cpu_s, wall_s, calls = cpu[m]
-            res.add(system=system, scene=name, metric="cpu_time", value=cpu_s / calls * 1e3, unit="ms", stat="mean", **cfg_row)
-            res.add(system=system, scene=name, metric="cpu_percent", value=100.0 * cpu_s / wall_s, unit="%", stat="mean", **cfg_row)
-            res.add(system=system, scene=name, metric="peak_memory", value=float(np.max(peaks[m])), unit="MiB", stat="max", **cfg_row)
-            res.add(system=system, scene=name, metric="ssim", value=float(np.mean(quality[f"{m}/ssim"])), unit="1", stat="mean", **cfg_row)
-            res.add(system=system, scene=name, metric="valid_fraction", value=float(np.mean(quality[f"{m}/valid"])), unit="1", stat="mean", **cfg_row)
-        res.add_timing(system="structure-aware", scene=name, metric="bind_time", samples_s=samples["bind/structure"], vertices=n_vertices, **cfg_row)
+            res.add(
+                system=system,
+                scene=name,
+                metric="cpu_time",
+                value=cpu_s / calls * 1e3,
+                unit="ms",
+                stat="mean",
+                **cfg_row,
+            )
+            res.add(
+                system=system,
+                scene=name,
+                metric="cpu_percent",
+                value=100.0 * cpu_s / wall_s,
+                unit="%",
+                stat="mean",
+                **cfg_row,
+            )
+            res.add(
+                system=system,
+                scene=name,
+                metric="peak_memory",
+                value=float(np.max(peaks[m])),
+                unit="MiB",
+                stat="max",
+                **cfg_row,
+            )
+            res.add(
+                system=system,
+                scene=name,
+                metric="ssim",
+                value=float(np.mean(quality[f"{m}/ssim"])),
+                unit="1",
+                stat="mean",
+                **cfg_row,
+            )
+            res.add(
+                system=system,
+                scene=name,
+                metric="valid_fraction",
+                value=float(np.mean(quality[f"{m}/valid"])),
+                unit="1",
+                stat="mean",
+                **cfg_row,
+            )
+        res.add_timing(
+            system="structure-aware",
+            scene=name,
+            metric="bind_time",
+            samples_s=samples["bind/structure"],
+            vertices=n_vertices,
+            **cfg_row,
+        )
         res.add_timing(system="pixel-level", scene=name, metric="bind_time", samples_s=samples["bind/pixel"], **cfg_row)
-        res.add_timing(system="structure-aware", scene=name, metric="raster_time", samples_s=samples["raster"], **cfg_row)
+        res.add_timing(
+            system="structure-aware", scene=name, metric="raster_time", samples_s=samples["raster"], **cfg_row
+        )
         ratio = np.median(samples["pixel"]) / np.median(samples["structure"])
-        res.add(system="pixel/structure", scene=name, metric="time_ratio", value=float(ratio), unit="x", stat="median", **cfg_row)
+        res.add(
+            system="pixel/structure",
+            scene=name,
+            metric="time_ratio",
+            value=float(ratio),
+            unit="x",
+            stat="median",
+            **cfg_row,
+        )
         res.add(
             system="pixel/structure",
             scene=name,
@@ -225,7 +291,9 @@ def measure(cfg: WarpBenchConfig, res: Results) -> None:
         for method, errors in uv_err.items():
             e = np.concatenate(errors)
             for stat, value in (("median", np.median(e)), ("p99", np.percentile(e, 99)), ("max", e.max())):
-                res.add(system=method, scene=name, metric="uv_error", value=float(value), unit="px", stat=stat, **cfg_row)
+                res.add(
+                    system=method, scene=name, metric="uv_error", value=float(value), unit="px", stat=stat, **cfg_row
+                )
 
 
 def plot(csv_path: Path, out_dir: Path) -> list[Path]:
@@ -237,7 +305,14 @@ def plot(csv_path: Path, out_dir: Path) -> list[Path]:
     systems = list(SYSTEMS.values())
 
     def value(scene: str, system: str, metric: str, stat: str) -> float:
-        return next((r["value"] for r in rows if (r["scene"], r["system"], r["metric"], r["stat"]) == (scene, system, metric, stat)), float("nan"))
+        return next(
+            (
+                r["value"]
+                for r in rows
+                if (r["scene"], r["system"], r["metric"], r["stat"]) == (scene, system, metric, stat)
+            ),
+            float("nan"),
+        )
 
     fig, axes = plt.subplots(1, 3, figsize=(13, 4))
     x = np.arange(len(scenes))
@@ -246,9 +321,13 @@ def plot(csv_path: Path, out_dir: Path) -> list[Path]:
         med = np.array([value(s, system, "warp_time", "median") for s in scenes])
         p95 = np.array([value(s, system, "warp_time", "p95") for s in scenes])
         axes[0].bar(x + (i - 0.5) * width, med, width, yerr=[np.zeros_like(med), p95 - med], capsize=3, label=system)
-        axes[1].bar(x + (i - 0.5) * width, [value(s, system, "cpu_percent", "mean") for s in scenes], width, label=system)
+        axes[1].bar(
+            x + (i - 0.5) * width, [value(s, system, "cpu_percent", "mean") for s in scenes], width, label=system
+        )
         axes[2].bar(x + (i - 0.5) * width, [value(s, system, "ssim", "mean") for s in scenes], width, label=system)
-    for ax, label in zip(axes, ("warp time per frame [ms] (median, p95)", "process CPU [% of one core]", "SSIM of warped GI vs GT")):
+    for ax, label in zip(
+        axes, ("warp time per frame [ms] (median, p95)", "process CPU [% of one core]", "SSIM of warped GI vs GT")
+    ):
         ax.set_xticks(x, scenes, fontsize=8)
         ax.set_ylabel(label)
         ax.grid(axis="y", alpha=0.3)
@@ -258,4 +337,10 @@ def plot(csv_path: Path, out_dir: Path) -> list[Path]:
     return [save(fig, out_dir / "warp.png")]
 
 
-BENCH = Bench("warp", WarpBenchConfig, measure, plot, help="Fig. 7: CPU time, CPU load, memory and SSIM of pixel-level vs structure-aware warping.")
+BENCH = Bench(
+    "warp",
+    WarpBenchConfig,
+    measure,
+    plot,
+    help="Fig. 7: CPU time, CPU load, memory and SSIM of pixel-level vs structure-aware warping.",
+)

@@ -87,7 +87,9 @@ class Camera:
             raise ValueError("camera.origin and camera.target coincide; the view direction is undefined")
         up = np.asarray(self.up)
         if np.linalg.norm(up) < 1e-12 or np.linalg.norm(np.cross(direction / length, up / np.linalg.norm(up))) < 1e-6:
-            raise ValueError(f"camera.up {self.up} is parallel to the view direction (degenerate look-at); pick another up")
+            raise ValueError(
+                f"camera.up {self.up} is parallel to the view direction (degenerate look-at); pick another up"
+            )
 
     # -- matrices -------------------------------------------------------------------------------
     def to_world(self) -> np.ndarray:

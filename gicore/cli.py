@@ -50,7 +50,9 @@ def _oserror_line(exc: OSError) -> str:
     return f"{path}: {exc.strerror or exc}: check the path and its permissions"
 
 
-def run(app: typer.Typer, argv: Sequence[str] | None = None, *, prog_name: str | None = None, resume: str | None = None) -> NoReturn:
+def run(
+    app: typer.Typer, argv: Sequence[str] | None = None, *, prog_name: str | None = None, resume: str | None = None
+) -> NoReturn:
     """Run a Typer app under the error policy and exit with its status.
 
     The command is parsed and invoked here rather than through Typer's own ``main``, which would turn
@@ -73,7 +75,9 @@ def run(app: typer.Typer, argv: Sequence[str] | None = None, *, prog_name: str |
         ctx = getattr(exc, "ctx", None)
         if not exc.format_message().strip():  # no arguments at all: the help was already printed
             sys.exit(EXIT_USER_ERROR)
-        message = exc.format_message().replace("Value error, ", "").rstrip(".")  # pydantic's prefix on a rejected choice
+        message = (
+            exc.format_message().replace("Value error, ", "").rstrip(".")
+        )  # pydantic's prefix on a rejected choice
         _fail(f"{message}: see '{ctx.command_path if ctx else prog} --help'")
     except UserError as exc:
         if debug:
@@ -138,7 +142,10 @@ def require_positive(name: str, value: float) -> float:
 def require_between(name: str, value: float, low: float, high: float) -> float:
     """``value`` must be finite and strictly between ``low`` and ``high`` (e.g. a field of view in degrees)."""
     if not (isinstance(value, (int, float)) and math.isfinite(value) and low < value < high):
-        raise UserError(f"{name} = {value!r} is outside ({low:g}, {high:g})", f"give {name} a value between {low:g} and {high:g}, both excluded")
+        raise UserError(
+            f"{name} = {value!r} is outside ({low:g}, {high:g})",
+            f"give {name} a value between {low:g} and {high:g}, both excluded",
+        )
     return value
 
 

@@ -102,7 +102,10 @@ def write_meta(root: Path, meta: DatasetMeta) -> None:
         if differ:
             shown = ", ".join(f"{k} {old.get(k)!r} -> {new[k]!r}" for k in differ if k not in ("scene", "frames"))
             shown += "".join(f", {k} differs" for k in ("scene", "frames") if k in differ)
-            raise UserError(f"{root} holds a dataset made with other settings ({shown.lstrip(', ')})", "choose another --out or delete that folder")
+            raise UserError(
+                f"{root} holds a dataset made with other settings ({shown.lstrip(', ')})",
+                "choose another --out or delete that folder",
+            )
     atomic_write_bytes(path, json.dumps(meta.to_dict(), indent=1).encode())
 
 
@@ -114,7 +117,10 @@ def read_meta(root: Path) -> DatasetMeta:
     try:
         return DatasetMeta.from_dict(json.loads(path.read_text()))
     except (ValueError, TypeError) as err:  # JSON syntax, encoding, version, fields and their values
-        raise UserError(f"{path} is not a readable dataset description ({err})", f"delete {root} and render it again with `gicore-dataset`") from None
+        raise UserError(
+            f"{path} is not a readable dataset description ({err})",
+            f"delete {root} and render it again with `gicore-dataset`",
+        ) from None
 
 
 def save_frame(path: Path, arrays: dict[str, np.ndarray]) -> None:
@@ -174,6 +180,7 @@ def frame_paths(root: Path, split: str) -> list[Path]:
     missing = [p for p in paths if not p.is_file()]
     if missing:
         raise UserError(
-            f"{len(missing)} frame(s) of {root} are missing, e.g. {missing[0]}", "rerun `gicore-dataset` with the same options to finish it"
+            f"{len(missing)} frame(s) of {root} are missing, e.g. {missing[0]}",
+            "rerun `gicore-dataset` with the same options to finish it",
         )
     return paths

@@ -58,7 +58,10 @@ class DatasetConfig:
 
     def __post_init__(self) -> None:
         if min(self.n_train, self.n_val) < 0 or self.n_train + self.n_val < 1:
-            raise UserError(f"--train {self.n_train} --val {self.n_val} asks for no frames", "give --train or --val a count of at least 1")
+            raise UserError(
+                f"--train {self.n_train} --val {self.n_val} asks for no frames",
+                "give --train or --val a count of at least 1",
+            )
         if not 8 <= self.resolution <= 2048:
             raise UserError(f"--resolution {self.resolution} is outside [8, 2048]", "give a resolution from 8 to 2048")
         if self.spp < 1:
@@ -94,7 +97,9 @@ def _build_renderer(spec_dict: dict, resolution: int) -> Renderer:
 
 def _render_frame(renderer: Renderer, job: FrameJob) -> bytes:
     _, cam, light, buffers, spp, denoise, seed = job
-    return encode_frame(renderer.render_frame(Camera.from_dict(cam), light, buffers, spp=spp, seed=seed, denoise=denoise))
+    return encode_frame(
+        renderer.render_frame(Camera.from_dict(cam), light, buffers, spp=spp, seed=seed, denoise=denoise)
+    )
 
 
 def frame_task(spec: SceneSpec, cfg: DatasetConfig) -> Task:
@@ -111,13 +116,17 @@ def frame_jobs(records: list[FrameRecord], cfg: DatasetConfig, root: Path | None
     ]
 
 
-def build_dataset(spec: SceneSpec, root: Path, cfg: DatasetConfig, executor: Executor | None = None, progress: bool = True) -> DatasetMeta:
+def build_dataset(
+    spec: SceneSpec, root: Path, cfg: DatasetConfig, executor: Executor | None = None, progress: bool = True
+) -> DatasetMeta:
     """Render (or finish rendering) ``spec``'s dataset into ``root`` on ``executor`` (default: this
     process); returns its metadata.
 
     Holds ``root`` for the whole run (a concurrent second run is refused) and first removes temporary
     files that a killed run left behind."""
-    meta = DatasetMeta(spec.to_dict(), cfg.resolution, cfg.spp, cfg.denoise, cfg.seed, list(cfg.buffers), plan_frames(spec, cfg))
+    meta = DatasetMeta(
+        spec.to_dict(), cfg.resolution, cfg.spp, cfg.denoise, cfg.seed, list(cfg.buffers), plan_frames(spec, cfg)
+    )
     with exclusive_run(root):
         for folder in (root, *(root / split for split in SPLITS)):
             if folder.is_dir():
@@ -138,19 +147,27 @@ def build_dataset(spec: SceneSpec, root: Path, cfg: DatasetConfig, executor: Exe
 def dataset_command(
     scenes: Annotated[list[str], typer.Argument(help="built-in scene names or spec files (.toml/.json)")],
     out: Annotated[Path, typer.Option(help="root folder; one sub-folder per scene")] = Path("data/datasets"),
-    train: Annotated[int, typer.Option(min=0, help="training frames per scene (paper: 1500); --train and --val together at least 1")] = 60,
+    train: Annotated[
+        int, typer.Option(min=0, help="training frames per scene (paper: 1500); --train and --val together at least 1")
+    ] = 60,
     val: Annotated[int, typer.Option(min=0, help="validation frames per scene (paper: 100)")] = 8,
     resolution: Annotated[int, typer.Option(min=8, max=2048, help="square resolution (paper: 512)")] = 128,
     spp: Annotated[int, typer.Option(min=1, help="path-tracing samples per pixel for GT")] = 64,
     denoise: Annotated[bool, typer.Option(help="denoise GT with Intel OIDN (albedo+normal guided)")] = True,
     seed: Annotated[int, typer.Option(help="seeds trajectories and per-frame noise")] = 0,
-    fov: Annotated[float | None, typer.Option(help="camera FOV in degrees, in (0, 180) (default: the scene's GI-camera FOV)")] = None,
-    buffers: Annotated[str, typer.Option(help="comma-separated buffers to render and store")] = ",".join(DATASET_BUFFERS),
+    fov: Annotated[
+        float | None, typer.Option(help="camera FOV in degrees, in (0, 180) (default: the scene's GI-camera FOV)")
+    ] = None,
+    buffers: Annotated[str, typer.Option(help="comma-separated buffers to render and store")] = ",".join(
+        DATASET_BUFFERS
+    ),
     workers: Annotated[int | None, typer.Option(min=1, help=WORKERS_HELP)] = None,
     ray: Annotated[str | None, typer.Option(help=RAY_HELP)] = None,
 ) -> None:
     """Render datasets for the given scenes."""
-    cfg = DatasetConfig(train, val, resolution, spp, denoise, seed, fov, tuple(b.strip() for b in buffers.split(",") if b.strip()))
+    cfg = DatasetConfig(
+        train, val, resolution, spp, denoise, seed, fov, tuple(b.strip() for b in buffers.split(",") if b.strip())
+    )
     specs = [load_scene(name) for name in scenes]  # every spec (and mesh) is checked before any rendering
     with open_executor(workers, ray) as executor:
         for spec in specs:

@@ -134,7 +134,9 @@ class LocalPool:
     def __init__(self, workers: int, threads: int | None = None):
         self.workers = workers
         self.threads = threads or max(1, (os.cpu_count() or 1) // workers)
-        self._pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"), initializer=_ignore_sigint)
+        self._pool = ProcessPoolExecutor(
+            workers, mp_context=multiprocessing.get_context("spawn"), initializer=_ignore_sigint
+        )
 
     def __enter__(self) -> LocalPool:
         return self
@@ -228,7 +230,10 @@ def connect_ray(address: str) -> bool:
     head. Returns whether this call connected (and so must ``ray.shutdown()``); a process already
     connected (a notebook, a test) keeps its connection."""
     if address != "auto" and _host_port(address) is None:
-        raise UserError(f"--ray {address!r} is neither 'auto' nor HOST:PORT", "give --ray auto, or the address `ray start --head` printed")
+        raise UserError(
+            f"--ray {address!r} is neither 'auto' nor HOST:PORT",
+            "give --ray auto, or the address `ray start --head` printed",
+        )
     try:
         import ray
     except ImportError:
@@ -240,7 +245,12 @@ def connect_ray(address: str) -> bool:
     elif _host_port(os.environ.get("RAY_ADDRESS", "")) is not None:
         _check_reachable(os.environ["RAY_ADDRESS"], "RAY_ADDRESS")
     try:
-        ray.init(address=None if address == "auto" else address, include_dashboard=False, log_to_driver=False, logging_level=logging.ERROR)
+        ray.init(
+            address=None if address == "auto" else address,
+            include_dashboard=False,
+            log_to_driver=False,
+            logging_level=logging.ERROR,
+        )
     except ConnectionError as exc:
         raise UserError(f"--ray {address}: {' '.join(str(exc).split())}", START_RAY) from None
     return True

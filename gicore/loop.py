@@ -85,7 +85,9 @@ class GIMap:
     def __post_init__(self) -> None:
         shape = (self.camera.height, self.camera.width)
         if self.radiance.ndim != 3 or self.radiance.shape[:2] != shape or self.depth.shape != shape:
-            raise ValueError(f"GI map {self.radiance.shape} and depth {self.depth.shape} must be {shape[0]}x{shape[1]}(xC) like the GI camera")
+            raise ValueError(
+                f"GI map {self.radiance.shape} and depth {self.depth.shape} must be {shape[0]}x{shape[1]}(xC) like the GI camera"
+            )
         if self.di is not None and self.di.shape != self.radiance.shape:
             raise ValueError(f"the GI map's DI is {self.di.shape}, its radiance {self.radiance.shape}")
 
@@ -93,7 +95,9 @@ class GIMap:
     def indirect(self) -> np.ndarray:
         """The map's indirect light ``max(radiance - di, 0)`` (computed once, on first use)."""
         if self.di is None:
-            raise ValueError("this GI map carries no DI of its view, so its indirect part is unknown; ask the source for the DI too")
+            raise ValueError(
+                "this GI map carries no DI of its view, so its indirect part is unknown; ask the source for the DI too"
+            )
         return np.maximum(self.radiance - self.di, 0.0)
 
     def layer(self, name: str) -> np.ndarray:
@@ -256,7 +260,17 @@ class LoopConfig:
 
 
 #: Row columns before the stage times, and after them.
-HEAD_COLUMNS = ("frame", "gi_requested", "gi_new", "gi_age_frames", "gi_age_ms", "gi_latency_ms", "gi_wait_ms", "gi_ms", "valid_frac")
+HEAD_COLUMNS = (
+    "frame",
+    "gi_requested",
+    "gi_new",
+    "gi_age_frames",
+    "gi_age_ms",
+    "gi_latency_ms",
+    "gi_wait_ms",
+    "gi_ms",
+    "valid_frac",
+)
 TAIL_COLUMNS = ("frame_ms", "ssim", "psnr", "lf_error")
 #: The quality columns of a frame that is not scored against GT (:data:`TAIL_COLUMNS` after ``frame_ms``).
 UNSCORED = dict.fromkeys(TAIL_COLUMNS[1:], "")
@@ -290,7 +304,9 @@ class PathRunConfig:
 
     def __post_init__(self) -> None:
         if self.frames < 1 or self.every < 1 or self.orbit_frames < 1:
-            raise ValueError(f"frames, every and orbit_frames must be >= 1, got {self.frames}, {self.every}, {self.orbit_frames}")
+            raise ValueError(
+                f"frames, every and orbit_frames must be >= 1, got {self.frames}, {self.every}, {self.orbit_frames}"
+            )
         if self.gt_every < 0 or self.spp < 1:
             raise ValueError(f"gt_every must be >= 0 and spp >= 1, got {self.gt_every}, {self.spp}")
         if not 0.0 <= self.tau <= 1.0:
@@ -328,7 +344,9 @@ class ClientLoop:
 
     def __init__(self, cfg: LoopConfig, renderer: Renderer, source: GISource, warp: Warp):
         if warp.layer != LAYERS[cfg.composition]:
-            raise ValueError(f"the {cfg.composition} composition needs a warp of the {LAYERS[cfg.composition]!r} layer, got {warp.layer!r}")
+            raise ValueError(
+                f"the {cfg.composition} composition needs a warp of the {LAYERS[cfg.composition]!r} layer, got {warp.layer!r}"
+            )
         self.cfg = cfg
         self.renderer = renderer
         self.source = source
@@ -357,7 +375,10 @@ class ClientLoop:
         gi, cfg = self.bound, self.cfg
         if gi is None or frame - gi.frame >= cfg.every:
             return True
-        if cfg.max_move is not None and float(np.linalg.norm(np.subtract(camera.origin, gi.camera.origin))) > cfg.max_move:
+        if (
+            cfg.max_move is not None
+            and float(np.linalg.norm(np.subtract(camera.origin, gi.camera.origin))) > cfg.max_move
+        ):
             return True
         return cfg.max_turn is not None and _turn_deg(camera, gi.camera) > cfg.max_turn
 
@@ -380,7 +401,11 @@ class ClientLoop:
         requested = self._wants_map(frame, camera) and self.source.request(self.gi_camera(camera), light, frame)
         gi = self._newest()
         sw.lap("gi_wait")
-        row: dict[str, Any] = {"frame": frame, "gi_requested": int(requested), "gi_new": int(gi is not None and gi is not self.bound)}
+        row: dict[str, Any] = {
+            "frame": frame,
+            "gi_requested": int(requested),
+            "gi_new": int(gi is not None and gi is not self.bound),
+        }
         if row["gi_new"]:
             sw.ms |= self.warp.bind(gi)
             row["gi_ms"] = sum(gi.stages.values())
@@ -403,7 +428,11 @@ class ClientLoop:
         sw.lap("compose")
         gi = self.bound
         if gi is not None:
-            row |= {"gi_age_frames": frame - gi.frame, "gi_age_ms": (time.perf_counter() - gi.requested_at) * 1e3, "gi_latency_ms": gi.latency_ms}
+            row |= {
+                "gi_age_frames": frame - gi.frame,
+                "gi_age_ms": (time.perf_counter() - gi.requested_at) * 1e3,
+                "gi_latency_ms": gi.latency_ms,
+            }
         row |= {f"{s}_ms": ms for s, ms in sw.ms.items() if s != "gi_wait"}
         row |= {"gi_wait_ms": sw.ms["gi_wait"], "valid_frac": float(valid.mean()), "frame_ms": sum(sw.ms.values())}
         columns = self.columns()
@@ -414,14 +443,18 @@ class ClientLoop:
 
 
 # -- driving a loop along a path, scoring against GT ------------------------------------------------------
-def path_views(spec: SceneSpec, frames: int, orbit_frames: int, seed: int, fov: float, resolution: int) -> list[tuple[Camera, Light]]:
+def path_views(
+    spec: SceneSpec, frames: int, orbit_frames: int, seed: int, fov: float, resolution: int
+) -> list[tuple[Camera, Light]]:
     """(local camera, light) of each frame: the scene's fly-through with ``orbit_frames`` frames per orbit
     (repeating), FOV ``fov``, and the light's schedule."""
     cams = camera_path(spec, orbit_frames, seed=seed, fov=fov, resolution=resolution)
     return [(cams[f % orbit_frames], light_position(spec, f)) for f in range(frames)]
 
 
-def render_gt(renderer: Renderer, camera: Camera, light: Light | None, spp: int, seed: int, denoise: bool) -> np.ndarray:
+def render_gt(
+    renderer: Renderer, camera: Camera, light: Light | None, spp: int, seed: int, denoise: bool
+) -> np.ndarray:
     """Path-traced GT at ``camera``, OIDN-denoised (albedo/normal guided) when asked."""
     gt = renderer.render_gt(camera, light, spp=spp, seed=seed)
     return renderer.denoise(gt, renderer.render_gbuffers(camera, seed=seed)) if denoise else gt

@@ -44,7 +44,9 @@ class Mesh:
         if not np.all(np.isfinite(vertices)):
             raise ValueError("vertices contain NaN or infinite values")
         if faces.size and (faces.min() < 0 or faces.max() >= len(vertices)):
-            raise ValueError(f"face indices must lie in [0, {len(vertices) - 1}], got range [{faces.min()}, {faces.max()}]")
+            raise ValueError(
+                f"face indices must lie in [0, {len(vertices) - 1}], got range [{faces.min()}, {faces.max()}]"
+            )
         # Frozen dataclass: the coerced arrays replace the inputs once, here.
         object.__setattr__(self, "vertices", np.ascontiguousarray(vertices))
         object.__setattr__(self, "faces", np.ascontiguousarray(faces, dtype=np.int32))
@@ -161,7 +163,9 @@ def _load_mesh(path: Path, mtime_ns: int, size: int) -> Mesh:
         raise ValueError(f"mesh file {path}: no triangles")
     bad = ~np.isfinite(np.asarray(loaded.vertices)).all(axis=1)
     if bad.any():
-        raise ValueError(f"mesh file {path}: {int(bad.sum())} vertex(es) with NaN or Inf coordinates, e.g. vertex {int(np.argmax(bad)) + 1}")
+        raise ValueError(
+            f"mesh file {path}: {int(bad.sum())} vertex(es) with NaN or Inf coordinates, e.g. vertex {int(np.argmax(bad)) + 1}"
+        )
     loaded.process()
     # OBJ seams (per-corner UVs or normals) keep split vertices unless merged explicitly.
     loaded.merge_vertices(merge_tex=True, merge_norm=True)

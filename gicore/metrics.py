@@ -48,7 +48,9 @@ def _check_pair(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         if not np.all(np.isfinite(img)):
             raise ValueError(f"the {name} image contains NaN or Inf; tone-map finite radiance first")
         if img.size and (img.min() < 0.0 or img.max() > 1.0):
-            raise ValueError(f"the {name} image has values in [{img.min():.4g}, {img.max():.4g}], outside [0, 1]; tone-map it first (gicore.tonemap)")
+            raise ValueError(
+                f"the {name} image has values in [{img.min():.4g}, {img.max():.4g}], outside [0, 1]; tone-map it first (gicore.tonemap)"
+            )
     return a, b
 
 
@@ -87,7 +89,9 @@ def lf_difference(a: np.ndarray, b: np.ndarray, sigma: float = LF_SIGMA) -> np.n
     a, b = _check_pair(a, b)
     if not (math.isfinite(sigma) and sigma >= 0.0):
         raise ValueError(f"sigma must be a finite number of pixels >= 0, got {sigma}")
-    return gaussian(a - b, sigma=sigma, mode=LF_MODE, truncate=4.0, preserve_range=True, channel_axis=-1 if a.ndim == 3 else None)
+    return gaussian(
+        a - b, sigma=sigma, mode=LF_MODE, truncate=4.0, preserve_range=True, channel_axis=-1 if a.ndim == 3 else None
+    )
 
 
 def lf_error(a: np.ndarray, b: np.ndarray, sigma: float = LF_SIGMA) -> float:

@@ -31,7 +31,9 @@ def light_position(spec: SceneSpec, frame: int) -> tuple[float, float, float]:
     return (x + ax * math.sin(2 * math.pi * frame / px), y + ay * math.sin(2 * math.pi * frame / py), z)
 
 
-def camera_path(spec: SceneSpec, n_frames: int, seed: int = 0, fov: float | None = None, resolution: int | None = None) -> list[Camera]:
+def camera_path(
+    spec: SceneSpec, n_frames: int, seed: int = 0, fov: float | None = None, resolution: int | None = None
+) -> list[Camera]:
     """``n_frames`` cameras of a smooth fly-through; ``fov`` defaults to the spec's GI-camera FOV.
 
     Different seeds give different (but equally smooth) trajectories: the start azimuth and the wobble
@@ -61,5 +63,7 @@ def camera_path(spec: SceneSpec, n_frames: int, seed: int = 0, fov: float | None
             c.target[1] + wob * math.sin(2 * math.pi * 3 * t + phases[3]),
             c.target[2],
         )
-        cams.append(Camera(origin, target, fov=c.gi_fov if fov is None else fov, near=c.near, far=c.far, width=res, height=res))
+        cams.append(
+            Camera(origin, target, fov=c.gi_fov if fov is None else fov, near=c.near, far=c.far, width=res, height=res)
+        )
     return cams

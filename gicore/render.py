@@ -86,7 +86,14 @@ def _mesh_to_mitsuba(obj: SceneObject) -> mi.Mesh:
     props = mi.Properties()
     props["bsdf"] = mi.load_dict(bsdf)
     mesh = obj.mesh
-    m = mi.Mesh(obj.name, len(mesh.vertices), len(mesh.faces), props=props, has_vertex_normals=obj.roughness is not None, has_vertex_texcoords=True)
+    m = mi.Mesh(
+        obj.name,
+        len(mesh.vertices),
+        len(mesh.faces),
+        props=props,
+        has_vertex_normals=obj.roughness is not None,
+        has_vertex_texcoords=True,
+    )
     params = mi.traverse(m)
     params["vertex_positions"] = mi.Float(mesh.vertices.ravel())
     params["faces"] = mi.UInt32(mesh.faces.astype(np.uint32).ravel())
@@ -136,7 +143,11 @@ class Renderer:
                 "emitter": {"type": "area", "radiance": {"type": "rgb", "value": light.intensity / area}},
             }
         else:
-            scene["light"] = {"type": "point", "position": list(light.position), "intensity": {"type": "rgb", "value": light.intensity}}
+            scene["light"] = {
+                "type": "point",
+                "position": list(light.position),
+                "intensity": {"type": "rgb", "value": light.intensity},
+            }
         self.scene = mi.load_dict(scene)
         self.params = mi.traverse(self.scene)
         self._integrators = {
@@ -156,7 +167,9 @@ class Renderer:
 
     def _set_camera(self, camera: Camera) -> None:
         if (camera.width, camera.height) != (self.resolution, self.resolution):
-            raise ValueError(f"camera is {camera.width}x{camera.height} but this renderer renders {self.resolution}x{self.resolution}")
+            raise ValueError(
+                f"camera is {camera.width}x{camera.height} but this renderer renders {self.resolution}x{self.resolution}"
+            )
         if camera == self._camera:
             return
         self.params["sensor.to_world"] = mi.ScalarTransform4f(camera.to_world().tolist())
@@ -198,7 +211,9 @@ class Renderer:
         img = mi.render(self.scene, integrator=self._integrators[integrator], spp=spp, seed=seed)
         return np.array(img, dtype=np.float32)
 
-    def render_gt(self, camera: Camera, light=None, spp: int = 64, seed: int = 0, max_depth: int | None = None) -> np.ndarray:
+    def render_gt(
+        self, camera: Camera, light=None, spp: int = 64, seed: int = 0, max_depth: int | None = None
+    ) -> np.ndarray:
         """Path-traced global illumination (max depth ``GT_MAX_DEPTH`` unless given)."""
         self._set_camera(camera)
         self._set_light(light)
@@ -228,10 +243,14 @@ class Renderer:
         if not centre:
             self._set_camera(camera)
             return self._split_gbuffers(camera, self._render("aov", 1, seed))
-        img = mi.render(self.scene, sensor=self._centre_sensor_at(camera), integrator=self._integrators["aov"], spp=1, seed=seed)
+        img = mi.render(
+            self.scene, sensor=self._centre_sensor_at(camera), integrator=self._integrators["aov"], spp=1, seed=seed
+        )
         return self._split_gbuffers(camera, np.array(img, dtype=np.float32))
 
-    def render_di_gbuffers(self, camera: Camera, light=None, seed: int = 0, centre: bool = False) -> dict[str, np.ndarray]:
+    def render_di_gbuffers(
+        self, camera: Camera, light=None, seed: int = 0, centre: bool = False
+    ) -> dict[str, np.ndarray]:
         """DI (1 spp) and the G-buffers of :meth:`render_gbuffers`: what a client renders per frame.
 
         Two passes: an AOV integrator nesting the DI path tracer gives the same pixels in one pass but
@@ -246,7 +265,13 @@ class Renderer:
         normal_v = normal_w @ view[:3, :3].T * mask
         # Mitsuba's depth AOV is distance along the ray; the networks want linear view depth (view z).
         depth = camera.view_depth(position)[..., None].astype(np.float32) * mask
-        return {"albedo": albedo * mask, "normal": normal_v.astype(np.float32), "depth": depth, "position": position * mask, "mask": mask}
+        return {
+            "albedo": albedo * mask,
+            "normal": normal_v.astype(np.float32),
+            "depth": depth,
+            "position": position * mask,
+            "mask": mask,
+        }
 
     def render_uv(self, camera: Camera) -> dict[str, np.ndarray]:
         """One AOV pass sampled exactly at pixel centres, for warping at ``camera``.
@@ -261,7 +286,10 @@ class Renderer:
         hit of its centre ray (it projects back onto the centre, up to float rounding), so warping a GI
         map to its own camera reads each texel at its centre and is the identity. Deterministic.
         """
-        img = np.array(mi.render(self.scene, sensor=self._centre_sensor_at(camera), integrator=self._integrators["uv"], spp=1), dtype=np.float32)
+        img = np.array(
+            mi.render(self.scene, sensor=self._centre_sensor_at(camera), integrator=self._integrators["uv"], spp=1),
+            dtype=np.float32,
+        )
         shape = img[..., 5].astype(np.int64)
         # contiguous copies: per-pixel gathers from them are several times faster than from strided views
         uv, position = np.ascontiguousarray(img[..., 0:2]), np.ascontiguousarray(img[..., 2:5])
@@ -273,14 +301,24 @@ class Renderer:
 
         self._set_camera(camera)  # validates the resolution
         if getattr(self, "_centre_sensor", None) is None:
-            film = {"type": "hdrfilm", "width": self.resolution, "height": self.resolution, "rfilter": {"type": "box"}, "pixel_format": "rgb"}
+            film = {
+                "type": "hdrfilm",
+                "width": self.resolution,
+                "height": self.resolution,
+                "rfilter": {"type": "box"},
+                "pixel_format": "rgb",
+            }
             sampler = {"type": "stratified", "sample_count": 1, "jitter": False}  # 1 spp, unjittered: the pixel centre
-            self._centre_sensor = mi.load_dict({"type": "perspective", "fov_axis": "x", "fov": camera.fov, "film": film, "sampler": sampler})
+            self._centre_sensor = mi.load_dict(
+                {"type": "perspective", "fov_axis": "x", "fov": camera.fov, "film": film, "sampler": sampler}
+            )
             self._centre_params = mi.traverse(self._centre_sensor)
             self._centre_camera: Camera | None = None
             names = {o.name for o in self.objects}
             # shape_index AOV values are Dr.Jit registry ids of the hit shape's pointer (0 = no hit)
-            self._object_shape_ids = np.array([dr.reinterpret_array(mi.UInt32, mi.ShapePtr(s))[0] for s in self.scene.shapes() if s.id() in names])
+            self._object_shape_ids = np.array(
+                [dr.reinterpret_array(mi.UInt32, mi.ShapePtr(s))[0] for s in self.scene.shapes() if s.id() in names]
+            )
         if camera != self._centre_camera:
             p = self._centre_params
             p["to_world"] = mi.ScalarTransform4f(camera.to_world().tolist())
@@ -294,7 +332,12 @@ class Renderer:
         import pyoidn
 
         normal = gbuffers["normal"]
-        return pyoidn.denoise(np.ascontiguousarray(color), np.ascontiguousarray(gbuffers["albedo"]), np.ascontiguousarray(normal), hdr=True)
+        return pyoidn.denoise(
+            np.ascontiguousarray(color),
+            np.ascontiguousarray(gbuffers["albedo"]),
+            np.ascontiguousarray(normal),
+            hdr=True,
+        )
 
     def render_frame(
         self, camera: Camera, light=None, buffers=DATASET_BUFFERS, spp: int = 64, seed: int = 0, denoise: bool = False

@@ -47,9 +47,13 @@ def git_revision() -> dict[str, Any]:
     """Commit SHA of the working tree and whether it had uncommitted changes."""
     root = Path(__file__).resolve().parent.parent
     try:
-        sha = subprocess.run(["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True, check=True).stdout.strip()
+        sha = subprocess.run(
+            ["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True, check=True
+        ).stdout.strip()
         dirty = bool(
-            subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=root, capture_output=True, text=True).stdout.strip()
+            subprocess.run(
+                ["git", "status", "--porcelain", "--untracked-files=no"], cwd=root, capture_output=True, text=True
+            ).stdout.strip()
         )
     except (OSError, subprocess.CalledProcessError):
         return {"sha": None, "dirty": None}
@@ -65,7 +69,12 @@ def machine_info() -> dict[str, Any]:
                 break
     except OSError:
         pass
-    return {"platform": platform.platform(), "python": platform.python_version(), "cpu": cpu, "cpu_count": os.cpu_count()}
+    return {
+        "platform": platform.platform(),
+        "python": platform.python_version(),
+        "cpu": cpu,
+        "cpu_count": os.cpu_count(),
+    }
 
 
 def package_versions() -> dict[str, str | None]:
@@ -102,7 +111,9 @@ class Results:
         self.files.append(path)
         return path
 
-    def add(self, *, system: str, scene: str, metric: str, value: float, unit: str, stat: str = "value", **config: Any) -> None:
+    def add(
+        self, *, system: str, scene: str, metric: str, value: float, unit: str, stat: str = "value", **config: Any
+    ) -> None:
         self.rows.append(
             {
                 "run_id": self.run_id,

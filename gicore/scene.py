@@ -35,7 +35,9 @@ NAME_PATTERN = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 
 def _check_name(name: str) -> str:
     if not NAME_PATTERN.fullmatch(name):
-        raise ValueError(f"{name!r} is not a name: use a letter or _ followed by letters, digits or _ (it names a folder and a shape)")
+        raise ValueError(
+            f"{name!r} is not a name: use a letter or _ followed by letters, digits or _ (it names a folder and a shape)"
+        )
     return name
 
 
@@ -132,7 +134,9 @@ class CameraPathSpec(_Strict):
     @model_validator(mode="after")
     def _near_far(self) -> CameraPathSpec:
         if not NEAR_MIN <= self.near < self.far <= FAR_MAX:
-            raise ValueError(f"near = {self.near:g}, far = {self.far:g}: the renderer represents {NEAR_MIN:g} <= near < far <= {FAR_MAX:g}")
+            raise ValueError(
+                f"near = {self.near:g}, far = {self.far:g}: the renderer represents {NEAR_MIN:g} <= near < far <= {FAR_MAX:g}"
+            )
         return self
 
 
@@ -163,7 +167,8 @@ class SceneSpec(_Strict):
                 where = ".".join(str(p) for p in e["loc"]) or "(top level)"
                 fields.append(f"{where}: {e['msg'].removeprefix('Value error, ')}")
             raise SceneSpecError(
-                f"{source}: {len(fields)} invalid field(s): " + "; ".join(fields), "fix them (each field is documented in gicore/scene.py)"
+                f"{source}: {len(fields)} invalid field(s): " + "; ".join(fields),
+                "fix them (each field is documented in gicore/scene.py)",
             ) from None
 
     def to_dict(self) -> dict[str, Any]:
@@ -182,7 +187,10 @@ def load_scene(name_or_path: str | Path) -> SceneSpec:
     if not path.suffix and (BUILTIN_DIR / f"{path}.toml").is_file():
         path = BUILTIN_DIR / f"{path}.toml"
     if not path.is_file():
-        raise SceneSpecError(f"no scene spec {str(name_or_path)!r}", f"give a .toml/.json file or one of the built-in scenes {builtin_scenes()}")
+        raise SceneSpecError(
+            f"no scene spec {str(name_or_path)!r}",
+            f"give a .toml/.json file or one of the built-in scenes {builtin_scenes()}",
+        )
     try:
         text = path.read_text()
         data = tomllib.loads(text) if path.suffix == ".toml" else json.loads(text)

@@ -82,12 +82,15 @@ class ClientConfig(PathRunConfig):
             return local, self.gi_fov_of(spec)
         if self.gi_fov is not None and self.gi_fov != local:
             raise UserError(
-                f"--warp none pastes the GI map unchanged, so it must be made with the local FOV ({local}°)", f"drop --gi-fov {self.gi_fov}"
+                f"--warp none pastes the GI map unchanged, so it must be made with the local FOV ({local}°)",
+                f"drop --gi-fov {self.gi_fov}",
             )
         return local, local
 
     def loop_config(self, spec: SceneSpec) -> LoopConfig:
-        return LoopConfig(every=self.every, gi_fov=self.fovs(spec)[1], composition=self.composition, tau=self.tau, seed=self.seed)
+        return LoopConfig(
+            every=self.every, gi_fov=self.fovs(spec)[1], composition=self.composition, tau=self.tau, seed=self.seed
+        )
 
 
 # -- GI sources ---------------------------------------------------------------------------------------------
@@ -102,7 +105,9 @@ class GTSource(SynchronousSource):
     name = "gt"
     stages = ("gt_render",)
 
-    def __init__(self, renderer: Renderer, spp: int = 64, denoise: bool = True, seed: int = 0, cache: dict | None = None):
+    def __init__(
+        self, renderer: Renderer, spp: int = 64, denoise: bool = True, seed: int = 0, cache: dict | None = None
+    ):
         super().__init__()
         self.renderer, self.spp, self.denoise, self.seed, self.cache = renderer, spp, denoise, seed, cache
 
@@ -141,7 +146,9 @@ class ModelSource(SynchronousSource):
 
     def produce(self, camera: Camera, light: Light, frame: int) -> GIMap:
         sw = Stopwatch()
-        buffers = self.renderer.render_di_gbuffers(camera, light, seed=frame_seed(self.seed, "gi_di", frame), centre=True)
+        buffers = self.renderer.render_di_gbuffers(
+            camera, light, seed=frame_seed(self.seed, "gi_di", frame), centre=True
+        )
         sw.lap("gi_render")
         radiance = self.model.predict(buffers)
         sw.lap("inference")
@@ -158,7 +165,8 @@ def load_model(path: Path | None, threads: int, resolution: int) -> GIModel:
     model = GIModel(path, threads)
     if model.resolution != resolution:
         raise UserError(
-            f"the model at {path} runs at {model.resolution}² but the client renders {resolution}²", f"pass --resolution {model.resolution}"
+            f"the model at {path} runs at {model.resolution}² but the client renders {resolution}²",
+            f"pass --resolution {model.resolution}",
         )
     return model
 
@@ -199,7 +207,9 @@ def run_client(cfg: ClientConfig, renderer: Renderer | None = None, on_frame=Non
     if cfg.gi_source == "gt" or cfg.gt_every:
         check_denoiser(cfg.denoise)
     local_fov, _ = cfg.fovs(spec)
-    loop = ClientLoop(cfg.loop_config(spec), renderer, make_gi_source(cfg, renderer), make_warp(cfg.warp, renderer, cfg.composition))
+    loop = ClientLoop(
+        cfg.loop_config(spec), renderer, make_gi_source(cfg, renderer), make_warp(cfg.warp, renderer, cfg.composition)
+    )
     views = path_views(spec, cfg.frames, cfg.orbit_frames, cfg.seed, local_fov, cfg.resolution)
     ground_truth = GroundTruth(renderer, cfg.gt_every, cfg.spp, cfg.denoise, cfg.seed) if cfg.gt_every else None
     return run_frames(loop, views, ground_truth, on_frame)
@@ -223,7 +233,9 @@ def run(cfg: ClientConfig, out: Path, save_frames: bool = False, video: bool = F
 
     rows = run_client(cfg, on_frame=keep if (save_frames or video) else None)
     write_rows(rows, out / "frames.csv")
-    summary = {"config": {k: (str(v) if isinstance(v, Path) else v) for k, v in asdict(cfg).items()}} | summarize(rows, cfg.every)
+    summary = {"config": {k: (str(v) if isinstance(v, Path) else v) for k, v in asdict(cfg).items()}} | summarize(
+        rows, cfg.every
+    )
     if video:
         summary["video"] = _write_video(images, out / "frames.mp4")
     (out / "summary.json").write_text(json.dumps(summary, indent=1))

@@ -28,20 +28,42 @@ def client_command(
     frames: Annotated[int, typer.Option(min=1, help="frames to run")] = 60,
     resolution: Annotated[int, typer.Option(min=8, max=2048, help="square resolution of every render")] = 256,
     every: Annotated[int, typer.Option("--every", "-k", min=1, help="a new GI map every k frames")] = 30,
-    gi_fov: Annotated[float | None, typer.Option(help="GI-camera FOV in degrees, in (0, 180) (default: the scene's, 90)")] = None,
-    local_fov: Annotated[float | None, typer.Option(help="local-camera FOV in degrees, in (0, 180) (default: the scene's, 60)")] = None,
-    orbit_frames: Annotated[int, typer.Option(min=1, help="frames per full orbit of the camera path (motion per frame)")] = 300,
+    gi_fov: Annotated[
+        float | None, typer.Option(help="GI-camera FOV in degrees, in (0, 180) (default: the scene's, 90)")
+    ] = None,
+    local_fov: Annotated[
+        float | None, typer.Option(help="local-camera FOV in degrees, in (0, 180) (default: the scene's, 60)")
+    ] = None,
+    orbit_frames: Annotated[
+        int, typer.Option(min=1, help="frames per full orbit of the camera path (motion per frame)")
+    ] = 300,
     tau: Annotated[
-        float, typer.Option(min=0.0, max=1.0, help="eq. 1 weight of DI in the blend (0: the GI map alone, which already holds direct light)")
+        float,
+        typer.Option(
+            min=0.0,
+            max=1.0,
+            help="eq. 1 weight of DI in the blend (0: the GI map alone, which already holds direct light)",
+        ),
     ] = 0.0,
-    composition: Annotated[Literal[COMPOSITIONS], typer.Option(help="blend (eq. 1) or residual (current DI + warped indirect)")] = "blend",  # type: ignore[valid-type]
-    warp: Annotated[Literal[WARPS], typer.Option(help="structure (Alg. 1) or none (the map pasted as is, made at the local FOV)")] = "structure",  # type: ignore[valid-type]
-    gi_source: Annotated[Literal[GI_SOURCES], typer.Option(help="model (ONNX generator) or gt (path-traced GT stand-in)")] = "gt",  # type: ignore[valid-type]
-    model: Annotated[Path | None, typer.Option(help="ONNX model (default: the shipped gigan_local/models/gigan_default/model_fp16.onnx)")] = None,
+    composition: Annotated[
+        Literal[COMPOSITIONS], typer.Option(help="blend (eq. 1) or residual (current DI + warped indirect)")
+    ] = "blend",  # type: ignore[valid-type]
+    warp: Annotated[
+        Literal[WARPS], typer.Option(help="structure (Alg. 1) or none (the map pasted as is, made at the local FOV)")
+    ] = "structure",  # type: ignore[valid-type]
+    gi_source: Annotated[
+        Literal[GI_SOURCES], typer.Option(help="model (ONNX generator) or gt (path-traced GT stand-in)")
+    ] = "gt",  # type: ignore[valid-type]
+    model: Annotated[
+        Path | None,
+        typer.Option(help="ONNX model (default: the shipped gigan_local/models/gigan_default/model_fp16.onnx)"),
+    ] = None,
     spp: Annotated[int, typer.Option(min=1, help="samples per pixel of path-traced GT renders")] = 64,
     denoise: Annotated[bool, typer.Option("--denoise/--no-denoise", help="OIDN-denoise the GT renders")] = True,
     gt_every: Annotated[int, typer.Option(min=0, help="compare with the GT every N frames (0: never)")] = 0,
-    with_gt: Annotated[bool, typer.Option("--with-gt", help="compare with the GT every frame (= --gt-every 1)")] = False,
+    with_gt: Annotated[
+        bool, typer.Option("--with-gt", help="compare with the GT every frame (= --gt-every 1)")
+    ] = False,
     threads: Annotated[int, typer.Option(min=1, help="onnxruntime threads")] = 2,
     seed: Annotated[int, typer.Option(help="camera-path and render seed")] = 0,
     out: Annotated[Path, typer.Option(help="output folder")] = Path("runs/client"),
@@ -53,7 +75,10 @@ def client_command(
         if fov is not None:  # only an absent option means "the scene's FOV"
             require_between(name, fov, 0.0, 180.0)
     if model is not None and not model.is_file():
-        raise UserError(f"--model {model} is not a file", "give an ONNX file written by gigan-export, or leave --model out for the shipped model")
+        raise UserError(
+            f"--model {model} is not a file",
+            "give an ONNX file written by gigan-export, or leave --model out for the shipped model",
+        )
     try:
         cfg = ClientConfig(
             scene=scene,

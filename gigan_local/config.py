@@ -224,9 +224,13 @@ class TrainConfig:
         full_down = (side & -side).bit_length() - 1  # log2 of the largest power of two dividing side
         in_ch = self.input_spec().in_channels
         if self.model == "deep_shading":
-            g = NetworkConfig("deep_shading", in_ch, 3, self.ngf, max(1, full_down - 2) if self.n_down is None else self.n_down)
+            g = NetworkConfig(
+                "deep_shading", in_ch, 3, self.ngf, max(1, full_down - 2) if self.n_down is None else self.n_down
+            )
         else:
-            g = NetworkConfig("unet", in_ch, 3, self.ngf, full_down if self.n_down is None else self.n_down, upsample=self.upsample)
+            g = NetworkConfig(
+                "unet", in_ch, 3, self.ngf, full_down if self.n_down is None else self.n_down, upsample=self.upsample
+            )
         for s in {side, self.resolution}:
             g.check_size(s)
         nets = {"G": g}
@@ -256,11 +260,19 @@ def read_run_config(run_dir: Path) -> tuple[TrainConfig, dict[str, NetworkConfig
     """Read a run folder's ``config.json`` (see :func:`write_run_config`); UserError naming it if missing or unreadable."""
     path = Path(run_dir) / CONFIG
     if not path.is_file():
-        raise UserError(f"{path} is missing", f"give a training run folder made by `gigan-train` ({run_dir} is not one)")
+        raise UserError(
+            f"{path} is missing", f"give a training run folder made by `gigan-train` ({run_dir} is not one)"
+        )
     try:
         doc = json.loads(path.read_text())
         return TrainConfig.from_dict(doc["train"]), {k: NetworkConfig.from_dict(v) for k, v in doc["networks"].items()}
-    except (ValueError, TypeError, KeyError, AttributeError) as e:  # JSON syntax, missing sections, unknown or bad fields
+    except (
+        ValueError,
+        TypeError,
+        KeyError,
+        AttributeError,
+    ) as e:  # JSON syntax, missing sections, unknown or bad fields
         raise UserError(
-            f"{path} is not a readable run config ({type(e).__name__}: {e})", "restore it, or train a new run with `gigan-train`"
+            f"{path} is not a readable run config ({type(e).__name__}: {e})",
+            "restore it, or train a new run with `gigan-train`",
         ) from None

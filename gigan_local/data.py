@@ -31,7 +31,10 @@ def dataset_resolution(roots: list[Path], buffers: tuple[str, ...]) -> int:
         meta = read_meta(root)
         missing = [b for b in (*buffers, TARGET) if b not in meta.buffers]
         if missing:
-            raise UserError(f"dataset {root} has no {missing} buffer(s) (it has {meta.buffers})", "render them or drop them from --buffers")
+            raise UserError(
+                f"dataset {root} has no {missing} buffer(s) (it has {meta.buffers})",
+                "render them or drop them from --buffers",
+            )
         sizes[str(root)] = meta.resolution
     if len(set(sizes.values())) != 1:
         raise UserError(f"datasets differ in resolution {sizes}", "train on folders rendered at one resolution")
@@ -47,7 +50,10 @@ def median_foreground_depth(roots: list[Path], max_frames: int = 16) -> float:
             depths.append(d[d > 0])
     fg = np.concatenate(depths) if depths else np.empty(0)
     if fg.size == 0:
-        raise UserError(f"no foreground depth in the training frames of {[str(r) for r in roots]}", "render datasets whose frames show the scene")
+        raise UserError(
+            f"no foreground depth in the training frames of {[str(r) for r in roots]}",
+            "render datasets whose frames show the scene",
+        )
     return float(np.median(fg))
 
 
@@ -58,12 +64,23 @@ class FrameDataset(Dataset):
     and pixel: ~3.4 MB per 256² frame with the default buffers).
     """
 
-    def __init__(self, roots: list[Path], split: str, spec: InputSpec, crop: int | None = None, seed: int = 0, cache: bool = False) -> None:
+    def __init__(
+        self,
+        roots: list[Path],
+        split: str,
+        spec: InputSpec,
+        crop: int | None = None,
+        seed: int = 0,
+        cache: bool = False,
+    ) -> None:
         self.roots = [Path(r) for r in roots]
         self.spec = spec
         self.resolution = dataset_resolution(self.roots, spec.buffers)
         if crop is not None and not 0 < crop <= self.resolution:
-            raise UserError(f"--crop {crop} is not between 1 and the frame size {self.resolution}", f"give a crop of at most {self.resolution}")
+            raise UserError(
+                f"--crop {crop} is not between 1 and the frame size {self.resolution}",
+                f"give a crop of at most {self.resolution}",
+            )
         self.crop = crop
         self.seed = seed
         self.epoch = 0

@@ -99,10 +99,14 @@ def fp16_weights(model: onnx.ModelProto) -> onnx.ModelProto:
             continue
         w = numpy_helper.to_array(init)
         if np.abs(w).max(initial=0.0) > np.finfo(np.float16).max:
-            raise ValueError(f"weight {init.name} exceeds the float16 range (max |w| = {np.abs(w).max():.3g}); export fp32 only")
+            raise ValueError(
+                f"weight {init.name} exceeds the float16 range (max |w| = {np.abs(w).max():.3g}); export fp32 only"
+            )
         half = numpy_helper.from_array(w.astype(np.float16), name=f"{init.name}__fp16")
         kept.append(half)
-        casts.append(helper.make_node("Cast", [half.name], [init.name], to=TensorProto.FLOAT, name=f"{init.name}__cast"))
+        casts.append(
+            helper.make_node("Cast", [half.name], [init.name], to=TensorProto.FLOAT, name=f"{init.name}__cast")
+        )
     del graph.initializer[:]
     graph.initializer.extend(kept)
     nodes = casts + list(graph.node)  # Casts first keeps the graph topologically sorted
@@ -164,7 +168,13 @@ def _ort_outputs(path: Path, inputs: list[np.ndarray]) -> list[np.ndarray]:
 
 
 def export_onnx(
-    run_dir: Path, out_dir: Path, opset: int = 17, fp16: bool = True, int8: bool = False, calibration_frames: int = 32, seed: int = 0
+    run_dir: Path,
+    out_dir: Path,
+    opset: int = 17,
+    fp16: bool = True,
+    int8: bool = False,
+    calibration_frames: int = 32,
+    seed: int = 0,
 ) -> ExportResult:
     """Export the generator of ``run_dir`` to ``out_dir`` (fp32, optionally fp16 and int8) with ``model.json``.
 
@@ -175,7 +185,9 @@ def export_onnx(
         return _export(Path(run_dir), Path(out_dir), opset, fp16, int8, calibration_frames, seed)
 
 
-def _export(run_dir: Path, out_dir: Path, opset: int, fp16: bool, int8: bool, calibration_frames: int, seed: int) -> ExportResult:
+def _export(
+    run_dir: Path, out_dir: Path, opset: int, fp16: bool, int8: bool, calibration_frames: int, seed: int
+) -> ExportResult:
     if opset < 17:
         raise ValueError(f"opset must be >= 17, got {opset}")
     if int8 and calibration_frames < 1:
@@ -185,7 +197,11 @@ def _export(run_dir: Path, out_dir: Path, opset: int, fp16: bool, int8: bool, ca
     # Read the int8 calibration frames before writing anything: a failed export leaves no files.
     calibration = calibration_inputs(run_dir, "train", calibration_frames) if int8 else []
     val = calibration_inputs(run_dir, "val", 8) if int8 else []
-    x = torch.from_numpy(np.random.default_rng(seed).uniform(-1, 1, (1, net.in_channels, cfg.resolution, cfg.resolution)).astype(np.float32))
+    x = torch.from_numpy(
+        np.random.default_rng(seed)
+        .uniform(-1, 1, (1, net.in_channels, cfg.resolution, cfg.resolution))
+        .astype(np.float32)
+    )
     files = {"fp32": out_dir / FILES["fp32"]}
     with warnings.catch_warnings():
         # The dynamo exporter needs onnxscript, which is not a dependency; the TorchScript one is exact here.

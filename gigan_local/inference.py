@@ -29,7 +29,9 @@ def read_model_json(path: str | Path) -> dict[str, Any]:
     resolution (a UserError naming the file when it is missing or invalid)."""
     config_path = Path(path).parent / MODEL_JSON
     if not config_path.is_file():
-        raise UserError(f"{config_path} is missing", f"keep the model.json that `gigan-export` wrote beside {Path(path).name}")
+        raise UserError(
+            f"{config_path} is missing", f"keep the model.json that `gigan-export` wrote beside {Path(path).name}"
+        )
     try:
         config = json.loads(config_path.read_text())
         if config.get("format") != FORMAT:
@@ -39,7 +41,8 @@ def read_model_json(path: str | Path) -> dict[str, Any]:
         return config
     except (ValueError, KeyError, TypeError, AttributeError) as e:
         raise UserError(
-            f"{config_path} is not a valid gigan model config ({type(e).__name__}: {e})", "re-export the model with `gigan-export`"
+            f"{config_path} is not a valid gigan model config ({type(e).__name__}: {e})",
+            "re-export the model with `gigan-export`",
         ) from None
 
 
@@ -73,7 +76,9 @@ class GIModel:
         try:
             self.session = ort.InferenceSession(str(self.path), options, providers=["CPUExecutionProvider"])
         except Exception as e:  # onnxruntime raises its own exception types for unreadable graphs
-            raise UserError(f"{self.path} is not a loadable ONNX model ({type(e).__name__})", "re-export it with `gigan-export`") from None
+            raise UserError(
+                f"{self.path} is not a loadable ONNX model ({type(e).__name__})", "re-export it with `gigan-export`"
+            ) from None
 
         inputs, outputs = self.session.get_inputs(), self.session.get_outputs()
         if len(inputs) != 1 or len(outputs) != 1:

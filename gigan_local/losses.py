@@ -22,7 +22,9 @@ def critic_score(out: torch.Tensor) -> torch.Tensor:
     return out.reshape(out.shape[0], -1).mean(1)
 
 
-def gradient_penalty(critic: Critic, cond: torch.Tensor, real: torch.Tensor, fake: torch.Tensor, lambda_gp: float = 10.0) -> torch.Tensor:
+def gradient_penalty(
+    critic: Critic, cond: torch.Tensor, real: torch.Tensor, fake: torch.Tensor, lambda_gp: float = 10.0
+) -> torch.Tensor:
     """WGAN-GP penalty ``lambda * E[(||grad_y D(c, y_hat)||_2 - 1)^2]`` (paper eq. 2, second line).
 
     ``y_hat = a * real + (1 - a) * fake`` with one uniform ``a`` per sample. The result keeps its graph
@@ -58,7 +60,9 @@ def l1_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     return F.l1_loss(pred, target)
 
 
-def _gaussian_window(sigma: float, truncate: float, channels: int, device: torch.device, dtype: torch.dtype) -> torch.Tensor:
+def _gaussian_window(
+    sigma: float, truncate: float, channels: int, device: torch.device, dtype: torch.dtype
+) -> torch.Tensor:
     radius = int(truncate * sigma + 0.5)
     x = torch.arange(-radius, radius + 1, device=device, dtype=dtype)
     g = torch.exp(-(x**2) / (2 * sigma**2))
@@ -76,7 +80,9 @@ def ssim(x: torch.Tensor, y: torch.Tensor, sigma: float = 1.5, data_range: float
     c = x.shape[1]
     win = _gaussian_window(sigma, 3.5, c, x.device, x.dtype)
     if min(x.shape[-2:]) < win.shape[-1]:
-        raise ValueError(f"SSIM needs images of at least {win.shape[-1]}x{win.shape[-1]} pixels, got {tuple(x.shape[-2:])}")
+        raise ValueError(
+            f"SSIM needs images of at least {win.shape[-1]}x{win.shape[-1]} pixels, got {tuple(x.shape[-2:])}"
+        )
 
     def blur(t: torch.Tensor) -> torch.Tensor:
         return F.conv2d(t, win, groups=c)

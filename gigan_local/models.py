@@ -42,7 +42,10 @@ class BaseModel:
         self.nets: dict[str, nn.Module] = {"G": define_G(self.net_configs["G"])}
         if "D" in self.net_configs:
             self.nets["D"] = define_D(self.net_configs["D"])
-        self.optimizers = {name: torch.optim.Adam(net.parameters(), lr=cfg.lr, betas=(cfg.beta1, cfg.beta2)) for name, net in self.nets.items()}
+        self.optimizers = {
+            name: torch.optim.Adam(net.parameters(), lr=cfg.lr, betas=(cfg.beta1, cfg.beta2))
+            for name, net in self.nets.items()
+        }
 
     @property
     def generator(self) -> nn.Module:

@@ -104,7 +104,9 @@ class DeepShadingGenerator(nn.Module):
         def conv(c_in: int, c_out: int) -> nn.Sequential:
             return nn.Sequential(nn.Conv2d(c_in, c_out, 3, padding=1), nn.LeakyReLU(0.01))
 
-        self.encoders = nn.ModuleList([conv(cfg.in_channels if i == 0 else w[i - 1], w[i]) for i in range(cfg.n_down + 1)])
+        self.encoders = nn.ModuleList(
+            [conv(cfg.in_channels if i == 0 else w[i - 1], w[i]) for i in range(cfg.n_down + 1)]
+        )
         self.decoders = nn.ModuleList([conv(w[i] + w[i + 1], w[i]) for i in range(cfg.n_down)])
         self.pool = nn.AvgPool2d(2)
         self.up = nn.Upsample(scale_factor=2, mode="bilinear", align_corners=False)
@@ -131,10 +133,17 @@ class PatchCritic(nn.Module):
         self.conditional = cfg.in_channels > 0
         w = _widths(cfg.width, cfg.n_down + 1)
         bias = cfg.norm == "none"
-        layers: list[nn.Module] = [nn.Conv2d(cfg.in_channels + cfg.out_channels, w[0], 4, stride=2, padding=1), nn.LeakyReLU(0.2)]
+        layers: list[nn.Module] = [
+            nn.Conv2d(cfg.in_channels + cfg.out_channels, w[0], 4, stride=2, padding=1),
+            nn.LeakyReLU(0.2),
+        ]
         for i in range(1, cfg.n_down + 1):
             stride = 2 if i < cfg.n_down else 1
-            layers += [nn.Conv2d(w[i - 1], w[i], 4, stride=stride, padding=1, bias=bias), *_norm(cfg.norm, w[i]), nn.LeakyReLU(0.2)]
+            layers += [
+                nn.Conv2d(w[i - 1], w[i], 4, stride=stride, padding=1, bias=bias),
+                *_norm(cfg.norm, w[i]),
+                nn.LeakyReLU(0.2),
+            ]
         layers.append(nn.Conv2d(w[-1], 1, 4, stride=1, padding=1))
         self.model = nn.Sequential(*layers)
 

@@ -92,7 +92,9 @@ def encode_buffer(name: str, arr: np.ndarray, depth_scale: float = 1.0, out: np.
         d = np.maximum(arr, 0.0)
         value = to_signed(d / (d + np.float32(depth_scale)))
     else:
-        raise ValueError(f"buffer {name!r} has no network encoding; inputs are {list(INPUT_BUFFERS)}, target {TARGET!r}")
+        raise ValueError(
+            f"buffer {name!r} has no network encoding; inputs are {list(INPUT_BUFFERS)}, target {TARGET!r}"
+        )
     if out is None:
         return value.astype(np.float32, copy=False)
     np.copyto(out, value)

@@ -94,7 +94,10 @@ def load_checkpoint(path: Path) -> dict[str, Any]:
     try:
         return torch.load(path, map_location="cpu", weights_only=True)
     except Exception as e:  # torch raises many types on truncated or foreign files
-        raise UserError(f"{path} is not a readable checkpoint ({type(e).__name__})", "restore it, or train a new run with `gigan-train`") from e
+        raise UserError(
+            f"{path} is not a readable checkpoint ({type(e).__name__})",
+            "restore it, or train a new run with `gigan-train`",
+        ) from e
 
 
 def prepare_config(cfg: TrainConfig, out_dir: Path) -> TrainConfig:
@@ -111,7 +114,9 @@ def prepare_config(cfg: TrainConfig, out_dir: Path) -> TrainConfig:
         depth_scale = init_depth_scale(Path(cfg.init_generator))
     if depth_scale is None:
         depth_scale = float(f"{median_foreground_depth(roots):.3g}") if "depth" in cfg.buffers else 1.0
-    cfg = replace(cfg, resolution=resolution, depth_scale=depth_scale, run_id=cfg.run_id or Path(out_dir).resolve().name)
+    cfg = replace(
+        cfg, resolution=resolution, depth_scale=depth_scale, run_id=cfg.run_id or Path(out_dir).resolve().name
+    )
     try:
         cfg.network_configs()  # the architecture must fit the frames (and crops) of these datasets
     except ValueError as e:
@@ -127,7 +132,10 @@ def _check_resume(saved: TrainConfig, cfg: TrainConfig) -> None:
     }
     if diffs:
         detail = ", ".join(f"{k}: saved {a!r} vs given {b!r}" for k, (a, b) in diffs.items())
-        raise UserError(f"--resume may change only {list(BUDGET_FIELDS)}; these differ: {detail}", "start a new run in another --out instead")
+        raise UserError(
+            f"--resume may change only {list(BUDGET_FIELDS)}; these differ: {detail}",
+            "start a new run in another --out instead",
+        )
 
 
 @torch.no_grad()
@@ -173,7 +181,10 @@ def _device(name: str) -> torch.device:
     """The torch device of ``--device``; CUDA only where torch sees a GPU."""
     if name == "cuda":
         if not torch.cuda.is_available():
-            raise UserError(f"--device cuda: torch {torch.__version__} sees no CUDA GPU on this machine", "train with --device cpu (the default)")
+            raise UserError(
+                f"--device cuda: torch {torch.__version__} sees no CUDA GPU on this machine",
+                "train with --device cpu (the default)",
+            )
         torch.backends.cudnn.benchmark = True  # fixed input sizes: let cuDNN pick its fastest kernels once
     return torch.device(name)
 
@@ -184,12 +195,19 @@ def _check_divergence(step: int, losses: dict[str, float], model: BaseModel, cfg
         if not math.isfinite(value):
             raise TrainingDiverged(f"training diverged at step {step}: loss {name} = {value} (non-finite)", advice)
         if abs(value) > cfg.max_abs_loss:
-            raise TrainingDiverged(f"training diverged at step {step}: loss {name} = {value:.4g} exceeds max_abs_loss {cfg.max_abs_loss:g}", advice)
+            raise TrainingDiverged(
+                f"training diverged at step {step}: loss {name} = {value:.4g} exceeds max_abs_loss {cfg.max_abs_loss:g}",
+                advice,
+            )
     if not model.parameters_finite():
-        raise TrainingDiverged(f"training diverged at step {step}: the weights became non-finite (losses {losses})", advice)
+        raise TrainingDiverged(
+            f"training diverged at step {step}: the weights became non-finite (losses {losses})", advice
+        )
 
 
-def train(cfg: TrainConfig, out_dir: Path, resume: bool = False, progress: bool = True, cache_frames: bool = True) -> TrainResult:
+def train(
+    cfg: TrainConfig, out_dir: Path, resume: bool = False, progress: bool = True, cache_frames: bool = True
+) -> TrainResult:
     """Train ``cfg.model`` into ``out_dir`` until the first of epochs / max_steps / max_minutes.
 
     With ``resume``, ``out_dir`` must hold a run whose config equals ``cfg`` except for the budget
@@ -219,7 +237,9 @@ def _train(cfg: TrainConfig, out_dir: Path, resume: bool, progress: bool, cache_
         _check_resume(saved, cfg)
     else:
         if ckpt_path.exists():
-            raise UserError(f"--out {out_dir} already holds a run", "pass --resume to continue it or choose another --out")
+            raise UserError(
+                f"--out {out_dir} already holds a run", "pass --resume to continue it or choose another --out"
+            )
         cfg = prepare_config(cfg, out_dir)
 
     device = _device(cfg.device)  # refused before any data is read
@@ -277,7 +297,9 @@ def _train(cfg: TrainConfig, out_dir: Path, resume: bool, progress: bool, cache_
         data = {"model": model.state_dict(), "state": asdict(state), "torch_rng": torch.get_rng_state()}
         if device.type == "cuda":
             data["cuda_rng"] = torch.cuda.get_rng_state()
-        atomic_write(ckpt_path, lambda handle: torch.save(data, handle))  # a crash mid-save keeps the previous checkpoint
+        atomic_write(
+            ckpt_path, lambda handle: torch.save(data, handle)
+        )  # a crash mid-save keeps the previous checkpoint
         saved_step = state.step
 
     def finish_work() -> None:
@@ -301,7 +323,9 @@ def _train(cfg: TrainConfig, out_dir: Path, resume: bool, progress: bool, cache_
     step_seconds = 0.0
     stop_reason = ""
     model.train()
-    with tqdm(total=total, initial=state.step, disable=not progress, desc=f"{cfg.model} {cfg.run_id}", unit="step") as bar:
+    with tqdm(
+        total=total, initial=state.step, disable=not progress, desc=f"{cfg.model} {cfg.run_id}", unit="step"
+    ) as bar:
         while not stop_reason:
             if state.epoch >= cfg.epochs:
                 stop_reason = "epochs"

@@ -28,12 +28,18 @@ def _model_json(path: Path) -> dict[str, Any]:
     generator architecture checked too."""
     path = Path(path)
     if not path.is_file():
-        raise UserError(f"--init-generator {path} is not a file", "give a model_fp32.onnx or model_fp16.onnx written by gigan-export")
+        raise UserError(
+            f"--init-generator {path} is not a file",
+            "give a model_fp32.onnx or model_fp16.onnx written by gigan-export",
+        )
     doc = read_model_json(path)
     try:
         NetworkConfig.from_dict(doc["network"])
     except (ValueError, KeyError, TypeError, AttributeError) as e:
-        raise UserError(f"{path.parent / MODEL_JSON} has no valid generator architecture ({e})", "re-export the model with gigan-export") from None
+        raise UserError(
+            f"{path.parent / MODEL_JSON} has no valid generator architecture ({e})",
+            "re-export the model with gigan-export",
+        ) from None
     return doc
 
 
@@ -42,7 +48,9 @@ def init_depth_scale(path: Path) -> float:
     return float(InputSpec.from_dict(_model_json(path)["input"]).depth_scale)
 
 
-def generator_weights(path: Path, network: NetworkConfig, spec: InputSpec) -> tuple[dict[str, np.ndarray], list[tuple[str, str]]]:
+def generator_weights(
+    path: Path, network: NetworkConfig, spec: InputSpec
+) -> tuple[dict[str, np.ndarray], list[tuple[str, str]]]:
     """The exported generator's weights, checked against the run's generator ``network`` and input
     ``spec`` (a mismatch is a UserError saying which field differs): (initializer name -> float32 array,
     and the graph's ``Conv`` nodes in graph order as (weight, bias or "") initializer names)."""
@@ -65,7 +73,9 @@ def generator_weights(path: Path, network: NetworkConfig, spec: InputSpec) -> tu
     try:
         graph = onnx.load(str(path)).graph
     except Exception as e:  # onnx raises protobuf's own exception types for unreadable files
-        raise UserError(f"{path} is not a loadable ONNX model ({type(e).__name__})", "re-export it with gigan-export") from None
+        raise UserError(
+            f"{path} is not a loadable ONNX model ({type(e).__name__})", "re-export it with gigan-export"
+        ) from None
     # an fp16 file stores each weight in half precision followed by a Cast: a weight is named by what it feeds
     cast_of = {n.input[0]: n.output[0] for n in graph.node if n.op_type == "Cast"}
     weights = {cast_of.get(t.name, t.name): numpy_helper.to_array(t).astype(np.float32) for t in graph.initializer}
@@ -109,7 +119,8 @@ def load_into(generator: Any, path: Path, network: NetworkConfig, spec: InputSpe
     missing, extra = sorted(needed - set(weights)), sorted(set(weights) - set(state))
     if missing or extra:
         raise UserError(
-            f"{path} does not hold this generator's weights (missing {missing[:3]}, unexpected {extra[:3]})", "re-export it with gigan-export"
+            f"{path} does not hold this generator's weights (missing {missing[:3]}, unexpected {extra[:3]})",
+            "re-export it with gigan-export",
         )
     for name in needed:
         if tuple(weights[name].shape) != tuple(state[name].shape):

@@ -114,7 +114,9 @@ class GITexture:
     mean: np.ndarray
 
     @classmethod
-    def build(cls, camera: Camera, image: np.ndarray, depth: np.ndarray, indirect: np.ndarray | None = None) -> GITexture:
+    def build(
+        cls, camera: Camera, image: np.ndarray, depth: np.ndarray, indirect: np.ndarray | None = None
+    ) -> GITexture:
         """``indirect`` (HxWxC, default ``image``) is what the fallback extrapolates: the GI map's
         indirect light when ``image`` is a full GI map that invalid pixels add to their current DI."""
         image = np.asarray(image, dtype=np.float32)
@@ -123,7 +125,9 @@ class GITexture:
         if image.ndim != 3 or image.shape[:2] != (camera.height, camera.width):
             raise ValueError(f"GI map must be {camera.height}x{camera.width}xC for its camera, got {image.shape}")
         if depth.shape != image.shape[:2] or indirect.shape != image.shape:
-            raise ValueError(f"GI depth must be {image.shape[:2]} and indirect {image.shape}, got {depth.shape} and {indirect.shape}")
+            raise ValueError(
+                f"GI depth must be {image.shape[:2]} and indirect {image.shape}, got {depth.shape} and {indirect.shape}"
+            )
         if not (np.all(np.isfinite(image)) and np.all(np.isfinite(depth)) and np.all(np.isfinite(indirect))):
             raise ValueError("GI map, GI depth or indirect map contains NaN or Inf")
         slack = depth_slack(depth)
@@ -243,7 +247,9 @@ class StructureAwareWarp:
         y = (0.5 - clip[:, 1] * half_w) * cam.height - 0.5
         return idx, x, y, w, front
 
-    def resample(self, uv_pass: dict[str, np.ndarray], base: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, Timings]:
+    def resample(
+        self, uv_pass: dict[str, np.ndarray], base: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray, Timings]:
         """The bound GI map seen from the camera of ``uv_pass``: (HxWxC image, HxW valid mask, timings).
 
         ``uv_pass`` must be rendered after :meth:`bind` (e.g. by :meth:`raster`): it carries the bound
@@ -275,7 +281,9 @@ class StructureAwareWarp:
         gx, gy = 1.0 - fx, 1.0 - fy
         weights = np.stack([gx * gy, fx * gy, gx * fy, fx * fy])
         # |d - w| <= tol * w + slack, written on the precomputed [d - slack, d + slack]
-        weights *= (tex.planes[0].take(taps) <= w * (1.0 + self.depth_rel_tol)) & (tex.planes[1].take(taps) >= w * (1.0 - self.depth_rel_tol))
+        weights *= (tex.planes[0].take(taps) <= w * (1.0 + self.depth_rel_tol)) & (
+            tex.planes[1].take(taps) >= w * (1.0 - self.depth_rel_tol)
+        )
         total = weights.sum(axis=0)
         ok &= total > 0.0
         weights /= np.where(ok, total, 1.0)  # rejected taps drop out; invalid pixels get weight 0
@@ -291,7 +299,9 @@ class StructureAwareWarp:
         bad = np.flatnonzero(~ok)
         fallback = self._coarse(tex, x[bad], y[bad])
         fallback[~front[bad]] = tex.mean  # behind the GI camera uv is undefined
-        invalid = np.concatenate([idx[bad], np.flatnonzero(uv_pass["mask"] & ~uv_pass["textured"])])  # + e.g. an area light
+        invalid = np.concatenate(
+            [idx[bad], np.flatnonzero(uv_pass["mask"] & ~uv_pass["textured"])]
+        )  # + e.g. an area light
         fallback = np.concatenate([fallback, np.broadcast_to(tex.mean, (len(invalid) - len(bad), n_channels))])
         if base is not None:
             fallback += np.take(base.reshape(-1, n_channels), invalid, axis=0)

@@ -58,11 +58,18 @@ def link_config(
     def direction(name: str, current: DirectionConfig, rate: float | None, trace: Path | None) -> DirectionConfig:
         if rate is not None and trace is not None:
             raise UserError(
-                f"--trace-{name} and a rate for the {name} direction were both given", f"drop one: a trace replaces the rate of the {name} direction"
+                f"--trace-{name} and a rate for the {name} direction were both given",
+                f"drop one: a trace replaces the rate of the {name} direction",
             )
         changes: dict[str, object] = {
             k: v
-            for k, v in (("delay_ms", delay_ms), ("jitter_ms", jitter_ms), ("jitter_dist", jitter_dist), ("queue_bytes", queue_bytes), ("loss", loss))
+            for k, v in (
+                ("delay_ms", delay_ms),
+                ("jitter_ms", jitter_ms),
+                ("jitter_dist", jitter_dist),
+                ("queue_bytes", queue_bytes),
+                ("loss", loss),
+            )
             if v is not None
         }
         if rate is not None:
@@ -71,25 +78,48 @@ def link_config(
             changes["trace"] = Trace.load(trace)
         return replace(current, **changes)
 
-    up = direction("up", base.up if base else DirectionConfig(), rate_up_mbit if rate_up_mbit is not None else rate_mbit, trace_up)
-    down = direction("down", base.down if base else DirectionConfig(), rate_down_mbit if rate_down_mbit is not None else rate_mbit, trace_down)
+    up = direction(
+        "up", base.up if base else DirectionConfig(), rate_up_mbit if rate_up_mbit is not None else rate_mbit, trace_up
+    )
+    down = direction(
+        "down",
+        base.down if base else DirectionConfig(),
+        rate_down_mbit if rate_down_mbit is not None else rate_mbit,
+        trace_down,
+    )
     return LinkConfig(up=up, down=down, window_bytes=window_bytes, seed=seed)
 
 
 @app.command()
 def proxy(
     upstream: str = typer.Option(..., help="HOST:PORT of the server the proxy forwards to (checked at start)."),
-    listen: str = typer.Option("127.0.0.1:0", help="HOST:PORT to accept clients on (port 0: any free port; printed first)."),
-    profile: str = typer.Option(None, help="Named link (see 'network-sim profiles'); the flags below override its values."),
-    delay_ms: float = typer.Option(None, min=0, help="One-way delay added in each direction, ms (an empty round trip takes twice it)."),
-    jitter_ms: float = typer.Option(None, min=0, help="Standard deviation of the delay variation, ms (never reorders a stream)."),
+    listen: str = typer.Option(
+        "127.0.0.1:0", help="HOST:PORT to accept clients on (port 0: any free port; printed first)."
+    ),
+    profile: str = typer.Option(
+        None, help="Named link (see 'network-sim profiles'); the flags below override its values."
+    ),
+    delay_ms: float = typer.Option(
+        None, min=0, help="One-way delay added in each direction, ms (an empty round trip takes twice it)."
+    ),
+    jitter_ms: float = typer.Option(
+        None, min=0, help="Standard deviation of the delay variation, ms (never reorders a stream)."
+    ),
     jitter_dist: Dist = typer.Option(None, help="Distribution of the delay variation."),
-    rate_mbit: float = typer.Option(None, min=0, help="Rate of both directions, Mbit/s of payload (0: nothing passes)."),
+    rate_mbit: float = typer.Option(
+        None, min=0, help="Rate of both directions, Mbit/s of payload (0: nothing passes)."
+    ),
     rate_up_mbit: float = typer.Option(None, min=0, help="Rate of the client -> upstream direction, Mbit/s."),
     rate_down_mbit: float = typer.Option(None, min=0, help="Rate of the upstream -> client direction, Mbit/s."),
-    queue_bytes: int = typer.Option(None, min=1500, help="Bottleneck queue per direction, bytes (full: the sender is not read)."),
-    window_bytes: int = typer.Option(DEFAULT_WINDOW_BYTES, min=1500, help="Bytes a connection may have sent but not acknowledged."),
-    loss: float = typer.Option(None, min=0, max=1, help="Loss probability per segment transmission (each loss: one retransmission timeout)."),
+    queue_bytes: int = typer.Option(
+        None, min=1500, help="Bottleneck queue per direction, bytes (full: the sender is not read)."
+    ),
+    window_bytes: int = typer.Option(
+        DEFAULT_WINDOW_BYTES, min=1500, help="Bytes a connection may have sent but not acknowledged."
+    ),
+    loss: float = typer.Option(
+        None, min=0, max=1, help="Loss probability per segment transmission (each loss: one retransmission timeout)."
+    ),
     trace_up: Path = typer.Option(None, help="Mahimahi trace shaping client -> upstream (replaces the rate)."),
     trace_down: Path = typer.Option(None, help="Mahimahi trace shaping upstream -> client (the server's responses)."),
     seed: int = typer.Option(0, help="Seed of the jitter and loss draws."),
@@ -136,7 +166,9 @@ def server(listen: str = typer.Option("127.0.0.1:0", help="HOST:PORT (port 0: an
     try:
         asyncio.run(serve(host, port))
     except OSError as exc:
-        raise UserError(f"--listen {listen}: cannot listen ({exc.strerror or exc})", "pick a free port, or 0 for any") from None
+        raise UserError(
+            f"--listen {listen}: cannot listen ({exc.strerror or exc})", "pick a free port, or 0 for any"
+        ) from None
 
 
 @app.command()

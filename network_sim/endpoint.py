@@ -78,7 +78,13 @@ async def _handle(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) ->
                     first, first_chunk = last, len(data)
                 total += len(data)
                 h.update(data)
-            report = {"bytes": total, "sha256": h.hexdigest(), "first_ns": first, "last_ns": last, "first_chunk": first_chunk}
+            report = {
+                "bytes": total,
+                "sha256": h.hexdigest(),
+                "first_ns": first,
+                "last_ns": last,
+                "first_chunk": first_chunk,
+            }
             writer.write(json.dumps(report).encode() + b"\n")
         elif mode == b"G":
             nbytes, seed = SOURCE_REQUEST.unpack(await reader.readexactly(SOURCE_REQUEST.size))

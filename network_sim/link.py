@@ -70,7 +70,9 @@ JITTER_DISTS: tuple[str, ...] = ("normal", "pareto", "uniform")
 PARETO_ALPHA = 3.0
 PARETO_CAP = 4.5
 _PARETO_MEAN = PARETO_ALPHA / (PARETO_ALPHA - 1) - PARETO_CAP ** (1 - PARETO_ALPHA) / (PARETO_ALPHA - 1)
-_PARETO_STD = math.sqrt(PARETO_ALPHA / (PARETO_ALPHA - 2) - 2 * PARETO_CAP ** (2 - PARETO_ALPHA) / (PARETO_ALPHA - 2) - _PARETO_MEAN**2)
+_PARETO_STD = math.sqrt(
+    PARETO_ALPHA / (PARETO_ALPHA - 2) - 2 * PARETO_CAP ** (2 - PARETO_ALPHA) / (PARETO_ALPHA - 2) - _PARETO_MEAN**2
+)
 UP, DOWN = "up", "down"
 _STANDARD_NORMAL = NormalDist()
 
@@ -335,7 +337,9 @@ class Direction:
         self.config = config
         self.serializer = _serializer(config)
         self.delay = DelayProcess(config, link.seed, name)
-        self.max_chunk = min(config.queue_bytes, link.window_bytes, SHAPED_CHUNK_BYTES if config.shaped else UNSHAPED_CHUNK_BYTES)
+        self.max_chunk = min(
+            config.queue_bytes, link.window_bytes, SHAPED_CHUNK_BYTES if config.shaped else UNSHAPED_CHUNK_BYTES
+        )
         self.last_offer = -math.inf
         self.last_admitted = -math.inf
 
@@ -391,7 +395,9 @@ class Stream:
         if not 0 < nbytes <= d.max_chunk:
             raise ValueError(f"chunk of {nbytes} bytes; the {d.name} direction takes 1..{d.max_chunk}")
         if arrival < d.last_offer:
-            raise ValueError(f"arrival {arrival!r} is earlier than the previous one offered to {d.name} ({d.last_offer!r})")
+            raise ValueError(
+                f"arrival {arrival!r} is earlier than the previous one offered to {d.name} ({d.last_offer!r})"
+            )
         d.last_offer = arrival
         seq = self.link.offered
         self.link.offered += 1

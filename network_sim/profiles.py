@@ -32,7 +32,9 @@ class Profile:
         return LinkConfig(up=self.up, down=self.down, seed=seed)
 
 
-def _symmetric(name: str, rtt_ms: float, rate_mbit: float | None, source: str, rate_up_mbit: float | None = None) -> Profile:
+def _symmetric(
+    name: str, rtt_ms: float, rate_mbit: float | None, source: str, rate_up_mbit: float | None = None
+) -> Profile:
     up = DirectionConfig(delay_ms=rtt_ms / 2, rate_mbit=rate_mbit if rate_up_mbit is None else rate_up_mbit)
     return Profile(name, up, DirectionConfig(delay_ms=rtt_ms / 2, rate_mbit=rate_mbit), source)
 
@@ -56,7 +58,12 @@ def profiles() -> dict[str, Profile]:
     """Every profile by name (built on first use: the LTE ones parse their shipped traces)."""
     wifi_up = 15.0  # Firefox DevTools "Wi-Fi": 30 Mbit/s down, 15 Mbit/s up
     profiles = [
-        Profile("loopback", DirectionConfig(), DirectionConfig(), "no shaping: the proxy alone (its overhead is measured by network-sim selftest)"),
+        Profile(
+            "loopback",
+            DirectionConfig(),
+            DirectionConfig(),
+            "no shaping: the proxy alone (its overhead is measured by network-sim selftest)",
+        ),
         _symmetric(
             "lan",
             0.5,
@@ -90,7 +97,12 @@ def profiles() -> dict[str, Profile]:
             "traces generated to match Mahimahi's TMobile-LTE-short (mean 16.70 down / 13.32 up "
             "Mbit/s, network_sim.tracegen); 70 ms RTT from WebPageTest's LTE connectivity profile",
         ),
-        _symmetric("3g", 300.0, 0.7, "Lighthouse's 'mobileRegular3G' throttling (core/config/constants.js): rttMs 300, throughputKbps 700"),
+        _symmetric(
+            "3g",
+            300.0,
+            0.7,
+            "Lighthouse's 'mobileRegular3G' throttling (core/config/constants.js): rttMs 300, throughputKbps 700",
+        ),
     ]
     profiles += [_symmetric(f"rtt{rtt}", float(rtt), None, _OUTATIME) for rtt in (60, 100, 120, 250)]
     return {p.name: p for p in profiles}
@@ -100,5 +112,7 @@ def get(name: str) -> Profile:
     """The profile called ``name``, or a :class:`UserError` listing the known ones."""
     known = profiles()
     if name not in known:
-        raise UserError(f"--profile {name!r} is not a known profile", f"use one of {', '.join(known)} (see network-sim profiles)")
+        raise UserError(
+            f"--profile {name!r} is not a known profile", f"use one of {', '.join(known)} (see network-sim profiles)"
+        )
     return known[name]

@@ -46,7 +46,19 @@ from gicore.cli import UserError
 from network_sim.link import DOWN, UP, Chunk, Link, LinkConfig, Stream
 
 #: Columns of the per-chunk log; times are seconds from the link origin (the model's clock).
-LOG_COLUMNS = ("seq", "conn", "direction", "bytes", "arrival_s", "admitted_s", "finish_s", "ready_s", "release_s", "sent_s", "lost")
+LOG_COLUMNS = (
+    "seq",
+    "conn",
+    "direction",
+    "bytes",
+    "arrival_s",
+    "admitted_s",
+    "finish_s",
+    "ready_s",
+    "release_s",
+    "sent_s",
+    "lost",
+)
 #: A timer that fires this close before its deadline counts as on time (asyncio runs handles due within
 #: its clock resolution).
 _EARLY_S = 1e-6
@@ -239,7 +251,9 @@ class _Pipe:
             return
         # never deliverable: the next chunk is released at infinity, or the model will never admit more
         never = bool(self.pending) and not math.isfinite(self.pending[0][0].release)
-        never = never or (not self.pending and bool(self.waiting) and "model" in self.holds and self.offer_timer is None)
+        never = never or (
+            not self.pending and bool(self.waiting) and "model" in self.holds and self.offer_timer is None
+        )
         if not never and (self.pending or self.waiting):
             return
         if not never and self.dst.transport is not None and not self.dst.lost and self.dst.transport.can_write_eof():
@@ -288,7 +302,9 @@ class _Connection:
     async def _connect(self) -> None:
         host, port = self.proxy.upstream
         try:
-            await asyncio.wait_for(asyncio.get_running_loop().create_connection(lambda: self.upstream, host, port), CONNECT_TIMEOUT_S)
+            await asyncio.wait_for(
+                asyncio.get_running_loop().create_connection(lambda: self.upstream, host, port), CONNECT_TIMEOUT_S
+            )
         except (TimeoutError, OSError) as exc:
             print(
                 f"network-sim proxy: connection {self.id}: upstream {host}:{port} unreachable ({exc or 'timeout'}); closing the client",
@@ -373,7 +389,9 @@ def parse_hostport(value: str, flag: str) -> tuple[str, int]:
     """``HOST:PORT`` (port 0 = any free port) or a :class:`UserError` naming ``flag``."""
     host, sep, port = value.rpartition(":")
     if not sep or not host or not port.isdigit() or not 0 <= int(port) <= 65535:
-        raise UserError(f"{flag} {value!r} is not HOST:PORT", f"give e.g. {flag} 127.0.0.1:8000 (port 0 picks a free port)")
+        raise UserError(
+            f"{flag} {value!r} is not HOST:PORT", f"give e.g. {flag} 127.0.0.1:8000 (port 0 picks a free port)"
+        )
     return host.strip("[]"), int(port)
 
 
@@ -384,7 +402,10 @@ def check_upstream(upstream: tuple[str, int], timeout_s: float = 3.0) -> None:
         with socket.create_connection((host, port), timeout=timeout_s):
             pass
     except OSError as exc:
-        raise UserError(f"--upstream {host}:{port} is unreachable ({exc.strerror or exc})", "start the server first, or fix --upstream") from None
+        raise UserError(
+            f"--upstream {host}:{port} is unreachable ({exc.strerror or exc})",
+            "start the server first, or fix --upstream",
+        ) from None
 
 
 async def serve(config: LinkConfig, listen: tuple[str, int], upstream: tuple[str, int], log_path: Path | None) -> None:
@@ -398,7 +419,9 @@ async def serve(config: LinkConfig, listen: tuple[str, int], upstream: tuple[str
     try:
         server = await loop.create_server(proxy.accept, listen[0], listen[1])
     except OSError as exc:
-        raise UserError(f"--listen {listen[0]}:{listen[1]}: cannot listen ({exc.strerror or exc})", "pick a free port, or 0 for any") from None
+        raise UserError(
+            f"--listen {listen[0]}:{listen[1]}: cannot listen ({exc.strerror or exc})", "pick a free port, or 0 for any"
+        ) from None
     host, port = server.sockets[0].getsockname()[:2]
     print(f"listening on {host}:{port}", flush=True)
     print(f"clock origin {proxy.origin!r} (CLOCK_MONOTONIC s; log and trace times count from it)", flush=True)

@@ -55,7 +55,12 @@ class SelftestConfig:
     #: One-way delays checked, ms (no jitter, unlimited rate).
     delays_ms: tuple[float, ...] = (5.0, 50.0, 300.0)
     #: Jitter settings: (one-way delay ms, jitter standard deviation ms, distribution), and seconds of probes each.
-    jitters: tuple[tuple[float, float, str], ...] = ((30.0, 3.0, "normal"), (30.0, 3.0, "uniform"), (30.0, 3.0, "pareto"), (100.0, 10.0, "normal"))
+    jitters: tuple[tuple[float, float, str], ...] = (
+        (30.0, 3.0, "normal"),
+        (30.0, 3.0, "uniform"),
+        (30.0, 3.0, "pareto"),
+        (100.0, 10.0, "normal"),
+    )
     jitter_s: float = 15.0
     #: Rates checked, Mbit/s; a bulk transfer carries at least ``bulk_bytes`` and lasts at least ``bulk_s``
     #: seconds, but never more than ``bulk_max_s`` (2 MB or 5 s, as the issue asks).
@@ -136,13 +141,18 @@ class _Run:
             yield running.addr, origin
         if log is not None:
             with log.open(newline="") as fh:
-                self.lateness_ms += [(float(r["sent_s"]) - float(r["release_s"])) * 1e3 for r in csv.DictReader(fh) if r["sent_s"]]
+                self.lateness_ms += [
+                    (float(r["sent_s"]) - float(r["release_s"])) * 1e3 for r in csv.DictReader(fh) if r["sent_s"]
+                ]
 
     def add(self, check: Check) -> None:
         self.checks.append(check)
         mark = {True: "ok", False: "MISSED", None: ""}[check.ok]
         configured = "" if check.configured is None else f"{check.configured:.4g}"
-        print(f"  {check.name:<44} {configured:>10} {check.measured:>11.4g} {check.unit:<7} {check.target:<26} {mark}", flush=True)
+        print(
+            f"  {check.name:<44} {configured:>10} {check.measured:>11.4g} {check.unit:<7} {check.target:<26} {mark}",
+            flush=True,
+        )
 
     def transfer(self, result: endpoint.Transfer) -> endpoint.Transfer:
         self.transfers.append(result.intact)
@@ -208,7 +218,10 @@ class _Run:
                 count = max(20, int(c.probe_s / c.probe_interval_s))
                 results = endpoint.probes(addr, count, c.probe_interval_s, _TIMEOUT_S, self.seed)
             tolerance = max(1.0, 0.03 * delay)
-            for direction, values in (("up", [p.up_s * 1e3 for p in results]), ("down", [p.down_s * 1e3 for p in results])):
+            for direction, values in (
+                ("up", [p.up_s * 1e3 for p in results]),
+                ("down", [p.down_s * 1e3 for p in results]),
+            ):
                 median = statistics.median(values)
                 config = {"delay_ms": delay, "direction": direction, "probes": len(values)}
                 self.add(
@@ -248,7 +261,9 @@ class _Run:
             scene = f"jitter_{dist}{jitter:g}"
             args = ("--delay-ms", f"{delay:g}", "--jitter-ms", f"{jitter:g}", "--jitter-dist", dist)
             with self.proxy(*args, log=workdir / f"{scene}.csv") as (addr, _):
-                results = endpoint.probes(addr, int(c.jitter_s / c.probe_interval_s), c.probe_interval_s, _TIMEOUT_S, self.seed)
+                results = endpoint.probes(
+                    addr, int(c.jitter_s / c.probe_interval_s), c.probe_interval_s, _TIMEOUT_S, self.seed
+                )
             config = {"delay_ms": delay, "jitter_ms": jitter, "dist": dist, "probes": len(results)}
             both = {"up": [p.up_s * 1e3 for p in results], "down": [p.down_s * 1e3 for p in results]}
             pooled = statistics.pstdev(both["up"] + both["down"])
@@ -268,8 +283,30 @@ class _Run:
             )
             for direction, values in both.items():
                 more = config | {"direction": direction}
-                self.add(Check(f"  {direction}: std", scene, "jitter_std", "std", "ms", statistics.pstdev(values), jitter, config=more))
-                self.add(Check(f"  {direction}: mean delay", scene, "one_way_delay", "mean", "ms", statistics.fmean(values), delay, config=more))
+                self.add(
+                    Check(
+                        f"  {direction}: std",
+                        scene,
+                        "jitter_std",
+                        "std",
+                        "ms",
+                        statistics.pstdev(values),
+                        jitter,
+                        config=more,
+                    )
+                )
+                self.add(
+                    Check(
+                        f"  {direction}: mean delay",
+                        scene,
+                        "one_way_delay",
+                        "mean",
+                        "ms",
+                        statistics.fmean(values),
+                        delay,
+                        config=more,
+                    )
+                )
 
     def goodput(self, workdir: Path) -> None:
         c = self.config
@@ -290,7 +327,12 @@ class _Run:
                         rate,
                         "within 5 %",
                         _within(result.goodput_mbit, rate, 0.05 * rate),
-                        {"rate_mbit": rate, "direction": direction, "bytes": nbytes, "seconds": result.last_s - result.first_s},
+                        {
+                            "rate_mbit": rate,
+                            "direction": direction,
+                            "bytes": nbytes,
+                            "seconds": result.last_s - result.first_s,
+                        },
                     )
                 )
 
@@ -303,7 +345,10 @@ class _Run:
         nbytes = c.bulk_bytes_at(rate) // 2
         with self.proxy("--rate-mbit", f"{rate:g}") as (addr, _):
             with ThreadPoolExecutor(2) as pool:
-                pair = [self.transfer(r) for r in pool.map(lambda seed: endpoint.download(addr, nbytes, seed, _TIMEOUT_S), (1, 2))]
+                pair = [
+                    self.transfer(r)
+                    for r in pool.map(lambda seed: endpoint.download(addr, nbytes, seed, _TIMEOUT_S), (1, 2))
+                ]
         span = max(t.last_s for t in pair) - min(t.first_s for t in pair)
         total = sum(t.nbytes - t.first_chunk for t in pair) * 8 / span / 1e6
         config = {"rate_mbit": rate, "direction": "down", "connections": 2, "bytes_each": nbytes}
@@ -329,10 +374,16 @@ class _Run:
         c = self.config
         delay, jitter, rate = 30.0, 3.0, 10.0
         log = workdir / "bulk_jitter.csv"
-        with self.proxy("--delay-ms", f"{delay:g}", "--jitter-ms", f"{jitter:g}", "--rate-mbit", f"{rate:g}", log=log) as (addr, _):
+        with self.proxy(
+            "--delay-ms", f"{delay:g}", "--jitter-ms", f"{jitter:g}", "--rate-mbit", f"{rate:g}", log=log
+        ) as (addr, _):
             self.transfer(endpoint.download(addr, c.bulk_bytes_at(rate), self.seed, _TIMEOUT_S))
         with log.open(newline="") as fh:
-            delays = [(float(r["sent_s"]) - float(r["ready_s"])) * 1e3 for r in csv.DictReader(fh) if r["direction"] == "down" and r["sent_s"]]
+            delays = [
+                (float(r["sent_s"]) - float(r["ready_s"])) * 1e3
+                for r in csv.DictReader(fh)
+                if r["direction"] == "down" and r["sent_s"]
+            ]
         config = {"delay_ms": delay, "jitter_ms": jitter, "rate_mbit": rate, "direction": "down", "chunks": len(delays)}
         mean, std = statistics.fmean(delays), statistics.pstdev(delays)
         self.add(
@@ -369,7 +420,11 @@ class _Run:
         rto_ms = max(MIN_RTO_S, 4 * c.loss_delay_ms / 1e3) * 1e3  # max(200 ms, 2 RTT), RTT = 2 * one-way delay
         with self.proxy("--delay-ms", f"{c.loss_delay_ms:g}", "--loss", f"{c.loss:g}") as (addr, _):
             with ThreadPoolExecutor(8) as pool:
-                ups = list(pool.map(lambda i: endpoint.probes(addr, 1, 1e-4, _TIMEOUT_S, i)[0].up_s * 1e3, range(c.loss_probes)))
+                ups = list(
+                    pool.map(
+                        lambda i: endpoint.probes(addr, 1, 1e-4, _TIMEOUT_S, i)[0].up_s * 1e3, range(c.loss_probes)
+                    )
+                )
         extra = [u - c.loss_delay_ms for u in ups]
         delayed = [e for e in extra if e > rto_ms / 2]
         share = len(delayed) / len(extra)
@@ -416,7 +471,10 @@ class _Run:
                 move = endpoint.download if direction == "down" else endpoint.upload
                 result = self.transfer(move(addr, nbytes, self.seed, _TIMEOUT_S))
                 delay = settings.delay_ms / 1e3
-                start, end = result.first_s - origin - delay, result.last_s - origin - delay  # when the link delivered them
+                start, end = (
+                    result.first_s - origin - delay,
+                    result.last_s - origin - delay,
+                )  # when the link delivered them
                 capacity = trace.capacity_bytes(start, end) * 8 / (end - start) / 1e6
                 config = {"profile": c.trace_profile, "direction": direction, "bytes": nbytes, "window_s": [start, end]}
                 ok = _within(result.goodput_mbit, capacity, 0.05 * capacity)
@@ -475,7 +533,13 @@ def _plot(checks: list[Check], png: Path) -> None:
         return 100.0 * (c.measured / c.configured - 1.0) if relative else c.measured - c.configured
 
     panels = (
-        ("one-way delay: median - configured (ms)", [("one_way_delay", "median")], False, lambda x: max(1.0, 0.03 * x), "configured delay (ms)"),
+        (
+            "one-way delay: median - configured (ms)",
+            [("one_way_delay", "median")],
+            False,
+            lambda x: max(1.0, 0.03 * x),
+            "configured delay (ms)",
+        ),
         (
             "goodput: realised / configured - 1 (%)",
             [("goodput", "value"), ("trace_goodput", "value"), ("goodput_sum", "value")],
@@ -483,7 +547,13 @@ def _plot(checks: list[Check], png: Path) -> None:
             lambda x: 5.0,
             "configured rate or trace capacity (Mbit/s)",
         ),
-        ("jitter std: realised / configured - 1 (%)", [("jitter_std", "std")], True, lambda x: 15.0, "configured jitter std (ms)"),
+        (
+            "jitter std: realised / configured - 1 (%)",
+            [("jitter_std", "std")],
+            True,
+            lambda x: 15.0,
+            "configured jitter std (ms)",
+        ),
     )
     fig, axes = plt.subplots(1, 3, figsize=(14, 4))
     for (title, kinds, relative, band, xlabel), ax in zip(panels, axes):
@@ -491,11 +561,19 @@ def _plot(checks: list[Check], png: Path) -> None:
         for direction, marker in (("up", "o"), ("down", "s"), ("both", "D")):
             sel = [c for c in rows if c.config.get("direction") == direction]
             if sel:
-                ax.scatter([c.configured for c in sel], [error(c, relative) for c in sel], marker=marker, label=direction, alpha=0.8)
+                ax.scatter(
+                    [c.configured for c in sel],
+                    [error(c, relative) for c in sel],
+                    marker=marker,
+                    label=direction,
+                    alpha=0.8,
+                )
         if rows:
             xs = sorted({c.configured for c in rows if c.configured})
             xs = [xs[0] * 0.8, *xs, xs[-1] * 1.25]
-            ax.fill_between(xs, [-band(x) for x in xs], [band(x) for x in xs], color="tab:green", alpha=0.12, label="target")
+            ax.fill_between(
+                xs, [-band(x) for x in xs], [band(x) for x in xs], color="tab:green", alpha=0.12, label="target"
+            )
         ax.axhline(0.0, color="k", lw=0.6)
         ax.set_xscale("log")
         ax.xaxis.set_major_formatter(ticker.FormatStrFormatter("%g"))
@@ -514,7 +592,16 @@ def run_selftest(config: SelftestConfig, out: Path, seed: int = 0) -> int:
     with network_sim("server") as server:
         run = _Run(config, server, seed)
         print(f"  {'check':<44} {'configured':>10} {'measured':>11} {'unit':<7} {'target':<26}", flush=True)
-        for step in (run.overhead, run.delays, run.jitter, run.bulk_jitter, run.goodput, run.shared_rate, run.loss, run.trace):
+        for step in (
+            run.overhead,
+            run.delays,
+            run.jitter,
+            run.bulk_jitter,
+            run.goodput,
+            run.shared_rate,
+            run.loss,
+            run.trace,
+        ):
             step(workdir)
         run.summary()
     for c in run.checks:
@@ -523,9 +610,19 @@ def run_selftest(config: SelftestConfig, out: Path, seed: int = 0) -> int:
         if c.configured is not None:
             results.add(stat="configured", value=c.configured, **common)
         if c.ok is not None:
-            results.add(stat="target_met", value=float(c.ok), **{**common, "unit": "bool"}, target=c.target, measured_stat=c.stat)
+            results.add(
+                stat="target_met",
+                value=float(c.ok),
+                **{**common, "unit": "bool"},
+                target=c.target,
+                measured_stat=c.stat,
+            )
     results.write()
     _plot(run.checks, out / f"{BENCH}.png")
     missed = sum(c.ok is False for c in run.checks)
-    print(f"{len(run.checks)} checks, {missed} missed; results in {results.csv_path}", file=sys.stderr if missed else sys.stdout, flush=True)
+    print(
+        f"{len(run.checks)} checks, {missed} missed; results in {results.csv_path}",
+        file=sys.stderr if missed else sys.stdout,
+        flush=True,
+    )
     return missed

@@ -47,7 +47,9 @@ class Trace:
         try:
             text = path.read_text()
         except OSError as exc:
-            raise UserError(f"trace {path} cannot be read ({exc.strerror})", "give an existing Mahimahi trace file") from exc
+            raise UserError(
+                f"trace {path} cannot be read ({exc.strerror})", "give an existing Mahimahi trace file"
+            ) from exc
         return cls.from_ms(str(path), parse_lines(str(path), text.splitlines()))
 
     @property
@@ -85,7 +87,9 @@ class Trace:
 
 def parse_lines(name: str, lines: list[str]) -> list[int]:
     """Validate trace lines and return the millisecond timestamps; errors name ``name`` and the line."""
-    fix = "each line must be one whole number of milliseconds, never smaller than the line before (Mahimahi trace format)"
+    fix = (
+        "each line must be one whole number of milliseconds, never smaller than the line before (Mahimahi trace format)"
+    )
     ms: list[int] = []
     for number, raw in enumerate(lines, start=1):
         line = raw.strip()
@@ -94,14 +98,21 @@ def parse_lines(name: str, lines: list[str]) -> list[int]:
         try:
             value = int(line)
         except ValueError:
-            raise UserError(f"trace {name} line {number}: {line[:40]!r} is not a whole number of milliseconds", fix) from None
+            raise UserError(
+                f"trace {name} line {number}: {line[:40]!r} is not a whole number of milliseconds", fix
+            ) from None
         if value < 0:
             raise UserError(f"trace {name} line {number}: timestamp {value} is negative", fix)
         if ms and value < ms[-1]:
-            raise UserError(f"trace {name} line {number}: timestamp {value} is smaller than the line before ({ms[-1]})", fix)
+            raise UserError(
+                f"trace {name} line {number}: timestamp {value} is smaller than the line before ({ms[-1]})", fix
+            )
         ms.append(value)
     if not ms:
         raise UserError(f"trace {name} has no timestamps", fix)
     if ms[-1] == 0:
-        raise UserError(f"trace {name} line {len(ms)}: the last timestamp is 0, so the trace lasts no time", "end the trace with a timestamp > 0")
+        raise UserError(
+            f"trace {name} line {len(ms)}: the last timestamp is 0, so the trace lasts no time",
+            "end the trace with a timestamp > 0",
+        )
     return ms

@@ -57,10 +57,26 @@ class TraceModel:
 #: LTE (the high end). Recorded statistics in ``source``; the fitted model's own are checked by a test.
 MODELS: dict[str, TraceModel] = {
     "lte.down": TraceModel(
-        "lte.down.txt", 5.03, 0.6, 1.3, 0.003, 0.2, 60, 1, "Mahimahi Verizon-LTE-short.down: mean 5.03 Mbit/s, cv100 0.71, ac100 0.87, empty100 0.016"
+        "lte.down.txt",
+        5.03,
+        0.6,
+        1.3,
+        0.003,
+        0.2,
+        60,
+        1,
+        "Mahimahi Verizon-LTE-short.down: mean 5.03 Mbit/s, cv100 0.71, ac100 0.87, empty100 0.016",
     ),
     "lte.up": TraceModel(
-        "lte.up.txt", 5.95, 0.55, 0.9, 0.0015, 0.4, 60, 2, "Mahimahi Verizon-LTE-short.up: mean 5.95 Mbit/s, cv100 0.60, ac100 0.87, empty100 0.021"
+        "lte.up.txt",
+        5.95,
+        0.55,
+        0.9,
+        0.0015,
+        0.4,
+        60,
+        2,
+        "Mahimahi Verizon-LTE-short.up: mean 5.95 Mbit/s, cv100 0.60, ac100 0.87, empty100 0.021",
     ),
     "lte-fast.down": TraceModel(
         "lte-fast.down.txt",

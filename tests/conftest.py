@@ -53,10 +53,20 @@ def make_spec(sphere_mesh_path: Path, box_mesh_path: Path):
     """
     from gicore.scene import SceneSpec
 
-    def factory(*, light: dict[str, Any] | None = None, camera: dict[str, Any] | None = None, with_box: bool = False, **top: Any):
+    def factory(
+        *, light: dict[str, Any] | None = None, camera: dict[str, Any] | None = None, with_box: bool = False, **top: Any
+    ):
         objects = [{"name": "ball", "mesh": str(sphere_mesh_path), "height": 1.0, "position": [0.0, 0.0, 0.0]}]
         if with_box:
-            objects.append({"name": "box", "mesh": str(box_mesh_path), "height": 0.8, "position": [0.9, 0.0, -0.4], "rotate_y": 30.0})
+            objects.append(
+                {
+                    "name": "box",
+                    "mesh": str(box_mesh_path),
+                    "height": 0.8,
+                    "position": [0.9, 0.0, -0.4],
+                    "rotate_y": 30.0,
+                }
+            )
         data: dict[str, Any] = {
             "name": "test_scene",
             "objects": objects,

@@ -100,7 +100,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     @app.exception_handler(FieldError)
     async def field_error(_: Request, exc: FieldError) -> JSONResponse:
-        return JSONResponse({"detail": [{"loc": ["body", exc.field], "msg": exc.message, "type": "value_error"}]}, status_code=exc.status)
+        return JSONResponse(
+            {"detail": [{"loc": ["body", exc.field], "msg": exc.message, "type": "value_error"}]},
+            status_code=exc.status,
+        )
 
     app.add_middleware(BodyLimit, limit=settings.max_body_bytes)
     return app

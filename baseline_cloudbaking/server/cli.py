@@ -25,7 +25,10 @@ def bind(host: str, port: int) -> socket.socket:
     try:
         infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
     except socket.gaierror as exc:
-        raise UserError(f"--host {host!r} does not resolve ({exc.strerror})", "give an IP address or a resolvable name, e.g. 127.0.0.1") from None
+        raise UserError(
+            f"--host {host!r} does not resolve ({exc.strerror})",
+            "give an IP address or a resolvable name, e.g. 127.0.0.1",
+        ) from None
     family, kind, proto, _, address = infos[0]
     sock = socket.socket(family, kind, proto)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
@@ -33,7 +36,9 @@ def bind(host: str, port: int) -> socket.socket:
         sock.bind(address)
     except OSError as exc:
         sock.close()
-        raise UserError(f"cannot listen on {host}:{port} ({exc.strerror})", "choose another --port (0 picks a free one) or --host") from None
+        raise UserError(
+            f"cannot listen on {host}:{port} ({exc.strerror})", "choose another --port (0 picks a free one) or --host"
+        ) from None
     sock.listen(2048)
     return sock
 
@@ -43,8 +48,12 @@ def serve(
     store: Annotated[Path, typer.Option(help="GI-tree folder (created if missing)")],
     host: Annotated[str, typer.Option(help="address to bind; 127.0.0.1 keeps the server local")] = "127.0.0.1",
     port: Annotated[int, typer.Option(min=0, max=65535, help="TCP port; 0 picks a free one")] = 8000,
-    scenes: Annotated[Path | None, typer.Option(help="folder of extra scene specs (*.toml, *.json), served by file stem")] = None,
-    budget_mb: Annotated[float | None, typer.Option(min=0.001, help="GI-tree byte budget in MiB (LRU eviction); default: none")] = None,
+    scenes: Annotated[
+        Path | None, typer.Option(help="folder of extra scene specs (*.toml, *.json), served by file stem")
+    ] = None,
+    budget_mb: Annotated[
+        float | None, typer.Option(min=0.001, help="GI-tree byte budget in MiB (LRU eviction); default: none")
+    ] = None,
     max_spp: Annotated[int | None, typer.Option(min=1, max=4096, help="largest spp a request may ask for")] = None,
     log_level: Annotated[str, typer.Option(help="uvicorn log level")] = "warning",
 ) -> None:
@@ -58,7 +67,12 @@ def serve(
     writable_dir(store, name="--store")
     if scenes is not None and not scenes.is_dir():
         raise UserError(f"--scenes {scenes} is not a folder", "give a folder of scene spec files")
-    overrides = {"store": store, "scenes_dir": scenes, "max_spp": max_spp, "budget_bytes": None if budget_mb is None else int(budget_mb * 2**20)}
+    overrides = {
+        "store": store,
+        "scenes_dir": scenes,
+        "max_spp": max_spp,
+        "budget_bytes": None if budget_mb is None else int(budget_mb * 2**20),
+    }
     try:
         settings = Settings(**{k: v for k, v in overrides.items() if v is not None})
     except ValidationError as exc:

@@ -45,9 +45,13 @@ class GICameraIn(_Strict):
 class GIMapRequest(_Strict):
     """Ask for the GI map at a GI camera."""
 
-    scene: str = Field(pattern=SCENE_NAME.pattern, description="scene name (see GET /v1/scenes)", examples=["lung_plane"])
+    scene: str = Field(
+        pattern=SCENE_NAME.pattern, description="scene name (see GET /v1/scenes)", examples=["lung_plane"]
+    )
     camera: GICameraIn
-    light: Vec3 | None = Field(None, description="light position; omit for the scene's rest position (a static light must be omitted)")
+    light: Vec3 | None = Field(
+        None, description="light position; omit for the scene's rest position (a static light must be omitted)"
+    )
     resolution: int = Field(256, description="square map size; one of the server's resolutions (GET /v1/scenes)")
     codec: CodecName = Field("jpeg", description=f"GI-map codec, one of {', '.join(CODEC_NAMES)}")
     spp: int = Field(64, ge=1, description="path-tracing samples per pixel (bounded by the server's max_spp)")
@@ -69,7 +73,9 @@ class SceneInfo(BaseModel):
     light_rest: tuple[float, float, float]
     light_min: tuple[float, float, float]
     light_max: tuple[float, float, float]
-    light_cell: float | None = Field(description="light-cell side of GI-tree keys; null for a static light (no light level)")
+    light_cell: float | None = Field(
+        description="light-cell side of GI-tree keys; null for a static light (no light level)"
+    )
     camera_target: tuple[float, float, float]
     camera_radius: tuple[float, float]
     camera_height: tuple[float, float]

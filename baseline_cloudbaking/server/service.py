@@ -106,7 +106,9 @@ class MapService:
     def _check_bounds(self, req: GIMapRequest) -> None:
         s = self.settings
         if req.resolution not in s.resolutions:
-            raise FieldError("resolution", f"{req.resolution} is not served; resolutions: {', '.join(map(str, s.resolutions))}")
+            raise FieldError(
+                "resolution", f"{req.resolution} is not served; resolutions: {', '.join(map(str, s.resolutions))}"
+            )
         if req.spp > s.max_spp:
             raise FieldError("spp", f"{req.spp} exceeds this server's max_spp {s.max_spp}")
 
@@ -130,7 +132,9 @@ class MapService:
         except ValueError as exc:
             raise FieldError("camera", str(exc)) from None
         view = Viewpoint.look_at(c.eye, c.target)
-        key = MapKey(req.scene, light_cell(light, self.light_cell_size(spec)), req.resolution, c.fov, req.codec, req.spp, req.di)
+        key = MapKey(
+            req.scene, light_cell(light, self.light_cell_size(spec)), req.resolution, c.fov, req.codec, req.spp, req.di
+        )
         with self._lock:
             self.counters["requests"] += 1
         hit = self.store.lookup(key, view)
@@ -148,19 +152,29 @@ class MapService:
         }
         return with_header(hit.payload, extra, drop=() if req.di else ("di",)), extra
 
-    def _bake(self, req: GIMapRequest, spec: SceneSpec, camera, light, key: MapKey, view: Viewpoint, t0: float) -> tuple[bytes, dict[str, Any]]:
+    def _bake(
+        self, req: GIMapRequest, spec: SceneSpec, camera, light, key: MapKey, view: Viewpoint, t0: float
+    ) -> tuple[bytes, dict[str, Any]]:
         """Render, encode and insert the map for ``req`` (the render lock is held)."""
         lookup_ms = _ms(t0)
         renderer = self._renderer(req.scene, spec, req.resolution)
         c = req.camera
         index = zlib.crc32(json.dumps([c.eye, c.target, c.up, c.fov, light]).encode())
-        baked = bake_map(renderer, camera, light, req.spp, frame_seed(self.settings.seed, f"server/{req.scene}", index), req.di)
+        baked = bake_map(
+            renderer, camera, light, req.spp, frame_seed(self.settings.seed, f"server/{req.scene}", index), req.di
+        )
         t1 = time.perf_counter()
         payload = encode_map(baked, req.scene, req.codec, req.spp, light if spec.light.moves else None)
         encode_ms = _ms(t1)
         self.store.insert(key, view, payload)
         with self._lock:
             self.counters["misses"] += 1
-        timings = {"lookup": lookup_ms, "render": baked.render_ms, "denoise": baked.denoise_ms, "encode": encode_ms, "total": _ms(t0)}
+        timings = {
+            "lookup": lookup_ms,
+            "render": baked.render_ms,
+            "denoise": baked.denoise_ms,
+            "encode": encode_ms,
+            "total": _ms(t0),
+        }
         extra = {"hit": False, "distance": {"position": 0.0, "angle_deg": 0.0}, "timings_ms": timings}
         return with_header(payload, extra), extra

@@ -19,10 +19,18 @@ class Settings(BaseSettings):
 
     store: Path = Field(Path("gi_store"), description="GI-tree folder (created if missing)")
     scenes_dir: Path | None = Field(None, description="extra scene specs (*.toml, *.json) served by file stem")
-    budget_bytes: int | None = Field(None, gt=0, description="payload byte budget of the GI tree (LRU eviction); None: unbounded")
-    tolerance_position: float = Field(Tolerance.position, ge=0.0, description="Δp: largest eye distance a stored map serves, scene units")
-    tolerance_angle_deg: float = Field(Tolerance.angle_deg, ge=0.0, le=180.0, description="Δθ: largest view angle a stored map serves, degrees")
-    light_cell: float = Field(DEFAULT_LIGHT_CELL, gt=0.0, description="side of a light cell (scene units) for scenes whose light moves")
+    budget_bytes: int | None = Field(
+        None, gt=0, description="payload byte budget of the GI tree (LRU eviction); None: unbounded"
+    )
+    tolerance_position: float = Field(
+        Tolerance.position, ge=0.0, description="Δp: largest eye distance a stored map serves, scene units"
+    )
+    tolerance_angle_deg: float = Field(
+        Tolerance.angle_deg, ge=0.0, le=180.0, description="Δθ: largest view angle a stored map serves, degrees"
+    )
+    light_cell: float = Field(
+        DEFAULT_LIGHT_CELL, gt=0.0, description="side of a light cell (scene units) for scenes whose light moves"
+    )
     resolutions: tuple[int, ...] = Field((64, 128, 256, 512), min_length=1, description="square map resolutions served")
     max_spp: int = Field(256, ge=1, le=4096, description="largest spp a request may ask for")
     max_body_bytes: int = Field(4096, ge=256, description="largest accepted request body")

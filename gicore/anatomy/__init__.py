@@ -21,7 +21,9 @@ from gicore.mesh import Mesh
 AnatomyKind = Literal["lung", "digestive", "vessels"]
 ANATOMY_KINDS: tuple[str, ...] = get_args(AnatomyKind)
 
-_BUILDERS: dict[str, Callable[[int, float], Mesh]] = dict(zip(ANATOMY_KINDS, (build_lungs, build_digestive, build_vessels), strict=True))
+_BUILDERS: dict[str, Callable[[int, float], Mesh]] = dict(
+    zip(ANATOMY_KINDS, (build_lungs, build_digestive, build_vessels), strict=True)
+)
 
 
 def generate_anatomy(kind: str, seed: int = 0, detail: float = 1.0) -> Mesh:

@@ -175,7 +175,9 @@ class Volume:
         return Mesh(verts, faces)
 
 
-def _segment_distance(x: np.ndarray, y: np.ndarray, z: np.ndarray, a: np.ndarray, b: np.ndarray, ra: float, rb: float) -> np.ndarray:
+def _segment_distance(
+    x: np.ndarray, y: np.ndarray, z: np.ndarray, a: np.ndarray, b: np.ndarray, ra: float, rb: float
+) -> np.ndarray:
     """Distance to a capsule from a to b whose radius goes linearly from ra to rb."""
     ba = b - a
     px, py, pz = x - a[0], y - a[1], z - a[2]

@@ -68,7 +68,14 @@ def build_vessels(seed: int, detail: float) -> Mesh:
     for fraction, radius, direction in ARCH_BRANCHES:
         origin = aorta[int(round(fraction * (len(aorta) - 1)))]
         _grow(
-            rng, branches, origin, np.asarray(direction, float), radius, ARCH_GENERATIONS, bias=np.array((0.0, 0.6, 0.0)), roll=rng.uniform(0, np.pi)
+            rng,
+            branches,
+            origin,
+            np.asarray(direction, float),
+            radius,
+            ARCH_GENERATIONS,
+            bias=np.array((0.0, 0.6, 0.0)),
+            roll=rng.uniform(0, np.pi),
         )
     # The aortic bifurcation is the first Murray split of the lower tree.
     _split(

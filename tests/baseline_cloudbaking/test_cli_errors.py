@@ -57,14 +57,20 @@ def test_prebake_refuses_a_store_baked_from_another_spec(scenes_dir: Path, tmp_p
     ok = prebake(str(spec), "--store", str(store), "--frames", "1", "--resolution", "16", "--spp", "1")
     assert ok.returncode == 0, ok.stderr
     spec.write_text(json.dumps(data | {"environment": "cornell_box"}))
-    assert_error_line(prebake(str(spec), "--store", str(store), "--frames", "1", "--resolution", "16", "--spp", "1"), "'ball'", "another spec")
+    assert_error_line(
+        prebake(str(spec), "--store", str(store), "--frames", "1", "--resolution", "16", "--spp", "1"),
+        "'ball'",
+        "another spec",
+    )
 
 
 def test_server_bad_store_scenes_and_port(scenes_dir: Path, tmp_path: Path) -> None:
     afile = tmp_path / "afile"
     afile.write_text("x")
     assert_error_line(server("--store", str(afile), "--port", "0"), "--store", str(afile))
-    assert_error_line(server("--store", str(tmp_path / "s"), "--port", "0", "--scenes", str(tmp_path / "missing")), "--scenes")
+    assert_error_line(
+        server("--store", str(tmp_path / "s"), "--port", "0", "--scenes", str(tmp_path / "missing")), "--scenes"
+    )
     assert_error_line(server("--store", str(tmp_path / "s"), "--port", "70000"), "--port")
     assert_error_line(server("--port", "0"), "--store")
     with socket.socket() as taken:

@@ -38,7 +38,9 @@ def closed_port() -> int:
 
 def test_unreachable_or_malformed_server_url(scenes_dir: Path, tmp_path: Path) -> None:
     scene = str(scenes_dir / "ball_moving.json")
-    assert_error_line(client(f"http://127.0.0.1:{closed_port()}", tmp_path / "o", scene=scene), "--server", "cannot connect")
+    assert_error_line(
+        client(f"http://127.0.0.1:{closed_port()}", tmp_path / "o", scene=scene), "--server", "cannot connect"
+    )
     assert_error_line(client("ftp://127.0.0.1:21", tmp_path / "o", scene=scene), "--server", "ftp://")
     assert not (tmp_path / "o").exists()
 
@@ -47,12 +49,16 @@ def test_a_dead_link_is_one_line_at_start(server: str, scenes_dir: Path, tmp_pat
     with network_sim("proxy", "--upstream", server.removeprefix("http://"), "--rate-mbit", "0") as proxy:
         url = "http://{}:{}".format(*proxy.addr)
         args = ("--connect-timeout", "1", "--read-timeout", "1")
-        assert_error_line(client(url, tmp_path / "o", *args, scene=str(scenes_dir / "ball_moving.json")), "--server", "no answer")
+        assert_error_line(
+            client(url, tmp_path / "o", *args, scene=str(scenes_dir / "ball_moving.json")), "--server", "no answer"
+        )
 
 
 def test_what_the_server_does_not_serve(server: str, scenes_dir: Path, tmp_path: Path) -> None:
     unknown = tmp_path / "not_on_server.json"
-    unknown.write_text(json.dumps(json.loads((scenes_dir / "ball_static.json").read_text()) | {"name": "not_on_server"}))
+    unknown.write_text(
+        json.dumps(json.loads((scenes_dir / "ball_static.json").read_text()) | {"name": "not_on_server"})
+    )
     (tmp_path / "sphere.obj").write_bytes((scenes_dir / "sphere.obj").read_bytes())
     scene = str(scenes_dir / "ball_moving.json")
     assert_error_line(client(server, tmp_path / "o", scene=str(unknown)), "--scene", "not_on_server")

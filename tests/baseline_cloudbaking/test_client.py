@@ -24,7 +24,18 @@ from tests.helpers.cloud import BIN, RES, SPP, passthrough_model, server_process
 #: pixel-level warp's (``raster`` is its surface-mask pass), the composition.
 CLOUD_FRAME_STAGES = ("di", "request", "lookup", "render", "denoise", "encode", "server_other", "transfer", "decode")
 CLOUD_FRAME_STAGES += ("bind", "raster", "project", "splat", "fill", "compose")
-GIGAN_FRAME_STAGES = ("di", "gi_render", "inference", "bind", "raster", "project", "depth_test", "lookup", "fill", "compose")
+GIGAN_FRAME_STAGES = (
+    "di",
+    "gi_render",
+    "inference",
+    "bind",
+    "raster",
+    "project",
+    "depth_test",
+    "lookup",
+    "fill",
+    "compose",
+)
 
 
 def read_csv(path: Path) -> list[dict[str, str]]:
@@ -64,14 +75,21 @@ def test_remote_source_splits_a_miss_and_a_hit_into_stages(server: str, scenes_d
         miss, hit = source.records
         gi = source.latest()
     assert (miss["status"], miss["hit"], hit["status"], hit["hit"]) == ("ok", 0, "ok", 1)
-    assert all(miss[f"{s}_ms"] > 0 for s in ("render", "denoise", "encode", "request", "decode")) and miss["read_ms"] == ""
+    assert (
+        all(miss[f"{s}_ms"] > 0 for s in ("render", "denoise", "encode", "request", "decode")) and miss["read_ms"] == ""
+    )
     assert hit["read_ms"] > 0 and hit["render_ms"] == "" and hit["server_ms"] < miss["server_ms"]
     for record in (miss, hit):  # the stages add up to the request's latency; transmission is its network share
         stages = sum(record[f"{s}_ms"] for s in STAGES if record[f"{s}_ms"] != "")
         assert abs(stages - record["latency_ms"]) < 1.0, record
         assert record["transmission_ms"] == pytest.approx(record["request_ms"] + record["transfer_ms"])
         assert 200 < record["bytes_up"] < 1000 and record["bytes_down"] > 2 * 1024
-    assert gi.frame == 2 and gi.camera == camera.with_fov(71.0) and gi.radiance.shape == (RES, RES, 3) and (gi.depth > 0).mean() > 0.3
+    assert (
+        gi.frame == 2
+        and gi.camera == camera.with_fov(71.0)
+        and gi.radiance.shape == (RES, RES, 3)
+        and (gi.depth > 0).mean() > 0.3
+    )
     assert sum(gi.stages.values()) == pytest.approx(gi.latency_ms, abs=1.0)
 
 
@@ -80,7 +98,21 @@ def test_both_clients_end_to_end_through_a_proxy(server: str, scenes_dir: Path, 
     """Server + proxy (15 ms each way) + cloudbaking-client, and gigan-client on the same path: every stage in
     every CSV; the request stage holds the proxy's round trip."""
     scene = str(scenes_dir / "ball_moving.json")
-    common = ["--scene", scene, "--frames", "8", "--resolution", str(RES), "-k", "2", "--spp", str(SPP), "--gt-every", "4", "--no-denoise"]
+    common = [
+        "--scene",
+        scene,
+        "--frames",
+        "8",
+        "--resolution",
+        str(RES),
+        "-k",
+        "2",
+        "--spp",
+        str(SPP),
+        "--gt-every",
+        "4",
+        "--no-denoise",
+    ]
     with network_sim("proxy", "--upstream", server.removeprefix("http://"), "--delay-ms", "15") as proxy:
         url = "http://{}:{}".format(*proxy.addr)
         cloud = subprocess.run([str(BIN / "cloudbaking-client"), "--server", url, *common, "--out", str(tmp_path / "cloud")],
@@ -97,7 +129,9 @@ def test_both_clients_end_to_end_through_a_proxy(server: str, scenes_dir: Path, 
         first = frames[0]  # binds the run's first map (a miss for the cloud client)
         assert first["gi_new"] == "1" and all(float(first[f"{s}_ms"]) > 0 for s in stages), (system, first)
         assert all(float(r["frame_ms"]) > 0 and float(r["valid_frac"]) > 0.5 for r in frames)
-        assert [bool(r["ssim"]) for r in frames] == [f % 4 == 0 for f in range(8)] and all(0.2 < float(r["ssim"]) <= 1 for r in frames if r["ssim"])
+        assert [bool(r["ssim"]) for r in frames] == [f % 4 == 0 for f in range(8)] and all(
+            0.2 < float(r["ssim"]) <= 1 for r in frames if r["ssim"]
+        )
         assert [bool(r["lf_error"]) for r in frames] == [f % 4 == 0 for f in range(8)]
         assert all(0 <= float(r["lf_error"]) <= 10 ** (-float(r["psnr"]) / 20) + 1e-9 for r in frames if r["lf_error"])
     requests = read_csv(tmp_path / "cloud" / "requests.csv")
@@ -105,7 +139,9 @@ def test_both_clients_end_to_end_through_a_proxy(server: str, scenes_dir: Path, 
     assert shown and all(r["status"] in ("ok", "abandoned") for r in requests)
     for r in shown:
         assert float(r["request_ms"]) >= 29.0, r  # the proxy's 2 x 15 ms round trip is in the request stage
-        parts = sum(float(r[f"{s}_ms"]) for s in STAGES if r[f"{s}_ms"]) + sum(float(r[c]) for c in ("bind_ms", "warp_ms", "blend_ms"))
+        parts = sum(float(r[f"{s}_ms"]) for s in STAGES if r[f"{s}_ms"]) + sum(
+            float(r[c]) for c in ("bind_ms", "warp_ms", "blend_ms")
+        )
         assert float(r["total_ms"]) == pytest.approx(parts)
     assert shown[0]["hit"] == "0" and float(shown[0]["render_ms"]) > 0
     summary = json.loads((tmp_path / "cloud" / "summary.json").read_text())
@@ -116,7 +152,15 @@ def test_both_clients_end_to_end_through_a_proxy(server: str, scenes_dir: Path, 
 def test_client_survives_the_server_shutting_down(scenes_dir: Path, tmp_path: Path) -> None:
     """kill -9 of the server once two maps were served: the client logs the failed requests and composes
     every remaining frame with its last map."""
-    argv = [str(BIN / "cloudbaking-server"), "--port", "0", "--store", str(tmp_path / "store"), "--scenes", str(scenes_dir)]
+    argv = [
+        str(BIN / "cloudbaking-server"),
+        "--port",
+        "0",
+        "--store",
+        str(tmp_path / "store"),
+        "--scenes",
+        str(scenes_dir),
+    ]
     with Running(argv, timeout=60.0) as srv:
         url = "{}:{}".format(*srv.addr)
         client = subprocess.Popen(
@@ -155,7 +199,9 @@ def test_a_dead_link_ends_in_a_timeout_never_a_hang(server: str, scenes_dir: Pat
         cfg = remote("http://{}:{}".format(*proxy.addr), read_timeout_s=0.5, deadline_s=2.0, retry_after_s=30.0)
         with caplog.at_level(logging.WARNING, logger="cloudbaking.client"), RemoteSource(cfg) as source:
             renderer = Renderer(spec, RES)
-            loop = ClientLoop(LoopConfig(every=1, gi_fov=90.0, first_map_timeout_s=1.5), renderer, source, PixelWarp(renderer))
+            loop = ClientLoop(
+                LoopConfig(every=1, gi_fov=90.0, first_map_timeout_s=1.5), renderer, source, PixelWarp(renderer)
+            )
             t0 = time.perf_counter()
             rows = [loop.step(f, cam.with_fov(60.0), light).row for f, (cam, light) in enumerate(path)]
             elapsed = time.perf_counter() - t0

@@ -18,7 +18,11 @@ def baked(make_spec) -> BakedMap:
     """A real map: sphere in a Cornell box (coloured indirect light), path traced + OIDN, with DI."""
     from gicore.render import Renderer
 
-    spec = make_spec(environment="cornell_box", light={"position": [0.0, 2.2, 0.3], "intensity": 8.0}, camera={"radius": 2.0, "height": 1.0})
+    spec = make_spec(
+        environment="cornell_box",
+        light={"position": [0.0, 2.2, 0.3], "intensity": 8.0},
+        camera={"radius": 2.0, "height": 1.0},
+    )
     camera = Camera((1.2, 1.1, 1.5), (0.0, 0.5, 0.0), fov=90.0, width=RES, height=RES)
     return bake_map(Renderer(spec, RES), camera, (0.0, 2.2, 0.3), spp=SPP, seed=3, di=True)
 
@@ -63,7 +67,9 @@ def test_eight_bit_codecs_saturate_instead_of_exploding() -> None:
     for name in ("jpeg", "webp", "avif", "png"):
         decoded = CODECS[name].decode(CODECS[name].encode(image))
         assert np.allclose(decoded, top, rtol=0.05), name  # ~230: the top 8-bit bin, not 4e4
-    assert CODECS["exr-half"].decode(CODECS["exr-half"].encode(image * 100)).max() == np.float16(65504)  # clipped, not inf
+    assert CODECS["exr-half"].decode(CODECS["exr-half"].encode(image * 100)).max() == np.float16(
+        65504
+    )  # clipped, not inf
 
 
 @pytest.mark.parametrize("name", CODEC_NAMES)
@@ -119,7 +125,12 @@ def test_depth_rounding_moves_reprojected_texels_by_under_a_tenth_of_a_pixel(bak
 
 
 def test_bad_depth_is_refused() -> None:
-    for bad in (np.full((4, 4), np.nan, np.float32), np.full((4, 4), -1.0, np.float32), np.zeros((4, 4)), np.zeros((4, 4, 1), np.float32)):
+    for bad in (
+        np.full((4, 4), np.nan, np.float32),
+        np.full((4, 4), -1.0, np.float32),
+        np.zeros((4, 4)),
+        np.zeros((4, 4, 1), np.float32),
+    ):
         with pytest.raises(ValueError, match="depth must"):
             DEPTH_CODEC.encode(bad)
     with pytest.raises(CodecError, match="header"):

@@ -72,7 +72,9 @@ def test_kill_9_mid_bake_then_reopen_and_resume(scenes_dir: Path, tmp_path: Path
     frames = 40
     total = expected_entries(spec, frames)
     assert total > 10
-    proc = subprocess.Popen(prebake_cmd(spec, store, frames), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    proc = subprocess.Popen(
+        prebake_cmd(spec, store, frames), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True
+    )
     deadline = time.monotonic() + 90
     while count_rows(store) < 4 and proc.poll() is None and time.monotonic() < deadline:
         time.sleep(0.01)
@@ -91,7 +93,9 @@ def test_kill_9_mid_bake_then_reopen_and_resume(scenes_dir: Path, tmp_path: Path
 def test_ctrl_c_in_a_worker_pool_leaves_a_resumable_store(scenes_dir: Path, tmp_path: Path) -> None:
     spec, store = scenes_dir / "ball_moving.json", tmp_path / "store"
     frames = 30
-    proc = subprocess.Popen(prebake_cmd(spec, store, frames, "--workers", "2"), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        prebake_cmd(spec, store, frames, "--workers", "2"), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
     deadline = time.monotonic() + 120
     while count_rows(store) < 3 and proc.poll() is None and time.monotonic() < deadline:
         time.sleep(0.02)
@@ -100,6 +104,8 @@ def test_ctrl_c_in_a_worker_pool_leaves_a_resumable_store(scenes_dir: Path, tmp_
     assert proc.returncode == 130, err
     assert "interrupted: rerun the same command" in err and "Traceback" not in err
     partial = check_store(store)
-    resumed = subprocess.run(prebake_cmd(spec, store, frames, "--workers", "2"), check=False, capture_output=True, text=True, timeout=240)
+    resumed = subprocess.run(
+        prebake_cmd(spec, store, frames, "--workers", "2"), check=False, capture_output=True, text=True, timeout=240
+    )
     assert resumed.returncode == 0, resumed.stderr
     assert check_store(store) == expected_entries(spec, frames) > partial

@@ -57,7 +57,11 @@ def test_miss_renders_and_stores_then_the_same_request_hits(client: httpx.Client
     assert hit.status_code == 200 and hit.headers["x-gimap-hit"] == "1"
     second = decode_payload(hit.content)
     assert second.hit is True and set(second.timings_ms) == {"lookup", "read", "total"}
-    assert np.array_equal(second.gi, first.gi) and np.array_equal(second.di, first.di) and np.array_equal(second.depth, first.depth)
+    assert (
+        np.array_equal(second.gi, first.gi)
+        and np.array_equal(second.di, first.di)
+        and np.array_equal(second.depth, first.depth)
+    )
     assert second.camera == first.camera and np.allclose(second.view, first.camera.view())
     # nearby (within the default Δp = 0.05) is served the stored map, with its own camera
     near = decode_payload(post(client, gimap_body(eye=(1.52, 1.2, 1.3), light=[0.1, 2.2, 0.3])).content)
@@ -110,8 +114,18 @@ def test_health_scenes_and_openapi(client: httpx.Client) -> None:
 BAD_REQUESTS = [
     # (what, body, status, field in detail[].loc)
     ("NaN eye", '{"scene": "ball_moving", "camera": {"eye": [NaN, 1, 1], "target": [0, 0.5, 0]}}', 422, "eye"),
-    ("infinite target", '{"scene": "ball_moving", "camera": {"eye": [1, 1, 1], "target": [1e999, 0.5, 0]}}', 422, "target"),
-    ("Infinity light", '{"scene": "ball_moving", "camera": {"eye": [1, 1, 1], "target": [0, 0.5, 0]}, "light": [Infinity, 2, 0]}', 422, "light"),
+    (
+        "infinite target",
+        '{"scene": "ball_moving", "camera": {"eye": [1, 1, 1], "target": [1e999, 0.5, 0]}}',
+        422,
+        "target",
+    ),
+    (
+        "Infinity light",
+        '{"scene": "ball_moving", "camera": {"eye": [1, 1, 1], "target": [0, 0.5, 0]}, "light": [Infinity, 2, 0]}',
+        422,
+        "light",
+    ),
     ("unknown scene", gimap_body("no_such_scene"), 422, "scene"),
     ("path traversal", gimap_body("../../etc/passwd"), 422, "scene"),
     ("traversal, encoded", gimap_body("..%2F..%2Fetc"), 422, "scene"),
@@ -144,7 +158,9 @@ def test_bad_requests_are_4xx_naming_the_field(client: httpx.Client, what: str, 
 def test_wrong_method_and_path_are_4xx(client: httpx.Client) -> None:
     assert client.get("/v1/gimap").status_code == 405
     assert client.get("/v1/scenes/../../etc/passwd").status_code == 404
-    assert client.post("/v1/gimap", content=b"\xff\xfe", headers={"content-type": "application/json"}).status_code == 422
+    assert (
+        client.post("/v1/gimap", content=b"\xff\xfe", headers={"content-type": "application/json"}).status_code == 422
+    )
 
 
 def test_concurrent_misses_across_scenes_and_resolutions(client: httpx.Client) -> None:
@@ -153,7 +169,9 @@ def test_concurrent_misses_across_scenes_and_resolutions(client: httpx.Client) -
     scenes = ("ball_moving", "ball_static", "lung_plane")
 
     def miss(k: int) -> tuple[int, bool | str]:
-        body = gimap_body(scenes[k % 3], eye=(-1.0 - 0.25 * k, 1.2, 1.5), resolution=(64, 128)[k // 3 % 2], di=bool(k % 2))
+        body = gimap_body(
+            scenes[k % 3], eye=(-1.0 - 0.25 * k, 1.2, 1.5), resolution=(64, 128)[k // 3 % 2], di=bool(k % 2)
+        )
         r = post(client, body)
         return r.status_code, decode_payload(r.content).hit if r.status_code == 200 else r.text
 
@@ -191,7 +209,9 @@ def app_client(tmp_path_factory: pytest.TempPathFactory, scenes_dir: Path):
     from baseline_cloudbaking.server.app import create_app
     from baseline_cloudbaking.server.settings import Settings
 
-    settings = Settings(store=tmp_path_factory.mktemp("prop_store"), scenes_dir=scenes_dir, resolutions=(32, 64), max_spp=2)
+    settings = Settings(
+        store=tmp_path_factory.mktemp("prop_store"), scenes_dir=scenes_dir, resolutions=(32, 64), max_spp=2
+    )
     with TestClient(create_app(settings)) as c:
         yield c
 
@@ -203,7 +223,12 @@ _number = st.one_of(
     st.just("1.0"),
     st.none(),
 )
-_junk = st.one_of(_number, st.lists(_number, max_size=4), st.text(max_size=8), st.dictionaries(st.text(max_size=3), _number, max_size=2))
+_junk = st.one_of(
+    _number,
+    st.lists(_number, max_size=4),
+    st.text(max_size=8),
+    st.dictionaries(st.text(max_size=3), _number, max_size=2),
+)
 _point = st.tuples(*[st.floats(-3.0, 3.0)] * 3)
 _valid = st.fixed_dictionaries(
     {
@@ -223,7 +248,13 @@ def _spoil(body: dict) -> st.SearchStrategy:
         lambda field: (
             st.just(body)
             if field is None
-            else _junk.map(lambda junk: body | {"camera": body["camera"] | {field[1]: junk}} if isinstance(field, tuple) else body | {field: junk})
+            else _junk.map(
+                lambda junk: (
+                    body | {"camera": body["camera"] | {field[1]: junk}}
+                    if isinstance(field, tuple)
+                    else body | {field: junk}
+                )
+            )
         )
     )
 
@@ -231,7 +262,9 @@ def _spoil(body: dict) -> st.SearchStrategy:
 _request = st.one_of(_valid, _valid.flatmap(_spoil), st.lists(st.integers(), max_size=2), st.text(max_size=20))
 
 
-@settings(max_examples=120, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+@settings(
+    max_examples=120, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow]
+)
 @given(body=_request)
 def test_no_request_gets_a_5xx(app_client, body) -> None:
     content = body if isinstance(body, str) else json.dumps(body)  # json.dumps writes NaN/Infinity literals

@@ -168,7 +168,9 @@ def test_simulated_fill_matches_the_store(tmp_path: Path) -> None:
     """Planning a path's entries without a store (bench storage) agrees with really filling one."""
     rng = np.random.default_rng(5)
     angles = np.cumsum(rng.uniform(0.0, 0.08, 200))
-    views = [Viewpoint.look_at((2 * np.sin(a), 1.0 + 0.1 * np.sin(3 * a), 2 * np.cos(a)), (0.0, 0.5, 0.0)) for a in angles]
+    views = [
+        Viewpoint.look_at((2 * np.sin(a), 1.0 + 0.1 * np.sin(3 * a), 2 * np.cos(a)), (0.0, 0.5, 0.0)) for a in angles
+    ]
     cells = [light_cell((np.sin(i / 15), 2.5, 0.0), 0.25) for i in range(len(views))]
     served = simulate_fill(views, cells, TOL)
     with GITree(tmp_path / "fill", tolerance=TOL) as tree:

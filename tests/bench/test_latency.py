@@ -28,40 +28,76 @@ def test_bench_latency_end_to_end(tmp_path: Path) -> None:
 
     def stats(system: str, **config) -> set[str]:
         return {
-            r["metric"] for r in rows if r["system"] == system and r["stat"] == "median" and all(r["config"].get(k) == v for k, v in config.items())
+            r["metric"]
+            for r in rows
+            if r["system"] == system
+            and r["stat"] == "median"
+            and all(r["config"].get(k) == v for k, v in config.items())
         }
 
     assert stats("gigan", profile="none") >= {"gi_render", "inference", "warp", "blend", "total", "di"}
-    common = {"transmission", "request", "transfer", "lookup", "server_other", "decode", "warp", "blend", "total", "pickup"}
+    common = {
+        "transmission",
+        "request",
+        "transfer",
+        "lookup",
+        "server_other",
+        "decode",
+        "warp",
+        "blend",
+        "total",
+        "pickup",
+    }
     assert stats("cloud_baking", profile="rtt60", cache="hit") >= common | {"read"}
     assert stats("cloud_baking", profile="rtt60", cache="miss") >= common | {"render", "denoise", "encode"}
 
     def value(metric: str, stat: str = "median", system: str = "cloud_baking", **config) -> float:
-        [v] = [r["value"] for r in rows if (r["system"], r["metric"], r["stat"]) == (system, metric, stat) and r["config"].items() >= config.items()]
+        [v] = [
+            r["value"]
+            for r in rows
+            if (r["system"], r["metric"], r["stat"]) == (system, metric, stat) and r["config"].items() >= config.items()
+        ]
         return v
 
     for cache in ("hit", "miss"):  # the profile's 60 ms round trip is in every request's transmission
         assert value("transmission", "median", profile="rtt60", cache=cache) >= 59.0
         ratio = value("total_ratio", system="cloud_baking/gigan", profile="rtt60", cache=cache)
-        assert ratio == pytest.approx(value("total", profile="rtt60", cache=cache) / value("total", system="gigan", profile="none"))
+        assert ratio == pytest.approx(
+            value("total", profile="rtt60", cache=cache) / value("total", system="gigan", profile="none")
+        )
         assert value("crossover_rtt", "model", system="cloud_baking/gigan", cache=cache) >= 0
     assert value("total", profile="rtt60", cache="miss") > value("total", profile="rtt60", cache="hit")
     # the prebaked store answered every request of its run; the cold one missed its first (later ones hit
     # only where this run had baked a map within the tolerance already)
     prebaked, cold = (
-        [r for r in _csv(out / "latency_runs" / f"cloud_rtt60_{s}" / "requests.csv") if r["status"] == "ok"] for s in ("prebaked", "cold")
+        [r for r in _csv(out / "latency_runs" / f"cloud_rtt60_{s}" / "requests.csv") if r["status"] == "ok"]
+        for s in ("prebaked", "cold")
     )
     assert prebaked and {r["hit"] for r in prebaked} == {"1"} and cold[0]["hit"] == "0"
     assert value("failed_requests", "value", profile="rtt60", store="cold") == 0
     ssim = [r for r in rows if r["metric"] == "ssim" and r["stat"] == "frame"]
-    assert {(r["system"], r["config"]["store"]) for r in ssim} == {("gigan", "none"), ("cloud_baking", "prebaked"), ("cloud_baking", "cold")}
+    assert {(r["system"], r["config"]["store"]) for r in ssim} == {
+        ("gigan", "none"),
+        ("cloud_baking", "prebaked"),
+        ("cloud_baking", "cold"),
+    }
     assert {r["config"]["frame"] for r in ssim} == {0, 4, 8} and all(0 < r["value"] <= 1 for r in ssim)
 
     provenance = json.loads((out / "latency.provenance.json").read_text())
     assert provenance["settings"]["pinning"]["method"] in ("taskset -c", "none")
     table = (out / "latency_table.md").read_text()
-    assert "### profile `rtt60` (RTT 60 ms)" in table and "**total (interaction latency)**" in table and "crossover" in table
-    assert {p.name for p in files} >= {"latency.csv", "latency_table.md", "latency_stages.png", "latency_ratio_rtt.png", "latency_ssim.png"}
+    assert (
+        "### profile `rtt60` (RTT 60 ms)" in table
+        and "**total (interaction latency)**" in table
+        and "crossover" in table
+    )
+    assert {p.name for p in files} >= {
+        "latency.csv",
+        "latency_table.md",
+        "latency_stages.png",
+        "latency_ratio_rtt.png",
+        "latency_ssim.png",
+    }
 
 
 def _csv(path: Path) -> list[dict[str, str]]:
@@ -101,7 +137,11 @@ def test_pinning_plan(monkeypatch: pytest.MonkeyPatch) -> None:
     assert (plan["proxy"], plan["server"], plan["client"]) == ([0], [1, 2, 3], [4, 5, 6, 7])
     assert pinning(False)["method"] == "none" and latency._prefix(pinning(False), "server") == []
     monkeypatch.setattr(latency.shutil, "which", lambda name: None)
-    assert pinning(True) == {"method": "none", "reason": "taskset (util-linux) is not installed", "cores": list(range(8))}
+    assert pinning(True) == {
+        "method": "none",
+        "reason": "taskset (util-linux) is not installed",
+        "cores": list(range(8)),
+    }
 
 
 def test_unknown_profile_is_a_user_error(tmp_path: Path) -> None:

@@ -74,12 +74,20 @@ def _frame_point(system: str, time: float, error: float, warp: str, gi_source: s
 def test_ablations_dominate_nothing_and_are_in_no_best_configuration() -> None:
     pts = [
         _frame_point(ABLATION, 5.0, 0.01, "structure-aware", "gt"),  # faster and better than both systems' points
-        _frame_point(ABLATION, 6.0, 0.02, "structure-aware", "gt", k=8),  # dominated by the ablation above, by no system
+        _frame_point(
+            ABLATION, 6.0, 0.02, "structure-aware", "gt", k=8
+        ),  # dominated by the ablation above, by no system
         _frame_point(ABLATION, 30.0, 0.50, "pixel-level", "model"),  # dominated by a system's point
         _frame_point(CLOUD, 10.0, 0.05, "pixel-level", "gt"),
         _frame_point(GIGAN, 8.0, 0.10, "structure-aware", "model"),
-        {**_point(CLOUD, 200.0, 0.01), "config": {"knob": "codec × quality × profile × cache", "cache": "miss", "codec": "png", "profile": "lan"}},
-        {**_point(CLOUD, 3.0, 0.01), "config": {"knob": "codec × quality × profile × cache", "cache": "hit", "codec": "png", "profile": "lan"}},
+        {
+            **_point(CLOUD, 200.0, 0.01),
+            "config": {"knob": "codec × quality × profile × cache", "cache": "miss", "codec": "png", "profile": "lan"},
+        },
+        {
+            **_point(CLOUD, 3.0, 0.01),
+            "config": {"knob": "codec × quality × profile × cache", "cache": "hit", "codec": "png", "profile": "lan"},
+        },
     ]
     mark_dominated(pts)
     assert [p["dominated"] for p in pts[:5]] == [False, True, True, False, False]
@@ -88,20 +96,37 @@ def test_ablations_dominate_nothing_and_are_in_no_best_configuration() -> None:
         p["label"] = p.get("label", p["config"]["knob"])
     table = best_table(pts)
     rows = [line for line in table.splitlines() if line.startswith("| frame |")]
-    assert len(rows) >= 2 and ABLATION not in table and "gt maps, structure-aware" not in table and "model maps, pixel" not in table
+    assert (
+        len(rows) >= 2
+        and ABLATION not in table
+        and "gt maps, structure-aware" not in table
+        and "model maps, pixel" not in table
+    )
     # a cloud frame at k=4 x 10 ms needs its map within 40 ms: a 3 ms store hit meets that, a 200 ms miss does not
     cloud = next(line for line in rows if f"| {CLOUD} |" in line)
-    assert "within k=4 frames = 40 ms" in cloud and "map hit 3 ms (png, lan): met" in cloud and "map miss 200 ms (png, lan): NOT met" in cloud
+    assert (
+        "within k=4 frames = 40 ms" in cloud
+        and "map hit 3 ms (png, lan): met" in cloud
+        and "map miss 200 ms (png, lan): NOT met" in cloud
+    )
 
 
 def test_points_read_back_from_the_csv_with_their_flags_and_budgets() -> None:
     rows = read_rows(FIXTURES / "pareto" / "pareto.csv")
     points = front_points(rows)
-    assert {p["system"] for p in points} == {GIGAN, CLOUD, ABLATION} and {p["per"] for p in points} == {PER_MAP, PER_FRAME}
+    assert {p["system"] for p in points} == {GIGAN, CLOUD, ABLATION} and {p["per"] for p in points} == {
+        PER_MAP,
+        PER_FRAME,
+    }
     assert len(points) == len(rows) // 4  # run_time, error and the two dominated flags per point
     frames = [p for p in points if p["per"] == PER_FRAME]
-    assert {p["system"] for p in points if p["per"] == PER_MAP} == {GIGAN, CLOUD}  # ablations are per-frame pairings only
-    assert all(p["system"] == frame_system(p["config"]["gi_source"], p["config"]["warp"]) for p in frames)  # labelled as bench pareto labels
+    assert {p["system"] for p in points if p["per"] == PER_MAP} == {
+        GIGAN,
+        CLOUD,
+    }  # ablations are per-frame pairings only
+    assert all(
+        p["system"] == frame_system(p["config"]["gi_source"], p["config"]["warp"]) for p in frames
+    )  # labelled as bench pareto labels
     assert {(p["config"]["gi_source"], p["config"]["warp"]) for p in frames if p["system"] == ABLATION} == {
         ("model", "pixel-level"),
         ("gt", "structure-aware"),
@@ -110,7 +135,9 @@ def test_points_read_back_from_the_csv_with_their_flags_and_budgets() -> None:
         here = [p for p in points if p["per"] == unit and p["system"] != ABLATION]
         fronts = [p for p in here if not p["dominated_combined"]]
         assert fronts and any(p["dominated_combined"] for p in here)
-        for p in fronts:  # nothing on the front is beaten by another system point of its unit (an ablation dominates nothing)
+        for p in (
+            fronts
+        ):  # nothing on the front is beaten by another system point of its unit (an ablation dominates nothing)
             assert not any(q["time"] <= p["time"] and q["error"] < p["error"] for q in here)
         best = best_within(here, budgets([p["time"] for p in here])[-1])
         assert best is not None and best["error"] == min(p["error"] for p in here)
@@ -150,7 +177,9 @@ def test_bad_options_are_user_errors_naming_them(given: dict, message: str) -> N
 
 def test_bad_option_on_the_command_line_is_one_error_line(tmp_path: Path) -> None:
     proc = subprocess.run(
-        [str(BIN / "bench"), "pareto", "--quick", "--from-dir", str(tmp_path / "nope"), "--out", str(tmp_path)], capture_output=True, text=True
+        [str(BIN / "bench"), "pareto", "--quick", "--from-dir", str(tmp_path / "nope"), "--out", str(tmp_path)],
+        capture_output=True,
+        text=True,
     )
     errors = [line for line in proc.stderr.splitlines() if line.startswith("error:")]
     assert proc.returncode == 2 and len(errors) == 1 and "--from-dir" in errors[0] and "Traceback" not in proc.stderr

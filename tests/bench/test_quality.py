@@ -32,7 +32,9 @@ def write_dataset(root: Path) -> None:
     records = []
     y, x = np.mgrid[0:RES, 0:RES] / RES
     for i in range(N_FRAMES):
-        di_tm = np.clip(0.2 + 0.4 * x + 0.1 * y + 0.2 * ((x > 0.5) & (y > 0.5)), 0.0, 0.9)[..., None] * np.array([1.0, 0.9, 0.8])
+        di_tm = np.clip(0.2 + 0.4 * x + 0.1 * y + 0.2 * ((x > 0.5) & (y > 0.5)), 0.0, 0.9)[..., None] * np.array(
+            [1.0, 0.9, 0.8]
+        )
         di_tm = di_tm + rng.uniform(0.0, 0.02, di_tm.shape)
         frame = {
             "di": inverse_tonemap(di_tm),
@@ -44,7 +46,12 @@ def write_dataset(root: Path) -> None:
         save_frame(root / "val" / f"{i:06d}.npz", frame)
         eye = np.eye(4).tolist()
         records.append(FrameRecord(split="val", index=i, camera={}, view=eye, proj=eye))
-    write_meta(root, DatasetMeta(scene={"name": "synthetic"}, resolution=RES, spp=1, denoise=False, seed=0, buffers=buffers, frames=records))
+    write_meta(
+        root,
+        DatasetMeta(
+            scene={"name": "synthetic"}, resolution=RES, spp=1, denoise=False, seed=0, buffers=buffers, frames=records
+        ),
+    )
 
 
 @pytest.fixture(scope="module")
@@ -53,7 +60,9 @@ def scored(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
     tmp = tmp_path_factory.mktemp("quality_lf")
     write_dataset(tmp / "data" / "synthetic")
     model = passthrough_model(tmp / "model", RES)
-    cfg = quality.QualityConfig(datasets=tmp / "data", scenes=("synthetic",), models={"copy": model}, timing_repeats=1, grid_frames=1)
+    cfg = quality.QualityConfig(
+        datasets=tmp / "data", scenes=("synthetic",), models={"copy": model}, timing_repeats=1, grid_frames=1
+    )
     execute(quality.BENCH, cfg, tmp / "out")
     return tmp / "out", tmp / "data" / "synthetic"
 
@@ -71,7 +80,9 @@ def test_quality_rows_carry_the_low_frequency_error(scored: tuple[Path, Path]) -
     assert lf["copy"]["value"] == pytest.approx(expected, abs=1e-4)  # the pass-through returns the DI
     # Every metric the table had before is still there, beside the new ones, for both systems.
     assert {(r["system"], r["metric"]) for r in rows if r["stat"] == "mean"} == {
-        (s, m) for s in ("di_only", "copy") for m in ("rmse", "ssim", "psnr", "lf_error", "checker_error", "shadow_tint")
+        (s, m)
+        for s in ("di_only", "copy")
+        for m in ("rmse", "ssim", "psnr", "lf_error", "checker_error", "shadow_tint")
     }
     # A uniform offset is neither a checkerboard nor (grey) a tint.
     for metric in ("checker_error", "shadow_tint"):
@@ -115,7 +126,14 @@ def test_model_card_and_report_show_the_low_frequency_error(scored: tuple[Path, 
     run, export = tmp_path / "run", tmp_path / "export"
     run.mkdir()
     export.mkdir()
-    train = {"datasets": ["data/synthetic"], "model": "gigan", "lambda_L1": 100, "lambda_gp": 10, "n_critic": 5, "lr": 2e-4}
+    train = {
+        "datasets": ["data/synthetic"],
+        "model": "gigan",
+        "lambda_L1": 100,
+        "lambda_gp": 10,
+        "n_critic": 5,
+        "lr": 2e-4,
+    }
     train |= {"beta1": 0.5, "beta2": 0.999, "batch_size": 8, "crop": 64, "seed": 0, "max_val_frames": 2}
     (run / "config.json").write_text(json.dumps({"train": train}))
     with (run / "metrics.csv").open("w", newline="") as fh:
@@ -136,7 +154,10 @@ def test_model_card_and_report_show_the_low_frequency_error(scored: tuple[Path, 
     assert (row[4], row[6]) == (f"{lf['copy']:.4f}", f"{lf['di_only']:.4f}")
     assert "LF error 0.0123." in card
     res_rows = {(r["system"], r["metric"]): r for r in res.rows}
-    assert res_rows["export", "lf_error"]["value"] == pytest.approx(lf["copy"]) and res_rows["export", "val_lf_error"]["unit"] == "1"
+    assert (
+        res_rows["export", "lf_error"]["value"] == pytest.approx(lf["copy"])
+        and res_rows["export", "val_lf_error"]["unit"] == "1"
+    )
 
     from bench.report import quality_section
 

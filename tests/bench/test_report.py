@@ -31,7 +31,12 @@ SECTIONS = ("table1", "table2", "table3", "fig6", "fig7", "fig9", "pareto", "sta
 
 def build(results: Path, out: Path) -> tuple[Path, dict[str, dict]]:
     """Run ``bench report`` as a process; the HTML and each section's row of report.csv."""
-    proc = subprocess.run([str(BIN / "bench"), "report", "--results", str(results), "--out", str(out)], capture_output=True, text=True, timeout=120)
+    proc = subprocess.run(
+        [str(BIN / "bench"), "report", "--results", str(results), "--out", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert proc.returncode == 0, proc.stderr[-2000:]
     return out / "report.html", {r["config"]["section"]: r for r in read_rows(out / "report.csv")}
 
@@ -71,7 +76,9 @@ def test_every_section_renders_from_the_fixture_csvs(complete) -> None:
         assert row["stat"] == "ok" and row["value"] > 0, (key, row["config"]["problem"])
     text = html.read_text()
     # self-contained: no external script, style sheet, image or font
-    assert not re.search(r"""(src|href)\s*=\s*["']?(https?:)?//""", text) and "<link" not in text and "@import" not in text
+    assert (
+        not re.search(r"""(src|href)\s*=\s*["']?(https?:)?//""", text) and "<link" not in text and "@import" not in text
+    )
     for command in ("bench latency", "bench storage", "bench pareto --quick", "bench stability --quick"):
         assert command in text  # each section's provenance names the command that made its CSV
     assert text.count('class="prov"') == len(SECTIONS)
@@ -81,7 +88,9 @@ def test_missing_and_malformed_csvs_are_named_and_the_rest_renders(broken) -> No
     html, sections = broken
     assert sections["pareto"]["stat"] == "missing" and "no pareto.csv" in sections["pareto"]["config"]["problem"]
     fig7 = sections["fig7"]
-    assert fig7["stat"] == "malformed" and fig7["config"]["problem"].startswith("malformed: warp/warp.csv: a row does not parse")
+    assert fig7["stat"] == "malformed" and fig7["config"]["problem"].startswith(
+        "malformed: warp/warp.csv: a row does not parse"
+    )
     assert all(sections[k]["stat"] == "ok" for k in SECTIONS if k not in ("pareto", "fig7"))
     text = html.read_text()
     assert "missing: no pareto.csv under" in text and "malformed: warp/warp.csv" in text
@@ -95,11 +104,18 @@ def test_a_csv_of_another_shape_is_malformed_not_a_crash(tmp_path: Path) -> None
     (results / "fov" / "fov.csv").write_text("a,b\n1,2\n")
     _, sections = build(results, tmp_path / "out")
     assert sections["fig6"]["stat"] == "malformed" and "no rmse, psnr rows" in sections["fig6"]["config"]["problem"]
-    assert sections["fig9"]["stat"] == "malformed" and "its columns are ['a', 'b']" in sections["fig9"]["config"]["problem"]
+    assert (
+        sections["fig9"]["stat"] == "malformed"
+        and "its columns are ['a', 'b']" in sections["fig9"]["config"]["problem"]
+    )
 
 
 def test_a_missing_results_folder_is_one_error_line(tmp_path: Path) -> None:
-    proc = subprocess.run([str(BIN / "bench"), "report", "--results", str(tmp_path / "nope"), "--out", str(tmp_path)], capture_output=True, text=True)
+    proc = subprocess.run(
+        [str(BIN / "bench"), "report", "--results", str(tmp_path / "nope"), "--out", str(tmp_path)],
+        capture_output=True,
+        text=True,
+    )
     errors = [line for line in proc.stderr.splitlines() if line.startswith("error:")]
     assert proc.returncode == 2 and len(errors) == 1 and "--results" in errors[0] and "Traceback" not in proc.stderr
 
@@ -113,7 +129,14 @@ def browser():
             pytest.fail(reason)
         pytest.skip(reason)
     sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is missing: pip install -e '.[test]'")
-    args = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update", "--no-first-run"]
+    args = [
+        "--headless",
+        "--no-sandbox",
+        "--disable-gpu",
+        "--disable-background-networking",
+        "--disable-component-update",
+        "--no-first-run",
+    ]
     with sync_api.sync_playwright() as p:
         chromium = p.chromium.launch(executable_path=str(CHROMIUM), args=args)
         yield chromium
@@ -124,7 +147,9 @@ def open_page(browser, html: Path):
     """The report in a new page, with every console error and page error collected in ``page.errors``."""
     page = browser.new_page(viewport={"width": 1400, "height": 1000})
     errors: list[str] = []
-    page.on("console", lambda m: errors.append(f"console {m.type}: {m.text}") if m.type in ("error", "warning") else None)
+    page.on(
+        "console", lambda m: errors.append(f"console {m.type}: {m.text}") if m.type in ("error", "warning") else None
+    )
     page.on("pageerror", lambda e: errors.append(f"page error: {e}"))
     page.on("requestfailed", lambda r: errors.append(f"request failed: {r.url}"))
     page.errors = errors
@@ -141,7 +166,10 @@ def test_dashboard_in_chromium_every_section_has_data_and_a_pareto_point_shows_i
         assert section.locator("dl.prov dd").first.is_visible()
         drawn = section.locator("table tbody tr").count() + section.locator("svg .pt").count()
         assert drawn >= 3, (key, drawn)
-    assert page.locator("section#fig6 svg rect.pt").count() >= 4 and page.locator("section#table3 svg circle.pt").count() >= 6
+    assert (
+        page.locator("section#fig6 svg rect.pt").count() >= 4
+        and page.locator("section#table3 svg circle.pt").count() >= 6
+    )
     tip = page.locator("#tip")
     assert tip.is_hidden()
     point = page.locator("section#pareto svg circle.pt").first
@@ -175,7 +203,11 @@ def test_the_newest_of_several_runs_is_shown_and_the_older_named(tmp_path: Path)
         folder = results / name
         shutil.copytree(FIXTURES / "warp", folder)
         provenance = folder / "warp.provenance.json"
-        provenance.write_text(provenance.read_text().replace('"finished_unix":', f'"finished_unix": {finished}, "was":', 1))
+        provenance.write_text(
+            provenance.read_text().replace('"finished_unix":', f'"finished_unix": {finished}, "was":', 1)
+        )
     html, sections = build(results, tmp_path / "out")
-    assert sections["fig7"]["config"]["file"] == "new/warp.csv" and sections["fig7"]["config"]["older_runs"] == ["old/warp.csv"]
+    assert sections["fig7"]["config"]["file"] == "new/warp.csv" and sections["fig7"]["config"]["older_runs"] == [
+        "old/warp.csv"
+    ]
     assert "Newest of 2 runs; older: old/warp.csv." in html.read_text()

@@ -66,7 +66,9 @@ def test_every_block_has_its_numbers_and_the_command_that_made_them(generated) -
     text = results_md.read_text()
     blocks = sections(text)
     assert list(blocks) == [b.title for b in BLOCKS]
-    for block in BLOCKS:  # every fixture CSV is there: each block ends with its command, from the provenance beside the CSV
+    for (
+        block
+    ) in BLOCKS:  # every fixture CSV is there: each block ends with its command, from the provenance beside the CSV
         provenance = next((root / "results").rglob(f"{block.bench}.provenance.json"))
         last = blocks[block.title].splitlines()[-1]
         assert last.startswith(f"Command: `{expected_command(provenance)}` (git "), (block.title, last)
@@ -80,30 +82,57 @@ def test_every_block_has_its_numbers_and_the_command_that_made_them(generated) -
     # Table 1: one row per profile, recomputed from the CSV's medians
     rows = read_rows(root / "results" / "latency" / "latency.csv")
     gigan = next(r["value"] for r in rows if (r["system"], r["metric"], r["stat"]) == ("gigan", "total", "median"))
-    assert f"| `lan` (0.5 ms) | {gigan:.1f} | 38.9 | 342.1 | 0.61 / 5.34 | 0.879 / 0.961 / 0.938 |" in blocks["Interaction latency, Table 1"]
+    assert (
+        f"| `lan` (0.5 ms) | {gigan:.1f} | 38.9 | 342.1 | 0.61 / 5.34 | 0.879 / 0.961 / 0.938 |"
+        in blocks["Interaction latency, Table 1"]
+    )
     assert "| `wan` (130 ms) | 64.0 | 176.9 | 687.1 | 2.76 / 10.73 |" in text
     assert "beats a cloud hit beyond an RTT of 38 ms; a cloud miss at any RTT." in text
     # Table 2: GI tree per codec against the fp16 model
-    assert "fp32 10 MiB, fp16 5.01 MiB" in text and "| lung_plane | 60 | 60 | 0.166 (×0.033) | 0.293 (×0.059) | 0.852 (×0.17) |" in text
+    assert (
+        "fp32 10 MiB, fp16 5.01 MiB" in text
+        and "| lung_plane | 60 | 60 | 0.166 (×0.033) | 0.293 (×0.059) | 0.852 (×0.17) |" in text
+    )
     # error against run time: the points by system (ablations counted apart) and the best row per budget
     pareto = blocks["Error against run time"]
     assert "60 points: 8 gigan, 44 cloud_baking, 8 ablation" in pareto
     assert "| GI map | 20 | cloud_baking | 0.002831 | 4.55 | codec × quality × profile × cache:" in pareto
-    assert "| frame | 90 | gigan | 0.1181 | 75.2 |" in pareto and "| ablation |" not in pareto and "#### Best configuration per time budget" in pareto
+    assert (
+        "| frame | 90 | gigan | 0.1181 | 75.2 |" in pareto
+        and "| ablation |" not in pareto
+        and "#### Best configuration per time budget" in pareto
+    )
     # Table 3, Fig. 6, Fig. 7, Fig. 9
-    assert "| gigan | lung_plane | 0.04092 | 0.9532 | 28.99 | — | — | — | 67.54 | model=gigan, ngf=16," in blocks["GI-map quality, Fig. 6"]
+    assert (
+        "| gigan | lung_plane | 0.04092 | 0.9532 | 28.99 | — | — | — | 67.54 | model=gigan, ngf=16,"
+        in blocks["GI-map quality, Fig. 6"]
+    )
     assert "| 10 | 57.9 | 71.2 | 90.8 | 0.907 | 0.866 | 0.926 |" in blocks["Inference frequency, Table 3"]
-    assert "| lung_plane | structure-aware | 1.07 (2.36) | 37 | 0.896 |" in text and "| lung_plane | 0.78× | 2.01× |" in text
-    assert "| lung_plane | 60° | 0.960 | 0.935 (87%) | 0.899 (87%) | 0.427 |" in text and "| lung_plane | 120° | 0.992 | 0.844 (99%) |" in text
+    assert (
+        "| lung_plane | structure-aware | 1.07 (2.36) | 37 | 0.896 |" in text
+        and "| lung_plane | 0.78× | 2.01× |" in text
+    )
+    assert (
+        "| lung_plane | 60° | 0.960 | 0.935 (87%) | 0.899 (87%) | 0.427 |" in text
+        and "| lung_plane | 120° | 0.992 | 0.844 (99%) |" in text
+    )
     # the stability counts agree with the CSV's rows, one case per (stage, case)
-    cases = {(r["system"], r["config"]["case"]): r["config"]["status"] for r in read_rows(root / "results" / "stability" / "stability.csv")}
+    cases = {
+        (r["system"], r["config"]["case"]): r["config"]["status"]
+        for r in read_rows(root / "results" / "stability" / "stability.csv")
+    }
     statuses = list(cases.values())
     counts = f"**{len(cases)} cases: {statuses.count('finite')} finite, {statuses.count('rejected')} cleanly rejected, 0 failed**"
-    assert counts == "**135 cases: 79 finite, 56 cleanly rejected, 0 failed**" and counts in blocks["Numerical stability"]
+    assert (
+        counts == "**135 cases: 79 finite, 56 cleanly rejected, 0 failed**" and counts in blocks["Numerical stability"]
+    )
     assert "| server | 19 | 5 | 14 | 0 |" in text
     # server, network self-test, scaling (projections labelled)
     assert "| hit_e2e (ms) |  |  | 2.33 | 4.77 | 5.58 | 10 |" in text and "load: 450.83 requests/s, 0 errors" in text
-    assert "26 of 26 targets met." in text and "| delay5 | one_way_delay (median) | 5 ms | 5.225 ms | \\|err\\| <= 1 ms | yes |" in text
+    assert (
+        "26 of 26 targets met." in text
+        and "| delay5 | one_way_delay (median) | 5 ms | 5.225 ms | \\|err\\| <= 1 ms | yes |" in text
+    )
     assert "| local | 2 | 65.9 | 67 | 0.85 | 0.219 |" in text and "PROJECTED, not measured" in blocks["Scaling"]
     # the results folder is named as seen from where bench report ran, not by this machine's path
     assert (
@@ -116,7 +145,9 @@ def test_the_readme_between_its_markers_is_replaced_the_rest_kept_and_a_second_r
     root, readme, results_md, after = generated
     assert after[0] == after[1]  # the second run of bench report --readme left the file as the first made it
     text = after[0].decode()
-    assert text.startswith("# Project\n\nIntro.\n\n## Results\n\nWhat the numbers mean: hand-written, kept.\n\n" + BEGIN + "\n\n")
+    assert text.startswith(
+        "# Project\n\nIntro.\n\n## Results\n\nWhat the numbers mean: hand-written, kept.\n\n" + BEGIN + "\n\n"
+    )
     assert text.endswith("\n\n" + END + "\n\n## After\n\nKept too.\n") and "old hand-written tables" not in text
     assert text.count(BEGIN) == 1 and text.count(END) == 1
     assert results_md.read_text().strip() in text
@@ -125,7 +156,9 @@ def test_the_readme_between_its_markers_is_replaced_the_rest_kept_and_a_second_r
     assert json.loads((root / "one" / "report.provenance.json").read_text())["files"][-1] == str(readme)
 
 
-def test_a_malformed_csv_makes_only_its_block_say_so_and_a_missing_one_is_named(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_a_malformed_csv_makes_only_its_block_say_so_and_a_missing_one_is_named(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     results = tmp_path / "results"
     shutil.copytree(FIXTURES, results)
     spoil_value(results / "warp" / "warp.csv")  # as the dashboard's test does
@@ -133,8 +166,13 @@ def test_a_malformed_csv_makes_only_its_block_say_so_and_a_missing_one_is_named(
     monkeypatch.chdir(tmp_path)
     blocks = sections(results_markdown(results))
     fig7 = blocks["Cost of warping, Fig. 7"]
-    assert "\n" not in fig7 and fig7.startswith("Not shown: malformed: warp/warp.csv: a row does not parse (ValueError:")
-    assert blocks["Scaling"] == "Not in these results: missing: no scaling.csv under results; `bench scaling --out results` makes it."
+    assert "\n" not in fig7 and fig7.startswith(
+        "Not shown: malformed: warp/warp.csv: a row does not parse (ValueError:"
+    )
+    assert (
+        blocks["Scaling"]
+        == "Not in these results: missing: no scaling.csv under results; `bench scaling --out results` makes it."
+    )
     for title, body in blocks.items():
         if title not in ("Cost of warping, Fig. 7", "Scaling"):
             assert body.splitlines()[-1].startswith("Command: `") and "|" in body, title
@@ -158,12 +196,16 @@ def test_a_readme_without_the_markers_is_refused_in_one_line_before_anything_is_
         assert readme.read_text() == text
 
 
-def test_ignored_folders_are_left_out_and_the_newest_of_the_rest_is_shown(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_ignored_folders_are_left_out_and_the_newest_of_the_rest_is_shown(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     results = tmp_path / "results"
     for name, finished in (("warp", 1.0e9), ("side/warp_run", 2.0e9)):  # the side run is newer
         shutil.copytree(FIXTURES / "warp", results / name)
         provenance = results / name / "warp.provenance.json"
-        provenance.write_text(provenance.read_text().replace('"finished_unix":', f'"finished_unix": {finished}, "was":', 1))
+        provenance.write_text(
+            provenance.read_text().replace('"finished_unix":', f'"finished_unix": {finished}, "was":', 1)
+        )
     monkeypatch.chdir(tmp_path)
     fig7 = "Cost of warping, Fig. 7"
     assert sections(results_markdown(results))[fig7].endswith("; `side/warp_run/warp.csv`, the newest of 2 runs).")

@@ -69,7 +69,9 @@ DEMO = Bench("demo", DemoConfig, _demo_measure, _demo_plot, help="A demo bench."
 def _demo_app() -> typer.Typer:
     demo = typer.Typer()
     register(demo, DEMO)
-    register(demo, Bench("other", DemoConfig, _demo_measure, None, help="Typer needs two commands for subcommand names."))
+    register(
+        demo, Bench("other", DemoConfig, _demo_measure, None, help="Typer needs two commands for subcommand names.")
+    )
     return demo
 
 
@@ -80,9 +82,19 @@ def _options(typer_app: typer.Typer, name: str) -> dict:
 
 def test_runner_builds_typed_documented_options_from_the_config(tmp_path: Path) -> None:
     opts = _options(_demo_app(), "demo")
-    assert {"--scenes", "--resolution", "--tau", "--denoise", "--warp", "--cost-ms", "--models", "--frames", "--out", "--quick", "--seed"} <= set(
-        opts
-    )
+    assert {
+        "--scenes",
+        "--resolution",
+        "--tau",
+        "--denoise",
+        "--warp",
+        "--cost-ms",
+        "--models",
+        "--frames",
+        "--out",
+        "--quick",
+        "--seed",
+    } <= set(opts)
     assert opts["--denoise"].secondary_opts == ["--no-denoise"]
     args = ["demo", "--quick", "--resolution", "24", "--tau", "0.5", "--denoise", "--warp", "pixel", "--cost-ms", "2.5"]
     args += ["--models", "x=y.onnx", "--frames", "0,7", "--seed", "4", "--out", str(tmp_path)]
@@ -116,12 +128,16 @@ def test_field_docs_come_from_comments_or_metadata() -> None:
 
     assert field_docs(C) == {"a": "Documented over two lines.", "b": "from metadata"}
     with pytest.raises(TypeError, match="C.b has no #: comment"):
-        undocumented = dataclasses.make_dataclass("C", [("b", int, 2)], frozen=True, namespace={"quick": classmethod(lambda cls: cls())})
+        undocumented = dataclasses.make_dataclass(
+            "C", [("b", int, 2)], frozen=True, namespace={"quick": classmethod(lambda cls: cls())}
+        )
         register(typer.Typer(), Bench("c", undocumented, _demo_measure, None, help=""))
 
 
 def test_quick_preset_then_only_the_options_given() -> None:
-    cfg = build_config(DemoConfig, True, {"scenes": "lung_plane, vessels_plane", "models": "x=1.onnx,y=2.onnx", "frames": "0,3"})
+    cfg = build_config(
+        DemoConfig, True, {"scenes": "lung_plane, vessels_plane", "models": "x=1.onnx,y=2.onnx", "frames": "0,3"}
+    )
     assert cfg.scenes == ("lung_plane", "vessels_plane") and cfg.frames == (0, 3)
     assert cfg.models == {"x": Path("1.onnx"), "y": Path("2.onnx")}
     assert (cfg.resolution, cfg.denoise) == (16, False)  # absent options keep the preset's values
@@ -193,13 +209,26 @@ def test_bench_command_rejects_bad_input_with_one_error_line(args: list[str], cu
 
 def test_every_subcommand_has_out_quick_and_seed() -> None:
     group = typer.main.get_command(app)
-    assert set(group.commands) >= {"convergence", "render", "warp", "frequency", "fov", "quality", "training", "model-card", "run-default", "storage"}  # type: ignore[attr-defined]
+    assert set(group.commands) >= {
+        "convergence",
+        "render",
+        "warp",
+        "frequency",
+        "fov",
+        "quality",
+        "training",
+        "model-card",
+        "run-default",
+        "storage",
+    }  # type: ignore[attr-defined]
     for name in group.commands:  # type: ignore[attr-defined]
         assert {"--out", "--quick", "--seed"} <= set(_options(app, name)), name
 
 
 def test_tiny_render_run_through_the_command(tmp_path: Path) -> None:
-    result = _bench("render", "--quick", "--resolution", "16", "--repeats", "1", "--gt-repeats", "1", "--out", str(tmp_path))
+    result = _bench(
+        "render", "--quick", "--resolution", "16", "--repeats", "1", "--gt-repeats", "1", "--out", str(tmp_path)
+    )
     assert result.returncode == 0, result.stderr
     assert result.stdout.split() == [
         "wrote",
@@ -225,7 +254,9 @@ def test_results_are_tidy_with_provenance(tmp_path: Path) -> None:
     assert rows[0]["config"] == {"spp": 4} and rows[0]["value"] == 0.5
     assert {(r["stat"], r["value"]) for r in rows if r["metric"] == "t"} >= {("median", 2.0), ("n", 3.0)}
     prov = json.loads((tmp_path / "demo.provenance.json").read_text())
-    assert prov["seed"] == 3 and prov["rows"] == 4 and {"sha", "dirty"} <= set(prov["git"]) and prov["versions"]["numpy"]
+    assert (
+        prov["seed"] == 3 and prov["rows"] == 4 and {"sha", "dirty"} <= set(prov["git"]) and prov["versions"]["numpy"]
+    )
 
 
 def test_timing_warms_up_and_summarises() -> None:
@@ -282,7 +313,11 @@ def test_quick_runs_work_on_a_fresh_checkout(tmp_path: Path) -> None:
     out = tmp_path / "out"
     result = _bench("training", "--quick", "--train-steps", "6", "--widths", "4", "--out", str(out))
     assert result.returncode == 0, result.stderr
-    steps = {r["config"]["step"] for r in read_rows(out / "training.csv") if r["system"] == "gigan_ngf4" and r["metric"] == "val_ssim"}
+    steps = {
+        r["config"]["step"]
+        for r in read_rows(out / "training.csv")
+        if r["system"] == "gigan_ngf4" and r["metric"] == "val_ssim"
+    }
     assert max(steps) == 6 and (out / "dataset" / "lung_plane" / "meta.json").is_file()
 
     result = _bench("quality", "--quick", "--scenes", "lung_plane", "--timing-repeats", "1", "--out", str(out))
@@ -293,11 +328,18 @@ def test_quick_runs_work_on_a_fresh_checkout(tmp_path: Path) -> None:
     assert set(lf) == {"gigan", "di_only"} and all(0 < v < 0.1 for v in lf.values())
     assert {"quality_grid.png", "quality.png", "quality_pareto.png"} <= {p.name for p in out.iterdir()}
 
-    result = _bench("model-card", "--quick", "--train-steps", "6", "--width", "4", "--out", str(out))  # resumes the run above
+    result = _bench(
+        "model-card", "--quick", "--train-steps", "6", "--width", "4", "--out", str(out)
+    )  # resumes the run above
     assert result.returncode == 0, result.stderr
     card = (out / "export" / "gigan_ngf4" / "MODEL_CARD.md").read_text()
     assert "Stopped at optimizer step 6" in card and "| lung_plane |" in card and "| LF error |" in card
-    assert {r["metric"] for r in read_rows(out / "model-card.csv")} >= {"training_steps", "val_ssim", "ssim", "file_size"}
+    assert {r["metric"] for r in read_rows(out / "model-card.csv")} >= {
+        "training_steps",
+        "val_ssim",
+        "ssim",
+        "file_size",
+    }
     assert (out / "model_card.png").is_file() and (out / "quality" / "quality.csv").is_file()
 
 
@@ -308,10 +350,26 @@ def test_run_default_is_the_make_run_job(tmp_path: Path) -> None:
     result = subprocess.run(argv, cwd=REPO, capture_output=True, text=True, timeout=1200)
     assert result.returncode == 0, result.stderr
     names = {p.name for p in tmp_path.iterdir()}
-    assert {"latency.csv", "latency_table.md", "latency_stages.png", "storage.csv", "storage_table2.md", "run-default.csv"} <= names
-    assert {r["system"] for r in read_rows(tmp_path / "run-default.csv") if r["metric"] == "wall_time"} == {"latency", "storage"}
-    totals = {(r["system"], r["config"]["profile"], r["config"].get("cache")) for r in read_rows(tmp_path / "latency.csv") if r["metric"] == "total"}
-    assert totals >= {("gigan", "none", None)} | {("cloud_baking", p, c) for p in ("lan", "wan") for c in ("hit", "miss")}
+    assert {
+        "latency.csv",
+        "latency_table.md",
+        "latency_stages.png",
+        "storage.csv",
+        "storage_table2.md",
+        "run-default.csv",
+    } <= names
+    assert {r["system"] for r in read_rows(tmp_path / "run-default.csv") if r["metric"] == "wall_time"} == {
+        "latency",
+        "storage",
+    }
+    totals = {
+        (r["system"], r["config"]["profile"], r["config"].get("cache"))
+        for r in read_rows(tmp_path / "latency.csv")
+        if r["metric"] == "total"
+    }
+    assert totals >= {("gigan", "none", None)} | {
+        ("cloud_baking", p, c) for p in ("lan", "wan") for c in ("hit", "miss")
+    }
     assert {r["scene"] for r in read_rows(tmp_path / "storage.csv") if r["scene"] != "all"} == {"lung_plane"}
     assert result.stdout.count("## Table 1") == 1 and result.stdout.count("# Table 2") == 1
 
@@ -320,23 +378,32 @@ def test_tiny_warp_frequency_and_fov_runs(tmp_path: Path) -> None:
     """The three client benches end to end at 32², a few frames each: CSV, plots, and a sanity bound each."""
     from bench import fov, frequency, warp_bench
 
-    cfg = warp_bench.WarpBenchConfig(scenes=("lung_plane",), resolution=32, gi_frames=(0,), offsets=(1, 5), spp=4, repeats=1, warmup=0)
+    cfg = warp_bench.WarpBenchConfig(
+        scenes=("lung_plane",), resolution=32, gi_frames=(0,), offsets=(1, 5), spp=4, repeats=1, warmup=0
+    )
     execute(warp_bench.BENCH, cfg, tmp_path / "warp")
     rows = read_rows(tmp_path / "warp" / "warp.csv")
-    assert {r["system"] for r in rows if r["metric"] == "ssim" and r["stat"] == "mean"} == {"structure-aware", "pixel-level"}
+    assert {r["system"] for r in rows if r["metric"] == "ssim" and r["stat"] == "mean"} == {
+        "structure-aware",
+        "pixel-level",
+    }
     assert all(0 < r["value"] <= 1 for r in rows if r["metric"] == "valid_fraction")
 
     cfg = frequency.FrequencyConfig(resolution=32, ks=(1, 10), frames=12, gt_every=6, spp=4, compositions=("blend",))
     paths = execute(frequency.BENCH, cfg, tmp_path / "frequency")
     fps = {(r["system"], r["config"]["k"]): r["value"] for r in read_rows(paths[0]) if r["metric"] == "fps"}
     assert fps["structure-aware", 10] > fps["structure-aware", 1]  # the GI map's cost spread over 10 frames
-    quality = {(r["system"], r["config"]["k"], r["metric"]): r["value"] for r in read_rows(paths[0]) if r["stat"] == "mean"}
+    quality = {
+        (r["system"], r["config"]["k"], r["metric"]): r["value"] for r in read_rows(paths[0]) if r["stat"] == "mean"
+    }
     for (system, k), _ in fps.items():  # the low-frequency error beside SSIM and PSNR, at most RMSE = 10^(-PSNR/20)
         assert 0 < quality[system, k, "lf_error"] <= 10 ** (-quality[system, k, "psnr"] / 20), (system, k)
     table = (tmp_path / "frequency" / "frequency_table.md").read_text()
     assert "| 10 |" in table and "| LF error (structure-aware) |" in table
 
-    cfg = fov.FovConfig(resolution=32, gi_fovs=(60.0, 90.0), base_frames=(0,), rotations=(10.0,), translations=(0.2,), spp=4)
+    cfg = fov.FovConfig(
+        resolution=32, gi_fovs=(60.0, 90.0), base_frames=(0,), rotations=(10.0,), translations=(0.2,), spp=4
+    )
     paths = execute(fov.BENCH, cfg, tmp_path / "fov")
     valid = {
         r["config"]["gi_fov"]: r["value"]

@@ -25,7 +25,11 @@ def _case(expect: str, run) -> Case:
 def test_judge_passes_finite_outputs_within_their_bound_and_clean_rejections() -> None:
     ok = judge(_case("finite", lambda: Outcome((np.ones(3),), 1e-7, "rel", 1e-6)), 5.0)
     assert (ok.status, ok.finite, ok.error, ok.bound) == ("finite", True, 1e-7, 1e-6)
-    for exc in (ValueError("x must be finite"), UserError("--x is bad", "fix it"), Rejected("HTTP 422 at body/camera/fov: too wide")):
+    for exc in (
+        ValueError("x must be finite"),
+        UserError("--x is bad", "fix it"),
+        Rejected("HTTP 422 at body/camera/fov: too wide"),
+    ):
 
         def refuse(e: Exception = exc) -> Outcome:
             raise e
@@ -66,16 +70,29 @@ def test_failed_cases_are_written_then_named_in_one_user_error(tmp_path: Path) -
     ]
     for case in cases:
         record(res, "none", case, judge(case, 5.0))
-    with pytest.raises(UserError, match=r"2 of 3 stability cases failed: codecs/jpeg: broken \(crashed\); server/NaN eye \(invalid input accepted\)"):
+    with pytest.raises(
+        UserError,
+        match=r"2 of 3 stability cases failed: codecs/jpeg: broken \(crashed\); server/NaN eye \(invalid input accepted\)",
+    ):
         plot(res.write(), tmp_path)
     table = (tmp_path / "stability_table.md").read_text()
     assert "3 cases, 1 finite, 0 cleanly rejected, 2 failed" in table and "KeyError" in table
-    assert counts(summary(read_rows(tmp_path / "stability.csv"))) == {"cases": 3, "finite": 1, "rejected": 0, "failed": 2}
+    assert counts(summary(read_rows(tmp_path / "stability.csv"))) == {
+        "cases": 3,
+        "finite": 1,
+        "rejected": 0,
+        "failed": 2,
+    }
 
 
 @pytest.mark.slow
 def test_quick_run_every_case_finite_or_cleanly_rejected(tmp_path: Path) -> None:
-    proc = subprocess.run([str(BIN / "bench"), "stability", "--quick", "--out", str(tmp_path)], capture_output=True, text=True, timeout=600)
+    proc = subprocess.run(
+        [str(BIN / "bench"), "stability", "--quick", "--out", str(tmp_path)],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert "Traceback" not in proc.stdout + proc.stderr
     entries = summary(read_rows(tmp_path / "stability.csv"))
@@ -100,4 +117,8 @@ def test_quick_run_every_case_finite_or_cleanly_rejected(tmp_path: Path) -> None
         e = by_case["network", f"proxy + client: {name}"]
         assert "timeout" in e["message"] and e["time_ms"] < 10_000
     assert by_case["server", "NaN eye"]["message"].startswith("Rejected: HTTP 422 at body/camera/eye")
-    assert (tmp_path / "stability_table.md").read_text().startswith(f"## Numerical stability (SPEC §9): {n['cases']} cases")
+    assert (
+        (tmp_path / "stability_table.md")
+        .read_text()
+        .startswith(f"## Numerical stability (SPEC §9): {n['cases']} cases")
+    )

@@ -23,25 +23,45 @@ def test_storage_bench_matches_a_real_prebake(tmp_path: Path) -> None:
         tolerance_position=tol.position, tolerance_angle_deg=tol.angle_deg, knob_positions=(0.05, 0.5), knob_angles_deg=(2.0, 30.0), warp_samples=1,
     )  # fmt: skip
     files = execute(BENCH, cfg, tmp_path / "out")
-    assert {p.name for p in files} >= {"storage.csv", "storage.provenance.json", "storage_table2.md", "storage.png", "storage_tolerance.png"}
+    assert {p.name for p in files} >= {
+        "storage.csv",
+        "storage.provenance.json",
+        "storage_table2.md",
+        "storage.png",
+        "storage_tolerance.png",
+    }
     rows = read_rows(tmp_path / "out" / "storage.csv")
 
     def value(metric: str, stat: str = "value", **config) -> float:
-        return next(r["value"] for r in rows if r["metric"] == metric and r["stat"] == stat and config.items() <= r["config"].items())
+        return next(
+            r["value"]
+            for r in rows
+            if r["metric"] == metric and r["stat"] == stat and config.items() <= r["config"].items()
+        )
 
     store = tmp_path / "store"
     for codec in ("jpeg", "png"):
-        prebake_scene(store, "ball_moving", load_scene(spec_path), PrebakeConfig(24, codec, 32, 2, tolerance=tol), progress=False)
+        prebake_scene(
+            store, "ball_moving", load_scene(spec_path), PrebakeConfig(24, codec, 32, 2, tolerance=tol), progress=False
+        )
     with GITree(store) as tree:
         stats = {u["codec"]: u for u in tree.stats()["by_scene_codec"]}
     entries = value("entries")
     assert stats["jpeg"]["entries"] == stats["png"]["entries"] == entries  # counted = what a prebake stores
     for codec in ("jpeg", "png"):
-        row = next(r for r in rows if r["metric"] == "gi_tree_bytes" and r["stat"] == "estimate" and r["config"]["codec"] == codec)
-        assert row["config"]["composition"] == "blend" and row["config"]["basis"].startswith("measured")  # every entry rendered
+        row = next(
+            r
+            for r in rows
+            if r["metric"] == "gi_tree_bytes" and r["stat"] == "estimate" and r["config"]["codec"] == codec
+        )
+        assert row["config"]["composition"] == "blend" and row["config"]["basis"].startswith(
+            "measured"
+        )  # every entry rendered
         # the same maps, encoded alike: only the timing digits in the headers differ
         assert row["value"] == pytest.approx(stats[codec]["bytes"], rel=0.002)
-    assert value("entry_bytes", "mean", codec="png", composition="residual") > value("entry_bytes", "mean", codec="png", composition="blend")
+    assert value("entry_bytes", "mean", codec="png", composition="residual") > value(
+        "entry_bytes", "mean", codec="png", composition="blend"
+    )
     assert value("client_bytes", precision="fp16") < value("client_bytes", precision="fp32")
     # a looser tolerance stores fewer maps and serves more of the perturbed pass
     assert value("knob_entries", knob_position=0.5) < value("knob_entries", knob_position=0.05)

@@ -80,7 +80,9 @@ def test_nan_inf_resolution_rejected_naming_field(field, bad):
 
 
 def test_roundtrip_dict():
-    cam = Camera((0.3, 1.0, 2.0), (0.0, 0.4, 0.0), up=(0.1, 1.0, 0.0), fov=75.0, near=0.1, far=50.0, width=48, height=32)
+    cam = Camera(
+        (0.3, 1.0, 2.0), (0.0, 0.4, 0.0), up=(0.1, 1.0, 0.0), fov=75.0, near=0.1, far=50.0, width=48, height=32
+    )
     assert Camera.from_dict(cam.to_dict()) == cam
     assert cam.with_fov(30.0).fov == 30.0
 

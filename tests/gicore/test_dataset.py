@@ -98,7 +98,9 @@ def test_different_seed_gives_different_noise(base_dataset, moving_spec, tmp_pat
     seeds = {frame_seed(s, split, i) for s in (0, 1) for split in ("train", "val") for i in range(3)}
     assert len(seeds) == 12
     # ... and for one and the same camera, different frame seeds give different GT noise.
-    cam = Camera.from_dict(read_meta(root_a).frames[0].camera | {"width": renderer.resolution, "height": renderer.resolution})
+    cam = Camera.from_dict(
+        read_meta(root_a).frames[0].camera | {"width": renderer.resolution, "height": renderer.resolution}
+    )
     g0 = renderer.render_frame(cam, buffers=("gt",), spp=4, seed=frame_seed(0, "train", 0))["gt"]
     g1 = renderer.render_frame(cam, buffers=("gt",), spp=4, seed=frame_seed(1, "train", 0))["gt"]
     assert not np.array_equal(g0, g1)
@@ -208,7 +210,12 @@ def test_changed_frame_plan_never_leaves_stale_frames(moving_spec, tmp_path, cha
 def test_refuses_another_scene(base_dataset, make_spec):
     root, _ = base_dataset
     with pytest.raises(UserError, match="other settings.*scene differs"):
-        build_dataset(make_spec(light={"intensity": 3.0, "amplitude": [0.6, 0.3], "period": [40.0, 60.0]}), root, CFG, progress=False)
+        build_dataset(
+            make_spec(light={"intensity": 3.0, "amplitude": [0.6, 0.3], "period": [40.0, 60.0]}),
+            root,
+            CFG,
+            progress=False,
+        )
 
 
 # -- buffers ------------------------------------------------------------------------------------------------------
@@ -321,7 +328,9 @@ def test_read_meta_errors(tmp_path):
     with pytest.raises(UserError, match="meta.json is missing"):
         read_meta(tmp_path)
     (tmp_path / "meta.json").write_text(json.dumps({"format_version": 999}))
-    with pytest.raises(UserError, match=r"meta\.json is not a readable dataset description \(dataset format_version 999"):
+    with pytest.raises(
+        UserError, match=r"meta\.json is not a readable dataset description \(dataset format_version 999"
+    ):
         read_meta(tmp_path)
     with pytest.raises(ValueError, match="split"):
         DatasetMeta({}, 8, 1, False, 0, ["gt"]).split_frames("test")

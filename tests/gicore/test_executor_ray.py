@@ -144,7 +144,9 @@ def _refuse(_: Path, job: int) -> int:
 # --- data set and prebake: Ray against the local pool ------------------------------------------------
 
 
-def test_dataset_on_ray_equals_the_local_pool_and_resumes(ray_address: str, spec: SceneSpec, pool_dataset: Path, tmp_path: Path) -> None:
+def test_dataset_on_ray_equals_the_local_pool_and_resumes(
+    ray_address: str, spec: SceneSpec, pool_dataset: Path, tmp_path: Path
+) -> None:
     root = tmp_path / spec.name
     meta = build_dataset(spec, root, CFG, RayExecutor(), progress=False)
     assert len(meta.frames) == 3 and meta.frames[0].light is not None  # a moving light: recorded per frame
@@ -158,11 +160,17 @@ def test_dataset_on_ray_equals_the_local_pool_and_resumes(ray_address: str, spec
     assert_same_dataset(pool_dataset, root)
 
 
-def test_prebake_on_ray_equals_the_local_pool_and_resumes(ray_address: str, spec: SceneSpec, local_pool: LocalPool, tmp_path: Path) -> None:
+def test_prebake_on_ray_equals_the_local_pool_and_resumes(
+    ray_address: str, spec: SceneSpec, local_pool: LocalPool, tmp_path: Path
+) -> None:
     pooled = prebake_scene(tmp_path / "pool", "ball_moving", spec, BAKE, local_pool, progress=False)
     on_ray = prebake_scene(tmp_path / "ray", "ball_moving", spec, BAKE, RayExecutor(), progress=False)
     # Stored bytes differ by a few: each header records its bake's own wall times.
-    assert (on_ray.served, on_ray.baked) == (pooled.served, pooled.baked) and pooled.served == BAKE.frames and pooled.baked >= 3
+    assert (
+        (on_ray.served, on_ray.baked) == (pooled.served, pooled.baked)
+        and pooled.served == BAKE.frames
+        and pooled.baked >= 3
+    )
     entries = store_entries(tmp_path / "ray")
     assert len(entries) == pooled.baked and entries == store_entries(tmp_path / "pool")
     again = prebake_scene(tmp_path / "ray", "ball_moving", spec, BAKE, RayExecutor(), progress=False)
@@ -227,7 +235,9 @@ def test_interrupting_the_driver_cancels_the_running_tasks(ray_address: str, tmp
 
 
 @pytest.mark.parametrize("backend", ["local_pool", "ray"])
-def test_a_user_error_in_a_job_reaches_the_driver_whole(backend: str, request: pytest.FixtureRequest, tmp_path: Path) -> None:
+def test_a_user_error_in_a_job_reaches_the_driver_whole(
+    backend: str, request: pytest.FixtureRequest, tmp_path: Path
+) -> None:
     if backend == "ray":
         request.getfixturevalue("ray_address")
         executor = RayExecutor()
@@ -243,7 +253,11 @@ def test_a_user_error_in_a_job_reaches_the_driver_whole(backend: str, request: p
 
 #: Runs a console script's main with Ray made unimportable, as on an install without the extra.
 WITHOUT_RAY = "import sys; sys.modules['ray'] = None; from {} import main; main()"
-MODULES = {"gicore-dataset": "gicore.dataset_cli", "cloudbaking-prebake": "baseline_cloudbaking.prebake_cli", "bench": "bench.cli"}
+MODULES = {
+    "gicore-dataset": "gicore.dataset_cli",
+    "cloudbaking-prebake": "baseline_cloudbaking.prebake_cli",
+    "bench": "bench.cli",
+}
 
 
 def run_cli(argv: list[str], cwd: Path, *, without_ray: bool = False) -> subprocess.CompletedProcess:
@@ -259,8 +273,33 @@ def one_error_line(proc: subprocess.CompletedProcess, culprit: str) -> None:
     assert "Traceback" not in proc.stderr
 
 
-DATASET = ["gicore-dataset", "ball_moving.json", "--out", "out", "--train", "1", "--val", "0", "--resolution", "8", "--spp", "1", "--no-denoise"]
-PREBAKE = ["cloudbaking-prebake", "ball_moving.json", "--store", "store", "--frames", "2", "--resolution", "16", "--spp", "1"]
+DATASET = [
+    "gicore-dataset",
+    "ball_moving.json",
+    "--out",
+    "out",
+    "--train",
+    "1",
+    "--val",
+    "0",
+    "--resolution",
+    "8",
+    "--spp",
+    "1",
+    "--no-denoise",
+]
+PREBAKE = [
+    "cloudbaking-prebake",
+    "ball_moving.json",
+    "--store",
+    "store",
+    "--frames",
+    "2",
+    "--resolution",
+    "16",
+    "--spp",
+    "1",
+]
 
 
 @pytest.mark.parametrize("argv", [DATASET, PREBAKE], ids=["dataset", "prebake"])
@@ -297,10 +336,11 @@ def test_ray_not_installed_names_the_extra(argv: list[str], culprit: str, scenes
 
 
 def test_without_ray_the_local_paths_import_and_render(scenes: Path, tmp_path: Path) -> None:
-    imports = (
-        "import sys; import gicore, gicore.executor, gicore.dataset_cli, baseline_cloudbaking.prebake_cli, bench.cli; assert 'ray' not in sys.modules"
+    imports = "import sys; import gicore, gicore.executor, gicore.dataset_cli, baseline_cloudbaking.prebake_cli, bench.cli; assert 'ray' not in sys.modules"
+    assert (
+        subprocess.run([sys.executable, "-c", imports], capture_output=True, text=True, timeout=TIMEOUT_S).returncode
+        == 0
     )
-    assert subprocess.run([sys.executable, "-c", imports], capture_output=True, text=True, timeout=TIMEOUT_S).returncode == 0
     out = tmp_path / "out"
     proc = run_cli([*DATASET[:3], str(out), *DATASET[4:]], scenes, without_ray=True)
     assert proc.returncode == 0, proc.stderr
@@ -359,8 +399,26 @@ def test_ctrl_c_of_a_ray_run_keeps_whole_frames_and_the_rerun_finishes_identical
 def test_bench_scaling_measures_both_executors_and_labels_the_projection(tmp_path: Path) -> None:
     """A tiny `bench scaling` (its own Ray instance, as a user runs it): every measured point, the per-task
     overhead, and projections that follow from the measured 1-worker item time and say they are projections."""
-    tiny = ["--resolution", "16", "--spp", "1", "--frames", "2", "--maps", "2", "--overhead-jobs", "3", "--project-workers", "1,4"]
-    proc = subprocess.run([str(BIN / "bench"), "scaling", "--quick", *tiny, "--out", str(tmp_path)], capture_output=True, text=True, timeout=240)
+    tiny = [
+        "--resolution",
+        "16",
+        "--spp",
+        "1",
+        "--frames",
+        "2",
+        "--maps",
+        "2",
+        "--overhead-jobs",
+        "3",
+        "--project-workers",
+        "1,4",
+    ]
+    proc = subprocess.run(
+        [str(BIN / "bench"), "scaling", "--quick", *tiny, "--out", str(tmp_path)],
+        capture_output=True,
+        text=True,
+        timeout=240,
+    )
     assert proc.returncode == 0, proc.stderr
     rows = read_rows(tmp_path / "scaling.csv")
 
@@ -381,18 +439,24 @@ def test_bench_scaling_measures_both_executors_and_labels_the_projection(tmp_pat
     assert sorted(maps) == builtin_scenes() and all(0 < n <= 1500 for n in maps.values())
 
     projected = [r for r in rows if r["metric"] in ("dataset_wall", "bake_wall")]
-    assert projected and all(r["stat"] == "projection" and "linear scaling" in r["config"]["assumption"] for r in projected)
+    assert projected and all(
+        r["stat"] == "projection" and "linear scaling" in r["config"]["assumption"] for r in projected
+    )
     for r in projected:
         kind = "frame" if r["metric"] == "dataset_wall" else "map"
         measured = only(system=r["system"], metric="item_time", workers=1, kind=kind)["value"]
         assert r["config"]["measured_item_s"] == pytest.approx(measured)
         per_item = measured * (r["config"]["resolution"] / 16) ** 2
         if r["scene"] != "paper_5_scenes" or kind == "frame":
-            assert r["value"] == pytest.approx(math.ceil(r["config"]["items"] / r["config"]["workers"]) * per_item / 3600)
+            assert r["value"] == pytest.approx(
+                math.ceil(r["config"]["items"] / r["config"]["workers"]) * per_item / 3600
+            )
     data = only(system="ray", metric="dataset_wall", workers=1)
     assert data["config"]["items"] == 5 * 1600 and data["config"]["resolution"] == 512
     assert data["value"] == pytest.approx(4 * only(system="ray", metric="dataset_wall", workers=4)["value"])
     bake_total = only(system="local", scene="paper_5_scenes", metric="bake_wall", workers=4)["value"]
-    assert bake_total == pytest.approx(sum(only(system="local", scene=s, metric="bake_wall", workers=4)["value"] for s in maps))
+    assert bake_total == pytest.approx(
+        sum(only(system="local", scene=s, metric="bake_wall", workers=4)["value"] for s in maps)
+    )
     assert "PROJECTION (not measured)" in (tmp_path / "scaling.md").read_text()
     assert (tmp_path / "scaling.png").stat().st_size > 10_000

@@ -70,7 +70,9 @@ def test_ssim_uses_the_paper_settings():
     from skimage.metrics import structural_similarity
 
     a, b = image(), image()
-    ref = structural_similarity(a, b, data_range=1.0, gaussian_weights=True, sigma=1.5, use_sample_covariance=False, channel_axis=-1)
+    ref = structural_similarity(
+        a, b, data_range=1.0, gaussian_weights=True, sigma=1.5, use_sample_covariance=False, channel_axis=-1
+    )
     assert ssim(a, b) == pytest.approx(ref)
     # Channels are averaged: a per-channel mean equals the multichannel value.
     per = [ssim(a[..., i], b[..., i]) for i in range(3)]
@@ -144,7 +146,11 @@ def test_black_vs_black_and_black_vs_white():
     white = np.ones((16, 16, 3))
     assert all_metrics(black, black) == {"rmse": 0.0, "psnr": math.inf, "ssim": pytest.approx(1.0), "lf_error": 0.0}
     m = all_metrics(black, white)
-    assert m["rmse"] == pytest.approx(1.0) and m["psnr"] == pytest.approx(0.0) and m["lf_error"] == pytest.approx(1.0, abs=1e-12)
+    assert (
+        m["rmse"] == pytest.approx(1.0)
+        and m["psnr"] == pytest.approx(0.0)
+        and m["lf_error"] == pytest.approx(1.0, abs=1e-12)
+    )
     assert m["ssim"] == pytest.approx(1e-4 / (1.0 + 1e-4), abs=1e-6)
 
 

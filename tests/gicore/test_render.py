@@ -138,7 +138,9 @@ def test_texcoords_and_uv_pass(renderer):
     assert np.all(np.isfinite(out["uv"])) and np.all(np.isfinite(out["position"]))
     assert np.all(out["textured"] <= out["mask"]) and out["mask"].any()
     # Pixels on the ball carry its constant texcoords (ball = pixels whose hit lies off the ground).
-    ball = out["mask"] & (out["position"][..., 1] > 1e-3) & (np.linalg.norm(out["position"][..., [0, 2]], axis=-1) < 0.55)
+    ball = (
+        out["mask"] & (out["position"][..., 1] > 1e-3) & (np.linalg.norm(out["position"][..., [0, 2]], axis=-1) < 0.55)
+    )
     assert ball.sum() > 10
     np.testing.assert_allclose(out["uv"][ball], np.tile([0.25, 0.75], (ball.sum(), 1)), atol=1e-5)
     # Unjittered: every hit position projects onto its own pixel centre.
@@ -178,7 +180,9 @@ def test_supported_near_far_range_renders_like_the_default(renderer):
 
     ref = renderer.render_frame(first_camera(renderer), buffers=("di", "depth", "position"), spp=1, seed=3)
     for near, far in ((NEAR_MIN, 100.0), (0.01, FAR_MAX), (NEAR_MIN, FAR_MAX)):
-        out = renderer.render_frame(first_camera(renderer, near=near, far=far), buffers=("di", "depth", "position"), spp=1, seed=3)
+        out = renderer.render_frame(
+            first_camera(renderer, near=near, far=far), buffers=("di", "depth", "position"), spp=1, seed=3
+        )
         for name in ref:
             np.testing.assert_allclose(out[name], ref[name], atol=1e-4, err_msg=f"{name} at near {near:g}, far {far:g}")
     for near, far in ((NEAR_MIN / 10, 100.0), (0.01, FAR_MAX * 10)):
@@ -297,7 +301,12 @@ def test_black_frame_from_tiny_light(make_spec):
     assert frame["gt"].max() < 1e-20 and frame["gt"].min() >= 0
     black = tonemap(frame["gt"])
     m = all_metrics(black, tonemap(frame["di"]))
-    assert np.isfinite(m["rmse"]) and np.isfinite(m["ssim"]) and not np.isnan(m["psnr"]) and 0.0 <= m["lf_error"] <= m["rmse"]
+    assert (
+        np.isfinite(m["rmse"])
+        and np.isfinite(m["ssim"])
+        and not np.isnan(m["psnr"])
+        and 0.0 <= m["lf_error"] <= m["rmse"]
+    )
 
 
 def test_black_frame_from_empty_view(make_spec):

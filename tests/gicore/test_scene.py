@@ -75,26 +75,44 @@ def test_unknown_scene_name():
         pytest.param(lambda d: d["light"].update(intensity=-1.0), r"light\.intensity", id="negative_intensity"),
         pytest.param(lambda d: d["light"].update(intensity=0.0), r"light\.intensity", id="zero_intensity"),
         pytest.param(lambda d: d["light"].update(intensity=math.nan), r"light\.intensity", id="nan_intensity"),
-        pytest.param(lambda d: d["light"].update(position=[0, math.inf, 1]), r"light\.position", id="inf_light_position"),
+        pytest.param(
+            lambda d: d["light"].update(position=[0, math.inf, 1]), r"light\.position", id="inf_light_position"
+        ),
         pytest.param(lambda d: d["light"].update(period=[0, 10]), r"light\.period", id="zero_period"),
         pytest.param(lambda d: d["light"].pop("intensity"), r"light\.intensity", id="missing_intensity"),
         pytest.param(lambda d: d.update(environment="forest"), "environment", id="bad_environment"),
         pytest.param(lambda d: d.update(objects=[]), "objects", id="no_objects"),
         pytest.param(lambda d: d["objects"][0].update(anatomy="heart"), r"objects\.0\.anatomy", id="unknown_anatomy"),
         pytest.param(lambda d: d["objects"][0].update(name="has space"), r"objects\.0\.name", id="bad_object_name"),
-        pytest.param(lambda d: d["objects"][0].update(albedo=[0.5, 1.5, 0.5]), r"objects\.0\.albedo", id="albedo_above_1"),
+        pytest.param(
+            lambda d: d["objects"][0].update(albedo=[0.5, 1.5, 0.5]), r"objects\.0\.albedo", id="albedo_above_1"
+        ),
         pytest.param(lambda d: d.update(camera={"gi_fov": 180.0}), r"camera\.gi_fov", id="gi_fov_180"),
         pytest.param(lambda d: d.update(camera={"local_fov": 0.0}), r"camera\.local_fov", id="local_fov_0"),
         pytest.param(lambda d: d.update(camera={"local_fov": math.nan}), r"camera\.local_fov", id="local_fov_nan"),
-        pytest.param(lambda d: d.update(camera={"near": 1.0, "far": 0.5}), r"near = 1, far = 0\.5", id="far_below_near"),
-        pytest.param(lambda d: d.update(camera={"near": 1e-20}), r"camera: near = 1e-20.*represents 1e-10 <= near < far <= 1e\+30", id="near_1e-20"),
+        pytest.param(
+            lambda d: d.update(camera={"near": 1.0, "far": 0.5}), r"near = 1, far = 0\.5", id="far_below_near"
+        ),
+        pytest.param(
+            lambda d: d.update(camera={"near": 1e-20}),
+            r"camera: near = 1e-20.*represents 1e-10 <= near < far <= 1e\+30",
+            id="near_1e-20",
+        ),
         pytest.param(lambda d: d.update(camera={"near": 0.0}), r"camera: near = 0,", id="near_0"),
-        pytest.param(lambda d: d.update(camera={"far": 1e39}), r"camera: near = 0\.01, far = 1e\+39.*represents", id="far_1e39"),
+        pytest.param(
+            lambda d: d.update(camera={"far": 1e39}), r"camera: near = 0\.01, far = 1e\+39.*represents", id="far_1e39"
+        ),
         pytest.param(lambda d: d.update(name="../../x"), r"name: '\.\./\.\./x' is not a name", id="scene_name_path"),
         pytest.param(lambda d: d.update(name=""), r"name: '' is not a name", id="scene_name_empty"),
         pytest.param(lambda d: d.update(name="a/b"), r"name: 'a/b' is not a name", id="scene_name_slash"),
-        pytest.param(lambda d: d["objects"][0].update(name="../o"), r"objects\.0\.name: '\.\./o' is not a name", id="object_name_path"),
-        pytest.param(lambda d: d["objects"][0].update(anatomy=None, mesh=5), r"objects\.0\.mesh", id="mesh_is_a_number"),
+        pytest.param(
+            lambda d: d["objects"][0].update(name="../o"),
+            r"objects\.0\.name: '\.\./o' is not a name",
+            id="object_name_path",
+        ),
+        pytest.param(
+            lambda d: d["objects"][0].update(anatomy=None, mesh=5), r"objects\.0\.mesh", id="mesh_is_a_number"
+        ),
         pytest.param(lambda d: d.update(resolution=4), "resolution", id="resolution_too_small"),
     ],
 )
@@ -148,7 +166,9 @@ def test_bad_toml_is_a_spec_error_naming_the_file(tmp_path):
 
 def test_bad_field_in_a_file_names_file_and_field(tmp_path):
     path = tmp_path / "s.toml"
-    path.write_text('name = "x"\n[[objects]]\nname = "l"\nanatomy = "lung"\n[light]\nposition = [0, 1, 2]\nintensity = -3.0\n')
+    path.write_text(
+        'name = "x"\n[[objects]]\nname = "l"\nanatomy = "lung"\n[light]\nposition = [0, 1, 2]\nintensity = -3.0\n'
+    )
     with pytest.raises(SceneSpecError, match=r"(?s)s\.toml.*light\.intensity"):
         load_scene(path)
 
@@ -180,8 +200,12 @@ def test_bad_mesh_is_refused_when_the_spec_loads(tmp_path, kind, reason):
     if MESH_FILES[kind] is not None:
         path.write_bytes(MESH_FILES[kind])
     spec_file = tmp_path / "scene.toml"
-    spec_file.write_text('name = "s"\n[[objects]]\nname = "organ"\nmesh = "organ.obj"\n[light]\nposition = [0, 2, 0]\nintensity = 3.0\n')
-    with pytest.raises(SceneSpecError, match=rf"scene\.toml: 1 invalid field\(s\): objects\.0: mesh file {path}: .*{reason}"):
+    spec_file.write_text(
+        'name = "s"\n[[objects]]\nname = "organ"\nmesh = "organ.obj"\n[light]\nposition = [0, 2, 0]\nintensity = 3.0\n'
+    )
+    with pytest.raises(
+        SceneSpecError, match=rf"scene\.toml: 1 invalid field\(s\): objects\.0: mesh file {path}: .*{reason}"
+    ):
         load_scene(spec_file)
 
 
@@ -225,7 +249,9 @@ def test_scene_objects_user_mesh_placed(make_spec):
     objs = geometry.scene_objects(spec)
     assert [o.name for o in objs] == ["ball", "box", "ground"]
     lo, hi = objs[0].mesh.bounds
-    assert lo[1] == pytest.approx(geometry.SEAT_GAP, abs=1e-6) and hi[1] == pytest.approx(1.0 + geometry.SEAT_GAP, abs=1e-6)
+    assert lo[1] == pytest.approx(geometry.SEAT_GAP, abs=1e-6) and hi[1] == pytest.approx(
+        1.0 + geometry.SEAT_GAP, abs=1e-6
+    )
     lo, hi = objs[1].mesh.bounds
     assert hi[1] == pytest.approx(0.8 + geometry.SEAT_GAP, abs=1e-6)
     np.testing.assert_allclose((lo[[0, 2]] + hi[[0, 2]]) / 2, [0.9, -0.4], atol=0.05)
@@ -332,8 +358,12 @@ def test_light_schedule():
 def test_mesh_that_is_not_a_path_names_the_field(tmp_path):
     """``mesh = 5`` was a TypeError while resolving relative mesh paths."""
     spec_file = tmp_path / "scene.toml"
-    spec_file.write_text('name = "s"\n[[objects]]\nname = "organ"\nmesh = 5\n[light]\nposition = [0, 2, 0]\nintensity = 3.0\n')
-    with pytest.raises(SceneSpecError, match=r"scene\.toml: 1 invalid field\(s\): objects\.0\.mesh: Input is not a valid path"):
+    spec_file.write_text(
+        'name = "s"\n[[objects]]\nname = "organ"\nmesh = 5\n[light]\nposition = [0, 2, 0]\nintensity = 3.0\n'
+    )
+    with pytest.raises(
+        SceneSpecError, match=r"scene\.toml: 1 invalid field\(s\): objects\.0\.mesh: Input is not a valid path"
+    ):
         load_scene(spec_file)
 
 
@@ -352,7 +382,9 @@ def test_relative_mesh_paths_do_not_depend_on_the_working_directory(tmp_path, sp
     """A dataset's meta.json stores the spec: loading the same spec file from another folder must give the
     same spec, or a resumed run would be refused as "made with other settings"."""
     (tmp_path / "ball.obj").write_bytes(sphere_mesh_path.read_bytes())
-    (tmp_path / "s.toml").write_text('name = "s"\n[[objects]]\nname = "b"\nmesh = "ball.obj"\n[light]\nposition = [0, 2, 0]\nintensity = 3.0\n')
+    (tmp_path / "s.toml").write_text(
+        'name = "s"\n[[objects]]\nname = "b"\nmesh = "ball.obj"\n[light]\nposition = [0, 2, 0]\nintensity = 3.0\n'
+    )
     monkeypatch.chdir(tmp_path)
     here = load_scene("s.toml")
     monkeypatch.chdir(tmp_path.parent)

@@ -60,7 +60,10 @@ def test_client_runs_every_warp_and_composition(spec_file, client_renderer, warp
     assert all(np.all(np.isfinite(im)) and im.shape == (RES, RES, 3) for im in images)
     assert all(0.0 <= r["ssim"] <= 1.0 for r in rows[::2]) and rows[1]["ssim"] == ""
     # the low-frequency error is part of the error: at most mean |diff| <= RMSE = 10^(-PSNR/20)
-    assert all(0.0 <= r["lf_error"] <= 10 ** (-r["psnr"] / 20) + 1e-9 for r in rows[::2]) and rows[1]["lf_error"] == rows[1]["psnr"] == ""
+    assert (
+        all(0.0 <= r["lf_error"] <= 10 ** (-r["psnr"] / 20) + 1e-9 for r in rows[::2])
+        and rows[1]["lf_error"] == rows[1]["psnr"] == ""
+    )
     assert all(r["frame_ms"] > 0 and 0.0 <= r["valid_frac"] <= 1.0 for r in rows)
     ran = {s for s in ("raster_ms", "lookup_ms") if s in rows[1] and rows[1][s] != ""}
     assert ran == {"structure": {"raster_ms", "lookup_ms"}, "none": set()}[warp]
@@ -79,7 +82,10 @@ def test_config_errors_are_clear(make_spec, spec_file, client_renderer):
     assert ClientConfig(warp="none").fovs(spec) == (60.0, 60.0)
     with pytest.raises(UserError, match="gi-source gt"):
         run_client(
-            ClientConfig(scene=str(spec_file), gi_source="model", model=Path("/nonexistent/model.onnx"), resolution=RES, frames=1), client_renderer
+            ClientConfig(
+                scene=str(spec_file), gi_source="model", model=Path("/nonexistent/model.onnx"), resolution=RES, frames=1
+            ),
+            client_renderer,
         )
 
 
@@ -136,7 +142,9 @@ def test_gigan_client_process_writes_csv(spec_file, tmp_path):
     assert summary["mean_lf_error"] == pytest.approx((float(rows[0]["lf_error"]) + float(rows[2]["lf_error"])) / 2)
     assert "LF error" in proc.stdout
 
-    bad = subprocess.run(cmd + ["--warp", "bilinear", "--out", str(out)], capture_output=True, text=True, timeout=60, check=False)
+    bad = subprocess.run(
+        cmd + ["--warp", "bilinear", "--out", str(out)], capture_output=True, text=True, timeout=60, check=False
+    )
     assert bad.returncode != 0 and "structure" in (bad.stderr + bad.stdout)
 
 
@@ -153,9 +161,13 @@ def passthrough_model(tmp_path_factory) -> Path:
     x = helper.make_tensor_value_info("x", TensorProto.FLOAT, [1, spec.in_channels, RES, RES])
     y = helper.make_tensor_value_info("y", TensorProto.FLOAT, [1, 3, RES, RES])
     consts = [helper.make_tensor(n, TensorProto.INT64, [1], [v]) for n, v in (("start", 0), ("end", 3), ("axis", 1))]
-    graph = helper.make_graph([helper.make_node("Slice", ["x", "start", "end", "axis"], ["y"])], "di_passthrough", [x], [y], consts)
+    graph = helper.make_graph(
+        [helper.make_node("Slice", ["x", "start", "end", "axis"], ["y"])], "di_passthrough", [x], [y], consts
+    )
     folder = tmp_path_factory.mktemp("model")
-    onnx.save(helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)], ir_version=8), folder / "passthrough.onnx")
+    onnx.save(
+        helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)], ir_version=8), folder / "passthrough.onnx"
+    )
     (folder / MODEL_JSON).write_text(json.dumps({"format": FORMAT, "input": spec.to_dict(), "resolution": RES}))
     return folder / "passthrough.onnx"
 
@@ -164,13 +176,22 @@ def test_model_source_feeds_the_generator_its_buffers(spec_file, client_renderer
     """With the DI pass-through "generator" the GI map is the DI at the GI camera, and without warping the
     composed frame is that DI (through the network encoding)."""
     cfg = ClientConfig(
-        scene=str(spec_file), frames=2, resolution=RES, every=1, warp="none", gi_source="model", model=passthrough_model, denoise=False
+        scene=str(spec_file),
+        frames=2,
+        resolution=RES,
+        every=1,
+        warp="none",
+        gi_source="model",
+        model=passthrough_model,
+        denoise=False,
     )
     images = []
     rows = run_client(cfg, client_renderer, on_frame=lambda frame, result: images.append(result.image))
     assert all(r["gi_render_ms"] > 0 and r["inference_ms"] > 0 and r["gi_wait_ms"] >= r["gi_ms"] for r in rows)
     cam = camera_path(client_renderer.spec, cfg.orbit_frames, fov=60.0, resolution=RES)[1]
-    di = client_renderer.render_di_gbuffers(cam, light_position(client_renderer.spec, 1), seed=frame_seed(0, "gi_di", 1))["di"]
+    di = client_renderer.render_di_gbuffers(
+        cam, light_position(client_renderer.spec, 1), seed=frame_seed(0, "gi_di", 1)
+    )["di"]
     np.testing.assert_allclose(images[1], di, rtol=1e-3, atol=1e-4)
 
 
@@ -199,7 +220,11 @@ def test_network_input_is_encoded_in_place():
     from gigan_local.preprocess import InputSpec, encode_buffer, frame_to_input
 
     rng = np.random.default_rng(3)
-    frame = {"di": rng.uniform(0, 3, (8, 6, 3)), "albedo": rng.uniform(0, 1, (8, 6, 3)), "normal": rng.uniform(-1, 1, (8, 6, 3))}
+    frame = {
+        "di": rng.uniform(0, 3, (8, 6, 3)),
+        "albedo": rng.uniform(0, 1, (8, 6, 3)),
+        "normal": rng.uniform(-1, 1, (8, 6, 3)),
+    }
     frame["depth"] = rng.uniform(0, 4, (8, 6, 1))
     spec = InputSpec(depth_scale=2.0)
     reference = np.concatenate([encode_buffer(b, frame[b], 2.0) for b in spec.buffers], axis=-1).transpose(2, 0, 1)

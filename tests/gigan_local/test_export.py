@@ -51,9 +51,13 @@ def test_onnx_fp32_matches_torch(exported):
     x = np.random.default_rng(3).uniform(-1, 1, (2, 10, 32, 32)).astype(np.float32)  # batch 2: dynamic batch axis
     with torch.no_grad():
         ref = generator(torch.from_numpy(x)).numpy()
-    out = ort.InferenceSession(str(onnx_dir / "model_fp32.onnx"), providers=["CPUExecutionProvider"]).run(None, {"input": x})[0]
+    out = ort.InferenceSession(str(onnx_dir / "model_fp32.onnx"), providers=["CPUExecutionProvider"]).run(
+        None, {"input": x}
+    )[0]
     assert np.abs(out - ref).max() < 1e-4
-    out16 = ort.InferenceSession(str(onnx_dir / "model_fp16.onnx"), providers=["CPUExecutionProvider"]).run(None, {"input": x})[0]
+    out16 = ort.InferenceSession(str(onnx_dir / "model_fp16.onnx"), providers=["CPUExecutionProvider"]).run(
+        None, {"input": x}
+    )[0]
     assert out16.dtype == np.float32 and np.abs(out16 - ref).max() < 1e-2
 
 
@@ -88,7 +92,9 @@ def test_gimodel_predicts_linear_radiance_like_torch(exported, variant):
 
 def test_int8_export_is_calibrated_quantized_and_close_to_fp32(exported, tmp_path):
     dataset, run, _ = exported
-    result = CliRunner().invoke(app, [str(run), "--out", str(tmp_path / "q"), "--int8", "--calibration-frames", "2", "--no-fp16"])
+    result = CliRunner().invoke(
+        app, [str(run), "--out", str(tmp_path / "q"), "--int8", "--calibration-frames", "2", "--no-fp16"]
+    )
     assert result.exit_code == 0, result.output
     doc = json.loads((tmp_path / "q" / "model.json").read_text())
     assert doc["files"] == {"fp32": "model_fp32.onnx", "int8": "model_int8.onnx"}
@@ -145,7 +151,9 @@ def test_corrupt_model_file_gives_a_clear_error(exported, tmp_path):
         GIModel(d / "model_fp16.onnx")
 
 
-@pytest.mark.parametrize(("field", "value"), [("input", {"buffers": ["di", "albedo"], "depth_scale": 1.0}), ("resolution", 64)])
+@pytest.mark.parametrize(
+    ("field", "value"), [("input", {"buffers": ["di", "albedo"], "depth_scale": 1.0}), ("resolution", 64)]
+)
 def test_model_and_config_mismatch_gives_a_clear_error(exported, tmp_path, field, value):
     _, _, onnx_dir = exported
     d = _copy(onnx_dir, tmp_path / "m")
@@ -170,7 +178,11 @@ def test_deep_shading_exports_too(exported, tmp_path):
     train(tiny_config(dataset, model="deep_shading", max_steps=1), tmp_path / "run", progress=False)
     result = export_onnx(tmp_path / "run", tmp_path / "onnx", fp16=False)
     assert set(result.files) == {"fp32"} and result.max_abs_diff["fp32"] < 1e-4
-    assert GIModel(result.files["fp32"], threads=1).predict(load_frame(dataset / "val" / "000001.npz")).shape == (32, 32, 3)
+    assert GIModel(result.files["fp32"], threads=1).predict(load_frame(dataset / "val" / "000001.npz")).shape == (
+        32,
+        32,
+        3,
+    )
 
 
 def test_wheel_ships_the_default_model_and_scenes(tmp_path):
@@ -187,7 +199,18 @@ def test_wheel_ships_the_default_model_and_scenes(tmp_path):
         shutil.copy(repo / name, src / name)
     for package in ("gicore", "gigan_local", "baseline_cloudbaking", "network_sim", "bench"):
         shutil.copytree(repo / package, src / package, ignore=shutil.ignore_patterns("__pycache__"))
-    cmd = [sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "--no-build-isolation", "-w", str(tmp_path / "dist"), str(src)]
+    cmd = [
+        sys.executable,
+        "-m",
+        "pip",
+        "wheel",
+        "-q",
+        "--no-deps",
+        "--no-build-isolation",
+        "-w",
+        str(tmp_path / "dist"),
+        str(src),
+    ]
     subprocess.run(cmd, check=True, timeout=300, capture_output=True)
     (wheel,) = (tmp_path / "dist").glob("*.whl")
     names = set(zipfile.ZipFile(wheel).namelist())
@@ -208,7 +231,10 @@ def test_the_shipped_model_card_matches_its_files() -> None:
     folder = DEFAULT_MODEL.parent
     card = (folder / "MODEL_CARD.md").read_text()
     doc = json.loads((folder / "model.json").read_text())
-    assert f"ngf {doc['ngf']}, {doc['n_down']} down-samplings, {UPSAMPLING_WORDS[doc['network'].get('upsample', 'transposed')]}" in card
+    assert (
+        f"ngf {doc['ngf']}, {doc['n_down']} down-samplings, {UPSAMPLING_WORDS[doc['network'].get('upsample', 'transposed')]}"
+        in card
+    )
     assert f"Stopped at optimizer step {doc['step']} " in card
     listed = dict(re.findall(r"- `(model_\w+\.onnx)`: \w+ weights, ([\d.]+) MiB", card))
     assert set(listed) == {p.name for p in folder.glob("*.onnx")}

@@ -79,7 +79,9 @@ def test_an_unconditional_critic_ignores_the_condition() -> None:
     a, b = critic(torch.rand(2, 10, 64, 64), image), critic(torch.zeros(2, 10, 64, 64), image)
     assert torch.equal(a, b)
     conditional = define_D(NetworkConfig("patchgan", 10, 3, 8, 3, norm="none"))
-    assert not torch.equal(conditional(torch.rand(2, 10, 64, 64), image), conditional(torch.zeros(2, 10, 64, 64), image))
+    assert not torch.equal(
+        conditional(torch.rand(2, 10, 64, 64), image), conditional(torch.zeros(2, 10, 64, 64), image)
+    )
 
 
 def test_train_config_builds_the_diagnosis_variants_and_refuses_what_does_not_apply() -> None:

@@ -178,7 +178,11 @@ def test_importing_the_configs_does_not_load_torch():
     "doc,message",
     [
         pytest.param({"name": "unet"}, r"lacks field\(s\) \['in_channels'\]", id="missing"),
-        pytest.param({"name": "unet", "in_channels": 8, "depth": 3}, r"unknown network config field\(s\) \['depth'\]", id="unknown"),
+        pytest.param(
+            {"name": "unet", "in_channels": 8, "depth": 3},
+            r"unknown network config field\(s\) \['depth'\]",
+            id="unknown",
+        ),
         pytest.param(["unet", 8], "must be a JSON object, got list", id="not_an_object"),
     ],
 )

@@ -52,7 +52,10 @@ def _fixed_batch(n: int, res: int) -> tuple[torch.Tensor, torch.Tensor]:
     rng = np.random.default_rng(0)
     frames = [synthetic_frame(rng, res) for _ in range(n)]
     spec = InputSpec(depth_scale=2.0)
-    return (torch.from_numpy(np.stack([frame_to_input(f, spec) for f in frames])), torch.from_numpy(np.stack([frame_to_target(f) for f in frames])))
+    return (
+        torch.from_numpy(np.stack([frame_to_input(f, spec) for f in frames])),
+        torch.from_numpy(np.stack([frame_to_target(f) for f in frames])),
+    )
 
 
 def test_gigan_halves_l1_on_one_batch():
@@ -70,7 +73,9 @@ def test_gigan_halves_l1_on_one_batch():
 
 def test_gigan_n_critic_steps_per_generator_step():
     torch.manual_seed(0)
-    model = create_model(TrainConfig(model="gigan", resolution=32, depth_scale=2.0, ngf=4, ndf=4, batch_size=2, n_critic=2))
+    model = create_model(
+        TrainConfig(model="gigan", resolution=32, depth_scale=2.0, ngf=4, ndf=4, batch_size=2, n_critic=2)
+    )
     model.train()
     batch = _fixed_batch(2, 32)
     g0 = [p.detach().clone() for p in model.generator.parameters()]
@@ -84,7 +89,9 @@ def test_critic_warmup_holds_the_generator_for_that_many_critic_steps():
     """critic_warmup 3, n_critic 2: calls 1-4 train the critic only, call 5 is the first generator step,
     then every second call (the period counts from the end of the warm-up)."""
     torch.manual_seed(0)
-    cfg = TrainConfig(model="gigan", resolution=32, depth_scale=2.0, ngf=4, ndf=4, batch_size=2, n_critic=2, critic_warmup=3)
+    cfg = TrainConfig(
+        model="gigan", resolution=32, depth_scale=2.0, ngf=4, ndf=4, batch_size=2, n_critic=2, critic_warmup=3
+    )
     model = create_model(cfg)
     model.train()
     batch = _fixed_batch(2, 32)
@@ -129,7 +136,9 @@ def test_train_writes_config_metrics_and_checkpoint(dataset, tmp_path):
     val = [r for r in rows if r["split"] == "val"]
     assert {r["step"] for r in val} == {"0", "2", "3"}  # baseline, end of epoch 1 (2 batches), stop
     assert {r["metric"] for r in val} == {"rmse", "psnr", "ssim", "lf_error"}
-    assert {r["unit"] for r in val if r["metric"] == "psnr"} == {"dB"} and {r["unit"] for r in val if r["metric"] == "lf_error"} == {"1"}
+    assert {r["unit"] for r in val if r["metric"] == "psnr"} == {"dB"} and {
+        r["unit"] for r in val if r["metric"] == "lf_error"
+    } == {"1"}
     assert {"G_L1", "D_GP", "step_seconds"} <= {r["metric"] for r in rows if r["split"] == "train"}
     assert load_checkpoint(run / "checkpoint.pt")["state"]["step"] == 3
     with pytest.raises(UserError, match="already holds a run: pass --resume"):
@@ -202,7 +211,10 @@ def test_frame_cache_returns_the_same_items_and_cannot_be_corrupted(tmp_path):
 
 
 def test_training_with_and_without_the_frame_cache_is_identical(dataset, tmp_path):
-    runs = [train(tiny_config(dataset, max_steps=3), tmp_path / f"run{c}", progress=False, cache_frames=c) for c in (False, True)]
+    runs = [
+        train(tiny_config(dataset, max_steps=3), tmp_path / f"run{c}", progress=False, cache_frames=c)
+        for c in (False, True)
+    ]
     assert runs[0].val_metrics == runs[1].val_metrics
     weights = [load_checkpoint(r.checkpoint)["model"]["nets"] for r in runs]
     for net, params in weights[0].items():
@@ -218,7 +230,18 @@ def test_dataset_without_a_needed_buffer_is_refused(dataset, tmp_path):
 def test_cli_trains_and_resumes(dataset, tmp_path):
     runner = CliRunner()
     out = tmp_path / "run"
-    args = [str(dataset), "--out", str(out), "--model", "deep_shading", "--ngf", "4", "--batch-size", "2", "--no-progress"]
+    args = [
+        str(dataset),
+        "--out",
+        str(out),
+        "--model",
+        "deep_shading",
+        "--ngf",
+        "4",
+        "--batch-size",
+        "2",
+        "--no-progress",
+    ]
     res = runner.invoke(app, [*args, "--max-steps", "1"])
     assert res.exit_code == 0, res.output
     assert "stopped (max_steps) at step 1" in res.output

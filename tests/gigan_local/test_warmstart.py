@@ -52,7 +52,9 @@ def test_warm_started_generator_computes_the_exported_model(calibrated: bool) ->
     generator = _loaded("model_fp32.onnx", torch.from_numpy(_input(2, side)) if calibrated else None)
     with torch.no_grad():
         y_torch = generator(torch.from_numpy(x)).numpy()
-    y_onnx = ort.InferenceSession(str(SHIPPED / "model_fp32.onnx"), providers=["CPUExecutionProvider"]).run(None, {"input": x})[0]
+    y_onnx = ort.InferenceSession(str(SHIPPED / "model_fp32.onnx"), providers=["CPUExecutionProvider"]).run(
+        None, {"input": x}
+    )[0]
     assert np.abs(y_torch - y_onnx).max() < 1e-4
     assert np.abs(y_onnx).max() > 0.1  # a real prediction, not an all-zero output
 
@@ -136,11 +138,31 @@ def test_gigan_train_fine_tunes_the_exported_model(tmp_path: Path) -> None:
     res = CliRunner().invoke(app, [*args, "--init-generator", str(SHIPPED / "model_fp16.onnx"), "--max-steps", "0"])
     assert res.exit_code == 0, res.output
     config = json.loads((out / "config.json").read_text())["train"]
-    assert config["init_generator"] == str(SHIPPED / "model_fp16.onnx") and config["depth_scale"] == _shipped()[1].depth_scale
+    assert (
+        config["init_generator"] == str(SHIPPED / "model_fp16.onnx")
+        and config["depth_scale"] == _shipped()[1].depth_scale
+    )
     g = load_checkpoint(out / CHECKPOINT)["model"]["nets"]["G"]
     expected = _loaded("model_fp16.onnx").state_dict()
     outer_bias = next(k for k in expected if k.startswith("ups.0.") and k.endswith(".bias"))  # the outermost up conv's
-    assert torch.equal(g[outer_bias], expected[outer_bias]) and torch.equal(g["downs.0.0.weight"], expected["downs.0.0.weight"])
-    narrower = [str(data), "--out", str(tmp_path / "r2"), "--ngf", "8", "--n-down", str(net.n_down), "--upsample", net.upsample, "--no-progress"]
+    assert torch.equal(g[outer_bias], expected[outer_bias]) and torch.equal(
+        g["downs.0.0.weight"], expected["downs.0.0.weight"]
+    )
+    narrower = [
+        str(data),
+        "--out",
+        str(tmp_path / "r2"),
+        "--ngf",
+        "8",
+        "--n-down",
+        str(net.n_down),
+        "--upsample",
+        net.upsample,
+        "--no-progress",
+    ]
     res = CliRunner().invoke(app, [*narrower, "--init-generator", str(SHIPPED / "model_fp16.onnx"), "--max-steps", "0"])
-    assert isinstance(res.exception, UserError) and "different generator" in str(res.exception) and "width" in str(res.exception)
+    assert (
+        isinstance(res.exception, UserError)
+        and "different generator" in str(res.exception)
+        and "width" in str(res.exception)
+    )

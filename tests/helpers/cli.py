@@ -18,7 +18,10 @@ TIMEOUT_S = 120
 def snapshot(root: Path) -> dict[str, tuple[int, int]]:
     """Every file under ``root`` with its size and modification time, and every folder (whose own
     modification time changes when a run takes and drops its lock file, so it is left out)."""
-    return {str(p.relative_to(root)): (p.stat().st_size, p.stat().st_mtime_ns) if p.is_file() else (-1, 0) for p in root.rglob("*")}
+    return {
+        str(p.relative_to(root)): (p.stat().st_size, p.stat().st_mtime_ns) if p.is_file() else (-1, 0)
+        for p in root.rglob("*")
+    }
 
 
 @dataclass(frozen=True)
@@ -70,7 +73,9 @@ def assert_error_line(result: subprocess.CompletedProcess, *culprits: str) -> No
     """Exit 2, exactly one ``error:`` line (the last) naming every culprit, no traceback."""
     assert result.returncode == 2, (result.returncode, result.stdout, result.stderr)
     lines = [line for line in result.stderr.splitlines() if line.strip()]
-    assert len([line for line in lines if line.startswith("error:")]) == 1 and lines[-1].startswith("error:"), result.stderr
+    assert len([line for line in lines if line.startswith("error:")]) == 1 and lines[-1].startswith("error:"), (
+        result.stderr
+    )
     assert "Traceback" not in result.stderr
     for culprit in culprits:
         assert culprit in lines[-1], (culprit, lines[-1])

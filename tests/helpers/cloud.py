@@ -31,7 +31,11 @@ def write_scenes(folder: Path) -> Path:
     }
     moving_light = {"position": [0.0, 2.2, 0.3], "intensity": 8.0, "amplitude": [0.6, 0.15]}
     moving = base | {"name": "ball_moving", "environment": "cornell_box", "light": moving_light}
-    static = base | {"name": "ball_static", "environment": "white_plane", "light": {"position": [0.8, 2.6, 1.2], "intensity": 12.0}}
+    static = base | {
+        "name": "ball_static",
+        "environment": "white_plane",
+        "light": {"position": [0.8, 2.6, 1.2], "intensity": 12.0},
+    }
     for spec in (moving, static):
         (folder / f"{spec['name']}.json").write_text(json.dumps(spec))
     return folder
@@ -39,15 +43,36 @@ def write_scenes(folder: Path) -> Path:
 
 def gimap_body(scene: str = "ball_moving", eye=(1.6, 1.1, 1.2), **fields: Any) -> dict[str, Any]:
     """A valid GI-map request at ``RES``/``SPP`` (``fields`` override or add top-level fields)."""
-    body = {"scene": scene, "camera": {"eye": list(eye), "target": [0.0, 0.5, 0.0]}, "resolution": RES, "spp": SPP, "codec": "jpeg"}
+    body = {
+        "scene": scene,
+        "camera": {"eye": list(eye), "target": [0.0, 0.5, 0.0]},
+        "resolution": RES,
+        "spp": SPP,
+        "codec": "jpeg",
+    }
     return body | fields
 
 
 @contextmanager
-def server_process(store: Path, scenes: Path, *args: str, env: dict[str, str] | None = None, timeout: float = 60.0) -> Iterator[str]:
+def server_process(
+    store: Path, scenes: Path, *args: str, env: dict[str, str] | None = None, timeout: float = 60.0
+) -> Iterator[str]:
     """Run ``cloudbaking-server --port 0`` and yield its base URL (from its first stdout line)."""
-    cmd = [str(BIN / "cloudbaking-server"), "--host", "127.0.0.1", "--port", "0", "--store", str(store), "--scenes", str(scenes), *args]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=os.environ | (env or {}))
+    cmd = [
+        str(BIN / "cloudbaking-server"),
+        "--host",
+        "127.0.0.1",
+        "--port",
+        "0",
+        "--store",
+        str(store),
+        "--scenes",
+        str(scenes),
+        *args,
+    ]
+    proc = subprocess.Popen(
+        cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=os.environ | (env or {})
+    )
     try:
         ready, _, _ = select.select([proc.stdout], [], [], timeout)
         assert ready, f"no output from cloudbaking-server within {timeout} s"
@@ -76,9 +101,20 @@ def passthrough_model(folder: Path, resolution: int = RES) -> Path:
     x = helper.make_tensor_value_info("x", TensorProto.FLOAT, [1, spec.in_channels, resolution, resolution])
     y = helper.make_tensor_value_info("y", TensorProto.FLOAT, [1, 3, resolution, resolution])
     consts = [helper.make_tensor(n, TensorProto.INT64, [1], [v]) for n, v in (("start", 0), ("end", 3), ("axis", 1))]
-    graph = helper.make_graph([helper.make_node("Slice", ["x", "start", "end", "axis"], ["y"])], "di_passthrough", [x], [y], consts)
+    graph = helper.make_graph(
+        [helper.make_node("Slice", ["x", "start", "end", "axis"], ["y"])], "di_passthrough", [x], [y], consts
+    )
     folder.mkdir(parents=True, exist_ok=True)
-    onnx.save(helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)], ir_version=8), folder / "model.onnx")
-    doc = {"format": FORMAT, "model": "passthrough", "input": spec.to_dict(), "resolution": resolution, "ngf": 0, "files": {"fp32": "model.onnx"}}
+    onnx.save(
+        helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)], ir_version=8), folder / "model.onnx"
+    )
+    doc = {
+        "format": FORMAT,
+        "model": "passthrough",
+        "input": spec.to_dict(),
+        "resolution": resolution,
+        "ngf": 0,
+        "files": {"fp32": "model.onnx"},
+    }
     (folder / MODEL_JSON).write_text(json.dumps(doc))
     return folder / "model.onnx"

@@ -39,12 +39,18 @@ def make_dataset(root: Path, res: int = 32, n_train: int = 4, n_val: int = 2, se
     """A gicore dataset folder of synthetic frames."""
     rng = np.random.default_rng(seed)
     eye = np.eye(4).tolist()
-    frames = [FrameRecord(split, i, {}, eye, eye) for split, n in (("train", n_train), ("val", n_val)) for i in range(n)]
-    write_meta(root, DatasetMeta(scene={}, resolution=res, spp=1, denoise=False, seed=seed, buffers=BUFFERS, frames=frames))
+    frames = [
+        FrameRecord(split, i, {}, eye, eye) for split, n in (("train", n_train), ("val", n_val)) for i in range(n)
+    ]
+    write_meta(
+        root, DatasetMeta(scene={}, resolution=res, spp=1, denoise=False, seed=seed, buffers=BUFFERS, frames=frames)
+    )
     for f in frames:
         save_frame(root / f.file, synthetic_frame(rng, res))
     return root
 
 
 def tiny_config(dataset: Path, **kw) -> TrainConfig:
-    return TrainConfig(**({"datasets": [str(dataset)], "ngf": 4, "ndf": 4, "batch_size": 2, "checkpoint_every": 0} | kw))
+    return TrainConfig(
+        **({"datasets": [str(dataset)], "ngf": 4, "ndf": 4, "batch_size": 2, "checkpoint_every": 0} | kw)
+    )

@@ -33,7 +33,9 @@ def case(*argv: str, culprit: str, id: str, hold: str | None = None):
 SPEC = 'name = "{name}"\n[[objects]]\nname = "organ"\nmesh = {mesh}\n[light]\nposition = [0, 2, 0]\nintensity = {intensity}\n{extra}'
 
 
-def write_spec(path: Path, name: str = "s", mesh: str = '"meshes/ball.obj"', intensity: float = 3.0, extra: str = "") -> None:
+def write_spec(
+    path: Path, name: str = "s", mesh: str = '"meshes/ball.obj"', intensity: float = 3.0, extra: str = ""
+) -> None:
     path.write_text(SPEC.format(name=name, mesh=mesh, intensity=intensity, extra=extra))
 
 
@@ -70,7 +72,10 @@ def workspace(tmp_path_factory: pytest.TempPathFactory, sphere_mesh_path: Path) 
 
     # A dataset rendered by gicore-dataset (tiny), and synthetic ones with a broken meta.json or frame.
     build_dataset(
-        load_scene(ws / "scene.toml"), ws / "rendered" / "s", DatasetConfig(n_train=1, n_val=0, resolution=8, spp=1, denoise=False), progress=False
+        load_scene(ws / "scene.toml"),
+        ws / "rendered" / "s",
+        DatasetConfig(n_train=1, n_val=0, resolution=8, spp=1, denoise=False),
+        progress=False,
     )
     make_dataset(ws / "ds", res=32, n_train=2, n_val=1)
     shutil.copytree(ws / "ds", ws / "ds_badmeta")
@@ -98,24 +103,109 @@ def workspace(tmp_path_factory: pytest.TempPathFactory, sphere_mesh_path: Path) 
 
 
 # -- the cases ---------------------------------------------------------------------------------------------------------
-DATASET = ("gicore-dataset", "scene.toml", "--out", "out", "--train", "1", "--val", "0", "--resolution", "8", "--spp", "1", "--no-denoise")
+DATASET = (
+    "gicore-dataset",
+    "scene.toml",
+    "--out",
+    "out",
+    "--train",
+    "1",
+    "--val",
+    "0",
+    "--resolution",
+    "8",
+    "--spp",
+    "1",
+    "--no-denoise",
+)
 TRAIN = ("gigan-train", "ds", "--out", "out", "--ngf", "4", "--max-steps", "1", "--no-progress")
-CLIENT = ("gigan-client", "--scene", "scene.toml", "--frames", "1", "--resolution", "16", "--spp", "1", "--no-denoise", "--out", "out")
+CLIENT = (
+    "gigan-client",
+    "--scene",
+    "scene.toml",
+    "--frames",
+    "1",
+    "--resolution",
+    "16",
+    "--spp",
+    "1",
+    "--no-denoise",
+    "--out",
+    "out",
+)
 
 CASES = [
     # gicore-dataset: scene specs and meshes are checked before anything renders or is written
     case("gicore-dataset", "--out", "out", culprit="Missing argument 'scenes'", id="dataset-no-scenes"),
     case("gicore-dataset", "nope", "--out", "out", culprit="no scene spec 'nope'", id="dataset-unknown-scene"),
-    case("gicore-dataset", "broken.toml", "--out", "out", culprit="broken.toml: cannot parse", id="dataset-spec-syntax"),
-    case("gicore-dataset", "bad_field.toml", "--out", "out", culprit="bad_field.toml: 1 invalid field(s): light.intensity", id="dataset-spec-field"),
-    case("gicore-dataset", "bad_name.toml", "--out", "out", culprit="name: '../../x' is not a name", id="dataset-scene-name-path"),
-    case("gicore-dataset", "empty_name.toml", "--out", "out", culprit="name: '' is not a name", id="dataset-scene-name-empty"),
+    case(
+        "gicore-dataset", "broken.toml", "--out", "out", culprit="broken.toml: cannot parse", id="dataset-spec-syntax"
+    ),
+    case(
+        "gicore-dataset",
+        "bad_field.toml",
+        "--out",
+        "out",
+        culprit="bad_field.toml: 1 invalid field(s): light.intensity",
+        id="dataset-spec-field",
+    ),
+    case(
+        "gicore-dataset",
+        "bad_name.toml",
+        "--out",
+        "out",
+        culprit="name: '../../x' is not a name",
+        id="dataset-scene-name-path",
+    ),
+    case(
+        "gicore-dataset",
+        "empty_name.toml",
+        "--out",
+        "out",
+        culprit="name: '' is not a name",
+        id="dataset-scene-name-empty",
+    ),
     case("gicore-dataset", "near.toml", "--out", "out", culprit="near = 1e-20", id="dataset-near-1e-20"),
-    case("gicore-dataset", "mesh_missing.toml", "--out", "out", culprit="meshes/missing.obj: not found", id="dataset-mesh-missing"),
-    case("gicore-dataset", "mesh_empty.toml", "--out", "out", culprit="meshes/empty.obj: no triangles", id="dataset-mesh-empty"),
-    case("gicore-dataset", "mesh_text.toml", "--out", "out", culprit="meshes/text.obj: no triangles", id="dataset-mesh-not-a-mesh"),
-    case("gicore-dataset", "mesh_nan.toml", "--out", "out", culprit="meshes/nan.obj: 1 vertex(es) with NaN or Inf", id="dataset-mesh-nan-vertex"),
-    case("gicore-dataset", "mesh_5.toml", "--out", "out", culprit="objects.0.mesh: Input is not a valid path", id="dataset-mesh-5"),
+    case(
+        "gicore-dataset",
+        "mesh_missing.toml",
+        "--out",
+        "out",
+        culprit="meshes/missing.obj: not found",
+        id="dataset-mesh-missing",
+    ),
+    case(
+        "gicore-dataset",
+        "mesh_empty.toml",
+        "--out",
+        "out",
+        culprit="meshes/empty.obj: no triangles",
+        id="dataset-mesh-empty",
+    ),
+    case(
+        "gicore-dataset",
+        "mesh_text.toml",
+        "--out",
+        "out",
+        culprit="meshes/text.obj: no triangles",
+        id="dataset-mesh-not-a-mesh",
+    ),
+    case(
+        "gicore-dataset",
+        "mesh_nan.toml",
+        "--out",
+        "out",
+        culprit="meshes/nan.obj: 1 vertex(es) with NaN or Inf",
+        id="dataset-mesh-nan-vertex",
+    ),
+    case(
+        "gicore-dataset",
+        "mesh_5.toml",
+        "--out",
+        "out",
+        culprit="objects.0.mesh: Input is not a valid path",
+        id="dataset-mesh-5",
+    ),
     case(*DATASET, "--train", "0", "--val", "0", culprit="--train 0 --val 0", id="dataset-no-frames"),
     case(*DATASET, "--fov", "0", culprit="--fov = 0.0", id="dataset-fov-0"),
     case(*DATASET, "--fov", "-5", culprit="--fov = -5.0", id="dataset-fov-negative"),
@@ -132,11 +222,25 @@ CASES = [
         culprit="rendered/s holds a dataset made with other settings (spp 1 -> 2",
         id="dataset-other-settings",
     ),
-    case(*DATASET[:3], "rendered", *DATASET[4:], culprit="another run holds rendered/s", id="dataset-folder-held", hold="rendered/s"),
+    case(
+        *DATASET[:3],
+        "rendered",
+        *DATASET[4:],
+        culprit="another run holds rendered/s",
+        id="dataset-folder-held",
+        hold="rendered/s",
+    ),
     # gigan-train: datasets, run folders and option values
     case("gigan-train", "--out", "out", culprit="no dataset folders given", id="train-no-datasets"),
     case("gigan-train", "nowhere", "--out", "out", culprit="nowhere/meta.json is missing", id="train-dataset-missing"),
-    case("gigan-train", "ds_badmeta", "--out", "out", culprit="ds_badmeta/meta.json is not a readable dataset description", id="train-meta-corrupt"),
+    case(
+        "gigan-train",
+        "ds_badmeta",
+        "--out",
+        "out",
+        culprit="ds_badmeta/meta.json is not a readable dataset description",
+        id="train-meta-corrupt",
+    ),
     case(
         "gigan-train",
         "ds_truncated",
@@ -162,7 +266,13 @@ CASES = [
     case(*TRAIN, "--max-minutes", "-1", culprit="--max-minutes = -1.0", id="train-max-minutes-negative"),
     case(*TRAIN, "--model", "pix2pix", culprit="'--model'", id="train-unknown-model"),
     case(*TRAIN, "--buffers", "di,bogus", culprit="['bogus']", id="train-unknown-buffer"),
-    case(*TRAIN, "--buffers", "di,position", culprit="['position'] cannot be network inputs", id="train-buffer-not-an-input"),
+    case(
+        *TRAIN,
+        "--buffers",
+        "di,position",
+        culprit="['position'] cannot be network inputs",
+        id="train-buffer-not-an-input",
+    ),
     case(*TRAIN, "--crop", "64", culprit="crop 64 exceeds the frame size 32", id="train-crop-too-large"),
     case(*TRAIN[:3], "run", *TRAIN[4:], culprit="--out run already holds a run", id="train-rerun-refused"),
     case("gigan-train", "--out", "run", "--resume", "--ngf", "8", culprit="not ['ngf']", id="train-resume-changes-ngf"),
@@ -207,7 +317,15 @@ CASES = [
     case(*CLIENT[:2], "nope", *CLIENT[3:], culprit="no scene spec 'nope'", id="client-unknown-scene"),
     case(*CLIENT[:2], "bad_field.toml", *CLIENT[3:], culprit="light.intensity", id="client-spec-field"),
     case(*CLIENT[:2], "mesh_nan.toml", *CLIENT[3:], culprit="meshes/nan.obj", id="client-mesh-nan-vertex"),
-    case(*CLIENT, "--gi-source", "model", "--model", "missing.onnx", culprit="--model missing.onnx", id="client-model-missing"),
+    case(
+        *CLIENT,
+        "--gi-source",
+        "model",
+        "--model",
+        "missing.onnx",
+        culprit="--model missing.onnx",
+        id="client-model-missing",
+    ),
     case(
         *CLIENT,
         "--gi-source",
@@ -250,7 +368,13 @@ def test_bad_input_is_one_clean_error_line(
 @pytest.mark.slow
 def test_debug_shows_the_traceback(workspace: Path):
     """--debug is the way to a traceback for a user error (SPEC §8a)."""
-    proc = subprocess.run([str(BIN / "gicore-dataset"), "nope", "--debug"], cwd=workspace, capture_output=True, text=True, timeout=TIMEOUT_S)
+    proc = subprocess.run(
+        [str(BIN / "gicore-dataset"), "nope", "--debug"],
+        cwd=workspace,
+        capture_output=True,
+        text=True,
+        timeout=TIMEOUT_S,
+    )
     assert proc.returncode == 1 and "Traceback" in proc.stderr and "SceneSpecError" in proc.stderr
 
 
@@ -260,7 +384,9 @@ def interrupt_when(argv: list[str], cwd: Path, ready) -> subprocess.CompletedPro
     import signal
     import time
 
-    proc = subprocess.Popen([str(BIN / argv[0]), *argv[1:]], cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [str(BIN / argv[0]), *argv[1:]], cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
     deadline = time.monotonic() + TIMEOUT_S
     while not ready() and proc.poll() is None and time.monotonic() < deadline:
         time.sleep(0.05)
@@ -275,18 +401,39 @@ def test_interrupted_dataset_keeps_whole_frames_and_resumes(workspace: Path, tmp
     from gicore.fileio import TMP_MARKER
 
     shutil.copytree(workspace, tmp_path, dirs_exist_ok=True)
-    argv = ["gicore-dataset", "scene.toml", "--out", "ds_int", "--train", "200", "--val", "0", "--resolution", "8", "--spp", "1", "--no-denoise"]
+    argv = [
+        "gicore-dataset",
+        "scene.toml",
+        "--out",
+        "ds_int",
+        "--train",
+        "200",
+        "--val",
+        "0",
+        "--resolution",
+        "8",
+        "--spp",
+        "1",
+        "--no-denoise",
+    ]
     frames = tmp_path / "ds_int" / "s" / "train"
     done = interrupt_when(argv, tmp_path, lambda: len(list(frames.glob("*.npz"))) >= 3)
     assert done.returncode == 130, done.stderr
-    assert "Traceback" not in done.stderr and "interrupted: finished frames are kept: run the same command again" in done.stderr
+    assert (
+        "Traceback" not in done.stderr
+        and "interrupted: finished frames are kept: run the same command again" in done.stderr
+    )
     kept = sorted(frames.glob("*.npz"))
     assert 3 <= len(kept) < 200, "the run should have stopped part-way"
-    assert not list((tmp_path / "ds_int").rglob(f"*{TMP_MARKER}*")) and not (tmp_path / "ds_int" / "s" / ".lock").exists()
+    assert (
+        not list((tmp_path / "ds_int").rglob(f"*{TMP_MARKER}*")) and not (tmp_path / "ds_int" / "s" / ".lock").exists()
+    )
     for path in kept:
         load_frame(path)  # every frame left behind is whole
     mtimes = {p: p.stat().st_mtime_ns for p in kept}
-    rerun = subprocess.run([str(BIN / argv[0]), *argv[1:]], cwd=tmp_path, capture_output=True, text=True, timeout=TIMEOUT_S)
+    rerun = subprocess.run(
+        [str(BIN / argv[0]), *argv[1:]], cwd=tmp_path, capture_output=True, text=True, timeout=TIMEOUT_S
+    )
     assert rerun.returncode == 0, rerun.stderr
     assert len(frame_paths(tmp_path / "ds_int" / "s", "train")) == 200
     assert all(p.stat().st_mtime_ns == t for p, t in mtimes.items()), "a kept frame was rendered again"
@@ -297,7 +444,19 @@ def test_interrupted_training_resumes_from_its_checkpoint(workspace: Path, tmp_p
     import csv
 
     shutil.copytree(workspace, tmp_path, dirs_exist_ok=True)
-    argv = ["gigan-train", "ds", "--out", "run_int", "--ngf", "4", "--batch-size", "1", "--checkpoint-every", "1", "--no-progress"]
+    argv = [
+        "gigan-train",
+        "ds",
+        "--out",
+        "run_int",
+        "--ngf",
+        "4",
+        "--batch-size",
+        "1",
+        "--checkpoint-every",
+        "1",
+        "--no-progress",
+    ]
     checkpoint = tmp_path / "run_int" / "checkpoint.pt"
     done = interrupt_when(argv, tmp_path, checkpoint.is_file)
     assert done.returncode == 130, done.stderr
@@ -333,7 +492,12 @@ def _failing_app(error: BaseException):
 @pytest.mark.parametrize(
     "error,status,line",
     [
-        pytest.param(None, 2, "error: Invalid value for '--n': Input should be greater than or equal to 1: see 'prog --help'", id="usage"),
+        pytest.param(
+            None,
+            2,
+            "error: Invalid value for '--n': Input should be greater than or equal to 1: see 'prog --help'",
+            id="usage",
+        ),
         pytest.param("user", 2, "error: scene.toml is broken: fix it", id="user-error"),
         pytest.param(
             FileNotFoundError(2, "No such file or directory", "in.npz"),
@@ -369,7 +533,10 @@ def test_user_errors_cross_process_boundaries_intact():
     from gicore.cli import UserError
     from gicore.scene import SceneSpecError
 
-    for error in (UserError("frame x.npz is corrupt", "render it again"), SceneSpecError("s.toml: 1 invalid field(s): name", "fix them")):
+    for error in (
+        UserError("frame x.npz is corrupt", "render it again"),
+        SceneSpecError("s.toml: 1 invalid field(s): name", "fix them"),
+    ):
         back = pickle.loads(pickle.dumps(error))
         assert type(back) is type(error) and (back.what, back.todo, str(back)) == (error.what, error.todo, str(error))
 

@@ -13,7 +13,19 @@ import numpy as np
 import pytest
 
 from baseline_cloudbaking.warp import PixelWarp
-from gicore.loop import LAYERS, ClientLoop, GIMap, GroundTruth, LoopConfig, PasteWarp, SynchronousSource, evaluate, path_views, run_frames, summarize
+from gicore.loop import (
+    LAYERS,
+    ClientLoop,
+    GIMap,
+    GroundTruth,
+    LoopConfig,
+    PasteWarp,
+    SynchronousSource,
+    evaluate,
+    path_views,
+    run_frames,
+    summarize,
+)
 from gicore.timing import Stopwatch
 from gigan_local.client import GTSource
 from gigan_local.warp import StructureAwareWarp
@@ -50,11 +62,31 @@ def make_loop(renderer, source, warp: str, composition: str = "blend", **cfg) ->
 @pytest.mark.parametrize("warp", ["structure", "pixel"])
 def test_shared_loop_reproduces_the_old_loops_ssim(loop_renderer, warp, composition):
     spec = loop_renderer.spec
-    loop = make_loop(loop_renderer, GTSource(loop_renderer, spp=4, denoise=False, seed=0), warp, composition, every=3, gi_fov=90.0, tau=0.25, seed=0)
-    rows = run_frames(loop, path_views(spec, 6, 40, 0, 60.0, RES), GroundTruth(loop_renderer, 1, spp=4, denoise=False, seed=0))
+    loop = make_loop(
+        loop_renderer,
+        GTSource(loop_renderer, spp=4, denoise=False, seed=0),
+        warp,
+        composition,
+        every=3,
+        gi_fov=90.0,
+        tau=0.25,
+        seed=0,
+    )
+    rows = run_frames(
+        loop, path_views(spec, 6, 40, 0, 60.0, RES), GroundTruth(loop_renderer, 1, spp=4, denoise=False, seed=0)
+    )
     np.testing.assert_allclose([r["ssim"] for r in rows], OLD_LOOP_SSIM[warp, composition], atol=1e-5)
-    assert all(0.0 < r["lf_error"] <= 10 ** (-r["psnr"] / 20) for r in rows)  # part of the error: <= mean |diff| <= RMSE
-    assert [r["gi_new"] for r in rows] == [1, 0, 0, 1, 0, 0] and [r["gi_age_frames"] for r in rows] == [0, 1, 2, 0, 1, 2]
+    assert all(
+        0.0 < r["lf_error"] <= 10 ** (-r["psnr"] / 20) for r in rows
+    )  # part of the error: <= mean |diff| <= RMSE
+    assert [r["gi_new"] for r in rows] == [1, 0, 0, 1, 0, 0] and [r["gi_age_frames"] for r in rows] == [
+        0,
+        1,
+        2,
+        0,
+        1,
+        2,
+    ]
 
 
 @pytest.mark.parametrize("composition", ["blend", "residual"])
@@ -68,7 +100,11 @@ def test_identical_cameras_give_the_identity_through_the_loop(loop_renderer, war
         result = loop.step(frame, camera, light)
         gi = source.latest()
         assert gi.camera == camera and result.row["gi_new"] == 1
-        expected = gi.radiance if composition == "blend" else loop_renderer.render_di(camera, light, seed=frame_seed_di(frame)) + gi.indirect
+        expected = (
+            gi.radiance
+            if composition == "blend"
+            else loop_renderer.render_di(camera, light, seed=frame_seed_di(frame)) + gi.indirect
+        )
         surface = loop_renderer.render_uv(camera)["mask"]  # the background of a render holds edge samples, not a map
         valid = loop.warp.warp(camera, gi.di)[1] & surface
         assert valid.sum() > 0.97 * surface.sum() and result.row["valid_frac"] > 0.97
@@ -105,7 +141,14 @@ class ThreadedSource:
                 if not self.fail:
                     gi = GIMap.blank(camera)
                     self._latest = GIMap(
-                        camera, gi.radiance + 1.0, gi.depth, gi.di, frame, requested_at, time.perf_counter(), {"server": self.delay_s * 1e3}
+                        camera,
+                        gi.radiance + 1.0,
+                        gi.depth,
+                        gi.di,
+                        frame,
+                        requested_at,
+                        time.perf_counter(),
+                        {"server": self.delay_s * 1e3},
                     )
             finally:
                 self._busy.release()
@@ -132,11 +175,15 @@ def test_a_background_source_does_not_block_frames_after_the_first_map(loop_rend
         time.sleep(0.02)  # the rest of a frame's work
     for t in source.threads:
         t.join(timeout=5)
-    assert rows[0]["gi_requested"] == 1 and rows[0]["gi_wait_ms"] >= 0.9 * delay * 1e3, "the first frame waits for the first map"
+    assert rows[0]["gi_requested"] == 1 and rows[0]["gi_wait_ms"] >= 0.9 * delay * 1e3, (
+        "the first frame waits for the first map"
+    )
     assert all(r["gi_wait_ms"] < 0.5 * delay * 1e3 for r in rows[1:]), "later frames go on with the map they have"
     new = [r for r in rows if r["gi_new"]]
     assert len(new) >= 2 and all(r["gi_latency_ms"] >= 0.9 * delay * 1e3 for r in new)
-    assert all(r["server_ms"] == pytest.approx(delay * 1e3) for r in new) and all(r["server_ms"] == "" for r in rows if not r["gi_new"])
+    assert all(r["server_ms"] == pytest.approx(delay * 1e3) for r in new) and all(
+        r["server_ms"] == "" for r in rows if not r["gi_new"]
+    )
     late = new[1]  # asked for at frame 2, arrived some frames later: it is older than 0 frames when bound
     assert late["gi_age_frames"] >= 2 and late["gi_age_ms"] >= late["gi_latency_ms"]
     # at most one request in flight: frames that wanted a newer map while one was on its way were refused
@@ -163,7 +210,11 @@ def test_frames_show_the_di_alone_until_a_map_arrives(loop_renderer):
 def test_leaving_the_maps_tolerance_asks_for_a_new_map(loop_renderer):
     views = path_views(loop_renderer.spec, 5, 40, 0, 60.0, RES)  # 9° of orbit per frame
     source = GTSource(loop_renderer, spp=1, denoise=False)
-    for cfg, expected in (({}, [1, 0, 0, 0, 0]), ({"max_turn": 5.0}, [1, 1, 1, 1, 1]), ({"max_move": 10.0}, [1, 0, 0, 0, 0])):
+    for cfg, expected in (
+        ({}, [1, 0, 0, 0, 0]),
+        ({"max_turn": 5.0}, [1, 1, 1, 1, 1]),
+        ({"max_move": 10.0}, [1, 0, 0, 0, 0]),
+    ):
         loop = make_loop(loop_renderer, source, "structure", every=100, gi_fov=90.0, **cfg)
         assert [loop.step(f, c, light).row["gi_requested"] for f, (c, light) in enumerate(views)] == expected, cfg
 
@@ -184,7 +235,12 @@ def test_rows_summary_and_config_errors(loop_renderer):
     rows = run_frames(loop, path_views(loop_renderer.spec, 4, 40, 0, 60.0, RES))
     assert all(list(r) == list(loop.columns()) for r in rows)
     summary = summarize(rows, 2)
-    assert summary["fps"] > 0 and summary["median"]["gt_render_ms"] > 0 and "mean_ssim" not in summary and "mean_lf_error" not in summary
+    assert (
+        summary["fps"] > 0
+        and summary["median"]["gt_render_ms"] > 0
+        and "mean_ssim" not in summary
+        and "mean_lf_error" not in summary
+    )
     assert all(r["ssim"] == r["psnr"] == r["lf_error"] == "" for r in rows)  # no GT: nothing scored
     with pytest.raises(ValueError, match="indirect"):
         ClientLoop(LoopConfig(composition="residual"), loop_renderer, loop.source, PasteWarp("radiance"))
@@ -197,7 +253,12 @@ def test_rows_summary_and_config_errors(loop_renderer):
         stages = ("render",)
 
         def produce(self, camera, light, frame):
-            return GIMap(camera, np.ones((RES, RES, 3), np.float32), np.ones((RES, RES), np.float32), stages={"render": 1.0, "upload": 2.0})
+            return GIMap(
+                camera,
+                np.ones((RES, RES, 3), np.float32),
+                np.ones((RES, RES), np.float32),
+                stages={"render": 1.0, "upload": 2.0},
+            )
 
     with pytest.raises(RuntimeError, match="upload"):
         make_loop(loop_renderer, Sloppy(), "none").step(0, *path_views(loop_renderer.spec, 1, 40, 0, 60.0, RES)[0])

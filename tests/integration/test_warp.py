@@ -40,7 +40,15 @@ def yawed(camera: Camera, degrees: float) -> Camera:
     a = math.radians(degrees)
     d = np.subtract(camera.target, camera.origin)
     rot = np.array([[math.cos(a), 0.0, math.sin(a)], [0.0, 1.0, 0.0], [-math.sin(a), 0.0, math.cos(a)]])
-    return Camera(camera.origin, tuple(np.add(camera.origin, rot @ d)), fov=camera.fov, near=camera.near, far=camera.far, width=RES, height=RES)
+    return Camera(
+        camera.origin,
+        tuple(np.add(camera.origin, rot @ d)),
+        fov=camera.fov,
+        near=camera.near,
+        far=camera.far,
+        width=RES,
+        height=RES,
+    )
 
 
 def warp_both(method: str, renderer, image: np.ndarray, depth: np.ndarray, gi_cam: Camera, local: Camera):
@@ -91,15 +99,24 @@ def gt_source(warp_renderer):
 @pytest.mark.parametrize("method", METHODS)
 def test_warping_beats_not_warping(warp_renderer, gt_source, method, motion):
     before = cam()
-    after = {"rotate5": yawed(before, 5.0), "rotate15": yawed(before, 15.0), "translate": cam(origin=(0.35, 1.2, 2.3), target=(0.35, 0.5, -0.1))}[
-        motion
-    ]
+    after = {
+        "rotate5": yawed(before, 5.0),
+        "rotate15": yawed(before, 15.0),
+        "translate": cam(origin=(0.35, 1.2, 2.3), target=(0.35, 0.5, -0.1)),
+    }[motion]
     gt = gt_source.produce(after, LIGHT, 1).radiance
 
     def composed(warp: str) -> np.ndarray:
         gi_fov = 90.0 if warp != "none" else before.fov  # pasting needs a map made at the local FOV
-        w = {"structure": StructureAwareWarp(warp_renderer), "pixel": PixelWarp(warp_renderer), "none": PasteWarp()}[warp]
-        client = ClientLoop(LoopConfig(every=100, gi_fov=gi_fov), warp_renderer, _Fixed(gt_source.produce(before.with_fov(gi_fov), LIGHT, 0)), w)
+        w = {"structure": StructureAwareWarp(warp_renderer), "pixel": PixelWarp(warp_renderer), "none": PasteWarp()}[
+            warp
+        ]
+        client = ClientLoop(
+            LoopConfig(every=100, gi_fov=gi_fov),
+            warp_renderer,
+            _Fixed(gt_source.produce(before.with_fov(gi_fov), LIGHT, 0)),
+            w,
+        )
         client.step(0, before, LIGHT)
         return client.step(1, after, LIGHT).image
 
@@ -139,7 +156,11 @@ def test_occluded_surface_is_invalid_and_gets_the_fallback(warp_renderer):
     depth = texel_depth(warp_renderer, gi_cam)
     warper = StructureAwareWarp(warp_renderer)
     # a GI map of 5 whose indirect part is 1 everywhere: the fallback gives base + 1 exactly
-    warper.bind_texture(GITexture.build(gi_cam, np.full((RES, RES, 3), 5.0, np.float32), depth, indirect=np.ones((RES, RES, 3), np.float32)))
+    warper.bind_texture(
+        GITexture.build(
+            gi_cam, np.full((RES, RES, 3), 5.0, np.float32), depth, indirect=np.ones((RES, RES, 3), np.float32)
+        )
+    )
     uv_pass, _ = warper.raster(local)
     base = np.random.default_rng(4).uniform(size=(RES, RES, 3)).astype(np.float32)
     out, valid, timings = warper.resample(uv_pass, base=base)
@@ -186,9 +207,9 @@ def test_extreme_camera_black_map_zero_motion_is_finite(warp_renderer, method):
 def _smooth_map(res: int) -> np.ndarray:
     """A smooth GI map (1.5 periods across, per-channel phases), so that lookups can be checked in value."""
     v, u = np.mgrid[0:res, 0:res] / res
-    return np.stack([0.5 + 0.4 * np.sin(2 * np.pi * (1.5 * u + 0.3 * c)) * np.cos(2 * np.pi * (v + 0.2 * c)) for c in range(3)], -1).astype(
-        np.float32
-    )
+    return np.stack(
+        [0.5 + 0.4 * np.sin(2 * np.pi * (1.5 * u + 0.3 * c)) * np.cos(2 * np.pi * (v + 0.2 * c)) for c in range(3)], -1
+    ).astype(np.float32)
 
 
 def _bilinear(image: np.ndarray, px: np.ndarray) -> np.ndarray:
@@ -198,7 +219,10 @@ def _bilinear(image: np.ndarray, px: np.ndarray) -> np.ndarray:
     x0, y0 = np.minimum(np.floor(x).astype(int), w - 2), np.minimum(np.floor(y).astype(int), h - 2)
     fx, fy = (x - x0)[..., None], (y - y0)[..., None]
     return (
-        image[y0, x0] * (1 - fx) * (1 - fy) + image[y0, x0 + 1] * fx * (1 - fy) + image[y0 + 1, x0] * (1 - fx) * fy + image[y0 + 1, x0 + 1] * fx * fy
+        image[y0, x0] * (1 - fx) * (1 - fy)
+        + image[y0, x0 + 1] * fx * (1 - fy)
+        + image[y0 + 1, x0] * (1 - fx) * fy
+        + image[y0 + 1, x0 + 1] * fx * fy
     )
 
 
@@ -225,7 +249,11 @@ def test_extreme_local_fov_covers_and_fills(warp_renderer, method, local_fov):
         assert valid[surface & ~inside].mean() <= 0.05
     if method == "pixel":  # the hole filling (structure-aware's fallback is tested with its base elsewhere)
         filled = PointCloud(image, texel_depth(warp_renderer, gi_cam), gi_cam).splat(local, target_mask=surface)[0]
-        assert np.all(np.isfinite(filled)) and image.min() - 1e-6 <= filled[surface].min() and filled[surface].max() <= image.max() + 1e-6
+        assert (
+            np.all(np.isfinite(filled))
+            and image.min() - 1e-6 <= filled[surface].min()
+            and filled[surface].max() <= image.max() + 1e-6
+        )
     reference = _bilinear(image, px)
     error = np.abs(out - reference).max(axis=-1)[inside]
     if method == "structure":
@@ -233,10 +261,14 @@ def test_extreme_local_fov_covers_and_fills(warp_renderer, method, local_fov):
     elif local_fov < 60:
         assert error.mean() <= 0.03 and ssim(out, reference) >= 0.95  # a black frame: error ~0.5, SSIM ~0
     else:
-        half = 0.5 * math.tan(math.radians(local_fov / 2)) / math.tan(math.radians(45.0)) + 1.0  # texels per pixel / 2, + 1
+        half = (
+            0.5 * math.tan(math.radians(local_fov / 2)) / math.tan(math.radians(45.0)) + 1.0
+        )  # texels per pixel / 2, + 1
         for (row, col), value in zip(np.argwhere(inside), out[inside]):
             cx, cy = px[row, col]
-            window = image[max(0, int(cy - half)) : int(cy + half) + 1, max(0, int(cx - half)) : int(cx + half) + 1].reshape(-1, 3)
+            window = image[
+                max(0, int(cy - half)) : int(cy + half) + 1, max(0, int(cx - half)) : int(cx + half) + 1
+            ].reshape(-1, 3)
             assert np.min(np.abs(window - value).max(axis=-1)) <= 1e-6, (row, col)
 
 

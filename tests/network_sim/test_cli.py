@@ -56,7 +56,11 @@ def test_bad_proxy_flags(workspace: Path, listener: int, args: list[str], culpri
 def test_unreachable_upstream(workspace: Path) -> None:
     with socket.create_server(("127.0.0.1", 0)) as sock:
         port = sock.getsockname()[1]  # free once closed: nothing listens there
-    assert_user_error(["network-sim", "proxy", "--upstream", f"127.0.0.1:{port}"], f"--upstream 127.0.0.1:{port} is unreachable", workspace)
+    assert_user_error(
+        ["network-sim", "proxy", "--upstream", f"127.0.0.1:{port}"],
+        f"--upstream 127.0.0.1:{port} is unreachable",
+        workspace,
+    )
 
 
 def test_listen_port_taken(workspace: Path, listener: int) -> None:
@@ -66,7 +70,9 @@ def test_listen_port_taken(workspace: Path, listener: int) -> None:
 
 def test_other_commands(workspace: Path) -> None:
     assert_user_error(["network-sim", "selftest", "--out", "afile"], "--out afile is a file", workspace)
-    assert_user_error(["network-sim", "server", "--listen", "nowhere"], "--listen 'nowhere' is not HOST:PORT", workspace)
+    assert_user_error(
+        ["network-sim", "server", "--listen", "nowhere"], "--listen 'nowhere' is not HOST:PORT", workspace
+    )
     assert_user_error(["network-sim", "traces", "--out", "afile"], "--out afile is a file", workspace)
 
 

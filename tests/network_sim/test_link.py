@@ -101,10 +101,14 @@ def test_queue_bound_gives_backpressure_not_loss() -> None:
     st.sampled_from(["normal", "pareto", "uniform"]),
     st.floats(0, 0.3),
 )
-def test_model_invariants(offers: list[tuple[int, int, float]], rate: float | None, queue: int, jitter: float, dist: str, loss: float) -> None:
+def test_model_invariants(
+    offers: list[tuple[int, int, float]], rate: float | None, queue: int, jitter: float, dist: str, loss: float
+) -> None:
     """Whatever the traffic: streams stay in order, nothing leaves before arrival + delay, the shared queue
     never holds more than its bound, and bytes are never dropped (every chunk gets a release time)."""
-    config = DirectionConfig(delay_ms=5.0, jitter_ms=jitter, jitter_dist=dist, rate_mbit=rate, queue_bytes=queue, loss=loss)  # type: ignore[arg-type]
+    config = DirectionConfig(
+        delay_ms=5.0, jitter_ms=jitter, jitter_dist=dist, rate_mbit=rate, queue_bytes=queue, loss=loss
+    )  # type: ignore[arg-type]
     link = Link(LinkConfig(up=config))
     t, chunks = 0.0, []
     for conn, size, gap in offers:
@@ -191,7 +195,9 @@ def test_standardized_distributions_have_unit_spread() -> None:
     zs = [rng.gauss(0, 1) for _ in range(200_000)]
     for dist in ("normal", "pareto", "uniform"):
         xs = [standardized(dist, z) for z in zs]
-        assert statistics.fmean(xs) == pytest.approx(0.0, abs=0.01) and statistics.pstdev(xs) == pytest.approx(1.0, abs=0.01)
+        assert statistics.fmean(xs) == pytest.approx(0.0, abs=0.01) and statistics.pstdev(xs) == pytest.approx(
+            1.0, abs=0.01
+        )
 
 
 def test_same_seed_same_link_other_seed_other_draws() -> None:
@@ -211,7 +217,15 @@ def test_message_helper_and_window_limit() -> None:
 
 
 @pytest.mark.parametrize(
-    "bad", [dict(delay_ms=-1.0), dict(jitter_ms=math.nan), dict(loss=1.5), dict(rate_mbit=-2.0), dict(queue_bytes=100), dict(jitter_dist="cauchy")]
+    "bad",
+    [
+        dict(delay_ms=-1.0),
+        dict(jitter_ms=math.nan),
+        dict(loss=1.5),
+        dict(rate_mbit=-2.0),
+        dict(queue_bytes=100),
+        dict(jitter_dist="cauchy"),
+    ],
 )
 def test_invalid_direction_configs_are_rejected(bad: dict[str, object]) -> None:
     with pytest.raises(ValueError):
@@ -256,5 +270,7 @@ def test_importing_network_sim_pulls_in_no_other_project_package() -> None:
         "('mitsuba', 'torch', 'fastapi', 'baseline_cloudbaking', 'gigan_local', 'bench', 'onnxruntime', 'drjit'));"
         "print(','.join(bad))"
     )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True).stdout.strip()
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True
+    ).stdout.strip()
     assert out == ""

@@ -127,7 +127,9 @@ def test_jitter_never_reorders(server: Running, tmp_path: Path, dist: str) -> No
     assert list(struct.unpack(f"!{count}I", bytes(received))) == list(range(count))
     rows = _read_log(log)
     for direction in ("up", "down"):
-        releases = [float(r["release_s"]) for r in sorted(rows, key=lambda r: int(r["seq"])) if r["direction"] == direction]
+        releases = [
+            float(r["release_s"]) for r in sorted(rows, key=lambda r: int(r["seq"])) if r["direction"] == direction
+        ]
         assert len(releases) > 50 and all(a <= b for a, b in zip(releases, releases[1:]))
     spread = statistics.pstdev(float(r["release_s"]) - float(r["ready_s"]) for r in rows if r["direction"] == "up")
     assert spread > 0.010  # the jitter was really there
@@ -146,12 +148,16 @@ def test_full_queue_is_backpressure_not_loss(server: Running, tmp_path: Path) ->
     assert all(float(b["arrival_s"]) >= float(a["admitted_s"]) - 1e-6 for a, b in zip(up, up[1:]))
     for r in up:  # at each admission the bytes not yet serialized fit in the queue
         t = float(r["admitted_s"])
-        queued = sum(min(int(o["bytes"]), max(0.0, float(o["finish_s"]) - t) * 1e6) for o in up if int(o["seq"]) <= int(r["seq"]))
+        queued = sum(
+            min(int(o["bytes"]), max(0.0, float(o["finish_s"]) - t) * 1e6) for o in up if int(o["seq"]) <= int(r["seq"])
+        )
         assert queued <= 20_000 + 1e-6
 
 
 @pytest.mark.parametrize("flags", [("--rate-mbit", "0"), ("--loss", "1")])
-def test_dead_link_ends_in_client_timeouts_while_the_proxy_stays_responsive(server: Running, flags: tuple[str, str]) -> None:
+def test_dead_link_ends_in_client_timeouts_while_the_proxy_stays_responsive(
+    server: Running, flags: tuple[str, str]
+) -> None:
     with _proxy(server, *flags, "--queue-bytes", "100000") as proxy:
         stuck = []
         for _ in range(3):
@@ -194,7 +200,9 @@ def test_sigint_also_stops_the_proxy(server: Running) -> None:
 def test_model_replays_the_logged_release_times(server: Running, tmp_path: Path) -> None:
     """Feed a fresh model the logged arrivals in the proxy's order: it reproduces every admission,
     serialization, loss and release time exactly; and the proxy wrote chunks on time, never early."""
-    flags = dict(delay_ms=10.0, jitter_ms=4.0, jitter_dist="pareto", rate_mbit=30.0, queue_bytes=60_000, loss=0.02, seed=11)
+    flags = dict(
+        delay_ms=10.0, jitter_ms=4.0, jitter_dist="pareto", rate_mbit=30.0, queue_bytes=60_000, loss=0.02, seed=11
+    )
     log = tmp_path / "chunks.csv"
     args = [
         "--delay-ms",
@@ -296,5 +304,9 @@ def test_selftest_writes_tidy_results_and_counts_missed_targets(tmp_path: Path) 
     }
     assert missed == sum(r["value"] == 0.0 for r in verdicts)
     intact = next(r for r in rows if r["metric"] == "intact_transfers" and r["stat"] == "value")
-    assert intact["value"] == next(r for r in rows if r["metric"] == "intact_transfers" and r["stat"] == "configured")["value"] >= 6
+    assert (
+        intact["value"]
+        == next(r for r in rows if r["metric"] == "intact_transfers" and r["stat"] == "configured")["value"]
+        >= 6
+    )
     assert (tmp_path / f"{BENCH}.provenance.json").is_file() and (tmp_path / f"{BENCH}.png").stat().st_size > 10_000
