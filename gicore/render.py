@@ -16,7 +16,6 @@ from __future__ import annotations
 import glob
 import os
 import warnings
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -64,13 +63,6 @@ mi.set_variant(VARIANT)
 GT_MAX_DEPTH = 12
 DI_MAX_DEPTH = 2
 GBUFFER_AOVS = "albedo:albedo,normal:sh_normal,position:position,dist:depth"
-
-
-@dataclass(frozen=True)
-class LightState:
-    """Where the light is for one render."""
-
-    position: tuple[float, float, float]
 
 
 def _mesh_to_mitsuba(obj: SceneObject) -> mi.Mesh:

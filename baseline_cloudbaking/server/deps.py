@@ -1,4 +1,4 @@
-"""Typed dependencies of the routers: the app's settings, GI tree and map service (set up in ``lifespan``)."""
+"""Typed dependencies of the routers: the app's settings and map service (set up in ``lifespan``)."""
 
 from __future__ import annotations
 
@@ -8,15 +8,10 @@ from fastapi import Depends, Request
 
 from baseline_cloudbaking.server.service import MapService
 from baseline_cloudbaking.server.settings import Settings
-from baseline_cloudbaking.store import GITree
 
 
 def app_settings(request: Request) -> Settings:
     return request.app.state.settings
-
-
-def app_store(request: Request) -> GITree:
-    return request.app.state.store
 
 
 def app_service(request: Request) -> MapService:
@@ -24,5 +19,4 @@ def app_service(request: Request) -> MapService:
 
 
 SettingsDep = Annotated[Settings, Depends(app_settings)]
-StoreDep = Annotated[GITree, Depends(app_store)]
 ServiceDep = Annotated[MapService, Depends(app_service)]
