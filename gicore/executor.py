@@ -80,11 +80,9 @@ def run_job(task: Task, threads: int, job: Any) -> Any:
     the task's state built once per process, then ``task.work(state, job)``."""
     global _threads
     if threads != _threads:
-        import drjit
+        from gicore.render import set_render_threads  # Mitsuba loads only in processes that render
 
-        import gicore.render  # noqa: F401  (locates libLLVM before Dr.Jit's first call)
-
-        drjit.set_thread_count(threads)
+        set_render_threads(threads)
         _threads = threads
     if task.key not in _states:
         _states[task.key] = task.build(*task.args)

@@ -55,9 +55,16 @@ def _select_variant() -> str:
 
 
 VARIANT = _select_variant()
-import mitsuba as mi  # noqa: E402  (after DRJIT_LIBLLVM_PATH is set)
+import drjit as dr  # noqa: E402  (after DRJIT_LIBLLVM_PATH is set)
+import mitsuba as mi  # noqa: E402
 
 mi.set_variant(VARIANT)
+
+
+def set_render_threads(threads: int) -> None:
+    """Give every later render of this process ``threads`` Dr.Jit threads (a pool worker's share of the cores)."""
+    dr.set_thread_count(threads)
+
 
 #: Path depth of the ground truth; DI is depth 2 (camera ray + one bounce to the light).
 GT_MAX_DEPTH = 12

@@ -69,11 +69,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         if settings.render_threads is not None:
-            import drjit
+            from gicore.render import set_render_threads
 
-            import gicore.render  # noqa: F401  (before any Dr.Jit call: it locates libLLVM)
-
-            drjit.set_thread_count(settings.render_threads)
+            set_render_threads(settings.render_threads)
         store = GITree(settings.store, settings.budget_bytes, settings.tolerance)
         app.state.settings = settings
         app.state.store = store
