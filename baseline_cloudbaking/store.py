@@ -18,6 +18,11 @@ and only then indexed in one SQLite transaction, so an entry never points at a p
 can leave a temporary file or a complete but unindexed payload: the first process to open the store
 (nobody else holding it) sweeps both, and drops any entry whose file is missing or has the wrong size.
 
+Writes are transactions (``BEGIN IMMEDIATE`` ... ``COMMIT``) that roll back on any error and re-raise
+that error (a full disk says so), so one failed write never blocks the next. A store whose index
+cannot be written (a read-only file or file system) is refused when it is opened, before any work,
+with a :class:`gicore.cli.UserError`.
+
 Optional byte budget: an insert evicts least-recently-used entries (lookups count as use) until the
 payload bytes fit. Hit times and counts are buffered in memory and written with the next insert (or
 :meth:`GITree.flush`), so a cache hit does not write to SQLite.
@@ -31,16 +36,21 @@ import math
 import sqlite3
 import threading
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Self
 
 import numpy as np
 
+from gicore.cli import UserError
 from gicore.fileio import atomic_write_bytes, sweep_temporaries
 
 Vec3 = tuple[float, float, float]
 PAYLOAD_SUFFIX = ".gim"
+INDEX_NAME = "index.sqlite"
+READ_ONLY_TODO = "make it, its -wal and -shm files and the store folder writable, or give another --store"
 #: Default light-cell side, scene units: the paper scenes' lights sweep ±0.6 to ±1 along x, so 4 to 8 cells.
 DEFAULT_LIGHT_CELL = 0.25
 _SCHEMA = """
@@ -229,9 +239,16 @@ class GITree:
         self._lock = threading.Lock()
         self._touched: dict[int, tuple[float, int]] = {}
         self.counters = {"inserts": 0, "evictions": 0, "rejected": 0}
-        with self._db() as db:
+        try:
+            db = self._db()
             db.execute("PRAGMA journal_mode=WAL")
             db.executescript(_SCHEMA)
+            self._probe_write(db)
+        except sqlite3.OperationalError as exc:
+            self._close_connections()
+            if exc.sqlite_errorcode & 0xFF == sqlite3.SQLITE_READONLY:
+                raise UserError(f"{self.root / INDEX_NAME} is read-only", READ_ONLY_TODO) from exc
+            raise
         self._lock_file = open(self.root / "index.lock", "a+b")  # noqa: SIM115 (held for the store's life)
         try:
             fcntl.flock(self._lock_file.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
@@ -246,9 +263,7 @@ class GITree:
         db = getattr(self._local, "db", None)
         if db is None:
             # autocommit mode: transactions are explicit BEGIN IMMEDIATE ... COMMIT
-            db = sqlite3.connect(
-                self.root / "index.sqlite", timeout=30.0, isolation_level=None, check_same_thread=False
-            )
+            db = sqlite3.connect(self.root / INDEX_NAME, timeout=30.0, isolation_level=None, check_same_thread=False)
             db.execute("PRAGMA synchronous=NORMAL")  # WAL: commits survive a killed process; payloads are fsynced
             db.execute("PRAGMA foreign_keys=ON")
             self._local.db = db
@@ -256,15 +271,59 @@ class GITree:
                 self._connections.append(db)
         return db
 
-    def close(self) -> None:
-        """Write buffered hit times and close every connection and the lock."""
-        self.flush()
+    @staticmethod
+    def _probe_write(db: sqlite3.Connection) -> None:
+        """Rewrite the index's header page in a transaction rolled back at once: SQLite opens a file it
+        may not write read-only without a word, and only a write says so (OperationalError, SQLITE_READONLY)."""
+        db.execute("BEGIN IMMEDIATE")
+        try:
+            (version,) = db.execute("PRAGMA user_version").fetchone()
+            db.execute(f"PRAGMA user_version = {int(version)}")
+        finally:
+            if db.in_transaction:
+                db.execute("ROLLBACK")
+
+    @contextmanager
+    def _transaction(self) -> Iterator[sqlite3.Connection]:
+        """``BEGIN IMMEDIATE`` ... ``COMMIT`` on this thread's connection. Any error (in the body or the
+        commit) rolls back and propagates as it was: SQLite has sometimes rolled back already (a full
+        disk, an I/O error), and a failed ROLLBACK must neither hide the cause nor leave the connection
+        inside a transaction (every later BEGIN would fail); such a connection is closed and replaced."""
+        db = self._db()
+        db.execute("BEGIN IMMEDIATE")
+        try:
+            yield db
+            db.execute("COMMIT")
+        except BaseException:
+            if db.in_transaction:
+                with suppress(sqlite3.Error):
+                    db.execute("ROLLBACK")
+            if db.in_transaction:
+                self._forget(db)
+            raise
+
+    def _forget(self, db: sqlite3.Connection) -> None:
+        """Close this thread's connection ``db`` (closing rolls back); the next call opens a new one."""
+        self._local.db = None
+        with self._lock:
+            self._connections.remove(db)
+        with suppress(sqlite3.Error):
+            db.close()
+
+    def _close_connections(self) -> None:
         with self._lock:
             for db in self._connections:
                 db.close()
             self._connections.clear()
         self._local = threading.local()
-        self._lock_file.close()
+
+    def close(self) -> None:
+        """Write buffered hit times and close every connection and the lock."""
+        try:
+            self.flush()
+        finally:
+            self._close_connections()
+            self._lock_file.close()
 
     def __enter__(self) -> Self:
         return self
@@ -292,10 +351,9 @@ class GITree:
                 orphans += 1
         broken = [sha for sha, size in rows.items() if on_disk.get(sha) != size]
         if broken:
-            db.execute("BEGIN IMMEDIATE")
-            db.executemany("DELETE FROM entries WHERE sha = ?", [(s,) for s in broken])
-            self._recount(db)
-            db.execute("COMMIT")
+            with self._transaction() as db:
+                db.executemany("DELETE FROM entries WHERE sha = ?", [(s,) for s in broken])
+                self._recount(db)
         return {"temporaries": temporaries, "orphans": orphans, "broken_entries": len(broken)}
 
     @staticmethod
@@ -333,8 +391,10 @@ class GITree:
         rows = (
             self._db()
             .execute(
-                "SELECT id, sha, ex, ey, ez, dx, dy, dz FROM entries WHERE scene = ? AND light_cell IS ? AND resolution = ? AND codec = ? "
-                "AND spp = ? AND di >= ? AND abs(fov - ?) < 1e-6 AND ex BETWEEN ? AND ? AND ey BETWEEN ? AND ? AND ez BETWEEN ? AND ?",
+                "SELECT id, sha, ex, ey, ez, dx, dy, dz FROM entries "
+                "WHERE scene = ? AND light_cell IS ? AND resolution = ? AND codec = ? "
+                "AND spp = ? AND di >= ? AND abs(fov - ?) < 1e-6 "
+                "AND ex BETWEEN ? AND ? AND ey BETWEEN ? AND ? AND ez BETWEEN ? AND ?",
                 (
                     key.scene,
                     key.cell_text,
@@ -399,18 +459,16 @@ class GITree:
         path.parent.mkdir(exist_ok=True)
         atomic_write_bytes(path, payload)  # complete and fsynced before the index names it
         now = time.time()
-        db = self._db()
         evicted: list[str] = []
-        db.execute("BEGIN IMMEDIATE")
-        try:
+        with self._transaction() as db:
             self._apply_touches(db)
             existing = db.execute("SELECT id FROM entries WHERE sha = ?", (sha,)).fetchone()
             if existing is not None:  # the same bytes again (a re-bake of an identical request)
-                db.execute("COMMIT")
                 return int(existing[0])
             (x, y, z), (dx, dy, dz) = view.eye, view.direction
             cur = db.execute(
-                "INSERT INTO entries(scene, light_cell, resolution, fov, codec, spp, di, ex, ey, ez, dx, dy, dz, sha, bytes, created, last_used) "
+                "INSERT INTO entries(scene, light_cell, resolution, fov, codec, spp, di, "
+                "ex, ey, ez, dx, dy, dz, sha, bytes, created, last_used) "
                 "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
                 (
                     key.scene,
@@ -434,15 +492,12 @@ class GITree:
             )
             entry_id = int(cur.lastrowid)
             db.execute(
-                "INSERT INTO usage VALUES (?, ?, 1, ?) ON CONFLICT(scene, codec) DO UPDATE SET entries = entries + 1, bytes = bytes + excluded.bytes",
+                "INSERT INTO usage VALUES (?, ?, 1, ?) ON CONFLICT(scene, codec) "
+                "DO UPDATE SET entries = entries + 1, bytes = bytes + excluded.bytes",
                 (key.scene, key.codec, size),
             )
             if self.budget_bytes is not None:
                 evicted = self._evict(db, self.budget_bytes, keep=entry_id)
-            db.execute("COMMIT")
-        except BaseException:
-            db.execute("ROLLBACK")
-            raise
         for old in evicted:  # after the commit: a kill before this leaves orphans, which are swept
             self.payload_path(old).unlink(missing_ok=True)
         with self._lock:
@@ -484,15 +539,16 @@ class GITree:
         """Write buffered hit times and counts to the index."""
         if not self._touched:
             return
-        db = self._db()
-        db.execute("BEGIN IMMEDIATE")
-        self._apply_touches(db)
-        db.execute("COMMIT")
+        with self._transaction() as db:
+            self._apply_touches(db)
 
     # -- inspection --------------------------------------------------------------------------------
     def entries(self, scene: str | None = None) -> list[Entry]:
         self.flush()
-        sql = "SELECT id, scene, light_cell, resolution, fov, codec, spp, di, ex, ey, ez, dx, dy, dz, sha, bytes, hits FROM entries"
+        sql = (
+            "SELECT id, scene, light_cell, resolution, fov, codec, spp, di, ex, ey, ez, dx, dy, dz, sha, bytes, hits "
+            "FROM entries"
+        )
         rows = (
             self._db()
             .execute(sql + (" WHERE scene = ?" if scene else "") + " ORDER BY id", (scene,) if scene else ())

@@ -1,15 +1,21 @@
-"""The GI tree: nearest lookup within tolerance, keys, byte accounting, LRU budget, crash sweeping."""
+"""The GI tree: nearest lookup within tolerance, keys, byte accounting, LRU budget, crash sweeping,
+failed writes rolled back, a read-only index refused at open."""
 
 from __future__ import annotations
 
+import os
 import sqlite3
+import subprocess
 import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from baseline_cloudbaking.store import GITree, MapKey, StoreConflict, Tolerance, Viewpoint, light_cell, simulate_fill
+from gicore.cli import UserError
 
 TOL = Tolerance(position=0.1, angle_deg=5.0)
 
@@ -213,3 +219,72 @@ def test_bad_arguments() -> None:
         Viewpoint.look_at((1.0, 1.0, 1.0), (1.0, 1.0, 1.0))
     with pytest.raises(ValueError, match="cell size"):
         light_cell((0.0, 0.0, 0.0), 0.0)
+
+
+# --- failed writes and read-only stores -----------------------------------------------------------------
+
+
+@contextmanager
+def read_only(path: Path) -> Iterator[None]:
+    """``path`` read-only for this process while inside: chmod for a user; root writes through permission
+    bits, so for root the file is made immutable (chattr +i; the test is skipped where that is refused)."""
+    if os.geteuid() != 0:
+        mode = path.stat().st_mode
+        path.chmod(0o444)
+        try:
+            yield
+        finally:
+            path.chmod(mode)
+        return
+    if subprocess.run(["chattr", "+i", str(path)], capture_output=True, check=False).returncode != 0:
+        pytest.skip("chattr +i is refused here: no way to make a file read-only for root")
+    try:
+        yield
+    finally:
+        subprocess.run(["chattr", "-i", str(path)], check=True)
+
+
+def test_a_read_only_index_is_refused_at_open(tmp_path: Path) -> None:
+    root = tmp_path / "ro"
+    with GITree(root) as tree:
+        tree.register_scene("s", "sha", 0.25)
+        tree.insert(key(), view(), blob(0))
+    with read_only(root / "index.sqlite"), pytest.raises(UserError) as caught:
+        GITree(root)
+    assert str(caught.value).startswith(f"{root}/index.sqlite is read-only: make it")
+    with GITree(root) as tree:  # writable again: nothing was changed
+        assert len(tree.entries()) == 1 and tree.verify() == []
+
+
+def test_a_full_index_names_the_cause_and_the_next_insert_works(tree: GITree) -> None:
+    """SQLite rolls a transaction back itself when the disk is full: the error raised is still the full
+    disk (not the failed ROLLBACK), and nothing of the failed insert is indexed."""
+    db = tree._db()
+    (pages,) = db.execute("PRAGMA page_count").fetchone()
+    db.execute(f"PRAGMA max_page_count = {pages}")
+    stored = 0
+    with pytest.raises(sqlite3.OperationalError, match="database or disk is full"):
+        for i in range(1000):
+            tree.insert(key(), view(float(i)), blob(i, 100))
+            stored += 1
+    assert 0 < stored < 1000
+    db.execute("PRAGMA max_page_count = 1073741823")  # room again
+    assert tree.insert(key(), view(5000.0), blob(5000, 100)) is not None
+    assert tree.stats()["entries"] == stored + 1 and tree.verify() == []
+
+
+def test_a_failed_flush_rolls_back_and_later_writes_work(tree: GITree) -> None:
+    """A write that fails inside its transaction (here a trigger aborts the hit-count update) is rolled
+    back and raises its own error; the next writes do not find a transaction still open."""
+    first = tree.insert(key(), view(0.0), blob(0))
+    db = tree._db()
+    db.execute("CREATE TRIGGER fail_hits BEFORE UPDATE OF hits ON entries BEGIN SELECT RAISE(ABORT, 'hits lost'); END")
+    assert tree.lookup(key(), view(0.0)).entry_id == first  # buffers a hit
+    with pytest.raises(sqlite3.IntegrityError, match="hits lost"):
+        tree.flush()
+    assert not tree._db().in_transaction
+    second = tree.insert(key(), view(1.0), blob(1))
+    assert second is not None and [e.id for e in tree.entries()] == [first, second]
+    db.execute("DROP TRIGGER fail_hits")
+    tree.lookup(key(), view(1.0))
+    assert [e.hits for e in tree.entries()] == [0, 1]
