@@ -12,8 +12,10 @@ Backends (:func:`open_executor` picks one from the command line's ``--workers`` 
 
 - :class:`InProcess`: the calling process; one job at a time with every core to the renderer.
 - :class:`LocalPool`: spawned worker processes (``spawn``, not ``fork``: a forked worker inherits OIDN's
-  thread-pool state and can deadlock in it). Workers ignore Ctrl-C; the driver drops the queued jobs
-  and waits for the running ones, whose results it discards.
+  thread-pool state and can deadlock in it). Workers ignore Ctrl-C; when a run ends by an exception
+  (Ctrl-C, SIGTERM turned into one by :func:`gicore.cli.run`, a failed job) the driver drops the queued
+  jobs and kills the workers, whose results it would discard. Workers die with the driver however it
+  ends, ``kill -9`` included (:func:`_init_worker`), so no orphan keeps rendering.
 - :class:`RayExecutor`: Ray tasks on a local instance or a cluster (the optional extra
   ``pip install '.[ray]'``; Ray is imported only when chosen). A task whose worker dies is retried
   (``max_retries``); Ctrl-C (or any error in the driver) cancels every outstanding task. Every node needs
@@ -22,6 +24,7 @@ Backends (:func:`open_executor` picks one from the command line's ``--workers`` 
 
 from __future__ import annotations
 
+import ctypes
 import hashlib
 import logging
 import multiprocessing
@@ -29,6 +32,8 @@ import os
 import pickle
 import signal
 import socket
+import sys
+import threading
 import time
 from collections import OrderedDict
 from collections.abc import Callable, Iterator, Sequence
@@ -48,10 +53,19 @@ RAY_CONNECT_TIMEOUT_S = 5.0
 RAY_POLL_S = 0.2
 #: How long an interrupted run keeps cancelling its outstanding Ray tasks until they have all ended (s).
 RAY_CANCEL_S = 10.0
+#: How often a pool worker's watchdog checks that the driver that started it is still its parent (s).
+PARENT_POLL_S = 0.5
+#: How long an ending pool waits for its killed workers and its manager thread (s).
+POOL_KILL_WAIT_S = 10.0
+#: ``prctl`` option: the signal the kernel sends this process when the thread that forked it ends.
+PR_SET_PDEATHSIG = 1
 START_RAY = "start one with `ray start --head` and give its address, or use --ray auto"
 #: ``--workers`` and ``--ray`` of every command that renders through an executor (:func:`open_executor`).
 WORKERS_HELP = "rendering processes (default 1); with --ray, tasks at once (default: as many as the cluster has CPUs)"
-RAY_HELP = "run the renders as Ray tasks: 'auto' (the cluster in RAY_ADDRESS or one `ray start` runs here, else a new local one) or HOST:PORT"
+RAY_HELP = (
+    "run the renders as Ray tasks: 'auto' (the cluster in RAY_ADDRESS or one `ray start` runs here, "
+    "else a new local one) or HOST:PORT"
+)
 INSTALL_RAY = "install it with pip install '.[ray]' (or leave out --ray to use local processes)"
 
 
@@ -120,27 +134,75 @@ class InProcess:
             receive(job, run_job(task, self.threads, job))
 
 
-def _ignore_sigint() -> None:
-    """Pool workers leave Ctrl-C to the driver, which stops the run."""
+def _set_parent_death_signal(sig: int) -> bool:
+    """Ask Linux to send ``sig`` to this process when its parent (the thread that started it) ends;
+    False where that is not available."""
+    if not sys.platform.startswith("linux"):
+        return False
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        return libc.prctl(PR_SET_PDEATHSIG, ctypes.c_ulong(sig), 0, 0, 0) == 0
+    except (OSError, AttributeError):
+        return False
+
+
+def _watch_parent(parent: int) -> None:
+    """Exit this process as soon as ``parent`` is no longer its parent (it died: we were re-parented)."""
+    while os.getppid() == parent:
+        time.sleep(PARENT_POLL_S)
+    os._exit(1)
+
+
+def _init_worker(parent: int) -> None:
+    """A pool worker leaves Ctrl-C to the driver (``parent``), which stops the run, and dies with it:
+    SIGKILL from the kernel when the driver ends (Linux, ``PR_SET_PDEATHSIG``), and everywhere a watchdog
+    thread that exits when the parent changes (it also covers a driver that died before the prctl)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    _set_parent_death_signal(signal.SIGKILL)
+    if os.getppid() != parent:
+        os._exit(1)
+    threading.Thread(target=_watch_parent, args=(parent,), name="watch-driver", daemon=True).start()
 
 
 class LocalPool:
     """``workers`` spawned processes on ``threads`` renderer threads each (default: the cores shared
-    out); one pool serves every run of the executor's life (use it as a context manager)."""
+    out); one pool serves every run of the executor's life (use it as a context manager). Leaving it
+    normally waits for the workers to exit; leaving it by an exception kills them (:meth:`kill`).
+    Use it from the thread that made it, and let that thread outlive it (every command uses its main
+    thread): on Linux a worker gets SIGKILL when the thread that started it ends."""
 
     def __init__(self, workers: int, threads: int | None = None):
         self.workers = workers
         self.threads = threads or max(1, (os.cpu_count() or 1) // workers)
         self._pool = ProcessPoolExecutor(
-            workers, mp_context=multiprocessing.get_context("spawn"), initializer=_ignore_sigint
+            workers,
+            mp_context=multiprocessing.get_context("spawn"),
+            initializer=_init_worker,
+            initargs=(os.getpid(),),
         )
 
     def __enter__(self) -> LocalPool:
         return self
 
-    def __exit__(self, *exc: object) -> None:
-        self._pool.shutdown(wait=True, cancel_futures=True)
+    def __exit__(self, exc_type: type[BaseException] | None, *exc: object) -> None:
+        if exc_type is None:
+            self._pool.shutdown(wait=True, cancel_futures=True)
+        else:
+            self.kill()
+
+    def kill(self) -> None:
+        """End the pool now: drop the queued jobs and SIGKILL the workers (a worker writes nothing, so
+        a job cut short loses only its own result), then wait for them and for the pool's manager thread."""
+        processes = list((getattr(self._pool, "_processes", None) or {}).values())
+        manager = getattr(self._pool, "_executor_manager_thread", None)
+        for process in processes:
+            process.kill()
+        self._pool.shutdown(wait=False, cancel_futures=True)
+        deadline = time.monotonic() + POOL_KILL_WAIT_S
+        for process in processes:
+            process.join(max(0.0, deadline - time.monotonic()))
+        if manager is not None:
+            manager.join(max(0.0, deadline - time.monotonic()))
 
     def run(self, task: Task, jobs: Sequence[Any], receive: Receive) -> None:
         pending: dict[Future, Any] = {self._pool.submit(run_job, task, self.threads, job): job for job in jobs}
