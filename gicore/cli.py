@@ -3,7 +3,9 @@
 A user error (bad flag value, missing or corrupt file, refused rerun, invalid scene spec, NaN input, an
 ``--out`` that cannot be written) prints one line ``error: <what is wrong>: <what to do>`` and exits 2.
 A traceback appears only for a bug, or for any error with ``--debug``. Ctrl-C prints how to resume and
-exits 130. Every entry point is built with :func:`entry_point`; no command catches errors itself::
+exits 130; SIGTERM (``kill``, a service manager, a batch scheduler) ends a run the same way, clean-ups
+included (locks released, worker processes stopped), and exits 143. Every entry point is built with
+:func:`entry_point`; no command catches errors itself::
 
     app = typer.Typer()
     main = entry_point(app, resume="run the same command again; finished frames are kept")
@@ -15,16 +17,42 @@ from __future__ import annotations
 
 import math
 import os
+import signal
 import sys
+import threading
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import NoReturn
+from types import FrameType
+from typing import Any, NoReturn
 
 import typer
 
-#: Exit status of a user error (as click's usage errors), and of an interrupt (128 + SIGINT).
+#: Exit status of a user error (as click's usage errors), of an interrupt (128 + SIGINT), and of a run
+#: ended by SIGTERM (128 + SIGTERM).
 EXIT_USER_ERROR = 2
 EXIT_INTERRUPTED = 130
+EXIT_TERMINATED = 128 + signal.SIGTERM
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised in the main thread by the handler :func:`run` installs, so that a run ends as on
+    Ctrl-C: every ``finally`` and ``with`` runs (locks released, worker pools killed, nothing half-written
+    kept) and the command exits :data:`EXIT_TERMINATED` with the resume hint."""
+
+
+def _raise_terminated(signum: int, frame: FrameType | None) -> None:
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)  # a second SIGTERM during the clean-up ends the process at once
+    raise Terminated
+
+
+def _catch_sigterm() -> Any:
+    """Turn SIGTERM into :class:`Terminated` (main thread only, and only where SIGTERM has its default
+    action: an ignored one stays ignored); returns the handler to put back, or None if none was set."""
+    if threading.current_thread() is not threading.main_thread():
+        return None
+    if signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL:
+        return None
+    return signal.signal(signal.SIGTERM, _raise_terminated)
 
 
 class UserError(Exception):
@@ -64,6 +92,7 @@ def run(
         args.remove("--debug")
     prog = prog_name or Path(sys.argv[0]).name
     command = typer.main.get_command(app)
+    previous_sigterm = _catch_sigterm()
     try:
         with command.make_context(prog, args) as ctx:
             command.invoke(ctx)
@@ -90,29 +119,36 @@ def run(
         if debug or exc.filename is None:
             raise
         _fail(_oserror_line(exc))
-    except (KeyboardInterrupt, typer.Abort):
-        _interrupted(resume)
+    except (KeyboardInterrupt, typer.Abort) as exc:
+        _interrupted(resume, exc)
     except Exception as exc:
-        if not debug and _caused_by_interrupt(exc):  # e.g. Dr.Jit wraps a Ctrl-C during a render in a RuntimeError
-            _interrupted(resume)
+        interrupt = None if debug else _interrupt_behind(exc)
+        if interrupt is not None:  # e.g. Dr.Jit wraps a Ctrl-C during a render in a RuntimeError
+            _interrupted(resume, interrupt)
         raise
+    finally:
+        if previous_sigterm is not None:
+            signal.signal(signal.SIGTERM, previous_sigterm)
     sys.exit(0)
 
 
-def _caused_by_interrupt(exc: BaseException) -> bool:
+def _interrupt_behind(exc: BaseException) -> KeyboardInterrupt | None:
+    """The Ctrl-C (or SIGTERM) among ``exc``'s causes and contexts, if any."""
     seen: set[int] = set()
     cause: BaseException | None = exc
     while cause is not None and id(cause) not in seen:
         if isinstance(cause, KeyboardInterrupt):
-            return True
+            return cause
         seen.add(id(cause))
         cause = cause.__cause__ or cause.__context__
-    return False
+    return None
 
 
-def _interrupted(resume: str | None) -> NoReturn:
-    print(f"\ninterrupted: {resume or 'nothing half-written was kept; run the command again'}", file=sys.stderr)
-    sys.exit(EXIT_INTERRUPTED)
+def _interrupted(resume: str | None, interrupt: BaseException) -> NoReturn:
+    terminated = isinstance(interrupt, Terminated)
+    how = "interrupted by SIGTERM" if terminated else "interrupted"
+    print(f"\n{how}: {resume or 'nothing half-written was kept; run the command again'}", file=sys.stderr)
+    sys.exit(EXIT_TERMINATED if terminated else EXIT_INTERRUPTED)
 
 
 def _fail(line: str) -> NoReturn:

@@ -3,13 +3,15 @@
 ``atomic_write`` writes to a uniquely named temporary file beside the target, fsyncs it and renames it
 over the target, so a reader (or a resumed run) sees either the old file or the whole new one, and two
 processes writing into one folder never share a temporary name. ``exclusive_run`` holds an advisory
-lock on a folder for the life of a run and refuses a second run with a one-line error.
+lock on a folder for the life of a run and refuses a second run with a one-line error; the lock file
+names its holder's PID, so a lock that a killed run left behind is taken over with a note saying so.
 """
 
 from __future__ import annotations
 
 import fcntl
 import os
+import sys
 import tempfile
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager, suppress
@@ -55,14 +57,25 @@ def sweep_temporaries(folder: Path) -> list[Path]:
     return removed
 
 
+def _holder(handle: IO[bytes]) -> int | None:
+    """The PID written in an open lock file, or None (empty: a holder that has not written it yet, or a
+    lock file older than PIDs in it)."""
+    handle.seek(0)
+    text = handle.read(32).decode("ascii", "replace").strip()
+    return int(text) if text.isdigit() else None
+
+
 @contextmanager
 def exclusive_run(folder: Path) -> Iterator[None]:
     """Hold ``folder/.lock`` for the duration of a run; a second run into the same folder is refused.
 
-    ``folder`` is created if need be (UserError if it is a file or not writable). The lock file is
-    removed when the run ends, and so is ``folder`` if this run created it and left it
-    empty (a run refused for bad input leaves no trace). Removing a lock file races with a process that
-    opened it just before: a run that locks a file no longer at ``folder/.lock`` therefore tries again.
+    ``folder`` is created if need be (UserError if it is a file or not writable). The lock is an flock
+    (the kernel drops it when its holder dies, however it dies) on a file that holds the holder's PID.
+    The lock file is removed when the run ends, and so is ``folder`` if this run created it and left it
+    empty (a run refused for bad input leaves no trace). A lock file that a killed run (kill -9, a lost
+    machine) left behind is no longer locked: it is taken over, with one line on stderr naming the folder
+    and the dead holder's PID. Removing a lock file races with a process that opened it just before: a
+    run that locks a file no longer at ``folder/.lock`` therefore tries again.
     """
     folder = Path(folder)
     created = not folder.exists()
@@ -73,8 +86,12 @@ def exclusive_run(folder: Path) -> Iterator[None]:
         try:
             fcntl.flock(handle.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError as exc:
+            holder = _holder(handle)
             handle.close()
-            raise UserError(f"another run holds {folder}", "wait for it to finish or choose another --out") from exc
+            who = "" if holder is None else f" (process {holder})"
+            raise UserError(
+                f"another run holds {folder}{who}", "wait for it to finish or choose another --out"
+            ) from exc
         try:
             if os.fstat(handle.fileno()).st_ino == os.stat(lock).st_ino:
                 break
@@ -82,6 +99,13 @@ def exclusive_run(folder: Path) -> Iterator[None]:
             pass
         handle.close()  # the previous holder removed this file after we opened it: lock the new one
     try:
+        stale = _holder(handle)
+        if stale is not None:  # its holder wrote it and never removed it: that process ended without clean-up
+            print(f"note: taking over the lock of {folder} left by process {stale}, which is gone", file=sys.stderr)
+        handle.seek(0)
+        handle.truncate()
+        handle.write(f"{os.getpid()}\n".encode())
+        handle.flush()
         yield
     finally:
         lock.unlink(missing_ok=True)  # while still holding it, so a waiting opener sees the inode change
