@@ -1,4 +1,6 @@
-"""`cloudbaking-prebake` as a real process: bakes a fly-through, resumes, survives kill -9 and Ctrl-C."""
+"""`cloudbaking-prebake` as a real process: bakes a fly-through, resumes, survives kill -9 and Ctrl-C;
+its worker processes end with it (kill -9, SIGTERM), SIGTERM releases its lock, a lock left by kill -9
+is taken over, and a read-only store is refused before any map is baked."""
 
 from __future__ import annotations
 
@@ -7,6 +9,7 @@ import signal
 import sqlite3
 import subprocess
 import time
+from contextlib import suppress
 from pathlib import Path
 
 import pytest
@@ -15,6 +18,7 @@ from baseline_cloudbaking.bake import fly_through
 from baseline_cloudbaking.protocol import decode_payload
 from baseline_cloudbaking.store import DEFAULT_LIGHT_CELL, GITree, Tolerance, simulate_fill
 from gicore.scene import load_scene
+from tests.baseline_cloudbaking.test_store import read_only
 from tests.helpers.cloud import BIN, RES, SPP, write_scenes
 
 
@@ -109,3 +113,125 @@ def test_ctrl_c_in_a_worker_pool_leaves_a_resumable_store(scenes_dir: Path, tmp_
     )
     assert resumed.returncode == 0, resumed.stderr
     assert check_store(store) == expected_entries(spec, frames) > partial
+
+
+# --- process lifetime: workers end with the prebake, locks, a read-only store -----------------------------
+
+#: A worker process or a lock this long past the prebake's end is a leak.
+GONE_S = 5.0
+needs_proc = pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads process states from /proc")
+
+
+def session_processes(sid: int) -> list[int]:
+    """Running processes (zombies excluded) of session ``sid``: a prebake started with
+    ``start_new_session`` and every process it started (pool workers, multiprocessing's resource tracker)."""
+    pids = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            state, _, _, session = stat.read_text().rsplit(")", 1)[1].split()[:4]
+        except (OSError, ValueError):  # ended while we looked
+            continue
+        if int(session) == sid and state not in ("Z", "X"):
+            pids.append(int(stat.parent.name))
+    return pids
+
+
+def busy_workers(sid: int) -> list[int]:
+    """Pool workers of session ``sid`` that have loaded Mitsuba, i.e. build the scene or render a map."""
+    busy = []
+    for pid in session_processes(sid):
+        with suppress(OSError):
+            if (
+                b"spawn_main" in Path(f"/proc/{pid}/cmdline").read_bytes()
+                and b"mitsuba" in Path(f"/proc/{pid}/maps").read_bytes()
+            ):
+                busy.append(pid)
+    return busy
+
+
+def start_pool_prebake(spec: Path, store: Path, log: Path) -> subprocess.Popen:
+    """A prebake with two workers (in its own session), returned once both are at work."""
+    with log.open("w") as err:
+        proc = subprocess.Popen(
+            prebake_cmd(spec, store, 40, "--workers", "2"),
+            stdout=subprocess.DEVNULL,
+            stderr=err,
+            start_new_session=True,
+        )
+    deadline = time.monotonic() + 60
+    while len(busy_workers(proc.pid)) < 2:
+        assert proc.poll() is None and time.monotonic() < deadline, log.read_text()
+        time.sleep(0.02)
+    return proc
+
+
+def wait_session_gone(sid: int) -> float:
+    """Seconds until no process of session ``sid`` runs; kills the rest and fails past GONE_S."""
+    start = time.monotonic()
+    while left := session_processes(sid):
+        if time.monotonic() - start > GONE_S:
+            for pid in left:
+                with suppress(ProcessLookupError):
+                    os.kill(pid, signal.SIGKILL)
+            pytest.fail(f"processes of the prebake still running {GONE_S} s after it ended: {left}")
+        time.sleep(0.005)
+    return time.monotonic() - start
+
+
+@needs_proc
+def test_kill_9_of_a_pool_prebake_leaves_no_process_and_the_rerun_takes_its_lock_over(
+    scenes_dir: Path, tmp_path: Path
+) -> None:
+    spec, store = scenes_dir / "ball_moving.json", tmp_path / "store"
+    proc = start_pool_prebake(spec, store, tmp_path / "stderr.txt")
+    try:
+        started = time.monotonic()
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait(timeout=30)
+        wait_session_gone(proc.pid)
+        took = time.monotonic() - started
+    finally:
+        with suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+    print(f"prebake's workers gone {took * 1e3:.0f} ms after kill -9")
+    lock = store / ".prebake" / "ball_moving" / ".lock"
+    assert lock.read_text() == f"{proc.pid}\n"  # kill -9 leaves the lock file, naming the dead holder
+    rerun = subprocess.run(prebake_cmd(spec, store, 2), check=False, capture_output=True, text=True, timeout=120)
+    assert rerun.returncode == 0, rerun.stderr
+    note = f"note: taking over the lock of {lock.parent} left by process {proc.pid}, which is gone"
+    assert [line for line in rerun.stderr.splitlines() if line.startswith("note:")] == [note]
+    assert not lock.exists()
+    check_store(store)
+
+
+@needs_proc
+def test_sigterm_of_a_pool_prebake_stops_its_workers_and_releases_its_lock(scenes_dir: Path, tmp_path: Path) -> None:
+    spec, store, log = scenes_dir / "ball_moving.json", tmp_path / "store", tmp_path / "stderr.txt"
+    proc = start_pool_prebake(spec, store, log)
+    try:
+        started = time.monotonic()
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(timeout=30)
+        wait_session_gone(proc.pid)
+        took = time.monotonic() - started
+    finally:
+        with suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+    print(f"prebake and its workers gone {took * 1e3:.0f} ms after SIGTERM")
+    err = log.read_text()
+    assert proc.returncode == 143, err
+    assert "interrupted by SIGTERM: rerun the same command" in err and "Traceback" not in err
+    assert list(store.rglob(".lock")) == [] and not (store / ".prebake" / "ball_moving").exists()
+    check_store(store)
+
+
+def test_a_read_only_index_is_one_error_line_before_any_map_is_baked(scenes_dir: Path, tmp_path: Path) -> None:
+    spec, store = scenes_dir / "ball_moving.json", tmp_path / "store"
+    GITree(store).close()  # an empty store
+    with read_only(store / "index.sqlite"):
+        proc = subprocess.run(prebake_cmd(spec, store, 4), check=False, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr.startswith(f"error: {store}/index.sqlite is read-only: make it")
+    assert len(proc.stderr.splitlines()) == 1 and proc.stdout == ""  # not even the plan ("maps to bake")
+    assert count_rows(store) == 0 and list((store / "payloads").iterdir()) == []
+    assert not (store / ".prebake" / "ball_moving").exists()
