@@ -336,7 +336,10 @@ def test_ray_not_installed_names_the_extra(argv: list[str], culprit: str, scenes
 
 
 def test_without_ray_the_local_paths_import_and_render(scenes: Path, tmp_path: Path) -> None:
-    imports = "import sys; import gicore, gicore.executor, gicore.dataset_cli, baseline_cloudbaking.prebake_cli, bench.cli; assert 'ray' not in sys.modules"
+    imports = (
+        "import sys; import gicore, gicore.executor, gicore.dataset_cli, baseline_cloudbaking.prebake_cli, bench.cli; "
+        "assert 'ray' not in sys.modules"
+    )
     assert (
         subprocess.run([sys.executable, "-c", imports], capture_output=True, text=True, timeout=TIMEOUT_S).returncode
         == 0
