@@ -57,6 +57,20 @@ def sweep_temporaries(folder: Path) -> list[Path]:
     return removed
 
 
+class FolderHeld(UserError):
+    """:func:`exclusive_run` refused: another live run holds ``folder``; ``holder`` is its PID (None
+    when it has not written it yet). A command may catch it to say which run, in its own words."""
+
+    def __init__(self, folder: Path, holder: int | None) -> None:
+        who = "" if holder is None else f" (process {holder})"
+        super().__init__(f"another run holds {folder}{who}", "wait for it to finish or choose another --out")
+        self.folder = folder
+        self.holder = holder
+
+    def __reduce__(self) -> tuple:
+        return type(self), (self.folder, self.holder)
+
+
 def _holder(handle: IO[bytes]) -> int | None:
     """The PID written in an open lock file, or None (empty: a holder that has not written it yet, or a
     lock file older than PIDs in it)."""
@@ -69,7 +83,8 @@ def _holder(handle: IO[bytes]) -> int | None:
 def exclusive_run(folder: Path) -> Iterator[None]:
     """Hold ``folder/.lock`` for the duration of a run; a second run into the same folder is refused.
 
-    ``folder`` is created if need be (UserError if it is a file or not writable). The lock is an flock
+    ``folder`` is created if need be (UserError if it is a file or not writable); a folder another run
+    holds is refused with :class:`FolderHeld`. The lock is an flock
     (the kernel drops it when its holder dies, however it dies) on a file that holds the holder's PID.
     The lock file is removed when the run ends, and so is ``folder`` if this run created it and left it
     empty (a run refused for bad input leaves no trace). A lock file that a killed run (kill -9, a lost
@@ -88,10 +103,7 @@ def exclusive_run(folder: Path) -> Iterator[None]:
         except BlockingIOError as exc:
             holder = _holder(handle)
             handle.close()
-            who = "" if holder is None else f" (process {holder})"
-            raise UserError(
-                f"another run holds {folder}{who}", "wait for it to finish or choose another --out"
-            ) from exc
+            raise FolderHeld(folder, holder) from exc
         try:
             if os.fstat(handle.fileno()).st_ino == os.stat(lock).st_ino:
                 break

@@ -5,6 +5,7 @@ it, a lock that a killed run left behind is taken over with one note, and SIGTER
 from __future__ import annotations
 
 import os
+import pickle
 import signal
 import subprocess
 import sys
@@ -14,7 +15,7 @@ from pathlib import Path
 import pytest
 
 from gicore.cli import EXIT_TERMINATED, UserError
-from gicore.fileio import exclusive_run
+from gicore.fileio import FolderHeld, exclusive_run
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -58,11 +59,13 @@ def test_the_lock_names_its_holder_and_a_second_run_is_refused_naming_it(tmp_pat
     folder = tmp_path / "out"
     with exclusive_run(folder):
         assert (folder / ".lock").read_text() == f"{os.getpid()}\n"
-        with pytest.raises(UserError) as caught, exclusive_run(folder):
+        with pytest.raises(FolderHeld) as caught, exclusive_run(folder):
             pass
+        assert isinstance(caught.value, UserError) and caught.value.holder == os.getpid()
         assert str(caught.value) == (
             f"another run holds {folder} (process {os.getpid()}): wait for it to finish or choose another --out"
         )
+        assert str(pickle.loads(pickle.dumps(caught.value))) == str(caught.value)
     assert not folder.exists()  # created by the run, left empty: removed
 
 
