@@ -21,6 +21,18 @@ if ! ldconfig -p 2>/dev/null | grep -q 'libLLVM.so.19\|libLLVM-19.so'; then
     "(or set DRJIT_LIBLLVM_PATH); until then Mitsuba falls back to the ~45x slower scalar_rgb."
 fi
 
+# OpenGL for the client's raster passes (gicore.gl: moderngl on a headless EGL context, no X server):
+# the GLVND EGL loader, Mesa's EGL and Mesa's DRI drivers (llvmpipe without a GPU; a GPU's vendor driver
+# brings its own EGL library).
+if command -v dpkg-query >/dev/null; then
+  for pkg in libegl1 libegl-mesa0 libgl1-mesa-dri; do
+    if ! dpkg-query -W -f='${Status}' "$pkg" 2>/dev/null | grep -q "install ok installed"; then
+      apt_install "$pkg" "gicore.gl opens a headless EGL OpenGL context through it" \
+        "(until then gicore.gl raises RasterUnavailable: clients use Mitsuba; tests/gicore/test_raster.py is skipped)."
+    fi
+  done
+fi
+
 # Chromium for the dashboard's browser test (tests/test_report.py drives it with Playwright).
 if [ ! -x /usr/bin/chromium ]; then
   apt_install chromium "the dashboard test opens bench report's HTML in it" \

@@ -1,0 +1,493 @@
+"""OpenGL rasterisation of a scene spec: what a Web3D client renders per frame (SPEC §1, §3, §5).
+
+:class:`GLRenderer` mirrors the per-frame passes of :class:`gicore.render.Renderer` (Mitsuba) with the same
+signatures and outputs, so a client can hold either (``renderer = "gl" | "mitsuba"``):
+
+- :meth:`~GLRenderer.render_gbuffers`: albedo, view-space normal (GL convention), linear view depth, world
+  position and mask; the conventions of ``gicore.buffers`` and of Mitsuba's AOV pass (flat objects carry
+  their geometric face normal, the others their interpolated vertex normal; background 0).
+- :meth:`~GLRenderer.render_di`: direct light of the spec's point or square area light with Mitsuba's
+  BSDFs (``gicore.gl.brdf``) and a shadow map; the area light's quad is visible, as in Mitsuba.
+- :meth:`~GLRenderer.render_uv`: the structure-aware warp's pass: vertex coordinates set by
+  :meth:`~GLRenderer.set_texcoords` (or projected in the vertex shader by
+  :meth:`~GLRenderer.set_texcoord_projection`) interpolated over each triangle, with position and masks.
+- :meth:`~GLRenderer.render_depth`: the GI map's depth (linear view depth at texel centres) and the
+  surface mask the pixel-level warp needs.
+
+A rasteriser samples each pixel at its centre, so every pass equals Mitsuba's *centre-sampled* passes
+(``render_uv``, ``render_gbuffers(centre=True)``); Mitsuba's default G-buffer pass puts its one sample at
+a random point of the pixel, which no rasteriser reproduces (measured in ``gicore.gl.fidelity``). Path-
+traced ``gt`` is not a raster pass and stays with Mitsuba. Outputs are float32 HxWxC numpy arrays, row 0
+at the top, as Mitsuba's.
+
+Geometry is uploaded once per renderer (one vertex buffer, one index buffer). Closed meshes (watertight,
+wound outwards: all procedural anatomy) are drawn with back faces culled, which halves the triangles a
+CPU rasteriser sets up; a camera inside such a mesh would see nothing of it (Mitsuba sees its inside).
+There is no level of detail: every pass rasterises the full meshes, as Mitsuba traces them.
+
+Shadows: one perspective shadow map fitted around the casters (the spec's objects, and environment quads
+the light is behind) when the light lies outside their bounding sphere, else six cube faces in one atlas.
+It is a depth texture holding distance to the light over the far distance, looked up with normal-offset
+and slope-scaled bias through the sampler's bilinear depth comparison: four taps (a tent over 3 x 3
+texels) for a point light; PCSS for an area light (blocker search, then 32 taps over a penumbra sized by
+the light). It is rendered when a DI pass first needs it for a light position and reused while the light
+stays there: a static light renders it once per renderer, a moving one once per position.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from gicore.buffers import DATASET_BUFFERS, GBUFFERS, check_buffer_names
+from gicore.camera import NEAR_MIN, Camera
+from gicore.geometry import SceneObject, scene_objects
+from gicore.gl.brdf import ETA, TABLE_RES, roughplastic_tables
+from gicore.gl.context import gl_context
+from gicore.gl.shaders import (
+    DIFFUSE_ROW,
+    EMITTER_ROW,
+    SCENE_VERTEX,
+    SHADOW_FRAGMENT,
+    SHADOW_VERTEX,
+    scene_fragment,
+)
+from gicore.scene import SceneSpec
+
+#: Albedo of the area light's quad: Mitsuba gives an emitter without a BSDF a black diffuse one.
+EMITTER_ALBEDO = 0.0
+#: Side of the fitted shadow map (texels); cube faces get half of it each.
+SHADOW_SIZE = 1024
+#: K x K points on an area light for its unshadowed light.
+AREA_SAMPLES = 2
+#: PCF taps for a point light and an area light.
+PCF_TAPS = {False: 16, True: 32}
+#: The passes: the scene program's defines and the colour attachments (of the four float targets) written.
+_PASSES = {
+    "gbuffer": (("GBUFFER",), (0, 1, 2)),
+    "di": (("DI",), (3,)),
+    "di_gbuffer": (("GBUFFER", "DI"), (0, 1, 2, 3)),
+    "uv": (("UV",), (0, 2)),
+    "depth": (("DEPTH",), (0,)),
+}
+
+
+def _mat(m: np.ndarray) -> bytes:
+    """A 4x4 row-major numpy matrix as GLSL's column-major float32 bytes."""
+    return np.ascontiguousarray(np.asarray(m, dtype=np.float64).T, dtype=np.float32).tobytes()
+
+
+def _face_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Unit geometric normals (counter-clockwise winding), +y for degenerate faces."""
+    tri = vertices[faces].astype(np.float32)
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    length = np.linalg.norm(n, axis=1, keepdims=True)
+    return np.where(length > 0, n / np.where(length > 0, length, 1.0), np.float32([0, 1, 0])).astype(np.float32)
+
+
+def _closed(mesh) -> bool:
+    """A watertight mesh wound counter-clockwise seen from outside (positive signed volume): seen from
+    outside, its back faces are always hidden behind its front faces."""
+    if not mesh.is_watertight():
+        return False
+    v = mesh.vertices.astype(np.float64)[mesh.faces]
+    return float(np.einsum("ij,ij->i", v[:, 0], np.cross(v[:, 1], v[:, 2])).sum()) > 0.0
+
+
+def _up_for(direction: np.ndarray) -> tuple[float, float, float]:
+    """An up vector far from parallel to ``direction``."""
+    d = np.abs(direction) / np.linalg.norm(direction)
+    return (0.0, 0.0, 1.0) if d[1] > 0.9 else (0.0, 1.0, 0.0)
+
+
+def _views(views: list, tan_half: float, tile: int, atlas: tuple[int, int], blocker_min: float, far: float) -> dict:
+    """A shadow setup: view-projection matrices (one tile of ``tile`` texels each in an ``atlas``), the
+    tangent-plane size of a texel, the nearest distance from the light a blocker can have, and the
+    distance that depth 1 stands for (the map stores distance / far)."""
+    texel = [2 * tan_half / tile] * len(views)
+    return {"views": views, "texel": texel, "tile": tile, "atlas": atlas, "blocker_min": blocker_min, "far": far}
+
+
+class GLRenderer:
+    """Rasterises one scene spec at a fixed square ``resolution`` (see the module docstring).
+
+    ``shadow_size``: side of the fitted shadow map in texels. Raises
+    :class:`gicore.gl.context.RasterUnavailable` when no GL context opens.
+    """
+
+    name = "gl"
+
+    def __init__(self, spec: SceneSpec, resolution: int | None = None, shadow_size: int = SHADOW_SIZE):
+        self.spec = spec
+        self.resolution = spec.resolution if resolution is None else int(resolution)
+        if not 1 <= self.resolution <= 8192:
+            raise ValueError(f"resolution must be an integer in [1, 8192], got {resolution}")
+        if not 16 <= shadow_size <= 8192:
+            raise ValueError(f"shadow_size must lie in [16, 8192], got {shadow_size}")
+        self.shadow_size = int(shadow_size)
+        self.ctx = ctx = gl_context()
+        self.objects: list[SceneObject] = scene_objects(spec)
+        self.n_triangles = sum(o.mesh.n_triangles for o in self.objects)
+        #: Shadow maps rendered so far (a static light renders one).
+        self.shadow_updates = 0
+        self._upload_geometry()
+        self._programs = {
+            name: self._scene_program(defines, attachments) for name, (defines, attachments) in _PASSES.items()
+        }
+        self._shadow_program = ctx.program(vertex_shader=SHADOW_VERTEX, fragment_shader=SHADOW_FRAGMENT)
+        self._shadow_vao = ctx.vertex_array(
+            self._shadow_program, [(self._vbo, "3f 28x", "in_pos")], self._ibo, skip_errors=True
+        )
+        size = (self.resolution, self.resolution)
+        self._targets = [ctx.renderbuffer(size, 4, dtype="f4") for _ in range(4)]
+        self._depth = ctx.depth_renderbuffer(size)
+        self._fbos = {
+            name: ctx.framebuffer([self._targets[i] for i in attachments], self._depth)
+            for name, (_, attachments) in _PASSES.items()
+        }
+        self._shadow: dict[str, Any] = {}
+        self._shadow_key: tuple | None = None
+        self._light: tuple[float, float, float] | None = None
+        self._uv_projection: np.ndarray | None = None
+        self._bounds_cache: list | None = None
+        self._set_light(None)
+
+    # -- setup -----------------------------------------------------------------------------------
+    def _upload_geometry(self) -> None:
+        """One interleaved vertex buffer (position, normal, albedo + material row), one index buffer, and
+        the texture coordinates in a buffer of their own (rewritten by :meth:`set_texcoords`)."""
+        ctx = self.ctx
+        roughness = sorted({o.roughness for o in self.objects if o.roughness is not None})
+        rows = {r: i for i, r in enumerate(roughness)}
+        table = np.zeros((max(1, len(roughness)), TABLE_RES + 2), dtype=np.float32)
+        for r, i in rows.items():
+            transmittance, internal = roughplastic_tables(r)
+            table[i, :TABLE_RES], table[i, TABLE_RES], table[i, TABLE_RES + 1] = transmittance, r, 1.0 / (1 - internal)
+        self._materials = ctx.texture((table.shape[1], table.shape[0]), 1, table.tobytes(), dtype="f4")
+        self._materials.filter = (ctx.NEAREST, ctx.NEAREST)
+
+        chunks, self._ranges = [], {}
+        indices: dict[bool, list[np.ndarray]] = {True: [], False: []}
+        base = 0
+        for obj in self.objects:
+            mesh = obj.mesh
+            if obj.roughness is None:  # flat: each corner its own vertex with the face's geometric normal
+                vertices = mesh.vertices[mesh.faces].reshape(-1, 3)
+                normals = np.repeat(_face_normals(mesh.vertices, mesh.faces), 3, axis=0)
+                source = mesh.faces.ravel()
+                faces = np.arange(len(vertices), dtype=np.int64).reshape(-1, 3)
+                row = DIFFUSE_ROW
+            else:  # smooth: shared vertices with the area-weighted vertex normals Mitsuba gets
+                vertices, normals, source, faces = mesh.vertices, mesh.vertex_normals(), None, mesh.faces
+                row = rows[obj.roughness]
+            data = np.empty((len(vertices), 10), dtype=np.float32)
+            data[:, 0:3], data[:, 3:6], data[:, 6:9], data[:, 9] = vertices, normals, obj.albedo, row
+            chunks.append(data)
+            indices[_closed(mesh)].append(faces.astype(np.int64) + base)
+            self._ranges[obj.name] = (base, len(vertices), source, len(mesh.vertices))
+            base += len(vertices)
+        self._n_vertices = base
+        self._vbo = ctx.buffer(np.concatenate(chunks).tobytes())
+        # closed meshes first: their back faces are culled (never visible from outside; half the triangles)
+        self._n_closed = 3 * sum(len(f) for f in indices[True])
+        self._ibo = ctx.buffer(np.concatenate(indices[True] + indices[False]).astype(np.uint32).tobytes())
+        self._n_indices = self._ibo.size // 4
+        self._uv_vbo = ctx.buffer(reserve=8 * base)
+        self._uv_vbo.clear()
+        # the area light's quad: 6 vertices rewritten when the light moves; no texture coordinates
+        self._emitter_vbo = ctx.buffer(reserve=6 * 40)
+        self._emitter_uv = ctx.buffer(reserve=6 * 8)
+        self._emitter_uv.clear()
+        self._vaos: dict[str, tuple[Any, Any]] = {}
+
+    def _scene_program(self, defines: tuple[str, ...], attachments: tuple[int, ...]) -> Any:
+        di_location = attachments.index(3) if 3 in attachments else 0
+        return self.ctx.program(
+            vertex_shader=SCENE_VERTEX, fragment_shader=scene_fragment(*defines, di_location=di_location)
+        )
+
+    def _vao(self, name: str) -> tuple[Any, Any]:
+        if name not in self._vaos:
+            prog = self._programs[name]
+            layout = "3f 3f 4f", "in_pos", "in_nrm", "in_mat"
+            self._vaos[name] = (
+                self.ctx.vertex_array(
+                    prog, [(self._vbo, *layout), (self._uv_vbo, "2f", "in_uv")], self._ibo, skip_errors=True
+                ),
+                self.ctx.vertex_array(
+                    prog, [(self._emitter_vbo, *layout), (self._emitter_uv, "2f", "in_uv")], skip_errors=True
+                ),
+            )
+        return self._vaos[name]
+
+    # -- state -----------------------------------------------------------------------------------
+    def _check_camera(self, camera: Camera) -> None:
+        if (camera.width, camera.height) != (self.resolution, self.resolution):
+            n = self.resolution
+            raise ValueError(f"camera is {camera.width}x{camera.height} but this renderer renders {n}x{n}")
+
+    def _set_light(self, position) -> tuple[float, float, float]:
+        """Move the light; ``None`` means the spec's rest position (as in ``gicore.render``)."""
+        position = tuple(self.spec.light.position) if position is None else tuple(float(x) for x in position)
+        if position == self._light:
+            return position
+        if len(position) != 3 or not np.all(np.isfinite(position)):
+            raise ValueError(f"light position must be 3 finite numbers, got {position}")
+        self._light = position
+        size = self.spec.light.size
+        if size > 0:  # Mitsuba's rectangle: centred on the light, side ``size``, normal -y
+            h = size / 2.0
+            corners = np.array([[-h, 0, -h], [h, 0, -h], [h, 0, h], [-h, 0, h]]) + position
+            quad = corners[[0, 1, 2, 0, 2, 3]]
+            data = np.empty((6, 10), dtype=np.float32)
+            data[:, 0:3], data[:, 3:6], data[:, 6:9], data[:, 9] = quad, (0, -1, 0), EMITTER_ALBEDO, EMITTER_ROW
+            self._emitter_vbo.write(data.tobytes())
+        return position
+
+    def set_texcoords(self, name: str, uv: np.ndarray) -> None:
+        """Replace the per-vertex texture coordinates of object ``name`` (N x 2, N its mesh's vertices)."""
+        if name not in self._ranges:
+            raise KeyError(f"no object {name!r}; objects: {[o.name for o in self.objects]}")
+        start, count, source, n_mesh = self._ranges[name]
+        uv = np.ascontiguousarray(uv, dtype=np.float32)
+        if uv.shape != (n_mesh, 2):
+            raise ValueError(f"texcoords for {name!r} must be (n_vertices, 2), got {uv.shape}")
+        data = uv if source is None else uv[source]
+        self._uv_vbo.write(np.ascontiguousarray(data).tobytes(), offset=8 * start)
+        self._uv_projection = None
+
+    def set_texcoord_projection(self, camera: Camera | None) -> None:
+        """Make every vertex's coordinates ``camera``'s clip (x, y) (eq. 5 before the divide), computed in
+        the vertex shader: the same values the warp uploads with :meth:`set_texcoords`, without the upload.
+        ``None`` goes back to the uploaded coordinates."""
+        self._uv_projection = None if camera is None else camera.view_proj()
+
+    # -- shadows ---------------------------------------------------------------------------------
+    def _bounds(self) -> list[tuple[np.ndarray, float, np.ndarray | None, np.ndarray]]:
+        """Per object: bounding-sphere centre and radius, the plane (normal, point) of a flat environment
+        quad (None for the spec's objects) and the bounding box's corners; computed once."""
+        if self._bounds_cache is None:
+            n_spec, out = len(self.spec.objects), []
+            for i, obj in enumerate(self.objects):
+                v = obj.mesh.vertices.astype(np.float64)
+                lo, hi = v.min(axis=0), v.max(axis=0)
+                centre = (lo + hi) / 2.0
+                plane = None if i < n_spec else np.stack([_face_normals(v, obj.mesh.faces[:1])[0], v[0]])
+                corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+                out.append((centre, float(np.linalg.norm(v - centre, axis=1).max()), plane, corners))
+            self._bounds_cache = out
+        return self._bounds_cache
+
+    def _shadow_views(self, light: np.ndarray) -> dict[str, Any]:
+        """The shadow views for a light at ``light``: matrices, texel sizes and the atlas layout.
+
+        Casters: the spec's objects, and the environment quads the light is behind (a quad shadows only
+        what lies beyond it); their bounding sphere (a union of the objects' spheres) is what a fitted
+        frustum must hold. Its far plane reaches the farthest corner of any object's box."""
+        bounds = self._bounds()
+        casters = [
+            (c, r) for c, r, plane, _ in bounds if plane is None or float(np.dot(plane[0], light - plane[1])) < 0
+        ]
+        lo = np.min([c - r for c, r in casters], axis=0)
+        hi = np.max([c + r for c, r in casters], axis=0)
+        centre = (lo + hi) / 2.0
+        radius = max(float(np.linalg.norm(c - centre)) + r for c, r in casters) + 1e-4
+        corners = np.concatenate([b[3] for b in bounds])
+        far = float(np.linalg.norm(corners - light, axis=1).max()) * 1.01 + 1e-3
+        dist = float(np.linalg.norm(centre - light))
+        size = self.shadow_size
+        if dist > 1.02 * radius:
+            tan_half = math.tan(math.asin(radius / dist)) * (1.0 + 4.0 / size)  # + 2 texels for the PCF kernel
+            near = max(0.5 * (dist - radius), NEAR_MIN * 10)
+            fov = math.degrees(2 * math.atan(tan_half))
+            cam = Camera(
+                tuple(light), tuple(centre), _up_for(centre - light), fov, near, max(far, 2 * near), size, size
+            )
+            return _views([cam.view_proj()], tan_half, size, (size, size), dist - radius, max(far, 2 * near))
+        tile = max(16, size // 2)
+        tan_half = 1.0 + 8.0 / tile  # 90 degrees + 4 texels, so that kernels near a face's edge stay inside
+        fov = math.degrees(2 * math.atan(tan_half))
+        near = max(1e-4 * far, NEAR_MIN * 10)
+        views = []
+        for axis in np.eye(3):
+            for sign in (1.0, -1.0):
+                target = tuple(light + sign * axis)
+                views.append(Camera(tuple(light), target, _up_for(axis), fov, near, far, tile, tile).view_proj())
+        return _views(views, tan_half, tile, (3 * tile, 2 * tile), max(near, 0.01 * radius), far)
+
+    def _ensure_shadow(self) -> None:
+        """Render the shadow map for the current light unless it is already there."""
+        key = (self._light,)
+        if key == self._shadow_key:
+            return
+        setup = self._shadow_views(np.asarray(self._light, dtype=np.float64))
+        ctx = self.ctx
+        if self._shadow.get("atlas") != setup["atlas"]:
+            tex = ctx.depth_texture(setup["atlas"])
+            tex.repeat_x = tex.repeat_y = False
+            compare = ctx.sampler(repeat_x=False, repeat_y=False, filter=(ctx.LINEAR, ctx.LINEAR), compare_func="<=")
+            raw = ctx.sampler(repeat_x=False, repeat_y=False, filter=(ctx.NEAREST, ctx.NEAREST), compare_func="")
+            compare.texture = raw.texture = tex
+            fbo = ctx.framebuffer(depth_attachment=tex)
+            self._shadow = {"atlas": setup["atlas"], "fbo": fbo, "samplers": (compare, raw)}
+        fbo = self._shadow["fbo"]
+        fbo.use()
+        fbo.clear(depth=1.0)
+        ctx.enable(ctx.DEPTH_TEST)
+        ctx.disable(ctx.CULL_FACE)
+        prog = self._shadow_program
+        prog["u_light"].value = self._light
+        prog["u_far"].value = setup["far"]
+        tile = setup["tile"]
+        for face, vp in enumerate(setup["views"]):
+            fbo.viewport = ((face % 3) * tile, (face // 3) * tile, tile, tile)
+            prog["u_vp"].write(_mat(vp))
+            self._render_scene(self._shadow_vao)
+        self._shadow |= setup
+        self._shadow_key = key
+        self.shadow_updates += 1
+
+    # -- passes ----------------------------------------------------------------------------------
+    def _draw(self, name: str, camera: Camera) -> Any:
+        """Run pass ``name`` at ``camera``; returns its framebuffer (read it with :meth:`_read`)."""
+        self._check_camera(camera)
+        ctx, prog = self.ctx, self._programs[name]
+        uniforms: dict[str, Any] = {
+            "u_view_proj": _mat(camera.view_proj()),
+            "u_view": _mat(camera.view()),
+            "u_eye": camera.origin,
+            "u_project_uv": self._uv_projection is not None,
+        }
+        if self._uv_projection is not None:
+            uniforms["u_uv_proj"] = _mat(self._uv_projection)
+        if "DI" in _PASSES[name][0]:
+            self._ensure_shadow()
+            uniforms |= self._di_uniforms()
+            compare, raw = self._shadow["samplers"]
+            compare.use(location=1)
+            raw.use(location=3)
+            self._materials.use(location=2)
+        for key, value in uniforms.items():
+            if prog.get(key, None) is not None:
+                if isinstance(value, bytes):
+                    prog[key].write(value)
+                else:
+                    prog[key].value = value
+        fbo = self._fbos[name]
+        fbo.use()
+        fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+        ctx.enable(ctx.DEPTH_TEST)
+        ctx.disable(ctx.CULL_FACE | ctx.BLEND)
+        scene, emitter = self._vao(name)
+        self._render_scene(scene)
+        if self.spec.light.size > 0:
+            emitter.render(vertices=6)
+        return fbo
+
+    def _render_scene(self, vao: Any) -> None:
+        """Draw the scene's triangles: closed meshes with back faces culled, the others two-sided."""
+        ctx = self.ctx
+        if self._n_closed:
+            ctx.enable(ctx.CULL_FACE)
+            vao.render(vertices=self._n_closed)
+            ctx.disable(ctx.CULL_FACE)
+        if self._n_indices > self._n_closed:
+            vao.render(vertices=self._n_indices - self._n_closed, first=self._n_closed)
+
+    def _di_uniforms(self) -> dict[str, Any]:
+        light, s = self.spec.light, self._shadow
+        area = light.size > 0
+        k = AREA_SAMPLES if area else 1
+        vps = b"".join(_mat(v) for v in s["views"]) + bytes(64 * (6 - len(s["views"])))
+        return {
+            "u_light": self._light,
+            "u_intensity": light.intensity / (k * k),
+            "u_radiance": light.intensity / light.size**2 if area else 0.0,
+            "u_light_size": light.size,
+            "u_light_samples": k,
+            "u_eta": ETA,
+            "u_materials": 2,
+            "u_shadow": 1,
+            "u_shadow_raw": 3,
+            "u_shadow_far": s["far"],
+            "u_shadow_views": len(s["views"]),
+            "u_shadow_vp": vps,
+            "u_shadow_texel": tuple(s["texel"]) + (0.0,) * (6 - len(s["texel"])),
+            "u_shadow_size": s["tile"],
+            "u_blocker_min": s["blocker_min"],
+            "u_pcf_taps": PCF_TAPS[area],
+        }
+
+    def _read(self, fbo: Any, attachment: int, components: int) -> np.ndarray:
+        """One colour attachment as float32 HxWxC, row 0 at the top (GL's row 0 is the bottom)."""
+        n = self.resolution
+        raw = fbo.read(components=components, attachment=attachment, dtype="f4")
+        return np.ascontiguousarray(np.frombuffer(raw, dtype=np.float32).reshape(n, n, components)[::-1])
+
+    def _gbuffers(self, fbo: Any) -> dict[str, np.ndarray]:
+        a, nd, p = self._read(fbo, 0, 4), self._read(fbo, 1, 4), self._read(fbo, 2, 3)
+        return {
+            "albedo": np.ascontiguousarray(a[..., :3]),
+            "normal": np.ascontiguousarray(nd[..., :3]),
+            "depth": np.ascontiguousarray(nd[..., 3:4]),
+            "position": p,
+            "mask": np.ascontiguousarray(a[..., 3:4]),
+        }
+
+    def render_gbuffers(self, camera: Camera, seed: int = 0, centre: bool = True) -> dict[str, np.ndarray]:
+        """Albedo, view-space normal (GL), linear view depth, world position and mask, at pixel centres.
+
+        ``seed`` and ``centre`` exist for parity with ``gicore.render``: a rasteriser always samples the
+        pixel centre (Mitsuba's ``centre=True``) and has nothing random."""
+        return self._gbuffers(self._draw("gbuffer", camera))
+
+    def render_di(self, camera: Camera, light=None, spp: int = 1, seed: int = 0) -> np.ndarray:
+        """Direct illumination (diffuse + glossy, shadow-mapped) at pixel centres; deterministic (``spp``
+        and ``seed`` exist for parity with ``gicore.render``)."""
+        self._set_light(light)
+        return self._read(self._draw("di", camera), 0, 3)
+
+    def render_di_gbuffers(
+        self, camera: Camera, light=None, seed: int = 0, centre: bool = True
+    ) -> dict[str, np.ndarray]:
+        """DI and the G-buffers in one pass (four render targets)."""
+        self._set_light(light)
+        fbo = self._draw("di_gbuffer", camera)
+        return {"di": self._read(fbo, 3, 3)} | self._gbuffers(fbo)
+
+    def render_uv(self, camera: Camera) -> dict[str, np.ndarray]:
+        """The warp's pass at ``camera``, as ``gicore.render.Renderer.render_uv``: ``uv`` (HxWx2, the bound
+        coordinates interpolated over each triangle; 0 off textured surfaces), ``position`` (HxWx3),
+        ``mask`` and ``textured`` (HxW bool; the area light's quad is a surface but not textured)."""
+        fbo = self._draw("uv", camera)
+        uvt = self._read(fbo, 0, 4)
+        return {
+            "uv": np.ascontiguousarray(uvt[..., :2]),
+            "position": self._read(fbo, 1, 3),
+            "mask": uvt[..., 3] > 0.5,
+            "textured": uvt[..., 2] > 0.5,
+        }
+
+    def render_depth(self, camera: Camera) -> dict[str, np.ndarray]:
+        """Linear view depth at pixel centres (HxW, 0 on background; ``gicore.loop.texel_depth``) and the
+        surface mask (HxW bool): the pixel-level warp's passes."""
+        d = self._read(self._draw("depth", camera), 0, 2)
+        return {"depth": np.ascontiguousarray(d[..., 0]), "mask": d[..., 1] > 0.5}
+
+    def render_gt(self, *args, **kwargs) -> np.ndarray:
+        raise NotImplementedError("path-traced GT is not a raster pass: render it with gicore.render.Renderer")
+
+    def render_frame(
+        self, camera: Camera, light=None, buffers=DATASET_BUFFERS, spp: int = 64, seed: int = 0, denoise: bool = False
+    ) -> dict[str, np.ndarray]:
+        """Exactly the named buffers for one frame (see :mod:`gicore.buffers`); ``gt`` is refused."""
+        wanted = check_buffer_names(list(buffers))
+        if "gt" in wanted:
+            raise ValueError("the GL renderer rasterises: 'gt' (path traced) comes from gicore.render (Mitsuba)")
+        if set(GBUFFERS) & set(wanted):
+            out = self.render_di_gbuffers(camera, light) if "di" in wanted else self.render_gbuffers(camera)
+        else:
+            out = {"di": self.render_di(camera, light)}
+        return {name: out[name] for name in wanted}

@@ -1,0 +1,316 @@
+"""The OpenGL renderer (gicore.gl) against Mitsuba (gicore.render) on the same cameras (SPEC §1, §3, §5).
+
+G-buffers: per channel, mean |gl - mitsuba| away from silhouettes within 1e-3 (issue 22) against Mitsuba's
+centre-sampled pass, which samples what a rasteriser samples; against the default pass (one sample at a
+random point of each pixel) the interior error is the sub-pixel offset times the image gradient, reported
+and shown to be an order larger. DI: SSIM against converged Mitsuba DI with bounds measured here. The
+warps' passes (uv, depth), the shadow-map cache, the renderer API and the no-context error.
+
+The tables print with ``pytest -s``. The module is skipped, with the reason, only when no EGL context opens.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gicore.camera import Camera
+from gicore.gl import GLRenderer, RasterUnavailable, gl_available
+from gicore.gl.fidelity import CHANNELS, di_errors, gbuffer_errors, silhouettes
+from gicore.render import Renderer
+
+OK, WHY = gl_available()
+if not OK:
+    pytest.skip(f"no OpenGL context: {WHY}", allow_module_level=True)
+
+RES = 64
+#: Mean |gl - mitsuba| away from silhouettes (issue 22's target).
+INTERIOR_MEAN = 1e-3
+#: Largest interior error measured against the centre-sampled pass: 1.1e-4 (a normal), 1.7e-5 (depth,
+#: position); float32 interpolation differences, bounded with a margin.
+INTERIOR_MAX = 1e-3
+
+
+def view(res: int = RES, **kw) -> Camera:
+    """Ball, box, their shadows and the ground in one view."""
+    return Camera(**({"origin": (1.9, 1.5, 2.2), "target": (0.25, 0.45, -0.1), "width": res, "height": res} | kw))
+
+
+@pytest.fixture(scope="module")
+def point_scene(make_spec):
+    spec = make_spec(with_box=True)
+    return spec, GLRenderer(spec, RES), Renderer(spec, RES)
+
+
+@pytest.fixture(scope="module")
+def area_scene(make_spec):
+    spec = make_spec(with_box=True, light={"position": [0.5, 2.4, 0.8], "size": 0.5})
+    return spec, GLRenderer(spec, RES), Renderer(spec, RES)
+
+
+def print_table(title: str, rows: list[dict]) -> None:
+    print(f"\n{title}\n{'channel':9} {'region':10} {'pixels':>6} {'mean abs':>9} {'max abs':>9}")
+    for r in rows:
+        print(f"{r['channel']:9} {r['region']:10} {r['pixels']:6d} {r['mean_abs']:9.2e} {r['max_abs']:9.2e}")
+
+
+def by_region(rows: list[dict], region: str) -> dict[str, dict]:
+    return {r["channel"]: r for r in rows if r["region"] == region}
+
+
+# -- context ---------------------------------------------------------------------------------------------
+def test_context_reports_its_renderer():
+    from gicore.gl import gl_info
+
+    info = gl_info()
+    print("\nGL_RENDERER:", info["GL_RENDERER"], "|", info["GL_VERSION"])
+    assert info["GL_RENDERER"] and info["GL_VERSION"]
+
+
+def test_no_context_raises_one_line_reason(monkeypatch):
+    import moderngl
+
+    import gicore.gl.context as context
+
+    def refuse(**kwargs):
+        raise Exception("eglInitialize failed\nmore detail")
+
+    monkeypatch.setattr(context, "_context", None)
+    monkeypatch.setattr(context, "_failure", None)
+    monkeypatch.setattr(moderngl, "create_standalone_context", refuse)
+    with pytest.raises(RasterUnavailable) as err:
+        context.gl_context()
+    message = str(err.value)
+    assert "\n" not in message and "eglInitialize failed" in message and "apt-get install" in message
+    with pytest.raises(RasterUnavailable):  # remembered: no second probe
+        context.gl_context()
+    assert context.gl_available() == (False, message)
+
+
+# -- G-buffers -------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("fixture", ["point_scene", "area_scene"])
+def test_gbuffers_match_mitsuba_centre_sampled(request, fixture):
+    spec, gl, mi = request.getfixturevalue(fixture)
+    cams = [view(), view(origin=(-1.6, 0.9, 2.4), fov=90.0)]
+    if fixture == "area_scene":  # looking up at the light's quad (visible: black albedo, normal -y)
+        cams.append(view(origin=(0.4, 0.9, 2.6), target=(0.5, 2.4, 0.8)))
+    for cam in cams:
+        ours, ref = gl.render_gbuffers(cam), mi.render_gbuffers(cam, centre=True)
+        assert set(ours) == set(ref)
+        for name in ours:
+            assert ours[name].shape == ref[name].shape and ours[name].dtype == np.float32, name
+        rows = gbuffer_errors(ours, ref)
+        print_table(f"{fixture}, camera at {cam.origin}: |gl - mitsuba (centre)|", rows)
+        interior = by_region(rows, "interior")
+        assert interior["albedo"]["pixels"] > 0.6 * RES * RES
+        for name in CHANNELS:
+            assert interior[name]["mean_abs"] <= INTERIOR_MEAN, (name, interior[name])
+            assert interior[name]["max_abs"] <= INTERIOR_MAX, (name, interior[name])
+        mask_differs = (ours["mask"] != ref["mask"]).sum()
+        assert mask_differs <= 0.01 * RES * RES, mask_differs
+        if len(cams) == 3 and cam is cams[2]:
+            quad = (ours["albedo"].max(axis=-1) == 0) & (ours["mask"][..., 0] > 0)
+            assert quad.sum() > 20, "the area light's quad is in view"
+            np.testing.assert_allclose(ours["normal"][quad] @ cam.view()[:3, :3], [[0, -1, 0]] * quad.sum(), atol=1e-5)
+
+
+def test_jittered_gbuffers_differ_by_their_sample_position(point_scene):
+    """Mitsuba's default G-buffer pass samples one random point per pixel: its interior error against the
+    pixel centres (GL) is the sub-pixel offset times the gradient, over 10x the centre-sampled error."""
+    _, gl, mi = point_scene
+    cam = view()
+    ours = gl.render_gbuffers(cam)
+    centre = by_region(gbuffer_errors(ours, mi.render_gbuffers(cam, centre=True)), "interior")
+    rows = gbuffer_errors(ours, mi.render_gbuffers(cam, seed=3))
+    print_table("point scene: |gl - mitsuba (jittered, default)|", rows)
+    jittered = by_region(rows, "interior")
+    assert jittered["albedo"]["mean_abs"] == 0.0  # constant per object
+    for name in ("normal", "depth", "position"):
+        assert jittered[name]["mean_abs"] > 10 * centre[name]["mean_abs"], name
+
+
+def test_silhouettes_cover_the_edges_only(point_scene):
+    _, gl, mi = point_scene
+    cam = view()
+    ours, ref = gl.render_gbuffers(cam), mi.render_gbuffers(cam, centre=True)
+    sil = silhouettes(ours, ref)
+    assert 0.02 < sil.mean() < 0.35, sil.mean()
+    assert not sil[ours["mask"][..., 0] == 0].all()
+
+
+# -- DI --------------------------------------------------------------------------------------------------
+#: SSIM of GL DI against Mitsuba's DI at 256 spp (its pixel average) at 64², measured on these views: point
+#: light 0.954 and 0.980, area light (PCSS, 2x2 light points) 0.972 and 0.962, a light among the objects
+#: (cube faces) 0.950, Cornell box 0.961. What is left is edges: one sample at the pixel centre against the
+#: pixel's average (at 256² the same views give 0.991, 0.994, 0.987, 0.989, 0.979). Bound: below them all.
+DI_SSIM = 0.94
+
+
+@pytest.mark.parametrize("fixture", ["point_scene", "area_scene"])
+def test_di_close_to_mitsuba(request, fixture):
+    spec, gl, mi = request.getfixturevalue(fixture)
+    cams = [view(), view(origin=(-1.6, 0.9, 2.4), fov=90.0)]
+    for cam in cams:
+        ours = gl.render_di(cam)
+        assert ours.shape == (RES, RES, 3) and ours.dtype == np.float32 and np.all(np.isfinite(ours))
+        ref = mi.render_di(cam, spp=256, seed=1)
+        one = mi.render_di(cam, spp=1, seed=1)
+        interior = ~silhouettes(gl.render_gbuffers(cam), mi.render_gbuffers(cam, centre=True))
+        e = di_errors(ours, ref) | {"interior_mean_abs": di_errors(ours, ref, interior)["mean_abs"]}
+        e1 = di_errors(ours, one)
+        print(
+            f"\n{fixture} DI at {cam.origin}: SSIM {e['ssim']:.4f} vs 256 spp (mean abs {e['mean_abs']:.2e}, "
+            f"interior {e['interior_mean_abs']:.2e}), SSIM {e1['ssim']:.4f} vs 1 spp; mean DI {ref.mean():.3f}"
+        )
+        assert e["ssim"] >= DI_SSIM, e
+        assert e["interior_mean_abs"] <= 0.05 * ref.mean(), e
+
+
+def test_di_matches_mitsuba_brdf_where_unshadowed(point_scene):
+    """Lit interior pixels far from shadow edges: the BRDF and the light match Mitsuba to a fraction of a
+    percent (what is left is Mitsuba's pixel average against GL's pixel centre)."""
+    _, gl, mi = point_scene
+    cam = view()
+    ours, ref = gl.render_di(cam), mi.render_di(cam, spp=256, seed=2)
+    gb = gl.render_gbuffers(cam)
+    lit = ~silhouettes(gb, mi.render_gbuffers(cam, centre=True)) & (ref.mean(-1) > 0.05)
+    smooth = np.ones_like(lit)  # away from shadow edges: no neighbour differs by more than 5 %
+    for axis in (0, 1):
+        for shift in (1, -1):
+            smooth &= np.abs(np.roll(ref.mean(-1), shift, axis) - ref.mean(-1)) <= 0.05 * ref.mean(-1)
+    where = lit & smooth
+    rel = np.abs(ours[where] - ref[where]).mean() / ref[where].mean()
+    print(f"\nunshadowed interior DI: {where.sum()} pixels, mean relative error {rel:.2e}")
+    assert where.sum() > 0.3 * RES * RES
+    assert rel < 0.01, rel
+
+
+def test_di_gbuffers_in_one_pass_equal_the_separate_passes(point_scene):
+    _, gl, _ = point_scene
+    cam = view()
+    both = gl.render_di_gbuffers(cam)
+    assert both.keys() == {"di", "albedo", "normal", "depth", "position", "mask"}
+    np.testing.assert_array_equal(both["di"], gl.render_di(cam))
+    for name, value in gl.render_gbuffers(cam).items():
+        np.testing.assert_array_equal(both[name], value)
+
+
+# -- shadow map ------------------------------------------------------------------------------------------
+def test_shadow_map_is_reused_for_a_static_light_and_updated_for_a_moving_one(make_spec):
+    spec = make_spec(with_box=True)
+    gl = GLRenderer(spec, 32)
+    cam = view(32)
+    first = gl.render_di(cam)
+    gl.render_di(view(32, origin=(-1.6, 0.9, 2.4)))
+    gl.render_di_gbuffers(cam)
+    gl.render_gbuffers(cam)  # no DI: no shadow map needed
+    assert gl.shadow_updates == 1
+    moved = gl.render_di(cam, light=(1.4, 2.2, 0.4))
+    assert gl.shadow_updates == 2 and not np.allclose(moved, first)
+    np.testing.assert_array_equal(gl.render_di(cam, light=None), first)  # None: the rest position
+    assert gl.shadow_updates == 3
+
+
+def test_light_inside_the_casters_bounding_sphere_uses_cube_faces(make_spec):
+    """A light among the objects cannot be covered by one frustum: six faces, same fidelity."""
+    spec = make_spec(with_box=True, light={"position": [0.45, 1.15, 0.1], "intensity": 3.0})
+    gl, mi = GLRenderer(spec, RES), Renderer(spec, RES)
+    cam = view()
+    ours = gl.render_di(cam)
+    assert len(gl._shadow["views"]) == 6
+    e = di_errors(ours, mi.render_di(cam, spp=256, seed=1))
+    print(f"\ncube-face shadows: SSIM {e['ssim']:.4f}")
+    assert e["ssim"] >= DI_SSIM, e
+
+
+def test_cornell_box_di(make_spec):
+    spec = make_spec(
+        environment="cornell_box",
+        light={"position": [0.0, 2.2, 0.3], "intensity": 8.0},
+        camera={"radius": 2.05, "height": 1.05, "target": [0.0, 0.6, 0.0], "azimuth_range": 70.0},
+    )
+    gl, mi = GLRenderer(spec, RES), Renderer(spec, RES)
+    cam = Camera((0.3, 1.1, 2.3), (0.0, 0.8, 0.0), width=RES, height=RES)
+    rows = gbuffer_errors(gl.render_gbuffers(cam), mi.render_gbuffers(cam, centre=True))
+    for name, r in by_region(rows, "interior").items():
+        assert r["mean_abs"] <= INTERIOR_MEAN, (name, r)
+    e = di_errors(gl.render_di(cam), mi.render_di(cam, spp=256, seed=1))
+    print(f"\nCornell box DI: SSIM {e['ssim']:.4f}")
+    assert e["ssim"] >= DI_SSIM, e
+
+
+# -- the warps' passes -----------------------------------------------------------------------------------
+def clip_xy(camera: Camera, points: np.ndarray) -> np.ndarray:
+    vp = camera.view_proj()[:2]
+    return np.asarray(points, dtype=np.float64) @ vp[:, :3].T + vp[:, 3]
+
+
+def test_uv_pass_matches_mitsuba(area_scene):
+    _, gl, mi = area_scene
+    gi_cam = view(fov=90.0)
+    local = view(origin=(2.3, 1.2, 1.2), fov=60.0)
+    for r in (gl, mi):
+        for obj in r.objects:
+            r.set_texcoords(obj.name, clip_xy(gi_cam, obj.mesh.vertices))
+    ours, ref = gl.render_uv(local), mi.render_uv(local)
+    assert {k: (v.shape, v.dtype) for k, v in ours.items()} == {k: (v.shape, v.dtype) for k, v in ref.items()}
+    interior = ~silhouettes(gl.render_gbuffers(local), mi.render_gbuffers(local, centre=True))
+    both = interior & ours["textured"] & ref["textured"]
+    assert both.sum() > 0.3 * RES * RES
+    assert (ours["mask"] != ref["mask"])[interior].sum() == 0
+    assert (ours["textured"] != ref["textured"])[interior].sum() == 0
+    uv_err = np.abs(ours["uv"] - ref["uv"])[both]
+    pos_err = np.abs(ours["position"] - ref["position"])[both]
+    print(f"\nuv pass: |uv| mean {uv_err.mean():.2e} max {uv_err.max():.2e}; position mean {pos_err.mean():.2e}")
+    assert uv_err.mean() <= INTERIOR_MEAN and uv_err.max() <= 1e-3
+    assert pos_err.mean() <= INTERIOR_MEAN and pos_err.max() <= INTERIOR_MAX
+    # the vertex shader's projection gives the uploaded coordinates without an upload
+    gl.set_texcoord_projection(gi_cam)
+    projected = gl.render_uv(local)
+    gl.set_texcoord_projection(None)
+    tex = ours["textured"]
+    np.testing.assert_allclose(projected["uv"][tex], ours["uv"][tex], atol=2e-5)
+    np.testing.assert_array_equal(gl.render_uv(local)["uv"], ours["uv"])
+
+
+def test_set_texcoords_validates(point_scene):
+    _, gl, _ = point_scene
+    with pytest.raises(KeyError, match="no object"):
+        gl.set_texcoords("nope", np.zeros((4, 2)))
+    with pytest.raises(ValueError, match="n_vertices"):
+        gl.set_texcoords("ground", np.zeros((5, 2)))
+
+
+def test_depth_pass_is_the_texel_depth(point_scene):
+    from gicore.loop import texel_depth
+
+    _, gl, mi = point_scene
+    cam = view(fov=90.0)
+    ours = gl.render_depth(cam)
+    ref = texel_depth(mi, cam)
+    interior = ~silhouettes(gl.render_gbuffers(cam), mi.render_gbuffers(cam, centre=True))
+    assert ours["depth"].shape == ref.shape and ours["depth"].dtype == np.float32
+    assert np.abs(ours["depth"] - ref)[interior].max() <= INTERIOR_MAX
+    np.testing.assert_array_equal(ours["mask"][interior], (ref > 0)[interior])
+    np.testing.assert_array_equal(ours["depth"], gl.render_gbuffers(cam)["depth"][..., 0])
+
+
+# -- API -------------------------------------------------------------------------------------------------
+def test_render_frame_names_exactly_the_buffers(point_scene):
+    _, gl, _ = point_scene
+    cam = view()
+    assert list(gl.render_frame(cam, buffers=("depth", "di"))) == ["depth", "di"]
+    assert list(gl.render_frame(cam, buffers=("di",))) == ["di"]
+    assert list(gl.render_frame(cam, buffers=("mask", "albedo"))) == ["mask", "albedo"]
+    with pytest.raises(ValueError, match="Mitsuba"):
+        gl.render_frame(cam, buffers=("di", "gt"))
+    with pytest.raises(NotImplementedError):
+        gl.render_gt(cam)
+
+
+def test_camera_must_match_the_resolution(point_scene):
+    _, gl, _ = point_scene
+    with pytest.raises(ValueError, match="renders 64x64"):
+        gl.render_di(view(32))
+    with pytest.raises(ValueError, match="finite"):
+        gl.render_di(view(), light=(0.0, float("nan"), 0.0))
