@@ -9,14 +9,17 @@ default one (one sample at a random point of each pixel, what the data sets hold
 DI: SSIM (``gicore.metrics``, tone-mapped) of GL against Mitsuba's 1-spp DI (the pass GL replaces) and
 against its converged DI (``reference_spp``, the pixel's average), plus the mean absolute error.
 
-Timing: median ms per pass (after warm-up) of GL and of the Mitsuba pass it replaces, cameras alternating
-along the scene's path as in ``bench render``. This module imports ``gicore.render`` (Mitsuba) only
-inside its functions; the renderer modules of ``gicore.gl`` never do.
+Timing: median ms per pass (after warm-up) of GL and of the Mitsuba pass it replaces, called alternately
+(both see the same load), cameras alternating along the scene's path as in ``bench render``.
+
+This module imports ``gicore.render`` (Mitsuba) only inside its functions; the renderer modules of
+``gicore.gl`` never do.
 """
 
 from __future__ import annotations
 
 import argparse
+import time
 from collections.abc import Callable
 from typing import Any
 
@@ -26,7 +29,7 @@ from gicore.camera import Camera
 from gicore.metrics import ssim
 from gicore.paths import camera_path, light_position
 from gicore.scene import load_scene
-from gicore.timing import summarize_ms, time_repeats
+from gicore.timing import summarize_ms
 from gicore.tonemap import tonemap
 
 #: The G-buffer channels compared (the mask is compared through the silhouette count).
@@ -142,24 +145,29 @@ def timings(spec, resolution: int, repeats: int = 7, warmup: int = 2, seed: int 
         state["light"] += 1
         return moving[state["light"] % len(moving)]
 
-    passes: list[tuple[str, str, Callable[[], Any]]] = [
-        ("di", "gl", lambda: gl.render_di(cam(), light)),
-        ("di", "mitsuba", lambda: mi.render_di(cam(), light)),
-        ("di_moving_light", "gl", lambda: gl.render_di(cam(), next_light())),
-        ("di_moving_light", "mitsuba", lambda: mi.render_di(cam(), next_light())),
-        ("gbuffers", "gl", lambda: gl.render_gbuffers(cam())),
-        ("gbuffers", "mitsuba", lambda: mi.render_gbuffers(cam(), centre=True)),
-        ("di_gbuffers", "gl", lambda: gl.render_di_gbuffers(cam(), light)),
-        ("di_gbuffers", "mitsuba", lambda: mi.render_di_gbuffers(cam(), light, centre=True)),
-        ("uv", "gl", lambda: gl.render_uv(cam())),
-        ("uv", "mitsuba", lambda: mi.render_uv(cam())),
-        ("depth", "gl", lambda: gl.render_depth(cam())),
-        ("depth", "mitsuba", lambda: texel_depth(mi, cam())),
-    ]
+    passes: dict[str, tuple[Callable[[], Any], Callable[[], Any]]] = {
+        "di": (lambda: gl.render_di(cam(), light), lambda: mi.render_di(cam(), light)),
+        "di_moving_light": (lambda: gl.render_di(cam(), next_light()), lambda: mi.render_di(cam(), next_light())),
+        "gbuffers": (lambda: gl.render_gbuffers(cam()), lambda: mi.render_gbuffers(cam(), centre=True)),
+        "di_gbuffers": (
+            lambda: gl.render_di_gbuffers(cam(), light),
+            lambda: mi.render_di_gbuffers(cam(), light, centre=True),
+        ),
+        "uv": (lambda: gl.render_uv(cam()), lambda: mi.render_uv(cam())),
+        "depth": (lambda: gl.render_depth(cam()), lambda: texel_depth(mi, cam())),
+    }
     rows = []
-    for name, system, fn in passes:
-        samples, _ = time_repeats(fn, repeats, warmup)
-        rows.append({"pass": name, "system": system, "resolution": resolution} | summarize_ms(samples))
+    for name, fns in passes.items():
+        # GL and Mitsuba alternate call by call, so that both see the same load on a shared machine
+        samples: dict[str, list[float]] = {"gl": [], "mitsuba": []}
+        for i in range(warmup + repeats):
+            for system, fn in zip(samples, fns):
+                t0 = time.perf_counter()
+                fn()
+                if i >= warmup:
+                    samples[system].append(time.perf_counter() - t0)
+        for system, times in samples.items():
+            rows.append({"pass": name, "system": system, "resolution": resolution} | summarize_ms(times))
     updates = gl.shadow_updates
     rows.append({"pass": "shadow_map_renders", "system": "gl", "resolution": resolution, "median": float(updates)})
     return rows

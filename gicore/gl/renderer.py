@@ -62,16 +62,18 @@ EMITTER_ALBEDO = 0.0
 SHADOW_SIZE = 1024
 #: K x K points on an area light for its unshadowed light.
 AREA_SAMPLES = 2
-#: PCF taps for a point light and an area light.
-PCF_TAPS = {False: 16, True: 32}
 #: The passes: the scene program's defines and the colour attachments (of the four float targets) written.
+#: Targets: 0 albedo or uv, 1 normal, 2 position, 3 depth or the uv pass's surface code, 4 DI.
 _PASSES = {
-    "gbuffer": (("GBUFFER",), (0, 1, 2)),
-    "di": (("DI",), (3,)),
-    "di_gbuffer": (("GBUFFER", "DI"), (0, 1, 2, 3)),
-    "uv": (("UV",), (0, 2)),
-    "depth": (("DEPTH",), (0,)),
+    "gbuffer": (("GBUFFER",), (0, 1, 2, 3)),
+    "di": (("DI",), (4,)),
+    "di_gbuffer": (("GBUFFER", "DI"), (0, 1, 2, 3, 4)),
+    "uv": (("UV",), (0, 2, 3)),
+    "depth": (("DEPTH",), (3,)),
 }
+#: Clip y negated: the image is rendered upside down, so that GL's bottom-up rows read back as an image's
+#: top-down rows, with no flip or copy (and window-space winding reversed: front faces are clockwise).
+_FLIP_Y = np.diag([1.0, -1.0, 1.0, 1.0])
 
 
 def _mat(m: np.ndarray) -> bytes:
@@ -133,15 +135,13 @@ class GLRenderer:
         #: Shadow maps rendered so far (a static light renders one).
         self.shadow_updates = 0
         self._upload_geometry()
-        self._programs = {
-            name: self._scene_program(defines, attachments) for name, (defines, attachments) in _PASSES.items()
-        }
+        self._programs: dict[tuple[str, bool], Any] = {}
         self._shadow_program = ctx.program(vertex_shader=SHADOW_VERTEX, fragment_shader=SHADOW_FRAGMENT)
         self._shadow_vao = ctx.vertex_array(
             self._shadow_program, [(self._vbo, "3f 28x", "in_pos")], self._ibo, skip_errors=True
         )
         size = (self.resolution, self.resolution)
-        self._targets = [ctx.renderbuffer(size, 4, dtype="f4") for _ in range(4)]
+        self._targets = [ctx.renderbuffer(size, 1 if i == 3 else 4, dtype="f4") for i in range(5)]
         self._depth = ctx.depth_renderbuffer(size)
         self._fbos = {
             name: ctx.framebuffer([self._targets[i] for i in attachments], self._depth)
@@ -200,19 +200,27 @@ class GLRenderer:
         self._emitter_vbo = ctx.buffer(reserve=6 * 40)
         self._emitter_uv = ctx.buffer(reserve=6 * 8)
         self._emitter_uv.clear()
-        self._vaos: dict[str, tuple[Any, Any]] = {}
+        self._vaos: dict[tuple[str, bool], tuple[Any, Any]] = {}
 
-    def _scene_program(self, defines: tuple[str, ...], attachments: tuple[int, ...]) -> Any:
-        di_location = attachments.index(3) if 3 in attachments else 0
-        return self.ctx.program(
-            vertex_shader=SCENE_VERTEX, fragment_shader=scene_fragment(*defines, di_location=di_location)
-        )
+    def _program(self, name: str, cube: bool) -> Any:
+        """The scene program of pass ``name`` (with ``cube``-face shadows for DI), compiled on first use."""
+        key = (name, cube)
+        if key not in self._programs:
+            defines, attachments = _PASSES[name]
+            source = scene_fragment(
+                *defines,
+                di_location=attachments.index(4) if 4 in attachments else 0,
+                area_light=self.spec.light.size > 0,
+                cube_shadow=cube,
+            )
+            self._programs[key] = self.ctx.program(vertex_shader=SCENE_VERTEX, fragment_shader=source)
+        return self._programs[key]
 
-    def _vao(self, name: str) -> tuple[Any, Any]:
-        if name not in self._vaos:
-            prog = self._programs[name]
+    def _vao(self, key: tuple[str, bool]) -> tuple[Any, Any]:
+        if key not in self._vaos:
+            prog = self._program(*key)
             layout = "3f 3f 4f", "in_pos", "in_nrm", "in_mat"
-            self._vaos[name] = (
+            self._vaos[key] = (
                 self.ctx.vertex_array(
                     prog, [(self._vbo, *layout), (self._uv_vbo, "2f", "in_uv")], self._ibo, skip_errors=True
                 ),
@@ -220,7 +228,7 @@ class GLRenderer:
                     prog, [(self._emitter_vbo, *layout), (self._emitter_uv, "2f", "in_uv")], skip_errors=True
                 ),
             )
-        return self._vaos[name]
+        return self._vaos[key]
 
     # -- state -----------------------------------------------------------------------------------
     def _check_camera(self, camera: Camera) -> None:
@@ -353,37 +361,44 @@ class GLRenderer:
     def _draw(self, name: str, camera: Camera) -> Any:
         """Run pass ``name`` at ``camera``; returns its framebuffer (read it with :meth:`_read`)."""
         self._check_camera(camera)
-        ctx, prog = self.ctx, self._programs[name]
+        di = "DI" in _PASSES[name][0]
+        if di:
+            self._ensure_shadow()
+        variant = (name, di and len(self._shadow["views"]) == 6)
+        ctx, prog = self.ctx, self._program(*variant)
         uniforms: dict[str, Any] = {
-            "u_view_proj": _mat(camera.view_proj()),
+            "u_view_proj": _mat(_FLIP_Y @ camera.view_proj()),
             "u_view": _mat(camera.view()),
             "u_eye": camera.origin,
             "u_project_uv": self._uv_projection is not None,
         }
         if self._uv_projection is not None:
             uniforms["u_uv_proj"] = _mat(self._uv_projection)
-        if "DI" in _PASSES[name][0]:
-            self._ensure_shadow()
+        if di:
             uniforms |= self._di_uniforms()
             compare, raw = self._shadow["samplers"]
             compare.use(location=1)
             raw.use(location=3)
             self._materials.use(location=2)
         for key, value in uniforms.items():
-            if prog.get(key, None) is not None:
-                if isinstance(value, bytes):
-                    prog[key].write(value)
-                else:
-                    prog[key].value = value
+            uniform = prog.get(key, None)
+            if uniform is None:  # not used by this variant (compiled out)
+                continue
+            if isinstance(value, bytes):  # matrices and arrays; the compiler may shorten an array to the
+                uniform.write(value[: uniform.array_length * uniform.element_size])  # elements it reads
+            else:
+                uniform.value = value
         fbo = self._fbos[name]
         fbo.use()
         fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
         ctx.enable(ctx.DEPTH_TEST)
         ctx.disable(ctx.CULL_FACE | ctx.BLEND)
-        scene, emitter = self._vao(name)
+        ctx.front_face = "cw"
+        scene, emitter = self._vao(variant)
         self._render_scene(scene)
         if self.spec.light.size > 0:
             emitter.render(vertices=6)
+        ctx.front_face = "ccw"
         return fbo
 
     def _render_scene(self, vao: Any) -> None:
@@ -412,28 +427,28 @@ class GLRenderer:
             "u_shadow": 1,
             "u_shadow_raw": 3,
             "u_shadow_far": s["far"],
-            "u_shadow_views": len(s["views"]),
             "u_shadow_vp": vps,
-            "u_shadow_texel": tuple(s["texel"]) + (0.0,) * (6 - len(s["texel"])),
+            "u_shadow_texel": np.float32(s["texel"] + [0.0] * (6 - len(s["texel"]))).tobytes(),
             "u_shadow_size": s["tile"],
             "u_blocker_min": s["blocker_min"],
-            "u_pcf_taps": PCF_TAPS[area],
         }
 
     def _read(self, fbo: Any, attachment: int, components: int) -> np.ndarray:
-        """One colour attachment as float32 HxWxC, row 0 at the top (GL's row 0 is the bottom)."""
+        """The leading ``components`` of one colour attachment as a new float32 HxWxC array (row 0 at the
+        top: the pass rendered upside down)."""
         n = self.resolution
-        raw = fbo.read(components=components, attachment=attachment, dtype="f4")
-        return np.ascontiguousarray(np.frombuffer(raw, dtype=np.float32).reshape(n, n, components)[::-1])
+        buf = bytearray(n * n * components * 4)
+        fbo.read_into(buf, components=components, attachment=attachment, dtype="f4")
+        return np.frombuffer(buf, dtype=np.float32).reshape(n, n, components)
 
     def _gbuffers(self, fbo: Any) -> dict[str, np.ndarray]:
-        a, nd, p = self._read(fbo, 0, 4), self._read(fbo, 1, 4), self._read(fbo, 2, 3)
+        depth = self._read(fbo, 3, 1)
         return {
-            "albedo": np.ascontiguousarray(a[..., :3]),
-            "normal": np.ascontiguousarray(nd[..., :3]),
-            "depth": np.ascontiguousarray(nd[..., 3:4]),
-            "position": p,
-            "mask": np.ascontiguousarray(a[..., 3:4]),
+            "albedo": self._read(fbo, 0, 3),
+            "normal": self._read(fbo, 1, 3),
+            "depth": depth,
+            "position": self._read(fbo, 2, 3),
+            "mask": (depth > 0).astype(np.float32),
         }
 
     def render_gbuffers(self, camera: Camera, seed: int = 0, centre: bool = True) -> dict[str, np.ndarray]:
@@ -455,26 +470,26 @@ class GLRenderer:
         """DI and the G-buffers in one pass (four render targets)."""
         self._set_light(light)
         fbo = self._draw("di_gbuffer", camera)
-        return {"di": self._read(fbo, 3, 3)} | self._gbuffers(fbo)
+        return {"di": self._read(fbo, 4, 3)} | self._gbuffers(fbo)
 
     def render_uv(self, camera: Camera) -> dict[str, np.ndarray]:
         """The warp's pass at ``camera``, as ``gicore.render.Renderer.render_uv``: ``uv`` (HxWx2, the bound
         coordinates interpolated over each triangle; 0 off textured surfaces), ``position`` (HxWx3),
         ``mask`` and ``textured`` (HxW bool; the area light's quad is a surface but not textured)."""
         fbo = self._draw("uv", camera)
-        uvt = self._read(fbo, 0, 4)
+        code = self._read(fbo, 2, 1)[..., 0]
         return {
-            "uv": np.ascontiguousarray(uvt[..., :2]),
+            "uv": self._read(fbo, 0, 2),
             "position": self._read(fbo, 1, 3),
-            "mask": uvt[..., 3] > 0.5,
-            "textured": uvt[..., 2] > 0.5,
+            "mask": code > 0.5,
+            "textured": code > 1.5,
         }
 
     def render_depth(self, camera: Camera) -> dict[str, np.ndarray]:
         """Linear view depth at pixel centres (HxW, 0 on background; ``gicore.loop.texel_depth``) and the
         surface mask (HxW bool): the pixel-level warp's passes."""
-        d = self._read(self._draw("depth", camera), 0, 2)
-        return {"depth": np.ascontiguousarray(d[..., 0]), "mask": d[..., 1] > 0.5}
+        depth = self._read(self._draw("depth", camera), 0, 1)[..., 0]
+        return {"depth": depth, "mask": depth > 0}
 
     def render_gt(self, *args, **kwargs) -> np.ndarray:
         raise NotImplementedError("path-traced GT is not a raster pass: render it with gicore.render.Renderer")

@@ -1,18 +1,23 @@
 """GLSL (``#version 330 core``) of the GL renderer's passes; see :mod:`gicore.gl.renderer`.
 
-The scene program is one source compiled per pass with ``#define``s: ``PASS_GBUFFER`` (albedo + mask,
-view normal + view depth, world position), ``PASS_DI`` (direct light with shadows), ``PASS_UV`` (the
-structure-aware warp's interpolated coordinates + position) and ``PASS_DEPTH`` (view depth + mask). Only
-``texelFetch`` reads textures (no float filtering, no ``textureGather``), so the code ports to GLSL ES 3.0
-(WebGL2) by changing the version line and adding precision qualifiers.
+The scene program is one source compiled per pass with ``#define``s: ``PASS_GBUFFER`` (albedo, view
+normal, world position, view depth), ``PASS_DI`` (direct light with shadows), ``PASS_UV`` (the structure-
+aware warp's interpolated coordinates, position and a surface code) and ``PASS_DEPTH`` (view depth). Each
+output holds one buffer in its leading components, so it reads back as it is (no channel split). The
+light (point or area) and the shadow layout (fitted frustum or cube faces) are compiled in too.
+
+Textures are read with ``texelFetch`` and, for the shadow map, a depth-comparison sampler with bilinear
+filtering (no float filtering, no ``textureGather``): all of it exists in GLSL ES 3.0, so the code ports to
+WebGL2 by changing the version line and adding precision qualifiers.
 """
 
 from __future__ import annotations
 
 #: Vertex attribute ``in_mat.w`` (the material row) of a diffuse surface and of the area light's quad.
 DIFFUSE_ROW, EMITTER_ROW = -1, -2
-#: Largest PCF / blocker-search radius in shadow-map texels.
+#: Largest PCF / blocker-search radius in shadow-map texels, and the PCF taps of an area light.
 MAX_RADIUS = 48.0
+PCF_TAPS = 32
 
 SCENE_VERTEX = """
 #version 330 core
@@ -50,12 +55,10 @@ uniform sampler2D u_materials; // row r: transmittance table [0, 64), alpha at 6
 uniform sampler2DShadow u_shadow;  // atlas of light distance / u_shadow_far, one tile per view (1: nothing)
 uniform sampler2D u_shadow_raw;    // the same texture read without comparison (PCSS blocker search)
 uniform float u_shadow_far;
-uniform int u_shadow_views;    // 1: one frustum fitted around the casters; 6: cube faces (+x -x +y -y +z -z)
-uniform mat4 u_shadow_vp[6];
+uniform mat4 u_shadow_vp[6];     // one frustum fitted around the casters, or cube faces (+x -x +y -y +z -z)
 uniform float u_shadow_texel[6];  // tangent-plane size of one texel at the tile's centre
 uniform int u_shadow_size;     // texels per tile side
 uniform float u_blocker_min;   // nearest distance a blocker can have from the light
-uniform int u_pcf_taps;
 
 float mat_texel(int row, int i) { return texelFetch(u_materials, ivec2(i, row), 0).r; }
 
@@ -109,48 +112,54 @@ float pcf_tap(vec2 st, ivec2 tile, float ref) {  // the sampler's bilinearly wei
 
 float visibility(vec3 p, vec3 n) {
     vec3 d = p - u_light;
-    int face = 0;
-    if (u_shadow_views == 6) {
-        vec3 a = abs(d);
-        if (a.x >= a.y && a.x >= a.z) face = d.x > 0.0 ? 0 : 1;
-        else face = a.y >= a.z ? (d.y > 0.0 ? 2 : 3) : (d.z > 0.0 ? 4 : 5);
-    }
+#ifdef CUBE_SHADOW
+    vec3 a = abs(d);
+    int face;
+    if (a.x >= a.y && a.x >= a.z) face = d.x > 0.0 ? 0 : 1;
+    else face = a.y >= a.z ? (d.y > 0.0 ? 2 : 3) : (d.z > 0.0 ? 4 : 5);
+#else
+    const int face = 0;
+#endif
     float r = length(d);
-    float texel = u_shadow_texel[face] * r;  // world size of one texel at the receiver
+    float tan_texel = u_shadow_texel[face];
+    float texel = tan_texel * r;  // world size of one texel at the receiver
     vec3 q = p + n * (1.5 * texel);          // normal offset (n faces the light here)
     vec4 c = u_shadow_vp[face] * vec4(q, 1.0);
     if (c.w <= 0.0) return 1.0;
     vec2 ndc = c.xy / c.w;
-    if (u_shadow_views == 1 && (abs(ndc.x) > 1.0 || abs(ndc.y) > 1.0)) return 1.0;  // no caster out there
+#ifndef CUBE_SHADOW
+    if (abs(ndc.x) > 1.0 || abs(ndc.y) > 1.0) return 1.0;  // no caster outside the fitted frustum
+#endif
     vec2 st = (ndc * 0.5 + 0.5) * float(u_shadow_size);
     ivec2 tile = ivec2(face % 3, face / 3) * u_shadow_size;
     float rq = length(q - u_light);
     float cos_l = clamp(dot(n, -d) / r, 0.05, 1.0);
     float slope = min(sqrt(1.0 - cos_l * cos_l) / cos_l, 4.0);
-    float radius = 1.0, turn = 0.0;
-    if (u_light_size > 0.0) {  // PCSS: blocker search, then a penumbra sized by the light
-        turn = 6.2831853 * fract(52.9829189 * fract(dot(gl_FragCoord.xy, vec2(0.06711056, 0.00583715))));
-        float search = 0.5 * u_light_size * (rq - u_blocker_min) / (rq * u_blocker_min) / u_shadow_texel[face];
-        search = clamp(search, 1.0, MAX_RADIUS);
-        float ref = rq - texel * (1.0 + search * slope);
-        float sum = 0.0, count = 0.0;
-        for (int k = 0; k < 16; ++k) {
-            ivec2 t = clamp(ivec2(floor(st + disc(k, 16, turn) * search)), ivec2(0), ivec2(u_shadow_size - 1));
-            float b = texelFetch(u_shadow_raw, tile + t, 0).r * u_shadow_far;
-            if (b < ref) { sum += b; count += 1.0; }
-        }
-        if (count == 0.0) return 1.0;
-        float b = sum / count;
-        radius = clamp(0.5 * u_light_size * (rq - b) / (rq * b) / u_shadow_texel[face], 1.0, MAX_RADIUS);
+#ifdef AREA_LIGHT
+    // PCSS: blocker search, then a penumbra sized by the light (taps turned per pixel against banding)
+    float turn = 6.2831853 * fract(52.9829189 * fract(dot(gl_FragCoord.xy, vec2(0.06711056, 0.00583715))));
+    float search = 0.5 * u_light_size * (rq - u_blocker_min) / (rq * u_blocker_min) / tan_texel;
+    search = clamp(search, 1.0, MAX_RADIUS);
+    float ref = rq - texel * (1.0 + search * slope);
+    float sum = 0.0, count = 0.0;
+    for (int k = 0; k < 16; ++k) {
+        ivec2 t = clamp(ivec2(floor(st + disc(k, 16, turn) * search)), ivec2(0), ivec2(u_shadow_size - 1));
+        float b = texelFetch(u_shadow_raw, tile + t, 0).r * u_shadow_far;
+        if (b < ref) { sum += b; count += 1.0; }
     }
-    float ref = rq - texel * (1.0 + radius * slope);
-    if (u_light_size == 0.0) {  // point light: four bilinear taps, a tent over 3 x 3 texels
-        return 0.25 * (pcf_tap(st + vec2(-0.5, -0.5), tile, ref) + pcf_tap(st + vec2(0.5, -0.5), tile, ref)
-                     + pcf_tap(st + vec2(-0.5, 0.5), tile, ref) + pcf_tap(st + vec2(0.5, 0.5), tile, ref));
-    }
+    if (count == 0.0) return 1.0;
+    float b = sum / count;
+    float radius = clamp(0.5 * u_light_size * (rq - b) / (rq * b) / tan_texel, 1.0, MAX_RADIUS);
+    ref = rq - texel * (1.0 + radius * slope);
     float lit = 0.0;
-    for (int k = 0; k < u_pcf_taps; ++k) lit += pcf_tap(st + disc(k, u_pcf_taps, turn) * radius, tile, ref);
-    return lit / float(u_pcf_taps);
+    for (int k = 0; k < PCF_TAPS; ++k) lit += pcf_tap(st + disc(k, PCF_TAPS, turn) * radius, tile, ref);
+    return lit / float(PCF_TAPS);
+#else
+    // point light: four bilinear taps, a tent over 3 x 3 texels
+    float ref = rq - texel * (1.0 + slope);
+    return 0.25 * (pcf_tap(st + vec2(-0.5, -0.5), tile, ref) + pcf_tap(st + vec2(0.5, -0.5), tile, ref)
+                 + pcf_tap(st + vec2(-0.5, 0.5), tile, ref) + pcf_tap(st + vec2(0.5, 0.5), tile, ref));
+#endif
 }
 
 vec3 direct(vec3 p, vec3 albedo, int row, vec3 n, vec3 wi) {
@@ -185,9 +194,10 @@ in vec3 v_nrm;
 in vec2 v_uv;
 flat in vec4 v_mat;  // albedo, material row
 #ifdef PASS_GBUFFER
-layout(location = 0) out vec4 o_albedo;    // albedo, mask
-layout(location = 1) out vec4 o_normal;    // view-space normal, linear view depth
-layout(location = 2) out vec4 o_position;  // world position, 1
+layout(location = 0) out vec4 o_albedo;    // albedo
+layout(location = 1) out vec4 o_normal;    // view-space normal
+layout(location = 2) out vec4 o_position;  // world position
+layout(location = 3) out vec4 o_depth;     // linear view depth (> 0 on every surface: the mask)
 #endif
 #ifdef PASS_DI
 layout(location = DI_LOCATION) out vec4 o_di;
@@ -196,11 +206,12 @@ layout(location = DI_LOCATION) out vec4 o_di;
     + f"""
 #endif
 #ifdef PASS_UV
-layout(location = 0) out vec4 o_uv;        // interpolated coordinates, textured, mask
+layout(location = 0) out vec4 o_uv;        // interpolated coordinates
 layout(location = 1) out vec4 o_position;
+layout(location = 2) out vec4 o_code;      // 0 background, 1 an untextured surface (the light's quad), 2 textured
 #endif
 #ifdef PASS_DEPTH
-layout(location = 0) out vec4 o_depth;     // linear view depth, mask
+layout(location = 0) out vec4 o_depth;     // linear view depth
 #endif
 void main() {{
     vec3 n = normalize(v_nrm);
@@ -208,8 +219,9 @@ void main() {{
     float depth = -(u_view * vec4(v_pos, 1.0)).z;
 #ifdef PASS_GBUFFER
     o_albedo = vec4(v_mat.rgb, 1.0);
-    o_normal = vec4(mat3(u_view) * n, depth);
+    o_normal = vec4(mat3(u_view) * n, 0.0);
     o_position = vec4(v_pos, 1.0);
+    o_depth = vec4(depth);
 #endif
 #ifdef PASS_DI
     vec3 wi = normalize(u_eye - v_pos);
@@ -218,11 +230,12 @@ void main() {{
 #endif
 #ifdef PASS_UV
     bool textured = row != {EMITTER_ROW};
-    o_uv = vec4(textured ? v_uv : vec2(0.0), textured ? 1.0 : 0.0, 1.0);
+    o_uv = vec4(textured ? v_uv : vec2(0.0), 0.0, 0.0);
     o_position = vec4(v_pos, 1.0);
+    o_code = vec4(textured ? 2.0 : 1.0);
 #endif
 #ifdef PASS_DEPTH
-    o_depth = vec4(depth, 1.0, 0.0, 0.0);
+    o_depth = vec4(depth);
 #endif
 }}
 """
@@ -248,9 +261,11 @@ void main() { gl_FragDepth = length(v_pos - u_light) / u_far; }
 """
 
 
-def scene_fragment(*passes: str, di_location: int = 0) -> str:
-    """The scene fragment shader for ``passes`` (``GBUFFER``, ``DI``, ``UV``, ``DEPTH``)."""
+def scene_fragment(*passes: str, di_location: int = 0, area_light: bool = False, cube_shadow: bool = False) -> str:
+    """The scene fragment shader for ``passes`` (``GBUFFER``, ``DI``, ``UV``, ``DEPTH``), for a point or an
+    area light, and a fitted or a cube-face shadow map (compiled in: no per-pixel branch on them)."""
     head, rest = SCENE_FRAGMENT.lstrip().split("\n", 1)
     defines = [f"#define PASS_{p}" for p in passes] + [f"#define DI_LOCATION {di_location}"]
-    defines.append(f"#define MAX_RADIUS {MAX_RADIUS:.1f}")
+    defines += [f"#define MAX_RADIUS {MAX_RADIUS:.1f}", f"#define PCF_TAPS {PCF_TAPS}"]
+    defines += ["#define AREA_LIGHT"] * area_light + ["#define CUBE_SHADOW"] * cube_shadow
     return "\n".join([head, *defines, rest])
