@@ -35,14 +35,14 @@ import json
 import logging
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import httpx
 import numpy as np
 
-from baseline_cloudbaking.codecs import CodecError, get_codec
+from baseline_cloudbaking.codecs import CODEC_NAMES, DEFAULT_CODEC, CodecError, get_codec
 from baseline_cloudbaking.protocol import MEDIA_TYPE, PayloadError, decode_payload
 from gicore.camera import Camera
 from gicore.loop import GIMap, Light, PathRunConfig
@@ -63,18 +63,20 @@ RECORD_COLUMNS = (
 
 @dataclass(frozen=True)
 class RemoteConfig:
-    """Where the GI maps come from and what they are."""
+    """Where the GI maps come from and what they are. ``cloudbaking-client`` makes it from its
+    :class:`CloudClientConfig` (:meth:`CloudClientConfig.remote`), so the maps asked for are the run's; its
+    defaults are that config's."""
 
     #: Base URL of the server (or of a network proxy in front of it), e.g. ``http://127.0.0.1:8000``.
     server: str
     #: The scene's name on the server (a spec file's stem).
     scene: str
     #: Square map resolution (one the server serves).
-    resolution: int = 256
+    resolution: int = PathRunConfig.resolution
     #: GI-map codec.
-    codec: str = "jpeg"
+    codec: str = DEFAULT_CODEC
     #: Path-tracing samples per pixel of the server's maps.
-    spp: int = 64
+    spp: int = PathRunConfig.spp
     #: Also ask for the DI of the GI view (the residual composition subtracts it to get the indirect light).
     di: bool = False
     #: Whether the scene's light moves: a static light's position is not sent (the server refuses it).
@@ -396,23 +398,44 @@ def check_server(server: str, scene: str, resolution: int, codec: str, spp: int,
     return tolerance
 
 
+#: Field metadata of a client timeout, s.
+TIMEOUT_S = {"min": 0.001, "max": 3600.0}
+
+
 @dataclass(frozen=True)
 class CloudClientConfig(PathRunConfig):
     """One ``cloudbaking-client`` run: the shared path run (the same path as ``gigan-client``'s; ``spp`` is
-    also the server's; the server's maps are always denoised) plus the GI-map codec. The server knows the
-    scene by its name (a spec file's stem)."""
+    also the server's; the server's maps are always denoised) plus the GI-map codec and the timeouts of its
+    requests. The server knows the scene by its name (a spec file's stem). Its command line is derived from
+    these fields and :class:`~gicore.loop.PathRunConfig`'s."""
 
-    codec: str = "jpeg"
+    #: GI-map codec.
+    codec: Literal[CODEC_NAMES] = DEFAULT_CODEC  # type: ignore[valid-type]
+    #: Seconds to wait for a TCP connection.
+    connect_timeout: float = field(default=RemoteConfig.connect_timeout_s, metadata=TIMEOUT_S)
+    #: Seconds of silence that fail a request (bounds the server's render time).
+    read_timeout: float = field(default=RemoteConfig.read_timeout_s, metadata=TIMEOUT_S)
+    #: Seconds after which a request fails however it is going.
+    deadline: float = field(default=RemoteConfig.deadline_s, metadata=TIMEOUT_S)
 
     @property
     def server_name(self) -> str:
         return Path(self.scene).stem
 
+    def remote(self, server: str, light_moves: bool) -> RemoteConfig:
+        """What to ask ``server`` for: this run's maps (its resolution, codec and spp, the DI where the
+        composition needs it) within its timeouts; ``light_moves``: whether the scene's light moves."""
+        return RemoteConfig(
+            server, self.server_name, self.resolution, self.codec, self.spp, di=self.composition == "residual",
+            light_moves=light_moves, connect_timeout_s=self.connect_timeout, read_timeout_s=self.read_timeout,
+            deadline_s=self.deadline,
+        )  # fmt: skip
+
 
 def run_client(
-    cfg: CloudClientConfig, remote: RemoteConfig, tolerance: ServerInfo
+    cfg: CloudClientConfig, server: str, tolerance: ServerInfo
 ) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
-    """Fly the scene's camera path composing with the server's maps; returns (per-frame rows, per-request rows).
+    """Fly the scene's camera path composing with ``server``'s maps; returns (per-frame rows, per-request rows).
 
     Composed frames of scored frames are kept and scored against the GT after the run, so the GT renders
     neither delay frames nor change when requests go out.
@@ -423,6 +446,7 @@ def run_client(
     from gicore.scene import load_scene
 
     spec = load_scene(cfg.scene)
+    remote = cfg.remote(server, spec.light.moves)
     renderer = Renderer(spec, cfg.resolution)
     loop_cfg = LoopConfig(
         every=cfg.every, gi_fov=cfg.gi_fov_of(spec), max_move=tolerance.tolerance_position or None,

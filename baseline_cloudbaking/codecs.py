@@ -250,6 +250,8 @@ CODECS: dict[str, Codec] = {
     )
 }
 CODEC_NAMES: tuple[str, ...] = tuple(CODECS)
+#: The codec a client, a prebake, a request and a bench use unless told otherwise (the one declaration).
+DEFAULT_CODEC = "jpeg"
 DEPTH_CODEC = DepthF16()
 
 

@@ -37,14 +37,16 @@ from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field, replace
 from functools import cached_property
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any, Literal, Protocol
 
 import numpy as np
 
 from gicore.blend import COMPOSITIONS, blend, residual
 from gicore.camera import Camera
+from gicore.cli import UserError
 from gicore.fileio import atomic_write_bytes
 from gicore.metrics import lf_error, psnr, ssim
+from gicore.options import FOV_DEGREES, FRAMES, RESOLUTION, SEED, SPP, check_fields
 from gicore.paths import camera_path, frame_seed, light_position
 from gicore.scene import SceneSpec
 from gicore.timing import Stopwatch
@@ -86,7 +88,8 @@ class GIMap:
         shape = (self.camera.height, self.camera.width)
         if self.radiance.ndim != 3 or self.radiance.shape[:2] != shape or self.depth.shape != shape:
             raise ValueError(
-                f"GI map {self.radiance.shape} and depth {self.depth.shape} must be {shape[0]}x{shape[1]}(xC) like the GI camera"
+                f"GI map {self.radiance.shape} and depth {self.depth.shape} must be {shape[0]}x{shape[1]}(xC)"
+                " like the GI camera"
             )
         if self.di is not None and self.di.shape != self.radiance.shape:
             raise ValueError(f"the GI map's DI is {self.di.shape}, its radiance {self.radiance.shape}")
@@ -280,39 +283,44 @@ UNSCORED = dict.fromkeys(TAIL_COLUMNS[1:], "")
 class PathRunConfig:
     """What every client run (``gigan-client``, ``cloudbaking-client``) shares: the scene, the camera path
     both clients fly, the GI period, composition and GT scoring. ``None`` FOVs come from the scene spec
-    (local 60°, GI 90°). Each system's config adds its own GI source and warp fields."""
+    (local 60°, GI 90°). Each system's config adds its own GI source and warp fields.
 
-    #: Built-in scene name or spec file.
+    Both clients' command lines are derived from these fields (:mod:`gicore.options`): each option, its
+    default, its limits and its help are declared here once; building the config checks the same limits
+    (``ValueError`` naming the option)."""
+
+    #: Built-in scene name or scene spec file (.toml/.json).
     scene: str = "lung_plane"
-    frames: int = 60
-    resolution: int = 256
-    #: GI-map period k: a new GI map every ``every`` frames (Table 3's inference frequency).
-    every: int = 30
-    gi_fov: float | None = None
-    local_fov: float | None = None
+    #: Frames to run.
+    frames: int = field(default=60, metadata=FRAMES)
+    #: Square resolution of every render and GI map, in pixels.
+    resolution: int = field(default=256, metadata=RESOLUTION)
+    #: GI-map period k: a new GI map every k frames (Table 3's inference frequency).
+    every: int = field(default=30, metadata={"aliases": ("-k",)})
+    #: GI-camera FOV in degrees; absent: the scene's (90).
+    gi_fov: float | None = field(default=None, metadata=FOV_DEGREES)
+    #: Local-camera FOV in degrees; absent: the scene's (60).
+    local_fov: float | None = field(default=None, metadata=FOV_DEGREES)
     #: Frames per full orbit of the camera path (sets the motion per frame: 360° / orbit_frames).
-    orbit_frames: int = 300
-    tau: float = 0.0
-    composition: str = "blend"
+    orbit_frames: int = field(default=300, metadata=FRAMES)
+    #: Eq. 1 weight of DI in the blend (0: the GI map alone, which already holds direct light).
+    tau: float = field(default=0.0, metadata={"min": 0.0, "max": 1.0})
+    #: Composition: blend (eq. 1) or residual (current DI + warped indirect light).
+    composition: Literal[COMPOSITIONS] = "blend"  # type: ignore[valid-type]
     #: Samples per pixel of path tracing (GT renders; the cloud server's maps).
-    spp: int = 64
+    spp: int = field(default=64, metadata=SPP)
     #: Denoise the path-traced GT with OIDN (albedo/normal guided).
     denoise: bool = True
-    #: Compare the composed frame with the path-traced GT every ``gt_every`` frames (0: never).
-    gt_every: int = 0
-    seed: int = 0
+    #: Compare the composed frame with the path-traced GT every N frames (0: never).
+    gt_every: int = field(default=0, metadata={"min": 0})
+    #: Camera-path and render seed.
+    seed: int = field(default=0, metadata=SEED)
 
     def __post_init__(self) -> None:
-        if self.frames < 1 or self.every < 1 or self.orbit_frames < 1:
-            raise ValueError(
-                f"frames, every and orbit_frames must be >= 1, got {self.frames}, {self.every}, {self.orbit_frames}"
-            )
-        if self.gt_every < 0 or self.spp < 1:
-            raise ValueError(f"gt_every must be >= 0 and spp >= 1, got {self.gt_every}, {self.spp}")
-        if not 0.0 <= self.tau <= 1.0:
-            raise ValueError(f"tau must lie in [0, 1], got {self.tau}")
-        if self.composition not in COMPOSITIONS:
-            raise ValueError(f"composition must be one of {COMPOSITIONS}, got {self.composition!r}")
+        try:
+            check_fields(self)
+        except UserError as err:
+            raise ValueError(str(err)) from None
 
     def local_fov_of(self, spec: SceneSpec) -> float:
         """The local camera's FOV: the given one, else the scene's (zero is not absent)."""
@@ -345,7 +353,8 @@ class ClientLoop:
     def __init__(self, cfg: LoopConfig, renderer: Renderer, source: GISource, warp: Warp):
         if warp.layer != LAYERS[cfg.composition]:
             raise ValueError(
-                f"the {cfg.composition} composition needs a warp of the {LAYERS[cfg.composition]!r} layer, got {warp.layer!r}"
+                f"the {cfg.composition} composition needs a warp of the {LAYERS[cfg.composition]!r} layer,"
+                f" got {warp.layer!r}"
             )
         self.cfg = cfg
         self.renderer = renderer

@@ -17,16 +17,15 @@ may import both systems; this package does not import ``baseline_cloudbaking``.
 
 from __future__ import annotations
 
-import importlib.util
 import json
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
 from gicore.camera import Camera
-from gicore.cli import UserError
+from gicore.cli import UserError, check_denoiser
 from gicore.loop import (
     LAYERS,
     ClientLoop,
@@ -46,6 +45,7 @@ from gicore.loop import (
     texel_depth,
     write_rows,
 )
+from gicore.options import THREADS
 from gicore.paths import frame_seed
 from gicore.scene import SceneSpec, load_scene
 from gicore.timing import Stopwatch
@@ -56,24 +56,33 @@ if TYPE_CHECKING:
     from gicore.render import Renderer
     from gigan_local.inference import GIModel
 
+#: GIGAN's warps: structure-aware (Alg. 1), or none (the map pasted as is, made at the local FOV).
 WARPS = ("structure", "none")
+#: GI sources: the ONNX generator, or the path-traced GT stand-in.
 GI_SOURCES = ("model", "gt")
 
 
 @dataclass(frozen=True)
 class ClientConfig(PathRunConfig):
-    """One `gigan-client` run: the shared path run plus GIGAN's GI source and warp."""
+    """One `gigan-client` run: the shared path run plus GIGAN's GI source and warp (its command line is
+    derived from these fields and :class:`~gicore.loop.PathRunConfig`'s)."""
 
-    warp: str = "structure"
-    gi_source: str = "gt"
+    #: Warp: structure (Alg. 1) or none (the map pasted as is, made at the local FOV).
+    warp: Literal[WARPS] = "structure"  # type: ignore[valid-type]
+    #: GI source: model (ONNX generator) or gt (path-traced GT stand-in).
+    gi_source: Literal[GI_SOURCES] = "gt"  # type: ignore[valid-type]
+    #: ONNX model; absent: the shipped gigan_local/models/gigan_default/model_fp16.onnx.
     model: Path | None = None
-    threads: int = 2
+    #: onnxruntime threads.
+    threads: int = field(default=2, metadata=THREADS)
 
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        for name, value, allowed in (("warp", self.warp, WARPS), ("gi_source", self.gi_source, GI_SOURCES)):
-            if value not in allowed:
-                raise ValueError(f"{name} must be one of {allowed}, got {value!r}")
+    def check(self) -> None:
+        """A given model must be a file (checked before the run, as the command line builds the config)."""
+        if self.model is not None and not Path(self.model).is_file():
+            raise UserError(
+                f"--model {self.model} is not a file",
+                "give an ONNX file written by gigan-export, or leave --model out for the shipped model",
+            )
 
     def fovs(self, spec: SceneSpec) -> tuple[float, float]:
         """(local FOV, GI FOV) for ``spec``: without warping the GI camera is the local camera."""
@@ -187,12 +196,6 @@ def make_warp(method: str, renderer: Renderer, composition: str) -> Warp:
 
 
 # -- a run --------------------------------------------------------------------------------------------------
-def check_denoiser(denoise: bool) -> None:
-    """Denoising needs pyoidn: say so before any frame is rendered."""
-    if denoise and importlib.util.find_spec("pyoidn") is None:
-        raise UserError("denoising the GT renders needs pyoidn", "pip install pyoidn, or turn it off with --no-denoise")
-
-
 def run_client(cfg: ClientConfig, renderer: Renderer | None = None, on_frame=None) -> list[dict[str, Any]]:
     """Run the configured client along the scene's camera path; returns the per-frame rows."""
     spec = load_scene(cfg.scene)
@@ -202,7 +205,8 @@ def run_client(cfg: ClientConfig, renderer: Renderer | None = None, on_frame=Non
         renderer = Renderer(spec, cfg.resolution)
     elif (renderer.spec.name, renderer.resolution) != (spec.name, cfg.resolution):
         raise ValueError(
-            f"the shared renderer renders {renderer.spec.name} at {renderer.resolution}² but the config asks for {spec.name} at {cfg.resolution}²"
+            f"the shared renderer renders {renderer.spec.name} at {renderer.resolution}²"
+            f" but the config asks for {spec.name} at {cfg.resolution}²"
         )
     if cfg.gi_source == "gt" or cfg.gt_every:
         check_denoiser(cfg.denoise)

@@ -1,0 +1,410 @@
+"""Command-line options derived from a config dataclass: each option is declared once, as a field.
+
+Every console script (``gigan-client``, ``cloudbaking-client``, ``cloudbaking-prebake``, ``gicore-dataset``,
+``gigan-train``, ``gigan-export``) and every ``bench`` subcommand builds its Typer command from the config
+dataclass it runs: the field declares the option's type, its default, its limits (field metadata) and its
+help (the ``#:`` comment above it), and nothing else declares them again::
+
+    @dataclass(frozen=True)
+    class ClientConfig:
+        #: Frames to run.
+        frames: int = field(default=60, metadata=FRAMES)
+        #: GI-map period k: a new GI map every ``every`` frames.
+        every: int = field(default=30, metadata={"aliases": ("-k",)})
+
+    def client(given: dict[str, Any], *, out: Path) -> None:
+        cfg = build_config(ClientConfig, given)  # the defaults, the options given, checked
+        ...
+
+    config_command(app, ClientConfig, client, extras=[extra("out", Annotated[Path, typer.Option()])])
+
+What is derived from a field:
+
+- one option per field, ``--field-name`` (``metadata["option"]`` renames it, e.g. ``n_train`` -> ``--train``;
+  ``metadata["aliases"]`` adds short names such as ``-k``; ``metadata["argument"]`` makes it the command's
+  positional argument); help is the field's ``#:`` comment (or ``metadata["help"]``, looked up along the
+  class's bases), followed by its default (and its preset's value, e.g. ``--quick``) and its limits; every
+  field must be documented;
+- types: ``int``/``float``/``str``/``Path`` as they are, ``bool`` as ``--x/--no-x``, ``X | None`` as X
+  (absent = the base config's value, which may be None), ``Literal[...]`` as a choice, ``tuple[X, ...]`` and
+  ``list[X]`` as one comma-separated option (``--scenes a,b``; as an argument, several words),
+  ``dict[str, X]`` as comma-separated ``NAME=VALUE`` pairs;
+- checks on the final config (the base config, then the options the user gave; an absent option never
+  falls back to a default by truthiness): numbers must be finite and > 0 unless the field's metadata sets
+  ``min`` (inclusive; ``max`` inclusive too, exclusive with ``max_open``), a ``Literal`` one of its values,
+  tuples and lists non-empty unless ``metadata["min_len"] = 0`` and at most ``metadata["max_len"]`` long,
+  and every entry of a ``scenes`` field must load as a scene; a config may add a ``check(self)`` method
+  raising :class:`~gicore.cli.UserError`, and a ``ValueError`` of its constructor is a user error too.
+
+Limits that many configs share are declared here once (:data:`RESOLUTION`, :data:`SPP`, :data:`FRAMES`,
+:data:`SEED`, :data:`FOV_DEGREES`, :data:`THREADS`); a config may call :func:`check_fields` in its
+``__post_init__`` so that code building it directly meets the same limits as the command line.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import inspect
+import math
+import re
+import types
+import typing
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import typer
+
+from gicore.cli import UserError
+
+#: The square resolution any run takes, in pixels: a scene's, a client's renders and GI maps, a dataset's
+#: frames, a server's maps, a bench's renders.
+RESOLUTION_MIN, RESOLUTION_MAX = 8, 2048
+#: Most path-tracing samples per pixel a run may ask for (a 2048² map at 4096 spp takes hours on 2 cores).
+SPP_MAX = 4096
+#: Most frames one run renders (a fly-through, a dataset split): 100 000 frames are 55 minutes at 30 fps.
+FRAMES_MAX = 100_000
+#: Seeds are 32-bit (numpy's generators take no negative seed).
+SEED_MAX = 2**32 - 1
+
+#: Field metadata of a square resolution (:data:`RESOLUTION_MIN` to :data:`RESOLUTION_MAX`).
+RESOLUTION: Mapping[str, Any] = {"min": RESOLUTION_MIN, "max": RESOLUTION_MAX}
+#: Field metadata of path-tracing samples per pixel.
+SPP: Mapping[str, Any] = {"min": 1, "max": SPP_MAX}
+#: Field metadata of a frame count.
+FRAMES: Mapping[str, Any] = {"min": 1, "max": FRAMES_MAX}
+#: Field metadata of a seed.
+SEED: Mapping[str, Any] = {"min": 0, "max": SEED_MAX}
+#: Field metadata of a camera field of view in degrees (cameras take 0 < FOV < 180).
+FOV_DEGREES: Mapping[str, Any] = {"max": 179.0}
+#: Field metadata of a thread or worker-process count.
+THREADS: Mapping[str, Any] = {"min": 1, "max": 256}
+
+
+# --- fields: documentation, names, types, parsing ------------------------------------------------------------
+
+
+def field_docs(cls: type) -> dict[str, str]:
+    """Help text of each field: ``metadata["help"]``, else the ``#:`` comment lines right above it (in the
+    class or the base that declares it)."""
+    docs: dict[str, str] = {}
+    for klass in reversed(cls.__mro__):
+        if not dataclasses.is_dataclass(klass):
+            continue
+        try:
+            source = inspect.getsource(klass)
+        except (OSError, TypeError):  # made at run time (dataclasses.make_dataclass): metadata only
+            source = ""
+        comment: list[str] = []
+        for line in source.splitlines():
+            text = line.strip()
+            if text.startswith("#:"):
+                comment.append(text[2:].strip())
+                continue
+            match = re.match(r"(\w+)\s*:", text)
+            if match and comment:
+                docs[match.group(1)] = " ".join(comment)
+            comment = []
+    for f in dataclasses.fields(cls):
+        if "help" in f.metadata:
+            docs[f.name] = f.metadata["help"]
+    return docs
+
+
+def option_name(f: dataclasses.Field) -> str:
+    """How messages name field ``f``: ``--field-name`` (or its ``metadata["option"]``); an argument's NAME."""
+    if f.metadata.get("argument"):
+        return f.name.upper()
+    return "--" + f.metadata.get("option", f.name).replace("_", "-").lower()
+
+
+def _strip_optional(tp: Any) -> Any:
+    """``X | None`` -> X (an absent option already means "the base config's value", which may be None)."""
+    if typing.get_origin(tp) in (typing.Union, types.UnionType):
+        args = [a for a in typing.get_args(tp) if a is not type(None)]
+        if len(args) == 1 and len(typing.get_args(tp)) == 2:
+            return args[0]
+    return tp
+
+
+def _scalar_kind(tp: Any) -> str:
+    """How a scalar type reads from text (for error messages and metavars)."""
+    if typing.get_origin(tp) is Literal:
+        return "|".join(str(a) for a in typing.get_args(tp))
+    return {int: "INT", float: "FLOAT", str: "TEXT", Path: "PATH"}[tp]
+
+
+def _parse_scalar(tp: Any, text: str, option: str) -> Any:
+    text = text.strip()
+    if typing.get_origin(tp) is Literal:
+        if text not in typing.get_args(tp):
+            raise UserError(
+                f"{option} {text!r} is not one of {', '.join(map(str, typing.get_args(tp)))}", "pick one of those"
+            )
+        return text
+    try:
+        return tp(text)
+    except ValueError:
+        raise UserError(
+            f"{option} {text!r} is not a valid {_scalar_kind(tp).lower()}", f"give {option} as {_scalar_kind(tp)}"
+        ) from None
+
+
+def _parse(tp: Any, raw: Any, option: str) -> Any:
+    """The value of field type ``tp`` from what the option gave (typer already converted scalars)."""
+    inner = _strip_optional(tp)
+    origin = typing.get_origin(inner)
+    if origin in (tuple, list):
+        words = raw if isinstance(raw, (list, tuple)) else raw.split(",")  # an argument's words, or one option
+        items = (_parse_scalar(typing.get_args(inner)[0], s, option) for s in words if s.strip())
+        return origin(items)
+    if origin is dict:
+        value_type = typing.get_args(inner)[1]
+        pairs = [p.split("=", 1) for p in raw.split(",") if p.strip()]
+        if any(len(p) != 2 or not p[0].strip() for p in pairs):
+            raise UserError(
+                f"{option} {raw!r} is not a list of NAME=VALUE pairs", f"give {option} as NAME=VALUE[,NAME=VALUE...]"
+            )
+        return {name.strip(): _parse_scalar(value_type, value, option) for name, value in pairs}
+    return raw
+
+
+def _is_number(tp: Any) -> bool:
+    """Whether values of field type ``tp`` (or its entries) are numbers, which have limits."""
+    inner = _strip_optional(tp)
+    origin = typing.get_origin(inner)
+    if origin in (tuple, list, dict):
+        return _is_number(typing.get_args(inner)[-1 if origin is dict else 0])
+    return inner in (int, float)
+
+
+def _limits(meta: Mapping[str, Any]) -> str:
+    """A number's limits as --help states them, e.g. ``[> 0]``, ``[1 to 100000]``."""
+    lo, hi = meta.get("min"), meta.get("max")
+    low = "> 0" if lo is None else f">= {lo}"
+    if hi is None:
+        return f"[{low}]"
+    if meta.get("max_open"):
+        return f"[{low}, < {hi}]"
+    return f"[> 0, <= {hi}]" if lo is None else f"[{lo} to {hi}]"
+
+
+def _option_type(f: dataclasses.Field, tp: Any, help_text: str) -> Any:
+    """The annotation of the command parameter for field ``f`` of type ``tp`` (always optional: None = absent)."""
+    inner = _strip_optional(tp)
+    origin = typing.get_origin(inner)
+    name = option_name(f)
+    if f.metadata.get("argument"):
+        if origin not in (tuple, list):
+            raise TypeError(f"field {f.name}: only a tuple or list field can be the command's argument")
+        metavar = f"{name}..."
+        return Annotated[list[str] | None, typer.Argument(help=help_text, metavar=metavar, show_default=False)]
+    names = (name, *f.metadata.get("aliases", ()))
+    if origin in (tuple, list):
+        metavar = f"{_scalar_kind(typing.get_args(inner)[0])},..."
+        return Annotated[str | None, typer.Option(*names, help=help_text, metavar=metavar, show_default=False)]
+    if origin is dict:
+        metavar = f"NAME={_scalar_kind(typing.get_args(inner)[1])},..."
+        return Annotated[str | None, typer.Option(*names, help=help_text, metavar=metavar, show_default=False)]
+    if inner is bool:
+        return Annotated[bool | None, typer.Option(f"{name}/--no-{name[2:]}", help=help_text, show_default=False)]
+    if inner in (int, float, str, Path) or origin is Literal:
+        return Annotated[inner | None, typer.Option(*names, help=help_text, show_default=False)]
+    raise TypeError(f"config field {f.name} of type {tp!r} has no command-line form")
+
+
+def _shown(value: Any) -> str:
+    """A default as it would be typed on the command line."""
+    if isinstance(value, (tuple, list)):
+        return ",".join(str(v) for v in value)
+    if isinstance(value, dict):
+        return ",".join(f"{k}={v}" for k, v in value.items())
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    return "none" if value is None else str(value)
+
+
+def config_dict(cfg: Any) -> dict[str, Any]:
+    """The config as JSON-ready data (paths as strings, tuples as lists), for provenance."""
+
+    def plain(v: Any) -> Any:
+        if isinstance(v, Path):
+            return str(v)
+        if isinstance(v, (tuple, list)):
+            return [plain(x) for x in v]
+        if isinstance(v, dict):
+            return {str(k): plain(x) for k, x in v.items()}
+        return v
+
+    return {f.name: plain(getattr(cfg, f.name)) for f in dataclasses.fields(cfg)}
+
+
+# --- checks ------------------------------------------------------------------------------------------------
+
+
+def check_number(option: str, value: Any, meta: Mapping[str, Any]) -> None:
+    """A number must be finite and within the field's limits (> 0 unless ``min`` is given)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return
+    lo, hi = meta.get("min"), meta.get("max")
+    if not math.isfinite(value):
+        raise UserError(f"{option} = {value!r} is not finite", f"give {option} a finite number")
+    if lo is None and value <= 0:
+        raise UserError(f"{option} = {value!r} is not positive", f"give {option} a value > 0")
+    if lo is not None and value < lo:
+        raise UserError(f"{option} = {value!r} is below {lo}", f"give {option} a value >= {lo}")
+    if hi is not None and meta.get("max_open") and value >= hi:
+        raise UserError(f"{option} = {value!r} is not below {hi}", f"give {option} a value < {hi}")
+    if hi is not None and value > hi:
+        raise UserError(f"{option} = {value!r} is above {hi}", f"give {option} a value <= {hi}")
+
+
+def check_field(f: dataclasses.Field, tp: Any, value: Any) -> None:
+    """Field ``f`` (of type ``tp``) may hold ``value`` (see the module docstring); UserError naming it."""
+    option = option_name(f)
+    if isinstance(value, (tuple, list, dict)):
+        if len(value) < f.metadata.get("min_len", 1):
+            raise UserError(f"{option} is empty", f"give at least one value to {option}")
+        if len(value) > f.metadata.get("max_len", len(value)):
+            raise UserError(f"{option} has {len(value)} values", f"give at most {f.metadata['max_len']} to {option}")
+    inner = _strip_optional(tp)
+    items = value if isinstance(value, (tuple, list)) else value.values() if isinstance(value, dict) else (value,)
+    for item in items:
+        check_number(option, item, f.metadata)
+    if typing.get_origin(inner) is Literal and value is not None and value not in typing.get_args(inner):
+        choices = ", ".join(map(str, typing.get_args(inner)))
+        raise UserError(f"{option} {value!r} is not one of {choices}", "pick one of those")
+    if f.name == "scenes":
+        _check_scenes(value)
+
+
+def check_fields(cfg: Any, names: Iterable[str] | None = None) -> None:
+    """:func:`check_field` on every field of ``cfg`` (or on those in ``names``); a config's ``__post_init__``
+    may call it so that code building the config meets the command line's limits."""
+    hints = typing.get_type_hints(type(cfg))
+    wanted = None if names is None else set(names)
+    for f in dataclasses.fields(cfg):
+        if wanted is None or f.name in wanted:
+            check_field(f, hints[f.name], getattr(cfg, f.name))
+
+
+def check_config(cfg: Any) -> None:
+    """Checks on every field of the final config (see the module docstring), then ``cfg.check()``."""
+    check_fields(cfg)
+    if hasattr(cfg, "check"):
+        cfg.check()
+
+
+def _check_scenes(scenes: Sequence[str]) -> None:
+    """Every scene must load before anything is measured (a typo should not cost a half-finished run)."""
+    from gicore.scene import load_scene
+
+    for scene in scenes:
+        try:
+            load_scene(scene)
+        except (OSError, ValueError) as exc:
+            raise UserError(
+                f"--scenes {scene!r}: {' '.join(str(exc).split())}", "give built-in scene names or spec files"
+            ) from None
+
+
+# --- config: base, options given, checks -------------------------------------------------------------------
+
+
+def parse_options(cls: type, given: Mapping[str, Any]) -> dict[str, Any]:
+    """The field values of the options given (``given``: field name -> raw option value, only for options
+    present), parsed and each checked on its own."""
+    hints = typing.get_type_hints(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    values = {}
+    for name, raw in given.items():
+        value = _parse(hints[name], raw, option_name(fields[name]))
+        check_field(fields[name], hints[name], value)
+        values[name] = value
+    return values
+
+
+def build_config(cls: type, given: Mapping[str, Any], base: Any = None) -> Any:
+    """``base`` (default: ``cls()``, the defaults) with the options the user gave (see :func:`parse_options`),
+    checked as a whole (:func:`check_config`). A ``ValueError`` of the constructor is a user error."""
+    values = parse_options(cls, given)
+    try:
+        cfg = dataclasses.replace(cls() if base is None else base, **values)
+    except ValueError as err:  # a combination of values the config refuses
+        raise UserError(f"invalid options: {' '.join(str(err).split())}", f"see '{_command_path()} --help'") from None
+    check_config(cfg)
+    return cfg
+
+
+def _command_path() -> str:
+    import click
+
+    ctx = click.get_current_context(silent=True)
+    return ctx.command_path if ctx is not None else "the command"
+
+
+# --- commands ------------------------------------------------------------------------------------------------
+
+
+def extra(name: str, annotation: Any, default: Any = inspect.Parameter.empty) -> inspect.Parameter:
+    """A command parameter that is no config field (``--out``, ``--server``): ``annotation`` is an
+    ``Annotated[type, typer.Option(...)]``; without a default it is required."""
+    return inspect.Parameter(name, inspect.Parameter.KEYWORD_ONLY, default=default, annotation=annotation)
+
+
+def config_options(
+    config: type, *, exclude: Sequence[str] = (), preset: Any = None, preset_option: str = "--quick"
+) -> list[inspect.Parameter]:
+    """The command parameters of ``config``'s fields (all but ``exclude``), each None when absent; help shows
+    the default, ``preset``'s value where it differs (under ``preset_option``) and the limits."""
+    docs = field_docs(config)
+    hints = typing.get_type_hints(config)
+    defaults = config()
+    params = []
+    for f in dataclasses.fields(config):
+        if f.name in exclude or not f.init:
+            continue
+        if not docs.get(f.name):
+            raise TypeError(f"{config.__name__}.{f.name} has no #: comment (its --help text)")
+        shown = [] if getattr(defaults, f.name) is None else [f"default: {_shown(getattr(defaults, f.name))}"]
+        if preset is not None and getattr(preset, f.name) != getattr(defaults, f.name):
+            shown.append(f"{preset_option}: {_shown(getattr(preset, f.name))}")
+        help_text = docs[f.name] + (f" ({'; '.join(shown)})" if shown else "")
+        if _is_number(hints[f.name]):
+            help_text += f" {_limits(f.metadata)}"
+        annotation = _option_type(f, hints[f.name], help_text)
+        params.append(inspect.Parameter(f.name, inspect.Parameter.KEYWORD_ONLY, default=None, annotation=annotation))
+    return params
+
+
+def config_command(
+    app: typer.Typer,
+    config: type,
+    body: Callable[..., None],
+    *,
+    name: str | None = None,
+    help: str | None = None,
+    extras: Sequence[inspect.Parameter] = (),
+    exclude: Sequence[str] = (),
+    preset: Any = None,
+    preset_option: str = "--quick",
+) -> Callable[..., None]:
+    """Add a command to ``app`` with one option per field of ``config`` (:func:`config_options`) and the
+    ``extras`` (:func:`extra`). It calls ``body(given, **extras)``: ``given`` maps each field whose option
+    the user gave to its raw value (for :func:`build_config`), the extras come by name."""
+    params = [*config_options(config, exclude=exclude, preset=preset, preset_option=preset_option), *extras]
+    fields = [p.name for p in params[: len(params) - len(extras)]]
+    clash = set(fields) & {p.name for p in extras}
+    if clash:
+        raise TypeError(f"{config.__name__}: the command already adds {sorted(clash)}")
+
+    def command(**values: Any) -> None:
+        given = {k: values[k] for k in fields if values[k] is not None}
+        body(given, **{p.name: values[p.name] for p in extras})
+
+    command.__signature__ = inspect.Signature(params)  # type: ignore[attr-defined]
+    command.__annotations__ = {p.name: p.annotation for p in params}
+    command.__doc__ = help or body.__doc__
+    command.__name__ = (name or body.__name__).replace("-", "_")
+    app.command(name, help=help)(command)
+    return command
