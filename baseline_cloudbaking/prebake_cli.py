@@ -19,18 +19,30 @@ from collections.abc import Iterable
 from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 import typer
 from tqdm import tqdm
 
 from baseline_cloudbaking.bake import SCENE_NAME, PathFrame, bake_map, encode_map, fly_through, spec_sha
-from baseline_cloudbaking.codecs import CODEC_NAMES
+from baseline_cloudbaking.codecs import CODEC_NAMES, DEFAULT_CODEC
 from baseline_cloudbaking.store import DEFAULT_LIGHT_CELL, GITree, MapKey, StoreConflict, Tolerance, Viewpoint, ViewSet
 from gicore.camera import Camera
 from gicore.cli import UserError, entry_point, writable_dir
 from gicore.executor import RAY_HELP, WORKERS_HELP, Executor, InProcess, Task, open_executor
 from gicore.fileio import exclusive_run
+from gicore.options import (
+    FOV_DEGREES,
+    FRAMES,
+    RESOLUTION,
+    SEED,
+    SPP,
+    THREADS,
+    build_config,
+    config_command,
+    config_options,
+    extra,
+)
 from gicore.paths import frame_seed
 from gicore.scene import SceneSpec, SceneSpecError, load_scene
 
@@ -42,26 +54,41 @@ app = typer.Typer(add_completion=False, help=__doc__)
 
 @dataclass(frozen=True)
 class PrebakeConfig:
-    """What a prebake bakes for one scene."""
+    """What a prebake bakes for one scene. The command's options are derived from these fields
+    (:mod:`gicore.options`); ``tolerance`` comes from :class:`ToleranceOptions`."""
 
     #: Frames of the fly-through (paper: 1500).
-    frames: int = 1500
-    #: GI-map codec (:data:`baseline_cloudbaking.codecs.CODEC_NAMES`).
-    codec: str = "jpeg"
+    frames: int = field(default=1500, metadata=FRAMES)
+    #: GI-map codec.
+    codec: Literal[CODEC_NAMES] = DEFAULT_CODEC  # type: ignore[valid-type]
     #: Square map resolution.
-    resolution: int = 256
+    resolution: int = field(default=256, metadata=RESOLUTION)
     #: Path-tracing samples per pixel (then OIDN).
-    spp: int = 64
+    spp: int = field(default=64, metadata=SPP)
     #: Also store the GI view's DI (the residual composition needs it).
     di: bool = False
-    #: GI-camera FOV in degrees; None: the scene's (90°).
-    fov: float | None = None
+    #: GI-camera FOV in degrees; absent: the scene's (90).
+    fov: float | None = field(default=None, metadata=FOV_DEGREES)
     #: Δp / Δθ within which a stored map serves a frame.
     tolerance: Tolerance = field(default_factory=Tolerance)
     #: Light-cell side for a moving light, scene units.
-    light_cell: float = DEFAULT_LIGHT_CELL
+    light_cell: float = field(default=DEFAULT_LIGHT_CELL, metadata={"min": 1e-6, "max": 1e6})
     #: Camera-path seed (as gicore-dataset) and render-noise seed.
-    seed: int = 0
+    seed: int = field(default=0, metadata=SEED)
+
+
+@dataclass(frozen=True)
+class ToleranceOptions:
+    """The command-line form of :class:`~baseline_cloudbaking.store.Tolerance` (its defaults)."""
+
+    #: Δp: eye distance a stored map serves, scene units.
+    tolerance_p: float = field(default=Tolerance.position, metadata={"min": 0.0, "max": 1e6})
+    #: Δθ: view angle a stored map serves, degrees.
+    tolerance_deg: float = field(default=Tolerance.angle_deg, metadata={"min": 0.0, "max": 180.0})
+
+    @property
+    def tolerance(self) -> Tolerance:
+        return Tolerance(self.tolerance_p, self.tolerance_deg)
 
 
 @dataclass(frozen=True)
@@ -169,51 +196,24 @@ def _scene(scene: str) -> tuple[str, SceneSpec]:
         raise UserError(str(exc), "give a built-in scene name or a valid .toml/.json spec file") from None
 
 
-@app.command()
 def prebake(
-    scene: Annotated[
-        str, typer.Argument(help="built-in scene name or spec file (.toml/.json); the file stem names it in the store")
-    ],
-    store: Annotated[
-        Path, typer.Option(help="GI-tree folder (created if missing; shared with cloudbaking-server --store)")
-    ],
-    frames: Annotated[
-        int, typer.Option(min=1, max=100_000, help="frames of the fly-through (paper: 1500)")
-    ] = PrebakeConfig.frames,
-    codec: Annotated[str, typer.Option(help=f"GI-map codec: {', '.join(CODEC_NAMES)}")] = PrebakeConfig.codec,
-    resolution: Annotated[int, typer.Option(min=16, max=2048, help="square map resolution")] = PrebakeConfig.resolution,
-    spp: Annotated[
-        int, typer.Option(min=1, max=4096, help="path-tracing samples per pixel (then OIDN)")
-    ] = PrebakeConfig.spp,
-    di: Annotated[
-        bool, typer.Option(help="also store the GI view's DI (needed by the residual composition)")
-    ] = PrebakeConfig.di,
-    fov: Annotated[
-        float | None, typer.Option(min=1.0, max=170.0, help="GI-camera FOV in degrees (default: the scene's, 90)")
-    ] = None,
-    tolerance_p: Annotated[
-        float, typer.Option(min=0.0, help="Δp: eye distance a map serves, scene units")
-    ] = Tolerance.position,
-    tolerance_deg: Annotated[
-        float, typer.Option(min=0.0, max=180.0, help="Δθ: view angle a map serves, degrees")
-    ] = Tolerance.angle_deg,
-    light_cell: Annotated[
-        float, typer.Option(min=1e-6, help="light-cell side for a moving light, scene units")
-    ] = DEFAULT_LIGHT_CELL,
-    seed: Annotated[
-        int, typer.Option(help="camera-path seed (as gicore-dataset) and render-noise seed")
-    ] = PrebakeConfig.seed,
-    workers: Annotated[int | None, typer.Option(min=1, help=WORKERS_HELP)] = None,
-    ray: Annotated[str | None, typer.Option(help=RAY_HELP)] = None,
+    given: dict[str, Any],
+    *,
+    scene: str,
+    store: Path,
+    tolerance_p: float | None,
+    tolerance_deg: float | None,
+    workers: int | None,
+    ray: str | None,
 ) -> None:
     """Bake the maps of SCENE's fly-through into --store (resumable)."""
-    if codec not in CODEC_NAMES:
-        raise UserError(f"--codec {codec!r} is unknown", f"choose one of {', '.join(CODEC_NAMES)}")
+    given_tolerance = {
+        k: v for k, v in (("tolerance_p", tolerance_p), ("tolerance_deg", tolerance_deg)) if v is not None
+    }
+    tolerance = build_config(ToleranceOptions, given_tolerance).tolerance
+    cfg = build_config(PrebakeConfig, given, PrebakeConfig(tolerance=tolerance))
     name, spec = _scene(scene)
     writable_dir(store, name="--store")
-    cfg = PrebakeConfig(
-        frames, codec, resolution, spp, di, fov, Tolerance(tolerance_p, tolerance_deg), light_cell, seed
-    )
     t0 = time.perf_counter()
     with ExitStack() as stack:
         try:
@@ -226,8 +226,29 @@ def prebake(
         result = prebake_scene(store, name, spec, cfg, stack.enter_context(open_executor(workers, ray)))
     typer.echo(
         f"{name}: {result.served}/{result.frames} frames served by the store; {result.baked} maps baked now; "
-        f"{result.bytes / 2**20:.1f} MiB of {codec} maps for {name} in {store} ({time.perf_counter() - t0:.1f} s)"
+        f"{result.bytes / 2**20:.1f} MiB of {cfg.codec} maps for {name} in {store} ({time.perf_counter() - t0:.1f} s)"
     )
+
+
+SCENE_HELP = "built-in scene name or spec file (.toml/.json); the file stem names it in the store"
+STORE_HELP = "GI-tree folder (created if missing; shared with cloudbaking-server --store)"
+config_command(
+    app,
+    PrebakeConfig,
+    prebake,
+    exclude=("tolerance",),
+    extras=[
+        extra("scene", Annotated[str, typer.Argument(help=SCENE_HELP)]),
+        extra("store", Annotated[Path, typer.Option("--store", help=STORE_HELP)]),
+        *config_options(ToleranceOptions),
+        extra(
+            "workers",
+            Annotated[int | None, typer.Option("--workers", min=1, max=THREADS["max"], help=WORKERS_HELP)],
+            None,
+        ),
+        extra("ray", Annotated[str | None, typer.Option("--ray", help=RAY_HELP)], None),
+    ],
+)
 
 
 main = entry_point(app, resume="rerun the same command; finished maps are kept and only the rest is baked")

@@ -12,9 +12,9 @@ at a time renders into a scene folder (a second is refused: "another run holds D
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 from tqdm import tqdm
@@ -25,6 +25,20 @@ from gicore.cli import UserError, entry_point, require_between
 from gicore.dataset import SPLITS, DatasetMeta, FrameRecord, encode_frame, write_frame, write_meta
 from gicore.executor import RAY_HELP, WORKERS_HELP, Executor, InProcess, Task, open_executor
 from gicore.fileio import exclusive_run, sweep_temporaries
+from gicore.options import (
+    FOV_DEGREES,
+    FRAMES_MAX,
+    RESOLUTION,
+    RESOLUTION_MAX,
+    RESOLUTION_MIN,
+    SEED,
+    SPP,
+    THREADS,
+    build_config,
+    check_fields,
+    config_command,
+    extra,
+)
 from gicore.paths import camera_path, frame_seed, light_position
 from gicore.scene import SceneSpec, load_scene
 
@@ -38,21 +52,23 @@ VAL_SEED_OFFSET = 7919
 
 @dataclass(frozen=True)
 class DatasetConfig:
-    """How to render one scene's dataset; invalid values raise a UserError naming the option."""
+    """How to render one scene's dataset; invalid values raise a UserError naming the option. The command's
+    options are derived from these fields (:mod:`gicore.options`)."""
 
-    #: Training and validation frames (paper: 1500 and 100); together at least one.
-    n_train: int = 60
-    n_val: int = 8
-    #: Square frame side in pixels.
-    resolution: int = 128
+    #: Training frames per scene (paper: 1500); --train and --val together at least 1.
+    n_train: int = field(default=60, metadata={"option": "train", "min": 0, "max": FRAMES_MAX})
+    #: Validation frames per scene (paper: 100).
+    n_val: int = field(default=8, metadata={"option": "val", "min": 0, "max": FRAMES_MAX})
+    #: Square frame side in pixels (paper: 512).
+    resolution: int = field(default=128, metadata=RESOLUTION)
     #: Path-tracing samples per pixel of the GT.
-    spp: int = 64
-    #: Denoise the GT with OIDN (albedo + normal guided).
+    spp: int = field(default=64, metadata=SPP)
+    #: Denoise the GT with Intel OIDN (albedo + normal guided).
     denoise: bool = True
     #: Seeds the camera trajectories and every frame's render noise.
-    seed: int = 0
-    #: Camera FOV in degrees; None: the scene's GI-camera FOV.
-    fov: float | None = None
+    seed: int = field(default=0, metadata=SEED)
+    #: Camera FOV in degrees; absent: the scene's GI-camera FOV.
+    fov: float | None = field(default=None, metadata=FOV_DEGREES)
     #: Buffers rendered and stored (``gicore.buffers``).
     buffers: tuple[str, ...] = DATASET_BUFFERS
 
@@ -62,12 +78,16 @@ class DatasetConfig:
                 f"--train {self.n_train} --val {self.n_val} asks for no frames",
                 "give --train or --val a count of at least 1",
             )
-        if not 8 <= self.resolution <= 2048:
-            raise UserError(f"--resolution {self.resolution} is outside [8, 2048]", "give a resolution from 8 to 2048")
+        if not RESOLUTION_MIN <= self.resolution <= RESOLUTION_MAX:
+            raise UserError(
+                f"--resolution {self.resolution} is outside [{RESOLUTION_MIN}, {RESOLUTION_MAX}]",
+                f"give a resolution from {RESOLUTION_MIN} to {RESOLUTION_MAX}",
+            )
         if self.spp < 1:
             raise UserError(f"--spp {self.spp} is below 1", "give at least one sample per pixel")
         if self.fov is not None:
             require_between("--fov", self.fov, 0.0, 180.0)
+        check_fields(self)  # the limits of the command line (frame counts, spp, seed, FOV)
         check_buffer_names(list(self.buffers))
 
 
@@ -143,31 +163,11 @@ def build_dataset(
     return meta
 
 
-@app.command()
 def dataset_command(
-    scenes: Annotated[list[str], typer.Argument(help="built-in scene names or spec files (.toml/.json)")],
-    out: Annotated[Path, typer.Option(help="root folder; one sub-folder per scene")] = Path("data/datasets"),
-    train: Annotated[
-        int, typer.Option(min=0, help="training frames per scene (paper: 1500); --train and --val together at least 1")
-    ] = 60,
-    val: Annotated[int, typer.Option(min=0, help="validation frames per scene (paper: 100)")] = 8,
-    resolution: Annotated[int, typer.Option(min=8, max=2048, help="square resolution (paper: 512)")] = 128,
-    spp: Annotated[int, typer.Option(min=1, help="path-tracing samples per pixel for GT")] = 64,
-    denoise: Annotated[bool, typer.Option(help="denoise GT with Intel OIDN (albedo+normal guided)")] = True,
-    seed: Annotated[int, typer.Option(help="seeds trajectories and per-frame noise")] = 0,
-    fov: Annotated[
-        float | None, typer.Option(help="camera FOV in degrees, in (0, 180) (default: the scene's GI-camera FOV)")
-    ] = None,
-    buffers: Annotated[str, typer.Option(help="comma-separated buffers to render and store")] = ",".join(
-        DATASET_BUFFERS
-    ),
-    workers: Annotated[int | None, typer.Option(min=1, help=WORKERS_HELP)] = None,
-    ray: Annotated[str | None, typer.Option(help=RAY_HELP)] = None,
+    given: dict[str, Any], *, scenes: list[str], out: Path, workers: int | None, ray: str | None
 ) -> None:
     """Render datasets for the given scenes."""
-    cfg = DatasetConfig(
-        train, val, resolution, spp, denoise, seed, fov, tuple(b.strip() for b in buffers.split(",") if b.strip())
-    )
+    cfg = build_config(DatasetConfig, given)
     specs = [load_scene(name) for name in scenes]  # every spec (and mesh) is checked before any rendering
     with open_executor(workers, ray) as executor:
         for spec in specs:
@@ -176,9 +176,30 @@ def dataset_command(
             meta = build_dataset(spec, root, cfg, executor)
             size = sum(p.stat().st_size for p in root.rglob("*.npz"))
             typer.echo(
-                f"{spec.name}: {len(meta.frames)} frames in {root} ({size / len(meta.frames) / 1024:.0f} KiB/frame, {time.perf_counter() - t0:.1f} s)"
+                f"{spec.name}: {len(meta.frames)} frames in {root} ({size / len(meta.frames) / 1024:.0f} KiB/frame,"
+                f" {time.perf_counter() - t0:.1f} s)"
             )
 
+
+config_command(
+    app,
+    DatasetConfig,
+    dataset_command,
+    extras=[
+        extra("scenes", Annotated[list[str], typer.Argument(help="built-in scene names or spec files (.toml/.json)")]),
+        extra(
+            "out",
+            Annotated[Path, typer.Option("--out", help="root folder; one sub-folder per scene")],
+            Path("data/datasets"),
+        ),
+        extra(
+            "workers",
+            Annotated[int | None, typer.Option("--workers", min=1, max=THREADS["max"], help=WORKERS_HELP)],
+            None,
+        ),
+        extra("ray", Annotated[str | None, typer.Option("--ray", help=RAY_HELP)], None),
+    ],
+)
 
 main = entry_point(app, resume="finished frames are kept: run the same command again to render the rest")
 
