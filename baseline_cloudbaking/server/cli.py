@@ -10,14 +10,18 @@ in the listen backlog until the app is ready. Options override ``CLOUDBAKING_*``
 from __future__ import annotations
 
 import socket
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any, Literal
 
 import typer
 
 from gicore.cli import UserError, entry_point, writable_dir
+from gicore.options import SPP, build_config, config_command, extra
 
 app = typer.Typer(add_completion=False, help=__doc__)
+#: Largest GI-tree budget, MiB (16 TiB).
+BUDGET_MB_MAX = 2.0**24
 
 
 def bind(host: str, port: int) -> socket.socket:
@@ -43,20 +47,29 @@ def bind(host: str, port: int) -> socket.socket:
     return sock
 
 
-@app.command()
-def serve(
-    store: Annotated[Path, typer.Option(help="GI-tree folder (created if missing)")],
-    host: Annotated[str, typer.Option(help="address to bind; 127.0.0.1 keeps the server local")] = "127.0.0.1",
-    port: Annotated[int, typer.Option(min=0, max=65535, help="TCP port; 0 picks a free one")] = 8000,
-    scenes: Annotated[
-        Path | None, typer.Option(help="folder of extra scene specs (*.toml, *.json), served by file stem")
-    ] = None,
-    budget_mb: Annotated[
-        float | None, typer.Option(min=0.001, help="GI-tree byte budget in MiB (LRU eviction); default: none")
-    ] = None,
-    max_spp: Annotated[int | None, typer.Option(min=1, max=4096, help="largest spp a request may ask for")] = None,
-    log_level: Annotated[str, typer.Option(help="uvicorn log level")] = "warning",
-) -> None:
+#: uvicorn's log levels.
+LOG_LEVELS = ("critical", "error", "warning", "info", "debug", "trace")
+
+
+@dataclass(frozen=True)
+class ServeOptions:
+    """What the command line sets beside the GI tree: where to listen, and the settings it overrides
+    (:class:`~baseline_cloudbaking.server.settings.Settings`; absent: ``CLOUDBAKING_*`` or the default).
+    The command's options are derived from these fields (:mod:`gicore.options`)."""
+
+    #: Address to bind; 127.0.0.1 keeps the server local.
+    host: str = "127.0.0.1"
+    #: TCP port; 0 picks a free one.
+    port: int = field(default=8000, metadata={"min": 0, "max": 65535})
+    #: GI-tree byte budget in MiB (LRU eviction); absent: none.
+    budget_mb: float | None = field(default=None, metadata={"min": 0.001, "max": BUDGET_MB_MAX})
+    #: Largest spp a request may ask for; absent: CLOUDBAKING_MAX_SPP or 256.
+    max_spp: int | None = field(default=None, metadata=SPP)
+    #: uvicorn log level.
+    log_level: Literal[LOG_LEVELS] = "warning"  # type: ignore[valid-type]
+
+
+def serve(given: dict[str, Any], *, store: Path, scenes: Path | None) -> None:
     """Serve GI maps over HTTP from the GI tree in --store."""
     import uvicorn
     from pydantic import ValidationError
@@ -64,28 +77,49 @@ def serve(
     from baseline_cloudbaking.server.app import create_app
     from baseline_cloudbaking.server.settings import Settings
 
+    opts = build_config(ServeOptions, given)
     writable_dir(store, name="--store")
     if scenes is not None and not scenes.is_dir():
         raise UserError(f"--scenes {scenes} is not a folder", "give a folder of scene spec files")
     overrides = {
         "store": store,
         "scenes_dir": scenes,
-        "max_spp": max_spp,
-        "budget_bytes": None if budget_mb is None else int(budget_mb * 2**20),
+        "max_spp": opts.max_spp,
+        "budget_bytes": None if opts.budget_mb is None else max(1, round(opts.budget_mb * 2**20)),
     }
     try:
         settings = Settings(**{k: v for k, v in overrides.items() if v is not None})
     except ValidationError as exc:
         err = exc.errors()[0]
-        field = ".".join(map(str, err["loc"]))
-        source = f"--{field.replace('_', '-')} or CLOUDBAKING_{field.upper()}"
-        raise UserError(f"setting {field} (from {source}) is invalid: {err['msg']}", "fix its value") from None
-    sock = bind(host, port)
+        field_name = str(err["loc"][0])
+        where = ".".join(map(str, err["loc"]))
+        option = {"store": "--store", "scenes_dir": "--scenes", "budget_bytes": "--budget-mb", "max_spp": "--max-spp"}
+        env = f"CLOUDBAKING_{field_name.upper()}"
+        source = f"{option[field_name]} or {env}" if field_name in option else env
+        raise UserError(f"setting {where} (from {source}) is invalid: {err['msg']}", "fix its value") from None
+    sock = bind(opts.host, opts.port)
     actual_host, actual_port = sock.getsockname()[:2]
     shown = f"[{actual_host}]" if ":" in actual_host else actual_host
     print(f"listening on http://{shown}:{actual_port}", flush=True)
-    server = uvicorn.Server(uvicorn.Config(create_app(settings), log_level=log_level, timeout_graceful_shutdown=5))
-    server.run(sockets=[sock])
+    config = uvicorn.Config(create_app(settings), log_level=opts.log_level, timeout_graceful_shutdown=5)
+    uvicorn.Server(config).run(sockets=[sock])
 
+
+config_command(
+    app,
+    ServeOptions,
+    serve,
+    extras=[
+        extra("store", Annotated[Path, typer.Option("--store", help="GI-tree folder (created if missing)")]),
+        extra(
+            "scenes",
+            Annotated[
+                Path | None,
+                typer.Option("--scenes", help="folder of extra scene specs (*.toml, *.json), served by file stem"),
+            ],
+            None,
+        ),
+    ],
+)
 
 main = entry_point(app, resume="nothing is lost: the GI tree keeps every finished map")

@@ -5,11 +5,16 @@ from __future__ import annotations
 
 from functools import lru_cache
 from pathlib import Path
+from typing import Annotated
 
 from pydantic import Field
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from baseline_cloudbaking.store import DEFAULT_LIGHT_CELL, Tolerance
+from gicore.options import RESOLUTION_MAX, RESOLUTION_MIN, SPP_MAX
+
+#: A square map resolution the server may serve (the one limit of every run, :mod:`gicore.options`).
+ServedResolution = Annotated[int, Field(ge=RESOLUTION_MIN, le=RESOLUTION_MAX)]
 
 
 class Settings(BaseSettings):
@@ -23,16 +28,28 @@ class Settings(BaseSettings):
         None, gt=0, description="payload byte budget of the GI tree (LRU eviction); None: unbounded"
     )
     tolerance_position: float = Field(
-        Tolerance.position, ge=0.0, description="Δp: largest eye distance a stored map serves, scene units"
+        Tolerance.position,
+        ge=0.0,
+        allow_inf_nan=False,
+        description="Δp: largest eye distance a stored map serves, scene units",
     )
     tolerance_angle_deg: float = Field(
-        Tolerance.angle_deg, ge=0.0, le=180.0, description="Δθ: largest view angle a stored map serves, degrees"
+        Tolerance.angle_deg,
+        ge=0.0,
+        le=180.0,
+        allow_inf_nan=False,
+        description="Δθ: largest view angle a stored map serves, degrees",
     )
     light_cell: float = Field(
-        DEFAULT_LIGHT_CELL, gt=0.0, description="side of a light cell (scene units) for scenes whose light moves"
+        DEFAULT_LIGHT_CELL,
+        gt=0.0,
+        allow_inf_nan=False,
+        description="side of a light cell (scene units) for scenes whose light moves",
     )
-    resolutions: tuple[int, ...] = Field((64, 128, 256, 512), min_length=1, description="square map resolutions served")
-    max_spp: int = Field(256, ge=1, le=4096, description="largest spp a request may ask for")
+    resolutions: tuple[ServedResolution, ...] = Field(
+        (64, 128, 256, 512), min_length=1, description="square map resolutions served"
+    )
+    max_spp: int = Field(256, ge=1, le=SPP_MAX, description="largest spp a request may ask for")
     max_body_bytes: int = Field(4096, ge=256, description="largest accepted request body")
     max_renderers: int = Field(4, ge=1, description="compiled (scene, resolution) renderers kept in memory")
     render_threads: int | None = Field(None, ge=1, description="Dr.Jit threads for rendering (default: all cores)")
