@@ -197,8 +197,7 @@ def _option_type(f: dataclasses.Field, tp: Any, help_text: str) -> Any:
     if f.metadata.get("argument"):
         if origin not in (tuple, list):
             raise TypeError(f"field {f.name}: only a tuple or list field can be the command's argument")
-        metavar = f"{name}..."
-        return Annotated[list[str] | None, typer.Argument(help=help_text, metavar=metavar, show_default=False)]
+        return Annotated[list[str] | None, typer.Argument(help=help_text, metavar=name, show_default=False)]
     names = (name, *f.metadata.get("aliases", ()))
     if origin in (tuple, list):
         metavar = f"{_scalar_kind(typing.get_args(inner)[0])},..."
@@ -366,7 +365,8 @@ def config_options(
             continue
         if not docs.get(f.name):
             raise TypeError(f"{config.__name__}.{f.name} has no #: comment (its --help text)")
-        shown = [] if getattr(defaults, f.name) is None else [f"default: {_shown(getattr(defaults, f.name))}"]
+        default = getattr(defaults, f.name)
+        shown = [] if default is None or _shown(default) == "" else [f"default: {_shown(default)}"]
         if preset is not None and getattr(preset, f.name) != getattr(defaults, f.name):
             shown.append(f"{preset_option}: {_shown(getattr(preset, f.name))}")
         help_text = docs[f.name] + (f" ({'; '.join(shown)})" if shown else "")

@@ -12,12 +12,13 @@ import json
 import math
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from gicore.buffers import GENERATOR_INPUTS
 from gicore.cli import UserError
 from gicore.config import strict_from_dict
 from gicore.fileio import atomic_write_bytes
+from gicore.options import RESOLUTION, RESOLUTION_MAX, SEED
 from gigan_local.preprocess import InputSpec
 
 #: A run folder's config file: the TrainConfig and every NetworkConfig (see :func:`write_run_config`).
@@ -33,6 +34,10 @@ GENERATORS = ("unet", "deep_shading")
 CRITICS = ("patchgan",)
 NORMS = ("batch", "none")
 UPSAMPLINGS = ("transposed", "resize")
+#: Field metadata of a network width (channels of the first layer).
+WIDTH = {"min": 1, "max": 1024}
+#: Field metadata of an Adam beta: 0 <= beta < 1.
+BETA = {"min": 0.0, "max": 1.0, "max_open": True}
 
 
 @dataclass
@@ -90,7 +95,8 @@ class NetworkConfig:
             # Two stride-1 4x4 convs (padding 1) after the strided ones each shrink the map by one pixel.
             if side < 3 * 2**self.n_down:
                 raise ValueError(
-                    f"{self.name} with n_down={self.n_down} needs images of at least {3 * 2**self.n_down} px, got {side}; use a larger --crop"
+                    f"{self.name} with n_down={self.n_down} needs images of at least {3 * 2**self.n_down} px,"
+                    f" got {side}; use a larger --crop"
                 )
             return
         if side % (2**self.n_down) != 0:
@@ -109,72 +115,81 @@ class NetworkConfig:
 
 @dataclass
 class TrainConfig:
-    """How to train one model (paper IV.B defaults); ``None`` fields are derived from the data."""
+    """How to train one model (paper IV.B defaults); ``None`` fields are derived from the data.
 
-    #: ``gigan`` (U-Net + PatchGAN, conditional WGAN-GP + L1), ``deep_shading`` (CNN U-Net, L1 + SSIM,
-    #: no adversary) or ``deep_illumination`` (U-Net + PatchGAN, vanilla BCE GAN + L1).
-    model: str = "gigan"
-    #: Dataset folders (``gicore.dataset``): their train splits train, their val splits validate.
-    datasets: list[str] = field(default_factory=list)
+    ``gigan-train``'s options are derived from these fields (:mod:`gicore.options`): each option's default,
+    limits and help are declared here once."""
+
+    #: Which model: gigan (U-Net + PatchGAN, conditional WGAN-GP + L1), deep_shading (CNN U-Net, L1 + SSIM,
+    #: no adversary) or deep_illumination (U-Net + PatchGAN, vanilla BCE GAN + L1).
+    model: Literal[MODELS] = "gigan"  # type: ignore[valid-type]
+    #: Dataset folders made by gicore-dataset (their train splits train, their val splits validate); not
+    #: needed with --resume.
+    datasets: list[str] = field(default_factory=list, metadata={"argument": True, "min_len": 0})
     #: Generator input buffers, in channel order (encodings: ``gigan_local.preprocess``).
     buffers: list[str] = field(default_factory=lambda: list(GENERATOR_INPUTS))
-    #: Depth that encodes to 0; None: the median foreground depth of the training data.
+    #: Depth that encodes to 0; absent: the median foreground depth of the training data.
     depth_scale: float | None = None
-    #: Frame side in pixels; None: read from the datasets (which must agree).
-    resolution: int | None = None
+    #: Frame side in pixels; absent: read from the datasets (which must agree).
+    resolution: int | None = field(default=None, metadata=RESOLUTION)
     #: Train on random crop x crop windows (cheaper steps); validation always uses whole frames.
-    crop: int | None = None
+    crop: int | None = field(default=None, metadata={"min": 1, "max": RESOLUTION_MAX})
     #: Generator width (pix2pix ngf).
-    ngf: int = 64
-    #: Critic width (pix2pix ndf); None: equal to ngf (the paper's 64/64), so shrinking the generator for
+    ngf: int = field(default=64, metadata=WIDTH)
+    #: Critic width (pix2pix ndf); absent: equal to ngf (the paper's 64/64), so shrinking the generator for
     #: a CPU budget shrinks the critic too (at 256 px, ndf 64 makes an ngf-16 GIGAN step ~6x slower).
-    ndf: int | None = None
-    #: Generator down-samplings; None: log2 of the training side (1x1 bottleneck) for unet, two fewer
+    ndf: int | None = field(default=None, metadata=WIDTH)
+    #: Generator down-samplings; absent: log2 of the training side (1x1 bottleneck) for unet, two fewer
     #: for deep_shading (see ``networks.DeepShadingGenerator``).
-    n_down: int | None = None
-    #: unet up-sampling: ``transposed`` (pix2pix, the paper) or ``resize`` (nearest 2x + 3x3 conv).
-    upsample: str = "transposed"
+    n_down: int | None = field(default=None, metadata={"min": 1, "max": RESOLUTION_MAX.bit_length() - 1})
+    #: U-Net up-sampling: transposed (pix2pix 4x4 transposed conv, the paper) or resize (nearest 2x + 3x3 conv).
+    upsample: Literal[UPSAMPLINGS] = "transposed"  # type: ignore[valid-type]
     #: Whether the critic sees the generator input beside the image (pix2pix and the paper: yes).
     critic_condition: bool = True
-    batch_size: int = 8
-    #: Adam learning rate and betas, for generator and critic alike.
+    #: Frames per training step.
+    batch_size: int = field(default=8, metadata={"min": 1, "max": 4096})
+    #: Adam learning rate, for generator and critic alike.
     lr: float = 2e-4
-    beta1: float = 0.5
-    beta2: float = 0.999
+    #: Adam beta1, for generator and critic alike.
+    beta1: float = field(default=0.5, metadata=BETA)
+    #: Adam beta2, for generator and critic alike.
+    beta2: float = field(default=0.999, metadata=BETA)
     #: Weight of the L1 term (eq. 4); also deep_shading's L1 weight.
-    lambda_L1: float = 100.0
+    lambda_L1: float = field(default=100.0, metadata={"min": 0.0})
     #: Weight of the gradient penalty (eq. 2); gigan only.
-    lambda_gp: float = 10.0
+    lambda_gp: float = field(default=10.0, metadata={"min": 0.0})
     #: Critic steps per generator step (gigan); 1 alternates them as the paper does.
-    n_critic: int = 1
+    n_critic: int = field(default=1, metadata={"min": 1, "max": 1000})
     #: Critic-only steps at the start of a run (gigan): the generator takes no step until the critic has
     #: taken this many, so a fresh critic (a fine-tune's) learns to judge before its gradients reach the
     #: generator, as WGAN's own schedule front-loads critic iterations. 0: none.
-    critic_warmup: int = 0
+    critic_warmup: int = field(default=0, metadata={"min": 0})
     #: Weight of deep_shading's (1 - SSIM) term; equal to lambda_L1 by default (with Adam only the
     #: ratio of the two matters).
-    lambda_ssim: float = 100.0
-    #: Budget: stop at whichever of these comes first (max_minutes counts wall time of one invocation).
+    lambda_ssim: float = field(default=100.0, metadata={"min": 0.0})
+    #: Budget: stop after this many epochs (the budget stops at whichever of its limits comes first).
     epochs: int = 100
-    max_steps: int | None = None
+    #: Budget: stop after this many steps in all.
+    max_steps: int | None = field(default=None, metadata={"min": 0})
+    #: Budget: stop (validated and checkpointed) within this many minutes of wall time of one invocation.
     max_minutes: float | None = None
     #: Seeds weights, dropout, penalty interpolation, data order and crops.
-    seed: int = 0
-    #: Validate on at most this many val frames (per epoch); None: all of them.
-    max_val_frames: int | None = None
+    seed: int = field(default=0, metadata=SEED)
+    #: Validate on at most this many val frames (per epoch); absent: all of them.
+    max_val_frames: int | None = field(default=None, metadata={"min": 1})
     #: Also checkpoint every this many steps (0: only at epoch ends and at the stop).
-    checkpoint_every: int = 500
-    #: Where this invocation trains (``cpu`` or ``cuda``); checkpoints load on either (on the CPU first).
+    checkpoint_every: int = field(default=500, metadata={"min": 0})
+    #: Where this invocation trains (cpu or cuda); checkpoints load on either (on the CPU first).
     #: A CUDA run is not bit-reproducible: cuDNN picks its kernels (and may use TF32), so a resumed or
     #: repeated CUDA run matches a straight one only up to rounding; checkpoints keep the GPU's RNG state.
-    device: str = "cpu"
+    device: Literal[DEVICES] = "cpu"  # type: ignore[valid-type]
     #: A loss whose magnitude exceeds this counts as divergence and stops training.
     max_abs_loss: float = 1e4
     #: Name of the run in metrics.csv; empty: the output folder's name.
     run_id: str = ""
-    #: Start the generator from this exported model (a ``gigan-export`` ONNX file with its model.json)
+    #: Start the generator from this exported model (a gigan-export ONNX file with its model.json)
     #: instead of random weights, to fine-tune it; its architecture and input encoding must be this
-    #: run's (the depth scale defaults to the model's). A critic starts fresh. None: random weights.
+    #: run's (the depth scale defaults to the model's). A critic starts fresh. Absent: random weights.
     init_generator: str | None = None
 
     def __post_init__(self) -> None:
@@ -257,7 +272,8 @@ def write_run_config(out_dir: Path, cfg: TrainConfig, nets: dict[str, NetworkCon
 
 
 def read_run_config(run_dir: Path) -> tuple[TrainConfig, dict[str, NetworkConfig]]:
-    """Read a run folder's ``config.json`` (see :func:`write_run_config`); UserError naming it if missing or unreadable."""
+    """Read a run folder's ``config.json`` (see :func:`write_run_config`); UserError naming it if missing or
+    unreadable."""
     path = Path(run_dir) / CONFIG
     if not path.is_file():
         raise UserError(
