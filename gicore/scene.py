@@ -26,6 +26,7 @@ from gicore.anatomy import AnatomyKind
 from gicore.camera import FAR_MAX, NEAR_MIN
 from gicore.cli import UserError
 from gicore.mesh import load_mesh
+from gicore.options import RESOLUTION_MAX, RESOLUTION_MIN
 
 BUILTIN_DIR = Path(__file__).parent / "scenes"
 Vec3 = tuple[float, float, float]
@@ -36,7 +37,8 @@ NAME_PATTERN = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 def _check_name(name: str) -> str:
     if not NAME_PATTERN.fullmatch(name):
         raise ValueError(
-            f"{name!r} is not a name: use a letter or _ followed by letters, digits or _ (it names a folder and a shape)"
+            f"{name!r} is not a name: use a letter or _ followed by letters, digits or _"
+            " (it names a folder and a shape)"
         )
     return name
 
@@ -135,7 +137,8 @@ class CameraPathSpec(_Strict):
     def _near_far(self) -> CameraPathSpec:
         if not NEAR_MIN <= self.near < self.far <= FAR_MAX:
             raise ValueError(
-                f"near = {self.near:g}, far = {self.far:g}: the renderer represents {NEAR_MIN:g} <= near < far <= {FAR_MAX:g}"
+                f"near = {self.near:g}, far = {self.far:g}:"
+                f" the renderer represents {NEAR_MIN:g} <= near < far <= {FAR_MAX:g}"
             )
         return self
 
@@ -148,7 +151,7 @@ class SceneSpec(_Strict):
     environment: Literal["white_plane", "cornell_box", "none"] = "white_plane"
     light: LightSpec
     camera: CameraPathSpec = CameraPathSpec()
-    resolution: int = Field(256, ge=8, le=2048)
+    resolution: int = Field(256, ge=RESOLUTION_MIN, le=RESOLUTION_MAX)
 
     @model_validator(mode="after")
     def _unique_names(self) -> SceneSpec:

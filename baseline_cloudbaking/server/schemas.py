@@ -13,7 +13,7 @@ from typing import Annotated, Literal
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from baseline_cloudbaking.bake import SCENE_NAME
-from baseline_cloudbaking.codecs import CODEC_NAMES
+from baseline_cloudbaking.codecs import CODEC_NAMES, DEFAULT_CODEC
 from gicore.camera import Camera
 
 #: Largest |coordinate| of a camera or light position: far beyond any scene, small enough that the
@@ -53,7 +53,7 @@ class GIMapRequest(_Strict):
         None, description="light position; omit for the scene's rest position (a static light must be omitted)"
     )
     resolution: int = Field(256, description="square map size; one of the server's resolutions (GET /v1/scenes)")
-    codec: CodecName = Field("jpeg", description=f"GI-map codec, one of {', '.join(CODEC_NAMES)}")
+    codec: CodecName = Field(DEFAULT_CODEC, description=f"GI-map codec, one of {', '.join(CODEC_NAMES)}")
     spp: int = Field(64, ge=1, description="path-tracing samples per pixel (bounded by the server's max_spp)")
     di: bool = Field(False, description="also send the DI of the GI view (the residual composition needs it)")
 
