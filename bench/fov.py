@@ -22,7 +22,8 @@ from typing import Literal
 import numpy as np
 
 from bench.models import check_model_resolution
-from bench.runner import FOV_DEGREES, Bench
+from bench.runner import FOV_DEGREES, Bench, Block, Figure, Part, Rows, Section, Table, need, pick
+from bench.svg import Point, Series, XYChart
 from bench.warp_bench import WARP_LABELS, make_warp
 from gicore.camera import Camera
 from gicore.results import Results, read_rows
@@ -257,10 +258,108 @@ def plot(csv_path: Path, out_dir: Path) -> list[Path]:
     return [save(fig, out_dir / "fov.png")]
 
 
+# -- bench report: the dashboard's section and the README's block ------------------------------------------
+def table(rows: Rows) -> str:
+    """Fig. 9 as Markdown: per scene and GI-camera FOV, the GI map's SSIM and each warp's SSIM (and the share of
+    pixels the map covers), each the mean over every camera motion measured."""
+    need(rows, "ssim_gi_map", "ssim_warped")
+    warped = pick(rows, "ssim_warped")
+    systems = list(dict.fromkeys(r["system"] for r in warped))
+    source = ", ".join(dict.fromkeys(r["system"] for r in pick(rows, "ssim_gi_map")))
+    motions = []
+    for motion in dict.fromkeys(r["config"]["motion"] for r in warped):
+        sel = [r["config"] for r in warped if r["config"]["motion"] == motion]
+        amounts = ", ".join(dict.fromkeys(f"{c['amount']:g}" for c in sel))
+        motions.append(f"{motion} {amounts} {sel[0]['amount_unit']}")
+    lines = [
+        f"GI maps: {source}. Warped: the mean over {'; '.join(motions)}; in brackets, the share of pixels the map "
+        "covers.",
+        "",
+        "| scene | F_GI | SSIM of the GI map | " + " | ".join(f"SSIM warped: {s}" for s in systems) + " |",
+        "|---" * (3 + len(systems)) + "|",
+    ]
+    for scene, fov in dict.fromkeys(
+        (r["scene"], r["config"]["gi_fov"]) for r in rows if r["metric"] in ("ssim_gi_map", "ssim_warped")
+    ):
+
+        def mean(metric: str, system: str | None = None) -> float | None:
+            vs = [
+                r["value"]
+                for r in pick(rows, metric)
+                if (r["scene"], r["config"]["gi_fov"]) == (scene, fov) and system in (None, r["system"])
+            ]
+            return sum(vs) / len(vs) if vs else None
+
+        cells = []
+        for s in systems:
+            ssim, covered = mean("ssim_warped", s), mean("valid_fraction", s)
+            cells.append("—" if ssim is None else f"{ssim:.3f}" + ("" if covered is None else f" ({covered:.0%})"))
+        gi_map = mean("ssim_gi_map")
+        lines.append(
+            f"| {scene} | {fov:g}° | {'—' if gi_map is None else f'{gi_map:.3f}'} | " + " | ".join(cells) + " |"
+        )
+    return "\n".join(lines)
+
+
+def dashboard_section(rows: Rows) -> list[Part]:
+    """The GI map's SSIM against F_GI per scene, the warped SSIM against each camera motion, then the table."""
+    need(rows, "ssim_gi_map", "ssim_warped")
+    maps = [
+        Series(
+            scene,
+            [
+                Point(
+                    r["config"]["gi_fov"],
+                    r["value"],
+                    f"{scene}, F_GI {r['config']['gi_fov']:g}°: SSIM {r['value']:.4f}",
+                )
+                for r in pick(rows, "ssim_gi_map")
+                if r["scene"] == scene
+            ],
+        )
+        for scene in dict.fromkeys(r["scene"] for r in pick(rows, "ssim_gi_map"))
+    ]
+    figures = [
+        XYChart(
+            maps,
+            "GI-camera FOV F_GI [°]",
+            "SSIM of the GI map vs GT",
+            caption=f"Source: {pick(rows, 'ssim_gi_map')[0]['system']}.",
+        )
+    ]
+    for motion in dict.fromkeys(r["config"]["motion"] for r in pick(rows, "ssim_warped")):
+        sel = [r for r in pick(rows, "ssim_warped") if r["config"]["motion"] == motion]
+        lines = []
+        for system, gi_fov in dict.fromkeys((r["system"], r["config"]["gi_fov"]) for r in sel):
+            name = f"{system}, F_GI {gi_fov:g}°"
+            tip = "{name}, {motion} {amount:g} {unit}: SSIM {value:.4f}"
+            pts = [
+                Point(
+                    c["amount"],
+                    r["value"],
+                    tip.format(name=name, motion=motion, amount=c["amount"], unit=c["amount_unit"], value=r["value"]),
+                )
+                for r in sel
+                if (r["system"], (c := r["config"])["gi_fov"]) == (system, gi_fov)
+            ]
+            lines.append(Series(name, pts))
+        figures.append(
+            XYChart(lines, f"camera {motion} [{sel[0]['config']['amount_unit']}]", "SSIM of the warped GI vs GT")
+        )
+    return [Figure(tuple(figures)), Table(table(rows))]
+
+
+def readme_block(rows: Rows) -> list[Table]:
+    """The same table as the dashboard's."""
+    return [Table(table(rows))]
+
+
 BENCH = Bench(
     "fov",
     FovConfig,
     measure,
     plot,
     help="Fig. 9 and Fig. 8: GI-camera FOV against GI-map quality and warped quality after camera motion.",
+    dashboard=Section("fig9", "Fig. 9: GI-camera FOV", 60, dashboard_section),
+    readme=Block("GI-camera FOV, Fig. 9", 70, readme_block),
 )

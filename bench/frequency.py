@@ -23,7 +23,8 @@ from typing import Literal
 import numpy as np
 
 from bench.models import check_model_resolution
-from bench.runner import Bench
+from bench.runner import Bench, Block, Figure, Part, Rows, Section, Table, need, pick
+from bench.svg import Point, Series, XYChart
 from bench.warp_bench import WARP_LABELS, WARPS, make_warp
 from gicore.blend import COMPOSITIONS
 from gicore.results import Results, read_rows
@@ -143,10 +144,9 @@ def measure(cfg: FrequencyConfig, res: Results) -> None:
                     add("valid_fraction", float(np.mean([r["valid_frac"] for r in rows])), "1", "mean")
 
 
-def table(csv_path: Path) -> str:
-    """Table 3 from the CSV, one block per scene and composition: k, then fps and SSIM per warp, and the
+def table(rows: Rows) -> str:
+    """Table 3 from the CSV's rows, one block per scene and composition: k, then fps and SSIM per warp, and the
     low-frequency error per warp where the CSV has it (CSVs older than the metric do not)."""
-    rows = read_rows(csv_path)
     systems = list(dict.fromkeys(r["system"] for r in rows))
     lf = [s for s in systems if any(r["metric"] == "lf_error" and r["system"] == s for r in rows)]
     lines = []
@@ -216,8 +216,40 @@ def plot(csv_path: Path, out_dir: Path) -> list[Path]:
     axes[1].legend(fontsize=7)
     fig.suptitle("Inference frequency vs system performance (Table 3)")
     md = out_dir / "frequency_table.md"
-    md.write_text(table(csv_path))
+    md.write_text(table(rows))
     return [save(fig, out_dir / "frequency.png"), md]
+
+
+# -- bench report: the dashboard's section and the README's block ------------------------------------------
+def dashboard_section(rows: Rows) -> list[Part]:
+    """Table 3, then frame rate and SSIM against k per warp and composition."""
+    need(rows, "fps", "ssim")
+    scenes = list(dict.fromkeys(r["scene"] for r in rows))
+    figures = []
+    for metric, label, log in (("fps", "frames per second", True), ("ssim", "mean SSIM vs GT", False)):
+        lines = []
+        for key in dict.fromkeys((r["scene"], r["system"], r["config"]["composition"]) for r in pick(rows, metric)):
+            name = f"{key[1]} ({key[2]})" if len(scenes) == 1 else f"{key[0]}: {key[1]} ({key[2]})"
+            pts = [
+                Point(r["config"]["k"], r["value"], f"{name}, k = {r['config']['k']}: {metric} {r['value']:.4g}")
+                for r in pick(rows, metric)
+                if (r["scene"], r["system"], r["config"]["composition"]) == key
+            ]
+            lines.append(Series(name, pts))
+        figures.append(XYChart(lines, "GI-map period k [frames]", label, ylog=log))
+    return [Table(table(rows)), Figure(tuple(figures))]
+
+
+def readme_block(rows: Rows) -> list[Table]:
+    """Table 3 under a line on where its GI maps come from."""
+    need(rows, "fps", "ssim")
+    c = rows[0]["config"]
+    sources = ", ".join(str(s) for s in dict.fromkeys(r["config"].get("gi_source") for r in rows))
+    head = (
+        f"GI maps: {sources} (model: the generator's; gt: path-traced, a perfect-model stand-in); "
+        f"{c.get('resolution')}², {c.get('frames')} frames; SSIM against path-traced GT at the local camera."
+    )
+    return [Table(head + "\n\n" + table(rows))]
 
 
 BENCH = Bench(
@@ -226,4 +258,6 @@ BENCH = Bench(
     measure,
     plot,
     help="Table 3: GI-map period k against fps and SSIM, with and without warping, both compositions.",
+    dashboard=Section("table3", "Table 3: inference frequency", 30, dashboard_section),
+    readme=Block("Inference frequency, Table 3", 40, readme_block),
 )

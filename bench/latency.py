@@ -68,9 +68,10 @@ from typing import Any, Literal
 
 import numpy as np
 
-from baseline_cloudbaking.codecs import CODEC_NAMES
+from baseline_cloudbaking.codecs import CODEC_NAMES, DEFAULT_CODEC
 from bench.models import check_model_resolution
-from bench.runner import Bench
+from bench.runner import Bench, Block, Figure, Part, Rows, Section, Table, cell, need, pick
+from bench.svg import Point, Series, XYChart
 from gicore.blend import COMPOSITIONS
 from gicore.cli import UserError
 from gicore.results import Results, read_rows
@@ -95,8 +96,6 @@ CLOUD_STAGES = (
     "warp",
     "blend",
 )
-#: Stages reported but left out of the totals (see the module docstring).
-UNCOUNTED = ("di", "pickup")
 #: Sub-stages of ``transmission`` (its parts, not added again).
 TRANSMISSION_PARTS = ("request", "transfer")
 
@@ -118,7 +117,7 @@ class LatencyConfig:
     #: Frames per full orbit of the camera path.
     orbit_frames: int = 300
     #: GI-map codec of the cloud-baking maps.
-    codec: CodecName = "jpeg"
+    codec: CodecName = DEFAULT_CODEC
     #: Samples per pixel of path tracing: the server's maps and the evaluation GT.
     spp: int = 64
     #: Score composed frames against the path-traced GT every this many frames (0: never).
@@ -242,8 +241,9 @@ def _fill_store(url: str, cfg: LatencyConfig, scene: str, seed: int, off_path: b
     from gicore.scene import load_scene
 
     spec = load_scene(scene)
-    remote = RemoteConfig(url, Path(scene).stem, cfg.resolution, cfg.codec, cfg.spp, cfg.composition == "residual", spec.light.moves,
-                          read_timeout_s=cfg.read_timeout_s, deadline_s=2 * cfg.read_timeout_s, retry_after_s=0.0)  # fmt: skip
+    remote = RemoteConfig(url, Path(scene).stem, cfg.resolution, cfg.codec, cfg.spp, cfg.composition == "residual",
+                          spec.light.moves, read_timeout_s=cfg.read_timeout_s, deadline_s=2 * cfg.read_timeout_s,
+                          retry_after_s=0.0)  # fmt: skip
     views = path_views(
         spec, 1 if off_path else cfg.frames, cfg.orbit_frames, seed, spec.camera.local_fov, cfg.resolution
     )
@@ -284,15 +284,16 @@ def measure(cfg: LatencyConfig, res: Results) -> None:
     per_run = (
         180.0 + cfg.frames * 2.0 + (cfg.frames // cfg.gt_every + 1 if cfg.gt_every else 0) * 20.0 + cfg.read_timeout_s
     )
-    path_args = ["--scene", scene, "--frames", str(cfg.frames), "--resolution", str(cfg.resolution), "-k", str(cfg.every),
-                 "--orbit-frames", str(cfg.orbit_frames), "--spp", str(cfg.spp), "--gt-every", str(cfg.gt_every),
-                 "--composition", cfg.composition, "--seed", str(res.seed)]  # fmt: skip
+    path_args = ["--scene", scene, "--frames", str(cfg.frames), "--resolution", str(cfg.resolution),
+                 "-k", str(cfg.every), "--orbit-frames", str(cfg.orbit_frames), "--spp", str(cfg.spp),
+                 "--gt-every", str(cfg.gt_every), "--composition", cfg.composition,
+                 "--seed", str(res.seed)]  # fmt: skip
 
     gigan_argv = [str(BIN / "gigan-client"), *path_args, "--gi-source", "model", "--model", str(cfg.model),
                   "--threads", str(_threads(plan, "client"))]  # fmt: skip
     runs = {(GIGAN, "none", "local"): _client(plan, gigan_argv, work / "gigan", per_run)}
-    cloud_argv = [str(BIN / "cloudbaking-client"), *path_args, "--codec", cfg.codec, "--read-timeout", str(cfg.read_timeout_s),
-                  "--deadline", str(2 * cfg.read_timeout_s)]  # fmt: skip
+    cloud_argv = [str(BIN / "cloudbaking-client"), *path_args, "--codec", cfg.codec,
+                  "--read-timeout", str(cfg.read_timeout_s), "--deadline", str(2 * cfg.read_timeout_s)]  # fmt: skip
     shutil.rmtree(work / "store_prebaked", ignore_errors=True)  # every run prebakes its own store
     with pinned_server(plan, work / "store_prebaked", scenes_dir) as warm:
         t0 = time.perf_counter()
@@ -699,7 +700,8 @@ def table(rows: list[dict]) -> str:
     ]
     if crossings:
         lines += [
-            "### crossover: the RTT beyond which GIGAN's median total beats cloud baking's (link model, measured stages)",
+            "### crossover: the RTT beyond which GIGAN's median total beats cloud baking's "
+            "(link model, measured stages)",
             "",
         ]
         lines += ["| cache | crossover RTT (ms) | link rate |", "|---|---|---|"]
@@ -730,7 +732,8 @@ def plot(csv_path: Path, out_dir: Path) -> list[Path]:
 
     # stacked stage bars: one bar per system and profile (GIGAN's once, it needs no network)
     bars = [("GIGAN", GIGAN, {"profile": "none"}, GIGAN_STAGES)]
-    bars += [(f"cloud {c}, {p}", CLOUD, {"profile": p, "cache": c}, tuple(s for s in CLOUD_STAGES if s not in TRANSMISSION_PARTS))
+    cloud_stages = tuple(s for s in CLOUD_STAGES if s not in TRANSMISSION_PARTS)
+    bars += [(f"cloud {c}, {p}", CLOUD, {"profile": p, "cache": c}, cloud_stages)
              for p in profiles for c in ("hit", "miss")]  # fmt: skip
     bars = [b for b in bars if _lookup(rows, b[1], "total", "median", **b[2]) is not None]
     stages = list(dict.fromkeys(s for *_, names in bars for s in names))
@@ -814,11 +817,105 @@ def plot(csv_path: Path, out_dir: Path) -> list[Path]:
     return written
 
 
+# -- bench report: the dashboard's section and the README's block ------------------------------------------
+def dashboard_section(rows: Rows) -> list[Part]:
+    """Table 1 in full, then the ratio of totals against RTT: the link model's curve, the measured profiles."""
+    need(rows, "total")
+    lines = []
+    for cache in ("hit", "miss"):
+        model = [
+            Point(
+                r["config"]["rtt_ms"],
+                r["value"],
+                f"{cache}, link model: RTT {r['config']['rtt_ms']:g} ms → ratio {r['value']:.3g}",
+            )
+            for r in pick(rows, "ratio_model")
+            if r["config"].get("cache") == cache
+        ]
+        measured = [
+            Point(
+                r["config"]["rtt_ms"], r["value"], f"{cache}, profile {r['config']['profile']}: ratio {r['value']:.3g}"
+            )
+            for r in pick(rows, "total_ratio")
+            if r["config"].get("cache") == cache
+        ]
+        if model:
+            lines.append(Series(f"{cache}: link model", model))
+        if measured:
+            lines.append(Series(f"{cache}: measured profiles", measured, line=False))
+    figure = XYChart(
+        lines,
+        "round-trip time [ms]",
+        "cloud total / GIGAN total",
+        ylog=True,
+        caption="Above 1: GIGAN's interaction latency is lower.",
+    )
+    return [Table(table(rows)), Figure((figure,))] if lines else [Table(table(rows))]
+
+
+def readme_block(rows: Rows) -> list[Table]:
+    """Table 1 in short: one line per network profile (totals, ratio, SSIM), GIGAN's stages, the crossover RTTs."""
+    need(rows, "total", "total_ratio")
+    ratios = pick(rows, "total_ratio")
+    rtt = {r["config"]["profile"]: r["config"].get("rtt_ms") for r in ratios}
+    c = ratios[0]["config"]
+    gigan = _lookup(rows, GIGAN, "total", "median", profile="none")
+    lines = [
+        f"{rows[0]['scene']}, {c.get('resolution')}², {c.get('frames')} frames, GI period k = {c.get('k')}, "
+        f"{c.get('spp')} spp + OIDN on the server, {c.get('codec')} maps; medians in ms.",
+        "",
+        "| profile (RTT) | GIGAN | cloud hit | cloud miss | cloud / GIGAN: hit / miss "
+        "| mean SSIM vs GT: GIGAN / prebaked / cold |",
+        "|---|---|---|---|---|---|",
+    ]
+    for profile, rtt_ms in rtt.items():
+        hit, miss = (_lookup(rows, CLOUD, "total", "median", profile=profile, cache=cache) for cache in ("hit", "miss"))
+        ratio = [
+            _lookup(rows, f"{CLOUD}/{GIGAN}", "total_ratio", "median", profile=profile, cache=cache)
+            for cache in ("hit", "miss")
+        ]
+        ssim = [_lookup(rows, GIGAN, "ssim", "mean", profile="none")]
+        ssim += [_lookup(rows, CLOUD, "ssim", "mean", profile=profile, store=store) for store in ("prebaked", "cold")]
+        lines.append(
+            f"| `{profile}` ({cell(rtt_ms, 'g')} ms) | {cell(gigan)} | {cell(hit)} | {cell(miss)} | "
+            + " / ".join(cell(r, ".2f") for r in ratio)
+            + " | "
+            + " / ".join(cell(s, ".3f") for s in ssim)
+            + " |"
+        )
+    labels = (("gi_render", "GI-camera render"), ("inference", "inference"), ("warp", "warp"), ("blend", "blend"))
+    stages = [(label, _lookup(rows, GIGAN, metric, "median", profile="none")) for metric, label in labels]
+    lines += [
+        "",
+        f"GIGAN's total {cell(gigan)} ms = "
+        + " + ".join(f"{label} {v:.1f}" for label, v in stages if v is not None)
+        + ".",
+    ]
+    crossings = []
+    for r in pick(rows, "crossover_rtt"):
+        cache, value = r["config"].get("cache"), r["value"]
+        if value == 0:
+            crossings.append(f"a cloud {cache} at any RTT")
+        elif math.isinf(value):
+            crossings.append(f"a cloud {cache} at no RTT up to a minute")
+        else:
+            crossings.append(f"a cloud {cache} beyond an RTT of {value:.0f} ms")
+    if crossings:
+        lines.append(
+            "Crossover (the link model with the measured stages): GIGAN's median total beats "
+            + "; ".join(crossings)
+            + "."
+        )
+    return [Table("\n".join(lines))]
+
+
 BENCH = Bench(
     "latency",
     LatencyConfig,
     measure,
     plot,
-    help="Table 1: interaction latency per stage of GIGAN and cloud baking (prebaked and cold store) from real processes over "
-    "simulated network profiles; ratios, crossover RTT, SSIM along the path.",
+    help="Table 1: interaction latency per stage of GIGAN and cloud baking (prebaked and cold store) from real "
+    "processes over simulated network profiles; ratios, crossover RTT, SSIM along the path.",
+    dashboard=Section("table1", "Table 1: interaction latency", 10, dashboard_section),
+    readme=Block("Interaction latency, Table 1", 10, readme_block),
 )

@@ -41,7 +41,8 @@ class ModelCardConfig:
 
     #: gigan-train run folder of the model; none: train a small one here (needs --train-steps; --quick sets it).
     run: Path | None = None
-    #: gigan-export folder of the model (MODEL_CARD.md is written there); none: export the run into <out>/export/<run name>.
+    #: gigan-export folder of the model (MODEL_CARD.md is written there); none: export the run into
+    #: <out>/export/<run name>.
     export: Path | None = None
     #: A bench quality CSV that scored the exported model; none: score it here (bench quality on the small datasets).
     quality_csv: Path | None = None
@@ -93,7 +94,10 @@ def measure(cfg: ModelCardConfig, res: Results) -> None:
     dataset_command, train_command = cfg.dataset_command, cfg.train_command
     if run is None:  # the small chain; check() made sure train_steps is set
         [run] = train_small(cfg.scenes, (cfg.width,), cfg.train_steps, res)
-        dataset_command = f"bench model-card --quick: bench.quality.QUICK_DATASET of {', '.join(cfg.scenes)} into {res.out / 'dataset'}"
+        dataset_command = (
+            f"bench model-card --quick: bench.quality.QUICK_DATASET of {', '.join(cfg.scenes)} "
+            f"into {res.out / 'dataset'}"
+        )
         train_command = (
             f"bench model-card --quick: bench.training.train_small, GIGAN ngf {cfg.width}, {cfg.train_steps} steps"
         )
@@ -198,7 +202,8 @@ def write_model_card(
         "## Data",
         f"`{dataset_command}`",
         "",
-        f"Datasets: {', '.join(Path(d).name for d in train['datasets'])} (train splits train, held-out val splits validate: "
+        f"Datasets: {', '.join(Path(d).name for d in train['datasets'])} "
+        "(train splits train, held-out val splits validate: "
         "validation frames come from a different camera trajectory).",
         "",
         "## Training",
@@ -210,9 +215,11 @@ def write_model_card(
         + (f"random {train['crop']}² crops" if train["crop"] else "whole frames")
         + f", seed {train['seed']}. "
         f"Stopped at optimizer step {last_step} (epoch {max(int(r['epoch']) for r in metrics)}); "
-        f"median step time {sorted(step_s)[len(step_s) // 2]:.3g} s {STEP_WHERE[train.get('device', 'cpu')]}, {compute_min:.3g} min of steps in all "
+        f"median step time {sorted(step_s)[len(step_s) // 2]:.3g} s {STEP_WHERE[train.get('device', 'cpu')]}, "
+        f"{compute_min:.3g} min of steps in all "
         "(validation and checkpoints not counted; logged per epoch in metrics.csv). "
-        f"Validation at the last step ({train['max_val_frames'] or 'all'} evenly spaced val frames of the training data sets): "
+        f"Validation at the last step ({train['max_val_frames'] or 'all'} evenly spaced val frames of the training "
+        "data sets): "
         f"SSIM {val.get('ssim', float('nan')):.4f}, "
         f"PSNR {val.get('psnr', float('nan')):.2f} dB, RMSE {val.get('rmse', float('nan')):.4f}"
         + (f", LF error {val['lf_error']:.4f}." if "lf_error" in val else "."),
@@ -228,18 +235,21 @@ def write_model_card(
     ]
     for scene in scenes:
         lines.append(
-            f"| {scene} | {cell(system, scene, 'ssim')} | {cell(system, scene, 'psnr')} | {cell(system, scene, 'rmse')} | "
-            f"{cell(system, scene, 'lf_error')} | {cell('di_only', scene, 'ssim')} | {cell('di_only', scene, 'lf_error')} | "
+            f"| {scene} | {cell(system, scene, 'ssim')} | {cell(system, scene, 'psnr')} | "
+            f"{cell(system, scene, 'rmse')} | {cell(system, scene, 'lf_error')} | {cell('di_only', scene, 'ssim')} | "
+            f"{cell('di_only', scene, 'lf_error')} | "
             f"{cell(system, scene, 'inference_time', 'median')} |"
         )
     lines += [
         "",
         "## Files",
         *[
-            f"- `{model_doc['files'][k]}`: {k} weights, {sizes[k]:.2f} MiB, max |onnxruntime − torch| = {model_doc['max_abs_diff_vs_torch'][k]:.2e}"
+            f"- `{model_doc['files'][k]}`: {k} weights, {sizes[k]:.2f} MiB, "
+            f"max |onnxruntime − torch| = {model_doc['max_abs_diff_vs_torch'][k]:.2e}"
             for k in sizes
         ],
-        "- `model.json`: architecture, input encoding (incl. depth scale), I/O names; `GIModel` checks the ONNX file against it.",
+        "- `model.json`: architecture, input encoding (incl. depth scale), I/O names; "
+        "`GIModel` checks the ONNX file against it.",
         "",
         f"Metrics source: `{quality_csv.name}` (run {rows[0]['run_id'] if rows else '?'}).",
     ]

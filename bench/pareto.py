@@ -47,6 +47,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -54,7 +55,11 @@ from typing import Any
 
 import numpy as np
 
-from bench.runner import FOV_DEGREES, Bench
+from bench import frequency
+from bench.latency import CloudCost
+from bench.models import check_model_resolution, model_info
+from bench.runner import FOV_DEGREES, Bench, Block, Figure, Part, Rows, Section, Table, execute, find
+from bench.svg import PALETTE, Point, Series, XYChart
 from bench.warp_bench import WARP_LABELS
 from gicore.cli import UserError
 from gicore.results import Results, read_rows
@@ -72,7 +77,8 @@ class ParetoConfig:
 
     #: The scene of every point (name or spec file).
     scenes: tuple[str, ...] = field(default=("lung_plane",), metadata={"max_len": 1})
-    #: Folder of earlier bench outputs (convergence.csv, frequency.csv) whose points are read, not measured; none: measure all.
+    #: Folder of earlier bench outputs (convergence.csv, frequency.csv) whose points are read, not measured;
+    #: none: measure all.
     from_dir: Path | None = None
     #: Square resolution of GI maps and frames (the models' resolution).
     resolution: int = 256
@@ -131,13 +137,13 @@ class ParetoConfig:
     def quick(cls) -> ParetoConfig:
         return cls(
             views=1, reference_spp=128, gi_fovs=(60.0, 90.0), spps=(1, 4, 16), bake_spp=16, resolutions=(128, 256),
-            codecs=("jpeg:50", "jpeg:90", "webp:90", "png", "zstd-f16"), profiles=("lan", "wan", "3g"), tolerances=("0.05:2", "0.2:10"),
-            path_frames=300, ks=(1, 8), warps=("structure", "pixel"), frames=16, gt_every=8, frame_spp=8, repeats=2,
+            codecs=("jpeg:50", "jpeg:90", "webp:90", "png", "zstd-f16"), profiles=("lan", "wan", "3g"),
+            tolerances=("0.05:2", "0.2:10"), path_frames=300, ks=(1, 8), warps=("structure", "pixel"), frames=16,
+            gt_every=8, frame_spp=8, repeats=2,
         )  # fmt: skip
 
     def check(self) -> None:
         from baseline_cloudbaking.codecs import CODEC_NAMES
-        from bench.models import check_model_resolution
         from network_sim import profiles
 
         for name, path in self.models.items():
@@ -264,7 +270,6 @@ class Points:
 
 def gigan_maps(ctx: Context, pts: Points) -> None:
     """GIGAN per map: each model × GI-camera FOV."""
-    from bench.models import model_info
     from gigan_local.inference import GIModel
 
     cfg, r = ctx.cfg, ctx.renderer
@@ -282,8 +287,9 @@ def gigan_maps(ctx: Context, pts: Points) -> None:
                 ms, image = _median_ms(produce, cfg.repeats)
                 times.append(ms)
                 errors.append(ctx.error(image, gi_cam, light))
-            pts.add(GIGAN, PER_MAP, "model × GI-camera FOV", float(np.median(times)), float(np.mean(errors)), model=name, gi_fov=fov,
-                    ngf=info["ngf"], precision=info["precision"], resolution=cfg.resolution)  # fmt: skip
+            pts.add(GIGAN, PER_MAP, "model × GI-camera FOV", float(np.median(times)), float(np.mean(errors)),
+                    model=name, gi_fov=fov, ngf=info["ngf"], precision=info["precision"],
+                    resolution=cfg.resolution)  # fmt: skip
 
 
 def _bake(ctx: Context, cam, light, spp: int, denoise: bool, renderer=None) -> np.ndarray:
@@ -310,13 +316,13 @@ def bake_spp(ctx: Context, pts: Points, from_dir: Path | None) -> None:
                 )
                 times.append(ms)
                 errors.append(ctx.error(image, cam.with_fov(gi_fov), light))
-            pts.add(CLOUD, PER_MAP, "bake spp × denoise", float(np.median(times)), float(np.mean(errors)), spp=spp, denoise=denoise,
-                    resolution=cfg.resolution, gi_fov=gi_fov)  # fmt: skip
+            pts.add(CLOUD, PER_MAP, "bake spp × denoise", float(np.median(times)), float(np.mean(errors)),
+                    spp=spp, denoise=denoise, resolution=cfg.resolution, gi_fov=gi_fov)  # fmt: skip
 
 
 def _convergence_points(from_dir: Path, scene: str, resolution: int) -> list[dict[str, Any]]:
-    """Points of the newest convergence.csv under ``from_dir`` with ``scene`` at ``resolution``: render time and 1 - SSIM."""
-    from bench.report import find
+    """Points of the newest convergence.csv under ``from_dir`` with ``scene`` at ``resolution``: render time and
+    1 - SSIM."""
 
     for path in find(from_dir, "convergence"):
         rows = [r for r in read_rows(path) if r["scene"] == scene and r["config"].get("resolution") == resolution]
@@ -370,8 +376,9 @@ def bake_resolution(ctx: Context, pts: Points) -> dict[str, float]:
                 )
             times.append(ms)
             errors.append(ctx.error(image, cam.with_fov(gi_fov), light))
-        pts.add(CLOUD, PER_MAP, "bake resolution", float(np.median(times)), float(np.mean(errors)), bake_resolution=res, spp=cfg.bake_spp,
-                denoise=True, resolution=cfg.resolution, gi_fov=gi_fov)  # fmt: skip
+        pts.add(CLOUD, PER_MAP, "bake resolution", float(np.median(times)), float(np.mean(errors)),
+                bake_resolution=res, spp=cfg.bake_spp, denoise=True, resolution=cfg.resolution,
+                gi_fov=gi_fov)  # fmt: skip
         if res == cfg.resolution:
             full_ms = float(np.median(times))
     return {"bake_ms": full_ms}
@@ -382,7 +389,6 @@ def codecs_and_links(ctx: Context, pts: Points, bake_ms: float) -> dict[str, Any
     payload bytes, encode and decode times (the tolerance points' hit and miss paths)."""
     from baseline_cloudbaking.codecs import DEPTH_CODEC
     from baseline_cloudbaking.protocol import pack
-    from bench.latency import CloudCost
     from gicore.loop import texel_depth
     from network_sim import profiles
 
@@ -399,7 +405,8 @@ def codecs_and_links(ctx: Context, pts: Points, bake_ms: float) -> dict[str, Any
         for gi_cam, light, image, depth in maps:
             e_ms, data = _median_ms(lambda image=image: codec.encode(image), cfg.repeats)
             d_ms, decoded = _median_ms(lambda data=data: codec.decode(data), cfg.repeats)
-            payload = pack({"codec": spec, "camera": gi_cam.to_dict(), "view": gi_cam.view().tolist(), "proj": gi_cam.proj().tolist()},
+            payload = pack({"codec": spec, "camera": gi_cam.to_dict(), "view": gi_cam.view().tolist(),
+                            "proj": gi_cam.proj().tolist()},
                            {"gi": data, "depth": DEPTH_CODEC.encode(depth)})  # fmt: skip
             enc.append(e_ms)
             dec.append(d_ms)
@@ -417,8 +424,9 @@ def codecs_and_links(ctx: Context, pts: Points, bake_ms: float) -> dict[str, Any
             for cache in ("miss", "hit"):
                 server = bake_ms + encode_ms if cache == "miss" else 0.0
                 network = CloudCost(0.0, server, REQUEST_BYTES, nbytes).network_ms(link, starts=5)
-                pts.add(CLOUD, PER_MAP, "codec × quality × profile × cache", server + network + decode_ms, error, codec=spec, profile=profile,
-                        cache=cache, bytes=nbytes, spp=cfg.bake_spp, denoise=True, resolution=cfg.resolution, gi_fov=gi_fov)  # fmt: skip
+                pts.add(CLOUD, PER_MAP, "codec × quality × profile × cache", server + network + decode_ms, error,
+                        codec=spec, profile=profile, cache=cache, bytes=nbytes, spp=cfg.bake_spp, denoise=True,
+                        resolution=cfg.resolution, gi_fov=gi_fov)  # fmt: skip
     return first
 
 
@@ -426,7 +434,6 @@ def tolerances(ctx: Context, pts: Points, bake_ms: float, hit_path: dict[str, An
     """Cloud baking per map: store tolerance (warped stale map at half the tolerance; hit-rate-weighted time)."""
     from baseline_cloudbaking.store import Tolerance, Viewpoint, simulate_fill
     from baseline_cloudbaking.warp import PointCloud
-    from bench.latency import CloudCost
     from gicore.loop import texel_depth
     from gicore.paths import camera_path
     from network_sim import profiles
@@ -468,9 +475,9 @@ def tolerances(ctx: Context, pts: Points, bake_ms: float, hit_path: dict[str, An
             warp_ms.append(ms)
             errors.append(ctx.error(image, request, light))
         mean_ms = hit_rate * (hit_ms + float(np.median(warp_ms))) + (1.0 - hit_rate) * miss_ms
-        pts.add(CLOUD, PER_MAP, "store tolerance", mean_ms, float(np.mean(errors)), tolerance_position=dp, tolerance_angle_deg=angle,
-                hit_rate=round(hit_rate, 4), codec=hit_path["codec"], profile="lan", spp=cfg.bake_spp, resolution=cfg.resolution,
-                gi_fov=gi_fov)  # fmt: skip
+        pts.add(CLOUD, PER_MAP, "store tolerance", mean_ms, float(np.mean(errors)), tolerance_position=dp,
+                tolerance_angle_deg=angle, hit_rate=round(hit_rate, 4), codec=hit_path["codec"], profile="lan",
+                spp=cfg.bake_spp, resolution=cfg.resolution, gi_fov=gi_fov)  # fmt: skip
 
 
 def _offset_camera(camera, distance: float, angle_deg: float):
@@ -495,8 +502,6 @@ def frame_system(gi_source: str, warp: str) -> str:
 
 def per_frame(ctx: Context, pts: Points, res: Results) -> None:
     """Per frame: GI period k × warp × composition, GIGAN's maps and the server's (frequency.csv, read or run)."""
-    from bench import frequency
-    from bench.runner import execute
 
     cfg = ctx.cfg
     for source in ("model", "gt"):
@@ -505,8 +510,9 @@ def per_frame(ctx: Context, pts: Points, res: Results) -> None:
         )
         if not rows:
             run = frequency.FrequencyConfig(
-                scenes=cfg.scenes, resolution=cfg.resolution, ks=cfg.ks, frames=cfg.frames, warps=cfg.warps, compositions=cfg.compositions,
-                gt_every=cfg.gt_every, spp=cfg.frame_spp, gi_source=source, model=cfg.models.get("fp16", next(iter(cfg.models.values()))),
+                scenes=cfg.scenes, resolution=cfg.resolution, ks=cfg.ks, frames=cfg.frames, warps=cfg.warps,
+                compositions=cfg.compositions, gt_every=cfg.gt_every, spp=cfg.frame_spp, gi_source=source,
+                model=cfg.models.get("fp16", next(iter(cfg.models.values()))),
             )  # fmt: skip
             folder = res.out / "pareto_runs" / f"frequency_{source}"
             execute(frequency.BENCH, run, folder, res.seed)
@@ -520,16 +526,16 @@ def per_frame(ctx: Context, pts: Points, res: Results) -> None:
             by_point.setdefault(key, {"warp": r["system"], "config": r["config"]})[r["metric"]] = r["value"]
         for p in by_point.values():
             c = p["config"]
-            # the generator's map is made on the client, so its cost is paid per frame; the server's map is paid in latency
+            # the generator's map is made on the client, so its cost is paid per frame; the server's map is paid in
+            # latency
             extra = {"map_latency_budget_ms": round(c["k"] * p["frame_time"], 3)} if source == "gt" else {}
             time_ms = p["frame_time"] + (p["gi_time"] / c["k"] if source == "model" else 0.0)
-            pts.add(frame_system(source, p["warp"]), PER_FRAME, "k × warp × composition", time_ms, 1.0 - p["ssim"], origin or "measured",
-                    warp=p["warp"], k=c["k"], composition=c["composition"], tau=c["tau"], gi_source=c["gi_source"], resolution=c["resolution"],
-                    spp=c["spp"], **extra)  # fmt: skip
+            pts.add(frame_system(source, p["warp"]), PER_FRAME, "k × warp × composition", time_ms, 1.0 - p["ssim"],
+                    origin or "measured", warp=p["warp"], k=c["k"], composition=c["composition"], tau=c["tau"],
+                    gi_source=c["gi_source"], resolution=c["resolution"], spp=c["spp"], **extra)  # fmt: skip
 
 
 def _frequency_rows(from_dir: Path, scene: str, source: str, resolution: int) -> tuple[list[dict[str, Any]], str]:
-    from bench.report import find
 
     for path in find(from_dir, "frequency"):
         rows = [
@@ -615,7 +621,8 @@ def front_points(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
         settings = ", ".join(f"{k}={v}" for k, v in p["config"].items() if k not in ("knob", "per", "source"))
         p["label"] = f"{p['config'].get('knob', '?')}: {settings}"
         state = "dominated" if p["dominated"] else "on the front"
-        p["tip"] = (f"{p['system']} ({p['scene']}), {state}\nrun time {p['time']:.4g} ms per {p['per']}\nerror (1-SSIM) {p['error']:.4g}\n"
+        p["tip"] = (f"{p['system']} ({p['scene']}), {state}\nrun time {p['time']:.4g} ms per {p['per']}\n"
+                    f"error (1-SSIM) {p['error']:.4g}\n"
                     + json.dumps(p["config"], indent=1, sort_keys=True, ensure_ascii=False))  # fmt: skip
     return out
 
@@ -650,16 +657,16 @@ def caveat(p: dict[str, Any], points: list[dict[str, Any]]) -> str:
         maps = [q for q in points if q["system"] == CLOUD and q["per"] == PER_MAP and q["config"].get("cache") == cache]
         if maps:
             q = min(maps, key=lambda q: q["time"])
-            verdicts.append(f"fastest map {cache} {q['time']:.3g} ms ({q['config']['codec']}, {q['config']['profile']}): "
-                            + ("met" if q["time"] <= due else "NOT met"))  # fmt: skip
+            verdicts.append(f"fastest map {cache} {q['time']:.3g} ms ({q['config']['codec']}, "
+                            f"{q['config']['profile']}): " + ("met" if q["time"] <= due else "NOT met"))  # fmt: skip
     return f"client frame only; assumes a GI map within k={c['k']} frames = {due:.3g} ms; " + (
         "; ".join(verdicts) or "no map delivery measured"
     )
 
 
 def plot(csv_path: Path, out_dir: Path) -> list[Path]:
-    """Per unit: one panel per system and the combined front (dominated points hollow, ablations grey); ``pareto_best.md``."""
-    from bench.report import best_table
+    """Per unit: one panel per system and the combined front (dominated points hollow, ablations grey);
+    ``pareto_best.md``."""
     from gicore.plotting import plt, save
 
     points = front_points(read_rows(csv_path))
@@ -694,11 +701,120 @@ def plot(csv_path: Path, out_dir: Path) -> list[Path]:
     return [*written, md]
 
 
+def best_table(points: list[dict[str, Any]]) -> str:
+    """The lowest-error point of each system (cross-system ablations excluded) within each time budget, per unit
+    of work, with what its run time covers and assumes (Markdown)."""
+    lines = [
+        "| unit | time budget (ms) | system | error | run time (ms) | config | run time covers |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    systems = [p for p in points if p["system"] != ABLATION]
+    for unit in dict.fromkeys(p["per"] for p in systems):
+        here = [p for p in systems if p["per"] == unit]
+        for budget in budgets([p["time"] for p in here]):
+            for system in dict.fromkeys(p["system"] for p in here):
+                p = best_within([q for q in here if q["system"] == system], budget)
+                if p is not None:
+                    cells = [
+                        unit,
+                        f"{budget:g}",
+                        system,
+                        f"{p['error']:.4g}",
+                        f"{p['time']:.3g}",
+                        p["label"],
+                        caveat(p, points),
+                    ]
+                    lines.append("| " + " | ".join(cell.replace("|", "/") for cell in cells) + " |")
+    note = (
+        "Per frame, cloud baking's time is the client's work alone: its maps are made on the server and arrive after "
+        "the per-GI-map latency above, so its point at period k holds only if that latency stays under k frames."
+    )
+    return "### Best configuration per time budget\n\n" + "\n".join(lines) + "\n\n" + note
+
+
+def budgets(times: list[float]) -> list[float]:
+    """Three round time budgets (one significant digit) at a quarter, half and all of the measured run
+    times' log range; the last holds every point."""
+    lo, hi = min(times), max(times)
+    picks = [10 ** (math.log10(lo) + f * (math.log10(hi) - math.log10(lo))) for f in (0.25, 0.5)] if hi > lo else []
+    top = 10 ** math.floor(math.log10(hi))
+    return list(dict.fromkeys([float(f"{b:.1g}") for b in picks] + [float(math.ceil(hi / top) * top)]))
+
+
+# -- bench report: the dashboard's section and the README's block ------------------------------------------
+def pareto_points(rows: Rows) -> list[dict[str, Any]]:
+    """The points of a pareto CSV (:func:`front_points`); a ValueError when it has none."""
+    points = front_points(rows)
+    if not points:
+        raise ValueError("it has no points with both run_time and error rows")
+    return points
+
+
+def dashboard_section(rows: Rows) -> list[Part]:
+    """Per unit, one front per system and the combined one (dominated points hollow, ablations grey; a point's
+    tooltip is its full config); then the best configuration per time budget."""
+    points = pareto_points(rows)
+    parts: list[Part] = []
+    for unit in dict.fromkeys(p["per"] for p in points):
+        here = [p for p in points if p["per"] == unit]
+        figures = []
+        systems = list(dict.fromkeys(p["system"] for p in here if p["system"] != ABLATION))
+        ablations = [Point(p["time"], p["error"], p["tip"], hollow=True) for p in here if p["system"] == ABLATION]
+        for scope in [*systems, "combined"]:
+            chosen = here if scope == "combined" else [p for p in here if p["system"] == scope]
+            # cross-system ablations: grey, on no front
+            series = (
+                [Series("ablation (cross-system)", ablations, line=False, colour="#999999")]
+                if scope == "combined" and ablations
+                else []
+            )
+            for i, system in enumerate(systems):
+                mine = [p for p in chosen if p["system"] == system]
+                if not mine:
+                    continue
+                colour = PALETTE[i % len(PALETTE)]
+                flag = "dominated_combined" if scope == "combined" else "dominated"
+                front = [Point(p["time"], p["error"], p["tip"]) for p in mine if not p[flag]]
+                rest = [Point(p["time"], p["error"], p["tip"], hollow=True) for p in mine if p[flag]]
+                series.append(Series(f"{system}: front", front, colour=colour))
+                if rest:
+                    series.append(Series(f"{system}: dominated", rest, line=False, colour=colour))
+            title = f"{scope}: error against run time per {unit}"
+            figures.append(
+                XYChart(
+                    series,
+                    f"median run time per {unit} [ms]",
+                    "error: 1 - SSIM vs path-traced GT",
+                    xlog=True,
+                    ylog=True,
+                    caption=title,
+                )
+            )
+        parts.append(Figure(tuple(figures)))
+    return [*parts, Table(best_table(points))]
+
+
+def readme_block(rows: Rows) -> list[Table]:
+    """How many points of each system, and each system's best configuration per time budget."""
+    points = pareto_points(rows)
+    count = Counter(p["system"] for p in points)
+    head = (
+        f"Error = 1 − SSIM against a path-traced GT; {len(points)} points: "
+        + ", ".join(f"{n} {system}" for system, n in count.items())
+        + (" (cross-system pairings: on no front and in no row below)" if count[ABLATION] else "")
+        + "."
+    )
+    return [Table(head + "\n\n" + best_table(points))]
+
+
 BENCH = Bench(
     "pareto",
     ParetoConfig,
     measure,
     plot,
-    help="Error against run time over every speed/quality knob of both systems (per GI map and per frame), fronts with dominated "
-    "points marked, the best configuration per time budget; reuses convergence/frequency CSVs under --from-dir.",
+    help="Error against run time over every speed/quality knob of both systems (per GI map and per frame), fronts "
+    "with dominated points marked, the best configuration per time budget; reuses convergence/frequency CSVs under "
+    "--from-dir.",
+    dashboard=Section("pareto", "Error against run time (Pareto fronts)", 70, dashboard_section),
+    readme=Block("Error against run time", 30, readme_block, make="bench pareto --from-dir {out} --out {out}/pareto"),
 )

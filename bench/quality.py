@@ -23,7 +23,8 @@ from pathlib import Path
 import numpy as np
 
 from bench.models import model_info
-from bench.runner import Bench
+from bench.runner import Bench, Block, Figure, Part, Rows, Section, Table, need, pick
+from bench.svg import BarChart
 from gicore.cli import UserError
 from gicore.dataset import frame_paths, load_frame, read_meta
 from gicore.dataset_cli import DatasetConfig, build_dataset
@@ -209,7 +210,8 @@ def plot(csv_path: Path, out_dir: Path) -> list[Path]:
 
 GRID_CAPTION = (  # ASCII: PIL's default font has no glyphs for sigma or the minus sign
     f"Per frame: row 1 inputs, maps, GT; row 2 |tone-mapped prediction - GT| x{GRID_ABS_GAIN:g} per channel (black 0, "
-    f"full colour from {1 / GRID_ABS_GAIN:g}); row 3 Gaussian (sigma {LF_SIGMA:g} px) of the signed tone-mapped difference, "
+    f"full colour from {1 / GRID_ABS_GAIN:g}); row 3 Gaussian (sigma {LF_SIGMA:g} px) of the signed tone-mapped "
+    "difference, "
     f"channel mean: blue -{GRID_LF_RANGE:g} (darker than GT), white 0, red +{GRID_LF_RANGE:g} (brighter), clipped. "
     "Under DI: DI alone's error. 'LF': that frame's lf_error."
 )
@@ -221,7 +223,8 @@ def abs_error_image(prediction: np.ndarray, reference: np.ndarray) -> np.ndarray
 
 
 def lf_colours(signed: np.ndarray) -> np.ndarray:
-    """Signed values (any shape) as colours (shape + (3,)) of :data:`GRID_LF_CMAP` on ±:data:`GRID_LF_RANGE`, clipped."""
+    """Signed values (any shape) as colours (shape + (3,)) of :data:`GRID_LF_CMAP` on ±:data:`GRID_LF_RANGE`,
+    clipped."""
     from matplotlib import colormaps
 
     t = np.clip(0.5 + 0.5 * np.asarray(signed) / GRID_LF_RANGE, 0.0, 1.0)
@@ -306,10 +309,64 @@ def _wrap(text: str, width_of, max_width: float) -> list[str]:
     return [*lines, line] if line else lines
 
 
+# -- bench report: the dashboard's section and the README's block ------------------------------------------
+def table(rows: Rows) -> str:
+    """Fig. 6 as Markdown: per system and scene, the mean RMSE, SSIM, PSNR, LF and checkerboard errors,
+    the shadow tint and the median inference time."""
+    need(rows, "ssim", "rmse", "psnr")
+    scenes = list(dict.fromkeys(r["scene"] for r in pick(rows, "ssim")))
+    systems = list(dict.fromkeys(r["system"] for r in pick(rows, "ssim")))
+    lines = [
+        "| system | scene | RMSE | SSIM | PSNR (dB) | LF error | checker error | shadow tint "
+        "| inference ms (median) | config |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    mean = {(r["scene"], r["system"], r["metric"]): r for r in rows if r["stat"] in ("mean", "median")}
+    for system in systems:
+        for scene in scenes:
+            cells = [
+                mean.get((scene, system, m))
+                for m in ("rmse", "ssim", "psnr", "lf_error", "checker_error", "shadow_tint", "inference_time")
+            ]
+            shown = ["—" if c is None else f"{c['value']:.4g}" for c in cells]
+            config = next((c["config"] for c in cells if c is not None and c["config"]), {})
+            knobs = ", ".join(f"{k}={v}" for k, v in config.items() if k not in ("frames",))
+            lines.append(f"| {system} | {scene} | " + " | ".join(shown) + f" | {knobs.replace('|', '/')} |")
+    return "\n".join(lines)
+
+
+def dashboard_section(rows: Rows) -> list[Part]:
+    """A bar chart per error metric (scenes × systems), then the table."""
+    need(rows, "ssim", "rmse", "psnr")
+    scenes = list(dict.fromkeys(r["scene"] for r in pick(rows, "ssim")))
+    systems = list(dict.fromkeys(r["system"] for r in pick(rows, "ssim")))
+    figures = []
+    # lf_error: the low-frequency error (gicore.metrics.lf_error); quality CSVs older than it have none ("—").
+    shown_metrics = (
+        ("rmse", "RMSE (tone-mapped)"),
+        ("ssim", "SSIM"),
+        ("psnr", "PSNR [dB]"),
+        ("lf_error", "LF error (tone-mapped)"),
+    )
+    for metric, label in shown_metrics:
+        value = {(r["scene"], r["system"]): r["value"] for r in pick(rows, metric, "mean")}
+        if value:
+            figures.append(BarChart(scenes, {s: [value.get((sc, s)) for sc in scenes] for s in systems}, label))
+    return [Figure(tuple(figures)), Table(table(rows))]
+
+
+def readme_block(rows: Rows) -> list[Table]:
+    """The same table as the dashboard's."""
+    return [Table(table(rows))]
+
+
 BENCH = Bench(
     "quality",
     QualityConfig,
     measure,
     plot,
-    help="Fig. 6: RMSE/SSIM/PSNR and low-frequency error of each model and of DI alone on held-out frames, plus inference ms and error maps.",
+    help="Fig. 6: RMSE/SSIM/PSNR and low-frequency error of each model and of DI alone on held-out frames, plus "
+    "inference ms and error maps.",
+    dashboard=Section("fig6", "Fig. 6: GI-map quality", 40, dashboard_section),
+    readme=Block("GI-map quality, Fig. 6", 50, readme_block),
 )

@@ -112,9 +112,8 @@ def plot(csv_path: Path, out_dir: Path) -> list[Path]:
     ax.grid(axis="y", alpha=0.3, which="both")
     ax.legend(fontsize=7, ncols=2)
     resolution = next((r["config"].get("resolution") for r in rows if r["stat"] == "median"), "?")
-    ax.set_title(
-        f"Render passes at {resolution}² (Mitsuba {next((r['config'].get('variant') for r in rows if r['stat'] == 'median'), '')})"
-    )
+    variant = next((r["config"].get("variant") for r in rows if r["stat"] == "median"), "")
+    ax.set_title(f"Render passes at {resolution}² (Mitsuba {variant})")
     return [save(fig, out_dir / "render.png")]
 
 

@@ -64,6 +64,6 @@ BENCH = Bench(
     RunDefaultConfig,
     measure,
     None,
-    help="The main job (make run): bench latency --quick (Table 1) and bench storage --quick (Table 2) on the default scene, "
-    "with the shipped GIGAN model; both tables printed at the end.",
+    help="The main job (make run): bench latency --quick (Table 1) and bench storage --quick (Table 2) on the "
+    "default scene, with the shipped GIGAN model; both tables printed at the end.",
 )

@@ -25,10 +25,21 @@ How to add a bench (say ``bench latency``), in ``bench/latency.py``::
     def plot(csv_path: Path, out_dir: Path) -> list[Path]:
         ...  # reads only the CSV; returns the PNGs it wrote
 
-    BENCH = Bench("latency", LatencyConfig, measure, plot, help="Table 1: ...")
+    def dashboard_section(rows: Rows) -> list[Part]:
+        ...  # the dashboard's tables and figures, from the CSV's rows alone; need(rows, ...) refuses others
 
-and add ``latency.BENCH`` to the list in ``bench/cli.py``. A bench that runs others (``run-default``)
-calls :func:`execute` on their ``BENCH`` objects.
+    def readme_block(rows: Rows) -> list[Table]:
+        ...  # the README's results block
+
+    BENCH = Bench(
+        "latency", LatencyConfig, measure, plot, help="Table 1: ...",
+        dashboard=Section("table1", "Table 1: interaction latency", 10, dashboard_section),
+        readme=Block("Interaction latency, Table 1", 10, readme_block),
+    )
+
+and register it in ``bench/registry.py`` (its import and its line in ``BENCHES``): that gives it its
+subcommand, its dashboard section and its README block; nothing else changes. A bench that runs others
+(``run-default``) calls :func:`execute` on their ``BENCH`` objects.
 
 What the runner derives from the config with :mod:`gicore.options` (so no bench declares options by hand):
 
@@ -49,18 +60,29 @@ A run: ``measure`` fills a :class:`gicore.results.Results`; the runner writes ``
 ``<out>/<bench>.provenance.json`` (whose ``settings`` is the final config), calls ``plot`` on the CSV and
 prints every path written. User errors raise :class:`gicore.cli.UserError`; the ``bench`` entry point
 turns them into one ``error:`` line and exit status 2.
+
+``bench report`` finds each registered bench's newest CSV under a results folder (:func:`attempt`) and
+renders what its ``dashboard`` and ``readme`` hooks return: :class:`Table` (Markdown, in both outputs),
+:class:`Figure` (charts of :mod:`bench.svg`, dashboard only) and :class:`Alert`. Dependencies run one
+way: this module <- each bench <- ``bench.registry`` <- the report and the command line.
 """
 
 from __future__ import annotations
 
+import csv
 import dataclasses
-from collections.abc import Callable
-from dataclasses import dataclass
+import fnmatch
+import json
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any
 
 import typer
 
+from bench.svg import Chart
 from gicore import options
 from gicore.cli import writable_dir
 from gicore.options import (  # noqa: F401  (field_docs, check_config, config_dict: the bench API)
@@ -72,7 +94,7 @@ from gicore.options import (  # noqa: F401  (field_docs, check_config, config_di
     extra,
     field_docs,
 )
-from gicore.results import Results
+from gicore.results import COLUMNS, Results, read_rows
 
 #: Option names the runner adds to every bench; config fields may not use them.
 RESERVED = ("out", "quick", "seed")
@@ -81,13 +103,18 @@ RESERVED = ("out", "quick", "seed")
 @dataclass(frozen=True)
 class Bench:
     """One ``bench`` subcommand: its config class (defaults, ``quick()`` preset), what it measures into a
-    :class:`Results`, and how it plots the resulting CSV into a folder (returning the files written)."""
+    :class:`Results`, how it plots the resulting CSV into a folder (returning the files written), and what
+    ``bench report`` shows of that CSV (so a bench's tables live with the bench, not in the report)."""
 
     name: str
     config: type
     measure: Callable[[Any, Results], None]
     plot: Callable[[Path, Path], list[Path]] | None
     help: str
+    #: Its section of the dashboard (``report.html``); None: it has none.
+    dashboard: Section | None = None
+    #: Its block of the README's results (``results.md``); None: it has none.
+    readme: Block | None = None
 
 
 # --- options: derived from the config (gicore.options) -----------------------------------------------------
@@ -133,3 +160,204 @@ def register(app: typer.Typer, bench: Bench) -> Bench:
 
     config_command(app, config, run, name=bench.name, help=bench.help, extras=extras, preset=config.quick())
     return bench
+
+
+# --- what `bench report` shows of a bench ---------------------------------------------------------------------
+
+#: The rows of a results CSV as :func:`gicore.results.read_rows` gives them (``config`` decoded).
+Rows = list[dict[str, Any]]
+
+
+@dataclass(frozen=True)
+class Table:
+    """A table (or a short text around one) in Markdown, the one form both outputs take: the dashboard renders
+    it to HTML, the README's results block shows it as written (headings moved below the block's title)."""
+
+    markdown: str
+    #: Dashboard: inside a horizontally scrolling box (a table wider than the page).
+    scroll: bool = False
+
+
+@dataclass(frozen=True)
+class Figure:
+    """A dashboard figure: its charts side by side (the README shows no figures)."""
+
+    panels: tuple[Chart, ...]
+
+
+@dataclass(frozen=True)
+class Alert:
+    """A line the dashboard shows as a problem (e.g. the stability cases that failed)."""
+
+    text: str
+
+
+#: What a dashboard section is made of, in the order shown.
+Part = Table | Figure | Alert
+
+
+@dataclass(frozen=True)
+class Section:
+    """A bench's section of the dashboard."""
+
+    #: Anchor, and ``section`` in ``report.csv`` (e.g. ``table1``).
+    key: str
+    #: Heading; the part before a colon names the section in the page's navigation.
+    title: str
+    #: Place among the sections, lowest first (registration order is ``bench --help``'s).
+    order: int
+    #: Its tables and figures from the rows of the bench's newest CSV; raises (e.g. :func:`need`) on rows
+    #: that are not the bench's, and the section says so.
+    draw: Callable[[Rows], list[Part]]
+
+
+@dataclass(frozen=True)
+class Block:
+    """A bench's block of the README's results section."""
+
+    title: str
+    #: Place among the blocks, lowest first.
+    order: int
+    #: Its text from the rows of the bench's newest CSV; raises on rows that are not the bench's.
+    write: Callable[[Rows], list[Table]]
+    #: The command that makes the CSV when it is missing (``{out}``: the results folder); empty:
+    #: ``bench <name> --out {out}``.
+    make: str = ""
+
+
+@dataclass(frozen=True)
+class External:
+    """The CSV ``<name>.csv`` of another program (``network-sim selftest``), shown as a bench's is."""
+
+    name: str
+    dashboard: Section | None = None
+    readme: Block | None = None
+
+
+def pick(rows: Rows, metric: str, stat: str | None = None) -> Rows:
+    """The rows of ``metric`` (with ``stat`` when given)."""
+    return [r for r in rows if r["metric"] == metric and (stat is None or r["stat"] == stat)]
+
+
+def need(rows: Rows, *metrics: str) -> None:
+    """Refuse rows that hold none of the metrics a table draws (another bench's CSV, or a stub)."""
+    missing = [m for m in metrics if not pick(rows, m)]
+    if missing:
+        raise ValueError(f"it has no {', '.join(missing)} rows")
+
+
+def cell(value: float | None, spec: str = ".1f") -> str:
+    """A table cell: ``value`` formatted, or a dash when it was not measured (None or NaN)."""
+    return "—" if value is None or (isinstance(value, float) and math.isnan(value)) else format(value, spec)
+
+
+# --- finding a bench's results ----------------------------------------------------------------------------------
+
+
+class Malformed(ValueError):
+    """A CSV that is not a bench's tidy result."""
+
+
+def _provenance(csv_path: Path) -> dict[str, Any] | None:
+    path = csv_path.with_name(csv_path.stem + ".provenance.json")
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    return data if isinstance(data, dict) else None
+
+
+def _finished(csv_path: Path) -> float:
+    prov = _provenance(csv_path) or {}
+    value = prov.get("finished_unix")
+    return float(value) if isinstance(value, (int, float)) else csv_path.stat().st_mtime
+
+
+def find(results: Path, bench: str, ignore: tuple[str, ...] = ()) -> list[Path]:
+    """Every ``<bench>.csv`` under ``results``, newest run first, except those inside a folder that one of the
+    ``ignore`` patterns (paths relative to ``results``, glob allowed) names."""
+
+    def ignored(path: Path) -> bool:
+        folders = [f.as_posix() for f in path.relative_to(results).parents if f != Path(".")]
+        return any(fnmatch.fnmatchcase(folder, pattern.strip("/")) for folder in folders for pattern in ignore)
+
+    return sorted((p for p in results.rglob(f"{bench}.csv") if not ignored(p)), key=_finished, reverse=True)
+
+
+def load(path: Path) -> Rows:
+    """The rows of a results CSV, or :class:`Malformed` saying what is wrong with it."""
+    try:
+        with path.open(newline="") as fh:
+            header = next(csv.reader(fh), None)
+        if header != list(COLUMNS):
+            raise Malformed(f"its columns are {header}, not {', '.join(COLUMNS)}")
+        rows = read_rows(path)
+    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+        raise Malformed(f"it cannot be read ({exc})") from None
+    except (KeyError, ValueError, TypeError) as exc:
+        raise Malformed(f"a row does not parse ({type(exc).__name__}: {exc})") from None
+    if not rows:
+        raise Malformed("it has no rows")
+    if any(not isinstance(r["config"], dict) for r in rows):
+        raise Malformed("a config cell is not a JSON object")
+    return rows
+
+
+def provenance_fields(csv_path: Path) -> dict[str, str] | None:
+    """What the provenance JSON beside ``csv_path`` says, as text: the command (the program by its name, not
+    the path it was started by, and its arguments), git (short SHA; whether the tree had uncommitted
+    changes), machine, date, run and seed; None without one."""
+    prov = _provenance(csv_path)
+    if prov is None:
+        return None
+    argv = [str(a) for a in prov.get("argv") or []]
+    if argv:
+        argv[0] = "bench" if Path(argv[0]).name == "__main__.py" else Path(argv[0]).name
+    git = prov.get("git") or {}
+    m = prov.get("machine") or {}
+    finished = prov.get("finished_unix")
+    cpu = f"{m.get('cpu', '?')}, {m.get('cpu_count', '?')} cores"
+    return {
+        "command": " ".join(argv) or "(unknown)",
+        "git": (git.get("sha") or "unknown")[:12] + (" (uncommitted changes)" if git.get("dirty") else ""),
+        "machine": f"{cpu}, {m.get('platform', '?')}, Python {m.get('python', '?')}",
+        "date": time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime(finished))
+        if isinstance(finished, (int, float))
+        else "unknown",
+        "run": str(prov.get("run_id", "?")),
+        "seed": str(prov.get("seed", "?")),
+    }
+
+
+@dataclass
+class Attempt:
+    """A bench's newest CSV under a results folder, drawn: status ``ok`` / ``missing`` / ``malformed``, what the
+    drawing made of it (when ``ok``), the file (None when missing), the problem in one line, the older runs."""
+
+    status: str
+    parts: Sequence[Part] = ()
+    path: Path | None = None
+    rel: str = ""
+    rows: int = 0
+    problem: str = ""
+    others: list[str] = field(default_factory=list)
+
+
+def attempt(bench: str, results: Path, draw: Callable[[Rows], Sequence[Part]], ignore: tuple[str, ...] = ()) -> Attempt:
+    """Find the newest ``<bench>.csv`` under ``results`` (outside the ``ignore`` folders), load it and ``draw`` its
+    rows (a dashboard section or a README block): a CSV that is missing, or does not load or draw, comes back
+    with its problem."""
+    found = find(results, bench, ignore)
+    if not found:
+        left_out = f" (leaving out {', '.join(ignore)})" if ignore else ""
+        return Attempt("missing", problem=f"missing: no {bench}.csv under {results}{left_out}")
+    path = found[0]
+    rel = str(path.relative_to(results))
+    others = [str(p.relative_to(results)) for p in found[1:]]
+    try:
+        rows = load(path)
+        parts = draw(rows)
+    except Exception as exc:  # noqa: BLE001 -- any reason a CSV cannot be drawn is reported in its place, and the others still render
+        why = " ".join(str(exc if isinstance(exc, Malformed) else f"{type(exc).__name__}: {exc}").split())
+        return Attempt("malformed", path=path, rel=rel, problem=f"malformed: {rel}: {why}", others=others)
+    return Attempt("ok", parts, path, rel, len(rows), others=others)

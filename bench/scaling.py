@@ -32,7 +32,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from bench.runner import Bench
+from bench.runner import Bench, Block, Rows, Table, cell, need, pick
 from gicore.cli import UserError
 from gicore.executor import INSTALL_RAY, Executor, LocalPool, RayExecutor, Task
 from gicore.results import Results, read_rows
@@ -271,10 +271,12 @@ def _value(rows: list[dict], **match: Any) -> float:
 def _write_table(cfg: ScalingConfig, res: Results) -> None:
     """``scaling.md``: the measured table and the projection table."""
     rows = [r | {"config": json.loads(r["config"])} for r in res.rows]
+    planned = int(sum(_value(rows, system="plan", scene=s) for s in builtin_scenes()))
     lines = [
         f"Measured on {cfg.scenes[0]} at {cfg.resolution}², {cfg.spp} spp + OIDN; single-threaded workers.",
         "",
-        "| executor | workers | frames/s | maps/s | efficiency (frames) | no-op round trip [ms] | no-op batched [ms/job] |",
+        "| executor | workers | frames/s | maps/s | efficiency (frames) | no-op round trip [ms] "
+        "| no-op batched [ms/job] |",
         "|---|---|---|---|---|---|---|",
     ]
     for ex in cfg.executors:
@@ -287,8 +289,8 @@ def _write_table(cfg: ScalingConfig, res: Results) -> None:
             lines.append(f"| {ex} | {w} | {frame:.3g} | {maps:.3g} | {eff:.2f} | {trip:.3g} | {batched:.3g} |")
     lines += [
         "",
-        f"PROJECTION (not measured), {cfg.spp} spp + OIDN: {cfg.project_frames} frames x 5 scenes at {cfg.project_resolution}²; baking each scene's "
-        f"{cfg.bake_frames}-frame fly-through ({int(sum(_value(rows, system='plan', scene=s) for s in builtin_scenes()))} maps) at "
+        f"PROJECTION (not measured), {cfg.spp} spp + OIDN: {cfg.project_frames} frames x 5 scenes at "
+        f"{cfg.project_resolution}²; baking each scene's {cfg.bake_frames}-frame fly-through ({planned} maps) at "
         f"{cfg.bake_resolution}²; {ASSUMPTION}.",
         "",
         "| N workers | " + " | ".join(f"data set, {ex} [h] | bake, {ex} [h]" for ex in cfg.executors) + " |",
@@ -344,11 +346,60 @@ def plot(csv_path: Path, out_dir: Path) -> list[Path]:
     return [save(fig, out_dir / "scaling.png")]
 
 
+def readme_block(rows: Rows) -> list[Table]:
+    """Measured throughput per executor and worker count; then the projections, labelled as such."""
+    need(rows, "throughput")
+    measured = pick(rows, "throughput")
+    c = measured[0]["config"]
+    executors = list(dict.fromkeys(r["system"] for r in measured))
+    workers = sorted({r["config"]["workers"] for r in measured})
+    lines = [
+        f"Measured on {measured[0]['scene']} at {c.get('resolution')}², {c.get('spp')} spp + OIDN, single-threaded "
+        "workers.",
+        "",
+        "| executor | workers | frames/s | maps/s | efficiency (frames, against 1 worker) "
+        "| no-op task round trip ms (median) |",
+        "|---|---|---|---|---|---|",
+    ]
+    for ex in executors:
+        for w in workers:
+            frames, maps = (
+                _value(rows, system=ex, metric="throughput", workers=w, kind=kind) for kind in ("frame", "map")
+            )
+            efficiency = 1.0 if w == 1 else _value(rows, system=ex, metric="efficiency", workers=w, kind="frame")
+            trip = _value(rows, system=ex, metric="task_roundtrip", stat="median", workers=w)
+            lines.append(
+                f"| {ex} | {w} | {cell(frames, '.3g')} | {cell(maps, '.3g')} | {cell(efficiency, '.2f')} "
+                f"| {cell(trip, '.3g')} |"
+            )
+    projected = [r for r in rows if r["stat"] == "projection" and r["scene"] == ALL]
+    if projected:
+        what = {r["metric"]: r["config"] for r in projected}
+        names = {"dataset_wall": "the paper's data set", "bake_wall": "GI-tree bakes of 5 scenes"}
+        shown = [m for m in names if m in what]
+        lines += [
+            "",
+            "PROJECTED, not measured: wall hours on N workers ("
+            + "; ".join(f"{names[m]}: {what[m].get('items')} items at {what[m].get('resolution')}²" for m in shown)
+            + f"; {projected[0]['config'].get('assumption')}).",
+            "",
+            "| N workers | " + " | ".join(f"{names[m]}, {ex} [h]" for ex in executors for m in shown) + " |",
+            "|---" * (1 + len(executors) * len(shown)) + "|",
+        ]
+        for n in sorted({r["config"]["workers"] for r in projected}):
+            cells = [
+                cell(_value(rows, system=ex, scene=ALL, metric=m, workers=n), ".3g") for ex in executors for m in shown
+            ]
+            lines.append(f"| {n} | " + " | ".join(cells) + " |")
+    return [Table("\n".join(lines))]
+
+
 BENCH = Bench(
     "scaling",
     ScalingConfig,
     measure,
     plot,
-    help="Render executor: frames/maps per second with 1 and 2 workers, local processes vs Ray, per-task overhead, and the projected "
-    "wall time of the paper's data set and of GI-tree bakes on N workers.",
+    help="Render executor: frames/maps per second with 1 and 2 workers, local processes vs Ray, per-task overhead, "
+    "and the projected wall time of the paper's data set and of GI-tree bakes on N workers.",
+    readme=Block("Scaling", 110, readme_block),
 )

@@ -41,10 +41,10 @@ from typing import Any, Literal
 
 import numpy as np
 
-from baseline_cloudbaking.codecs import CODEC_NAMES
+from baseline_cloudbaking.codecs import CODEC_NAMES, DEFAULT_CODEC
 from baseline_cloudbaking.protocol import unpack
 from bench.latency import pinned_server, pinning
-from bench.runner import Bench
+from bench.runner import Bench, Block, Rows, Table, need
 from gicore.results import Results, read_rows
 
 CodecName = Literal[CODEC_NAMES]  # type: ignore[valid-type]
@@ -95,7 +95,7 @@ class ServiceConfig:
     #: Square GI-map resolution (the issue's targets are stated at 256).
     resolution: int = 256
     #: GI-map codec.
-    codec: CodecName = "jpeg"
+    codec: CodecName = DEFAULT_CODEC
     #: Path-tracing samples per pixel of each baked map (only the misses pay for it).
     spp: int = 64
     #: Distinct GI cameras baked by the misses and cycled over by the hits.
@@ -326,8 +326,9 @@ def _targets(res: Results, scene: str, cfg: ServiceConfig) -> None:
     for target in TARGETS:
         value = _value(res.rows, target.metric, target.stat, **dict(target.where))
         met = value is not None and target.met(value)
-        res.add(system=SYSTEM, scene=scene, metric=target.metric, value=int(met), unit="bool", stat="target_met", target=target.label,
-                bound=target.bound, bound_unit=target.unit, measured=value, resolution=cfg.resolution, stated_at_resolution=256)  # fmt: skip
+        res.add(system=SYSTEM, scene=scene, metric=target.metric, value=int(met), unit="bool", stat="target_met",
+                target=target.label, bound=target.bound, bound_unit=target.unit, measured=value,
+                resolution=cfg.resolution, stated_at_resolution=256)  # fmt: skip
 
 
 def _config(row: dict[str, Any]) -> dict[str, Any]:
@@ -349,8 +350,10 @@ def _value(rows: list[dict[str, Any]], metric: str, stat: str, **config: Any) ->
 def table(rows: list[dict[str, Any]]) -> str:
     """Markdown: each timed metric's p50/p95/p99/n, the load figures, and the targets with met / MISSED."""
     lines = ["| metric | part | first | p50 | p95 | p99 | n |", "|---|---|---|---|---|---|---|"]
-    for metric, part in (("miss_e2e", None), *(("miss_server", p) for p in ("lookup", "render", "denoise", "encode", "total")),
-                         ("hit_server", "lookup_read"), ("hit_server", "total"), ("hit_e2e", None), ("load_latency", None)):  # fmt: skip
+    for metric, part in (("miss_e2e", None),
+                         *(("miss_server", p) for p in ("lookup", "render", "denoise", "encode", "total")),
+                         ("hit_server", "lookup_read"), ("hit_server", "total"), ("hit_e2e", None),
+                         ("load_latency", None)):  # fmt: skip
         where = {"part": part} if part else {}
         p50 = _value(rows, metric, "median", **where)
         first = _value(rows, metric, "first", **where)
@@ -366,7 +369,8 @@ def table(rows: list[dict[str, Any]]) -> str:
         lines.append(f"| {metric} (ms) | {part or ''} | " + " | ".join(cells) + " |")
     lines += [
         "",
-        f"load: {_fmt(_value(rows, 'load_throughput', 'value'))} requests/s, {_value(rows, 'load_errors', 'value') or 0:.0f} errors",
+        f"load: {_fmt(_value(rows, 'load_throughput', 'value'))} requests/s, "
+        f"{_value(rows, 'load_errors', 'value') or 0:.0f} errors",
         "",
         "| target | measured | met |",
         "|---|---|---|",
@@ -418,7 +422,8 @@ def plot(csv_path: Path, out_dir: Path) -> list[Path]:
     errors = _value(rows, "load_errors", "value")
     clients = next((r["config"] for r in rows if r["metric"] == "load_throughput"), {})
     right.set_title(
-        f"{clients.get('clients')} clients x {clients.get('per_client')} hits: {rate or 0:.0f} req/s (target >= 300), {errors or 0:.0f} errors",
+        f"{clients.get('clients')} clients x {clients.get('per_client')} hits: {rate or 0:.0f} req/s (target >= 300), "
+        f"{errors or 0:.0f} errors",
         fontsize=9,
     )
     for ax in (left, right):
@@ -430,10 +435,17 @@ def plot(csv_path: Path, out_dir: Path) -> list[Path]:
     return [save(fig, out_dir / "service.png")]
 
 
+def readme_block(rows: Rows) -> list[Table]:
+    """The cloud-baking server on loopback: stage times, load and its targets (the table above)."""
+    need(rows, "hit_e2e", "miss_e2e")
+    return [Table("Times in ms (first: the first miss, with its JIT compile).\n\n" + table(rows).rstrip())]
+
+
 BENCH = Bench(
     "service",
     ServiceConfig,
     measure,
     plot,
     help="Issue 10 targets: GI-map server hit/miss service times and concurrent load",
+    readme=Block("Cloud-baking server", 80, readme_block),
 )

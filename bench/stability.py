@@ -49,7 +49,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from bench.runner import Bench
+from bench.runner import Alert, Bench, Block, Part, Rows, Section, Table, need
 from gicore.cli import UserError
 from gicore.results import Results, read_rows
 from gigan_local.inference import DEFAULT_MODEL
@@ -781,8 +781,8 @@ def process_cases(s: Scene, cfg: StabilityConfig, server_url: str, scene_name: s
     from baseline_cloudbaking.protocol import decode_payload
     from network_sim.process import network_sim
 
-    body = {"scene": scene_name, "camera": {"eye": list(s.gi_camera.origin), "target": list(s.gi_camera.target)}, "resolution": cfg.resolution,
-            "spp": cfg.spp, "codec": "jpeg"}  # fmt: skip
+    body = {"scene": scene_name, "camera": {"eye": list(s.gi_camera.origin), "target": list(s.gi_camera.target)},
+            "resolution": cfg.resolution, "spp": cfg.spp, "codec": "jpeg"}  # fmt: skip
     if s.spec.light.moves:
         body["light"] = list(s.light)
 
@@ -791,8 +791,9 @@ def process_cases(s: Scene, cfg: StabilityConfig, server_url: str, scene_name: s
             proxy = stack.enter_context(
                 network_sim("proxy", "--upstream", server_url.removeprefix("http://"), *flags, timeout=30.0)
             )
-            remote = RemoteConfig(f"http://{proxy.addr[0]}:{proxy.addr[1]}", scene_name, cfg.resolution, "jpeg", cfg.spp, False, s.spec.light.moves,
-                                  connect_timeout_s=timeout, read_timeout_s=timeout, deadline_s=2 * timeout, retry_after_s=0.0)  # fmt: skip
+            remote = RemoteConfig(f"http://{proxy.addr[0]}:{proxy.addr[1]}", scene_name, cfg.resolution, "jpeg",
+                                  cfg.spp, False, s.spec.light.moves, connect_timeout_s=timeout,
+                                  read_timeout_s=timeout, deadline_s=2 * timeout, retry_after_s=0.0)  # fmt: skip
             with RemoteSource(remote) as source:
                 source.request(s.gi_camera, s.light, 0)
                 if not source.wait(4 * timeout + 5.0):
@@ -803,7 +804,8 @@ def process_cases(s: Scene, cfg: StabilityConfig, server_url: str, scene_name: s
                 gi = source.latest()
             if record["status"] != "ok":
                 raise Rejected(
-                    f"client gave up after {float(record['latency_ms']) / 1e3:.2f} s: {record['status']}: {record['error']}"
+                    f"client gave up after {float(record['latency_ms']) / 1e3:.2f} s: "
+                    f"{record['status']}: {record['error']}"
                 )
             return Outcome((gi.radiance, gi.depth), note=f"map in {float(record['latency_ms']):.0f} ms")
 
@@ -973,9 +975,10 @@ def summary(rows: list[dict]) -> list[dict[str, Any]]:
     out: dict[tuple[str, str], dict[str, Any]] = {}
     for r in rows:
         c = r["config"]
-        entry = out.setdefault((r["system"], c["case"]), {"stage": r["system"], "case": c["case"], "expect": c["expect"], "status": c["status"],
-                                                         "message": c["message"], "finite": None, "error": None, "error_kind": "", "bound": None,
-                                                         "time_ms": None})  # fmt: skip
+        first = {"stage": r["system"], "case": c["case"], "expect": c["expect"], "status": c["status"],
+                 "message": c["message"], "finite": None, "error": None, "error_kind": "", "bound": None,
+                 "time_ms": None}  # fmt: skip
+        entry = out.setdefault((r["system"], c["case"]), first)
         if r["metric"] == "finite":
             entry["finite"] = bool(r["value"])
         elif r["metric"] == "time":
@@ -999,7 +1002,8 @@ def table(entries: list[dict[str, Any]]) -> str:
     """``stability_table.md``: the counts, then one line per case."""
     n = counts(entries)
     lines = [
-        f"## Numerical stability (SPEC §9): {n['cases']} cases, {n['finite']} finite, {n['rejected']} cleanly rejected, {n['failed']} failed",
+        f"## Numerical stability (SPEC §9): {n['cases']} cases, {n['finite']} finite, "
+        f"{n['rejected']} cleanly rejected, {n['failed']} failed",
         "",
         "| stage | case | expected | outcome | error (bound) | time (ms) | message |",
         "|---|---|---|---|---|---|---|",
@@ -1050,11 +1054,43 @@ def plot(csv_path: Path, out_dir: Path) -> list[Path]:
     return written
 
 
+# -- bench report: the dashboard's section and the README's block ------------------------------------------
+def dashboard_section(rows: Rows) -> list[Part]:
+    """The failed cases by name (if any), then every case (a wide table: it scrolls)."""
+    need(rows, "status")
+    entries = summary(rows)
+    failed = [e for e in entries if e["status"] not in PASSED]
+    alert = "Failed cases: " + "; ".join(f"{e['stage']}/{e['case']} ({e['status']})" for e in failed)
+    return [*([Alert(alert)] if failed else []), Table(table(entries), scroll=True)]
+
+
+def readme_block(rows: Rows) -> list[Table]:
+    """SPEC §9's cases: the counts, per stage, and the failed cases by name."""
+    need(rows, "status")
+    entries = summary(rows)
+    n = counts(entries)
+    lines = [
+        f"**{n['cases']} cases: {n['finite']} finite, {n['rejected']} cleanly rejected, {n['failed']} failed** "
+        "(crashed, hung or went non-finite).",
+        "",
+        "| stage | cases | finite | cleanly rejected | failed |",
+        "|---|---|---|---|---|",
+    ]
+    for stage in dict.fromkeys(e["stage"] for e in entries):
+        c = counts([e for e in entries if e["stage"] == stage])
+        lines.append(f"| {stage} | {c['cases']} | {c['finite']} | {c['rejected']} | {c['failed']} |")
+    failed = [f"{e['stage']}/{e['case']} ({e['status']})" for e in entries if e["status"] not in PASSED]
+    return [Table("\n".join(lines) + ("\n\nFailed: " + "; ".join(failed) + "." if failed else ""))]
+
+
 BENCH = Bench(
     "stability",
     StabilityConfig,
     measure,
     plot,
-    help="SPEC §9: extreme and stiff inputs through every stage (render, tone map, inference, warps, composition, codecs, store, "
-    "network, server); finite or cleanly rejected, never a crash or a hang (exit 2 naming any failed case).",
+    help="SPEC §9: extreme and stiff inputs through every stage (render, tone map, inference, warps, composition, "
+    "codecs, store, network, server); finite or cleanly rejected, never a crash or a hang (exit 2 naming any failed "
+    "case).",
+    dashboard=Section("stability", "Numerical stability", 80, dashboard_section),
+    readme=Block("Numerical stability", 100, readme_block),
 )

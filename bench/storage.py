@@ -40,7 +40,8 @@ from baseline_cloudbaking.codecs import CODEC_NAMES, DEPTH_CODEC, get_codec
 from baseline_cloudbaking.codecs import measure as measure_codec
 from baseline_cloudbaking.protocol import pack
 from baseline_cloudbaking.store import DEFAULT_LIGHT_CELL, Tolerance, Viewpoint, ViewSet, simulate_fill
-from bench.runner import Bench
+from bench.runner import Bench, Block, Figure, Part, Rows, Section, Table, need, pick
+from bench.svg import BarChart
 from gicore.cli import UserError
 from gicore.metrics import ssim
 from gicore.paths import frame_seed
@@ -105,7 +106,8 @@ class StorageConfig:
     def check(self) -> None:
         if len(self.knob_positions) != len(self.knob_angles_deg):
             raise UserError(
-                f"--knob-positions has {len(self.knob_positions)} values but --knob-angles-deg {len(self.knob_angles_deg)}",
+                f"--knob-positions has {len(self.knob_positions)} values but "
+                f"--knob-angles-deg {len(self.knob_angles_deg)}",
                 "give one angle per position (they are paired)",
             )
         missing = [p for p in ("model_fp32.onnx", "model_fp16.onnx") if not (self.model_dir / p).is_file()]
@@ -413,12 +415,13 @@ def table2(rows: list[dict]) -> str:
     lines = [
         "# Table 2: GI-tree storage (cloud baking) vs the GIGAN model (client)",
         "",
-        f"GIGAN client storage (measured: model files, the same for every scene): fp32 {_mib(model.get('fp32', 0))} MiB, "
-        f"fp16 {_mib(model.get('fp16', 0))} MiB. Paper: GI tree {paper['lung']} / {paper['digestive']} / {paper['vessels']} GB "
-        f"(lung / digestive / vessels) vs {paper['model']} GB for the model.",
+        f"GIGAN client storage (measured: model files, the same for every scene): fp32 {_mib(model.get('fp32', 0))} "
+        f"MiB, fp16 {_mib(model.get('fp16', 0))} MiB. Paper: GI tree {paper['lung']} / {paper['digestive']} / "
+        f"{paper['vessels']} GB (lung / digestive / vessels) vs {paper['model']} GB for the model.",
         "",
-        "Entries: counted with the GI tree's lookup rule along the fly-through. MiB: entries x mean payload bytes of the rendered "
-        "sample, ± its 95 % interval (extrapolated), or the sum when every entry was rendered (measured). (xN): GI tree / fp16 model.",
+        "Entries: counted with the GI tree's lookup rule along the fly-through. MiB: entries x mean payload bytes of "
+        "the rendered sample, ± its 95 % interval (extrapolated), or the sum when every entry was rendered (measured). "
+        "(xN): GI tree / fp16 model.",
     ]
     for resolution in dict.fromkeys(k[1] for k in trees):
         for composition in ("blend", "residual"):
@@ -535,11 +538,65 @@ def plot(csv_path: Path, out_dir: Path) -> list[Path]:
         a2.legend(fontsize=7)
         a2.grid(alpha=0.3)
         fig.suptitle(
-            f"GI-tree tolerance knob ({knob[0]['scene']}, {knob[0]['config']['codec']} {knob[0]['config']['resolution']}²)",
+            f"GI-tree tolerance knob ({knob[0]['scene']}, {knob[0]['config']['codec']} "
+            f"{knob[0]['config']['resolution']}²)",
             fontsize=9,
         )
         written.append(save(fig, out_dir / "storage_tolerance.png"))
     return written
+
+
+# -- bench report: the dashboard's section and the README's block ------------------------------------------
+def dashboard_section(rows: Rows) -> list[Part]:
+    """Table 2 in full, the GI tree per scene and codec against the model as bars, then the codec table."""
+    need(rows, "gi_tree_bytes", "client_bytes")
+    trees = [r for r in pick(rows, "gi_tree_bytes", "estimate") if r["config"].get("composition") == "blend"]
+    resolution = trees[0]["config"]["resolution"]
+    scenes = list(dict.fromkeys(r["scene"] for r in trees))
+    codecs = list(dict.fromkeys(r["config"]["codec"] for r in trees))
+    mib = {
+        (r["scene"], r["config"]["codec"]): r["value"] / 2**20 for r in trees if r["config"]["resolution"] == resolution
+    }
+    series: dict[str, list[float | None]] = {c: [mib.get((s, c)) for s in scenes] for c in codecs}
+    model = {r["config"]["precision"]: r["value"] / 2**20 for r in pick(rows, "client_bytes")}
+    if "fp16" in model:
+        series["GIGAN model fp16"] = [model["fp16"]] * len(scenes)
+    figure = BarChart(
+        scenes,
+        series,
+        "MiB",
+        caption=f"GI tree after the fly-through ({resolution}², GI + depth) per codec, against the model.",
+    )
+    codecs_md = "### Codecs (sampled GI maps, per map)\n\n" + codec_table(rows)
+    return [Table(table2(rows)), Figure((figure,)), Table(codecs_md)]
+
+
+def readme_block(rows: Rows) -> list[Table]:
+    """Table 2 in short: each scene's GI tree per codec and resolution against the model; the codecs."""
+    need(rows, "gi_tree_bytes", "client_bytes", "entries")
+    model = {r["config"]["precision"]: r["value"] for r in pick(rows, "client_bytes")}
+    trees = _index(rows, "gi_tree_bytes", "estimate", "resolution", "codec", "composition")
+    columns = list(dict.fromkeys((k[1], k[2]) for k in trees if k[3] == "blend"))
+    lines = [
+        "GIGAN's model (the same for every scene): "
+        + ", ".join(f"{p} {_mib(v)} MiB" for p, v in model.items())
+        + ". The GI tree of each scene's fly-through (GI + depth, blend composition): entries counted with the GI "
+        "tree's lookup rule, MiB = entries × mean payload"
+        + (", × = against the fp16 model" if model.get("fp16") else "")
+        + ".",
+        "",
+        "| scene | frames | entries | " + " | ".join(f"{codec} {resolution}²" for resolution, codec in columns) + " |",
+        "|---" * (3 + len(columns)) + "|",
+    ]
+    for r in pick(rows, "entries"):
+        cells = []
+        for resolution, codec in columns:
+            value = trees.get((r["scene"], resolution, codec, "blend"))
+            ratio = f" (×{value / model['fp16']:.2g})" if value is not None and model.get("fp16") else ""
+            cells.append("—" if value is None else _mib(value) + ratio)
+        lines.append(f"| {r['scene']} | {r['config'].get('frames')} | {r['value']:.0f} | " + " | ".join(cells) + " |")
+    codecs = "Codecs, per GI map (means over the scenes):\n\n" + codec_table(rows).rstrip()
+    return [Table("\n".join(lines) + "\n\n" + codecs)]
 
 
 BENCH = Bench(
@@ -547,5 +604,8 @@ BENCH = Bench(
     StorageConfig,
     measure,
     plot,
-    help="Table 2: GI-tree entries and bytes after a fly-through per scene, codec and resolution vs the GIGAN model; codec table; tolerance knob.",
+    help="Table 2: GI-tree entries and bytes after a fly-through per scene, codec and resolution vs the GIGAN model; "
+    "codec table; tolerance knob.",
+    dashboard=Section("table2", "Table 2: storage (GI tree vs model)", 20, dashboard_section),
+    readme=Block("GI-tree storage, Table 2", 20, readme_block),
 )

@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.quality import QUICK_DATASET
 from bench.runner import Bench
 from gicore.cli import UserError
 from gicore.results import Results, read_rows
@@ -58,7 +59,6 @@ def train_small(scenes: tuple[str, ...], widths: tuple[int, ...], steps: int, re
     """Train one small GIGAN per width on the small datasets of ``scenes`` (``bench.quality.QUICK_DATASET``,
     rendered into ``<out>/dataset``) into ``<out>/runs/gigan_ngf<W>``; a finished run is kept, a partial one
     resumed. Returns the run folders."""
-    from bench.quality import QUICK_DATASET
     from gicore.dataset_cli import build_dataset
     from gicore.scene import load_scene
     from gigan_local.config import TrainConfig

@@ -27,6 +27,7 @@ interpolated homogeneous clip coordinates (ours) and for eq. 5's per-vertex uv i
 
 from __future__ import annotations
 
+import math
 import time
 import tracemalloc
 from collections import defaultdict
@@ -36,7 +37,8 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.runner import FOV_DEGREES, Bench
+from bench.runner import FOV_DEGREES, Bench, Block, Figure, Part, Rows, Section, Table, need, pick
+from bench.svg import BarChart
 from gicore.camera import Camera
 from gicore.loop import LAYERS, Warp
 from gicore.metrics import ssim
@@ -337,10 +339,67 @@ def plot(csv_path: Path, out_dir: Path) -> list[Path]:
     return [save(fig, out_dir / "warp.png")]
 
 
+# -- bench report: the dashboard's section and the README's block ------------------------------------------
+def table(rows: Rows) -> str:
+    """Fig. 7 as Markdown: per scene and warp, time per frame, CPU and SSIM; then the pixel / structure ratios."""
+    need(rows, "warp_time")
+    scenes = list(dict.fromkeys(r["scene"] for r in pick(rows, "warp_time")))
+    systems = list(dict.fromkeys(r["system"] for r in pick(rows, "warp_time")))
+    value = {(r["scene"], r["system"], r["metric"], r["stat"]): r["value"] for r in rows}
+    lines = [
+        "| scene | warp | time per frame ms (median, p95) | CPU % of one core (mean) | SSIM vs GT (mean) |",
+        "|---|---|---|---|---|",
+    ]
+    for scene in scenes:
+        for s in systems:
+            cells = [value.get((scene, s, "warp_time", stat), math.nan) for stat in ("median", "p95")]
+            cells += [value.get((scene, s, metric, "mean"), math.nan) for metric in ("cpu_percent", "ssim")]
+            lines.append(f"| {scene} | {s} | {cells[0]:.2f} ({cells[1]:.2f}) | {cells[2]:.0f} | {cells[3]:.3f} |")
+    lines += ["", "| scene | pixel / structure time (median) | pixel / structure CPU (mean) |", "|---|---|---|"]
+    for scene in scenes:
+        ratio = {
+            r["metric"]: r["value"] for r in rows if r["scene"] == scene and r["metric"] in ("time_ratio", "cpu_ratio")
+        }
+        lines.append(
+            f"| {scene} | {ratio.get('time_ratio', math.nan):.2f}× | {ratio.get('cpu_ratio', math.nan):.2f}× |"
+        )
+    return "\n".join(lines)
+
+
+def dashboard_section(rows: Rows) -> list[Part]:
+    """Bars of time per frame, CPU and SSIM per scene and warp (p95 in the tooltips), then the table."""
+    need(rows, "warp_time")
+    scenes = list(dict.fromkeys(r["scene"] for r in pick(rows, "warp_time")))
+    systems = list(dict.fromkeys(r["system"] for r in pick(rows, "warp_time")))
+    figures = []
+    for metric, stat, label in (
+        ("warp_time", "median", "warp time per frame [ms]"),
+        ("cpu_percent", "mean", "CPU [% of one core]"),
+        ("ssim", "mean", "SSIM vs GT"),
+    ):
+        value = {(r["scene"], r["system"]): r["value"] for r in pick(rows, metric, stat)}
+        p95 = {(r["scene"], r["system"]): r["value"] for r in pick(rows, metric, "p95")}
+
+        def tip(s: str, sc: str) -> str:
+            shown = f"{s}, {sc}: {stat} {value.get((sc, s), math.nan):.4g}"
+            return shown + (f", p95 {p95[sc, s]:.4g}" if (sc, s) in p95 else "")
+
+        tips = {s: [tip(s, sc) for sc in scenes] for s in systems}
+        figures.append(BarChart(scenes, {s: [value.get((sc, s)) for sc in scenes] for s in systems}, label, tips=tips))
+    return [Figure(tuple(figures)), Table(table(rows))]
+
+
+def readme_block(rows: Rows) -> list[Table]:
+    """The same table as the dashboard's."""
+    return [Table(table(rows))]
+
+
 BENCH = Bench(
     "warp",
     WarpBenchConfig,
     measure,
     plot,
     help="Fig. 7: CPU time, CPU load, memory and SSIM of pixel-level vs structure-aware warping.",
+    dashboard=Section("fig7", "Fig. 7: cost of warping", 50, dashboard_section),
+    readme=Block("Cost of warping, Fig. 7", 60, readme_block),
 )

@@ -32,9 +32,11 @@ What is derived from a field:
 - checks on the final config (the base config, then the options the user gave; an absent option never
   falls back to a default by truthiness): numbers must be finite and > 0 unless the field's metadata sets
   ``min`` (inclusive; ``max`` inclusive too, exclusive with ``max_open``), a ``Literal`` one of its values,
-  tuples and lists non-empty unless ``metadata["min_len"] = 0`` and at most ``metadata["max_len"]`` long,
-  and every entry of a ``scenes`` field must load as a scene; a config may add a ``check(self)`` method
-  raising :class:`~gicore.cli.UserError`, and a ``ValueError`` of its constructor is a user error too.
+  tuples and lists non-empty unless ``metadata["min_len"] = 0`` and at most ``metadata["max_len"]`` long;
+  a field named ``resolution`` (or ``*_resolution``) takes :data:`RESOLUTION`'s limits unless its metadata
+  sets its own, and every entry of a ``scenes`` field must load as a scene; a config may add a
+  ``check(self)`` method raising :class:`~gicore.cli.UserError`, and a ``ValueError`` of its constructor is
+  a user error too.
 
 Limits that many configs share are declared here once (:data:`RESOLUTION`, :data:`SPP`, :data:`FRAMES`,
 :data:`SEED`, :data:`FOV_DEGREES`, :data:`THREADS`); a config may call :func:`check_fields` in its
@@ -258,6 +260,14 @@ def check_number(option: str, value: Any, meta: Mapping[str, Any]) -> None:
         raise UserError(f"{option} = {value!r} is above {hi}", f"give {option} a value <= {hi}")
 
 
+def limits(f: dataclasses.Field) -> Mapping[str, Any]:
+    """Field ``f``'s metadata with the limits it takes by name (a resolution's, unless it sets its own)."""
+    is_resolution = f.name == "resolution" or f.name.endswith("_resolution")
+    if is_resolution and "min" not in f.metadata and "max" not in f.metadata:
+        return {**RESOLUTION, **f.metadata}
+    return f.metadata
+
+
 def check_field(f: dataclasses.Field, tp: Any, value: Any) -> None:
     """Field ``f`` (of type ``tp``) may hold ``value`` (see the module docstring); UserError naming it."""
     option = option_name(f)
@@ -269,7 +279,7 @@ def check_field(f: dataclasses.Field, tp: Any, value: Any) -> None:
     inner = _strip_optional(tp)
     items = value if isinstance(value, (tuple, list)) else value.values() if isinstance(value, dict) else (value,)
     for item in items:
-        check_number(option, item, f.metadata)
+        check_number(option, item, limits(f))
     if typing.get_origin(inner) is Literal and value is not None and value not in typing.get_args(inner):
         choices = ", ".join(map(str, typing.get_args(inner)))
         raise UserError(f"{option} {value!r} is not one of {choices}", "pick one of those")
@@ -371,7 +381,7 @@ def config_options(
             shown.append(f"{preset_option}: {_shown(getattr(preset, f.name))}")
         help_text = docs[f.name] + (f" ({'; '.join(shown)})" if shown else "")
         if _is_number(hints[f.name]):
-            help_text += f" {_limits(f.metadata)}"
+            help_text += f" {_limits(limits(f))}"
         annotation = _option_type(f, hints[f.name], help_text)
         params.append(inspect.Parameter(f.name, inspect.Parameter.KEYWORD_ONLY, default=None, annotation=annotation))
     return params

@@ -17,13 +17,14 @@ from bench.pareto import (
     PER_FRAME,
     PER_MAP,
     ParetoConfig,
+    best_table,
     best_within,
+    budgets,
     frame_system,
     front_points,
     make_codec,
     mark_dominated,
 )
-from bench.report import best_table, budgets
 from bench.runner import build_config, execute
 from gicore.cli import UserError
 from gicore.results import read_rows
@@ -188,8 +189,9 @@ def test_bad_option_on_the_command_line_is_one_error_line(tmp_path: Path) -> Non
 @pytest.mark.slow
 def test_tiny_sweep_measures_both_systems_reads_convergence_and_marks_dominated_points(tmp_path: Path) -> None:
     cfg = ParetoConfig(
-        from_dir=FIXTURES, views=1, reference_spp=16, models={"fp16": ParetoConfig().models["fp16"]}, gi_fovs=(90.0,), spps=(1, 4), bake_spp=4,
-        resolutions=(128, 256), codecs=("jpeg:40", "png"), profiles=("lan", "3g"), tolerances=("0.1:5",), path_frames=40, ks=(4,),
+        from_dir=FIXTURES, views=1, reference_spp=16, models={"fp16": ParetoConfig().models["fp16"]}, gi_fovs=(90.0,),
+        spps=(1, 4), bake_spp=4, resolutions=(128, 256), codecs=("jpeg:40", "png"), profiles=("lan", "3g"),
+        tolerances=("0.1:5",), path_frames=40, ks=(4,),
         warps=("structure",), compositions=("blend",), frames=8, gt_every=4, frame_spp=2, repeats=1,
     )  # fmt: skip
     files = execute(BENCH, cfg, tmp_path)

@@ -13,6 +13,7 @@ import pytest
 from PIL import Image
 
 from bench import model_card, quality
+from bench.report import body
 from bench.runner import execute
 from gicore.dataset import DatasetMeta, FrameRecord, load_frame, save_frame, write_meta
 from gicore.metrics import lf_error
@@ -159,8 +160,6 @@ def test_model_card_and_report_show_the_low_frequency_error(scored: tuple[Path, 
         and res_rows["export", "val_lf_error"]["unit"] == "1"
     )
 
-    from bench.report import quality_section
-
-    html = quality_section(read_rows(out / "quality.csv"), out / "quality.csv")
+    html = body(quality.dashboard_section(read_rows(out / "quality.csv")))
     assert "LF error (tone-mapped)" in html and "<th>LF error</th>" in html
     assert f"<td>{lf['copy']:.4g}</td>" in html

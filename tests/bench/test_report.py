@@ -1,10 +1,11 @@
 """`bench report`: the dashboard from CSV files only, checked as HTML and in a real browser (Chromium via Playwright).
 
-The results folder is ``tests/fixtures/report_results``: small real outputs of ``bench latency``, ``storage``,
+The results folder is ``tests/bench/fixtures/report_results``: small real outputs of ``bench latency``, ``storage``,
 ``frequency``, ``quality``, ``warp``, ``fov``, ``pareto``, ``stability``, ``convergence``, ``service``, ``scaling`` and
-``network-sim selftest`` (the commands are in each provenance JSON), copied into a temporary folder per test. The browser is Debian's ``chromium``
-(``scripts/setup.sh`` installs it when root); without it the browser tests skip, except under ``CI=true``,
-where a missing browser fails. The dashboard's screenshot is kept in ``results/test_artifacts/``.
+``network-sim selftest`` (the commands are in each provenance JSON), copied into a temporary folder per test.
+The browser is Debian's ``chromium`` (``scripts/setup.sh`` installs it when root); without it the browser tests
+skip, except under ``CI=true``, where a missing browser fails. The dashboard's screenshot is kept in
+``results/test_artifacts/``.
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ import pytest
 
 from gicore.results import read_rows
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 FIXTURES = Path(__file__).parent / "fixtures" / "report_results"
 BIN = Path(sys.executable).parent
 CHROMIUM = Path("/usr/bin/chromium")

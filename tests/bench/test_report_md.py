@@ -1,6 +1,6 @@
 """`bench report`'s Markdown results section (``results.md``, ``--readme``) from the fixture results.
 
-The fixtures (``tests/fixtures/report_results``) are small real outputs of the benches; their commands are
+The fixtures (``tests/bench/fixtures/report_results``) are small real outputs of the benches; their commands are
 in each provenance JSON. The expected numbers below are read off those CSVs (some recomputed here from the
 rows, some as the fixture holds them).
 """
@@ -15,7 +15,8 @@ from pathlib import Path
 
 import pytest
 
-from bench.report_md import BEGIN, BLOCKS, END, results_markdown, update_readme
+from bench.report_md import BEGIN, END, results_markdown, update_readme
+from bench.report_md import blocks as readme_blocks
 from gicore.cli import UserError
 from gicore.results import read_rows
 from tests.bench.test_report import spoil_value
@@ -23,8 +24,8 @@ from tests.bench.test_report import spoil_value
 FIXTURES = Path(__file__).parent / "fixtures" / "report_results"
 BIN = Path(sys.executable).parent
 README = (
-    "# Project\n\nIntro.\n\n## Results\n\nWhat the numbers mean: hand-written, kept.\n\n{begin}\nold hand-written tables\n{end}\n\n"
-    "## After\n\nKept too.\n"
+    "# Project\n\nIntro.\n\n## Results\n\nWhat the numbers mean: hand-written, kept.\n\n"
+    "{begin}\nold hand-written tables\n{end}\n\n## After\n\nKept too.\n"
 )
 
 
@@ -65,17 +66,16 @@ def test_every_block_has_its_numbers_and_the_command_that_made_them(generated) -
     root, _, results_md, _ = generated
     text = results_md.read_text()
     blocks = sections(text)
-    assert list(blocks) == [b.title for b in BLOCKS]
-    for (
-        block
-    ) in BLOCKS:  # every fixture CSV is there: each block ends with its command, from the provenance beside the CSV
-        provenance = next((root / "results").rglob(f"{block.bench}.provenance.json"))
+    assert list(blocks) == [block.title for _, block in readme_blocks()]
+    # every fixture CSV is there: each block ends with its command, from the provenance beside the CSV
+    for bench, block in readme_blocks():
+        provenance = next((root / "results").rglob(f"{bench}.provenance.json"))
         last = blocks[block.title].splitlines()[-1]
         assert last.startswith(f"Command: `{expected_command(provenance)}` (git "), (block.title, last)
-        assert f"`{provenance.parent.name}/{block.bench}.csv`" in last and "2 cores" in last
+        assert f"`{provenance.parent.name}/{bench}.csv`" in last and "2 cores" in last
     assert (
-        "Command: `bench latency --quick --profiles lan,wan --frames 16 --every 4 --spp 4 --gt-every 8 --out /tmp/fx/latency` (git 6b8b71443bae"
-        in text
+        "Command: `bench latency --quick --profiles lan,wan --frames 16 --every 4 --spp 4 --gt-every 8 "
+        "--out /tmp/fx/latency` (git 6b8b71443bae" in text
     )
     assert "Command: `network-sim selftest --out results/final/netself`" in text  # not bench: the program by its name
 
@@ -122,7 +122,10 @@ def test_every_block_has_its_numbers_and_the_command_that_made_them(generated) -
         for r in read_rows(root / "results" / "stability" / "stability.csv")
     }
     statuses = list(cases.values())
-    counts = f"**{len(cases)} cases: {statuses.count('finite')} finite, {statuses.count('rejected')} cleanly rejected, 0 failed**"
+    counts = (
+        f"**{len(cases)} cases: {statuses.count('finite')} finite, {statuses.count('rejected')} cleanly rejected, "
+        "0 failed**"
+    )
     assert (
         counts == "**135 cases: 79 finite, 56 cleanly rejected, 0 failed**" and counts in blocks["Numerical stability"]
     )
@@ -137,7 +140,8 @@ def test_every_block_has_its_numbers_and_the_command_that_made_them(generated) -
     # the results folder is named as seen from where bench report ran, not by this machine's path
     assert (
         text.split("\n\n")[1]
-        == "Generated from the CSV files under `results` by `bench report`; each block ends with the command that wrote its CSV."
+        == "Generated from the CSV files under `results` by `bench report`; each block ends with the command that "
+        "wrote its CSV."
     )
 
 
@@ -211,9 +215,12 @@ def test_ignored_folders_are_left_out_and_the_newest_of_the_rest_is_shown(
     assert sections(results_markdown(results))[fig7].endswith("; `side/warp_run/warp.csv`, the newest of 2 runs).")
     for ignore in (("side",), ("side/*",), ("*/warp_run",)):
         text = results_markdown(results, ignore)
-        assert sections(text)[fig7].endswith("2001-09-09 01:46:40 UTC, Intel(R) Xeon(R) Processor, 2 cores, "
-                                             "Linux-6.18.44-fc-v669-x86_64-with-glibc2.36, Python 3.11.7; `warp/warp.csv`).")  # fmt: skip
+        assert sections(text)[fig7].endswith(
+            "2001-09-09 01:46:40 UTC, Intel(R) Xeon(R) Processor, 2 cores, "
+            "Linux-6.18.44-fc-v669-x86_64-with-glibc2.36, Python 3.11.7; `warp/warp.csv`)."
+        )
         assert f"bench report --results results --ignore {ignore[0]} --readme FILE" in text
     assert sections(results_markdown(results, ("warp", "side")))[fig7] == (
-        "Not in these results: missing: no warp.csv under results (leaving out warp, side); `bench warp --out results` makes it."
+        "Not in these results: missing: no warp.csv under results (leaving out warp, side); "
+        "`bench warp --out results` makes it."
     )

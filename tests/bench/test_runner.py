@@ -21,7 +21,7 @@ from gicore.cli import UserError
 from gicore.results import COLUMNS, Results, read_rows
 from gicore.timing import summarize_ms, time_repeats
 
-REPO = Path(__file__).resolve().parent.parent
+REPO = Path(__file__).resolve().parents[2]
 
 
 @dataclass(frozen=True)
@@ -149,8 +149,10 @@ def test_quick_preset_then_only_the_options_given() -> None:
 @pytest.mark.parametrize(
     ("given", "message"),
     [
-        ({"resolution": 0}, "--resolution = 0 is not positive"),
-        ({"resolution": -3}, "--resolution = -3 is not positive"),
+        ({"resolution": 0}, "--resolution = 0 is below 8"),  # a resolution's limits, by its name
+        ({"resolution": -3}, "--resolution = -3 is below 8"),
+        ({"resolution": 4096}, "--resolution = 4096 is above 2048"),
+        ({"cost_ms": 0.0}, "--cost-ms = 0.0 is not positive"),
         ({"cost_ms": float("nan")}, "--cost-ms = nan is not finite"),
         ({"tau": -0.1}, "--tau = -0.1 is below 0.0"),
         ({"tau": 2.0}, "--tau = 2.0 is above 1.0"),
@@ -183,7 +185,7 @@ def _bench(*args: str) -> subprocess.CompletedProcess:
 @pytest.mark.parametrize(
     ("args", "culprit"),
     [
-        (["warp", "--resolution", "0"], "--resolution = 0 is not positive"),
+        (["warp", "--resolution", "0"], "--resolution = 0 is below 8"),
         (["fov", "--gi-fovs", "90,180"], "--gi-fovs = 180.0 is above 179.0"),
         (["frequency", "--tau", "1.5"], "--tau = 1.5 is above 1.0"),
         (["run-default", "--scenes", "lung_plane,lung_cornell"], "--scenes has 2 values"),
@@ -192,7 +194,7 @@ def _bench(*args: str) -> subprocess.CompletedProcess:
         (["training"], "--runs is empty"),
         (["training", "--runs", "tests"], "--runs tests: tests/metrics.csv is missing"),
         (["model-card"], "--run is not given"),
-        (["render", "--resolution", "-5"], "--resolution = -5 is not positive"),
+        (["render", "--resolution", "-5"], "--resolution = -5 is below 8"),
         (["convergence", "--spps", "1,0"], "--spps = 0 is not positive"),
         (["convergence", "--scenes", ""], "--scenes is empty"),
         (["render", "--resolution", "abc"], "--resolution"),
@@ -345,7 +347,8 @@ def test_quick_runs_work_on_a_fresh_checkout(tmp_path: Path) -> None:
 
 @pytest.mark.slow
 def test_run_default_is_the_make_run_job(tmp_path: Path) -> None:
-    """bench latency --quick and bench storage --quick on lung_plane (a few minutes on 2 cores), both tables printed once, at the end."""
+    """bench latency --quick and bench storage --quick on lung_plane (a few minutes on 2 cores), both tables printed
+    once, at the end."""
     argv = [sys.executable, "-m", "bench", "run-default", "--out", str(tmp_path)]
     result = subprocess.run(argv, cwd=REPO, capture_output=True, text=True, timeout=1200)
     assert result.returncode == 0, result.stderr

@@ -72,7 +72,8 @@ def test_failed_cases_are_written_then_named_in_one_user_error(tmp_path: Path) -
         record(res, "none", case, judge(case, 5.0))
     with pytest.raises(
         UserError,
-        match=r"2 of 3 stability cases failed: codecs/jpeg: broken \(crashed\); server/NaN eye \(invalid input accepted\)",
+        match=r"2 of 3 stability cases failed: codecs/jpeg: broken \(crashed\); "
+        r"server/NaN eye \(invalid input accepted\)",
     ):
         plot(res.write(), tmp_path)
     table = (tmp_path / "stability_table.md").read_text()

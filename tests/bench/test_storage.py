@@ -20,7 +20,8 @@ def test_storage_bench_matches_a_real_prebake(tmp_path: Path) -> None:
     tol = Tolerance(0.05, 2.0)
     cfg = StorageConfig(
         scenes=(str(spec_path),), frames=24, resolutions=(32,), codecs=("jpeg", "png"), spp=2, samples=24,
-        tolerance_position=tol.position, tolerance_angle_deg=tol.angle_deg, knob_positions=(0.05, 0.5), knob_angles_deg=(2.0, 30.0), warp_samples=1,
+        tolerance_position=tol.position, tolerance_angle_deg=tol.angle_deg, knob_positions=(0.05, 0.5),
+        knob_angles_deg=(2.0, 30.0), warp_samples=1,
     )  # fmt: skip
     files = execute(BENCH, cfg, tmp_path / "out")
     assert {p.name for p in files} >= {

@@ -1,0 +1,51 @@
+"""Every bench, registered once: ``bench --help`` lists their subcommands in this order, and ``bench report``
+shows the dashboard section and README block each declares (placed by their own ``order``).
+
+To add a bench, write its module (:mod:`bench.runner` says how), import it here and add its ``BENCH`` to
+:data:`BENCHES`. ``bench report`` is not in the list: it reads the list, so :mod:`bench.cli` adds it after
+the others.
+"""
+
+from __future__ import annotations
+
+from bench import (
+    convergence,
+    fov,
+    frequency,
+    latency,
+    model_card,
+    network_selftest,
+    pareto,
+    quality,
+    render_bench,
+    run_default,
+    scaling,
+    service,
+    stability,
+    storage,
+    training,
+    warp_bench,
+)
+from bench.runner import Bench, External
+
+#: Every ``bench`` subcommand but ``report``, in the order ``bench --help`` lists them.
+BENCHES: tuple[Bench, ...] = (
+    run_default.BENCH,
+    convergence.BENCH,
+    render_bench.BENCH,
+    quality.BENCH,
+    training.BENCH,
+    model_card.BENCH,
+    warp_bench.BENCH,
+    frequency.BENCH,
+    fov.BENCH,
+    latency.BENCH,
+    storage.BENCH,
+    service.BENCH,
+    stability.BENCH,
+    scaling.BENCH,
+    pareto.BENCH,
+)
+
+#: Everything ``bench report`` shows: the benches, and the CSVs other programs write.
+SHOWN: tuple[Bench | External, ...] = (*BENCHES, network_selftest.SELFTEST)
