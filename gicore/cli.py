@@ -168,6 +168,10 @@ def entry_point(app: typer.Typer, *, resume: str | None = None) -> Callable[[], 
 
 # --- checks shared by commands: each raises UserError naming the field --------------------------------
 
+#: The square resolution any run takes, in pixels: a scene's, a client's renders and GI maps, a dataset's
+#: frames, a server's maps, a bench's renders (:mod:`gicore.options` makes it field metadata).
+RESOLUTION_MIN, RESOLUTION_MAX = 8, 2048
+
 
 def require_positive(name: str, value: float) -> float:
     """``value`` must be finite and > 0 (an absent option means the default; zero never does)."""

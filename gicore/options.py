@@ -38,9 +38,10 @@ What is derived from a field:
   ``check(self)`` method raising :class:`~gicore.cli.UserError`, and a ``ValueError`` of its constructor is
   a user error too.
 
-Limits that many configs share are declared here once (:data:`RESOLUTION`, :data:`SPP`, :data:`FRAMES`,
-:data:`SEED`, :data:`FOV_DEGREES`, :data:`THREADS`); a config may call :func:`check_fields` in its
-``__post_init__`` so that code building it directly meets the same limits as the command line.
+Limits that many configs share are declared here once (:data:`RESOLUTION`, whose bounds scene specs import
+from :mod:`gicore.cli`; :data:`SPP`, :data:`FRAMES`, :data:`SEED`, :data:`FOV_DEGREES`, :data:`THREADS`); a
+config may call :func:`check_fields` in its ``__post_init__`` so that code building it directly meets the
+same limits as the command line.
 """
 
 from __future__ import annotations
@@ -57,11 +58,8 @@ from typing import Annotated, Any, Literal
 
 import typer
 
-from gicore.cli import UserError
+from gicore.cli import RESOLUTION_MAX, RESOLUTION_MIN, UserError
 
-#: The square resolution any run takes, in pixels: a scene's, a client's renders and GI maps, a dataset's
-#: frames, a server's maps, a bench's renders.
-RESOLUTION_MIN, RESOLUTION_MAX = 8, 2048
 #: Most path-tracing samples per pixel a run may ask for (a 2048² map at 4096 spp takes hours on 2 cores).
 SPP_MAX = 4096
 #: Most frames one run renders (a fly-through, a dataset split): 100 000 frames are 55 minutes at 30 fps.
@@ -69,7 +67,7 @@ FRAMES_MAX = 100_000
 #: Seeds are 32-bit (numpy's generators take no negative seed).
 SEED_MAX = 2**32 - 1
 
-#: Field metadata of a square resolution (:data:`RESOLUTION_MIN` to :data:`RESOLUTION_MAX`).
+#: Field metadata of a square resolution (:data:`gicore.cli.RESOLUTION_MIN` to ``RESOLUTION_MAX``).
 RESOLUTION: Mapping[str, Any] = {"min": RESOLUTION_MIN, "max": RESOLUTION_MAX}
 #: Field metadata of path-tracing samples per pixel.
 SPP: Mapping[str, Any] = {"min": 1, "max": SPP_MAX}

@@ -24,9 +24,8 @@ from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationErr
 
 from gicore.anatomy import AnatomyKind
 from gicore.camera import FAR_MAX, NEAR_MIN
-from gicore.cli import UserError
+from gicore.cli import RESOLUTION_MAX, RESOLUTION_MIN, UserError
 from gicore.mesh import load_mesh
-from gicore.options import RESOLUTION_MAX, RESOLUTION_MIN
 
 BUILTIN_DIR = Path(__file__).parent / "scenes"
 Vec3 = tuple[float, float, float]
