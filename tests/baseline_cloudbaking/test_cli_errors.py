@@ -4,6 +4,7 @@ culprit, no traceback (SPEC §8a)."""
 from __future__ import annotations
 
 import json
+import os
 import socket
 import subprocess
 from pathlib import Path
@@ -48,6 +49,29 @@ def test_prebake_bad_options(tmp_path: Path) -> None:
     assert_error_line(prebake("lung_plane", "--store", str(afile)), "--store", str(afile))
 
 
+@pytest.mark.parametrize(
+    ("option", "value", "culprit"),
+    [
+        ("--tolerance-p", "inf", "--tolerance-p = inf is not finite"),
+        ("--tolerance-p", "-1", "--tolerance-p = -1.0 is below 0.0"),
+        ("--tolerance-deg", "nan", "--tolerance-deg = nan is not finite"),
+        ("--tolerance-deg", "200", "--tolerance-deg = 200.0 is above 180.0"),
+        ("--light-cell", "inf", "--light-cell = inf is not finite"),
+        ("--light-cell", "0", "--light-cell = 0.0 is below 1e-06"),
+        ("--fov", "inf", "--fov = inf is not finite"),
+        ("--frames", "1000000000000", "--frames = 1000000000000 is above 100000"),
+        ("--spp", "100000", "--spp = 100000 is above 4096"),
+        ("--seed", "-1", "--seed = -1 is below 0"),
+        ("--workers", "100000", "--workers"),
+    ],
+)
+def test_prebake_refuses_non_finite_and_huge_values(tmp_path: Path, option: str, value: str, culprit: str) -> None:
+    """Every float is finite and every count bounded: one error line before anything is read or written."""
+    store = tmp_path / "s"
+    assert_error_line(prebake("lung_plane", "--store", str(store), option, value), culprit)
+    assert not store.exists()
+
+
 def test_prebake_refuses_a_store_baked_from_another_spec(scenes_dir: Path, tmp_path: Path) -> None:
     store = tmp_path / "s"
     spec = tmp_path / "ball.json"
@@ -78,3 +102,38 @@ def test_server_bad_store_scenes_and_port(scenes_dir: Path, tmp_path: Path) -> N
         taken.listen(1)
         port = str(taken.getsockname()[1])
         assert_error_line(server("--store", str(tmp_path / "s"), "--port", port), f"127.0.0.1:{port}", "--port")
+
+
+@pytest.mark.parametrize(
+    ("option", "value", "culprit"),
+    [
+        ("--budget-mb", "inf", "--budget-mb = inf is not finite"),
+        ("--budget-mb", "nan", "--budget-mb = nan is not finite"),
+        ("--budget-mb", "1e30", "--budget-mb = 1e+30 is above 16777216.0"),
+        ("--budget-mb", "0", "--budget-mb = 0.0 is below 0.001"),
+        ("--max-spp", "100000", "--max-spp = 100000 is above 4096"),
+        ("--log-level", "loud", "--log-level"),
+    ],
+)
+def test_server_refuses_non_finite_and_huge_values(tmp_path: Path, option: str, value: str, culprit: str) -> None:
+    store = tmp_path / "s"
+    assert_error_line(server("--store", str(store), "--port", "0", option, value), culprit)
+    assert not store.exists()
+
+
+def test_server_refuses_a_bad_environment_setting(tmp_path: Path) -> None:
+    """A CLOUDBAKING_* setting the settings refuse (a non-finite tolerance, a resolution outside the one limit)
+    is one line naming the variable."""
+    store = str(tmp_path / "s")
+    for env, culprit in (
+        ({"CLOUDBAKING_TOLERANCE_POSITION": "inf"}, "CLOUDBAKING_TOLERANCE_POSITION"),
+        ({"CLOUDBAKING_RESOLUTIONS": "[4]"}, "CLOUDBAKING_RESOLUTIONS"),
+    ):
+        result = subprocess.run(
+            [str(BIN / "cloudbaking-server"), "--store", store, "--port", "0"],
+            capture_output=True,
+            text=True,
+            timeout=90,
+            env=os.environ | env,
+        )
+        assert_error_line(result, culprit)

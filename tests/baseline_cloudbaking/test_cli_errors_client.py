@@ -26,8 +26,8 @@ def server(tmp_path_factory: pytest.TempPathFactory, scenes_dir: Path):
 
 
 def client(server: str, out: Path, *args: str, scene: str | None = None):
-    return run_command([str(BIN / "cloudbaking-client"), "--server", server, "--out", str(out), "--resolution", "64", "--spp", "4", *args]
-               + (["--scene", scene] if scene else []))  # fmt: skip
+    argv = [str(BIN / "cloudbaking-client"), "--server", server, "--out", str(out), "--resolution", "64", "--spp", "4"]
+    return run_command([*argv, *args] + (["--scene", scene] if scene else []))
 
 
 def closed_port() -> int:
@@ -76,3 +76,25 @@ def test_bad_options(server: str, scenes_dir: Path, tmp_path: Path) -> None:
     assert_error_line(client(server, tmp_path / "o", "--gi-fov", "180", scene=scene), "--gi-fov")
     assert_error_line(client(server, tmp_path / "o", scene=str(tmp_path / "missing.toml")), "missing.toml")
     assert_error_line(client(server, afile, scene=scene), "--out", str(afile))
+
+
+@pytest.mark.parametrize(
+    ("option", "value", "culprit"),
+    [
+        ("--frames", "1000000000000", "--frames = 1000000000000 is above 100000"),
+        ("--orbit-frames", "1000000000000", "--orbit-frames = 1000000000000 is above 100000"),
+        ("--resolution", "4096", "--resolution = 4096 is above 2048"),
+        ("--spp", "100000", "--spp = 100000 is above 4096"),
+        ("--tau", "inf", "--tau = inf is not finite"),
+        ("--local-fov", "nan", "--local-fov = nan is not finite"),
+        ("--connect-timeout", "inf", "--connect-timeout = inf is not finite"),
+        ("--read-timeout", "0", "--read-timeout = 0.0 is below 0.001"),
+        ("--deadline", "1e9", "--deadline = 1000000000.0 is above 3600.0"),
+        ("--seed", "-1", "--seed = -1 is below 0"),
+    ],
+)
+def test_non_finite_and_huge_values(tmp_path: Path, option: str, value: str, culprit: str) -> None:
+    """Checked before the server is asked (so no server is needed): one error line naming the option."""
+    result = client(f"http://127.0.0.1:{closed_port()}", tmp_path / "o", option, value)
+    assert_error_line(result, culprit)
+    assert not (tmp_path / "o").exists()
