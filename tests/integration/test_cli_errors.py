@@ -30,7 +30,10 @@ def case(*argv: str, culprit: str, id: str, hold: str | None = None):
 
 
 # -- the workspace -------------------------------------------------------------------------------------------------
-SPEC = 'name = "{name}"\n[[objects]]\nname = "organ"\nmesh = {mesh}\n[light]\nposition = [0, 2, 0]\nintensity = {intensity}\n{extra}'
+SPEC = (
+    'name = "{name}"\n[[objects]]\nname = "organ"\nmesh = {mesh}\n'
+    "[light]\nposition = [0, 2, 0]\nintensity = {intensity}\n{extra}"
+)
 
 
 def write_spec(
@@ -209,8 +212,19 @@ CASES = [
     case(*DATASET, "--train", "0", "--val", "0", culprit="--train 0 --val 0", id="dataset-no-frames"),
     case(*DATASET, "--fov", "0", culprit="--fov = 0.0", id="dataset-fov-0"),
     case(*DATASET, "--fov", "-5", culprit="--fov = -5.0", id="dataset-fov-negative"),
-    case(*DATASET, "--resolution", "0", culprit="'--resolution'", id="dataset-resolution-0"),
-    case(*DATASET, "--spp", "0", culprit="'--spp'", id="dataset-spp-0"),
+    case(*DATASET, "--resolution", "0", culprit="--resolution = 0 is below 8", id="dataset-resolution-0"),
+    case(*DATASET, "--spp", "0", culprit="--spp = 0 is below 1", id="dataset-spp-0"),
+    # counts a user would accept (memory grew without bound before any frame), finite floats, seeds
+    case(
+        *DATASET, "--train", "1000000000000", culprit="--train = 1000000000000 is above 100000", id="dataset-train-huge"
+    ),
+    case(*DATASET, "--val", "1000000000000", culprit="--val = 1000000000000 is above 100000", id="dataset-val-huge"),
+    case(*DATASET, "--spp", "1000000", culprit="--spp = 1000000 is above 4096", id="dataset-spp-huge"),
+    case(*DATASET, "--resolution", "4096", culprit="--resolution = 4096 is above 2048", id="dataset-resolution-4096"),
+    case(*DATASET, "--fov", "inf", culprit="--fov = inf is not finite", id="dataset-fov-inf"),
+    case(*DATASET, "--fov", "nan", culprit="--fov = nan is not finite", id="dataset-fov-nan"),
+    case(*DATASET, "--seed", "-1", culprit="--seed = -1 is below 0", id="dataset-seed-negative"),
+    case(*DATASET, "--workers", "100000", culprit="'--workers'", id="dataset-workers-huge"),
     case(*DATASET, "--buffers", "gt,bogus", culprit="['bogus']", id="dataset-unknown-buffer"),
     case(*DATASET[:3], "afile", *DATASET[4:], culprit="afile/s", id="dataset-out-is-a-file"),
     case(
@@ -261,8 +275,19 @@ CASES = [
         id="train-no-val-frames",
     ),
     case(*TRAIN[:3], "afile", *TRAIN[4:], culprit="--out afile is a file", id="train-out-is-a-file"),
-    case(*TRAIN, "--ngf", "0", culprit="'--ngf'", id="train-ngf-0"),
+    case(*TRAIN, "--ngf", "0", culprit="--ngf = 0 is below 1", id="train-ngf-0"),
     case(*TRAIN, "--lr", "0", culprit="--lr = 0.0", id="train-lr-0"),
+    case(*TRAIN, "--lr", "inf", culprit="--lr = inf is not finite", id="train-lr-inf"),
+    case(*TRAIN, "--lambda-l1", "nan", culprit="--lambda-l1 = nan is not finite", id="train-lambda-l1-nan"),
+    case(*TRAIN, "--beta1", "1", culprit="--beta1 = 1.0 is not below 1.0", id="train-beta1-1"),
+    case(*TRAIN, "--ngf", "1000000", culprit="--ngf = 1000000 is above 1024", id="train-ngf-huge"),
+    case(
+        *TRAIN,
+        "--batch-size",
+        "1000000000000",
+        culprit="--batch-size = 1000000000000 is above 4096",
+        id="train-batch-huge",
+    ),
     case(*TRAIN, "--max-minutes", "-1", culprit="--max-minutes = -1.0", id="train-max-minutes-negative"),
     case(*TRAIN, "--model", "pix2pix", culprit="'--model'", id="train-unknown-model"),
     case(*TRAIN, "--buffers", "di,bogus", culprit="['bogus']", id="train-unknown-buffer"),
@@ -297,7 +322,20 @@ CASES = [
         id="export-checkpoint-corrupt",
     ),
     case("gigan-export", "run", "--out", "afile", culprit="--out afile is a file", id="export-out-is-a-file"),
-    case("gigan-export", "run", "--out", "out", "--opset", "5", culprit="'--opset'", id="export-opset-5"),
+    case("gigan-export", "run", "--out", "out", "--opset", "5", culprit="--opset = 5 is below 17", id="export-opset-5"),
+    case(
+        "gigan-export", "run", "--out", "out", "--opset", "30", culprit="--opset = 30 is above 20", id="export-opset-30"
+    ),
+    case(
+        "gigan-export",
+        "run",
+        "--out",
+        "out",
+        "--calibration-frames",
+        "1000000000000",
+        culprit="--calibration-frames = 1000000000000 is above 100000",
+        id="export-calibration-frames-huge",
+    ),
     case(
         "gigan-export",
         "run_nodata",
@@ -312,7 +350,27 @@ CASES = [
     case(*CLIENT, "--gi-fov", "0", culprit="--gi-fov = 0.0", id="client-gi-fov-0"),
     case(*CLIENT, "--local-fov", "0", culprit="--local-fov = 0.0", id="client-local-fov-0"),
     case(*CLIENT, "--local-fov", "180", culprit="--local-fov = 180.0", id="client-local-fov-180"),
-    case(*CLIENT, "--resolution", "0", culprit="'--resolution'", id="client-resolution-0"),
+    case(*CLIENT, "--resolution", "0", culprit="--resolution = 0 is below 8", id="client-resolution-0"),
+    case(
+        *CLIENT,
+        "--frames",
+        "1000000000000",
+        culprit="--frames = 1000000000000 is above 100000",
+        id="client-frames-huge",
+    ),
+    case(
+        *CLIENT,
+        "--orbit-frames",
+        "1000000000000",
+        culprit="--orbit-frames = 1000000000000 is above 100000",
+        id="client-orbit-frames-huge",
+    ),
+    case(*CLIENT, "--spp", "1000000", culprit="--spp = 1000000 is above 4096", id="client-spp-huge"),
+    case(*CLIENT, "--tau", "nan", culprit="--tau = nan is not finite", id="client-tau-nan"),
+    case(*CLIENT, "--gi-fov", "inf", culprit="--gi-fov = inf is not finite", id="client-gi-fov-inf"),
+    case(*CLIENT, "--seed", "-1", culprit="--seed = -1 is below 0", id="client-seed-negative"),
+    case(*CLIENT, "--threads", "0", culprit="--threads = 0 is below 1", id="client-threads-0"),
+    case(*CLIENT, "-k", "0", culprit="--every = 0 is not positive", id="client-every-0"),
     case(*CLIENT, "--warp", "bilinear", culprit="'--warp'", id="client-unknown-warp"),
     case(*CLIENT[:2], "nope", *CLIENT[3:], culprit="no scene spec 'nope'", id="client-unknown-scene"),
     case(*CLIENT[:2], "bad_field.toml", *CLIENT[3:], culprit="light.intensity", id="client-spec-field"),
@@ -355,7 +413,7 @@ def outcomes(workspace: Path, tmp_path_factory: pytest.TempPathFactory) -> dict[
         return dict(pool.map(run_case, CASES))
 
 
-@pytest.mark.slow  # ~60 subprocesses: about a minute on 2 cores
+@pytest.mark.slow  # ~90 subprocesses: about two minutes on 2 cores
 @pytest.mark.parametrize("argv,culprit,hold", CASES)
 def test_bad_input_is_one_clean_error_line(
     outcomes: dict[str, Outcome], request: pytest.FixtureRequest, argv: list[str], culprit: str, hold: str | None
