@@ -46,6 +46,7 @@ same limits as the command line.
 
 from __future__ import annotations
 
+import contextvars
 import dataclasses
 import inspect
 import math
@@ -343,11 +344,12 @@ def build_config(cls: type, given: Mapping[str, Any], base: Any = None) -> Any:
     return cfg
 
 
-def _command_path() -> str:
-    import click
+#: The running command's path (``gigan-client``), for messages; set by the commands :func:`config_command` makes.
+_COMMAND: contextvars.ContextVar[str] = contextvars.ContextVar("command", default="the command")
 
-    ctx = click.get_current_context(silent=True)
-    return ctx.command_path if ctx is not None else "the command"
+
+def _command_path() -> str:
+    return _COMMAND.get()
 
 
 # --- commands ------------------------------------------------------------------------------------------------
@@ -406,12 +408,17 @@ def config_command(
     if clash:
         raise TypeError(f"{config.__name__}: the command already adds {sorted(clash)}")
 
-    def command(**values: Any) -> None:
+    def command(command_context: typer.Context, **values: Any) -> None:
         given = {k: values[k] for k in fields if values[k] is not None}
-        body(given, **{p.name: values[p.name] for p in extras})
+        token = _COMMAND.set(command_context.command_path)
+        try:
+            body(given, **{p.name: values[p.name] for p in extras})
+        finally:
+            _COMMAND.reset(token)
 
-    command.__signature__ = inspect.Signature(params)  # type: ignore[attr-defined]
-    command.__annotations__ = {p.name: p.annotation for p in params}
+    context = inspect.Parameter("command_context", inspect.Parameter.POSITIONAL_OR_KEYWORD, annotation=typer.Context)
+    command.__signature__ = inspect.Signature([context, *params])  # type: ignore[attr-defined]
+    command.__annotations__ = {p.name: p.annotation for p in (context, *params)}
     command.__doc__ = help or body.__doc__
     command.__name__ = (name or body.__name__).replace("-", "_")
     app.command(name, help=help)(command)
