@@ -30,7 +30,7 @@ from baseline_cloudbaking.store import DEFAULT_LIGHT_CELL, GITree, MapKey, Store
 from gicore.camera import Camera
 from gicore.cli import UserError, entry_point, writable_dir
 from gicore.executor import RAY_HELP, WORKERS_HELP, Executor, InProcess, Task, open_executor
-from gicore.fileio import exclusive_run
+from gicore.fileio import FolderHeld, exclusive_run
 from gicore.options import (
     FOV_DEGREES,
     FRAMES,
@@ -218,9 +218,10 @@ def prebake(
     with ExitStack() as stack:
         try:
             stack.enter_context(exclusive_run(store / ".prebake" / name))
-        except UserError:
+        except FolderHeld as exc:
+            by = "" if exc.holder is None else f" (process {exc.holder})"
             raise UserError(
-                f"another cloudbaking-prebake is baking {name} into {store}",
+                f"another cloudbaking-prebake{by} is baking {name} into {store}",
                 "wait for it to finish, then rerun to check",
             ) from None
         result = prebake_scene(store, name, spec, cfg, stack.enter_context(open_executor(workers, ray)))

@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from gicore.cli import RESOLUTION_MAX, RESOLUTION_MIN
 from gicore.config import strict_from_dict
 
 GL_FROM_MITSUBA = np.diag([-1.0, 1.0, -1.0, 1.0])
@@ -75,11 +76,11 @@ class Camera:
         for name in ("width", "height"):
             value = getattr(self, name)
             try:
-                ok = float(value).is_integer() and 1 <= int(value) <= 8192
+                ok = float(value).is_integer() and RESOLUTION_MIN <= int(value) <= RESOLUTION_MAX
             except (TypeError, ValueError, OverflowError):
                 ok = False
             if not ok:
-                raise ValueError(f"camera.{name} must be an integer in [1, 8192], got {value}")
+                raise ValueError(f"camera.{name} must be an integer in [{RESOLUTION_MIN}, {RESOLUTION_MAX}], got {value}")
             object.__setattr__(self, name, int(value))
         direction = np.subtract(self.target, self.origin)
         length = np.linalg.norm(direction)

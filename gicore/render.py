@@ -21,6 +21,7 @@ import numpy as np
 
 from gicore.buffers import DATASET_BUFFERS, GBUFFERS, check_buffer_names
 from gicore.camera import Camera
+from gicore.cli import RESOLUTION_MAX, RESOLUTION_MIN
 from gicore.geometry import SceneObject, scene_objects
 from gicore.scene import SceneSpec
 
@@ -113,8 +114,8 @@ class Renderer:
     def __init__(self, spec: SceneSpec, resolution: int | None = None):
         self.spec = spec
         self.resolution = spec.resolution if resolution is None else int(resolution)
-        if not 1 <= self.resolution <= 8192:  # the Camera's limits; 0 must not mean "the spec's"
-            raise ValueError(f"resolution must be an integer in [1, 8192], got {resolution}")
+        if not RESOLUTION_MIN <= self.resolution <= RESOLUTION_MAX:  # 0 must not mean "the spec's"
+            raise ValueError(f"resolution must be an integer in [{RESOLUTION_MIN}, {RESOLUTION_MAX}], got {resolution}")
         self.objects = scene_objects(spec)
         scene: dict = {
             "type": "scene",

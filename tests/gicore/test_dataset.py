@@ -290,7 +290,7 @@ def test_denoised_dataset_and_build_after_in_process_denoise(sphere_mesh_path, t
         stderr=subprocess.STDOUT,
         text=True,
         start_new_session=True,
-        cwd=Path(__file__).resolve().parents[1],
+        cwd=Path(__file__).resolve().parents[2],
     )
     try:
         out, _ = proc.communicate(timeout=25)

@@ -191,7 +191,7 @@ def test_supported_near_far_range_renders_like_the_default(renderer):
 
 
 def test_resolution_zero_is_not_the_specs(sphere_spec):
-    with pytest.raises(ValueError, match="resolution must be an integer in \\[1, 8192\\], got 0"):
+    with pytest.raises(ValueError, match="resolution must be an integer in \\[8, 2048\\], got 0"):
         Renderer(sphere_spec, 0)
 
 

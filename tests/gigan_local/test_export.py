@@ -192,7 +192,7 @@ def test_wheel_ships_the_default_model_and_scenes(tmp_path):
 
     from gigan_local.inference import DEFAULT_MODEL
 
-    repo = Path(__file__).resolve().parents[1]
+    repo = Path(__file__).resolve().parents[2]
     src = tmp_path / "src"
     src.mkdir()
     for name in ("pyproject.toml", "README.md"):
