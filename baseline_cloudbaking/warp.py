@@ -56,7 +56,8 @@ class PointCloud:
         h, w = depth.shape
         if img.ndim != 3 or img.shape[:2] != (h, w) or (h, w) != (source.height, source.width):
             raise ValueError(
-                f"image {img.shape} and depth {depth.shape} must both be {source.height}x{source.width} (the source camera)"
+                f"image {img.shape} and depth {depth.shape} must both be {source.height}x{source.width} (the "
+                "source camera)"
             )
         if not (np.all(np.isfinite(img)) and np.all(np.isfinite(depth))):
             raise ValueError("image or depth contains NaN or Inf")

@@ -70,8 +70,8 @@ class Camera:
             raise ValueError(f"camera.fov must lie strictly between 0 and 180 degrees, got {self.fov}")
         if not NEAR_MIN <= self.near < self.far <= FAR_MAX:
             raise ValueError(
-                f"camera.near/far must satisfy {NEAR_MIN:g} <= near < far <= {FAR_MAX:g} (what the renderer represents), "
-                f"got near={self.near}, far={self.far}"
+                f"camera.near/far must satisfy {NEAR_MIN:g} <= near < far <= {FAR_MAX:g} "
+                f"(what the renderer represents), got near={self.near}, far={self.far}"
             )
         for name in ("width", "height"):
             value = getattr(self, name)
@@ -80,7 +80,9 @@ class Camera:
             except (TypeError, ValueError, OverflowError):
                 ok = False
             if not ok:
-                raise ValueError(f"camera.{name} must be an integer in [{RESOLUTION_MIN}, {RESOLUTION_MAX}], got {value}")
+                raise ValueError(
+                    f"camera.{name} must be an integer in [{RESOLUTION_MIN}, {RESOLUTION_MAX}], got {value}"
+                )
             object.__setattr__(self, name, int(value))
         direction = np.subtract(self.target, self.origin)
         length = np.linalg.norm(direction)

@@ -164,7 +164,8 @@ def _load_mesh(path: Path, mtime_ns: int, size: int) -> Mesh:
     bad = ~np.isfinite(np.asarray(loaded.vertices)).all(axis=1)
     if bad.any():
         raise ValueError(
-            f"mesh file {path}: {int(bad.sum())} vertex(es) with NaN or Inf coordinates, e.g. vertex {int(np.argmax(bad)) + 1}"
+            f"mesh file {path}: {int(bad.sum())} vertex(es) with NaN or Inf coordinates, e.g. vertex "
+            f"{int(np.argmax(bad)) + 1}"
         )
     loaded.process()
     # OBJ seams (per-corner UVs or normals) keep split vertices unless merged explicitly.

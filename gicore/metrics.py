@@ -49,7 +49,8 @@ def _check_pair(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             raise ValueError(f"the {name} image contains NaN or Inf; tone-map finite radiance first")
         if img.size and (img.min() < 0.0 or img.max() > 1.0):
             raise ValueError(
-                f"the {name} image has values in [{img.min():.4g}, {img.max():.4g}], outside [0, 1]; tone-map it first (gicore.tonemap)"
+                f"the {name} image has values in [{img.min():.4g}, {img.max():.4g}], outside [0, 1]; tone-map "
+                "it first (gicore.tonemap)"
             )
     return a, b
 
@@ -149,7 +150,8 @@ def shadow_tint(a: np.ndarray, b: np.ndarray, di: np.ndarray) -> float:
 
 
 def all_metrics(prediction: np.ndarray, reference: np.ndarray) -> dict[str, float]:
-    """RMSE, PSNR, SSIM and the low-frequency error of ``prediction`` against ``reference`` (both tone-mapped, [0, 1])."""
+    """RMSE, PSNR, SSIM and the low-frequency error of ``prediction`` against ``reference`` (both tone-mapped,
+    in [0, 1])."""
     return {
         "rmse": rmse(prediction, reference),
         "psnr": psnr(prediction, reference),

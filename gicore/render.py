@@ -168,7 +168,8 @@ class Renderer:
     def _set_camera(self, camera: Camera) -> None:
         if (camera.width, camera.height) != (self.resolution, self.resolution):
             raise ValueError(
-                f"camera is {camera.width}x{camera.height} but this renderer renders {self.resolution}x{self.resolution}"
+                f"camera is {camera.width}x{camera.height} but this renderer renders "
+                f"{self.resolution}x{self.resolution}"
             )
         if camera == self._camera:
             return

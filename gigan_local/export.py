@@ -76,7 +76,8 @@ def load_generator(run_dir: Path) -> tuple[torch.nn.Module, dict[str, Any]]:
         step = int(ckpt["state"]["step"])
     except (KeyError, TypeError, RuntimeError) as e:  # not a gigan-train checkpoint, or not of this config
         raise UserError(
-            f"{run_dir / CHECKPOINT} does not hold the generator described by {run_dir}/config.json ({type(e).__name__})",
+            f"{run_dir / CHECKPOINT} does not hold the generator described by {run_dir}/config.json "
+            f"({type(e).__name__})",
             "export a run folder made by one `gigan-train` run",
         ) from None
     generator.eval()

@@ -83,15 +83,18 @@ class GIModel:
         inputs, outputs = self.session.get_inputs(), self.session.get_outputs()
         if len(inputs) != 1 or len(outputs) != 1:
             raise UserError(
-                f"{self.path} has {len(inputs)} inputs and {len(outputs)} outputs, not one of each as a gigan generator",
+                f"{self.path} has {len(inputs)} inputs and {len(outputs)} outputs, not one of each as a gigan "
+                "generator",
                 "re-export it with `gigan-export`",
             )
         self.input_name = inputs[0].name
         expected = [self.spec.in_channels, self.resolution, self.resolution]
         if list(inputs[0].shape[1:]) != expected:
             raise UserError(
-                f"{self.path} takes input of shape {inputs[0].shape[1:]} (CxHxW) but {config_path} describes {expected} "
-                f"(buffers {list(self.spec.buffers)} at {self.resolution}px), so the model and its model.json do not belong together",
+                f"{self.path} takes input of shape {inputs[0].shape[1:]} (CxHxW) but {config_path} describes "
+                f"{expected} "
+                f"(buffers {list(self.spec.buffers)} at {self.resolution}px), so the model and its model.json "
+                "do not belong together",
                 "re-export with `gigan-export` so both come from one run",
             )
         # the network input, encoded in place by every predict (one model serves one caller at a time)

@@ -190,13 +190,17 @@ def _device(name: str) -> torch.device:
 
 
 def _check_divergence(step: int, losses: dict[str, float], model: BaseModel, cfg: TrainConfig, last_ckpt: str) -> None:
-    advice = f"the last good checkpoint ({last_ckpt}) is kept; check the data for extreme values or start a new run with a lower --lr"
+    advice = (
+        f"the last good checkpoint ({last_ckpt}) is kept; "
+        "check the data for extreme values or start a new run with a lower --lr"
+    )
     for name, value in losses.items():
         if not math.isfinite(value):
             raise TrainingDiverged(f"training diverged at step {step}: loss {name} = {value} (non-finite)", advice)
         if abs(value) > cfg.max_abs_loss:
             raise TrainingDiverged(
-                f"training diverged at step {step}: loss {name} = {value:.4g} exceeds max_abs_loss {cfg.max_abs_loss:g}",
+                f"training diverged at step {step}: "
+                f"loss {name} = {value:.4g} exceeds max_abs_loss {cfg.max_abs_loss:g}",
                 advice,
             )
     if not model.parameters_finite():

@@ -90,8 +90,9 @@ def load_into(generator: Any, path: Path, network: NetworkConfig, spec: InputSpe
     a layer (a down layer or a resize up layer) whose convolution the exporter folded together with its
     batch norm (torch.onnx does that in eval mode): its folded weight W' and bias b' are loaded as the
     convolution's weight and a batch norm that adds b' -- running mean m and variance v, scale
-    sqrt(v + eps), shift b' + m, exact in eval mode for any m, v. ``calibration`` (an input batch, N x C x H x W) sets m and v to the batch
-    statistics of W' x, so that training-mode batch norm starts out computing what the model computed.
+    sqrt(v + eps), shift b' + m, exact in eval mode for any m, v. ``calibration`` (an input batch,
+    N x C x H x W) sets m and v to the batch statistics of W' x, so that training-mode batch norm starts out
+    computing what the model computed.
     Returns the number of folded layers restored that way. Any other mismatch is a UserError.
     """
     import torch

@@ -307,7 +307,8 @@ class _Connection:
             )
         except (TimeoutError, OSError) as exc:
             print(
-                f"network-sim proxy: connection {self.id}: upstream {host}:{port} unreachable ({exc or 'timeout'}); closing the client",
+                f"network-sim proxy: connection {self.id}: upstream {host}:{port} unreachable "
+                f"({exc or 'timeout'}); closing the client",
                 file=sys.stderr,
                 flush=True,
             )

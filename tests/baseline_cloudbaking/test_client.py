@@ -115,12 +115,12 @@ def test_both_clients_end_to_end_through_a_proxy(server: str, scenes_dir: Path, 
     ]
     with network_sim("proxy", "--upstream", server.removeprefix("http://"), "--delay-ms", "15") as proxy:
         url = "http://{}:{}".format(*proxy.addr)
-        cloud = subprocess.run([str(BIN / "cloudbaking-client"), "--server", url, *common, "--out", str(tmp_path / "cloud")],
-                               capture_output=True, text=True, timeout=120)  # fmt: skip
+        cloud_argv = [str(BIN / "cloudbaking-client"), "--server", url, *common, "--out", str(tmp_path / "cloud")]
+        cloud = subprocess.run(cloud_argv, capture_output=True, text=True, timeout=120)
     assert cloud.returncode == 0, cloud.stderr
     model = passthrough_model(tmp_path / "model")
-    gigan = subprocess.run([str(BIN / "gigan-client"), *common, "--gi-source", "model", "--model", str(model), "--out", str(tmp_path / "gigan")],
-                           capture_output=True, text=True, timeout=120)  # fmt: skip
+    gigan_argv = [str(BIN / "gigan-client"), *common, "--gi-source", "model", "--model", str(model)]
+    gigan = subprocess.run([*gigan_argv, "--out", str(tmp_path / "gigan")], capture_output=True, text=True, timeout=120)
     assert gigan.returncode == 0, gigan.stderr
 
     for system, stages in (("cloud", CLOUD_FRAME_STAGES), ("gigan", GIGAN_FRAME_STAGES)):
@@ -164,8 +164,8 @@ def test_client_survives_the_server_shutting_down(scenes_dir: Path, tmp_path: Pa
     with Running(argv, timeout=60.0) as srv:
         url = "{}:{}".format(*srv.addr)
         client = subprocess.Popen(
-            [str(BIN / "cloudbaking-client"), "--server", url, "--scene", str(scenes_dir / "ball_moving.json"), "--frames", "150",
-             "--resolution", str(RES), "-k", "2", "--spp", str(SPP), "--out", str(tmp_path / "run")],
+            [str(BIN / "cloudbaking-client"), "--server", url, "--scene", str(scenes_dir / "ball_moving.json"),
+             "--frames", "150", "--resolution", str(RES), "-k", "2", "--spp", str(SPP), "--out", str(tmp_path / "run")],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         )  # fmt: skip
         deadline = time.monotonic() + 90

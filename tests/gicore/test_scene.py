@@ -49,7 +49,8 @@ def test_load_scene_from_file_and_relative_mesh(tmp_path, sphere_mesh_path):
     (tmp_path / "meshes").mkdir()
     (tmp_path / "meshes" / "ball.obj").write_bytes(sphere_mesh_path.read_bytes())
     (tmp_path / "scene.toml").write_text(
-        'name = "mine"\nenvironment = "none"\n[[objects]]\nname = "ball"\nmesh = "meshes/ball.obj"\n[light]\nposition = [0, 2, 0]\nintensity = 3.0\n'
+        'name = "mine"\nenvironment = "none"\n[[objects]]\nname = "ball"\nmesh = "meshes/ball.obj"\n'
+        "[light]\nposition = [0, 2, 0]\nintensity = 3.0\n"
     )
     spec = load_scene(tmp_path / "scene.toml")
     assert spec.objects[0].mesh == tmp_path / "meshes" / "ball.obj"

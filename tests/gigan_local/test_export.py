@@ -231,10 +231,8 @@ def test_the_shipped_model_card_matches_its_files() -> None:
     folder = DEFAULT_MODEL.parent
     card = (folder / "MODEL_CARD.md").read_text()
     doc = json.loads((folder / "model.json").read_text())
-    assert (
-        f"ngf {doc['ngf']}, {doc['n_down']} down-samplings, {UPSAMPLING_WORDS[doc['network'].get('upsample', 'transposed')]}"
-        in card
-    )
+    upsampling = UPSAMPLING_WORDS[doc["network"].get("upsample", "transposed")]
+    assert f"ngf {doc['ngf']}, {doc['n_down']} down-samplings, {upsampling}" in card
     assert f"Stopped at optimizer step {doc['step']} " in card
     listed = dict(re.findall(r"- `(model_\w+\.onnx)`: \w+ weights, ([\d.]+) MiB", card))
     assert set(listed) == {p.name for p in folder.glob("*.onnx")}

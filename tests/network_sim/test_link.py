@@ -265,7 +265,8 @@ def test_profiles_cover_the_issue_and_cite_sources() -> None:
 
 def test_importing_network_sim_pulls_in_no_other_project_package() -> None:
     code = (
-        "import sys, network_sim, network_sim.cli, network_sim.proxy, network_sim.selftest, network_sim.profiles, network_sim.endpoint;"
+        "import sys, network_sim, network_sim.cli, network_sim.proxy, network_sim.selftest, "
+        "network_sim.profiles, network_sim.endpoint;"
         "bad = sorted(m for m in sys.modules if m.split('.')[0] in "
         "('mitsuba', 'torch', 'fastapi', 'baseline_cloudbaking', 'gigan_local', 'bench', 'onnxruntime', 'drjit'));"
         "print(','.join(bad))"

@@ -13,8 +13,10 @@ router = APIRouter(prefix="/v1", tags=["gimap"])
 _PAYLOAD_DOC = {
     200: {
         "description": (
-            "A GI-map payload (baseline_cloudbaking.protocol): b'GIM1', u32 header length, JSON header (camera, view/proj matrices, "
-            "light, codec, hit, timings_ms: lookup/read or lookup/render/denoise/encode, total), then the encoded gi [, di] and depth sections."
+            "A GI-map payload (baseline_cloudbaking.protocol): b'GIM1', u32 header length, JSON header "
+            "(camera, view/proj matrices, "
+            "light, codec, hit, timings_ms: lookup/read or lookup/render/denoise/encode, total), then the "
+            "encoded gi [, di] and depth sections."
         ),
         "content": {MEDIA_TYPE: {"schema": {"type": "string", "format": "binary"}}},
     },
