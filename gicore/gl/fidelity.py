@@ -12,6 +12,11 @@ against its converged DI (``reference_spp``, the pixel's average), plus the mean
 Timing: median ms per pass (after warm-up) of GL and of the Mitsuba pass it replaces, called alternately
 (both see the same load), cameras alternating along the scene's path as in ``bench render``.
 
+Level of detail (``--lod``, :func:`lod_table`): per level of ``gicore.gl.lod`` and for ``lod="auto"``, the
+GI-camera pass's triangles, its median ms against Mitsuba's pass (alternating, as above), its G-buffer
+error against full detail and against Mitsuba's centre-sampled pass, and DI SSIM against Mitsuba; rows a
+bench can write as CSV (``--csv``). ``scripts/gl_model_quality.py`` adds the shipped model's SSIM on them.
+
 This module imports ``gicore.render`` (Mitsuba) only inside its functions; the renderer modules of
 ``gicore.gl`` never do.
 """
@@ -19,13 +24,16 @@ This module imports ``gicore.render`` (Mitsuba) only inside its functions; the r
 from __future__ import annotations
 
 import argparse
+import csv
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from gicore.camera import Camera
+from gicore.gl.edges import DEPTH_JUMP, silhouettes
 from gicore.metrics import ssim
 from gicore.paths import camera_path, light_position
 from gicore.scene import load_scene
@@ -34,42 +42,7 @@ from gicore.tonemap import tonemap
 
 #: The G-buffer channels compared (the mask is compared through the silhouette count).
 CHANNELS = ("albedo", "normal", "depth", "position")
-#: A depth step between neighbours larger than this fraction of the depth is a discontinuity, beyond what
-#: any surface's slope gives between pixel centres (a grazing plane at the scenes' cameras: < 2 %).
-DEPTH_JUMP = 0.05
-
-
-def _dilate(edge: np.ndarray) -> np.ndarray:
-    """Pixels with an ``edge`` pixel in their 3x3 neighbourhood."""
-    padded = np.pad(edge, 1)
-    h, w = edge.shape
-    return np.any([padded[i : i + h, j : j + w] for i in range(3) for j in range(3)], axis=0)
-
-
-def _changes(x: np.ndarray, differ: Callable[[np.ndarray, np.ndarray], np.ndarray]) -> np.ndarray:
-    """HxW: where ``x`` (HxW...) differs from its right or lower neighbour (both pixels marked)."""
-    edge = np.zeros(x.shape[:2], dtype=bool)
-    dx, dy = differ(x[:, 1:], x[:, :-1]), differ(x[1:], x[:-1])
-    edge[:, 1:] |= dx
-    edge[:, :-1] |= dx
-    edge[1:] |= dy
-    edge[:-1] |= dy
-    return edge
-
-
-def silhouettes(*gbuffers: dict[str, np.ndarray], depth_jump: float = DEPTH_JUMP) -> np.ndarray:
-    """HxW bool: pixels near a change of surface (mask), object (albedo) or a depth discontinuity in any of
-    the given G-buffer sets, or whose masks disagree between them."""
-    edge = np.zeros(gbuffers[0]["mask"].shape[:2], dtype=bool)
-    for gb in gbuffers:
-        edge |= _changes(gb["mask"][..., 0] > 0.5, np.not_equal)
-        edge |= _changes(gb["albedo"], lambda a, b: np.any(np.abs(a - b) > 1e-6, axis=-1))
-        d = gb["depth"][..., 0]
-        edge |= _changes(d, lambda a, b: np.abs(a - b) > depth_jump * np.maximum(np.minimum(a, b), 1e-9))
-    masks = [gb["mask"][..., 0] > 0.5 for gb in gbuffers]
-    for m in masks[1:]:
-        edge |= m != masks[0]
-    return _dilate(edge)
+__all__ = ["CHANNELS", "DEPTH_JUMP", "compare", "di_errors", "gbuffer_errors", "lod_table", "silhouettes", "timings"]
 
 
 def gbuffer_errors(gl: dict[str, np.ndarray], ref: dict[str, np.ndarray]) -> list[dict[str, Any]]:
@@ -176,6 +149,116 @@ def timings(spec, resolution: int, repeats: int = 7, warmup: int = 2, seed: int 
     return rows
 
 
+def _alternate(fns: tuple[Callable[[], Any], Callable[[], Any]], repeats: int, warmup: int) -> list[list[float]]:
+    """Seconds of each of two calls, called alternately ``warmup + repeats`` times (warm-ups dropped)."""
+    samples: list[list[float]] = [[], []]
+    for i in range(warmup + repeats):
+        for times, fn in zip(samples, fns):
+            t0 = time.perf_counter()
+            fn()
+            if i >= warmup:
+                times.append(time.perf_counter() - t0)
+    return samples
+
+
+def lod_table(
+    spec,
+    resolution: int = 256,
+    views: int = 8,
+    repeats: int = 15,
+    warmup: int = 2,
+    reference_spp: int = 64,
+    seed: int = 0,
+) -> list[dict[str, Any]]:
+    """One row per level of detail of the GL renderer (``gicore.gl.lod``), and one for ``lod="auto"``: the GI-
+    camera pass (DI + G-buffers, static light) on ``views`` GI cameras of the scene's path.
+
+    Columns: ``scene``, ``resolution``, ``lod`` (a level or "auto"), ``ratio_kept`` (fraction of the large
+    meshes' triangles), ``triangles`` (mean over the views; "auto" picks per view), ``levels`` (the levels
+    drawn, per view), ``gl_ms`` and ``mitsuba_ms`` (median, after ``warmup``, GL and Mitsuba's centre-sampled
+    ``render_di_gbuffers`` called alternately on the same cameras), ``gl_over_mitsuba``; the G-buffer error of
+    the level against full detail (``lod_normal``, ``lod_depth``, ``lod_coverage``: mean over the views of
+    :func:`gicore.gl.lod.lod_errors`, and ``*_max`` their largest), ``auto_bound_ok`` (every view within the
+    renderer's ``lod_bound``); the interior mean |gl - mitsuba| per channel against Mitsuba's centre-sampled
+    pass (``mitsuba_<channel>``, as :func:`gbuffer_errors`); DI SSIM against Mitsuba's 1-spp DI (the pass GL
+    replaces) and its ``reference_spp`` DI (``di_ssim_1spp``, ``di_ssim_ref``); and ``shadow_lod``.
+    """
+    from gicore.gl.lod import LOD_CHANNELS, lod_errors, within
+    from gicore.gl.renderer import GLRenderer
+    from gicore.render import Renderer
+
+    gl, mi = GLRenderer(spec, resolution, lod="auto"), Renderer(spec, resolution)
+    cams = camera_path(spec, views, seed=seed, resolution=resolution)
+    light = light_position(spec, 0)
+    gl.lod = 0
+    full = [gl.render_di_gbuffers(c, light) for c in cams]
+    centre = [mi.render_gbuffers(c, seed, centre=True) for c in cams]
+    di_one = [mi.render_di(c, light, spp=1, seed=seed) for c in cams]
+    di_ref = [mi.render_di(c, light, spp=reference_spp, seed=seed) for c in cams]
+    rows = []
+    for lod in [*range(len(gl.lod_ratios)), "auto"]:
+        gl.lod = lod
+        outs, levels = [], []
+        for c in cams:
+            outs.append(gl.render_di_gbuffers(c, light))
+            levels.append(gl.last_level)
+        lod_err = [lod_errors(o, f) for o, f in zip(outs, full)]
+        mi_err = [
+            {r["channel"]: r["mean_abs"] for r in gbuffer_errors(o, ref) if r["region"] == "interior"}
+            for o, ref in zip(outs, centre)
+        ]
+        state = {"i": 0}
+
+        def cam() -> Camera:
+            state["i"] += 1
+            return cams[state["i"] % len(cams)]
+
+        times = _alternate(
+            (lambda: gl.render_di_gbuffers(cam(), light), lambda: mi.render_di_gbuffers(cam(), light, centre=True)),
+            repeats,
+            warmup,
+        )
+        gl_ms, mi_ms = (summarize_ms(t)["median"] for t in times)
+        row = {
+            "scene": spec.name,
+            "resolution": resolution,
+            "lod": lod,
+            "ratio_kept": gl.lod_ratios[lod] if lod != "auto" else float("nan"),
+            "triangles": float(np.mean([gl.level_triangles[k] for k in levels])),
+            "levels": " ".join(map(str, levels)),
+            "gl_ms": gl_ms,
+            "mitsuba_ms": mi_ms,
+            "gl_over_mitsuba": gl_ms / mi_ms,
+        }
+        for c in LOD_CHANNELS:
+            row[f"lod_{c}"] = float(np.mean([e[c] for e in lod_err]))
+            row[f"lod_{c}_max"] = float(np.max([e[c] for e in lod_err]))
+        row["auto_bound_ok"] = all(within(e, gl.lod_bound) for e in lod_err)
+        for c in CHANNELS:
+            row[f"mitsuba_{c}"] = float(np.mean([e[c] for e in mi_err]))
+        row["di_ssim_1spp"] = float(np.mean([ssim(tonemap(o["di"]), tonemap(r)) for o, r in zip(outs, di_one)]))
+        row["di_ssim_ref"] = float(np.mean([ssim(tonemap(o["di"]), tonemap(r)) for o, r in zip(outs, di_ref)]))
+        row["shadow_lod"] = gl.shadow_lod
+        rows.append(row)
+    return rows
+
+
+def _print_lod_table(rows: list[dict[str, Any]]) -> None:
+    print(f"\n{rows[0]['scene']} at {rows[0]['resolution']}²: GI-camera pass (DI + G-buffers) per level of detail")
+    head = (
+        f"{'lod':>4} {'triangles':>9} {'gl ms':>6} {'mi ms':>6} {'gl/mi':>5}  {'normal':>8} {'depth':>8} {'cover':>8}"
+    )
+    print(head + f"  {'vs mi: n':>8} {'depth':>8}  {'DI SSIM 1spp':>12} {'ref':>6}  levels")
+    for r in rows:
+        print(
+            f"{r['lod']!s:>4} {r['triangles']:9.0f} {r['gl_ms']:6.2f} {r['mitsuba_ms']:6.2f}"
+            f" {r['gl_over_mitsuba']:5.2f}"
+            f"  {r['lod_normal']:8.2e} {r['lod_depth']:8.2e} {r['lod_coverage']:8.2e}"
+            f"  {r['mitsuba_normal']:8.2e} {r['mitsuba_depth']:8.2e}  {r['di_ssim_1spp']:12.4f} {r['di_ssim_ref']:6.4f}"
+            f"  {r['levels'] if r['lod'] == 'auto' else ''}"
+        )
+
+
 def _print_fidelity(scene: str, resolution: int, result: dict) -> None:
     print(f"\n{scene} at {resolution}², {result['triangles']:,} triangles: |gl - mitsuba| per G-buffer channel")
     print(f"{'reference':18} {'channel':9} {'region':10} {'pixels':>7} {'mean abs':>10} {'max abs':>10}")
@@ -202,22 +285,35 @@ def _print_timings(rows: list[dict[str, Any]]) -> None:
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="python -m gicore.gl.fidelity", description=__doc__.split("\n")[0])
-    parser.add_argument("scene", nargs="?", default="lung_plane", help="built-in scene or spec file")
+    parser.add_argument("scenes", nargs="*", default=["lung_plane"], help="built-in scenes or spec files")
     parser.add_argument("--resolution", type=int, default=256, help="fidelity resolution (square)")
     parser.add_argument("--timing", type=int, nargs="*", default=[256, 512], help="timing resolutions")
     parser.add_argument("--repeats", type=int, default=7, help="timed repeats per pass (after 2 warm-ups)")
     parser.add_argument("--reference-spp", type=int, default=64, help="samples of the converged Mitsuba DI")
     parser.add_argument("--view", type=int, default=0, help="which of 8 path cameras to compare at")
+    parser.add_argument("--lod", action="store_true", help="only the level-of-detail table (lod_table)")
+    parser.add_argument("--csv", type=Path, help="with --lod: also write the table's rows to this CSV file")
     args = parser.parse_args(argv)
     from gicore.gl.context import gl_info
 
-    spec = load_scene(args.scene)
     print("GL:", ", ".join(f"{k}={v}" for k, v in gl_info().items()))
-    camera = camera_path(spec, 8, resolution=args.resolution)[args.view]
-    result = compare(spec, args.resolution, camera, light_position(spec, 0), args.reference_spp)
-    _print_fidelity(spec.name, args.resolution, result)
-    rows = [row for res in args.timing for row in timings(spec, res, args.repeats)]
-    _print_timings(rows)
+    table: list[dict[str, Any]] = []
+    for scene in args.scenes:
+        spec = load_scene(scene)
+        if args.lod:
+            rows = lod_table(spec, args.resolution, reference_spp=args.reference_spp, repeats=2 * args.repeats + 1)
+            _print_lod_table(rows)
+            table += rows
+            continue
+        camera = camera_path(spec, 8, resolution=args.resolution)[args.view]
+        result = compare(spec, args.resolution, camera, light_position(spec, 0), args.reference_spp)
+        _print_fidelity(spec.name, args.resolution, result)
+        _print_timings([row for res in args.timing for row in timings(spec, res, args.repeats)])
+    if args.csv and table:
+        with open(args.csv, "w", newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=list(table[0]))
+            writer.writeheader()
+            writer.writerows(table)
 
 
 if __name__ == "__main__":

@@ -314,3 +314,172 @@ def test_camera_must_match_the_resolution(point_scene):
         gl.render_di(view(32))
     with pytest.raises(ValueError, match="finite"):
         gl.render_di(view(), light=(0.0, float("nan"), 0.0))
+
+
+# -- level of detail -------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def lod_scene(make_spec):
+    """A procedural lung (9,716 triangles at detail 0.4) on the plane, with every level uploaded and the
+    ``auto`` calibration made."""
+    lungs = {"name": "lungs", "anatomy": "lung", "seed": 1, "detail": 0.4, "height": 1.2}
+    spec = make_spec(objects=[lungs], camera={"target": [0.0, 0.55, 0.0], "radius": 1.6, "height": 1.0})
+    return spec, GLRenderer(spec, RES, lod="auto")
+
+
+def gi_views(spec, factors=(1.0,), n: int = 2) -> list[Camera]:
+    """GI cameras of the scene's path (seed 0, not the calibration's), moved to ``factors`` times their
+    distance to their target."""
+    from dataclasses import replace
+
+    from gicore.paths import camera_path
+
+    out = []
+    for cam in camera_path(spec, n, resolution=RES):
+        o, t = np.asarray(cam.origin), np.asarray(cam.target)
+        out += [replace(cam, origin=tuple(float(x) for x in t + f * (o - t))) for f in factors]
+    return out
+
+
+def test_lod_levels_have_fewer_triangles_and_bounded_gbuffer_error(lod_scene):
+    from gicore.gl.lod import LOD_BOUND, LOD_RATIOS, lod_errors
+
+    spec, gl = lod_scene
+    tris = gl.level_triangles
+    lung = gl.objects[0].mesh.n_triangles
+    assert tris[0] == gl.n_triangles == lung + 2 and len(tris) == len(LOD_RATIOS)
+    for level in range(1, len(tris)):
+        assert tris[level] < tris[level - 1], tris
+        assert abs(tris[level] - 2 - LOD_RATIOS[level] * lung) <= 0.02 * LOD_RATIOS[level] * lung + 4, tris
+    for cam in gi_views(spec):
+        full = gl._gbuffers(gl._draw("gbuffer", cam, 0))
+        errors = [lod_errors(gl._gbuffers(gl._draw("gbuffer", cam, k)), full) for k in range(len(tris))]
+        print(f"\nLOD errors at {cam.origin}: " + " | ".join(f"{tris[k]} tris {e}" for k, e in enumerate(errors)))
+        assert errors[0] == {"normal": 0.0, "depth": 0.0, "coverage": 0.0}
+        # the scene's own views at 64²: level 1 well within the auto bound, the coarsest (1/32) within 4x it
+        assert all(errors[1][c] <= LOD_BOUND[c] for c in LOD_BOUND), errors[1]
+        assert all(errors[-1][c] <= 4 * LOD_BOUND[c] for c in LOD_BOUND), errors[-1]
+
+
+def test_lod_meshes_keep_smooth_normals_of_the_full_mesh(lod_scene):
+    """A decimated level shares its vertices between faces (smooth shading, one normal per vertex) and carries
+    the full mesh's normals over: closer to them than its own area-weighted normals (median angle to the
+    nearest full vertex's normal, measured 0.6 to 4.4 degrees against 1.5 to 6.4), and closed as the mesh is."""
+    from scipy.spatial import cKDTree
+
+    from gicore.gl.lod import mesh_levels
+
+    _, gl = lod_scene
+    mesh = gl.objects[0].mesh
+    levels = mesh_levels(mesh)
+    assert levels[0].mesh is mesh
+    full_n = mesh.vertex_normals()
+    tree = cKDTree(mesh.vertices)
+    for lm in levels[1:]:
+        v = lm.mesh.vertices
+        assert len(v) < 0.6 * lm.n_triangles  # shared: a closed mesh has about half as many vertices as faces
+        np.testing.assert_allclose(np.linalg.norm(lm.normals, axis=1), 1.0, atol=1e-5)
+        near = full_n[tree.query(v)[1]]
+        ours = np.degrees(np.arccos(np.clip((lm.normals * near).sum(1), -1, 1)))
+        own = np.degrees(np.arccos(np.clip((lm.mesh.vertex_normals() * near).sum(1), -1, 1)))
+        print(f"\n{lm.n_triangles} triangles: median angle to the full normals {np.median(ours):.2f}", end="")
+        print(f" (own normals {np.median(own):.2f})")
+        assert np.median(ours) < min(np.median(own), 6.0)
+    # meshes below MIN_TRIANGLES (the ground) are the same object at every level
+    ground = mesh_levels(gl.objects[1].mesh)
+    assert all(lm is ground[0] for lm in ground)
+
+
+def test_auto_picks_the_coarsest_level_its_error_model_allows_and_stays_within_the_bound(lod_scene):
+    """``auto``: per view, the coarsest level whose calibrated error at the view's pixel scale is within
+    ``lod_bound``. Measured here on views of another path (seed 0) from a close-up to far away: the
+    level's G-buffer error against full detail is within the bound, and farther views get coarser levels."""
+    from gicore.gl.lod import lod_errors, within
+
+    spec, gl = lod_scene
+    model = gl.calibrate_lod()
+    assert model is gl.lod_model and len(model.samples) == 12 * (len(gl.lod_ratios) - 1)
+    factors = (0.5, 0.8, 1.0, 1.5, 2.5)
+    for cams in (gi_views(spec, factors, 2)[:5], gi_views(spec, factors, 2)[5:]):
+        levels = []
+        for cam in cams:
+            level = gl.level_for(cam)
+            out = gl.render_di_gbuffers(cam)
+            assert gl.last_level == level
+            full = gl._gbuffers(gl._draw("gbuffer", cam, 0))
+            errors = lod_errors(out, full)
+            print(f"\nauto at {cam.origin}: level {level} ({gl.level_triangles[level]} triangles), {errors}")
+            assert within(errors, gl.lod_bound), (level, errors)
+            levels.append(level)
+        assert levels == sorted(levels) and levels[0] < levels[-1], levels
+    # a tighter bound picks finer levels, none at all when nothing is allowed
+    cam = gi_views(spec)[0]
+    tight = GLRenderer(spec, RES, lod="auto", lod_bound={"normal": 0.0})
+    assert tight.level_for(cam) == 0
+    tight.lod_bound = {c: v / 4 for c, v in gl.lod_bound.items()}
+    assert tight.level_for(cam) <= gl.level_for(cam)
+
+
+def test_full_lod_is_exact(lod_scene, make_spec):
+    """``lod="full"`` (the default) uploads the meshes only and draws them, shadow casters included: the
+    same images as level 0 of a renderer with levels whose shadow map is on level 0 too."""
+    spec, _ = lod_scene
+    full = GLRenderer(spec, RES)
+    assert full.lod == "full" and full.lod_ratios == (1.0,) and full.shadow_lod == 0
+    assert full.level_triangles == [full.n_triangles]
+    leveled = GLRenderer(spec, RES, lod=0, shadow_lod=0)
+    cam = gi_views(spec)[0]
+    a, b = full.render_di_gbuffers(cam), leveled.render_di_gbuffers(cam)
+    for name in a:
+        np.testing.assert_array_equal(a[name], b[name])
+    assert full.last_level == 0
+    with pytest.raises(ValueError, match="lod must be"):
+        full.lod = "auto"  # no levels uploaded
+    with pytest.raises(ValueError, match="lod must be"):
+        full.lod = 1
+    with pytest.raises(ValueError, match="lod must be"):
+        GLRenderer(spec, RES, lod="coarse")
+    with pytest.raises(ValueError, match="lod_bound"):
+        GLRenderer(spec, RES, lod=1, lod_bound={"albedo": 1.0})
+
+
+def test_shadow_map_on_a_coarse_level_keeps_di(lod_scene):
+    """The shadow map's casters are drawn at ``SHADOW_LOD`` when the renderer has levels: DI barely moves."""
+    from gicore.gl.renderer import SHADOW_LOD
+
+    spec, gl = lod_scene
+    assert gl.shadow_lod == SHADOW_LOD > 0
+    exact = GLRenderer(spec, RES, lod=0, shadow_lod=0)
+    gl.lod = 0
+    for cam in gi_views(spec):
+        e = di_errors(gl.render_di(cam), exact.render_di(cam))
+        print(f"\nDI with level-{SHADOW_LOD} shadow casters vs full: {e}")
+        assert e["ssim"] >= 0.995 and e["mean_abs"] <= 2e-3 * max(exact.render_di(cam).mean(), 1e-6) * 10, e
+    gl.lod = "auto"
+
+
+def test_uv_pass_draws_the_level_only_with_projected_coordinates(lod_scene):
+    """Uploaded coordinates belong to the full meshes' vertices: the uv pass then draws level 0; projected
+    in the vertex shader they exist on every level, and the pass draws the view's level."""
+    spec, gl = lod_scene
+    gi, local = gi_views(spec)
+    gl.lod = 3
+    gl.render_uv(local)
+    assert gl.last_level == 0
+    gl.set_texcoord_projection(gi)
+    out = gl.render_uv(local)
+    assert gl.last_level == 3 and out["textured"].any()
+    gl.set_texcoord_projection(None)
+    gl.lod = "auto"
+
+
+def test_lod_table_rows(lod_scene):
+    """``gicore.gl.fidelity.lod_table``: one row per level and one for auto, with the columns a bench writes."""
+    from gicore.gl.fidelity import lod_table
+
+    spec, gl = lod_scene
+    rows = lod_table(spec, RES, views=2, repeats=1, warmup=0, reference_spp=4)
+    assert [r["lod"] for r in rows] == [*range(len(gl.lod_ratios)), "auto"]
+    assert rows[0]["lod_normal"] == rows[0]["lod_coverage"] == 0.0 and rows[0]["triangles"] == gl.n_triangles
+    assert all(r["auto_bound_ok"] for r in rows if r["lod"] == "auto")
+    for r in rows:
+        assert r["gl_ms"] > 0 and r["mitsuba_ms"] > 0 and 0 < r["di_ssim_ref"] <= 1, r
