@@ -252,10 +252,10 @@ class GLRenderer:
         # triangles), then the others, two-sided. A decimated closed mesh is drawn as its full mesh is.
         indices, self._draw_ranges, first = [], [], 0
         for faces_of in level_faces:
-            closed, rest = (np.concatenate(faces_of[c] or [np.zeros((0, 3), np.int64)]) for c in (True, False))
-            indices += [closed, rest]
-            self._draw_ranges.append((first, 3 * len(closed), 3 * len(rest)))
-            first += 3 * (len(closed) + len(rest))
+            culled, rest = (np.concatenate(faces_of[c] or [np.zeros((0, 3), np.int64)]) for c in (True, False))
+            indices += [culled, rest]
+            self._draw_ranges.append((first, 3 * len(culled), 3 * len(rest)))
+            first += 3 * (len(culled) + len(rest))
         self._ibo = ctx.buffer(np.concatenate(indices).astype(np.uint32).tobytes())
         #: Triangles of each level (level 0: the scene's meshes).
         self.level_triangles = [(n_closed + n_rest) // 3 for _, n_closed, n_rest in self._draw_ranges]
