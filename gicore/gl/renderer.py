@@ -296,6 +296,7 @@ class GLRenderer:
                 area_light=self.spec.light.size > 0,
                 cube_shadow=cube,
                 material_rows=len(self._materials) // (16 * MATERIAL_VEC4S),
+                light_samples=AREA_SAMPLES if self.spec.light.size > 0 else 1,
             )
             self._programs[key] = self.ctx.program(vertex_shader=SCENE_VERTEX, fragment_shader=source)
         return self._programs[key]
@@ -545,7 +546,6 @@ class GLRenderer:
             "u_intensity": light.intensity / (k * k),
             "u_radiance": light.intensity / light.size**2 if area else 0.0,
             "u_light_size": light.size,
-            "u_light_samples": k,
             "u_eta": ETA,
             "u_materials": self._materials,
             "u_shadow": 1,
