@@ -1,9 +1,9 @@
 """Command-line options derived from a config dataclass: each option is declared once, as a field.
 
 Every console script (``gigan-client``, ``cloudbaking-client``, ``cloudbaking-prebake``, ``gicore-dataset``,
-``gigan-train``, ``gigan-export``) and every ``bench`` subcommand builds its Typer command from the config
-dataclass it runs: the field declares the option's type, its default, its limits (field metadata) and its
-help (the ``#:`` comment above it), and nothing else declares them again::
+``gigan-train``, ``gigan-export``, ``network-sim``) and every ``bench`` subcommand builds its Typer command
+from the config dataclass it runs: the field declares the option's type, its default, its limits (field
+metadata) and its help (the ``#:`` comment above it), and nothing else declares them again::
 
     @dataclass(frozen=True)
     class ClientConfig:
@@ -28,20 +28,22 @@ What is derived from a field:
 - types: ``int``/``float``/``str``/``Path`` as they are, ``bool`` as ``--x/--no-x``, ``X | None`` as X
   (absent = the base config's value, which may be None), ``Literal[...]`` as a choice, ``tuple[X, ...]`` and
   ``list[X]`` as one comma-separated option (``--scenes a,b``; as an argument, several words),
-  ``dict[str, X]`` as comma-separated ``NAME=VALUE`` pairs;
+  ``dict[str, X]`` as comma-separated ``NAME=VALUE`` pairs; ``metadata["metavar"]`` names a scalar's value
+  in --help, and ``metadata["required"]`` makes the option one the user must give (absent: a usage error);
 - checks on the final config (the base config, then the options the user gave; an absent option never
   falls back to a default by truthiness): numbers must be finite and > 0 unless the field's metadata sets
   ``min`` (inclusive; ``max`` inclusive too, exclusive with ``max_open``), a ``Literal`` one of its values,
   tuples and lists non-empty unless ``metadata["min_len"] = 0`` and at most ``metadata["max_len"]`` long;
   a field named ``resolution`` (or ``*_resolution``) takes :data:`RESOLUTION`'s limits unless its metadata
-  sets its own, and every entry of a ``scenes`` field must load as a scene; a config may add a
+  sets its own, every entry of a ``scenes`` field must load as a scene, and a string field with
+  :data:`HOST_PORT` metadata must read as ``HOST:PORT`` (:func:`split_host_port`); a config may add a
   ``check(self)`` method raising :class:`~gicore.cli.UserError`, and a ``ValueError`` of its constructor is
   a user error too.
 
 Limits that many configs share are declared here once (:data:`RESOLUTION`, whose bounds scene specs import
-from :mod:`gicore.cli`; :data:`SPP`, :data:`FRAMES`, :data:`SEED`, :data:`FOV_DEGREES`, :data:`THREADS`); a
-config may call :func:`check_fields` in its ``__post_init__`` so that code building it directly meets the
-same limits as the command line.
+from :mod:`gicore.cli`; :data:`SPP`, :data:`FRAMES`, :data:`SEED`, :data:`FOV_DEGREES`, :data:`THREADS`,
+:data:`HOST_PORT`); a config may call :func:`check_fields` in its ``__post_init__`` so that code building it
+directly meets the same limits as the command line.
 """
 
 from __future__ import annotations
@@ -80,6 +82,8 @@ SEED: Mapping[str, Any] = {"min": 0, "max": SEED_MAX}
 FOV_DEGREES: Mapping[str, Any] = {"max": 179.0}
 #: Field metadata of a thread or worker-process count.
 THREADS: Mapping[str, Any] = {"min": 1, "max": 256}
+#: Field metadata of a ``HOST:PORT`` address string (port 0 to 65535; 0: any free port).
+HOST_PORT: Mapping[str, Any] = {"host_port": True, "metavar": "HOST:PORT"}
 
 
 # --- fields: documentation, names, types, parsing ------------------------------------------------------------
@@ -209,7 +213,8 @@ def _option_type(f: dataclasses.Field, tp: Any, help_text: str) -> Any:
     if inner is bool:
         return Annotated[bool | None, typer.Option(f"{name}/--no-{name[2:]}", help=help_text, show_default=False)]
     if inner in (int, float, str, Path) or origin is Literal:
-        return Annotated[inner | None, typer.Option(*names, help=help_text, show_default=False)]
+        metavar = f.metadata.get("metavar")
+        return Annotated[inner | None, typer.Option(*names, help=help_text, metavar=metavar, show_default=False)]
     raise TypeError(f"config field {f.name} of type {tp!r} has no command-line form")
 
 
@@ -284,6 +289,18 @@ def check_field(f: dataclasses.Field, tp: Any, value: Any) -> None:
         raise UserError(f"{option} {value!r} is not one of {choices}", "pick one of those")
     if f.name == "scenes":
         _check_scenes(value)
+    if f.metadata.get("host_port") and value is not None:
+        split_host_port(value, option)
+
+
+def split_host_port(value: str, option: str) -> tuple[str, int]:
+    """``HOST:PORT`` (an IPv6 host in brackets; port 0 to 65535) as (host, port), or a UserError naming ``option``."""
+    host, sep, port = value.rpartition(":")
+    if not sep or not host or not port.isdigit() or not 0 <= int(port) <= 65535:
+        raise UserError(
+            f"{option} {value!r} is not HOST:PORT", f"give e.g. {option} 127.0.0.1:8000 (port 0 picks a free port)"
+        )
+    return host.strip("[]"), int(port)
 
 
 def check_fields(cfg: Any, names: Iterable[str] | None = None) -> None:
@@ -383,7 +400,8 @@ def config_options(
         if _is_number(hints[f.name]):
             help_text += f" {_limits(limits(f))}"
         annotation = _option_type(f, hints[f.name], help_text)
-        params.append(inspect.Parameter(f.name, inspect.Parameter.KEYWORD_ONLY, default=None, annotation=annotation))
+        absent = inspect.Parameter.empty if f.metadata.get("required") else None  # no default: typer requires it
+        params.append(inspect.Parameter(f.name, inspect.Parameter.KEYWORD_ONLY, default=absent, annotation=annotation))
     return params
 
 

@@ -1,151 +1,134 @@
-"""``network-sim``: the link-emulating proxy, its profiles and traces, the endpoint server, the self-test."""
+"""``network-sim``: the link-emulating proxy, its profiles and traces, the endpoint server, the self-test.
+
+The options of ``proxy``, ``server`` and ``selftest`` are derived from :class:`ProxyOptions`,
+:class:`ServerOptions` and :class:`SelftestOptions` (:mod:`gicore.options`): each option is declared once, as a
+field, with its default, its limits and its help; :meth:`ProxyOptions.link` maps the proxy's options onto a
+:class:`~network_sim.link.LinkConfig`.
+"""
 
 from __future__ import annotations
 
 import asyncio
-import math
 import textwrap
-from dataclasses import replace
-from enum import Enum
+from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Annotated, Any, Literal
 
 import typer
 
 from gicore.cli import UserError, entry_point, writable_dir
+from gicore.options import HOST_PORT, SEED, build_config, check_fields, config_command, extra, split_host_port
 from network_sim import profiles as profile_table
 from network_sim.link import DEFAULT_WINDOW_BYTES, JITTER_DISTS, DirectionConfig, LinkConfig
-from network_sim.trace import Trace
+from network_sim.trace import OPPORTUNITY_BYTES, Trace
 
-app = typer.Typer(add_completion=False, no_args_is_help=True, help=__doc__)
+app = typer.Typer(add_completion=False, no_args_is_help=True, help=__doc__.split("\n\n")[0])
 main = entry_point(app, resume="nothing is kept from an interrupted run; run the command again")
-Dist = Enum("Dist", {name: name for name in JITTER_DISTS}, type=str)  # type: ignore[misc]
+
+#: Largest one-way delay or jitter, ms: a minute (a GEO satellite hop is ~270 ms; more is a typo).
+DELAY_MS_MAX = 60_000.0
+#: Largest rate, Mbit/s (100 Gbit/s: far above what the proxy forwards on one core).
+RATE_MBIT_MAX = 100_000.0
+#: Largest bottleneck queue or connection window, bytes (1 GiB; the proxy may hold that much per direction).
+BUFFER_BYTES_MAX = 2**30
+
+DELAY: dict[str, Any] = {"min": 0.0, "max": DELAY_MS_MAX}
+#: A rate may be 0: a dead link (nothing passes; SPEC §9's zero bandwidth ends in the client's timeout).
+RATE: dict[str, Any] = {"min": 0.0, "max": RATE_MBIT_MAX}
+BUFFER: dict[str, Any] = {"min": OPPORTUNITY_BYTES, "max": BUFFER_BYTES_MAX}
 
 
-def _finite(flag: str, value: float | None) -> float | None:
-    if value is not None and not math.isfinite(value):
-        raise UserError(f"{flag} {value!r} is not a finite number", f"give {flag} a finite value")
-    return value
+@dataclass(frozen=True)
+class ProxyOptions:
+    """``network-sim proxy``'s options: the profile's link (or an unshaped one) with each given setting laid
+    over both directions (the ``*_up_*``/``*_down_*`` ones over one); :meth:`link` is the link they describe."""
 
+    #: HOST:PORT of the server the proxy forwards to (checked at start).
+    upstream: str | None = field(default=None, metadata={**HOST_PORT, "required": True})
+    #: HOST:PORT to accept clients on (port 0: any free port; printed first).
+    listen: str = field(default="127.0.0.1:0", metadata=HOST_PORT)
+    #: Named link (see 'network-sim profiles'); the options below override its values.
+    profile: str | None = None
+    #: One-way delay added in each direction, ms (an empty round trip takes twice it).
+    delay_ms: float | None = field(default=None, metadata=DELAY)
+    #: Standard deviation of the delay variation, ms (never reorders a stream).
+    jitter_ms: float | None = field(default=None, metadata=DELAY)
+    #: Distribution of the delay variation.
+    jitter_dist: Literal[JITTER_DISTS] | None = None  # type: ignore[valid-type]
+    #: Rate of both directions, Mbit/s of payload (0: nothing passes).
+    rate_mbit: float | None = field(default=None, metadata=RATE)
+    #: Rate of the client -> upstream direction, Mbit/s.
+    rate_up_mbit: float | None = field(default=None, metadata=RATE)
+    #: Rate of the upstream -> client direction, Mbit/s.
+    rate_down_mbit: float | None = field(default=None, metadata=RATE)
+    #: Bottleneck queue per direction, bytes (full: the sender is not read).
+    queue_bytes: int | None = field(default=None, metadata=BUFFER)
+    #: Bytes a connection may have sent but not acknowledged.
+    window_bytes: int = field(default=DEFAULT_WINDOW_BYTES, metadata=BUFFER)
+    #: Loss probability per segment transmission (each loss: one retransmission timeout).
+    loss: float | None = field(default=None, metadata={"min": 0.0, "max": 1.0})
+    #: Mahimahi trace shaping client -> upstream (replaces the rate).
+    trace_up: Path | None = None
+    #: Mahimahi trace shaping upstream -> client (the server's responses).
+    trace_down: Path | None = None
+    #: Seed of the jitter and loss draws.
+    seed: int = field(default=0, metadata=SEED)
+    #: Write one CSV row per chunk (arrival, admission, release, actual send time).
+    log: Path | None = None
 
-def link_config(
-    profile: str | None = None,
-    *,
-    delay_ms: float | None = None,
-    jitter_ms: float | None = None,
-    jitter_dist: str | None = None,
-    rate_mbit: float | None = None,
-    rate_up_mbit: float | None = None,
-    rate_down_mbit: float | None = None,
-    queue_bytes: int | None = None,
-    loss: float | None = None,
-    trace_up: Path | None = None,
-    trace_down: Path | None = None,
-    window_bytes: int = DEFAULT_WINDOW_BYTES,
-    seed: int = 0,
-) -> LinkConfig:
-    """The link the proxy flags describe: the profile's settings (or none), overridden by each given flag."""
-    for flag, value in (
-        ("--delay-ms", delay_ms),
-        ("--jitter-ms", jitter_ms),
-        ("--rate-mbit", rate_mbit),
-        ("--rate-up-mbit", rate_up_mbit),
-        ("--rate-down-mbit", rate_down_mbit),
-        ("--loss", loss),
-    ):
-        _finite(flag, value)
-    base = profile_table.get(profile) if profile is not None else None
+    def __post_init__(self) -> None:
+        check_fields(self)  # code building the options meets the command line's limits
 
-    def direction(name: str, current: DirectionConfig, rate: float | None, trace: Path | None) -> DirectionConfig:
-        if rate is not None and trace is not None:
-            raise UserError(
-                f"--trace-{name} and a rate for the {name} direction were both given",
-                f"drop one: a trace replaces the rate of the {name} direction",
-            )
-        changes: dict[str, object] = {
-            k: v
-            for k, v in (
-                ("delay_ms", delay_ms),
-                ("jitter_ms", jitter_ms),
-                ("jitter_dist", jitter_dist),
-                ("queue_bytes", queue_bytes),
-                ("loss", loss),
-            )
-            if v is not None
+    def link(self) -> LinkConfig:
+        """The link these options describe: the profile's settings (or none), overridden by each given option."""
+        base = profile_table.get(self.profile) if self.profile is not None else None
+        shared = {
+            "delay_ms": self.delay_ms,
+            "jitter_ms": self.jitter_ms,
+            "jitter_dist": self.jitter_dist,
+            "queue_bytes": self.queue_bytes,
+            "loss": self.loss,
         }
-        if rate is not None:
-            changes.update(rate_mbit=rate, trace=None)
-        if trace is not None:
-            changes["trace"] = Trace.load(trace)
-        return replace(current, **changes)
 
-    up = direction(
-        "up", base.up if base else DirectionConfig(), rate_up_mbit if rate_up_mbit is not None else rate_mbit, trace_up
-    )
-    down = direction(
-        "down",
-        base.down if base else DirectionConfig(),
-        rate_down_mbit if rate_down_mbit is not None else rate_mbit,
-        trace_down,
-    )
-    return LinkConfig(up=up, down=down, window_bytes=window_bytes, seed=seed)
+        def direction(name: str, current: DirectionConfig, rate: float | None, trace: Path | None) -> DirectionConfig:
+            if rate is not None and trace is not None:
+                raise UserError(
+                    f"--trace-{name} and a rate for the {name} direction were both given",
+                    f"drop one: a trace replaces the rate of the {name} direction",
+                )
+            changes: dict[str, object] = {k: v for k, v in shared.items() if v is not None}
+            if rate is not None:
+                changes.update(rate_mbit=rate, trace=None)
+            if trace is not None:
+                changes["trace"] = Trace.load(trace)
+            return replace(current, **changes)
+
+        up_rate = self.rate_up_mbit if self.rate_up_mbit is not None else self.rate_mbit
+        down_rate = self.rate_down_mbit if self.rate_down_mbit is not None else self.rate_mbit
+        up = direction("up", base.up if base else DirectionConfig(), up_rate, self.trace_up)
+        down = direction("down", base.down if base else DirectionConfig(), down_rate, self.trace_down)
+        return LinkConfig(up=up, down=down, window_bytes=self.window_bytes, seed=self.seed)
 
 
-@app.command()
-def proxy(
-    upstream: str = typer.Option(..., help="HOST:PORT of the server the proxy forwards to (checked at start)."),
-    listen: str = typer.Option(
-        "127.0.0.1:0", help="HOST:PORT to accept clients on (port 0: any free port; printed first)."
-    ),
-    profile: str = typer.Option(
-        None, help="Named link (see 'network-sim profiles'); the flags below override its values."
-    ),
-    delay_ms: float = typer.Option(
-        None, min=0, help="One-way delay added in each direction, ms (an empty round trip takes twice it)."
-    ),
-    jitter_ms: float = typer.Option(
-        None, min=0, help="Standard deviation of the delay variation, ms (never reorders a stream)."
-    ),
-    jitter_dist: Dist = typer.Option(None, help="Distribution of the delay variation."),
-    rate_mbit: float = typer.Option(
-        None, min=0, help="Rate of both directions, Mbit/s of payload (0: nothing passes)."
-    ),
-    rate_up_mbit: float = typer.Option(None, min=0, help="Rate of the client -> upstream direction, Mbit/s."),
-    rate_down_mbit: float = typer.Option(None, min=0, help="Rate of the upstream -> client direction, Mbit/s."),
-    queue_bytes: int = typer.Option(
-        None, min=1500, help="Bottleneck queue per direction, bytes (full: the sender is not read)."
-    ),
-    window_bytes: int = typer.Option(
-        DEFAULT_WINDOW_BYTES, min=1500, help="Bytes a connection may have sent but not acknowledged."
-    ),
-    loss: float = typer.Option(
-        None, min=0, max=1, help="Loss probability per segment transmission (each loss: one retransmission timeout)."
-    ),
-    trace_up: Path = typer.Option(None, help="Mahimahi trace shaping client -> upstream (replaces the rate)."),
-    trace_down: Path = typer.Option(None, help="Mahimahi trace shaping upstream -> client (the server's responses)."),
-    seed: int = typer.Option(0, help="Seed of the jitter and loss draws."),
-    log: Path = typer.Option(None, help="Write one CSV row per chunk (arrival, admission, release, actual send time)."),
-) -> None:
+def link_config(profile: str | None = None, **options: Any) -> LinkConfig:
+    """The link of ``network-sim proxy --profile PROFILE`` with ``options`` (:class:`ProxyOptions` fields, by
+    name: ``delay_ms=10.0, seed=11``), for code and tests that replay what a proxy ran."""
+    return ProxyOptions(profile=profile, **options).link()
+
+
+def proxy(given: dict[str, Any]) -> None:
     """Proxy TCP connections through an emulated link until SIGTERM/SIGINT."""
-    from network_sim.proxy import parse_hostport, run
+    from network_sim.proxy import run
 
-    config = link_config(
-        profile,
-        delay_ms=delay_ms,
-        jitter_ms=jitter_ms,
-        jitter_dist=jitter_dist and jitter_dist.value,
-        rate_mbit=rate_mbit,
-        rate_up_mbit=rate_up_mbit,
-        rate_down_mbit=rate_down_mbit,
-        queue_bytes=queue_bytes,
-        loss=loss,
-        trace_up=trace_up,
-        trace_down=trace_down,
-        window_bytes=window_bytes,
-        seed=seed,
-    )
-    if log is not None:
-        writable_dir(log.parent, name="--log folder")
-    run(config, parse_hostport(listen, "--listen"), parse_hostport(upstream, "--upstream"), log)
+    opts = build_config(ProxyOptions, given)
+    config = opts.link()
+    if opts.log is not None:
+        writable_dir(opts.log.parent, name="--log folder")
+    assert opts.upstream is not None  # a required option
+    run(config, split_host_port(opts.listen, "--listen"), split_host_port(opts.upstream, "--upstream"), opts.log)
+
+
+config_command(app, ProxyOptions, proxy)
 
 
 @app.command()
@@ -156,39 +139,62 @@ def profiles() -> None:
         typer.echo(textwrap.fill(p.source, 110, initial_indent="  source: ", subsequent_indent="          "))
 
 
-@app.command()
-def server(listen: str = typer.Option("127.0.0.1:0", help="HOST:PORT (port 0: any free port; printed first).")) -> None:
+@dataclass(frozen=True)
+class ServerOptions:
+    """``network-sim server``'s options."""
+
+    #: HOST:PORT (port 0: any free port; printed first).
+    listen: str = field(default="127.0.0.1:0", metadata=HOST_PORT)
+
+
+def server(given: dict[str, Any]) -> None:
     """Run the echo/sink/source/probe server the self-test and the tests put behind the proxy."""
     from network_sim.endpoint import serve
-    from network_sim.proxy import parse_hostport
 
-    host, port = parse_hostport(listen, "--listen")
+    opts = build_config(ServerOptions, given)
+    host, port = split_host_port(opts.listen, "--listen")
     try:
         asyncio.run(serve(host, port))
     except OSError as exc:
         raise UserError(
-            f"--listen {listen}: cannot listen ({exc.strerror or exc})", "pick a free port, or 0 for any"
+            f"--listen {opts.listen}: cannot listen ({exc.strerror or exc})", "pick a free port, or 0 for any"
         ) from None
 
 
-@app.command()
-def selftest(
-    out: Path = typer.Option(..., help="Folder for network_selftest.csv, its provenance JSON and the plot."),
-    quick: bool = typer.Option(False, help="Shorter runs (about a minute and a half)."),
-    seed: int = typer.Option(0, help="Seed of the links and of the probe schedule."),
-) -> None:
-    """Measure configured against realised delay, jitter, goodput, loss delay and overhead; exit 1 if a target is missed."""
+config_command(app, ServerOptions, server)
+
+
+@dataclass(frozen=True)
+class SelftestOptions:
+    """``network-sim selftest``'s options beside ``--out``."""
+
+    #: Shorter runs (about a minute and a half).
+    quick: bool = False
+    #: Seed of the links and of the probe schedule.
+    seed: int = field(default=0, metadata=SEED)
+
+
+def selftest(given: dict[str, Any], *, out: Path) -> None:
+    """Measure configured vs realised delay, jitter, goodput, loss delay and overhead; exit 1 if a target is missed."""
     from network_sim.selftest import SelftestConfig, run_selftest
 
-    missed = run_selftest(SelftestConfig.quick() if quick else SelftestConfig(), writable_dir(out), seed)
+    opts = build_config(SelftestOptions, given)
+    config = SelftestConfig.quick() if opts.quick else SelftestConfig()
+    missed = run_selftest(config, writable_dir(out), opts.seed)
     if missed:
         typer.echo(f"selftest: {missed} target(s) missed (see the table above and {out})", err=True)
         raise typer.Exit(1)
 
 
+OUT_HELP = "Folder for network_selftest.csv, its provenance JSON and the plot."
+config_command(
+    app, SelftestOptions, selftest, extras=[extra("out", Annotated[Path, typer.Option("--out", help=OUT_HELP)])]
+)
+
+
 @app.command()
 def traces(out: Path = typer.Option(..., help="Folder to write the generated trace files into.")) -> None:
-    """Regenerate the shipped LTE traces from their seeded models and show their statistics against the recorded ones."""
+    """Regenerate the shipped LTE traces from their seeded models; show their statistics against the recorded ones."""
     from network_sim.tracegen import MODELS, trace_stats, write_traces
 
     for model, path in zip(MODELS.values(), write_traces(writable_dir(out))):

@@ -15,6 +15,7 @@ from typer.testing import CliRunner
 from gicore.cli import UserError
 from gicore.options import (
     FRAMES,
+    HOST_PORT,
     RESOLUTION,
     build_config,
     check_fields,
@@ -22,6 +23,7 @@ from gicore.options import (
     extra,
     field_docs,
     parse_options,
+    split_host_port,
 )
 
 
@@ -190,3 +192,35 @@ def test_every_field_needs_help_and_extras_may_not_shadow_fields() -> None:
 
 def test_shared_limits() -> None:
     assert (RESOLUTION["min"], RESOLUTION["max"], FRAMES["max"]) == (8, 2048, 100_000)
+
+
+@dataclass(frozen=True)
+class Endpoints:
+    """HOST:PORT fields, one of them required."""
+
+    #: Where to connect.
+    upstream: str | None = field(default=None, metadata={**HOST_PORT, "required": True})
+    #: Where to listen.
+    listen: str = field(default="127.0.0.1:0", metadata=HOST_PORT)
+
+
+def _endpoints_app(seen: list) -> typer.Typer:
+    app = typer.Typer(add_completion=False)
+    config_command(app, Endpoints, lambda given: seen.append(build_config(Endpoints, given)), name="go")
+    return app
+
+
+def test_host_port_fields_and_required_options() -> None:
+    seen: list = []
+    result = CliRunner().invoke(_endpoints_app(seen), ["--upstream", "[::1]:80"])
+    assert result.exit_code == 0, result.output
+    assert seen == [Endpoints(upstream="[::1]:80")] and split_host_port("[::1]:80", "--upstream") == ("::1", 80)
+    assert split_host_port("localhost:0", "--listen") == ("localhost", 0)
+    missing = CliRunner().invoke(_endpoints_app(seen), ["--listen", "h:1"])
+    assert missing.exit_code == 2 and "Missing option '--upstream'" in missing.output and len(seen) == 1
+    help_text = CliRunner(env={"COLUMNS": "250"}).invoke(_endpoints_app(seen), ["--help"]).output
+    assert "HOST:PORT" in help_text and "[required]" in help_text and "(default: 127.0.0.1:0)" in help_text
+    for bad in ("localhost", ":80", "h:", "h:65536", "h:-1", "h:8o"):
+        with pytest.raises(UserError, match=f"--listen '{bad}' is not HOST:PORT: give e.g. --listen 127.0.0.1:8000"):
+            build_config(Endpoints, {"upstream": "h:1", "listen": bad})
+    check_fields(Endpoints())  # an absent (None) address is not checked

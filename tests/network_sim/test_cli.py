@@ -7,10 +7,16 @@ import socket
 import subprocess
 import sys
 from collections.abc import Iterator
+from dataclasses import fields
 from pathlib import Path
 
 import pytest
 
+from gicore.cli import UserError
+from gicore.options import option_name
+from network_sim import profiles as profile_table
+from network_sim.cli import ProxyOptions, link_config
+from network_sim.link import LinkConfig
 from tests.helpers.cli import assert_user_error
 
 
@@ -32,19 +38,33 @@ def workspace(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 CASES = [
-    (["--delay-ms", "-5"], "'--delay-ms'"),
-    (["--delay-ms", "nan"], "'--delay-ms'"),
-    (["--loss", "1.5"], "'--loss'"),
-    (["--jitter-ms", "-1"], "'--jitter-ms'"),
+    (["--delay-ms", "-5"], "--delay-ms = -5.0 is below 0"),
+    (["--delay-ms", "nan"], "--delay-ms = nan is not finite"),
+    (["--delay-ms", "60001"], "--delay-ms = 60001.0 is above 60000"),
+    (["--loss", "1.5"], "--loss = 1.5 is above 1.0"),
+    (["--loss", "-0.1"], "--loss = -0.1 is below 0"),
+    (["--jitter-ms", "-1"], "--jitter-ms = -1.0 is below 0"),
+    (["--jitter-ms", "1e6"], "--jitter-ms = 1000000.0 is above 60000"),
     (["--jitter-dist", "cauchy"], "'--jitter-dist'"),
-    (["--rate-mbit", "inf"], "--rate-mbit inf is not a finite number"),
-    (["--queue-bytes", "10"], "'--queue-bytes'"),
+    (["--rate-mbit", "inf"], "--rate-mbit = inf is not finite"),
+    (["--rate-mbit", "100001"], "--rate-mbit = 100001.0 is above 100000"),
+    (["--rate-up-mbit", "-1"], "--rate-up-mbit = -1.0 is below 0"),
+    (["--rate-down-mbit", "nan"], "--rate-down-mbit = nan is not finite"),
+    (["--queue-bytes", "10"], "--queue-bytes = 10 is below 1500"),
+    (["--queue-bytes", str(2**30 + 1)], f"--queue-bytes = {2**30 + 1} is above {2**30}"),
+    (["--window-bytes", "1000"], "--window-bytes = 1000 is below 1500"),
+    (["--window-bytes", str(2**40)], f"--window-bytes = {2**40} is above {2**30}"),
+    (["--seed", "-1"], "--seed = -1 is below 0"),
+    (["--seed", str(2**32)], f"--seed = {2**32} is above {2**32 - 1}"),
     (["--profile", "5g"], "--profile '5g' is not a known profile"),
     (["--trace-up", "bad.txt"], "trace bad.txt line 3: '2x0' is not a whole number"),
     (["--trace-down", "down.txt"], "trace down.txt line 2: timestamp 5 is smaller"),
     (["--trace-down", "missing.txt"], "trace missing.txt cannot be read"),
     (["--trace-up", "ok.txt", "--rate-up-mbit", "5"], "--trace-up and a rate for the up direction"),
     (["--listen", "localhost"], "--listen 'localhost' is not HOST:PORT"),
+    (["--listen", "127.0.0.1:65536"], "--listen '127.0.0.1:65536' is not HOST:PORT"),
+    (["--upstream", "127.0.0.1"], "--upstream '127.0.0.1' is not HOST:PORT"),  # the last --upstream counts
+    (["--log", "afile/chunks.csv"], "--log folder afile is a file"),
 ]
 
 
@@ -68,12 +88,43 @@ def test_listen_port_taken(workspace: Path, listener: int) -> None:
     assert_user_error(argv, f"--listen 127.0.0.1:{listener}: cannot listen", workspace)
 
 
+def test_upstream_is_required(workspace: Path) -> None:
+    assert_user_error(["network-sim", "proxy"], "Missing option '--upstream'", workspace)
+
+
 def test_other_commands(workspace: Path) -> None:
     assert_user_error(["network-sim", "selftest", "--out", "afile"], "--out afile is a file", workspace)
+    assert_user_error(["network-sim", "selftest", "--out", "new", "--seed", "-1"], "--seed = -1 is below 0", workspace)
     assert_user_error(
         ["network-sim", "server", "--listen", "nowhere"], "--listen 'nowhere' is not HOST:PORT", workspace
     )
+    assert_user_error(
+        ["network-sim", "server", "--listen", "h:99999"], "--listen 'h:99999' is not HOST:PORT", workspace
+    )
     assert_user_error(["network-sim", "traces", "--out", "afile"], "--out afile is a file", workspace)
+
+
+def test_options_map_onto_the_link_in_one_place() -> None:
+    """Shared options set both directions over the profile's; a per-direction rate wins over --rate-mbit."""
+    wan = profile_table.get("wan")
+    link = link_config("wan", delay_ms=20.0, rate_mbit=3.0, rate_down_mbit=7.0, seed=5)
+    assert (link.up.delay_ms, link.down.delay_ms, link.up.rate_mbit, link.down.rate_mbit) == (20.0, 20.0, 3.0, 7.0)
+    assert link.up.queue_bytes == wan.up.queue_bytes and link.down.loss == wan.down.loss and link.seed == 5
+    assert link_config() == LinkConfig()  # no profile, no option: an unshaped link
+    assert link_config(rate_mbit=0.0).up.rate_mbit == 0.0  # a dead link stays possible (SPEC §9)
+    with pytest.raises(UserError, match="--window-bytes = 1073741825 is above"):
+        ProxyOptions(window_bytes=2**30 + 1)  # code building the options meets the command line's limits
+
+
+def test_every_proxy_field_is_an_option_with_its_limits() -> None:
+    from typer.main import get_command
+
+    from network_sim.cli import app
+
+    proxy = get_command(app).commands["proxy"]  # type: ignore[attr-defined]
+    options = {opt for p in proxy.params for opt in p.opts}
+    assert {option_name(f) for f in fields(ProxyOptions)} <= options
+    assert next(p for p in proxy.params if p.name == "upstream").required
 
 
 def test_profiles_lists_every_profile_with_its_source() -> None:
