@@ -36,6 +36,7 @@ import logging
 import threading
 import time
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any, Literal
 
@@ -434,20 +435,25 @@ class CloudClientConfig(PathRunConfig):
 
 def run_client(
     cfg: CloudClientConfig, server: str, tolerance: ServerInfo
-) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
-    """Fly the scene's camera path composing with ``server``'s maps; returns (per-frame rows, per-request rows).
+) -> tuple[list[dict[str, Any]], list[dict[str, Any]], str]:
+    """Fly the scene's camera path composing with ``server``'s maps; returns (per-frame rows, per-request rows,
+    the renderer that ran the per-frame raster passes: ``"mitsuba"`` when ``gl`` was asked and no GL context
+    opened, see :func:`gicore.loop.open_raster`).
 
-    Composed frames of scored frames are kept and scored against the GT after the run, so the GT renders
-    neither delay frames nor change when requests go out.
+    The local DI and the warp's surface-mask pass use ``cfg.renderer``; the GT stays with Mitsuba. Composed
+    frames of scored frames are kept and scored against the GT after the run, so the GT renders neither
+    delay frames nor change when requests go out.
     """
     from baseline_cloudbaking.warp import PixelWarp
-    from gicore.loop import LAYERS, ClientLoop, GroundTruth, LoopConfig, path_views, run_frames
+    from gicore.gl import GLRenderer, RasterUnavailable
+    from gicore.loop import LAYERS, ClientLoop, GroundTruth, LoopConfig, open_raster, path_views, run_frames
     from gicore.render import Renderer
     from gicore.scene import load_scene
 
     spec = load_scene(cfg.scene)
     remote = cfg.remote(server, spec.light.moves)
     renderer = Renderer(spec, cfg.resolution)
+    raster, used = open_raster(cfg.renderer, renderer, partial(GLRenderer, spec, cfg.resolution), RasterUnavailable)
     loop_cfg = LoopConfig(
         every=cfg.every, gi_fov=cfg.gi_fov_of(spec), max_move=tolerance.tolerance_position or None,
         max_turn=tolerance.tolerance_angle_deg or None, composition=cfg.composition, tau=cfg.tau, seed=cfg.seed,
@@ -461,13 +467,13 @@ def run_client(
             kept[frame] = result.image
 
     with RemoteSource(remote) as source:
-        warp = PixelWarp(renderer, LAYERS[cfg.composition])
-        rows = run_frames(ClientLoop(loop_cfg, renderer, source, warp), views, None, keep)
+        warp = PixelWarp(raster, LAYERS[cfg.composition])
+        rows = run_frames(ClientLoop(loop_cfg, raster, source, warp), views, None, keep)
     if kept:
         ground_truth = GroundTruth(renderer, cfg.gt_every, cfg.spp, cfg.denoise, cfg.seed)
         for frame, image in kept.items():
             rows[frame] |= ground_truth.score(frame, *views[frame], image)
-    return rows, join_requests(source.records, rows, tuple(s for s in warp.stages if s != "bind"))
+    return rows, join_requests(source.records, rows, tuple(s for s in warp.stages if s != "bind")), used
 
 
 def join_requests(

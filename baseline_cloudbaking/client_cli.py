@@ -13,7 +13,9 @@ recorded, and the frames go on with the last map.
 Writes under ``--out``: ``frames.csv`` (per frame: every stage in ms, the map's age and latency, what
 the frame waited for, SSIM/PSNR against the path-traced GT every ``--gt-every`` frames, scored after the
 run), ``requests.csv`` (per request: status, hit, bytes, every stage from transmission to blend; the
-split is explained in :mod:`baseline_cloudbaking.client`) and ``summary.json``. Its options are derived from
+split is explained in :mod:`baseline_cloudbaking.client`) and ``summary.json`` (``renderer``: the one that ran
+the local DI and the warp's mask pass: ``--renderer gl`` without a GL context falls back to mitsuba with one
+warning). Its options are derived from
 :class:`baseline_cloudbaking.client.CloudClientConfig` (the fields both clients share live in
 :class:`gicore.loop.PathRunConfig`).
 """
@@ -50,8 +52,8 @@ def client_command(given: dict[str, Any], *, server: str, out: Path) -> None:
     writable_dir(out)
     logging.basicConfig(format="%(asctime)s %(name)s: %(message)s", level=logging.INFO)
     with exclusive_run(out):
-        rows, requests = run_client(cfg, server, tolerance)
-        summary = write_outputs(cfg, rows, requests, out)
+        rows, requests, used = run_client(cfg, server, tolerance)
+        summary = write_outputs(cfg, rows, requests, out, renderer=used)
     line = f"{cfg.frames} frames, {summary['fps']:.1f} fps; {summary['requests']} requests"
     line += f" ({summary['hits']} hits, {summary['misses']} misses"
     failed = {s: n for s, n in summary["status"].items() if s != "ok"}
@@ -77,13 +79,17 @@ config_command(
 )
 
 
-def write_outputs(cfg: CloudClientConfig, rows: list[dict], requests: list[dict], out: Path) -> dict:
-    """``frames.csv``, ``requests.csv`` and ``summary.json`` under ``out``; returns the summary."""
+def write_outputs(
+    cfg: CloudClientConfig, rows: list[dict], requests: list[dict], out: Path, renderer: str | None = None
+) -> dict:
+    """``frames.csv``, ``requests.csv`` and ``summary.json`` under ``out``; returns the summary. ``renderer``:
+    the renderer that ran the raster passes (default: the one the config asks for)."""
     from gicore.loop import summarize, write_rows
 
     write_rows(rows, out / "frames.csv")
     write_rows(requests, out / "requests.csv")  # frame 0 always asks, so there is a record (if only "abandoned")
-    summary = {"config": asdict(cfg)} | summarize(rows, cfg.every) | request_summary(requests)
+    summary = {"config": asdict(cfg), "renderer": renderer or cfg.renderer}
+    summary |= summarize(rows, cfg.every) | request_summary(requests)
     # maps come in the background, so the frame rate is what the frames took (not the amortised GI cost)
     summary["fps"] = 1000.0 / float(np.mean([float(r["frame_ms"]) for r in rows]))
     atomic_write_bytes(out / "summary.json", json.dumps(summary, indent=1).encode())

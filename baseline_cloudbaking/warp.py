@@ -17,8 +17,9 @@ Fig. 5(a)). Numpy only, apart from the client's surface-mask pass.
    (where the target view sees a surface) only there, and the background stays 0.
 
 :class:`PixelWarp` is the :class:`gicore.loop.Warp` of the cloud-baking client: it binds a GI map's
-point cloud and, per frame, renders the surface mask of the target view (``raster``, the centre-sampled
-pass of :meth:`gicore.render.Renderer.render_uv`) before splatting.
+point cloud and, per frame, renders the surface mask of the target view (``raster``: a GL renderer's depth
+pass, :meth:`gicore.gl.GLRenderer.render_depth`, or Mitsuba's centre-sampled
+:meth:`gicore.render.Renderer.render_uv`) before splatting.
 With identical cameras every point lands on its own pixel with footprint 1: the identity.
 """
 
@@ -156,6 +157,12 @@ class PixelWarp:
         self.layer = layer
         self.cloud: PointCloud | None = None
 
+    def _surface(self, camera: Camera) -> np.ndarray:
+        """The target view's surface mask: a GL renderer's depth pass (:meth:`gicore.gl.GLRenderer.render_depth`),
+        else Mitsuba's centre-sampled uv pass."""
+        depth_pass = getattr(self.renderer, "render_depth", None)
+        return (depth_pass or self.renderer.render_uv)(camera)["mask"]
+
     def bind(self, gi: GIMap) -> Timings:
         sw = Stopwatch()
         self.cloud = PointCloud(gi.layer(self.layer), gi.depth, gi.camera)
@@ -166,7 +173,7 @@ class PixelWarp:
         if self.cloud is None:
             raise RuntimeError("no GI map is bound; call bind() first")
         sw = Stopwatch()
-        mask = self.renderer.render_uv(camera)["mask"]
+        mask = self._surface(camera)
         sw.lap("raster")
         out, valid, timings = self.cloud.splat(camera, target_mask=mask)
         return out, valid | ~mask, sw.ms | timings

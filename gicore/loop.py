@@ -32,6 +32,7 @@ from __future__ import annotations
 import csv
 import io
 import math
+import sys
 import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field, replace
@@ -60,6 +61,9 @@ Timings = dict[str, float]
 #: What a warp brings to the current view, per composition: the full GI map for eq. 1, its indirect
 #: part for the residual composition (which adds it to the current DI).
 LAYERS = {"blend": "radiance", "residual": "indirect"}
+#: Renderers of a client's per-frame raster passes (:attr:`PathRunConfig.renderer`): OpenGL
+#: (:class:`gicore.gl.GLRenderer`) or Mitsuba's centre-sampled passes (:class:`gicore.render.Renderer`).
+RENDERERS = ("gl", "mitsuba")
 
 
 # -- the GI map ---------------------------------------------------------------------------------------------
@@ -315,6 +319,11 @@ class PathRunConfig:
     gt_every: int = field(default=0, metadata={"min": 0})
     #: Camera-path and render seed.
     seed: int = field(default=0, metadata=SEED)
+    #: Renderer of the per-frame raster passes (local DI, GIGAN's DI + G-buffers at the GI camera, the warps'
+    #: uv/depth passes): gl (OpenGL on headless EGL; without a context: one warning and mitsuba) or mitsuba.
+    #: Path tracing (GT, the gt source, the server) is always Mitsuba's. Default mitsuba until the shipped
+    #: model's quality on GL-rendered inputs is measured (issue 22).
+    renderer: Literal[RENDERERS] = "mitsuba"  # type: ignore[valid-type]
 
     def __post_init__(self) -> None:
         try:
@@ -329,6 +338,30 @@ class PathRunConfig:
     def gi_fov_of(self, spec: SceneSpec) -> float:
         """The GI camera's FOV: the given one, else the scene's."""
         return spec.camera.gi_fov if self.gi_fov is None else self.gi_fov
+
+
+def open_raster(
+    choice: str, path_renderer: Renderer, open_gl: Callable[[], Any], unavailable: type[Exception]
+) -> tuple[Any, str]:
+    """The renderer of a client's per-frame raster passes for ``choice`` (:data:`RENDERERS`), and the name
+    of the one that will run them.
+
+    ``"mitsuba"`` is ``path_renderer`` itself. ``"gl"`` is ``open_gl()`` (the client's
+    :class:`gicore.gl.GLRenderer` of the same scene and resolution; passed in, as ``gicore.gl`` imports this
+    module); when it raises ``unavailable`` (:class:`gicore.gl.RasterUnavailable`: no GL context opens) the
+    run falls back to ``path_renderer`` after one line on stderr naming the reason: not an error, but the
+    name returned says what ran, for the run's summary.
+    """
+    if choice not in RENDERERS:
+        raise ValueError(f"renderer must be one of {RENDERERS}, got {choice!r}")
+    if choice == "mitsuba":
+        return path_renderer, "mitsuba"
+    try:
+        return open_gl(), "gl"
+    except unavailable as err:
+        reason = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+    print(f"warning: renderer gl is unavailable, using mitsuba: {reason}", file=sys.stderr, flush=True)
+    return path_renderer, "mitsuba"
 
 
 @dataclass

@@ -11,6 +11,11 @@ The loop itself -- DI every frame, a GI map every ``k`` frames, warp, compose, p
 - the structure-aware warp (:class:`gigan_local.warp.StructureAwareWarp`), or none (the map pasted as
   is, so it is made with the local camera's FOV).
 
+With ``renderer="gl"`` (:attr:`gicore.loop.PathRunConfig.renderer`) every per-frame raster pass -- the local
+DI, the model source's DI + G-buffers at the GI camera, the warp's uv pass -- is OpenGL's
+(:class:`gicore.gl.GLRenderer`); path tracing (the GT source, GT scoring) stays Mitsuba's, so such a client
+holds both renderers. The stage names are the same either way.
+
 GIGAN maps with cloud baking's pixel-level warp (Table 3's comparison) are assembled in ``bench``, which
 may import both systems; this package does not import ``baseline_cloudbaking``.
 """
@@ -18,7 +23,8 @@ may import both systems; this package does not import ``baseline_cloudbaking``.
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
+from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
@@ -38,6 +44,7 @@ from gicore.loop import (
     PathRunConfig,
     SynchronousSource,
     Warp,
+    open_raster,
     path_views,
     render_gt,
     run_frames,
@@ -180,11 +187,18 @@ def load_model(path: Path | None, threads: int, resolution: int) -> GIModel:
     return model
 
 
-def make_gi_source(cfg: ClientConfig, renderer: Renderer, cache: dict | None = None) -> SynchronousSource:
-    """The configured GI source; ``model`` needs an exported model (``--model`` or the default file)."""
+def make_gi_source(
+    cfg: ClientConfig, renderer: Renderer, cache: dict | None = None, raster: Any | None = None
+) -> SynchronousSource:
+    """The configured GI source; ``model`` needs an exported model (``--model`` or the default file).
+
+    ``renderer`` path-traces (the ``gt`` source is Mitsuba's alone); ``raster`` (default ``renderer``)
+    renders the model source's DI + G-buffers at the GI camera (a :class:`gicore.gl.GLRenderer` with
+    ``renderer="gl"``)."""
     if cfg.gi_source == "gt":
         return GTSource(renderer, cfg.spp, cfg.denoise, cfg.seed, cache)
-    return ModelSource(renderer, load_model(cfg.model, cfg.threads, renderer.resolution), cfg.seed)
+    raster = renderer if raster is None else raster
+    return ModelSource(raster, load_model(cfg.model, cfg.threads, raster.resolution), cfg.seed)
 
 
 def make_warp(method: str, renderer: Renderer, composition: str) -> Warp:
@@ -196,9 +210,12 @@ def make_warp(method: str, renderer: Renderer, composition: str) -> Warp:
 
 
 # -- a run --------------------------------------------------------------------------------------------------
-def run_client(cfg: ClientConfig, renderer: Renderer | None = None, on_frame=None) -> list[dict[str, Any]]:
-    """Run the configured client along the scene's camera path; returns the per-frame rows."""
-    spec = load_scene(cfg.scene)
+def open_renderers(cfg: ClientConfig, spec: SceneSpec, renderer: Renderer | None = None) -> tuple[Renderer, Any, str]:
+    """(Mitsuba renderer, the renderer of the per-frame raster passes, the name of the one that runs them).
+
+    ``renderer``: a Mitsuba renderer to share (it must render ``spec`` at the config's resolution). With
+    ``cfg.renderer == "gl"`` the raster passes get a :class:`gicore.gl.GLRenderer`, or Mitsuba's after one
+    warning when no GL context opens (:func:`gicore.loop.open_raster`)."""
     if renderer is None:
         from gicore.render import Renderer
 
@@ -208,19 +225,41 @@ def run_client(cfg: ClientConfig, renderer: Renderer | None = None, on_frame=Non
             f"the shared renderer renders {renderer.spec.name} at {renderer.resolution}²"
             f" but the config asks for {spec.name} at {cfg.resolution}²"
         )
+    from gicore.gl import GLRenderer, RasterUnavailable
+
+    return (
+        renderer,
+        *open_raster(cfg.renderer, renderer, partial(GLRenderer, spec, cfg.resolution), RasterUnavailable),
+    )
+
+
+def run_client(
+    cfg: ClientConfig, renderer: Renderer | None = None, on_frame=None, raster: Any | None = None
+) -> list[dict[str, Any]]:
+    """Run the configured client along the scene's camera path; returns the per-frame rows.
+
+    ``renderer`` (optional, shared): the Mitsuba renderer of path tracing; ``raster`` (optional): the
+    renderer of the per-frame raster passes (local DI, the model source's DI + G-buffers, the warp's uv
+    pass), by default the one ``cfg.renderer`` names (:func:`open_renderers`). GT stays with Mitsuba."""
+    spec = load_scene(cfg.scene)
+    if raster is None:
+        renderer, raster, _ = open_renderers(cfg, spec, renderer)
+    elif renderer is None:
+        renderer, _, _ = open_renderers(replace(cfg, renderer="mitsuba"), spec)
     if cfg.gi_source == "gt" or cfg.gt_every:
         check_denoiser(cfg.denoise)
     local_fov, _ = cfg.fovs(spec)
-    loop = ClientLoop(
-        cfg.loop_config(spec), renderer, make_gi_source(cfg, renderer), make_warp(cfg.warp, renderer, cfg.composition)
-    )
+    source = make_gi_source(cfg, renderer, raster=raster)
+    loop = ClientLoop(cfg.loop_config(spec), raster, source, make_warp(cfg.warp, raster, cfg.composition))
     views = path_views(spec, cfg.frames, cfg.orbit_frames, cfg.seed, local_fov, cfg.resolution)
     ground_truth = GroundTruth(renderer, cfg.gt_every, cfg.spp, cfg.denoise, cfg.seed) if cfg.gt_every else None
     return run_frames(loop, views, ground_truth, on_frame)
 
 
 def run(cfg: ClientConfig, out: Path, save_frames: bool = False, video: bool = False) -> dict[str, Any]:
-    """Run the client and write ``frames.csv``, ``summary.json`` and optionally PNG frames / an MP4."""
+    """Run the client and write ``frames.csv``, ``summary.json`` (with ``renderer``: the renderer that ran the
+    raster passes, which is mitsuba when gl was asked and no GL context opened) and optionally PNG frames / an
+    MP4."""
     from PIL import Image
 
     out = Path(out)
@@ -235,11 +274,11 @@ def run(cfg: ClientConfig, out: Path, save_frames: bool = False, video: bool = F
         if video:
             images.append(rgb)
 
-    rows = run_client(cfg, on_frame=keep if (save_frames or video) else None)
+    renderer, raster, used = open_renderers(cfg, load_scene(cfg.scene))
+    rows = run_client(cfg, renderer, on_frame=keep if (save_frames or video) else None, raster=raster)
     write_rows(rows, out / "frames.csv")
-    summary = {"config": {k: (str(v) if isinstance(v, Path) else v) for k, v in asdict(cfg).items()}} | summarize(
-        rows, cfg.every
-    )
+    summary = {"config": {k: (str(v) if isinstance(v, Path) else v) for k, v in asdict(cfg).items()}}
+    summary |= {"renderer": used} | summarize(rows, cfg.every)
     if video:
         summary["video"] = _write_video(images, out / "frames.mp4")
     (out / "summary.json").write_text(json.dumps(summary, indent=1))

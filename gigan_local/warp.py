@@ -8,7 +8,8 @@ map becomes a projective texture on the scene's own triangles:
    camera, ``clip = M_p · M_v · M_w · P`` (eq. 5; our meshes are stored in world space, so M_w = I), and
    ``(clip.x, clip.y)`` is uploaded as the vertex texture coordinates (no BVH rebuild).
 2. **raster** (per frame): the local render interpolates them across each triangle with the hit's
-   barycentrics (:meth:`gicore.render.Renderer.render_uv`), in the same pass as the world position.
+   barycentrics (:meth:`gicore.render.Renderer.render_uv`, or :class:`gicore.gl.GLRenderer`'s, whose vertex
+   shader computes step 1 itself), in the same pass as the world position.
 3. **project** (per pixel): ``uv = clip.xy / (2 w) + 0.5`` as in eq. 5, with ``w`` (the GI camera's view
    depth of the pixel's point) computed exactly from the position.
 4. **depth test + lookup**: bilinear lookup in the GI map whose four taps each pass a depth test;
@@ -194,9 +195,15 @@ class StructureAwareWarp:
         return sw.ms
 
     def bind_texture(self, texture: GITexture) -> None:
-        """Eq. 5 per vertex: upload every object's GI-camera clip (x, y) as its texture coordinates."""
-        for obj in self.renderer.objects:
-            self.renderer.set_texcoords(obj.name, clip_xy(texture.camera, obj.mesh.vertices))
+        """Eq. 5 per vertex: every object's GI-camera clip (x, y) as its texture coordinates. A renderer that
+        projects them in its vertex shader (:meth:`gicore.gl.GLRenderer.set_texcoord_projection`, as WebGL
+        would) is given the GI camera; on the others (Mitsuba) they are computed here and uploaded."""
+        project = getattr(self.renderer, "set_texcoord_projection", None)
+        if project is not None:
+            project(texture.camera)
+        else:
+            for obj in self.renderer.objects:
+                self.renderer.set_texcoords(obj.name, clip_xy(texture.camera, obj.mesh.vertices))
         self.texture = texture
         self._w_row = texture.camera.view_proj()[3].astype(np.float32)  # clip w = this row . (p, 1)
 

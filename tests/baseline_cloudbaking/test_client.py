@@ -218,3 +218,24 @@ def test_timeouts_are_explicit() -> None:
     assert (timeout.connect, timeout.read, timeout.write, timeout.pool) == (2.0, 3.0, 3.0, 2.0)
     with pytest.raises(ValueError, match="read_timeout_s"):
         RemoteConfig("http://127.0.0.1:1", "s", read_timeout_s=0.0)
+
+
+def test_cloud_client_with_the_gl_renderer(server: str, scenes_dir: Path, tmp_path: Path) -> None:
+    """``cloudbaking-client --renderer gl``: the local DI and the warp's mask pass rasterised by OpenGL (the
+    server still path-traces), the same frame columns as with Mitsuba, and the summary naming what ran."""
+    from gicore.gl import gl_available
+
+    ok, why = gl_available()
+    if not ok:
+        pytest.skip(f"no OpenGL context: {why}")
+    argv = [str(BIN / "cloudbaking-client"), "--server", server, "--scene", str(scenes_dir / "ball_moving.json")]
+    argv += ["--frames", "4", "--resolution", str(RES), "-k", "2", "--spp", str(SPP), "--renderer", "gl"]
+    proc = subprocess.run([*argv, "--out", str(tmp_path / "gl")], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert "unavailable" not in proc.stderr
+    summary = json.loads((tmp_path / "gl" / "summary.json").read_text())
+    assert summary["renderer"] == "gl" and summary["config"]["renderer"] == "gl"
+    frames = read_csv(tmp_path / "gl" / "frames.csv")
+    assert len(frames) == 4 and frames[0]["gi_new"] == "1"
+    assert all(float(frames[0][f"{s}_ms"]) > 0 for s in CLOUD_FRAME_STAGES), frames[0]
+    assert all(float(r["di_ms"]) > 0 and float(r["raster_ms"]) > 0 and float(r["valid_frac"]) > 0.5 for r in frames)

@@ -234,3 +234,99 @@ def test_network_input_is_encoded_in_place():
     np.testing.assert_array_equal(frame_to_input(frame, spec), reference)
     with pytest.raises(ValueError, match="input buffer"):
         frame_to_input(frame, spec, out=np.empty((10, 8, 7), np.float32))
+
+
+# -- the renderer of the raster passes (issue 22) -----------------------------------------------------------
+#: Composed frames of a ``--renderer gl`` run against the same run on Mitsuba, DI pass-through model (so the
+#: GI map is the GI camera's DI, and every pass of the frame is a raster pass), at 64² on the sphere-and-box
+#: scene: SSIM 0.888-0.945 (mean 0.920) over 6 frames measured. Mitsuba's DI puts its one sample at a random point of each
+#: pixel, GL at the centre, so they differ at silhouettes and shadow edges by as much as two Mitsuba DI renders
+#: with different seeds differ (DI alone, 6 views: gl vs mitsuba 0.91-0.93, mitsuba vs mitsuba 0.87-0.90 at
+#: 64²; 0.96 vs 0.95 at 128²; at 32² both 0.73-0.87, too coarse to bound). At 256² on lung_plane with the
+#: shipped model the composed frames agree to SSIM 0.984-0.994.
+GL_SSIM_MIN, GL_SSIM_MEAN = 0.85, 0.9
+GL_RES = 64
+
+
+@pytest.fixture(scope="module")
+def model64(tmp_path_factory) -> Path:
+    pytest.importorskip("onnx")
+    from tests.helpers.cloud import passthrough_model as write_passthrough
+
+    return write_passthrough(tmp_path_factory.mktemp("model64"), GL_RES)
+
+
+@pytest.fixture(scope="module")
+def renderer64(spec_file):
+    from gicore.render import Renderer
+    from gicore.scene import load_scene
+
+    return Renderer(load_scene(spec_file), GL_RES)
+
+
+def gl_config(spec_file: Path, model: Path, **changes) -> ClientConfig:
+    fields = dict(scene=str(spec_file), frames=6, resolution=GL_RES, every=3, orbit_frames=40, gi_source="model")
+    return ClientConfig(**(fields | {"model": model, "denoise": False} | changes))
+
+
+def test_gl_renderer_frames_match_mitsuba(spec_file, renderer64, model64, tmp_path):
+    from gicore.gl import gl_available
+    from gicore.metrics import ssim
+    from gicore.tonemap import tonemap
+    from gigan_local.client import run
+
+    ok, why = gl_available()
+    if not ok:
+        pytest.skip(f"no OpenGL context: {why}")
+    images: dict[str, list[np.ndarray]] = {"gl": [], "mitsuba": []}
+    rows = {}
+    for name in images:
+        cfg = gl_config(spec_file, model64, renderer=name)
+        rows[name] = run_client(cfg, renderer64, on_frame=lambda f, result, n=name: images[n].append(result.image))
+    scores = [ssim(tonemap(a), tonemap(b)) for a, b in zip(images["gl"], images["mitsuba"])]
+    assert min(scores) >= GL_SSIM_MIN and np.mean(scores) >= GL_SSIM_MEAN, scores
+    assert not all(np.array_equal(a, b) for a, b in zip(images["gl"], images["mitsuba"]))  # gl really ran
+    assert list(rows["gl"][0]) == list(rows["mitsuba"][0])  # the same stage columns, for benches to compare
+    assert all(r["di_ms"] > 0 and r["raster_ms"] > 0 for r in rows["gl"])
+    assert all(r["gi_render_ms"] > 0 for r in rows["gl"] if r["gi_new"])
+
+    summary = run(gl_config(spec_file, model64, renderer="gl", frames=2), tmp_path / "gl")
+    assert summary["renderer"] == "gl" and summary["config"]["renderer"] == "gl"
+    assert json.loads((tmp_path / "gl" / "summary.json").read_text())["renderer"] == "gl"
+
+
+@pytest.mark.parametrize("failure", ["no_context", "renderer_fails"])
+def test_gl_without_a_context_falls_back_to_mitsuba(
+    spec_file, renderer64, model64, tmp_path, monkeypatch, capsys, failure
+):
+    """``--renderer gl`` where no GL context opens: one line on stderr with the reason, the run on Mitsuba
+    (frames as a mitsuba run's), and the summary saying which renderer ran."""
+    import gicore.gl
+    from gicore.gl import RasterUnavailable, context
+    from gigan_local.client import run
+
+    if failure == "no_context":  # EGL refuses, as on a machine without libEGL or a device
+        moderngl = pytest.importorskip("moderngl")
+
+        def refuse(**kwargs):
+            raise Exception("eglInitialize failed (test)")
+
+        monkeypatch.setattr(context, "_context", None)
+        monkeypatch.setattr(context, "_failure", None)
+        monkeypatch.setattr(moderngl, "create_standalone_context", refuse)
+    else:  # the renderer itself reports that it cannot rasterise
+
+        def fails(*args, **kwargs):
+            raise RasterUnavailable("eglInitialize failed (test)\nsecond line")
+
+        monkeypatch.setattr(gicore.gl, "GLRenderer", fails)
+    capsys.readouterr()
+    summary = run(gl_config(spec_file, model64, renderer="gl", frames=2), tmp_path / "run")
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "eglInitialize failed (test)" in err[0] and "mitsuba" in err[0], err
+    assert summary["renderer"] == "mitsuba" and summary["config"]["renderer"] == "gl"
+    with (tmp_path / "run" / "frames.csv").open() as fh:
+        fell_back = list(csv.DictReader(fh))
+    reference = run_client(gl_config(spec_file, model64, frames=2), renderer64)
+    assert list(fell_back[0]) == list(reference[0])
+    assert [r["valid_frac"] for r in fell_back] == [str(r["valid_frac"]) for r in reference]
