@@ -239,11 +239,11 @@ def test_network_input_is_encoded_in_place():
 # -- the renderer of the raster passes (issue 22) -----------------------------------------------------------
 #: Composed frames of a ``--renderer gl`` run against the same run on Mitsuba, DI pass-through model (so the
 #: GI map is the GI camera's DI, and every pass of the frame is a raster pass), at 64² on the sphere-and-box
-#: scene: SSIM 0.888-0.945 (mean 0.920) over 6 frames measured. Mitsuba's DI puts its one sample at a random point of each
-#: pixel, GL at the centre, so they differ at silhouettes and shadow edges by as much as two Mitsuba DI renders
-#: with different seeds differ (DI alone, 6 views: gl vs mitsuba 0.91-0.93, mitsuba vs mitsuba 0.87-0.90 at
-#: 64²; 0.96 vs 0.95 at 128²; at 32² both 0.73-0.87, too coarse to bound). At 256² on lung_plane with the
-#: shipped model the composed frames agree to SSIM 0.984-0.994.
+#: scene: SSIM 0.888-0.945 (mean 0.920) over 6 frames measured. Mitsuba's DI puts its one sample at a random
+#: point of each pixel, GL at the centre, so they differ at silhouettes and shadow edges by as much as two
+#: Mitsuba DI renders with different seeds differ (DI alone, 6 views: gl vs mitsuba 0.91-0.93, mitsuba vs
+#: mitsuba 0.87-0.90 at 64²; 0.96 vs 0.95 at 128²; at 32² both 0.73-0.87, too coarse to bound). At 256² on
+#: lung_plane with the shipped model the composed frames agree to SSIM 0.984-0.994.
 GL_SSIM_MIN, GL_SSIM_MEAN = 0.85, 0.9
 GL_RES = 64
 
