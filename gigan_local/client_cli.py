@@ -5,8 +5,9 @@
 Writes ``frames.csv`` (per-frame stage times in ms, valid fraction, SSIM/PSNR where GT was rendered) and
 ``summary.json`` (amortised fps, median stage times, mean quality, the renderer that ran the raster passes:
 ``--renderer gl`` falls back to mitsuba with one warning where no GL context opens) under ``--out``;
-optionally PNG frames and an MP4 (needs imageio-ffmpeg). Its options are derived from :class:`gigan_local.client.ClientConfig`
-(the fields both clients share live in :class:`gicore.loop.PathRunConfig`).
+optionally PNG frames and an MP4 (needs imageio-ffmpeg). Its options are derived from
+:class:`gigan_local.client.ClientConfig` (the fields both clients share live in
+:class:`gicore.loop.PathRunConfig`).
 """
 
 from __future__ import annotations
