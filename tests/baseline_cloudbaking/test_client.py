@@ -220,7 +220,7 @@ def test_timeouts_are_explicit() -> None:
         RemoteConfig("http://127.0.0.1:1", "s", read_timeout_s=0.0)
 
 
-def test_cloud_client_with_the_gl_renderer(server: str, scenes_dir: Path, tmp_path: Path) -> None:
+def test_cloud_client_with_the_gl_renderer(scenes_dir: Path, tmp_path: Path) -> None:
     """``cloudbaking-client --renderer gl``: the local DI and the warp's mask pass rasterised by OpenGL (the
     server still path-traces), the same frame columns as with Mitsuba, and the summary naming what ran."""
     from gicore.gl import gl_available
@@ -228,9 +228,11 @@ def test_cloud_client_with_the_gl_renderer(server: str, scenes_dir: Path, tmp_pa
     ok, why = gl_available()
     if not ok:
         pytest.skip(f"no OpenGL context: {why}")
-    argv = [str(BIN / "cloudbaking-client"), "--server", server, "--scene", str(scenes_dir / "ball_moving.json")]
-    argv += ["--frames", "4", "--resolution", str(RES), "-k", "2", "--spp", str(SPP), "--renderer", "gl"]
-    proc = subprocess.run([*argv, "--out", str(tmp_path / "gl")], capture_output=True, text=True, timeout=120)
+    # an empty store of its own, so the first map is a miss whatever the module's other tests baked
+    with server_process(tmp_path / "store", scenes_dir, "--max-spp", "16") as server:
+        argv = [str(BIN / "cloudbaking-client"), "--server", server, "--scene", str(scenes_dir / "ball_moving.json")]
+        argv += ["--frames", "4", "--resolution", str(RES), "-k", "2", "--spp", str(SPP), "--renderer", "gl"]
+        proc = subprocess.run([*argv, "--out", str(tmp_path / "gl")], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr
     assert "unavailable" not in proc.stderr
     summary = json.loads((tmp_path / "gl" / "summary.json").read_text())

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bench.stability import PASSED, STAGES, Case, Outcome, Rejected, counts, judge, plot, record, summary
+from bench.stability import DEAD_LINKS, PASSED, STAGES, Case, Outcome, Rejected, counts, judge, plot, record, summary
 from gicore.cli import UserError
 from gicore.results import Results, read_rows
 
@@ -114,7 +114,7 @@ def test_quick_run_every_case_finite_or_cleanly_rejected(tmp_path: Path) -> None
         assert by_case[key]["error"] is not None and by_case[key]["error"] <= by_case[key]["bound"]
     assert by_case["render", "light ×1e4"]["error"] < 1e-3
     # dead links end in the client's 1 s timeouts, not hangs
-    for name in ("zero bandwidth", "100 % loss", "1000 s one-way delay"):
+    for name in DEAD_LINKS:
         e = by_case["network", f"proxy + client: {name}"]
         assert "timeout" in e["message"] and e["time_ms"] < 10_000
     assert by_case["server", "NaN eye"]["message"].startswith("Rejected: HTTP 422 at body/camera/eye")
