@@ -18,10 +18,13 @@ and only then indexed in one SQLite transaction, so an entry never points at a p
 can leave a temporary file or a complete but unindexed payload: the first process to open the store
 (nobody else holding it) sweeps both, and drops any entry whose file is missing or has the wrong size.
 
-Writes are transactions (``BEGIN IMMEDIATE`` ... ``COMMIT``) that roll back on any error and re-raise
-that error (a full disk says so), so one failed write never blocks the next. A store whose index
-cannot be written (a read-only file or file system) is refused when it is opened, before any work,
-with a :class:`gicore.cli.UserError`.
+Writes are transactions (``BEGIN IMMEDIATE`` ... ``COMMIT``) that roll back on any error, so one failed
+write never blocks the next. A write that fails for a reason outside the caller (no space left, a read-only
+or failing index or payload folder) raises :class:`StoreUnwritable`, one line naming the store and the real
+cause (SQLite's or the OS's), which stays its ``__cause__``; a failed insert removes the payload file it
+wrote, so a full disk leaves no orphan, and the hits it would have written wait for the next write. A
+store whose index cannot be written is refused when it is opened, before any work, with a
+:class:`gicore.cli.UserError`.
 
 Optional byte budget: an insert evicts least-recently-used entries (lookups count as use) until the
 payload bytes fit. Hit times and counts are buffered in memory and written with the next insert (or
@@ -30,6 +33,7 @@ payload bytes fit. Hit times and counts are buffered in memory and written with 
 
 from __future__ import annotations
 
+import errno
 import fcntl
 import hashlib
 import math
@@ -82,6 +86,42 @@ class StoreConflict(ValueError):
     """The store already holds a scene under another spec or light-cell size."""
 
 
+#: OS errors that mean "no space": the disk or a quota.
+_FULL_ERRNOS = (errno.ENOSPC, errno.EDQUOT)
+#: OS errors that mean the store cannot be written now (read-only, not permitted, failing storage).
+_UNWRITABLE_ERRNOS = (errno.EROFS, errno.EACCES, errno.EPERM, errno.EIO, errno.EFBIG, *_FULL_ERRNOS)
+#: SQLite primary result codes of the same conditions (the extended code's low byte).
+_SQLITE_FULL = (sqlite3.SQLITE_FULL,)
+_SQLITE_UNWRITABLE = (sqlite3.SQLITE_READONLY, sqlite3.SQLITE_IOERR, sqlite3.SQLITE_CANTOPEN, *_SQLITE_FULL)
+
+
+class StoreUnwritable(UserError):
+    """A write to the GI tree failed for a reason outside the request: ``full`` (no space left on its file
+    system or quota, or SQLite's page limit) or not (read-only, not permitted, failing storage). One line
+    naming the store and the real cause; the original error is the ``__cause__``."""
+
+    def __init__(self, root: Path, cause: str, full: bool) -> None:
+        todo = "free space on its file system (or lower the budget)" if full else "make the store writable again"
+        super().__init__(f"cannot write the GI tree at {root} ({cause})", todo)
+        self.root = root
+        self.cause = cause
+        self.full = full
+
+    def __reduce__(self) -> tuple:
+        return type(self), (self.root, self.cause, self.full)
+
+    @classmethod
+    def from_error(cls, root: Path, exc: BaseException) -> StoreUnwritable | None:
+        """The StoreUnwritable that ``exc`` means, or None when it is not such a failure (a bug, a constraint)."""
+        if isinstance(exc, sqlite3.OperationalError) and getattr(exc, "sqlite_errorcode", None) is not None:
+            code = exc.sqlite_errorcode & 0xFF
+            if code in _SQLITE_UNWRITABLE:
+                return cls(root, f"{exc} (SQLite {exc.sqlite_errorname})", code in _SQLITE_FULL)
+        if isinstance(exc, OSError) and exc.errno in _UNWRITABLE_ERRNOS:
+            return cls(root, f"{exc.strerror or exc}: {exc.filename}", exc.errno in _FULL_ERRNOS)
+        return None
+
+
 @dataclass(frozen=True)
 class Tolerance:
     """How far a stored viewpoint may be from a requested one and still serve it."""
@@ -130,6 +170,11 @@ class MapKey:
     @property
     def cell_text(self) -> str | None:
         return None if self.light_cell is None else ",".join(map(str, self.light_cell))
+
+
+def payload_sha(payload: bytes) -> str:
+    """The content address of a payload: its SHA-256, hex (its file name and its HTTP ETag)."""
+    return hashlib.sha256(payload).hexdigest()
 
 
 def light_cell(light: Vec3, cell_size: float | None) -> tuple[int, int, int] | None:
@@ -203,6 +248,7 @@ class Hit:
     what the lookup (SQL + nearest test) and the payload read cost."""
 
     entry_id: int
+    sha: str
     payload: bytes
     distance: float
     angle_deg: float
@@ -368,7 +414,8 @@ class GITree:
         db = self._db()
         row = db.execute("SELECT spec_sha, light_cell_size FROM scenes WHERE scene = ?", (scene,)).fetchone()
         if row is None:
-            db.execute("INSERT OR IGNORE INTO scenes VALUES (?, ?, ?)", (scene, spec_sha, light_cell_size))
+            with self._writing():
+                db.execute("INSERT OR IGNORE INTO scenes VALUES (?, ?, ?)", (scene, spec_sha, light_cell_size))
             row = db.execute("SELECT spec_sha, light_cell_size FROM scenes WHERE scene = ?", (scene,)).fetchone()
         if tuple(row) != (spec_sha, light_cell_size):
             raise StoreConflict(
@@ -436,15 +483,31 @@ class GITree:
         t2 = time.perf_counter()
         if payload is None:
             return None
+        self._touch(found[0])
+        return Hit(found[0], found[1], payload, found[2], found[3], (t1 - t0) * 1e3, (t2 - t1) * 1e3)
+
+    def _touch(self, entry_id: int) -> None:
         with self._lock:
-            hits = self._touched.get(found[0], (0.0, 0))[1]
-            self._touched[found[0]] = (time.time(), hits + 1)
-        return Hit(found[0], payload, found[2], found[3], (t1 - t0) * 1e3, (t2 - t1) * 1e3)
+            hits = self._touched.get(entry_id, (0.0, 0))[1]
+            self._touched[entry_id] = (time.time(), hits + 1)
+
+    def payload_by_sha(self, sha: str) -> bytes | None:
+        """The stored payload whose SHA-256 is ``sha`` (counted as a use), or None when no entry has it."""
+        row = self._db().execute("SELECT id FROM entries WHERE sha = ?", (sha,)).fetchone()
+        if row is None:
+            return None
+        try:
+            payload = self.payload_path(sha).read_bytes()
+        except FileNotFoundError:  # evicted by another process just now
+            return None
+        self._touch(int(row[0]))
+        return payload
 
     # -- insert and eviction -------------------------------------------------------------------------
     def insert(self, key: MapKey, view: Viewpoint, payload: bytes) -> int | None:
         """Store a payload for ``key``/``view`` (the scene must be registered); returns its entry id, or
-        None if the payload alone exceeds the budget (nothing is stored then)."""
+        None if the payload alone exceeds the budget (nothing is stored then). StoreUnwritable when the
+        store cannot take it (nothing of it is left behind then)."""
         size = len(payload)
         if self.budget_bytes is not None and size > self.budget_bytes:
             with self._lock:
@@ -454,56 +517,65 @@ class GITree:
         if (cell_size is None) != (key.light_cell is None):
             kind = "a static light (no light level)" if cell_size is None else "a moving light (keys need a light cell)"
             raise ValueError(f"scene {key.scene!r} has {kind}; got light_cell={key.light_cell}")
-        sha = hashlib.sha256(payload).hexdigest()
-        path = self.payload_path(sha)
-        path.parent.mkdir(exist_ok=True)
-        atomic_write_bytes(path, payload)  # complete and fsynced before the index names it
-        now = time.time()
-        evicted: list[str] = []
-        with self._transaction() as db:
-            self._apply_touches(db)
-            existing = db.execute("SELECT id FROM entries WHERE sha = ?", (sha,)).fetchone()
-            if existing is not None:  # the same bytes again (a re-bake of an identical request)
-                return int(existing[0])
-            (x, y, z), (dx, dy, dz) = view.eye, view.direction
-            cur = db.execute(
-                "INSERT INTO entries(scene, light_cell, resolution, fov, codec, spp, di, "
-                "ex, ey, ez, dx, dy, dz, sha, bytes, created, last_used) "
-                "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
-                (
-                    key.scene,
-                    key.cell_text,
-                    key.resolution,
-                    key.fov,
-                    key.codec,
-                    key.spp,
-                    int(key.di),
-                    x,
-                    y,
-                    z,
-                    dx,
-                    dy,
-                    dz,
-                    sha,
-                    size,
-                    now,
-                    now,
-                ),
-            )
-            entry_id = int(cur.lastrowid)
-            db.execute(
-                "INSERT INTO usage VALUES (?, ?, 1, ?) ON CONFLICT(scene, codec) "
-                "DO UPDATE SET entries = entries + 1, bytes = bytes + excluded.bytes",
-                (key.scene, key.codec, size),
-            )
-            if self.budget_bytes is not None:
-                evicted = self._evict(db, self.budget_bytes, keep=entry_id)
+        sha = payload_sha(payload)
+        with self._writing():
+            entry_id, evicted = self._insert(key, view, payload, sha)
         for old in evicted:  # after the commit: a kill before this leaves orphans, which are swept
             self.payload_path(old).unlink(missing_ok=True)
         with self._lock:
             self.counters["inserts"] += 1
             self.counters["evictions"] += len(evicted)
         return entry_id
+
+    def _insert(self, key: MapKey, view: Viewpoint, payload: bytes, sha: str) -> tuple[int, list[str]]:
+        """Write the payload file, then index it in one transaction; on failure remove the file if this
+        call created it and nothing indexes it, and keep the buffered hits."""
+        path = self.payload_path(sha)
+        existed = path.exists()
+        path.parent.mkdir(exist_ok=True)
+        atomic_write_bytes(path, payload)  # complete and fsynced before the index names it
+        now = time.time()
+        touched = self._take_touches()
+        try:
+            with self._transaction() as db:
+                self._apply_touches(db, touched)
+                existing = db.execute("SELECT id FROM entries WHERE sha = ?", (sha,)).fetchone()
+                if existing is not None:  # the same bytes again (a re-bake of an identical request)
+                    return int(existing[0]), []
+                (x, y, z), (dx, dy, dz) = view.eye, view.direction
+                cur = db.execute(
+                    "INSERT INTO entries(scene, light_cell, resolution, fov, codec, spp, di, "
+                    "ex, ey, ez, dx, dy, dz, sha, bytes, created, last_used) "
+                    "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                    (key.scene, key.cell_text, key.resolution, key.fov, key.codec, key.spp, int(key.di))
+                    + (x, y, z, dx, dy, dz, sha, len(payload), now, now),
+                )
+                entry_id = int(cur.lastrowid)
+                db.execute(
+                    "INSERT INTO usage VALUES (?, ?, 1, ?) ON CONFLICT(scene, codec) "
+                    "DO UPDATE SET entries = entries + 1, bytes = bytes + excluded.bytes",
+                    (key.scene, key.codec, len(payload)),
+                )
+                evicted = [] if self.budget_bytes is None else self._evict(db, self.budget_bytes, keep=entry_id)
+                return entry_id, evicted
+        except BaseException as exc:
+            self._retouch_if_storage(touched, exc)
+            if not existed:
+                with suppress(sqlite3.Error):  # unsure whether it is indexed: leave it to the next sweep
+                    if self._db().execute("SELECT 1 FROM entries WHERE sha = ?", (sha,)).fetchone() is None:
+                        path.unlink(missing_ok=True)
+            raise
+
+    @contextmanager
+    def _writing(self) -> Iterator[None]:
+        """Turn a failure of the storage (full, read-only, failing) into :class:`StoreUnwritable`."""
+        try:
+            yield
+        except (sqlite3.OperationalError, OSError) as exc:
+            failure = StoreUnwritable.from_error(self.root, exc)
+            if failure is None:
+                raise
+            raise failure from exc
 
     def _evict(self, db: sqlite3.Connection, budget: int, keep: int) -> list[str]:
         """Delete least-recently-used entries (never ``keep``) until the total fits ``budget``."""
@@ -527,20 +599,40 @@ class GITree:
         db.execute("DELETE FROM usage WHERE entries = 0")
         return evicted
 
-    def _apply_touches(self, db: sqlite3.Connection) -> None:
+    def _take_touches(self) -> dict[int, tuple[float, int]]:
         with self._lock:
             touched, self._touched = self._touched, {}
+        return touched
+
+    def _retouch_if_storage(self, touched: dict[int, tuple[float, int]], exc: BaseException) -> None:
+        """Put back hits whose write failed for want of storage (the next write retries them), merged with
+        those buffered since; hits whose own update failed otherwise are dropped, or they would fail every
+        later write."""
+        if StoreUnwritable.from_error(self.root, exc) is None:
+            return
+        with self._lock:
+            for i, (t, n) in touched.items():
+                t2, n2 = self._touched.get(i, (0.0, 0))
+                self._touched[i] = (max(t, t2), n + n2)
+
+    @staticmethod
+    def _apply_touches(db: sqlite3.Connection, touched: dict[int, tuple[float, int]]) -> None:
         db.executemany(
             "UPDATE entries SET last_used = max(last_used, ?), hits = hits + ? WHERE id = ?",
             [(t, n, i) for i, (t, n) in touched.items()],
         )
 
     def flush(self) -> None:
-        """Write buffered hit times and counts to the index."""
+        """Write buffered hit times and counts to the index (kept buffered if that fails)."""
         if not self._touched:
             return
-        with self._transaction() as db:
-            self._apply_touches(db)
+        touched = self._take_touches()
+        try:
+            with self._writing(), self._transaction() as db:
+                self._apply_touches(db, touched)
+        except BaseException as exc:
+            self._retouch_if_storage(touched, exc)
+            raise
 
     # -- inspection --------------------------------------------------------------------------------
     def entries(self, scene: str | None = None) -> list[Entry]:

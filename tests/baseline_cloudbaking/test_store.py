@@ -1,5 +1,6 @@
 """The GI tree: nearest lookup within tolerance, keys, byte accounting, LRU budget, crash sweeping,
-failed writes rolled back, a read-only index refused at open."""
+failed writes rolled back and named (a full disk, a read-only index) with nothing left behind, a read-only
+index refused at open."""
 
 from __future__ import annotations
 
@@ -14,7 +15,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from baseline_cloudbaking.store import GITree, MapKey, StoreConflict, Tolerance, Viewpoint, light_cell, simulate_fill
+from baseline_cloudbaking.store import (
+    GITree,
+    MapKey,
+    StoreConflict,
+    StoreUnwritable,
+    Tolerance,
+    Viewpoint,
+    light_cell,
+    payload_sha,
+    simulate_fill,
+)
 from gicore.cli import UserError
 
 TOL = Tolerance(position=0.1, angle_deg=5.0)
@@ -256,21 +267,70 @@ def test_a_read_only_index_is_refused_at_open(tmp_path: Path) -> None:
         assert len(tree.entries()) == 1 and tree.verify() == []
 
 
+def payload_files(tree: GITree) -> set[str]:
+    return {p.name.removesuffix(".gim") for p in tree.payload_dir.glob("*/*.gim")}
+
+
 def test_a_full_index_names_the_cause_and_the_next_insert_works(tree: GITree) -> None:
     """SQLite rolls a transaction back itself when the disk is full: the error raised is still the full
-    disk (not the failed ROLLBACK), and nothing of the failed insert is indexed."""
+    disk (not the failed ROLLBACK), one line; nothing of the failed insert is indexed and its payload file
+    is gone (no orphan until a restart); the hits it would have written are written by the next insert."""
+    first = tree.insert(key(), view(-1.0), blob(9999, 100))
+    assert tree.lookup(key(), view(-1.0)).entry_id == first  # one buffered hit
     db = tree._db()
     (pages,) = db.execute("PRAGMA page_count").fetchone()
     db.execute(f"PRAGMA max_page_count = {pages}")
     stored = 0
-    with pytest.raises(sqlite3.OperationalError, match="database or disk is full"):
+    with pytest.raises(StoreUnwritable, match="database or disk is full") as caught:
         for i in range(1000):
             tree.insert(key(), view(float(i)), blob(i, 100))
             stored += 1
-    assert 0 < stored < 1000
+    assert 0 <= stored < 1000 and caught.value.full and isinstance(caught.value.__cause__, sqlite3.OperationalError)
+    assert "\n" not in str(caught.value) and str(tree.root) in str(caught.value)
+    assert payload_files(tree) == {e.sha for e in tree.entries()}  # no orphan
     db.execute("PRAGMA max_page_count = 1073741823")  # room again
     assert tree.insert(key(), view(5000.0), blob(5000, 100)) is not None
-    assert tree.stats()["entries"] == stored + 1 and tree.verify() == []
+    assert tree.stats()["entries"] == stored + 2 and tree.verify() == []
+    assert next(e.hits for e in tree.entries() if e.id == first) == 1
+
+
+def test_a_full_payload_folder_is_named_and_leaves_no_file(tree: GITree, monkeypatch: pytest.MonkeyPatch) -> None:
+    """ENOSPC while the payload is written (the OS's error, as a full file system raises it mid-write)."""
+    import errno
+
+    from baseline_cloudbaking import store as store_module
+
+    def full(path: Path, data: bytes, **_: object) -> Path:
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
+
+    monkeypatch.setattr(store_module, "atomic_write_bytes", full)
+    with pytest.raises(StoreUnwritable, match="No space left on device") as caught:
+        tree.insert(key(), view(0.0), blob(0))
+    assert caught.value.full and payload_files(tree) == set() and tree.entries() == []
+    monkeypatch.undo()
+    assert tree.insert(key(), view(0.0), blob(0)) is not None and payload_files(tree) == {payload_sha(blob(0))}
+
+
+def test_an_index_made_read_only_while_open_is_named_and_recovers(tree: GITree) -> None:
+    """The index and its WAL made immutable under an open store: the next insert fails as not writable
+    (not full), reads go on, no orphan is left; writable again, the same store inserts without a reopen."""
+    first = tree.insert(key(), view(0.0), blob(0))
+    index = tree.root / "index.sqlite"
+    with read_only(index), read_only(index.with_name("index.sqlite-wal")):
+        with pytest.raises(StoreUnwritable, match="cannot write the GI tree") as caught:
+            tree.insert(key(), view(1.0), blob(1))
+        assert not caught.value.full
+        assert tree.lookup(key(), view(0.0)).entry_id == first
+        assert payload_files(tree) == {payload_sha(blob(0))}
+    assert tree.insert(key(), view(1.0), blob(1)) is not None
+    assert len(tree.entries()) == 2 and tree.verify() == []
+
+
+def test_payload_by_sha(tree: GITree) -> None:
+    tree.insert(key(), view(0.0), blob(0))
+    assert tree.payload_by_sha(payload_sha(blob(0))) == blob(0)
+    assert tree.payload_by_sha(payload_sha(blob(1))) is None
+    assert tree.entries()[0].hits == 1
 
 
 def test_a_failed_flush_rolls_back_and_later_writes_work(tree: GITree) -> None:
