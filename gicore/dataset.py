@@ -2,7 +2,8 @@
 
 Layout::
 
-    <root>/meta.json           DatasetMeta: scene spec, render settings, buffers, per-frame camera/light
+    <root>/meta.json           DatasetMeta: scene spec, render settings (the inputs' renderer among them),
+                               buffers, per-frame camera/light
     <root>/train/000000.npz    one compressed array archive per frame, keys = buffer names
     <root>/val/000000.npz
 
@@ -23,13 +24,15 @@ from typing import Any
 
 import numpy as np
 
-from gicore.buffers import CHANNELS, STORAGE_DTYPE, check_buffer_names
+from gicore.buffers import CHANNELS, STORAGE_DTYPE, TARGET, check_buffer_names
 from gicore.cli import UserError
 from gicore.config import strict_from_dict
 from gicore.fileio import atomic_write_bytes
 
 FORMAT_VERSION = 1
 SPLITS = ("train", "val")
+#: Renderers of a dataset's inputs (``gicore.loop.RENDERERS``); the GT is path-traced by Mitsuba either way.
+INPUT_RENDERERS = ("gl", "mitsuba")
 
 
 @dataclass
@@ -61,6 +64,22 @@ class DatasetMeta:
     buffers: list[str]
     frames: list[FrameRecord] = field(default_factory=list)
     format_version: int = FORMAT_VERSION
+    #: What rendered the inputs (DI + G-buffers): "mitsuba" (a dataset written before this field was: its
+    #: meta.json lacks it) or "gl" (``gicore.gl.GLRenderer``).
+    renderer: str = "mitsuba"
+    #: The GL renderer's level of detail (``gicore.gl.lod.LOD_CHOICES``); None with "mitsuba".
+    lod: str | None = None
+
+    def __post_init__(self) -> None:
+        if self.renderer not in INPUT_RENDERERS:
+            raise ValueError(f"renderer must be one of {INPUT_RENDERERS}, got {self.renderer!r}")
+        if (self.lod is None) != (self.renderer == "mitsuba"):
+            raise ValueError(f"lod {self.lod!r} does not go with renderer {self.renderer!r} (gl has one, mitsuba none)")
+
+    @property
+    def inputs(self) -> list[str]:
+        """The stored buffers the renderer of the inputs made (all but the path-traced GT)."""
+        return [name for name in self.buffers if name != TARGET]
 
     def settings(self) -> dict[str, Any]:
         """The render settings (everything but the per-frame records)."""
@@ -149,6 +168,12 @@ def encode_frame(arrays: dict[str, np.ndarray]) -> bytes:
     data = io.BytesIO()
     np.savez_compressed(data, **packed)
     return data.getvalue()
+
+
+def as_stored(arrays: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """The buffers as a frame file gives them back: rounded to their storage precision, as float32 (what a
+    consumer of freshly rendered buffers uses to see exactly what a stored frame would hold)."""
+    return {name: np.asarray(arr).astype(STORAGE_DTYPE[name]).astype(np.float32) for name, arr in arrays.items()}
 
 
 def load_frame(path: Path, buffers: list[str] | tuple[str, ...] | None = None) -> dict[str, np.ndarray]:

@@ -1,8 +1,14 @@
 """`gicore-dataset`: render training/validation datasets of scene specs (SPEC §3).
 
     gicore-dataset lung_plane digestive_cornell --out data/ds --train 120 --val 12 --resolution 256
+    gicore-dataset lung_plane --out data/ds_gl --renderer gl   # inputs rasterised as the GL client does
 
-One folder per scene under ``--out``. Frames are rendered by the render executor (``gicore.executor``:
+One folder per scene under ``--out``. ``--renderer`` picks what renders the inputs (DI + G-buffers): Mitsuba
+(1-spp DI, G-buffers at a random point of each pixel: what the shipped model trained on) or OpenGL
+(:class:`gicore.gl.GLRenderer` at ``--gl-lod``: what a client with ``renderer = "gl"`` feeds the model); the GT
+is path-traced by Mitsuba either way, with the same seeds, so two datasets that differ only in ``--renderer``
+hold the same GT. ``meta.json`` records the renderer that ran (``gl`` without a GL context falls back to
+``mitsuba`` after one warning line). Frames are rendered by the render executor (``gicore.executor``:
 this process, ``--workers`` local processes, or Ray tasks with ``--ray auto|HOST:PORT``; each worker
 holds one compiled scene), written atomically by this process as they arrive, and skipped when already
 present, so an interrupted run resumes. The same seeds give the same frames on every executor. One run
@@ -12,19 +18,31 @@ at a time renders into a scene folder (a second is refused: "another run holds D
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
+import numpy as np
 import typer
 from tqdm import tqdm
 
-from gicore.buffers import DATASET_BUFFERS, check_buffer_names
+from gicore.buffers import DATASET_BUFFERS, TARGET, check_buffer_names
 from gicore.camera import Camera
 from gicore.cli import UserError, entry_point, require_between
-from gicore.dataset import SPLITS, DatasetMeta, FrameRecord, encode_frame, write_frame, write_meta
+from gicore.dataset import (
+    INPUT_RENDERERS,
+    SPLITS,
+    DatasetMeta,
+    FrameRecord,
+    as_stored,
+    encode_frame,
+    write_frame,
+    write_meta,
+)
 from gicore.executor import RAY_HELP, WORKERS_HELP, Executor, InProcess, Task, open_executor
 from gicore.fileio import exclusive_run, sweep_temporaries
+from gicore.gl.lod import LOD_CHOICES, lod_value
+from gicore.loop import open_raster
 from gicore.options import (
     FOV_DEGREES,
     FRAMES_MAX,
@@ -43,6 +61,7 @@ from gicore.paths import camera_path, frame_seed, light_position
 from gicore.scene import SceneSpec, load_scene
 
 if TYPE_CHECKING:
+    from gicore.gl import GLRenderer
     from gicore.render import Renderer
 
 app = typer.Typer(add_completion=False, help=__doc__)
@@ -71,6 +90,13 @@ class DatasetConfig:
     fov: float | None = field(default=None, metadata=FOV_DEGREES)
     #: Buffers rendered and stored (``gicore.buffers``).
     buffers: tuple[str, ...] = DATASET_BUFFERS
+    #: Renderer of the inputs (DI + G-buffers): mitsuba (1-spp DI, G-buffers at a random point of each pixel) or
+    #: gl (OpenGL at pixel centres, as a client with renderer gl; no GL context: one warning and mitsuba). The GT
+    #: is path-traced by Mitsuba either way.
+    renderer: Literal[INPUT_RENDERERS] = "mitsuba"  # type: ignore[valid-type]
+    #: Level of detail of the gl inputs (gicore.gl.GLRenderer's lod): auto (per view, the coarsest level within
+    #: the calibrated G-buffer error bound), full, or a fixed level.
+    gl_lod: Literal[LOD_CHOICES] = "auto"  # type: ignore[valid-type]
 
     def __post_init__(self) -> None:
         if min(self.n_train, self.n_val) < 0 or self.n_train + self.n_val < 1:
@@ -109,22 +135,60 @@ def plan_frames(spec: SceneSpec, cfg: DatasetConfig) -> list[FrameRecord]:
 FrameJob = tuple[str, dict, list | None, tuple[str, ...], int, bool, int]
 
 
-def _build_renderer(spec_dict: dict, resolution: int) -> Renderer:
-    from gicore.render import Renderer
+class FrameRenderer:
+    """A worker's renderers of one scene: the inputs (DI + G-buffers) from ``renderer`` (:data:`INPUT_RENDERERS`;
+    gl at level of detail ``gl_lod``, one of ``gicore.gl.lod.LOD_CHOICES``), the GT path-traced by Mitsuba.
+    Each renderer is opened on first need, so a gl worker that renders no GT never loads Mitsuba."""
 
-    return Renderer(SceneSpec.from_dict(spec_dict), resolution)
+    def __init__(self, spec: SceneSpec, resolution: int, renderer: str = "mitsuba", gl_lod: str = "auto"):
+        if renderer not in INPUT_RENDERERS:
+            raise ValueError(f"renderer must be one of {INPUT_RENDERERS}, got {renderer!r}")
+        self.spec, self.resolution, self.renderer, self.gl_lod = spec, resolution, renderer, lod_value(gl_lod)
+        self._mitsuba: Renderer | None = None
+        self._gl: GLRenderer | None = None
+
+    @property
+    def mitsuba(self) -> Renderer:
+        if self._mitsuba is None:
+            from gicore.render import Renderer
+
+            self._mitsuba = Renderer(self.spec, self.resolution)
+        return self._mitsuba
+
+    @property
+    def gl(self) -> GLRenderer:
+        """The GL renderer (:class:`gicore.gl.RasterUnavailable` when no context opens)."""
+        if self._gl is None:
+            from gicore.gl import GLRenderer
+
+            self._gl = GLRenderer(self.spec, self.resolution, lod=self.gl_lod)
+        return self._gl
+
+    def render(
+        self, camera: Camera, light: list | None, buffers: tuple[str, ...], spp: int, seed: int, denoise: bool
+    ) -> dict[str, np.ndarray]:
+        """Exactly the named buffers of one frame (``Renderer.render_frame``'s arguments)."""
+        if self.renderer == "mitsuba":
+            return self.mitsuba.render_frame(camera, light, buffers, spp=spp, seed=seed, denoise=denoise)
+        inputs = [name for name in buffers if name != TARGET]
+        out = self.gl.render_frame(camera, light, inputs) if inputs else {}
+        if TARGET in buffers:  # the same call as a mitsuba dataset's, so the same GT (OIDN's guides included)
+            out |= self.mitsuba.render_frame(camera, light, [TARGET], spp=spp, seed=seed, denoise=denoise)
+        return {name: out[name] for name in buffers}
 
 
-def _render_frame(renderer: Renderer, job: FrameJob) -> bytes:
+def _build_renderer(spec_dict: dict, resolution: int, renderer: str, gl_lod: str) -> FrameRenderer:
+    return FrameRenderer(SceneSpec.from_dict(spec_dict), resolution, renderer, gl_lod)
+
+
+def _render_frame(renderer: FrameRenderer, job: FrameJob) -> bytes:
     _, cam, light, buffers, spp, denoise, seed = job
-    return encode_frame(
-        renderer.render_frame(Camera.from_dict(cam), light, buffers, spp=spp, seed=seed, denoise=denoise)
-    )
+    return encode_frame(renderer.render(Camera.from_dict(cam), light, buffers, spp, seed, denoise))
 
 
 def frame_task(spec: SceneSpec, cfg: DatasetConfig) -> Task:
     """The render task of ``spec``'s frames (a compiled scene per worker; a job's result is its file's bytes)."""
-    return Task(_build_renderer, (spec.to_dict(), cfg.resolution), _render_frame)
+    return Task(_build_renderer, (spec.to_dict(), cfg.resolution, cfg.renderer, cfg.gl_lod), _render_frame)
 
 
 def frame_jobs(records: list[FrameRecord], cfg: DatasetConfig, root: Path | None = None) -> list[FrameJob]:
@@ -136,6 +200,24 @@ def frame_jobs(records: list[FrameRecord], cfg: DatasetConfig, root: Path | None
     ]
 
 
+def render_inputs(renderer: FrameRenderer, meta: DatasetMeta, record: FrameRecord) -> dict[str, np.ndarray]:
+    """The inputs (:attr:`DatasetMeta.inputs`) of the dataset frame ``record`` as ``renderer`` renders them: a
+    dataset of the same settings made with ``renderer.renderer`` would store exactly these (same camera, light
+    and seed, rounded to the storage precision)."""
+    seed = frame_seed(meta.seed, record.split, record.index)
+    out = renderer.render(Camera.from_dict(record.camera), record.light, tuple(meta.inputs), meta.spp, seed, False)
+    return as_stored(out)
+
+
+def resolve_renderer(cfg: DatasetConfig) -> DatasetConfig:
+    """``cfg`` with the renderer that will run: renderer gl without a GL context falls back to mitsuba after one
+    warning line (as the clients do), so the dataset records what rendered it."""
+    from gicore.gl import RasterUnavailable, gl_context
+
+    _, used = open_raster(cfg.renderer, None, gl_context, RasterUnavailable)
+    return cfg if used == cfg.renderer else replace(cfg, renderer=used)
+
+
 def build_dataset(
     spec: SceneSpec, root: Path, cfg: DatasetConfig, executor: Executor | None = None, progress: bool = True
 ) -> DatasetMeta:
@@ -143,9 +225,19 @@ def build_dataset(
     process); returns its metadata.
 
     Holds ``root`` for the whole run (a concurrent second run is refused) and first removes temporary
-    files that a killed run left behind."""
+    files that a killed run left behind. Renderer gl without a GL context renders with mitsuba
+    (:func:`resolve_renderer`); the metadata returned says which ran."""
+    cfg = resolve_renderer(cfg)
     meta = DatasetMeta(
-        spec.to_dict(), cfg.resolution, cfg.spp, cfg.denoise, cfg.seed, list(cfg.buffers), plan_frames(spec, cfg)
+        spec.to_dict(),
+        cfg.resolution,
+        cfg.spp,
+        cfg.denoise,
+        cfg.seed,
+        list(cfg.buffers),
+        plan_frames(spec, cfg),
+        renderer=cfg.renderer,
+        lod=cfg.gl_lod if cfg.renderer == "gl" else None,
     )
     with exclusive_run(root):
         for folder in (root, *(root / split for split in SPLITS)):
@@ -176,8 +268,8 @@ def dataset_command(
             meta = build_dataset(spec, root, cfg, executor)
             size = sum(p.stat().st_size for p in root.rglob("*.npz"))
             typer.echo(
-                f"{spec.name}: {len(meta.frames)} frames in {root} ({size / len(meta.frames) / 1024:.0f} KiB/frame,"
-                f" {time.perf_counter() - t0:.1f} s)"
+                f"{spec.name}: {len(meta.frames)} frames in {root} (inputs by {meta.renderer},"
+                f" {size / len(meta.frames) / 1024:.0f} KiB/frame, {time.perf_counter() - t0:.1f} s)"
             )
 
 

@@ -43,6 +43,8 @@ from gicore.scene import SceneSpec
 
 #: Fraction of a large mesh's triangles each level keeps (level 0: all of them).
 LOD_RATIOS = (1.0, 1 / 2, 1 / 4, 1 / 8, 1 / 16, 1 / 32)
+#: ``lod`` as a command-line option gives it (:func:`lod_value`): "auto", "full" or a level's index.
+LOD_CHOICES = ("auto", "full", *(str(k) for k in range(len(LOD_RATIOS))))
 #: Meshes with fewer triangles are not decimated (the environment's quads, small user meshes).
 MIN_TRIANGLES = 2048
 #: ``fast_simplification``'s aggressiveness (0 to 10, default 7): 4 lowers the normal error of a level by 10 to
@@ -112,14 +114,21 @@ def mesh_levels(mesh: Mesh, ratios=LOD_RATIOS, min_triangles: int = MIN_TRIANGLE
     return out
 
 
+def lod_value(choice: str) -> str | int:
+    """``GLRenderer``'s ``lod`` from an option's text (one of :data:`LOD_CHOICES`): a level's index as an int."""
+    if choice not in LOD_CHOICES:
+        raise ValueError(f"lod must be one of {LOD_CHOICES}, got {choice!r}")
+    return int(choice) if choice.isdigit() else choice
+
+
 #: G-buffer error channels of a level against full detail (see the module docstring).
 LOD_CHANNELS = ("normal", "depth", "coverage")
 #: Default bound of ``lod="auto"`` per channel, about one sub-pixel jitter of the samples: Mitsuba's jittered
 #: G-buffers (the shipped model's training data) against its centre-sampled ones, by :func:`lod_errors` on 4
 #: GI-camera views each of the plane scenes at 256², differ by normal 1.0e-3 to 3.3e-3 (vessels < 2.1e-4: their
 #: interior is mostly the plane), depth 2.4e-3 to 3.0e-3, coverage 2.0e-3 to 5.6e-3. The model does not see
-#: that difference: its SSIM against path-traced GT (``scripts/gl_model_quality.py``, 8 held-out GI views per
-#: scene, 256 spp + OIDN) moves by 0.0001 to 0.0008 between the two; and on GL inputs levels 1-4 stay within
+#: that difference: its SSIM against path-traced GT (the former ``scripts/gl_model_quality.py``, 8 held-out GI
+#: views per scene, 256 spp + OIDN) moves by 0.0001 to 0.0008 between the two; and on GL inputs levels 1-4 stay within
 #: 0.0003 of full detail (lung_plane, digestive_plane, vessels_plane, lung_cornell), where level 4 has normal
 #: error up to 2.8e-3 on lung_plane's path; level 5 (normal 3.0e-3 and more) loses up to 0.0013.
 LOD_BOUND = {"normal": 3e-3, "depth": 1e-3, "coverage": 1e-3}

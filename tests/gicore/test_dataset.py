@@ -438,3 +438,80 @@ def test_two_writers_of_one_frame_do_not_share_a_temporary_file(tmp_path):
     atomic_write(target, outer)
     assert target.read_bytes() == b"first writer, partial and done"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["000000.npz"]
+
+
+# -- the inputs' renderer (issue 22) --------------------------------------------------------------------------------
+def _no_gl(monkeypatch) -> None:
+    """Make this process's GL context unavailable, as on a machine without EGL."""
+    import gicore.gl.context as context
+
+    monkeypatch.setattr(context, "_context", None)
+    monkeypatch.setattr(context, "_failure", "no EGL display here")
+
+
+def test_gl_inputs_with_mitsuba_gt(base_dataset, moving_spec, tmp_path):
+    """--renderer gl: the inputs are the GL renderer's (what a gl client feeds the model, at its level of detail),
+    the GT is the Mitsuba dataset's to the bit (same seeds); meta.json records both, and render_inputs re-renders
+    either dataset's inputs exactly."""
+    from gicore.dataset_cli import FrameRenderer, render_inputs
+    from gicore.gl import gl_available
+
+    if not gl_available()[0]:
+        pytest.skip(f"no OpenGL context: {gl_available()[1]}")
+    mi_root, mi_meta = base_dataset
+    root = tmp_path / "gl"
+    meta = build_dataset(moving_spec, root, replace(CFG, renderer="gl"), progress=False)
+    assert (meta.renderer, meta.lod) == ("gl", "auto") and (mi_meta.renderer, mi_meta.lod) == ("mitsuba", None)
+    assert (read_meta(root).renderer, read_meta(root).lod) == ("gl", "auto")
+    assert meta.inputs == ["di", "albedo", "normal", "depth"]
+    gl, mi = FrameRenderer(moving_spec, RES, "gl"), FrameRenderer(moving_spec, RES, "mitsuba")
+    for record in meta.frames:
+        stored_gl, stored_mi = load_frame(root / record.file), load_frame(mi_root / record.file)
+        np.testing.assert_array_equal(stored_gl["gt"], stored_mi["gt"])
+        for renderer, stored in ((gl, stored_gl), (mi, stored_mi)):
+            again = render_inputs(renderer, meta, record)
+            assert sorted(again) == sorted(meta.inputs)
+            for name, arr in again.items():
+                np.testing.assert_array_equal(arr, stored[name], err_msg=f"{renderer.renderer} {record.file} {name}")
+        # Two renderers of one view: the same surfaces (coverage), not the same pixels (GL's DI has no noise).
+        assert np.mean((stored_gl["depth"] > 0) == (stored_mi["depth"] > 0)) > 0.95
+        assert not np.array_equal(stored_gl["di"], stored_mi["di"])
+    # A resume with the other renderer would mix two datasets: refused, naming the setting.
+    with pytest.raises(UserError, match="renderer 'gl' -> 'mitsuba'"):
+        build_dataset(moving_spec, root, CFG, progress=False)
+    with pytest.raises(UserError, match="lod 'auto' -> 'full'"):
+        build_dataset(moving_spec, root, replace(CFG, renderer="gl", gl_lod="full"), progress=False)
+
+
+def test_gl_without_a_context_falls_back_to_mitsuba_and_says_so(moving_spec, tmp_path, monkeypatch, capsys):
+    _no_gl(monkeypatch)
+    cfg = replace(CFG, n_train=1, n_val=0, renderer="gl")
+    meta = build_dataset(moving_spec, tmp_path / "d", cfg, progress=False)
+    assert (meta.renderer, meta.lod) == ("mitsuba", None) and read_meta(tmp_path / "d").renderer == "mitsuba"
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["warning: renderer gl is unavailable, using mitsuba: no EGL display here"]
+
+
+def test_renderer_options_are_checked_and_recorded(base_dataset, tmp_path):
+    from typer.testing import CliRunner
+
+    from gicore.dataset_cli import app
+    from gicore.options import build_config
+
+    assert build_config(DatasetConfig, {"renderer": "gl", "gl_lod": "3"}).gl_lod == "3"
+    with pytest.raises(UserError, match="--renderer 'vulkan' is not one of gl, mitsuba"):
+        DatasetConfig(renderer="vulkan")
+    with pytest.raises(UserError, match="--gl-lod '9' is not one of"):
+        DatasetConfig(gl_lod="9")
+    for argv, option in ((["--renderer", "vulkan"], "--renderer"), (["--gl-lod", "-1"], "--gl-lod")):
+        result = CliRunner().invoke(app, ["lung_plane", "--out", str(tmp_path / "never"), *argv])
+        assert result.exit_code == 2 and option in result.output, result.output
+    assert not (tmp_path / "never").exists()
+    # meta.json: a dataset older than the field reads as mitsuba's; a bad renderer or lod is refused.
+    root, _ = base_dataset
+    doc = json.loads((root / "meta.json").read_text())
+    doc.pop("renderer"), doc.pop("lod")
+    assert (DatasetMeta.from_dict(doc).renderer, DatasetMeta.from_dict(doc).lod) == ("mitsuba", None)
+    for bad in ({"renderer": "vulkan"}, {"renderer": "gl"}, {"lod": "auto"}):
+        with pytest.raises(ValueError, match="renderer|lod"):
+            DatasetMeta.from_dict(doc | bad)
