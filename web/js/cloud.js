@@ -1,0 +1,206 @@
+// Cloud baking in the browser: POST /v1/gimap (same origin: gigan-web forwards it to the server or to the
+// network-sim proxy), decode, pixel-level 3D warp in shaders (baseline_cloudbaking.warp: every texel with a
+// depth unprojected, projected into the local camera and splatted as a z-tested square of its footprint;
+// holes on surfaces filled from coarser mip levels, a push-pull), then eq. 1's blend.
+
+import { FULLSCREEN_VERTEX, TONEMAP_GLSL, bindTarget, bindTextures, fullscreen, program, setUniforms, sync, target,
+  texture } from "./glutil.js";
+import { decodeDepth, decodeImage, unpack } from "./payload.js";
+import { BLEND_FRAGMENT } from "./gigan.js";
+
+const SPLAT_VERTEX = `#version 300 es
+precision highp float;
+precision highp int;
+uniform highp sampler2D u_depth;  // the GI camera's linear view depth, rows top-down (0: background)
+uniform highp sampler2D u_gi;     // the 8-bit tone-mapped GI map, rows top-down
+uniform mat4 u_inv_view;          // GI camera: eye -> world
+uniform vec2 u_focal;             // GI camera: proj[0][0], proj[1][1]
+uniform mat4 u_target_vp;         // local camera
+uniform float u_target_focal_px;  // local camera: proj[0][0] * width / 2
+uniform float u_near;
+out vec3 v_gi;
+${TONEMAP_GLSL}
+void main() {
+  ivec2 size = textureSize(u_depth, 0);
+  ivec2 t = ivec2(gl_VertexID % size.x, gl_VertexID / size.x);
+  float d = texelFetch(u_depth, t, 0).r;
+  vec2 ndc = vec2(2.0 * (float(t.x) + 0.5) / float(size.x) - 1.0, 1.0 - 2.0 * (float(t.y) + 0.5) / float(size.y));
+  vec4 world = u_inv_view * vec4(ndc.x * d / u_focal.x, ndc.y * d / u_focal.y, -d, 1.0);
+  vec4 clip = u_target_vp * world;
+  if (d <= 0.0 || clip.w <= u_near) { gl_Position = vec4(2.0, 2.0, 2.0, 1.0); gl_PointSize = 1.0; return; }
+  // footprint: target pixels per source pixel at this point, rounded up (float noise must not make 1 into 2)
+  float scale = d / (u_focal.x * float(size.x) * 0.5) * u_target_focal_px / clip.w;
+  gl_PointSize = max(ceil(scale - 1e-3), 1.0);
+  gl_Position = clip;
+  v_gi = inverse_tonemap(min(texelFetch(u_gi, t, 0).rgb, vec3(254.5 / 255.0)));
+}`;
+
+const SPLAT_FRAGMENT = `#version 300 es
+precision highp float;
+in vec3 v_gi;
+out vec4 o;
+void main() { o = vec4(v_gi, 1.0); }`;
+
+// Holes on surfaces take the finest mip level that covers them (alpha: covered fraction): a pull pass.
+const FILL_FRAGMENT = `#version 300 es
+precision highp float;
+uniform highp sampler2D u_splat;
+uniform highp sampler2D u_di;   // alpha: the local surface mask
+uniform float u_levels;
+out vec4 o;
+void main() {
+  ivec2 p = ivec2(gl_FragCoord.xy);
+  if (texelFetch(u_di, p, 0).a <= 0.0) { o = vec4(0.0); return; }
+  vec4 s = texelFetch(u_splat, p, 0);
+  if (s.a > 0.0) { o = vec4(s.rgb, 1.0); return; }
+  vec2 uv = (vec2(p) + 0.5) / vec2(textureSize(u_splat, 0));
+  for (float level = 1.0; level < u_levels; level += 1.0) {
+    vec4 c = textureLod(u_splat, uv, level);
+    if (c.a > 0.0) { o = vec4(c.rgb / c.a, 0.0); return; }
+  }
+  o = vec4(0.0);
+}`;
+
+function invert(m) {
+  // a 4x4 column-major inverse (cofactors)
+  const inv = new Float32Array(16);
+  const [a00, a01, a02, a03, a10, a11, a12, a13, a20, a21, a22, a23, a30, a31, a32, a33] = m;
+  const b00 = a00 * a11 - a01 * a10, b01 = a00 * a12 - a02 * a10, b02 = a00 * a13 - a03 * a10;
+  const b03 = a01 * a12 - a02 * a11, b04 = a01 * a13 - a03 * a11, b05 = a02 * a13 - a03 * a12;
+  const b06 = a20 * a31 - a21 * a30, b07 = a20 * a32 - a22 * a30, b08 = a20 * a33 - a23 * a30;
+  const b09 = a21 * a32 - a22 * a31, b10 = a21 * a33 - a23 * a31, b11 = a22 * a33 - a23 * a32;
+  const det = 1 / (b00 * b11 - b01 * b10 + b02 * b09 + b03 * b08 - b04 * b07 + b05 * b06);
+  inv[0] = (a11 * b11 - a12 * b10 + a13 * b09) * det; inv[1] = (a02 * b10 - a01 * b11 - a03 * b09) * det;
+  inv[2] = (a31 * b05 - a32 * b04 + a33 * b03) * det; inv[3] = (a22 * b04 - a21 * b05 - a23 * b03) * det;
+  inv[4] = (a12 * b08 - a10 * b11 - a13 * b07) * det; inv[5] = (a00 * b11 - a02 * b08 + a03 * b07) * det;
+  inv[6] = (a32 * b02 - a30 * b05 - a33 * b01) * det; inv[7] = (a20 * b05 - a22 * b02 + a23 * b01) * det;
+  inv[8] = (a10 * b10 - a11 * b08 + a13 * b06) * det; inv[9] = (a01 * b08 - a00 * b10 - a03 * b06) * det;
+  inv[10] = (a30 * b04 - a31 * b02 + a33 * b00) * det; inv[11] = (a21 * b02 - a20 * b04 - a23 * b00) * det;
+  inv[12] = (a11 * b07 - a10 * b09 - a12 * b06) * det; inv[13] = (a00 * b09 - a01 * b07 + a02 * b06) * det;
+  inv[14] = (a31 * b01 - a30 * b03 - a32 * b00) * det; inv[15] = (a20 * b03 - a21 * b01 + a22 * b00) * det;
+  return inv;
+}
+
+const columnMajor = (rows) => new Float32Array([0, 1, 2, 3].flatMap((c) => rows.map((r) => r[c])));
+
+export class CloudSystem {
+  constructor(gl, scene, config) {
+    this.gl = gl;
+    this.scene = scene;
+    this.config = config;
+    const n = scene.n;
+    this.splatProg = program(gl, SPLAT_VERTEX, SPLAT_FRAGMENT);
+    this.fillProg = program(gl, FULLSCREEN_VERTEX, FILL_FRAGMENT);
+    this.blendProg = program(gl, FULLSCREEN_VERTEX, BLEND_FRAGMENT);
+    this.splat = target(gl, n, n, [gl.RGBA16F], { mips: [0] });
+    this.warped = target(gl, n, n, [gl.RGBA32F], { depth: false });
+    this.bound = null;
+    this.inflight = null;
+  }
+
+  body(frame) {
+    const c = this.config;
+    const req = {
+      scene: c.scene,
+      camera: { eye: frame.gi.eye, target: frame.gi.target, up: [0, 1, 0], fov: frame.gi.fov },
+      resolution: c.resolution, codec: c.codec, spp: c.spp,
+    };
+    if (c.light_moves) req.light = frame.light;
+    return JSON.stringify(req);
+  }
+
+  // Ask for the map at the frame's GI camera (at most one request in flight); resolves to the received map.
+  request(frame, index) {
+    if (this.inflight) return false;
+    const started = performance.now();
+    this.inflight = (async () => {
+      const response = await fetch("/v1/gimap", { method: "POST", headers: { "Content-Type": "application/json" }, body: this.body(frame) });
+      const firstByte = performance.now();
+      if (!response.ok) throw new Error(`/v1/gimap answered ${response.status}: ${await response.text()}`);
+      const buffer = await response.arrayBuffer();
+      const arrived = performance.now();
+      return { frame: index, started, firstByte, arrived, buffer, bytes: buffer.byteLength };
+    })();
+    return true;
+  }
+
+  // The arrived map, decoded and uploaded, or null while the request is in flight (waits when `wait`).
+  async take(wait) {
+    if (!this.inflight) return null;
+    let done = null;
+    if (wait) done = await this.inflight;
+    else {
+      const marker = {};
+      const r = await Promise.race([this.inflight, Promise.resolve(marker)]);
+      if (r === marker) return null;
+      done = r;
+    }
+    this.inflight = null;
+    const gl = this.gl;
+    const t0 = performance.now();
+    const { header, sections } = unpack(done.buffer);
+    const bitmap = await decodeImage(header.codec, sections.gi);
+    const { depth, h, w } = decodeDepth(sections.depth);
+    const gi = texture(gl, w, h, gl.RGBA8);
+    gl.bindTexture(gl.TEXTURE_2D, gi);
+    gl.texSubImage2D(gl.TEXTURE_2D, 0, 0, 0, gl.RGBA, gl.UNSIGNED_BYTE, bitmap);
+    const dt = texture(gl, w, h, gl.R32F);
+    gl.bindTexture(gl.TEXTURE_2D, dt);
+    gl.texSubImage2D(gl.TEXTURE_2D, 0, 0, 0, w, h, gl.RED, gl.FLOAT, depth);
+    sync(gl, null);
+    const decode = performance.now() - t0;
+    const t1 = performance.now();
+    if (this.bound) for (const t of [this.bound.gi, this.bound.depth]) gl.deleteTexture(t);
+    const view = columnMajor(header.view);
+    const proj = header.proj;
+    this.bound = { gi, depth: dt, invView: invert(view), focal: [proj[0][0], proj[1][1]], near: header.camera.near, n: w * h };
+    const bind = performance.now() - t1;
+    const server = header.timings_ms || {};
+    const total = server.total ?? 0;
+    const request = done.firstByte - done.started - total;
+    const transfer = done.arrived - done.firstByte;
+    return {
+      frame: done.frame, hit: header.hit, bytes: done.bytes,
+      stages: { transmission: request + transfer, request, transfer, server: total, decode, bind, ...Object.fromEntries(
+        Object.entries(server).filter(([k]) => k !== "total").map(([k, v]) => [`server_${k}`, v])) },
+    };
+  }
+
+  // Per frame: splat the bound map into the local camera, mipmap, fill holes on surfaces.
+  warp(frame, diTarget) {
+    const gl = this.gl;
+    const b = this.bound;
+    bindTarget(gl, this.splat);
+    gl.clearColor(0, 0, 0, 0);
+    gl.clearDepth(1);
+    gl.clear(gl.COLOR_BUFFER_BIT | gl.DEPTH_BUFFER_BIT);
+    gl.enable(gl.DEPTH_TEST);
+    gl.depthFunc(gl.LESS);
+    gl.disable(gl.CULL_FACE);
+    gl.useProgram(this.splatProg.p);
+    bindTextures(gl, this.splatProg, { u_depth: [4, b.depth], u_gi: [5, b.gi] });
+    setUniforms(gl, this.splatProg, {
+      u_inv_view: b.invView, u_focal: b.focal, u_target_vp: frame.local.view_proj,
+      u_target_focal_px: frame.local.proj[0] * this.scene.n / 2, u_near: frame.local.near,
+    });
+    gl.drawArrays(gl.POINTS, 0, b.n);
+    gl.bindTexture(gl.TEXTURE_2D, this.splat.textures[0]);
+    gl.generateMipmap(gl.TEXTURE_2D);
+    bindTarget(gl, this.warped);
+    gl.useProgram(this.fillProg.p);
+    bindTextures(gl, this.fillProg, { u_splat: [4, this.splat.textures[0]], u_di: [5, diTarget.textures[0]] });
+    setUniforms(gl, this.fillProg, { u_levels: this.splat.textures[0].levels });
+    fullscreen(gl);
+    sync(gl, this.warped, 0);
+  }
+
+  blend(diTarget, tau) {
+    const gl = this.gl;
+    bindTarget(gl, null);
+    gl.useProgram(this.blendProg.p);
+    bindTextures(gl, this.blendProg, { u_di: [4, diTarget.textures[0]], u_warped: [5, this.warped.textures[0]] });
+    setUniforms(gl, this.blendProg, { u_tau: tau });
+    fullscreen(gl);
+    sync(gl, null);
+  }
+}

@@ -1,0 +1,155 @@
+// WebGL2 plumbing shared by both systems: programs, float render targets, a full-screen pass, sync.
+
+export const ATTRIBS = ["in_pos", "in_nrm", "in_mat", "in_uv"];
+
+export function context(canvas) {
+  const gl = canvas.getContext("webgl2", { antialias: false, depth: false, preserveDrawingBuffer: true });
+  if (!gl) throw new Error("this browser has no WebGL2");
+  // float colour attachments (G-buffers, GI maps) and their readback need this extension
+  if (!gl.getExtension("EXT_color_buffer_float")) throw new Error("WebGL2 lacks EXT_color_buffer_float");
+  return gl;
+}
+
+export function program(gl, vertex, fragment) {
+  const p = gl.createProgram();
+  for (const [type, src] of [[gl.VERTEX_SHADER, vertex], [gl.FRAGMENT_SHADER, fragment]]) {
+    const s = gl.createShader(type);
+    gl.shaderSource(s, src);
+    gl.compileShader(s);
+    if (!gl.getShaderParameter(s, gl.COMPILE_STATUS)) throw new Error(`shader: ${gl.getShaderInfoLog(s)}`);
+    gl.attachShader(p, s);
+  }
+  ATTRIBS.forEach((name, i) => gl.bindAttribLocation(p, i, name));
+  gl.linkProgram(p);
+  if (!gl.getProgramParameter(p, gl.LINK_STATUS)) throw new Error(`link: ${gl.getProgramInfoLog(p)}`);
+  // uniform locations and array sizes, so that arrays longer than what the compiler kept can be cut
+  const uniforms = {};
+  const n = gl.getProgramParameter(p, gl.ACTIVE_UNIFORMS);
+  for (let i = 0; i < n; i++) {
+    const info = gl.getActiveUniform(p, i);
+    const name = info.name.replace(/\[0\]$/, "");
+    uniforms[name] = { loc: gl.getUniformLocation(p, info.name), size: info.size, type: info.type };
+  }
+  return { p, uniforms };
+}
+
+// Set uniforms by name; names the program does not use (compiled out) are skipped.
+export function setUniforms(gl, prog, values) {
+  for (const [name, value] of Object.entries(values)) {
+    const u = prog.uniforms[name];
+    if (!u) continue;
+    const t = u.type;
+    if (t === gl.FLOAT_MAT4) gl.uniformMatrix4fv(u.loc, false, value.slice(0, 16 * u.size));
+    else if (t === gl.FLOAT_VEC4) gl.uniform4fv(u.loc, value.slice(0, 4 * u.size));
+    else if (t === gl.FLOAT_VEC3) gl.uniform3fv(u.loc, value);
+    else if (t === gl.FLOAT_VEC2) gl.uniform2fv(u.loc, value);
+    else if (t === gl.FLOAT) gl.uniform1fv(u.loc, typeof value === "number" ? [value] : value.slice(0, u.size));
+    else gl.uniform1i(u.loc, typeof value === "boolean" ? Number(value) : value); // int, bool, samplers
+  }
+}
+
+export function texture(gl, w, h, internal, { filter = gl.NEAREST, mips = false } = {}) {
+  const formats = {
+    [gl.RGBA32F]: [gl.RGBA, gl.FLOAT],
+    [gl.RGBA16F]: [gl.RGBA, gl.HALF_FLOAT],
+    [gl.R32F]: [gl.RED, gl.FLOAT],
+    [gl.RGBA8]: [gl.RGBA, gl.UNSIGNED_BYTE],
+    [gl.DEPTH_COMPONENT32F]: [gl.DEPTH_COMPONENT, gl.FLOAT],
+  };
+  const [format, type] = formats[internal];
+  const t = gl.createTexture();
+  gl.bindTexture(gl.TEXTURE_2D, t);
+  const levels = mips ? Math.floor(Math.log2(Math.max(w, h))) + 1 : 1;
+  gl.texStorage2D(gl.TEXTURE_2D, levels, internal, w, h);
+  gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MIN_FILTER, mips ? gl.LINEAR_MIPMAP_NEAREST : filter);
+  gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MAG_FILTER, filter);
+  gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_WRAP_S, gl.CLAMP_TO_EDGE);
+  gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_WRAP_T, gl.CLAMP_TO_EDGE);
+  Object.assign(t, { w, h, internal, format, type, levels });
+  return t;
+}
+
+// A framebuffer over colour textures (attachment i = textures[i]) with a depth buffer when asked.
+export function target(gl, w, h, internals, { depth = true, mips = [] } = {}) {
+  const fbo = gl.createFramebuffer();
+  gl.bindFramebuffer(gl.FRAMEBUFFER, fbo);
+  const textures = internals.map((f, i) => {
+    const t = texture(gl, w, h, f, { mips: mips.includes(i), filter: mips.includes(i) ? gl.LINEAR : gl.NEAREST });
+    gl.framebufferTexture2D(gl.FRAMEBUFFER, gl.COLOR_ATTACHMENT0 + i, gl.TEXTURE_2D, t, 0);
+    return t;
+  });
+  if (depth) {
+    const rb = gl.createRenderbuffer();
+    gl.bindRenderbuffer(gl.RENDERBUFFER, rb);
+    gl.renderbufferStorage(gl.RENDERBUFFER, gl.DEPTH_COMPONENT32F, w, h);
+    gl.framebufferRenderbuffer(gl.FRAMEBUFFER, gl.DEPTH_ATTACHMENT, gl.RENDERBUFFER, rb);
+  }
+  gl.drawBuffers(textures.map((_, i) => gl.COLOR_ATTACHMENT0 + i));
+  const status = gl.checkFramebufferStatus(gl.FRAMEBUFFER);
+  if (status !== gl.FRAMEBUFFER_COMPLETE) throw new Error(`framebuffer incomplete (${status})`);
+  gl.bindFramebuffer(gl.FRAMEBUFFER, null);
+  return { fbo, textures, w, h };
+}
+
+export function bindTarget(gl, t) {
+  gl.bindFramebuffer(gl.FRAMEBUFFER, t ? t.fbo : null);
+  gl.viewport(0, 0, t ? t.w : gl.drawingBufferWidth, t ? t.h : gl.drawingBufferHeight);
+}
+
+// Read one colour attachment as float RGBA (rows bottom-up, as GL stores them).
+export function readFloats(gl, t, attachment, out) {
+  gl.bindFramebuffer(gl.FRAMEBUFFER, t.fbo);
+  gl.readBuffer(gl.COLOR_ATTACHMENT0 + attachment);
+  const data = out || new Float32Array(t.w * t.h * 4);
+  gl.readPixels(0, 0, t.w, t.h, gl.RGBA, gl.FLOAT, data);
+  return data;
+}
+
+// Wait until the GPU has finished what was issued (one texel read back: gl.finish() does not block in Chrome).
+const probeF = new Float32Array(4);
+const probeU = new Uint8Array(4);
+export function sync(gl, t = null, attachment = 0) {
+  gl.bindFramebuffer(gl.FRAMEBUFFER, t ? t.fbo : null);
+  if (t) {
+    gl.readBuffer(gl.COLOR_ATTACHMENT0 + attachment);
+    gl.readPixels(0, 0, 1, 1, gl.RGBA, t.textures[attachment].internal === gl.RGBA8 ? gl.UNSIGNED_BYTE : gl.FLOAT,
+      t.textures[attachment].internal === gl.RGBA8 ? probeU : probeF);
+  } else {
+    gl.readPixels(0, 0, 1, 1, gl.RGBA, gl.UNSIGNED_BYTE, probeU);
+  }
+}
+
+export const FULLSCREEN_VERTEX = `#version 300 es
+void main() {
+  vec2 p = vec2(float((gl_VertexID & 1) * 4 - 1), float((gl_VertexID & 2) * 2 - 1));
+  gl_Position = vec4(p, 0.0, 1.0);
+}`;
+
+// The project's tone map (gicore.tonemap): Reinhard, then display gamma 2.2; and its inverse.
+export const TONEMAP_GLSL = `
+vec3 tonemap(vec3 x) { x = max(x, 0.0); return pow(x / (1.0 + x), vec3(1.0 / 2.2)); }
+vec3 inverse_tonemap(vec3 y) { y = pow(clamp(y, 0.0, 1.0 - 1e-5), vec3(2.2)); return y / (1.0 - y); }
+`;
+
+export function fullscreen(gl) {
+  gl.disable(gl.DEPTH_TEST);
+  gl.disable(gl.CULL_FACE);
+  gl.drawArrays(gl.TRIANGLES, 0, 3);
+}
+
+export function bindTextures(gl, prog, units) {
+  // units: {uniformName: [unit, texture]}; units 1 and 3 belong to the shadow map's samplers
+  for (const [name, [unit, tex]] of Object.entries(units)) {
+    gl.activeTexture(gl.TEXTURE0 + unit);
+    gl.bindTexture(gl.TEXTURE_2D, tex);
+    const u = prog.uniforms[name];
+    if (u) gl.uniform1i(u.loc, unit);
+  }
+}
+
+export function median(values) {
+  if (!values.length) return NaN;
+  const s = [...values].sort((a, b) => a - b);
+  const m = s.length >> 1;
+  return s.length % 2 ? s[m] : 0.5 * (s[m - 1] + s[m]);
+}

@@ -1,0 +1,169 @@
+// The viewer: both systems fly the scene's camera path, each on its own canvas (own WebGL2 context, as two
+// separate clients would), and the HUD shows their per-stage times (performance.now, after a GPU sync).
+// window.viewer holds everything measured, for bench web and the tests.
+
+import * as ort from "/npm/onnxruntime-web/ort.all.min.mjs";
+import { context, median } from "./glutil.js";
+import { SceneRenderer } from "./scene.js";
+import { GiganSystem } from "./gigan.js";
+import { CloudSystem } from "./cloud.js";
+
+const GIGAN_STAGES = ["gi_render", "inference", "warp", "blend"];
+const CLOUD_STAGES = ["transmission", "server", "decode", "warp", "blend"];
+const viewer = (window.viewer = { done: false, error: null, maps: [], frames: [], info: {} });
+const params = new URLSearchParams(location.search);
+
+async function json(url) {
+  const r = await fetch(url);
+  if (!r.ok) throw new Error(`${url}: ${r.status}`);
+  return r.json();
+}
+
+function b64(typed) {
+  const bytes = new Uint8Array(typed.buffer, typed.byteOffset, typed.byteLength);
+  let s = "";
+  for (let i = 0; i < bytes.length; i += 0x8000) s += String.fromCharCode(...bytes.subarray(i, i + 0x8000));
+  return btoa(s);
+}
+
+async function session(config) {
+  ort.env.wasm.wasmPaths = "/npm/onnxruntime-web/";
+  ort.env.wasm.numThreads = crossOriginIsolated ? config.threads : 1;
+  const webgpu = config.backend !== "wasm" && "gpu" in navigator && (await navigator.gpu.requestAdapter().catch(() => null));
+  if (config.backend === "webgpu" && !webgpu) throw new Error("--backend webgpu: this browser has no WebGPU adapter");
+  const providers = webgpu ? ["webgpu", "wasm"] : ["wasm"];
+  const model = await (await fetch("/assets/model/model.onnx")).arrayBuffer();
+  const s = await ort.InferenceSession.create(model, { executionProviders: providers, graphOptimizationLevel: "all" });
+  viewer.info.backend = webgpu ? "webgpu" : "wasm";
+  viewer.info.wasm_threads = ort.env.wasm.numThreads;
+  return s;
+}
+
+// ---- HUD -------------------------------------------------------------------------------------------------
+function row(name, last, values) {
+  const f = (v) => (Number.isFinite(v) ? v.toFixed(1) : "—");
+  return `<tr><td>${name}</td><td>${f(last)}</td><td>${f(median(values))}</td></tr>`;
+}
+
+function hud(id, stages, maps, di) {
+  const rows = stages.map((s) => row(s, maps.at(-1)?.stages[s], maps.map((m) => m.stages[s]).filter(Number.isFinite)));
+  rows.push(row("<b>total</b>", maps.at(-1)?.total, maps.map((m) => m.total)));
+  rows.push(row("di (shared, not counted)", di.at(-1), di));
+  document.getElementById(id).innerHTML =
+    `<tr><th>stage (ms)</th><th>last</th><th>median</th></tr>${rows.join("")}<tr><td>maps</td><td colspan=2>${maps.length}</td></tr>`;
+}
+
+function showHud() {
+  const g = viewer.maps.filter((m) => m.system === "gigan");
+  const c = viewer.maps.filter((m) => m.system === "cloud_baking");
+  hud("hud-gigan", GIGAN_STAGES, g, viewer.frames.map((f) => f.gigan_di));
+  hud("hud-cloud", CLOUD_STAGES, c, viewer.frames.map((f) => f.cloud_di).filter(Number.isFinite));
+  const ratio = median(c.map((m) => m.total)) / median(g.map((m) => m.total));
+  document.getElementById("ratio").textContent = Number.isFinite(ratio)
+    ? `median total: cloud baking / GIGAN = ${ratio.toFixed(2)}` : "";
+  document.getElementById("status").textContent =
+    `frame ${viewer.frames.length} / ${viewer.config.frames} · ${viewer.info.backend} · ${viewer.info.renderer}`;
+}
+
+// ---- one system's frame ----------------------------------------------------------------------------------
+function timed(fn) {
+  const t0 = performance.now();
+  fn();
+  return performance.now() - t0;
+}
+
+async function main() {
+  const config = (viewer.config = { ...(await json("/config.json")), ...Object.fromEntries(params) });
+  for (const k of ["frames", "every", "tau", "spp", "threads", "resolution"]) config[k] = Number(config[k]);
+  config.cloud = String(config.cloud) === "true";
+  const [scene, path, modelConfig, bin] = await Promise.all([
+    json("/assets/scene.json"), json("/assets/path.json"), json("/assets/model/model.json"),
+    fetch("/assets/scene.bin").then((r) => r.arrayBuffer()),
+  ]);
+  config.light_moves = new Set(path.frames.map((f) => f.light.join(","))).size > 1;
+  const glG = context(document.getElementById("gigan"));
+  const glC = context(document.getElementById("cloud"));
+  const dbg = glG.getExtension("WEBGL_debug_renderer_info");
+  viewer.info.renderer = dbg ? glG.getParameter(dbg.UNMASKED_RENDERER_WEBGL) : glG.getParameter(glG.RENDERER);
+  viewer.info.cross_origin_isolated = crossOriginIsolated;
+  viewer.info.triangles = scene.triangles;
+  const sceneG = new SceneRenderer(glG, scene, bin);
+  const sceneC = new SceneRenderer(glC, scene, bin);
+  const gigan = new GiganSystem(glG, sceneG, modelConfig, await session(config), ort);
+  const cloud = config.cloud ? new CloudSystem(glC, sceneC, config) : null;
+  if (!cloud) document.getElementById("cloud-off").hidden = false;
+
+  const frames = Math.min(config.frames, path.frames.length);
+  let pendingG = null; // a new map's stages until its first frame is composed
+  let pendingC = null;
+  for (let f = 0; f < frames; f++) {
+    const frame = path.frames[f];
+    const rec = { frame: f };
+    // GIGAN: a map every k frames, made here (synchronously, as gigan-client does)
+    if (f % config.every === 0) {
+      const made = await gigan.produce(frame);
+      pendingG = { system: "gigan", frame: f, stages: made.stages };
+      if (!viewer.parity) {
+        viewer.parity = { ...Object.fromEntries(Object.entries(made.buffers).map(([k, v]) => [k, b64(v)])),
+          display: b64(made.display), resolution: gigan.n };
+      }
+    }
+    let diG;
+    rec.gigan_di = timed(() => { diG = sceneG.renderDI(frame); glSyncDI(glG, diG); });
+    rec.gigan_warp = timed(() => gigan.warp(frame, diG));
+    rec.gigan_blend = timed(() => gigan.blend(diG, config.tau));
+    if (pendingG) {
+      const s = pendingG.stages;
+      s.warp = s.bind + rec.gigan_warp;
+      s.blend = rec.gigan_blend;
+      pendingG.total = GIGAN_STAGES.reduce((a, k) => a + s[k], 0);
+      viewer.maps.push(pendingG);
+      pendingG = null;
+    }
+    // cloud baking: a request every k frames (one in flight), the first map awaited
+    if (cloud) {
+      if (f % config.every === 0) cloud.request(frame, f);
+      const got = await cloud.take(!cloud.bound);
+      if (got) pendingC = { system: "cloud_baking", frame: got.frame, hit: got.hit, bytes: got.bytes, stages: got.stages };
+      let diC;
+      rec.cloud_di = timed(() => { diC = sceneC.renderDI(frame); glSyncDI(glC, diC); });
+      rec.cloud_warp = timed(() => cloud.warp(frame, diC));
+      rec.cloud_blend = timed(() => cloud.blend(diC, config.tau));
+      if (pendingC) {
+        const s = pendingC.stages;
+        s.warp = s.bind + rec.cloud_warp;
+        s.blend = rec.cloud_blend;
+        pendingC.total = CLOUD_STAGES.reduce((a, k) => a + s[k], 0);
+        viewer.maps.push(pendingC);
+        pendingC = null;
+      }
+    }
+    viewer.frames.push(rec);
+    showHud();
+    await new Promise((r) => setTimeout(r, 0)); // let the page paint and the fetch progress
+  }
+  if (params.get("timing_runs")) await timeInference(gigan, Number(params.get("timing_runs")));
+  viewer.done = true;
+  showHud();
+}
+
+function glSyncDI(gl, t) {
+  const px = new Float32Array(4);
+  gl.bindFramebuffer(gl.FRAMEBUFFER, t.fbo);
+  gl.readBuffer(gl.COLOR_ATTACHMENT0);
+  gl.readPixels(0, 0, 1, 1, gl.RGBA, gl.FLOAT, px);
+}
+
+// session.run alone, repeated on the first map's input: the browser's side of the inference comparison.
+async function timeInference(gigan, runs) {
+  const ms = [];
+  for (let i = 0; i < runs; i++) ms.push((await gigan.infer(gigan.input)).ms);
+  viewer.inference_runs_ms = ms;
+}
+
+main().catch((e) => {
+  viewer.error = String(e && e.stack ? e.stack : e);
+  viewer.done = true;
+  document.getElementById("status").textContent = `error: ${e}`;
+  console.error(e);
+});

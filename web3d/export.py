@@ -1,0 +1,234 @@
+"""Scene assets for the Web3D viewer, from the same scene specs and GL code as the Python clients.
+
+:func:`export_assets` writes into one folder:
+
+- ``scene.bin``: the interleaved vertex data of :class:`gicore.gl.GLRenderer` at full detail (float32
+  position, normal, albedo, material row: 10 per vertex; flat objects one vertex per corner with the face
+  normal, smooth ones shared vertices with area-weighted normals), then the uint32 triangle indices, closed
+  meshes first (drawn with back faces culled) and the others after;
+- ``scene.json``: the header: byte offsets and counts, the draw ranges, the material tables (the shaders'
+  ``u_materials``), the light, and the WebGL2 programs: ``gicore.gl.shaders``' GLSL 330 sources for the
+  passes the page runs (``di_gbuffer`` at the GI camera, ``di`` and ``uv`` at the local camera, the shadow
+  map), with the version line swapped for GLSL ES 3.00 and precision qualifiers added (that module is
+  written so that this is the whole port);
+- ``path.json``: per frame of the fly-through, the local and GI cameras (OpenGL view and projection
+  matrices, column-major as WebGL takes them), the light and its shadow-map setup (the views
+  :class:`~gicore.gl.GLRenderer` fits around the casters for that light);
+- ``model/``: the ONNX model and its ``model.json`` (input buffers, depth scale, resolution).
+
+The page reads nothing else; nothing in it is computed differently from the Python client except what
+WebGL does itself (rasterisation, the shadow sampler's comparison).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from gicore.camera import NEAR_MIN, Camera
+from gicore.geometry import scene_objects
+from gicore.gl.brdf import ETA, TABLE_RES, roughplastic_tables
+from gicore.gl.lod import mesh_levels
+from gicore.gl.renderer import AREA_SAMPLES, SHADOW_SIZE, GLRenderer, _closed
+from gicore.gl.shaders import MATERIAL_VEC4S, SCENE_VERTEX, SHADOW_FRAGMENT, SHADOW_VERTEX, scene_fragment
+from gicore.loop import path_views
+from gicore.scene import SceneSpec, load_scene
+from gigan_local.inference import DEFAULT_MODEL, read_model_json
+
+FORMAT = "gigan-web-assets/1"
+#: Floats per vertex: position, normal, albedo, material row (GLRenderer's layout).
+VERTEX_FLOATS = 10
+#: The page's passes: the scene program's defines and the colour attachment of the DI output.
+PASSES: dict[str, tuple[tuple[str, ...], int]] = {
+    "di_gbuffer": (("GBUFFER", "DI"), 4),
+    "di": (("DI",), 0),
+    "uv": (("UV",), 0),
+}
+_ES_HEAD = "#version 300 es\nprecision highp float;\nprecision highp int;\n"
+_ES_SAMPLERS = "precision highp sampler2DShadow;\nprecision highp sampler2D;\n"
+
+
+def to_es(source: str, fragment: bool) -> str:
+    """A ``#version 330 core`` shader as GLSL ES 3.00 (WebGL2): the version line and precision qualifiers."""
+    head, rest = source.lstrip().split("\n", 1)
+    if head.strip() != "#version 330 core":
+        raise ValueError(f"expected a '#version 330 core' shader, got {head!r}")
+    return _ES_HEAD + (_ES_SAMPLERS if fragment else "") + rest
+
+
+def _column_major(m: np.ndarray) -> list[float]:
+    return [float(x) for x in np.asarray(m, dtype=np.float64).T.ravel()]
+
+
+def _camera(camera: Camera) -> dict[str, Any]:
+    return {
+        "eye": list(camera.origin),
+        "target": list(camera.target),
+        "fov": camera.fov,
+        "near": camera.near,
+        "far": camera.far,
+        "view": _column_major(camera.view()),
+        "proj": _column_major(camera.proj()),
+        "view_proj": _column_major(camera.view_proj()),
+    }
+
+
+def _up_for(direction: np.ndarray) -> tuple[float, float, float]:
+    d = np.abs(direction) / np.linalg.norm(direction)
+    return (0.0, 0.0, 1.0) if d[1] > 0.9 else (0.0, 1.0, 0.0)
+
+
+def shadow_setup(
+    bounds: list[tuple[np.ndarray, float, np.ndarray | None, np.ndarray]], light: np.ndarray, size: int
+) -> dict[str, Any]:
+    """The shadow views for a light at ``light``, as ``GLRenderer._shadow_views`` fits them (same casters,
+    frustum or cube faces, texel sizes, far distance): ``bounds`` per object (centre, radius, the plane of an
+    environment quad or None, box corners)."""
+    casters = [(c, r) for c, r, plane, _ in bounds if plane is None or float(np.dot(plane[0], light - plane[1])) < 0]
+    lo = np.min([c - r for c, r in casters], axis=0)
+    hi = np.max([c + r for c, r in casters], axis=0)
+    centre = (lo + hi) / 2.0
+    radius = max(float(np.linalg.norm(c - centre)) + r for c, r in casters) + 1e-4
+    corners = np.concatenate([b[3] for b in bounds])
+    far = float(np.linalg.norm(corners - light, axis=1).max()) * 1.01 + 1e-3
+    dist = float(np.linalg.norm(centre - light))
+    if dist > 1.02 * radius:
+        tan_half = math.tan(math.asin(radius / dist)) * (1.0 + 4.0 / size)
+        near = max(0.5 * (dist - radius), NEAR_MIN * 10)
+        far = max(far, 2 * near)
+        fov = math.degrees(2 * math.atan(tan_half))
+        cam = Camera(tuple(light), tuple(centre), _up_for(centre - light), fov, near, far, size, size)
+        views, tile, atlas, blocker_min = [cam.view_proj()], size, (size, size), dist - radius
+    else:
+        tile = max(16, size // 2)
+        tan_half = 1.0 + 8.0 / tile
+        fov = math.degrees(2 * math.atan(tan_half))
+        near = max(1e-4 * far, NEAR_MIN * 10)
+        views = []
+        for axis in np.eye(3):
+            for sign in (1.0, -1.0):
+                target = tuple(light + sign * axis)
+                views.append(Camera(tuple(light), target, _up_for(axis), fov, near, far, tile, tile).view_proj())
+        atlas, blocker_min = (3 * tile, 2 * tile), max(near, 0.01 * radius)
+    return {
+        "views": [_column_major(v) for v in views],
+        "texel": [2 * tan_half / tile] * len(views),
+        "tile": tile,
+        "atlas": list(atlas),
+        "blocker_min": blocker_min,
+        "far": far,
+    }
+
+
+def _bounds(objects: list, n_spec: int) -> list[tuple[np.ndarray, float, np.ndarray | None, np.ndarray]]:
+    out = []
+    for i, obj in enumerate(objects):
+        v = obj.mesh.vertices.astype(np.float64)
+        lo, hi = v.min(axis=0), v.max(axis=0)
+        centre = (lo + hi) / 2.0
+        plane = None
+        if i >= n_spec:  # an environment quad: its plane (face normal, a point)
+            a, b, c = v[obj.mesh.faces[0]]
+            n = np.cross(b - a, c - a)
+            plane = np.stack([n / np.linalg.norm(n), v[0]])
+        corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+        out.append((centre, float(np.linalg.norm(v - centre, axis=1).max()), plane, corners))
+    return out
+
+
+def _programs(spec: SceneSpec, material_rows: int) -> dict[str, dict[str, str]]:
+    area = spec.light.size > 0
+    programs = {}
+    for name, (defines, di_location) in PASSES.items():
+        for cube in (False, True) if "DI" in defines else (False,):
+            fragment = scene_fragment(
+                *defines,
+                di_location=di_location,
+                area_light=area,
+                cube_shadow=cube,
+                material_rows=material_rows,
+                light_samples=AREA_SAMPLES if area else 1,
+            )
+            key = name + ("_cube" if cube else "")
+            programs[key] = {"vertex": to_es(SCENE_VERTEX, False), "fragment": to_es(fragment, True)}
+    programs["shadow"] = {"vertex": to_es(SHADOW_VERTEX, False), "fragment": to_es(SHADOW_FRAGMENT, True)}
+    return programs
+
+
+def export_assets(
+    scene: str | Path,
+    out: Path,
+    frames: int = 300,
+    orbit_frames: int = 300,
+    seed: int = 0,
+    model: Path = DEFAULT_MODEL,
+    shadow_size: int = SHADOW_SIZE,
+) -> dict[str, Any]:
+    """Write the viewer's assets for ``scene`` into ``out`` (module docstring); returns the header."""
+    spec = load_scene(scene)
+    config = read_model_json(model)
+    resolution = int(config["resolution"])
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    objects = scene_objects(spec)
+
+    roughness = sorted({o.roughness for o in objects if o.roughness is not None})
+    rows = {r: i for i, r in enumerate(roughness)}
+    table = np.zeros((max(1, len(roughness)), 4 * MATERIAL_VEC4S), dtype=np.float32)
+    for r, i in rows.items():
+        transmittance, internal = roughplastic_tables(r)
+        table[i, :TABLE_RES], table[i, TABLE_RES], table[i, TABLE_RES + 1] = transmittance, r, 1.0 / (1 - internal)
+
+    chunks, closed_faces, open_faces, base = [], [], [], 0
+    for obj in objects:
+        level = mesh_levels(obj.mesh, (1.0,))[0]
+        data, faces, _ = GLRenderer._vertex_data(obj, level, rows)  # the renderer's own vertex layout
+        chunks.append(data)
+        (closed_faces if _closed(obj.mesh) else open_faces).append(faces.astype(np.int64) + base)
+        base += len(data)
+    vertices = np.concatenate(chunks).astype(np.float32)
+    empty = [np.zeros((0, 3), np.int64)]
+    culled, rest = (np.concatenate(f or empty).astype(np.uint32) for f in (closed_faces, open_faces))
+    indices = np.concatenate([culled, rest])
+    (out / "scene.bin").write_bytes(vertices.tobytes() + indices.tobytes())
+
+    header: dict[str, Any] = {
+        "format": FORMAT,
+        "scene": spec.name,
+        "resolution": resolution,
+        "vertex_floats": VERTEX_FLOATS,
+        "vertices": {"offset": 0, "count": len(vertices)},
+        "indices": {"offset": vertices.nbytes, "count": int(indices.size), "culled": int(culled.size)},
+        "triangles": int(indices.size // 3),
+        "materials": [float(x) for x in table.ravel()],
+        "material_vec4s": MATERIAL_VEC4S,
+        "eta": ETA,
+        "light": {"size": spec.light.size, "intensity": spec.light.intensity, "samples": AREA_SAMPLES},
+        "shadow_size": shadow_size,
+        "programs": _programs(spec, len(table)),
+    }
+    (out / "scene.json").write_text(json.dumps(header))
+
+    local_fov, gi_fov = spec.camera.local_fov, spec.camera.gi_fov
+    bounds = _bounds(objects, len(spec.objects))
+    setups: dict[tuple[float, ...], dict[str, Any]] = {}
+    path = []
+    for camera, light in path_views(spec, frames, orbit_frames, seed, local_fov, resolution):
+        key = tuple(light)
+        if key not in setups:
+            setups[key] = shadow_setup(bounds, np.asarray(light, dtype=np.float64), shadow_size)
+        gi = camera.with_fov(gi_fov)
+        path.append({"local": _camera(camera), "gi": _camera(gi), "light": list(light), "shadow": setups[key]})
+    doc = {"scene": spec.name, "seed": seed, "orbit_frames": orbit_frames, "frames": path}
+    (out / "path.json").write_text(json.dumps(doc))
+
+    model_dir = out / "model"
+    model_dir.mkdir(exist_ok=True)
+    shutil.copyfile(model, model_dir / "model.onnx")
+    (model_dir / "model.json").write_text(json.dumps(config))
+    return header
