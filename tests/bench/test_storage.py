@@ -21,7 +21,8 @@ def test_storage_bench_matches_a_real_prebake(tmp_path: Path) -> None:
     cfg = StorageConfig(
         scenes=(str(spec_path),), frames=24, resolutions=(32,), codecs=("jpeg", "png"), spp=2, samples=24,
         tolerance_position=tol.position, tolerance_angle_deg=tol.angle_deg, knob_positions=(0.05, 0.5),
-        knob_angles_deg=(2.0, 30.0), warp_samples=1,
+        knob_angles_deg=(2.0, 30.0), warp_samples=1, sessions=3, users=(2,), session_frames=24, growth_samples=1,
+        capacity_samples=200, paper_resolution=32, map_cache=tmp_path / "maps",
     )  # fmt: skip
     files = execute(BENCH, cfg, tmp_path / "out")
     assert {p.name for p in files} >= {
@@ -30,6 +31,7 @@ def test_storage_bench_matches_a_real_prebake(tmp_path: Path) -> None:
         "storage_table2.md",
         "storage.png",
         "storage_tolerance.png",
+        "storage_growth.png",
     }
     rows = read_rows(tmp_path / "out" / "storage.csv")
 
