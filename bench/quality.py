@@ -10,6 +10,17 @@ signed red tint where only indirect light arrives. "di_only" scores the DI input
 client without GI shows). Inference time is the median of repeated ``predict`` calls after warm-up, so
 each model is also a point of error against run time (width and precision knobs).
 
+Renderers of the inputs (``--renderers``, issue 22): every model is scored on each renderer's inputs (DI +
+G-buffers) of the same held-out frames against the same GT, side by side in one run; each row's config names
+its ``renderer``. A renderer's inputs are what ``gicore-dataset --renderer`` stores for that frame: the
+dataset's own when it was made with that renderer (and, for gl, that ``--gl-lod``), else rendered now at the
+frame's camera, light and seed (``gicore.dataset_cli.render_inputs``): mitsuba's 1-spp DI with G-buffers at a
+random point of each pixel (the shipped model's training inputs), or gl's ``GLRenderer`` at ``gl_lod`` (``auto``:
+the level a client picks per view; rows carry the mean level drawn). With both, per model and scene:
+``ssim_diff`` (mean and standard error over frames of SSIM(gl) − SSIM(mitsuba), paired) and
+``lf_error_ratio`` (mean LF error on gl over mean LF error on mitsuba), and the table says whether issue 22's
+rule holds (:data:`GL_SSIM_LOSS_MAX`, :data:`GL_LF_RISE_MAX`).
+
 The image grid (``quality_grid.png``) shows, per frame, the inputs, each model's map and the GT, and under
 DI and under each model two error maps (:func:`grid_rows`): the per-channel |tone-mapped prediction − GT|
 and the low-frequency signed error on a fixed diverging scale, so a blotch or a tint is seen at a glance.
@@ -17,8 +28,10 @@ and the low-frequency signed error on a fixed diverging scale, so a blotch or a 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 
@@ -26,11 +39,12 @@ from bench.models import model_info
 from bench.runner import Bench, Block, Figure, Part, Rows, Section, Table, need, pick
 from bench.svg import BarChart
 from gicore.cli import UserError
-from gicore.dataset import frame_paths, load_frame, read_meta
-from gicore.dataset_cli import DatasetConfig, build_dataset
+from gicore.dataset import INPUT_RENDERERS, DatasetMeta, frame_paths, load_frame, read_meta
+from gicore.dataset_cli import DatasetConfig, FrameRenderer, build_dataset, render_inputs
+from gicore.gl.lod import LOD_CHOICES
 from gicore.metrics import CHECKER_PERIOD, LF_SIGMA, all_metrics, checker_error, lf_difference, shadow_tint
 from gicore.results import Results, read_rows
-from gicore.scene import builtin_scenes, load_scene
+from gicore.scene import SceneSpec, builtin_scenes, load_scene
 from gicore.timing import time_repeats
 from gicore.tonemap import tonemap
 from gigan_local.inference import DEFAULT_MODEL
@@ -56,6 +70,13 @@ GridCell = tuple[np.ndarray, str]
 #: The small dataset a fresh checkout renders per scene (``bench quality --quick``, ``bench run-default``):
 #: 6 training and 3 held-out frames at 256², the shipped model's resolution (about 7 s per scene on 2 cores).
 QUICK_DATASET = DatasetConfig(n_train=6, n_val=3, resolution=256, spp=64, denoise=True)
+#: Issue 22's rule for the GL client's inputs: a model on gl inputs may lose at most this much SSIM against
+#: mitsuba inputs on any scene, and raise the LF error by at most this fraction; beyond either, it is to be
+#: fine-tuned on gl inputs.
+GL_SSIM_LOSS_MAX = 0.005
+GL_LF_RISE_MAX = 0.20
+#: The renderer every other renderer's inputs are compared with (``ssim_diff``, ``lf_error_ratio``).
+REFERENCE_RENDERER = "mitsuba"
 
 
 @dataclass(frozen=True)
@@ -76,6 +97,11 @@ class QualityConfig:
     threads: int = 2
     #: Frames per scene in the image grid (quality_grid.png); 0: no grid.
     grid_frames: int = field(default=2, metadata={"min": 0})
+    #: Renderers of the models' inputs (DI + G-buffers), scored side by side on the same frames and GT: each
+    #: one's inputs as gicore-dataset --renderer stores them (the dataset's own, or rendered now).
+    renderers: tuple[Literal[INPUT_RENDERERS], ...] = ("mitsuba",)  # type: ignore[valid-type]
+    #: Level of detail of the gl inputs (gicore.gl.GLRenderer's lod; auto: per view, as the client draws).
+    gl_lod: Literal[LOD_CHOICES] = "auto"  # type: ignore[valid-type]
 
     @classmethod
     def quick(cls) -> QualityConfig:
@@ -84,6 +110,18 @@ class QualityConfig:
     def check(self) -> None:
         for name, path in self.models.items():
             model_info(path, f"--models {name}")
+        unknown = [r for r in self.renderers if r not in INPUT_RENDERERS]
+        if unknown or len(set(self.renderers)) != len(self.renderers):
+            raise UserError(
+                f"--renderers {','.join(self.renderers)} is not a list of distinct renderers",
+                f"give some of {', '.join(INPUT_RENDERERS)}, each once",
+            )
+        if "gl" in self.renderers:
+            from gicore.gl import gl_available
+
+            ok, why = gl_available()
+            if not ok:
+                raise UserError(f"--renderers gl: {why}", "leave gl out of --renderers on this machine")
 
 
 def dataset_root(cfg: QualityConfig, res: Results, scene: str) -> Path:
@@ -102,32 +140,66 @@ def dataset_root(cfg: QualityConfig, res: Results, scene: str) -> Path:
     return root
 
 
+def input_renderers(cfg: QualityConfig, meta: DatasetMeta, root: Path) -> dict[str, FrameRenderer | None]:
+    """Per renderer of ``cfg.renderers``: None where the dataset's stored inputs are that renderer's, else the
+    :class:`FrameRenderer` that renders them now (UserError when the dataset's scene spec does not load)."""
+    out: dict[str, FrameRenderer | None] = {}
+    for renderer in cfg.renderers:
+        if renderer == meta.renderer and (renderer == "mitsuba" or meta.lod == cfg.gl_lod):
+            out[renderer] = None
+            continue
+        try:
+            spec = SceneSpec.from_dict(meta.scene)
+        except (OSError, ValueError) as err:
+            raise UserError(
+                f"{root} holds {meta.renderer} inputs and its scene spec does not load to render {renderer}'s"
+                f" ({' '.join(str(err).split())})",
+                f"leave {renderer} out of --renderers for it",
+            ) from None
+        out[renderer] = FrameRenderer(spec, meta.resolution, renderer, cfg.gl_lod)
+    return out
+
+
 def measure(cfg: QualityConfig, res: Results) -> None:
     from gigan_local.inference import GIModel
 
     models = {name: GIModel(path, threads=cfg.threads) for name, path in cfg.models.items()}
     infos = {name: model_info(path, f"--models {name}") for name, path in cfg.models.items()}
+    systems = ["di_only", *models]
+    several = len(cfg.renderers) > 1
     grid: list[list[GridCell]] = []
     for scene in cfg.scenes:
         root = dataset_root(cfg, res, scene)
         meta = read_meta(root)
         paths = frame_paths(root, "val")[: cfg.max_frames]
-        scores: dict[str, list[dict[str, float]]] = {"di_only": []} | {name: [] for name in models}
-        for i, path in enumerate(paths):
-            frame = load_frame(path, meta.buffers)
-            reference = tonemap(frame["gt"])
-            outputs = {"di_only": frame["di"]} | {name: m.predict(frame) for name, m in models.items()}
-            mapped = {name: tonemap(radiance) for name, radiance in outputs.items()}
-            for name, image in mapped.items():
-                extra = {
-                    "checker_error": checker_error(image, reference),
-                    "shadow_tint": shadow_tint(image, reference, mapped["di_only"]),
-                }
-                scores[name].append(all_metrics(image, reference) | extra)
-            if i < cfg.grid_frames:
-                grid += grid_rows(frame, mapped, reference, f"{scene} #{i}")
-        for name, per_frame in scores.items():
-            config = infos.get(name, {})
+        records = meta.split_frames("val")[: cfg.max_frames]
+        renderers = input_renderers(cfg, meta, root)
+        scores: dict[tuple[str, str], list[dict[str, float]]] = {(n, r): [] for r in cfg.renderers for n in systems}
+        levels: list[int] = []  # the levels of detail the gl inputs rendered now were drawn at
+        for i, (record, path) in enumerate(zip(records, paths)):
+            stored = load_frame(path, meta.buffers)
+            reference = tonemap(stored["gt"])
+            for renderer, frame_renderer in renderers.items():
+                frame = stored
+                if frame_renderer is not None:
+                    frame = stored | render_inputs(frame_renderer, meta, record)
+                    if renderer == "gl":
+                        levels.append(frame_renderer.gl.last_level)
+                outputs = {"di_only": frame["di"]} | {name: m.predict(frame) for name, m in models.items()}
+                mapped = {name: tonemap(radiance) for name, radiance in outputs.items()}
+                for name, image in mapped.items():
+                    extra = {
+                        "checker_error": checker_error(image, reference),
+                        "shadow_tint": shadow_tint(image, reference, mapped["di_only"]),
+                    }
+                    scores[name, renderer].append(all_metrics(image, reference) | extra)
+                if i < cfg.grid_frames:
+                    grid += grid_rows(frame, mapped, reference, f"{scene} #{i}" + (f" {renderer}" if several else ""))
+        for (name, renderer), per_frame in scores.items():
+            config = infos.get(name, {}) | {"renderer": renderer}
+            if renderer == "gl":
+                config |= {"gl_lod": meta.lod if renderers[renderer] is None else cfg.gl_lod}
+                config |= {"gl_level_mean": float(np.mean(levels))} if levels else {}
             for metric in UNITS:
                 values = [s[metric] for s in per_frame]
                 res.add(
@@ -140,6 +212,7 @@ def measure(cfg: QualityConfig, res: Results) -> None:
                     frames=len(values),
                     **config,
                 )
+        add_comparisons(res, scene, scores, infos)
         for name, model in models.items():
             frame = load_frame(paths[0], meta.buffers)
             samples, _ = time_repeats(lambda: model.predict(frame), cfg.timing_repeats, warmup=3)
@@ -150,30 +223,55 @@ def measure(cfg: QualityConfig, res: Results) -> None:
         save_grid(grid, ["DI", "albedo", "normal", *models, "GT"], res.output("quality_grid.png"), GRID_CAPTION)
 
 
+def add_comparisons(
+    res: Results, scene: str, scores: dict[tuple[str, str], list[dict[str, float]]], infos: dict[str, dict]
+) -> None:
+    """Per system, every renderer's inputs against :data:`REFERENCE_RENDERER`'s on the same frames: the paired
+    SSIM difference (mean and standard error) and the ratio of the mean LF errors."""
+    for (name, renderer), per_frame in scores.items():
+        ref = scores.get((name, REFERENCE_RENDERER))
+        if renderer == REFERENCE_RENDERER or ref is None:
+            continue
+        config = infos.get(name, {}) | {"renderer": renderer, "versus": REFERENCE_RENDERER, "frames": len(per_frame)}
+        diff = np.array([a["ssim"] - b["ssim"] for a, b in zip(per_frame, ref)])
+        se = float(diff.std(ddof=1) / math.sqrt(len(diff))) if len(diff) > 1 else math.nan
+        lf_ref = float(np.mean([b["lf_error"] for b in ref]))
+        lf_ratio = float(np.mean([a["lf_error"] for a in per_frame])) / lf_ref if lf_ref > 0 else math.nan
+        res.add(system=name, scene=scene, metric="ssim_diff", value=float(diff.mean()), unit="1", stat="mean", **config)
+        res.add(system=name, scene=scene, metric="ssim_diff", value=se, unit="1", stat="se", **config)
+        res.add(system=name, scene=scene, metric="lf_error_ratio", value=lf_ratio, unit="x", stat="ratio", **config)
+
+
+def renderer_of(row: dict) -> str:
+    """The renderer of a row's inputs (CSVs older than ``--renderers`` scored mitsuba datasets only)."""
+    return row["config"].get("renderer", REFERENCE_RENDERER)
+
+
+def series(rows: Rows) -> dict[tuple[str, str], str]:
+    """(system, renderer) of the mean rows, in order, with its label: the system, and its renderer when
+    the rows hold more than one."""
+    keys = list(
+        dict.fromkeys((r["system"], renderer_of(r)) for r in rows if r["stat"] == "mean" and r["metric"] in UNITS)
+    )
+    several = len({k[1] for k in keys}) > 1
+    return {k: f"{k[0]} ({k[1]})" if several else k[0] for k in keys}
+
+
 def plot(csv_path: Path, out_dir: Path) -> list[Path]:
     """Fig. 6 style bars per scene and metric; and mean SSIM against inference time per model."""
     from gicore.plotting import plt, save, ticker
 
     rows = read_rows(csv_path)
     scenes = sorted({r["scene"] for r in rows})
-    systems = list(dict.fromkeys(r["system"] for r in rows if r["stat"] == "mean"))
+    labels = series(rows)
     metrics = [m for m in UNITS if any(r["metric"] == m for r in rows)]  # CSVs older than lf_error lack it
+    mean = {(r["scene"], r["system"], renderer_of(r), r["metric"]): r["value"] for r in rows if r["stat"] == "mean"}
     fig, axes = plt.subplots(1, len(metrics), figsize=(4.7 * len(metrics), 4))
-    width = 0.8 / len(systems)
+    width = 0.8 / len(labels)
     for ax, metric in zip(axes, metrics):
-        for j, system in enumerate(systems):
-            vals = [
-                next(
-                    (
-                        r["value"]
-                        for r in rows
-                        if r["scene"] == s and r["system"] == system and r["metric"] == metric and r["stat"] == "mean"
-                    ),
-                    np.nan,
-                )
-                for s in scenes
-            ]
-            ax.bar(np.arange(len(scenes)) + j * width, vals, width, label=system)
+        for j, ((system, renderer), label) in enumerate(labels.items()):
+            vals = [mean.get((s, system, renderer, metric), np.nan) for s in scenes]
+            ax.bar(np.arange(len(scenes)) + j * width, vals, width, label=label)
         ax.set_xticks(np.arange(len(scenes)) + 0.4 - width / 2, scenes, rotation=25, ha="right", fontsize=7)
         ax.set_title(TITLES[metric], fontsize=9)
         if metric == "shadow_tint":
@@ -184,17 +282,17 @@ def plot(csv_path: Path, out_dir: Path) -> list[Path]:
 
     fig, ax = plt.subplots(figsize=(10, 5))
     markers = {"fp32": "o", "fp16": "s", "int8": "^"}
-    for system in systems:
+    for (system, renderer), name in labels.items():
         times = [
             r["value"]
             for r in rows
             if r["system"] == system and r["metric"] == "inference_time" and r["stat"] == "median"
         ]
-        ssims = [r["value"] for r in rows if r["system"] == system and r["metric"] == "ssim"]
+        ssims = [v for (_, sys_, rend, metric), v in mean.items() if (sys_, rend, metric) == (system, renderer, "ssim")]
         if times:
             cfg = next(r["config"] for r in rows if r["system"] == system and r["metric"] == "inference_time")
             x, y = float(np.median(times)), float(np.mean(ssims))
-            label = f"{system} (ngf {cfg.get('ngf')}, {cfg.get('precision')}, {cfg.get('size_mib')} MiB)"
+            label = f"{name} (ngf {cfg.get('ngf')}, {cfg.get('precision')}, {cfg.get('size_mib')} MiB)"
             ax.scatter(x, y, s=45, marker=markers.get(cfg.get("precision"), "x"), label=label, alpha=0.8)
     ax.legend(fontsize=6, loc="center left", bbox_to_anchor=(1.01, 0.5))
     ax.set_xscale("log")
@@ -311,35 +409,62 @@ def _wrap(text: str, width_of, max_width: float) -> list[str]:
 
 # -- bench report: the dashboard's section and the README's block ------------------------------------------
 def table(rows: Rows) -> str:
-    """Fig. 6 as Markdown: per system and scene, the mean RMSE, SSIM, PSNR, LF and checkerboard errors,
-    the shadow tint and the median inference time."""
+    """Fig. 6 as Markdown: per system (and renderer of its inputs, when there are several) and scene, the mean
+    RMSE, SSIM, PSNR, LF and checkerboard errors, the shadow tint and the median inference time; then, when
+    the rows compare renderers, :func:`renderer_table`."""
     need(rows, "ssim", "rmse", "psnr")
     scenes = list(dict.fromkeys(r["scene"] for r in pick(rows, "ssim")))
-    systems = list(dict.fromkeys(r["system"] for r in pick(rows, "ssim")))
     lines = [
         "| system | scene | RMSE | SSIM | PSNR (dB) | LF error | checker error | shadow tint "
         "| inference ms (median) | config |",
         "|---|---|---|---|---|---|---|---|---|---|",
     ]
-    mean = {(r["scene"], r["system"], r["metric"]): r for r in rows if r["stat"] in ("mean", "median")}
-    for system in systems:
+    mean = {(r["scene"], r["system"], renderer_of(r), r["metric"]): r for r in rows if r["stat"] == "mean"}
+    median = {(r["scene"], r["system"], r["metric"]): r for r in rows if r["stat"] == "median"}
+    for (system, renderer), label in series(rows).items():
         for scene in scenes:
             cells = [
-                mean.get((scene, system, m))
-                for m in ("rmse", "ssim", "psnr", "lf_error", "checker_error", "shadow_tint", "inference_time")
-            ]
+                mean.get((scene, system, renderer, m))
+                for m in ("rmse", "ssim", "psnr", "lf_error", "checker_error", "shadow_tint")
+            ] + [median.get((scene, system, "inference_time"))]
             shown = ["—" if c is None else f"{c['value']:.4g}" for c in cells]
             config = next((c["config"] for c in cells if c is not None and c["config"]), {})
-            knobs = ", ".join(f"{k}={v}" for k, v in config.items() if k not in ("frames",))
-            lines.append(f"| {system} | {scene} | " + " | ".join(shown) + f" | {knobs.replace('|', '/')} |")
+            knobs = ", ".join(f"{k}={v}" for k, v in config.items() if k not in ("frames", "renderer"))
+            lines.append(f"| {label} | {scene} | " + " | ".join(shown) + f" | {knobs.replace('|', '/')} |")
+    comparison = renderer_table(rows)
+    return "\n".join(lines) + (f"\n\n{comparison}" if comparison else "")
+
+
+def renderer_table(rows: Rows) -> str:
+    """Each renderer's inputs against :data:`REFERENCE_RENDERER`'s, per system and scene (empty when the rows
+    compare none): the paired SSIM difference ± its standard error, the LF error ratio, and whether issue 22's
+    rule holds (SSIM lost at most :data:`GL_SSIM_LOSS_MAX`, LF error raised at most :data:`GL_LF_RISE_MAX`)."""
+    diffs = pick(rows, "ssim_diff", "mean")
+    if not diffs:
+        return ""
+    se = {(r["scene"], r["system"], renderer_of(r)): r["value"] for r in pick(rows, "ssim_diff", "se")}
+    ratio = {(r["scene"], r["system"], renderer_of(r)): r["value"] for r in pick(rows, "lf_error_ratio")}
+    lines = [
+        f"| system | scene | inputs | SSIM − {REFERENCE_RENDERER}'s (± s.e.) | LF error / {REFERENCE_RENDERER}'s "
+        f"| within the rule (SSIM ≥ −{GL_SSIM_LOSS_MAX:g}, LF ≤ {1 + GL_LF_RISE_MAX:g}×) |",
+        "|---|---|---|---|---|---|",
+    ]
+    for r in diffs:
+        key = (r["scene"], r["system"], renderer_of(r))
+        lf = ratio.get(key, math.nan)
+        ok = r["value"] >= -GL_SSIM_LOSS_MAX and lf <= 1 + GL_LF_RISE_MAX
+        lines.append(
+            f"| {r['system']} | {r['scene']} | {key[2]} | {r['value']:+.4f} (± {se.get(key, math.nan):.4f}) "
+            f"| {lf:.3f}× | {'yes' if ok else '**no**'} |"
+        )
     return "\n".join(lines)
 
 
 def dashboard_section(rows: Rows) -> list[Part]:
-    """A bar chart per error metric (scenes × systems), then the table."""
+    """A bar chart per error metric (scenes × systems and renderers), then the table."""
     need(rows, "ssim", "rmse", "psnr")
     scenes = list(dict.fromkeys(r["scene"] for r in pick(rows, "ssim")))
-    systems = list(dict.fromkeys(r["system"] for r in pick(rows, "ssim")))
+    labels = series(rows)
     figures = []
     # lf_error: the low-frequency error (gicore.metrics.lf_error); quality CSVs older than it have none ("—").
     shown_metrics = (
@@ -349,9 +474,11 @@ def dashboard_section(rows: Rows) -> list[Part]:
         ("lf_error", "LF error (tone-mapped)"),
     )
     for metric, label in shown_metrics:
-        value = {(r["scene"], r["system"]): r["value"] for r in pick(rows, metric, "mean")}
+        value = {(r["scene"], r["system"], renderer_of(r)): r["value"] for r in pick(rows, metric, "mean")}
         if value:
-            figures.append(BarChart(scenes, {s: [value.get((sc, s)) for sc in scenes] for s in systems}, label))
+            figures.append(
+                BarChart(scenes, {name: [value.get((sc, *k)) for sc in scenes] for k, name in labels.items()}, label)
+            )
     return [Figure(tuple(figures)), Table(table(rows))]
 
 

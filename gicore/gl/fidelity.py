@@ -15,7 +15,8 @@ Timing: median ms per pass (after warm-up) of GL and of the Mitsuba pass it repl
 Level of detail (``--lod``, :func:`lod_table`): per level of ``gicore.gl.lod`` and for ``lod="auto"``, the
 GI-camera pass's triangles, its median ms against Mitsuba's pass (alternating, as above), its G-buffer
 error against full detail and against Mitsuba's centre-sampled pass, and DI SSIM against Mitsuba; rows a
-bench can write as CSV (``--csv``). ``scripts/gl_model_quality.py`` adds the shipped model's SSIM on them.
+bench can write as CSV (``--csv``). ``bench quality --renderers gl,mitsuba --gl-lod LOD`` adds the shipped
+model's SSIM and LF error on such inputs.
 
 This module imports ``gicore.render`` (Mitsuba) only inside its functions; the renderer modules of
 ``gicore.gl`` never do.
