@@ -1,54 +1,60 @@
 """The FastAPI app of the cloud-baking server.
 
-``create_app(settings)`` builds the app; its ``lifespan`` opens the GI tree and the scene catalog
-(specs load lazily on first use, renderers are compiled on a scene's first miss) and closes the tree
-on shutdown. Requests larger than ``max_body_bytes`` are refused with 413 before they are parsed;
-every refused field is a 4xx whose ``detail`` names it (``{"detail": [{"loc": ["body", FIELD], "msg":
-..., "type": ...}]}``, FastAPI's 422 shape without the echoed input).
+``create_app(settings)`` builds the app; its ``lifespan`` opens the GI tree (scene specs load lazily on
+first use, renderers are compiled on a scene's first miss) and closes the miss queue and the tree on
+shutdown. Requests larger than ``max_body_bytes`` are refused with 413, and bodies slower than
+``body_timeout_s`` with 408, before they are parsed; every refused field is a 4xx whose ``detail`` names
+it (:mod:`~baseline_cloudbaking.server.errors`). Browsers may call the API only from the origins in
+``cors_origins`` (none by default). The OpenAPI document states the limits of this server: its scenes
+(an enum), resolutions, spp range and every error response.
 """
 
 from __future__ import annotations
 
+import asyncio
+import copy
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from importlib import metadata
+from typing import Any
 
-from fastapi import FastAPI, Request
-from fastapi.exceptions import RequestValidationError
+from fastapi import FastAPI
+from fastapi.middleware.cors import CORSMiddleware
 from fastapi.responses import JSONResponse
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from baseline_cloudbaking.bake import SceneCatalog
-from baseline_cloudbaking.server.routers import gimap, health, scenes, stats
-from baseline_cloudbaking.server.service import FieldError, MapService
+from baseline_cloudbaking.server import errors
+from baseline_cloudbaking.server.routers import gimap, health, maps, scenes, stats
+from baseline_cloudbaking.server.service import MapService
 from baseline_cloudbaking.server.settings import Settings, get_settings
 from baseline_cloudbaking.store import GITree
+from gicore.scene import SceneSpecError
 
 
 class BodyLimit:
-    """ASGI middleware: reads a request body up to ``limit`` bytes and answers 413 beyond it (whatever
-    Content-Length claims), then replays the body to the app."""
+    """ASGI middleware: reads a request body up to ``limit`` bytes within ``timeout_s`` and answers 413
+    beyond the size (whatever Content-Length claims), 408 beyond the time; then replays the body to the app."""
 
-    def __init__(self, app: ASGIApp, limit: int):
+    def __init__(self, app: ASGIApp, limit: int, timeout_s: float):
         self.app = app
         self.limit = limit
+        self.timeout_s = timeout_s
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http":
             await self.app(scope, receive, send)
             return
-        chunks, size, more = [], 0, True
-        while more:
-            message = await receive()
-            if message["type"] == "http.disconnect":
-                return
-            chunks.append(message.get("body", b""))
-            size += len(chunks[-1])
-            more = message.get("more_body", False)
-            if size > self.limit:
-                detail = [{"loc": ["body"], "msg": f"request body exceeds {self.limit} bytes", "type": "too_large"}]
-                await JSONResponse({"detail": detail}, status_code=413)(scope, receive, send)
-                return
+        chunks: list[bytes] = []
+        try:
+            async with asyncio.timeout(self.timeout_s):
+                refusal = await self._read(receive, chunks)
+        except TimeoutError:
+            msg = f"the request body did not arrive within {self.timeout_s:g} s"
+            refusal = errors.error(408, ["body"], msg, "timeout", {"Connection": "close"})
+        if refusal is not None:
+            await refusal(scope, receive, send)
+            return
         body = b"".join(chunks)
         sent = False
 
@@ -61,10 +67,37 @@ class BodyLimit:
 
         await self.app(scope, replay, send)
 
+    async def _read(self, receive: Receive, chunks: list[bytes]) -> JSONResponse | None:
+        size, more = 0, True
+        while more:
+            message = await receive()
+            if message["type"] == "http.disconnect":
+                return JSONResponse({}, status_code=499)  # nobody reads it
+            chunks.append(message.get("body", b""))
+            size += len(chunks[-1])
+            more = message.get("more_body", False)
+            if size > self.limit:
+                return errors.error(413, ["body"], f"request body exceeds {self.limit} bytes", "too_large")
+        return None
+
+
+def request_limits(schema: dict[str, Any], settings: Settings, scene_names: list[str]) -> dict[str, Any]:
+    """``schema`` (FastAPI's OpenAPI document) with this server's limits on a GI-map request: the scenes it
+    serves as an enum, its resolutions, its spp range."""
+    schema = copy.deepcopy(schema)
+    props = schema["components"]["schemas"]["GIMapRequest"]["properties"]
+    props["scene"]["enum"] = scene_names
+    props["resolution"] |= {"enum": list(settings.resolutions), "default": settings.resolutions[0]}
+    if 256 in settings.resolutions:
+        props["resolution"]["default"] = 256
+    props["spp"] |= {"minimum": 1, "maximum": settings.max_spp, "default": min(64, settings.max_spp)}
+    return schema
+
 
 def create_app(settings: Settings | None = None) -> FastAPI:
     """The server app for ``settings`` (default: from the environment, :func:`get_settings`)."""
     settings = settings or get_settings()
+    catalog = SceneCatalog(settings.scenes_dir)
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
@@ -73,12 +106,14 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
             set_render_threads(settings.render_threads)
         store = GITree(settings.store, settings.budget_bytes, settings.tolerance)
+        service = MapService(settings, store, catalog)
         app.state.settings = settings
         app.state.store = store
-        app.state.service = MapService(settings, store, SceneCatalog(settings.scenes_dir))
+        app.state.service = service
         try:
             yield
         finally:
+            service.close()
             store.close()
 
     app = FastAPI(
@@ -87,21 +122,30 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         description="Serves path-traced GI maps from a persistent GI tree (baseline of the GIGAN testbed, SPEC §6).",
         lifespan=lifespan,
     )
-    for module in (gimap, health, stats, scenes):
+    for module in (gimap, maps, health, stats, scenes):
         app.include_router(module.router)
+    errors.install(app)
+    base_openapi = app.openapi
 
-    @app.exception_handler(RequestValidationError)
-    async def invalid_request(_: Request, exc: RequestValidationError) -> JSONResponse:
-        # FastAPI's default echoes each bad input, which cannot be JSON when it is NaN or Infinity
-        detail = [{"loc": list(e["loc"]), "msg": e["msg"], "type": e["type"]} for e in exc.errors()]
-        return JSONResponse({"detail": detail}, status_code=422)
+    def openapi() -> dict[str, Any]:
+        names = []
+        for name in catalog.names():
+            try:
+                catalog.get(name)
+            except (SceneSpecError, FileNotFoundError):
+                continue  # refused on request: not a scene this server serves
+            names.append(name)
+        return request_limits(base_openapi(), settings, names)
 
-    @app.exception_handler(FieldError)
-    async def field_error(_: Request, exc: FieldError) -> JSONResponse:
-        return JSONResponse(
-            {"detail": [{"loc": ["body", exc.field], "msg": exc.message, "type": "value_error"}]},
-            status_code=exc.status,
+    app.openapi = openapi  # type: ignore[method-assign]
+    app.add_middleware(BodyLimit, limit=settings.max_body_bytes, timeout_s=settings.body_timeout_s)
+    if settings.cors_origins:
+        app.add_middleware(
+            CORSMiddleware,
+            allow_origins=list(settings.cors_origins),
+            allow_methods=["GET", "POST"],
+            allow_headers=["Content-Type", "If-None-Match"],
+            expose_headers=["X-GIMap-Hit", "Content-Location", "ETag", "Retry-After"],
+            max_age=600,
         )
-
-    app.add_middleware(BodyLimit, limit=settings.max_body_bytes)
     return app

@@ -5,11 +5,16 @@
 The socket is bound here, before uvicorn starts, so with ``--port 0`` the real port is known: the
 first stdout line is ``listening on http://HOST:PORT`` (flushed), and connections made after it wait
 in the listen backlog until the app is ready. Options override ``CLOUDBAKING_*`` environment settings.
+Under load (:mod:`~baseline_cloudbaking.server.limits`): at most ``--miss-queue`` misses wait (then 503 +
+Retry-After), at most ``--max-connections`` connections stay open (the longest-idle one is closed for a
+new one), a connection idle for ``--idle-timeout-s`` (or trickling its request head that long) is closed,
+and repeated log lines are throttled.
 """
 
 from __future__ import annotations
 
 import socket
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -47,6 +52,8 @@ def bind(host: str, port: int) -> socket.socket:
     return sock
 
 
+#: GIL switch interval of the server process, s (see serve()).
+SWITCH_INTERVAL_S = 0.0005
 #: uvicorn's log levels.
 LOG_LEVELS = ("critical", "error", "warning", "info", "debug", "trace")
 
@@ -65,6 +72,12 @@ class ServeOptions:
     budget_mb: float | None = field(default=None, metadata={"min": 0.001, "max": BUDGET_MB_MAX})
     #: Largest spp a request may ask for; absent: CLOUDBAKING_MAX_SPP or 256.
     max_spp: int | None = field(default=None, metadata=SPP)
+    #: Misses that may wait for the renderer (one more: 503 + Retry-After); absent: CLOUDBAKING_MISS_QUEUE or 8.
+    miss_queue: int | None = field(default=None, metadata={"min": 0, "max": 10_000})
+    #: Open connections kept (beyond: the longest-idle is closed); absent: CLOUDBAKING_MAX_CONNECTIONS or 1024.
+    max_connections: int | None = field(default=None, metadata={"min": 8, "max": 1_000_000})
+    #: Seconds a connection may stay without a whole request head; absent: CLOUDBAKING_IDLE_TIMEOUT_S or 5.
+    idle_timeout_s: float | None = field(default=None, metadata={"min": 0.01, "max": 3600.0})
     #: uvicorn log level.
     log_level: Literal[LOG_LEVELS] = "warning"  # type: ignore[valid-type]
 
@@ -75,6 +88,7 @@ def serve(given: dict[str, Any], *, store: Path, scenes: Path | None) -> None:
     from pydantic import ValidationError
 
     from baseline_cloudbaking.server.app import create_app
+    from baseline_cloudbaking.server.limits import ConnectionLimits, capped_protocol, fd_budget, throttle_logs
     from baseline_cloudbaking.server.settings import Settings
 
     opts = build_config(ServeOptions, given)
@@ -86,6 +100,9 @@ def serve(given: dict[str, Any], *, store: Path, scenes: Path | None) -> None:
         "scenes_dir": scenes,
         "max_spp": opts.max_spp,
         "budget_bytes": None if opts.budget_mb is None else max(1, round(opts.budget_mb * 2**20)),
+        "miss_queue": opts.miss_queue,
+        "max_connections": opts.max_connections,
+        "idle_timeout_s": opts.idle_timeout_s,
     }
     try:
         settings = Settings(**{k: v for k, v in overrides.items() if v is not None})
@@ -94,6 +111,7 @@ def serve(given: dict[str, Any], *, store: Path, scenes: Path | None) -> None:
         field_name = str(err["loc"][0])
         where = ".".join(map(str, err["loc"]))
         option = {"store": "--store", "scenes_dir": "--scenes", "budget_bytes": "--budget-mb", "max_spp": "--max-spp"}
+        option |= {k: "--" + k.replace("_", "-") for k in ("miss_queue", "max_connections", "idle_timeout_s")}
         env = f"CLOUDBAKING_{field_name.upper()}"
         source = f"{option[field_name]} or {env}" if field_name in option else env
         raise UserError(f"setting {where} (from {source}) is invalid: {err['msg']}", "fix its value") from None
@@ -101,7 +119,30 @@ def serve(given: dict[str, Any], *, store: Path, scenes: Path | None) -> None:
     actual_host, actual_port = sock.getsockname()[:2]
     shown = f"[{actual_host}]" if ":" in actual_host else actual_host
     print(f"listening on http://{shown}:{actual_port}", flush=True)
-    config = uvicorn.Config(create_app(settings), log_level=opts.log_level, timeout_graceful_shutdown=5)
+    max_connections, fd_limit = fd_budget(settings.max_connections)
+    if max_connections < settings.max_connections:
+        print(
+            f"cloudbaking-server: max_connections lowered to {max_connections} to fit the file-descriptor limit "
+            f"{fd_limit} (raise it with ulimit -n)",
+            file=sys.stderr,
+            flush=True,
+        )
+    limits = ConnectionLimits(max_connections, settings.idle_timeout_s)
+    app = create_app(settings)
+    app.state.connections = limits
+    config = uvicorn.Config(
+        app,
+        http=capped_protocol(limits),
+        log_level=opts.log_level,
+        timeout_graceful_shutdown=5,
+        timeout_keep_alive=settings.idle_timeout_s,  # type: ignore[arg-type]  # a float works: call_later
+        h11_max_incomplete_event_size=settings.max_header_bytes,
+        backlog=2048,
+    )
+    throttle_logs()  # after uvicorn.Config, which configures logging
+    # The event loop, the hit threads and the miss thread share the GIL: a thread waiting for it waits up to
+    # the switch interval (5 ms by default) while another computes, which a hit would pay several times.
+    sys.setswitchinterval(SWITCH_INTERVAL_S)
     uvicorn.Server(config).run(sockets=[sock])
 
 

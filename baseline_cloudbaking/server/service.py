@@ -1,33 +1,136 @@
 """Serving GI maps: look up the GI tree, or bake (render, denoise, encode), insert and serve.
 
-No FastAPI here: the routers call :meth:`MapService.serve` from a worker thread (plain ``def`` routes),
-never on the event loop. Mitsuba is not thread-safe, not even across scenes: two threads rendering two
-different scenes fail inside Dr.Jit ("jit_var_sub ... incompatible sizes", measured), so one render lock
-serializes all baking (a render already uses every core). Lookups take no lock, so hits are served
-while a miss renders. A miss re-checks the tree once it holds the lock, so concurrent identical misses
-bake once.
+No FastAPI here. :meth:`MapService.prepare` (validation) and :meth:`MapService.find` (a hit: SQL and a file
+read, milliseconds) run on the app's worker threads; a miss goes through :class:`MissQueue` to its own
+one-thread executor, so however many misses wait, no worker thread waits with them and hits are served
+at once. One thread bakes because Mitsuba is not thread-safe, not even across scenes: two threads
+rendering two different scenes fail inside Dr.Jit ("jit_var_sub ... incompatible sizes", measured), and
+a render already uses every core. The queue is bounded: a miss beyond it is refused at once
+(:class:`QueueFull`, answered 503 with Retry-After) instead of waiting without limit; a queued miss whose
+client has gone is dropped before it renders. A miss re-checks the tree when its turn comes, so
+concurrent identical misses bake once.
 """
 
 from __future__ import annotations
 
+import asyncio
 import json
 import math
 import threading
 import time
 import zlib
 from collections import OrderedDict
-from typing import TYPE_CHECKING, Any
+from collections.abc import Awaitable, Callable
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, TypeVar
 
 from baseline_cloudbaking.bake import SceneCatalog, UnknownScene, bake_map, encode_map, gi_camera, spec_sha
 from baseline_cloudbaking.protocol import with_header
 from baseline_cloudbaking.server.schemas import GIMapRequest
 from baseline_cloudbaking.server.settings import Settings
-from baseline_cloudbaking.store import GITree, MapKey, StoreConflict, Viewpoint, light_cell
+from baseline_cloudbaking.store import GITree, MapKey, StoreConflict, Viewpoint, light_cell, payload_sha
 from gicore.paths import frame_seed
 from gicore.scene import SceneSpec, SceneSpecError
 
+T = TypeVar("T")
+
 if TYPE_CHECKING:
     from gicore.render import Renderer
+
+
+class QueueFull(Exception):
+    """The miss queue is full: try again in ``retry_after_s`` seconds."""
+
+    def __init__(self, retry_after_s: int) -> None:
+        super().__init__(f"the miss queue is full; retry after {retry_after_s} s")
+        self.retry_after_s = retry_after_s
+
+
+class ClientGone(Exception):
+    """The client disconnected while its miss waited."""
+
+
+class MissQueue:
+    """Misses run one at a time on their own thread; at most ``capacity`` more wait. ``run`` refuses a miss
+    beyond that (QueueFull, with a Retry-After estimated from recent miss times) and drops a waiting miss
+    whose client went away (ClientGone; a miss already rendering finishes and is stored)."""
+
+    def __init__(self, capacity: int) -> None:
+        self.capacity = capacity
+        self._executor = ThreadPoolExecutor(1, thread_name_prefix="miss")
+        self._lock = threading.Lock()
+        self._pending = 0  # admitted and not finished: waiting + rendering
+        self._mean_s = 1.0  # running mean of a miss's time on the thread
+        self.counters = {"misses_refused": 0, "misses_dropped": 0}
+
+    @property
+    def pending(self) -> int:
+        return self._pending
+
+    def retry_after_s(self) -> int:
+        """Seconds until the queue has likely drained one slot's worth of misses (1 to 60)."""
+        return min(60, max(1, math.ceil(self._pending * self._mean_s)))
+
+    async def run(self, fn: Callable[[], T], gone: Callable[[], Awaitable[None]]) -> T:
+        """``fn()`` on the miss thread, or QueueFull / ClientGone (when ``gone()`` finishes first)."""
+        with self._lock:
+            if self._pending > self.capacity:  # one rendering + capacity waiting
+                self.counters["misses_refused"] += 1
+                raise QueueFull(self.retry_after_s())
+            self._pending += 1
+        future = self._executor.submit(self._timed, fn)
+        future.add_done_callback(self._finished)
+        result = asyncio.wrap_future(future)
+        watcher = asyncio.ensure_future(gone())
+        try:
+            await asyncio.wait((result, watcher), return_when=asyncio.FIRST_COMPLETED)
+        finally:
+            watcher.cancel()
+        if result.done():
+            return result.result()
+        if future.cancel():
+            with self._lock:
+                self.counters["misses_dropped"] += 1
+        result.cancel()
+        raise ClientGone
+
+    def _timed(self, fn: Callable[[], T]) -> T:
+        t0 = time.perf_counter()
+        try:
+            return fn()
+        finally:
+            with self._lock:
+                self._mean_s = 0.8 * self._mean_s + 0.2 * (time.perf_counter() - t0)
+
+    def _finished(self, _: Future) -> None:
+        with self._lock:
+            self._pending -= 1
+
+    def close(self) -> None:
+        self._executor.shutdown(wait=True, cancel_futures=True)
+
+
+@dataclass(frozen=True)
+class Prepared:
+    """A validated request: its scene, light, GI camera and tree key."""
+
+    req: GIMapRequest
+    spec: SceneSpec
+    light: tuple[float, float, float]
+    key: MapKey
+    view: Viewpoint
+    t0: float
+
+
+@dataclass(frozen=True)
+class Served:
+    """A response: the payload with its per-request header, whether it was a hit, and the stored map's
+    content address (its ``GET /v1/maps/{sha}``)."""
+
+    payload: bytes
+    hit: bool
+    sha: str
 
 
 class FieldError(ValueError):
@@ -52,13 +155,18 @@ class MapService:
         self.store = store
         self.catalog = catalog
         self._renderers: OrderedDict[tuple[str, int], Renderer] = OrderedDict()
-        self._render_lock = threading.Lock()
         self._lock = threading.Lock()
         self.counters = {"requests": 0, "hits": 0, "misses": 0}
+        self.misses = MissQueue(settings.miss_queue)
+        self._scenes: dict[str, SceneSpec] = {}
 
     # -- scenes and renderers ---------------------------------------------------------------------
     def scene(self, name: str) -> SceneSpec:
-        """The spec of scene ``name``, registered in the store (FieldError on a bad or conflicting name)."""
+        """The spec of scene ``name``, registered in the store (FieldError on a bad or conflicting name);
+        registered once per process: a hit then costs no hashing of the spec."""
+        spec = self._scenes.get(name)
+        if spec is not None:
+            return spec
         try:
             spec = self.catalog.get(name)
         except UnknownScene as exc:
@@ -69,6 +177,8 @@ class MapService:
             self.store.register_scene(name, spec_sha(spec), self.light_cell_size(spec))
         except StoreConflict as exc:
             raise FieldError("scene", str(exc), status=409) from None
+        with self._lock:
+            self._scenes[name] = spec
         return spec
 
     def light_cell_size(self, spec: SceneSpec) -> float | None:
@@ -76,7 +186,7 @@ class MapService:
         return self.settings.light_cell if spec.light.moves else None
 
     def _renderer(self, name: str, spec: SceneSpec, resolution: int) -> Renderer:
-        """The compiled scene at ``resolution`` (caller holds the render lock); least recently used ones
+        """The compiled scene at ``resolution`` (on the miss thread); least recently used ones
         beyond ``max_renderers`` are dropped."""
         from gicore.render import Renderer
 
@@ -100,7 +210,7 @@ class MapService:
         """The store's statistics and this service's request counters."""
         with self._lock:
             counters = dict(self.counters)
-        return self.store.stats() | counters
+        return self.store.stats() | counters | self.misses.counters | {"misses_pending": self.misses.pending}
 
     # -- serving ----------------------------------------------------------------------------------
     def _check_bounds(self, req: GIMapRequest) -> None:
@@ -120,53 +230,59 @@ class MapService:
             raise FieldError("light", f"scene {req.scene!r} has a static light at {list(rest)}; omit light")
         return tuple(req.light)
 
-    def serve(self, req: GIMapRequest) -> tuple[bytes, dict[str, Any]]:
-        """The payload for ``req`` and its header additions (hit flag, timings, distance)."""
+    def prepare(self, req: GIMapRequest) -> Prepared:
+        """Check ``req`` against the server's bounds and its scene (FieldError naming the field)."""
         t0 = time.perf_counter()
         self._check_bounds(req)
         spec = self.scene(req.scene)
         light = self._light(req, spec)
         c = req.camera
-        try:
-            camera = gi_camera(spec, c.eye, c.target, c.up, c.fov, req.resolution)
-        except ValueError as exc:
-            raise FieldError("camera", str(exc)) from None
         view = Viewpoint.look_at(c.eye, c.target)
         key = MapKey(
             req.scene, light_cell(light, self.light_cell_size(spec)), req.resolution, c.fov, req.codec, req.spp, req.di
         )
         with self._lock:
             self.counters["requests"] += 1
-        hit = self.store.lookup(key, view)
+        return Prepared(req, spec, light, key, view, t0)
+
+    def lookup(self, req: GIMapRequest) -> tuple[Prepared, Served | None]:
+        """:meth:`prepare` and :meth:`find` in one call (one worker-thread hop per request)."""
+        p = self.prepare(req)
+        return p, self.find(p)
+
+    def find(self, p: Prepared) -> Served | None:
+        """The nearest stored map within tolerance as a response (a hit), or None (a miss)."""
+        hit = self.store.lookup(p.key, p.view)
         if hit is None:
-            with self._render_lock:
-                hit = self.store.lookup(key, view)  # baked by a concurrent request while we waited?
-                if hit is None:
-                    return self._bake(req, spec, camera, light, key, view, t0)
+            return None
         with self._lock:
             self.counters["hits"] += 1
         extra = {
             "hit": True,
             "distance": {"position": hit.distance, "angle_deg": hit.angle_deg},
-            "timings_ms": {"lookup": hit.lookup_ms, "read": hit.read_ms, "total": _ms(t0)},
+            "timings_ms": {"lookup": hit.lookup_ms, "read": hit.read_ms, "total": _ms(p.t0)},
         }
-        return with_header(hit.payload, extra, drop=() if req.di else ("di",)), extra
+        return Served(with_header(hit.payload, extra, drop=() if p.req.di else ("di",)), True, hit.sha)
 
-    def _bake(
-        self, req: GIMapRequest, spec: SceneSpec, camera, light, key: MapKey, view: Viewpoint, t0: float
-    ) -> tuple[bytes, dict[str, Any]]:
-        """Render, encode and insert the map for ``req`` (the render lock is held)."""
-        lookup_ms = _ms(t0)
-        renderer = self._renderer(req.scene, spec, req.resolution)
-        c = req.camera
-        index = zlib.crc32(json.dumps([c.eye, c.target, c.up, c.fov, light]).encode())
-        baked = bake_map(
-            renderer, camera, light, req.spp, frame_seed(self.settings.seed, f"server/{req.scene}", index), req.di
-        )
+    def bake(self, p: Prepared) -> Served:
+        """On the miss thread: the map if a miss before this one stored it, else render, encode, insert."""
+        found = self.find(p)
+        if found is not None:
+            return found
+        lookup_ms = _ms(p.t0)
+        req, c = p.req, p.req.camera
+        try:  # the request's camera was checked; the GI camera adds the scene's near and far planes
+            camera = gi_camera(p.spec, c.eye, c.target, c.up, c.fov, req.resolution)
+        except ValueError as exc:
+            raise FieldError("camera", str(exc)) from None
+        renderer = self._renderer(req.scene, p.spec, req.resolution)
+        index = zlib.crc32(json.dumps([c.eye, c.target, c.up, c.fov, p.light]).encode())
+        seed = frame_seed(self.settings.seed, f"server/{req.scene}", index)
+        baked = bake_map(renderer, camera, p.light, req.spp, seed, req.di)
         t1 = time.perf_counter()
-        payload = encode_map(baked, req.scene, req.codec, req.spp, light if spec.light.moves else None)
+        payload = encode_map(baked, req.scene, req.codec, req.spp, p.light if p.spec.light.moves else None)
         encode_ms = _ms(t1)
-        self.store.insert(key, view, payload)
+        self.store.insert(p.key, p.view, payload)
         with self._lock:
             self.counters["misses"] += 1
         timings = {
@@ -174,7 +290,10 @@ class MapService:
             "render": baked.render_ms,
             "denoise": baked.denoise_ms,
             "encode": encode_ms,
-            "total": _ms(t0),
+            "total": _ms(p.t0),
         }
         extra = {"hit": False, "distance": {"position": 0.0, "angle_deg": 0.0}, "timings_ms": timings}
-        return with_header(payload, extra), extra
+        return Served(with_header(payload, extra), False, payload_sha(payload))
+
+    def close(self) -> None:
+        self.misses.close()

@@ -7,7 +7,7 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Annotated
 
-from pydantic import Field
+from pydantic import Field, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from baseline_cloudbaking.store import DEFAULT_LIGHT_CELL, Tolerance
@@ -54,6 +54,41 @@ class Settings(BaseSettings):
     max_renderers: int = Field(4, ge=1, description="compiled (scene, resolution) renderers kept in memory")
     render_threads: int | None = Field(None, ge=1, description="Dr.Jit threads for rendering (default: all cores)")
     seed: int = Field(0, description="seeds every render's noise (with the scene and the camera)")
+    miss_queue: int = Field(
+        8, ge=0, le=10_000, description="misses that may wait for the renderer; one more is answered 503 + Retry-After"
+    )
+    max_connections: int = Field(
+        1024,
+        ge=8,
+        le=1_000_000,
+        description="open HTTP connections; beyond it the longest-idle one is closed, or the new one refused with 503 "
+        "(lowered to fit the process's file-descriptor limit)",
+    )
+    idle_timeout_s: float = Field(
+        5.0,
+        gt=0.0,
+        le=3600.0,
+        allow_inf_nan=False,
+        description="a connection without a whole request head for this long is closed (keep-alive, slow headers)",
+    )
+    body_timeout_s: float = Field(
+        10.0, gt=0.0, le=3600.0, allow_inf_nan=False, description="a request body not complete in this time gets 408"
+    )
+    max_header_bytes: int = Field(16_384, ge=1024, le=1 << 20, description="largest request head (line and headers)")
+    cors_origins: tuple[str, ...] = Field(
+        (),
+        description="origins (scheme://host[:port]) whose pages may call the API from a browser; none by default, "
+        "never '*'",
+    )
+
+    @field_validator("cors_origins")
+    @classmethod
+    def _exact_origins(cls, origins: tuple[str, ...]) -> tuple[str, ...]:
+        for origin in origins:
+            scheme, sep, rest = origin.partition("://")
+            if scheme not in ("http", "https") or not sep or not rest or "/" in rest or "*" in rest:
+                raise ValueError(f"{origin!r} is not an origin: give scheme://host[:port], e.g. http://127.0.0.1:8080")
+        return origins
 
     @property
     def tolerance(self) -> Tolerance:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from fastapi import APIRouter
+from fastapi import APIRouter, Request
 
 from baseline_cloudbaking.server.deps import ServiceDep
 
@@ -12,7 +12,13 @@ router = APIRouter(prefix="/v1", tags=["stats"])
 
 
 @router.get("/stats", summary="GI-tree size and request counters")
-def stats(service: ServiceDep) -> dict[str, Any]:
+def stats(service: ServiceDep, request: Request) -> dict[str, Any]:
     """``entries``, ``bytes``, ``budget_bytes``, ``by_scene_codec``, ``scenes`` (with their light level),
-    the store's ``inserts``/``evictions``/``rejected`` and this process's ``requests``/``hits``/``misses``."""
-    return service.stats()
+    the store's ``inserts``/``evictions``/``rejected``, this process's ``requests``/``hits``/``misses``,
+    the miss queue's ``misses_pending``/``misses_refused``/``misses_dropped`` and, under cloudbaking-server,
+    ``connections_idle`` and ``connections_drained``/``connections_refused``/``connections_timed_out``."""
+    out = service.stats()
+    limits = getattr(request.app.state, "connections", None)
+    if limits is not None:
+        out |= limits.counters | {"connections_idle": len(limits.idle)}
+    return out

@@ -1,0 +1,177 @@
+"""What keeps the server up under floods: a connection cap that drains idle connections, an idle timeout
+that also covers slow request heads, the file-descriptor budget, and logs that do not grow with a flood.
+
+uvicorn's ``limit_concurrency`` counts idle connections too, so a flood of idle ones would answer every
+real request 503; and uvicorn times out only keep-alive connections that send nothing, not a fresh one,
+nor one trickling its head. Here, as nginx reuses keep-alive connections when it runs out: past
+``max_connections`` the connection idle the longest (no request in progress; fresh ones count as idle) is
+closed for the new one, and only when every connection is busy is the new one answered 503 and closed.
+Every idle period (a fresh connection, or after a response) must end with a whole request head within
+``idle_timeout_s``, else the connection is closed.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import resource
+import time
+from collections import OrderedDict
+
+from uvicorn.protocols.http.h11_impl import H11Protocol
+
+#: File descriptors kept for everything but client connections (SQLite files of each worker thread,
+#: payload reads, the renderer's files, the listening socket).
+FD_RESERVE = 256
+#: How often an idle-connection timer rechecks (the timeout is enforced within this).
+_SWEEP_S = 0.25
+
+
+def fd_budget(wanted: int) -> tuple[int, int]:
+    """Raise the soft file-descriptor limit to the hard one; returns (connections that fit, the limit)."""
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    if hard == resource.RLIM_INFINITY or soft < hard:
+        target = hard if hard != resource.RLIM_INFINITY else max(soft, 1 << 20)
+        try:
+            resource.setrlimit(resource.RLIMIT_NOFILE, (target, hard))
+            soft = target
+        except (ValueError, OSError):
+            pass
+    return max(8, min(wanted, soft - FD_RESERVE)), soft
+
+
+class ConnectionLimits:
+    """The shared state of one server's connections: idle ones in the order they became idle, counters."""
+
+    def __init__(self, max_connections: int, idle_timeout_s: float) -> None:
+        self.max_connections = max_connections
+        self.idle_timeout_s = idle_timeout_s
+        self.idle: OrderedDict[H11Protocol, float] = OrderedDict()
+        self.counters = {"connections_drained": 0, "connections_refused": 0, "connections_timed_out": 0}
+        self._sweeper: asyncio.TimerHandle | None = None
+
+    def became_idle(self, conn: H11Protocol) -> None:
+        self.idle.pop(conn, None)
+        self.idle[conn] = time.monotonic()
+        if self._sweeper is None:
+            self._sweeper = asyncio.get_running_loop().call_later(_SWEEP_S, self._sweep)
+
+    def forget(self, conn: H11Protocol) -> None:
+        self.idle.pop(conn, None)
+
+    def drain_one(self) -> bool:
+        """Close the connection idle the longest; False when none is idle."""
+        while self.idle:
+            conn, _ = self.idle.popitem(last=False)
+            if busy(conn):
+                continue
+            conn.transport.close()
+            self.counters["connections_drained"] += 1
+            return True
+        return False
+
+    def _sweep(self) -> None:
+        """Close connections idle past the timeout: one timer for all, walking the oldest first."""
+        self._sweeper = None
+        deadline = time.monotonic() - self.idle_timeout_s
+        while self.idle:
+            conn, since = next(iter(self.idle.items()))
+            if since > deadline:
+                break
+            self.idle.popitem(last=False)
+            if not busy(conn):
+                conn.transport.close()
+                self.counters["connections_timed_out"] += 1
+        if self.idle:
+            self._sweeper = asyncio.get_running_loop().call_later(_SWEEP_S, self._sweep)
+
+
+def busy(conn: H11Protocol) -> bool:
+    """A request is in progress on ``conn`` (its head has arrived and its response is not complete)."""
+    return conn.cycle is not None and not conn.cycle.response_complete
+
+
+def _refusal(retry_after_s: int) -> bytes:
+    body = json.dumps(
+        {"detail": [{"loc": ["connection"], "msg": "the server is at its connection limit", "type": "overloaded"}]}
+    ).encode()
+    head = (
+        "HTTP/1.1 503 Service Unavailable\r\ncontent-type: application/json\r\n"
+        f"retry-after: {retry_after_s}\r\nconnection: close\r\ncontent-length: {len(body)}\r\n\r\n"
+    )
+    return head.encode() + body
+
+
+def capped_protocol(limits: ConnectionLimits) -> type[H11Protocol]:
+    """uvicorn's h11 protocol held to ``limits`` (pass it as ``uvicorn.Config(http=...)``)."""
+
+    class CappedH11Protocol(H11Protocol):
+        def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
+            super().connection_made(transport)
+            limits.became_idle(self)
+            while len(self.connections) > limits.max_connections:
+                if not limits.drain_one():  # every other connection is busy: refuse this one
+                    limits.forget(self)
+                    limits.counters["connections_refused"] += 1
+                    transport.write(_refusal(1))
+                    transport.close()
+                    return
+
+        def data_received(self, data: bytes) -> None:
+            super().data_received(data)
+            if busy(self):
+                limits.forget(self)
+
+        def on_response_complete(self) -> None:
+            super().on_response_complete()
+            if not self.transport.is_closing():
+                limits.became_idle(self)
+
+        def connection_lost(self, exc: Exception | None) -> None:
+            limits.forget(self)
+            super().connection_lost(exc)
+
+    return CappedH11Protocol
+
+
+class Throttle(logging.Filter):
+    """At most ``burst`` records per message template and logger every ``window_s``; the next record let
+    through after a window says how many were held back. A flood of bad requests, refused connections or
+    repeated errors then writes a few lines per window instead of one per event."""
+
+    def __init__(self, burst: int = 5, window_s: float = 10.0) -> None:
+        super().__init__()
+        self.burst = burst
+        self.window_s = window_s
+        self._seen: dict[tuple[str, str], list[float]] = {}  # key -> [window start, passed, held back]
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        key = (record.name, str(record.msg)[:80])  # templates; a formatted message varies only past its start
+        now = time.monotonic()
+        if len(self._seen) > 1024:  # many distinct messages: forget those whose window is over
+            self._seen = {k: v for k, v in self._seen.items() if now - v[0] < self.window_s}
+        state = self._seen.get(key)
+        if state is None or now - state[0] >= self.window_s:
+            held = 0 if state is None else int(state[2])
+            self._seen[key] = [now, 1, 0]
+            if held:
+                record.msg = f"{record.msg} [{held} more like this in the previous {self.window_s:g} s not logged]"
+            return True
+        if state[1] < self.burst:
+            state[1] += 1
+            return True
+        state[2] += 1
+        return False
+
+
+#: Loggers a flood can drive: uvicorn's errors and access lines, asyncio's accept errors, this server's.
+THROTTLED_LOGGERS = ("uvicorn.error", "uvicorn.access", "asyncio", "baseline_cloudbaking")
+
+
+def throttle_logs(throttle: Throttle | None = None) -> Throttle:
+    """Install one :class:`Throttle` on the loggers a flood can drive (after uvicorn configured logging)."""
+    throttle = throttle or Throttle()
+    for name in THROTTLED_LOGGERS:
+        logging.getLogger(name).addFilter(throttle)
+    return throttle

@@ -1,0 +1,235 @@
+"""A load generator for ``cloudbaking-server`` on this machine (loopback addresses only).
+
+One asyncio loop and a minimal HTTP/1.1 keep-alive client (no client library in the timed path, so the
+latencies are the server's and the loopback's, not a client's): paced hit clients that time each
+request, a burst of concurrent misses, and a flood of idle connections that send nothing.
+
+    python -m baseline_cloudbaking.server.loadtest --url http://127.0.0.1:PORT --scene lung_plane \\
+        --idle 20000 --misses 80 --hit-clients 32
+
+prints one JSON object: hit latency percentiles, status counts of hits and misses, idle connections
+opened and how many the server closed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import ipaddress
+import json
+import time
+from collections import Counter
+from dataclasses import dataclass, field, fields
+from typing import Any
+from urllib.parse import urlsplit
+
+import numpy as np
+
+
+def loopback(url: str) -> tuple[str, int]:
+    """(host, port) of ``url``; ValueError unless the host is a loopback address (load stays on this machine)."""
+    parts = urlsplit(url)
+    host, port = parts.hostname or "", parts.port or 80
+    if host != "localhost" and not ipaddress.ip_address(host).is_loopback:
+        raise ValueError(f"{url}: load is sent to loopback addresses only (127.0.0.0/8, ::1, localhost)")
+    return host, port
+
+
+class Conn:
+    """One keep-alive HTTP/1.1 connection."""
+
+    def __init__(self, host: str, port: int) -> None:
+        self.host, self.port = host, port
+        self.reader: asyncio.StreamReader | None = None
+        self.writer: asyncio.StreamWriter | None = None
+
+    async def request(
+        self, method: str, path: str, body: bytes = b"", headers: dict[str, str] | None = None
+    ) -> tuple[int, dict[str, str], bytes]:
+        if self.writer is None or self.writer.is_closing():
+            self.reader, self.writer = await asyncio.open_connection(self.host, self.port)
+        assert self.reader is not None
+        lines = [f"{method} {path} HTTP/1.1", f"host: {self.host}:{self.port}", f"content-length: {len(body)}"]
+        if body:
+            lines.append("content-type: application/json")
+        lines += [f"{k}: {v}" for k, v in (headers or {}).items()]
+        self.writer.write(("\r\n".join(lines) + "\r\n\r\n").encode() + body)
+        head = await self.reader.readuntil(b"\r\n\r\n")
+        status_line, *header_lines = head.decode("latin-1").split("\r\n")
+        hdrs = {k.lower(): v.strip() for k, _, v in (h.partition(":") for h in header_lines if h)}
+        content = await self.reader.readexactly(int(hdrs.get("content-length", "0")))
+        if hdrs.get("connection", "").lower() == "close":
+            self.close()
+        return int(status_line.split()[1]), hdrs, content
+
+    def close(self) -> None:
+        if self.writer is not None:
+            self.writer.close()
+            self.writer = None
+
+
+@dataclass
+class LoadResult:
+    hit_ms: list[float] = field(default_factory=list)
+    hit_status: Counter = field(default_factory=Counter)
+    miss_status: Counter = field(default_factory=Counter)
+    retry_after: Counter = field(default_factory=Counter)
+    idle_opened: int = 0
+    idle_closed_by_server: int = 0
+    errors: Counter = field(default_factory=Counter)
+
+    def summary(self) -> dict[str, Any]:
+        ms = np.asarray(self.hit_ms) if self.hit_ms else np.zeros(1)
+        out = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "hit_ms"}
+        out = {k: {str(c): n for c, n in v.items()} if isinstance(v, Counter) else v for k, v in out.items()}
+        out["hits"] = len(self.hit_ms)
+        out |= {f"hit_{p}_ms": round(float(np.percentile(ms, q)), 2) for p, q in (("p50", 50), ("p99", 99))}
+        out["hit_max_ms"] = round(float(ms.max()), 2)
+        return out
+
+
+async def _hit_client(host: str, port: int, body: bytes, stop: asyncio.Event, period_s: float, res: LoadResult) -> None:
+    conn = Conn(host, port)
+    loop = asyncio.get_running_loop()
+    next_t = loop.time()
+    try:
+        while not stop.is_set():
+            t0 = time.perf_counter()
+            try:
+                status, _, _ = await conn.request("POST", "/v1/gimap", body)
+            except (OSError, asyncio.IncompleteReadError) as exc:
+                res.errors[f"hit {type(exc).__name__}"] += 1
+                conn.close()
+                continue
+            res.hit_ms.append((time.perf_counter() - t0) * 1e3)
+            res.hit_status[status] += 1
+            next_t += period_s
+            await asyncio.sleep(max(0.0, next_t - loop.time()))
+    finally:
+        conn.close()
+
+
+async def _miss(host: str, port: int, body: bytes, res: LoadResult) -> None:
+    conn = Conn(host, port)
+    try:
+        status, headers, _ = await conn.request("POST", "/v1/gimap", body)
+        res.miss_status[status] += 1
+        if "retry-after" in headers:
+            res.retry_after[headers["retry-after"]] += 1
+    except (OSError, asyncio.IncompleteReadError) as exc:
+        res.errors[f"miss {type(exc).__name__}"] += 1
+    finally:
+        conn.close()
+
+
+async def _idle_flood(host: str, port: int, n: int, res: LoadResult, stop: asyncio.Event) -> None:
+    """Open ``n`` connections that send nothing; each is released once the server closes it."""
+    held: set[asyncio.Task] = set()
+
+    async def hold(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        try:
+            while not stop.is_set() and await reader.read(4096):
+                pass  # a server's 503 refusal, then EOF
+            res.idle_closed_by_server += not stop.is_set()
+        except OSError:
+            res.idle_closed_by_server += 1
+        finally:
+            writer.close()
+
+    for _ in range(n):
+        if stop.is_set():
+            break
+        try:
+            reader, writer = await asyncio.open_connection(host, port)
+        except OSError as exc:
+            res.errors[f"idle {exc.strerror or type(exc).__name__}"] += 1
+            await asyncio.sleep(0.01)
+            continue
+        res.idle_opened += 1
+        task = asyncio.ensure_future(hold(reader, writer))
+        held.add(task)
+        task.add_done_callback(held.discard)
+    await stop.wait()
+    await asyncio.gather(*held, return_exceptions=True)
+
+
+async def run_load(
+    url: str,
+    hit_body: dict[str, Any],
+    miss_bodies: list[dict[str, Any]],
+    *,
+    hit_clients: int = 32,
+    period_s: float = 0.02,
+    idle: int = 0,
+    settle_s: float = 0.5,
+    max_s: float = 120.0,
+) -> LoadResult:
+    """Hit clients (each a request every ``period_s``) running while ``idle`` idle connections are opened and
+    ``miss_bodies`` are sent at once; stops ``settle_s`` after the last miss answered (or after ``max_s``)."""
+    host, port = loopback(url)
+    res = LoadResult()
+    stop = asyncio.Event()
+    hit = json.dumps(hit_body).encode()
+    clients = [asyncio.ensure_future(_hit_client(host, port, hit, stop, period_s, res)) for _ in range(hit_clients)]
+    flood = asyncio.ensure_future(_idle_flood(host, port, idle, res, stop))
+    await asyncio.sleep(settle_s)
+    misses = [asyncio.ensure_future(_miss(host, port, json.dumps(b).encode(), res)) for b in miss_bodies]
+    try:
+        await asyncio.wait_for(asyncio.gather(*misses), max_s)
+        if idle:  # the flood may still be opening: keep hitting while it does
+            while res.idle_opened + sum(res.errors.values()) < idle and not flood.done():
+                await asyncio.sleep(0.1)
+        await asyncio.sleep(settle_s)
+    finally:
+        stop.set()
+        await asyncio.gather(*clients, flood, return_exceptions=True)
+    return res
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--url", required=True, help="the server, on a loopback address")
+    parser.add_argument("--scene", default="lung_plane")
+    parser.add_argument("--resolution", type=int, default=64)
+    parser.add_argument("--spp", type=int, default=4)
+    parser.add_argument("--misses", type=int, default=80)
+    parser.add_argument("--hit-clients", type=int, default=32)
+    parser.add_argument("--period-ms", type=float, default=20.0)
+    parser.add_argument("--idle", type=int, default=0)
+    args = parser.parse_args()
+    loopback(args.url)
+    res = asyncio.run(
+        load_for_scene(
+            args.url, args.scene, args.resolution, args.spp, args.misses, args.hit_clients, args.period_ms, args.idle
+        )
+    )
+    print(json.dumps(res.summary()))
+
+
+def gimap_request(scene: str, eye: tuple[float, float, float], resolution: int, spp: int) -> dict[str, Any]:
+    return {
+        "scene": scene,
+        "camera": {"eye": list(eye), "target": [0.0, 0.5, 0.0]},
+        "resolution": resolution,
+        "spp": spp,
+    }
+
+
+async def load_for_scene(
+    url: str, scene: str, resolution: int, spp: int, misses: int, hit_clients: int, period_ms: float, idle: int = 0
+) -> LoadResult:
+    """Store one map (the hit clients' request), then :func:`run_load` with ``misses`` distinct viewpoints
+    on a circle around the target (0, 0.5, 0), 0.2 apart: farther than any tolerance, so each is a miss."""
+    host, port = loopback(url)
+    hit = gimap_request(scene, (0.0, 1.2, 2.0), resolution, spp)
+    status, _, _ = await Conn(host, port).request("POST", "/v1/gimap", json.dumps(hit).encode())
+    if status != 200:
+        raise RuntimeError(f"the hit request was answered {status}")
+    seed = int(time.time() * 1e3) % 997  # fresh viewpoints on each run against a kept store
+    angles = np.linspace(0.3, 2 * np.pi - 0.3, misses) + seed * 1e-4
+    bodies = [gimap_request(scene, (2.0 * np.sin(a), 1.1, 2.0 * np.cos(a)), resolution, spp) for a in angles]
+    return await run_load(url, hit, bodies, hit_clients=hit_clients, period_s=period_ms / 1e3, idle=idle)
+
+
+if __name__ == "__main__":
+    main()
