@@ -6,12 +6,20 @@ normal guides (``gicore-dataset``'s default ``--denoise``), clipped at 0. With i
 depth at texel centres (what both warps unproject) and, when asked, the DI of the GI view at 1 spp
 (what the client renders per frame, so ``gi - di`` is the indirect light the residual composition
 warps). A map with DI costs one more encoded image: about twice the bytes of a GI-only map.
+
+A scene's *configuration space* (:func:`configuration_space`) is every GI map a client of the scene can
+need, up to the GI tree's tolerance: GI-camera eyes on a grid over the camera's navigable envelope (orbit
+radius and height within ``1 ± wobble`` of the spec's, azimuth within its arc), looking at the orbit target,
+dense enough that every eye of the envelope, looking at any target the fly-through's target wobble reaches,
+is within Δp and Δθ of a grid view; times every light cell the moving light reaches (one state for a
+static light).
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
+import math
 import re
 import threading
 import time
@@ -23,7 +31,7 @@ import numpy as np
 
 from baseline_cloudbaking.codecs import DEPTH_CODEC, get_codec
 from baseline_cloudbaking.protocol import pack
-from baseline_cloudbaking.store import Viewpoint, light_cell
+from baseline_cloudbaking.store import Tolerance, Viewpoint, light_cell
 from gicore.camera import Camera
 from gicore.paths import camera_path, light_position
 from gicore.scene import SceneSpec, builtin_scenes, load_scene
@@ -122,6 +130,99 @@ def fly_through(
         light = light_position(spec, i)
         out.append(PathFrame(cam, light, light_cell(light, size), Viewpoint.look_at(cam.origin, cam.target)))
     return out
+
+
+#: Most grid views of one light state a configuration space may hold: a tighter tolerance is not bakeable.
+SPACE_VIEWS_MAX = 10_000_000
+#: Safety factor on the grid's covering radius, so that float rounding never leaves a view just outside.
+COVER_MARGIN = 1.0 - 1e-9
+
+
+@dataclass(frozen=True)
+class ConfigurationSpace:
+    """A scene's configuration space (see the module docstring): ``eyes`` (n x 3) all looking at
+    ``target``, and the light states as (light cell or None for a static light, light position baked)."""
+
+    eyes: np.ndarray
+    target: Vec3
+    lights: list[tuple[tuple[int, int, int] | None, Vec3]]
+    #: Largest distance from an envelope eye to its nearest grid eye (scene units).
+    cover: float
+    #: Grid cells along azimuth, radius and height.
+    grid: tuple[int, int, int]
+
+    @property
+    def size(self) -> int:
+        """Maps the space holds: views x light states."""
+        return len(self.eyes) * len(self.lights)
+
+    def views(self) -> list[Viewpoint]:
+        return [Viewpoint.look_at(tuple(eye), self.target) for eye in self.eyes]
+
+
+def _centres(lo: float, hi: float, n: int) -> np.ndarray:
+    """Centres of ``n`` equal cells over [lo, hi]."""
+    return lo + (np.arange(n) + 0.5) * (hi - lo) / n
+
+
+def light_states(spec: SceneSpec, cell_size: float) -> list[tuple[tuple[int, int, int] | None, Vec3]]:
+    """Every light cell the scene's light reaches (its box: rest position ± amplitude in x and y), each
+    with the centre of the part of the box inside it; a static light: one state, no cell."""
+    light = spec.light
+    if not light.moves:
+        return [(None, tuple(map(float, light.position)))]
+    (x, y, z), (ax, ay) = light.position, light.amplitude
+    spans = [(x - abs(ax), x + abs(ax)), (y - abs(ay), y + abs(ay))]
+    axes = []
+    for lo, hi in spans:
+        cells = range(math.floor(lo / cell_size), math.floor(hi / cell_size) + 1)
+        axes.append([(max(lo, i * cell_size) + min(hi, (i + 1) * cell_size)) / 2 for i in cells])
+    states: dict = {}
+    for px in axes[0]:
+        for py in axes[1]:
+            pos = (float(px), float(py), float(z))
+            states.setdefault(light_cell(pos, cell_size), pos)
+    return sorted(states.items())
+
+
+def configuration_space(spec: SceneSpec, tolerance: Tolerance, light_cell_size: float) -> ConfigurationSpace:
+    """The configuration space of ``spec`` at ``tolerance`` (see the module docstring). ValueError when no
+    grid covers it: a zero Δp, a Δθ within the target wobble's angle, or more than :data:`SPACE_VIEWS_MAX`
+    views per light state."""
+    c = spec.camera
+    r_lo, r_hi = c.radius * (1.0 - c.wobble), c.radius * (1.0 + c.wobble)
+    h_lo, h_hi = sorted((c.height * (1.0 - c.wobble), c.height * (1.0 + c.wobble)))
+    full = c.azimuth_range >= 360.0
+    a_lo = 0.0 if full else math.radians(c.azimuth_center - c.azimuth_range / 2)
+    arc = math.radians(360.0 if full else c.azimuth_range)
+    # Nearest an eye comes to the target, and the angle the fly-through's target wobble (0.1 x wobble in
+    # x and y) can turn a view by: the grid gets the rest of the angle tolerance.
+    dy = 0.0 if h_lo <= c.target[1] <= h_hi else min(abs(h_lo - c.target[1]), abs(h_hi - c.target[1]))
+    rho = math.hypot(r_lo, dy)
+    wobble_deg = math.degrees(math.asin(min(1.0, 0.1 * c.wobble * math.sqrt(2.0) / rho)))
+    spare_deg = min(90.0, tolerance.angle_deg - wobble_deg)
+    if tolerance.position <= 0.0 or spare_deg <= 0.0:
+        raise ValueError(
+            f"tolerance {tolerance.position:g} / {tolerance.angle_deg:g}° cannot cover the envelope: Δp must be "
+            f"> 0 and Δθ above the target wobble's {wobble_deg:.3g}°"
+        )
+    # Two views d apart, both at least rho from the target, differ by at most asin(d / rho) in angle.
+    cover = min(tolerance.position, rho * math.sin(math.radians(spare_deg))) * COVER_MARGIN
+    # A cell of side s holds no point farther than sqrt(3) s / 2 from its centre; the arc's chord at the
+    # outer radius is the longest (4 r r' sin²(da/2) <= (r_hi da)²).
+    side = 2.0 * cover / math.sqrt(3.0)
+    grid = tuple(max(1, math.ceil(extent / side)) for extent in (r_hi * arc, r_hi - r_lo, h_hi - h_lo))
+    if math.prod(grid) > SPACE_VIEWS_MAX:
+        raise ValueError(
+            f"tolerance {tolerance.position:g} / {tolerance.angle_deg:g}° needs {math.prod(grid):,} views per "
+            f"light state, more than {SPACE_VIEWS_MAX:,}"
+        )
+    a, r, h = np.meshgrid(
+        _centres(a_lo, a_lo + arc, grid[0]), _centres(r_lo, r_hi, grid[1]), _centres(h_lo, h_hi, grid[2]), indexing="ij"
+    )
+    t = c.target
+    eyes = np.stack([t[0] + r * np.sin(a), h, t[2] + r * np.cos(a)], axis=-1).reshape(-1, 3)
+    return ConfigurationSpace(eyes, tuple(map(float, t)), light_states(spec, light_cell_size), cover, grid)
 
 
 def spec_sha(spec: SceneSpec) -> str:

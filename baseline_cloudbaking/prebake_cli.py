@@ -1,15 +1,31 @@
-"""`cloudbaking-prebake`: bake the GI maps of a scene's fly-through into a GI tree, ahead of any client.
+"""`cloudbaking-prebake`: bake the GI maps of a scene's fly-through, or of its whole configuration space,
+into a GI tree, ahead of any client.
 
     cloudbaking-prebake lung_plane --store gi_store --frames 1500 --codec jpeg --resolution 256 --workers 2
+    cloudbaking-prebake lung_cornell --store gi_store --space all --executor ray --ray-address HEAD:6379
 
 The fly-through is the scene's camera path (``gicore.paths.camera_path`` with the GI-camera FOV) with
 its light schedule. Walking it in order, a frame needs a new map unless the store, or a map planned
 earlier in this run, serves it within the tolerance (same light cell): the same rule the server's
 lookups apply, so a client flying the path afterwards only hits. Maps are rendered by the render
-executor (``gicore.executor``: this process, ``--workers`` local processes, or Ray tasks with ``--ray
-auto|HOST:PORT`` for a bake farm; one compiled scene per worker) and inserted by this process as they
-arrive; a rerun (after Ctrl-C, a crash or kill -9) plans again from what the store holds and bakes only
-the rest.
+executor (``gicore.executor``: this process, ``--workers`` local processes, or Ray tasks with ``--executor
+ray --ray-address auto|HOST:PORT`` for a bake farm; one compiled scene per worker) and inserted by this
+process alone as they arrive (one writer); a rerun (after Ctrl-C, a crash or kill -9) plans again from what
+the store holds and bakes only the rest.
+
+``--space all`` bakes the scene's whole configuration space instead
+(:func:`baseline_cloudbaking.bake.configuration_space`: grid views covering the camera's envelope at the
+tolerance, x every light cell the light reaches), light state after light state in runs of
+:data:`SPACE_CHUNK` maps, so that millions of maps never sit in memory at once. A configuration counts as
+baked when the store holds a map at exactly its view (a map of a fly-through nearby does not: the grid's
+covering argument needs its own views); a rerun bakes only the rest.
+
+Workers never outlive the driver: local workers die with it (kill -9 included, ``gicore.executor``); Ray
+tasks are owned by the driver, and Ray fails them when their owner dies. A local Ray instance that
+``--ray-address auto`` started is stopped at the end; after a kill -9 of the driver its GCS, raylet and
+workers end with it (they watch their parent), but Ray 2.60 leaves the node's two agent processes
+(``ray::DashboardAgent``, ``ray::RuntimeEnvAgent``) behind: ``ray stop`` ends them. A cluster joined by
+HOST:PORT is not the driver's to stop.
 """
 
 from __future__ import annotations
@@ -24,12 +40,22 @@ from typing import TYPE_CHECKING, Annotated, Any, Literal
 import typer
 from tqdm import tqdm
 
-from baseline_cloudbaking.bake import SCENE_NAME, PathFrame, bake_map, encode_map, fly_through, spec_sha
+from baseline_cloudbaking.bake import (
+    SCENE_NAME,
+    ConfigurationSpace,
+    PathFrame,
+    bake_map,
+    configuration_space,
+    encode_map,
+    fly_through,
+    gi_camera,
+    spec_sha,
+)
 from baseline_cloudbaking.codecs import CODEC_NAMES, DEFAULT_CODEC
 from baseline_cloudbaking.store import DEFAULT_LIGHT_CELL, GITree, MapKey, StoreConflict, Tolerance, Viewpoint, ViewSet
 from gicore.camera import Camera
 from gicore.cli import UserError, entry_point, writable_dir
-from gicore.executor import RAY_HELP, WORKERS_HELP, Executor, InProcess, Task, open_executor
+from gicore.executor import Executor, ExecutorOptions, InProcess, RayExecutor, Task
 from gicore.fileio import FolderHeld, exclusive_run
 from gicore.options import (
     FOV_DEGREES,
@@ -37,7 +63,6 @@ from gicore.options import (
     RESOLUTION,
     SEED,
     SPP,
-    THREADS,
     build_config,
     config_command,
     config_options,
@@ -75,6 +100,9 @@ class PrebakeConfig:
     light_cell: float = field(default=DEFAULT_LIGHT_CELL, metadata={"min": 1e-6, "max": 1e6})
     #: Camera-path seed (as gicore-dataset) and render-noise seed.
     seed: int = field(default=0, metadata=SEED)
+    #: What to bake: 'fly-through' (the maps the fly-through's --frames frames need) or 'all' (the scene's whole
+    #: configuration space: views covering the camera's envelope at the tolerance x every light cell).
+    space: Literal["fly-through", "all"] = "fly-through"
 
 
 @dataclass(frozen=True)
@@ -93,8 +121,8 @@ class ToleranceOptions:
 
 @dataclass(frozen=True)
 class PrebakeResult:
-    """What a prebake did: frames of the path the store now serves, maps baked by this run, and the
-    scene's stored bytes for the codec."""
+    """What a prebake did: ``frames`` of the path (with ``--space all``: configurations of the space) and
+    how many of them the store now serves, maps baked by this run, and the scene's stored bytes for the codec."""
 
     frames: int
     served: int
@@ -102,7 +130,14 @@ class PrebakeResult:
     bytes: int
 
 
-#: (frame, camera fields, light, render seed) of one map to bake.
+#: Configurations of a space planned and baked per executor run (memory stays bounded for millions of maps).
+SPACE_CHUNK = 4096
+#: A configuration is baked when the store holds a map at exactly its view.
+EXACT = Tolerance(0.0, 0.0)
+#: Up vector of the space's GI cameras (the fly-through's cameras use the same).
+UP = (0.0, 1.0, 0.0)
+
+#: (frame or view index, camera fields, light, render seed) of one map to bake.
 Job = tuple[int, dict, tuple[float, float, float], int]
 #: A worker's state: the compiled scene, its spec, its store name and the bake settings.
 Baker = tuple["Renderer", SceneSpec, str, PrebakeConfig]
@@ -147,6 +182,14 @@ def plan(store: GITree, keys: list[MapKey], views: list[Viewpoint]) -> list[int]
     return todo
 
 
+def space_of(spec: SceneSpec, cfg: PrebakeConfig) -> ConfigurationSpace:
+    """The configuration space ``cfg`` bakes (a UserError when its tolerance covers no grid)."""
+    try:
+        return configuration_space(spec, cfg.tolerance, cfg.light_cell)
+    except ValueError as exc:
+        raise UserError(str(exc), "give a larger --tolerance-p / --tolerance-deg") from None
+
+
 def prebake_scene(
     store_dir: Path,
     name: str,
@@ -155,29 +198,81 @@ def prebake_scene(
     executor: Executor | None = None,
     progress: bool = True,
 ) -> PrebakeResult:
-    """Bake what ``store_dir`` lacks of ``spec``'s fly-through (stored as scene ``name``) on ``executor``
-    (default: this process)."""
-    path = fly_through(spec, cfg.frames, cfg.resolution, cfg.light_cell, cfg.seed, cfg.fov)
+    """Bake what ``store_dir`` lacks of ``spec``'s fly-through, or with ``cfg.space == "all"`` of its
+    configuration space (stored as scene ``name``), on ``executor`` (default: this process)."""
     with GITree(store_dir, tolerance=cfg.tolerance) as tree:
         try:
             tree.register_scene(name, spec_sha(spec), cfg.light_cell if spec.light.moves else None)
         except StoreConflict as exc:
             raise UserError(str(exc), "use another --store, or the --light-cell and spec it was baked with") from None
-        keys = [MapKey(name, f.cell, cfg.resolution, f.camera.fov, cfg.codec, cfg.spp, cfg.di) for f in path]
-        views = [f.view for f in path]
-        jobs = bake_jobs(path, plan(tree, keys, views), name, cfg.seed)
-        if progress:
-            typer.echo(f"{name}: {cfg.frames} frames; {len(jobs)} maps to bake", err=True)
-        with tqdm(total=len(jobs), desc=name, unit="map", disable=not (progress and jobs)) as bar:
-
-            def receive(job: Job, payload: bytes) -> None:
-                tree.insert(keys[job[0]], views[job[0]], payload)
-                bar.update()
-
-            (executor or InProcess()).run(bake_task(spec, name, cfg), jobs, receive)
+        bake = _bake_space if cfg.space == "all" else _bake_fly_through
+        total, served, baked = bake(tree, name, spec, cfg, executor or InProcess(), progress)
         usage = [u["bytes"] for u in tree.stats()["by_scene_codec"] if (u["scene"], u["codec"]) == (name, cfg.codec)]
-        served = sum(tree.find(key, view) is not None for key, view in zip(keys, views, strict=True))
-        return PrebakeResult(cfg.frames, served, len(jobs), sum(usage))
+        return PrebakeResult(total, served, baked, sum(usage))
+
+
+def _bake_fly_through(
+    tree: GITree, name: str, spec: SceneSpec, cfg: PrebakeConfig, executor: Executor, progress: bool
+) -> tuple[int, int, int]:
+    """(frames, frames served, maps baked) of baking what the fly-through needs."""
+    path = fly_through(spec, cfg.frames, cfg.resolution, cfg.light_cell, cfg.seed, cfg.fov)
+    keys = [MapKey(name, f.cell, cfg.resolution, f.camera.fov, cfg.codec, cfg.spp, cfg.di) for f in path]
+    views = [f.view for f in path]
+    jobs = bake_jobs(path, plan(tree, keys, views), name, cfg.seed)
+    if progress:
+        typer.echo(f"{name}: {cfg.frames} frames; {len(jobs)} maps to bake", err=True)
+    with tqdm(total=len(jobs), desc=name, unit="map", disable=not (progress and jobs)) as bar:
+
+        def receive(job: Job, payload: bytes) -> None:
+            tree.insert(keys[job[0]], views[job[0]], payload)
+            bar.update()
+
+        executor.run(bake_task(spec, name, cfg), jobs, receive)
+    served = sum(tree.find(key, view) is not None for key, view in zip(keys, views, strict=True))
+    return cfg.frames, served, len(jobs)
+
+
+def _bake_space(
+    tree: GITree, name: str, spec: SceneSpec, cfg: PrebakeConfig, executor: Executor, progress: bool
+) -> tuple[int, int, int]:
+    """(configurations, configurations stored, maps baked) of baking the configuration space."""
+    space = space_of(spec, cfg)
+    views = space.views()
+    fov = spec.camera.gi_fov if cfg.fov is None else cfg.fov
+    task = bake_task(spec, name, cfg)
+    if progress:
+        typer.echo(
+            f"{name}: configuration space of {space.size} maps ({len(views)} views x {len(space.lights)} light "
+            f"states; grid {'x'.join(map(str, space.grid))}, every view within {space.cover:.3g} of one)",
+            err=True,
+        )
+    stored = baked = 0
+    with tqdm(total=space.size, desc=name, unit="map", disable=not progress) as bar:
+        for cell, light in space.lights:
+            key = MapKey(name, cell, cfg.resolution, fov, cfg.codec, cfg.spp, cfg.di)
+            for start in range(0, len(views), SPACE_CHUNK):
+                chunk = range(start, min(start + SPACE_CHUNK, len(views)))
+                todo = [i for i in chunk if tree.find(key, views[i], EXACT) is None]
+                stored += len(chunk) - len(todo)
+                bar.update(len(chunk) - len(todo))
+                jobs = [
+                    (
+                        i,
+                        gi_camera(spec, tuple(space.eyes[i]), space.target, UP, fov, cfg.resolution).to_dict(),
+                        light,
+                        frame_seed(cfg.seed, f"prebake/{name}/space/{cell}", i),
+                    )
+                    for i in todo
+                ]
+
+                def receive(job: Job, payload: bytes, key: MapKey = key) -> None:
+                    nonlocal stored
+                    stored += tree.insert(key, views[job[0]], payload) is not None
+                    bar.update()
+
+                executor.run(task, jobs, receive)
+                baked += len(jobs)
+    return space.size, stored, baked
 
 
 def _scene(scene: str) -> tuple[str, SceneSpec]:
@@ -203,16 +298,21 @@ def prebake(
     store: Path,
     tolerance_p: float | None,
     tolerance_deg: float | None,
+    executor: str | None,
+    ray_address: str | None,
     workers: int | None,
-    ray: str | None,
 ) -> None:
-    """Bake the maps of SCENE's fly-through into --store (resumable)."""
+    """Bake the maps of SCENE's fly-through, or of its whole configuration space, into --store (resumable)."""
     given_tolerance = {
         k: v for k, v in (("tolerance_p", tolerance_p), ("tolerance_deg", tolerance_deg)) if v is not None
     }
     tolerance = build_config(ToleranceOptions, given_tolerance).tolerance
     cfg = build_config(PrebakeConfig, given, PrebakeConfig(tolerance=tolerance))
+    where = {"executor": executor, "ray_address": ray_address, "workers": workers}
+    run_on = build_config(ExecutorOptions, {k: v for k, v in where.items() if v is not None})
     name, spec = _scene(scene)
+    if cfg.space == "all":
+        space_of(spec, cfg)  # refused before the store or a Ray instance is touched
     writable_dir(store, name="--store")
     t0 = time.perf_counter()
     with ExitStack() as stack:
@@ -224,11 +324,16 @@ def prebake(
                 f"another cloudbaking-prebake{by} is baking {name} into {store}",
                 "wait for it to finish, then rerun to check",
             ) from None
-        result = prebake_scene(store, name, spec, cfg, stack.enter_context(open_executor(workers, ray)))
+        pool = stack.enter_context(run_on.open())
+        result = prebake_scene(store, name, spec, cfg, pool)
+    what = "configurations of the space stored" if cfg.space == "all" else "frames served by the store"
     typer.echo(
-        f"{name}: {result.served}/{result.frames} frames served by the store; {result.baked} maps baked now; "
+        f"{name}: {result.served}/{result.frames} {what}; {result.baked} maps baked now; "
         f"{result.bytes / 2**20:.1f} MiB of {cfg.codec} maps for {name} in {store} ({time.perf_counter() - t0:.1f} s)"
     )
+    if isinstance(pool, RayExecutor) and pool.nodes:
+        per_node = ", ".join(f"{node[:12]} {n}" for node, n in sorted(pool.nodes.items()))
+        typer.echo(f"{name}: maps per Ray node: {per_node}")
 
 
 SCENE_HELP = "built-in scene name or spec file (.toml/.json); the file stem names it in the store"
@@ -242,12 +347,7 @@ config_command(
         extra("scene", Annotated[str, typer.Argument(help=SCENE_HELP)]),
         extra("store", Annotated[Path, typer.Option("--store", help=STORE_HELP)]),
         *config_options(ToleranceOptions),
-        extra(
-            "workers",
-            Annotated[int | None, typer.Option("--workers", min=1, max=THREADS["max"], help=WORKERS_HELP)],
-            None,
-        ),
-        extra("ray", Annotated[str | None, typer.Option("--ray", help=RAY_HELP)], None),
+        *config_options(ExecutorOptions),
     ],
 )
 

@@ -19,7 +19,11 @@ Backends (:func:`open_executor` picks one from the command line's ``--workers`` 
 - :class:`RayExecutor`: Ray tasks on a local instance or a cluster (the optional extra
   ``pip install '.[ray]'``; Ray is imported only when chosen). A task whose worker dies is retried
   (``max_retries``); Ctrl-C (or any error in the driver) cancels every outstanding task. Every node needs
-  this package installed in the same environment (the tasks import it by name).
+  this package installed in the same environment (the tasks import it by name). It counts the jobs each
+  Ray node ran (``nodes``), and can report every job's node as it finishes (``placed``).
+
+:class:`ExecutorOptions` is the command-line form (``--executor local|ray``, ``--ray-address``,
+``--workers``) a command derives its options from (:mod:`gicore.options`).
 """
 
 from __future__ import annotations
@@ -35,14 +39,15 @@ import socket
 import sys
 import threading
 import time
-from collections import OrderedDict
+from collections import Counter, OrderedDict
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
-from contextlib import contextmanager
+from contextlib import AbstractContextManager, contextmanager
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any, Literal, Protocol
 
 from gicore.cli import UserError
+from gicore.options import THREADS
 
 #: Task states a worker process keeps (least recently used dropped first): a run's scene, plus one
 #: more so that two drivers sharing a Ray cluster do not rebuild each other's scenes on every job.
@@ -216,18 +221,37 @@ class LocalPool:
                 future.cancel()
 
 
+def run_ray_job(task: Task, threads: int, job: Any) -> tuple[str, Any]:
+    """:func:`run_job` as a Ray task: (id of the node it ran on, the job's result)."""
+    import ray
+
+    return ray.get_runtime_context().get_node_id(), run_job(task, threads, job)
+
+
 class RayExecutor:
     """Jobs as Ray tasks of ``threads`` CPUs each, at most ``workers`` in flight (None: all submitted at
     once, and the cluster runs as many as it has CPUs). Needs Ray connected (:func:`connect_ray`)."""
 
-    def __init__(self, workers: int | None = None, threads: int = 1, max_retries: int = 3):
+    def __init__(
+        self,
+        workers: int | None = None,
+        threads: int = 1,
+        max_retries: int = 3,
+        placed: Callable[[Any, str], None] | None = None,
+    ):
         import ray
 
         self.workers = workers
         self.threads = threads
+        #: Jobs each Ray node (by node id) ran, over this executor's life.
+        self.nodes: Counter[str] = Counter()
+        #: Called with each finished job and the id of the node that ran it, before ``receive``.
+        self.placed = placed
         # A worker that dies (killed, out of memory, node lost) is a system failure: Ray reruns its task.
         # An exception raised by the job itself is not retried: it is a bug or a user error to report.
-        self._remote = ray.remote(run_job).options(num_cpus=threads, max_retries=max_retries, retry_exceptions=False)
+        self._remote = ray.remote(run_ray_job).options(
+            num_cpus=threads, max_retries=max_retries, retry_exceptions=False
+        )
 
     def run(self, task: Task, jobs: Sequence[Any], receive: Receive) -> None:
         import ray
@@ -244,11 +268,14 @@ class RayExecutor:
                 for ref in done:
                     job = pending.pop(ref)
                     try:
-                        result = ray.get(ref)
+                        node, result = ray.get(ref)
                     except ray.exceptions.RayTaskError as exc:
                         if isinstance(exc.cause, UserError):  # one line, as if raised here
                             raise exc.cause from None
                         raise
+                    self.nodes[node] += 1
+                    if self.placed is not None:
+                        self.placed(job, node)
                     receive(job, result)
         finally:
             _cancel(list(pending))
@@ -275,35 +302,40 @@ def _host_port(text: str) -> tuple[str, int] | None:
     return (host.strip("[]"), int(port)) if host and port.isdigit() and 0 < int(port) < 65536 else None
 
 
-def _check_reachable(address: str, option: str) -> None:
+def _start_ray(option: str) -> str:
+    """The hint of an address where no Ray cluster answers, for the option that names addresses."""
+    return START_RAY.replace("--ray auto", f"{option} auto")
+
+
+def _check_reachable(address: str, option: str, hint: str = START_RAY) -> None:
     """Fail fast on a head that does not answer: ``ray.init`` would retry for minutes."""
     try:
         socket.create_connection(_host_port(address), timeout=RAY_CONNECT_TIMEOUT_S).close()
     except OSError as exc:
         reason = exc.strerror or type(exc).__name__
-        raise UserError(f"{option} {address}: no Ray cluster answers there ({reason})", START_RAY) from None
+        raise UserError(f"{option} {address}: no Ray cluster answers there ({reason})", hint) from None
 
 
-def connect_ray(address: str) -> bool:
+def connect_ray(address: str, option: str = "--ray") -> bool:
     """Connect this process to Ray: ``auto`` joins the cluster named by ``RAY_ADDRESS`` or the one
     ``ray start`` runs on this machine, else starts a local instance; HOST:PORT joins that cluster's
     head. Returns whether this call connected (and so must ``ray.shutdown()``); a process already
-    connected (a notebook, a test) keeps its connection."""
+    connected (a notebook, a test) keeps its connection. Errors name ``option``, the address's option."""
     if address != "auto" and _host_port(address) is None:
         raise UserError(
-            f"--ray {address!r} is neither 'auto' nor HOST:PORT",
-            "give --ray auto, or the address `ray start --head` printed",
+            f"{option} {address!r} is neither 'auto' nor HOST:PORT",
+            f"give {option} auto, or the address `ray start --head` printed",
         )
     try:
         import ray
     except ImportError:
-        raise UserError("--ray needs Ray, which is not installed", INSTALL_RAY) from None
+        raise UserError(f"{option} needs Ray, which is not installed", INSTALL_RAY) from None
     if ray.is_initialized():
         return False
     if address != "auto":
-        _check_reachable(address, "--ray")
+        _check_reachable(address, option, _start_ray(option))
     elif _host_port(os.environ.get("RAY_ADDRESS", "")) is not None:
-        _check_reachable(os.environ["RAY_ADDRESS"], "RAY_ADDRESS")
+        _check_reachable(os.environ["RAY_ADDRESS"], "RAY_ADDRESS", _start_ray(option))
     try:
         ray.init(
             address=None if address == "auto" else address,
@@ -312,15 +344,16 @@ def connect_ray(address: str) -> bool:
             logging_level=logging.ERROR,
         )
     except ConnectionError as exc:
-        raise UserError(f"--ray {address}: {' '.join(str(exc).split())}", START_RAY) from None
+        raise UserError(f"{option} {address}: {' '.join(str(exc).split())}", _start_ray(option)) from None
     return True
 
 
 @contextmanager
-def open_executor(workers: int | None = None, ray: str | None = None) -> Iterator[Executor]:
+def open_executor(workers: int | None = None, ray: str | None = None, option: str = "--ray") -> Iterator[Executor]:
     """The executor a command line asks for. Without ``ray``: ``workers`` local processes (None or 1:
-    this process). With ``ray`` (``auto`` or HOST:PORT): Ray tasks, at most ``workers`` at once (None:
-    as many as the cluster's CPUs). Ray is disconnected (a local instance stopped) at the end."""
+    this process). With ``ray`` (``auto`` or HOST:PORT, given by ``option``): Ray tasks, at most
+    ``workers`` at once (None: as many as the cluster's CPUs). Ray is disconnected (a local instance
+    stopped) at the end."""
     if ray is None:
         if (workers or 1) == 1:
             yield InProcess()
@@ -328,7 +361,7 @@ def open_executor(workers: int | None = None, ray: str | None = None) -> Iterato
         with LocalPool(workers) as pool:
             yield pool
         return
-    connected = connect_ray(ray)
+    connected = connect_ray(ray, option)
     try:
         yield RayExecutor(workers)
     finally:
@@ -336,3 +369,32 @@ def open_executor(workers: int | None = None, ray: str | None = None) -> Iterato
             import ray as ray_module
 
             ray_module.shutdown()
+
+
+@dataclass(frozen=True)
+class ExecutorOptions:
+    """Where a command's renders run: the command-line form of :func:`open_executor` (its options are
+    derived from these fields by :mod:`gicore.options`)."""
+
+    #: Where the renders run: 'local' (this process, or --workers spawned processes) or 'ray' (Ray tasks).
+    executor: Literal["local", "ray"] = "local"
+    #: With --executor ray, the cluster: 'auto' (the one in RAY_ADDRESS or one `ray start` runs here, else a
+    #: new local one, stopped at the end) or HOST:PORT of a head (default: auto).
+    ray_address: str | None = field(default=None, metadata={"metavar": "auto|HOST:PORT"})
+    #: Local rendering processes (default 1); with --executor ray, tasks at once (default: as many as the cluster
+    #: has CPUs).
+    workers: int | None = field(default=None, metadata=THREADS)
+
+    def check(self) -> None:
+        if self.executor == "local" and self.ray_address is not None:
+            raise UserError("--ray-address needs --executor ray", "add --executor ray, or leave out --ray-address")
+        if self.executor == "ray":
+            try:
+                import ray  # noqa: F401
+            except ImportError:
+                raise UserError("--executor ray needs Ray, which is not installed", INSTALL_RAY) from None
+
+    def open(self) -> AbstractContextManager[Executor]:
+        """The executor these options ask for (a context manager: Ray disconnected, pools ended at its exit)."""
+        ray = (self.ray_address or "auto") if self.executor == "ray" else None
+        return open_executor(self.workers, ray, "--ray-address")

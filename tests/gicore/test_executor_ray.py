@@ -106,11 +106,12 @@ def store_entries(store: Path) -> dict:
 
 
 def busy_ray_workers() -> list[int]:
-    """PIDs of Ray workers running a render job now (Ray titles a busy worker ``ray::<function>``)."""
+    """PIDs of Ray workers running a render job now (Ray titles a busy worker ``ray::<function>``:
+    ``gicore.executor.run_ray_job``)."""
     pids = []
     for cmdline in Path("/proc").glob("[0-9]*/cmdline"):
         try:
-            if cmdline.read_bytes().startswith(b"ray::run_job"):
+            if cmdline.read_bytes().startswith(b"ray::run_ray_job"):
                 pids.append(int(cmdline.parent.name))
         except OSError:  # the process ended while we looked
             continue
@@ -302,18 +303,23 @@ PREBAKE = [
 ]
 
 
+#: How a command names a Ray cluster: gicore-dataset --ray ADDR; cloudbaking-prebake --executor ray --ray-address ADDR.
+RAY_FLAGS = {"gicore-dataset": ("--ray", []), "cloudbaking-prebake": ("--ray-address", ["--executor", "ray"])}
+
+
 @pytest.mark.parametrize("argv", [DATASET, PREBAKE], ids=["dataset", "prebake"])
 @pytest.mark.parametrize(
     ("address", "culprit"),
     [
-        ("127.0.0.1:1", "--ray 127.0.0.1:1: no Ray cluster answers there (Connection refused)"),
-        ("headnode", "--ray 'headnode' is neither 'auto' nor HOST:PORT"),
-        ("10.0.0.5:99999", "--ray '10.0.0.5:99999' is neither 'auto' nor HOST:PORT"),
+        ("127.0.0.1:1", "{} 127.0.0.1:1: no Ray cluster answers there (Connection refused)"),
+        ("headnode", "{} 'headnode' is neither 'auto' nor HOST:PORT"),
+        ("10.0.0.5:99999", "{} '10.0.0.5:99999' is neither 'auto' nor HOST:PORT"),
     ],
 )
 def test_a_bad_ray_address_is_one_error_line(argv: list[str], address: str, culprit: str, scenes: Path) -> None:
+    option, chosen = RAY_FLAGS[argv[0]]
     started = time.monotonic()
-    one_error_line(run_cli([*argv, "--ray", address], scenes), culprit)
+    one_error_line(run_cli([*argv, *chosen, option, address], scenes), culprit.format(option))
     assert time.monotonic() - started < 30  # not Ray's minutes of reconnecting
     assert not (scenes / "out").exists() and not (scenes / "store" / "index.sqlite").exists()
 
@@ -325,7 +331,7 @@ NOT_INSTALLED = "needs Ray, which is not installed: install it with pip install 
     ("argv", "culprit"),
     [
         ([*DATASET, "--ray", "auto"], f"--ray {NOT_INSTALLED}"),
-        ([*PREBAKE, "--ray", "auto"], f"--ray {NOT_INSTALLED}"),
+        ([*PREBAKE, "--executor", "ray"], f"--executor ray {NOT_INSTALLED}"),
         (["bench", "scaling", "--quick", "--out", "out"], f"--executors ray {NOT_INSTALLED}"),
     ],
     ids=["dataset", "prebake", "bench-scaling"],
