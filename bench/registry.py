@@ -25,6 +25,7 @@ from bench import (
     storage,
     training,
     warp_bench,
+    web,
 )
 from bench.runner import Bench, External
 
@@ -45,6 +46,7 @@ BENCHES: tuple[Bench, ...] = (
     stability.BENCH,
     scaling.BENCH,
     pareto.BENCH,
+    web.BENCH,
 )
 
 #: Everything ``bench report`` shows: the benches, and the CSVs other programs write.

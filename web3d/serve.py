@@ -87,7 +87,10 @@ def _handler(site: Site) -> type[BaseHTTPRequestHandler]:
                 self.send_header(key, value)
             self.send_header("Content-Length", str(len(body)))
             self.end_headers()
-            self.wfile.write(body)
+            try:
+                self.wfile.write(body)
+            except (BrokenPipeError, ConnectionResetError):  # the page went away (closed mid-request)
+                self.close_connection = True
 
         def do_GET(self) -> None:
             path = self.path.split("?", 1)[0]

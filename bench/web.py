@@ -1,0 +1,381 @@
+"""`bench web` (issue 24): the browser-side Table 1. Playwright drives the Web3D viewer (``gigan-web``) headless in
+Debian's Chromium, both systems flying the scene's camera path in one page.
+
+One run starts a ``cloudbaking-server`` (a fresh store, filled along the path first when ``store`` is
+``prebaked``, so the page's requests hit; ``cold``: they miss and the server path-traces), a
+``network-sim proxy --profile P`` in front of it and the viewer's server (:mod:`web3d.serve`, which forwards the
+page's ``/v1/gimap`` to the proxy), then loads the page and waits for it to play ``frames`` frames.
+
+**Stages** (``metric``; median, p95 and n over the GI maps, ms, as the page's HUD measures them with
+``performance.now`` after a GPU sync): GIGAN's ``gi_render`` (DI + G-buffers at the GI camera, read back),
+``inference`` (encoding, onnxruntime-web's ``session.run``, decoding and upload), ``warp`` (the coarse level's
+bind plus the first frame's uv pass and warp shader), ``blend``; cloud baking's ``transmission`` (fetch to the
+last byte minus the server's own time), ``server``, ``decode`` (JPEG via ``createImageBitmap``, zstd depth, upload),
+``warp`` (bind plus the first frame's splat and fill), ``blend``. ``total`` sums a system's stages; ``di`` (the
+local DI, shared) is reported and counted in neither. ``total_ratio``: cloud's median total over GIGAN's. Each
+map's stages also come as ``stat = map`` rows (``config.frame``).
+
+**Inference against Python** (same run, same machine, same input tensor: the page's first GI map):
+``inference_run`` is ``session.run`` alone, ``timing_runs`` times each, alternately (so that both see the same
+load): in the browser (onnxruntime-web) and in Python (onnxruntime, :class:`gigan_local.inference.GIModel` with
+the same thread count); ``inference_ratio`` is browser over Python. **Parity**: ``parity_max_abs_diff`` /
+``parity_mean_abs_diff`` between the browser's tone-mapped prediction and ``tonemap(GIModel.predict(buffers))``
+on the G-buffers the page rendered.
+
+Outputs besides the CSV: ``web_screenshot.png`` (both canvases and their HUDs at the last frame). The
+provenance's ``settings.browser`` records Chromium's version, the WebGL renderer (SwiftShader: software WebGL
+on the CPU), the onnxruntime-web backend and its threads, and whether the page was cross-origin isolated.
+"""
+
+from __future__ import annotations
+
+import base64
+import math
+import shutil
+import sys
+import time
+from collections.abc import Callable
+from contextlib import ExitStack
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+
+from bench.runner import Bench, Block, Part, Rows, Section, Table, cell, need, pick
+from gicore.cli import UserError
+from gicore.results import Results
+
+GIGAN, CLOUD = "gigan", "cloud_baking"
+GIGAN_STAGES = ("gi_render", "inference", "warp", "blend")
+CLOUD_STAGES = ("transmission", "server", "decode", "warp", "blend")
+CHROMIUM = Path("/usr/bin/chromium")
+#: Chromium's software WebGL2 (SwiftShader through ANGLE), for a machine without a GPU; ``gpu`` asks for the
+#: GPU through ANGLE's Vulkan back end instead.
+WEBGL_FLAGS = {
+    "swiftshader": ["--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist"],
+    "gpu": ["--use-angle=vulkan", "--enable-features=Vulkan", "--ignore-gpu-blocklist", "--enable-unsafe-webgpu"],
+}
+SCREENSHOT = "web_screenshot.png"
+
+
+@dataclass(frozen=True)
+class WebBenchConfig:
+    """What one browser run measures (see the module docstring)."""
+
+    #: The scene both systems fly through (name or spec file).
+    scenes: tuple[str, ...] = field(default=("lung_plane",), metadata={"max_len": 1})
+    #: Frames the page plays.
+    frames: int = 60
+    #: GI-map period k: both systems make or fetch a new map every k frames.
+    every: int = 10
+    #: Network profile of the proxy between the page and the cloud-baking server (network-sim profiles).
+    profile: str = "lan"
+    #: The cloud-baking store: prebaked (filled along the path first: the page's requests hit) or cold (they miss).
+    store: Literal["prebaked", "cold"] = "prebaked"
+    #: GI-map codec the cloud side asks for.
+    codec: Literal["jpeg", "webp", "png"] = "jpeg"
+    #: Path-tracing samples per pixel of the cloud maps.
+    spp: int = 64
+    #: onnxruntime threads, in the browser (wasm) and in Python.
+    threads: int = 2
+    #: session.run repetitions timed in the browser and in Python on the same input.
+    timing_runs: int = 10
+    #: WebGL in Chromium: swiftshader (software, on the CPU) or gpu (ANGLE on Vulkan).
+    webgl: Literal["swiftshader", "gpu"] = "swiftshader"
+    #: Seconds the page may take to play its frames.
+    timeout_s: float = 900.0
+
+    @classmethod
+    def quick(cls) -> WebBenchConfig:
+        return cls(frames=20, every=10, spp=16, timing_runs=5)
+
+    def check(self) -> None:
+        from network_sim.profiles import profiles
+
+        if self.profile not in profiles():
+            raise UserError(f"--profile {self.profile} is not a profile", f"pick one of {sorted(profiles())}")
+
+
+def require_browser() -> str | None:
+    """Why the viewer cannot run here (no Chromium, no Playwright, no npm modules), or None."""
+    from web3d.serve import WEB_DIR
+
+    if not CHROMIUM.is_file():
+        return f"{CHROMIUM} is missing (apt-get install chromium)"
+    try:
+        import playwright.sync_api  # noqa: F401
+    except ImportError:
+        return "playwright is not installed (pip install -e '.[test]')"
+    if not (WEB_DIR / "node_modules" / "onnxruntime-web" / "dist").is_dir():
+        return f"{WEB_DIR}/node_modules is missing (make setup runs npm ci in web/)"
+    return None
+
+
+def run_page(
+    url: str, cfg: WebBenchConfig, screenshot: Path, reference: Callable[[dict[str, Any]], Callable[[], float]]
+) -> dict[str, Any]:
+    """Load the viewer at ``url`` in headless Chromium, wait until it has played its frames, screenshot both
+    canvases, and time ``session.run`` ``cfg.timing_runs`` times in the page and in Python, alternately (both
+    under the same load): ``reference(viewer)`` gives the Python run (one call: one run, seconds). Returns what
+    ``window.viewer`` holds, with Chromium's version and both runs' times (ms); a page error raises RuntimeError
+    with the page's message."""
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=str(CHROMIUM), args=WEBGL_FLAGS[cfg.webgl])
+        try:
+            page = browser.new_page(viewport={"width": 1200, "height": 900})
+            errors: list[str] = []
+            page.on("pageerror", lambda e: errors.append(str(e)))
+            page.goto(f"{url}/")
+            page.wait_for_function("window.viewer && window.viewer.done", timeout=cfg.timeout_s * 1e3)
+            data = page.evaluate("window.viewer")
+            if data.get("error") or errors:
+                raise RuntimeError(f"the viewer failed: {data.get('error') or errors[0]}")
+            page.locator(".row").screenshot(path=str(screenshot))
+            python_run = reference(data)
+            data["browser_runs_ms"], data["python_runs_ms"] = [], []
+            for _ in range(cfg.timing_runs):
+                data["browser_runs_ms"].append(page.evaluate("window.viewer.infer()"))
+                data["python_runs_ms"].append(python_run() * 1e3)
+            data["chromium"] = browser.version
+            return data
+        finally:
+            browser.close()
+
+
+def _floats(text: str, n: int, channels: int) -> np.ndarray:
+    return np.frombuffer(base64.b64decode(text), dtype=np.float32).reshape(n, n, channels)
+
+
+class Reference:
+    """Python's side of the page's first GI map: :meth:`check` compares the browser's tone-mapped prediction with
+    ``tonemap(GIModel.predict(buffers))`` on the G-buffers the page rendered (rows flipped from GL's bottom-up) and
+    returns one timed ``session.run`` on that input (the tensor predict encoded), for :func:`run_page`."""
+
+    def __init__(self, threads: int) -> None:
+        self.threads = threads
+        self.diff: dict[str, float] = {}
+
+    def check(self, viewer: dict[str, Any]) -> Callable[[], float]:
+        from gicore.tonemap import tonemap
+        from gigan_local.inference import DEFAULT_MODEL, GIModel
+
+        p = viewer["parity"]
+        n = int(p["resolution"])
+        buffers = {k: _floats(p[k], n, 4)[::-1] for k in ("di", "albedo", "normal", "depth")}
+        frame = {k: buffers[k][..., :3] for k in ("di", "albedo", "normal")} | {"depth": buffers["depth"][..., :1]}
+        model = GIModel(DEFAULT_MODEL, threads=self.threads)
+        diff = np.abs(tonemap(model.predict(frame)) - _floats(p["display"], n, 3))
+        self.diff = {"max": float(diff.max()), "mean": float(diff.mean())}
+
+        def run() -> float:
+            t0 = time.perf_counter()
+            model.session.run(None, {model.input_name: model._input})  # the input predict encoded
+            return time.perf_counter() - t0
+
+        return run
+
+
+def _prefill(server: str, spec: Any, assets: Path, cfg: WebBenchConfig) -> None:
+    """Ask the server (directly, not through the proxy) for every map the page will ask for, so they hit."""
+    import json
+
+    import httpx
+
+    path = json.loads((assets / "path.json").read_text())["frames"]
+    with httpx.Client(timeout=600.0) as client:
+        for f in range(0, min(cfg.frames, len(path)), cfg.every):
+            gi = path[f]["gi"]
+            body: dict[str, Any] = {
+                "scene": spec.name,
+                "camera": {"eye": gi["eye"], "target": gi["target"], "up": [0, 1, 0], "fov": gi["fov"]},
+                "resolution": spec_resolution(assets),
+                "codec": cfg.codec,
+                "spp": cfg.spp,
+            }
+            if spec.light.moves:
+                body["light"] = path[f]["light"]
+            client.post(f"{server}/v1/gimap", json=body).raise_for_status()
+
+
+def spec_resolution(assets: Path) -> int:
+    import json
+
+    return int(json.loads((assets / "scene.json").read_text())["resolution"])
+
+
+def measure(cfg: WebBenchConfig, results: Results) -> None:
+    why = require_browser()
+    if why:
+        raise UserError(f"bench web cannot run: {why}", "install what is missing, then run it again")
+    from gicore.scene import load_scene
+    from network_sim.process import Running
+    from web3d.cli import WebConfig, prepare
+    from web3d.serve import WebServer
+
+    spec = load_scene(cfg.scenes[0])
+    work = results.out / "web_runs"
+    shutil.rmtree(work, ignore_errors=True)
+    bin_dir = Path(sys.executable).parent
+    with ExitStack() as stack:
+        server = stack.enter_context(
+            Running([str(bin_dir / "cloudbaking-server"), "--port", "0", "--store", str(work / "store")], 120.0)
+        )
+        host, port = server.addr
+        server_url = f"{host}:{port}"  # the server prints a URL
+        upstream = server_url.removeprefix("http://")
+        argv = [sys.executable, "-m", "network_sim", "proxy", "--upstream", upstream, "--profile", cfg.profile]
+        proxy = stack.enter_context(Running([*argv, "--seed", str(results.seed)], 60.0))
+        page_cfg = WebConfig(
+            scene=cfg.scenes[0],
+            server=f"http://{proxy.addr[0]}:{proxy.addr[1]}",
+            listen="127.0.0.1:0",
+            frames=cfg.frames,
+            every=cfg.every,
+            codec=cfg.codec,
+            spp=cfg.spp,
+            threads=cfg.threads,
+            seed=results.seed,
+            assets=work / "assets",
+        )
+        site = prepare(page_cfg)
+        if cfg.store == "prebaked":
+            _prefill(server_url, spec, site.assets, cfg)
+        web = stack.enter_context(WebServer(site))
+        reference = Reference(cfg.threads)
+        viewer = run_page(web.url, cfg, results.output(SCREENSHOT), reference.check)
+    results.settings["browser"] = viewer["info"] | {"chromium": viewer["chromium"]}
+    record(results, spec.name, cfg, viewer, reference.diff)
+    shot = results.out / SCREENSHOT
+    results.add(
+        system="both",
+        scene=spec.name,
+        metric="screenshot",
+        value=shot.stat().st_size,
+        unit="bytes",
+        file=str(shot.resolve()),
+    )
+    shutil.rmtree(work, ignore_errors=True)
+
+
+def record(res: Results, scene: str, cfg: WebBenchConfig, viewer: dict[str, Any], check: dict[str, Any]) -> None:
+    """The CSV rows of one page run (module docstring)."""
+    info = viewer["info"]
+    common = {
+        "frames": cfg.frames,
+        "every": cfg.every,
+        "profile": cfg.profile,
+        "store": cfg.store,
+        "codec": cfg.codec,
+        "spp": cfg.spp,
+        "webgl": info.get("renderer", "?"),
+        "backend": info.get("backend", "?"),
+        "threads": info.get("wasm_threads", cfg.threads),
+    }
+    totals = {}
+    for system, stages in ((GIGAN, GIGAN_STAGES), (CLOUD, CLOUD_STAGES)):
+        maps = [m for m in viewer["maps"] if m["system"] == system]
+        if not maps:
+            raise RuntimeError(f"the page composed no {system} map in {cfg.frames} frames")
+        for stage in (*stages, "total"):
+            values = [m["total"] if stage == "total" else m["stages"][stage] for m in maps]
+            res.add_timing(system=system, scene=scene, metric=stage, samples_s=[v / 1e3 for v in values], **common)
+            for m, v in zip(maps, values):
+                where = {"frame": m["frame"]} | common
+                res.add(system=system, scene=scene, metric=stage, value=v, unit="ms", stat="map", **where)
+        totals[system] = float(np.median([m["total"] for m in maps]))
+        di = [f[f"{'gigan' if system == GIGAN else 'cloud'}_di"] for f in viewer["frames"]]
+        res.add_timing(system=system, scene=scene, metric="di", samples_s=[v / 1e3 for v in di], **common)
+        if system == CLOUD:
+            hits = sum(bool(m.get("hit")) for m in maps)
+            res.add(system=system, scene=scene, metric="hit_rate", value=hits / len(maps), unit="fraction", **common)
+    res.add(system="both", scene=scene, metric="total_ratio", value=totals[CLOUD] / totals[GIGAN], unit="x", **common)
+    browser, python = viewer["browser_runs_ms"], viewer["python_runs_ms"]
+    for runtime, values in (("onnxruntime-web", browser), ("onnxruntime-python", python)):
+        where = common | {"runtime": runtime}
+        res.add_timing(system=GIGAN, scene=scene, metric="inference_run", samples_s=[v / 1e3 for v in values], **where)
+    ratio = float(np.median(browser) / np.median(python)) if browser and python else math.nan
+    res.add(system=GIGAN, scene=scene, metric="inference_ratio", value=ratio, unit="x", **common)
+    for stat in ("max", "mean"):
+        metric = f"parity_{stat}_abs_diff"
+        res.add(system=GIGAN, scene=scene, metric=metric, value=check[stat], unit="tonemapped", **common)
+
+
+# -- presentation --------------------------------------------------------------------------------------------------
+def _median(rows: Rows, system: str, metric: str, **config: Any) -> float | None:
+    found = [
+        r["value"]
+        for r in pick(rows, metric, "median")
+        if r["system"] == system and all(r["config"].get(k) == v for k, v in config.items())
+    ]
+    return found[0] if found else None
+
+
+def _value(rows: Rows, metric: str) -> float | None:
+    found = pick(rows, metric, "value")
+    return found[0]["value"] if found else None
+
+
+def table(rows: Rows) -> str:
+    """The browser-side Table 1 (medians over the GI maps, ms) with the inference comparison and parity."""
+    need(rows, "total", "total_ratio", "parity_max_abs_diff")
+    config = rows[0]["config"]
+    lines = ["| stage (median ms) | GIGAN | cloud baking |", "|---|---:|---:|"]
+    for stage in ("gi_render", "inference", "transmission", "server", "decode", "warp", "blend", "total"):
+        g, c = _median(rows, GIGAN, stage), _median(rows, CLOUD, stage)
+        bold = "**" if stage == "total" else ""
+        lines.append(f"| {bold}{stage}{bold} | {cell(g)} | {cell(c)} |")
+    lines.append(
+        f"| di (local, shared; not counted) | {cell(_median(rows, GIGAN, 'di'))} | {cell(_median(rows, CLOUD, 'di'))} |"
+    )
+    browser = _median(rows, GIGAN, "inference_run", runtime="onnxruntime-web")
+    python = _median(rows, GIGAN, "inference_run", runtime="onnxruntime-python")
+    n_maps = [r["value"] for r in pick(rows, "total", "n")]
+    return "\n".join(
+        [
+            *lines,
+            "",
+            f"Cloud baking / GIGAN median total: **{cell(_value(rows, 'total_ratio'), '.2f')}x** "
+            f"({', '.join(str(int(n)) for n in n_maps)} maps; {config['frames']} frames, k = {config['every']}, "
+            f"profile {config['profile']}, {config['store']} store, {config['codec']}, {config['spp']} spp). "
+            f"WebGL: {config['webgl']}; onnxruntime-web {config['backend']}, {config['threads']} threads.",
+            "",
+            f"session.run on the same input: browser {cell(browser)} ms, Python onnxruntime {cell(python)} ms "
+            f"(**{cell(_value(rows, 'inference_ratio'), '.2f')}x**). Parity with GIModel.predict on the page's "
+            f"G-buffers, tone-mapped: max |Δ| = {cell(_value(rows, 'parity_max_abs_diff'), '.2e')}, "
+            f"mean {cell(_value(rows, 'parity_mean_abs_diff'), '.2e')}.",
+        ]
+    )
+
+
+def screenshot(rows: Rows) -> str:
+    """The run's screenshot as a Markdown image (a data URI: the dashboard opens offline), or a line saying
+    where it was and that it is gone."""
+    found = pick(rows, "screenshot")
+    if not found:
+        return "(this run took no screenshot)"
+    path = Path(found[0]["config"]["file"])
+    if not path.is_file():
+        return f"(the screenshot {path} is gone)"
+    return f"![Both canvases and their HUDs](data:image/png;base64,{base64.b64encode(path.read_bytes()).decode()})"
+
+
+def dashboard_section(rows: Rows) -> list[Part]:
+    return [Table(screenshot(rows)), Table(table(rows))]
+
+
+def readme_block(rows: Rows) -> list[Table]:
+    return [Table(table(rows))]
+
+
+BENCH = Bench(
+    "web",
+    WebBenchConfig,
+    measure,
+    None,
+    help="Browser-side Table 1: the Web3D viewer in headless Chromium (Playwright), both systems side by side",
+    dashboard=Section("web", "Web3D viewer: browser-side Table 1", 15, dashboard_section),
+    readme=Block("Web3D viewer, browser-side Table 1", 15, readme_block),
+)
