@@ -13,11 +13,16 @@ What is timed, per local frame, after a warm-up, ``repeats`` times each, alterna
 - ``pixel-level``: reprojection of the GI map's point cloud, z-buffered splat and push-pull hole
   filling (:mod:`baseline_cloudbaking.warp`).
 
-Not in those times, and reported on their own: the local raster pass (``raster_time``, the uv +
-position pass that structure-aware needs, so its system is ``structure-aware``; pixel-level reads only
-the surface mask from it; ``bench latency`` times each client's own pass, uv + position in GIGAN's
-frame and a mask pass in cloud baking's) and the once-per-GI-map work (``bind``: structure-aware's
-texture and per-vertex coordinates, pixel-level's unprojection into a point cloud).
+Not in those times, and reported on their own: each method's local raster pass (``raster_time``: the uv +
+position pass structure-aware reads; the surface-mask pass pixel-level reads, a depth pass on GL and the
+centre-sampled uv pass on Mitsuba, as :class:`baseline_cloudbaking.warp.PixelWarp` renders it) and the
+once-per-GI-map work (``bind``: structure-aware's texture and per-vertex coordinates, pixel-level's
+unprojection into a point cloud).
+
+``renderer`` (issue 22): what renders those local passes and the current DI the structure-aware fallback
+reads: gl (``gicore.gl.GLRenderer`` at ``gl_lod``, as the clients' default; without a GL context one warning
+and mitsuba) or mitsuba. The GI maps and the GT stay path-traced by Mitsuba. Every row's config names the
+renderer that ran (gl: its ``gl_lod`` and the mean level the uv passes drew).
 CPU % is process CPU time over wall time of each method's timed calls (``time.process_time``, all
 threads; 100 % = one core),
 peak memory the largest numpy allocation total during one call (``tracemalloc``). Also measured: how far
@@ -33,14 +38,17 @@ import tracemalloc
 from collections import defaultdict
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
+from typing import Any, Literal
 
 import numpy as np
 
 from bench.runner import FOV_DEGREES, Bench, Block, Figure, Part, Rows, Section, Table, need, pick
 from bench.svg import BarChart
 from gicore.camera import Camera
-from gicore.loop import LAYERS, Warp
+from gicore.gl.lod import LOD_CHOICES, lod_value
+from gicore.loop import LAYERS, RENDERERS, Warp, open_raster
 from gicore.metrics import ssim
 from gicore.paths import camera_path, light_position
 from gicore.results import Results, read_rows
@@ -92,6 +100,11 @@ class WarpBenchConfig:
     repeats: int = 10
     #: Untimed calls of each method per local frame before timing.
     warmup: int = field(default=2, metadata={"min": 0})
+    #: Renderer of the local passes (the warps' uv and surface-mask passes, the DI): gl (OpenGL; without a GL
+    #: context one warning and mitsuba) or mitsuba. GI maps and GT are path-traced by Mitsuba either way.
+    renderer: Literal[RENDERERS] = "gl"  # type: ignore[valid-type]
+    #: Level of detail of the gl passes (gicore.gl.GLRenderer's lod; auto: per view, as the clients draw).
+    gl_lod: Literal[LOD_CHOICES] = "auto"  # type: ignore[valid-type]
 
     @classmethod
     def quick(cls) -> WarpBenchConfig:
@@ -126,6 +139,21 @@ def uv_errors(renderer, warper, gi_cam: Camera, local: Camera) -> dict[str, np.n
     return out
 
 
+def open_local_raster(cfg: WarpBenchConfig, spec, renderer) -> tuple[Any, str]:
+    """The renderer of the local passes for ``cfg.renderer`` and the name of the one that runs them (gl without
+    a context: ``renderer``, Mitsuba's, after one warning line)."""
+    from gicore.gl import GLRenderer, RasterUnavailable
+
+    gl = partial(GLRenderer, spec, cfg.resolution, lod=lod_value(cfg.gl_lod))
+    return open_raster(cfg.renderer, renderer, gl, RasterUnavailable)
+
+
+def surface_mask(raster, camera: Camera) -> np.ndarray:
+    """The pixel-level warp's surface-mask pass, as :class:`baseline_cloudbaking.warp.PixelWarp` renders it."""
+    depth_pass = getattr(raster, "render_depth", None)
+    return (depth_pass or raster.render_uv)(camera)["mask"]
+
+
 def measure(cfg: WarpBenchConfig, res: Results) -> None:
     from baseline_cloudbaking.warp import PointCloud
     from gicore.loop import render_gt
@@ -134,20 +162,25 @@ def measure(cfg: WarpBenchConfig, res: Results) -> None:
     from gigan_local.warp import StructureAwareWarp
 
     seed = res.seed
-    common = {"resolution": cfg.resolution, "gi_fov": cfg.gi_fov, "local_fov": cfg.local_fov}
     for name in cfg.scenes:
         spec = load_scene(name)
         renderer = Renderer(spec, cfg.resolution)
+        raster, used = open_local_raster(cfg, spec, renderer)
+        common: dict[str, Any] = {"resolution": cfg.resolution, "gi_fov": cfg.gi_fov, "local_fov": cfg.local_fov}
+        common |= {"renderer": used} | ({"gl_lod": cfg.gl_lod} if used == "gl" else {})
+        levels: list[int] = []  # the levels of detail the gl uv passes drew
         cams = camera_path(spec, cfg.orbit_frames, seed=seed, fov=cfg.local_fov, resolution=cfg.resolution)
         source = GTSource(renderer, cfg.spp, cfg.denoise, seed)
-        warper = StructureAwareWarp(renderer)
+        warper = StructureAwareWarp(raster)
         samples: dict[str, list[float]] = defaultdict(list)
         stages: dict[str, dict[str, list[float]]] = {m: defaultdict(list) for m in SYSTEMS}
         cpu = {m: [0.0, 0.0, 0] for m in SYSTEMS}  # cpu seconds, wall seconds, calls
         peaks: dict[str, list[float]] = defaultdict(list)
         quality: dict[str, list[float]] = defaultdict(list)
         uv_err: dict[str, list[np.ndarray]] = defaultdict(list)
-        n_vertices = sum(len(o.mesh.vertices) for o in renderer.objects)
+        n_vertices = sum(len(o.mesh.vertices) for o in raster.objects)
+        raster.render_uv(cams[0])  # untimed: a pass's first call compiles its program
+        surface_mask(raster, cams[0])
         for g in cfg.gi_frames:
             light = light_position(spec, g)
             gi = source.produce(cams[g % cfg.orbit_frames].with_fov(cfg.gi_fov), light, g)
@@ -160,11 +193,15 @@ def measure(cfg: WarpBenchConfig, res: Results) -> None:
             for offset in cfg.offsets:
                 frame = g + offset
                 cam = cams[frame % cfg.orbit_frames]
-                di = renderer.render_di(cam, light, seed=frame)
+                di = raster.render_di(cam, light, seed=frame)
                 t0 = time.perf_counter()
-                uv_pass = renderer.render_uv(cam)
-                samples["raster"].append(time.perf_counter() - t0)
-                mask = uv_pass["mask"]
+                uv_pass = raster.render_uv(cam)
+                t1 = time.perf_counter()
+                mask = surface_mask(raster, cam)
+                samples["raster/structure"].append(t1 - t0)
+                samples["raster/pixel"].append(time.perf_counter() - t1)
+                if used == "gl":
+                    levels.append(raster.last_level)
 
                 def structure():
                     return warper.resample(uv_pass, base=di)
@@ -204,11 +241,12 @@ def measure(cfg: WarpBenchConfig, res: Results) -> None:
                         **common,
                     )
             for method, errors in uv_errors(
-                renderer, warper, gi.camera, cams[(g + cfg.offsets[-1]) % cfg.orbit_frames]
+                raster, warper, gi.camera, cams[(g + cfg.offsets[-1]) % cfg.orbit_frames]
             ).items():
                 uv_err[method].append(errors)
 
         cfg_row = common | {"repeats": cfg.repeats, "frames": len(cfg.gi_frames) * len(cfg.offsets), "spp": cfg.spp}
+        cfg_row |= {"gl_level_mean": float(np.mean(levels))} if levels else {}
         for m, system in SYSTEMS.items():
             res.add_timing(system=system, scene=name, metric="warp_time", samples_s=samples[m], **cfg_row)
             for stage, values in stages[m].items():
@@ -268,9 +306,8 @@ def measure(cfg: WarpBenchConfig, res: Results) -> None:
             **cfg_row,
         )
         res.add_timing(system="pixel-level", scene=name, metric="bind_time", samples_s=samples["bind/pixel"], **cfg_row)
-        res.add_timing(
-            system="structure-aware", scene=name, metric="raster_time", samples_s=samples["raster"], **cfg_row
-        )
+        for m, system in SYSTEMS.items():
+            res.add_timing(system=system, scene=name, metric="raster_time", samples_s=samples[f"raster/{m}"], **cfg_row)
         ratio = np.median(samples["pixel"]) / np.median(samples["structure"])
         res.add(
             system="pixel/structure",
