@@ -335,7 +335,7 @@ class RemoteSource:
 
 # -- the client process's run ------------------------------------------------------------------------------
 #: Columns of ``requests.csv``: a request's record, then what the frame that bound its map spent on it.
-REQUEST_COLUMNS = (*RECORD_COLUMNS, "bound_frame", "bind_ms", "warp_ms", "blend_ms", "total_ms")
+REQUEST_COLUMNS = (*RECORD_COLUMNS, "bound_frame", "di_ms", "bind_ms", "warp_ms", "blend_ms", "total_ms")
 
 
 @dataclass(frozen=True)
@@ -446,14 +446,15 @@ def run_client(
     """
     from baseline_cloudbaking.warp import PixelWarp
     from gicore.gl import GLRenderer, RasterUnavailable
-    from gicore.loop import LAYERS, ClientLoop, GroundTruth, LoopConfig, open_raster, path_views, run_frames
+    from gicore.loop import CLIENT_LOD, LAYERS, ClientLoop, GroundTruth, LoopConfig, open_raster, path_views, run_frames
     from gicore.render import Renderer
     from gicore.scene import load_scene
 
     spec = load_scene(cfg.scene)
     remote = cfg.remote(server, spec.light.moves)
     renderer = Renderer(spec, cfg.resolution)
-    raster, used = open_raster(cfg.renderer, renderer, partial(GLRenderer, spec, cfg.resolution), RasterUnavailable)
+    gl = partial(GLRenderer, spec, cfg.resolution, lod=CLIENT_LOD)
+    raster, used = open_raster(cfg.renderer, renderer, gl, RasterUnavailable)
     loop_cfg = LoopConfig(
         every=cfg.every, gi_fov=cfg.gi_fov_of(spec), max_move=tolerance.tolerance_position or None,
         max_turn=tolerance.tolerance_angle_deg or None, composition=cfg.composition, tau=cfg.tau, seed=cfg.seed,
@@ -479,9 +480,10 @@ def run_client(
 def join_requests(
     records: list[dict[str, Any]], rows: list[dict[str, Any]], warp_stages: tuple[str, ...]
 ) -> list[dict[str, Any]]:
-    """Per-request rows: each record with what the frame that bound its map spent on bind, warp and blend,
-    and ``total_ms``: every stage from the request to that frame's composition, summed (the wait for the
-    next frame, ``pickup_ms``, is not a stage and is not in it)."""
+    """Per-request rows: each record with what the frame that bound its map spent on its local DI render, bind,
+    warp and blend, and ``total_ms``: every stage from the request to that frame's composition, summed (the
+    frame's DI included: the map is not seen before it; the wait for the next frame, ``pickup_ms``, is not a
+    stage and is not in it)."""
     bound = {int(r["frame"]) - int(r["gi_age_frames"]): r for r in rows if r["gi_new"]}
     out = []
     for record in records:
@@ -492,11 +494,13 @@ def join_requests(
             stages = sum(float(record[f"{s}_ms"]) for s in STAGES if record[f"{s}_ms"] != "")
             row |= {
                 "bound_frame": frame["frame"],
+                "di_ms": frame["di_ms"],
                 "bind_ms": frame["bind_ms"],
                 "warp_ms": warp_ms,
                 "blend_ms": frame["compose_ms"],
             }
-            row["total_ms"] = stages + float(frame["bind_ms"]) + warp_ms + float(frame["compose_ms"])
+            local = float(frame["di_ms"]) + float(frame["bind_ms"]) + warp_ms + float(frame["compose_ms"])
+            row["total_ms"] = stages + local
         out.append(row)
     return out
 

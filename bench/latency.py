@@ -4,8 +4,8 @@ real processes talking over the simulated network.
 One run starts, as separate processes pinned to separate cores where the machine has them (see
 :func:`pinning`; recorded in the provenance's ``settings.pinning``):
 
-- ``gigan-client`` with the ONNX model (``--gi-source model``): it needs no network, so it runs once
-  and its rows carry ``profile = "none"``;
+- ``gigan-client`` with the ONNX model (``--gi-source model``): it needs no network, so it runs once (per
+  renderer) and its rows carry ``profile = "none"``;
 - per network profile, ``network-sim proxy --profile P`` in front of a ``cloudbaking-server`` and a
   ``cloudbaking-client`` behind the proxy, twice: against a **prebaked** store (the server answered
   every GI camera of the path once before, directly: a first pass along the same path, so the run's
@@ -18,32 +18,38 @@ Both clients fly the same camera path (``orbit_frames`` frames per orbit, seed) 
 a GI map every ``every`` frames (the cloud client also when its view leaves the server's tolerance, with
 at most one request in flight) and compose with ``composition``.
 
-**Stages** (``metric``; median and p95 over the maps, ms). A map's interaction latency (``total``) is the
-sum of every stage from the request to the composition of the first frame showing it. Only the local DI
-render (``di``) is shared by both systems, so it is reported and left out of both totals; everything else
-counts toward the system that needs it:
+**Renderers.** Every client run above is made once per renderer of ``renderers`` (the clients'
+``--renderer``: ``gl``, OpenGL at level of detail auto, or ``mitsuba``), one right after the other, each
+cold run against a fresh store of its own; every row's config names its ``renderer``. Where no GL context
+opens, ``gl`` is left out after one warning. Rows with ``stat = renderer_ratio`` (config ``renderer =
+gl/mitsuba``) divide each stage's median with gl by the same stage's median with mitsuba, same run.
 
-- GIGAN: ``gi_render`` (DI + G-buffers + texel depth at the GI camera: the generator's input),
+**Stages** (``metric``; median and p95 over the maps, ms). A map's interaction latency (``total``) is the
+sum of every stage from the request to the composition of the first frame showing it, that frame's local
+DI render (``di``) included: both systems run it, and it is no longer free to leave out once the other
+passes are rasterised. Every stage counts toward the system that needs it:
+
+- GIGAN: ``di``, ``gi_render`` (DI + G-buffers + texel depth at the GI camera: the generator's input),
   ``inference`` (``GIModel.predict``, with its pre- and post-processing), ``warp`` (the structure-aware
   warp's per-map ``bind`` plus its per-frame stages on the frame that binds the map, the local
   uv/position ``raster`` included), ``blend`` (composition);
-- cloud baking (the split is :mod:`baseline_cloudbaking.client`'s): ``transmission`` = ``request``
-  (time to the response's first byte minus the server's time: upload, round trip, HTTP and proxy
-  overhead) + ``transfer`` (first to last response byte); the server's ``lookup``, ``read`` (hit) or
-  ``render``, ``denoise``, ``encode`` (miss) and ``server_other``; ``decode``; ``warp`` (pixel-level:
-  ``bind`` plus per-frame stages, its surface-mask ``raster`` included); ``blend``. ``pickup`` (arrival
-  to the next frame taking the map) is reported, not counted: it is a wait for the frame clock.
+- cloud baking (the split is :mod:`baseline_cloudbaking.client`'s): ``transmission`` = ``request`` (time to
+  the response's first byte minus the server's time: upload, round trip, HTTP and proxy overhead) +
+  ``transfer`` (first to last response byte); the server's ``lookup``, ``read`` (hit) or ``render``,
+  ``denoise``, ``encode`` (miss) and ``server_other``; ``decode``; ``di``; ``warp`` (pixel-level: ``bind``
+  plus per-frame stages, its surface-mask ``raster`` included); ``blend``. ``pickup`` (arrival to the next
+  frame taking the map) is reported, not counted: it is a wait for the frame clock.
 
 Stage medians do not add up to the median total (each is a median of its own samples).
 
-**Ratio and crossover.** ``total_ratio``: cloud baking's median total over GIGAN's, per profile and
-cache state. The crossover RTT (``crossover_rtt``) is where the link model says GIGAN's median total
-beats cloud baking's: cloud's total at a round-trip time ``r`` is its measured non-network stages
-(median of total minus transmission) plus the network time of its median request and response bytes
-through :mod:`network_sim.link`'s virtual-clock model of a link with ``r / 2`` each way at
-``sweep_rate_mbit`` (unlimited by default: RTT alone, as the ``rtt*`` profiles); 0 when GIGAN is faster
-at any RTT. The same model at each measured profile (``total_model``) is set beside the process runs'
-median; their difference is the HTTP and proxy overhead the link model does not have (so the
+**Ratio and crossover.** ``total_ratio``: cloud baking's median total over GIGAN's, per profile, cache state
+and renderer (both systems on the same renderer). The crossover RTT (``crossover_rtt``, per cache state and
+renderer) is where the link model says GIGAN's median total beats cloud baking's: cloud's total at a
+round-trip time ``r`` is its measured non-network stages (median of total minus transmission) plus the network
+time of its median request and response bytes through :mod:`network_sim.link`'s virtual-clock model of a link
+with ``r / 2`` each way at ``sweep_rate_mbit`` (unlimited by default: RTT alone, as the ``rtt*`` profiles); 0
+when GIGAN is faster at any RTT. The same model at each measured profile (``total_model``) is set beside the
+process runs' median; their difference is the HTTP and proxy overhead the link model does not have (so the
 crossover errs in cloud baking's favour by about that much).
 
 **Quality along the path.** Each client scores its composed frames against the path-traced GT every
@@ -54,6 +60,7 @@ bars, the ratio against RTT, SSIM along the path; each client's own CSVs under `
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import shutil
@@ -74,6 +81,7 @@ from bench.runner import Bench, Block, Figure, Part, Rows, Section, Table, cell,
 from bench.svg import Point, Series, XYChart
 from gicore.blend import COMPOSITIONS
 from gicore.cli import UserError
+from gicore.loop import RENDERERS
 from gicore.results import Results, read_rows
 from gigan_local.inference import DEFAULT_MODEL
 
@@ -81,7 +89,7 @@ CodecName = Literal[CODEC_NAMES]  # type: ignore[valid-type]
 BIN = Path(sys.executable).parent
 GIGAN, CLOUD = "gigan", "cloud_baking"
 #: GIGAN's stages, then cloud baking's, in the order a map goes through them (``total`` last).
-GIGAN_STAGES = ("gi_render", "inference", "warp", "blend")
+GIGAN_STAGES = ("di", "gi_render", "inference", "warp", "blend")
 CLOUD_STAGES = (
     "transmission",
     "request",
@@ -93,6 +101,7 @@ CLOUD_STAGES = (
     "encode",
     "server_other",
     "decode",
+    "di",
     "warp",
     "blend",
 )
@@ -134,6 +143,9 @@ class LatencyConfig:
     sweep_max_rtt_ms: float = 500.0
     #: The cloud client's read timeout, s (bounds one miss's server render; its deadline is twice it).
     read_timeout_s: float = 120.0
+    #: Renderers of both clients' per-frame raster passes, each a run of every client side by side: gl (OpenGL,
+    #: level of detail auto; left out with one warning where no GL context opens) and/or mitsuba.
+    renderers: tuple[str, ...] = ("gl", "mitsuba")
 
     @classmethod
     def quick(cls) -> LatencyConfig:
@@ -150,6 +162,11 @@ class LatencyConfig:
                     f"use some of {', '.join(known)} (see network-sim profiles)",
                 )
         check_model_resolution(self.model, self.resolution)
+        for name in self.renderers:
+            if name not in RENDERERS:
+                raise UserError(f"--renderers {name!r} is not a renderer", f"use some of {', '.join(RENDERERS)}")
+        if len(set(self.renderers)) != len(self.renderers):
+            raise UserError(f"--renderers {','.join(self.renderers)} names a renderer twice", "name each once")
 
 
 # -- processes ----------------------------------------------------------------------------------------------
@@ -264,6 +281,35 @@ def _fill_store(url: str, cfg: LatencyConfig, scene: str, seed: int, off_path: b
 
 
 # -- measuring ----------------------------------------------------------------------------------------------
+def available_renderers(asked: tuple[str, ...]) -> tuple[tuple[str, ...], dict[str, Any]]:
+    """The renderers of ``asked`` that can run here, and what to record about them: ``gl`` needs a headless GL
+    context (checked in this process, as the clients would open it); without one it is left out after one
+    line on stderr, and ``mitsuba`` runs instead where nothing else would."""
+    from gicore.gl import gl_available
+
+    settings: dict[str, Any] = {"asked": list(asked)}
+    ran = asked
+    if "gl" in asked:
+        ok, info = gl_available()
+        settings["gl"] = info
+        if not ok:
+            print(f"warning: renderer gl is unavailable, measuring mitsuba alone: {info}", file=sys.stderr, flush=True)
+            ran = tuple(r for r in asked if r != "gl") or ("mitsuba",)
+    settings["ran"] = list(ran)
+    return ran, settings
+
+
+def _ran_on(folder: Path, renderer: str) -> Path:
+    """``folder`` (a client's output) after checking that its raster passes ran on ``renderer``: a client that
+    fell back would put another renderer's times under this one's name."""
+    import json
+
+    used = json.loads((folder / "summary.json").read_text())["renderer"]
+    if used != renderer:
+        raise RuntimeError(f"the client in {folder} was asked for renderer {renderer} but ran {used}")
+    return folder
+
+
 def measure(cfg: LatencyConfig, res: Results) -> None:
     from gicore.scene import load_scene
 
@@ -274,6 +320,7 @@ def measure(cfg: LatencyConfig, res: Results) -> None:
     work.mkdir(parents=True, exist_ok=True)
     plan = pinning(cfg.pin)
     res.settings["pinning"] = plan
+    renderers, res.settings["renderers"] = available_renderers(cfg.renderers)
     common = {
         "resolution": cfg.resolution,
         "k": cfg.every,
@@ -289,9 +336,14 @@ def measure(cfg: LatencyConfig, res: Results) -> None:
                  "--gt-every", str(cfg.gt_every), "--composition", cfg.composition,
                  "--seed", str(res.seed)]  # fmt: skip
 
+    def client(argv: list[str], name: str, renderer: str) -> Path:
+        return _ran_on(_client(plan, [*argv, "--renderer", renderer], work / f"{name}_{renderer}", per_run), renderer)
+
+    # Runs are keyed (system, profile, store, renderer); each renderer's run of a slot follows the other's at once,
+    # so the renderers' ratios compare runs taken minutes apart at most, under the same load.
     gigan_argv = [str(BIN / "gigan-client"), *path_args, "--gi-source", "model", "--model", str(cfg.model),
                   "--threads", str(_threads(plan, "client"))]  # fmt: skip
-    runs = {(GIGAN, "none", "local"): _client(plan, gigan_argv, work / "gigan", per_run)}
+    runs = {(GIGAN, "none", "local", r): client(gigan_argv, "gigan", r) for r in renderers}
     cloud_argv = [str(BIN / "cloudbaking-client"), *path_args, "--codec", cfg.codec,
                   "--read-timeout", str(cfg.read_timeout_s), "--deadline", str(2 * cfg.read_timeout_s)]  # fmt: skip
     shutil.rmtree(work / "store_prebaked", ignore_errors=True)  # every run prebakes its own store
@@ -318,21 +370,23 @@ def measure(cfg: LatencyConfig, res: Results) -> None:
             **common,
         )
         for profile in cfg.profiles:
-            with _proxy(plan, profile, warm, res.seed) as url:
-                runs[CLOUD, profile, "prebaked"] = _client(
-                    plan, [*cloud_argv, "--server", url], work / f"cloud_{profile}_prebaked", per_run
-                )
-            store = work / f"store_cold_{profile}"
-            shutil.rmtree(store, ignore_errors=True)
-            with pinned_server(plan, store, scenes_dir) as cold:
-                _fill_store(
-                    cold, cfg, scene, res.seed, off_path=True
-                )  # compiles the scene and every pass, off the path
-                with _proxy(plan, profile, cold, res.seed) as url:
-                    runs[CLOUD, profile, "cold"] = _client(
-                        plan, [*cloud_argv, "--server", url], work / f"cloud_{profile}_cold", per_run
+            # the prebaked store answers every renderer's run (its maps do not depend on the client's renderer)
+            for renderer in renderers:
+                with _proxy(plan, profile, warm, res.seed) as url:
+                    runs[CLOUD, profile, "prebaked", renderer] = client(
+                        [*cloud_argv, "--server", url], f"cloud_{profile}_prebaked", renderer
                     )
-            shutil.rmtree(store, ignore_errors=True)
+            # a cold store per renderer: each run's requests miss as the other's did
+            for renderer in renderers:
+                store = work / f"store_cold_{profile}_{renderer}"
+                shutil.rmtree(store, ignore_errors=True)
+                with pinned_server(plan, store, scenes_dir) as cold:
+                    _fill_store(cold, cfg, scene, res.seed, off_path=True)  # compiles the scene and every pass
+                    with _proxy(plan, profile, cold, res.seed) as url:
+                        runs[CLOUD, profile, "cold", renderer] = client(
+                            [*cloud_argv, "--server", url], f"cloud_{profile}_cold", renderer
+                        )
+                shutil.rmtree(store, ignore_errors=True)
     shutil.rmtree(work / "store_prebaked", ignore_errors=True)
     record(res, spec.name, cfg, runs, common)
 
@@ -356,6 +410,7 @@ def gigan_samples(frames: list[dict[str, str]]) -> dict[str, list[float]]:
     samples: dict[str, list[float]] = {s: [] for s in (*GIGAN_STAGES, "total")}
     for row in (r for r in frames if r["gi_new"] == "1"):
         stage = {
+            "di": float(row["di_ms"]),
             "gi_render": float(row["gi_render_ms"]),
             "inference": float(row["inference_ms"]),
             "warp": float(row["bind_ms"]) + sum(float(row[f"{s}_ms"]) for s in per_frame),
@@ -393,14 +448,28 @@ def cloud_samples(requests: list[dict[str, str]]) -> dict[str, dict[str, list[fl
 
 
 def record(
+    res: Results,
+    scene: str,
+    cfg: LatencyConfig,
+    runs: dict[tuple[str, str, str, str], Path],
+    common: dict[str, Any],
+) -> None:
+    """Rows of every run (per renderer), then the renderers' ratios (:func:`record_renderer_ratios`)."""
+    for renderer in dict.fromkeys(key[3] for key in runs):
+        mine = {key[:3]: folder for key, folder in runs.items() if key[3] == renderer}
+        record_renderer(res, scene, cfg, mine, common | {"renderer": renderer})
+    record_renderer_ratios(res, scene)
+
+
+def record_renderer(
     res: Results, scene: str, cfg: LatencyConfig, runs: dict[tuple[str, str, str], Path], common: dict[str, Any]
 ) -> None:
-    """Rows of every run: stage timings, ratios, the link model's check and crossover, quality along the path."""
+    """Rows of one renderer's runs: stage timings, ratios, the link model's check and crossover, quality along
+    the path."""
     from network_sim import profiles as profile_table
 
     gigan_frames = _csv(runs[GIGAN, "none", "local"] / "frames.csv")
     gigan = gigan_samples(gigan_frames)
-    gigan["di"] = [float(r["di_ms"]) for r in gigan_frames]
     model = {"model": cfg.model.name}
     for stage, values in gigan.items():
         res.add_timing(
@@ -425,8 +494,6 @@ def record(
             merged = cloud.setdefault((profile, cache), {})
             for name, values in samples.items():
                 merged.setdefault(name, []).extend(values)
-        merged_di = cloud.setdefault((profile, "any"), {}).setdefault("di", [])
-        merged_di.extend(float(r["di_ms"]) for r in frames)
         failures = sum(r["status"] not in ("ok", "abandoned") for r in requests)
         res.add(
             system=CLOUD,
@@ -442,13 +509,11 @@ def record(
 
     for (profile, cache), samples in cloud.items():
         config = {"profile": profile, "cache": cache, "codec": cfg.codec} | common
-        for stage in (*CLOUD_STAGES, "total", "pickup", "di"):
+        for stage in (*CLOUD_STAGES, "total", "pickup"):
             if samples.get(stage):
                 res.add_timing(
                     system=CLOUD, scene=scene, metric=stage, samples_s=[v / 1e3 for v in samples[stage]], **config
                 )
-        if cache == "any":
-            continue
         for name in ("bytes_up", "bytes_down"):
             res.add(
                 system=CLOUD,
@@ -512,6 +577,40 @@ def record(
                 rtt_ms=float(rtt),
                 **config,
             )
+
+
+#: The renderers' ratio rows: numerator / denominator, each stage's median of one run over the other's.
+RENDERER_RATIO = ("gl", "mitsuba")
+
+
+def record_renderer_ratios(res: Results, scene: str) -> None:
+    """``stat = "renderer_ratio"`` rows (config ``renderer = "gl/mitsuba"``): for every stage median both
+    renderers measured in this run with otherwise equal settings, gl's over mitsuba's."""
+    num, den = RENDERER_RATIO
+    medians = [r for r in res.rows if r["stat"] == "median" and r["unit"] == "ms"]
+
+    def key(r: dict[str, Any]) -> tuple:
+        config = json.loads(r["config"])
+        rest = tuple(sorted((k, json.dumps(v)) for k, v in config.items() if k != "renderer"))
+        return r["system"], r["metric"], rest
+
+    by_renderer: dict[str, dict[tuple, dict[str, Any]]] = {}
+    for r in medians:
+        by_renderer.setdefault(json.loads(r["config"]).get("renderer"), {})[key(r)] = r
+    for k, r in by_renderer.get(num, {}).items():
+        other = by_renderer.get(den, {}).get(k)
+        if other is None or not other["value"] > 0:
+            continue
+        config = json.loads(r["config"]) | {"renderer": f"{num}/{den}"}
+        res.add(
+            system=r["system"],
+            scene=scene,
+            metric=r["metric"],
+            value=r["value"] / other["value"],
+            unit="1",
+            stat="renderer_ratio",
+            **config,
+        )
 
 
 def _pool(groups: list[dict[str, list[float]]]) -> dict[str, list[float]]:
@@ -620,11 +719,31 @@ TABLE_ROWS = (
     ("gi_render", "GI-camera render (DI + G-buffers)"),
     ("inference", "inference"),
     ("decode", "decode"),
+    ("di", "local DI render (the frame showing the map)"),
     ("warp", "warp (per-map bind + per-frame, raster included)"),
     ("blend", "blend"),
     ("total", "**total (interaction latency)**"),
 )
 COLUMNS = ((GIGAN, None, "GIGAN"), (CLOUD, "hit", "cloud baking, hit"), (CLOUD, "miss", "cloud baking, miss"))
+#: The stages the renderers' comparison shows: those a raster pass is in, and the totals.
+RENDERER_ROWS = (("di", "local DI render"), ("gi_render", "GI-camera render"), ("warp", "warp"), ("total", "total"))
+
+
+def with_renderer(rows: list[dict]) -> list[dict]:
+    """The rows, each config naming its renderer: runs from before the clients had a choice ran Mitsuba's. Their
+    ``di`` rows are left out: they timed every frame's DI, which their totals did not count."""
+    return [
+        r if "renderer" in r["config"] else r | {"config": r["config"] | {"renderer": "mitsuba"}}
+        for r in rows
+        if "renderer" in r["config"] or r["metric"] != "di"
+    ]
+
+
+def renderers_of(rows: list[dict]) -> list[str]:
+    """The renderers with measured totals, in the run's order."""
+    return list(
+        dict.fromkeys(r["config"]["renderer"] for r in rows if r["metric"] == "total" and r["stat"] == "median")
+    )
 
 
 def _lookup(rows: list[dict], system: str, metric: str, stat: str, **config: Any) -> float | None:
@@ -636,67 +755,77 @@ def _lookup(rows: list[dict], system: str, metric: str, stat: str, **config: Any
     return None
 
 
-def _column_config(system: str, cache: str | None, profile: str) -> dict[str, Any]:
-    return {"profile": "none"} if system == GIGAN else {"profile": profile, "cache": cache}
+def _column_config(system: str, cache: str | None, profile: str, renderer: str) -> dict[str, Any]:
+    where = {"profile": "none"} if system == GIGAN else {"profile": profile, "cache": cache}
+    return where | {"renderer": renderer}
+
+
+def _profiles(rows: list[dict]) -> list[str]:
+    return list(dict.fromkeys(r["config"]["profile"] for r in rows if r["system"] == CLOUD and "cache" in r["config"]))
 
 
 def table(rows: list[dict]) -> str:
-    """Table 1 per profile (median ms, p95 in brackets), the ratios, the link model's check and the crossovers."""
-    profiles = list(
-        dict.fromkeys(r["config"]["profile"] for r in rows if r["system"] == CLOUD and "cache" in r["config"])
-    )
+    """Table 1 per profile, a column per system and renderer (median ms, p95 in brackets), the ratios, the link
+    model's check, the renderers side by side and the crossovers."""
+    rows = with_renderer(rows)
+    renderers = renderers_of(rows)
+    columns = [
+        (system, cache, renderer, f"{label}, {renderer}") for renderer in renderers for system, cache, label in COLUMNS
+    ]
+    profiles = _profiles(rows)
     scene = rows[0]["scene"] if rows else ""
     lines = [f"## Table 1: interaction latency, {scene} (ms: median, p95 in brackets)", ""]
     for profile in profiles:
-        rtt = _lookup(rows, f"{CLOUD}/{GIGAN}", "total_ratio", "median", profile=profile)
         rtt_ms = next(
             (r["config"]["rtt_ms"] for r in rows if r["metric"] == "total_ratio" and r["config"]["profile"] == profile),
             None,
         )
-        lines += [f"### profile `{profile}`" + (f" (RTT {rtt_ms:g} ms)" if rtt is not None else ""), ""]
-        lines += ["| stage | " + " | ".join(label for _, _, label in COLUMNS) + " |", "|---" * (1 + len(COLUMNS)) + "|"]
+        lines += [f"### profile `{profile}`" + (f" (RTT {rtt_ms:g} ms)" if rtt_ms is not None else ""), ""]
+        lines += ["| stage | " + " | ".join(c[3] for c in columns) + " |", "|---" * (1 + len(columns)) + "|"]
         for metric, label in TABLE_ROWS:
             cells = []
-            for system, cache, _ in COLUMNS:
-                median = _lookup(rows, system, metric, "median", **_column_config(system, cache, profile))
-                p95 = _lookup(rows, system, metric, "p95", **_column_config(system, cache, profile))
+            for system, cache, renderer, _ in columns:
+                where = _column_config(system, cache, profile, renderer)
+                median = _lookup(rows, system, metric, "median", **where)
+                p95 = _lookup(rows, system, metric, "p95", **where)
                 cells.append("—" if median is None else f"{median:.1f} ({p95:.1f})")
             if any(c != "—" for c in cells):
                 lines.append(f"| {label} | " + " | ".join(cells) + " |")
-        ratio = [
-            _lookup(rows, f"{CLOUD}/{GIGAN}", "total_ratio", "median", profile=profile, cache=c)
-            for _, c, _ in COLUMNS[1:]
-        ]
+
+        def cloud_cells(system: str, metric: str, spec: str) -> str:
+            values = [
+                None if s == GIGAN else _lookup(rows, system, metric, "median", profile=profile, cache=c, renderer=r)
+                for s, c, r, _ in columns
+            ]
+            return " | ".join(cell(v, spec) if v is not None else "—" for v in values)
+
         lines.append(
-            "| ratio of totals, cloud / GIGAN | — | "
-            + " | ".join("—" if r is None else f"**{r:.2f}**" for r in ratio)
+            "| ratio of totals, cloud / GIGAN (same renderer) | "
+            + cloud_cells(f"{CLOUD}/{GIGAN}", "total_ratio", ".2f")
             + " |"
         )
-        model = [_lookup(rows, CLOUD, "total_model", "median", profile=profile, cache=c) for _, c, _ in COLUMNS[1:]]
-        lines.append(
-            "| total by the link model (check) | — | "
-            + " | ".join("—" if m is None else f"{m:.1f}" for m in model)
-            + " |"
-        )
-        counts = [_lookup(rows, s, "total", "n", **_column_config(s, c, profile)) for s, c, _ in COLUMNS]
+        lines.append("| total by the link model (check) | " + cloud_cells(CLOUD, "total_model", ".1f") + " |")
+        counts = [_lookup(rows, s, "total", "n", **_column_config(s, c, profile, r)) for s, c, r, _ in columns]
         lines.append("| maps measured | " + " | ".join("0" if n is None else f"{n:.0f}" for n in counts) + " |")
-        di = [
-            _lookup(
-                rows, s, "di", "median", **({"profile": "none"} if s == GIGAN else {"profile": profile, "cache": "any"})
-            )
-            for s in (GIGAN, CLOUD)
+        pickup = [
+            cell(_lookup(rows, CLOUD, "pickup", "median", profile=profile, cache=c, renderer=r))
+            for r in renderers
+            for c in ("hit", "miss")
         ]
-        pickup = [_lookup(rows, CLOUD, "pickup", "median", profile=profile, cache=c) for c in ("hit", "miss")]
-        note = "Not in the totals: the local DI render both systems run every frame (median "
-        note += " / ".join("—" if d is None else f"{d:.1f}" for d in di) + " ms in the GIGAN / cloud runs); "
-        note += (
-            "cloud baking's wait from a map's arrival to the next frame taking it (median "
-            + " / ".join("—" if p is None else f"{p:.1f}" for p in pickup)
-            + " ms, hit / miss)."
-        )
-        lines += ["", note, ""]
+        lines += [
+            "",
+            "Not in the totals: cloud baking's wait from a map's arrival to the next frame taking it (median "
+            + " / ".join(pickup)
+            + " ms: "
+            + " / ".join(f"{c} {r}" for r in renderers for c in ("hit", "miss"))
+            + ").",
+            "",
+        ]
+    lines += _renderer_table(rows, profiles)
     crossings = [
-        (r["config"]["cache"], r["value"], r["config"].get("rate_mbit")) for r in rows if r["metric"] == "crossover_rtt"
+        (r["config"]["renderer"], r["config"]["cache"], r["value"], r["config"].get("rate_mbit"))
+        for r in rows
+        if r["metric"] == "crossover_rtt"
     ]
     if crossings:
         lines += [
@@ -704,37 +833,57 @@ def table(rows: list[dict]) -> str:
             "(link model, measured stages)",
             "",
         ]
-        lines += ["| cache | crossover RTT (ms) | link rate |", "|---|---|---|"]
-        for cache, value, rate in crossings:
+        lines += ["| renderer | cache | crossover RTT (ms) | link rate |", "|---|---|---|---|"]
+        for renderer, cache, value, rate in crossings:
             shown = (
                 "0 (GIGAN is faster at any RTT)"
                 if value == 0
                 else ("none up to a minute" if math.isinf(value) else f"{value:.0f}")
             )
-            lines.append(f"| {cache} | {shown} | {'unlimited' if rate is None else f'{rate:g} Mbit/s'} |")
+            lines.append(f"| {renderer} | {cache} | {shown} | {'unlimited' if rate is None else f'{rate:g} Mbit/s'} |")
         lines.append("")
     return "\n".join(lines)
+
+
+def _renderer_table(rows: list[dict], profiles: list[str]) -> list[str]:
+    """The renderers side by side: each raster stage's and each total's median with gl over with mitsuba, from
+    the same run (none when the run measured one renderer)."""
+    ratios = [r for r in rows if r["stat"] == "renderer_ratio"]
+    if not ratios:
+        return []
+    num, den = RENDERER_RATIO
+    where = [(GIGAN, {"profile": "none"}, "GIGAN")]
+    where += [(CLOUD, {"profile": p, "cache": c}, f"cloud {c}, `{p}`") for p in profiles for c in ("hit", "miss")]
+    lines = [f"### renderers side by side: median with {num} / median with {den} (same run)", ""]
+    lines += ["| stage | " + " | ".join(label for *_, label in where) + " |", "|---" * (1 + len(where)) + "|"]
+    for metric, label in RENDERER_ROWS:
+        values = [_lookup(ratios, s, metric, "renderer_ratio", **config) for s, config, _ in where]
+        if any(v is not None for v in values):
+            lines.append(f"| {label} | " + " | ".join(cell(v, ".2f") for v in values) + " |")
+    return [*lines, ""]
 
 
 def plot(csv_path: Path, out_dir: Path) -> list[Path]:
     """``latency_table.md`` (printed too), stacked stage bars, ratio against RTT, SSIM along the path."""
     from gicore.plotting import plt, save
 
-    rows = read_rows(csv_path)
+    raw = read_rows(csv_path)
     md = out_dir / "latency_table.md"
-    text = table(rows)
+    text = table(raw)
     md.write_text(text + "\n")
     print(text)
     written = [md]
-    profiles = list(
-        dict.fromkeys(r["config"]["profile"] for r in rows if r["system"] == CLOUD and "cache" in r["config"])
-    )
+    rows = with_renderer(raw)
+    renderers = renderers_of(rows)
+    profiles = _profiles(rows)
 
-    # stacked stage bars: one bar per system and profile (GIGAN's once, it needs no network)
-    bars = [("GIGAN", GIGAN, {"profile": "none"}, GIGAN_STAGES)]
+    # stacked stage bars: one bar per system, profile and renderer (GIGAN's once per renderer: it needs no network)
     cloud_stages = tuple(s for s in CLOUD_STAGES if s not in TRANSMISSION_PARTS)
-    bars += [(f"cloud {c}, {p}", CLOUD, {"profile": p, "cache": c}, cloud_stages)
-             for p in profiles for c in ("hit", "miss")]  # fmt: skip
+    bars = []
+    for r in renderers:
+        bars.append((f"GIGAN, {r}", GIGAN, {"profile": "none", "renderer": r}, GIGAN_STAGES))
+        bars += [(f"cloud {c}, {p}, {r}", CLOUD, {"profile": p, "cache": c, "renderer": r}, cloud_stages)
+                 for p in profiles for c in ("hit", "miss")]  # fmt: skip
     bars = [b for b in bars if _lookup(rows, b[1], "total", "median", **b[2]) is not None]
     stages = list(dict.fromkeys(s for *_, names in bars for s in names))
     colours = dict(zip(stages, plt.cm.tab20(np.linspace(0, 1, max(len(stages), 2)))))
@@ -762,29 +911,31 @@ def plot(csv_path: Path, out_dir: Path) -> list[Path]:
 
     # ratio of totals against RTT: the link model's curve, the measured profiles as points
     fig, ax = plt.subplots(figsize=(7, 4.2))
-    for cache, colour in (("hit", "tab:blue"), ("miss", "tab:red")):
-        curve = sorted(
-            (r["config"]["rtt_ms"], r["value"])
-            for r in rows
-            if r["metric"] == "ratio_model" and r["config"]["cache"] == cache
-        )
-        if curve:
-            ax.plot(*zip(*curve), "-", color=colour, label=f"{cache}: link model")
-        points = [
-            (r["config"]["rtt_ms"], r["value"], r["config"]["profile"])
-            for r in rows
-            if r["metric"] == "total_ratio" and r["config"]["cache"] == cache
-        ]
-        for rtt, value, profile in points:
-            ax.plot(rtt, value, "o", color=colour)
-            ax.annotate(profile, (rtt, value), textcoords="offset points", xytext=(4, 4), fontsize=7)
-        crossing = _lookup(rows, f"{CLOUD}/{GIGAN}", "crossover_rtt", "model", cache=cache)
-        if crossing is not None and 0 < crossing < math.inf:
-            ax.axvline(crossing, color=colour, ls=":", lw=1)
+    for renderer, style in zip(renderers, ("-", "--")):
+        for cache, colour in (("hit", "tab:blue"), ("miss", "tab:red")):
+            mine = {"cache": cache, "renderer": renderer}
+            curve = sorted(
+                (r["config"]["rtt_ms"], r["value"])
+                for r in rows
+                if r["metric"] == "ratio_model" and r["config"].items() >= mine.items()
+            )
+            if curve:
+                ax.plot(*zip(*curve), style, color=colour, label=f"{cache}, {renderer}: link model")
+            points = [
+                (r["config"]["rtt_ms"], r["value"], r["config"]["profile"])
+                for r in rows
+                if r["metric"] == "total_ratio" and r["config"].items() >= mine.items()
+            ]
+            for rtt, value, profile in points:
+                ax.plot(rtt, value, "o" if style == "-" else "s", color=colour, mfc="none" if style != "-" else colour)
+                ax.annotate(profile, (rtt, value), textcoords="offset points", xytext=(4, 4), fontsize=7)
+            crossing = _lookup(rows, f"{CLOUD}/{GIGAN}", "crossover_rtt", "model", **mine)
+            if crossing is not None and 0 < crossing < math.inf:
+                ax.axvline(crossing, color=colour, ls=":", lw=1)
     ax.axhline(1.0, color="k", lw=0.8)
     ax.set_yscale("log")
     ax.set_xlabel("round-trip time [ms] (points: measured profiles, whatever their rate)")
-    ax.set_ylabel("cloud baking total / GIGAN total")
+    ax.set_ylabel("cloud baking total / GIGAN total (same renderer)")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     ax.set_title("Above 1: GIGAN is faster")
@@ -796,18 +947,26 @@ def plot(csv_path: Path, out_dir: Path) -> list[Path]:
         fig, axes = plt.subplots(
             1, len(profiles) or 1, figsize=(4.5 * max(len(profiles), 1), 3.6), squeeze=False, sharey=True
         )
-        gigan = sorted((r["config"]["frame"], r["value"]) for r in scored if r["system"] == GIGAN)
         for ax, profile in zip(axes[0], profiles or ["none"]):
-            if gigan:
-                ax.plot(*zip(*gigan), "-o", ms=3, color="tab:green", label="GIGAN")
-            for store, colour in (("prebaked", "tab:blue"), ("cold", "tab:red")):
-                line = sorted(
+            for renderer, style in zip(renderers, ("-", "--")):
+                gigan = sorted(
                     (r["config"]["frame"], r["value"])
                     for r in scored
-                    if r["system"] == CLOUD and (r["config"]["profile"], r["config"]["store"]) == (profile, store)
+                    if r["system"] == GIGAN and r["config"]["renderer"] == renderer
                 )
-                if line:
-                    ax.plot(*zip(*line), "-s", ms=3, color=colour, label=f"cloud baking, {store} store")
+                if gigan:
+                    ax.plot(*zip(*gigan), style, marker="o", ms=3, color="tab:green", label=f"GIGAN, {renderer}")
+                for store, colour in (("prebaked", "tab:blue"), ("cold", "tab:red")):
+                    mine = (profile, store, renderer)
+                    line = sorted(
+                        (r["config"]["frame"], r["value"])
+                        for r in scored
+                        if r["system"] == CLOUD
+                        and (r["config"]["profile"], r["config"]["store"], r["config"]["renderer"]) == mine
+                    )
+                    if line:
+                        label = f"cloud baking, {store} store, {renderer}"
+                        ax.plot(*zip(*line), style, marker="s", ms=3, color=colour, label=label)
             ax.set_title(f"profile {profile}")
             ax.set_xlabel("frame")
             ax.grid(alpha=0.3)
@@ -819,87 +978,120 @@ def plot(csv_path: Path, out_dir: Path) -> list[Path]:
 
 # -- bench report: the dashboard's section and the README's block ------------------------------------------
 def dashboard_section(rows: Rows) -> list[Part]:
-    """Table 1 in full, then the ratio of totals against RTT: the link model's curve, the measured profiles."""
+    """Table 1 in full, then the ratio of totals against RTT: the link model's curve, the measured profiles
+    (per renderer)."""
     need(rows, "total")
+    named = with_renderer(rows)
     lines = []
-    for cache in ("hit", "miss"):
-        model = [
-            Point(
-                r["config"]["rtt_ms"],
-                r["value"],
-                f"{cache}, link model: RTT {r['config']['rtt_ms']:g} ms → ratio {r['value']:.3g}",
-            )
-            for r in pick(rows, "ratio_model")
-            if r["config"].get("cache") == cache
-        ]
-        measured = [
-            Point(
-                r["config"]["rtt_ms"], r["value"], f"{cache}, profile {r['config']['profile']}: ratio {r['value']:.3g}"
-            )
-            for r in pick(rows, "total_ratio")
-            if r["config"].get("cache") == cache
-        ]
-        if model:
-            lines.append(Series(f"{cache}: link model", model))
-        if measured:
-            lines.append(Series(f"{cache}: measured profiles", measured, line=False))
+    for renderer in renderers_of(named):
+        for cache in ("hit", "miss"):
+            mine = {"cache": cache, "renderer": renderer}
+            model = [
+                Point(
+                    r["config"]["rtt_ms"],
+                    r["value"],
+                    f"{cache}, {renderer}, link model: RTT {r['config']['rtt_ms']:g} ms → ratio {r['value']:.3g}",
+                )
+                for r in pick(named, "ratio_model")
+                if r["config"].items() >= mine.items()
+            ]
+            measured = [
+                Point(
+                    r["config"]["rtt_ms"],
+                    r["value"],
+                    f"{cache}, {renderer}, profile {r['config']['profile']}: ratio {r['value']:.3g}",
+                )
+                for r in pick(named, "total_ratio")
+                if r["config"].items() >= mine.items()
+            ]
+            if model:
+                lines.append(Series(f"{cache}, {renderer}: link model", model))
+            if measured:
+                lines.append(Series(f"{cache}, {renderer}: measured profiles", measured, line=False))
     figure = XYChart(
         lines,
         "round-trip time [ms]",
         "cloud total / GIGAN total",
         ylog=True,
-        caption="Above 1: GIGAN's interaction latency is lower.",
+        caption="Above 1: GIGAN's interaction latency is lower (each system on the same renderer).",
     )
     return [Table(table(rows)), Figure((figure,))] if lines else [Table(table(rows))]
 
 
 def readme_block(rows: Rows) -> list[Table]:
-    """Table 1 in short: one line per network profile (totals, ratio, SSIM), GIGAN's stages, the crossover RTTs."""
+    """Table 1 in short: one line per network profile and renderer (totals, ratio, SSIM), GIGAN's stages, the
+    renderers' ratios and the crossover RTTs."""
     need(rows, "total", "total_ratio")
+    rows = with_renderer(rows)
     ratios = pick(rows, "total_ratio")
     rtt = {r["config"]["profile"]: r["config"].get("rtt_ms") for r in ratios}
+    renderers = renderers_of(rows)
     c = ratios[0]["config"]
-    gigan = _lookup(rows, GIGAN, "total", "median", profile="none")
     lines = [
         f"{rows[0]['scene']}, {c.get('resolution')}², {c.get('frames')} frames, GI period k = {c.get('k')}, "
-        f"{c.get('spp')} spp + OIDN on the server, {c.get('codec')} maps; medians in ms.",
+        f"{c.get('spp')} spp + OIDN on the server, {c.get('codec')} maps; the clients' raster passes on "
+        f"{' and on '.join(renderers)}; medians in ms.",
         "",
-        "| profile (RTT) | GIGAN | cloud hit | cloud miss | cloud / GIGAN: hit / miss "
+        "| profile (RTT) | renderer | GIGAN | cloud hit | cloud miss | cloud / GIGAN: hit / miss "
         "| mean SSIM vs GT: GIGAN / prebaked / cold |",
-        "|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|",
     ]
     for profile, rtt_ms in rtt.items():
-        hit, miss = (_lookup(rows, CLOUD, "total", "median", profile=profile, cache=cache) for cache in ("hit", "miss"))
-        ratio = [
-            _lookup(rows, f"{CLOUD}/{GIGAN}", "total_ratio", "median", profile=profile, cache=cache)
-            for cache in ("hit", "miss")
-        ]
-        ssim = [_lookup(rows, GIGAN, "ssim", "mean", profile="none")]
-        ssim += [_lookup(rows, CLOUD, "ssim", "mean", profile=profile, store=store) for store in ("prebaked", "cold")]
+        for renderer in renderers:
+            gigan = _lookup(rows, GIGAN, "total", "median", profile="none", renderer=renderer)
+            totals = [
+                _lookup(rows, CLOUD, "total", "median", profile=profile, cache=cache, renderer=renderer)
+                for cache in ("hit", "miss")
+            ]
+            ratio = [
+                _lookup(
+                    rows, f"{CLOUD}/{GIGAN}", "total_ratio", "median", profile=profile, cache=cache, renderer=renderer
+                )
+                for cache in ("hit", "miss")
+            ]
+            ssim = [_lookup(rows, GIGAN, "ssim", "mean", profile="none", renderer=renderer)]
+            ssim += [
+                _lookup(rows, CLOUD, "ssim", "mean", profile=profile, store=store, renderer=renderer)
+                for store in ("prebaked", "cold")
+            ]
+            lines.append(
+                f"| `{profile}` ({cell(rtt_ms, 'g')} ms) | {renderer} | {cell(gigan)} | {cell(totals[0])} | "
+                f"{cell(totals[1])} | "
+                + " / ".join(cell(r, ".2f") for r in ratio)
+                + " | "
+                + " / ".join(cell(s, ".3f") for s in ssim)
+                + " |"
+            )
+    labels = (("di", "local DI"), ("gi_render", "GI-camera render"), ("inference", "inference"), ("warp", "warp"),
+              ("blend", "blend"))  # fmt: skip
+    lines.append("")
+    for renderer in renderers:
+        gigan = _lookup(rows, GIGAN, "total", "median", profile="none", renderer=renderer)
+        stages = [(label, _lookup(rows, GIGAN, m, "median", profile="none", renderer=renderer)) for m, label in labels]
         lines.append(
-            f"| `{profile}` ({cell(rtt_ms, 'g')} ms) | {cell(gigan)} | {cell(hit)} | {cell(miss)} | "
-            + " / ".join(cell(r, ".2f") for r in ratio)
-            + " | "
-            + " / ".join(cell(s, ".3f") for s in ssim)
-            + " |"
+            f"GIGAN's total on {renderer} {cell(gigan)} ms = "
+            + " + ".join(f"{label} {v:.1f}" for label, v in stages if v is not None)
+            + "."
         )
-    labels = (("gi_render", "GI-camera render"), ("inference", "inference"), ("warp", "warp"), ("blend", "blend"))
-    stages = [(label, _lookup(rows, GIGAN, metric, "median", profile="none")) for metric, label in labels]
-    lines += [
-        "",
-        f"GIGAN's total {cell(gigan)} ms = "
-        + " + ".join(f"{label} {v:.1f}" for label, v in stages if v is not None)
-        + ".",
+    num, den = RENDERER_RATIO
+    gigan_ratio = [
+        (label, _lookup(rows, GIGAN, m, "renderer_ratio", profile="none")) for m, label in RENDERER_ROWS[::-1]
     ]
+    if any(v is not None for _, v in gigan_ratio):
+        lines.append(
+            f"{num} / {den} in the same run, GIGAN: "
+            + ", ".join(f"{label} {v:.2f}" for label, v in gigan_ratio if v is not None)
+            + "."
+        )
     crossings = []
     for r in pick(rows, "crossover_rtt"):
-        cache, value = r["config"].get("cache"), r["value"]
+        cache, value, renderer = r["config"].get("cache"), r["value"], r["config"]["renderer"]
         if value == 0:
-            crossings.append(f"a cloud {cache} at any RTT")
+            crossings.append(f"a cloud {cache} at any RTT ({renderer})")
         elif math.isinf(value):
-            crossings.append(f"a cloud {cache} at no RTT up to a minute")
+            crossings.append(f"a cloud {cache} at no RTT up to a minute ({renderer})")
         else:
-            crossings.append(f"a cloud {cache} beyond an RTT of {value:.0f} ms")
+            crossings.append(f"a cloud {cache} beyond an RTT of {value:.0f} ms ({renderer})")
     if crossings:
         lines.append(
             "Crossover (the link model with the measured stages): GIGAN's median total beats "

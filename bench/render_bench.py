@@ -1,25 +1,47 @@
 """`bench render`: per-pass render cost of each scene (SPEC §3 numbers, measured here).
 
-Passes: DI at 1 spp, the G-buffer (AOV) pass, DI + G-buffers together (what a client renders per
-frame), GT at 64 spp, GT at 64 spp + OIDN (incl. its G-buffer guide pass) and GT at 256 spp. Also the
+Mitsuba (``system = mitsuba``, at ``resolution``): DI at 1 spp, the G-buffer (AOV) pass, DI + G-buffers
+together, GT at 64 spp, GT at 64 spp + OIDN (incl. its G-buffer guide pass) and GT at 256 spp. Also the
 scene's triangle count. Medians and p95 over repeats after a warm-up; the plot shows them per scene.
+
+The clients' raster passes (:data:`CLIENT_PASSES`, at each of ``gl_resolutions``), as a client runs them
+frame after frame (the camera moves along the scene's path, the light along its schedule, so with a moving
+light every GL DI pass here redraws its shadow map; in a client the frame's first DI pass does): ``gi_camera``
+(DI + centre-sampled G-buffers at the GI camera: GIGAN's generator input), ``local_di`` (DI at the local
+camera, both systems), ``uv`` (the structure-aware warp's pass, coordinates projected from a GI camera) and
+``depth`` (the pixel-level warp's surface-mask / depth pass). Each on OpenGL (``system = gl``, at ``lod``
+``full`` and at the clients' ``auto``; :class:`gicore.gl.GLRenderer`) and on Mitsuba (``system =
+mitsuba``: the centre-sampled passes a ``--renderer mitsuba`` client runs), side by side in one run
+(``stat = ratio`` rows: gl median over Mitsuba median). For ``lod = auto``: the level each view drew
+(``lod_level``) and what it cost against full detail at that view, per G-buffer channel (``lod_error_*``,
+:func:`gicore.gl.lod.lod_errors`; ``view = gi`` or ``local``). Where no GL context opens the GL passes are
+left out after one warning.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import sys
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from bench.runner import Bench
+from gicore.camera import Camera
+from gicore.options import RESOLUTION
 from gicore.paths import camera_path, light_position
 from gicore.results import Results, read_rows
-from gicore.scene import builtin_scenes, load_scene
+from gicore.scene import SceneSpec, builtin_scenes, load_scene
 from gicore.timing import time_repeats
 
 #: The timed passes, in plot order.
 PASSES = ("di_1spp", "gbuffers", "di_plus_gbuffers", "gt_64spp", "gt_64spp_oidn", "gt_256spp")
+#: The clients' per-frame raster passes, timed on both renderers (see the module docstring).
+CLIENT_PASSES = ("gi_camera", "local_di", "uv", "depth")
+#: GL levels of detail timed: full detail, and the clients' (``gicore.loop.CLIENT_LOD``).
+GL_LODS = ("full", "auto")
 
 
 @dataclass(frozen=True)
@@ -34,10 +56,14 @@ class RenderBenchConfig:
     repeats: int = 7
     #: Timed repeats of the path-traced GT passes, after two warm-ups.
     gt_repeats: int = 3
+    #: Square resolutions of the clients' raster passes on GL and Mitsuba (none: leave them out).
+    gl_resolutions: tuple[int, ...] = field(default=(256, 512), metadata={**RESOLUTION, "min_len": 0})
+    #: Timed repeats of each client raster pass, after two warm-ups.
+    gl_repeats: int = 15
 
     @classmethod
     def quick(cls) -> RenderBenchConfig:
-        return cls(scenes=("lung_plane",), resolution=128, repeats=5, gt_repeats=2)
+        return cls(scenes=("lung_plane",), resolution=128, repeats=5, gt_repeats=2, gl_resolutions=(256,), gl_repeats=7)
 
 
 def measure(cfg: RenderBenchConfig, res: Results) -> None:
@@ -81,6 +107,162 @@ def measure(cfg: RenderBenchConfig, res: Results) -> None:
                 resolution=cfg.resolution,
                 variant=VARIANT,
             )
+    if cfg.gl_resolutions:
+        measure_client_passes(cfg, res)
+
+
+# -- the clients' raster passes, GL beside Mitsuba ---------------------------------------------------------
+def _client_passes(renderer: Any, spec: SceneSpec, resolution: int, seed: int) -> dict[str, Callable[[], Any]]:
+    """The clients' raster passes on ``renderer`` (GL or Mitsuba), each moving to the next frame's cameras
+    and light on every call, as a client does."""
+    from gigan_local.warp import clip_xy
+
+    n = 8
+    local = camera_path(spec, n, seed=seed, fov=spec.camera.local_fov, resolution=resolution)
+    gi = [c.with_fov(spec.camera.gi_fov) for c in local]
+    frame = {"i": 0}
+
+    def views() -> tuple[Camera, Camera, tuple]:
+        frame["i"] += 1
+        i = frame["i"]
+        return local[i % n], gi[i % n], light_position(spec, i)
+
+    def gi_camera():
+        _, cam, light = views()
+        return renderer.render_di_gbuffers(cam, light, centre=True)
+
+    def local_di():
+        cam, _, light = views()
+        return renderer.render_di(cam, light)
+
+    project = getattr(renderer, "set_texcoord_projection", None)
+    if project is not None:  # GL: the vertex shader projects from the bound GI camera (as the warp binds it)
+        project(gi[0])
+    else:  # Mitsuba: per-vertex coordinates uploaded once per map (the warp's bind), not per frame
+        for obj in renderer.objects:
+            renderer.set_texcoords(obj.name, clip_xy(gi[0], obj.mesh.vertices))
+
+    def uv():
+        return renderer.render_uv(views()[0])
+
+    depth_pass = getattr(renderer, "render_depth", None) or renderer.render_uv  # what the pixel warp calls
+
+    def depth():
+        return depth_pass(views()[0])
+
+    return {"gi_camera": gi_camera, "local_di": local_di, "uv": uv, "depth": depth}
+
+
+def _lod_rows(res: Results, gl: Any, spec: SceneSpec, resolution: int, seed: int, config: dict[str, Any]) -> None:
+    """For ``lod = auto``: the level each GI and local view of the timed path draws and its G-buffer error
+    against full detail at that view (mean and max over the views)."""
+    from gicore.gl.lod import LOD_CHANNELS, lod_errors
+
+    local = camera_path(spec, 8, seed=seed, fov=spec.camera.local_fov, resolution=resolution)
+    for view, cams in (("gi", [c.with_fov(spec.camera.gi_fov) for c in local]), ("local", local)):
+        levels, errors = [], []
+        for cam in cams:
+            levels.append(gl.level_for(cam))
+            at_level = gl.render_gbuffers(cam)
+            gl.lod = 0
+            errors.append(lod_errors(at_level, gl.render_gbuffers(cam)))
+            gl.lod = "auto"
+        where = config | {"view": view}
+        for stat, fn in (("mean", np.mean), ("max", np.max)):
+            res.add(system="gl", scene=spec.name, metric="lod_level", value=float(fn(levels)), unit="1", stat=stat,
+                    **where)  # fmt: skip
+            for channel in LOD_CHANNELS:
+                value = float(fn([e[channel] for e in errors]))
+                res.add(system="gl", scene=spec.name, metric=f"lod_error_{channel}", value=value, unit="1", stat=stat,
+                        **where)  # fmt: skip
+
+
+def measure_client_passes(cfg: RenderBenchConfig, res: Results) -> None:
+    """The clients' raster passes on GL (lod full and auto) and on Mitsuba, per scene and resolution."""
+    from gicore.gl import GLRenderer, gl_available
+    from gicore.render import VARIANT, Renderer
+
+    ok, info = gl_available()
+    if not ok:
+        print(f"warning: renderer gl is unavailable, leaving out the GL passes: {info}", file=sys.stderr, flush=True)
+        return
+    res.settings["gl_renderer"] = info
+    for name in cfg.scenes:
+        spec = load_scene(name)
+        for resolution in cfg.gl_resolutions:
+            medians: dict[tuple[str, str, str], float] = {}
+            renderers: list[tuple[str, dict[str, Any], Any]] = [
+                ("gl", {"lod": lod}, GLRenderer(spec, resolution, lod=lod)) for lod in GL_LODS
+            ]
+            renderers.append(("mitsuba", {"variant": VARIANT}, Renderer(spec, resolution)))
+            for system, extra, renderer in renderers:
+                config = {"resolution": resolution, "pass_set": "client"} | extra
+                for stage, fn in _client_passes(renderer, spec, resolution, res.seed).items():
+                    samples, _ = time_repeats(fn, cfg.gl_repeats, warmup=2)
+                    res.add_timing(system=system, scene=name, metric=stage, samples_s=samples, **config)
+                    medians[system, extra.get("lod", ""), stage] = float(np.median(samples))
+                if extra.get("lod") == "auto":
+                    _lod_rows(res, renderer, spec, resolution, res.seed, config)
+            for lod in GL_LODS:
+                for stage in CLIENT_PASSES:
+                    ratio = medians["gl", lod, stage] / medians["mitsuba", "", stage]
+                    config = {"resolution": resolution, "pass_set": "client", "lod": lod}
+                    res.add(
+                        system="gl/mitsuba", scene=name, metric=stage, value=ratio, unit="1", stat="ratio", **config
+                    )
+
+
+def client_table(rows: list[dict]) -> str:
+    """The clients' raster passes per scene and resolution: median ms on GL (full, auto) and Mitsuba, gl / mitsuba,
+    and the level auto drew with its G-buffer error."""
+
+    def get(system: str, metric: str, stat: str, **config: Any) -> float | None:
+        return next(
+            (
+                r["value"]
+                for r in rows
+                if (r["system"], r["metric"], r["stat"]) == (system, metric, stat)
+                and r["config"].get("pass_set") == "client"
+                and all(r["config"].get(k) == v for k, v in config.items())
+            ),
+            None,
+        )
+
+    def ms(value: float | None, spec: str = ".1f") -> str:
+        return "—" if value is None else format(value, spec)
+
+    keys = list(dict.fromkeys((r["scene"], r["config"]["resolution"]) for r in rows if r["config"].get("pass_set")))
+    lines = ["## Client raster passes: OpenGL beside Mitsuba (median ms; gl / mitsuba in brackets)", ""]
+    for scene, resolution in keys:
+        at = {"resolution": resolution}
+        lines += [
+            f"### {scene}, {resolution}²",
+            "",
+            "| pass | gl, full detail | gl, lod auto | mitsuba |",
+            "|---|---|---|---|",
+        ]
+        for stage in CLIENT_PASSES:
+            cells = []
+            for lod in GL_LODS:
+                median, ratio = (
+                    get("gl", stage, "median", lod=lod, **at),
+                    get("gl/mitsuba", stage, "ratio", lod=lod, **at),
+                )
+                cells.append(f"{ms(median)} ({ms(ratio, '.2f')})")
+            lines.append(f"| {stage} | " + " | ".join(cells) + f" | {ms(get('mitsuba', stage, 'median', **at))} |")
+        for view in ("gi", "local"):
+            where = at | {"lod": "auto", "view": view}
+            errors = []
+            for c in ("normal", "depth", "coverage"):
+                mean, top = (get("gl", f"lod_error_{c}", stat, **where) for stat in ("mean", "max"))
+                errors.append(f"{c} {ms(mean, '.1e')} (max {ms(top, '.1e')})")
+            level, top = (get("gl", "lod_level", stat, **where) for stat in ("mean", "max"))
+            lines.append(
+                f"\nlod auto at the {view} views: level {ms(level, '.1f')} on average (max {ms(top, '.0f')}); "
+                f"G-buffer error against full detail: {', '.join(errors)}."
+            )
+        lines.append("")
+    return "\n".join(lines)
 
 
 def plot(csv_path: Path, out_dir: Path) -> list[Path]:
@@ -88,12 +270,14 @@ def plot(csv_path: Path, out_dir: Path) -> list[Path]:
     from gicore.plotting import plt, save, ticker
 
     rows = read_rows(csv_path)
-    scenes = list(dict.fromkeys(r["scene"] for r in rows))
-    stages = [s for s in PASSES if any(r["metric"] == s for r in rows)]
+    mitsuba_passes = [r for r in rows if r["config"].get("pass_set") != "client"]
+    scenes = list(dict.fromkeys(r["scene"] for r in mitsuba_passes))
+    stages = [s for s in PASSES if any(r["metric"] == s for r in mitsuba_passes)]
 
     def value(scene: str, stage: str, stat: str) -> float:
         return next(
-            (r["value"] for r in rows if (r["scene"], r["metric"], r["stat"]) == (scene, stage, stat)), float("nan")
+            (r["value"] for r in mitsuba_passes if (r["scene"], r["metric"], r["stat"]) == (scene, stage, stat)),
+            float("nan"),
         )
 
     fig, ax = plt.subplots(figsize=(max(7.0, 1.6 * len(scenes) + 4), 4.2))
@@ -111,10 +295,16 @@ def plot(csv_path: Path, out_dir: Path) -> list[Path]:
     ax.set_ylabel("time per frame [ms] (median, p95 whisker)")
     ax.grid(axis="y", alpha=0.3, which="both")
     ax.legend(fontsize=7, ncols=2)
-    resolution = next((r["config"].get("resolution") for r in rows if r["stat"] == "median"), "?")
-    variant = next((r["config"].get("variant") for r in rows if r["stat"] == "median"), "")
+    resolution = next((r["config"].get("resolution") for r in mitsuba_passes if r["stat"] == "median"), "?")
+    variant = next((r["config"].get("variant") for r in mitsuba_passes if r["stat"] == "median"), "")
     ax.set_title(f"Render passes at {resolution}² (Mitsuba {variant})")
-    return [save(fig, out_dir / "render.png")]
+    written = [save(fig, out_dir / "render.png")]
+    if any(r["config"].get("pass_set") == "client" for r in rows):
+        md = out_dir / "render_client_passes.md"
+        md.write_text(client_table(rows) + "\n")
+        print(md.read_text())
+        written.append(md)
+    return written
 
 
 BENCH = Bench(
@@ -122,5 +312,6 @@ BENCH = Bench(
     RenderBenchConfig,
     measure,
     plot,
-    help="Per-pass render times (DI, G-buffers, GT with/without OIDN) and triangle counts per scene.",
+    help="Per-pass render times (DI, G-buffers, GT with/without OIDN) and triangle counts per scene; the clients' "
+    "raster passes (GI camera, local DI, uv, depth) on OpenGL (full detail and lod auto) beside Mitsuba.",
 )

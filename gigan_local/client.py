@@ -13,8 +13,8 @@ The loop itself -- DI every frame, a GI map every ``k`` frames, warp, compose, p
 
 With ``renderer="gl"`` (:attr:`gicore.loop.PathRunConfig.renderer`) every per-frame raster pass -- the local
 DI, the model source's DI + G-buffers at the GI camera, the warp's uv pass -- is OpenGL's
-(:class:`gicore.gl.GLRenderer`); path tracing (the GT source, GT scoring) stays Mitsuba's, so such a client
-holds both renderers. The stage names are the same either way.
+(:class:`gicore.gl.GLRenderer` at level of detail :data:`gicore.loop.CLIENT_LOD`); path tracing (the GT
+source, GT scoring) stays Mitsuba's, so such a client holds both renderers. The stage names are the same either way.
 
 GIGAN maps with cloud baking's pixel-level warp (Table 3's comparison) are assembled in ``bench``, which
 may import both systems; this package does not import ``baseline_cloudbaking``.
@@ -33,6 +33,7 @@ import numpy as np
 from gicore.camera import Camera
 from gicore.cli import UserError, check_denoiser
 from gicore.loop import (
+    CLIENT_LOD,
     LAYERS,
     ClientLoop,
     FrameResult,
@@ -227,10 +228,8 @@ def open_renderers(cfg: ClientConfig, spec: SceneSpec, renderer: Renderer | None
         )
     from gicore.gl import GLRenderer, RasterUnavailable
 
-    return (
-        renderer,
-        *open_raster(cfg.renderer, renderer, partial(GLRenderer, spec, cfg.resolution), RasterUnavailable),
-    )
+    gl = partial(GLRenderer, spec, cfg.resolution, lod=CLIENT_LOD)
+    return (renderer, *open_raster(cfg.renderer, renderer, gl, RasterUnavailable))
 
 
 def run_client(

@@ -140,7 +140,7 @@ def test_both_clients_end_to_end_through_a_proxy(server: str, scenes_dir: Path, 
     for r in shown:
         assert float(r["request_ms"]) >= 29.0, r  # the proxy's 2 x 15 ms round trip is in the request stage
         parts = sum(float(r[f"{s}_ms"]) for s in STAGES if r[f"{s}_ms"]) + sum(
-            float(r[c]) for c in ("bind_ms", "warp_ms", "blend_ms")
+            float(r[c]) for c in ("di_ms", "bind_ms", "warp_ms", "blend_ms")
         )
         assert float(r["total_ms"]) == pytest.approx(parts)
     assert shown[0]["hit"] == "0" and float(shown[0]["render_ms"]) > 0

@@ -184,6 +184,7 @@ def test_model_source_feeds_the_generator_its_buffers(spec_file, client_renderer
         gi_source="model",
         model=passthrough_model,
         denoise=False,
+        renderer="mitsuba",  # compared with Mitsuba's DI below
     )
     images = []
     rows = run_client(cfg, client_renderer, on_frame=lambda frame, result: images.append(result.image))
@@ -327,6 +328,6 @@ def test_gl_without_a_context_falls_back_to_mitsuba(
     assert summary["renderer"] == "mitsuba" and summary["config"]["renderer"] == "gl"
     with (tmp_path / "run" / "frames.csv").open() as fh:
         fell_back = list(csv.DictReader(fh))
-    reference = run_client(gl_config(spec_file, model64, frames=2), renderer64)
+    reference = run_client(gl_config(spec_file, model64, frames=2, renderer="mitsuba"), renderer64)
     assert list(fell_back[0]) == list(reference[0])
     assert [r["valid_frac"] for r in fell_back] == [str(r["valid_frac"]) for r in reference]
