@@ -4,8 +4,10 @@ that also covers slow request heads, the file-descriptor budget, and logs that d
 uvicorn's ``limit_concurrency`` counts idle connections too, so a flood of idle ones would answer every
 real request 503; and uvicorn times out only keep-alive connections that send nothing, not a fresh one,
 nor one trickling its head. Here, as nginx reuses keep-alive connections when it runs out: past
-``max_connections`` the connection idle the longest (no request in progress; fresh ones count as idle) is
-closed for the new one, and only when every connection is busy is the new one answered 503 and closed.
+``max_connections`` an idle connection is closed for the new one, first the longest-idle of those that
+never sent a request (a flood of empty connections then never costs a working client its connection),
+then the longest-idle kept-alive one; only when every connection is busy is the new one answered 503
+and closed.
 Every idle period (a fresh connection, or after a response) must end with a whole request head within
 ``idle_timeout_s``, else the connection is closed.
 """
@@ -42,47 +44,67 @@ def fd_budget(wanted: int) -> tuple[int, int]:
 
 
 class ConnectionLimits:
-    """The shared state of one server's connections: idle ones in the order they became idle, counters."""
+    """The shared state of one server's connections: the idle ones (fresh: no request yet; kept: kept alive
+    after a response), each in the order they became idle; those closed here and not yet gone; counters."""
 
     def __init__(self, max_connections: int, idle_timeout_s: float) -> None:
         self.max_connections = max_connections
         self.idle_timeout_s = idle_timeout_s
-        self.idle: OrderedDict[H11Protocol, float] = OrderedDict()
+        self.fresh: OrderedDict[H11Protocol, float] = OrderedDict()
+        self.kept: OrderedDict[H11Protocol, float] = OrderedDict()
+        self.closing: set[H11Protocol] = set()  # closed, connection_lost not yet called: still counted by uvicorn
         self.counters = {"connections_drained": 0, "connections_refused": 0, "connections_timed_out": 0}
         self._sweeper: asyncio.TimerHandle | None = None
 
-    def became_idle(self, conn: H11Protocol) -> None:
-        self.idle.pop(conn, None)
-        self.idle[conn] = time.monotonic()
+    @property
+    def idle(self) -> int:
+        return len(self.fresh) + len(self.kept)
+
+    def became_idle(self, conn: H11Protocol, fresh: bool) -> None:
+        self.forget(conn)
+        (self.fresh if fresh else self.kept)[conn] = time.monotonic()
         if self._sweeper is None:
             self._sweeper = asyncio.get_running_loop().call_later(_SWEEP_S, self._sweep)
 
     def forget(self, conn: H11Protocol) -> None:
-        self.idle.pop(conn, None)
+        self.fresh.pop(conn, None)
+        self.kept.pop(conn, None)
+
+    def lost(self, conn: H11Protocol) -> None:
+        self.forget(conn)
+        self.closing.discard(conn)
+
+    def over(self, open_connections: int) -> int:
+        """Connections beyond the cap, not counting those already closing."""
+        return open_connections - len(self.closing) - self.max_connections
+
+    def close(self, conn: H11Protocol, counter: str) -> None:
+        self.closing.add(conn)
+        conn.transport.close()
+        self.counters[counter] += 1
 
     def drain_one(self) -> bool:
-        """Close the connection idle the longest; False when none is idle."""
-        while self.idle:
-            conn, _ = self.idle.popitem(last=False)
-            if busy(conn):
-                continue
-            conn.transport.close()
-            self.counters["connections_drained"] += 1
-            return True
+        """Close the longest-idle fresh connection, else the longest-idle kept one; False when none is idle."""
+        for idle in (self.fresh, self.kept):
+            while idle:
+                conn, _ = idle.popitem(last=False)
+                if not busy(conn):
+                    self.close(conn, "connections_drained")
+                    return True
         return False
 
     def _sweep(self) -> None:
         """Close connections idle past the timeout: one timer for all, walking the oldest first."""
         self._sweeper = None
         deadline = time.monotonic() - self.idle_timeout_s
-        while self.idle:
-            conn, since = next(iter(self.idle.items()))
-            if since > deadline:
-                break
-            self.idle.popitem(last=False)
-            if not busy(conn):
-                conn.transport.close()
-                self.counters["connections_timed_out"] += 1
+        for idle in (self.fresh, self.kept):
+            while idle:
+                conn, since = next(iter(idle.items()))
+                if since > deadline:
+                    break
+                idle.popitem(last=False)
+                if not busy(conn):
+                    self.close(conn, "connections_timed_out")
         if self.idle:
             self._sweeper = asyncio.get_running_loop().call_later(_SWEEP_S, self._sweep)
 
@@ -109,14 +131,14 @@ def capped_protocol(limits: ConnectionLimits) -> type[H11Protocol]:
     class CappedH11Protocol(H11Protocol):
         def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
             super().connection_made(transport)
-            limits.became_idle(self)
-            while len(self.connections) > limits.max_connections:
-                if not limits.drain_one():  # every other connection is busy: refuse this one
-                    limits.forget(self)
-                    limits.counters["connections_refused"] += 1
-                    transport.write(_refusal(1))
-                    transport.close()
-                    return
+            over = limits.over(len(self.connections))
+            while over > 0 and limits.drain_one():
+                over -= 1
+            if over > 0:  # every other connection is busy: refuse this one
+                transport.write(_refusal(1))
+                limits.close(self, "connections_refused")
+                return
+            limits.became_idle(self, fresh=True)
 
         def data_received(self, data: bytes) -> None:
             super().data_received(data)
@@ -126,10 +148,10 @@ def capped_protocol(limits: ConnectionLimits) -> type[H11Protocol]:
         def on_response_complete(self) -> None:
             super().on_response_complete()
             if not self.transport.is_closing():
-                limits.became_idle(self)
+                limits.became_idle(self, fresh=False)
 
         def connection_lost(self, exc: Exception | None) -> None:
-            limits.forget(self)
+            limits.lost(self)
             super().connection_lost(exc)
 
     return CappedH11Protocol

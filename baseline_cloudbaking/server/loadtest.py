@@ -88,9 +88,12 @@ class LoadResult:
         return out
 
 
-async def _hit_client(host: str, port: int, body: bytes, stop: asyncio.Event, period_s: float, res: LoadResult) -> None:
+async def _hit_client(
+    host: str, port: int, body: bytes, stop: asyncio.Event, period_s: float, phase_s: float, res: LoadResult
+) -> None:
     conn = Conn(host, port)
     loop = asyncio.get_running_loop()
+    await asyncio.sleep(phase_s)
     next_t = loop.time()
     try:
         while not stop.is_set():
@@ -161,16 +164,20 @@ async def run_load(
     hit_clients: int = 32,
     period_s: float = 0.02,
     idle: int = 0,
-    settle_s: float = 0.5,
+    settle_s: float = 1.0,
     max_s: float = 120.0,
 ) -> LoadResult:
-    """Hit clients (each a request every ``period_s``) running while ``idle`` idle connections are opened and
+    """Hit clients (each a request every ``period_s``, their phases spread evenly over the period, as
+    independent clients are not in lockstep) running while ``idle`` idle connections are opened and
     ``miss_bodies`` are sent at once; stops ``settle_s`` after the last miss answered (or after ``max_s``)."""
     host, port = loopback(url)
     res = LoadResult()
     stop = asyncio.Event()
     hit = json.dumps(hit_body).encode()
-    clients = [asyncio.ensure_future(_hit_client(host, port, hit, stop, period_s, res)) for _ in range(hit_clients)]
+    clients = [
+        asyncio.ensure_future(_hit_client(host, port, hit, stop, period_s, i * period_s / hit_clients, res))
+        for i in range(hit_clients)
+    ]
     flood = asyncio.ensure_future(_idle_flood(host, port, idle, res, stop))
     await asyncio.sleep(settle_s)
     misses = [asyncio.ensure_future(_miss(host, port, json.dumps(b).encode(), res)) for b in miss_bodies]

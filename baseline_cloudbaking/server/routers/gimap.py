@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from fastapi import APIRouter, Request, Response
-from starlette.concurrency import run_in_threadpool
 
 from baseline_cloudbaking.protocol import MEDIA_TYPE
 from baseline_cloudbaking.server.deps import ServiceDep
@@ -43,14 +42,12 @@ async def _gone(request: Request) -> None:
 @router.post("/gimap", response_class=Response, responses=_PAYLOAD_DOC, summary="GI map at a GI camera")
 async def get_gimap(body: GIMapRequest, request: Request, service: ServiceDep) -> Response:
     """Nearest stored map within the tolerance (a hit), else path-traced + OIDN at the camera, encoded,
-    stored and returned (a miss). Validation and hits run on worker threads; a miss waits in the bounded
+    stored and returned (a miss). Validation and hits run on the hit threads; a miss waits in the bounded
     miss queue for the one render thread (503 + Retry-After when the queue is full; dropped if the client
     leaves before its turn)."""
-    prepared, served = await run_in_threadpool(service.lookup, body)
-    if served is None:
-        try:
-            served = await service.misses.run(lambda: service.bake(prepared), lambda: _gone(request))
-        except ClientGone:
-            return Response(status_code=499)  # nginx's "client closed request": nobody reads it
+    try:
+        served = await service.answer(body, lambda: _gone(request))
+    except ClientGone:
+        return Response(status_code=499)  # nginx's "client closed request": nobody reads it
     headers = {"X-GIMap-Hit": "1" if served.hit else "0", "Content-Location": map_path(served.sha)}
     return Response(content=served.payload, media_type=MEDIA_TYPE, headers=headers)

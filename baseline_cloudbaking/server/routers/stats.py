@@ -20,5 +20,5 @@ def stats(service: ServiceDep, request: Request) -> dict[str, Any]:
     out = service.stats()
     limits = getattr(request.app.state, "connections", None)
     if limits is not None:
-        out |= limits.counters | {"connections_idle": len(limits.idle)}
+        out |= limits.counters | {"connections_idle": limits.idle}
     return out

@@ -1,0 +1,332 @@
+"""The cloud-baking server under load and when its storage fails, as its own process on 127.0.0.1.
+
+Loopback only, every wait bounded. Bounds are the issue's: with 80 concurrent misses and 32 clients of
+hits, hit p99 <= 50 ms, misses beyond the queue get 503 with Retry-After and nothing else is a 5xx; idle
+connections do not stall hits; a read-only index and a full disk are answered 503 / 507 with one line
+and recover without a restart; stored maps carry an ETag and answer 304.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import hashlib
+import json
+import os
+import socket
+import subprocess
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import httpx
+import numpy as np
+import pytest
+
+from baseline_cloudbaking.protocol import MEDIA_TYPE, decode_payload
+from baseline_cloudbaking.server.loadtest import run_load
+from baseline_cloudbaking.server.routers.maps import CACHE_CONTROL
+from tests.helpers.cloud import BIN, gimap_body, write_scenes
+
+TIMEOUT = httpx.Timeout(60.0, connect=10.0)
+
+
+@pytest.fixture(scope="module")
+def scenes_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return write_scenes(tmp_path_factory.mktemp("load_scenes"))
+
+
+class Server:
+    """A ``cloudbaking-server`` process: its URL, store and stderr (a file: a flood must not block on a pipe)."""
+
+    def __init__(self, url: str, store: Path, stderr: Path, proc: subprocess.Popen) -> None:
+        self.url, self.store, self.stderr, self.proc = url, store, stderr, proc
+        self.host, port = url.removeprefix("http://").split(":")
+        self.port = int(port)
+
+    def post(self, body: dict, client: httpx.Client | None = None) -> httpx.Response:
+        if client is not None:
+            return client.post("/v1/gimap", json=body)
+        with httpx.Client(base_url=self.url, timeout=TIMEOUT) as c:
+            return c.post("/v1/gimap", json=body)
+
+    def stats(self) -> dict:
+        return httpx.get(f"{self.url}/v1/stats", timeout=TIMEOUT).json()
+
+
+@contextmanager
+def server(
+    store: Path, scenes: Path, *args: str, env: dict[str, str] | None = None, logs: Path | None = None
+) -> Iterator[Server]:
+    stderr = (logs or store.parent) / f"{store.name}.stderr"
+    cmd = [str(BIN / "cloudbaking-server"), "--port", "0", "--store", str(store), "--scenes", str(scenes), *args]
+    with stderr.open("wb") as err:
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=err, text=True, env=os.environ | (env or {}))
+    try:
+        line = proc.stdout.readline()  # the first line comes at once (the socket is bound before uvicorn starts)
+        assert line.startswith("listening on http://127.0.0.1:"), (line, stderr.read_text())
+        srv = Server(line.split()[-1], store, stderr, proc)
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:  # the app is ready once it answers
+            try:
+                if httpx.get(f"{srv.url}/v1/health", timeout=5).status_code == 200:
+                    break
+            except httpx.HTTPError:
+                time.sleep(0.1)
+        yield srv
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(timeout=15)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(timeout=15)
+
+
+#: The module's server: queue 8, a cap of 256 connections, 1 s idle and body timeouts, spp up to 64.
+QUEUE, MAX_CONNECTIONS = 8, 256
+
+
+@pytest.fixture(scope="module")
+def srv(tmp_path_factory: pytest.TempPathFactory, scenes_dir: Path) -> Iterator[Server]:
+    args = ["--miss-queue", str(QUEUE), "--max-connections", str(MAX_CONNECTIONS), "--idle-timeout-s", "1"]
+    store = tmp_path_factory.mktemp("load") / "store"
+    with server(store, scenes_dir, *args, "--max-spp", "64", env={"CLOUDBAKING_BODY_TIMEOUT_S": "1"}) as running:
+        assert running.post(HIT).status_code == 200  # compiles the renderer; from now on HIT is a hit
+        yield running
+
+
+HIT = gimap_body(eye=(0.0, 1.3, 2.2))
+
+
+def delta(before: dict, after: dict, *keys: str) -> dict:
+    return {k: after[k] - before[k] for k in keys}
+
+
+def ring(n: int, scene: str = "ball_moving", radius: float = 2.0, **fields) -> list[dict]:
+    """``n`` requests on a circle around the scenes' target, each farther from the others than the tolerance."""
+    angles = np.linspace(-1.5, 1.5, n)  # 80 of them: 0.038 rad apart, > 0.05 scene units
+    return [gimap_body(scene, eye=(radius * np.sin(a), 1.1, radius * np.cos(a)), **fields) for a in angles]
+
+
+def test_80_misses_and_32_hit_clients(srv: Server) -> None:
+    """Misses beyond the queue are refused at once (503 + Retry-After), the admitted ones are baked, no
+    other 5xx; hits are served while misses render, p99 <= 50 ms (each client a request every 100 ms:
+    320 hits/s)."""
+    before = srv.stats()
+    log_before = srv.stderr.stat().st_size
+    res = asyncio.run(run_load(srv.url, HIT, ring(80, radius=1.9), hit_clients=32, period_s=0.1))
+    counts = delta(before, srv.stats(), "misses_refused", "misses", "hits")
+    summary = res.summary()
+    print(f"80 misses + 32 hit clients: {json.dumps(summary)}")
+    assert not res.errors and set(res.hit_status) == {200} and len(res.hit_ms) >= 32 * 5, summary
+    assert set(res.miss_status) <= {200, 503} and sum(res.miss_status.values()) == 80, summary
+    refused, baked = res.miss_status[503], res.miss_status[200]
+    assert refused >= 80 - 4 * (QUEUE + 1) and baked >= QUEUE + 1, summary  # most arrive while the queue is full
+    assert sum(res.retry_after.values()) == refused and all(1 <= int(s) <= 60 for s in res.retry_after), summary
+    assert counts == {"misses_refused": refused, "misses": baked, "hits": len(res.hit_ms)}, counts
+    assert srv.stats()["misses_pending"] == 0
+    assert summary["hit_p99_ms"] <= 50.0, summary
+    assert srv.stderr.stat().st_size - log_before < 4096, srv.stderr.read_text()[-2000:]
+
+
+def test_a_queued_miss_whose_client_left_is_dropped(srv: Server) -> None:
+    """A slow miss holds the render thread; four misses queued behind it lose their clients: none of them
+    is rendered (their views are not in the tree) and the stats count them dropped."""
+    before = srv.stats()
+    leavers_bodies = ring(4, radius=2.1)
+    with httpx.Client(base_url=srv.url, timeout=TIMEOUT) as c:
+        with socket.create_connection((srv.host, srv.port), timeout=10) as blocker:
+            send_request(blocker, gimap_body(resolution=512, spp=64))  # a renderer to compile, then a 512² bake
+            time.sleep(0.3)
+            leavers = []
+            for body in leavers_bodies:
+                sock = socket.create_connection((srv.host, srv.port), timeout=10)
+                send_request(sock, body)
+                leavers.append(sock)
+            time.sleep(0.3)
+            assert c.get("/v1/stats").json()["misses_pending"] == 5
+            for sock in leavers:
+                sock.close()
+            blocker.settimeout(120)
+            assert blocker.recv(64).startswith(b"HTTP/1.1 200")
+        deadline = time.monotonic() + 30
+        while c.get("/v1/stats").json()["misses_pending"] and time.monotonic() < deadline:
+            time.sleep(0.1)
+        counts = delta(before, c.get("/v1/stats").json(), "misses_dropped", "entries", "misses")
+        assert counts == {"misses_dropped": 4, "entries": 1, "misses": 1}, counts
+        # the dropped views really are not stored: asking again is a miss
+        assert c.post("/v1/gimap", json=leavers_bodies[0]).headers["x-gimap-hit"] == "0"
+
+
+def send_request(sock: socket.socket, body: dict) -> None:
+    data = json.dumps(body).encode()
+    head = (
+        f"POST /v1/gimap HTTP/1.1\r\nhost: x\r\ncontent-type: application/json\r\ncontent-length: {len(data)}\r\n\r\n"
+    )
+    sock.sendall(head.encode() + data)
+
+
+def test_idle_connections_do_not_stall_hits(srv: Server) -> None:
+    """2,000 connections that send nothing against a cap of 256: the longest-idle ones are closed for the
+    new ones, every hit is served within the bound, and the log stays a few lines."""
+    before = srv.stats()
+    log_before = srv.stderr.stat().st_size
+    res = asyncio.run(run_load(srv.url, HIT, [], hit_clients=32, period_s=0.1, idle=2000))
+    counts = delta(before, srv.stats(), "connections_drained", "connections_timed_out", "connections_refused")
+    summary = res.summary()
+    print(f"2000 idle connections + 32 hit clients: {json.dumps(summary)} {counts}")
+    assert not res.errors and set(res.hit_status) == {200} and res.idle_opened == 2000, summary
+    assert res.idle_closed_by_server >= 2000 - MAX_CONNECTIONS, summary
+    assert counts["connections_drained"] + counts["connections_timed_out"] >= 2000 - MAX_CONNECTIONS, counts
+    assert counts["connections_refused"] == 0, counts
+    assert summary["hit_p99_ms"] <= 50.0, summary
+    assert srv.stderr.stat().st_size - log_before < 4096, srv.stderr.read_text()[-2000:]
+
+
+def test_slow_heads_and_bodies_time_out_and_a_flood_of_bad_requests_logs_a_few_lines(srv: Server) -> None:
+    log_before = srv.stderr.stat().st_size
+    # a head trickled byte by byte is cut after the idle timeout
+    with socket.create_connection((srv.host, srv.port), timeout=10) as sock:
+        t0 = time.monotonic()
+        closed = False
+        for byte in b"POST /v1/gimap HTTP/1.1\r\nhost: x\r\n":
+            try:
+                sock.sendall(bytes([byte]))
+            except OSError:
+                closed = True
+                break
+            time.sleep(0.1)
+        closed = closed or sock.recv(1) == b""
+        assert closed and time.monotonic() - t0 < 2.5  # 1 s timeout, checked every 0.25 s
+    # a head then a body that never completes: 408
+    with socket.create_connection((srv.host, srv.port), timeout=10) as sock:
+        sock.sendall(
+            b"POST /v1/gimap HTTP/1.1\r\nhost: x\r\ncontent-type: application/json\r\ncontent-length: 100\r\n\r\n{"
+        )
+        assert sock.recv(4096).startswith(b"HTTP/1.1 408")
+    # 1,000 malformed requests: uvicorn answers each 400 and warns; the log keeps a few lines
+    for _ in range(1000):
+        with socket.create_connection((srv.host, srv.port), timeout=10) as sock:
+            sock.sendall(b"NOT HTTP\r\n\r\n")
+            assert sock.recv(64).startswith(b"HTTP/1.1 400")
+    time.sleep(0.2)
+    log = srv.stderr.read_bytes()[log_before:].decode()
+    assert log.count("Invalid HTTP request received.") <= 10 and len(log) < 4096, log[-2000:]
+
+
+def test_stored_maps_have_an_etag_and_answer_304(srv: Server) -> None:
+    with httpx.Client(base_url=srv.url, timeout=TIMEOUT) as c:
+        miss = srv.post(gimap_body(eye=(0.4, 1.2, 2.0)), c)
+        where = miss.headers["content-location"]
+        sha = where.rsplit("/", 1)[1]
+        stored = c.get(where)
+        assert stored.status_code == 200 and stored.headers["content-type"] == MEDIA_TYPE
+        assert hashlib.sha256(stored.content).hexdigest() == sha and stored.headers["etag"] == f'"{sha}"'
+        assert stored.headers["cache-control"] == CACHE_CONTROL and "immutable" in CACHE_CONTROL
+        assert decode_payload(stored.content).gi.shape[2] == 3
+        hit = srv.post(gimap_body(eye=(0.41, 1.2, 2.0)), c)
+        assert hit.headers["x-gimap-hit"] == "1" and hit.headers["content-location"] == where
+        for tag in (f'"{sha}"', f'W/"{sha}"', f'"0", "{sha}"', "*"):
+            cached = c.get(where, headers={"If-None-Match": tag})
+            assert cached.status_code == 304 and cached.content == b"" and cached.headers["etag"] == f'"{sha}"', tag
+        assert c.get(where, headers={"If-None-Match": '"other"'}).status_code == 200
+        assert c.get(f"/v1/maps/{'0' * 64}").status_code == 404
+        assert c.get("/v1/maps/not-a-sha").status_code == 422
+
+
+@contextmanager
+def immutable(*paths: Path) -> Iterator[None]:
+    """Files this process (root, here) cannot write: chattr +i; the test is skipped where that is refused."""
+    if os.geteuid() != 0:
+        pytest.skip("needs root for chattr +i")
+    done = []
+    try:
+        for path in paths:
+            if subprocess.run(["chattr", "+i", str(path)], capture_output=True, check=False).returncode != 0:
+                pytest.skip("chattr +i is refused here")
+            done.append(path)
+        yield
+    finally:
+        for path in done:
+            subprocess.run(["chattr", "-i", str(path)], check=True)
+
+
+def test_a_read_only_index_is_503_and_recovers_without_restart(srv: Server) -> None:
+    with httpx.Client(base_url=srv.url, timeout=TIMEOUT) as c:
+        stored = HIT
+        before = c.get("/v1/stats").json()
+        files_before = len(list((srv.store / "payloads").glob("*/*.gim")))
+        index = srv.store / "index.sqlite"
+        new = gimap_body(eye=(-0.6, 1.25, 2.0))
+        with immutable(index, index.with_name("index.sqlite-wal")):
+            refused = srv.post(new, c)
+            assert refused.status_code == 503 and refused.headers["retry-after"] == "10", refused.text
+            (detail,) = refused.json()["detail"]
+            assert detail["loc"] == ["store"] and "cannot write the GI tree" in detail["msg"]
+            assert "\n" not in detail["msg"]
+            assert srv.post(stored, c).headers["x-gimap-hit"] == "1"  # hits go on
+            assert len(list((srv.store / "payloads").glob("*/*.gim"))) == files_before  # the refused miss left no file
+        again = srv.post(new, c)
+        assert again.status_code == 200 and again.headers["x-gimap-hit"] == "0"
+        assert delta(before, c.get("/v1/stats").json(), "entries") == {"entries": 1}
+
+
+@contextmanager
+def tiny_tmpfs(path: Path, size: str) -> Iterator[Path]:
+    """A real, small file system (tmpfs) at ``path``; skipped where mounting is not allowed."""
+    path.mkdir()
+    if subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(path)], capture_output=True
+    ).returncode:
+        pytest.skip("mounting a tmpfs is not allowed here")
+    try:
+        yield path
+    finally:
+        subprocess.run(["umount", "-l", str(path)], check=True)
+
+
+def test_a_full_disk_is_507_leaves_no_orphan_and_recovers_without_restart(tmp_path: Path, scenes_dir: Path) -> None:
+    """The store on a 4 MiB tmpfs: once a filler file takes the space left, a miss is 507 with one line,
+    no payload file is left unindexed, hits go on; with the filler gone the same miss is baked."""
+    with tiny_tmpfs(tmp_path / "fs", "4m") as fs:
+        with (
+            server(fs / "store", scenes_dir, logs=tmp_path) as srv,
+            httpx.Client(base_url=srv.url, timeout=TIMEOUT) as c,
+        ):
+            stored = gimap_body(eye=(0.4, 1.2, 2.0))
+            assert srv.post(stored, c).status_code == 200
+            filler = fs / "filler"
+            fd = os.open(filler, os.O_WRONLY | os.O_CREAT)
+            try:
+                while os.write(fd, b"\0" * 4096):
+                    pass
+            except OSError:
+                pass  # ENOSPC: the file system is full
+            finally:
+                os.close(fd)
+            new = gimap_body(eye=(-0.6, 1.2, 2.0))
+            full = srv.post(new, c)
+            assert full.status_code == 507, full.text
+            (detail,) = full.json()["detail"]
+            assert detail["loc"] == ["store"] and "\n" not in detail["msg"]
+            assert "No space left on device" in detail["msg"] or "disk is full" in detail["msg"], detail
+            assert srv.post(stored, c).headers["x-gimap-hit"] == "1"
+            assert len(list((srv.store / "payloads").glob("*/*.gim"))) == 1  # no orphan
+            filler.unlink()
+            again = srv.post(new, c)
+            assert again.status_code == 200 and again.headers["x-gimap-hit"] == "0"
+            assert c.get("/v1/stats").json()["entries"] == 2
+
+
+def test_openapi_states_the_served_limits(srv: Server) -> None:
+    doc = httpx.get(f"{srv.url}/openapi.json", timeout=TIMEOUT).json()
+    scenes = httpx.get(f"{srv.url}/v1/scenes", timeout=TIMEOUT).json()
+    props = doc["components"]["schemas"]["GIMapRequest"]["properties"]
+    assert props["scene"]["enum"] == sorted(s["name"] for s in scenes["scenes"])
+    assert {"ball_moving", "ball_static", "lung_plane"} <= set(props["scene"]["enum"])
+    assert props["resolution"]["enum"] == scenes["resolutions"] and props["spp"]["maximum"] == 64
+    responses = doc["paths"]["/v1/gimap"]["post"]["responses"]
+    assert {"200", "400", "409", "413", "422", "503", "507"} <= set(responses)
+    assert "Retry-After" in responses["503"]["headers"]
+    assert {"200", "304", "404"} <= set(doc["paths"]["/v1/maps/{sha}"]["get"]["responses"])
