@@ -34,8 +34,8 @@ import math
 import shutil
 import sys
 import time
-from collections.abc import Callable
-from contextlib import ExitStack
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -139,6 +139,8 @@ def run_page(
             for _ in range(cfg.timing_runs):
                 data["browser_runs_ms"].append(page.evaluate("window.viewer.infer()"))
                 data["python_runs_ms"].append(python_run() * 1e3)
+            data["snapshot"] = page.evaluate("window.viewer.snapshot()")
+            data["hud"] = {system: page.inner_text(f"#hud-{system}") for system in ("gigan", "cloud")}
             data["chromium"] = browser.version
             return data
         finally:
@@ -147,6 +149,23 @@ def run_page(
 
 def _floats(text: str, n: int, channels: int) -> np.ndarray:
     return np.frombuffer(base64.b64decode(text), dtype=np.float32).reshape(n, n, channels)
+
+
+def canvas_stats(snapshot: dict[str, Any]) -> dict[str, dict[str, float]]:
+    """Per canvas of the page's last frame: ``lit``, the fraction of pixels brighter than 8/255 in some channel,
+    and ``vs_di``, the mean |canvas - tonemap(DI)| over the lit pixels (0: the canvas shows its DI alone)."""
+    from gicore.tonemap import tonemap
+
+    out = {}
+    for system, snap in snapshot.items():
+        if snap is None:
+            continue
+        n = int(snap["resolution"])
+        canvas = np.frombuffer(base64.b64decode(snap["canvas"]), np.uint8).reshape(n, n, 4)[..., :3] / 255.0
+        di = np.rint(tonemap(_floats(snap["di"], n, 4)[..., :3]) * 255.0) / 255.0
+        lit = (canvas > 8 / 255).any(axis=-1)
+        out[system] = {"lit": float(lit.mean()), "vs_di": float(np.abs(canvas - di)[lit].mean()) if lit.any() else 0.0}
+    return out
 
 
 class Reference:
@@ -206,58 +225,60 @@ def spec_resolution(assets: Path) -> int:
     return int(json.loads((assets / "scene.json").read_text())["resolution"])
 
 
-def measure(cfg: WebBenchConfig, results: Results) -> None:
-    why = require_browser()
-    if why:
-        raise UserError(f"bench web cannot run: {why}", "install what is missing, then run it again")
+@contextmanager
+def viewer_site(cfg: WebBenchConfig, seed: int, work: Path) -> Iterator[str]:
+    """A ``cloudbaking-server`` (store in ``work``; filled along the path first when ``cfg.store`` is prebaked), a
+    ``network-sim proxy`` in front of it and the viewer's server forwarding to the proxy; yields the page's URL."""
     from gicore.scene import load_scene
     from network_sim.process import Running
     from web3d.cli import WebConfig, prepare
     from web3d.serve import WebServer
 
     spec = load_scene(cfg.scenes[0])
-    work = results.out / "web_runs"
-    shutil.rmtree(work, ignore_errors=True)
     bin_dir = Path(sys.executable).parent
-    with ExitStack() as stack:
-        server = stack.enter_context(
-            Running([str(bin_dir / "cloudbaking-server"), "--port", "0", "--store", str(work / "store")], 120.0)
-        )
+    server_argv = [str(bin_dir / "cloudbaking-server"), "--port", "0", "--store", str(work / "store")]
+    with Running(server_argv, 120.0) as server:
         host, port = server.addr
         server_url = f"{host}:{port}"  # the server prints a URL
-        upstream = server_url.removeprefix("http://")
-        argv = [sys.executable, "-m", "network_sim", "proxy", "--upstream", upstream, "--profile", cfg.profile]
-        proxy = stack.enter_context(Running([*argv, "--seed", str(results.seed)], 60.0))
-        page_cfg = WebConfig(
-            scene=cfg.scenes[0],
-            server=f"http://{proxy.addr[0]}:{proxy.addr[1]}",
-            listen="127.0.0.1:0",
-            frames=cfg.frames,
-            every=cfg.every,
-            codec=cfg.codec,
-            spp=cfg.spp,
-            threads=cfg.threads,
-            seed=results.seed,
-            assets=work / "assets",
-        )
-        site = prepare(page_cfg)
-        if cfg.store == "prebaked":
-            _prefill(server_url, spec, site.assets, cfg)
-        web = stack.enter_context(WebServer(site))
-        reference = Reference(cfg.threads)
-        viewer = run_page(web.url, cfg, results.output(SCREENSHOT), reference.check)
-    results.settings["browser"] = viewer["info"] | {"chromium": viewer["chromium"]}
-    record(results, spec.name, cfg, viewer, reference.diff)
-    shot = results.out / SCREENSHOT
-    results.add(
-        system="both",
-        scene=spec.name,
-        metric="screenshot",
-        value=shot.stat().st_size,
-        unit="bytes",
-        file=str(shot.resolve()),
-    )
+        argv = [sys.executable, "-m", "network_sim", "proxy", "--upstream", server_url.removeprefix("http://")]
+        with Running([*argv, "--profile", cfg.profile, "--seed", str(seed)], 60.0) as proxy:
+            page_cfg = WebConfig(
+                scene=cfg.scenes[0],
+                server=f"http://{proxy.addr[0]}:{proxy.addr[1]}",
+                listen="127.0.0.1:0",
+                frames=cfg.frames,
+                every=cfg.every,
+                codec=cfg.codec,
+                spp=cfg.spp,
+                threads=cfg.threads,
+                seed=seed,
+                assets=work / "assets",
+            )
+            site = prepare(page_cfg)
+            if cfg.store == "prebaked":
+                _prefill(server_url, spec, site.assets, cfg)
+            with WebServer(site) as web:
+                yield web.url
+
+
+def measure(cfg: WebBenchConfig, results: Results) -> None:
+    why = require_browser()
+    if why:
+        raise UserError(f"bench web cannot run: {why}", "install what is missing, then run it again")
+    from gicore.scene import load_scene
+
+    scene = load_scene(cfg.scenes[0]).name
+    work = results.out / "web_runs"
     shutil.rmtree(work, ignore_errors=True)
+    reference = Reference(cfg.threads)
+    with viewer_site(cfg, results.seed, work) as url:
+        viewer = run_page(url, cfg, results.output(SCREENSHOT), reference.check)
+    shutil.rmtree(work, ignore_errors=True)
+    results.settings["browser"] = viewer["info"] | {"chromium": viewer["chromium"]}
+    record(results, scene, cfg, viewer, reference.diff)
+    shot = (results.out / SCREENSHOT).resolve()
+    size = shot.stat().st_size
+    results.add(system="both", scene=scene, metric="screenshot", value=size, unit="bytes", file=str(shot))
 
 
 def record(res: Results, scene: str, cfg: WebBenchConfig, viewer: dict[str, Any], check: dict[str, Any]) -> None:
@@ -298,6 +319,10 @@ def record(res: Results, scene: str, cfg: WebBenchConfig, viewer: dict[str, Any]
         res.add_timing(system=GIGAN, scene=scene, metric="inference_run", samples_s=[v / 1e3 for v in values], **where)
     ratio = float(np.median(browser) / np.median(python)) if browser and python else math.nan
     res.add(system=GIGAN, scene=scene, metric="inference_ratio", value=ratio, unit="x", **common)
+    for page_system, stats in canvas_stats(viewer["snapshot"]).items():
+        system = GIGAN if page_system == "gigan" else CLOUD
+        res.add(system=system, scene=scene, metric="canvas_lit", value=stats["lit"], unit="fraction", **common)
+        res.add(system=system, scene=scene, metric="canvas_vs_di", value=stats["vs_di"], unit="tonemapped", **common)
     for stat in ("max", "mean"):
         metric = f"parity_{stat}_abs_diff"
         res.add(system=GIGAN, scene=scene, metric=metric, value=check[stat], unit="tonemapped", **common)

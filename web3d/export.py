@@ -125,7 +125,7 @@ def shadow_setup(
     }
 
 
-def _bounds(objects: list, n_spec: int) -> list[tuple[np.ndarray, float, np.ndarray | None, np.ndarray]]:
+def object_bounds(objects: list, n_spec: int) -> list[tuple[np.ndarray, float, np.ndarray | None, np.ndarray]]:
     out = []
     for i, obj in enumerate(objects):
         v = obj.mesh.vertices.astype(np.float64)
@@ -215,7 +215,7 @@ def export_assets(
     (out / "scene.json").write_text(json.dumps(header))
 
     local_fov, gi_fov = spec.camera.local_fov, spec.camera.gi_fov
-    bounds = _bounds(objects, len(spec.objects))
+    bounds = object_bounds(objects, len(spec.objects))
     setups: dict[tuple[float, ...], dict[str, Any]] = {}
     path = []
     for camera, light in path_views(spec, frames, orbit_frames, seed, local_fov, resolution):

@@ -3,7 +3,7 @@
 // window.viewer holds everything measured, for bench web and the tests.
 
 import * as ort from "/npm/onnxruntime-web/ort.all.min.mjs";
-import { context, median } from "./glutil.js";
+import { context, median, readFloats } from "./glutil.js";
 import { SceneRenderer } from "./scene.js";
 import { GiganSystem } from "./gigan.js";
 import { CloudSystem } from "./cloud.js";
@@ -155,8 +155,18 @@ async function main() {
     showHud();
     await new Promise((r) => setTimeout(r, 0)); // let the page paint and the fetch progress
   }
+  // the last frame of each canvas and its DI alone, for the checks that the canvases show GI (bench web, tests)
+  viewer.snapshot = () => ({ gigan: snapshot(glG, sceneG.diTarget), cloud: cloud ? snapshot(glC, sceneC.diTarget) : null });
   viewer.done = true;
   showHud();
+}
+
+function snapshot(gl, diTarget) {
+  const n = diTarget.w;
+  const canvas = new Uint8Array(n * n * 4);
+  gl.bindFramebuffer(gl.FRAMEBUFFER, null);
+  gl.readPixels(0, 0, n, n, gl.RGBA, gl.UNSIGNED_BYTE, canvas);
+  return { canvas: b64(canvas), di: b64(readFloats(gl, diTarget, 0)), resolution: n };
 }
 
 function glSyncDI(gl, t) {

@@ -1,0 +1,1 @@
+"""Tests of the Web3D viewer (web/, web3d/, bench web)."""

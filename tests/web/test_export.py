@@ -1,0 +1,88 @@
+"""web3d.export: the viewer's assets are the scene's own triangles, GLRenderer's shaders as GLSL ES 3.00, the
+fly-through's cameras, and the shadow setup GLRenderer fits for each light."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from gicore.geometry import scene_objects
+from gicore.loop import path_views
+from web3d.export import VERTEX_FLOATS, export_assets, object_bounds, shadow_setup, to_es
+
+
+@pytest.fixture(scope="module")
+def exported(make_spec, tmp_path_factory: pytest.TempPathFactory) -> tuple:
+    spec = make_spec(with_box=True, light={"amplitude": [0.5, 0.2]})
+    folder = tmp_path_factory.mktemp("assets")
+    spec_file = folder / "scene.json"
+    spec_file.write_text(json.dumps(spec.to_dict()))
+    header = export_assets(spec_file, folder / "out", frames=5, orbit_frames=10)
+    return spec, header, folder / "out"
+
+
+def test_the_exported_triangles_are_the_scenes(exported) -> None:
+    spec, header, out = exported
+    data = (out / "scene.bin").read_bytes()
+    n_vertices, n_indices = header["vertices"]["count"], header["indices"]["count"]
+    assert len(data) == n_vertices * VERTEX_FLOATS * 4 + n_indices * 4
+    vertices = np.frombuffer(data, np.float32, n_vertices * VERTEX_FLOATS).reshape(-1, VERTEX_FLOATS)
+    indices = np.frombuffer(data, np.uint32, n_indices, header["indices"]["offset"]).reshape(-1, 3)
+    objects = scene_objects(spec)
+    expected = np.concatenate([o.mesh.vertices[o.mesh.faces] for o in objects])  # T x 3 corners x 3
+    got = vertices[indices][..., :3]
+    assert got.shape == expected.shape
+    # the same triangles (each with its corners in order), in any order
+    key = lambda tris: np.sort(np.round(tris.reshape(len(tris), -1), 5).view("f4,f4,f4,f4,f4,f4,f4,f4,f4"), axis=0)  # noqa: E731
+    assert np.array_equal(key(got), key(expected))
+    normals = vertices[:, 3:6]
+    assert np.allclose(np.linalg.norm(normals, axis=1), 1.0, atol=1e-5)
+    # the closed meshes (sphere, box) come first and are drawn culled; the ground quad after
+    assert header["indices"]["culled"] == 3 * sum(o.mesh.n_triangles for o in objects[:2])
+
+
+def test_the_programs_are_glsl_es_300_and_the_path_is_the_clients(exported) -> None:
+    spec, header, out = exported
+    for name, program in header["programs"].items():
+        for stage, source in program.items():
+            assert source.startswith("#version 300 es\nprecision highp float;"), (name, stage)
+            assert "#version 330" not in source
+    assert "#define PASS_GBUFFER" in header["programs"]["di_gbuffer"]["fragment"]
+    assert "#define CUBE_SHADOW" in header["programs"]["di_cube"]["fragment"]
+    with pytest.raises(ValueError, match="330 core"):
+        to_es("#version 450\nvoid main() {}", fragment=True)
+    path = json.loads((out / "path.json").read_text())["frames"]
+    views = path_views(spec, 5, 10, 0, spec.camera.local_fov, header["resolution"])
+    assert len(path) == 5
+    for frame, (camera, light) in zip(path, views):
+        assert np.allclose(frame["local"]["view_proj"], camera.view_proj().T.ravel(), atol=1e-6)
+        assert np.allclose(frame["gi"]["view_proj"], camera.with_fov(spec.camera.gi_fov).view_proj().T.ravel())
+        assert frame["light"] == list(light)
+    assert len({tuple(f["light"]) for f in path}) == 5  # the light moves: each frame its own shadow setup
+    model = json.loads((out / "model" / "model.json").read_text())
+    assert (out / "model" / "model.onnx").stat().st_size > 1e6 and model["resolution"] == header["resolution"]
+
+
+@pytest.fixture(scope="module")
+def gl_renderer(make_spec):
+    from gicore.gl import GLRenderer, RasterUnavailable
+
+    try:
+        return GLRenderer(make_spec(with_box=True), 32, shadow_size=256)
+    except RasterUnavailable as err:
+        pytest.skip(f"no OpenGL context: {err}")
+
+
+@pytest.mark.parametrize("light", [(0.8, 2.6, 1.2), (0.0, 0.5, 0.0)], ids=["fitted", "cube"])
+def test_shadow_setup_is_glrenderers(gl_renderer, light) -> None:
+    position = np.asarray(light, dtype=np.float64)
+    theirs = gl_renderer._shadow_views(position)
+    ours = shadow_setup(object_bounds(gl_renderer.objects, len(gl_renderer.spec.objects)), position, 256)
+    assert len(ours["views"]) == len(theirs["views"]) == (1 if light[1] > 2 else 6)
+    for a, b in zip(ours["views"], theirs["views"]):
+        assert np.allclose(a, np.asarray(b).T.ravel(), atol=1e-6)
+    for key in ("tile", "blocker_min", "far"):
+        assert ours[key] == pytest.approx(theirs[key])
+    assert ours["texel"] == pytest.approx(theirs["texel"]) and tuple(ours["atlas"]) == tuple(theirs["atlas"])
