@@ -20,6 +20,7 @@ from gicore.cli import UserError, entry_point, writable_dir
 from gicore.options import HOST_PORT, SEED, build_config, check_fields, config_command, extra, split_host_port
 from network_sim import profiles as profile_table
 from network_sim.link import DEFAULT_WINDOW_BYTES, JITTER_DISTS, DirectionConfig, LinkConfig
+from network_sim.proxy import MAX_CONNECTIONS
 from network_sim.trace import OPPORTUNITY_BYTES, Trace
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, help=__doc__.split("\n\n")[0])
@@ -75,6 +76,8 @@ class ProxyOptions:
     seed: int = field(default=0, metadata=SEED)
     #: Write one CSV row per chunk (arrival, admission, release, actual send time).
     log: Path | None = None
+    #: Client connections at once; one more is closed on accept (lowered to fit the file-descriptor limit).
+    max_connections: int = field(default=MAX_CONNECTIONS, metadata={"min": 1, "max": 1_000_000})
 
     def __post_init__(self) -> None:
         check_fields(self)  # code building the options meets the command line's limits
@@ -125,7 +128,8 @@ def proxy(given: dict[str, Any]) -> None:
     if opts.log is not None:
         writable_dir(opts.log.parent, name="--log folder")
     assert opts.upstream is not None  # a required option
-    run(config, split_host_port(opts.listen, "--listen"), split_host_port(opts.upstream, "--upstream"), opts.log)
+    listen, upstream = split_host_port(opts.listen, "--listen"), split_host_port(opts.upstream, "--upstream")
+    run(config, listen, upstream, opts.log, opts.max_connections)
 
 
 config_command(app, ProxyOptions, proxy)

@@ -20,6 +20,11 @@ epoll, p95 0.43 vs 1.07 ms; the excess includes both loopback hops).
 Backpressure: a pipe stops reading its sender while the model has not admitted what it holds (queue or
 window full) or while the receiver's socket buffer is full; it never drops stream bytes.
 
+Connection cap: at most ``max_connections`` client connections at once (each holds two sockets); one
+more is closed as soon as it is accepted (the client sees the connection closed before any byte), and
+the refusals are reported on stderr at most once per 10 s, so a flood neither exhausts file descriptors
+nor grows the log.
+
 SIGTERM/SIGINT: stop accepting, close every connection with FIN (bytes still inside the emulated link
 are discarded, as when a link goes down), write the log, exit 0.
 
@@ -33,6 +38,7 @@ from __future__ import annotations
 import asyncio
 import csv
 import math
+import resource
 import select
 import selectors
 import signal
@@ -64,6 +70,12 @@ LOG_COLUMNS = (
 _EARLY_S = 1e-6
 #: How long the proxy waits for an upstream connection to be accepted.
 CONNECT_TIMEOUT_S = 5.0
+#: Default cap on concurrent client connections.
+MAX_CONNECTIONS = 1024
+#: File descriptors kept for everything but proxied connections (listening socket, log, stdio).
+FD_RESERVE = 64
+#: Refused connections are reported at most this often, s.
+REFUSAL_REPORT_S = 10.0
 
 
 class PreciseSelector(selectors.EpollSelector):
@@ -336,18 +348,51 @@ class _Connection:
         self.proxy.forget(self)
 
 
-class Proxy:
-    """Accepts client connections and proxies each through the shared :class:`Link` model."""
+class _Refused(asyncio.Protocol):
+    """A client connection beyond the cap: closed at once."""
 
-    def __init__(self, config: LinkConfig, upstream: tuple[str, int], log: ChunkLog | None = None) -> None:
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        transport.close()
+
+
+def connection_budget(wanted: int) -> int:
+    """``wanted`` lowered to what the file-descriptor limit holds (two sockets per proxied connection),
+    after raising the soft limit to the hard one."""
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    if soft != hard:
+        try:
+            resource.setrlimit(resource.RLIMIT_NOFILE, (hard, hard))
+            soft = hard
+        except (ValueError, OSError):
+            pass
+    if soft == resource.RLIM_INFINITY:
+        return wanted
+    return max(1, min(wanted, (soft - FD_RESERVE) // 2))
+
+
+class Proxy:
+    """Accepts client connections (at most ``max_connections`` at once) and proxies each through the shared
+    :class:`Link` model."""
+
+    def __init__(
+        self,
+        config: LinkConfig,
+        upstream: tuple[str, int],
+        log: ChunkLog | None = None,
+        max_connections: int = MAX_CONNECTIONS,
+    ) -> None:
         self.loop = asyncio.get_running_loop()
         self.link = Link(config)
         self.upstream = upstream
         self.log = log
+        self.max_connections = max_connections
         self.origin = self.loop.time()
         self.connections: dict[int, _Connection] = {}
         self._next_id = 0
         self._tasks: set[asyncio.Task[None]] = set()
+        self.refused = 0
+        self._refused_reported = 0
+        self._report: asyncio.TimerHandle | None = None
 
     def now(self) -> float:
         """The model's clock: seconds since the origin."""
@@ -361,12 +406,32 @@ class Proxy:
         self._tasks.add(task)
         task.add_done_callback(self._tasks.discard)
 
-    def accept(self) -> _Side:
-        """Protocol factory of the listening socket: a new connection's client leg."""
+    def accept(self) -> _Side | _Refused:
+        """Protocol factory of the listening socket: a new connection's client leg, or a refusal at the cap."""
+        if len(self.connections) >= self.max_connections:
+            self.refused += 1
+            if self._report is None:
+                self._report = self.loop.call_later(
+                    0 if self._refused_reported == 0 else REFUSAL_REPORT_S, self.report_refusals
+                )
+            return _Refused()
         conn = _Connection(self, self._next_id)
         self._next_id += 1
         self.connections[conn.id] = conn
         return conn.client
+
+    def report_refusals(self) -> None:
+        """One stderr line for the refusals since the last one."""
+        if self._report is not None:
+            self._report.cancel()
+        self._report = None
+        new, self._refused_reported = self.refused - self._refused_reported, self.refused
+        print(
+            f"network-sim proxy: {new} connection(s) refused at the cap of {self.max_connections} "
+            f"({self.refused} in all; reported at most every {REFUSAL_REPORT_S:g} s)",
+            file=sys.stderr,
+            flush=True,
+        )
 
     def logged(self, chunk: Chunk, sent: float | None) -> None:
         if self.log is not None:
@@ -409,11 +474,17 @@ def check_upstream(upstream: tuple[str, int], timeout_s: float = 3.0) -> None:
         ) from None
 
 
-async def serve(config: LinkConfig, listen: tuple[str, int], upstream: tuple[str, int], log_path: Path | None) -> None:
+async def serve(
+    config: LinkConfig,
+    listen: tuple[str, int],
+    upstream: tuple[str, int],
+    log_path: Path | None,
+    max_connections: int = MAX_CONNECTIONS,
+) -> None:
     """Run the proxy until SIGTERM or SIGINT; prints ``listening on HOST:PORT`` first."""
     loop = asyncio.get_running_loop()
     log = ChunkLog(log_path) if log_path is not None else None
-    proxy = Proxy(config, upstream, log)
+    proxy = Proxy(config, upstream, log, connection_budget(max_connections))
     stop = asyncio.Event()
     for sig in (signal.SIGTERM, signal.SIGINT):  # before announcing the port: a signal right after it must stop cleanly
         loop.add_signal_handler(sig, stop.set)
@@ -431,15 +502,23 @@ async def serve(config: LinkConfig, listen: tuple[str, int], upstream: tuple[str
     finally:
         server.close()
         proxy.close_all()
+        if proxy.refused > proxy._refused_reported:
+            proxy.report_refusals()
         if log is not None:
             log.close()
 
 
-def run(config: LinkConfig, listen: tuple[str, int], upstream: tuple[str, int], log_path: Path | None = None) -> None:
+def run(
+    config: LinkConfig,
+    listen: tuple[str, int],
+    upstream: tuple[str, int],
+    log_path: Path | None = None,
+    max_connections: int = MAX_CONNECTIONS,
+) -> None:
     """Check the upstream, then proxy on a precise event loop until signalled."""
     check_upstream(upstream)
     loop = new_event_loop()
     try:
-        loop.run_until_complete(serve(config, listen, upstream, log_path))
+        loop.run_until_complete(serve(config, listen, upstream, log_path, max_connections))
     finally:
         loop.close()

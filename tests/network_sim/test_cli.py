@@ -65,6 +65,8 @@ CASES = [
     (["--listen", "127.0.0.1:65536"], "--listen '127.0.0.1:65536' is not HOST:PORT"),
     (["--upstream", "127.0.0.1"], "--upstream '127.0.0.1' is not HOST:PORT"),  # the last --upstream counts
     (["--log", "afile/chunks.csv"], "--log folder afile is a file"),
+    (["--max-connections", "0"], "--max-connections = 0 is below 1"),
+    (["--max-connections", str(10**7)], "--max-connections = 10000000 is above 1000000"),
 ]
 
 

@@ -59,6 +59,30 @@ def test_every_profile_is_byte_exact(server: Running, name: str) -> None:
     assert hashlib.sha256(echoed).digest() == hashlib.sha256(payload).digest()
 
 
+def test_connection_cap_closes_one_more_and_reports_it_once(server: Running) -> None:
+    """--max-connections 3: three held connections work, more are closed at once (no byte, EOF within a
+    second), a freed slot takes the next; 200 refusals make one stderr line, not 200."""
+    with _proxy(server, "--max-connections", "3") as proxy:
+        held = [socket.create_connection(proxy.addr, timeout=TIMEOUT) for _ in range(3)]
+        try:
+            for sock in held:
+                sock.sendall(b"E")  # echo mode: the proxy forwards, the endpoint echoes
+            for _ in range(200):
+                with socket.create_connection(proxy.addr, timeout=TIMEOUT) as extra:
+                    extra.settimeout(1.0)
+                    assert extra.recv(1) == b""
+            held[0].sendall(b"ping")
+            assert held[0].recv(4) == b"ping"
+            held.pop().close()
+            time.sleep(0.2)
+            assert endpoint.echo(proxy.addr, b"x" * 1000, TIMEOUT) == b"x" * 1000
+        finally:
+            for sock in held:
+                sock.close()
+        lines = [line for line in proxy.stderr().splitlines() if "refused at the cap of 3" in line]
+    assert len(lines) == 1 and lines[0].startswith("network-sim proxy: 1 connection(s) refused"), proxy.stderr()
+
+
 def test_hundred_concurrent_connections(server: Running) -> None:
     with _proxy(server, "--delay-ms", "10", "--rate-mbit", "200", "--jitter-ms", "2") as proxy:
         with ThreadPoolExecutor(100) as pool:
