@@ -2,7 +2,6 @@
 // separate clients would), and the HUD shows their per-stage times (performance.now, after a GPU sync).
 // window.viewer holds everything measured, for bench web and the tests.
 
-import * as ort from "/npm/onnxruntime-web/ort.all.min.mjs";
 import { context, median, readFloats } from "./glutil.js";
 import { SceneRenderer } from "./scene.js";
 import { GiganSystem } from "./gigan.js";
@@ -26,17 +25,20 @@ function b64(typed) {
   return btoa(s);
 }
 
+// onnxruntime-web: the WebGPU build when the browser has an adapter (and --backend allows it), else the wasm-only
+// build (half the wasm to compile). Returns the module and the session.
 async function session(config) {
+  const adapter = config.backend !== "wasm" && "gpu" in navigator && (await navigator.gpu.requestAdapter().catch(() => null));
+  if (config.backend === "webgpu" && !adapter) throw new Error("--backend webgpu: this browser has no WebGPU adapter");
+  const ort = await import(adapter ? "/npm/onnxruntime-web/ort.all.min.mjs" : "/npm/onnxruntime-web/ort.wasm.min.mjs");
   ort.env.wasm.wasmPaths = "/npm/onnxruntime-web/";
   ort.env.wasm.numThreads = crossOriginIsolated ? config.threads : 1;
-  const webgpu = config.backend !== "wasm" && "gpu" in navigator && (await navigator.gpu.requestAdapter().catch(() => null));
-  if (config.backend === "webgpu" && !webgpu) throw new Error("--backend webgpu: this browser has no WebGPU adapter");
-  const providers = webgpu ? ["webgpu", "wasm"] : ["wasm"];
   const model = await (await fetch("/assets/model/model.onnx")).arrayBuffer();
+  const providers = adapter ? ["webgpu", "wasm"] : ["wasm"];
   const s = await ort.InferenceSession.create(model, { executionProviders: providers, graphOptimizationLevel: "all" });
-  viewer.info.backend = webgpu ? "webgpu" : "wasm";
+  viewer.info.backend = adapter ? "webgpu" : "wasm";
   viewer.info.wasm_threads = ort.env.wasm.numThreads;
-  return s;
+  return { ort, session: s };
 }
 
 // ---- HUD -------------------------------------------------------------------------------------------------
@@ -89,13 +91,16 @@ async function main() {
   viewer.info.triangles = scene.triangles;
   const sceneG = new SceneRenderer(glG, scene, bin);
   const sceneC = new SceneRenderer(glC, scene, bin);
-  const gigan = new GiganSystem(glG, sceneG, modelConfig, await session(config), ort);
+  const first = path.frames[0];
   const cloud = config.cloud ? new CloudSystem(glC, sceneC, config) : null;
   if (!cloud) document.getElementById("cloud-off").hidden = false;
+  // cloud baking's first request (frame 0's) goes out now: its server works while the page sets up GIGAN
+  if (cloud) cloud.request(first, 0);
+  const { ort, session: s } = await session(config);
+  const gigan = new GiganSystem(glG, sceneG, modelConfig, s, ort);
 
   // warm-up, untimed (as the Python clients' warm_up): every shader compiled and run once, onnxruntime's first
   // runs (lazy initialisation) done; GIGAN's map from it is dropped
-  const first = path.frames[0];
   await gigan.produce(first);
   await gigan.infer(gigan.input);
   const diWarmG = sceneG.renderDI(first);
