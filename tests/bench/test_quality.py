@@ -166,9 +166,9 @@ def test_model_card_and_report_show_the_low_frequency_error(scored: tuple[Path, 
 
 
 # -- the inputs' renderer (issue 22) --------------------------------------------------------------------------------
-#: The shipped model on GL inputs against Mitsuba inputs, 2 held-out lung_plane frames at 256² (16 spp + OIDN GT):
-#: paired SSIM difference measured +0.0007 (standard error 6e-5) and LF error ratio 0.95 here; the bounds are issue
-#: 22's rule.
+#: The shipped model on GL inputs against Mitsuba inputs, 2 held-out lung_plane frames at 256² (raw 32-spp GT): paired
+#: SSIM difference measured +0.0007 (standard error 1.2e-4) and LF error ratio 1.03 here (0.93 with 16 held-out
+#: frames and a 64-spp + OIDN GT); the bounds are issue 22's rule.
 GL_SSIM_DIFF_MIN = -0.005
 GL_LF_RATIO_MAX = 1.2
 
@@ -186,7 +186,7 @@ def test_shipped_model_loses_little_on_gl_inputs(tmp_path: Path) -> None:
     from gicore.dataset_cli import build_dataset
     from gicore.scene import load_scene
 
-    cfg_ds = DatasetConfig(n_train=0, n_val=2, resolution=256, spp=16, denoise=True)
+    cfg_ds = DatasetConfig(n_train=0, n_val=2, resolution=256, spp=32, denoise=False)  # OIDN's load: seconds
     build_dataset(load_scene("lung_plane"), tmp_path / "data" / "lung_plane", cfg_ds, progress=False)
     cfg = quality.QualityConfig(
         datasets=tmp_path / "data",
@@ -196,8 +196,10 @@ def test_shipped_model_loses_little_on_gl_inputs(tmp_path: Path) -> None:
         grid_frames=0,
         renderers=("gl", "mitsuba"),
     )
-    execute(quality.BENCH, cfg, tmp_path / "out")
-    rows = read_rows(tmp_path / "out" / "quality.csv")
+    cfg.check()
+    res = Results("quality", tmp_path / "out")
+    quality.measure(cfg, res)  # the bench without its plots (seconds of matplotlib)
+    rows = read_rows(res.write())
     mean = {(r["system"], r["config"]["renderer"], r["metric"]): r for r in rows if r["stat"] == "mean"}
     for renderer in ("gl", "mitsuba"):  # the model adds GI on either renderer's inputs
         assert mean["gigan", renderer, "ssim"]["value"] > mean["di_only", renderer, "ssim"]["value"] + 0.03
