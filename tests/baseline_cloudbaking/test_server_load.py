@@ -330,3 +330,35 @@ def test_openapi_states_the_served_limits(srv: Server) -> None:
     assert {"200", "400", "409", "413", "422", "503", "507"} <= set(responses)
     assert "Retry-After" in responses["503"]["headers"]
     assert {"200", "304", "404"} <= set(doc["paths"]["/v1/maps/{sha}"]["get"]["responses"])
+
+
+#: What schemathesis may expect of POST /v1/gimap beyond the schema: a request can satisfy the JSON Schema
+#: and still break a rule across its fields (eye = target, up parallel to the view, a light given for a
+#: scene whose light is static), which is a 422 naming the field; every other check stays as it is.
+SCHEMATHESIS_CONFIG = """
+[[operations]]
+include-path = "/v1/gimap"
+include-method = "POST"
+checks.positive_data_acceptance.expected-statuses = ["2xx", "409", "422"]
+
+[[operations]]
+include-path = "/v1/maps/{{sha}}"
+parameters = {{ "path.sha" = "{sha}" }}
+"""
+
+
+@pytest.mark.slow
+def test_schemathesis_checks_all_find_no_failure(tmp_path: Path, scenes_dir: Path) -> None:
+    """``schemathesis run --checks all`` against the served OpenAPI document (32² and 64² maps, spp <= 2,
+    so its valid requests bake in milliseconds); GET /v1/maps/{sha} is given a stored map's SHA."""
+    env = {"CLOUDBAKING_RESOLUTIONS": "[32, 64]", "CLOUDBAKING_MAX_SPP": "2"}
+    with server(tmp_path / "store", scenes_dir, env=env) as srv:
+        stored = srv.post(gimap_body(resolution=32, spp=2))
+        sha = stored.headers["content-location"].rsplit("/", 1)[1]
+        config = tmp_path / "schemathesis.toml"
+        config.write_text(SCHEMATHESIS_CONFIG.format(sha=sha))
+        argv = [str(BIN / "schemathesis"), "--config-file", str(config), "run", "--checks", "all"]
+        argv += ["--max-examples", "25", "--seed", "1", "--no-color", f"{srv.url}/openapi.json"]
+        run = subprocess.run(argv, capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    print(run.stdout[-1500:])
+    assert run.returncode == 0 and " passed" in run.stdout and "failed" not in run.stdout, run.stdout[-4000:]
