@@ -6,16 +6,16 @@ scene's triangle count. Medians and p95 over repeats after a warm-up; the plot s
 
 The clients' raster passes (:data:`CLIENT_PASSES`, at each of ``gl_resolutions``), as a client runs them
 frame after frame (the camera moves along the scene's path, the light along its schedule, so with a moving
-light every GL DI pass here redraws its shadow map; in a client the frame's first DI pass does): ``gi_camera``
-(DI + centre-sampled G-buffers at the GI camera: GIGAN's generator input), ``local_di`` (DI at the local
-camera, both systems), ``uv`` (the structure-aware warp's pass, coordinates projected from a GI camera) and
-``depth`` (the pixel-level warp's surface-mask / depth pass). Each on OpenGL (``system = gl``, at ``lod``
-``full`` and at the clients' ``auto``; :class:`gicore.gl.GLRenderer`) and on Mitsuba (``system =
-mitsuba``: the centre-sampled passes a ``--renderer mitsuba`` client runs), side by side in one run
-(``stat = ratio`` rows: gl median over Mitsuba median). For ``lod = auto``: the level each view drew
-(``lod_level``) and what it cost against full detail at that view, per G-buffer channel (``lod_error_*``,
-:func:`gicore.gl.lod.lod_errors`; ``view = gi`` or ``local``). Where no GL context opens the GL passes are
-left out after one warning.
+light every GL DI pass here redraws its shadow map; in a client the frame's first DI pass does):
+``gi_camera`` (DI + centre-sampled G-buffers at the GI camera: GIGAN's generator input), ``local_di`` (DI at
+the local camera, both systems), ``uv`` (the structure-aware warp's pass, coordinates projected from a GI
+camera) and ``depth`` (the pixel-level warp's surface-mask / depth pass). Each on OpenGL (``system = gl``,
+at ``lod`` ``full`` and at the clients' ``auto``; :class:`gicore.gl.GLRenderer`) and on Mitsuba (``system =
+mitsuba``: the centre-sampled passes a ``--renderer mitsuba`` client runs), side by side in one run, one
+repeat of each renderer in turn (``stat = ratio`` rows: gl median over Mitsuba median). For ``lod = auto``:
+the level each view drew (``lod_level``) and what it cost against full detail at that view, per G-buffer
+channel (``lod_error_*``, :func:`gicore.gl.lod.lod_errors`; ``view = gi`` or ``local``). Where no GL context
+opens the GL passes are left out after one warning.
 """
 
 from __future__ import annotations
@@ -195,13 +195,22 @@ def measure_client_passes(cfg: RenderBenchConfig, res: Results) -> None:
                 ("gl", {"lod": lod}, GLRenderer(spec, resolution, lod=lod)) for lod in GL_LODS
             ]
             renderers.append(("mitsuba", {"variant": VARIANT}, Renderer(spec, resolution)))
-            for system, extra, renderer in renderers:
-                config = {"resolution": resolution, "pass_set": "client"} | extra
-                for stage, fn in _client_passes(renderer, spec, resolution, res.seed).items():
-                    samples, _ = time_repeats(fn, cfg.gl_repeats, warmup=2)
-                    res.add_timing(system=system, scene=name, metric=stage, samples_s=samples, **config)
-                    medians[system, extra.get("lod", ""), stage] = float(np.median(samples))
+            passes = [_client_passes(renderer, spec, resolution, res.seed) for _, _, renderer in renderers]
+            for stage in CLIENT_PASSES:
+                # one repeat of each renderer in turn, so that a shared machine's changing load falls on all alike
+                samples: list[list[float]] = [[] for _ in renderers]
+                for fns in passes:
+                    time_repeats(fns[stage], 1, warmup=1)
+                for _ in range(cfg.gl_repeats):
+                    for mine, fns in zip(samples, passes):
+                        mine += time_repeats(fns[stage], 1, warmup=0)[0]
+                for (system, extra, _), mine in zip(renderers, samples):
+                    config = {"resolution": resolution, "pass_set": "client"} | extra
+                    res.add_timing(system=system, scene=name, metric=stage, samples_s=mine, **config)
+                    medians[system, extra.get("lod", ""), stage] = float(np.median(mine))
+            for _, extra, renderer in renderers:
                 if extra.get("lod") == "auto":
+                    config = {"resolution": resolution, "pass_set": "client"} | extra
                     _lod_rows(res, renderer, spec, resolution, res.seed, config)
             for lod in GL_LODS:
                 for stage in CLIENT_PASSES:

@@ -327,7 +327,8 @@ class PathRunConfig:
     #: Renderer of the per-frame raster passes (local DI, GIGAN's DI + G-buffers at the GI camera, the warps'
     #: uv/depth passes): gl (OpenGL on headless EGL at level of detail auto; without a context: one warning and
     #: mitsuba) or mitsuba. Path tracing (GT, the gt source, the server) is always Mitsuba's. The shipped model
-    #: scores no worse on GL inputs at lod auto than on Mitsuba's (SSIM +0.0004 to +0.0029 on four scenes, issue 22).
+    #: scores within 0.005 SSIM of Mitsuba inputs on GL inputs at lod auto (-0.0013 to +0.0034 on the five scenes,
+    #: bench quality --renderers gl,mitsuba; see the model card).
     renderer: Literal[RENDERERS] = "gl"  # type: ignore[valid-type]
 
     def __post_init__(self) -> None:
