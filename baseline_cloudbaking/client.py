@@ -27,15 +27,31 @@ latency, request to arrival):
 :data:`RECORD_COLUMNS`) also has the bytes each way (body plus HTTP header bytes; TCP/IP headers are not
 counted), the hit flag, and ``pickup_ms``: arrival to the first :meth:`~RemoteSource.latest` call that
 returned the map, i.e. how long it waited for the loop's next frame.
+
+When to ask (:class:`RequestPolicy`, issue 23): with the server's tolerance given, a source asked for a view
+sends nothing while a map it holds (one of the last :data:`KEPT_MAPS` arrived) or the one in flight would
+serve that view by the GI tree's own rule (:func:`covers`: same light cell, and
+:func:`baseline_cloudbaking.store.nearest` within the tolerance), since the server would answer with that same
+map; :meth:`~RemoteSource.latest` then returns the held map that best serves the last view asked for (the
+newest when none does). Prefetch ``extrapolate`` asks instead for the view the camera will have when the
+answer is shown, as Outatime speculates one round trip ahead (:class:`MotionPredictor`: its recent motion
+extrapolated ``lead`` s ahead; the lead is the median latency of the source's own recent requests, plus half a
+frame interval, plus half the time the camera takes to cross the tolerance, so that the map's tolerance is
+centred on the views from its arrival on). A ``503`` with ``Retry-After`` holds every request back for that
+long (at most the request deadline).
 """
 
 from __future__ import annotations
 
+import email.utils
 import json
 import logging
+import math
 import threading
 import time
-from dataclasses import dataclass, field
+import weakref
+from collections import deque
+from dataclasses import dataclass, field, replace
 from functools import partial
 from pathlib import Path
 from typing import Any, Literal
@@ -45,6 +61,7 @@ import numpy as np
 
 from baseline_cloudbaking.codecs import CODEC_NAMES, DEFAULT_CODEC, CodecError, get_codec
 from baseline_cloudbaking.protocol import MEDIA_TYPE, PayloadError, decode_payload
+from baseline_cloudbaking.store import Tolerance, Viewpoint, light_cell, nearest
 from gicore.camera import Camera
 from gicore.loop import GIMap, Light, PathRunConfig
 
@@ -126,12 +143,138 @@ class RemoteConfig:
         return json.dumps(request).encode()
 
 
-class RequestFailed(Exception):
-    """A request that produced no map: ``status`` says how (see :meth:`RemoteSource._fetch`)."""
+# -- when to ask: the server's tolerance, and prefetch --------------------------------------------------------
+#: Prefetch policies (:attr:`CloudClientConfig.prefetch`).
+PREFETCH = ("none", "extrapolate")
+#: Request rules (:attr:`CloudClientConfig.hold`).
+HOLDS = ("tolerance", "none")
+#: Arrived maps a source keeps to serve later views (a prefetched map arrives before its view is reached).
+KEPT_MAPS = 4
+LightCell = tuple[int, int, int] | None
 
-    def __init__(self, status: str, message: str):
+
+@dataclass(frozen=True)
+class RequestPolicy:
+    """When a :class:`RemoteSource` sends the requests the loop asks for (module docstring)."""
+
+    #: The server's tolerance; None: send whenever asked and free (the loop's period k and its own test decide).
+    tolerance: Tolerance | None = None
+    #: The server's light-cell side for the scene (None: a static light, no light level in the tree's keys).
+    light_cell: float | None = None
+    #: ``none`` or ``extrapolate`` (needs ``tolerance``).
+    prefetch: str = "none"
+    #: Recent frames whose motion is extrapolated.
+    history: int = 8
+    #: Recent requests whose median latency sets the prefetch lead.
+    latencies: int = 8
+
+    def __post_init__(self) -> None:
+        if self.prefetch not in PREFETCH:
+            raise ValueError(f"prefetch must be one of {PREFETCH}, got {self.prefetch!r}")
+        if self.prefetch != "none" and self.tolerance is None:
+            raise ValueError("prefetch needs the server's tolerance (a map is asked ahead only when none held serves)")
+        if self.history < 2 or self.latencies < 1:
+            raise ValueError(f"history must be >= 2 and latencies >= 1, got {self.history} and {self.latencies}")
+
+    def cell(self, light: Light) -> LightCell:
+        return light_cell(light, self.light_cell)
+
+
+def covers(map_camera: Camera, map_cell: LightCell, camera: Camera, cell: LightCell, tol: Tolerance) -> bool:
+    """Whether a map at ``map_camera`` (made in light cell ``map_cell``) serves a request at ``camera`` in light
+    cell ``cell``: the GI tree's own lookup rule (:func:`baseline_cloudbaking.store.nearest`)."""
+    if map_cell != cell:
+        return False
+    held = _viewpoint(map_camera)
+    return nearest(np.array([held.eye]), np.array([held.direction]), _viewpoint(camera), tol) is not None
+
+
+def _viewpoint(camera: Camera) -> Viewpoint:
+    return Viewpoint.look_at(camera.origin, camera.target)
+
+
+class MotionPredictor:
+    """The camera's recent motion (the last ``history`` views: frame, when it was asked for, camera), extrapolated:
+    eye position and view direction fitted against the frame number by least squares (a parabola from five views
+    on, as an orbit bends; a line before), evaluated the frames ahead that a lead in seconds spans at the median
+    frame interval. Fitting against frames, not request times, keeps the jitter of when in its frame a view was
+    asked for out of the motion; the direction is renormalised."""
+
+    def __init__(self, history: int):
+        self._views: deque[tuple[int, float, np.ndarray, np.ndarray]] = deque(maxlen=history)
+
+    def add(self, frame: int, t: float, camera: Camera) -> None:
+        if self._views and frame <= self._views[-1][0]:  # a frame asked twice (or a restart): keep the motion
+            return
+        view = _viewpoint(camera)
+        self._views.append((frame, t, np.array(view.eye), np.array(view.direction)))
+
+    def frame_interval_s(self) -> float | None:
+        """Median time per frame between the views (None before two)."""
+        if len(self._views) < 2:
+            return None
+        frames = np.diff([v[0] for v in self._views])
+        return float(np.median(np.diff([v[1] for v in self._views]) / frames))
+
+    def crossing_s(self, tol: Tolerance) -> float | None:
+        """Time the camera takes to move one tolerance (its eye ``tol.position`` or its direction ``tol.angle_deg``,
+        whichever comes first) at its last speed; None before two views or when it stands still."""
+        interval = self.frame_interval_s()
+        if interval is None:
+            return None
+        (f0, _, e0, d0), (f1, _, e1, d1) = self._views[-2], self._views[-1]
+        move = float(np.linalg.norm(e1 - e0)) / max(tol.position, 1e-12)
+        turn = math.degrees(math.atan2(float(np.linalg.norm(np.cross(d0, d1))), float(d0 @ d1)))
+        per_frame = max(move, turn / max(tol.angle_deg, 1e-12)) / (f1 - f0)
+        return interval / per_frame if per_frame > 0.0 else None
+
+    def predict(self, camera: Camera, lead_s: float) -> Camera | None:
+        """``camera`` moved to where its motion puts it ``lead_s`` after the last view (its distance to its
+        target, its up and FOV kept); None before three views."""
+        interval = self.frame_interval_s()
+        if len(self._views) < 3 or interval is None or not interval > 0.0:
+            return None
+        f = np.array([v[0] for v in self._views], dtype=float)
+        f -= f[-1]
+        ahead = lead_s / interval
+        degree = 2 if len(f) >= 5 else 1
+        eyes = np.array([v[2] for v in self._views])
+        dirs = np.array([v[3] for v in self._views])
+        eye = np.array([np.polyval(np.polyfit(f, eyes[:, i], degree), ahead) for i in range(3)])
+        d = np.array([np.polyval(np.polyfit(f, dirs[:, i], degree), ahead) for i in range(3)])
+        norm = float(np.linalg.norm(d))
+        if not (np.isfinite(eye).all() and math.isfinite(norm) and norm > 1e-9):
+            return None
+        reach = float(np.linalg.norm(np.subtract(camera.target, camera.origin)))
+        try:
+            return replace(camera, origin=tuple(eye), target=tuple(eye + d / norm * reach))
+        except ValueError:  # e.g. a view direction parallel to up: ask for the view as it is
+            return None
+
+
+def retry_after_s(value: str | None, default: float, longest: float) -> float:
+    """Seconds a ``Retry-After`` header asks to wait (delay-seconds or an HTTP date), within [0, ``longest``];
+    ``default`` when absent or unreadable."""
+    if value is None:
+        return default
+    try:
+        seconds = float(int(value.strip()))
+    except ValueError:
+        try:
+            seconds = email.utils.parsedate_to_datetime(value).timestamp() - time.time()
+        except (TypeError, ValueError, OverflowError):
+            return default
+    return min(max(seconds, 0.0), longest)
+
+
+class RequestFailed(Exception):
+    """A request that produced no map: ``status`` says how (see :meth:`RemoteSource._fetch`);
+    ``retry_after_s``: how long the server asked the client to wait (None: not asked)."""
+
+    def __init__(self, status: str, message: str, retry_after_s: float | None = None):
         super().__init__(message)
         self.status = status
+        self.retry_after_s = retry_after_s
 
 
 def _header_bytes(headers: httpx.Headers) -> int:
@@ -148,7 +291,8 @@ def _http_error(response: httpx.Response) -> str:
 
 
 class RemoteSource:
-    """GI maps from a cloud-baking server, fetched in a background thread (see the module docstring).
+    """GI maps from a cloud-baking server, fetched in a background thread (see the module docstring), sent
+    when ``policy`` says so.
 
     ``records``: one dict per finished request (:data:`RECORD_COLUMNS`), in the order they finished.
     Use as a context manager, or call :meth:`close`.
@@ -157,8 +301,12 @@ class RemoteSource:
     name = "cloud"
     stages = STAGES
 
-    def __init__(self, cfg: RemoteConfig):
+    def __init__(self, cfg: RemoteConfig, policy: RequestPolicy = RequestPolicy()):
         self.cfg = cfg
+        self.policy = policy
+        self.motion = MotionPredictor(policy.history)
+        self.kept: deque[tuple[GIMap, LightCell]] = deque(maxlen=KEPT_MAPS)  # arrived maps, newest last
+        self._view: tuple[Camera, LightCell] | None = None  # the last view asked for
         self.client = httpx.Client(base_url=cfg.server, timeout=cfg.timeout())
         self.records: list[dict[str, Any]] = []
         self._t0 = time.perf_counter()
@@ -168,28 +316,96 @@ class RemoteSource:
         self._busy = False
         self._closed = False
         self._not_before = 0.0
-        self._latest: GIMap | None = None
-        self._unpicked: dict[str, Any] | None = None  # the record of the newest map, until the loop takes it
+        self._unpicked: dict[GIMap, dict[str, Any]] = {}  # the records of maps the loop has not taken yet
+        self._cells: weakref.WeakKeyDictionary[GIMap, LightCell] = weakref.WeakKeyDictionary()
         self._thread = threading.Thread(target=self._work, name="gimap-requests", daemon=True)
         self._thread.start()
 
     # -- GISource --------------------------------------------------------------------------------------
+    @property
+    def started_at(self) -> float:
+        """The ``time.perf_counter()`` stamp that records' ``requested_s`` count from."""
+        return self._t0
+
     def request(self, camera: Camera, light: Light, frame: int) -> bool:
+        now = time.perf_counter()
         with self._cond:
-            if self._busy or self._closed or time.perf_counter() < self._not_before:
+            if self._closed:
+                return False
+            if self.policy.tolerance is not None:
+                self.motion.add(frame, now, camera)
+                self._view = (camera, self.policy.cell(light))
+            if self._busy or now < self._not_before:
+                return False
+            target = camera if self.policy.tolerance is None else self._target(camera, light)
+            if target is None:
                 return False
             self._busy = True
-            self._job = (camera, light, frame, time.perf_counter())
+            self._job = (target, light, frame, now)
             self._cond.notify()
         return True
 
     def latest(self) -> GIMap | None:
+        """The held map that best serves the last view asked for (the newest when none does, or without a
+        tolerance)."""
         with self._cond:
-            gi = self._latest
-            if gi is not None and self._unpicked is not None:
-                self._unpicked["pickup_ms"] = (time.perf_counter() - gi.arrived_at) * 1e3
-                self._unpicked = None
+            if not self.kept:
+                return None
+            gi = self.kept[-1][0]
+            if self._view is not None:
+                best = self._serving(*self._view, in_flight=False)
+                gi = self.kept[best][0] if best is not None else gi
+            record = self._unpicked.pop(gi, None)
+            if record is not None:
+                record["pickup_ms"] = (time.perf_counter() - gi.arrived_at) * 1e3
             return gi
+
+    def cell_of(self, gi: GIMap) -> LightCell:
+        """The light cell of a map this source returned (the cell of the light it was asked under)."""
+        with self._cond:
+            return self._cells[gi]
+
+    # -- the request rule (call with the lock held) ------------------------------------------------------------
+    def _serving(self, camera: Camera, cell: LightCell, in_flight: bool) -> int | None:
+        """Index in :attr:`kept` of the held map that best serves the view (by the tree's score), -1 for the map in
+        flight (``in_flight``: when it serves and no held one does), None when none does."""
+        tol = self.policy.tolerance
+        assert tol is not None
+        mine = [i for i, (_, c) in enumerate(self.kept) if c == cell]
+        if mine:
+            views = [_viewpoint(self.kept[i][0].camera) for i in mine]
+            eyes, dirs = np.array([v.eye for v in views]), np.array([v.direction for v in views])
+            found = nearest(eyes, dirs, _viewpoint(camera), tol)
+            if found is not None:
+                return mine[found[0]]
+        if in_flight and self._in_flight is not None:
+            target, light = self._in_flight[:2]
+            if covers(target, self.policy.cell(light), camera, cell, tol):
+                return -1
+        return None
+
+    def _lead_s(self) -> float | None:
+        """How far ahead to ask: the median latency of the last served requests plus half a frame interval (when
+        the map is shown), plus half the time the camera takes to cross the tolerance, so that the map serves the
+        view from its arrival on for as long as it can (None before a request was served)."""
+        served = [float(r["latency_ms"]) for r in self.records if r["status"] == "ok"][-self.policy.latencies :]
+        interval = self.motion.frame_interval_s()
+        if not served or interval is None:
+            return None
+        assert self.policy.tolerance is not None
+        crossing = self.motion.crossing_s(self.policy.tolerance) or 0.0
+        return float(np.median(served)) / 1e3 + interval / 2 + crossing / 2
+
+    def _target(self, camera: Camera, light: Light) -> Camera | None:
+        """The view to ask for when asked at ``camera``: None while a held map or the one in flight serves it;
+        with prefetch, the predicted view (asked when none serves that one), once a lead is known."""
+        cell = self.policy.cell(light)
+        if self.policy.prefetch == "extrapolate":
+            lead = self._lead_s()
+            predicted = self.motion.predict(camera, lead) if lead is not None else None
+            if predicted is not None:
+                return None if self._serving(predicted, cell, in_flight=True) is not None else predicted
+        return None if self._serving(camera, cell, in_flight=True) is not None else camera
 
     def warm_up(self, camera: Camera, light: Light) -> None:
         """Open the keep-alive connection (``GET /v1/health``) and run the codec once, both untimed."""
@@ -247,7 +463,7 @@ class RemoteSource:
                 job, self._job = self._job, None
                 self._in_flight = job
             try:
-                record, gi = self._fetch(*job)
+                record, gi, wait = self._fetch(*job)
             except Exception:
                 if self._closed:  # the connection was closed under a request that close() abandoned
                     return
@@ -258,14 +474,21 @@ class RemoteSource:
                 self._in_flight = None
                 self.records.append(record)
                 if gi is not None:
-                    self._latest, self._unpicked = gi, record
+                    if len(self.kept) == self.kept.maxlen:
+                        self._unpicked.pop(self.kept[0][0], None)
+                    cell = self.policy.cell(job[1])
+                    self.kept.append((gi, cell))
+                    self._cells[gi] = cell
+                    self._unpicked[gi] = record
                 else:
-                    self._not_before = time.perf_counter() + self.cfg.retry_after_s
+                    self._not_before = time.perf_counter() + (self.cfg.retry_after_s if wait is None else wait)
                 self._busy = False
                 self._cond.notify_all()
 
-    def _fetch(self, camera: Camera, light: Light, frame: int, t_request: float) -> tuple[dict[str, Any], GIMap | None]:
-        """One request: its record, and its map (None if it failed)."""
+    def _fetch(
+        self, camera: Camera, light: Light, frame: int, t_request: float
+    ) -> tuple[dict[str, Any], GIMap | None, float | None]:
+        """One request: its record, its map (None if it failed) and the wait the server asked for (None: none)."""
         cfg = self.cfg
         body = cfg.body(camera, light)
         record: dict[str, Any] = dict.fromkeys(RECORD_COLUMNS, "")
@@ -277,6 +500,10 @@ class RemoteSource:
                     t_first = time.perf_counter()
                     request_line = f"POST {response.request.url.raw_path.decode()} HTTP/1.1\r\n"
                     record["bytes_up"] = len(request_line) + _header_bytes(response.request.headers) + len(body)
+                    if response.status_code == 503:  # overloaded: wait as long as the server asks
+                        response.read()
+                        wait = retry_after_s(response.headers.get("retry-after"), cfg.retry_after_s, cfg.deadline_s)
+                        raise RequestFailed("overloaded", _http_error(response), wait)
                     if response.status_code != 200:
                         response.read()
                         raise RequestFailed("http_error", _http_error(response))
@@ -303,7 +530,7 @@ class RemoteSource:
         except RequestFailed as exc:
             record |= {"status": exc.status, "error": str(exc), "latency_ms": (time.perf_counter() - t_request) * 1e3}
             log.warning("GI-map request %d (frame %d) failed: %s: %s", record["request_id"], frame, exc.status, exc)
-            return record, None
+            return record, None, exc.retry_after_s
         arrived = time.perf_counter()
         server = {s: float(payload.timings_ms[s]) for s in SERVER_STAGES if s in payload.timings_ms}
         server_ms = float(payload.timings_ms.get("total", sum(server.values())))
@@ -330,7 +557,7 @@ class RemoteSource:
             arrived_at=arrived,
             stages=stages,
         )
-        return record, gi
+        return record, gi, None
 
 
 # -- the client process's run ------------------------------------------------------------------------------
@@ -345,6 +572,12 @@ class ServerInfo:
     #: Δp / Δθ of the server's GI tree: the client asks again once its view leaves them.
     tolerance_position: float
     tolerance_angle_deg: float
+    #: Side of the scene's light cells in the tree's keys (None: its light is static, no light level).
+    light_cell: float | None = None
+
+    @property
+    def tolerance(self) -> Tolerance:
+        return Tolerance(self.tolerance_position, self.tolerance_angle_deg)
 
 
 def check_server(server: str, scene: str, resolution: int, codec: str, spp: int, timeout_s: float) -> ServerInfo:
@@ -379,9 +612,12 @@ def check_server(server: str, scene: str, resolution: int, codec: str, spp: int,
         if health.status_code != 200 or health.json().get("status") != "ok" or scenes.status_code != 200:
             raise ValueError
         info = scenes.json()
-        served = {s["name"] for s in info["scenes"]}
+        served = {s["name"]: s for s in info["scenes"]}
         resolutions, codecs, max_spp = info["resolutions"], info["codecs"], int(info["max_spp"])
-        tolerance = ServerInfo(float(info["tolerance_position"]), float(info["tolerance_angle_deg"]))
+        cell = served[scene].get("light_cell") if scene in served else None
+        tolerance = ServerInfo(
+            float(info["tolerance_position"]), float(info["tolerance_angle_deg"]), None if cell is None else float(cell)
+        )
     except (ValueError, KeyError, TypeError):
         what = f"--server {server} does not answer like a cloudbaking-server (GET /v1/health: {health.status_code})"
         raise UserError(what, "check the URL") from None
@@ -418,10 +654,30 @@ class CloudClientConfig(PathRunConfig):
     read_timeout: float = field(default=RemoteConfig.read_timeout_s, metadata=TIMEOUT_S)
     #: Seconds after which a request fails however it is going.
     deadline: float = field(default=RemoteConfig.deadline_s, metadata=TIMEOUT_S)
+    #: When to ask: tolerance (only when no map held or in flight is within the server's tolerance of the view, by
+    #: the GI tree's rule; -k is not used) or none (the rule before issue 23: every k frames, and when the bound
+    #: map leaves the tolerance).
+    hold: Literal[HOLDS] = "tolerance"  # type: ignore[valid-type]
+    #: Prefetch: none, or extrapolate (ask for the view the camera's recent motion reaches one measured request
+    #: latency ahead; needs --hold tolerance).
+    prefetch: Literal[PREFETCH] = "none"  # type: ignore[valid-type]
+    #: Frames per second the frames are paced to, as a display refreshes (absent: as fast as they render).
+    frame_rate: float | None = field(default=None, metadata={"min": 1.0, "max": 1000.0})
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.prefetch != "none" and self.hold != "tolerance":
+            raise ValueError(f"--prefetch {self.prefetch} needs --hold tolerance (it asks only when no map serves)")
 
     @property
     def server_name(self) -> str:
         return Path(self.scene).stem
+
+    def policy(self, server: ServerInfo) -> RequestPolicy:
+        """When to send requests to ``server`` (its tolerance and the scene's light cell)."""
+        if self.hold == "none":  # the cell still names each map's light cell (perceived latency)
+            return RequestPolicy(light_cell=server.light_cell)
+        return RequestPolicy(server.tolerance, server.light_cell, self.prefetch)
 
     def remote(self, server: str, light_moves: bool) -> RemoteConfig:
         """What to ask ``server`` for: this run's maps (its resolution, codec and spp, the DI where the
@@ -442,7 +698,9 @@ def run_client(
 
     The local DI and the warp's surface-mask pass use ``cfg.renderer``; the GT stays with Mitsuba. Composed
     frames of scored frames are kept and scored against the GT after the run, so the GT renders neither
-    delay frames nor change when requests go out.
+    delay frames nor change when requests go out. With ``cfg.hold`` tolerance the loop asks every frame and the
+    source decides (:class:`RequestPolicy`). Each row also has :data:`PERCEIVED_COLUMNS`
+    (:func:`perceived_latency`).
     """
     from baseline_cloudbaking.warp import PixelWarp
     from gicore.gl import GLRenderer, RasterUnavailable
@@ -455,26 +713,95 @@ def run_client(
     renderer = Renderer(spec, cfg.resolution)
     gl = partial(GLRenderer, spec, cfg.resolution, lod=CLIENT_LOD)
     raster, used = open_raster(cfg.renderer, renderer, gl, RasterUnavailable)
+    policy = cfg.policy(tolerance)
+    held = policy.tolerance is not None
     loop_cfg = LoopConfig(
-        every=cfg.every, gi_fov=cfg.gi_fov_of(spec), max_move=tolerance.tolerance_position or None,
-        max_turn=tolerance.tolerance_angle_deg or None, composition=cfg.composition, tau=cfg.tau, seed=cfg.seed,
-        first_map_timeout_s=remote.connect_timeout_s + remote.deadline_s,
+        every=1 if held else cfg.every, gi_fov=cfg.gi_fov_of(spec),
+        max_move=None if held else tolerance.tolerance_position or None,
+        max_turn=None if held else tolerance.tolerance_angle_deg or None, composition=cfg.composition, tau=cfg.tau,
+        seed=cfg.seed, first_map_timeout_s=remote.connect_timeout_s + remote.deadline_s,
     )  # fmt: skip
     views = path_views(spec, cfg.frames, cfg.orbit_frames, cfg.seed, cfg.local_fov_of(spec), cfg.resolution)
     kept: dict[int, np.ndarray] = {}
+    shown: list[tuple[float, float, GIMap | None, LightCell]] = []  # (start s, shown s, bound map, its cell)
+    next_start: list[float] = []
 
-    def keep(frame: int, result) -> None:
-        if cfg.gt_every and frame % cfg.gt_every == 0:
-            kept[frame] = result.image
-
-    with RemoteSource(remote) as source:
+    with RemoteSource(remote, policy) as source:
         warp = PixelWarp(raster, LAYERS[cfg.composition])
-        rows = run_frames(ClientLoop(loop_cfg, raster, source, warp), views, None, keep)
+        loop = ClientLoop(loop_cfg, raster, source, warp)
+
+        def keep(frame: int, result) -> None:
+            end = time.perf_counter()
+            start = next_start[-1] if next_start else end - float(result.row["frame_ms"]) / 1e3
+            gi = loop.bound
+            cell = None if gi is None else source.cell_of(gi)
+            shown.append((start - source.started_at, end - source.started_at, gi, cell))
+            if cfg.gt_every and frame % cfg.gt_every == 0:
+                kept[frame] = result.image
+            if cfg.frame_rate:  # the next frame starts on the display's next refresh after this one's start
+                time.sleep(max(0.0, start + 1.0 / cfg.frame_rate - time.perf_counter()))
+            next_start.append(time.perf_counter())
+
+        rows = run_frames(loop, views, None, keep)
+    gi_views = [(loop.gi_camera(camera), policy.cell(light)) for camera, light in views]
+    perceived = perceived_latency(gi_views, shown, tolerance.tolerance)
+    for row, extra in zip(rows, perceived, strict=True):
+        row |= extra
     if kept:
         ground_truth = GroundTruth(renderer, cfg.gt_every, cfg.spp, cfg.denoise, cfg.seed)
         for frame, image in kept.items():
             rows[frame] |= ground_truth.score(frame, *views[frame], image)
     return rows, join_requests(source.records, rows, tuple(s for s in warp.stages if s != "bind")), used
+
+
+#: Per-frame columns of how long the frame's view waited for a map that serves it (:func:`perceived_latency`).
+PERCEIVED_COLUMNS = ("start_s", "shown_s", "in_tolerance", "perceived_ms", "perceived_map")
+
+
+def perceived_latency(
+    views: list[tuple[Camera, LightCell]],
+    shown: list[tuple[float, float, GIMap | None, LightCell]],
+    tol: Tolerance,
+) -> list[dict[str, Any]]:
+    """Issue 23's perceived latency, the time from a camera move to a frame with a map within tolerance, per
+    frame (every frame of a path moves its camera): :data:`PERCEIVED_COLUMNS`, i.e.
+
+    - ``start_s`` / ``shown_s``: when the frame started (its camera moved) and when it was composed;
+    - ``in_tolerance``: 1 when the map the frame shows serves its own view (the GI tree's rule, :func:`covers`);
+    - ``perceived_ms``: from the frame's start to the composition of the first frame, it or a later one, showing a
+      map that serves this frame's view (``""`` when no frame of the run does: censored);
+    - ``perceived_map``: the frame that requested that map (its ``frame`` in ``requests.csv``).
+
+    ``views``: per frame, the GI camera and light cell; ``shown``: per frame, its start and composition (s), the
+    map it showed (None: none yet) and that map's light cell.
+    """
+    segments: list[tuple[int, GIMap, LightCell]] = []  # (first frame, map, cell): runs of one shown map
+    at: list[int] = []  # per frame: its first segment that may serve it (the one it shows, or the next)
+    for frame, (_, _, gi, cell) in enumerate(shown):
+        if gi is not None and (not segments or segments[-1][1] is not gi):
+            segments.append((frame, gi, cell))
+        at.append(len(segments) - 1 if gi is not None else len(segments))
+    held = [_viewpoint(gi.camera) for _, gi, _ in segments]
+    eyes = np.array([v.eye for v in held]).reshape(-1, 3)
+    dirs = np.array([v.direction for v in held]).reshape(-1, 3)
+    cells = [cell for _, _, cell in segments]
+    out = []
+    for frame, ((camera, cell), (start, end, _, _)) in enumerate(zip(views, shown, strict=True)):
+        row: dict[str, Any] = {
+            "start_s": start,
+            "shown_s": end,
+            "in_tolerance": 0,
+            "perceived_ms": "",
+            "perceived_map": "",
+        }
+        later = [k for k in range(at[frame], len(segments)) if cells[k] == cell]
+        if later and nearest(eyes[later], dirs[later], _viewpoint(camera), tol) is not None:  # some map serves it
+            k = next(k for k in later if covers(segments[k][1].camera, cells[k], camera, cell, tol))
+            first = max(segments[k][0], frame)
+            row |= {"in_tolerance": int(first == frame), "perceived_ms": (shown[first][1] - start) * 1e3}
+            row["perceived_map"] = segments[k][1].frame
+        out.append(row)
+    return out
 
 
 def join_requests(
@@ -484,7 +811,10 @@ def join_requests(
     warp and blend, and ``total_ms``: every stage from the request to that frame's composition, summed (the
     frame's DI included: the map is not seen before it; the wait for the next frame, ``pickup_ms``, is not a
     stage and is not in it)."""
-    bound = {int(r["frame"]) - int(r["gi_age_frames"]): r for r in rows if r["gi_new"]}
+    bound: dict[int, dict[str, Any]] = {}  # the first frame that bound each map (a held map may be bound again)
+    for r in rows:
+        if r["gi_new"]:
+            bound.setdefault(int(r["frame"]) - int(r["gi_age_frames"]), r)
     out = []
     for record in records:
         row = dict.fromkeys(REQUEST_COLUMNS, "") | record

@@ -3,19 +3,22 @@
     cloudbaking-client --server http://127.0.0.1:8000 --scene lung_plane --frames 120 -k 10 --out runs/cloud
 
 Renders the DI of every frame locally, asks the server (through a network proxy, if one is in between)
-for a GI map in a background thread when the newest map is k frames old or the view has left the
-server's tolerance (one request in flight at most), decodes it, warps the newest map pixel by pixel to
-each frame and composes. The server is checked at start (``GET /v1/health`` and ``/v1/scenes``): an
-unreachable server, an unknown scene or an unserved resolution, codec or spp is one ``error:`` line.
-Once running, a slow or dead server never stops the frames: failed requests are logged on stderr and
-recorded, and the frames go on with the last map.
+for a GI map in a background thread when no map it holds or has asked for serves the view by the server's
+tolerance (``--hold tolerance``; ``--hold none``: when the newest map is k frames old or the view has left
+the tolerance), or, with ``--prefetch extrapolate``, the view its motion will reach when the answer comes
+(one request in flight at most), decodes it, warps the held map that serves the view best pixel by pixel
+to each frame and composes; ``--frame-rate`` paces the frames as a display would. The server is checked at
+start (``GET /v1/health`` and ``/v1/scenes``): an unreachable server, an unknown scene or an unserved
+resolution, codec or spp is one ``error:`` line. Once running, a slow or dead server never stops the frames:
+failed requests are logged on stderr and recorded, and the frames go on with the last map.
 
 Writes under ``--out``: ``frames.csv`` (per frame: every stage in ms, the map's age and latency, what
 the frame waited for, SSIM/PSNR against the path-traced GT every ``--gt-every`` frames, scored after the
-run), ``requests.csv`` (per request: status, hit, bytes, every stage from transmission to blend; the
-split is explained in :mod:`baseline_cloudbaking.client`) and ``summary.json`` (``renderer``: the one that ran
-the local DI and the warp's mask pass: ``--renderer gl`` without a GL context falls back to mitsuba with one
-warning). Its options are derived from
+run, and how long its view waited for a map within tolerance: ``perceived_ms``, see
+:func:`baseline_cloudbaking.client.perceived_latency`), ``requests.csv`` (per request: status, hit, bytes,
+every stage from transmission to blend; the split is explained in :mod:`baseline_cloudbaking.client`) and
+``summary.json`` (``renderer``: the one that ran the local DI and the warp's mask pass: ``--renderer gl``
+without a GL context falls back to mitsuba with one warning). Its options are derived from
 :class:`baseline_cloudbaking.client.CloudClientConfig` (the fields both clients share live in
 :class:`gicore.loop.PathRunConfig`).
 """
@@ -60,6 +63,9 @@ def client_command(given: dict[str, Any], *, server: str, out: Path) -> None:
     line += "".join(f", {n} {s}" for s, n in failed.items()) + ")"
     if summary["median_total_ms"] is not None:
         line += f", median interaction latency {summary['median_total_ms']:.0f} ms"
+    line += f"; {summary['in_tolerance']:.0%} of frames within tolerance"
+    if "perceived_ms" in summary["median"]:
+        line += f", median perceived latency {summary['median']['perceived_ms']:.0f} ms"
     if "mean_ssim" in summary:
         line += f", mean SSIM {summary['mean_ssim']:.3f}, PSNR {summary['mean_psnr']:.2f} dB"
         line += f", LF error {summary['mean_lf_error']:.4f}"
@@ -92,6 +98,7 @@ def write_outputs(
     summary |= summarize(rows, cfg.every) | request_summary(requests)
     # maps come in the background, so the frame rate is what the frames took (not the amortised GI cost)
     summary["fps"] = 1000.0 / float(np.mean([float(r["frame_ms"]) for r in rows]))
+    summary["in_tolerance"] = float(np.mean([int(r["in_tolerance"]) for r in rows]))
     atomic_write_bytes(out / "summary.json", json.dumps(summary, indent=1).encode())
     return summary
 

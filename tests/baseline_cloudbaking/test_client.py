@@ -14,7 +14,8 @@ from pathlib import Path
 import httpx
 import pytest
 
-from baseline_cloudbaking.client import STAGES, RemoteConfig, RemoteSource
+from baseline_cloudbaking.client import STAGES, RemoteConfig, RemoteSource, RequestPolicy, covers
+from baseline_cloudbaking.store import Tolerance
 from gicore.loop import path_views
 from gicore.scene import load_scene
 from network_sim.process import Running, network_sim
@@ -241,3 +242,28 @@ def test_cloud_client_with_the_gl_renderer(scenes_dir: Path, tmp_path: Path) -> 
     assert len(frames) == 4 and frames[0]["gi_new"] == "1"
     assert all(float(frames[0][f"{s}_ms"]) > 0 for s in CLOUD_FRAME_STAGES), frames[0]
     assert all(float(r["di_ms"]) > 0 and float(r["raster_ms"]) > 0 and float(r["valid_frac"]) > 0.5 for r in frames)
+
+
+def test_the_hold_asks_only_for_views_no_held_map_serves(server: str, scenes_dir: Path) -> None:
+    """The path flown one request at a time: with the hold (the server's tolerance and light cells), a request goes
+    out only when no held map serves the view, and the map shown then serves it; without it, every frame asks. Last in
+    the module: it stores the path's maps, and the tests before it need their first map to miss."""
+    _, path = views(scenes_dir, 30)
+    hold = RequestPolicy(Tolerance(0.05, 2.0), light_cell=0.25)  # the server's defaults
+    sent = {}
+    for name, policy in (("hold", hold), ("none", RequestPolicy())):
+        with RemoteSource(remote(server), policy) as source:
+            asked = []
+            for frame, (camera, light) in enumerate(path):
+                cell = hold.cell(light)
+                held = [(gi.camera, c) for gi, c in source.kept]
+                asked.append(source.request(camera, light, frame))
+                if policy is hold:
+                    assert asked[-1] == (not any(covers(*h, camera, cell, hold.tolerance) for h in held))
+                assert source.wait(60.0)
+                shown = source.latest()
+                assert policy is not hold or covers(shown.camera, source.cell_of(shown), camera, cell, hold.tolerance)
+            assert all(r["status"] == "ok" for r in source.records)
+            sent[name] = sum(asked)
+    assert sent["none"] == len(path)
+    assert 2 <= sent["hold"] <= 0.4 * len(path), sent
