@@ -42,6 +42,7 @@ from gicore.cli import UserError
 from gicore.dataset import INPUT_RENDERERS, DatasetMeta, frame_paths, load_frame, read_meta
 from gicore.dataset_cli import DatasetConfig, FrameRenderer, build_dataset, render_inputs
 from gicore.gl.lod import LOD_CHOICES
+from gicore.loop import CLIENT_LOD
 from gicore.metrics import CHECKER_PERIOD, LF_SIGMA, all_metrics, checker_error, lf_difference, shadow_tint
 from gicore.results import Results, read_rows
 from gicore.scene import SceneSpec, builtin_scenes, load_scene
@@ -100,8 +101,8 @@ class QualityConfig:
     #: Renderers of the models' inputs (DI + G-buffers), scored side by side on the same frames and GT: each
     #: one's inputs as gicore-dataset --renderer stores them (the dataset's own, or rendered now).
     renderers: tuple[Literal[INPUT_RENDERERS], ...] = ("mitsuba",)  # type: ignore[valid-type]
-    #: Level of detail of the gl inputs (gicore.gl.GLRenderer's lod; auto: per view, as the client draws).
-    gl_lod: Literal[LOD_CHOICES] = "auto"  # type: ignore[valid-type]
+    #: Level of detail of the gl inputs (gicore.gl.GLRenderer's lod; default the clients': auto, per view).
+    gl_lod: Literal[LOD_CHOICES] = CLIENT_LOD  # type: ignore[valid-type]
 
     @classmethod
     def quick(cls) -> QualityConfig:

@@ -48,7 +48,7 @@ from bench.runner import FOV_DEGREES, Bench, Block, Figure, Part, Rows, Section,
 from bench.svg import BarChart
 from gicore.camera import Camera
 from gicore.gl.lod import LOD_CHOICES, lod_value
-from gicore.loop import LAYERS, RENDERERS, Warp, open_raster
+from gicore.loop import CLIENT_LOD, LAYERS, RENDERERS, Warp, open_raster
 from gicore.metrics import ssim
 from gicore.paths import camera_path, light_position
 from gicore.results import Results, read_rows
@@ -103,8 +103,8 @@ class WarpBenchConfig:
     #: Renderer of the local passes (the warps' uv and surface-mask passes, the DI): gl (OpenGL; without a GL
     #: context one warning and mitsuba) or mitsuba. GI maps and GT are path-traced by Mitsuba either way.
     renderer: Literal[RENDERERS] = "gl"  # type: ignore[valid-type]
-    #: Level of detail of the gl passes (gicore.gl.GLRenderer's lod; auto: per view, as the clients draw).
-    gl_lod: Literal[LOD_CHOICES] = "auto"  # type: ignore[valid-type]
+    #: Level of detail of the gl passes (gicore.gl.GLRenderer's lod; default the clients': auto, per view).
+    gl_lod: Literal[LOD_CHOICES] = CLIENT_LOD  # type: ignore[valid-type]
 
     @classmethod
     def quick(cls) -> WarpBenchConfig:

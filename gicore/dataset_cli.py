@@ -42,7 +42,7 @@ from gicore.dataset import (
 from gicore.executor import RAY_HELP, WORKERS_HELP, Executor, InProcess, Task, open_executor
 from gicore.fileio import exclusive_run, sweep_temporaries
 from gicore.gl.lod import LOD_CHOICES, lod_value
-from gicore.loop import open_raster
+from gicore.loop import CLIENT_LOD, open_raster
 from gicore.options import (
     FOV_DEGREES,
     FRAMES_MAX,
@@ -94,9 +94,9 @@ class DatasetConfig:
     #: gl (OpenGL at pixel centres, as a client with renderer gl; no GL context: one warning and mitsuba). The GT
     #: is path-traced by Mitsuba either way.
     renderer: Literal[INPUT_RENDERERS] = "mitsuba"  # type: ignore[valid-type]
-    #: Level of detail of the gl inputs (gicore.gl.GLRenderer's lod): auto (per view, the coarsest level within
-    #: the calibrated G-buffer error bound), full, or a fixed level.
-    gl_lod: Literal[LOD_CHOICES] = "auto"  # type: ignore[valid-type]
+    #: Level of detail of the gl inputs (gicore.gl.GLRenderer's lod; default the clients'): auto (per view, the
+    #: coarsest level within the calibrated G-buffer error bound), full, or a fixed level.
+    gl_lod: Literal[LOD_CHOICES] = CLIENT_LOD  # type: ignore[valid-type]
 
     def __post_init__(self) -> None:
         if min(self.n_train, self.n_val) < 0 or self.n_train + self.n_val < 1:
@@ -140,7 +140,7 @@ class FrameRenderer:
     gl at level of detail ``gl_lod``, one of ``gicore.gl.lod.LOD_CHOICES``), the GT path-traced by Mitsuba.
     Each renderer is opened on first need, so a gl worker that renders no GT never loads Mitsuba."""
 
-    def __init__(self, spec: SceneSpec, resolution: int, renderer: str = "mitsuba", gl_lod: str = "auto"):
+    def __init__(self, spec: SceneSpec, resolution: int, renderer: str = "mitsuba", gl_lod: str = CLIENT_LOD):
         if renderer not in INPUT_RENDERERS:
             raise ValueError(f"renderer must be one of {INPUT_RENDERERS}, got {renderer!r}")
         self.spec, self.resolution, self.renderer, self.gl_lod = spec, resolution, renderer, lod_value(gl_lod)
