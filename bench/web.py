@@ -133,7 +133,7 @@ def run_page(
             data = page.evaluate("window.viewer")
             if data.get("error") or errors:
                 raise RuntimeError(f"the viewer failed: {data.get('error') or errors[0]}")
-            page.locator(".row").screenshot(path=str(screenshot))
+            page.locator("#viewer").screenshot(path=str(screenshot))
             python_run = reference(data)
             data["browser_runs_ms"], data["python_runs_ms"] = [], []
             for _ in range(cfg.timing_runs):

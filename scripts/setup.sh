@@ -49,7 +49,7 @@ fi
 # The Web3D viewer's JavaScript (onnxruntime-web, fzstd) from web/package-lock.json; without npm the viewer,
 # bench web and tests/web are unavailable (the tests skip and say so).
 if command -v npm >/dev/null; then
-  (cd web && npm ci --no-audit --no-fund --loglevel=error)
+  (cd web && npm ci --no-audit --no-fund --loglevel=error) || echo "setup: npm ci in web/ failed: the Web3D viewer is unavailable" >&2
 else
   echo "setup: npm is missing: the Web3D viewer (gigan-web, bench web) needs Node 20 + npm" >&2
 fi

@@ -35,7 +35,11 @@ async function session(config) {
   ort.env.wasm.numThreads = crossOriginIsolated ? config.threads : 1;
   const model = await (await fetch("/assets/model/model.onnx")).arrayBuffer();
   const providers = adapter ? ["webgpu", "wasm"] : ["wasm"];
-  const s = await ort.InferenceSession.create(model, { executionProviders: providers, graphOptimizationLevel: "all" });
+  // GIModel's settings: all graph optimisations, intra-op threads that do not spin after a run (they would hold
+  // the cores the next WebGL passes need)
+  const options = { executionProviders: providers, graphOptimizationLevel: "all",
+    extra: { session: { intra_op: { allow_spinning: "0" } } } };
+  const s = await ort.InferenceSession.create(model, options);
   viewer.info.backend = adapter ? "webgpu" : "wasm";
   viewer.info.wasm_threads = ort.env.wasm.numThreads;
   return { ort, session: s };
