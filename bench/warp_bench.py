@@ -40,7 +40,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
@@ -52,8 +52,11 @@ from gicore.loop import CLIENT_LOD, LAYERS, RENDERERS, Warp, open_raster
 from gicore.metrics import ssim
 from gicore.paths import camera_path, light_position
 from gicore.results import Results, read_rows
-from gicore.scene import load_scene
+from gicore.scene import SceneSpec, load_scene
 from gicore.tonemap import tonemap
+
+if TYPE_CHECKING:
+    from gicore.render import Renderer
 
 #: Plot and CSV names of the warp methods the benches compare: GIGAN's structure-aware warp, cloud
 #: baking's pixel-level warp, and none (the map pasted as is).
@@ -139,7 +142,7 @@ def uv_errors(renderer, warper, gi_cam: Camera, local: Camera) -> dict[str, np.n
     return out
 
 
-def open_local_raster(cfg: WarpBenchConfig, spec, renderer) -> tuple[Any, str]:
+def open_local_raster(cfg: WarpBenchConfig, spec: SceneSpec, renderer: Renderer) -> tuple[Any, str]:
     """The renderer of the local passes for ``cfg.renderer`` and the name of the one that runs them (gl without
     a context: ``renderer``, Mitsuba's, after one warning line)."""
     from gicore.gl import GLRenderer, RasterUnavailable
@@ -148,7 +151,7 @@ def open_local_raster(cfg: WarpBenchConfig, spec, renderer) -> tuple[Any, str]:
     return open_raster(cfg.renderer, renderer, gl, RasterUnavailable)
 
 
-def surface_mask(raster, camera: Camera) -> np.ndarray:
+def surface_mask(raster: Any, camera: Camera) -> np.ndarray:
     """The pixel-level warp's surface-mask pass, as :class:`baseline_cloudbaking.warp.PixelWarp` renders it."""
     depth_pass = getattr(raster, "render_depth", None)
     return (depth_pass or raster.render_uv)(camera)["mask"]
