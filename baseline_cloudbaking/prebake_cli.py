@@ -20,12 +20,11 @@ tolerance, x every light cell the light reaches), light state after light state 
 baked when the store holds a map at exactly its view (a map of a fly-through nearby does not: the grid's
 covering argument needs its own views); a rerun bakes only the rest.
 
-Workers never outlive the driver: local workers die with it (kill -9 included, ``gicore.executor``); Ray
-tasks are owned by the driver, and Ray fails them when their owner dies. A local Ray instance that
-``--ray-address auto`` started is stopped at the end; after a kill -9 of the driver its GCS, raylet and
-workers end with it (they watch their parent), but Ray 2.60 leaves the node's two agent processes
-(``ray::DashboardAgent``, ``ray::RuntimeEnvAgent``) behind: ``ray stop`` ends them. A cluster joined by
-HOST:PORT is not the driver's to stop.
+Workers never outlive the driver (``gicore.executor``): local workers die with it, kill -9 included; Ray
+tasks are owned by the driver, and Ray fails them when their owner dies (a cluster joined by HOST:PORT
+lives on; its nodes are not the driver's to stop); a local Ray instance that ``--ray-address auto``
+started is stopped at the end, and after a kill -9 of the driver Ray and the driver's watchdog end all
+of it.
 """
 
 from __future__ import annotations

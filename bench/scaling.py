@@ -1,5 +1,6 @@
 """`bench scaling`: the render executor (``gicore.executor``) with 1 and 2 workers, local processes
-against Ray, and what the measured cost projects for the paper's data set and for baking GI trees.
+against Ray on one node and against a Ray cluster of one 1-CPU node per worker, and what the measured
+cost projects for the paper's data set and for baking GI trees.
 
 Measured, on the real tasks that ``gicore-dataset`` and ``cloudbaking-prebake`` submit (a data-set
 frame: GT path-traced + OIDN and every G-buffer, encoded; a GI map: GT + OIDN + depth, JPEG payload):
@@ -12,11 +13,19 @@ frame: GT path-traced + OIDN and every G-buffer, encoded; a GI map: GT + OIDN + 
   and p95) and ``task_overhead_batched`` (ms per no-op job when many are submitted at once);
 - ``instance_start`` of the local Ray instance and ``warmup`` of each point.
 
+``ray-cluster`` is a Ray cluster simulated on this machine (``ray.cluster_utils.Cluster``): N nodes of 1
+CPU each for N workers, each node its own raylet and object store, the driver on the head; its points say
+what a second node costs and gains (maps/s vs nodes, the per-task overhead across nodes, ``nodes_used``:
+how many nodes ran the timed items). The simulated nodes share this machine's cores, so the figure
+measures the cluster's overhead, not a second machine's speed.
+
 Projected (``stat = projection``, never a measurement): the wall time of the paper's data set
 (1500 + 100 frames per scene at 512², five scenes) and of baking each scene's 1500-frame fly-through
 (the maps its plan needs, counted with the prebake's rule: ``bake_maps``), on N workers, from each
 executor's 1-worker item time scaled by the pixel count (cost ∝ pixels) and assuming linear scaling:
 ``ceil(items / N) × item_time``. The measured efficiency at 2 workers says how far that holds here.
+``space_maps`` counts each scene's whole configuration space (``cloudbaking-prebake --space all`` at the
+default tolerance and light cell) and ``space_wall`` projects its bake the same way.
 """
 
 from __future__ import annotations
@@ -25,7 +34,8 @@ import json
 import logging
 import math
 import time
-from contextlib import AbstractContextManager, nullcontext
+from collections.abc import Iterator
+from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -40,9 +50,11 @@ from gicore.scene import builtin_scenes, load_scene
 
 Kind = Literal["frame", "map"]
 UNITS = {"frame": "frames/s", "map": "maps/s"}
-#: What every projection row assumes, stated in its config.
+#: The executor whose N workers are N simulated Ray nodes of 1 CPU each.
+CLUSTER = "ray-cluster"
 #: The scene column of totals over the paper's five scenes.
 ALL = "paper_5_scenes"
+#: What every projection row assumes, stated in its config.
 ASSUMPTION = "ceil(items/N) x 1-worker item time x pixel ratio; linear scaling, no startup"
 
 
@@ -62,8 +74,9 @@ class ScalingConfig:
     maps: int = 4
     #: Worker counts (single-threaded processes).
     workers: tuple[int, ...] = (1, 2)
-    #: Executors compared: local spawned processes, Ray tasks on a local instance.
-    executors: tuple[Literal["local", "ray"], ...] = ("local", "ray")
+    #: Executors compared: local spawned processes, Ray tasks on a local instance, Ray tasks on a cluster of one
+    #: 1-CPU node per worker simulated on this machine.
+    executors: tuple[Literal["local", "ray", "ray-cluster"], ...] = ("local", "ray", CLUSTER)
     #: No-op jobs timed for the per-task overhead.
     overhead_jobs: int = 100
     #: Worker counts of the projections.
@@ -82,11 +95,12 @@ class ScalingConfig:
         return cls(resolution=64, spp=16, frames=16, maps=8, overhead_jobs=40)
 
     def check(self) -> None:
-        if "ray" in self.executors:
+        on_ray = [ex for ex in self.executors if ex != "local"]
+        if on_ray:
             try:
                 import ray  # noqa: F401
             except ImportError:
-                raise UserError("--executors ray needs Ray, which is not installed", INSTALL_RAY) from None
+                raise UserError(f"--executors {on_ray[0]} needs Ray, which is not installed", INSTALL_RAY) from None
 
 
 def _nothing() -> None:
@@ -121,9 +135,57 @@ def _wall(executor: Executor, task: Task, jobs: list) -> float:
     return time.perf_counter() - t0
 
 
-def _executor(kind: str, workers: int) -> AbstractContextManager[Executor]:
-    """``workers`` single-threaded workers of executor ``kind`` (Ray: on the instance :func:`measure` started)."""
-    return LocalPool(workers, threads=1) if kind == "local" else nullcontext(RayExecutor(workers, threads=1))
+@contextmanager
+def _ray_instance(res: Results, name: str, num_cpus: int) -> Iterator[None]:
+    """A local Ray instance of ``num_cpus`` CPUs for the ``ray`` points (its start time recorded)."""
+    import ray
+
+    t0 = time.perf_counter()
+    ray.init(
+        address="local", num_cpus=num_cpus, include_dashboard=False, log_to_driver=False, logging_level=logging.ERROR
+    )
+    try:
+        start = time.perf_counter() - t0
+        res.add(system="ray", scene=name, metric="instance_start", value=start, unit="s", num_cpus=num_cpus)
+        yield
+    finally:
+        ray.shutdown()
+
+
+@contextmanager
+def _ray_cluster(res: Results, name: str, nodes: int) -> Iterator[None]:
+    """A Ray cluster of ``nodes`` nodes of 1 CPU each simulated on this machine, this process its driver
+    (its start time recorded); every node stopped at the end."""
+    import ray
+    from ray.cluster_utils import Cluster
+
+    t0 = time.perf_counter()
+    cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 1, "include_dashboard": False})
+    try:
+        for _ in range(nodes - 1):
+            cluster.add_node(num_cpus=1)
+        cluster.wait_for_nodes()
+        ray.init(address=cluster.address, log_to_driver=False, logging_level=logging.ERROR)
+        start = time.perf_counter() - t0
+        res.add(system=CLUSTER, scene=name, metric="instance_start", value=start, unit="s", nodes=nodes)
+        yield
+    finally:
+        ray.shutdown()
+        cluster.shutdown()
+
+
+@contextmanager
+def _executor(kind: str, workers: int, res: Results, name: str) -> Iterator[Executor]:
+    """``workers`` single-threaded workers of executor ``kind`` (``ray``: on the instance :func:`measure`
+    started; ``ray-cluster``: on a cluster of ``workers`` nodes started for this point)."""
+    if kind == "local":
+        with LocalPool(workers, threads=1) as pool:
+            yield pool
+    elif kind == "ray":
+        yield RayExecutor(workers, threads=1)
+    else:
+        with _ray_cluster(res, name, workers):
+            yield RayExecutor(workers, threads=1)
 
 
 def measure(cfg: ScalingConfig, res: Results) -> None:
@@ -133,32 +195,15 @@ def measure(cfg: ScalingConfig, res: Results) -> None:
     counts: dict[Kind, int] = {"frame": cfg.frames, "map": cfg.maps}
     common = {"resolution": cfg.resolution, "spp": cfg.spp, "threads_per_worker": 1}
     item_s: dict[tuple[str, Kind], float] = {}
-    if "ray" in cfg.executors:
-        import ray
-
-        t0 = time.perf_counter()
-        ray.init(
-            address="local",
-            num_cpus=max(cfg.workers),
-            include_dashboard=False,
-            log_to_driver=False,
-            logging_level=logging.ERROR,
-        )
-        res.add(
-            system="ray",
-            scene=name,
-            metric="instance_start",
-            value=time.perf_counter() - t0,
-            unit="s",
-            num_cpus=max(cfg.workers),
-        )
-    try:
-        for ex in cfg.executors:
+    for ex in cfg.executors:
+        with _ray_instance(res, name, max(cfg.workers)) if ex == "ray" else nullcontext():
             for workers in sorted(cfg.workers):
-                with _executor(ex, workers) as executor:
+                with _executor(ex, workers, res, name) as executor:
                     _overhead(res, ex, name, executor, cfg.overhead_jobs)
                     for kind, (task, jobs) in tasks.items():
                         warmup = _wall(executor, task, jobs[:warm])
+                        if isinstance(executor, RayExecutor):
+                            executor.nodes.clear()
                         wall = _wall(executor, task, jobs[warm : warm + counts[kind]])
                         config = common | {"workers": workers, "kind": kind, "items": counts[kind]}
                         res.add(
@@ -180,6 +225,9 @@ def measure(cfg: ScalingConfig, res: Results) -> None:
                             unit="s",
                             **config,
                         )
+                        if isinstance(executor, RayExecutor) and ex == CLUSTER:  # nodes that ran the timed items
+                            used = len(executor.nodes)
+                            res.add(system=ex, scene=name, metric="nodes_used", value=used, unit="count", **config)
                         if workers == 1:
                             item_s[ex, kind] = wall / counts[kind]
                         elif (ex, kind) in item_s:
@@ -187,9 +235,6 @@ def measure(cfg: ScalingConfig, res: Results) -> None:
                             res.add(
                                 system=ex, scene=name, metric="efficiency", value=efficiency, unit="ratio", **config
                             )
-    finally:
-        if "ray" in cfg.executors:
-            ray.shutdown()
     _project(cfg, res, name, item_s)
     _write_table(cfg, res)
 
@@ -220,6 +265,15 @@ def bake_maps(frames: int, resolution: int) -> dict[str, int]:
     return out
 
 
+def space_maps() -> dict[str, int]:
+    """Maps of each built-in scene's whole configuration space (``cloudbaking-prebake --space all`` at the
+    default tolerance and light cell): counted, nothing rendered."""
+    from baseline_cloudbaking.bake import configuration_space
+    from baseline_cloudbaking.store import DEFAULT_LIGHT_CELL, Tolerance
+
+    return {s: configuration_space(load_scene(s), Tolerance(), DEFAULT_LIGHT_CELL).size for s in builtin_scenes()}
+
+
 def _project(cfg: ScalingConfig, res: Results, name: str, item_s: dict[tuple[str, Kind], float]) -> None:
     """Projection rows (see the module docstring) from each executor's 1-worker item times."""
     maps = bake_maps(cfg.bake_frames, cfg.bake_resolution)
@@ -227,37 +281,88 @@ def _project(cfg: ScalingConfig, res: Results, name: str, item_s: dict[tuple[str
         res.add(
             system="plan", scene=scene, metric="bake_maps", value=n, unit="count", fly_through_frames=cfg.bake_frames
         )
-    targets: dict[Kind, tuple[str, int, dict[str, int]]] = {
-        "frame": ("dataset_wall", cfg.project_resolution, {ALL: cfg.project_frames * len(builtin_scenes())}),
-        "map": ("bake_wall", cfg.bake_resolution, maps),
+    space = space_maps()
+    for scene, n in space.items():
+        res.add(system="plan", scene=scene, metric="space_maps", value=n, unit="count")
+    targets: list[tuple[Kind, str, int, dict[str, int]]] = [
+        ("frame", "dataset_wall", cfg.project_resolution, {ALL: cfg.project_frames * len(builtin_scenes())}),
+        ("map", "bake_wall", cfg.bake_resolution, maps),
+        ("map", "space_wall", cfg.bake_resolution, space),
+    ]
+    for (ex, measured_kind), measured in item_s.items():
+        for kind, metric, resolution, items in targets:
+            if kind == measured_kind:
+                _project_one(cfg, res, name, ex, measured, metric, resolution, items)
+
+
+def _project_one(
+    cfg: ScalingConfig,
+    res: Results,
+    name: str,
+    ex: str,
+    measured: float,
+    metric: str,
+    resolution: int,
+    items: dict[str, int],
+) -> None:
+    """The ``metric`` projection rows of executor ``ex`` for ``items`` per scene at ``resolution``."""
+    scale = (resolution / cfg.resolution) ** 2
+    basis = {
+        "measured_on": name,
+        "measured_resolution": cfg.resolution,
+        "measured_item_s": measured,
+        "pixel_scale": scale,
     }
-    for (ex, kind), measured in item_s.items():
-        metric, resolution, items = targets[kind]
-        scale = (resolution / cfg.resolution) ** 2
-        basis = {
-            "measured_on": name,
-            "measured_resolution": cfg.resolution,
-            "measured_item_s": measured,
-            "pixel_scale": scale,
-        }
-        basis |= {"resolution": resolution, "spp": cfg.spp, "item_s": measured * scale, "assumption": ASSUMPTION}
-        for workers in cfg.project_workers:
-            hours = {scene: math.ceil(n / workers) * measured * scale / 3600 for scene, n in items.items()}
-            if ALL not in hours:  # the bake: scene after scene
-                hours[ALL] = sum(hours.values())
-            for scene, value in hours.items():
-                n = items.get(scene, sum(items.values()))
-                res.add(
-                    system=ex,
-                    scene=scene,
-                    metric=metric,
-                    stat="projection",
-                    value=value,
-                    unit="h",
-                    workers=workers,
-                    items=n,
-                    **basis,
-                )
+    basis |= {"resolution": resolution, "spp": cfg.spp, "item_s": measured * scale, "assumption": ASSUMPTION}
+    for workers in cfg.project_workers:
+        hours = {scene: math.ceil(n / workers) * measured * scale / 3600 for scene, n in items.items()}
+        if ALL not in hours:  # the bake: scene after scene
+            hours[ALL] = sum(hours.values())
+        for scene, value in hours.items():
+            n = items.get(scene, sum(items.values()))
+            res.add(
+                system=ex,
+                scene=scene,
+                metric=metric,
+                stat="projection",
+                value=value,
+                unit="h",
+                workers=workers,
+                items=n,
+                **basis,
+            )
+
+
+#: Projection metrics and how the tables name them.
+PROJECTED = {
+    "dataset_wall": "the paper's data set",
+    "bake_wall": "GI-tree bakes of 5 scenes",
+    "space_wall": "whole configuration spaces of 5 scenes",
+}
+
+
+def _label(ex: str, workers: int) -> str:
+    """An executor's row name: a cluster point names its simulated nodes."""
+    return f"ray, {workers} node{'s' * (workers > 1)} x 1 CPU (simulated)" if ex == CLUSTER else ex
+
+
+def _projected_on(executors: list[str]) -> list[str]:
+    """Executors the projection tables show: a simulated cluster's 1-node point is the ``ray`` one again."""
+    return [ex for ex in executors if ex != CLUSTER] or executors
+
+
+def _two_nodes(rows: list[dict]) -> str | None:
+    """The two-node sentence: maps/s and the no-op round trip of 2 simulated nodes against 1, nodes used."""
+    one, two = (_value(rows, system=CLUSTER, metric="throughput", workers=n, kind="map") for n in (1, 2))
+    if math.isnan(two):
+        return None
+    trips = [_value(rows, system=CLUSTER, metric="task_roundtrip", stat="median", workers=n) for n in (1, 2)]
+    used = _value(rows, system=CLUSTER, metric="nodes_used", workers=2, kind="map")
+    return (
+        f"Two simulated Ray nodes (1 CPU each, sharing this machine's cores): {two:.3g} maps/s against {one:.3g} on "
+        f"one node ({two / one:.2f}x); no-op task round trip {trips[1]:.3g} ms against {trips[0]:.3g} ms; "
+        f"{used:.0f} of 2 nodes ran the timed maps."
+    )
 
 
 def _value(rows: list[dict], **match: Any) -> float:
@@ -269,9 +374,10 @@ def _value(rows: list[dict], **match: Any) -> float:
 
 
 def _write_table(cfg: ScalingConfig, res: Results) -> None:
-    """``scaling.md``: the measured table and the projection table."""
+    """``scaling.md``: the measured table, the two-node sentence and the projection table."""
     rows = [r | {"config": json.loads(r["config"])} for r in res.rows]
-    planned = int(sum(_value(rows, system="plan", scene=s) for s in builtin_scenes()))
+    planned = int(sum(_value(rows, system="plan", metric="bake_maps", scene=s) for s in builtin_scenes()))
+    space = int(sum(_value(rows, system="plan", metric="space_maps", scene=s) for s in builtin_scenes()))
     lines = [
         f"Measured on {cfg.scenes[0]} at {cfg.resolution}², {cfg.spp} spp + OIDN; single-threaded workers.",
         "",
@@ -286,34 +392,36 @@ def _write_table(cfg: ScalingConfig, res: Results) -> None:
             eff = 1.0 if w == 1 else _value(rows, system=ex, metric="efficiency", workers=w, kind="frame")
             trip = _value(rows, system=ex, metric="task_roundtrip", stat="median", workers=w)
             batched = _value(rows, system=ex, metric="task_overhead_batched", workers=w)
-            lines.append(f"| {ex} | {w} | {frame:.3g} | {maps:.3g} | {eff:.2f} | {trip:.3g} | {batched:.3g} |")
+            lines.append(
+                f"| {_label(ex, w)} | {w} | {frame:.3g} | {maps:.3g} | {eff:.2f} | {trip:.3g} | {batched:.3g} |"
+            )
+    two = _two_nodes(rows)
+    shown = _projected_on(list(cfg.executors))
     lines += [
+        *(["", two] if two else []),
         "",
         f"PROJECTION (not measured), {cfg.spp} spp + OIDN: {cfg.project_frames} frames x 5 scenes at "
-        f"{cfg.project_resolution}²; baking each scene's {cfg.bake_frames}-frame fly-through ({planned} maps) at "
-        f"{cfg.bake_resolution}²; {ASSUMPTION}.",
+        f"{cfg.project_resolution}²; baking each scene's {cfg.bake_frames}-frame fly-through ({planned} maps) and its "
+        f"whole configuration space ({space} maps) at {cfg.bake_resolution}²; {ASSUMPTION}.",
         "",
-        "| N workers | " + " | ".join(f"data set, {ex} [h] | bake, {ex} [h]" for ex in cfg.executors) + " |",
-        "|---|" + "---|---|" * len(cfg.executors),
+        "| N workers | " + " | ".join(f"{PROJECTED[m]}, {ex} [h]" for ex in shown for m in PROJECTED) + " |",
+        "|---|" + "---|" * len(PROJECTED) * len(shown),
     ]
     for n in cfg.project_workers:
-        cells = [
-            f"{_value(rows, system=ex, scene=ALL, metric=m, workers=n):.3g}"
-            for ex in cfg.executors
-            for m in ("dataset_wall", "bake_wall")
-        ]
+        cells = [f"{_value(rows, system=ex, scene=ALL, metric=m, workers=n):.3g}" for ex in shown for m in PROJECTED]
         lines.append(f"| {n} | " + " | ".join(cells) + " |")
     res.output("scaling.md").write_text("\n".join(lines) + "\n")
 
 
 def plot(csv_path: Path, out_dir: Path) -> list[Path]:
-    """Left: measured throughput per executor and worker count. Right: the projections (labelled so)."""
+    """Left: measured throughput per executor and worker count. Middle: maps/s against Ray nodes (simulated
+    on this machine) with the no-op round trip. Right: the projections (labelled so)."""
     from gicore.plotting import plt, save
 
     rows = read_rows(csv_path)
     executors = list(dict.fromkeys(r["system"] for r in rows if r["metric"] == "throughput"))
     workers = sorted({r["config"]["workers"] for r in rows if r["metric"] == "throughput"})
-    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.2))
+    fig, (left, middle, right) = plt.subplots(1, 3, figsize=(16, 4.2))
     bars = [(ex, kind) for ex in executors for kind in UNITS]
     width = 0.8 / max(1, len(bars))
     for i, (ex, kind) in enumerate(bars):
@@ -327,8 +435,35 @@ def plot(csv_path: Path, out_dir: Path) -> list[Path]:
     left.set_title(f"Measured throughput; no-op round trip: {trips}", fontsize=9)
     left.legend(fontsize=7)
     left.grid(axis="y", alpha=0.3)
-    for ex, style in zip(executors, ("-", "--")):
-        for metric, label in (("dataset_wall", "paper data set"), ("bake_wall", "GI-tree bake, 5 scenes")):
+    nodes = sorted(
+        r["config"]["workers"]
+        for r in rows
+        if (r["system"], r["metric"], r["config"].get("kind")) == (CLUSTER, "throughput", "map")
+    )
+    for ex in executors:
+        points = [(w, _value(rows, system=ex, metric="throughput", workers=w, kind="map")) for w in workers]
+        label = "Ray nodes of 1 CPU (simulated)" if ex == CLUSTER else f"{ex}: workers on one node"
+        middle.plot(*zip(*points), "-" if ex == CLUSTER else ":", marker="o", label=label)
+    if nodes:
+        trips = [_value(rows, system=CLUSTER, metric="task_roundtrip", stat="median", workers=n) for n in nodes]
+        middle.set_title(
+            "maps/s vs Ray nodes; no-op round trip "
+            + ", ".join(f"{t:.2g} ms ({n})" for n, t in zip(nodes, trips))
+            + "\nsimulated nodes share this machine's cores",
+            fontsize=9,
+        )
+    middle.set_xticks(workers)
+    middle.set_xlabel("nodes (ray-cluster) or workers")
+    middle.set_ylabel("maps per second (measured)")
+    middle.set_ylim(bottom=0)
+    middle.legend(fontsize=7)
+    middle.grid(alpha=0.3)
+    for ex, style in zip(_projected_on(executors), ("-", "--")):
+        for metric, label in (
+            ("dataset_wall", "paper data set"),
+            ("bake_wall", "GI-tree bake, 5 scenes"),
+            ("space_wall", "configuration spaces, 5 scenes"),
+        ):
             points = sorted(
                 (r["config"]["workers"], r["value"])
                 for r in rows
@@ -347,7 +482,8 @@ def plot(csv_path: Path, out_dir: Path) -> list[Path]:
 
 
 def readme_block(rows: Rows) -> list[Table]:
-    """Measured throughput per executor and worker count; then the projections, labelled as such."""
+    """Measured throughput per executor and worker count, the two-node sentence; then the projections,
+    labelled as such."""
     need(rows, "throughput")
     measured = pick(rows, "throughput")
     c = measured[0]["config"]
@@ -369,27 +505,28 @@ def readme_block(rows: Rows) -> list[Table]:
             efficiency = 1.0 if w == 1 else _value(rows, system=ex, metric="efficiency", workers=w, kind="frame")
             trip = _value(rows, system=ex, metric="task_roundtrip", stat="median", workers=w)
             lines.append(
-                f"| {ex} | {w} | {cell(frames, '.3g')} | {cell(maps, '.3g')} | {cell(efficiency, '.2f')} "
+                f"| {_label(ex, w)} | {w} | {cell(frames, '.3g')} | {cell(maps, '.3g')} | {cell(efficiency, '.2f')} "
                 f"| {cell(trip, '.3g')} |"
             )
+    two = _two_nodes(rows)
+    if two:
+        lines += ["", two]
     projected = [r for r in rows if r["stat"] == "projection" and r["scene"] == ALL]
     if projected:
         what = {r["metric"]: r["config"] for r in projected}
-        names = {"dataset_wall": "the paper's data set", "bake_wall": "GI-tree bakes of 5 scenes"}
-        shown = [m for m in names if m in what]
+        shown = [m for m in PROJECTED if m in what]
+        on = _projected_on(executors)
         lines += [
             "",
             "PROJECTED, not measured: wall hours on N workers ("
-            + "; ".join(f"{names[m]}: {what[m].get('items')} items at {what[m].get('resolution')}²" for m in shown)
+            + "; ".join(f"{PROJECTED[m]}: {what[m].get('items')} items at {what[m].get('resolution')}²" for m in shown)
             + f"; {projected[0]['config'].get('assumption')}).",
             "",
-            "| N workers | " + " | ".join(f"{names[m]}, {ex} [h]" for ex in executors for m in shown) + " |",
-            "|---" * (1 + len(executors) * len(shown)) + "|",
+            "| N workers | " + " | ".join(f"{PROJECTED[m]}, {ex} [h]" for ex in on for m in shown) + " |",
+            "|---" * (1 + len(on) * len(shown)) + "|",
         ]
         for n in sorted({r["config"]["workers"] for r in projected}):
-            cells = [
-                cell(_value(rows, system=ex, scene=ALL, metric=m, workers=n), ".3g") for ex in executors for m in shown
-            ]
+            cells = [cell(_value(rows, system=ex, scene=ALL, metric=m, workers=n), ".3g") for ex in on for m in shown]
             lines.append(f"| {n} | " + " | ".join(cells) + " |")
     return [Table("\n".join(lines))]
 
@@ -399,7 +536,8 @@ BENCH = Bench(
     ScalingConfig,
     measure,
     plot,
-    help="Render executor: frames/maps per second with 1 and 2 workers, local processes vs Ray, per-task overhead, "
-    "and the projected wall time of the paper's data set and of GI-tree bakes on N workers.",
+    help="Render executor: frames/maps per second with 1 and 2 workers, local processes vs Ray vs Ray nodes (a cluster "
+    "simulated on this machine), per-task overhead, and the projected wall time of the paper's data set, of GI-tree "
+    "bakes and of whole configuration spaces on N workers.",
     readme=Block("Scaling", 110, readme_block),
 )

@@ -20,7 +20,11 @@ Backends (:func:`open_executor` picks one from the command line's ``--workers`` 
   ``pip install '.[ray]'``; Ray is imported only when chosen). A task whose worker dies is retried
   (``max_retries``); Ctrl-C (or any error in the driver) cancels every outstanding task. Every node needs
   this package installed in the same environment (the tasks import it by name). It counts the jobs each
-  Ray node ran (``nodes``), and can report every job's node as it finishes (``placed``).
+  Ray node ran (``nodes``), and can report every job's node as it finishes (``placed``). Tasks are owned by
+  the driver: when it dies, Ray fails them and their workers stop. A local instance the driver started
+  (``--ray auto`` with no cluster to join) ends with it, ``kill -9`` included: Ray ends its GCS, raylet
+  and workers, and a watchdog process (:func:`watch_ray_instance`) the two node agents Ray 2.60 leaves
+  behind. A cluster the driver joined is not its to stop.
 
 :class:`ExecutorOptions` is the command-line form (``--executor local|ray``, ``--ray-address``,
 ``--workers``) a command derives its options from (:mod:`gicore.options`).
@@ -36,14 +40,16 @@ import os
 import pickle
 import signal
 import socket
+import subprocess
 import sys
 import threading
 import time
 from collections import Counter, OrderedDict
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
-from contextlib import AbstractContextManager, contextmanager
+from contextlib import AbstractContextManager, contextmanager, suppress
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Literal, Protocol
 
 from gicore.cli import UserError
@@ -62,6 +68,8 @@ RAY_CANCEL_S = 10.0
 PARENT_POLL_S = 0.5
 #: How long an ending pool waits for its killed workers and its manager thread (s).
 POOL_KILL_WAIT_S = 10.0
+#: How often the watchdog of a Ray instance this driver started lists the instance's processes (s).
+RAY_WATCH_S = 0.5
 #: ``prctl`` option: the signal the kernel sends this process when the thread that forked it ends.
 PR_SET_PDEATHSIG = 1
 START_RAY = "start one with `ray start --head` and give its address, or use --ray auto"
@@ -362,6 +370,7 @@ def open_executor(workers: int | None = None, ray: str | None = None, option: st
             yield pool
         return
     connected = connect_ray(ray, option)
+    watchdog = _start_ray_watchdog() if connected else None
     try:
         yield RayExecutor(workers)
     finally:
@@ -369,6 +378,74 @@ def open_executor(workers: int | None = None, ray: str | None = None, option: st
             import ray as ray_module
 
             ray_module.shutdown()
+        if watchdog is not None:  # nothing left to watch
+            watchdog.kill()
+            watchdog.wait()
+
+
+def _start_time(pid: int) -> str | None:
+    """When process ``pid`` started (clock ticks since boot: tells it from a later process of the same id)."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[19]
+    except (OSError, IndexError):
+        return None
+
+
+def _processes_below(root: int) -> dict[int, str]:
+    """Every process below ``root`` (children, theirs, ...) with its start time, from /proc."""
+    children: dict[int, list[int]] = {}
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            ppid = int(stat.read_text().rsplit(")", 1)[1].split()[1])
+        except (OSError, IndexError, ValueError):  # ended while we looked
+            continue
+        children.setdefault(ppid, []).append(int(stat.parent.name))
+    below: dict[int, str] = {}
+    todo = [root]
+    while todo:
+        for pid in children.get(todo.pop(), []):
+            start = _start_time(pid)
+            if start is not None:
+                below[pid] = start
+                todo.append(pid)
+    return below
+
+
+def watch_ray_instance(driver: int, known: dict[int, str]) -> None:
+    """The watchdog of a Ray instance that ``driver`` (this process's parent) started: while the driver
+    lives, remember every process below it (from the start: ``known``, pid -> start time, listed by the
+    driver, so that a driver killed before this process looked is covered too); once it is gone (it was
+    killed: a driver that ends normally stops its watchdog first), SIGKILL those still running. Ray ends the
+    GCS, raylet and workers with their parent, but Ray 2.60 leaves ``ray::DashboardAgent`` and
+    ``ray::RuntimeEnvAgent`` running, deaf to SIGTERM."""
+    me = os.getpid()
+    seen = dict(known)
+    while os.getppid() == driver:
+        seen |= {pid: start for pid, start in _processes_below(driver).items() if pid != me}
+        time.sleep(RAY_WATCH_S)
+    for pid, start in seen.items():
+        if _start_time(pid) == start:  # the same process, not a new one that reuses its id
+            with suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGKILL)
+
+
+def _start_ray_watchdog() -> subprocess.Popen | None:
+    """A :func:`watch_ray_instance` process for the Ray instance this process just started, if it started one
+    (Linux: it reads /proc); None otherwise."""
+    import ray
+
+    started_here = getattr(getattr(ray._private.worker, "_global_node", None), "head", False)
+    if not (started_here and sys.platform.startswith("linux")):
+        return None
+    known = _processes_below(os.getpid())
+    code = f"from gicore.executor import watch_ray_instance; watch_ray_instance({os.getpid()}, {known!r})"
+    return subprocess.Popen(
+        [sys.executable, "-c", code],
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,  # a Ctrl-C at the terminal is the driver's to handle, not the watchdog's
+    )
 
 
 @dataclass(frozen=True)

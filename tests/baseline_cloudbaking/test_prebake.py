@@ -235,3 +235,51 @@ def test_a_read_only_index_is_one_error_line_before_any_map_is_baked(scenes_dir:
     assert len(proc.stderr.splitlines()) == 1 and proc.stdout == ""  # not even the plan ("maps to bake")
     assert count_rows(store) == 0 and list((store / "payloads").iterdir()) == []
     assert not (store / ".prebake" / "ball_moving").exists()
+
+
+def session_commands(sid: int) -> dict[int, bytes]:
+    """Command line of each running process of session ``sid``."""
+    out = {}
+    for pid in session_processes(sid):
+        with suppress(OSError):
+            out[pid] = Path(f"/proc/{pid}/cmdline").read_bytes()
+    return out
+
+
+@needs_proc
+@pytest.mark.slow
+def test_kill_9_of_a_ray_prebake_ends_the_local_instance_it_started(scenes_dir: Path, tmp_path: Path) -> None:
+    """--executor ray with no cluster to join starts a local Ray instance; after kill -9 of the driver nothing
+    of it runs on: Ray ends the GCS, raylet and workers, the driver's watchdog the node's agents."""
+    spec, store, log = scenes_dir / "ball_moving.json", tmp_path / "store", tmp_path / "stderr.txt"
+    env = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}
+    with log.open("w") as err:
+        proc = subprocess.Popen(
+            prebake_cmd(spec, store, 40, "--executor", "ray"),
+            stdout=subprocess.DEVNULL,
+            stderr=err,
+            start_new_session=True,
+            env=env,
+        )
+    try:
+        deadline = time.monotonic() + 120
+        while not any(c.startswith(b"ray::run_ray_job") for c in session_commands(proc.pid).values()):
+            assert proc.poll() is None and time.monotonic() < deadline, log.read_text()
+            time.sleep(0.05)
+        ray_processes = session_commands(proc.pid)
+        if not any(b"raylet" in c for c in ray_processes.values()):
+            pytest.skip("a Ray cluster runs on this machine: --executor ray joined it rather than start one")
+        assert any(c.startswith(b"ray::DashboardAgent") for c in ray_processes.values())  # what Ray leaves behind
+        killed = time.monotonic()
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait(timeout=30)
+        while (left := session_processes(proc.pid)) and time.monotonic() - killed < 20:
+            time.sleep(0.05)
+        took = time.monotonic() - killed
+        print(f"{len(ray_processes)} processes of the local Ray instance gone {took:.1f} s after kill -9")
+        assert left == [], {pid: session_commands(proc.pid).get(pid, b"")[:60] for pid in left}
+    finally:
+        for pid in session_processes(proc.pid):
+            with suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGKILL)
+    check_store(store)

@@ -19,9 +19,10 @@ from pathlib import Path
 
 import pytest
 
+from baseline_cloudbaking.bake import configuration_space
 from baseline_cloudbaking.prebake_cli import PrebakeConfig, prebake_scene
 from baseline_cloudbaking.protocol import unpack
-from baseline_cloudbaking.store import GITree
+from baseline_cloudbaking.store import DEFAULT_LIGHT_CELL, GITree, Tolerance
 from gicore.cli import UserError
 from gicore.dataset_cli import DatasetConfig, build_dataset
 from gicore.executor import InProcess, LocalPool, RayExecutor, Task
@@ -405,9 +406,10 @@ def test_ctrl_c_of_a_ray_run_keeps_whole_frames_and_the_rerun_finishes_identical
 
 
 @pytest.mark.slow
-def test_bench_scaling_measures_both_executors_and_labels_the_projection(tmp_path: Path) -> None:
-    """A tiny `bench scaling` (its own Ray instance, as a user runs it): every measured point, the per-task
-    overhead, and projections that follow from the measured 1-worker item time and say they are projections."""
+def test_bench_scaling_measures_every_executor_and_labels_the_projection(tmp_path: Path) -> None:
+    """A tiny `bench scaling` (its own Ray instance and simulated clusters, as a user runs it): every measured
+    point (local, Ray, 1 and 2 Ray nodes), the per-task overhead, and projections that follow from the measured
+    1-worker item time and say they are projections."""
     tiny = [
         "--resolution",
         "16",
@@ -426,7 +428,7 @@ def test_bench_scaling_measures_both_executors_and_labels_the_projection(tmp_pat
         [str(BIN / "bench"), "scaling", "--quick", *tiny, "--out", str(tmp_path)],
         capture_output=True,
         text=True,
-        timeout=240,
+        timeout=480,
     )
     assert proc.returncode == 0, proc.stderr
     rows = read_rows(tmp_path / "scaling.csv")
@@ -436,7 +438,7 @@ def test_bench_scaling_measures_both_executors_and_labels_the_projection(tmp_pat
         assert len(found) == 1, match
         return found[0]
 
-    for ex in ("local", "ray"):
+    for ex in ("local", "ray", "ray-cluster"):
         assert 0 < only(system=ex, metric="task_roundtrip", stat="median", workers=1)["value"] < 1000  # ms
         for kind, unit in (("frame", "frames/s"), ("map", "maps/s")):
             for workers in (1, 2):
@@ -444,10 +446,19 @@ def test_bench_scaling_measures_both_executors_and_labels_the_projection(tmp_pat
                 assert row["stat"] == "value" and row["unit"] == unit and row["value"] > 0
             assert only(system=ex, metric="efficiency", workers=2, kind=kind)["value"] > 0
     assert only(system="ray", metric="instance_start")["value"] > 0
+    for nodes in (1, 2):  # a cluster per point, as many 1-CPU nodes as workers
+        assert only(system="ray-cluster", metric="instance_start", nodes=nodes)["value"] > 0
+        for kind in ("frame", "map"):
+            assert 1 <= only(system="ray-cluster", metric="nodes_used", workers=nodes, kind=kind)["value"] <= nodes
+    assert "Two simulated Ray nodes (1 CPU each, sharing this machine's cores)" in (tmp_path / "scaling.md").read_text()
     maps = {r["scene"]: r["value"] for r in rows if r["metric"] == "bake_maps"}
     assert sorted(maps) == builtin_scenes() and all(0 < n <= 1500 for n in maps.values())
+    space = {r["scene"]: r["value"] for r in rows if r["metric"] == "space_maps"}
+    assert sorted(space) == builtin_scenes()
+    for scene, n in space.items():  # the whole space holds many more maps than one fly-through needs
+        assert n == configuration_space(load_scene(scene), Tolerance(), DEFAULT_LIGHT_CELL).size > 10 * maps[scene]
 
-    projected = [r for r in rows if r["metric"] in ("dataset_wall", "bake_wall")]
+    projected = [r for r in rows if r["metric"] in ("dataset_wall", "bake_wall", "space_wall")]
     assert projected and all(
         r["stat"] == "projection" and "linear scaling" in r["config"]["assumption"] for r in projected
     )
@@ -456,7 +467,7 @@ def test_bench_scaling_measures_both_executors_and_labels_the_projection(tmp_pat
         measured = only(system=r["system"], metric="item_time", workers=1, kind=kind)["value"]
         assert r["config"]["measured_item_s"] == pytest.approx(measured)
         per_item = measured * (r["config"]["resolution"] / 16) ** 2
-        if r["scene"] != "paper_5_scenes" or kind == "frame":
+        if r["scene"] != "paper_5_scenes" or kind == "frame":  # per scene; the data set's one total
             assert r["value"] == pytest.approx(
                 math.ceil(r["config"]["items"] / r["config"]["workers"]) * per_item / 3600
             )
@@ -466,6 +477,10 @@ def test_bench_scaling_measures_both_executors_and_labels_the_projection(tmp_pat
     bake_total = only(system="local", scene="paper_5_scenes", metric="bake_wall", workers=4)["value"]
     assert bake_total == pytest.approx(
         sum(only(system="local", scene=s, metric="bake_wall", workers=4)["value"] for s in maps)
+    )
+    space_total = only(system="ray", scene="paper_5_scenes", metric="space_wall", workers=4)
+    assert space_total["config"]["items"] == sum(space.values()) and space_total["value"] == pytest.approx(
+        sum(only(system="ray", scene=s, metric="space_wall", workers=4)["value"] for s in space)
     )
     assert "PROJECTION (not measured)" in (tmp_path / "scaling.md").read_text()
     assert (tmp_path / "scaling.png").stat().st_size > 10_000
