@@ -1,0 +1,391 @@
+"""`bench prefetch` (issue 23 item 2): how well the cloud-baking client hides the network, per network profile,
+with three request rules on the same camera path against the same prebaked GI tree.
+
+Variants (``system``), each a ``cloudbaking-client`` process behind ``network-sim proxy --profile P``:
+
+- ``period``: the rule before issue 23 (``--hold none``): a request every ``every`` frames and whenever the
+  view has left the tolerance of the bound map;
+- ``hold``: ``--hold tolerance``: a request only when no map held or in flight serves the view by the GI
+  tree's own rule (:func:`baseline_cloudbaking.client.covers`);
+- ``prefetch``: ``hold`` with ``--prefetch extrapolate``: the request is for the view the camera's recent
+  motion reaches one measured request latency (plus half a frame) ahead.
+
+Every run gets a fresh copy of one prebaked store (the server answered every GI camera of the path once,
+directly), so one run's misses (a predicted view no stored map serves) are never another's hits; the server
+is warmed up by one request far off the path (its scene compiled). Frames are paced at ``frame_rate`` as a
+display would, so the camera's speed in scene units per second is the same in every run.
+
+Metrics (``metric``; config: ``profile``, ``variant`` and the run's settings):
+
+- ``perceived`` (ms; median, p95 as order statistics, n): per frame, from its start (the camera moved) to the
+  composition of the first frame showing a map that serves its view
+  (:func:`baseline_cloudbaking.client.perceived_latency`); ``cache = all``: every frame, those no map of the run
+  ever served (``censored``, a count of its own) as an endless wait; ``cache = hit | miss``: the served frames by
+  the ``hit`` flag of the map that ended the wait. ``in_tolerance``: the share of frames whose shown map serves
+  their own view;
+- ``ssim`` (mean over the frames scored against the path-traced GT every ``gt_every`` frames): staleness;
+- ``requests``, ``failed_requests``, ``bytes_up``, ``bytes_down`` (totals), ``request_latency`` (ms).
+
+Targets (``stat = target_met``, issue 23): at ``wan``, the median perceived latency with prefetch is at most
+0.5 x that of ``hold`` (checked on every frame, and on the frames served by a hit: on the prebaked store nearly
+every request hits, and frames prefetch skips over are never served); at ``lan``, ``hold`` (and ``prefetch``)
+send at most 0.5 x the requests of ``period``. Each row says the target, the measured ratio and whether it was
+met (profiles not run give no row).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import shutil
+import subprocess
+import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+
+from baseline_cloudbaking.codecs import CODEC_NAMES, DEFAULT_CODEC
+from bench.latency import pinned_server, pinning
+from bench.runner import Bench, Block, Rows, Section, Table, cell, need, pick
+from gicore.cli import UserError
+from gicore.results import Results, read_rows
+
+CodecName = Literal[CODEC_NAMES]  # type: ignore[valid-type]
+BIN = Path(sys.executable).parent
+SYSTEM = "cloud_baking"
+#: Variant -> the client's request-rule options (module docstring).
+VARIANTS = {
+    "period": ["--hold", "none"],
+    "hold": ["--hold", "tolerance", "--prefetch", "none"],
+    "prefetch": ["--hold", "tolerance", "--prefetch", "extrapolate"],
+}
+#: Issue 23's bounds: prefetch's perceived latency of hits at wan over hold's; hold's requests at lan over period's.
+PERCEIVED_BOUND, REQUESTS_BOUND = 0.5, 0.5
+
+
+@dataclass(frozen=True)
+class PrefetchConfig:
+    """What one prefetch run measures (see the module docstring)."""
+
+    #: The scene the clients fly through (name or spec file).
+    scenes: tuple[str, ...] = field(default=("lung_plane",), metadata={"max_len": 1})
+    #: Network profiles the clients run behind (see network-sim profiles).
+    profiles: tuple[str, ...] = ("lan", "wan")
+    #: Request rules compared (period, hold, prefetch).
+    variants: tuple[str, ...] = tuple(VARIANTS)
+    #: Square resolution of every render and GI map.
+    resolution: int = 256
+    #: Frames per client run.
+    frames: int = 300
+    #: Frames per full orbit of the camera path (the camera's motion per frame).
+    orbit_frames: int = 300
+    #: Frames per second the clients are paced to.
+    frame_rate: float = field(default=30.0, metadata={"min": 1.0, "max": 1000.0})
+    #: The period variant's k: a request every k frames (bench latency's default).
+    every: int = 10
+    #: GI-map codec.
+    codec: CodecName = DEFAULT_CODEC
+    #: Samples per pixel of the server's maps and of the evaluation GT.
+    spp: int = 64
+    #: Score composed frames against the path-traced GT every this many frames (staleness).
+    gt_every: int = 10
+    #: Pin the server, the proxy and the clients to separate cores (taskset) where the machine has them.
+    pin: bool = True
+    #: The client's read timeout, s (bounds one miss's server render; its deadline is twice it).
+    read_timeout_s: float = 120.0
+
+    @classmethod
+    def quick(cls) -> PrefetchConfig:
+        return cls(resolution=64, frames=150, spp=8)
+
+    def check(self) -> None:
+        from network_sim import profiles
+
+        known = profiles.profiles()
+        for name in self.profiles:
+            if name not in known:
+                raise UserError(
+                    f"--profiles {name!r} is not a network profile",
+                    f"use some of {', '.join(known)} (see network-sim profiles)",
+                )
+        for name in self.variants:
+            if name not in VARIANTS:
+                raise UserError(f"--variants {name!r} is not a variant", f"use some of {', '.join(VARIANTS)}")
+
+
+# -- processes ----------------------------------------------------------------------------------------------
+def _prefix(plan: dict[str, Any], role: str) -> list[str]:
+    return ["taskset", "-c", ",".join(map(str, plan[role]))] if plan["method"] != "none" else []
+
+
+@contextmanager
+def _proxy(plan: dict[str, Any], profile: str, upstream: str, seed: int) -> Iterator[str]:
+    """``network-sim proxy --profile`` in front of ``upstream`` (a URL); yields the proxy's URL."""
+    from network_sim.process import Running
+
+    argv = [*_prefix(plan, "proxy"), sys.executable, "-m", "network_sim", "proxy"]
+    argv += ["--upstream", upstream.removeprefix("http://"), "--profile", profile, "--seed", str(seed)]
+    with Running(argv, timeout=60.0) as proxy:
+        host, port = proxy.addr
+        yield f"http://{host}:{port}"
+
+
+def _ask_path(url: str, cfg: PrefetchConfig, scene: str, seed: int, off_path: bool) -> int:
+    """Ask ``url`` directly for the GI camera of every frame of the path (``off_path``: for one camera one unit
+    above the first, which no path view is within tolerance of); returns the misses."""
+    from baseline_cloudbaking.client import RemoteConfig, RemoteSource
+    from gicore.loop import path_views
+    from gicore.scene import load_scene
+
+    spec = load_scene(scene)
+    timeouts = {"read_timeout_s": cfg.read_timeout_s, "deadline_s": 2 * cfg.read_timeout_s, "retry_after_s": 0.0}
+    remote = RemoteConfig(
+        url, Path(scene).stem, cfg.resolution, cfg.codec, cfg.spp, light_moves=spec.light.moves, **timeouts
+    )
+    views = path_views(
+        spec, 1 if off_path else cfg.frames, cfg.orbit_frames, seed, spec.camera.local_fov, cfg.resolution
+    )
+    with RemoteSource(remote) as source:
+        for frame, (camera, light) in enumerate(views):
+            gi_camera = camera.with_fov(spec.camera.gi_fov)
+            if off_path:
+                gi_camera = replace(gi_camera, origin=tuple(np.add(camera.origin, (0.0, 1.0, 0.0))))
+            source.request(gi_camera, light, frame)
+            source.wait(2 * cfg.read_timeout_s + 10)
+    failed = [r for r in source.records if r["status"] != "ok"]
+    if failed:
+        raise RuntimeError(f"the server at {url} failed a request: {failed[0]['status']}: {failed[0]['error']}")
+    return sum(1 - int(r["hit"]) for r in source.records)
+
+
+def _client(plan: dict[str, Any], argv: list[str], out: Path, timeout_s: float) -> Path:
+    shutil.rmtree(out, ignore_errors=True)
+    proc = subprocess.run([*_prefix(plan, "client"), *argv, "--out", str(out)], capture_output=True, text=True,
+                          timeout=timeout_s, check=False)  # fmt: skip
+    if out.is_dir():
+        (out / "console.txt").write_text(proc.stdout + proc.stderr)
+    if proc.returncode != 0:
+        raise RuntimeError(f"cloudbaking-client exited with {proc.returncode}:\n{proc.stderr[-3000:]}")
+    return out
+
+
+# -- measuring ----------------------------------------------------------------------------------------------
+def measure(cfg: PrefetchConfig, res: Results) -> None:
+    from gicore.scene import load_scene
+
+    scene = cfg.scenes[0]
+    spec = load_scene(scene)
+    scenes_dir = Path(scene).resolve().parent if Path(scene).suffix else None
+    work = res.out / "prefetch_runs"
+    work.mkdir(parents=True, exist_ok=True)
+    plan = pinning(cfg.pin)
+    res.settings["pinning"] = plan
+    common = {"resolution": cfg.resolution, "frames": cfg.frames, "orbit_frames": cfg.orbit_frames,
+              "frame_rate": cfg.frame_rate, "spp": cfg.spp, "codec": cfg.codec}  # fmt: skip
+    prebaked = work / "store_prebaked"
+    shutil.rmtree(prebaked, ignore_errors=True)
+    with pinned_server(plan, prebaked, scenes_dir) as url:
+        misses = _ask_path(url, cfg, scene, res.seed, off_path=False)
+    res.add(system=SYSTEM, scene=spec.name, metric="prebake_maps", value=misses, unit="count", **common)
+    argv = [str(BIN / "cloudbaking-client"), "--scene", scene, "--frames", str(cfg.frames),
+            "--resolution", str(cfg.resolution), "--orbit-frames", str(cfg.orbit_frames), "--spp", str(cfg.spp),
+            "--gt-every", str(cfg.gt_every), "--codec", cfg.codec, "--frame-rate", str(cfg.frame_rate),
+            "-k", str(cfg.every), "--seed", str(res.seed), "--read-timeout", str(cfg.read_timeout_s),
+            "--deadline", str(2 * cfg.read_timeout_s)]  # fmt: skip
+    timeout = 300.0 + cfg.frames * 2.0 + (cfg.frames // cfg.gt_every + 1) * 20.0 + cfg.read_timeout_s
+    for profile in cfg.profiles:
+        for variant in cfg.variants:
+            store = work / "store_run"
+            shutil.rmtree(store, ignore_errors=True)
+            shutil.copytree(prebaked, store)
+            with pinned_server(plan, store, scenes_dir) as url:
+                _ask_path(url, cfg, scene, res.seed, off_path=True)  # compiles the scene and every pass
+                with _proxy(plan, profile, url, res.seed) as proxied:
+                    folder = _client(plan, [*argv, *VARIANTS[variant], "--server", proxied],
+                                     work / f"{profile}_{variant}", timeout)  # fmt: skip
+            shutil.rmtree(store, ignore_errors=True)
+            record(res, spec.name, folder, common | {"profile": profile, "variant": variant, "k": cfg.every})
+    shutil.rmtree(prebaked, ignore_errors=True)
+    targets(res, spec.name)
+
+
+def _csv(path: Path) -> list[dict[str, str]]:
+    with path.open(newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+def run_metrics(frames: list[dict[str, str]], requests: list[dict[str, str]]) -> dict[str, Any]:
+    """What one client run measured (module docstring): perceived latency samples (ms) by the cache state of
+    the map that ended each wait, censored frames, in-tolerance share, mean SSIM, request counts and bytes."""
+    hit_of = {int(r["frame"]): r["hit"] == "1" for r in requests if r["status"] == "ok"}
+    perceived: dict[str, list[float]] = {"all": [], "hit": [], "miss": []}
+    for row in frames:
+        if row["perceived_ms"] == "":  # never served: in "all" as an endless wait
+            perceived["all"].append(math.inf)
+            continue
+        value = float(row["perceived_ms"])
+        perceived["all"].append(value)
+        perceived["hit" if hit_of[int(row["perceived_map"])] else "miss"].append(value)
+    ssims = [float(r["ssim"]) for r in frames if r["ssim"] != ""]
+    ok = [r for r in requests if r["status"] == "ok"]
+    return {
+        "perceived": perceived,
+        "censored": sum(r["perceived_ms"] == "" for r in frames),
+        "in_tolerance": float(np.mean([int(r["in_tolerance"]) for r in frames])),
+        "ssim": float(np.mean(ssims)) if ssims else None,
+        "requests": len(requests),
+        "failed_requests": sum(r["status"] not in ("ok", "abandoned") for r in requests),
+        "bytes_up": sum(int(r["bytes_up"]) for r in requests if r["bytes_up"] != ""),
+        "bytes_down": sum(int(r["bytes_down"]) for r in requests if r["bytes_down"] != ""),
+        "request_latency": [float(r["latency_ms"]) for r in ok],
+    }
+
+
+def record(res: Results, scene: str, folder: Path, config: dict[str, Any]) -> None:
+    """Rows of one client run (its ``frames.csv``, ``requests.csv`` and ``summary.json``)."""
+    m = run_metrics(_csv(folder / "frames.csv"), _csv(folder / "requests.csv"))
+    config = config | {"renderer": json.loads((folder / "summary.json").read_text())["renderer"]}
+    for cache, values in m["perceived"].items():
+        if values:  # order statistics, not interpolated: censored frames are infinite
+            for stat, q in (("median", 50), ("p95", 95)):
+                value = float(np.percentile(values, q, method="inverted_cdf"))
+                res.add(system=SYSTEM, scene=scene, metric="perceived", value=value, unit="ms", stat=stat,
+                        cache=cache, **config)  # fmt: skip
+            res.add(system=SYSTEM, scene=scene, metric="perceived", value=len(values), unit="count", stat="n",
+                    cache=cache, **config)  # fmt: skip
+    if m["request_latency"]:
+        samples = [v / 1e3 for v in m["request_latency"]]
+        res.add_timing(system=SYSTEM, scene=scene, metric="request_latency", samples_s=samples, **config)
+    res.add(system=SYSTEM, scene=scene, metric="censored", value=m["censored"], unit="frames", **config)
+    res.add(system=SYSTEM, scene=scene, metric="in_tolerance", value=m["in_tolerance"], unit="fraction", **config)
+    if m["ssim"] is not None:
+        res.add(system=SYSTEM, scene=scene, metric="ssim", value=m["ssim"], unit="ssim", stat="mean", **config)
+    for name in ("requests", "failed_requests"):
+        res.add(system=SYSTEM, scene=scene, metric=name, value=m[name], unit="count", **config)
+    for name in ("bytes_up", "bytes_down"):
+        res.add(system=SYSTEM, scene=scene, metric=name, value=m[name], unit="bytes", stat="total", **config)
+
+
+def _value(rows: list[dict[str, Any]], metric: str, stat: str, **config: Any) -> float | None:
+    for r in rows:
+        cfg = r["config"] if isinstance(r["config"], dict) else json.loads(r["config"])
+        if r["metric"] == metric and r["stat"] == stat and config.items() <= cfg.items():
+            return float(r["value"])
+    return None
+
+
+def targets(res: Results, scene: str) -> None:
+    """Issue 23's two targets as ``target_met`` rows, where the runs they compare were made."""
+    rows = res.rows
+    checks = [
+        ("wan", "perceived", "median", {"cache": "all"}, "prefetch", "hold", PERCEIVED_BOUND,
+         "median perceived latency, never-served frames as endless, prefetch <= 0.5 x hold (wan)"),
+        ("wan", "perceived", "median", {"cache": "hit"}, "prefetch", "hold", PERCEIVED_BOUND,
+         "median perceived latency of frames served by a hit, prefetch <= 0.5 x hold (wan)"),
+        ("lan", "requests", "value", {}, "hold", "period", REQUESTS_BOUND, "requests, hold <= 0.5 x period (lan)"),
+        ("lan", "requests", "value", {}, "prefetch", "period", REQUESTS_BOUND,
+         "requests, prefetch <= 0.5 x period (lan)"),
+    ]  # fmt: skip
+    for profile, metric, stat, extra, variant, against, bound, text in checks:
+        mine = _value(rows, metric, stat, profile=profile, variant=variant, **extra)
+        base = _value(rows, metric, stat, profile=profile, variant=against, **extra)
+        if mine is None or base is None:
+            continue
+        ratio = mine / base if base > 0 else float("inf")
+        res.add(system=SYSTEM, scene=scene, metric=metric, value=int(ratio <= bound), unit="bool", stat="target_met",
+                profile=profile, target=text, ratio=ratio, measured=mine, baseline=base)  # fmt: skip
+
+
+# -- presenting ---------------------------------------------------------------------------------------------
+def table(rows: Rows) -> str:
+    """Per profile and variant: requests, bytes, in-tolerance share, perceived latency (all and hits), censored
+    frames, mean SSIM; then the targets."""
+    need(rows, "perceived", "requests")
+    runs = list(
+        dict.fromkeys((r["config"]["profile"], r["config"]["variant"]) for r in pick(rows, "requests", "value"))
+    )
+    lines = [
+        "| profile | variant | requests | KiB down | in tolerance | perceived median (p95) ms | hits: median ms |"
+        " censored frames | mean SSIM |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for profile, variant in runs:
+        key = {"profile": profile, "variant": variant}
+
+        def v(metric: str, stat: str = "value", **extra: Any) -> float | None:
+            return _value(rows, metric, stat, **key, **extra)  # noqa: B023 -- used within this iteration
+
+        down = v("bytes_down", "total")
+        tol = v("in_tolerance")
+        lines.append(
+            f"| {profile} | {variant} | {cell(v('requests'), '.0f')} | {cell(down and down / 1024, '.0f')} "
+            f"| {cell(tol and 100 * tol, '.0f')} % | {cell(v('perceived', 'median', cache='all'), '.0f')} "
+            f"({cell(v('perceived', 'p95', cache='all'), '.0f')}) "
+            f"| {cell(v('perceived', 'median', cache='hit'), '.0f')} "
+            f"| {cell(v('censored'), '.0f')} | {cell(v('ssim', 'mean'), '.3f')} |"
+        )
+    met = [r for r in rows if r["stat"] == "target_met"]
+    if met:
+        lines += ["", "| target | measured | ratio | met |", "|---|---|---|---|"]
+        for r in met:
+            c = r["config"]
+            measured = f"{c['measured']:.1f} vs {c['baseline']:.1f}"
+            lines.append(f"| {c['target']} | {measured} | {c['ratio']:.2f} | {'yes' if r['value'] else 'MISSED'} |")
+    return "\n".join(lines)
+
+
+def readme_block(rows: Rows) -> list[Table]:
+    """The table above, after what the columns mean."""
+    text = (
+        "Perceived latency: per frame, from its start to the first frame showing a map within the server's "
+        "tolerance of its view; censored frames (never served) are left out of it. Same path, same prebaked "
+        "store, frames paced like a display.\n\n"
+    )
+    return [Table(text + table(rows), scroll=True)]
+
+
+def plot(csv_path: Path, out_dir: Path) -> list[Path]:
+    """Bars per profile and variant: median perceived latency of hits, and requests sent."""
+    from gicore.plotting import plt, save
+
+    rows = read_rows(csv_path)
+    runs = list(
+        dict.fromkeys((r["config"]["profile"], r["config"]["variant"]) for r in pick(rows, "requests", "value"))
+    )
+    profiles = list(dict.fromkeys(p for p, _ in runs))
+    variants = list(dict.fromkeys(v for _, v in runs))
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
+    for ax, (metric, stat, extra, label) in zip(
+        axes,
+        [("perceived", "median", {"cache": "hit"}, "perceived latency of hits, median [ms]"),
+         ("requests", "value", {}, "requests")],
+        strict=True,
+    ):  # fmt: skip
+        width = 0.8 / max(len(variants), 1)
+        for i, variant in enumerate(variants):
+            values = [_value(rows, metric, stat, profile=p, variant=variant, **extra) for p in profiles]
+            x = np.arange(len(profiles)) + i * width
+            ax.bar(x, [np.nan if v is None else v for v in values], width, label=variant)
+        ax.set_xticks(np.arange(len(profiles)) + width * (len(variants) - 1) / 2, profiles)
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3, axis="y")
+        ax.legend(fontsize=8)
+    return [save(fig, out_dir / "prefetch.png")]
+
+
+BENCH = Bench(
+    "prefetch",
+    PrefetchConfig,
+    measure,
+    plot,
+    help="Issue 23: the cloud client's request rules and prefetch: perceived latency, staleness, requests, bytes",
+    dashboard=Section(
+        "prefetch", "Prefetch: hiding the network in cloud baking", 12, lambda rows: [Table(table(rows))]
+    ),
+    readme=Block("Cloud-baking prefetch", 12, readme_block),
+)

@@ -1,0 +1,86 @@
+"""`bench prefetch` (issue 23 item 2) from its rows: what one client run's CSVs give, the targets' verdicts, the
+table, and the options it refuses. (The processes it drives are tested in tests/baseline_cloudbaking.)"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import pytest
+
+from bench.prefetch import BENCH, PrefetchConfig, readme_block, record, run_metrics, targets
+from gicore.cli import UserError
+from gicore.options import build_config
+from gicore.results import Results, read_rows
+
+HEAD = ("frame", "ssim", "in_tolerance", "perceived_ms", "perceived_map")
+
+
+def frames(*rows: tuple) -> list[dict[str, str]]:
+    return [dict(zip(HEAD, map(str, r), strict=True)) for r in rows]
+
+
+def request(frame: int, hit: int, status: str = "ok", down: int = 1000) -> dict[str, str]:
+    return {"frame": str(frame), "hit": str(hit), "status": status, "bytes_up": "300", "bytes_down": str(down),
+            "latency_ms": "40.0"}  # fmt: skip
+
+
+def test_a_runs_metrics_count_never_served_frames_as_endless() -> None:
+    rows = frames(
+        (0, 0.9, 1, 30.0, 0),
+        (1, "", 0, "", ""),  # never served
+        (2, 0.8, 0, 90.0, 3),
+        (3, "", 1, 20.0, 3),
+    )
+    m = run_metrics(rows, [request(0, 1), request(3, 0, down=2000), request(5, 0, status="timeout", down="")])
+    assert m["perceived"]["all"] == [30.0, math.inf, 90.0, 20.0]
+    assert m["perceived"]["hit"] == [30.0] and m["perceived"]["miss"] == [90.0, 20.0]
+    assert (m["censored"], m["in_tolerance"], m["ssim"]) == (1, 0.5, pytest.approx(0.85))
+    assert (m["requests"], m["failed_requests"], m["bytes_up"], m["bytes_down"]) == (3, 1, 900, 3000)
+
+
+def write_run(folder: Path, perceived: list[float | str], requests: int) -> Path:
+    folder.mkdir(parents=True)
+    head = ",".join(HEAD)
+    lines = [f"{f},0.9,{int(p != '' and p < 60)},{p},{'0' if p != '' else ''}" for f, p in enumerate(perceived)]
+    (folder / "frames.csv").write_text("\n".join([head, *lines]) + "\n")
+    cols = "frame,hit,status,bytes_up,bytes_down,latency_ms"
+    reqs = [f"{f},1,ok,300,1000,40.0" for f in range(requests)]
+    (folder / "requests.csv").write_text("\n".join([cols, *reqs]) + "\n")
+    (folder / "summary.json").write_text('{"renderer": "mitsuba"}')
+    return folder
+
+
+def test_targets_compare_the_variants_named_by_the_issue(tmp_path: Path) -> None:
+    """wan: prefetch's median perceived latency 50 ms against hold's 300 (met, 0.17); with hold's frames mostly
+    never served its median is endless. lan: hold 60 requests against period's 100 (missed, 0.6)."""
+    res = Results("prefetch", tmp_path, 0)
+    runs = {
+        ("wan", "hold"): ([300.0, 300.0, "", 250.0, 400.0], 5),
+        ("wan", "prefetch"): ([50.0, 40.0, 60.0, "", 50.0], 4),
+        ("lan", "period"): ([30.0] * 5, 100),
+        ("lan", "hold"): ([30.0] * 5, 60),
+    }
+    for (profile, variant), (perceived, n) in runs.items():
+        folder = write_run(tmp_path / f"{profile}_{variant}", perceived, n)
+        record(res, "s", folder, {"profile": profile, "variant": variant})
+    targets(res, "s")
+    rows = read_rows(res.write())
+    met = {
+        r["config"]["target"].split(",")[0] + r["config"]["target"][-5:]: r for r in rows if r["stat"] == "target_met"
+    }
+    assert len(met) == 3  # prefetch at lan was not run: no row
+    wan = met["median perceived latency(wan)"]
+    assert wan["value"] == 1 and wan["config"]["ratio"] == pytest.approx(50.0 / 300.0)
+    lan = met["requests(lan)"]
+    assert lan["value"] == 0 and lan["config"]["ratio"] == pytest.approx(0.6)
+    text = readme_block(rows)[0].markdown
+    assert "| wan | hold | 5 |" in text and "MISSED" in text and "| yes |" in text
+
+
+def test_options_it_refuses() -> None:
+    with pytest.raises(UserError, match="--profiles 'moon'"):
+        build_config(PrefetchConfig, {"profiles": "lan,moon"})
+    with pytest.raises(UserError, match="--variants 'always'"):
+        build_config(PrefetchConfig, {"variants": "hold,always"})
+    assert BENCH.name == "prefetch" and BENCH.readme is not None
