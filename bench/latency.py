@@ -302,8 +302,6 @@ def available_renderers(asked: tuple[str, ...]) -> tuple[tuple[str, ...], dict[s
 def _ran_on(folder: Path, renderer: str) -> Path:
     """``folder`` (a client's output) after checking that its raster passes ran on ``renderer``: a client that
     fell back would put another renderer's times under this one's name."""
-    import json
-
     used = json.loads((folder / "summary.json").read_text())["renderer"]
     if used != renderer:
         raise RuntimeError(f"the client in {folder} was asked for renderer {renderer} but ran {used}")

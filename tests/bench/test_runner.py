@@ -347,8 +347,8 @@ def test_quick_runs_work_on_a_fresh_checkout(tmp_path: Path) -> None:
 
 @pytest.mark.slow
 def test_run_default_is_the_make_run_job(tmp_path: Path) -> None:
-    """bench latency --quick and bench storage --quick on lung_plane (a few minutes on 2 cores), both tables printed
-    once, at the end."""
+    """bench latency --quick --renderers gl and bench storage --quick on lung_plane (a few minutes on 2 cores), both
+    tables printed once, at the end."""
     argv = [sys.executable, "-m", "bench", "run-default", "--out", str(tmp_path)]
     result = subprocess.run(argv, cwd=REPO, capture_output=True, text=True, timeout=1200)
     assert result.returncode == 0, result.stderr
@@ -373,6 +373,13 @@ def test_run_default_is_the_make_run_job(tmp_path: Path) -> None:
     assert totals >= {("gigan", "none", None)} | {
         ("cloud_baking", p, c) for p in ("lan", "wan") for c in ("hit", "miss")
     }
+    # the clients rasterise with GL (mitsuba after one warning where no GL context opens), and say which ran
+    from gicore.gl import gl_available
+
+    renderers = json.loads((tmp_path / "latency.provenance.json").read_text())["settings"]["renderers"]
+    assert renderers["asked"] == ["gl"] and len(renderers["ran"]) == 1
+    ran = {r["config"]["renderer"] for r in read_rows(tmp_path / "latency.csv") if r["metric"] == "total"}
+    assert ran == set(renderers["ran"]) == ({"gl"} if gl_available()[0] else {"mitsuba"})
     assert {r["scene"] for r in read_rows(tmp_path / "storage.csv") if r["scene"] != "all"} == {"lung_plane"}
     assert result.stdout.count("## Table 1") == 1 and result.stdout.count("# Table 2") == 1
 
