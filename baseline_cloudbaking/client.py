@@ -194,20 +194,22 @@ def _viewpoint(camera: Camera) -> Viewpoint:
 
 
 class MotionPredictor:
-    """The camera's recent motion (the last ``history`` views: frame, when it was asked for, camera), extrapolated:
-    eye position and view direction fitted against the frame number by least squares (a parabola from five views
-    on, as an orbit bends; a line before), evaluated the frames ahead that a lead in seconds spans at the median
-    frame interval. Fitting against frames, not request times, keeps the jitter of when in its frame a view was
-    asked for out of the motion; the direction is renormalised."""
+    """The recent motion of the camera and the light (the last ``history`` views: frame, when it was asked for,
+    camera, light), extrapolated: eye position, view direction and light position fitted against the frame number
+    by least squares (a parabola from five views on, as an orbit bends; a line before), evaluated the frames ahead
+    that a lead in seconds spans at the median frame interval. Fitting against frames, not request times, keeps
+    the jitter of when in its frame a view was asked for out of the motion; the direction is renormalised. The
+    light is predicted too: a map asked ahead under the current light would miss the maps baked past a light-cell
+    boundary."""
 
     def __init__(self, history: int):
-        self._views: deque[tuple[int, float, np.ndarray, np.ndarray]] = deque(maxlen=history)
+        self._views: deque[tuple[int, float, np.ndarray, np.ndarray, np.ndarray]] = deque(maxlen=history)
 
-    def add(self, frame: int, t: float, camera: Camera) -> None:
+    def add(self, frame: int, t: float, camera: Camera, light: Light) -> None:
         if self._views and frame <= self._views[-1][0]:  # a frame asked twice (or a restart): keep the motion
             return
         view = _viewpoint(camera)
-        self._views.append((frame, t, np.array(view.eye), np.array(view.direction)))
+        self._views.append((frame, t, np.array(view.eye), np.array(view.direction), np.array(light, dtype=float)))
 
     def frame_interval_s(self) -> float | None:
         """Median time per frame between the views (None before two)."""
@@ -222,15 +224,15 @@ class MotionPredictor:
         interval = self.frame_interval_s()
         if interval is None:
             return None
-        (f0, _, e0, d0), (f1, _, e1, d1) = self._views[-2], self._views[-1]
+        (f0, _, e0, d0, _), (f1, _, e1, d1, _) = self._views[-2], self._views[-1]
         move = float(np.linalg.norm(e1 - e0)) / max(tol.position, 1e-12)
         turn = math.degrees(math.atan2(float(np.linalg.norm(np.cross(d0, d1))), float(d0 @ d1)))
         per_frame = max(move, turn / max(tol.angle_deg, 1e-12)) / (f1 - f0)
         return interval / per_frame if per_frame > 0.0 else None
 
-    def predict(self, camera: Camera, lead_s: float) -> Camera | None:
+    def predict(self, camera: Camera, lead_s: float) -> tuple[Camera, Light] | None:
         """``camera`` moved to where its motion puts it ``lead_s`` after the last view (its distance to its
-        target, its up and FOV kept); None before three views."""
+        target, its up and FOV kept), and the light then; None before three views."""
         interval = self.frame_interval_s()
         if len(self._views) < 3 or interval is None or not interval > 0.0:
             return None
@@ -238,18 +240,19 @@ class MotionPredictor:
         f -= f[-1]
         ahead = lead_s / interval
         degree = 2 if len(f) >= 5 else 1
-        eyes = np.array([v[2] for v in self._views])
-        dirs = np.array([v[3] for v in self._views])
-        eye = np.array([np.polyval(np.polyfit(f, eyes[:, i], degree), ahead) for i in range(3)])
-        d = np.array([np.polyval(np.polyfit(f, dirs[:, i], degree), ahead) for i in range(3)])
+        eye, d, light = (
+            np.array([np.polyval(np.polyfit(f, values[:, i], degree), ahead) for i in range(3)])
+            for values in (np.array([v[k] for v in self._views]) for k in (2, 3, 4))
+        )
         norm = float(np.linalg.norm(d))
-        if not (np.isfinite(eye).all() and math.isfinite(norm) and norm > 1e-9):
+        if not (np.isfinite(eye).all() and np.isfinite(light).all() and math.isfinite(norm) and norm > 1e-9):
             return None
         reach = float(np.linalg.norm(np.subtract(camera.target, camera.origin)))
         try:
-            return replace(camera, origin=tuple(eye), target=tuple(eye + d / norm * reach))
+            moved = replace(camera, origin=tuple(eye), target=tuple(eye + d / norm * reach))
         except ValueError:  # e.g. a view direction parallel to up: ask for the view as it is
             return None
+        return moved, (float(light[0]), float(light[1]), float(light[2]))
 
 
 def retry_after_s(value: str | None, default: float, longest: float) -> float:
@@ -333,15 +336,15 @@ class RemoteSource:
             if self._closed:
                 return False
             if self.policy.tolerance is not None:
-                self.motion.add(frame, now, camera)
+                self.motion.add(frame, now, camera, light)
                 self._view = (camera, self.policy.cell(light))
             if self._busy or now < self._not_before:
                 return False
-            target = camera if self.policy.tolerance is None else self._target(camera, light)
+            target = (camera, light) if self.policy.tolerance is None else self._target(camera, light)
             if target is None:
                 return False
             self._busy = True
-            self._job = (target, light, frame, now)
+            self._job = (*target, frame, now)
             self._cond.notify()
         return True
 
@@ -396,16 +399,17 @@ class RemoteSource:
         crossing = self.motion.crossing_s(self.policy.tolerance) or 0.0
         return float(np.median(served)) / 1e3 + interval / 2 + crossing / 2
 
-    def _target(self, camera: Camera, light: Light) -> Camera | None:
-        """The view to ask for when asked at ``camera``: None while a held map or the one in flight serves it;
-        with prefetch, the predicted view (asked when none serves that one), once a lead is known."""
-        cell = self.policy.cell(light)
+    def _target(self, camera: Camera, light: Light) -> tuple[Camera, Light] | None:
+        """The view (camera and light) to ask for when asked at ``camera``: None while a held map or the one in
+        flight serves it; with prefetch, the predicted view (asked when none serves that one), once a lead is
+        known."""
         if self.policy.prefetch == "extrapolate":
             lead = self._lead_s()
             predicted = self.motion.predict(camera, lead) if lead is not None else None
             if predicted is not None:
-                return None if self._serving(predicted, cell, in_flight=True) is not None else predicted
-        return None if self._serving(camera, cell, in_flight=True) is not None else camera
+                served = self._serving(predicted[0], self.policy.cell(predicted[1]), in_flight=True) is not None
+                return None if served else predicted
+        return None if self._serving(camera, self.policy.cell(light), in_flight=True) is not None else (camera, light)
 
     def warm_up(self, camera: Camera, light: Light) -> None:
         """Open the keep-alive connection (``GET /v1/health``) and run the codec once, both untimed."""

@@ -49,22 +49,25 @@ def test_covers_is_the_trees_rule_at_its_bounds() -> None:
 
 def test_the_motion_of_an_orbit_is_extrapolated_within_tolerance() -> None:
     """lung_plane's path at 30 fps with 6 ms of timing jitter: 10 frames ahead (0.33 s, ~10 tolerance widths of
-    motion) the prediction is within the tree's tolerance of the true view, which the last view is far from."""
+    motion) the prediction is within the tree's tolerance of the true view, which the last view is far from, and
+    the moving light is predicted too (a map asked under the current light misses past a light-cell boundary)."""
     spec = load_scene("lung_plane")
-    cams = [c.with_fov(90.0) for c, _ in path_views(spec, 60, 300, 0, 60.0, 64)]
+    path = [(c.with_fov(90.0), light) for c, light in path_views(spec, 60, 300, 0, 60.0, 64)]
     times = np.arange(60) / 30.0 + np.random.default_rng(0).normal(0.0, 0.006, 60)
     motion = MotionPredictor(8)
-    motion.add(0, times[0], cams[0])
-    motion.add(1, times[1], cams[1])
-    assert motion.predict(cams[1], 0.3) is None  # too little motion known yet
+    motion.add(0, times[0], *path[0])
+    motion.add(1, times[1], *path[1])
+    assert motion.predict(path[1][0], 0.3) is None  # too little motion known yet
     hits = 0
     for now in range(10, 50):
         for f in range(now - 7, now + 1):
-            motion.add(f, times[f], cams[f])
-        ahead = now + 10
-        predicted = motion.predict(cams[now], 10 * motion.frame_interval_s())
-        assert not covers(cams[now], None, cams[ahead], None, TOL)
-        hits += covers(predicted, None, cams[ahead], None, TOL)
+            motion.add(f, times[f], *path[f])
+        (camera, light), (future, future_light) = path[now], path[now + 10]
+        predicted, predicted_light = motion.predict(camera, 10 * motion.frame_interval_s())
+        assert not covers(camera, None, future, None, TOL)
+        hits += covers(predicted, None, future, None, TOL)
+        moved = np.linalg.norm(np.subtract(future_light, light))
+        assert moved > 0.03 and np.linalg.norm(np.subtract(predicted_light, future_light)) < 0.1 * moved
     assert hits == 40, hits
     assert motion.frame_interval_s() == pytest.approx(1 / 30, rel=0.2)
     # 0.039 units (0.78 x 0.05) and 1.18° (0.59 x 2°) a frame: the eye leaves the tolerance first, in 1.28 frames
