@@ -204,6 +204,25 @@ def nearest(eyes: np.ndarray, dirs: np.ndarray, view: Viewpoint, tol: Tolerance)
     return i, float(dp[i]), float(angle[i])
 
 
+#: Up to this many candidates, :func:`_nearest_few` (plain floats) is cheaper than numpy's per-call cost.
+_FEW = 16
+
+
+def _nearest_few(rows: list[tuple[float, ...]], view: Viewpoint, tol: Tolerance) -> tuple[int, float, float] | None:
+    """:func:`nearest` for a few (ex, ey, ez, dx, dy, dz) rows, in plain floats: the same rule and formulas."""
+    (x, y, z), (a, b, c) = view.eye, view.direction
+    best, best_score = None, math.inf
+    for i, (ex, ey, ez, dx, dy, dz) in enumerate(rows):
+        dp = math.sqrt((ex - x) ** 2 + (ey - y) ** 2 + (ez - z) ** 2)
+        cross = math.sqrt((dy * c - dz * b) ** 2 + (dz * a - dx * c) ** 2 + (dx * b - dy * a) ** 2)
+        angle = math.degrees(math.atan2(cross, dx * a + dy * b + dz * c))
+        if dp <= tol.position and angle <= tol.angle_deg:
+            score = (dp / max(tol.position, 1e-12)) ** 2 + (angle / max(tol.angle_deg, 1e-12)) ** 2
+            if score < best_score:
+                best, best_score = (i, dp, angle), score
+    return best
+
+
 class ViewSet:
     """Viewpoints in memory (one light cell, one format), for planning a fill without a store."""
 
@@ -462,8 +481,11 @@ class GITree:
         )
         if not rows:
             return None
-        arr = np.array([row[2:] for row in rows], dtype=np.float64)
-        found = nearest(arr[:, :3], arr[:, 3:], view, tol)
+        if len(rows) <= _FEW:
+            found = _nearest_few([row[2:] for row in rows], view, tol)
+        else:
+            arr = np.array([row[2:] for row in rows], dtype=np.float64)
+            found = nearest(arr[:, :3], arr[:, 3:], view, tol)
         if found is None:
             return None
         i, dist, angle = found

@@ -17,8 +17,10 @@ import argparse
 import asyncio
 import ipaddress
 import json
+import multiprocessing
 import time
 from collections import Counter
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field, fields
 from typing import Any
 from urllib.parse import urlsplit
@@ -71,6 +73,7 @@ class Conn:
 @dataclass
 class LoadResult:
     hit_ms: list[float] = field(default_factory=list)
+    hit_at: list[float] = field(default_factory=list)  # when each hit was sent, perf_counter s
     hit_status: Counter = field(default_factory=Counter)
     miss_status: Counter = field(default_factory=Counter)
     retry_after: Counter = field(default_factory=Counter)
@@ -80,7 +83,7 @@ class LoadResult:
 
     def summary(self) -> dict[str, Any]:
         ms = np.asarray(self.hit_ms) if self.hit_ms else np.zeros(1)
-        out = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "hit_ms"}
+        out = {f.name: getattr(self, f.name) for f in fields(self) if f.name not in ("hit_ms", "hit_at")}
         out = {k: {str(c): n for c, n in v.items()} if isinstance(v, Counter) else v for k, v in out.items()}
         out["hits"] = len(self.hit_ms)
         out |= {f"hit_{p}_ms": round(float(np.percentile(ms, q)), 2) for p, q in (("p50", 50), ("p99", 99))}
@@ -105,6 +108,7 @@ async def _hit_client(
                 conn.close()
                 continue
             res.hit_ms.append((time.perf_counter() - t0) * 1e3)
+            res.hit_at.append(t0)
             res.hit_status[status] += 1
             next_t += period_s
             await asyncio.sleep(max(0.0, next_t - loop.time()))
@@ -125,8 +129,8 @@ async def _miss(host: str, port: int, body: bytes, res: LoadResult) -> None:
         conn.close()
 
 
-async def _idle_flood(host: str, port: int, n: int, res: LoadResult, stop: asyncio.Event) -> None:
-    """Open ``n`` connections that send nothing; each is released once the server closes it."""
+async def _idle_flood(host: str, port: int, n: int, res: LoadResult, stop: asyncio.Event, rate: float) -> None:
+    """Open ``n`` connections that send nothing, ``rate`` a second; each is released once the server closes it."""
     held: set[asyncio.Task] = set()
 
     async def hold(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
@@ -139,9 +143,11 @@ async def _idle_flood(host: str, port: int, n: int, res: LoadResult, stop: async
         finally:
             writer.close()
 
-    for _ in range(n):
+    t0 = asyncio.get_running_loop().time()
+    for i in range(n):
         if stop.is_set():
             break
+        await asyncio.sleep(max(0.0, t0 + i / rate - asyncio.get_running_loop().time()))
         try:
             reader, writer = await asyncio.open_connection(host, port)
         except OSError as exc:
@@ -156,6 +162,32 @@ async def _idle_flood(host: str, port: int, n: int, res: LoadResult, stop: async
     await asyncio.gather(*held, return_exceptions=True)
 
 
+async def _side_load(
+    host: str, port: int, miss_bodies: list[bytes], idle: int, idle_rate: float, hold_s: float
+) -> LoadResult:
+    """The misses (all at once) and the idle flood, then ``hold_s`` more with the flood held."""
+    res = LoadResult()
+    stop = asyncio.Event()
+    flood = asyncio.ensure_future(_idle_flood(host, port, idle, res, stop, idle_rate))
+    await asyncio.gather(*(_miss(host, port, body, res) for body in miss_bodies))
+    while idle and res.idle_opened + sum(res.errors.values()) < idle and not flood.done():
+        await asyncio.sleep(0.05)
+    await asyncio.sleep(hold_s)
+    stop.set()
+    await flood
+    return res
+
+
+def _ready() -> None:
+    """Submitted first: the worker process imports this module before the measurement."""
+
+
+def _side_process(
+    host: str, port: int, miss_bodies: list[bytes], idle: int, idle_rate: float, hold_s: float
+) -> LoadResult:
+    return asyncio.run(_side_load(host, port, miss_bodies, idle, idle_rate, hold_s))
+
+
 async def run_load(
     url: str,
     hit_body: dict[str, Any],
@@ -164,12 +196,15 @@ async def run_load(
     hit_clients: int = 32,
     period_s: float = 0.02,
     idle: int = 0,
+    idle_rate: float = 2000.0,
     settle_s: float = 1.0,
     max_s: float = 120.0,
 ) -> LoadResult:
     """Hit clients (each a request every ``period_s``, their phases spread evenly over the period, as
-    independent clients are not in lockstep) running while ``idle`` idle connections are opened and
-    ``miss_bodies`` are sent at once; stops ``settle_s`` after the last miss answered (or after ``max_s``)."""
+    independent clients are not in lockstep) running while another process sends ``miss_bodies`` at once
+    and opens ``idle`` idle connections, ``idle_rate`` a second (in its own process, so that its work does
+    not delay the hit clients' clocks); the hit clients run ``settle_s`` before and after it (at most
+    ``max_s`` in all)."""
     host, port = loopback(url)
     res = LoadResult()
     stop = asyncio.Event()
@@ -178,18 +213,21 @@ async def run_load(
         asyncio.ensure_future(_hit_client(host, port, hit, stop, period_s, i * period_s / hit_clients, res))
         for i in range(hit_clients)
     ]
-    flood = asyncio.ensure_future(_idle_flood(host, port, idle, res, stop))
-    await asyncio.sleep(settle_s)
-    misses = [asyncio.ensure_future(_miss(host, port, json.dumps(b).encode(), res)) for b in miss_bodies]
+    misses = [json.dumps(b).encode() for b in miss_bodies]
     try:
-        await asyncio.wait_for(asyncio.gather(*misses), max_s)
-        if idle:  # the flood may still be opening: keep hitting while it does
-            while res.idle_opened + sum(res.errors.values()) < idle and not flood.done():
-                await asyncio.sleep(0.1)
-        await asyncio.sleep(settle_s)
+        with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as pool:
+            # started and this module imported before the clock matters
+            await asyncio.get_running_loop().run_in_executor(pool, _ready)
+            await asyncio.sleep(settle_s)
+            side = asyncio.get_running_loop().run_in_executor(
+                pool, _side_process, host, port, misses, idle, idle_rate, settle_s
+            )
+            other = await asyncio.wait_for(side, max_s)
     finally:
         stop.set()
-        await asyncio.gather(*clients, flood, return_exceptions=True)
+        await asyncio.gather(*clients, return_exceptions=True)
+    res.miss_status, res.retry_after, res.errors = other.miss_status, other.retry_after, res.errors + other.errors
+    res.idle_opened, res.idle_closed_by_server = other.idle_opened, other.idle_closed_by_server
     return res
 
 
@@ -202,12 +240,21 @@ def main() -> None:
     parser.add_argument("--misses", type=int, default=80)
     parser.add_argument("--hit-clients", type=int, default=32)
     parser.add_argument("--period-ms", type=float, default=20.0)
-    parser.add_argument("--idle", type=int, default=0)
+    parser.add_argument("--idle", type=int, default=0, help="idle connections to open")
+    parser.add_argument("--idle-rate", type=float, default=2000.0, help="idle connections opened a second")
     args = parser.parse_args()
     loopback(args.url)
     res = asyncio.run(
         load_for_scene(
-            args.url, args.scene, args.resolution, args.spp, args.misses, args.hit_clients, args.period_ms, args.idle
+            args.url,
+            args.scene,
+            args.resolution,
+            args.spp,
+            args.misses,
+            args.hit_clients,
+            args.period_ms,
+            args.idle,
+            args.idle_rate,
         )
     )
     print(json.dumps(res.summary()))
@@ -223,7 +270,15 @@ def gimap_request(scene: str, eye: tuple[float, float, float], resolution: int, 
 
 
 async def load_for_scene(
-    url: str, scene: str, resolution: int, spp: int, misses: int, hit_clients: int, period_ms: float, idle: int = 0
+    url: str,
+    scene: str,
+    resolution: int,
+    spp: int,
+    misses: int,
+    hit_clients: int,
+    period_ms: float,
+    idle: int = 0,
+    idle_rate: float = 2000.0,
 ) -> LoadResult:
     """Store one map (the hit clients' request), then :func:`run_load` with ``misses`` distinct viewpoints
     on a circle around the target (0, 0.5, 0), 0.2 apart: farther than any tolerance, so each is a miss."""
@@ -235,7 +290,9 @@ async def load_for_scene(
     seed = int(time.time() * 1e3) % 997  # fresh viewpoints on each run against a kept store
     angles = np.linspace(0.3, 2 * np.pi - 0.3, misses) + seed * 1e-4
     bodies = [gimap_request(scene, (2.0 * np.sin(a), 1.1, 2.0 * np.cos(a)), resolution, spp) for a in angles]
-    return await run_load(url, hit, bodies, hit_clients=hit_clients, period_s=period_ms / 1e3, idle=idle)
+    return await run_load(
+        url, hit, bodies, hit_clients=hit_clients, period_s=period_ms / 1e3, idle=idle, idle_rate=idle_rate
+    )
 
 
 if __name__ == "__main__":

@@ -14,14 +14,19 @@ concurrent identical misses bake once.
 from __future__ import annotations
 
 import asyncio
+import gc
+import importlib
 import json
 import math
+import os
+import statistics
 import threading
 import time
 import zlib
-from collections import OrderedDict
+from collections import OrderedDict, deque
 from collections.abc import Awaitable, Callable
 from concurrent.futures import Future, ThreadPoolExecutor
+from contextlib import suppress
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, TypeVar
 
@@ -53,6 +58,17 @@ class ClientGone(Exception):
     """The client disconnected while its miss waited."""
 
 
+#: Niceness of the miss thread, and so of the render threads Dr.Jit starts from it (a new thread takes its
+#: creator's): renders use every core, and at equal priority hits waited for CPU behind them.
+MISS_NICENESS = 10
+
+
+def _lower_priority() -> None:
+    """Run this thread (Linux: one task) at :data:`MISS_NICENESS`; where that is not possible, as it is."""
+    with suppress(OSError, AttributeError):
+        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), MISS_NICENESS)
+
+
 class MissQueue:
     """Misses run one at a time on their own thread; at most ``capacity`` more wait. ``run`` refuses a miss
     beyond that (QueueFull, with a Retry-After estimated from recent miss times) and drops a waiting miss
@@ -60,10 +76,10 @@ class MissQueue:
 
     def __init__(self, capacity: int) -> None:
         self.capacity = capacity
-        self._executor = ThreadPoolExecutor(1, thread_name_prefix="miss")
+        self._executor = ThreadPoolExecutor(1, thread_name_prefix="miss", initializer=_lower_priority)
         self._lock = threading.Lock()
         self._pending = 0  # admitted and not finished: waiting + rendering
-        self._mean_s = 1.0  # running mean of a miss's time on the thread
+        self._recent_s: deque[float] = deque(maxlen=16)  # the last misses' times on the thread
         self.counters = {"misses_refused": 0, "misses_dropped": 0}
 
     @property
@@ -71,8 +87,10 @@ class MissQueue:
         return self._pending
 
     def retry_after_s(self) -> int:
-        """Seconds until the queue has likely drained one slot's worth of misses (1 to 60)."""
-        return min(60, max(1, math.ceil(self._pending * self._mean_s)))
+        """Seconds until the misses now admitted have likely run, at the median of the recent miss times (a
+        first miss that compiles a renderer does not skew it); 1 to 60."""
+        typical = statistics.median(self._recent_s) if self._recent_s else 1.0
+        return min(60, max(1, math.ceil(self._pending * typical)))
 
     async def run(self, fn: Callable[[], T], gone: Callable[[], Awaitable[None]]) -> T:
         """``fn()`` on the miss thread, or QueueFull / ClientGone (when ``gone()`` finishes first)."""
@@ -103,7 +121,7 @@ class MissQueue:
             return fn()
         finally:
             with self._lock:
-                self._mean_s = 0.8 * self._mean_s + 0.2 * (time.perf_counter() - t0)
+                self._recent_s.append(time.perf_counter() - t0)
 
     def _finished(self, _: Future) -> None:
         with self._lock:
@@ -135,6 +153,16 @@ class Served:
     sha: str
 
 
+def preload() -> None:
+    """Import what a bake uses (Mitsuba and Dr.Jit, the denoiser, the image codecs) now: an import holds
+    the GIL, and Mitsuba's took ~0.5 s during the first miss, stalling every hit."""
+    import gicore.render  # noqa: F401  (sets Mitsuba's variant)
+
+    for name in ("drjit", "pyoidn", "PIL.Image", "OpenEXR"):
+        with suppress(ImportError):  # an optional one is missing: its first use says so
+            importlib.import_module(name)
+
+
 class FieldError(ValueError):
     """A request field the server refuses: answered with ``status`` and a detail naming ``field``."""
 
@@ -163,6 +191,7 @@ class MapService:
         # a plain executor: anyio's to_thread costs ~0.45 ms of CPU per call here, as much as a hit itself
         self._hits = ThreadPoolExecutor(HIT_THREADS, thread_name_prefix="hit")
         self._scenes: dict[str, SceneSpec] = {}
+        self._baked: set[tuple[str, int]] = set()
 
     # -- scenes and renderers ---------------------------------------------------------------------
     def scene(self, name: str) -> SceneSpec:
@@ -297,6 +326,10 @@ class MapService:
         self.store.insert(p.key, p.view, payload)
         with self._lock:
             self.counters["misses"] += 1
+            first_bake = (req.scene, req.resolution) not in self._baked
+            self._baked.add((req.scene, req.resolution))
+        if first_bake:  # what a first bake builds and imports lives long: full collections need not walk it
+            gc.freeze()  # (see app.lifespan); once per renderer, so little transient garbage is kept
         timings = {
             "lookup": lookup_ms,
             "render": baked.render_ms,

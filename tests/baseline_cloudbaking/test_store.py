@@ -348,3 +348,24 @@ def test_a_failed_flush_rolls_back_and_later_writes_work(tree: GITree) -> None:
     db.execute("DROP TRIGGER fail_hits")
     tree.lookup(key(), view(1.0))
     assert [e.hits for e in tree.entries()] == [0, 1]
+
+
+def test_the_few_candidate_path_picks_what_numpy_picks() -> None:
+    """GITree.find scores up to 16 candidates in plain floats: the same entry and distances as nearest()."""
+    from baseline_cloudbaking.store import _nearest_few, nearest
+
+    rng = np.random.default_rng(3)
+    agreed = 0
+    for _ in range(300):
+        n = int(rng.integers(1, 17))
+        eyes = rng.normal(0.0, 0.06, (n, 3)) + (0.0, 1.0, 2.0)
+        dirs = np.array([view(*e).direction for e in eyes]) + rng.normal(0.0, 0.02, (n, 3))
+        dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+        v = view(*rng.normal(0.0, 0.03, 3) + (0.0, 1.0, 2.0))
+        want = nearest(eyes, dirs, v, TOL)
+        got = _nearest_few([tuple(e) + tuple(d) for e, d in zip(eyes, dirs)], v, TOL)
+        assert (want is None) == (got is None)
+        if want is not None:
+            assert got[0] == want[0] and got[1:] == pytest.approx(want[1:], rel=1e-9, abs=1e-9)
+            agreed += 1
+    assert agreed > 100  # most draws have a candidate within tolerance
