@@ -17,6 +17,18 @@ and the bake cost (``bake_ms``: render, denoise, encode). A served payload's hea
 
 :func:`decode_payload` is the client side: bytes in, arrays and camera out. Bad bytes raise
 :class:`PayloadError` (a ValueError) naming what is wrong.
+
+Over HTTP (``cloudbaking-server``; its ``/openapi.json`` states every limit and response):
+
+- ``POST /v1/gimap`` answers 200 with a payload; ``X-GIMap-Hit`` is 1 for a stored map, 0 for one baked
+  for the request; ``Content-Location: /v1/maps/{sha}`` names the stored map.
+- ``GET /v1/maps/{sha}``: the stored payload by its SHA-256 (no ``hit``/``timings_ms``), with
+  ``ETag: "{sha}"`` and ``Cache-Control: public, max-age=31536000, immutable``; 304 when
+  ``If-None-Match`` names it.
+- Errors are JSON ``{"detail": [{"loc", "msg", "type"}]}`` with a one-line ``msg``: 4xx for the request
+  (422 names the field; 408 slow body; 413/431 too large); 503 with ``Retry-After`` (seconds) when the
+  miss queue or the connection limit is full or the store cannot be written now: retry after that long,
+  keep warping the map held meanwhile; 507 when there is no space to store a baked map.
 """
 
 from __future__ import annotations

@@ -131,7 +131,7 @@ def serve(given: dict[str, Any], *, store: Path, scenes: Path | None) -> None:
             file=sys.stderr,
             flush=True,
         )
-    limits = ConnectionLimits(max_connections, settings.idle_timeout_s)
+    limits = ConnectionLimits(max_connections, settings.idle_timeout_s, settings.max_header_bytes)
     app = create_app(settings)
     app.state.connections = limits
     config = uvicorn.Config(

@@ -45,6 +45,7 @@ ERROR_RESPONSES: dict[int | str, dict[str, Any]] = {
     400: {"description": "the HTTP request itself is malformed (answered by the HTTP layer, as text)"},
     408: {"description": "the request body did not arrive within body_timeout_s", "content": _DETAIL},
     413: {"description": "request body too large (max_body_bytes)", "content": _DETAIL},
+    431: {"description": "request head too large (max_header_bytes); the connection is closed", "content": _DETAIL},
     422: {"description": "a field is invalid; detail[].loc names it", "content": _DETAIL},
     503: {
         "description": "overloaded (the miss queue or the connection limit is full) or the GI tree cannot be "

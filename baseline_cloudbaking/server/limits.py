@@ -47,13 +47,19 @@ class ConnectionLimits:
     """The shared state of one server's connections: the idle ones (fresh: no request yet; kept: kept alive
     after a response), each in the order they became idle; those closed here and not yet gone; counters."""
 
-    def __init__(self, max_connections: int, idle_timeout_s: float) -> None:
+    def __init__(self, max_connections: int, idle_timeout_s: float, max_head_bytes: int = 16_384) -> None:
         self.max_connections = max_connections
         self.idle_timeout_s = idle_timeout_s
+        self.max_head_bytes = max_head_bytes
         self.fresh: OrderedDict[H11Protocol, float] = OrderedDict()
         self.kept: OrderedDict[H11Protocol, float] = OrderedDict()
         self.closing: set[H11Protocol] = set()  # closed, connection_lost not yet called: still counted by uvicorn
-        self.counters = {"connections_drained": 0, "connections_refused": 0, "connections_timed_out": 0}
+        self.counters = {
+            "connections_drained": 0,
+            "connections_refused": 0,
+            "connections_timed_out": 0,
+            "heads_too_large": 0,
+        }
         self._sweeper: asyncio.TimerHandle | None = None
 
     @property
@@ -114,15 +120,19 @@ def busy(conn: H11Protocol) -> bool:
     return conn.cycle is not None and not conn.cycle.response_complete
 
 
-def _refusal(retry_after_s: int) -> bytes:
-    body = json.dumps(
-        {"detail": [{"loc": ["connection"], "msg": "the server is at its connection limit", "type": "overloaded"}]}
-    ).encode()
+def _answer(status: str, loc: str, msg: str, kind: str, extra: str = "") -> bytes:
+    """A whole HTTP response, written before any request was parsed, closing the connection."""
+    body = json.dumps({"detail": [{"loc": [loc], "msg": msg, "type": kind}]}).encode()
     head = (
-        "HTTP/1.1 503 Service Unavailable\r\ncontent-type: application/json\r\n"
-        f"retry-after: {retry_after_s}\r\nconnection: close\r\ncontent-length: {len(body)}\r\n\r\n"
+        f"HTTP/1.1 {status}\r\ncontent-type: application/json\r\n{extra}"
+        f"connection: close\r\ncontent-length: {len(body)}\r\n\r\n"
     )
     return head.encode() + body
+
+
+_REFUSAL = _answer(
+    "503 Service Unavailable", "connection", "the server is at its connection limit", "overloaded", "retry-after: 1\r\n"
+)
 
 
 def http_protocol() -> type[H11Protocol]:
@@ -146,15 +156,23 @@ def capped_protocol(limits: ConnectionLimits, base: type[H11Protocol] | None = N
             while over > 0 and limits.drain_one():
                 over -= 1
             if over > 0:  # every other connection is busy: refuse this one
-                transport.write(_refusal(1))
+                transport.write(_REFUSAL)
                 limits.close(self, "connections_refused")
                 return
             limits.became_idle(self, fresh=True)
 
         def data_received(self, data: bytes) -> None:
+            if not busy(self):  # a request head is arriving: bounded (httptools itself has no limit)
+                self.head_bytes = getattr(self, "head_bytes", 0) + len(data)
+                if self.head_bytes > limits.max_head_bytes:
+                    msg = f"the request head exceeds {limits.max_head_bytes} bytes"
+                    self.transport.write(_answer("431 Request Header Fields Too Large", "headers", msg, "too_large"))
+                    limits.close(self, "heads_too_large")
+                    return
             super().data_received(data)
             if busy(self):
                 limits.forget(self)
+                self.head_bytes = 0
 
         def on_response_complete(self) -> None:
             super().on_response_complete()

@@ -205,6 +205,10 @@ def test_slow_heads_and_bodies_time_out_and_a_flood_of_bad_requests_logs_a_few_l
             b"POST /v1/gimap HTTP/1.1\r\nhost: x\r\ncontent-type: application/json\r\ncontent-length: 100\r\n\r\n{"
         )
         assert sock.recv(4096).startswith(b"HTTP/1.1 408")
+    # a head beyond max_header_bytes (16 KiB): 431, closed
+    with socket.create_connection((srv.host, srv.port), timeout=10) as sock:
+        sock.sendall(b"GET /v1/health HTTP/1.1\r\nhost: x\r\n" + b"x-pad: " + b"a" * 20_000 + b"\r\n\r\n")
+        assert sock.recv(4096).startswith(b"HTTP/1.1 431")
     # 1,000 malformed requests: uvicorn answers each 400 and warns; the log keeps a few lines
     for _ in range(1000):
         with socket.create_connection((srv.host, srv.port), timeout=10) as sock:
@@ -362,3 +366,28 @@ def test_schemathesis_checks_all_find_no_failure(tmp_path: Path, scenes_dir: Pat
         run = subprocess.run(argv, capture_output=True, text=True, timeout=120, cwd=tmp_path)
     print(run.stdout[-1500:])
     assert run.returncode == 0 and " passed" in run.stdout and "failed" not in run.stdout, run.stdout[-4000:]
+
+
+def test_cors_only_for_the_configured_origins(tmp_path: Path) -> None:
+    """Browsers may call the API from the origins in cors_origins, from no other; none by default; '*' is
+    refused as a setting."""
+    from fastapi.testclient import TestClient
+    from pydantic import ValidationError
+
+    from baseline_cloudbaking.server.app import create_app
+    from baseline_cloudbaking.server.settings import Settings
+
+    viewer = "http://127.0.0.1:8080"
+    preflight = {"Access-Control-Request-Method": "POST", "Access-Control-Request-Headers": "content-type"}
+    client = TestClient(create_app(Settings(store=tmp_path / "s", cors_origins=(viewer,))))  # no lifespan needed
+    allowed = client.options("/v1/gimap", headers=preflight | {"Origin": viewer})
+    assert allowed.status_code == 200 and allowed.headers["access-control-allow-origin"] == viewer
+    other = client.options("/v1/gimap", headers=preflight | {"Origin": "http://evil.example"})
+    assert other.status_code == 400 and "access-control-allow-origin" not in other.headers
+    exposed = client.get("/openapi.json", headers={"Origin": viewer}).headers["access-control-expose-headers"]
+    assert {"X-GIMap-Hit", "Content-Location", "ETag", "Retry-After"} <= {h.strip() for h in exposed.split(",")}
+    default = TestClient(create_app(Settings(store=tmp_path / "s")))
+    assert "access-control-allow-origin" not in default.get("/openapi.json", headers={"Origin": viewer}).headers
+    for bad in ("*", "http://*.example", "127.0.0.1:8080", "http://host/path"):
+        with pytest.raises(ValidationError, match="is not an origin"):
+            Settings(store=tmp_path / "s", cors_origins=(bad,))
