@@ -16,7 +16,17 @@ import typer
 
 from baseline_cloudbaking.codecs import CODEC_NAMES, DEFAULT_CODEC
 from gicore.cli import UserError, entry_point
-from gicore.options import FRAMES, HOST_PORT, SEED, SPP, THREADS, build_config, check_fields, config_command
+from gicore.options import (
+    FRAMES,
+    HOST_PORT,
+    SEED,
+    SPP,
+    THREADS,
+    build_config,
+    check_fields,
+    config_command,
+    split_host_port,
+)
 from gicore.scene import load_scene
 from web3d.export import export_assets
 from web3d.serve import WEB_DIR, Site, WebServer
@@ -59,6 +69,7 @@ class WebConfig:
 
     def __post_init__(self) -> None:
         check_fields(self)
+        split_host_port(self.listen, "--listen")  # before anything is exported
         if self.server is not None and not self.server.startswith(("http://", "https://")):
             raise UserError(
                 f"--server {self.server!r} is not an http(s) URL", "give e.g. --server http://127.0.0.1:8001"
@@ -87,15 +98,14 @@ def prepare(cfg: WebConfig) -> Site:
 
 def serve_command(given: dict[str, Any]) -> None:
     """Export the scene's assets and serve the page until interrupted."""
-    from gicore.options import split_host_port
-
     cfg = build_config(WebConfig, given)
-    site = prepare(cfg)
     host, port = split_host_port(cfg.listen, "--listen")
     try:
-        server = WebServer(site, host, port)
+        server = WebServer(None, host, port)  # the address first: a taken port fails before anything is written
     except OSError as exc:
         raise UserError(f"--listen {cfg.listen}: cannot listen ({exc.strerror or exc})", "pick a free port") from None
+    site = prepare(cfg)
+    server.attach(site)
     typer.echo(f"serving {site.config['scene']} at {server.url}/ (cloud baking: {cfg.server or 'off'})")
     server.serve_forever()
 

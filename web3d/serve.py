@@ -137,13 +137,20 @@ def _handler(site: Site) -> type[BaseHTTPRequestHandler]:
 
 class WebServer:
     """A threaded HTTP server for ``site`` on ``host:port`` (port 0: a free one); :attr:`url` is its address.
-    Use :meth:`start` (a background thread) or :meth:`serve_forever`."""
+    ``site`` may come later (:meth:`attach`), so that the address is taken before anything is exported. Use
+    :meth:`start` (a background thread) or :meth:`serve_forever`."""
 
-    def __init__(self, site: Site, host: str = "127.0.0.1", port: int = 0) -> None:
-        self.site = site
-        self.httpd = ThreadingHTTPServer((host, port), _handler(site))
+    def __init__(self, site: Site | None, host: str = "127.0.0.1", port: int = 0) -> None:
+        self.httpd = ThreadingHTTPServer((host, port), BaseHTTPRequestHandler)
         self.httpd.daemon_threads = True
+        self.site: Site | None = None
+        if site is not None:
+            self.attach(site)
         self._thread: threading.Thread | None = None
+
+    def attach(self, site: Site) -> None:
+        self.site = site
+        self.httpd.RequestHandlerClass = _handler(site)
 
     @property
     def url(self) -> str:

@@ -1,0 +1,27 @@
+"""gigan-web's error policy: one error line naming the option, exit 2, nothing exported (SPEC §8a)."""
+
+from __future__ import annotations
+
+import socket
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+from tests.helpers.cli import check_user_error, run_script
+
+
+def test_bad_options_are_one_error_line_and_write_nothing(tmp_path: Path) -> None:
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        cases = [
+            (["--server", "ftp://host"], "--server"),
+            (["--codec", "exr-half"], "--codec"),
+            (["--listen", "nowhere"], "--listen"),
+            (["--listen", f"127.0.0.1:{port}"], "--listen"),
+            (["--scene", "no_such_scene"], "no_such_scene"),
+        ]
+        with ThreadPoolExecutor(len(cases)) as pool:
+            outcomes = list(pool.map(lambda c: run_script(["gigan-web", *c[0]], tmp_path), cases))
+    for outcome, (_, culprit) in zip(outcomes, cases):
+        check_user_error(outcome, culprit)
