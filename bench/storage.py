@@ -23,6 +23,30 @@ perturbed pass (eyes moved by N(0, σ_p²) per axis, targets by N(0, (d·tan σ_
 the same lookup rule), and the SSIM of the served map, pixel-level warped to the perturbed camera
 (:class:`baseline_cloudbaking.warp.PointCloud`, decoded through the codec), against the map rendered at
 that camera (``warp_samples`` hits per setting; also unwarped, i.e. the stale map as is).
+
+**The growth law** (issue 23): the tree a server keeps when many users visit, not one fly-through.
+
+- **Sessions** (:mod:`gicore.sessions`): ``sessions`` seeded visits of ``session_frames`` frames over the
+  scene's navigable space (fly-throughs and steady orbits at varied speeds, each from its own light state
+  when the light moves), from ``users`` users in turn (one curve per value of ``users``).
+- **Entries after each session: counted**, by walking every frame through one tree with the store's own
+  rule (:func:`baseline_cloudbaking.store.simulate_fill`), at the store's tolerance and at Δ 0 (the paper's
+  accounting: every frame its own map; computed for the largest ``users`` only, as it needs no user model).
+- **Bytes per entry: measured** on ``growth_samples`` maps per scene and resolution, baked (``spp`` + OIDN)
+  at entries spread over the session tree and cached in ``map_cache``: the stored payload (GI + depth) per
+  codec, and the GI map as uncompressed RGB8 (``rgb8``, the paper's accounting). Not every entry is baked:
+  tree bytes are counted entries × that mean.
+- **Saturation**: the session after which no session adds more than ``saturation_rate`` × its frames
+  (``beyond`` when not within the sessions run), and the **saturation level**, estimated: the lookup rule
+  over ``capacity_samples`` uniform viewpoints of the navigable space (one light cell) × the light cells the
+  light's schedule reaches; a lower estimate while the last tenth of the samples still adds entries.
+- **Crossover**: the first session whose tree passes the model (fp16, fp32) and the paper's GB figure.
+- **The paper's accounting, decomposed**, along the ``frames``-frame fly-through at ``paper_resolution``:
+  Δ 0 with RGB8 maps (1500 frames at 512²: 1.18 GB against the paper's 1.15 GB for the lung), then the
+  store's tolerance, then each codec's payload.
+
+Entries depend on the camera envelope and the light only, so scenes that share both (the three ``*_plane``
+scenes) share one fill; their bytes differ.
 """
 
 from __future__ import annotations
@@ -832,6 +856,13 @@ def growth_table(rows: Rows) -> str:
         if r["config"]["tolerance"] == "store"
     }
     cap = {r["scene"]: r for r in pick(rows, "capacity_entries")}
+    per_entry = {
+        (r["scene"], r["config"]["codec"], r["config"]["resolution"]): r["value"]
+        for r in pick(rows, "growth_entry_bytes", "mean")
+    }
+    # the tree's bytes once saturated, for the first codec at the largest resolution (the paper's 512²)
+    level_key = next((k[1:] for k in sorted(per_entry, key=lambda k: -k[2]) if k[1] != RAW_CODEC), (RAW_CODEC, 0))
+    at_level = f"{level_key[0]} {level_key[1]}², GB"
     lines = [
         f"## Growth law: the GI tree under user sessions ({c['session_frames']} frames each, Δp "
         f"{c['tolerance_position']:g}, Δθ {c['tolerance_angle_deg']:g}°)",
@@ -844,8 +875,8 @@ def growth_table(rows: Rows) -> str:
         "cells the light reaches (a lower estimate while samples still add entries).",
         "",
         "| scene | users | " + " | ".join(f"entries @{m}" for m in marks) + " | added by session "
-        f"{n} | saturated after | saturation level (est.) | filled at {n} |",
-        "|---" * (6 + len(marks)) + "|",
+        f"{n} | saturated after | saturation level (est.) | filled at {n} | at saturation level: {at_level} |",
+        "|---" * (7 + len(marks)) + "|",
     ]
     for scene in scenes:
         for u in users:
@@ -854,22 +885,21 @@ def growth_table(rows: Rows) -> str:
             last = store[(scene, u, n)] - store.get((scene, u, n - 1), 0)
             filled = f"{store[(scene, u, n)] / level['value']:.0%}" if level else "—"
             level_text = (
-                f"{level['value']:,.0f} ({level['config']['per_cell']:,} × {level['config']['light_cells']} cells)"
+                f"{'≥ ' if level['config']['last_tenth_miss_rate'] > 0 else ''}{level['value']:,.0f} "
+                f"({level['config']['per_cell']:,} × {level['config']['light_cells']} cells)"
                 if level
                 else "—"
             )
+            size = per_entry.get((scene, *level_key))
+            level_gb = _gb(level["value"] * size) if level and size else "—"
             lines.append(
                 f"| {scene} | {u} | "
                 + " | ".join(f"{store[(scene, u, m)]:,.0f}" for m in marks)
-                + f" | {last:,.0f} | {_sessions_cell(s_row)} | {level_text} | {filled} |"
+                + f" | {last:,.0f} | {_sessions_cell(s_row)} | {level_text} | {filled} | {level_gb} |"
             )
     cross = [r for r in pick(rows, "crossover_sessions") if r["config"]["users"] == widest]
     columns = list(dict.fromkeys((r["config"]["codec"], r["config"]["resolution"]) for r in cross))
     index = {(r["scene"], r["config"]["codec"], r["config"]["resolution"], r["config"]["against"]): r for r in cross}
-    per_entry = {
-        (r["scene"], r["config"]["codec"], r["config"]["resolution"]): r["value"]
-        for r in pick(rows, "growth_entry_bytes", "mean")
-    }
     n_maps = int(pick(rows, "growth_entry_bytes", "n")[0]["value"])
     if columns:
         maps = f"{n_maps} map{'s' if n_maps != 1 else ''}"
@@ -1084,7 +1114,7 @@ def _plot_growth(rows: Rows, png: Path) -> Path:
             label = f"{users} user{'s' if users > 1 else ''}" + (" (Δ 0, paper)" if tolerance == "paper" else "")
             top.plot(x, y, ":" if tolerance == "paper" else "-", label=label)
         if scene in cap:
-            top.axhline(cap[scene], color="k", linestyle="--", linewidth=1, label="saturation level (est.)")
+            top.axhline(cap[scene], color="k", linestyle="--", linewidth=1, label="saturation level (est., store's Δ)")
         top.set_yscale("log")
         top.set_xlabel("sessions")
         top.set_ylabel("GI-tree entries")
@@ -1234,7 +1264,8 @@ BENCH = Bench(
     measure,
     plot,
     help="Table 2: GI-tree entries and bytes after a fly-through per scene, codec and resolution vs the GIGAN model; "
-    "codec table; tolerance knob.",
+    "codec table; tolerance knob; the growth law over --sessions user sessions from --users users (saturation, "
+    "crossover with the model, the paper's accounting decomposed).",
     dashboard=Section("table2", "Table 2: storage (GI tree vs model)", 20, dashboard_section),
     readme=Block("GI-tree storage, Table 2", 20, readme_block),
 )
