@@ -20,7 +20,10 @@ map's stages also come as ``stat = map`` rows (``config.frame``).
 load): in the browser (onnxruntime-web) and in Python (onnxruntime, :class:`gigan_local.inference.GIModel` with
 the same thread count); ``inference_ratio`` is browser over Python. **Parity**: ``parity_max_abs_diff`` /
 ``parity_mean_abs_diff`` between the browser's tone-mapped prediction and ``tonemap(GIModel.predict(buffers))``
-on the G-buffers the page rendered.
+on the G-buffers the page rendered. **Port**: those DI + G-buffers against :class:`gicore.gl.GLRenderer`'s at the
+same GI camera and light (the WebGL2 shaders against the GLSL they were ported from): ``port_coverage_mismatch``
+and ``port_<buffer>_rel_diff`` (mean |difference| over pixels both cover, relative to the mean); absent where no
+GL context opens.
 
 Outputs besides the CSV: ``web_screenshot.png`` (both canvases and their HUDs at the last frame). The
 provenance's ``settings.browser`` records Chromium's version, the WebGL renderer (SwiftShader: software WebGL
@@ -57,6 +60,8 @@ WEBGL_FLAGS = {
     "gpu": ["--use-angle=vulkan", "--enable-features=Vulkan", "--ignore-gpu-blocklist", "--enable-unsafe-webgpu"],
 }
 SCREENSHOT = "web_screenshot.png"
+#: The page's buffers compared with GLRenderer's (:func:`port_check`).
+PORT_BUFFERS = ("di", "albedo", "normal", "depth")
 
 
 @dataclass(frozen=True)
@@ -168,14 +173,41 @@ def canvas_stats(snapshot: dict[str, Any]) -> dict[str, dict[str, float]]:
     return out
 
 
+def port_check(scene: str, parity: dict[str, Any], frame: dict[str, np.ndarray]) -> dict[str, float]:
+    """The page's DI + G-buffers against GLRenderer's at the same GI camera and light: the fraction of pixels
+    whose coverage differs, and per buffer the mean |difference| over pixels both cover relative to the mean
+    magnitude; empty where no GL context opens."""
+    from gicore.camera import Camera
+    from gicore.gl import GLRenderer, RasterUnavailable
+    from gicore.scene import load_scene
+
+    n = int(parity["resolution"])
+    c = parity["camera"]
+    camera = Camera(c["eye"], c["target"], fov=c["fov"], near=c["near"], far=c["far"], width=n, height=n)
+    try:
+        ours = GLRenderer(load_scene(scene), n).render_di_gbuffers(camera, tuple(parity["light"]))
+    except RasterUnavailable:
+        return {}
+    page_mask, gl_mask = frame["depth"][..., 0] > 0, ours["depth"][..., 0] > 0
+    both = page_mask & gl_mask
+    out = {"coverage_mismatch": float((page_mask != gl_mask).mean())}
+    for name in PORT_BUFFERS:
+        reference = np.abs(ours[name][both]).mean()
+        out[f"{name}_rel_diff"] = float(np.abs(frame[name] - ours[name])[both].mean() / max(reference, 1e-12))
+    return out
+
+
 class Reference:
     """Python's side of the page's first GI map: :meth:`check` compares the browser's tone-mapped prediction with
-    ``tonemap(GIModel.predict(buffers))`` on the G-buffers the page rendered (rows flipped from GL's bottom-up) and
-    returns one timed ``session.run`` on that input (the tensor predict encoded), for :func:`run_page`."""
+    ``tonemap(GIModel.predict(buffers))`` on the G-buffers the page rendered (rows flipped from GL's bottom-up),
+    and those buffers with :class:`gicore.gl.GLRenderer`'s at the same GI camera and light (the WebGL2 port of its
+    shaders against the original; :attr:`port`, empty where no GL context opens), and returns one timed
+    ``session.run`` on the predicted input (the tensor predict encoded), for :func:`run_page`."""
 
-    def __init__(self, threads: int) -> None:
-        self.threads = threads
+    def __init__(self, threads: int, scene: str) -> None:
+        self.threads, self.scene = threads, scene
         self.diff: dict[str, float] = {}
+        self.port: dict[str, float] = {}
 
     def check(self, viewer: dict[str, Any]) -> Callable[[], float]:
         from gicore.tonemap import tonemap
@@ -188,6 +220,7 @@ class Reference:
         model = GIModel(DEFAULT_MODEL, threads=self.threads)
         diff = np.abs(tonemap(model.predict(frame)) - _floats(p["display"], n, 3))
         self.diff = {"max": float(diff.max()), "mean": float(diff.mean())}
+        self.port = port_check(self.scene, p, frame)
 
         def run() -> float:
             t0 = time.perf_counter()
@@ -270,18 +303,25 @@ def measure(cfg: WebBenchConfig, results: Results) -> None:
     scene = load_scene(cfg.scenes[0]).name
     work = results.out / "web_runs"
     shutil.rmtree(work, ignore_errors=True)
-    reference = Reference(cfg.threads)
+    reference = Reference(cfg.threads, cfg.scenes[0])
     with viewer_site(cfg, results.seed, work) as url:
         viewer = run_page(url, cfg, results.output(SCREENSHOT), reference.check)
     shutil.rmtree(work, ignore_errors=True)
     results.settings["browser"] = viewer["info"] | {"chromium": viewer["chromium"]}
-    record(results, scene, cfg, viewer, reference.diff)
+    record(results, scene, cfg, viewer, reference.diff, reference.port)
     shot = (results.out / SCREENSHOT).resolve()
     size = shot.stat().st_size
     results.add(system="both", scene=scene, metric="screenshot", value=size, unit="bytes", file=str(shot))
 
 
-def record(res: Results, scene: str, cfg: WebBenchConfig, viewer: dict[str, Any], check: dict[str, Any]) -> None:
+def record(
+    res: Results,
+    scene: str,
+    cfg: WebBenchConfig,
+    viewer: dict[str, Any],
+    check: dict[str, Any],
+    port: dict[str, float],
+) -> None:
     """The CSV rows of one page run (module docstring)."""
     info = viewer["info"]
     common = {
@@ -323,6 +363,8 @@ def record(res: Results, scene: str, cfg: WebBenchConfig, viewer: dict[str, Any]
         system = GIGAN if page_system == "gigan" else CLOUD
         res.add(system=system, scene=scene, metric="canvas_lit", value=stats["lit"], unit="fraction", **common)
         res.add(system=system, scene=scene, metric="canvas_vs_di", value=stats["vs_di"], unit="tonemapped", **common)
+    for name, value in port.items():  # the WebGL2 port against GLRenderer (gicore.gl)
+        res.add(system=GIGAN, scene=scene, metric=f"port_{name}", value=value, unit="fraction", **common)
     for stat in ("max", "mean"):
         metric = f"parity_{stat}_abs_diff"
         res.add(system=GIGAN, scene=scene, metric=metric, value=check[stat], unit="tonemapped", **common)
@@ -370,7 +412,11 @@ def table(rows: Rows) -> str:
             f"session.run on the same input: browser {cell(browser)} ms, Python onnxruntime {cell(python)} ms "
             f"(**{cell(_value(rows, 'inference_ratio'), '.2f')}x**). Parity with GIModel.predict on the page's "
             f"G-buffers, tone-mapped: max |Δ| = {cell(_value(rows, 'parity_max_abs_diff'), '.2e')}, "
-            f"mean {cell(_value(rows, 'parity_mean_abs_diff'), '.2e')}.",
+            f"mean {cell(_value(rows, 'parity_mean_abs_diff'), '.2e')}. The page's DI + G-buffers against "
+            f"GLRenderer's at the same GI camera: coverage differs on "
+            f"{cell(_value(rows, 'port_coverage_mismatch'), '.1e')} of the pixels; mean |Δ| relative to the mean: "
+            + ", ".join(f"{b} {cell(_value(rows, f'port_{b}_rel_diff'), '.1e')}" for b in PORT_BUFFERS)
+            + ".",
         ]
     )
 

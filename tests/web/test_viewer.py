@@ -39,11 +39,12 @@ def run(tmp_path_factory: pytest.TempPathFactory) -> dict:
         pytest.skip(f"the Web3D viewer cannot run here: {why}")
     out = tmp_path_factory.mktemp("web")
     results = Results("web", out, seed=0, settings=config_dict(CFG))
-    reference = Reference(CFG.threads)
+    reference = Reference(CFG.threads, "lung_plane")
     with viewer_site(CFG, 0, out / "work") as url:
         viewer = run_page(url, CFG, out / SCREENSHOT, reference.check)
-    record(results, "lung_plane", CFG, viewer, reference.diff)
-    return {"viewer": viewer, "rows": read_rows(results.write()), "diff": reference.diff, "out": out}
+    record(results, "lung_plane", CFG, viewer, reference.diff, reference.port)
+    rows = read_rows(results.write())
+    return {"viewer": viewer, "rows": rows, "diff": reference.diff, "port": reference.port, "out": out}
 
 
 def test_the_page_plays_its_frames_and_both_canvases_show_the_scene_lit_by_gi(run) -> None:
@@ -93,3 +94,14 @@ def test_browser_prediction_matches_gimodel_predict_and_both_inference_times_are
     assert runs == {"onnxruntime-web": CFG.timing_runs, "onnxruntime-python": CFG.timing_runs}
     ratio = next(r["value"] for r in rows if r["metric"] == "inference_ratio")
     assert math.isfinite(ratio) and ratio > 0
+
+
+def test_the_pages_webgl2_passes_match_glrenderers(run) -> None:
+    """The shaders ported to WebGL2 (SwiftShader) against the GLSL they come from (Mesa through moderngl)."""
+    port = run["port"]
+    if not port:
+        pytest.skip("no OpenGL context for GLRenderer here")
+    assert port["coverage_mismatch"] <= 1e-3  # a few silhouette pixels rasterise differently
+    for buffer in ("di", "albedo", "normal", "depth"):
+        assert port[f"{buffer}_rel_diff"] <= 1e-2, (buffer, port)
+    assert {f"port_{k}" for k in port} <= {r["metric"] for r in run["rows"]}

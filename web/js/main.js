@@ -127,7 +127,8 @@ async function main() {
       if (!viewer.parity) {
         parityInput = gigan.input.slice();
         viewer.parity = { ...Object.fromEntries(Object.entries(made.buffers).map(([k, v]) => [k, b64(v)])),
-          display: b64(made.display), resolution: gigan.n };
+          display: b64(made.display), resolution: gigan.n, light: frame.light,
+          camera: { eye: frame.gi.eye, target: frame.gi.target, fov: frame.gi.fov, near: frame.gi.near, far: frame.gi.far } };
       }
     }
     let diG;
