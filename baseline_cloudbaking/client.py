@@ -1,9 +1,10 @@
 """The cloud-baking client's GI source: GI maps asked from a ``cloudbaking-server`` over HTTP (SPEC §6).
 
-:class:`RemoteSource` is a :class:`gicore.loop.GISource` that works in one background thread with one
-keep-alive ``httpx`` connection and at most one request in flight: :meth:`~RemoteSource.request`
-hands the GI camera to the thread and returns at once (False while a request is in flight or, after a
-failure, for ``retry_after_s``), :meth:`~RemoteSource.latest` returns the newest map that has arrived.
+:class:`RemoteSource` is a :class:`gicore.loop.GISource` that works in background threads over keep-alive
+``httpx`` connections, one request in flight at most per thread (one thread unless its :class:`RequestPolicy`
+allows more): :meth:`~RemoteSource.request` hands the GI camera to the threads and returns at once (False
+while they are all busy or, after a failure, for ``retry_after_s``), :meth:`~RemoteSource.latest` returns the
+newest map that has arrived (with a tolerance, the held one that serves the view best).
 A failed request (connect or read timeout, total deadline, dropped connection, an HTTP error, a bad
 payload) is logged and recorded; the loop goes on composing with the map it has.
 
@@ -151,6 +152,8 @@ HOLDS = ("tolerance", "none")
 #: Arrived maps a source keeps to serve later views (a prefetched map arrives before its view is reached).
 KEPT_MAPS = 4
 LightCell = tuple[int, int, int] | None
+#: A request handed to the workers: GI camera, light, frame, request time, request id.
+Job = tuple[Camera, Light, int, float, int]
 
 
 @dataclass(frozen=True)
@@ -167,14 +170,19 @@ class RequestPolicy:
     history: int = 8
     #: Recent requests whose median latency sets the prefetch lead.
     latencies: int = 8
+    #: Requests in flight at most (each on its own connection); with prefetch, successive views ahead.
+    in_flight: int = 1
 
     def __post_init__(self) -> None:
         if self.prefetch not in PREFETCH:
             raise ValueError(f"prefetch must be one of {PREFETCH}, got {self.prefetch!r}")
         if self.prefetch != "none" and self.tolerance is None:
             raise ValueError("prefetch needs the server's tolerance (a map is asked ahead only when none held serves)")
-        if self.history < 2 or self.latencies < 1:
-            raise ValueError(f"history must be >= 2 and latencies >= 1, got {self.history} and {self.latencies}")
+        if self.history < 2 or self.latencies < 1 or self.in_flight < 1:
+            raise ValueError(
+                f"history must be >= 2, latencies and in_flight >= 1, got {self.history}, {self.latencies} and"
+                f" {self.in_flight}"
+            )
 
     def cell(self, light: Light) -> LightCell:
         return light_cell(light, self.light_cell)
@@ -314,15 +322,19 @@ class RemoteSource:
         self.records: list[dict[str, Any]] = []
         self._t0 = time.perf_counter()
         self._cond = threading.Condition()
-        self._job: tuple[Camera, Light, int, float] | None = None  # (GI camera, light, frame, request time)
-        self._in_flight: tuple[Camera, Light, int, float] | None = None
-        self._busy = False
+        self._jobs: deque[Job] = deque()  # asked for, not yet taken by a worker
+        self._in_flight: list[Job] = []  # being fetched
+        self._asked = 0  # requests so far: the next one's id
         self._closed = False
         self._not_before = 0.0
         self._unpicked: dict[GIMap, dict[str, Any]] = {}  # the records of maps the loop has not taken yet
         self._cells: weakref.WeakKeyDictionary[GIMap, LightCell] = weakref.WeakKeyDictionary()
-        self._thread = threading.Thread(target=self._work, name="gimap-requests", daemon=True)
-        self._thread.start()
+        self._threads = [
+            threading.Thread(target=self._work, name=f"gimap-requests-{i}", daemon=True)
+            for i in range(policy.in_flight)
+        ]
+        for thread in self._threads:
+            thread.start()
 
     # -- GISource --------------------------------------------------------------------------------------
     @property
@@ -338,13 +350,13 @@ class RemoteSource:
             if self.policy.tolerance is not None:
                 self.motion.add(frame, now, camera, light)
                 self._view = (camera, self.policy.cell(light))
-            if self._busy or now < self._not_before:
+            if self._pending() >= self.policy.in_flight or now < self._not_before:
                 return False
             target = (camera, light) if self.policy.tolerance is None else self._target(camera, light)
             if target is None:
                 return False
-            self._busy = True
-            self._job = (*target, frame, now)
+            self._jobs.append((*target, frame, now, self._asked))
+            self._asked += 1
             self._cond.notify()
         return True
 
@@ -369,9 +381,12 @@ class RemoteSource:
             return self._cells[gi]
 
     # -- the request rule (call with the lock held) ------------------------------------------------------------
+    def _pending(self) -> int:
+        return len(self._jobs) + len(self._in_flight)
+
     def _serving(self, camera: Camera, cell: LightCell, in_flight: bool) -> int | None:
-        """Index in :attr:`kept` of the held map that best serves the view (by the tree's score), -1 for the map in
-        flight (``in_flight``: when it serves and no held one does), None when none does."""
+        """Index in :attr:`kept` of the held map that best serves the view (by the tree's score), -1 for a map
+        asked for (``in_flight``: when one serves and no held one does), None when none does."""
         tol = self.policy.tolerance
         assert tol is not None
         mine = [i for i, (_, c) in enumerate(self.kept) if c == cell]
@@ -381,10 +396,11 @@ class RemoteSource:
             found = nearest(eyes, dirs, _viewpoint(camera), tol)
             if found is not None:
                 return mine[found[0]]
-        if in_flight and self._in_flight is not None:
-            target, light = self._in_flight[:2]
-            if covers(target, self.policy.cell(light), camera, cell, tol):
-                return -1
+        if in_flight and any(
+            covers(target, self.policy.cell(light), camera, cell, tol)
+            for target, light, *_ in (*self._jobs, *self._in_flight)
+        ):
+            return -1
         return None
 
     def _lead_s(self) -> float | None:
@@ -400,15 +416,23 @@ class RemoteSource:
         return float(np.median(served)) / 1e3 + interval / 2 + crossing / 2
 
     def _target(self, camera: Camera, light: Light) -> tuple[Camera, Light] | None:
-        """The view (camera and light) to ask for when asked at ``camera``: None while a held map or the one in
-        flight serves it; with prefetch, the predicted view (asked when none serves that one), once a lead is
-        known."""
+        """The view (camera and light) to ask for when asked at ``camera``: None while a held map or one asked for
+        serves it; with prefetch, once a lead is known, the first predicted view no map serves among the lead and,
+        with more requests in flight allowed, one tolerance crossing further for each (None when all are served).
+        """
         if self.policy.prefetch == "extrapolate":
             lead = self._lead_s()
-            predicted = self.motion.predict(camera, lead) if lead is not None else None
-            if predicted is not None:
-                served = self._serving(predicted[0], self.policy.cell(predicted[1]), in_flight=True) is not None
-                return None if served else predicted
+            if lead is not None:
+                assert self.policy.tolerance is not None
+                step = self.motion.crossing_s(self.policy.tolerance) or 0.0
+                for ahead in range(self.policy.in_flight if step > 0.0 else 1):
+                    predicted = self.motion.predict(camera, lead + ahead * step)
+                    if predicted is None:
+                        break
+                    if self._serving(predicted[0], self.policy.cell(predicted[1]), in_flight=True) is None:
+                        return predicted
+                else:
+                    return None
         return None if self._serving(camera, self.policy.cell(light), in_flight=True) is not None else (camera, light)
 
     def warm_up(self, camera: Camera, light: Light) -> None:
@@ -425,7 +449,7 @@ class RemoteSource:
         """Block until no request is in flight (True) or ``timeout`` s have passed (False)."""
         deadline = time.perf_counter() + timeout
         with self._cond:
-            while self._busy:
+            while self._pending():
                 left = deadline - time.perf_counter()
                 if left <= 0:
                     return False
@@ -433,13 +457,12 @@ class RemoteSource:
         return True
 
     def close(self) -> None:
-        """Stop the thread (a request in flight is abandoned) and close the connection."""
+        """Stop the threads (requests in flight are abandoned) and close the connections."""
         with self._cond:
             self._closed = True
-            if self._in_flight is not None:
-                frame, t_request = self._in_flight[2:]
+            for *_, frame, t_request, request_id in sorted((*self._in_flight, *self._jobs), key=lambda j: j[4]):
                 record = dict.fromkeys(RECORD_COLUMNS, "") | {
-                    "request_id": len(self.records),
+                    "request_id": request_id,
                     "frame": frame,
                     "status": "abandoned",
                 }
@@ -447,7 +470,8 @@ class RemoteSource:
                 record["latency_ms"] = (time.perf_counter() - t_request) * 1e3
                 self.records.append(record)
             self._cond.notify_all()
-        self._thread.join(timeout=1.0)
+        for thread in self._threads:
+            thread.join(timeout=1.0)
         self.client.close()
 
     def __enter__(self) -> RemoteSource:
@@ -460,12 +484,12 @@ class RemoteSource:
     def _work(self) -> None:
         while True:
             with self._cond:
-                while self._job is None and not self._closed:
+                while not self._jobs and not self._closed:
                     self._cond.wait()
                 if self._closed:
                     return
-                job, self._job = self._job, None
-                self._in_flight = job
+                job = self._jobs.popleft()
+                self._in_flight.append(job)
             try:
                 record, gi, wait = self._fetch(*job)
             except Exception:
@@ -475,7 +499,7 @@ class RemoteSource:
             with self._cond:
                 if self._closed:  # close() recorded it as abandoned
                     return
-                self._in_flight = None
+                self._in_flight.remove(job)
                 self.records.append(record)
                 if gi is not None:
                     if len(self.kept) == self.kept.maxlen:
@@ -486,17 +510,16 @@ class RemoteSource:
                     self._unpicked[gi] = record
                 else:
                     self._not_before = time.perf_counter() + (self.cfg.retry_after_s if wait is None else wait)
-                self._busy = False
                 self._cond.notify_all()
 
     def _fetch(
-        self, camera: Camera, light: Light, frame: int, t_request: float
+        self, camera: Camera, light: Light, frame: int, t_request: float, request_id: int
     ) -> tuple[dict[str, Any], GIMap | None, float | None]:
         """One request: its record, its map (None if it failed) and the wait the server asked for (None: none)."""
         cfg = self.cfg
         body = cfg.body(camera, light)
         record: dict[str, Any] = dict.fromkeys(RECORD_COLUMNS, "")
-        record |= {"request_id": len(self.records), "frame": frame, "status": "ok", "requested_s": t_request - self._t0}
+        record |= {"request_id": request_id, "frame": frame, "status": "ok", "requested_s": t_request - self._t0}
         headers = {"content-type": "application/json", "accept": MEDIA_TYPE}
         try:
             try:
@@ -665,6 +688,9 @@ class CloudClientConfig(PathRunConfig):
     #: Prefetch: none, or extrapolate (ask for the view the camera's recent motion reaches one measured request
     #: latency ahead; needs --hold tolerance).
     prefetch: Literal[PREFETCH] = "none"  # type: ignore[valid-type]
+    #: Requests in flight at most, each on its own connection (with prefetch: successive views ahead, one
+    #: tolerance crossing apart).
+    in_flight: int = field(default=1, metadata={"min": 1, "max": 16})
     #: Frames per second the frames are paced to, as a display refreshes (absent: as fast as they render).
     frame_rate: float | None = field(default=None, metadata={"min": 1.0, "max": 1000.0})
 
@@ -680,8 +706,8 @@ class CloudClientConfig(PathRunConfig):
     def policy(self, server: ServerInfo) -> RequestPolicy:
         """When to send requests to ``server`` (its tolerance and the scene's light cell)."""
         if self.hold == "none":  # the cell still names each map's light cell (perceived latency)
-            return RequestPolicy(light_cell=server.light_cell)
-        return RequestPolicy(server.tolerance, server.light_cell, self.prefetch)
+            return RequestPolicy(light_cell=server.light_cell, in_flight=self.in_flight)
+        return RequestPolicy(server.tolerance, server.light_cell, self.prefetch, in_flight=self.in_flight)
 
     def remote(self, server: str, light_moves: bool) -> RemoteConfig:
         """What to ask ``server`` for: this run's maps (its resolution, codec and spp, the DI where the

@@ -3,14 +3,15 @@
     cloudbaking-client --server http://127.0.0.1:8000 --scene lung_plane --frames 120 -k 10 --out runs/cloud
 
 Renders the DI of every frame locally, asks the server (through a network proxy, if one is in between)
-for a GI map in a background thread when no map it holds or has asked for serves the view by the server's
+for a GI map in background threads when no map it holds or has asked for serves the view by the server's
 tolerance (``--hold tolerance``; ``--hold none``: when the newest map is k frames old or the view has left
 the tolerance), or, with ``--prefetch extrapolate``, the view its motion will reach when the answer comes
-(one request in flight at most), decodes it, warps the held map that serves the view best pixel by pixel
-to each frame and composes; ``--frame-rate`` paces the frames as a display would. The server is checked at
-start (``GET /v1/health`` and ``/v1/scenes``): an unreachable server, an unknown scene or an unserved
-resolution, codec or spp is one ``error:`` line. Once running, a slow or dead server never stops the frames:
-failed requests are logged on stderr and recorded, and the frames go on with the last map.
+(``--in-flight`` requests at most, one by default), decodes it, warps the held map that serves the view best
+pixel by pixel to each frame and composes; ``--frame-rate`` paces the frames as a display would.
+The server is checked at start (``GET /v1/health`` and ``/v1/scenes``): an unreachable server, an unknown
+scene or an unserved resolution, codec or spp is one ``error:`` line. Once running, a slow or dead server
+never stops the frames: failed requests are logged on stderr and recorded, and the frames go on with the
+last map.
 
 Writes under ``--out``: ``frames.csv`` (per frame: every stage in ms, the map's age and latency, what
 the frame waited for, SSIM/PSNR against the path-traced GT every ``--gt-every`` frames, scored after the

@@ -8,7 +8,12 @@ Variants (``system``), each a ``cloudbaking-client`` process behind ``network-si
 - ``hold``: ``--hold tolerance``: a request only when no map held or in flight serves the view by the GI
   tree's own rule (:func:`baseline_cloudbaking.client.covers`);
 - ``prefetch``: ``hold`` with ``--prefetch extrapolate``: the request is for the view the camera's recent
-  motion reaches one measured request latency (plus half a frame) ahead.
+  motion (and the light's) reaches one measured request latency (plus half a frame and half a tolerance
+  crossing) ahead.
+
+``hold`` and ``prefetch`` may have ``in_flight`` requests in flight (``--in-flight``; ``period`` has one, as
+before issue 23), so that they differ only in which view they ask for: with one request per round trip, a
+camera crossing the tolerance faster than that leaves views no map ever serves.
 
 Every run gets a fresh copy of one prebaked store (the server answered every GI camera of the path once,
 directly), so one run's misses (a predicted view no stored map serves) are never another's hits; the server
@@ -88,6 +93,8 @@ class PrefetchConfig:
     frame_rate: float = field(default=30.0, metadata={"min": 1.0, "max": 1000.0})
     #: The period variant's k: a request every k frames (bench latency's default).
     every: int = 10
+    #: Requests in flight at most for the hold and prefetch variants (period: 1, as before issue 23).
+    in_flight: int = field(default=3, metadata={"min": 1, "max": 16})
     #: GI-map codec.
     codec: CodecName = DEFAULT_CODEC
     #: Samples per pixel of the server's maps and of the evaluation GT.
@@ -197,6 +204,7 @@ def measure(cfg: PrefetchConfig, res: Results) -> None:
             "--gt-every", str(cfg.gt_every), "--codec", cfg.codec, "--frame-rate", str(cfg.frame_rate),
             "-k", str(cfg.every), "--seed", str(res.seed), "--read-timeout", str(cfg.read_timeout_s),
             "--deadline", str(2 * cfg.read_timeout_s)]  # fmt: skip
+    in_flight = {"period": 1, "hold": cfg.in_flight, "prefetch": cfg.in_flight}
     timeout = 300.0 + cfg.frames * 2.0 + (cfg.frames // cfg.gt_every + 1) * 20.0 + cfg.read_timeout_s
     for profile in cfg.profiles:
         for variant in cfg.variants:
@@ -206,10 +214,11 @@ def measure(cfg: PrefetchConfig, res: Results) -> None:
             with pinned_server(plan, store, scenes_dir) as url:
                 _ask_path(url, cfg, scene, res.seed, off_path=True)  # compiles the scene and every pass
                 with _proxy(plan, profile, url, res.seed) as proxied:
-                    folder = _client(plan, [*argv, *VARIANTS[variant], "--server", proxied],
-                                     work / f"{profile}_{variant}", timeout)  # fmt: skip
+                    folder = _client(plan, [*argv, *VARIANTS[variant], "--in-flight", str(in_flight[variant]),
+                                            "--server", proxied], work / f"{profile}_{variant}", timeout)  # fmt: skip
             shutil.rmtree(store, ignore_errors=True)
-            record(res, spec.name, folder, common | {"profile": profile, "variant": variant, "k": cfg.every})
+            config = common | {"profile": profile, "variant": variant, "k": cfg.every, "in_flight": in_flight[variant]}
+            record(res, spec.name, folder, config)
     shutil.rmtree(prebaked, ignore_errors=True)
     targets(res, spec.name)
 

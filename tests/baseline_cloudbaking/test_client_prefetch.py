@@ -19,6 +19,7 @@ from baseline_cloudbaking.client import (
     MotionPredictor,
     RemoteConfig,
     RemoteSource,
+    RequestPolicy,
     covers,
     perceived_latency,
     retry_after_s,
@@ -84,12 +85,13 @@ def test_retry_after_values() -> None:
 
 @pytest.fixture
 def overloaded() -> Iterator[str]:
-    """A real HTTP server that answers every POST with 503 and ``Retry-After: 1``, counting them."""
+    """A real HTTP server that answers every POST after 0.2 s with 503 and ``Retry-After: 1``, counting them."""
 
     class Handler(BaseHTTPRequestHandler):
         def do_POST(self) -> None:  # noqa: N802 -- http.server's name
             self.rfile.read(int(self.headers["content-length"]))
             self.server.posts += 1  # type: ignore[attr-defined]
+            time.sleep(0.2)
             body = b'{"detail": "the miss queue is full; retry after 1 s"}'
             self.send_response(503)
             self.send_header("retry-after", "1")
@@ -121,6 +123,20 @@ def test_a_503_holds_requests_back_for_its_retry_after(overloaded) -> None:
         time.sleep(max(0.0, t_failed + 1.05 - time.perf_counter()))
         assert source.request(cam(0.0), (0.0, 2.0, 0.0), 2) and source.wait(10.0)
     assert overloaded.posts == 2
+
+
+def test_requests_in_flight_at_most_as_allowed_each_recorded_once(overloaded) -> None:
+    remote = RemoteConfig(f"http://127.0.0.1:{overloaded.server_address[1]}", "ball_moving", RES, "jpeg", SPP)
+    with RemoteSource(remote, RequestPolicy(in_flight=2)) as source:
+        assert [source.request(cam(0.0), (0.0, 2.0, 0.0), f) for f in range(3)] == [True, True, False]
+        assert source.wait(10.0)
+    assert sorted((r["request_id"], r["frame"], r["status"]) for r in source.records) == [
+        (0, 0, "overloaded"),
+        (1, 1, "overloaded"),
+    ]
+    with RemoteSource(replace(remote, retry_after_s=0.0), RequestPolicy(in_flight=2)) as source:
+        assert source.request(cam(0.0), (0.0, 2.0, 0.0), 0) and source.request(cam(0.0), (0.0, 2.0, 0.0), 1)
+    assert [(r["request_id"], r["status"]) for r in source.records] == [(0, "abandoned"), (1, "abandoned")]
 
 
 def blank(camera: Camera, frame: int) -> GIMap:
