@@ -18,7 +18,7 @@ import json
 import threading
 import urllib.error
 import urllib.request
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from typing import Any
@@ -55,7 +55,8 @@ class Site:
     config: dict[str, Any]
     upstream: str | None = None
     web: Path = WEB_DIR
-    timeout_s: float = field(default=120.0)
+    #: Seconds a forwarded request may take (a miss path-traces on the server).
+    timeout_s: float = 120.0
 
     def resolve(self, url_path: str) -> Path | None:
         """The file behind ``url_path``, or None when it is outside the served roots or missing."""
