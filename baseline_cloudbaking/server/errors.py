@@ -61,6 +61,10 @@ def error(status: int, loc: list[str], msg: str, kind: str, headers: dict[str, s
     return JSONResponse({"detail": [{"loc": loc, "msg": msg, "type": kind}]}, status_code=status, headers=headers)
 
 
+def queue_full(exc: QueueFull) -> JSONResponse:
+    return error(503, ["miss_queue"], str(exc), "overloaded", {"Retry-After": str(exc.retry_after_s)})
+
+
 def install(app: FastAPI) -> None:
     """The exception handlers that answer in this shape."""
 
@@ -75,9 +79,8 @@ def install(app: FastAPI) -> None:
         return error(exc.status, ["body", exc.field], exc.message, "value_error")
 
     @app.exception_handler(QueueFull)
-    async def queue_full(_: Request, exc: QueueFull) -> JSONResponse:
-        headers = {"Retry-After": str(exc.retry_after_s)}
-        return error(503, ["miss_queue"], str(exc), "overloaded", headers)
+    async def on_queue_full(_: Request, exc: QueueFull) -> JSONResponse:
+        return queue_full(exc)
 
     @app.exception_handler(StoreUnwritable)
     async def store_unwritable(_: Request, exc: StoreUnwritable) -> JSONResponse:

@@ -197,7 +197,7 @@ async def run_load(
     period_s: float = 0.02,
     idle: int = 0,
     idle_rate: float = 2000.0,
-    settle_s: float = 1.0,
+    settle_s: float = 3.0,
     max_s: float = 120.0,
 ) -> LoadResult:
     """Hit clients (each a request every ``period_s``, their phases spread evenly over the period, as

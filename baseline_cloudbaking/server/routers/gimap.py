@@ -5,11 +5,11 @@ from __future__ import annotations
 from fastapi import APIRouter, Request, Response
 
 from baseline_cloudbaking.protocol import MEDIA_TYPE
+from baseline_cloudbaking.server import errors
 from baseline_cloudbaking.server.deps import ServiceDep
-from baseline_cloudbaking.server.errors import ERROR_RESPONSES
 from baseline_cloudbaking.server.routers.maps import map_path
 from baseline_cloudbaking.server.schemas import GIMapRequest
-from baseline_cloudbaking.server.service import ClientGone
+from baseline_cloudbaking.server.service import ClientGone, QueueFull
 
 router = APIRouter(prefix="/v1", tags=["gimap"])
 
@@ -29,7 +29,7 @@ _PAYLOAD_DOC = {
         },
     },
     409: {"description": "the store holds this scene baked from another spec"},
-    **ERROR_RESPONSES,
+    **errors.ERROR_RESPONSES,
 }
 
 
@@ -49,5 +49,7 @@ async def get_gimap(body: GIMapRequest, request: Request, service: ServiceDep) -
         served = await service.answer(body, lambda: _gone(request))
     except ClientGone:
         return Response(status_code=499)  # nginx's "client closed request": nobody reads it
+    except QueueFull as exc:  # answered here, not by an exception handler: a burst of misses is cheaper
+        return errors.queue_full(exc)
     headers = {"X-GIMap-Hit": "1" if served.hit else "0", "Content-Location": map_path(served.sha)}
     return Response(content=served.payload, media_type=MEDIA_TYPE, headers=headers)
