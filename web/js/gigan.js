@@ -117,6 +117,57 @@ void main() {
   o = vec4(tonemap(u_tau * di + (1.0 - u_tau) * gi), 1.0);
 }`;
 
+const CHANNELS = { di: 3, albedo: 3, normal: 3, depth: 1, mask: 1 };
+
+// The encoding of each input buffer (gigan_local.preprocess), as a vec3 expression at pixel p.
+const ENCODE = {
+  di: "2.0 * tonemap(texelFetch(u_di, p, 0).rgb) - 1.0",
+  albedo: "2.0 * clamp(texelFetch(u_albedo, p, 0).rgb, 0.0, 1.0) - 1.0",
+  normal: "texelFetch(u_normal, p, 0).rgb",
+  depth: "vec3(2.0 * (d / (d + u_depth_scale)) - 1.0)",
+  mask: "vec3(d > 0.0 ? 1.0 : -1.0)",
+};
+
+// A fragment shader writing the network input's channels (buffer, component) four per target.
+function encodeFragment(channels) {
+  const targets = Math.ceil(channels.length / 4);
+  const value = ([b, k]) => `(${ENCODE[b]})[${k}]`;
+  const outs = [...Array(targets).keys()].map((a) => `layout(location = ${a}) out vec4 o${a};`).join("\n");
+  const writes = [...Array(targets).keys()].map((a) => {
+    const c = [0, 1, 2, 3].map((k) => (channels[4 * a + k] ? value(channels[4 * a + k]) : "0.0"));
+    return `  o${a} = vec4(${c.join(", ")});`;
+  }).join("\n");
+  return `#version 300 es
+precision highp float;
+uniform highp sampler2D u_di;
+uniform highp sampler2D u_albedo;
+uniform highp sampler2D u_normal;
+uniform highp sampler2D u_depth;
+uniform float u_depth_scale;
+${outs}
+${TONEMAP_GLSL}
+void main() {
+  ivec2 p = ivec2(gl_FragCoord.xy);
+  float d = max(texelFetch(u_depth, p, 0).r, 0.0);
+${writes}
+}`;
+}
+
+// The generator's output planes (stacked, rows top-down) to linear radiance with GL's rows.
+const DECODE_FRAGMENT = `#version 300 es
+precision highp float;
+uniform highp sampler2D u_y;
+out vec4 o;
+${TONEMAP_GLSL}
+void main() {
+  ivec2 p = ivec2(gl_FragCoord.xy);
+  int n = textureSize(u_y, 0).x;
+  int row = n - 1 - p.y;
+  vec3 y = vec3(texelFetch(u_y, ivec2(p.x, row), 0).r, texelFetch(u_y, ivec2(p.x, n + row), 0).r,
+                texelFetch(u_y, ivec2(p.x, 2 * n + row), 0).r);
+  o = vec4(inverse_tonemap(clamp((y + 1.0) * 0.5, 0.0, 1.0)), 1.0);
+}`;
+
 const FALLBACK_TEXELS = 32;
 const DEPTH_REL_TOL = 0.02;
 
@@ -132,79 +183,76 @@ export class GiganSystem {
     this.warpProg = program(gl, FULLSCREEN_VERTEX, WARP_FRAGMENT);
     this.coarseProg = program(gl, FULLSCREEN_VERTEX, COARSE_FRAGMENT);
     this.blendProg = program(gl, FULLSCREEN_VERTEX, BLEND_FRAGMENT);
-    this.giTex = texture(gl, n, n, gl.RGBA32F);
+    this.giMap = target(gl, n, n, [gl.RGBA32F], { depth: false });
+    this.giTex = this.giMap.textures[0];
+    this.output = texture(gl, n, 3 * n, gl.R32F); // the generator's output planes, stacked
+    this.decodeProg = program(gl, FULLSCREEN_VERTEX, DECODE_FRAGMENT);
+    const channels = this.spec.buffers.flatMap((b) => [...Array(CHANNELS[b]).keys()].map((k) => [b, k]));
+    this.encodeProg = program(gl, FULLSCREEN_VERTEX, encodeFragment(channels));
+    this.encoded = target(gl, n, n, Array(Math.ceil(channels.length / 4)).fill(gl.RGBA32F), { depth: false });
+    this.encodedReads = this.encoded.textures.map(() => new Float32Array(n * n * 4));
     this.coarse = target(gl, n, n, [gl.RGBA16F], { depth: false, mips: [0] });
     this.warped = target(gl, n, n, [gl.RGBA32F], { depth: false });
-    this.input = new Float32Array(this.spec.buffers.reduce((c, b) => c + { di: 3, albedo: 3, normal: 3, depth: 1, mask: 1 }[b], 0) * n * n);
-    this.reads = [0, 1, 3, 4].map(() => new Float32Array(n * n * 4));
-    this.radiance = new Float32Array(n * n * 4);
+    this.input = new Float32Array(channels.length * n * n);
     this.bound = null;
   }
 
-  // DI + G-buffers at the GI camera, read back (the generator runs on the CPU).
-  renderInput(frame) {
-    const gl = this.gl;
-    const t = this.scene.renderGI(frame);
-    const [albedo, normal, depth, di] = [0, 1, 3, 4].map((a, i) => readFloats(gl, t, a, this.reads[i]));
-    return { albedo, normal, depth, di };
+  // The frame's GI-camera buffers read back as they are (rows bottom-up, RGBA): the parity check's input.
+  readBuffers() {
+    const t = this.scene.giTarget;
+    return Object.fromEntries([["albedo", 0], ["normal", 1], ["depth", 3], ["di", 4]].map(([k, a]) => [k, readFloats(this.gl, t, a)]));
   }
 
-  // gigan_local.preprocess.frame_to_input: NCHW float32 in [-1, 1], rows top-down (GL's are bottom-up).
-  encode(buf) {
+  // gigan_local.preprocess.frame_to_input on the GPU (the encoding shader, 4 channels per target), read back and
+  // reordered to NCHW with rows top-down (GL's are bottom-up).
+  encode() {
+    const gl = this.gl;
+    const gi = this.scene.giTarget;
+    bindTarget(gl, this.encoded);
+    gl.useProgram(this.encodeProg.p);
+    bindTextures(gl, this.encodeProg, {
+      u_albedo: [4, gi.textures[0]], u_normal: [5, gi.textures[1]], u_depth: [6, gi.textures[3]], u_di: [7, gi.textures[4]],
+    });
+    setUniforms(gl, this.encodeProg, { u_depth_scale: this.spec.depth_scale });
+    fullscreen(gl);
     const n = this.n;
     const plane = n * n;
     const out = this.input;
-    const s = this.spec.depth_scale;
-    let c = 0;
-    for (const name of this.spec.buffers) {
-      const src = buf[name === "mask" ? "depth" : name];
-      const channels = { di: 3, albedo: 3, normal: 3, depth: 1, mask: 1 }[name];
-      for (let row = 0; row < n; row++) {
-        const srcRow = (n - 1 - row) * n;
-        for (let col = 0; col < n; col++) {
-          const i = (srcRow + col) * 4;
-          const o = row * n + col;
-          for (let k = 0; k < channels; k++) {
-            const x = src[i + k];
-            let v;
-            if (name === "di") { const y = Math.max(x, 0); v = 2 * Math.pow(y / (1 + y), 1 / 2.2) - 1; }
-            else if (name === "albedo") v = 2 * Math.min(Math.max(x, 0), 1) - 1;
-            else if (name === "normal") v = x;
-            else if (name === "depth") { const d = Math.max(x, 0); v = 2 * (d / (d + s)) - 1; }
-            else v = src[i] > 0 ? 1 : -1;
-            out[(c + k) * plane + o] = v;
-          }
+    const channels = out.length / plane;
+    this.encoded.textures.forEach((_, a) => {
+      const px = readFloats(gl, this.encoded, a, this.encodedReads[a]);
+      for (let k = 0; k < 4 && 4 * a + k < channels; k++) {
+        const base = (4 * a + k) * plane;
+        for (let row = 0; row < n; row++) {
+          const src = (n - 1 - row) * n * 4 + k;
+          const dst = base + row * n;
+          for (let col = 0; col < n; col++) out[dst + col] = px[src + 4 * col];
         }
       }
-      c += channels;
-    }
+    });
     return out;
   }
 
-  // The generator's output (3xHxW in [-1, 1]) to linear radiance (gigan_local.preprocess.output_to_radiance),
-  // uploaded with GL's rows; returns the tone-mapped display values HxWx3 (the parity check's quantity).
+  // The generator's output (3xHxW in [-1, 1]) to linear radiance (gigan_local.preprocess.output_to_radiance) in
+  // a shader, into the GI map's texture (GL rows).
   decode(y) {
-    const n = this.n;
-    const plane = n * n;
-    const display = new Float32Array(plane * 3);
-    const rad = this.radiance;
-    for (let row = 0; row < n; row++) {
-      const glRow = n - 1 - row;
-      for (let col = 0; col < n; col++) {
-        const o = row * n + col;
-        for (let k = 0; k < 3; k++) {
-          const d = Math.min(Math.max((y[k * plane + o] + 1) * 0.5, 0), 1);
-          display[o * 3 + k] = d;
-          const g = Math.pow(Math.min(d, 1 - 1e-5), 2.2);
-          rad[(glRow * n + col) * 4 + k] = g / (1 - g);
-        }
-        rad[(glRow * n + col) * 4 + 3] = 1;
-      }
-    }
     const gl = this.gl;
-    gl.bindTexture(gl.TEXTURE_2D, this.giTex);
-    gl.texSubImage2D(gl.TEXTURE_2D, 0, 0, 0, n, n, gl.RGBA, gl.FLOAT, rad);
-    return display;
+    gl.bindTexture(gl.TEXTURE_2D, this.output);
+    gl.texSubImage2D(gl.TEXTURE_2D, 0, 0, 0, this.n, 3 * this.n, gl.RED, gl.FLOAT, y);
+    bindTarget(gl, this.giMap);
+    gl.useProgram(this.decodeProg.p);
+    bindTextures(gl, this.decodeProg, { u_y: [4, this.output] });
+    fullscreen(gl);
+  }
+
+  // The tone-mapped display values HxWx3 of an output (gigan_local.preprocess.output_to_display).
+  display(y) {
+    const plane = this.n * this.n;
+    const out = new Float32Array(plane * 3);
+    for (let o = 0; o < plane; o++) {
+      for (let k = 0; k < 3; k++) out[o * 3 + k] = Math.min(Math.max((y[k * plane + o] + 1) * 0.5, 0), 1);
+    }
+    return out;
   }
 
   async infer(tensor) {
@@ -216,23 +264,24 @@ export class GiganSystem {
     return { y: result[this.session.outputNames[0]].data, ms };
   }
 
-  // One GI map: stages gi_render, inference (encoding, session.run, decoding and upload), and its bind.
-  async produce(frame) {
+  // One GI map: stages gi_render (DI + G-buffers at the GI camera), inference (encoding, session.run, decoding),
+  // and its bind. With `keep`, also the raw buffers and the display values (the parity check's), untimed.
+  async produce(frame, keep = false) {
     const t = {};
     let t0 = performance.now();
-    const buffers = this.renderInput(frame);
+    sync(this.gl, this.scene.renderGI(frame), 0);
     t.gi_render = performance.now() - t0;
     t0 = performance.now();
-    const tensor = this.encode(buffers);
+    const tensor = this.encode();
     const { y, ms } = await this.infer(tensor);
-    const display = this.decode(y);
-    sync(this.gl, this.scene.giTarget, 0);
+    this.decode(y);
+    sync(this.gl, this.giMap, 0);
     t.inference = performance.now() - t0;
     t.session_run = ms;
     t0 = performance.now();
     this.bind(frame);
     t.bind = performance.now() - t0;
-    return { stages: t, buffers, display };
+    return { stages: t, ...(keep ? { buffers: this.readBuffers(), display: this.display(y) } : {}) };
   }
 
   // Per map: the coarse fallback level (indirect light, mipmapped), and the GI camera's projection row.

@@ -122,7 +122,7 @@ async function main() {
     const rec = { frame: f };
     // GIGAN: a map every k frames, made here (synchronously, as gigan-client does)
     if (f % config.every === 0) {
-      const made = await gigan.produce(frame);
+      const made = await gigan.produce(frame, !viewer.parity);
       pendingG = { system: "gigan", frame: f, stages: made.stages };
       if (!viewer.parity) {
         parityInput = gigan.input.slice();
