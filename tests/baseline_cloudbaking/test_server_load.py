@@ -407,3 +407,20 @@ def test_cors_only_for_the_configured_origins(tmp_path: Path) -> None:
     for bad in ("*", "http://*.example", "127.0.0.1:8080", "http://host/path"):
         with pytest.raises(ValidationError, match="is not an origin"):
             Settings(store=tmp_path / "s", cors_origins=(bad,))
+
+
+@pytest.mark.parametrize(
+    "args,culprit",
+    [
+        (["--miss-queue", "-1"], "--miss-queue = -1 is below 0"),
+        (["--max-connections", "4"], "--max-connections = 4 is below 8"),
+        (["--idle-timeout-s", "inf"], "--idle-timeout-s = inf is not finite"),
+    ],
+)
+def test_load_options_out_of_range_are_one_line(tmp_path: Path, args: list[str], culprit: str) -> None:
+    from tests.helpers.cli import assert_error_line, run_command
+
+    store = tmp_path / "s"
+    result = run_command([str(BIN / "cloudbaking-server"), "--store", str(store), "--port", "0", *args])
+    assert_error_line(result, culprit)
+    assert not store.exists()
