@@ -185,7 +185,8 @@ def port_check(scene: str, parity: dict[str, Any], frame: dict[str, np.ndarray])
     c = parity["camera"]
     camera = Camera(c["eye"], c["target"], fov=c["fov"], near=c["near"], far=c["far"], width=n, height=n)
     try:
-        ours = GLRenderer(load_scene(scene), n).render_di_gbuffers(camera, tuple(parity["light"]))
+        renderer = GLRenderer(load_scene(scene), n, lod=0)  # full detail drawn, shadow casters at SHADOW_LOD
+        ours = renderer.render_di_gbuffers(camera, tuple(parity["light"]))
     except RasterUnavailable:
         return {}
     page_mask, gl_mask = frame["depth"][..., 0] > 0, ours["depth"][..., 0] > 0

@@ -5,7 +5,8 @@
 - ``scene.bin``: the interleaved vertex data of :class:`gicore.gl.GLRenderer` at full detail (float32
   position, normal, albedo, material row: 10 per vertex; flat objects one vertex per corner with the face
   normal, smooth ones shared vertices with area-weighted normals), then the uint32 triangle indices, closed
-  meshes first (drawn with back faces culled) and the others after;
+  meshes first (drawn with back faces culled) and the others after; then the shadow map's casters (positions and
+  indices) at GLRenderer's ``SHADOW_LOD`` (a quarter of the triangles, as the clients draw them);
 - ``scene.json``: the header: byte offsets and counts, the draw ranges, the material tables (the shaders'
   ``u_materials``), the light, and the WebGL2 programs: ``gicore.gl.shaders``' GLSL 330 sources for the
   passes the page runs (``di_gbuffer`` at the GI camera, ``di`` and ``uv`` at the local camera, the shadow
@@ -33,8 +34,8 @@ import numpy as np
 from gicore.camera import NEAR_MIN, Camera
 from gicore.geometry import scene_objects
 from gicore.gl.brdf import ETA, TABLE_RES, roughplastic_tables
-from gicore.gl.lod import mesh_levels
-from gicore.gl.renderer import AREA_SAMPLES, SHADOW_SIZE, GLRenderer, _closed
+from gicore.gl.lod import LOD_RATIOS, mesh_levels
+from gicore.gl.renderer import AREA_SAMPLES, SHADOW_LOD, SHADOW_SIZE, GLRenderer, _closed
 from gicore.gl.shaders import MATERIAL_VEC4S, SCENE_VERTEX, SHADOW_FRAGMENT, SHADOW_VERTEX, scene_fragment
 from gicore.loop import path_views
 from gicore.scene import SceneSpec, load_scene
@@ -185,17 +186,25 @@ def export_assets(
         table[i, :TABLE_RES], table[i, TABLE_RES], table[i, TABLE_RES + 1] = transmittance, r, 1.0 / (1 - internal)
 
     chunks, closed_faces, open_faces, base = [], [], [], 0
+    casters, caster_faces, caster_base = [], [], 0
     for obj in objects:
-        level = mesh_levels(obj.mesh, (1.0,))[0]
-        data, faces, _ = GLRenderer._vertex_data(obj, level, rows)  # the renderer's own vertex layout
+        full, coarse = mesh_levels(obj.mesh, (1.0, LOD_RATIOS[SHADOW_LOD]))
+        data, faces, _ = GLRenderer._vertex_data(obj, full, rows)  # the renderer's own vertex layout
         chunks.append(data)
         (closed_faces if _closed(obj.mesh) else open_faces).append(faces.astype(np.int64) + base)
         base += len(data)
+        casters.append(coarse.mesh.vertices)  # the shadow map's casters at GLRenderer's SHADOW_LOD
+        caster_faces.append(coarse.mesh.faces.astype(np.int64) + caster_base)
+        caster_base += len(coarse.mesh.vertices)
     vertices = np.concatenate(chunks).astype(np.float32)
     empty = [np.zeros((0, 3), np.int64)]
     culled, rest = (np.concatenate(f or empty).astype(np.uint32) for f in (closed_faces, open_faces))
     indices = np.concatenate([culled, rest])
-    (out / "scene.bin").write_bytes(vertices.tobytes() + indices.tobytes())
+    shadow_vertices = np.concatenate(casters).astype(np.float32)
+    shadow_indices = np.concatenate(caster_faces).astype(np.uint32)
+    blobs = [vertices, indices, shadow_vertices, shadow_indices]
+    offsets = np.cumsum([0] + [b.nbytes for b in blobs])
+    (out / "scene.bin").write_bytes(b"".join(b.tobytes() for b in blobs))
 
     header: dict[str, Any] = {
         "format": FORMAT,
@@ -203,7 +212,10 @@ def export_assets(
         "resolution": resolution,
         "vertex_floats": VERTEX_FLOATS,
         "vertices": {"offset": 0, "count": len(vertices)},
-        "indices": {"offset": vertices.nbytes, "count": int(indices.size), "culled": int(culled.size)},
+        "indices": {"offset": int(offsets[1]), "count": int(indices.size), "culled": int(culled.size)},
+        "shadow_vertices": {"offset": int(offsets[2]), "count": len(shadow_vertices)},
+        "shadow_indices": {"offset": int(offsets[3]), "count": int(shadow_indices.size)},
+        "shadow_lod": SHADOW_LOD,
         "triangles": int(indices.size // 3),
         "materials": [float(x) for x in table.ravel()],
         "material_vec4s": MATERIAL_VEC4S,

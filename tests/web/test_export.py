@@ -27,7 +27,10 @@ def test_the_exported_triangles_are_the_scenes(exported) -> None:
     spec, header, out = exported
     data = (out / "scene.bin").read_bytes()
     n_vertices, n_indices = header["vertices"]["count"], header["indices"]["count"]
-    assert len(data) == n_vertices * VERTEX_FLOATS * 4 + n_indices * 4
+    n_casters, n_caster_indices = header["shadow_vertices"]["count"], header["shadow_indices"]["count"]
+    assert len(data) == n_vertices * VERTEX_FLOATS * 4 + n_indices * 4 + n_casters * 12 + n_caster_indices * 4
+    # the shadow casters: meshes under MIN_TRIANGLES (these) are not decimated, so every triangle casts
+    assert n_caster_indices == sum(3 * o.mesh.n_triangles for o in scene_objects(spec))
     vertices = np.frombuffer(data, np.float32, n_vertices * VERTEX_FLOATS).reshape(-1, VERTEX_FLOATS)
     indices = np.frombuffer(data, np.uint32, n_indices, header["indices"]["offset"]).reshape(-1, 3)
     objects = scene_objects(spec)

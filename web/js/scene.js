@@ -30,6 +30,18 @@ export class SceneRenderer {
     gl.bindBuffer(gl.ELEMENT_ARRAY_BUFFER, ibo);
     gl.bufferData(gl.ELEMENT_ARRAY_BUFFER, indices, gl.STATIC_DRAW);
     gl.bindVertexArray(null);
+    // the shadow map's casters: positions only, decimated as GLRenderer's SHADOW_LOD
+    const sv = scene.shadow_vertices;
+    const si = scene.shadow_indices;
+    this.shadowVao = gl.createVertexArray();
+    gl.bindVertexArray(this.shadowVao);
+    gl.bindBuffer(gl.ARRAY_BUFFER, gl.createBuffer());
+    gl.bufferData(gl.ARRAY_BUFFER, new Float32Array(bin, sv.offset, sv.count * 3), gl.STATIC_DRAW);
+    gl.enableVertexAttribArray(0);
+    gl.vertexAttribPointer(0, 3, gl.FLOAT, false, 12, 0);
+    gl.bindBuffer(gl.ELEMENT_ARRAY_BUFFER, gl.createBuffer());
+    gl.bufferData(gl.ELEMENT_ARRAY_BUFFER, new Uint32Array(bin, si.offset, si.count), gl.STATIC_DRAW);
+    gl.bindVertexArray(null);
 
     this.programs = {};
     for (const [name, src] of Object.entries(scene.programs)) this.programs[name] = program(gl, src.vertex, src.fragment);
@@ -105,11 +117,11 @@ export class SceneRenderer {
     setUniforms(gl, prog, { u_light: frame.light, u_far: setup.far });
     gl.enable(gl.DEPTH_TEST);
     gl.disable(gl.CULL_FACE);
-    gl.bindVertexArray(this.vao);
+    gl.bindVertexArray(this.shadowVao);
     setup.views.forEach((vp, face) => {
       gl.viewport((face % 3) * setup.tile, Math.floor(face / 3) * setup.tile, setup.tile, setup.tile);
       setUniforms(gl, prog, { u_vp: vp });
-      gl.drawElements(gl.TRIANGLES, this.scene.indices.count, gl.UNSIGNED_INT, 0);
+      gl.drawElements(gl.TRIANGLES, this.scene.shadow_indices.count, gl.UNSIGNED_INT, 0);
     });
     gl.bindVertexArray(null);
     Object.assign(this.shadow, { key, setup });
