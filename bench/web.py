@@ -47,6 +47,7 @@ import numpy as np
 
 from bench.runner import Bench, Block, Part, Rows, Section, Table, cell, need, pick
 from gicore.cli import UserError
+from gicore.options import FRAMES, SPP, THREADS
 from gicore.results import Results
 
 GIGAN, CLOUD = "gigan", "cloud_baking"
@@ -71,9 +72,9 @@ class WebBenchConfig:
     #: The scene both systems fly through (name or spec file).
     scenes: tuple[str, ...] = field(default=("lung_plane",), metadata={"max_len": 1})
     #: Frames the page plays.
-    frames: int = 60
+    frames: int = field(default=60, metadata=FRAMES)
     #: GI-map period k: both systems make or fetch a new map every k frames.
-    every: int = 10
+    every: int = field(default=10, metadata=FRAMES)
     #: Network profile of the proxy between the page and the cloud-baking server (network-sim profiles).
     profile: str = "lan"
     #: The cloud-baking store: prebaked (filled along the path first: the page's requests hit) or cold (they miss).
@@ -81,15 +82,15 @@ class WebBenchConfig:
     #: GI-map codec the cloud side asks for.
     codec: Literal["jpeg", "webp", "png"] = "jpeg"
     #: Path-tracing samples per pixel of the cloud maps.
-    spp: int = 64
+    spp: int = field(default=64, metadata=SPP)
     #: onnxruntime threads, in the browser (wasm) and in Python.
-    threads: int = 2
+    threads: int = field(default=2, metadata=THREADS)
     #: session.run repetitions timed in the browser and in Python on the same input.
-    timing_runs: int = 10
+    timing_runs: int = field(default=10, metadata={"min": 1, "max": 1000})
     #: WebGL in Chromium: swiftshader (software, on the CPU) or gpu (ANGLE on Vulkan).
     webgl: Literal["swiftshader", "gpu"] = "swiftshader"
     #: Seconds the page may take to play its frames.
-    timeout_s: float = 900.0
+    timeout_s: float = field(default=900.0, metadata={"max": 86400.0})
 
     @classmethod
     def quick(cls) -> WebBenchConfig:
