@@ -118,7 +118,8 @@ class StoreUnwritable(UserError):
             if code in _SQLITE_UNWRITABLE:
                 return cls(root, f"{exc} (SQLite {exc.sqlite_errorname})", code in _SQLITE_FULL)
         if isinstance(exc, OSError) and exc.errno in _UNWRITABLE_ERRNOS:
-            return cls(root, f"{exc.strerror or exc}: {exc.filename}", exc.errno in _FULL_ERRNOS)
+            where = f": {exc.filename}" if exc.filename else ""
+            return cls(root, f"{exc.strerror or exc}{where}", exc.errno in _FULL_ERRNOS)
         return None
 
 
