@@ -133,7 +133,7 @@ class MissQueue:
 
 @dataclass(frozen=True)
 class Prepared:
-    """A validated request: its scene, light, GI camera and tree key."""
+    """A validated request: its scene spec, light, GI-tree key and viewpoint, and when it arrived."""
 
     req: GIMapRequest
     spec: SceneSpec
