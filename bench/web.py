@@ -54,10 +54,14 @@ GIGAN, CLOUD = "gigan", "cloud_baking"
 GIGAN_STAGES = ("gi_render", "inference", "warp", "blend")
 CLOUD_STAGES = ("transmission", "server", "decode", "warp", "blend")
 CHROMIUM = Path("/usr/bin/chromium")
-#: Chromium's software WebGL2 (SwiftShader through ANGLE), for a machine without a GPU; ``gpu`` asks for the
-#: GPU through ANGLE's Vulkan back end instead.
+#: Chromium's software WebGL2 (SwiftShader through ANGLE), for a machine without a GPU; ``swiftshader_webgpu``
+#: also gives the page SwiftShader's WebGPU adapter (so onnxruntime-web's WebGPU back end runs, in software:
+#: a functional check of that path, ~20 s per inference); ``gpu`` asks for the GPU through ANGLE's Vulkan back
+#: end, with WebGPU.
+_SWIFTSHADER = ["--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist"]
 WEBGL_FLAGS = {
-    "swiftshader": ["--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist"],
+    "swiftshader": _SWIFTSHADER,
+    "swiftshader_webgpu": [*_SWIFTSHADER, "--enable-unsafe-webgpu", "--use-webgpu-adapter=swiftshader"],
     "gpu": ["--use-angle=vulkan", "--enable-features=Vulkan", "--ignore-gpu-blocklist", "--enable-unsafe-webgpu"],
 }
 SCREENSHOT = "web_screenshot.png"
@@ -87,8 +91,9 @@ class WebBenchConfig:
     threads: int = field(default=2, metadata=THREADS)
     #: session.run repetitions timed in the browser and in Python on the same input.
     timing_runs: int = field(default=10, metadata={"min": 1, "max": 1000})
-    #: WebGL in Chromium: swiftshader (software, on the CPU) or gpu (ANGLE on Vulkan).
-    webgl: Literal["swiftshader", "gpu"] = "swiftshader"
+    #: WebGL in Chromium: swiftshader (software, on the CPU), swiftshader_webgpu (also a software WebGPU adapter)
+    #: or gpu (ANGLE on Vulkan, WebGPU).
+    webgl: Literal["swiftshader", "swiftshader_webgpu", "gpu"] = "swiftshader"
     #: Seconds the page may take to play its frames.
     timeout_s: float = field(default=900.0, metadata={"max": 86400.0})
 
