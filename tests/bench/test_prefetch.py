@@ -63,7 +63,7 @@ def test_targets_compare_the_variants_named_by_the_issue(tmp_path: Path) -> None
     }
     for (profile, variant), (perceived, n) in runs.items():
         folder = write_run(tmp_path / f"{profile}_{variant}", perceived, n)
-        record(res, "s", folder, {"profile": profile, "variant": variant})
+        record(res, "s", folder, {"profile": profile, "variant": variant, "in_flight": 3})
     targets(res, "s")
     rows = read_rows(res.write())
     met = {
@@ -75,7 +75,7 @@ def test_targets_compare_the_variants_named_by_the_issue(tmp_path: Path) -> None
     lan = met["requests(lan)"]
     assert lan["value"] == 0 and lan["config"]["ratio"] == pytest.approx(0.6)
     text = readme_block(rows)[0].markdown
-    assert "| wan | hold | 5 |" in text and "MISSED" in text and "| yes |" in text
+    assert "| wan | hold (3) | 5 |" in text and "MISSED" in text and "| yes |" in text
 
 
 def test_options_it_refuses() -> None:
