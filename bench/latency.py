@@ -24,6 +24,15 @@ cold run against a fresh store of its own; every row's config names its ``render
 opens, ``gl`` is left out after one warning. Rows with ``stat = renderer_ratio`` (config ``renderer =
 gl/mitsuba``) divide each stage's median with gl by the same stage's median with mitsuba, same run.
 
+**Prefetch.** With ``prefetch_in_flight`` > 0, per profile the cloud client also flies the path against the
+prebaked store with ``--prefetch extrapolate --in-flight N`` (system ``cloud_baking_prefetch``; first renderer
+only), right after the plain client. For both, on the prebaked store, per-frame rows (:mod:`bench.prefetch` has
+the full comparison): ``perceived`` (median and p95 as order statistics, frames no map ever served counted as
+endless): the time from a camera move to a frame showing a map within the server's tolerance of that view
+(:func:`baseline_cloudbaking.client.perceived_latency`); ``in_tolerance``: the share of frames showing such a
+map of their own view; ``requests`` sent. A prefetched map's request-to-shown total is in no Table 1 column:
+speculation does not shorten a request, it asks earlier.
+
 **Stages** (``metric``; median and p95 over the maps, ms). A map's interaction latency (``total``) is the
 sum of every stage from the request to the composition of the first frame showing it, that frame's local
 DI render (``di``) included: both systems run it, and it is no longer free to leave out once the other
@@ -88,6 +97,8 @@ from gigan_local.inference import DEFAULT_MODEL
 CodecName = Literal[CODEC_NAMES]  # type: ignore[valid-type]
 BIN = Path(sys.executable).parent
 GIGAN, CLOUD = "gigan", "cloud_baking"
+#: The cloud client with --prefetch extrapolate (see the module docstring).
+CLOUD_PREFETCH = "cloud_baking_prefetch"
 #: GIGAN's stages, then cloud baking's, in the order a map goes through them (``total`` last).
 GIGAN_STAGES = ("di", "gi_render", "inference", "warp", "blend")
 CLOUD_STAGES = (
@@ -146,6 +157,9 @@ class LatencyConfig:
     #: Renderers of both clients' per-frame raster passes, each a run of every client side by side: gl (OpenGL,
     #: level of detail auto; left out with one warning where no GL context opens) and/or mitsuba.
     renderers: tuple[str, ...] = ("gl", "mitsuba")
+    #: Requests in flight of a cloud client with --prefetch extrapolate run beside the plain one on the prebaked
+    #: store (first renderer only; 0: none).
+    prefetch_in_flight: int = field(default=3, metadata={"min": 0, "max": 16})
 
     @classmethod
     def quick(cls) -> LatencyConfig:
@@ -374,6 +388,12 @@ def measure(cfg: LatencyConfig, res: Results) -> None:
                     runs[CLOUD, profile, "prebaked", renderer] = client(
                         [*cloud_argv, "--server", url], f"cloud_{profile}_prebaked", renderer
                     )
+                if cfg.prefetch_in_flight and renderer == renderers[0]:
+                    prefetch = ["--prefetch", "extrapolate", "--in-flight", str(cfg.prefetch_in_flight)]
+                    with _proxy(plan, profile, warm, res.seed) as url:
+                        runs[CLOUD_PREFETCH, profile, "prebaked", renderer] = client(
+                            [*cloud_argv, *prefetch, "--server", url], f"cloud_prefetch_{profile}_prebaked", renderer
+                        )
             # a cold store per renderer: each run's requests miss as the other's did
             for renderer in renderers:
                 store = work / f"store_cold_{profile}_{renderer}"
@@ -484,10 +504,14 @@ def record_renderer(
 
     cloud: dict[tuple[str, str], dict[str, list[float]]] = {}
     for (system, profile, store), folder in runs.items():
-        if system != CLOUD:
+        if system not in (CLOUD, CLOUD_PREFETCH):
             continue
         frames = _csv(folder / "frames.csv")
         requests = _csv(folder / "requests.csv")
+        if store == "prebaked" and frames and "perceived_ms" in frames[0]:  # clients before issue 23 lack it
+            _perceived_rows(res, scene, system, frames, requests, {"profile": profile, "store": store} | common)
+        if system == CLOUD_PREFETCH:  # its requests ask ahead: its per-map stages are no Table 1 column
+            continue
         for cache, samples in cloud_samples(requests).items():
             merged = cloud.setdefault((profile, cache), {})
             for name, values in samples.items():
@@ -617,6 +641,30 @@ def _pool(groups: list[dict[str, list[float]]]) -> dict[str, list[float]]:
         for name, values in group.items():
             pooled.setdefault(name, []).extend(values)
     return pooled
+
+
+def _perceived_rows(
+    res: Results,
+    scene: str,
+    system: str,
+    frames: list[dict[str, str]],
+    requests: list[dict[str, str]],
+    config: dict[str, Any],
+) -> None:
+    """A cloud run's perceived latency (median, p95; never-served frames as endless), in-tolerance share, requests
+    and mean SSIM (see the module docstring)."""
+    waits = [math.inf if r["perceived_ms"] == "" else float(r["perceived_ms"]) for r in frames]
+    for stat, q in (("median", 50), ("p95", 95)):
+        value = float(np.percentile(waits, q, method="inverted_cdf"))
+        res.add(system=system, scene=scene, metric="perceived", value=value, unit="ms", stat=stat, **config)
+    shown = float(np.mean([int(r["in_tolerance"]) for r in frames]))
+    res.add(system=system, scene=scene, metric="in_tolerance", value=shown, unit="1", **config)
+    res.add(system=system, scene=scene, metric="requests", value=len(requests), unit="count", **config)
+    scored = [float(r["ssim"]) for r in frames if r.get("ssim")]
+    if system == CLOUD_PREFETCH and scored:  # the plain client's SSIM rows come with its Table 1 rows
+        res.add(
+            system=system, scene=scene, metric="ssim", value=float(np.mean(scored)), unit="1", stat="mean", **config
+        )
 
 
 def _ssim_rows(res: Results, scene: str, system: str, frames: list[dict[str, str]], config: dict[str, Any]) -> None:
@@ -820,6 +868,7 @@ def table(rows: list[dict]) -> str:
             "",
         ]
     lines += _renderer_table(rows, profiles)
+    lines += _perceived_table(rows, profiles)
     crossings = [
         (r["config"]["renderer"], r["config"]["cache"], r["value"], r["config"].get("rate_mbit"))
         for r in rows
@@ -841,6 +890,46 @@ def table(rows: list[dict]) -> str:
             lines.append(f"| {renderer} | {cache} | {shown} | {'unlimited' if rate is None else f'{rate:g} Mbit/s'} |")
         lines.append("")
     return "\n".join(lines)
+
+
+def _perceived_table(rows: list[dict], profiles: list[str]) -> list[str]:
+    """The plain and the prefetching cloud client on the prebaked store, per profile and renderer: perceived
+    latency, in-tolerance share, requests, mean SSIM (none in runs without these rows)."""
+    runs = [
+        (p, r, s)
+        for p in profiles
+        for r in renderers_of(rows)
+        for s in (CLOUD, CLOUD_PREFETCH)
+        if _lookup(rows, s, "perceived", "median", profile=p, renderer=r, store="prebaked") is not None
+    ]
+    if not runs:
+        return []
+    lines = [
+        "### perceived latency on the prebaked store: from a camera move to a frame showing a map within tolerance",
+        "",
+        "| profile | renderer | client | perceived median (p95) ms | frames within tolerance | requests | mean SSIM |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for profile, renderer, system in runs:
+        where = {"profile": profile, "renderer": renderer, "store": "prebaked"}
+        shown = _lookup(rows, system, "in_tolerance", "value", **where)
+        lines.append(
+            f"| `{profile}` | {renderer} | {'prefetch' if system == CLOUD_PREFETCH else 'plain'} "
+            f"| {cell(_lookup(rows, system, 'perceived', 'median', **where), '.0f')} "
+            f"({cell(_lookup(rows, system, 'perceived', 'p95', **where), '.0f')}) "
+            f"| {cell(shown and 100 * shown, '.0f')} % "
+            f"| {cell(_lookup(rows, system, 'requests', 'value', **where), '.0f')} "
+            f"| {cell(_lookup(rows, system, 'ssim', 'mean', **where), '.3f')} |"
+        )
+    for renderer in dict.fromkeys(r for _, r, _ in runs):
+        gigan = _lookup(rows, GIGAN, "total", "median", profile="none", renderer=renderer)
+        k = next((r["config"].get("k") for r in rows if r["system"] == GIGAN), None)
+        lines += [
+            "",
+            f"GIGAN ({renderer}) shows a map of the frame's own view every k = {k} frames, its Table 1 total "
+            f"({cell(gigan, '.0f')} ms) after that frame's camera move; the frames between warp it.",
+        ]
+    return [*lines, ""]
 
 
 def _renderer_table(rows: list[dict], profiles: list[str]) -> list[str]:
@@ -1096,7 +1185,8 @@ def readme_block(rows: Rows) -> list[Table]:
             + "; ".join(crossings)
             + "."
         )
-    return [Table("\n".join(lines))]
+    perceived = _perceived_table(rows, list(rtt))
+    return [Table("\n".join([*lines, "", *perceived] if perceived else lines))]
 
 
 BENCH = Bench(
