@@ -27,7 +27,7 @@ FIXTURES = Path(__file__).parent / "fixtures" / "report_results"
 BIN = Path(sys.executable).parent
 CHROMIUM = Path("/usr/bin/chromium")
 ARTIFACTS = ROOT / "results" / "test_artifacts"
-SECTIONS = ("table1", "table2", "table3", "fig6", "fig7", "fig9", "pareto", "stability", "web")
+SECTIONS = ("table1", "table2", "table3", "fig6", "fig7", "fig9", "pareto", "stability", "web", "prefetch")
 
 
 def build(results: Path, out: Path) -> tuple[Path, dict[str, dict]]:
