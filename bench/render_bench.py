@@ -311,7 +311,6 @@ def plot(csv_path: Path, out_dir: Path) -> list[Path]:
     if any(r["config"].get("pass_set") == "client" for r in rows):
         md = out_dir / "render_client_passes.md"
         md.write_text(client_table(rows) + "\n")
-        print(md.read_text())
         written.append(md)
     return written
 
