@@ -77,7 +77,7 @@ from baseline_cloudbaking.store import (
 from bench.runner import Bench, Block, Figure, Part, Rows, Section, Table, need, pick
 from bench.svg import BarChart, Point, Series, XYChart
 from gicore.camera import Camera
-from gicore.cli import UserError
+from gicore.cli import UserError, writable_dir
 from gicore.fileio import atomic_write_bytes
 from gicore.loop import Light
 from gicore.metrics import ssim
@@ -170,6 +170,8 @@ class StorageConfig:
         )
 
     def check(self) -> None:
+        if self.map_cache.exists() and not self.map_cache.is_dir():
+            raise UserError(f"--map-cache {self.map_cache} is a file", "give a folder path")
         if self.paper_resolution not in self.resolutions:
             raise UserError(
                 f"--paper-resolution {self.paper_resolution} is not one of --resolutions "
@@ -230,6 +232,7 @@ def measure(cfg: StorageConfig, res: Results) -> None:
         "tolerance_angle_deg": tol.angle_deg,
         "light_cell": cfg.light_cell,
     }
+    writable_dir(cfg.map_cache, name="--map-cache")  # before any work: the growth law writes its maps there
     memo: dict = {}  # growth-law fills, shared by scenes of one camera envelope and light
     for si, scene in enumerate(cfg.scenes):
         spec, name = load_scene(scene), Path(scene).stem  # the name a prebake stores the scene under

@@ -126,6 +126,7 @@ def test_crossover_is_the_first_session_past_the_limit() -> None:
         ({"saturation_rate": 1.5}, "--saturation-rate = 1.5 is above 1.0"),
         ({"paper_resolution": 384}, "--paper-resolution 384 is not one of --resolutions 256,512"),
         ({"session_frames": 0}, "--session-frames = 0 is below 1"),
+        ({"map_cache": REPO / "README.md"}, "--map-cache .*README.md is a file"),
     ],
 )
 def test_bad_growth_options_are_user_errors(given: dict, culprit: str) -> None:

@@ -325,6 +325,14 @@ def test_a_bad_ray_address_is_one_error_line(argv: list[str], address: str, culp
     assert not (scenes / "out").exists() and not (scenes / "store" / "index.sqlite").exists()
 
 
+def test_a_ray_address_without_executor_ray_is_one_error_line(scenes: Path) -> None:
+    one_error_line(
+        run_cli([*PREBAKE, "--ray-address", "auto"], scenes),
+        "--ray-address needs --executor ray: add --executor ray, or leave out --ray-address",
+    )
+    assert not (scenes / "store" / "index.sqlite").exists()
+
+
 NOT_INSTALLED = "needs Ray, which is not installed: install it with pip install '.[ray]'"
 
 
