@@ -142,6 +142,13 @@ def write_model_card(
             f"--quality-csv {quality_csv} has no rows of system {system!r}",
             "pass --system with the model's name in that CSV",
         )
+    # a card states one set of numbers: a CSV scored on several renderers' inputs would mix them per cell
+    renderers = sorted({r["config"].get("renderer", "mitsuba") for r in rows if r["system"] == system})
+    if len(renderers) > 1:
+        raise UserError(
+            f"--quality-csv {quality_csv} scores {system!r} on the inputs of renderers {', '.join(renderers)}",
+            "score the model with one `bench quality --renderers R` for its card",
+        )
     model_name = export_dir.name
     res.add(system=model_name, scene="all", metric="training_steps", value=last_step, unit="count", run=run_dir.name)
     res.add(

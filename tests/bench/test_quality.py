@@ -15,6 +15,7 @@ from PIL import Image
 from bench import model_card, quality
 from bench.report import body
 from bench.runner import execute
+from gicore.cli import UserError
 from gicore.dataset import DatasetMeta, FrameRecord, load_frame, read_meta, save_frame, write_meta
 from gicore.metrics import lf_error
 from gicore.results import Results, read_rows
@@ -264,3 +265,25 @@ def test_renderers_option_is_checked(scored: tuple[Path, Path], tmp_path: Path, 
     cfg = quality.QualityConfig(datasets=data.parent, scenes=("synthetic",), models={}, renderers=("gl",))
     with pytest.raises(UserError, match="its scene spec does not load to render gl's"):
         quality.input_renderers(cfg, read_meta(data), data)
+
+
+def test_a_model_card_refuses_a_csv_scored_on_two_renderers(scored: tuple[Path, Path], tmp_path: Path) -> None:
+    out, _ = scored
+    rows = list(csv.DictReader((out / "quality.csv").open(newline="")))
+    gl = [r | {"config": json.dumps(json.loads(r["config"]) | {"renderer": "gl"})} for r in rows]
+    mixed = tmp_path / "quality.csv"
+    with mixed.open("w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows + gl)
+    (tmp_path / "run").mkdir()
+    (tmp_path / "run" / "config.json").write_text(json.dumps({"train": {}}))
+    (tmp_path / "run" / "metrics.csv").write_text(
+        "run_id,model,epoch,step,split,metric,value,unit\nr,g,1,1,val,ssim,0.9,1\n"
+    )
+    (tmp_path / "export").mkdir()
+    (tmp_path / "export" / "model.json").write_text("{}")
+    with pytest.raises(UserError, match="scores 'copy' on the inputs of renderers gl, mitsuba"):
+        model_card.write_model_card(
+            tmp_path / "run", tmp_path / "export", mixed, "copy", "d", "t", Results("c", tmp_path)
+        )
