@@ -24,18 +24,26 @@ WebGL does itself (rasterisation, the shadow sampler's comparison).
 from __future__ import annotations
 
 import json
-import math
 import shutil
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from gicore.camera import NEAR_MIN, Camera
+from gicore.camera import Camera
 from gicore.geometry import scene_objects
 from gicore.gl.brdf import ETA, TABLE_RES, roughplastic_tables
 from gicore.gl.lod import LOD_RATIOS, mesh_levels
-from gicore.gl.renderer import AREA_SAMPLES, SHADOW_LOD, SHADOW_SIZE, GLRenderer, _closed
+from gicore.gl.renderer import (
+    AREA_SAMPLES,
+    SHADOW_LOD,
+    SHADOW_SIZE,
+    Bounds,
+    GLRenderer,
+    _closed,
+    fit_shadow_views,
+    object_bounds,
+)
 from gicore.gl.shaders import MATERIAL_VEC4S, SCENE_VERTEX, SHADOW_FRAGMENT, SHADOW_VERTEX, scene_fragment
 from gicore.loop import path_views
 from gicore.scene import SceneSpec, load_scene
@@ -79,67 +87,11 @@ def _camera(camera: Camera) -> dict[str, Any]:
     }
 
 
-def _up_for(direction: np.ndarray) -> tuple[float, float, float]:
-    d = np.abs(direction) / np.linalg.norm(direction)
-    return (0.0, 0.0, 1.0) if d[1] > 0.9 else (0.0, 1.0, 0.0)
-
-
-def shadow_setup(
-    bounds: list[tuple[np.ndarray, float, np.ndarray | None, np.ndarray]], light: np.ndarray, size: int
-) -> dict[str, Any]:
-    """The shadow views for a light at ``light``, as ``GLRenderer._shadow_views`` fits them (same casters,
-    frustum or cube faces, texel sizes, far distance): ``bounds`` per object (centre, radius, the plane of an
-    environment quad or None, box corners)."""
-    casters = [(c, r) for c, r, plane, _ in bounds if plane is None or float(np.dot(plane[0], light - plane[1])) < 0]
-    lo = np.min([c - r for c, r in casters], axis=0)
-    hi = np.max([c + r for c, r in casters], axis=0)
-    centre = (lo + hi) / 2.0
-    radius = max(float(np.linalg.norm(c - centre)) + r for c, r in casters) + 1e-4
-    corners = np.concatenate([b[3] for b in bounds])
-    far = float(np.linalg.norm(corners - light, axis=1).max()) * 1.01 + 1e-3
-    dist = float(np.linalg.norm(centre - light))
-    if dist > 1.02 * radius:
-        tan_half = math.tan(math.asin(radius / dist)) * (1.0 + 4.0 / size)
-        near = max(0.5 * (dist - radius), NEAR_MIN * 10)
-        far = max(far, 2 * near)
-        fov = math.degrees(2 * math.atan(tan_half))
-        cam = Camera(tuple(light), tuple(centre), _up_for(centre - light), fov, near, far, size, size)
-        views, tile, atlas, blocker_min = [cam.view_proj()], size, (size, size), dist - radius
-    else:
-        tile = max(16, size // 2)
-        tan_half = 1.0 + 8.0 / tile
-        fov = math.degrees(2 * math.atan(tan_half))
-        near = max(1e-4 * far, NEAR_MIN * 10)
-        views = []
-        for axis in np.eye(3):
-            for sign in (1.0, -1.0):
-                target = tuple(light + sign * axis)
-                views.append(Camera(tuple(light), target, _up_for(axis), fov, near, far, tile, tile).view_proj())
-        atlas, blocker_min = (3 * tile, 2 * tile), max(near, 0.01 * radius)
-    return {
-        "views": [_column_major(v) for v in views],
-        "texel": [2 * tan_half / tile] * len(views),
-        "tile": tile,
-        "atlas": list(atlas),
-        "blocker_min": blocker_min,
-        "far": far,
-    }
-
-
-def object_bounds(objects: list, n_spec: int) -> list[tuple[np.ndarray, float, np.ndarray | None, np.ndarray]]:
-    out = []
-    for i, obj in enumerate(objects):
-        v = obj.mesh.vertices.astype(np.float64)
-        lo, hi = v.min(axis=0), v.max(axis=0)
-        centre = (lo + hi) / 2.0
-        plane = None
-        if i >= n_spec:  # an environment quad: its plane (face normal, a point)
-            a, b, c = v[obj.mesh.faces[0]]
-            n = np.cross(b - a, c - a)
-            plane = np.stack([n / np.linalg.norm(n), v[0]])
-        corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
-        out.append((centre, float(np.linalg.norm(v - centre, axis=1).max()), plane, corners))
-    return out
+def shadow_setup(bounds: list[Bounds], light: np.ndarray, size: int) -> dict[str, Any]:
+    """GLRenderer's shadow views for a light at ``light`` (:func:`fit_shadow_views`), as the page reads them:
+    column-major matrices, plain lists."""
+    setup = fit_shadow_views(bounds, light, size)
+    return setup | {"views": [_column_major(v) for v in setup["views"]], "atlas": list(setup["atlas"])}
 
 
 def _programs(spec: SceneSpec, material_rows: int) -> dict[str, dict[str, str]]:

@@ -137,6 +137,56 @@ def _views(views: list, tan_half: float, tile: int, atlas: tuple[int, int], bloc
     return {"views": views, "texel": texel, "tile": tile, "atlas": atlas, "blocker_min": blocker_min, "far": far}
 
 
+#: Per object: bounding-sphere centre and radius, the plane (normal, point) of a flat environment quad (None for
+#: the spec's objects) and the bounding box's corners.
+Bounds = tuple[np.ndarray, float, np.ndarray | None, np.ndarray]
+
+
+def object_bounds(objects: list, n_spec: int) -> list[Bounds]:
+    """:data:`Bounds` of each object; the first ``n_spec`` are the spec's, the rest environment quads."""
+    out = []
+    for i, obj in enumerate(objects):
+        v = obj.mesh.vertices.astype(np.float64)
+        lo, hi = v.min(axis=0), v.max(axis=0)
+        centre = (lo + hi) / 2.0
+        plane = None if i < n_spec else np.stack([_face_normals(v, obj.mesh.faces[:1])[0], v[0]])
+        corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+        out.append((centre, float(np.linalg.norm(v - centre, axis=1).max()), plane, corners))
+    return out
+
+
+def fit_shadow_views(bounds: list[Bounds], light: np.ndarray, size: int) -> dict[str, Any]:
+    """The shadow views for a light at ``light`` (``size`` texels a side): matrices, texel sizes, the atlas layout.
+
+    Casters: the spec's objects, and the environment quads the light is behind (a quad shadows only
+    what lies beyond it); their bounding sphere (a union of the objects' spheres) is what a fitted
+    frustum must hold. Its far plane reaches the farthest corner of any object's box."""
+    casters = [(c, r) for c, r, plane, _ in bounds if plane is None or float(np.dot(plane[0], light - plane[1])) < 0]
+    lo = np.min([c - r for c, r in casters], axis=0)
+    hi = np.max([c + r for c, r in casters], axis=0)
+    centre = (lo + hi) / 2.0
+    radius = max(float(np.linalg.norm(c - centre)) + r for c, r in casters) + 1e-4
+    corners = np.concatenate([b[3] for b in bounds])
+    far = float(np.linalg.norm(corners - light, axis=1).max()) * 1.01 + 1e-3
+    dist = float(np.linalg.norm(centre - light))
+    if dist > 1.02 * radius:
+        tan_half = math.tan(math.asin(radius / dist)) * (1.0 + 4.0 / size)  # + 2 texels for the PCF kernel
+        near = max(0.5 * (dist - radius), NEAR_MIN * 10)
+        fov = math.degrees(2 * math.atan(tan_half))
+        cam = Camera(tuple(light), tuple(centre), _up_for(centre - light), fov, near, max(far, 2 * near), size, size)
+        return _views([cam.view_proj()], tan_half, size, (size, size), dist - radius, max(far, 2 * near))
+    tile = max(16, size // 2)
+    tan_half = 1.0 + 8.0 / tile  # 90 degrees + 4 texels, so that kernels near a face's edge stay inside
+    fov = math.degrees(2 * math.atan(tan_half))
+    near = max(1e-4 * far, NEAR_MIN * 10)
+    views = []
+    for axis in np.eye(3):
+        for sign in (1.0, -1.0):
+            target = tuple(light + sign * axis)
+            views.append(Camera(tuple(light), target, _up_for(axis), fov, near, far, tile, tile).view_proj())
+    return _views(views, tan_half, tile, (3 * tile, 2 * tile), max(near, 0.01 * radius), far)
+
+
 class GLRenderer:
     """Rasterises one scene spec at a fixed square ``resolution`` (see the module docstring).
 
@@ -394,57 +444,15 @@ class GLRenderer:
         return self.lod_model
 
     # -- shadows ---------------------------------------------------------------------------------
-    def _bounds(self) -> list[tuple[np.ndarray, float, np.ndarray | None, np.ndarray]]:
-        """Per object: bounding-sphere centre and radius, the plane (normal, point) of a flat environment
-        quad (None for the spec's objects) and the bounding box's corners; computed once."""
+    def _bounds(self) -> list[Bounds]:
+        """Per object, :func:`object_bounds`; computed once."""
         if self._bounds_cache is None:
-            n_spec, out = len(self.spec.objects), []
-            for i, obj in enumerate(self.objects):
-                v = obj.mesh.vertices.astype(np.float64)
-                lo, hi = v.min(axis=0), v.max(axis=0)
-                centre = (lo + hi) / 2.0
-                plane = None if i < n_spec else np.stack([_face_normals(v, obj.mesh.faces[:1])[0], v[0]])
-                corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
-                out.append((centre, float(np.linalg.norm(v - centre, axis=1).max()), plane, corners))
-            self._bounds_cache = out
+            self._bounds_cache = object_bounds(self.objects, len(self.spec.objects))
         return self._bounds_cache
 
     def _shadow_views(self, light: np.ndarray) -> dict[str, Any]:
-        """The shadow views for a light at ``light``: matrices, texel sizes and the atlas layout.
-
-        Casters: the spec's objects, and the environment quads the light is behind (a quad shadows only
-        what lies beyond it); their bounding sphere (a union of the objects' spheres) is what a fitted
-        frustum must hold. Its far plane reaches the farthest corner of any object's box."""
-        bounds = self._bounds()
-        casters = [
-            (c, r) for c, r, plane, _ in bounds if plane is None or float(np.dot(plane[0], light - plane[1])) < 0
-        ]
-        lo = np.min([c - r for c, r in casters], axis=0)
-        hi = np.max([c + r for c, r in casters], axis=0)
-        centre = (lo + hi) / 2.0
-        radius = max(float(np.linalg.norm(c - centre)) + r for c, r in casters) + 1e-4
-        corners = np.concatenate([b[3] for b in bounds])
-        far = float(np.linalg.norm(corners - light, axis=1).max()) * 1.01 + 1e-3
-        dist = float(np.linalg.norm(centre - light))
-        size = self.shadow_size
-        if dist > 1.02 * radius:
-            tan_half = math.tan(math.asin(radius / dist)) * (1.0 + 4.0 / size)  # + 2 texels for the PCF kernel
-            near = max(0.5 * (dist - radius), NEAR_MIN * 10)
-            fov = math.degrees(2 * math.atan(tan_half))
-            cam = Camera(
-                tuple(light), tuple(centre), _up_for(centre - light), fov, near, max(far, 2 * near), size, size
-            )
-            return _views([cam.view_proj()], tan_half, size, (size, size), dist - radius, max(far, 2 * near))
-        tile = max(16, size // 2)
-        tan_half = 1.0 + 8.0 / tile  # 90 degrees + 4 texels, so that kernels near a face's edge stay inside
-        fov = math.degrees(2 * math.atan(tan_half))
-        near = max(1e-4 * far, NEAR_MIN * 10)
-        views = []
-        for axis in np.eye(3):
-            for sign in (1.0, -1.0):
-                target = tuple(light + sign * axis)
-                views.append(Camera(tuple(light), target, _up_for(axis), fov, near, far, tile, tile).view_proj())
-        return _views(views, tan_half, tile, (3 * tile, 2 * tile), max(near, 0.01 * radius), far)
+        """The shadow views for a light at ``light`` (:func:`fit_shadow_views` on this scene's objects)."""
+        return fit_shadow_views(self._bounds(), light, self.shadow_size)
 
     def _ensure_shadow(self) -> None:
         """Render the shadow map for the current light unless it is already there."""
