@@ -734,7 +734,7 @@ def run_client(
     """
     from baseline_cloudbaking.warp import PixelWarp
     from gicore.gl import GLRenderer, RasterUnavailable
-    from gicore.loop import CLIENT_LOD, LAYERS, ClientLoop, GroundTruth, LoopConfig, open_raster, path_views, run_frames
+    from gicore.loop import CLIENT_LOD, LAYERS, ClientLoop, LoopConfig, open_raster, path_views, run_frames
     from gicore.render import Renderer
     from gicore.scene import load_scene
 
@@ -778,7 +778,7 @@ def run_client(
     for row, extra in zip(rows, perceived, strict=True):
         row |= extra
     if kept:
-        ground_truth = GroundTruth(renderer, cfg.gt_every, cfg.spp, cfg.denoise, cfg.seed)
+        ground_truth = cfg.ground_truth(renderer, spec)
         for frame, image in kept.items():
             rows[frame] |= ground_truth.score(frame, *views[frame], image)
     return rows, join_requests(source.records, rows, tuple(s for s in warp.stages if s != "bind")), used

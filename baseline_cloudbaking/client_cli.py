@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import json
 import logging
-from dataclasses import asdict
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -95,7 +94,7 @@ def write_outputs(
 
     write_rows(rows, out / "frames.csv")
     write_rows(requests, out / "requests.csv")  # frame 0 always asks, so there is a record (if only "abandoned")
-    summary = {"config": asdict(cfg), "renderer": renderer or cfg.renderer}
+    summary = {"config": cfg.as_json(), "renderer": renderer or cfg.renderer}
     summary |= summarize(rows, cfg.every) | request_summary(requests)
     # maps come in the background, so the frame rate is what the frames took (not the amortised GI cost)
     summary["fps"] = 1000.0 / float(np.mean([float(r["frame_ms"]) for r in rows]))

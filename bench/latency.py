@@ -63,8 +63,10 @@ crossover errs in cloud baking's favour by about that much).
 
 **Quality along the path.** Each client scores its composed frames against the path-traced GT every
 ``gt_every`` frames (``ssim`` rows with ``stat = frame``): the cost of stale maps while requests are in
-flight. Outputs besides the CSV: ``latency_table.md`` (Table 1 per profile, also printed), stacked stage
-bars, the ratio against RTT, SSIM along the path; each client's own CSVs under ``latency_runs/``.
+flight. The GT frames are path-traced once per bench run and shared by every client run through
+``latency_runs/gt_cache`` (``--gt-cache``; GT is in no stage time). Outputs besides the CSV:
+``latency_table.md`` (Table 1 per profile, also printed), stacked stage bars, the ratio against RTT,
+SSIM along the path; each client's own CSVs under ``latency_runs/``.
 """
 
 from __future__ import annotations
@@ -346,7 +348,8 @@ def measure(cfg: LatencyConfig, res: Results) -> None:
     path_args = ["--scene", scene, "--frames", str(cfg.frames), "--resolution", str(cfg.resolution),
                  "-k", str(cfg.every), "--orbit-frames", str(cfg.orbit_frames), "--spp", str(cfg.spp),
                  "--gt-every", str(cfg.gt_every), "--composition", cfg.composition,
-                 "--seed", str(res.seed)]  # fmt: skip
+                 "--seed", str(res.seed), "--gt-cache", str(work / "gt_cache")]  # fmt: skip
+    shutil.rmtree(work / "gt_cache", ignore_errors=True)  # rendered again by each bench run's code
 
     def client(argv: list[str], name: str, renderer: str) -> Path:
         return _ran_on(_client(plan, [*argv, "--renderer", renderer], work / f"{name}_{renderer}", per_run), renderer)

@@ -28,7 +28,8 @@ Metrics (``metric``; config: ``profile``, ``variant`` and the run's settings):
   ever served (``censored``, a count of its own) as an endless wait; ``cache = hit | miss``: the served frames by
   the ``hit`` flag of the map that ended the wait. ``in_tolerance``: the share of frames whose shown map serves
   their own view;
-- ``ssim`` (mean over the frames scored against the path-traced GT every ``gt_every`` frames): staleness;
+- ``ssim`` (mean over the frames scored against the path-traced GT every ``gt_every`` frames, path-traced once
+  per bench run and shared by its client runs through ``prefetch_runs/gt_cache``): staleness;
 - ``requests``, ``failed_requests``, ``bytes_up``, ``bytes_down`` (totals), ``request_latency`` (ms).
 
 Targets (``stat = target_met``, issue 23): at ``wan``, the median perceived latency with prefetch is at most
@@ -203,7 +204,8 @@ def measure(cfg: PrefetchConfig, res: Results) -> None:
             "--resolution", str(cfg.resolution), "--orbit-frames", str(cfg.orbit_frames), "--spp", str(cfg.spp),
             "--gt-every", str(cfg.gt_every), "--codec", cfg.codec, "--frame-rate", str(cfg.frame_rate),
             "-k", str(cfg.every), "--seed", str(res.seed), "--read-timeout", str(cfg.read_timeout_s),
-            "--deadline", str(2 * cfg.read_timeout_s)]  # fmt: skip
+            "--deadline", str(2 * cfg.read_timeout_s), "--gt-cache", str(work / "gt_cache")]  # fmt: skip
+    shutil.rmtree(work / "gt_cache", ignore_errors=True)  # one GT per bench run, shared by its client runs
     in_flight = {"period": 1, "hold": cfg.in_flight, "prefetch": cfg.in_flight}
     timeout = 300.0 + cfg.frames * 2.0 + (cfg.frames // cfg.gt_every + 1) * 20.0 + cfg.read_timeout_s
     for profile in cfg.profiles:

@@ -51,8 +51,6 @@ scenes) share one fill; their bytes differ.
 
 from __future__ import annotations
 
-import hashlib
-import io
 import json
 import math
 from collections import defaultdict
@@ -62,7 +60,7 @@ from typing import Literal
 
 import numpy as np
 
-from baseline_cloudbaking.bake import BakedMap, PathFrame, bake_map, fly_through, gi_camera, map_header, spec_sha
+from baseline_cloudbaking.bake import BakedMap, PathFrame, bake_map, fly_through, gi_camera, map_header
 from baseline_cloudbaking.codecs import CODEC_NAMES, DEPTH_CODEC, get_codec
 from baseline_cloudbaking.codecs import measure as measure_codec
 from baseline_cloudbaking.protocol import pack
@@ -78,11 +76,11 @@ from bench.runner import Bench, Block, Figure, Part, Rows, Section, Table, need,
 from bench.svg import BarChart, Point, Series, XYChart
 from gicore.camera import Camera
 from gicore.cli import UserError, writable_dir
-from gicore.fileio import atomic_write_bytes
 from gicore.loop import Light
 from gicore.metrics import ssim
 from gicore.options import FRAMES
 from gicore.paths import frame_seed, light_position
+from gicore.render_cache import RenderCache
 from gicore.results import Results, read_rows
 from gicore.scene import SceneSpec, builtin_scenes, load_scene
 from gicore.sessions import Session, navigable_views, plan_sessions, session_views
@@ -550,19 +548,15 @@ def first_session_over(entries: np.ndarray, bytes_per_entry: float, limit: float
 
 def _cached_bake(cfg: StorageConfig, renderer, spec: SceneSpec, camera: Camera, light: Light, seed: int) -> BakedMap:
     """A GI map (GI + texel depth, no DI) from ``cfg.map_cache``, baked and stored there on a miss."""
-    key = json.dumps(
-        [spec_sha(spec), camera.to_dict(), list(light), cfg.spp, seed, renderer.resolution], sort_keys=True
-    )
-    path = cfg.map_cache / f"{hashlib.sha256(key.encode()).hexdigest()}.npz"
-    if path.is_file():
-        with np.load(path) as z:
-            return BakedMap(camera, z["gi"], None, z["depth"], float(z["render_ms"]), float(z["denoise_ms"]))
-    baked = bake_map(renderer, camera, light, cfg.spp, seed, di=False)
-    buf = io.BytesIO()
-    np.savez_compressed(buf, gi=baked.gi, depth=baked.depth, render_ms=baked.render_ms, denoise_ms=baked.denoise_ms)
-    cfg.map_cache.mkdir(parents=True, exist_ok=True)
-    atomic_write_bytes(path, buf.getvalue())
-    return baked
+
+    def bake() -> dict[str, np.ndarray]:
+        baked = bake_map(renderer, camera, light, cfg.spp, seed, di=False)
+        times = np.array([baked.render_ms, baked.denoise_ms])
+        return {"gi": baked.gi, "depth": baked.depth, "times_ms": times}
+
+    key = ("gi_map", camera, list(light), cfg.spp, seed, renderer.resolution)
+    entry = RenderCache(cfg.map_cache, spec).fetch(key, bake)
+    return BakedMap(camera, entry["gi"], None, entry["depth"], *map(float, entry["times_ms"]))
 
 
 def _growth_entry_bytes(

@@ -35,7 +35,7 @@ import math
 import sys
 import time
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 from functools import cached_property
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal, Protocol
@@ -49,6 +49,7 @@ from gicore.fileio import atomic_write_bytes
 from gicore.metrics import lf_error, psnr, ssim
 from gicore.options import FOV_DEGREES, FRAMES, RESOLUTION, SEED, SPP, check_fields
 from gicore.paths import camera_path, frame_seed, light_position
+from gicore.render_cache import RenderCache
 from gicore.scene import SceneSpec
 from gicore.timing import Stopwatch
 from gicore.tonemap import tonemap
@@ -324,6 +325,9 @@ class PathRunConfig:
     gt_every: int = field(default=0, metadata={"min": 0})
     #: Camera-path and render seed.
     seed: int = field(default=0, metadata=SEED)
+    #: Folder of path-traced GT frames shared between runs (keyed by scene spec, camera, light, spp, denoise, seed
+    #: and frame; :mod:`gicore.render_cache`); absent: every run path-traces its own.
+    gt_cache: Path | None = None
     #: Renderer of the per-frame raster passes (local DI, GIGAN's DI + G-buffers at the GI camera, the warps'
     #: uv/depth passes): gl (OpenGL on headless EGL at level of detail auto; without a context: one warning and
     #: mitsuba) or mitsuba. Path tracing (GT, the gt source, the server) is always Mitsuba's. The shipped model
@@ -344,6 +348,15 @@ class PathRunConfig:
     def gi_fov_of(self, spec: SceneSpec) -> float:
         """The GI camera's FOV: the given one, else the scene's."""
         return spec.camera.gi_fov if self.gi_fov is None else self.gi_fov
+
+    def as_json(self) -> dict[str, Any]:
+        """The fields as JSON data (paths as strings), for a run's summary."""
+        return {k: (str(v) if isinstance(v, Path) else v) for k, v in asdict(self).items()}
+
+    def ground_truth(self, renderer: Renderer, spec: SceneSpec) -> GroundTruth:
+        """The run's GT scorer (every ``gt_every`` frames, through ``gt_cache`` when given)."""
+        store = RenderCache(self.gt_cache, spec) if self.gt_cache is not None else None
+        return GroundTruth(renderer, self.gt_every, self.spp, self.denoise, self.seed, store=store)
 
 
 def open_raster(
@@ -512,8 +525,9 @@ def render_gt(
 class GroundTruth:
     """Scores composed frames against the path-traced GT at the local camera, every ``every`` frames.
 
-    ``cache`` (optional, shared between runs of a bench) keeps GT renders by (camera, light, spp,
-    denoise, seed, frame). Its renders are not part of any stage time.
+    ``cache`` (optional, shared between runs of a bench in one process) keeps GT renders by (camera, light,
+    spp, denoise, seed, frame); ``store`` (optional) keeps them on disk for other processes (a bench's client
+    runs along one path). Neither's renders are part of any stage time.
     """
 
     renderer: Renderer
@@ -522,6 +536,7 @@ class GroundTruth:
     denoise: bool = True
     seed: int = 0
     cache: dict | None = None
+    store: RenderCache | None = None
 
     def __post_init__(self) -> None:
         if self.every < 1 or self.spp < 1:
@@ -531,7 +546,11 @@ class GroundTruth:
         key = ("gt", camera, tuple(light), self.spp, self.denoise, self.seed, frame)
         if self.cache is not None and key in self.cache:
             return self.cache[key]
-        gt = render_gt(self.renderer, camera, light, self.spp, frame_seed(self.seed, "gt", frame), self.denoise)
+
+        def render() -> np.ndarray:
+            return render_gt(self.renderer, camera, light, self.spp, frame_seed(self.seed, "gt", frame), self.denoise)
+
+        gt = self.store.fetch(key, lambda: {"gt": render()})["gt"] if self.store is not None else render()
         if self.cache is not None:
             self.cache[key] = gt
         return gt

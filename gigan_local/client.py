@@ -23,7 +23,7 @@ may import both systems; this package does not import ``baseline_cloudbaking``.
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import dataclass, field, replace
 from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
@@ -38,7 +38,6 @@ from gicore.loop import (
     ClientLoop,
     FrameResult,
     GIMap,
-    GroundTruth,
     Light,
     LoopConfig,
     PasteWarp,
@@ -251,7 +250,7 @@ def run_client(
     source = make_gi_source(cfg, renderer, raster=raster)
     loop = ClientLoop(cfg.loop_config(spec), raster, source, make_warp(cfg.warp, raster, cfg.composition))
     views = path_views(spec, cfg.frames, cfg.orbit_frames, cfg.seed, local_fov, cfg.resolution)
-    ground_truth = GroundTruth(renderer, cfg.gt_every, cfg.spp, cfg.denoise, cfg.seed) if cfg.gt_every else None
+    ground_truth = cfg.ground_truth(renderer, spec) if cfg.gt_every else None
     return run_frames(loop, views, ground_truth, on_frame)
 
 
@@ -276,7 +275,7 @@ def run(cfg: ClientConfig, out: Path, save_frames: bool = False, video: bool = F
     renderer, raster, used = open_renderers(cfg, load_scene(cfg.scene))
     rows = run_client(cfg, renderer, on_frame=keep if (save_frames or video) else None, raster=raster)
     write_rows(rows, out / "frames.csv")
-    summary = {"config": {k: (str(v) if isinstance(v, Path) else v) for k, v in asdict(cfg).items()}}
+    summary = {"config": cfg.as_json()}
     summary |= {"renderer": used} | summarize(rows, cfg.every)
     if video:
         summary["video"] = _write_video(images, out / "frames.mp4")

@@ -86,6 +86,8 @@ def test_bench_latency_end_to_end(tmp_path: Path) -> None:
         ("cloud_baking", "cold"),
     }
     assert {r["config"]["frame"] for r in ssim} == {0, 4, 8} and all(0 < r["value"] <= 1 for r in ssim)
+    # each scored frame's GT was path-traced once and shared by every client run of the bench
+    assert len(list((out / "latency_runs" / "gt_cache").glob("*.npz"))) == 3
 
     provenance = json.loads((out / "latency.provenance.json").read_text())
     assert provenance["settings"]["pinning"]["method"] in ("taskset -c", "none")
