@@ -87,9 +87,16 @@ class Mesh:
     def is_watertight(self) -> bool:
         """True when every edge is shared by exactly two consistently wound faces.
 
-        Judged on the stored connectivity: duplicated (unmerged) vertices count as open edges.
+        Judged on the stored connectivity: duplicated (unmerged) vertices count as open edges. Then every
+        directed edge (a, b) of a face occurs once, and so does its reverse (b, a) in the neighbouring face.
         """
-        return bool(self._trimesh().is_watertight)
+        f = self.faces.astype(np.int64)
+        a, b = f.reshape(-1), np.roll(f, -1, axis=1).reshape(-1)  # each face's edges in winding order
+        n = max(len(self.vertices), 1)
+        directed = a * n + b
+        return bool(
+            (a != b).all() and len(np.unique(directed)) == len(directed) and np.isin(b * n + a, directed).all()
+        )
 
     def transformed(self, matrix: np.ndarray) -> Mesh:
         """The mesh with a 4x4 homogeneous transform applied to its vertices (column vectors).

@@ -159,3 +159,19 @@ def test_load_file_without_triangles_names_file(tmp_path) -> None:
     path.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\n")
     with pytest.raises(ValueError, match="points.obj"):
         load_mesh(path)
+
+
+def test_watertight_means_every_edge_twice_and_consistently_wound() -> None:
+    """Closed and consistently wound meshes are watertight; a hole, a flipped face or a degenerate face is not
+    (trimesh agrees on the hole)."""
+    ico = trimesh.creation.icosphere(subdivisions=2)
+    mesh = Mesh(ico.vertices, ico.faces)
+    assert mesh.is_watertight() and ico.is_watertight
+    holed = Mesh(ico.vertices, ico.faces[1:])
+    assert not holed.is_watertight() and not trimesh.Trimesh(ico.vertices, ico.faces[1:]).is_watertight
+    flipped = ico.faces.copy()
+    flipped[0] = flipped[0, ::-1]
+    assert not Mesh(ico.vertices, flipped).is_watertight()
+    degenerate = ico.faces.copy()
+    degenerate[0, 1] = degenerate[0, 0]
+    assert not Mesh(ico.vertices, degenerate).is_watertight()
