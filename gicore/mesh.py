@@ -94,9 +94,7 @@ class Mesh:
         a, b = f.reshape(-1), np.roll(f, -1, axis=1).reshape(-1)  # each face's edges in winding order
         n = max(len(self.vertices), 1)
         directed = a * n + b
-        return bool(
-            (a != b).all() and len(np.unique(directed)) == len(directed) and np.isin(b * n + a, directed).all()
-        )
+        return bool((a != b).all() and len(np.unique(directed)) == len(directed) and np.isin(b * n + a, directed).all())
 
     def transformed(self, matrix: np.ndarray) -> Mesh:
         """The mesh with a 4x4 homogeneous transform applied to its vertices (column vectors).
