@@ -37,12 +37,12 @@ from gicore.gl.lod import LOD_RATIOS, mesh_levels
 from gicore.gl.renderer import (
     AREA_SAMPLES,
     SHADOW_LOD,
-    SHADOW_SIZE,
     Bounds,
     GLRenderer,
     _closed,
     fit_shadow_views,
     object_bounds,
+    shadow_size_for,
 )
 from gicore.gl.shaders import MATERIAL_VEC4S, SCENE_VERTEX, SHADOW_FRAGMENT, SHADOW_VERTEX, scene_fragment
 from gicore.loop import path_views
@@ -120,12 +120,13 @@ def export_assets(
     orbit_frames: int = 300,
     seed: int = 0,
     model: Path = DEFAULT_MODEL,
-    shadow_size: int = SHADOW_SIZE,
+    shadow_size: int | None = None,
 ) -> dict[str, Any]:
     """Write the viewer's assets for ``scene`` into ``out`` (module docstring); returns the header."""
     spec = load_scene(scene)
     config = read_model_json(model)
     resolution = int(config["resolution"])
+    shadow_size = shadow_size_for(resolution) if shadow_size is None else shadow_size
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     objects = scene_objects(spec)
