@@ -14,11 +14,12 @@ $(STAMP): pyproject.toml scripts/setup.sh web/package-lock.json
 run: setup
 	$(PY) -m bench run-default --out $(OUT)
 
-# Lint and format checks first (fast), then the tests.
+# Lint and format checks first (fast), then the tests: one pytest worker per core (pytest-xdist), each test file
+# on one worker, so a module's fixtures are built once.
 test: setup
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n auto --dist loadfile
 
 clean:
 	rm -rf $(OUT) .pytest_cache

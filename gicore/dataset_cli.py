@@ -9,7 +9,8 @@ One folder per scene under ``--out``. ``--renderer`` picks what renders the inpu
 is path-traced by Mitsuba either way, with the same seeds, so two datasets that differ only in ``--renderer``
 hold the same GT. ``meta.json`` records the renderer that ran (``gl`` without a GL context falls back to
 ``mitsuba`` after one warning line). Frames are rendered by the render executor (``gicore.executor``:
-this process, ``--workers`` local processes, or Ray tasks with ``--ray auto|HOST:PORT``; each worker
+this process, ``--workers`` local processes, or Ray tasks with ``--executor ray [--ray-address HOST:PORT]``, the
+same options as ``cloudbaking-prebake``; each worker
 holds one compiled scene), written atomically by this process as they arrive, and skipped when already
 present, so an interrupted run resumes. The same seeds give the same frames on every executor. One run
 at a time renders into a scene folder (a second is refused: "another run holds DIR").
@@ -39,7 +40,7 @@ from gicore.dataset import (
     write_frame,
     write_meta,
 )
-from gicore.executor import RAY_HELP, WORKERS_HELP, Executor, InProcess, Task, open_executor
+from gicore.executor import Executor, ExecutorOptions, InProcess, Task
 from gicore.fileio import exclusive_run, sweep_temporaries
 from gicore.gl.lod import LOD_CHOICES, lod_value
 from gicore.loop import CLIENT_LOD, open_raster
@@ -51,10 +52,10 @@ from gicore.options import (
     RESOLUTION_MIN,
     SEED,
     SPP,
-    THREADS,
     build_config,
     check_fields,
     config_command,
+    config_options,
     extra,
 )
 from gicore.paths import camera_path, frame_seed, light_position
@@ -256,16 +257,24 @@ def build_dataset(
 
 
 def dataset_command(
-    given: dict[str, Any], *, scenes: list[str], out: Path, workers: int | None, ray: str | None
+    given: dict[str, Any],
+    *,
+    scenes: list[str],
+    out: Path,
+    executor: str | None,
+    ray_address: str | None,
+    workers: int | None,
 ) -> None:
     """Render datasets for the given scenes."""
     cfg = build_config(DatasetConfig, given)
+    where = {"executor": executor, "ray_address": ray_address, "workers": workers}
+    run_on = build_config(ExecutorOptions, {k: v for k, v in where.items() if v is not None})
     specs = [load_scene(name) for name in scenes]  # every spec (and mesh) is checked before any rendering
-    with open_executor(workers, ray) as executor:
+    with run_on.open() as pool:
         for spec in specs:
             root = out / spec.name
             t0 = time.perf_counter()
-            meta = build_dataset(spec, root, cfg, executor)
+            meta = build_dataset(spec, root, cfg, pool)
             size = sum(p.stat().st_size for p in root.rglob("*.npz"))
             typer.echo(
                 f"{spec.name}: {len(meta.frames)} frames in {root} (inputs by {meta.renderer},"
@@ -284,12 +293,7 @@ config_command(
             Annotated[Path, typer.Option("--out", help="root folder; one sub-folder per scene")],
             Path("data/datasets"),
         ),
-        extra(
-            "workers",
-            Annotated[int | None, typer.Option("--workers", min=1, max=THREADS["max"], help=WORKERS_HELP)],
-            None,
-        ),
-        extra("ray", Annotated[str | None, typer.Option("--ray", help=RAY_HELP)], None),
+        *config_options(ExecutorOptions),
     ],
 )
 

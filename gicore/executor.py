@@ -8,7 +8,7 @@ calling process (the driver) in completion order, and the driver writes them, so
 mid-job leaves no file behind. Each worker process keeps the state of the last :data:`CACHED_STATES`
 tasks it built (keyed by the task's value), so a scene is compiled once per process, not per job.
 
-Backends (:func:`open_executor` picks one from the command line's ``--workers`` and ``--ray``):
+Backends (:func:`open_executor` picks one; on a command line :class:`ExecutorOptions` asks for it):
 
 - :class:`InProcess`: the calling process; one job at a time with every core to the renderer.
 - :class:`LocalPool`: spawned worker processes (``spawn``, not ``fork``: a forked worker inherits OIDN's
@@ -22,7 +22,7 @@ Backends (:func:`open_executor` picks one from the command line's ``--workers`` 
   this package installed in the same environment (the tasks import it by name). It counts the jobs each
   Ray node ran (``nodes``), and can report every job's node as it finishes (``placed``). Tasks are owned by
   the driver: when it dies, Ray fails them and their workers stop. A local instance the driver started
-  (``--ray auto`` with no cluster to join) ends with it, ``kill -9`` included: Ray ends its GCS, raylet
+  (``--ray-address auto`` with no cluster to join) ends with it, ``kill -9`` included: Ray ends its GCS, raylet
   and workers, and a watchdog process (:func:`watch_ray_instance`) the two node agents Ray 2.60 leaves
   behind. A cluster the driver joined is not its to stop.
 
@@ -72,14 +72,10 @@ POOL_KILL_WAIT_S = 10.0
 RAY_WATCH_S = 0.5
 #: ``prctl`` option: the signal the kernel sends this process when the thread that forked it ends.
 PR_SET_PDEATHSIG = 1
-START_RAY = "start one with `ray start --head` and give its address, or use --ray auto"
-#: ``--workers`` and ``--ray`` of every command that renders through an executor (:func:`open_executor`).
-WORKERS_HELP = "rendering processes (default 1); with --ray, tasks at once (default: as many as the cluster has CPUs)"
-RAY_HELP = (
-    "run the renders as Ray tasks: 'auto' (the cluster in RAY_ADDRESS or one `ray start` runs here, "
-    "else a new local one) or HOST:PORT"
-)
-INSTALL_RAY = "install it with pip install '.[ray]' (or leave out --ray to use local processes)"
+#: The option that names a Ray cluster's address (:class:`ExecutorOptions`), as errors name it.
+RAY_OPTION = "--ray-address"
+START_RAY = "start one with `ray start --head` and give its address, or use --ray-address auto"
+INSTALL_RAY = "install it with pip install '.[ray]' (or leave out --executor ray to use local processes)"
 
 
 @dataclass(frozen=True)
@@ -310,25 +306,21 @@ def _host_port(text: str) -> tuple[str, int] | None:
     return (host.strip("[]"), int(port)) if host and port.isdigit() and 0 < int(port) < 65536 else None
 
 
-def _start_ray(option: str) -> str:
-    """The hint of an address where no Ray cluster answers, for the option that names addresses."""
-    return START_RAY.replace("--ray auto", f"{option} auto")
-
-
-def _check_reachable(address: str, option: str, hint: str = START_RAY) -> None:
+def _check_reachable(address: str, option: str) -> None:
     """Fail fast on a head that does not answer: ``ray.init`` would retry for minutes."""
     try:
         socket.create_connection(_host_port(address), timeout=RAY_CONNECT_TIMEOUT_S).close()
     except OSError as exc:
         reason = exc.strerror or type(exc).__name__
-        raise UserError(f"{option} {address}: no Ray cluster answers there ({reason})", hint) from None
+        raise UserError(f"{option} {address}: no Ray cluster answers there ({reason})", START_RAY) from None
 
 
-def connect_ray(address: str, option: str = "--ray") -> bool:
+def connect_ray(address: str) -> bool:
     """Connect this process to Ray: ``auto`` joins the cluster named by ``RAY_ADDRESS`` or the one
     ``ray start`` runs on this machine, else starts a local instance; HOST:PORT joins that cluster's
     head. Returns whether this call connected (and so must ``ray.shutdown()``); a process already
-    connected (a notebook, a test) keeps its connection. Errors name ``option``, the address's option."""
+    connected (a notebook, a test) keeps its connection. Errors name :data:`RAY_OPTION`."""
+    option = RAY_OPTION
     if address != "auto" and _host_port(address) is None:
         raise UserError(
             f"{option} {address!r} is neither 'auto' nor HOST:PORT",
@@ -341,9 +333,9 @@ def connect_ray(address: str, option: str = "--ray") -> bool:
     if ray.is_initialized():
         return False
     if address != "auto":
-        _check_reachable(address, option, _start_ray(option))
+        _check_reachable(address, option)
     elif _host_port(os.environ.get("RAY_ADDRESS", "")) is not None:
-        _check_reachable(os.environ["RAY_ADDRESS"], "RAY_ADDRESS", _start_ray(option))
+        _check_reachable(os.environ["RAY_ADDRESS"], "RAY_ADDRESS")
     try:
         ray.init(
             address=None if address == "auto" else address,
@@ -352,14 +344,14 @@ def connect_ray(address: str, option: str = "--ray") -> bool:
             logging_level=logging.ERROR,
         )
     except ConnectionError as exc:
-        raise UserError(f"{option} {address}: {' '.join(str(exc).split())}", _start_ray(option)) from None
+        raise UserError(f"{option} {address}: {' '.join(str(exc).split())}", START_RAY) from None
     return True
 
 
 @contextmanager
-def open_executor(workers: int | None = None, ray: str | None = None, option: str = "--ray") -> Iterator[Executor]:
+def open_executor(workers: int | None = None, ray: str | None = None) -> Iterator[Executor]:
     """The executor a command line asks for. Without ``ray``: ``workers`` local processes (None or 1:
-    this process). With ``ray`` (``auto`` or HOST:PORT, given by ``option``): Ray tasks, at most
+    this process). With ``ray`` (``auto`` or HOST:PORT, given by :data:`RAY_OPTION`): Ray tasks, at most
     ``workers`` at once (None: as many as the cluster's CPUs). Ray is disconnected (a local instance
     stopped) at the end."""
     if ray is None:
@@ -369,7 +361,7 @@ def open_executor(workers: int | None = None, ray: str | None = None, option: st
         with LocalPool(workers) as pool:
             yield pool
         return
-    connected = connect_ray(ray, option)
+    connected = connect_ray(ray)
     watchdog = _start_ray_watchdog() if connected else None
     try:
         yield RayExecutor(workers)
@@ -474,4 +466,4 @@ class ExecutorOptions:
     def open(self) -> AbstractContextManager[Executor]:
         """The executor these options ask for (a context manager: Ray disconnected, pools ended at its exit)."""
         ray = (self.ray_address or "auto") if self.executor == "ray" else None
-        return open_executor(self.workers, ray, "--ray-address")
+        return open_executor(self.workers, ray)

@@ -438,3 +438,36 @@ def test_load_options_out_of_range_are_one_line(tmp_path: Path, args: list[str],
     result = run_command([str(BIN / "cloudbaking-server"), "--store", str(store), "--port", "0", *args])
     assert_error_line(result, culprit)
     assert not store.exists()
+
+
+def test_the_cloud_client_honours_the_real_servers_503_and_retry_after(srv: Server) -> None:
+    """A slow miss renders and QUEUE more wait: the client's miss is refused 503 with the server's Retry-After,
+    recorded as overloaded, and the client sends nothing more until that time has passed."""
+    from baseline_cloudbaking.client import RemoteConfig, RemoteSource
+    from gicore.camera import Camera
+    from tests.helpers.cloud import RES, SPP
+
+    before = srv.stats()
+    waiting = []
+    with socket.create_connection((srv.host, srv.port), timeout=10) as blocker:
+        send_request(blocker, gimap_body(eye=(2.3, 1.4, 0.3), resolution=512, spp=64))  # holds the render thread
+        time.sleep(0.3)
+        for body in ring(QUEUE, radius=2.4):
+            sock = socket.create_connection((srv.host, srv.port), timeout=10)
+            send_request(sock, body)
+            waiting.append(sock)
+        time.sleep(0.3)
+        assert srv.stats()["misses_pending"] == QUEUE + 1
+        camera = Camera((-2.0, 1.2, 0.9), (0.0, 0.5, 0.0), fov=90.0, width=RES, height=RES)
+        remote = RemoteConfig(srv.url, "ball_moving", RES, "jpeg", SPP, retry_after_s=0.0)
+        with RemoteSource(remote) as source:
+            assert source.request(camera, (0.0, 2.0, 0.0), 0) and source.wait(30.0)
+            [record] = source.records
+            assert record["status"] == "overloaded", record
+            retry = int(record["error"].split("retry after ")[1].split()[0])
+            assert 1 <= retry <= 60 and not source.request(camera, (0.0, 2.0, 0.0), 1)  # held back, not resent
+        for sock in waiting:
+            sock.close()
+        blocker.settimeout(120)
+        assert blocker.recv(64).startswith(b"HTTP/1.1 200")
+    assert delta(before, srv.stats(), "misses_refused")["misses_refused"] == 1

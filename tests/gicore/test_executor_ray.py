@@ -304,10 +304,6 @@ PREBAKE = [
 ]
 
 
-#: How a command names a Ray cluster: gicore-dataset --ray ADDR; cloudbaking-prebake --executor ray --ray-address ADDR.
-RAY_FLAGS = {"gicore-dataset": ("--ray", []), "cloudbaking-prebake": ("--ray-address", ["--executor", "ray"])}
-
-
 @pytest.mark.parametrize("argv", [DATASET, PREBAKE], ids=["dataset", "prebake"])
 @pytest.mark.parametrize(
     ("address", "culprit"),
@@ -318,19 +314,21 @@ RAY_FLAGS = {"gicore-dataset": ("--ray", []), "cloudbaking-prebake": ("--ray-add
     ],
 )
 def test_a_bad_ray_address_is_one_error_line(argv: list[str], address: str, culprit: str, scenes: Path) -> None:
-    option, chosen = RAY_FLAGS[argv[0]]
     started = time.monotonic()
-    one_error_line(run_cli([*argv, *chosen, option, address], scenes), culprit.format(option))
+    one_error_line(
+        run_cli([*argv, "--executor", "ray", "--ray-address", address], scenes), culprit.format("--ray-address")
+    )
     assert time.monotonic() - started < 30  # not Ray's minutes of reconnecting
     assert not (scenes / "out").exists() and not (scenes / "store" / "index.sqlite").exists()
 
 
-def test_a_ray_address_without_executor_ray_is_one_error_line(scenes: Path) -> None:
+@pytest.mark.parametrize("argv", [DATASET, PREBAKE], ids=["dataset", "prebake"])
+def test_a_ray_address_without_executor_ray_is_one_error_line(argv: list[str], scenes: Path) -> None:
     one_error_line(
-        run_cli([*PREBAKE, "--ray-address", "auto"], scenes),
+        run_cli([*argv, "--ray-address", "auto"], scenes),
         "--ray-address needs --executor ray: add --executor ray, or leave out --ray-address",
     )
-    assert not (scenes / "store" / "index.sqlite").exists()
+    assert not (scenes / "out").exists() and not (scenes / "store" / "index.sqlite").exists()
 
 
 NOT_INSTALLED = "needs Ray, which is not installed: install it with pip install '.[ray]'"
@@ -339,7 +337,7 @@ NOT_INSTALLED = "needs Ray, which is not installed: install it with pip install 
 @pytest.mark.parametrize(
     ("argv", "culprit"),
     [
-        ([*DATASET, "--ray", "auto"], f"--ray {NOT_INSTALLED}"),
+        ([*DATASET, "--executor", "ray"], f"--executor ray {NOT_INSTALLED}"),
         ([*PREBAKE, "--executor", "ray"], f"--executor ray {NOT_INSTALLED}"),
         (["bench", "scaling", "--quick", "--out", "out"], f"--executors ray {NOT_INSTALLED}"),
     ],
@@ -369,8 +367,10 @@ def test_without_ray_the_local_paths_import_and_render(scenes: Path, tmp_path: P
 def test_ctrl_c_of_a_ray_run_keeps_whole_frames_and_the_rerun_finishes_identical(
     ray_address: str, scenes: Path, slow_reference: Path, tmp_path: Path
 ) -> None:
-    """gicore-dataset --ray HOST:PORT as its own driver process joining the module's instance."""
-    argv = [str(BIN / "gicore-dataset"), str(scenes / "ball_moving.json"), "--out", str(tmp_path), "--ray", ray_address]
+    """gicore-dataset --executor ray --ray-address HOST:PORT as its own driver process joining the module's
+    instance."""
+    argv = [str(BIN / "gicore-dataset"), str(scenes / "ball_moving.json"), "--out", str(tmp_path)]
+    argv += ["--executor", "ray", "--ray-address", ray_address]
     argv += [
         "--train",
         str(SLOW.n_train),
