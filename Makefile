@@ -15,11 +15,12 @@ run: setup
 	$(PY) -m bench run-default --out $(OUT)
 
 # Lint and format checks first (fast), then the tests: one pytest worker per core (pytest-xdist), each test file
-# on one worker, so a module's fixtures are built once.
+# on one worker, so a module's fixtures are built once; then, alone, the tests that judge wall-clock bounds.
 test: setup
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
-	$(PY) -m pytest -q -n auto --dist loadfile
+	$(PY) -m pytest -q -n auto --dist loadfile -m "not serial"
+	$(PY) -m pytest -q -m serial
 
 clean:
 	rm -rf $(OUT) .pytest_cache

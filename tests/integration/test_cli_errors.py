@@ -224,7 +224,7 @@ CASES = [
     case(*DATASET, "--fov", "inf", culprit="--fov = inf is not finite", id="dataset-fov-inf"),
     case(*DATASET, "--fov", "nan", culprit="--fov = nan is not finite", id="dataset-fov-nan"),
     case(*DATASET, "--seed", "-1", culprit="--seed = -1 is below 0", id="dataset-seed-negative"),
-    case(*DATASET, "--workers", "100000", culprit="'--workers'", id="dataset-workers-huge"),
+    case(*DATASET, "--workers", "100000", culprit="--workers = 100000 is above", id="dataset-workers-huge"),
     case(*DATASET, "--buffers", "gt,bogus", culprit="['bogus']", id="dataset-unknown-buffer"),
     case(*DATASET[:3], "afile", *DATASET[4:], culprit="afile/s", id="dataset-out-is-a-file"),
     case(
