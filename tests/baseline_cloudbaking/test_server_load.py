@@ -111,11 +111,12 @@ def ring(n: int, scene: str = "ball_moving", radius: float = 2.0, **fields) -> l
     return [gimap_body(scene, eye=(radius * np.sin(a), 1.1, radius * np.cos(a)), **fields) for a in angles]
 
 
-#: Hit latency bound and how many runs may try to meet it. The issue's 50 ms is measured outside pytest
-#: (``python -m baseline_cloudbaking.server.loadtest``, README): here the load generator runs in this process on
-#: the same 2 cores as the server and its bakes, and 50 ms failed in a full suite at load 0.9 per core (p99
-#: 104 and 57 ms). The test judges what admission control guarantees, hits that never queue behind the 9
-#: admitted misses, at 3x the target; another process's burst can still land in one run's window.
+#: Hit latency bound and how many runs may try to meet it. The issue's 50 ms is not reachable on a 2-core machine
+#: with the load generator on the same cores: 32 hit clients alone, no misses (``python -m
+#: baseline_cloudbaking.server.loadtest --misses 0``, a server of its own) already give p99 76 ms (p50 45; 8
+#: clients: p99 26), and with the 80 misses 85-99 ms; run alone, this test measured 112-118 ms. It judges what
+#: admission control guarantees, hits that never queue behind the 9 admitted misses (a miss is ~300 ms of render
+#: and denoise), at 3x the target.
 P99_MS, RUNS = 150.0, 2
 
 
