@@ -73,14 +73,10 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import shutil
-import subprocess
 import sys
 import time
-from collections.abc import Iterator
-from contextlib import contextmanager
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
@@ -88,6 +84,7 @@ import numpy as np
 
 from baseline_cloudbaking.codecs import CODEC_NAMES, DEFAULT_CODEC
 from bench.models import check_model_resolution
+from bench.processes import BIN, ask_path, pinned_proxy, pinned_server, pinning, run_client, threads
 from bench.runner import Bench, Block, Figure, Part, Rows, Section, Table, cell, need, pick
 from bench.svg import Point, Series, XYChart
 from gicore.blend import COMPOSITIONS
@@ -97,7 +94,6 @@ from gicore.results import Results, read_rows
 from gigan_local.inference import DEFAULT_MODEL
 
 CodecName = Literal[CODEC_NAMES]  # type: ignore[valid-type]
-BIN = Path(sys.executable).parent
 GIGAN, CLOUD = "gigan", "cloud_baking"
 #: The cloud client with --prefetch extrapolate (see the module docstring).
 CLOUD_PREFETCH = "cloud_baking_prefetch"
@@ -185,117 +181,6 @@ class LatencyConfig:
             raise UserError(f"--renderers {','.join(self.renderers)} names a renderer twice", "name each once")
 
 
-# -- processes ----------------------------------------------------------------------------------------------
-def pinning(enabled: bool) -> dict[str, Any]:
-    """Cores of the server, the proxy and the clients (``taskset -c``): with 2 cores the server and the
-    proxy share one and the clients get the other; with more the proxy gets one, the server about half
-    of the rest and the clients the others. ``method`` is ``none`` (with the reason) when not pinned."""
-    cores = sorted(os.sched_getaffinity(0))
-    if not enabled:
-        return {"method": "none", "reason": "--no-pin", "cores": cores}
-    if shutil.which("taskset") is None:
-        return {"method": "none", "reason": "taskset (util-linux) is not installed", "cores": cores}
-    if len(cores) < 2:
-        return {"method": "none", "reason": "one core: every process shares it", "cores": cores}
-    if len(cores) == 2:
-        roles = {"server": cores[:1], "proxy": cores[:1], "client": cores[1:]}
-    else:
-        split = 1 + (len(cores) - 1) // 2
-        roles = {"proxy": cores[:1], "server": cores[1:split], "client": cores[split:]}
-    return {"method": "taskset -c", "cores": cores} | roles
-
-
-def _prefix(plan: dict[str, Any], role: str) -> list[str]:
-    return ["taskset", "-c", ",".join(map(str, plan[role]))] if plan["method"] != "none" else []
-
-
-def _threads(plan: dict[str, Any], role: str) -> int:
-    return len(plan[role]) if plan["method"] != "none" else len(plan["cores"])
-
-
-@contextmanager
-def pinned_server(plan: dict[str, Any], store: Path, scenes_dir: Path | None) -> Iterator[str]:
-    """A pinned ``cloudbaking-server`` on an ephemeral port; yields its base URL."""
-    from network_sim.process import Running
-
-    env = ["env", f"CLOUDBAKING_RENDER_THREADS={_threads(plan, 'server')}"]
-    argv = [*env, *_prefix(plan, "server"), str(BIN / "cloudbaking-server"), "--port", "0", "--store", str(store)]
-    with Running(argv + (["--scenes", str(scenes_dir)] if scenes_dir else []), timeout=120.0) as server:
-        host, port = server.addr
-        yield f"{host}:{port}"  # host is "http://127.0.0.1" (the server prints a URL)
-
-
-@contextmanager
-def _proxy(plan: dict[str, Any], profile: str, upstream: str, seed: int) -> Iterator[str]:
-    """A pinned ``network-sim proxy --profile`` in front of ``upstream`` (a URL); yields the proxy's URL."""
-    from network_sim.process import Running
-
-    target = upstream.removeprefix("http://")
-    argv = [
-        *_prefix(plan, "proxy"),
-        sys.executable,
-        "-m",
-        "network_sim",
-        "proxy",
-        "--upstream",
-        target,
-        "--profile",
-        profile,
-        "--seed",
-        str(seed),
-    ]
-    with Running(argv, timeout=60.0) as proxy:
-        host, port = proxy.addr
-        yield f"http://{host}:{port}"
-
-
-def _client(plan: dict[str, Any], argv: list[str], out: Path, timeout_s: float) -> Path:
-    """Run a pinned client process writing into ``out`` (a fresh folder); its output folder."""
-    shutil.rmtree(out, ignore_errors=True)
-    proc = subprocess.run(
-        [*_prefix(plan, "client"), *argv, "--out", str(out)],
-        capture_output=True,
-        text=True,
-        timeout=timeout_s,
-        check=False,
-    )
-    if out.is_dir():
-        (out / "console.txt").write_text(proc.stdout + proc.stderr)
-    if proc.returncode != 0:
-        raise RuntimeError(f"{Path(argv[0]).name} exited with {proc.returncode}:\n{proc.stderr[-3000:]}")
-    return out
-
-
-def _fill_store(url: str, cfg: LatencyConfig, scene: str, seed: int, off_path: bool) -> dict[str, int]:
-    """Ask ``url`` directly for the GI camera of every frame of the path (``off_path``: for one camera one
-    unit above the first, which no path frame is within tolerance of); returns hit and miss counts."""
-    from baseline_cloudbaking.client import RemoteConfig, RemoteSource
-    from gicore.loop import path_views
-    from gicore.scene import load_scene
-
-    spec = load_scene(scene)
-    remote = RemoteConfig(url, Path(scene).stem, cfg.resolution, cfg.codec, cfg.spp, cfg.composition == "residual",
-                          spec.light.moves, read_timeout_s=cfg.read_timeout_s, deadline_s=2 * cfg.read_timeout_s,
-                          retry_after_s=0.0)  # fmt: skip
-    views = path_views(
-        spec, 1 if off_path else cfg.frames, cfg.orbit_frames, seed, spec.camera.local_fov, cfg.resolution
-    )
-    with RemoteSource(remote) as source:
-        for frame, (camera, light) in enumerate(views):
-            gi_camera = camera.with_fov(spec.camera.gi_fov)
-            if off_path:
-                gi_camera = replace(gi_camera, origin=tuple(np.add(camera.origin, (0.0, 1.0, 0.0))))
-            source.request(gi_camera, light, frame)
-            source.wait(2 * cfg.read_timeout_s + 10)
-        failed = [r for r in source.records if r["status"] != "ok"]
-        if failed:
-            raise RuntimeError(
-                f"the server at {url} failed a request of the first pass: {failed[0]['status']}: {failed[0]['error']}"
-            )
-        hits = sum(int(r["hit"]) for r in source.records)
-        return {"hits": hits, "misses": len(source.records) - hits}
-
-
 # -- measuring ----------------------------------------------------------------------------------------------
 def available_renderers(asked: tuple[str, ...]) -> tuple[tuple[str, ...], dict[str, Any]]:
     """The renderers of ``asked`` that can run here, and what to record about them: ``gl`` needs a headless GL
@@ -350,21 +235,25 @@ def measure(cfg: LatencyConfig, res: Results) -> None:
                  "--gt-every", str(cfg.gt_every), "--composition", cfg.composition,
                  "--seed", str(res.seed), "--gt-cache", str(work / "gt_cache")]  # fmt: skip
     shutil.rmtree(work / "gt_cache", ignore_errors=True)  # rendered again by each bench run's code
+    first_pass = {"resolution": cfg.resolution, "codec": cfg.codec, "spp": cfg.spp, "frames": cfg.frames,
+                  "orbit_frames": cfg.orbit_frames, "seed": res.seed, "read_timeout_s": cfg.read_timeout_s,
+                  "residual": cfg.composition == "residual"}  # fmt: skip
 
     def client(argv: list[str], name: str, renderer: str) -> Path:
-        return _ran_on(_client(plan, [*argv, "--renderer", renderer], work / f"{name}_{renderer}", per_run), renderer)
+        folder = run_client(plan, [*argv, "--renderer", renderer], work / f"{name}_{renderer}", per_run)
+        return _ran_on(folder, renderer)
 
     # Runs are keyed (system, profile, store, renderer); each renderer's run of a slot follows the other's at once,
     # so the renderers' ratios compare runs taken minutes apart at most, under the same load.
     gigan_argv = [str(BIN / "gigan-client"), *path_args, "--gi-source", "model", "--model", str(cfg.model),
-                  "--threads", str(_threads(plan, "client"))]  # fmt: skip
+                  "--threads", str(threads(plan, "client"))]  # fmt: skip
     runs = {(GIGAN, "none", "local", r): client(gigan_argv, "gigan", r) for r in renderers}
     cloud_argv = [str(BIN / "cloudbaking-client"), *path_args, "--codec", cfg.codec,
                   "--read-timeout", str(cfg.read_timeout_s), "--deadline", str(2 * cfg.read_timeout_s)]  # fmt: skip
     shutil.rmtree(work / "store_prebaked", ignore_errors=True)  # every run prebakes its own store
     with pinned_server(plan, work / "store_prebaked", scenes_dir) as warm:
         t0 = time.perf_counter()
-        first = _fill_store(warm, cfg, scene, res.seed, off_path=False)
+        first = ask_path(warm, scene, **first_pass)
         res.add(
             system=CLOUD,
             scene=spec.name,
@@ -387,13 +276,13 @@ def measure(cfg: LatencyConfig, res: Results) -> None:
         for profile in cfg.profiles:
             # the prebaked store answers every renderer's run (its maps do not depend on the client's renderer)
             for renderer in renderers:
-                with _proxy(plan, profile, warm, res.seed) as url:
+                with pinned_proxy(plan, profile, warm, res.seed) as url:
                     runs[CLOUD, profile, "prebaked", renderer] = client(
                         [*cloud_argv, "--server", url], f"cloud_{profile}_prebaked", renderer
                     )
                 if cfg.prefetch_in_flight and renderer == renderers[0]:
                     prefetch = ["--prefetch", "extrapolate", "--in-flight", str(cfg.prefetch_in_flight)]
-                    with _proxy(plan, profile, warm, res.seed) as url:
+                    with pinned_proxy(plan, profile, warm, res.seed) as url:
                         runs[CLOUD_PREFETCH, profile, "prebaked", renderer] = client(
                             [*cloud_argv, *prefetch, "--server", url], f"cloud_prefetch_{profile}_prebaked", renderer
                         )
@@ -402,8 +291,8 @@ def measure(cfg: LatencyConfig, res: Results) -> None:
                 store = work / f"store_cold_{profile}_{renderer}"
                 shutil.rmtree(store, ignore_errors=True)
                 with pinned_server(plan, store, scenes_dir) as cold:
-                    _fill_store(cold, cfg, scene, res.seed, off_path=True)  # compiles the scene and every pass
-                    with _proxy(plan, profile, cold, res.seed) as url:
+                    ask_path(cold, scene, **first_pass, off_path=True)  # compiles the scene and every pass
+                    with pinned_proxy(plan, profile, cold, res.seed) as url:
                         runs[CLOUD, profile, "cold", renderer] = client(
                             [*cloud_argv, "--server", url], f"cloud_{profile}_cold", renderer
                         )

@@ -45,24 +45,19 @@ import csv
 import json
 import math
 import shutil
-import subprocess
-import sys
-from collections.abc import Iterator
-from contextlib import contextmanager
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
 
 from baseline_cloudbaking.codecs import CODEC_NAMES, DEFAULT_CODEC
-from bench.latency import pinned_server, pinning
+from bench.processes import BIN, ask_path, pinned_proxy, pinned_server, pinning, run_client
 from bench.runner import Bench, Block, Rows, Section, Table, cell, need, pick
 from gicore.cli import UserError
 from gicore.results import Results, read_rows
 
 CodecName = Literal[CODEC_NAMES]  # type: ignore[valid-type]
-BIN = Path(sys.executable).parent
 SYSTEM = "cloud_baking"
 #: Variant -> the client's request-rule options (module docstring).
 VARIANTS = {
@@ -126,62 +121,6 @@ class PrefetchConfig:
                 raise UserError(f"--variants {name!r} is not a variant", f"use some of {', '.join(VARIANTS)}")
 
 
-# -- processes ----------------------------------------------------------------------------------------------
-def _prefix(plan: dict[str, Any], role: str) -> list[str]:
-    return ["taskset", "-c", ",".join(map(str, plan[role]))] if plan["method"] != "none" else []
-
-
-@contextmanager
-def _proxy(plan: dict[str, Any], profile: str, upstream: str, seed: int) -> Iterator[str]:
-    """``network-sim proxy --profile`` in front of ``upstream`` (a URL); yields the proxy's URL."""
-    from network_sim.process import Running
-
-    argv = [*_prefix(plan, "proxy"), sys.executable, "-m", "network_sim", "proxy"]
-    argv += ["--upstream", upstream.removeprefix("http://"), "--profile", profile, "--seed", str(seed)]
-    with Running(argv, timeout=60.0) as proxy:
-        host, port = proxy.addr
-        yield f"http://{host}:{port}"
-
-
-def _ask_path(url: str, cfg: PrefetchConfig, scene: str, seed: int, off_path: bool) -> int:
-    """Ask ``url`` directly for the GI camera of every frame of the path (``off_path``: for one camera one unit
-    above the first, which no path view is within tolerance of); returns the misses."""
-    from baseline_cloudbaking.client import RemoteConfig, RemoteSource
-    from gicore.loop import path_views
-    from gicore.scene import load_scene
-
-    spec = load_scene(scene)
-    timeouts = {"read_timeout_s": cfg.read_timeout_s, "deadline_s": 2 * cfg.read_timeout_s, "retry_after_s": 0.0}
-    remote = RemoteConfig(
-        url, Path(scene).stem, cfg.resolution, cfg.codec, cfg.spp, light_moves=spec.light.moves, **timeouts
-    )
-    views = path_views(
-        spec, 1 if off_path else cfg.frames, cfg.orbit_frames, seed, spec.camera.local_fov, cfg.resolution
-    )
-    with RemoteSource(remote) as source:
-        for frame, (camera, light) in enumerate(views):
-            gi_camera = camera.with_fov(spec.camera.gi_fov)
-            if off_path:
-                gi_camera = replace(gi_camera, origin=tuple(np.add(camera.origin, (0.0, 1.0, 0.0))))
-            source.request(gi_camera, light, frame)
-            source.wait(2 * cfg.read_timeout_s + 10)
-    failed = [r for r in source.records if r["status"] != "ok"]
-    if failed:
-        raise RuntimeError(f"the server at {url} failed a request: {failed[0]['status']}: {failed[0]['error']}")
-    return sum(1 - int(r["hit"]) for r in source.records)
-
-
-def _client(plan: dict[str, Any], argv: list[str], out: Path, timeout_s: float) -> Path:
-    shutil.rmtree(out, ignore_errors=True)
-    proc = subprocess.run([*_prefix(plan, "client"), *argv, "--out", str(out)], capture_output=True, text=True,
-                          timeout=timeout_s, check=False)  # fmt: skip
-    if out.is_dir():
-        (out / "console.txt").write_text(proc.stdout + proc.stderr)
-    if proc.returncode != 0:
-        raise RuntimeError(f"cloudbaking-client exited with {proc.returncode}:\n{proc.stderr[-3000:]}")
-    return out
-
-
 # -- measuring ----------------------------------------------------------------------------------------------
 def measure(cfg: PrefetchConfig, res: Results) -> None:
     from gicore.scene import load_scene
@@ -195,10 +134,12 @@ def measure(cfg: PrefetchConfig, res: Results) -> None:
     res.settings["pinning"] = plan
     common = {"resolution": cfg.resolution, "frames": cfg.frames, "orbit_frames": cfg.orbit_frames,
               "frame_rate": cfg.frame_rate, "spp": cfg.spp, "codec": cfg.codec}  # fmt: skip
+    first_pass = {"resolution": cfg.resolution, "codec": cfg.codec, "spp": cfg.spp, "frames": cfg.frames,
+                  "orbit_frames": cfg.orbit_frames, "seed": res.seed, "read_timeout_s": cfg.read_timeout_s}  # fmt: skip
     prebaked = work / "store_prebaked"
     shutil.rmtree(prebaked, ignore_errors=True)
     with pinned_server(plan, prebaked, scenes_dir) as url:
-        misses = _ask_path(url, cfg, scene, res.seed, off_path=False)
+        misses = ask_path(url, scene, **first_pass)["misses"]
     res.add(system=SYSTEM, scene=spec.name, metric="prebake_maps", value=misses, unit="count", **common)
     argv = [str(BIN / "cloudbaking-client"), "--scene", scene, "--frames", str(cfg.frames),
             "--resolution", str(cfg.resolution), "--orbit-frames", str(cfg.orbit_frames), "--spp", str(cfg.spp),
@@ -214,9 +155,9 @@ def measure(cfg: PrefetchConfig, res: Results) -> None:
             shutil.rmtree(store, ignore_errors=True)
             shutil.copytree(prebaked, store)
             with pinned_server(plan, store, scenes_dir) as url:
-                _ask_path(url, cfg, scene, res.seed, off_path=True)  # compiles the scene and every pass
-                with _proxy(plan, profile, url, res.seed) as proxied:
-                    folder = _client(plan, [*argv, *VARIANTS[variant], "--in-flight", str(in_flight[variant]),
+                ask_path(url, scene, **first_pass, off_path=True)  # compiles the scene and every pass
+                with pinned_proxy(plan, profile, url, res.seed) as proxied:
+                    folder = run_client(plan, [*argv, *VARIANTS[variant], "--in-flight", str(in_flight[variant]),
                                             "--server", proxied], work / f"{profile}_{variant}", timeout)  # fmt: skip
             shutil.rmtree(store, ignore_errors=True)
             config = common | {"profile": profile, "variant": variant, "k": cfg.every, "in_flight": in_flight[variant]}

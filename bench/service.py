@@ -1,7 +1,7 @@
 """`bench service` (issue 10's targets): how fast a real ``cloudbaking-server`` answers GI-map requests.
 
 One run starts ``cloudbaking-server`` as its own process on 127.0.0.1 (an ephemeral port, a fresh GI tree
-in a temporary folder under ``--out``, removed afterwards; pinned as :func:`bench.latency.pinning` says,
+in a temporary folder under ``--out``, removed afterwards; pinned as :func:`bench.processes.pinning` says,
 the bench's own client threads on the client cores) and sends ``POST /v1/gimap`` over loopback with httpx
 (keep-alive clients). Three phases, rows per ``metric``:
 
@@ -43,7 +43,7 @@ import numpy as np
 
 from baseline_cloudbaking.codecs import CODEC_NAMES, DEFAULT_CODEC
 from baseline_cloudbaking.protocol import unpack
-from bench.latency import pinned_server, pinning
+from bench.processes import pinned_server, pinning
 from bench.runner import Bench, Block, Rows, Table, need
 from gicore.results import Results, read_rows
 

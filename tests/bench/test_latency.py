@@ -1,5 +1,5 @@
 """`bench latency` (Table 1): the whole bench end to end at 64² (server, proxy, both clients as processes),
-the link-model crossover against closed forms, the core pinning plan, and its option checks."""
+the link-model crossover against closed forms, and its option checks."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from bench import latency
-from bench.latency import CloudCost, LatencyConfig, pinning, sweep_link
+from bench.latency import CloudCost, LatencyConfig, sweep_link
 from bench.runner import execute
 from gicore.results import read_rows
 from tests.helpers.cloud import passthrough_model, write_scenes
@@ -131,23 +131,6 @@ def test_link_model_of_a_profile() -> None:
 
     cost = CloudCost(local_ms=0.0, server_ms=50.0, bytes_up=1000, bytes_down=62_500)
     assert cost.total_ms(get("wan").link(), starts=5) == pytest.approx(130.0 + (1000 + 62_500) * 8 / 5e6 * 1e3, abs=0.1)
-
-
-def test_pinning_plan(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(latency.shutil, "which", lambda name: "/usr/bin/taskset")
-    monkeypatch.setattr(latency.os, "sched_getaffinity", lambda pid: {0, 1})
-    assert pinning(True) == {"method": "taskset -c", "cores": [0, 1], "server": [0], "proxy": [0], "client": [1]}
-    assert latency._prefix(pinning(True), "client") == ["taskset", "-c", "1"]
-    monkeypatch.setattr(latency.os, "sched_getaffinity", lambda pid: set(range(8)))
-    plan = pinning(True)
-    assert (plan["proxy"], plan["server"], plan["client"]) == ([0], [1, 2, 3], [4, 5, 6, 7])
-    assert pinning(False)["method"] == "none" and latency._prefix(pinning(False), "server") == []
-    monkeypatch.setattr(latency.shutil, "which", lambda name: None)
-    assert pinning(True) == {
-        "method": "none",
-        "reason": "taskset (util-linux) is not installed",
-        "cores": list(range(8)),
-    }
 
 
 def test_unknown_profile_is_a_user_error(tmp_path: Path) -> None:

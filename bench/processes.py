@@ -1,0 +1,127 @@
+"""The processes of the client benches (`bench latency`, `bench prefetch`, `bench service`): a cloud-baking server,
+network proxies and client runs, each pinned to its cores (:func:`pinning`), and the first pass along a camera
+path that fills (or warms up) a server's GI tree.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+#: The console scripts of this environment.
+BIN = Path(sys.executable).parent
+
+
+def pinning(enabled: bool) -> dict[str, Any]:
+    """Cores of the server, the proxy and the clients (``taskset -c``): with 2 cores the server and the
+    proxy share one and the clients get the other; with more the proxy gets one, the server about half
+    of the rest and the clients the others. ``method`` is ``none`` (with the reason) when not pinned."""
+    cores = sorted(os.sched_getaffinity(0))
+    if not enabled:
+        return {"method": "none", "reason": "--no-pin", "cores": cores}
+    if shutil.which("taskset") is None:
+        return {"method": "none", "reason": "taskset (util-linux) is not installed", "cores": cores}
+    if len(cores) < 2:
+        return {"method": "none", "reason": "one core: every process shares it", "cores": cores}
+    if len(cores) == 2:
+        roles = {"server": cores[:1], "proxy": cores[:1], "client": cores[1:]}
+    else:
+        split = 1 + (len(cores) - 1) // 2
+        roles = {"proxy": cores[:1], "server": cores[1:split], "client": cores[split:]}
+    return {"method": "taskset -c", "cores": cores} | roles
+
+
+def taskset(plan: dict[str, Any], role: str) -> list[str]:
+    """The command prefix that pins a process of ``role`` as ``plan`` says (empty when not pinned)."""
+    return ["taskset", "-c", ",".join(map(str, plan[role]))] if plan["method"] != "none" else []
+
+
+def threads(plan: dict[str, Any], role: str) -> int:
+    """The cores a process of ``role`` may use."""
+    return len(plan[role]) if plan["method"] != "none" else len(plan["cores"])
+
+
+@contextmanager
+def pinned_server(plan: dict[str, Any], store: Path, scenes_dir: Path | None) -> Iterator[str]:
+    """A pinned ``cloudbaking-server`` on an ephemeral port; yields its base URL."""
+    from network_sim.process import Running
+
+    env = ["env", f"CLOUDBAKING_RENDER_THREADS={threads(plan, 'server')}"]
+    argv = [*env, *taskset(plan, "server"), str(BIN / "cloudbaking-server"), "--port", "0", "--store", str(store)]
+    with Running(argv + (["--scenes", str(scenes_dir)] if scenes_dir else []), timeout=120.0) as server:
+        host, port = server.addr
+        yield f"{host}:{port}"  # host is "http://127.0.0.1" (the server prints a URL)
+
+
+@contextmanager
+def pinned_proxy(plan: dict[str, Any], profile: str, upstream: str, seed: int) -> Iterator[str]:
+    """A pinned ``network-sim proxy --profile`` in front of ``upstream`` (a URL); yields the proxy's URL."""
+    from network_sim.process import Running
+
+    argv = [*taskset(plan, "proxy"), sys.executable, "-m", "network_sim", "proxy"]
+    argv += ["--upstream", upstream.removeprefix("http://"), "--profile", profile, "--seed", str(seed)]
+    with Running(argv, timeout=60.0) as proxy:
+        host, port = proxy.addr
+        yield f"http://{host}:{port}"
+
+
+def run_client(plan: dict[str, Any], argv: list[str], out: Path, timeout_s: float) -> Path:
+    """Run a pinned client process writing into ``out`` (a fresh folder; its stdout and stderr kept in
+    ``console.txt``); its output folder."""
+    shutil.rmtree(out, ignore_errors=True)
+    proc = subprocess.run(
+        [*taskset(plan, "client"), *argv, "--out", str(out)], capture_output=True, text=True, timeout=timeout_s
+    )
+    if out.is_dir():
+        (out / "console.txt").write_text(proc.stdout + proc.stderr)
+    if proc.returncode != 0:
+        raise RuntimeError(f"{Path(argv[0]).name} exited with {proc.returncode}:\n{proc.stderr[-3000:]}")
+    return out
+
+
+def ask_path(
+    url: str,
+    scene: str,
+    *,
+    resolution: int,
+    codec: str,
+    spp: int,
+    frames: int,
+    orbit_frames: int,
+    seed: int,
+    read_timeout_s: float,
+    residual: bool = False,
+    off_path: bool = False,
+) -> dict[str, int]:
+    """Ask ``url`` directly for the GI camera of every frame of the path, one request at a time (``off_path``:
+    for one camera one unit above the first, which no path frame is within tolerance of: it compiles the
+    server's scene and passes and stores nothing a run would hit); returns the hit and miss counts."""
+    from baseline_cloudbaking.client import RemoteConfig, RemoteSource
+    from gicore.loop import path_views
+    from gicore.scene import load_scene
+
+    spec = load_scene(scene)
+    remote = RemoteConfig(url, Path(scene).stem, resolution, codec, spp, residual, spec.light.moves,
+                          read_timeout_s=read_timeout_s, deadline_s=2 * read_timeout_s, retry_after_s=0.0)  # fmt: skip
+    views = path_views(spec, 1 if off_path else frames, orbit_frames, seed, spec.camera.local_fov, resolution)
+    with RemoteSource(remote) as source:
+        for frame, (camera, light) in enumerate(views):
+            gi_camera = camera.with_fov(spec.camera.gi_fov)
+            if off_path:
+                gi_camera = replace(gi_camera, origin=tuple(np.add(camera.origin, (0.0, 1.0, 0.0))))
+            source.request(gi_camera, light, frame)
+            source.wait(2 * read_timeout_s + 10)
+    failed = [r for r in source.records if r["status"] != "ok"]
+    if failed:
+        raise RuntimeError(f"the server at {url} failed a request: {failed[0]['status']}: {failed[0]['error']}")
+    hits = sum(int(r["hit"]) for r in source.records)
+    return {"hits": hits, "misses": len(source.records) - hits}
