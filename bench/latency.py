@@ -84,7 +84,7 @@ import numpy as np
 
 from baseline_cloudbaking.codecs import CODEC_NAMES, DEFAULT_CODEC
 from bench.models import check_model_resolution
-from bench.processes import BIN, ask_path, pinned_proxy, pinned_server, pinning, run_client, threads
+from bench.processes import BIN, ask_path, check_served, pinned_proxy, pinned_server, run_client, run_place, threads
 from bench.runner import Bench, Block, Figure, Part, Rows, Section, Table, cell, need, pick
 from bench.svg import Point, Series, XYChart
 from gicore.blend import COMPOSITIONS
@@ -166,6 +166,7 @@ class LatencyConfig:
     def check(self) -> None:
         from network_sim import profiles
 
+        check_served(self.resolution)
         known = profiles.profiles()
         for name in self.profiles:
             if name not in known:
@@ -210,15 +211,8 @@ def _ran_on(folder: Path, renderer: str) -> Path:
 
 
 def measure(cfg: LatencyConfig, res: Results) -> None:
-    from gicore.scene import load_scene
-
     scene = cfg.scenes[0]
-    spec = load_scene(scene)
-    scenes_dir = Path(scene).resolve().parent if Path(scene).suffix else None
-    work = res.out / "latency_runs"
-    work.mkdir(parents=True, exist_ok=True)
-    plan = pinning(cfg.pin)
-    res.settings["pinning"] = plan
+    spec, scenes_dir, work, plan = run_place(scene, res, "latency_runs", cfg.pin)
     renderers, res.settings["renderers"] = available_renderers(cfg.renderers)
     common = {
         "resolution": cfg.resolution,

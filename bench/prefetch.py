@@ -52,7 +52,7 @@ from typing import Any, Literal
 import numpy as np
 
 from baseline_cloudbaking.codecs import CODEC_NAMES, DEFAULT_CODEC
-from bench.processes import BIN, ask_path, pinned_proxy, pinned_server, pinning, run_client
+from bench.processes import BIN, ask_path, check_served, pinned_proxy, pinned_server, run_client, run_place
 from bench.runner import Bench, Block, Rows, Section, Table, cell, need, pick
 from gicore.cli import UserError
 from gicore.results import Results, read_rows
@@ -109,6 +109,7 @@ class PrefetchConfig:
     def check(self) -> None:
         from network_sim import profiles
 
+        check_served(self.resolution)
         known = profiles.profiles()
         for name in self.profiles:
             if name not in known:
@@ -123,15 +124,8 @@ class PrefetchConfig:
 
 # -- measuring ----------------------------------------------------------------------------------------------
 def measure(cfg: PrefetchConfig, res: Results) -> None:
-    from gicore.scene import load_scene
-
     scene = cfg.scenes[0]
-    spec = load_scene(scene)
-    scenes_dir = Path(scene).resolve().parent if Path(scene).suffix else None
-    work = res.out / "prefetch_runs"
-    work.mkdir(parents=True, exist_ok=True)
-    plan = pinning(cfg.pin)
-    res.settings["pinning"] = plan
+    spec, scenes_dir, work, plan = run_place(scene, res, "prefetch_runs", cfg.pin)
     common = {"resolution": cfg.resolution, "frames": cfg.frames, "orbit_frames": cfg.orbit_frames,
               "frame_rate": cfg.frame_rate, "spp": cfg.spp, "codec": cfg.codec}  # fmt: skip
     first_pass = {"resolution": cfg.resolution, "codec": cfg.codec, "spp": cfg.spp, "frames": cfg.frames,

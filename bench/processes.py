@@ -13,9 +13,13 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from gicore.results import Results
+    from gicore.scene import SceneSpec
 
 #: The console scripts of this environment.
 BIN = Path(sys.executable).parent
@@ -38,6 +42,43 @@ def pinning(enabled: bool) -> dict[str, Any]:
         split = 1 + (len(cores) - 1) // 2
         roles = {"proxy": cores[:1], "server": cores[1:split], "client": cores[split:]}
     return {"method": "taskset -c", "cores": cores} | roles
+
+
+class RunPlace(NamedTuple):
+    """Where a client bench's run happens."""
+
+    #: The scene the clients fly through.
+    spec: SceneSpec
+    #: The folder of its spec file, which the server is given (None for a built-in scene).
+    scenes_dir: Path | None
+    #: The run's work folder under its output folder (created).
+    work: Path
+    #: The core plan (:func:`pinning`), also recorded in the provenance's ``settings.pinning``.
+    plan: dict[str, Any]
+
+
+def run_place(scene: str, res: Results, folder: str, pin: bool) -> RunPlace:
+    """The :class:`RunPlace` of a run of ``scene`` working in ``res.out / folder``."""
+    from gicore.scene import load_scene
+
+    work = res.out / folder
+    work.mkdir(parents=True, exist_ok=True)
+    res.settings["pinning"] = plan = pinning(pin)
+    return RunPlace(load_scene(scene), Path(scene).resolve().parent if Path(scene).suffix else None, work, plan)
+
+
+def check_served(resolution: int) -> None:
+    """Refuse, before any process starts, a map resolution the benches' servers would not serve (their settings:
+    the defaults, or CLOUDBAKING_RESOLUTIONS of this environment, which they inherit)."""
+    from baseline_cloudbaking.server.settings import Settings
+    from gicore.cli import UserError
+
+    served = Settings().resolutions
+    if resolution not in served:
+        raise UserError(
+            f"--resolution {resolution} is not served by cloudbaking-server",
+            f"use one of {', '.join(map(str, served))}",
+        )
 
 
 def taskset(plan: dict[str, Any], role: str) -> list[str]:

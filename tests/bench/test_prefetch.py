@@ -83,4 +83,26 @@ def test_options_it_refuses() -> None:
         build_config(PrefetchConfig, {"profiles": "lan,moon"})
     with pytest.raises(UserError, match="--variants 'always'"):
         build_config(PrefetchConfig, {"variants": "hold,always"})
+    with pytest.raises(UserError, match="--resolution 32 is not served by cloudbaking-server: use one of 64, 128"):
+        build_config(PrefetchConfig, {"resolution": 32})
     assert BENCH.name == "prefetch" and BENCH.readme is not None
+
+
+@pytest.mark.slow
+def test_bench_prefetch_end_to_end(tmp_path: Path) -> None:
+    """The bench with its processes at 64² (a prebaked store, a server per run, the proxy, the clients): every
+    variant's rows, one GT render per scored frame shared by the runs, the prebake counted."""
+    from bench.runner import execute
+    from tests.helpers.cloud import write_scenes
+
+    scene = write_scenes(tmp_path / "scenes") / "ball_moving.json"
+    cfg = PrefetchConfig(scenes=(str(scene),), profiles=("lan",), variants=("hold", "prefetch"), resolution=64,
+                         frames=20, spp=2, gt_every=5)  # fmt: skip
+    execute(BENCH, cfg, tmp_path / "out", seed=0)
+    rows = read_rows(tmp_path / "out" / "prefetch.csv")
+    for variant in ("hold", "prefetch"):
+        got = {r["metric"] for r in rows if r["config"].get("variant") == variant}
+        assert {"requests", "perceived", "in_tolerance", "ssim"} <= got, (variant, got)
+    [prebake] = [r for r in rows if r["metric"] == "prebake_maps"]
+    assert prebake["value"] >= 1
+    assert len(list((tmp_path / "out" / "prefetch_runs" / "gt_cache").glob("*.npz"))) == 4  # frames 0, 5, 10, 15
