@@ -57,7 +57,8 @@ def gimap_body(scene: str = "ball_moving", eye=(1.6, 1.1, 1.2), **fields: Any) -
 def server_process(
     store: Path, scenes: Path, *args: str, env: dict[str, str] | None = None, timeout: float = 60.0
 ) -> Iterator[str]:
-    """Run ``cloudbaking-server --port 0`` and yield its base URL (from its first stdout line)."""
+    """Run ``cloudbaking-server --port 0`` and yield its base URL (from its first stdout line). Its stderr goes to
+    a file beside the store (a pipe nobody reads would stall a chatty server), quoted when it does not start."""
     cmd = [
         str(BIN / "cloudbaking-server"),
         "--host",
@@ -70,14 +71,14 @@ def server_process(
         str(scenes),
         *args,
     ]
-    proc = subprocess.Popen(
-        cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=os.environ | (env or {})
-    )
+    log = Path(store).parent / f"{Path(store).name}.server.stderr"
+    with log.open("wb") as err:
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=err, text=True, env=os.environ | (env or {}))
     try:
         ready, _, _ = select.select([proc.stdout], [], [], timeout)
-        assert ready, f"no output from cloudbaking-server within {timeout} s"
+        assert ready, f"no output from cloudbaking-server within {timeout} s: {log.read_text()[-2000:]}"
         line = proc.stdout.readline()
-        assert line.startswith("listening on http://127.0.0.1:"), (line, proc.poll())
+        assert line.startswith("listening on http://127.0.0.1:"), (line, proc.poll(), log.read_text()[-2000:])
         yield line.split()[-1].strip()
     finally:
         proc.terminate()
