@@ -5,8 +5,8 @@
 
 import { FULLSCREEN_VERTEX, TONEMAP_GLSL, bindTarget, bindTextures, fullscreen, program, setUniforms, sync, target,
   texture } from "./glutil.js";
+import { Blend } from "./blend.js";
 import { decodeDepth, decodeImage, unpack } from "./payload.js";
-import { BLEND_FRAGMENT } from "./gigan.js";
 
 const SPLAT_VERTEX = `#version 300 es
 precision highp float;
@@ -91,7 +91,7 @@ export class CloudSystem {
     const n = scene.n;
     this.splatProg = program(gl, SPLAT_VERTEX, SPLAT_FRAGMENT);
     this.fillProg = program(gl, FULLSCREEN_VERTEX, FILL_FRAGMENT);
-    this.blendProg = program(gl, FULLSCREEN_VERTEX, BLEND_FRAGMENT);
+    this.blender = new Blend(gl);
     this.splat = target(gl, n, n, [gl.RGBA16F], { mips: [0] });
     this.warped = target(gl, n, n, [gl.RGBA32F], { depth: false });
     this.bound = null;
@@ -215,12 +215,6 @@ export class CloudSystem {
   }
 
   blend(diTarget, tau) {
-    const gl = this.gl;
-    bindTarget(gl, null);
-    gl.useProgram(this.blendProg.p);
-    bindTextures(gl, this.blendProg, { u_di: [4, diTarget.textures[0]], u_warped: [5, this.warped.textures[0]] });
-    setUniforms(gl, this.blendProg, { u_tau: tau });
-    fullscreen(gl);
-    sync(gl, null);
+    this.blender.draw(diTarget.textures[0], this.warped.textures[0], tau);
   }
 }

@@ -5,6 +5,7 @@
 
 import { FULLSCREEN_VERTEX, TONEMAP_GLSL, bindTarget, bindTextures, fullscreen, program, readFloats, setUniforms,
   sync, target, texture } from "./glutil.js";
+import { Blend } from "./blend.js";
 
 const WARP_FRAGMENT = `#version 300 es
 precision highp float;
@@ -102,21 +103,6 @@ void main() {
   o = vec4(max(texelFetch(u_gi, p, 0).rgb - texelFetch(u_gidi, p, 0).rgb, 0.0) * hit, hit);
 }`;
 
-// Eq. 1 on linear radiance, then the project's tone map for the screen.
-export const BLEND_FRAGMENT = `#version 300 es
-precision highp float;
-uniform highp sampler2D u_di;
-uniform highp sampler2D u_warped;
-uniform float u_tau;
-out vec4 o;
-${TONEMAP_GLSL}
-void main() {
-  ivec2 p = ivec2(gl_FragCoord.xy);
-  vec3 di = texelFetch(u_di, p, 0).rgb;
-  vec3 gi = texelFetch(u_warped, p, 0).rgb;
-  o = vec4(tonemap(u_tau * di + (1.0 - u_tau) * gi), 1.0);
-}`;
-
 const CHANNELS = { di: 3, albedo: 3, normal: 3, depth: 1, mask: 1 };
 
 // The encoding of each input buffer (gigan_local.preprocess), as a vec3 expression at pixel p.
@@ -182,7 +168,7 @@ export class GiganSystem {
     if (n !== scene.n) throw new Error(`the model runs at ${n}² but the scene renders ${scene.n}²`);
     this.warpProg = program(gl, FULLSCREEN_VERTEX, WARP_FRAGMENT);
     this.coarseProg = program(gl, FULLSCREEN_VERTEX, COARSE_FRAGMENT);
-    this.blendProg = program(gl, FULLSCREEN_VERTEX, BLEND_FRAGMENT);
+    this.blender = new Blend(gl);
     this.giMap = target(gl, n, n, [gl.RGBA32F], { depth: false });
     this.giTex = this.giMap.textures[0];
     this.output = texture(gl, n, 3 * n, gl.R32F); // the generator's output planes, stacked
@@ -319,12 +305,6 @@ export class GiganSystem {
   }
 
   blend(diTarget, tau) {
-    const gl = this.gl;
-    bindTarget(gl, null);
-    gl.useProgram(this.blendProg.p);
-    bindTextures(gl, this.blendProg, { u_di: [4, diTarget.textures[0]], u_warped: [5, this.warped.textures[0]] });
-    setUniforms(gl, this.blendProg, { u_tau: tau });
-    fullscreen(gl);
-    sync(gl, null);
+    this.blender.draw(diTarget.textures[0], this.warped.textures[0], tau);
   }
 }
