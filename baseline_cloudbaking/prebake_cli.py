@@ -63,6 +63,7 @@ from gicore.options import (
     SEED,
     SPP,
     build_config,
+    build_options,
     config_command,
     config_options,
     extra,
@@ -302,13 +303,9 @@ def prebake(
     workers: int | None,
 ) -> None:
     """Bake the maps of SCENE's fly-through, or of its whole configuration space, into --store (resumable)."""
-    given_tolerance = {
-        k: v for k, v in (("tolerance_p", tolerance_p), ("tolerance_deg", tolerance_deg)) if v is not None
-    }
-    tolerance = build_config(ToleranceOptions, given_tolerance).tolerance
+    tolerance = build_options(ToleranceOptions, tolerance_p=tolerance_p, tolerance_deg=tolerance_deg).tolerance
     cfg = build_config(PrebakeConfig, given, PrebakeConfig(tolerance=tolerance))
-    where = {"executor": executor, "ray_address": ray_address, "workers": workers}
-    run_on = build_config(ExecutorOptions, {k: v for k, v in where.items() if v is not None})
+    run_on = build_options(ExecutorOptions, executor=executor, ray_address=ray_address, workers=workers)
     name, spec = _scene(scene)
     if cfg.space == "all":
         space_of(spec, cfg)  # refused before the store or a Ray instance is touched

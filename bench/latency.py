@@ -229,9 +229,6 @@ def measure(cfg: LatencyConfig, res: Results) -> None:
                  "--gt-every", str(cfg.gt_every), "--composition", cfg.composition,
                  "--seed", str(res.seed), "--gt-cache", str(work / "gt_cache")]  # fmt: skip
     shutil.rmtree(work / "gt_cache", ignore_errors=True)  # rendered again by each bench run's code
-    first_pass = {"resolution": cfg.resolution, "codec": cfg.codec, "spp": cfg.spp, "frames": cfg.frames,
-                  "orbit_frames": cfg.orbit_frames, "seed": res.seed, "read_timeout_s": cfg.read_timeout_s,
-                  "residual": cfg.composition == "residual"}  # fmt: skip
 
     def client(argv: list[str], name: str, renderer: str) -> Path:
         folder = run_client(plan, [*argv, "--renderer", renderer], work / f"{name}_{renderer}", per_run)
@@ -245,9 +242,10 @@ def measure(cfg: LatencyConfig, res: Results) -> None:
     cloud_argv = [str(BIN / "cloudbaking-client"), *path_args, "--codec", cfg.codec,
                   "--read-timeout", str(cfg.read_timeout_s), "--deadline", str(2 * cfg.read_timeout_s)]  # fmt: skip
     shutil.rmtree(work / "store_prebaked", ignore_errors=True)  # every run prebakes its own store
+    residual = cfg.composition == "residual"  # the first pass asks for the maps the runs will ask for
     with pinned_server(plan, work / "store_prebaked", scenes_dir) as warm:
         t0 = time.perf_counter()
-        first = ask_path(warm, scene, **first_pass)
+        first = ask_path(warm, scene, cfg, res.seed, residual=residual)
         res.add(
             system=CLOUD,
             scene=spec.name,
@@ -285,7 +283,7 @@ def measure(cfg: LatencyConfig, res: Results) -> None:
                 store = work / f"store_cold_{profile}_{renderer}"
                 shutil.rmtree(store, ignore_errors=True)
                 with pinned_server(plan, store, scenes_dir) as cold:
-                    ask_path(cold, scene, **first_pass, off_path=True)  # compiles the scene and every pass
+                    ask_path(cold, scene, cfg, res.seed, residual=residual, off_path=True)  # compiles every pass
                     with pinned_proxy(plan, profile, cold, res.seed) as url:
                         runs[CLOUD, profile, "cold", renderer] = client(
                             [*cloud_argv, "--server", url], f"cloud_{profile}_cold", renderer

@@ -128,12 +128,10 @@ def measure(cfg: PrefetchConfig, res: Results) -> None:
     spec, scenes_dir, work, plan = run_place(scene, res, "prefetch_runs", cfg.pin)
     common = {"resolution": cfg.resolution, "frames": cfg.frames, "orbit_frames": cfg.orbit_frames,
               "frame_rate": cfg.frame_rate, "spp": cfg.spp, "codec": cfg.codec}  # fmt: skip
-    first_pass = {"resolution": cfg.resolution, "codec": cfg.codec, "spp": cfg.spp, "frames": cfg.frames,
-                  "orbit_frames": cfg.orbit_frames, "seed": res.seed, "read_timeout_s": cfg.read_timeout_s}  # fmt: skip
     prebaked = work / "store_prebaked"
     shutil.rmtree(prebaked, ignore_errors=True)
     with pinned_server(plan, prebaked, scenes_dir) as url:
-        misses = ask_path(url, scene, **first_pass)["misses"]
+        misses = ask_path(url, scene, cfg, res.seed)["misses"]
     res.add(system=SYSTEM, scene=spec.name, metric="prebake_maps", value=misses, unit="count", **common)
     argv = [str(BIN / "cloudbaking-client"), "--scene", scene, "--frames", str(cfg.frames),
             "--resolution", str(cfg.resolution), "--orbit-frames", str(cfg.orbit_frames), "--spp", str(cfg.spp),
@@ -149,7 +147,7 @@ def measure(cfg: PrefetchConfig, res: Results) -> None:
             shutil.rmtree(store, ignore_errors=True)
             shutil.copytree(prebaked, store)
             with pinned_server(plan, store, scenes_dir) as url:
-                ask_path(url, scene, **first_pass, off_path=True)  # compiles the scene and every pass
+                ask_path(url, scene, cfg, res.seed, off_path=True)  # compiles the scene and every pass
                 with pinned_proxy(plan, profile, url, res.seed) as proxied:
                     folder = run_client(plan, [*argv, *VARIANTS[variant], "--in-flight", str(in_flight[variant]),
                                             "--server", proxied], work / f"{profile}_{variant}", timeout)  # fmt: skip

@@ -13,7 +13,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple, Protocol
 
 import numpy as np
 
@@ -129,19 +129,19 @@ def run_client(plan: dict[str, Any], argv: list[str], out: Path, timeout_s: floa
     return out
 
 
+class PathRun(Protocol):
+    """What :func:`ask_path` reads of a bench's config (``LatencyConfig``, ``PrefetchConfig``)."""
+
+    resolution: int
+    codec: str
+    spp: int
+    frames: int
+    orbit_frames: int
+    read_timeout_s: float
+
+
 def ask_path(
-    url: str,
-    scene: str,
-    *,
-    resolution: int,
-    codec: str,
-    spp: int,
-    frames: int,
-    orbit_frames: int,
-    seed: int,
-    read_timeout_s: float,
-    residual: bool = False,
-    off_path: bool = False,
+    url: str, scene: str, cfg: PathRun, seed: int, *, residual: bool = False, off_path: bool = False
 ) -> dict[str, int]:
     """Ask ``url`` directly for the GI camera of every frame of the path, one request at a time (``off_path``:
     for one camera one unit above the first, which no path frame is within tolerance of: it compiles the
@@ -151,16 +151,18 @@ def ask_path(
     from gicore.scene import load_scene
 
     spec = load_scene(scene)
-    remote = RemoteConfig(url, Path(scene).stem, resolution, codec, spp, residual, spec.light.moves,
-                          read_timeout_s=read_timeout_s, deadline_s=2 * read_timeout_s, retry_after_s=0.0)  # fmt: skip
-    views = path_views(spec, 1 if off_path else frames, orbit_frames, seed, spec.camera.local_fov, resolution)
+    timeout = cfg.read_timeout_s
+    remote = RemoteConfig(url, Path(scene).stem, cfg.resolution, cfg.codec, cfg.spp, residual, spec.light.moves,
+                          read_timeout_s=timeout, deadline_s=2 * timeout, retry_after_s=0.0)  # fmt: skip
+    frames = 1 if off_path else cfg.frames
+    views = path_views(spec, frames, cfg.orbit_frames, seed, spec.camera.local_fov, cfg.resolution)
     with RemoteSource(remote) as source:
         for frame, (camera, light) in enumerate(views):
             gi_camera = camera.with_fov(spec.camera.gi_fov)
             if off_path:
                 gi_camera = replace(gi_camera, origin=tuple(np.add(camera.origin, (0.0, 1.0, 0.0))))
             source.request(gi_camera, light, frame)
-            source.wait(2 * read_timeout_s + 10)
+            source.wait(2 * timeout + 10)
     failed = [r for r in source.records if r["status"] != "ok"]
     if failed:
         raise RuntimeError(f"the server at {url} failed a request: {failed[0]['status']}: {failed[0]['error']}")

@@ -53,6 +53,7 @@ from gicore.options import (
     SEED,
     SPP,
     build_config,
+    build_options,
     check_fields,
     config_command,
     config_options,
@@ -267,8 +268,7 @@ def dataset_command(
 ) -> None:
     """Render datasets for the given scenes."""
     cfg = build_config(DatasetConfig, given)
-    where = {"executor": executor, "ray_address": ray_address, "workers": workers}
-    run_on = build_config(ExecutorOptions, {k: v for k, v in where.items() if v is not None})
+    run_on = build_options(ExecutorOptions, executor=executor, ray_address=ray_address, workers=workers)
     specs = [load_scene(name) for name in scenes]  # every spec (and mesh) is checked before any rendering
     with run_on.open() as pool:
         for spec in specs:

@@ -361,6 +361,12 @@ def build_config(cls: type, given: Mapping[str, Any], base: Any = None) -> Any:
     return cfg
 
 
+def build_options(cls: type, **received: Any) -> Any:
+    """:func:`build_config` of the options a command received as parameters of its own (those
+    :func:`config_options` adds; ``None``: not given)."""
+    return build_config(cls, {k: v for k, v in received.items() if v is not None})
+
+
 #: The running command's path (``gigan-client``), for messages; set by the commands :func:`config_command` makes.
 _COMMAND: contextvars.ContextVar[str] = contextvars.ContextVar("command", default="the command")
 
