@@ -100,7 +100,7 @@ def test_the_pages_webgl2_passes_match_glrenderers(run) -> None:
     """The shaders ported to WebGL2 (SwiftShader) against the GLSL they come from (Mesa through moderngl)."""
     port = run["port"]
     if not port:
-        pytest.skip("no OpenGL context for GLRenderer here")
+        pytest.skip("no OpenGL context for GLRenderer here (make setup installs Mesa's EGL when run as root)")
     assert port["coverage_mismatch"] <= 1e-3  # a few silhouette pixels rasterise differently
     for buffer in ("di", "albedo", "normal", "depth"):
         assert port[f"{buffer}_rel_diff"] <= 1e-2, (buffer, port)
