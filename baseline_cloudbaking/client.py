@@ -757,7 +757,7 @@ def run_client(
     next_start: list[float] = []
 
     with RemoteSource(remote, policy) as source:
-        warp = PixelWarp(raster, LAYERS[cfg.composition])
+        warp = PixelWarp(LAYERS[cfg.composition])
         loop = ClientLoop(loop_cfg, raster, source, warp)
 
         def keep(frame: int, result) -> None:
@@ -837,7 +837,7 @@ def perceived_latency(
 def join_requests(
     records: list[dict[str, Any]], rows: list[dict[str, Any]], warp_stages: tuple[str, ...]
 ) -> list[dict[str, Any]]:
-    """Per-request rows: each record with what the frame that bound its map spent on its local DI render, bind,
+    """Per-request rows: each record with what the frame that bound its map spent on its local render, bind,
     warp and blend, and ``total_ms``: every stage from the request to that frame's composition, summed (the
     frame's DI included: the map is not seen before it; the wait for the next frame, ``pickup_ms``, is not a
     stage and is not in it)."""

@@ -1,5 +1,5 @@
 """Pixel-level 3D image warping: cloud baking's way to re-use a GI map at another viewpoint (paper V,
-Fig. 5(a)). Numpy only, apart from the client's surface-mask pass.
+Fig. 5(a)). Numpy only.
 
 1. **unproject** (once per GI map, :class:`PointCloud`): every GI-map pixel with a depth becomes a 3D
    point, its centre ray at its linear view depth, kept in homogeneous world coordinates.
@@ -17,15 +17,13 @@ Fig. 5(a)). Numpy only, apart from the client's surface-mask pass.
    (where the target view sees a surface) only there, and the background stays 0.
 
 :class:`PixelWarp` is the :class:`gicore.loop.Warp` of the cloud-baking client: it binds a GI map's
-point cloud and, per frame, renders the surface mask of the target view (``raster``: a GL renderer's depth
-pass, :meth:`gicore.gl.GLRenderer.render_depth`, or Mitsuba's centre-sampled
-:meth:`gicore.render.Renderer.render_uv`) before splatting.
+point cloud and, per frame, splats it into the surface mask of the target view (its ``raster`` pass,
+rendered with the frame's DI by ``render_di_raster``: on a GL renderer the DI target's alpha, in the same
+pass; Mitsuba's centre-sampled :meth:`gicore.render.Renderer.render_uv`).
 With identical cameras every point lands on its own pixel with footprint 1: the identity.
 """
 
 from __future__ import annotations
-
-from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -33,9 +31,6 @@ from gicore.camera import Camera
 from gicore.fill import push_pull
 from gicore.loop import LAYERS, GIMap, Timings
 from gicore.timing import Stopwatch
-
-if TYPE_CHECKING:
-    from gicore.render import Renderer
 
 #: Footprint bound that only keeps integer coordinates finite: squares are clipped to the frame before
 #: any pixel is visited, so even a texel magnified past the whole frame costs only the frame's pixels.
@@ -144,24 +139,18 @@ def _zbuffer(
 
 class PixelWarp:
     """Pixel-level warping as the cloud-baking client's :class:`gicore.loop.Warp`: :meth:`bind` unprojects a
-    GI map's ``layer`` into a :class:`PointCloud`; :meth:`warp` renders the target view's surface mask on
-    ``renderer`` (``raster``), splats and fills the holes on surfaces (push-pull). The current DI is not used."""
+    GI map's ``layer`` into a :class:`PointCloud`; :meth:`warp` splats it into the target view's surface mask
+    (its ``raster`` pass) and fills the holes on surfaces (push-pull). The current DI is not used."""
 
     name = "pixel"
-    stages = ("bind", "raster", "project", "splat", "fill")
+    raster = "mask"
+    stages = ("bind", "project", "splat", "fill")
 
-    def __init__(self, renderer: Renderer, layer: str = "radiance"):
+    def __init__(self, layer: str = "radiance"):
         if layer not in LAYERS.values():
             raise ValueError(f"layer must be one of {tuple(LAYERS.values())}, got {layer!r}")
-        self.renderer = renderer
         self.layer = layer
         self.cloud: PointCloud | None = None
-
-    def _surface(self, camera: Camera) -> np.ndarray:
-        """The target view's surface mask: a GL renderer's depth pass (:meth:`gicore.gl.GLRenderer.render_depth`),
-        else Mitsuba's centre-sampled uv pass."""
-        depth_pass = getattr(self.renderer, "render_depth", None)
-        return (depth_pass or self.renderer.render_uv)(camera)["mask"]
 
     def bind(self, gi: GIMap) -> Timings:
         sw = Stopwatch()
@@ -169,11 +158,11 @@ class PixelWarp:
         sw.lap("bind")
         return sw.ms
 
-    def warp(self, camera: Camera, di: np.ndarray) -> tuple[np.ndarray, np.ndarray, Timings]:
+    def warp(
+        self, camera: Camera, di: np.ndarray, passes: dict[str, np.ndarray]
+    ) -> tuple[np.ndarray, np.ndarray, Timings]:
         if self.cloud is None:
             raise RuntimeError("no GI map is bound; call bind() first")
-        sw = Stopwatch()
-        mask = self._surface(camera)
-        sw.lap("raster")
+        mask = passes["mask"]
         out, valid, timings = self.cloud.splat(camera, target_mask=mask)
-        return out, valid | ~mask, sw.ms | timings
+        return out, valid | ~mask, timings

@@ -110,7 +110,7 @@ def measure(cfg: FovConfig, res: Results) -> None:
 
 
 def _measure_scene(cfg: FovConfig, res: Results, scene: str) -> None:
-    from gicore.loop import render_gt
+    from gicore.loop import render_gt, warp_view
     from gicore.metrics import ssim
     from gicore.paths import camera_path, frame_seed, light_position
     from gicore.render import Renderer
@@ -141,13 +141,13 @@ def _measure_scene(cfg: FovConfig, res: Results, scene: str) -> None:
     for b in cfg.base_frames:
         base = cams[b % cfg.orbit_frames]
         light = light_position(spec, b)
-        moves = {}  # every moved camera with its DI and tone-mapped GT, shared by all F_GI
+        moves = {}  # every moved camera with its tone-mapped GT, shared by all F_GI
         for kind, amount, _ in motions:
             cam = turned(base, amount) if kind == "rotation" else moved(base, amount)
             gt = tonemap(
                 render_gt(renderer, cam, light, cfg.spp, frame_seed(seed, f"gt/{kind}/{amount}", b), cfg.denoise)
             )
-            moves[kind, amount] = (cam, renderer.render_di(cam, light, seed=b), gt)
+            moves[kind, amount] = (cam, gt)
         for gi_fov in cfg.gi_fovs:
             gi = source.produce(base.with_fov(gi_fov), light, b)
             reference = render_gt(renderer, gi.camera, light, cfg.spp, frame_seed(seed, "gt/gi", b), cfg.denoise)
@@ -155,15 +155,16 @@ def _measure_scene(cfg: FovConfig, res: Results, scene: str) -> None:
             for method, warp in warps.items():
                 warp.bind(gi)
                 for kind, amount, _ in motions:
-                    cam, di, ref = moves[kind, amount]
-                    image, valid, _ = warp.warp(cam, di)
+                    cam, ref = moves[kind, amount]
+                    _, image, valid = warp_view(warp, renderer, cam, light, seed=b)
                     quality[method, gi_fov, kind, amount].append(ssim(tonemap(image), ref))
                     quality["valid", method, gi_fov, kind, amount].append(float(valid.mean()))
             if gi_fov == cfg.local_fov:
                 paste.bind(gi)
                 for kind, amount, _ in motions:
-                    cam, di, ref = moves[kind, amount]
-                    quality["none", gi_fov, kind, amount].append(ssim(tonemap(paste.warp(cam, di)[0]), ref))
+                    cam, ref = moves[kind, amount]
+                    image = warp_view(paste, renderer, cam, light, seed=b)[1]
+                    quality["none", gi_fov, kind, amount].append(ssim(tonemap(image), ref))
 
     common = {
         "resolution": cfg.resolution,

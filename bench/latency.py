@@ -35,18 +35,21 @@ speculation does not shorten a request, it asks earlier.
 
 **Stages** (``metric``; median and p95 over the maps, ms). A map's interaction latency (``total``) is the
 sum of every stage from the request to the composition of the first frame showing it, that frame's local
-DI render (``di``) included: both systems run it, and it is no longer free to leave out once the other
-passes are rasterised. Every stage counts toward the system that needs it:
+render (``di``) included: both systems run it, and it is no longer free to leave out once the other
+passes are rasterised. The local render is the frame's DI together with the pass its warp reads (the
+structure-aware warp's uv + position, the pixel-level warp's surface mask), as a real-time client draws them:
+one geometry pass into several render targets with gl, two passes with mitsuba. Every stage counts toward the
+system that needs it:
 
 - GIGAN: ``di``, ``gi_render`` (DI + G-buffers + texel depth at the GI camera: the generator's input),
   ``inference`` (``GIModel.predict``, with its pre- and post-processing), ``warp`` (the structure-aware
-  warp's per-map ``bind`` plus its per-frame stages on the frame that binds the map, the local
-  uv/position ``raster`` included), ``blend`` (composition);
+  warp's per-map ``bind`` plus its per-frame lookup on the frame that binds the map), ``blend``
+  (composition);
 - cloud baking (the split is :mod:`baseline_cloudbaking.client`'s): ``transmission`` = ``request`` (time to
   the response's first byte minus the server's time: upload, round trip, HTTP and proxy overhead) +
   ``transfer`` (first to last response byte); the server's ``lookup``, ``read`` (hit) or ``render``,
   ``denoise``, ``encode`` (miss) and ``server_other``; ``decode``; ``di``; ``warp`` (pixel-level: ``bind``
-  plus per-frame stages, its surface-mask ``raster`` included); ``blend``. ``pickup`` (arrival to the next
+  plus per-frame splat and hole filling); ``blend``. ``pickup`` (arrival to the next
   frame taking the map) is reported, not counted: it is a wait for the frame clock.
 
 Stage medians do not add up to the median total (each is a median of its own samples).
@@ -649,14 +652,19 @@ TABLE_ROWS = (
     ("gi_render", "GI-camera render (DI + G-buffers)"),
     ("inference", "inference"),
     ("decode", "decode"),
-    ("di", "local DI render (the frame showing the map)"),
-    ("warp", "warp (per-map bind + per-frame, raster included)"),
+    ("di", "local render: DI + the warp's pass (the frame showing the map)"),
+    ("warp", "warp (per-map bind + per-frame lookup)"),
     ("blend", "blend"),
     ("total", "**total (interaction latency)**"),
 )
 COLUMNS = ((GIGAN, None, "GIGAN"), (CLOUD, "hit", "cloud baking, hit"), (CLOUD, "miss", "cloud baking, miss"))
 #: The stages the renderers' comparison shows: those a raster pass is in, and the totals.
-RENDERER_ROWS = (("di", "local DI render"), ("gi_render", "GI-camera render"), ("warp", "warp"), ("total", "total"))
+RENDERER_ROWS = (
+    ("di", "local render (DI + warp pass)"),
+    ("gi_render", "GI-camera render"),
+    ("warp", "warp"),
+    ("total", "total"),
+)
 
 
 def with_renderer(rows: list[dict]) -> list[dict]:

@@ -462,10 +462,10 @@ def inference_cases(s: Scene, model_path: Path) -> list[Case]:
 def warp_cases(s: Scene) -> list[Case]:
     from baseline_cloudbaking.warp import PixelWarp
     from gicore.blend import blend
-    from gicore.loop import GIMap
+    from gicore.loop import GIMap, warp_view
     from gigan_local.warp import StructureAwareWarp
 
-    warps = {"structure-aware": StructureAwareWarp, "pixel-level": PixelWarp}
+    warps = {"structure-aware": lambda: StructureAwareWarp(s.renderer), "pixel-level": PixelWarp}
     maps: dict[Any, Any] = {}
 
     def gi_map(camera=None):
@@ -475,10 +475,9 @@ def warp_cases(s: Scene) -> list[Case]:
         return maps[key]
 
     def warped(kind: str, gi, camera) -> tuple[np.ndarray, np.ndarray]:
-        w = warps[kind](s.renderer)
+        w = warps[kind]()
         w.bind(gi)
-        di = s.renderer.render_di(camera, s.light, seed=s.seed)
-        image, valid, _ = w.warp(camera, di)
+        di, image, valid = warp_view(w, s.renderer, camera, s.light, seed=s.seed)
         return blend(di, image, 0.0), valid
 
     def identity(kind: str) -> Outcome:

@@ -13,9 +13,10 @@ What is timed, per local frame, after a warm-up, ``repeats`` times each, alterna
 - ``pixel-level``: reprojection of the GI map's point cloud, z-buffered splat and push-pull hole
   filling (:mod:`baseline_cloudbaking.warp`).
 
-Not in those times, and reported on their own: each method's local raster pass (``raster_time``: the uv +
-position pass structure-aware reads; the surface-mask pass pixel-level reads, a depth pass on GL and the
-centre-sampled uv pass on Mitsuba, as :class:`baseline_cloudbaking.warp.PixelWarp` renders it) and the
+Not in those times, and reported on their own: what each method's local raster pass adds to the frame's DI
+render (``raster_time``), as the clients render the two (``render_di_raster``: on GL one geometry pass, with
+the uv + position targets structure-aware reads or the surface mask pixel-level reads from the DI target's
+alpha; on Mitsuba a second, centre-sampled pass), per frame the time of DI + pass minus DI alone; and the
 once-per-GI-map work (``bind``: structure-aware's texture and per-vertex coordinates, pixel-level's
 unprojection into a point cloud).
 
@@ -71,7 +72,7 @@ def make_warp(method: str, renderer, composition: str = "blend") -> Warp:
     if method == "pixel":
         from baseline_cloudbaking.warp import PixelWarp
 
-        return PixelWarp(renderer, LAYERS[composition])
+        return PixelWarp(LAYERS[composition])
     from gigan_local.client import make_warp as gigan_warp
 
     return gigan_warp(method, renderer, composition)
@@ -151,12 +152,6 @@ def open_local_raster(cfg: WarpBenchConfig, spec: SceneSpec, renderer: Renderer)
     return open_raster(cfg.renderer, renderer, gl, RasterUnavailable)
 
 
-def surface_mask(raster: Any, camera: Camera) -> np.ndarray:
-    """The pixel-level warp's surface-mask pass, as :class:`baseline_cloudbaking.warp.PixelWarp` renders it."""
-    depth_pass = getattr(raster, "render_depth", None)
-    return (depth_pass or raster.render_uv)(camera)["mask"]
-
-
 def measure(cfg: WarpBenchConfig, res: Results) -> None:
     from baseline_cloudbaking.warp import PointCloud
     from gicore.loop import render_gt
@@ -182,8 +177,9 @@ def measure(cfg: WarpBenchConfig, res: Results) -> None:
         quality: dict[str, list[float]] = defaultdict(list)
         uv_err: dict[str, list[np.ndarray]] = defaultdict(list)
         n_vertices = sum(len(o.mesh.vertices) for o in raster.objects)
-        raster.render_uv(cams[0])  # untimed: a pass's first call compiles its program
-        surface_mask(raster, cams[0])
+        passes = {"structure": "uv", "pixel": "mask", "di": None}  # each method's raster pass; DI alone
+        for pass_name in passes.values():  # untimed: a pass's first call compiles its program
+            raster.render_di_raster(cams[0], light_position(spec, 0), pass_name)
         for g in cfg.gi_frames:
             light = light_position(spec, g)
             gi = source.produce(cams[g % cfg.orbit_frames].with_fov(cfg.gi_fov), light, g)
@@ -196,13 +192,15 @@ def measure(cfg: WarpBenchConfig, res: Results) -> None:
             for offset in cfg.offsets:
                 frame = g + offset
                 cam = cams[frame % cfg.orbit_frames]
-                di = raster.render_di(cam, light, seed=frame)
-                t0 = time.perf_counter()
-                uv_pass = raster.render_uv(cam)
-                t1 = time.perf_counter()
-                mask = surface_mask(raster, cam)
-                samples["raster/structure"].append(t1 - t0)
-                samples["raster/pixel"].append(time.perf_counter() - t1)
+                rendered, took = {}, {}
+                for m, pass_name in passes.items():
+                    t0 = time.perf_counter()
+                    rendered[m] = raster.render_di_raster(cam, light, pass_name, seed=frame)
+                    took[m] = time.perf_counter() - t0
+                for m in SYSTEMS:
+                    samples[f"raster/{m}"].append(took[m] - took["di"])
+                di, uv_pass = rendered["structure"]
+                mask = rendered["pixel"][1]["mask"]
                 if used == "gl":
                     levels.append(raster.last_level)
 

@@ -42,3 +42,16 @@ def check_buffer_names(names: list[str] | tuple[str, ...]) -> tuple[str, ...]:
     if len(set(names)) != len(names):
         raise UserError(f"buffer list {list(names)} names a buffer twice", "name each buffer once")
     return tuple(names)
+
+
+#: The per-frame passes a warp reads at the shown view, rendered with that frame's DI
+#: (``render_di_raster`` of both renderers): ``uv``, the structure-aware warp's bound coordinates
+#: interpolated over each triangle (with ``position``, ``mask`` and ``textured``); ``mask``, the pixel-level
+#: warp's surface mask. ``None``: a warp that reads no pass.
+RASTERS: tuple[str, ...] = ("uv", "mask")
+
+
+def check_raster(raster: str | None) -> None:
+    """ValueError unless ``raster`` is one of :data:`RASTERS` or None."""
+    if raster is not None and raster not in RASTERS:
+        raise ValueError(f"raster must be one of {RASTERS} or None, got {raster!r}")

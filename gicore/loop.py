@@ -164,20 +164,35 @@ class GISource(Protocol):
 class Warp(Protocol):
     """Brings a bound GI map to other views.
 
-    ``bind(gi)``: the per-map work (returns its timings, stage ``bind``); ``warp(camera, di)``: the map's
-    ``layer`` at ``camera``, complete (fallback or hole filling applied), as (HxWxC image, HxW valid mask,
-    stage timings); ``valid`` is False where the GI came from the fallback or hole filling, True where it
-    came from the map and on background (nothing to warp). ``di`` is the current frame's DI at ``camera``
-    (a fallback may use it). ``stages``: every stage name ``bind`` and ``warp`` report.
+    ``bind(gi)``: the per-map work (returns its timings, stage ``bind``); ``warp(camera, di, passes)``: the
+    map's ``layer`` at ``camera``, complete (fallback or hole filling applied), as (HxWxC image, HxW valid
+    mask, stage timings); ``valid`` is False where the GI came from the fallback or hole filling, True where
+    it came from the map and on background (nothing to warp). ``di`` is the current frame's DI at ``camera``
+    (a fallback may use it) and ``passes`` the warp's ``raster`` pass (:data:`gicore.buffers.RASTERS`, None:
+    it reads none) rendered with it after ``bind`` (``render_di_raster``: one geometry pass on a GL
+    renderer). ``stages``: every stage name ``bind`` and ``warp`` report.
     """
 
     name: str
     layer: str
+    raster: str | None
     stages: tuple[str, ...]
 
     def bind(self, gi: GIMap) -> Timings: ...
 
-    def warp(self, camera: Camera, di: np.ndarray) -> tuple[np.ndarray, np.ndarray, Timings]: ...
+    def warp(
+        self, camera: Camera, di: np.ndarray, passes: dict[str, np.ndarray]
+    ) -> tuple[np.ndarray, np.ndarray, Timings]: ...
+
+
+def warp_view(
+    warp: Warp, renderer: Renderer, camera: Camera, light: Light, seed: int = 0
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The bound map brought to ``camera`` as a client frame does it: (DI, warped layer, valid mask), the DI and
+    the warp's raster pass rendered together on ``renderer``."""
+    di, passes = renderer.render_di_raster(camera, light, warp.raster, seed=seed)
+    image, valid, _ = warp.warp(camera, di, passes)
+    return di, image, valid
 
 
 class SynchronousSource:
@@ -212,6 +227,7 @@ class PasteWarp:
     (the paper's baseline without warping)."""
 
     name = "none"
+    raster = None
     stages = ("bind",)
 
     def __init__(self, layer: str = "radiance") -> None:
@@ -224,7 +240,9 @@ class PasteWarp:
         sw.lap("bind")
         return sw.ms
 
-    def warp(self, camera: Camera, di: np.ndarray) -> tuple[np.ndarray, np.ndarray, Timings]:
+    def warp(
+        self, camera: Camera, di: np.ndarray, passes: dict[str, np.ndarray]
+    ) -> tuple[np.ndarray, np.ndarray, Timings]:
         if self._image is None:
             raise RuntimeError("no GI map is bound; call bind() first")
         if self._image.shape[:2] != (camera.height, camera.width):
@@ -427,9 +445,8 @@ class ClientLoop:
     def warm_up(self, camera: Camera, light: Light) -> None:
         """Run every pass once, untimed (Mitsuba JIT-compiles each pass on first use), and forget the map."""
         self.source.warm_up(self.gi_camera(camera), light)
-        di = self.renderer.render_di(camera, light)
-        self.warp.bind(GIMap.blank(self.gi_camera(camera), di.shape[2]))
-        self.warp.warp(camera, di)
+        self.warp.bind(GIMap.blank(self.gi_camera(camera)))
+        self.warp.warp(camera, *self.renderer.render_di_raster(camera, light, self.warp.raster))
         self.bound = None
 
     def _wants_map(self, frame: int, camera: Camera) -> bool:
@@ -454,11 +471,12 @@ class ClientLoop:
         return gi
 
     def step(self, frame: int, camera: Camera, light: Light) -> FrameResult:
-        """Render, (maybe) ask for and bind a new GI map, warp, compose one frame at the local ``camera``."""
+        """(Maybe) ask for and bind a new GI map, render, warp, compose one frame at the local ``camera``.
+
+        The frame's DI and its warp's raster pass are one render (stage ``di``) after binding, since the
+        structure-aware warp's pass interpolates the bound map's coordinates."""
         cfg = self.cfg
         sw = Stopwatch()
-        di = self.renderer.render_di(camera, light, seed=frame_seed(cfg.seed, "di", frame))
-        sw.lap("di")
         requested = self._wants_map(frame, camera) and self.source.request(self.gi_camera(camera), light, frame)
         gi = self._newest()
         sw.lap("gi_wait")
@@ -472,12 +490,14 @@ class ClientLoop:
             row["gi_ms"] = sum(gi.stages.values())
             row |= {f"{s}_ms": ms for s, ms in gi.stages.items()}
             self.bound = gi
+        sw.restart()
+        raster = None if self.bound is None else self.warp.raster
+        di, passes = self.renderer.render_di_raster(camera, light, raster, seed=frame_seed(cfg.seed, "di", frame))
+        sw.lap("di")
         if self.bound is None:  # no map has arrived: the frame is its DI alone
             image, valid = di, np.zeros(di.shape[:2], dtype=bool)
-            sw.restart()
         else:
-            sw.restart()
-            warped, valid, timings = self.warp.warp(camera, di)
+            warped, valid, timings = self.warp.warp(camera, di, passes)
             sw.ms |= timings
             sw.restart()
             if cfg.composition == "blend":

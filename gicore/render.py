@@ -19,7 +19,7 @@ import warnings
 
 import numpy as np
 
-from gicore.buffers import DATASET_BUFFERS, GBUFFERS, check_buffer_names
+from gicore.buffers import DATASET_BUFFERS, GBUFFERS, check_buffer_names, check_raster
 from gicore.camera import Camera
 from gicore.cli import RESOLUTION_MAX, RESOLUTION_MIN
 from gicore.geometry import SceneObject, scene_objects
@@ -228,6 +228,19 @@ class Renderer:
         self._set_camera(camera)
         self._set_light(light)
         return self._render("di", spp, seed)
+
+    def render_di_raster(
+        self, camera: Camera, light=None, raster: str | None = None, seed: int = 0
+    ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        """A shown frame's DI (1 spp) and the warp's ``raster`` pass (:data:`gicore.buffers.RASTERS`) at
+        ``camera``: :meth:`render_uv`'s outputs for ``"uv"``, its ``mask`` alone for ``"mask"``, nothing for
+        None. Two passes here (a ray tracer has no render targets to share); one on the GL renderer."""
+        check_raster(raster)
+        di = self.render_di(camera, light, seed=seed)
+        if raster is None:
+            return di, {}
+        passes = self.render_uv(camera)
+        return di, passes if raster == "uv" else {"mask": passes["mask"]}
 
     def render_indirect(self, camera: Camera, light=None, spp: int = 64, seed: int = 0) -> np.ndarray:
         """Indirect-only light: GT minus DI with the same seed and spp, so the shared first bounce

@@ -9,7 +9,8 @@ map becomes a projective texture on the scene's own triangles:
    ``(clip.x, clip.y)`` is uploaded as the vertex texture coordinates (no BVH rebuild).
 2. **raster** (per frame): the local render interpolates them across each triangle with the hit's
    barycentrics (:meth:`gicore.render.Renderer.render_uv`, or :class:`gicore.gl.GLRenderer`'s, whose vertex
-   shader computes step 1 itself), in the same pass as the world position.
+   shader computes step 1 itself), in the same pass as the world position; a client renders it with the
+   frame's DI (``render_di_raster``: one geometry pass on the GL renderer), so it is counted with the DI.
 3. **project** (per pixel): ``uv = clip.xy / (2 w) + 0.5`` as in eq. 5, with ``w`` (the GI camera's view
    depth of the pixel's point) computed exactly from the position.
 4. **depth test + lookup**: bilinear lookup in the GI map whose four taps each pass a depth test;
@@ -173,7 +174,8 @@ class StructureAwareWarp:
     """
 
     name = "structure"
-    stages = ("bind", "raster", "project", "depth_test", "lookup", "fill")
+    raster = "uv"
+    stages = ("bind", "project", "depth_test", "lookup", "fill")
 
     def __init__(self, renderer: Renderer, layer: str = "radiance", depth_rel_tol: float = DEPTH_REL_TOL):
         if layer not in LAYERS.values():
@@ -207,24 +209,18 @@ class StructureAwareWarp:
         self.texture = texture
         self._w_row = texture.camera.view_proj()[3].astype(np.float32)  # clip w = this row . (p, 1)
 
-    def warp(self, camera: Camera, di: np.ndarray) -> tuple[np.ndarray, np.ndarray, Timings]:
-        """The bound layer at ``camera`` (see :class:`gicore.loop.Warp`): the :meth:`raster` pass, then
-        :meth:`resample`; background counts as valid."""
-        uv_pass, timings = self.raster(camera)
-        out, valid, t = self.resample(uv_pass, base=di if self.layer == "radiance" else None)
-        return out, valid | ~uv_pass["mask"], timings | t
-
-    def raster(self, camera: Camera) -> tuple[dict[str, np.ndarray], Timings]:
-        """The local render pass that interpolates the bound coordinates (see ``Renderer.render_uv``)."""
-        sw = Stopwatch()
-        uv_pass = self.renderer.render_uv(camera)
-        sw.lap("raster")
-        return uv_pass, sw.ms
+    def warp(
+        self, camera: Camera, di: np.ndarray, passes: dict[str, np.ndarray]
+    ) -> tuple[np.ndarray, np.ndarray, Timings]:
+        """The bound layer at ``camera`` (see :class:`gicore.loop.Warp`) from its uv pass ``passes``
+        (:meth:`resample`); background counts as valid."""
+        out, valid, timings = self.resample(passes, base=di if self.layer == "radiance" else None)
+        return out, valid | ~passes["mask"], timings
 
     def texel_coords(self, uv_pass: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
         """Continuous GI-map pixel coordinates (col, row) (HxWx2, texel centres at +0.5) and GI-camera w
-        (HxW) of every pixel of a :meth:`raster` pass; both 0 where ``w <= near`` or no textured surface
-        was hit."""
+        (HxW) of every pixel of a uv pass (``render_uv`` after :meth:`bind`); both 0 where ``w <= near`` or
+        no textured surface was hit."""
         idx, x, y, w, front = self._project(uv_pass)
         h, wd = uv_pass["mask"].shape
         coords = np.zeros((h * wd, 2))
@@ -259,10 +255,9 @@ class StructureAwareWarp:
     ) -> tuple[np.ndarray, np.ndarray, Timings]:
         """The bound GI map seen from the camera of ``uv_pass``: (HxWxC image, HxW valid mask, timings).
 
-        ``uv_pass`` must be rendered after :meth:`bind` (e.g. by :meth:`raster`): it carries the bound
-        coordinates. Invalid surface pixels get the fallback (module docstring): ``base`` (the current DI,
-        when the map is a full GI map; omit it for an indirect-only map) plus the coarse indirect light.
-        Background is 0.
+        ``uv_pass`` (``render_uv``) must be rendered after :meth:`bind`: it carries the bound coordinates.
+        Invalid surface pixels get the fallback (module docstring): ``base`` (the current DI, when the map is
+        a full GI map; omit it for an indirect-only map) plus the coarse indirect light. Background is 0.
         """
         tex = self._bound()
         h, wd = uv_pass["mask"].shape

@@ -12,7 +12,10 @@ signatures and outputs, so a client can hold either (``renderer = "gl" | "mitsub
   :meth:`~GLRenderer.set_texcoords` (or projected in the vertex shader by
   :meth:`~GLRenderer.set_texcoord_projection`) interpolated over each triangle, with position and masks.
 - :meth:`~GLRenderer.render_depth`: the GI map's depth (linear view depth at texel centres) and the
-  surface mask the pixel-level warp needs.
+  surface mask.
+- :meth:`~GLRenderer.render_di_raster`: a shown frame's DI and the pass its warp reads (the structure-aware
+  warp's uv pass, or the pixel-level warp's surface mask) in one geometry pass, into several render targets,
+  as a real-time client draws them: on llvmpipe 16.8 ms for DI + uv against 14.8 + 7.8 ms in two passes.
 
 A rasteriser samples each pixel at its centre, so every pass equals Mitsuba's *centre-sampled* passes
 (``render_uv``, ``render_gbuffers(centre=True)``); Mitsuba's default G-buffer pass puts its one sample at
@@ -50,7 +53,7 @@ from typing import Any
 
 import numpy as np
 
-from gicore.buffers import DATASET_BUFFERS, GBUFFERS, check_buffer_names
+from gicore.buffers import DATASET_BUFFERS, GBUFFERS, check_buffer_names, check_raster
 from gicore.camera import NEAR_MIN, Camera
 from gicore.geometry import SceneObject, scene_objects
 from gicore.gl.brdf import ETA, TABLE_RES, roughplastic_tables
@@ -107,6 +110,7 @@ _PASSES = {
     "di_gbuffer": (("GBUFFER", "DI"), (0, 1, 2, 3, 4)),
     "uv": (("UV",), (0, 2, 3)),
     "depth": (("DEPTH",), (3,)),
+    "di_uv": (("UV", "DI"), (0, 2, 3, 4)),
 }
 #: Clip y negated: the image is rendered upside down, so that GL's bottom-up rows read back as an image's
 #: top-down rows, with no flip or copy (and window-space winding reversed: front faces are clockwise).
@@ -623,7 +627,10 @@ class GLRenderer:
         """The warp's pass at ``camera``, as ``gicore.render.Renderer.render_uv``: ``uv`` (HxWx2, the bound
         coordinates interpolated over each triangle; 0 off textured surfaces), ``position`` (HxWx3),
         ``mask`` and ``textured`` (HxW bool; the area light's quad is a surface but not textured)."""
-        fbo = self._draw("uv", camera)
+        return self._uv_pass(self._draw("uv", camera))
+
+    def _uv_pass(self, fbo: Any) -> dict[str, np.ndarray]:
+        """The uv pass's outputs from ``fbo``, whose attachments 0-2 hold them (``uv`` and ``di_uv``)."""
         code = self._read(fbo, 2, 1)[..., 0]
         return {
             "uv": self._read(fbo, 0, 2),
@@ -631,6 +638,22 @@ class GLRenderer:
             "mask": code > 0.5,
             "textured": code > 1.5,
         }
+
+    def render_di_raster(
+        self, camera: Camera, light=None, raster: str | None = None, seed: int = 0
+    ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        """A shown frame's DI (as :meth:`render_di`) and the warp's ``raster`` pass (:data:`gicore.loop.RASTERS`)
+        at ``camera``, in one geometry pass: ``"uv"`` (as :meth:`render_uv`) in three more render targets;
+        ``"mask"`` (the surface mask) from the DI target's alpha, which every surface writes as 1; ``None``
+        (DI alone) an empty dict."""
+        check_raster(raster)
+        self._set_light(light)
+        if raster == "uv":
+            fbo = self._draw("di_uv", camera)
+            return self._read(fbo, 3, 3), self._uv_pass(fbo)
+        rgba = self._read(self._draw("di", camera), 0, 4)
+        passes = {} if raster is None else {"mask": rgba[..., 3] > 0.0}
+        return np.ascontiguousarray(rgba[..., :3]), passes
 
     def render_depth(self, camera: Camera) -> dict[str, np.ndarray]:
         """Linear view depth at pixel centres (HxW, 0 on background; ``gicore.loop.texel_depth``) and the

@@ -21,16 +21,15 @@ from gicore.scene import load_scene
 from network_sim.process import Running, network_sim
 from tests.helpers.cloud import BIN, RES, SPP, passthrough_model, server_process, write_scenes
 
-#: Stages every frame that binds a cloud map reports: the local DI, the map's own stages (a miss), the
-#: pixel-level warp's (``raster`` is its surface-mask pass), the composition.
+#: Stages every frame that binds a cloud map reports: the local DI (with the surface mask the warp reads), the
+#: map's own stages (a miss), the pixel-level warp's, the composition.
 CLOUD_FRAME_STAGES = ("di", "request", "lookup", "render", "denoise", "encode", "server_other", "transfer", "decode")
-CLOUD_FRAME_STAGES += ("bind", "raster", "project", "splat", "fill", "compose")
+CLOUD_FRAME_STAGES += ("bind", "project", "splat", "fill", "compose")
 GIGAN_FRAME_STAGES = (
     "di",
     "gi_render",
     "inference",
     "bind",
-    "raster",
     "project",
     "depth_test",
     "lookup",
@@ -200,9 +199,7 @@ def test_a_dead_link_ends_in_a_timeout_never_a_hang(server: str, scenes_dir: Pat
         cfg = remote("http://{}:{}".format(*proxy.addr), read_timeout_s=0.5, deadline_s=2.0, retry_after_s=30.0)
         with caplog.at_level(logging.WARNING, logger="cloudbaking.client"), RemoteSource(cfg) as source:
             renderer = Renderer(spec, RES)
-            loop = ClientLoop(
-                LoopConfig(every=1, gi_fov=90.0, first_map_timeout_s=1.5), renderer, source, PixelWarp(renderer)
-            )
+            loop = ClientLoop(LoopConfig(every=1, gi_fov=90.0, first_map_timeout_s=1.5), renderer, source, PixelWarp())
             t0 = time.perf_counter()
             rows = [loop.step(f, cam.with_fov(60.0), light).row for f, (cam, light) in enumerate(path)]
             elapsed = time.perf_counter() - t0
@@ -241,7 +238,7 @@ def test_cloud_client_with_the_gl_renderer(scenes_dir: Path, tmp_path: Path) -> 
     frames = read_csv(tmp_path / "gl" / "frames.csv")
     assert len(frames) == 4 and frames[0]["gi_new"] == "1"
     assert all(float(frames[0][f"{s}_ms"]) > 0 for s in CLOUD_FRAME_STAGES), frames[0]
-    assert all(float(r["di_ms"]) > 0 and float(r["raster_ms"]) > 0 and float(r["valid_frac"]) > 0.5 for r in frames)
+    assert all(float(r["di_ms"]) > 0 and float(r["splat_ms"]) > 0 and float(r["valid_frac"]) > 0.5 for r in frames)
 
 
 def test_the_hold_asks_only_for_views_no_held_map_serves(server: str, scenes_dir: Path) -> None:

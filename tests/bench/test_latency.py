@@ -181,7 +181,7 @@ def test_totals_count_the_local_di_and_the_renderers_stand_side_by_side(tmp_path
 
     gl, mi = {"di": 2.0, "gi_render": 5.0}, {"di": 10.0, "gi_render": 15.0}
     samples = gigan_samples([{k: str(v) for k, v in r.items()} for r in _gigan_frames(**gl)])
-    per_frame = 0.25 * 5  # raster, project, depth_test, lookup, fill
+    per_frame = 0.25 * 4  # project, depth_test, lookup, fill
     assert samples["di"] == [2.0] and samples["total"] == [pytest.approx(2.0 + 5.0 + 20.0 + 1.0 + per_frame + 0.5)]
 
     runs = {}
@@ -222,9 +222,10 @@ def test_totals_count_the_local_di_and_the_renderers_stand_side_by_side(tmp_path
 
     text = table(rows)
     assert "| stage | GIGAN, gl | cloud baking, hit, gl | cloud baking, miss, gl | GIGAN, mitsuba |" in text
-    assert "| local DI render (the frame showing the map) | 2.0 (2.0) | 2.0 (2.0) | 2.0 (2.0) | 10.0 (10.0) |" in text
+    local = "| local render: DI + the warp's pass (the frame showing the map) |"
+    assert f"{local} 2.0 (2.0) | 2.0 (2.0) | 2.0 (2.0) | 10.0 (10.0) |" in text
     assert "### renderers side by side: median with gl / median with mitsuba (same run)" in text
-    assert f"| total | {gl_over_mi:.2f} |" in text and "| local DI render | 0.20 | 0.20 | 0.20 |" in text
+    assert f"| total | {gl_over_mi:.2f} |" in text and "| local render (DI + warp pass) | 0.20 | 0.20 | 0.20 |" in text
     assert "| gl | miss | 0 (GIGAN is faster at any RTT) |" in text
     [block] = readme_block(rows)
     assert f"| `rtt60` (60 ms) | gl | {gigan_total['gl']:.1f} |" in block.markdown

@@ -273,6 +273,40 @@ def test_uv_pass_matches_mitsuba(area_scene):
     np.testing.assert_array_equal(gl.render_uv(local)["uv"], ours["uv"])
 
 
+@pytest.mark.parametrize("scene", ["point_scene", "area_scene"])
+def test_di_and_the_warps_pass_in_one_pass_equal_the_separate_passes(scene, request):
+    """One geometry pass with several render targets gives what the DI pass and each warp's pass give."""
+    spec, gl, mi = request.getfixturevalue(scene)
+    gi_cam, local = view(fov=90.0), view(origin=(2.3, 1.2, 1.2), fov=60.0)
+    light = (0.6, 2.3, 0.9)
+    gl.set_texcoord_projection(gi_cam)
+    try:
+        di, uv_pass = gl.render_di_raster(local, light, "uv")
+        np.testing.assert_array_equal(di, gl.render_di(local, light))
+        separate = gl.render_uv(local)
+        assert uv_pass.keys() == separate.keys()
+        for name, value in separate.items():
+            np.testing.assert_array_equal(uv_pass[name], value, err_msg=name)
+        di_mask, mask_pass = gl.render_di_raster(local, light, "mask")
+        np.testing.assert_array_equal(di_mask, di)
+        assert mask_pass.keys() == {"mask"} and di_mask.flags.c_contiguous
+        np.testing.assert_array_equal(mask_pass["mask"], gl.render_depth(local)["mask"])
+        assert 0.2 < mask_pass["mask"].mean() < 1.0  # surface and background in view
+        np.testing.assert_array_equal(gl.render_di_raster(local, light)[0], di)
+        assert gl.render_di_raster(local, light)[1] == {}
+    finally:
+        gl.set_texcoord_projection(None)
+    # Mitsuba: two passes, the same outputs
+    di, uv_pass = mi.render_di_raster(local, light, "uv", seed=3)
+    np.testing.assert_array_equal(di, mi.render_di(local, light, seed=3))
+    assert uv_pass.keys() == {"uv", "position", "mask", "textured"}
+    np.testing.assert_array_equal(mi.render_di_raster(local, light, "mask")[1]["mask"], uv_pass["mask"])
+    with pytest.raises(ValueError, match="raster must be one of"):
+        gl.render_di_raster(local, light, "depth")
+    with pytest.raises(ValueError, match="raster must be one of"):
+        mi.render_di_raster(local, light, "UV")
+
+
 def test_set_texcoords_validates(point_scene):
     _, gl, _ = point_scene
     with pytest.raises(KeyError, match="no object"):

@@ -56,7 +56,7 @@ def warp_both(method: str, renderer, image: np.ndarray, depth: np.ndarray, gi_ca
     if method == "structure":
         warper = StructureAwareWarp(renderer)
         warper.bind_texture(GITexture.build(gi_cam, image, depth))
-        uv_pass, _ = warper.raster(local)  # after bind: the pass interpolates the bound coordinates
+        uv_pass = renderer.render_uv(local)  # after bind: the pass interpolates the bound coordinates
         out, valid, timings = warper.resample(uv_pass)
     else:
         uv_pass = renderer.render_uv(local)
@@ -108,9 +108,7 @@ def test_warping_beats_not_warping(warp_renderer, gt_source, method, motion):
 
     def composed(warp: str) -> np.ndarray:
         gi_fov = 90.0 if warp != "none" else before.fov  # pasting needs a map made at the local FOV
-        w = {"structure": StructureAwareWarp(warp_renderer), "pixel": PixelWarp(warp_renderer), "none": PasteWarp()}[
-            warp
-        ]
+        w = {"structure": StructureAwareWarp(warp_renderer), "pixel": PixelWarp(), "none": PasteWarp()}[warp]
         client = ClientLoop(
             LoopConfig(every=100, gi_fov=gi_fov),
             warp_renderer,
@@ -161,7 +159,7 @@ def test_occluded_surface_is_invalid_and_gets_the_fallback(warp_renderer):
             gi_cam, np.full((RES, RES, 3), 5.0, np.float32), depth, indirect=np.ones((RES, RES, 3), np.float32)
         )
     )
-    uv_pass, _ = warper.raster(local)
+    uv_pass = warp_renderer.render_uv(local)
     base = np.random.default_rng(4).uniform(size=(RES, RES, 3)).astype(np.float32)
     out, valid, timings = warper.resample(uv_pass, base=base)
     assert set(timings) == {"project", "depth_test", "lookup", "fill"}
@@ -197,7 +195,7 @@ def test_extreme_camera_black_map_zero_motion_is_finite(warp_renderer, method):
     if method == "structure":  # with the fallback's base: the current DI
         warper = StructureAwareWarp(warp_renderer)
         warper.bind_texture(GITexture.build(c, black, texel_depth(warp_renderer, c)))
-        out, _, _ = warper.resample(warper.raster(c)[0], base=di)
+        out, _, _ = warper.resample(warp_renderer.render_uv(c), base=di)
     assert np.all(np.isfinite(out))
     metrics = all_metrics(tonemap(out), tonemap(di))
     assert all(math.isfinite(v) or v == math.inf for v in metrics.values())
@@ -337,12 +335,12 @@ def test_bad_inputs_are_rejected(warp_renderer):
     with pytest.raises(RuntimeError, match="bind"):
         StructureAwareWarp(warp_renderer).resample(warp_renderer.render_uv(c))
     with pytest.raises(RuntimeError, match="bind"):
-        PixelWarp(warp_renderer).warp(c, np.zeros((RES, RES, 3), np.float32))
+        PixelWarp().warp(c, np.zeros((RES, RES, 3), np.float32), {"mask": np.ones((RES, RES), bool)})
     with pytest.raises(ValueError, match="NaN"):
         PointCloud(np.zeros((RES, RES, 3)), np.full((RES, RES), np.inf), c)
     warper = StructureAwareWarp(warp_renderer)
     warper.bind_texture(GITexture.build(c, np.ones((RES, RES, 3), np.float32), texel_depth(warp_renderer, c)))
     with pytest.raises(ValueError, match="NaN"):
-        warper.resample(warper.raster(c)[0], base=np.full((RES, RES, 3), np.nan, np.float32))
+        warper.resample(warp_renderer.render_uv(c), base=np.full((RES, RES, 3), np.nan, np.float32))
     with pytest.raises(ValueError, match="layer"):
-        PixelWarp(warp_renderer, layer="di")
+        PixelWarp(layer="di")
