@@ -8,14 +8,16 @@ The clients' raster passes (:data:`CLIENT_PASSES`, at each of ``gl_resolutions``
 frame after frame (the camera moves along the scene's path, the light along its schedule, so with a moving
 light every GL DI pass here redraws its shadow map; in a client the frame's first DI pass does):
 ``gi_camera`` (DI + centre-sampled G-buffers at the GI camera: GIGAN's generator input), ``local_di`` (DI at
-the local camera, both systems), ``uv`` (the structure-aware warp's pass, coordinates projected from a GI
-camera) and ``depth`` (the pixel-level warp's surface-mask / depth pass). Each on OpenGL (``system = gl``,
-at ``lod`` ``full`` and at the clients' ``auto``; :class:`gicore.gl.GLRenderer`) and on Mitsuba (``system =
-mitsuba``: the centre-sampled passes a ``--renderer mitsuba`` client runs), side by side in one run, one
-repeat of each renderer in turn (``stat = ratio`` rows: gl median over Mitsuba median). For ``lod = auto``:
-the level each view drew (``lod_level``) and what it cost against full detail at that view, per G-buffer
-channel (``lod_error_*``, :func:`gicore.gl.lod.lod_errors`; ``view = gi`` or ``local``). Where no GL context
-opens the GL passes are left out after one warning.
+the local camera: a frame before any map arrived), ``local_di_uv`` (DI + the structure-aware warp's pass,
+coordinates projected from a GI camera: GIGAN's shown frame) and ``local_di_mask`` (DI + the pixel-level
+warp's surface mask: cloud baking's shown frame), each of the last two as the clients render it
+(``render_di_raster``: one pass into several render targets on GL, two passes on Mitsuba). Each on OpenGL
+(``system = gl``, at ``lod`` ``full`` and at the clients' ``auto``; :class:`gicore.gl.GLRenderer`) and on
+Mitsuba (``system = mitsuba``: the centre-sampled passes a ``--renderer mitsuba`` client runs), side by
+side in one run, one repeat of each renderer in turn (``stat = ratio`` rows: gl median over Mitsuba
+median). For ``lod = auto``: the level each view drew (``lod_level``) and what it cost against full detail
+at that view, per G-buffer channel (``lod_error_*``, :func:`gicore.gl.lod.lod_errors`; ``view = gi`` or
+``local``). Where no GL context opens the GL passes are left out after one warning.
 """
 
 from __future__ import annotations
@@ -39,7 +41,7 @@ from gicore.timing import time_repeats
 #: The timed passes, in plot order.
 PASSES = ("di_1spp", "gbuffers", "di_plus_gbuffers", "gt_64spp", "gt_64spp_oidn", "gt_256spp")
 #: The clients' per-frame raster passes, timed on both renderers (see the module docstring).
-CLIENT_PASSES = ("gi_camera", "local_di", "uv", "depth")
+CLIENT_PASSES = ("gi_camera", "local_di", "local_di_uv", "local_di_mask")
 #: GL levels of detail timed: full detail, and the clients' (``gicore.loop.CLIENT_LOD``).
 GL_LODS = ("full", "auto")
 
@@ -131,9 +133,12 @@ def _client_passes(renderer: Any, spec: SceneSpec, resolution: int, seed: int) -
         _, cam, light = views()
         return renderer.render_di_gbuffers(cam, light, centre=True)
 
-    def local_di():
-        cam, _, light = views()
-        return renderer.render_di(cam, light)
+    def shown(raster: str | None) -> Callable[[], Any]:
+        def render():
+            cam, _, light = views()
+            return renderer.render_di_raster(cam, light, raster)
+
+        return render
 
     project = getattr(renderer, "set_texcoord_projection", None)
     if project is not None:  # GL: the vertex shader projects from the bound GI camera (as the warp binds it)
@@ -141,16 +146,7 @@ def _client_passes(renderer: Any, spec: SceneSpec, resolution: int, seed: int) -
     else:  # Mitsuba: per-vertex coordinates uploaded once per map (the warp's bind), not per frame
         for obj in renderer.objects:
             renderer.set_texcoords(obj.name, clip_xy(gi[0], obj.mesh.vertices))
-
-    def uv():
-        return renderer.render_uv(views()[0])
-
-    depth_pass = getattr(renderer, "render_depth", None) or renderer.render_uv  # what the pixel warp calls
-
-    def depth():
-        return depth_pass(views()[0])
-
-    return {"gi_camera": gi_camera, "local_di": local_di, "uv": uv, "depth": depth}
+    return {"gi_camera": gi_camera, "local_di": shown(None), "local_di_uv": shown("uv"), "local_di_mask": shown("mask")}
 
 
 def _lod_rows(res: Results, gl: Any, spec: SceneSpec, resolution: int, seed: int, config: dict[str, Any]) -> None:
