@@ -33,7 +33,8 @@ decimation to 1/2 ... 1/32 of its triangles, with the full mesh's smooth normals
 once, with the meshes, in the same vertex and index buffers, and each pass draws one level: a fixed one
 (``lod=k``), or with ``"auto"`` per view the coarsest level whose G-buffer error against full detail,
 predicted at the view's pixel scale by an error model measured at construction on views of the scene's GI-
-camera path, stays within ``lod_bound``. The shadow map's casters are drawn at ``shadow_lod``. The uv pass
+camera path, stays within ``lod_bound`` (``shown_lod_bound``, looser, for the passes a client only shows:
+:meth:`~GLRenderer.render_di_raster`). The shadow map's casters are drawn at ``shadow_lod``. The uv pass
 draws level 0 when its coordinates were uploaded (they belong to the full meshes' vertices) and the view's
 level when the vertex shader projects them. :attr:`GLRenderer.last_level` is the level of the last pass.
 
@@ -62,6 +63,7 @@ from gicore.gl.lod import (
     LOD_BOUND,
     LOD_CHANNELS,
     LOD_RATIOS,
+    SHOWN_LOD_BOUND,
     ErrorModel,
     LevelMesh,
     calibrate,
@@ -115,6 +117,13 @@ _PASSES = {
 #: Clip y negated: the image is rendered upside down, so that GL's bottom-up rows read back as an image's
 #: top-down rows, with no flip or copy (and window-space winding reversed: front faces are clockwise).
 _FLIP_Y = np.diag([1.0, -1.0, 1.0, 1.0])
+
+
+def _checked_bound(name: str, bound: dict[str, float]) -> dict[str, float]:
+    """A copy of ``bound`` (an ``"auto"`` level-of-detail bound) after checking its channels and values."""
+    if set(bound) - set(LOD_CHANNELS) or not all(v >= 0 for v in bound.values()):
+        raise ValueError(f"{name} must map some of {LOD_CHANNELS} to numbers >= 0, got {bound}")
+    return dict(bound)
 
 
 def _mat(m: np.ndarray) -> bytes:
@@ -210,7 +219,8 @@ class GLRenderer:
     ``lod``: ``"full"``, a level (index into
     ``gicore.gl.lod.LOD_RATIOS``) or ``"auto"``; ``shadow_lod``: the shadow casters' level (default
     :data:`SHADOW_LOD`; level 0 for a ``"full"`` renderer, which uploads no other); ``lod_bound``: the
-    ``"auto"`` bound per G-buffer error channel (default ``gicore.gl.lod.LOD_BOUND``). Raises
+    ``"auto"`` bound per G-buffer error channel (default ``gicore.gl.lod.LOD_BOUND``), ``shown_lod_bound`` the
+    one of the passes that are only shown (default ``gicore.gl.lod.SHOWN_LOD_BOUND``). Raises
     :class:`gicore.gl.context.RasterUnavailable` when no GL context opens.
     """
 
@@ -224,6 +234,7 @@ class GLRenderer:
         lod: str | int = "full",
         shadow_lod: int | None = None,
         lod_bound: dict[str, float] | None = None,
+        shown_lod_bound: dict[str, float] | None = None,
     ):
         self.spec = spec
         self.resolution = spec.resolution if resolution is None else int(resolution)
@@ -243,10 +254,12 @@ class GLRenderer:
         self.lod_ratios = (1.0,) if lod == "full" else LOD_RATIOS
         self._lod: str | int = "full"
         self.lod = lod
-        #: The G-buffer error bound of ``lod="auto"`` per channel (``gicore.gl.lod.LOD_BOUND``).
-        self.lod_bound = dict(LOD_BOUND if lod_bound is None else lod_bound)
-        if set(self.lod_bound) - set(LOD_CHANNELS) or not all(v >= 0 for v in self.lod_bound.values()):
-            raise ValueError(f"lod_bound must map some of {LOD_CHANNELS} to numbers >= 0, got {lod_bound}")
+        #: The G-buffer error bound of ``lod="auto"`` per channel (``gicore.gl.lod.LOD_BOUND``), and the one of
+        #: the passes that are only shown (``gicore.gl.lod.SHOWN_LOD_BOUND``).
+        self.lod_bound = _checked_bound("lod_bound", LOD_BOUND if lod_bound is None else lod_bound)
+        self.shown_lod_bound = _checked_bound(
+            "shown_lod_bound", SHOWN_LOD_BOUND if shown_lod_bound is None else shown_lod_bound
+        )
         #: ``lod="auto"``'s calibrated error model (:class:`gicore.gl.lod.ErrorModel`), made on first need.
         self.lod_model: ErrorModel | None = None
         self.shadow_lod = min(SHADOW_LOD if shadow_lod is None else int(shadow_lod), len(self.lod_ratios) - 1)
@@ -440,12 +453,13 @@ class GLRenderer:
             raise ValueError(f"lod must be 'full', 'auto' or a level in [0, {n - 1}], got {value!r}")
         self._lod = int(value) if fixed else value
 
-    def level_for(self, camera: Camera) -> int:
-        """The level a pass at ``camera`` draws (see the module docstring)."""
+    def level_for(self, camera: Camera, shown: bool = False) -> int:
+        """The level a pass at ``camera`` draws (see the module docstring); ``shown``: a pass that is only
+        shown, whose ``"auto"`` level keeps to :attr:`shown_lod_bound`."""
         if self._lod == "full":
             return 0
         if self._lod == "auto":
-            return self.calibrate_lod().level(camera, self.lod_bound)
+            return self.calibrate_lod().level(camera, self.shown_lod_bound if shown else self.lod_bound)
         return int(self._lod)
 
     def calibrate_lod(self) -> ErrorModel:
@@ -642,16 +656,19 @@ class GLRenderer:
     def render_di_raster(
         self, camera: Camera, light=None, raster: str | None = None, seed: int = 0
     ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-        """A shown frame's DI (as :meth:`render_di`) and the warp's ``raster`` pass (:data:`gicore.loop.RASTERS`)
-        at ``camera``, in one geometry pass: ``"uv"`` (as :meth:`render_uv`) in three more render targets;
-        ``"mask"`` (the surface mask) from the DI target's alpha, which every surface writes as 1; ``None``
-        (DI alone) an empty dict."""
+        """A shown frame's DI (as :meth:`render_di`) and the warp's ``raster`` pass
+        (:data:`gicore.buffers.RASTERS`) at ``camera``, in one geometry pass, at the level :meth:`level_for` gives
+        a shown pass (level 0 for uploaded uv coordinates): ``"uv"`` (as :meth:`render_uv`) in three more
+        render targets; ``"mask"`` (the surface mask) from the DI target's alpha, which every surface writes as
+        1; ``None`` (DI alone) an empty dict."""
         check_raster(raster)
         self._set_light(light)
+        uploaded_uv = raster == "uv" and self._uv_projection is None  # coordinates of the full meshes' vertices
+        level = 0 if uploaded_uv else self.level_for(camera, shown=True)
         if raster == "uv":
-            fbo = self._draw("di_uv", camera)
+            fbo = self._draw("di_uv", camera, level)
             return self._read(fbo, 3, 3), self._uv_pass(fbo)
-        rgba = self._read(self._draw("di", camera), 0, 4)
+        rgba = self._read(self._draw("di", camera, level), 0, 4)
         passes = {} if raster is None else {"mask": rgba[..., 3] > 0.0}
         return np.ascontiguousarray(rgba[..., :3]), passes
 
