@@ -87,6 +87,8 @@ class WebBenchConfig:
     codec: Literal["jpeg", "webp", "png"] = "jpeg"
     #: Path-tracing samples per pixel of the cloud maps.
     spp: int = field(default=64, metadata=SPP)
+    #: ONNX model run in the browser and in Python (gigan-export output); absent: the shipped fp16 model.
+    model: Path | None = None
     #: onnxruntime threads, in the browser (wasm) and in Python.
     threads: int = field(default=2, metadata=THREADS)
     #: session.run repetitions timed in the browser and in Python on the same input.
@@ -106,6 +108,8 @@ class WebBenchConfig:
 
         if self.profile not in profiles():
             raise UserError(f"--profile {self.profile} is not a profile", f"pick one of {sorted(profiles())}")
+        if self.model is not None and not Path(self.model).is_file():
+            raise UserError(f"--model {self.model} is not a file", "give a .onnx file that gigan-export wrote")
 
 
 def require_browser() -> str | None:
@@ -211,8 +215,8 @@ class Reference:
     shaders against the original; :attr:`port`, empty where no GL context opens), and returns one timed
     ``session.run`` on the predicted input (the tensor predict encoded), for :func:`run_page`."""
 
-    def __init__(self, threads: int, scene: str) -> None:
-        self.threads, self.scene = threads, scene
+    def __init__(self, threads: int, scene: str, model: Path | None = None) -> None:
+        self.threads, self.scene, self.model = threads, scene, model  # None: the shipped model
         self.diff: dict[str, float] = {}
         self.port: dict[str, float] = {}
 
@@ -224,7 +228,7 @@ class Reference:
         n = int(p["resolution"])
         buffers = {k: _floats(p[k], n, 4)[::-1] for k in ("di", "albedo", "normal", "depth")}
         frame = {k: buffers[k][..., :3] for k in ("di", "albedo", "normal")} | {"depth": buffers["depth"][..., :1]}
-        model = GIModel(DEFAULT_MODEL, threads=self.threads)
+        model = GIModel(self.model or DEFAULT_MODEL, threads=self.threads)
         diff = np.abs(tonemap(model.predict(frame)) - _floats(p["display"], n, 3))
         self.diff = {"max": float(diff.max()), "mean": float(diff.mean())}
         self.port = port_check(self.scene, p, frame)
@@ -293,6 +297,7 @@ def viewer_site(cfg: WebBenchConfig, seed: int, work: Path) -> Iterator[str]:
                 threads=cfg.threads,
                 seed=seed,
                 assets=work / "assets",
+                model=cfg.model,
             )
             site = prepare(page_cfg)
             if cfg.store == "prebaked":
@@ -310,7 +315,7 @@ def measure(cfg: WebBenchConfig, results: Results) -> None:
     scene = load_scene(cfg.scenes[0]).name
     work = results.out / "web_runs"
     shutil.rmtree(work, ignore_errors=True)
-    reference = Reference(cfg.threads, cfg.scenes[0])
+    reference = Reference(cfg.threads, cfg.scenes[0], cfg.model)
     with viewer_site(cfg, results.seed, work) as url:
         viewer = run_page(url, cfg, results.output(SCREENSHOT), reference.check)
     shutil.rmtree(work, ignore_errors=True)
@@ -341,6 +346,7 @@ def record(
         "webgl": info.get("renderer", "?"),
         "backend": info.get("backend", "?"),
         "threads": info.get("wasm_threads", cfg.threads),
+        "model": str(cfg.model) if cfg.model else "shipped (fp16)",
     }
     totals = {}
     for system, stages in ((GIGAN, GIGAN_STAGES), (CLOUD, CLOUD_STAGES)):

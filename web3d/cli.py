@@ -28,6 +28,7 @@ from gicore.options import (
     split_host_port,
 )
 from gicore.scene import load_scene
+from gigan_local.inference import DEFAULT_MODEL
 from web3d.export import export_assets
 from web3d.serve import WEB_DIR, Site, WebServer
 
@@ -66,6 +67,8 @@ class WebConfig:
     seed: int = field(default=0, metadata=SEED)
     #: Folder for the exported assets (default: .cache/web3d/SCENE in the working folder).
     assets: Path | None = None
+    #: ONNX model the page runs (a gigan-export output, its model.json beside it); absent: the shipped fp16 model.
+    model: Path | None = None
 
     def __post_init__(self) -> None:
         check_fields(self)
@@ -73,6 +76,10 @@ class WebConfig:
         if self.server is not None and not self.server.startswith(("http://", "https://")):
             raise UserError(
                 f"--server {self.server!r} is not an http(s) URL", "give e.g. --server http://127.0.0.1:8001"
+            )
+        if self.model is not None and not Path(self.model).is_file():
+            raise UserError(
+                f"--model {self.model} is not a file", "give a model_fp32.onnx or model_fp16.onnx from gigan-export"
             )
         if self.codec in ("exr-half", "zstd-f16"):
             raise UserError(f"--codec {self.codec}: the page decodes 8-bit images only", "pick jpeg, webp or png")
@@ -92,7 +99,10 @@ def prepare(cfg: WebConfig) -> Site:
         raise UserError(f"{WEB_DIR}/node_modules is missing", "run `make setup` (npm ci in web/)")
     spec = load_scene(cfg.scene)
     assets = cfg.assets or Path(".cache") / "web3d" / spec.name
-    header = export_assets(cfg.scene, assets, frames=cfg.frames, orbit_frames=cfg.orbit_frames, seed=cfg.seed)
+    model = cfg.model or DEFAULT_MODEL
+    header = export_assets(
+        cfg.scene, assets, frames=cfg.frames, orbit_frames=cfg.orbit_frames, seed=cfg.seed, model=model
+    )
     return Site(assets.resolve(), cfg.page_config(header["resolution"]) | {"scene": spec.name}, cfg.server)
 
 

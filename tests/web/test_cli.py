@@ -20,8 +20,18 @@ def test_bad_options_are_one_error_line_and_write_nothing(tmp_path: Path) -> Non
             (["--listen", "nowhere"], "--listen"),
             (["--listen", f"127.0.0.1:{port}"], "--listen"),
             (["--scene", "no_such_scene"], "no_such_scene"),
+            (["--model", str(tmp_path / "missing.onnx")], "--model"),
+            (["--model", str(_model_without_config(tmp_path))], "model.json"),
         ]
         with ThreadPoolExecutor(len(cases)) as pool:
             outcomes = list(pool.map(lambda c: run_script(["gigan-web", *c[0]], tmp_path), cases))
     for outcome, (_, culprit) in zip(outcomes, cases):
         check_user_error(outcome, culprit)
+
+
+def _model_without_config(folder: Path) -> Path:
+    """A model file with no model.json beside it (the page could not encode its inputs)."""
+    lone = folder / "lone"
+    lone.mkdir()
+    (lone / "model.onnx").write_bytes(b"onnx")
+    return lone / "model.onnx"
