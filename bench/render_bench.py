@@ -42,6 +42,9 @@ from gicore.timing import time_repeats
 PASSES = ("di_1spp", "gbuffers", "di_plus_gbuffers", "gt_64spp", "gt_64spp_oidn", "gt_256spp")
 #: The clients' per-frame raster passes, timed on both renderers (see the module docstring).
 CLIENT_PASSES = ("gi_camera", "local_di", "local_di_uv", "local_di_mask")
+#: The views whose ``lod = auto`` level and its G-buffer error are reported: the GI camera's and the local
+#: camera's under the model-input bound, and the local camera's under the bound of passes that are only shown.
+LOD_VIEWS = {"gi": "gi views", "local": "local views", "local_shown": "local views, shown passes"}
 #: GL levels of detail timed: full detail, and the clients' (``gicore.loop.CLIENT_LOD``).
 GL_LODS = ("full", "auto")
 
@@ -150,15 +153,18 @@ def _client_passes(renderer: Any, spec: SceneSpec, resolution: int, seed: int) -
 
 
 def _lod_rows(res: Results, gl: Any, spec: SceneSpec, resolution: int, seed: int, config: dict[str, Any]) -> None:
-    """For ``lod = auto``: the level each GI and local view of the timed path draws and its G-buffer error
-    against full detail at that view (mean and max over the views)."""
+    """For ``lod = auto``: the level each GI and local view of the timed path draws (:data:`LOD_VIEWS`: at the
+    local views also the shown passes' level) and its G-buffer error against full detail at that view (mean and
+    max over the views)."""
     from gicore.gl.lod import LOD_CHANNELS, lod_errors
 
     local = camera_path(spec, 8, seed=seed, fov=spec.camera.local_fov, resolution=resolution)
-    for view, cams in (("gi", [c.with_fov(spec.camera.gi_fov) for c in local]), ("local", local)):
+    gi = [c.with_fov(spec.camera.gi_fov) for c in local]
+    for view, cams, shown in (("gi", gi, False), ("local", local, False), ("local_shown", local, True)):
         levels, errors = [], []
         for cam in cams:
-            levels.append(gl.level_for(cam))
+            gl.lod = level = gl.level_for(cam, shown=shown)
+            levels.append(level)
             at_level = gl.render_gbuffers(cam)
             gl.lod = 0
             errors.append(lod_errors(at_level, gl.render_gbuffers(cam)))
@@ -255,7 +261,7 @@ def client_table(rows: list[dict]) -> str:
                 )
                 cells.append(f"{ms(median)} ({ms(ratio, '.2f')})")
             lines.append(f"| {stage} | " + " | ".join(cells) + f" | {ms(get('mitsuba', stage, 'median', **at))} |")
-        for view in ("gi", "local"):
+        for view in LOD_VIEWS:
             where = at | {"lod": "auto", "view": view}
             errors = []
             for c in ("normal", "depth", "coverage"):
@@ -263,7 +269,7 @@ def client_table(rows: list[dict]) -> str:
                 errors.append(f"{c} {ms(mean, '.1e')} (max {ms(top, '.1e')})")
             level, top = (get("gl", "lod_level", stat, **where) for stat in ("mean", "max"))
             lines.append(
-                f"\nlod auto at the {view} views: level {ms(level, '.1f')} on average (max {ms(top, '.0f')}); "
+                f"\nlod auto at the {LOD_VIEWS[view]}: level {ms(level, '.1f')} on average (max {ms(top, '.0f')}); "
                 f"G-buffer error against full detail: {', '.join(errors)}."
             )
         lines.append("")

@@ -37,12 +37,15 @@ def test_client_passes_side_by_side(tmp_path: Path) -> None:
         for lod in GL_LODS:
             gl = get("gl", stage, "median", lod=lod)
             assert gl > 0 and get("gl/mitsuba", stage, "ratio", lod=lod) == pytest.approx(gl / mitsuba, rel=1e-3)
-    for view in ("gi", "local"):
+    for view in ("gi", "local", "local_shown"):
         assert 0 <= get("gl", "lod_level", "mean", view=view) <= get("gl", "lod_level", "max", view=view) <= 5
         for channel in ("normal", "depth", "coverage"):
             mean, top = (get("gl", f"lod_error_{channel}", stat, view=view) for stat in ("mean", "max"))
             assert 0 <= mean <= top < 0.05  # within the auto bound's order (3e-3 normal), not a broken render
     # the wide GI camera sees the lungs smaller than the local camera, so it may draw a coarser level
     assert get("gl", "lod_level", "mean", view="gi") >= get("gl", "lod_level", "mean", view="local")
+    # the shown passes' looser bound never draws a finer level than the model-input bound at the same views
+    assert get("gl", "lod_level", "mean", view="local_shown") >= get("gl", "lod_level", "mean", view="local")
     text = client_table(rows)
     assert "### lung_plane, 32²" in text and text.count("| gi_camera |") == 1 and "lod auto at the gi views" in text
+    assert "lod auto at the local views, shown passes" in text
