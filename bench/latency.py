@@ -43,8 +43,8 @@ system that needs it:
 
 - GIGAN: ``di``, ``gi_render`` (DI + G-buffers + texel depth at the GI camera: the generator's input),
   ``inference`` (``GIModel.predict``, with its pre- and post-processing), ``warp`` (the structure-aware
-  warp's per-map ``bind`` plus its per-frame lookup on the frame that binds the map), ``blend``
-  (composition);
+  warp's per-map ``bind`` plus its per-frame stages: projection, depth test, lookup, fill; on the frame that
+  binds the map), ``blend`` (composition);
 - cloud baking (the split is :mod:`baseline_cloudbaking.client`'s): ``transmission`` = ``request`` (time to
   the response's first byte minus the server's time: upload, round trip, HTTP and proxy overhead) +
   ``transfer`` (first to last response byte); the server's ``lookup``, ``read`` (hit) or ``render``,
@@ -653,7 +653,7 @@ TABLE_ROWS = (
     ("inference", "inference"),
     ("decode", "decode"),
     ("di", "local render: DI + the warp's pass (the frame showing the map)"),
-    ("warp", "warp (per-map bind + per-frame lookup)"),
+    ("warp", "warp (per-map bind + per-frame warp stages)"),
     ("blend", "blend"),
     ("total", "**total (interaction latency)**"),
 )
@@ -1041,7 +1041,7 @@ def readme_block(rows: Rows) -> list[Table]:
                 + " / ".join(cell(s, ".3f") for s in ssim)
                 + " |"
             )
-    labels = (("di", "local DI"), ("gi_render", "GI-camera render"), ("inference", "inference"), ("warp", "warp"),
+    labels = (("di", "local render"), ("gi_render", "GI-camera render"), ("inference", "inference"), ("warp", "warp"),
               ("blend", "blend"))  # fmt: skip
     lines.append("")
     for renderer in renderers:

@@ -13,12 +13,12 @@ What is timed, per local frame, after a warm-up, ``repeats`` times each, alterna
 - ``pixel-level``: reprojection of the GI map's point cloud, z-buffered splat and push-pull hole
   filling (:mod:`baseline_cloudbaking.warp`).
 
-Not in those times, and reported on their own: what each method's local raster pass adds to the frame's DI
-render (``raster_time``), as the clients render the two (``render_di_raster``: on GL one geometry pass, with
-the uv + position targets structure-aware reads or the surface mask pixel-level reads from the DI target's
-alpha; on Mitsuba a second, centre-sampled pass), per frame the time of DI + pass minus DI alone; and the
-once-per-GI-map work (``bind``: structure-aware's texture and per-vertex coordinates, pixel-level's
-unprojection into a point cloud).
+Not in those times, and reported on their own: each method's local render of the frame (``raster_time``), its
+DI with the pass the method reads, as the clients render the two (``render_di_raster``: on GL one geometry
+pass, with the uv + position targets structure-aware reads, or the surface mask pixel-level reads from the DI
+target's alpha; on Mitsuba a second, centre-sampled pass), beside the DI alone (system ``DI alone``), each
+pass first in turn and none of them redrawing the shadow map; and the once-per-GI-map work (``bind``:
+structure-aware's texture and per-vertex coordinates, pixel-level's unprojection into a point cloud).
 
 ``renderer`` (issue 22): what renders those local passes and the current DI the structure-aware fallback
 reads: gl (``gicore.gl.GLRenderer`` at ``gl_lod``, as the clients' default; without a GL context one warning
@@ -180,6 +180,7 @@ def measure(cfg: WarpBenchConfig, res: Results) -> None:
         passes = {"structure": "uv", "pixel": "mask", "di": None}  # each method's raster pass; DI alone
         for pass_name in passes.values():  # untimed: a pass's first call compiles its program
             raster.render_di_raster(cams[0], light_position(spec, 0), pass_name)
+        order = list(passes)
         for g in cfg.gi_frames:
             light = light_position(spec, g)
             gi = source.produce(cams[g % cfg.orbit_frames].with_fov(cfg.gi_fov), light, g)
@@ -192,17 +193,17 @@ def measure(cfg: WarpBenchConfig, res: Results) -> None:
             for offset in cfg.offsets:
                 frame = g + offset
                 cam = cams[frame % cfg.orbit_frames]
-                rendered, took = {}, {}
-                for m, pass_name in passes.items():
+                raster.render_di_raster(cam, light)  # untimed: this light's shadow map, which no timed pass redraws
+                rendered = {}
+                order = order[1:] + order[:1]  # each pass first in turn
+                for m in order:
                     t0 = time.perf_counter()
-                    rendered[m] = raster.render_di_raster(cam, light, pass_name, seed=frame)
-                    took[m] = time.perf_counter() - t0
-                for m in SYSTEMS:
-                    samples[f"raster/{m}"].append(took[m] - took["di"])
+                    rendered[m] = raster.render_di_raster(cam, light, passes[m], seed=frame)
+                    samples[f"raster/{m}"].append(time.perf_counter() - t0)
+                    if m == "structure" and used == "gl":
+                        levels.append(raster.last_level)
                 di, uv_pass = rendered["structure"]
                 mask = rendered["pixel"][1]["mask"]
-                if used == "gl":
-                    levels.append(raster.last_level)
 
                 def structure():
                     return warper.resample(uv_pass, base=di)
@@ -307,7 +308,7 @@ def measure(cfg: WarpBenchConfig, res: Results) -> None:
             **cfg_row,
         )
         res.add_timing(system="pixel-level", scene=name, metric="bind_time", samples_s=samples["bind/pixel"], **cfg_row)
-        for m, system in SYSTEMS.items():
+        for m, system in (*SYSTEMS.items(), ("di", "DI alone")):
             res.add_timing(system=system, scene=name, metric="raster_time", samples_s=samples[f"raster/{m}"], **cfg_row)
         ratio = np.median(samples["pixel"]) / np.median(samples["structure"])
         res.add(

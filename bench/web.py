@@ -108,8 +108,10 @@ class WebBenchConfig:
 
         if self.profile not in profiles():
             raise UserError(f"--profile {self.profile} is not a profile", f"pick one of {sorted(profiles())}")
-        if self.model is not None and not Path(self.model).is_file():
-            raise UserError(f"--model {self.model} is not a file", "give a .onnx file that gigan-export wrote")
+        if self.model is not None:
+            from gigan_local.inference import check_model_option
+
+            check_model_option(self.model)
 
 
 def require_browser() -> str | None:

@@ -5,15 +5,16 @@ camera; cloud baking: a server asked over HTTP in a background thread) and a :cl
 structure-aware, Alg. 1; cloud baking: pixel-level 3D warping). :class:`ClientLoop` runs them, frame by
 frame, at the local camera ``C_t``:
 
-1. ``di``: render direct illumination at ``C_t`` (the one pass both systems run);
-2. ask the source for a GI map at the GI camera -- ``C_t``'s position and orientation with FOV ``F_GI``
+1. ask the source for a GI map at the GI camera -- ``C_t``'s position and orientation with FOV ``F_GI``
    -- when no map is bound yet, the bound map's request is ``every`` (k) frames old, or ``C_t`` has left
    the bound map's tolerance (``max_move``, ``max_turn``); a source that is still busy refuses;
-3. ``gi_wait``: take the newest map that has arrived (:meth:`GISource.latest`); only when none has arrived
+2. ``gi_wait``: take the newest map that has arrived (:meth:`GISource.latest`); only when none has arrived
    yet does the frame wait for one. A synchronous source makes its map inside ``request``, so the whole
    generation lands here; a remote one returns at once and the frame goes on with the map it has;
-4. ``bind`` a newly arrived map to the warp (per-map work), then warp it to ``C_t`` (per-frame work,
-   the warp's own stages);
+3. ``bind`` a newly arrived map to the warp (per-map work);
+4. ``di``: render direct illumination at ``C_t`` (the one pass both systems run) together with the pass the
+   warp reads there (``render_di_raster``; after binding, since the structure-aware warp's pass interpolates
+   the bound map's coordinates), then warp the map to ``C_t`` (per-frame work, the warp's own stages);
 5. ``compose``: eq. 1 ``tau * DI + (1 - tau) * GI`` (``blend``) or the current DI plus the warped
    indirect light (``residual``); the warp is told which layer of the map to warp (:data:`LAYERS`).
 
@@ -346,11 +347,11 @@ class PathRunConfig:
     #: Folder of path-traced GT frames shared between runs (keyed by scene spec, camera, light, spp, denoise, seed
     #: and frame; :mod:`gicore.render_cache`); absent: every run path-traces its own.
     gt_cache: Path | None = None
-    #: Renderer of the per-frame raster passes (local DI, GIGAN's DI + G-buffers at the GI camera, the warps'
-    #: uv/depth passes): gl (OpenGL on headless EGL at level of detail auto; without a context: one warning and
-    #: mitsuba) or mitsuba. Path tracing (GT, the gt source, the server) is always Mitsuba's. The shipped model
-    #: scores within 0.005 SSIM of Mitsuba inputs on GL inputs at lod auto (-0.0013 to +0.0034 on the five scenes,
-    #: bench quality --renderers gl,mitsuba; see the model card).
+    #: Renderer of the per-frame raster passes (GIGAN's DI + G-buffers at the GI camera, each shown frame's DI
+    #: with its warp's uv or mask pass): gl (OpenGL on headless EGL at level of detail auto; without a context: one
+    #: warning and mitsuba) or mitsuba. Path tracing (GT, the gt source, the server) is always Mitsuba's. The
+    #: shipped model scores within 0.005 SSIM of Mitsuba inputs on GL inputs at lod auto (-0.0009 to +0.0026 on
+    #: the five scenes, bench quality --renderers gl,mitsuba; see the model card).
     renderer: Literal[RENDERERS] = "gl"  # type: ignore[valid-type]
 
     def __post_init__(self) -> None:
@@ -445,6 +446,7 @@ class ClientLoop:
     def warm_up(self, camera: Camera, light: Light) -> None:
         """Run every pass once, untimed (Mitsuba JIT-compiles each pass on first use), and forget the map."""
         self.source.warm_up(self.gi_camera(camera), light)
+        self.renderer.render_di_raster(camera, light)  # a frame before any map: DI alone
         self.warp.bind(GIMap.blank(self.gi_camera(camera)))
         self.warp.warp(camera, *self.renderer.render_di_raster(camera, light, self.warp.raster))
         self.bound = None

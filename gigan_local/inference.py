@@ -46,6 +46,14 @@ def read_model_json(path: str | Path) -> dict[str, Any]:
         ) from None
 
 
+def check_model_option(path: str | Path, option: str = "--model") -> None:
+    """UserError unless ``path`` (given as ``option``) is a file with a valid ``model.json`` beside it: what a
+    command checks before it starts work that will need the model."""
+    if not Path(path).is_file():
+        raise UserError(f"{option} {path} is not a file", "give a .onnx file that gigan-export wrote")
+    read_model_json(path)
+
+
 class GIModel:
     """An exported generator ready to predict GI maps on the CPU.
 

@@ -28,7 +28,7 @@ from gicore.options import (
     split_host_port,
 )
 from gicore.scene import load_scene
-from gigan_local.inference import DEFAULT_MODEL
+from gigan_local.inference import DEFAULT_MODEL, check_model_option
 from web3d.export import export_assets
 from web3d.serve import WEB_DIR, Site, WebServer
 
@@ -77,10 +77,8 @@ class WebConfig:
             raise UserError(
                 f"--server {self.server!r} is not an http(s) URL", "give e.g. --server http://127.0.0.1:8001"
             )
-        if self.model is not None and not Path(self.model).is_file():
-            raise UserError(
-                f"--model {self.model} is not a file", "give a model_fp32.onnx or model_fp16.onnx from gigan-export"
-            )
+        if self.model is not None:
+            check_model_option(self.model)
         if self.codec in ("exr-half", "zstd-f16"):
             raise UserError(f"--codec {self.codec}: the page decodes 8-bit images only", "pick jpeg, webp or png")
 

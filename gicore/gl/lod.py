@@ -137,8 +137,9 @@ LOD_BOUND = {"normal": 3e-3, "depth": 1e-3, "coverage": 1e-3}
 #: ``GLRenderer.render_di_raster``), on the same error model: looser, since no network reads them. A shown
 #: GIGAN frame (the shipped model's map, structure-aware warp, eq. 1 at tau 0) at the level this bound picks
 #: scores SSIM 0.9979-0.9990 (min) and 0.9989-0.9995 (mean) against the same frame at full detail, on 30 local
-#: views each of the five built-in scenes at 256², where the model-input bound keeps level 0-2; the pass then
-#: costs 8.9-11.4 ms instead of 12.0-14.3 at full detail (one core, llvmpipe; levels 1.6-3.6 on average).
+#: views each of the five built-in scenes at 256², where the model-input bound keeps level 0-2 (the frames' DI
+#: alone: 0.986-0.995); the pass then costs 8.8-11.5 ms instead of 11.4-14.1 at full detail (one core,
+#: llvmpipe; levels 1.6-3.6 on average).
 SHOWN_LOD_BOUND = {"normal": 1e-2, "depth": 1e-3, "coverage": 1e-3}
 #: Calibration of ``lod="auto"``: views of the scene's GI-camera path (a seed of their own), each also moved
 #: towards and away from its target by these factors, so that the fit sees close-ups and distant views.

@@ -15,7 +15,8 @@ signatures and outputs, so a client can hold either (``renderer = "gl" | "mitsub
   surface mask.
 - :meth:`~GLRenderer.render_di_raster`: a shown frame's DI and the pass its warp reads (the structure-aware
   warp's uv pass, or the pixel-level warp's surface mask) in one geometry pass, into several render targets,
-  as a real-time client draws them: on llvmpipe 16.8 ms for DI + uv against 14.8 + 7.8 ms in two passes.
+  as a real-time client draws them: on llvmpipe 17.8 ms for DI + uv against 15.5 + 7.4 ms in two passes
+  (lung_plane, 256², one core).
 
 A rasteriser samples each pixel at its centre, so every pass equals Mitsuba's *centre-sampled* passes
 (``render_uv``, ``render_gbuffers(centre=True)``); Mitsuba's default G-buffer pass puts its one sample at
@@ -558,7 +559,8 @@ class GLRenderer:
         ctx.front_face = "cw"
         scene, emitter = self._vao(variant)
         if level is None:
-            level = self.level_for(camera) if name != "uv" or self._uv_projection is not None else 0
+            uploaded_uv = name in ("uv", "di_uv") and self._uv_projection is None  # full meshes' coordinates
+            level = 0 if uploaded_uv else self.level_for(camera)
         self._render_scene(scene, level)
         self.last_level = level
         if self.spec.light.size > 0:

@@ -199,6 +199,8 @@ def _bench(*args: str) -> subprocess.CompletedProcess:
         (["convergence", "--scenes", ""], "--scenes is empty"),
         (["render", "--resolution", "abc"], "--resolution"),
         (["render", "--out", "README.md"], "--out README.md is a file"),
+        (["web", "--model", "missing.onnx"], "--model missing.onnx is not a file"),
+        (["web", "--model", "README.md"], "model.json is missing"),
     ],
 )
 def test_bench_command_rejects_bad_input_with_one_error_line(args: list[str], culprit: str) -> None:

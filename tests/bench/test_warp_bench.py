@@ -60,6 +60,9 @@ def test_gl_passes_warp_as_mitsuba_passes_do(spec_file: Path, tmp_path: Path) ->
     assert {r["config"]["renderer"] for r in gl.values()} == {"gl"}
     assert {r["config"]["renderer"] for r in mi.values()} == {"mitsuba"}
     assert gl["structure-aware", "ssim", "mean"]["config"]["gl_lod"] == "auto"
+    for run in (gl, mi):  # the DI alone beside the methods' DI + pass
+        di_alone = run["DI alone", "raster_time", "median"]["value"], run["DI alone", "raster_time", "n"]["value"]
+        assert di_alone[0] > 0 and di_alone[1] == 2
     for system in warp_bench.SYSTEMS.values():  # each method's own local pass is timed, on either renderer
         for run in (gl, mi):
             assert run[system, "raster_time", "median"]["value"] > 0 and run[system, "raster_time", "n"]["value"] == 2
