@@ -255,6 +255,7 @@ def write_model_card(
             f"max |onnxruntime − torch| = {model_doc['max_abs_diff_vs_torch'][k]:.2e}"
             for k in sizes
         ],
+        *graph_lines(model_doc),
         "- `model.json`: architecture, input encoding (incl. depth scale), I/O names; "
         "`GIModel` checks the ONNX file against it.",
         "",
@@ -263,6 +264,21 @@ def write_model_card(
     card = export_dir / "MODEL_CARD.md"
     card.write_text("\n".join(lines) + "\n")
     return card
+
+
+def graph_lines(model_doc: dict) -> list[str]:
+    """The card's line on the graph form of the files (``gigan_local.subpixel``), if they have one."""
+    if model_doc.get("graph") != "subpixel":
+        return []
+    line = (
+        "- Graph: each nearest 2x resize + 3x3 conv is exported as sub-pixel phase convolutions + DepthToSpace "
+        "(`gigan_local.subpixel`: the same function; all but the outermost do 4/9 of the multiply-adds)"
+    )
+    rewrite = model_doc.get("graph_rewrite")
+    if rewrite:  # an earlier export rewritten in place (python -m gigan_local.rewrite_cli)
+        diffs = ", ".join(f"{k} {v:.2e}" for k, v in rewrite["max_abs_diff_vs_resize_graph"].items())
+        line += f"; rewritten after export, max |rewritten − resize graph| on a random input: {diffs}"
+    return [line + "."]
 
 
 def plot(csv_path: Path, out_dir: Path) -> list[Path]:

@@ -2,7 +2,8 @@
 
 Output folder::
 
-    model_fp32.onnx   eval-mode generator, input ``input`` (Bx C x R x R), output ``output`` (Bx3xRxR)
+    model_fp32.onnx   eval-mode generator, input ``input`` (Bx C x R x R), output ``output`` (Bx3xRxR);
+                      a resize U-Net's up-sampling rewritten as sub-pixel convolutions (gigan_local.subpixel)
     model_fp16.onnx   the same graph with float16 weights, each followed by a Cast back to float32
     model_int8.onnx   (``int8``) static int8 quantization calibrated on training frames
     model.json        what the client needs: input buffers and encoding, resolution, network config
@@ -24,6 +25,7 @@ would cover the decoder too, ran slower than fp32 on this CPU.)
 
 from __future__ import annotations
 
+import io
 import json
 import os
 import warnings
@@ -38,10 +40,11 @@ import torch
 from onnx import TensorProto, helper, numpy_helper
 
 from gicore.cli import UserError
-from gicore.fileio import TMP_MARKER, atomic_write, atomic_write_bytes, exclusive_run
+from gicore.fileio import TMP_MARKER, atomic_write_bytes, exclusive_run
 from gigan_local.config import read_run_config
-from gigan_local.inference import FORMAT, MODEL_JSON
+from gigan_local.inference import FORMAT, MODEL_JSON, read_model_json
 from gigan_local.networks import define_G
+from gigan_local.subpixel import GRAPH_NAME, subpixel_upsampling
 from gigan_local.train import CHECKPOINT, load_checkpoint
 
 FILES = {"fp32": "model_fp32.onnx", "fp16": "model_fp16.onnx", "int8": "model_int8.onnx"}
@@ -162,9 +165,9 @@ def int8_static(fp32_path: Path, out_path: Path, calibration: list[np.ndarray]) 
         prepared.unlink(missing_ok=True)
 
 
-def _ort_outputs(path: Path, inputs: list[np.ndarray]) -> list[np.ndarray]:
-    """The model's outputs for each input, from one onnxruntime session."""
-    sess = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+def _ort_outputs(model: Path | bytes, inputs: list[np.ndarray]) -> list[np.ndarray]:
+    """The outputs of the model (a file, or its serialized bytes) for each input, from one onnxruntime session."""
+    sess = ort.InferenceSession(model if isinstance(model, bytes) else str(model), providers=["CPUExecutionProvider"])
     return [sess.run(None, {INPUT_NAME: x})[0] for x in inputs]
 
 
@@ -204,25 +207,23 @@ def _export(
         .astype(np.float32)
     )
     files = {"fp32": out_dir / FILES["fp32"]}
+    traced = io.BytesIO()
     with warnings.catch_warnings():
         # The dynamo exporter needs onnxscript, which is not a dependency; the TorchScript one is exact here.
         warnings.simplefilter("ignore", DeprecationWarning)
-        atomic_write(
-            files["fp32"],
-            lambda handle: torch.onnx.export(
-                generator,
-                (x,),
-                handle,
-                dynamo=False,
-                opset_version=opset,
-                do_constant_folding=True,
-                input_names=[INPUT_NAME],
-                output_names=[OUTPUT_NAME],
-                dynamic_axes={INPUT_NAME: {0: "batch"}, OUTPUT_NAME: {0: "batch"}},
-            ),
+        torch.onnx.export(
+            generator,
+            (x,),
+            traced,
+            dynamo=False,
+            opset_version=opset,
+            do_constant_folding=True,
+            input_names=[INPUT_NAME],
+            output_names=[OUTPUT_NAME],
+            dynamic_axes={INPUT_NAME: {0: "batch"}, OUTPUT_NAME: {0: "batch"}},
         )
-    model32 = onnx.load(str(files["fp32"]))
-    onnx.checker.check_model(model32)
+    model32, rewritten = subpixel_upsampling(onnx.load_from_string(traced.getvalue()))
+    atomic_write_bytes(files["fp32"], model32.SerializeToString())
     if fp16:
         files["fp16"] = out_dir / FILES["fp16"]
         atomic_write_bytes(files["fp16"], fp16_weights(model32).SerializeToString())
@@ -252,6 +253,7 @@ def _export(
         "n_down": net.n_down,
         "network": net.to_dict(),
         "opset": opset,
+        **({"graph": GRAPH_NAME} if rewritten else {}),
         "io": {"input": INPUT_NAME, "output": OUTPUT_NAME, "layout": "NCHW", "range": [-1, 1]},
         "files": {k: p.name for k, p in files.items()},
         "tonemap": TONEMAP_NOTE,
@@ -261,3 +263,41 @@ def _export(
         doc["int8"] = {"calibration_frames": len(calibration), "mean_abs_diff_vs_fp32_on_val": int8_diff}
     atomic_write_bytes(out_dir / MODEL_JSON, json.dumps(doc, indent=1).encode())
     return ExportResult(files, {k: p.stat().st_size for k, p in files.items()}, diffs, int8_diff)
+
+
+def rewrite_export(model_dir: Path, seed: int = 0) -> dict[str, float]:
+    """Rewrite an export folder of a resize U-Net in place by :func:`subpixel_upsampling`: ``model_fp32.onnx``,
+    the fp16 file re-derived from it, and ``model.json``'s ``graph`` entry (written last). Returns max
+    |new - old| per file on one random input in [-1, 1] (float rounding: the graphs compute the same function).
+    """
+    model_dir = Path(model_dir)
+    fp32 = model_dir / FILES["fp32"]
+    if not fp32.is_file():
+        raise UserError(f"{fp32} is missing", "give a folder that gigan-export wrote")
+    doc = read_model_json(fp32)
+    if doc.get("graph") == GRAPH_NAME:
+        raise UserError(
+            f"{model_dir} is already rewritten (model.json: graph {GRAPH_NAME!r})", "use the folder as it is"
+        )
+    with exclusive_run(model_dir):
+        new32, n = subpixel_upsampling(onnx.load(str(fp32)))
+        if n == 0:
+            raise UserError(
+                f"{fp32} has no nearest-2x resize + 3x3 conv to rewrite",
+                "only a resize U-Net's export is rewritten (transposed up-sampling has no Resize)",
+            )
+        files = {"fp32": new32}
+        if (model_dir / FILES["fp16"]).is_file():
+            files["fp16"] = fp16_weights(new32)
+        side = int(doc["resolution"])
+        x = np.random.default_rng(seed).uniform(-1, 1, (1, int(doc["in_channels"]), side, side)).astype(np.float32)
+        diffs = {}
+        for k, model in files.items():
+            old, new = _ort_outputs(model_dir / FILES[k], [x])[0], _ort_outputs(model.SerializeToString(), [x])[0]
+            diffs[k] = float(np.abs(new - old).max())
+        for k, model in files.items():
+            atomic_write_bytes(model_dir / FILES[k], model.SerializeToString())
+        doc["graph"] = GRAPH_NAME
+        doc["graph_rewrite"] = {"layers": n, "max_abs_diff_vs_resize_graph": diffs}
+        atomic_write_bytes(model_dir / MODEL_JSON, json.dumps(doc, indent=1).encode())
+    return diffs

@@ -53,9 +53,12 @@ def generator_weights(
 ) -> tuple[dict[str, np.ndarray], list[tuple[str, str]]]:
     """The exported generator's weights, checked against the run's generator ``network`` and input
     ``spec`` (a mismatch is a UserError saying which field differs): (initializer name -> float32 array,
-    and the graph's ``Conv`` nodes in graph order as (weight, bias or "") initializer names)."""
+    and the graph's ``Conv`` nodes in graph order as (weight, bias or "") initializer names, a sub-pixel
+    layer's phase convolutions merged back into one: :func:`gigan_local.subpixel.merged_convs`)."""
     import onnx
     from onnx import numpy_helper
+
+    from gigan_local.subpixel import merged_convs
 
     doc = _model_json(path)
     saved_net, saved_spec = NetworkConfig.from_dict(doc["network"]), InputSpec.from_dict(doc["input"])
@@ -79,8 +82,7 @@ def generator_weights(
     # an fp16 file stores each weight in half precision followed by a Cast: a weight is named by what it feeds
     cast_of = {n.input[0]: n.output[0] for n in graph.node if n.op_type == "Cast"}
     weights = {cast_of.get(t.name, t.name): numpy_helper.to_array(t).astype(np.float32) for t in graph.initializer}
-    convs = [(n.input[1], n.input[2] if len(n.input) > 2 else "") for n in graph.node if n.op_type == "Conv"]
-    return weights, convs
+    return weights, merged_convs(graph, weights)
 
 
 def load_into(generator: Any, path: Path, network: NetworkConfig, spec: InputSpec, calibration: Any) -> int:

@@ -241,10 +241,10 @@ def test_the_shipped_model_card_matches_its_files() -> None:
 
 
 def test_the_diagnosis_variant_trains_exports_and_runs_like_torch(tmp_path):
-    """Resize up-sampling (nearest 2x + 3x3 conv, an ONNX Resize) and an unconditional critic: the run
-    trains, its config records both, the exported model computes what torch does, and a warm start
-    (`--init-generator`) reads it back, restoring the batch norms the exporter folded into the down and
-    the resize up convolutions."""
+    """Resize up-sampling (nearest 2x + 3x3 conv, exported as sub-pixel phase convolutions) and an
+    unconditional critic: the run trains, its config records both, the exported model computes what torch
+    does, and a warm start (`--init-generator`) reads it back, merging the phases back into 3x3 kernels and
+    restoring the batch norms the exporter folded into the down and the resize up convolutions."""
     dataset = make_dataset(tmp_path / "ds")
     run = tmp_path / "run"
     train(tiny_config(dataset, max_steps=2, upsample="resize", critic_condition=False), run, progress=False)
@@ -257,7 +257,8 @@ def test_the_diagnosis_variant_trains_exports_and_runs_like_torch(tmp_path):
     with torch.no_grad():
         ref = generator(torch.from_numpy(x)).numpy()
     session = ort.InferenceSession(str(tmp_path / "onnx" / "model_fp32.onnx"), providers=["CPUExecutionProvider"])
-    assert any(n.op_type == "Resize" for n in onnx.load(str(tmp_path / "onnx" / "model_fp32.onnx")).graph.node)
+    ops = {n.op_type for n in onnx.load(str(tmp_path / "onnx" / "model_fp32.onnx")).graph.node}
+    assert "DepthToSpace" in ops and "Resize" not in ops  # exported as sub-pixel convolutions
     assert np.abs(session.run(None, {"input": x})[0] - ref).max() < 1e-4
     doc = json.loads((tmp_path / "onnx" / "model.json").read_text())
     net, spec = NetworkConfig.from_dict(doc["network"]), InputSpec.from_dict(doc["input"])
