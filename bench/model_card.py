@@ -270,9 +270,12 @@ def graph_lines(model_doc: dict) -> list[str]:
     """The card's line on the graph form of the files (``gigan_local.subpixel``), if they have one."""
     if model_doc.get("graph") != "subpixel":
         return []
+    from gigan_local.subpixel import MIN_SIDE  # onnx loads only when a card is written
+
     line = (
-        "- Graph: each nearest 2x resize + 3x3 conv is exported as sub-pixel phase convolutions + DepthToSpace "
-        "(`gigan_local.subpixel`: the same function; all but the outermost do 4/9 of the multiply-adds)"
+        f"- Graph: each nearest 2x resize + 3x3 conv on an input of at least {MIN_SIDE} px a side is exported as "
+        "sub-pixel phase convolutions + DepthToSpace (`gigan_local.subpixel`: the same function; all but the "
+        "outermost do 4/9 of the multiply-adds)"
     )
     rewrite = model_doc.get("graph_rewrite")
     if rewrite:  # an earlier export rewritten in place (python -m gigan_local.rewrite_cli)

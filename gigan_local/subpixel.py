@@ -13,7 +13,8 @@ Why: the resize graph runs every 3x3 convolution at the doubled size on an image
 larger; the phase form does 4/9 of the multiply-adds and writes no resized image. The outermost layer
 (3 output channels) is one 3x3 convolution with 12 outputs instead (the four phases stacked, unused taps
 zero): onnxruntime's blocked convolution rounds output channels up to its block (16 on AVX-512), so
-four 3-channel convolutions would waste more than the zero taps do.
+four 3-channel convolutions would waste more than the zero taps do. Layers on inputs under
+:data:`MIN_SIDE` pixels a side are left as they are.
 
 The file keeps each layer's 3x3 weight as exported (the same size, and a warm start reads it back by its
 torch name); the phase kernels are computed from it in the graph (``MatMul`` by a constant 0/1 tap
@@ -38,6 +39,11 @@ from onnx import helper, numpy_helper
 TAPS = np.array([[[1, 0, 0], [0, 1, 1], [0, 0, 0]], [[0, 0, 0], [1, 1, 0], [0, 0, 1]]], dtype=np.float64)
 #: Output channels from which each phase gets its own 2x2 convolution (one onnxruntime channel block).
 SPLIT_MIN_CHANNELS = 16
+#: Layers whose input is smaller than this on a side stay resize + conv. They cost little (the U-Net's
+#: innermost: 1x1 to 4x4 inputs), and onnxruntime-web 1.30's WebGPU convolution computes a 2x2 kernel padded
+#: on one side wrongly on a 2x2 input (max |error| 63 against its wasm back end; one-sided pads from 4x4 up
+#: matched to 1e-4), which made the browser's GPU path wrong.
+MIN_SIDE = 8
 #: Joins a layer's weight (or bias) name and a tag (``ups.0.2.weight#subpixel/phases``, ``...#subpixel/taps01``):
 #: the part before it is the name ``torch.onnx.export`` gave, which :func:`merged_convs` gives back.
 PHASE_SEP = "#subpixel/"
@@ -89,8 +95,21 @@ def _is_plain_3x3(conv: onnx.NodeProto) -> bool:
     )
 
 
-def _layers(graph: onnx.GraphProto) -> list[_Layer]:
-    """Every nearest-2x Resize whose only consumer is a plain 3x3 Conv with constant weights."""
+def _sides(model: onnx.ModelProto) -> dict[str, tuple[int, int]]:
+    """(height, width) of every 4-D tensor whose spatial size shape inference can tell."""
+    inferred = onnx.shape_inference.infer_shapes(model).graph
+    sides = {}
+    for value in [*inferred.input, *inferred.value_info]:
+        dims = value.type.tensor_type.shape.dim
+        if len(dims) == 4 and dims[2].dim_value > 0 and dims[3].dim_value > 0:
+            sides[value.name] = (dims[2].dim_value, dims[3].dim_value)
+    return sides
+
+
+def _layers(model: onnx.ModelProto) -> list[_Layer]:
+    """Every nearest-2x Resize of an input at least :data:`MIN_SIDE` on each side whose only consumer is a
+    plain 3x3 Conv with constant weights."""
+    graph, sides = model.graph, _sides(model)
     consumers: dict[str, list[onnx.NodeProto]] = {}
     for node in graph.node:
         for name in node.input:
@@ -99,6 +118,8 @@ def _layers(graph: onnx.GraphProto) -> list[_Layer]:
     layers = []
     for node in graph.node:
         if node.op_type != "Resize" or not _is_nearest_2x(graph, node) or node.output[0] in outputs:
+            continue
+        if min(sides.get(node.input[0], (0, 0))) < MIN_SIDE:
             continue
         users = consumers.get(node.output[0], [])
         if len(users) != 1 or users[0].op_type != "Conv" or not _is_plain_3x3(users[0]):
@@ -178,7 +199,7 @@ def subpixel_upsampling(model: onnx.ModelProto) -> tuple[onnx.ModelProto, int]:
     out = onnx.ModelProto()
     out.CopyFrom(model)
     graph = out.graph
-    layers = _layers(graph)
+    layers = _layers(out)
     replaced = {id(layer.conv): _phase_nodes(layer, graph) for layer in layers}
     dropped = {id(layer.resize) for layer in layers}
     nodes = []

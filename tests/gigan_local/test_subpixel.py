@@ -21,7 +21,7 @@ from gigan_local.export import FILES, fp16_weights, rewrite_export
 from gigan_local.inference import DEFAULT_MODEL, MODEL_JSON
 from gigan_local.networks import define_G
 from gigan_local.rewrite_cli import app
-from gigan_local.subpixel import GRAPH_NAME, phase_taps, subpixel_upsampling
+from gigan_local.subpixel import GRAPH_NAME, MIN_SIDE, phase_taps, subpixel_upsampling
 
 
 def _onnx(net: torch.nn.Module, shape: tuple[int, ...]) -> onnx.ModelProto:
@@ -51,10 +51,10 @@ def test_one_layer_matches_resize_then_conv_at_every_border(out_channels):
     layer = torch.nn.Sequential(
         torch.nn.Upsample(scale_factor=2, mode="nearest"), torch.nn.Conv2d(5, out_channels, 3, padding=1)
     )
-    x = np.random.default_rng(1).normal(size=(2, 5, 7, 9)).astype(np.float32)
+    x = np.random.default_rng(1).normal(size=(2, 5, 9, 11)).astype(np.float32)
     with torch.no_grad():
         ref = layer(torch.from_numpy(x)).numpy()
-    model, n = subpixel_upsampling(_onnx(layer, (1, 5, 7, 9)))
+    model, n = subpixel_upsampling(_onnx(layer, (1, 5, 9, 11)))
     assert n == 1
     assert _ops(model)["Resize"] == 0 and _ops(model)["DepthToSpace"] == 1
     assert _ops(model)["Conv"] == (1 if out_channels < 16 else 4)
@@ -78,17 +78,23 @@ def test_phase_taps_sum_the_kernel_taps_that_land_on_one_input_pixel():
     assert np.allclose(top_left, [[w[0, 0], w[0, 1:].sum()], [w[1:, 0].sum(), w[1:, 1:].sum()]])
 
 
-def test_resize_unet_graph_is_rewritten_whole_and_exact():
+def test_a_layer_on_a_small_input_is_left_as_it_is():
+    layer = torch.nn.Sequential(torch.nn.Upsample(scale_factor=2, mode="nearest"), torch.nn.Conv2d(5, 16, 3, padding=1))
+    model, n = subpixel_upsampling(_onnx(layer, (1, 5, MIN_SIDE - 1, 16)))
+    assert n == 0 and _ops(model)["Resize"] == 1
+
+
+def test_resize_unet_graph_is_rewritten_from_the_minimum_side_and_exact():
     torch.manual_seed(3)
     cfg = NetworkConfig(name="unet", in_channels=10, out_channels=3, width=8, n_down=5, upsample="resize")
     net = define_G(cfg).eval()
-    x = np.random.default_rng(4).uniform(-1, 1, (2, 10, 32, 32)).astype(np.float32)
+    x = np.random.default_rng(4).uniform(-1, 1, (2, 10, 64, 64)).astype(np.float32)
     with torch.no_grad():
         ref = net(torch.from_numpy(x)).numpy()
-    model, n = subpixel_upsampling(_onnx(net, (1, 10, 32, 32)))
-    assert n == cfg.n_down
+    model, n = subpixel_upsampling(_onnx(net, (1, 10, 64, 64)))
+    assert n == 3  # up layers on 8, 16 and 32 px inputs; those on 2 and 4 px keep their resize
     ops = _ops(model)
-    assert ops["Resize"] == 0 and ops["DepthToSpace"] == cfg.n_down and ops["Constant"] == 0
+    assert ops["Resize"] == 2 and ops["DepthToSpace"] == 3 and ops["Constant"] == 2
     assert np.abs(_run(model, x) - ref).max() < 1e-5
 
 
@@ -123,10 +129,10 @@ def test_rewrite_export_rewrites_both_files_in_place_and_only_once(tmp_path):
     result = CliRunner().invoke(app, [str(folder)])
     assert result.exit_code == 0, result.output
     doc = json.loads((folder / MODEL_JSON).read_text())
-    assert doc["graph"] == GRAPH_NAME and doc["graph_rewrite"]["layers"] == 5
+    assert doc["graph"] == GRAPH_NAME and doc["graph_rewrite"]["layers"] == 2  # inputs of 8 and 16 px
     for k, ref in before.items():
         model = onnx.load(str(folder / FILES[k]))
-        assert _ops(model)["Resize"] == 0
+        assert _ops(model)["DepthToSpace"] == 2
         assert np.abs(_run(model, x) - ref).max() < (1e-5 if k == "fp32" else 2e-3)
         assert doc["graph_rewrite"]["max_abs_diff_vs_resize_graph"][k] < (1e-5 if k == "fp32" else 2e-3)
     with pytest.raises(UserError, match="already rewritten"):
@@ -142,9 +148,11 @@ def test_the_shipped_model_is_the_rewritten_graph(tmp_path):
     """The shipped files are rewritten, and the fp16 file is the fp32 graph with half-precision weights."""
     doc = json.loads((DEFAULT_MODEL.parent / MODEL_JSON).read_text())
     assert doc["graph"] == GRAPH_NAME
+    rewritten = sum(doc["resolution"] // 2 ** (i + 1) >= MIN_SIDE for i in range(doc["n_down"]))
+    assert doc["graph_rewrite"]["layers"] == rewritten
     for name in (FILES["fp32"], FILES["fp16"]):
         ops = _ops(onnx.load(str(DEFAULT_MODEL.parent / name)))
-        assert ops["Resize"] == 0 and ops["DepthToSpace"] == doc["n_down"]
+        assert ops["DepthToSpace"] == rewritten and ops["Resize"] == doc["n_down"] - rewritten
     shutil.copytree(DEFAULT_MODEL.parent, tmp_path / "copy")
     with pytest.raises(UserError, match="already rewritten"):
         rewrite_export(tmp_path / "copy")
