@@ -243,15 +243,19 @@ def test_the_shipped_model_card_matches_its_files() -> None:
 def test_the_diagnosis_variant_trains_exports_and_runs_like_torch(tmp_path):
     """Resize up-sampling (nearest 2x + 3x3 conv, exported as sub-pixel phase convolutions) and an
     unconditional critic: the run trains, its config records both, the exported model computes what torch
-    does, and a warm start (`--init-generator`) reads it back, merging the phases back into 3x3 kernels and
-    restoring the batch norms the exporter folded into the down and the resize up convolutions."""
+    does (and quantizes to int8), and a warm start (`--init-generator`) reads it back: the 3x3 kernels the
+    phase kernels are computed from, and the batch norms the exporter folded into the down and the resize up
+    convolutions."""
     dataset = make_dataset(tmp_path / "ds")
     run = tmp_path / "run"
     train(tiny_config(dataset, max_steps=2, upsample="resize", critic_condition=False), run, progress=False)
     config = json.loads((run / "config.json").read_text())
     assert config["networks"]["G"]["upsample"] == "resize" and config["networks"]["D"]["in_channels"] == 0
-    result = CliRunner().invoke(app, [str(run), "--out", str(tmp_path / "onnx"), "--no-fp16"])
+    args = [str(run), "--out", str(tmp_path / "onnx"), "--no-fp16", "--int8", "--calibration-frames", "2"]
+    result = CliRunner().invoke(app, args)
     assert result.exit_code == 0, result.output
+    int8_ops = {n.op_type for n in onnx.load(str(tmp_path / "onnx" / "model_int8.onnx")).graph.node}
+    assert {"QLinearConv", "DepthToSpace"} <= int8_ops  # the phase kernels folded and quantized too
     generator, _ = load_generator(run)
     x = np.random.default_rng(4).uniform(-1, 1, (1, 10, 32, 32)).astype(np.float32)
     with torch.no_grad():
