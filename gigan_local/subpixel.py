@@ -45,7 +45,7 @@ SPLIT_MIN_CHANNELS = 16
 #: matched to 1e-4), which made the browser's GPU path wrong.
 MIN_SIDE = 8
 #: Joins a layer's weight (or bias) name and a tag (``ups.0.2.weight#subpixel/phases``, ``...#subpixel/taps01``):
-#: the part before it is the name ``torch.onnx.export`` gave, which :func:`merged_convs` gives back.
+#: the part before it is the name ``torch.onnx.export`` gave, which :func:`exported_convs` gives back.
 PHASE_SEP = "#subpixel/"
 #: What ``model.json`` records of the rewrite (its ``graph`` entry).
 GRAPH_NAME = "subpixel"
@@ -219,7 +219,7 @@ def subpixel_upsampling(model: onnx.ModelProto) -> tuple[onnx.ModelProto, int]:
     return out, len(layers)
 
 
-def merged_convs(graph: onnx.GraphProto, weights: dict[str, np.ndarray]) -> list[tuple[str, str]]:
+def exported_convs(graph: onnx.GraphProto, weights: dict[str, np.ndarray]) -> list[tuple[str, str]]:
     """The exported layers' convolutions in graph order as (weight, bias or "") initializer names: a rewritten
     layer's phase convolutions count as the one 3x3 convolution whose weight (and bias) they are computed
     from. The rewrite's own constants (names holding :data:`PHASE_SEP`) are removed from ``weights`` (name ->

@@ -54,11 +54,12 @@ def generator_weights(
     """The exported generator's weights, checked against the run's generator ``network`` and input
     ``spec`` (a mismatch is a UserError saying which field differs): (initializer name -> float32 array,
     and the graph's ``Conv`` nodes in graph order as (weight, bias or "") initializer names, a sub-pixel
-    layer's phase convolutions merged back into one: :func:`gigan_local.subpixel.merged_convs`)."""
+    layer's phase convolutions counted as the 3x3 one they come from:
+    :func:`gigan_local.subpixel.exported_convs`)."""
     import onnx
     from onnx import numpy_helper
 
-    from gigan_local.subpixel import merged_convs
+    from gigan_local.subpixel import exported_convs
 
     doc = _model_json(path)
     saved_net, saved_spec = NetworkConfig.from_dict(doc["network"]), InputSpec.from_dict(doc["input"])
@@ -82,7 +83,7 @@ def generator_weights(
     # an fp16 file stores each weight in half precision followed by a Cast: a weight is named by what it feeds
     cast_of = {n.input[0]: n.output[0] for n in graph.node if n.op_type == "Cast"}
     weights = {cast_of.get(t.name, t.name): numpy_helper.to_array(t).astype(np.float32) for t in graph.initializer}
-    return weights, merged_convs(graph, weights)
+    return weights, exported_convs(graph, weights)
 
 
 def load_into(generator: Any, path: Path, network: NetworkConfig, spec: InputSpec, calibration: Any) -> int:
