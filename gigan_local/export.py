@@ -283,7 +283,13 @@ def rewrite_export(model_dir: Path, seed: int = 0) -> dict[str, float]:
             f"{model_dir} is already rewritten (model.json: graph {GRAPH_NAME!r})", "use the folder as it is"
         )
     with exclusive_run(model_dir):
-        new32, n = subpixel_upsampling(onnx.load(str(fp32)))
+        try:
+            original = onnx.load(str(fp32))
+        except Exception as e:  # onnx raises protobuf's own exception types for unreadable files
+            raise UserError(
+                f"{fp32} is not a loadable ONNX model ({type(e).__name__})", "re-export it with gigan-export"
+            ) from None
+        new32, n = subpixel_upsampling(original)
         if n == 0:
             raise UserError(
                 f"{fp32} has no nearest-2x resize + 3x3 conv to rewrite",

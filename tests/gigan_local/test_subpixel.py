@@ -5,6 +5,8 @@ from __future__ import annotations
 import io
 import json
 import shutil
+import subprocess
+import sys
 from collections import Counter
 from pathlib import Path
 
@@ -22,6 +24,7 @@ from gigan_local.inference import DEFAULT_MODEL, MODEL_JSON
 from gigan_local.networks import define_G
 from gigan_local.rewrite_cli import app
 from gigan_local.subpixel import GRAPH_NAME, MIN_SIDE, phase_taps, subpixel_upsampling
+from tests.helpers.cli import TIMEOUT_S, Outcome, check_user_error, snapshot
 
 
 def _onnx(net: torch.nn.Module, shape: tuple[int, ...]) -> onnx.ModelProto:
@@ -142,6 +145,26 @@ def test_rewrite_export_rewrites_both_files_in_place_and_only_once(tmp_path):
 def test_rewrite_export_refuses_a_folder_without_a_model(tmp_path):
     with pytest.raises(UserError, match="model_fp32.onnx is missing"):
         rewrite_export(tmp_path)
+
+
+def test_rewrite_of_a_corrupt_model_is_one_error_line_and_changes_nothing(tmp_path):
+    folder = tmp_path / "model"
+    _resize_graph_export(folder)
+    (folder / FILES["fp32"]).write_bytes(b"not a model")
+    argv = [sys.executable, "-m", "gigan_local.rewrite_cli", str(folder)]
+    before = snapshot(tmp_path)
+    proc = subprocess.run(argv, cwd=tmp_path, capture_output=True, text=True, timeout=TIMEOUT_S)
+    outcome = Outcome(tuple(argv), proc.returncode, proc.stdout, proc.stderr, before, snapshot(tmp_path))
+    check_user_error(outcome, f"{folder / FILES['fp32']} is not a loadable ONNX model")
+
+
+def test_rewrite_of_a_transposed_export_says_there_is_nothing_to_rewrite(tmp_path):
+    folder = tmp_path / "model"
+    _resize_graph_export(folder)
+    cfg = NetworkConfig(name="unet", in_channels=10, out_channels=3, width=8, n_down=5, upsample="transposed")
+    (folder / FILES["fp32"]).write_bytes(_onnx(define_G(cfg), (1, 10, 32, 32)).SerializeToString())
+    with pytest.raises(UserError, match="no nearest-2x resize"):
+        rewrite_export(folder)
 
 
 def test_the_shipped_model_is_the_rewritten_graph(tmp_path):
