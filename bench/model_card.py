@@ -268,9 +268,10 @@ def write_model_card(
 
 def graph_lines(model_doc: dict) -> list[str]:
     """The card's line on the graph form of the files (``gigan_local.subpixel``), if they have one."""
-    if model_doc.get("graph") != "subpixel":
+    from gigan_local.subpixel import GRAPH_NAME, MIN_SIDE  # onnx loads only when a card is written
+
+    if model_doc.get("graph") != GRAPH_NAME:
         return []
-    from gigan_local.subpixel import MIN_SIDE  # onnx loads only when a card is written
 
     line = (
         f"- Graph: each nearest 2x resize + 3x3 conv on an input of at least {MIN_SIDE} px a side is exported as "

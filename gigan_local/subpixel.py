@@ -57,8 +57,7 @@ class _Layer:
 
     resize: onnx.NodeProto
     conv: onnx.NodeProto
-    weight: np.ndarray  # (out, in, 3, 3)
-    bias: np.ndarray | None  # (out,)
+    weight: np.ndarray  # (out, in, 3, 3): its shape and dtype shape the phase kernels
 
 
 def _constant(graph: onnx.GraphProto, name: str) -> np.ndarray | None:
@@ -128,8 +127,7 @@ def _layers(model: onnx.ModelProto) -> list[_Layer]:
         weight = _constant(graph, conv.input[1])
         if weight is None:
             continue
-        bias = _constant(graph, conv.input[2]) if len(conv.input) > 2 and conv.input[2] else None
-        layers.append(_Layer(node, conv, weight, bias))
+        layers.append(_Layer(node, conv, weight))
     return layers
 
 
@@ -224,12 +222,10 @@ def exported_convs(graph: onnx.GraphProto, weights: dict[str, np.ndarray]) -> li
     layer's phase convolutions count as the one 3x3 convolution whose weight (and bias) they are computed
     from. The rewrite's own constants (names holding :data:`PHASE_SEP`) are removed from ``weights`` (name ->
     array), so that a reader of the weights (a warm start) sees what ``torch.onnx.export`` wrote."""
-    listed: list[tuple[str, str]] = []
+    listed: dict[str, str] = {}  # weight -> bias, in graph order; a layer's phase convs share its weight
     for node in (n for n in graph.node if n.op_type == "Conv"):
-        weight, bias = node.input[1], node.input[2] if len(node.input) > 2 else ""
-        original = weight.partition(PHASE_SEP)[0]
-        if weight == original or weight.endswith(("phases", "phase00")):  # a phase layer's first conv
-            listed.append((original, bias.partition(PHASE_SEP)[0]))
+        bias = node.input[2] if len(node.input) > 2 else ""
+        listed.setdefault(node.input[1].partition(PHASE_SEP)[0], bias.partition(PHASE_SEP)[0])
     for name in [name for name in weights if PHASE_SEP in name]:
         del weights[name]
-    return listed
+    return list(listed.items())
