@@ -17,7 +17,8 @@ Mitsuba (``system = mitsuba``: the centre-sampled passes a ``--renderer mitsuba`
 side in one run, one repeat of each renderer in turn (``stat = ratio`` rows: gl median over Mitsuba
 median). For ``lod = auto``: the level each view drew (``lod_level``) and what it cost against full detail
 at that view, per G-buffer channel (``lod_error_*``, :func:`gicore.gl.lod.lod_errors`; ``view = gi`` or
-``local``). Where no GL context opens the GL passes are left out after one warning.
+``local``). Where no GL context opens the GL passes are left out after one warning. ``--renderers gl`` times
+the GL passes alone (no Mitsuba import: what a GPU machine without Mitsuba can run).
 """
 
 from __future__ import annotations
@@ -32,6 +33,9 @@ import numpy as np
 
 from bench.runner import Bench
 from gicore.camera import Camera
+from gicore.cli import UserError
+from gicore.geometry import scene_objects
+from gicore.loop import RENDERERS
 from gicore.options import RESOLUTION
 from gicore.paths import camera_path, light_position
 from gicore.results import Results, read_rows
@@ -47,6 +51,9 @@ CLIENT_PASSES = ("gi_camera", "local_di", "local_di_uv", "local_di_mask")
 LOD_VIEWS = {"gi": "gi views", "local": "local views", "local_shown": "local views, shown passes"}
 #: GL levels of detail timed: full detail, and the clients' (``gicore.loop.CLIENT_LOD``).
 GL_LODS = ("full", "auto")
+#: Suffix of the metric of a GL pass's draw calls alone, timed on the GPU by a GL timer query (the pass's metric
+#: is its wall time, read-back to host memory included).
+GPU_DRAW = "_gpu_draw"
 
 
 @dataclass(frozen=True)
@@ -65,6 +72,18 @@ class RenderBenchConfig:
     gl_resolutions: tuple[int, ...] = field(default=(256, 512), metadata={**RESOLUTION, "min_len": 0})
     #: Timed repeats of each client raster pass, after two warm-ups.
     gl_repeats: int = 15
+    #: Renderers timed: mitsuba (its passes above, and the client passes beside GL with gl / mitsuba ratios)
+    #: and/or gl (the client passes). ``gl`` alone needs no Mitsuba: a GPU machine's GL passes by themselves.
+    renderers: tuple[str, ...] = ("gl", "mitsuba")
+
+    def __post_init__(self) -> None:
+        for name in self.renderers:
+            if name not in RENDERERS:
+                raise UserError(f"--renderers {name!r} is not a renderer", f"use some of {', '.join(RENDERERS)}")
+        if not self.renderers or len(set(self.renderers)) != len(self.renderers):
+            raise UserError(f"--renderers {','.join(self.renderers)!r} must name each renderer once", "e.g. gl,mitsuba")
+        if self.renderers == ("gl",) and not self.gl_resolutions:
+            raise UserError("--renderers gl with no --gl-resolutions times nothing", "give a resolution, e.g. 256")
 
     @classmethod
     def quick(cls) -> RenderBenchConfig:
@@ -72,14 +91,24 @@ class RenderBenchConfig:
 
 
 def measure(cfg: RenderBenchConfig, res: Results) -> None:
+    for name in cfg.scenes:
+        spec = load_scene(name)
+        triangles = sum(o.mesh.n_triangles for o in scene_objects(spec))
+        res.add(system="scene", scene=spec.name, metric="triangles", value=triangles, unit="count")
+    if "mitsuba" in cfg.renderers:
+        measure_mitsuba_passes(cfg, res)
+    if cfg.gl_resolutions:
+        measure_client_passes(cfg, res)
+
+
+def measure_mitsuba_passes(cfg: RenderBenchConfig, res: Results) -> None:
+    """Mitsuba's passes (:data:`PASSES`) per scene at ``cfg.resolution``."""
     from gicore.render import VARIANT, Renderer
 
     seed = res.seed
     for name in cfg.scenes:
         spec = load_scene(name)
         renderer = Renderer(spec, cfg.resolution)
-        triangles = sum(o.mesh.n_triangles for o in renderer.objects)
-        res.add(system="scene", scene=name, metric="triangles", value=triangles, unit="count")
         cams = camera_path(spec, 8, seed=seed, resolution=cfg.resolution)
         light = light_position(spec, 0)
         # Alternate cameras so every timed call really moves the sensor (as in an animation).
@@ -106,14 +135,12 @@ def measure(cfg: RenderBenchConfig, res: Results) -> None:
             samples, _ = time_repeats(fn, repeats, warmup=2)
             res.add_timing(
                 system="mitsuba",
-                scene=name,
+                scene=spec.name,
                 metric=stage,
                 samples_s=samples,
                 resolution=cfg.resolution,
                 variant=VARIANT,
             )
-    if cfg.gl_resolutions:
-        measure_client_passes(cfg, res)
 
 
 # -- the clients' raster passes, GL beside Mitsuba ---------------------------------------------------------
@@ -180,15 +207,16 @@ def _lod_rows(res: Results, gl: Any, spec: SceneSpec, resolution: int, seed: int
 
 
 def measure_client_passes(cfg: RenderBenchConfig, res: Results) -> None:
-    """The clients' raster passes on GL (lod full and auto) and on Mitsuba, per scene and resolution."""
+    """The clients' raster passes on GL (lod full and auto) and, where ``cfg.renderers`` names it, on Mitsuba,
+    per scene and resolution."""
     from gicore.gl import GLRenderer, gl_available
-    from gicore.render import VARIANT, Renderer
 
     ok, info = gl_available()
     if not ok:
         print(f"warning: renderer gl is unavailable, leaving out the GL passes: {info}", file=sys.stderr, flush=True)
         return
     res.settings["gl_renderer"] = info
+    with_mitsuba = "mitsuba" in cfg.renderers
     for name in cfg.scenes:
         spec = load_scene(name)
         for resolution in cfg.gl_resolutions:
@@ -196,43 +224,62 @@ def measure_client_passes(cfg: RenderBenchConfig, res: Results) -> None:
             renderers: list[tuple[str, dict[str, Any], Any]] = [
                 ("gl", {"lod": lod}, GLRenderer(spec, resolution, lod=lod)) for lod in GL_LODS
             ]
-            renderers.append(("mitsuba", {"variant": VARIANT}, Renderer(spec, resolution)))
+            if with_mitsuba:
+                from gicore.render import VARIANT, Renderer
+
+                renderers.append(("mitsuba", {"variant": VARIANT}, Renderer(spec, resolution)))
             passes = [_client_passes(renderer, spec, resolution, res.seed) for _, _, renderer in renderers]
             for stage in CLIENT_PASSES:
                 # one repeat of each renderer in turn, so that a shared machine's changing load falls on all alike
                 samples: list[list[float]] = [[] for _ in renderers]
+                gpu_samples: list[list[float]] = [[] for _ in renderers]
                 for fns in passes:
                     time_repeats(fns[stage], 1, warmup=1)
                 for _ in range(cfg.gl_repeats):
-                    for mine, fns in zip(samples, passes):
+                    for mine, gpu, fns, (system, _, renderer) in zip(samples, gpu_samples, passes, renderers):
                         mine += time_repeats(fns[stage], 1, warmup=0)[0]
-                for (system, extra, _), mine in zip(renderers, samples):
+                        if system == "gl":  # a call of its own: reading the timer query waits for the GPU
+                            renderer.gpu_timing = True
+                            fns[stage]()
+                            renderer.gpu_timing = False
+                            gpu.append(renderer.draw_ms / 1e3)
+                for (system, extra, _), mine, gpu in zip(renderers, samples, gpu_samples):
                     config = {"resolution": resolution, "pass_set": "client"} | extra
-                    res.add_timing(system=system, scene=name, metric=stage, samples_s=mine, **config)
+                    res.add_timing(system=system, scene=spec.name, metric=stage, samples_s=mine, **config)
+                    if gpu:
+                        res.add_timing(
+                            system=system, scene=spec.name, metric=f"{stage}{GPU_DRAW}", samples_s=gpu, **config
+                        )
                     medians[system, extra.get("lod", ""), stage] = float(np.median(mine))
             for _, extra, renderer in renderers:
                 if extra.get("lod") == "auto":
                     config = {"resolution": resolution, "pass_set": "client"} | extra
                     _lod_rows(res, renderer, spec, resolution, res.seed, config)
-            for lod in GL_LODS:
+            for lod in GL_LODS if with_mitsuba else ():
                 for stage in CLIENT_PASSES:
                     ratio = medians["gl", lod, stage] / medians["mitsuba", "", stage]
                     config = {"resolution": resolution, "pass_set": "client", "lod": lod}
                     res.add(
-                        system="gl/mitsuba", scene=name, metric=stage, value=ratio, unit="1", stat="ratio", **config
+                        system="gl/mitsuba",
+                        scene=spec.name,
+                        metric=stage,
+                        value=ratio,
+                        unit="1",
+                        stat="ratio",
+                        **config,
                     )
 
 
 def client_table(rows: list[dict]) -> str:
-    """The clients' raster passes per scene and resolution: median ms on GL (full, auto) and Mitsuba, gl / mitsuba,
-    and the level auto drew with its G-buffer error."""
+    """The clients' raster passes per scene and resolution: median ms on GL (full, auto; wall and GPU draw) and
+    Mitsuba, gl / mitsuba, and the level auto drew with its G-buffer error."""
 
-    def get(system: str, metric: str, stat: str, **config: Any) -> float | None:
+    def get(scene: str, system: str, metric: str, stat: str, **config: Any) -> float | None:
         return next(
             (
                 r["value"]
                 for r in rows
-                if (r["system"], r["metric"], r["stat"]) == (system, metric, stat)
+                if (r["scene"], r["system"], r["metric"], r["stat"]) == (scene, system, metric, stat)
                 and r["config"].get("pass_set") == "client"
                 and all(r["config"].get(k) == v for k, v in config.items())
             ),
@@ -243,31 +290,39 @@ def client_table(rows: list[dict]) -> str:
         return "—" if value is None else format(value, spec)
 
     keys = list(dict.fromkeys((r["scene"], r["config"]["resolution"]) for r in rows if r["config"].get("pass_set")))
-    lines = ["## Client raster passes: OpenGL beside Mitsuba (median ms; gl / mitsuba in brackets)", ""]
+    lines = [
+        "## Client raster passes: OpenGL beside Mitsuba",
+        "",
+        "Median ms per pass, read-back to host memory included (gl / mitsuba in brackets); GPU draw: the pass's",
+        "draw calls alone (its shadow map included), timed on the GPU by a GL timer query.",
+        "",
+    ]
     for scene, resolution in keys:
         at = {"resolution": resolution}
         lines += [
             f"### {scene}, {resolution}²",
             "",
-            "| pass | gl, full detail | gl, lod auto | mitsuba |",
-            "|---|---|---|---|",
+            "| pass | gl, full detail | GPU draw | gl, lod auto | GPU draw | mitsuba |",
+            "|---|---|---|---|---|---|",
         ]
         for stage in CLIENT_PASSES:
             cells = []
             for lod in GL_LODS:
-                median, ratio = (
-                    get("gl", stage, "median", lod=lod, **at),
-                    get("gl/mitsuba", stage, "ratio", lod=lod, **at),
+                median, ratio, draw = (
+                    get(scene, "gl", stage, "median", lod=lod, **at),
+                    get(scene, "gl/mitsuba", stage, "ratio", lod=lod, **at),
+                    get(scene, "gl", f"{stage}{GPU_DRAW}", "median", lod=lod, **at),
                 )
-                cells.append(f"{ms(median)} ({ms(ratio, '.2f')})")
-            lines.append(f"| {stage} | " + " | ".join(cells) + f" | {ms(get('mitsuba', stage, 'median', **at))} |")
+                cells += [f"{ms(median)} ({ms(ratio, '.2f')})", ms(draw, ".2f")]
+            mitsuba = ms(get(scene, "mitsuba", stage, "median", **at))
+            lines.append(f"| {stage} | " + " | ".join(cells) + f" | {mitsuba} |")
         for view in LOD_VIEWS:
             where = at | {"lod": "auto", "view": view}
             errors = []
             for c in ("normal", "depth", "coverage"):
-                mean, top = (get("gl", f"lod_error_{c}", stat, **where) for stat in ("mean", "max"))
+                mean, top = (get(scene, "gl", f"lod_error_{c}", stat, **where) for stat in ("mean", "max"))
                 errors.append(f"{c} {ms(mean, '.1e')} (max {ms(top, '.1e')})")
-            level, top = (get("gl", "lod_level", stat, **where) for stat in ("mean", "max"))
+            level, top = (get(scene, "gl", "lod_level", stat, **where) for stat in ("mean", "max"))
             lines.append(
                 f"\nlod auto at the {LOD_VIEWS[view]}: level {ms(level, '.1f')} on average (max {ms(top, '.0f')}); "
                 f"G-buffer error against full detail: {', '.join(errors)}."
@@ -281,7 +336,14 @@ def plot(csv_path: Path, out_dir: Path) -> list[Path]:
     from gicore.plotting import plt, save, ticker
 
     rows = read_rows(csv_path)
-    mitsuba_passes = [r for r in rows if r["config"].get("pass_set") != "client"]
+    written = []
+    if any(r["config"].get("pass_set") == "client" for r in rows):
+        md = out_dir / "render_client_passes.md"
+        md.write_text(client_table(rows) + "\n")
+        written.append(md)
+    mitsuba_passes = [r for r in rows if r["system"] == "mitsuba" and r["config"].get("pass_set") != "client"]
+    if not mitsuba_passes:  # --renderers gl
+        return written
     scenes = list(dict.fromkeys(r["scene"] for r in mitsuba_passes))
     stages = [s for s in PASSES if any(r["metric"] == s for r in mitsuba_passes)]
 
@@ -309,12 +371,7 @@ def plot(csv_path: Path, out_dir: Path) -> list[Path]:
     resolution = next((r["config"].get("resolution") for r in mitsuba_passes if r["stat"] == "median"), "?")
     variant = next((r["config"].get("variant") for r in mitsuba_passes if r["stat"] == "median"), "")
     ax.set_title(f"Render passes at {resolution}² (Mitsuba {variant})")
-    written = [save(fig, out_dir / "render.png")]
-    if any(r["config"].get("pass_set") == "client" for r in rows):
-        md = out_dir / "render_client_passes.md"
-        md.write_text(client_table(rows) + "\n")
-        written.append(md)
-    return written
+    return [save(fig, out_dir / "render.png"), *written]
 
 
 BENCH = Bench(

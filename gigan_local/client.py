@@ -14,7 +14,8 @@ The loop itself -- DI every frame, a GI map every ``k`` frames, warp, compose, p
 With ``renderer="gl"`` (:attr:`gicore.loop.PathRunConfig.renderer`) every per-frame raster pass -- the local
 DI, the model source's DI + G-buffers at the GI camera, the warp's uv pass -- is OpenGL's
 (:class:`gicore.gl.GLRenderer` at level of detail :data:`gicore.loop.CLIENT_LOD`); path tracing (the GT
-source, GT scoring) stays Mitsuba's, so such a client holds both renderers. The stage names are the same either way.
+source, GT scoring) stays Mitsuba's, so such a client holds both renderers; a model-source client on GL without
+GT scoring opens no Mitsuba at all (:func:`needs_path_tracer`). The stage names are the same either way.
 
 GIGAN maps with cloud baking's pixel-level warp (Table 3's comparison) are assembled in ``bench``, which
 may import both systems; this package does not import ``baseline_cloudbaking``.
@@ -23,7 +24,7 @@ may import both systems; this package does not import ``baseline_cloudbaking``.
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
@@ -188,7 +189,7 @@ def load_model(path: Path | None, threads: int, resolution: int) -> GIModel:
 
 
 def make_gi_source(
-    cfg: ClientConfig, renderer: Renderer, cache: dict | None = None, raster: Any | None = None
+    cfg: ClientConfig, renderer: Renderer | None, cache: dict | None = None, raster: Any | None = None
 ) -> SynchronousSource:
     """The configured GI source; ``model`` needs an exported model (``--model`` or the default file).
 
@@ -210,25 +211,41 @@ def make_warp(method: str, renderer: Renderer, composition: str) -> Warp:
 
 
 # -- a run --------------------------------------------------------------------------------------------------
-def open_renderers(cfg: ClientConfig, spec: SceneSpec, renderer: Renderer | None = None) -> tuple[Renderer, Any, str]:
-    """(Mitsuba renderer, the renderer of the per-frame raster passes, the name of the one that runs them).
+def needs_path_tracer(cfg: ClientConfig) -> bool:
+    """Whether a run of ``cfg`` path-traces (Mitsuba): the GT source, GT scoring, or Mitsuba's raster passes.
+    A model-source client on GL without GT is Mitsuba-free, as a browser client is."""
+    return cfg.renderer == "mitsuba" or cfg.gi_source == "gt" or bool(cfg.gt_every)
 
-    ``renderer``: a Mitsuba renderer to share (it must render ``spec`` at the config's resolution). With
+
+def open_renderers(
+    cfg: ClientConfig, spec: SceneSpec, renderer: Renderer | None = None
+) -> tuple[Renderer | None, Any, str]:
+    """(Mitsuba renderer or None, the renderer of the per-frame raster passes, the name of the one that runs them).
+
+    ``renderer``: a Mitsuba renderer to share (it must render ``spec`` at the config's resolution); without
+    one, one is opened where the run needs it (:func:`needs_path_tracer`) or GL does not open. With
     ``cfg.renderer == "gl"`` the raster passes get a :class:`gicore.gl.GLRenderer`, or Mitsuba's after one
     warning when no GL context opens (:func:`gicore.loop.open_raster`)."""
-    if renderer is None:
-        from gicore.render import Renderer
-
-        renderer = Renderer(spec, cfg.resolution)
-    elif (renderer.spec.name, renderer.resolution) != (spec.name, cfg.resolution):
+    if renderer is not None and (renderer.spec.name, renderer.resolution) != (spec.name, cfg.resolution):
         raise ValueError(
             f"the shared renderer renders {renderer.spec.name} at {renderer.resolution}²"
             f" but the config asks for {spec.name} at {cfg.resolution}²"
         )
+    if renderer is None and needs_path_tracer(cfg):
+        renderer = _path_renderer(spec, cfg.resolution)
     from gicore.gl import GLRenderer, RasterUnavailable
 
     gl = partial(GLRenderer, spec, cfg.resolution, lod=CLIENT_LOD)
-    return (renderer, *open_raster(cfg.renderer, renderer, gl, RasterUnavailable))
+    raster, used = open_raster(cfg.renderer, renderer, gl, RasterUnavailable)
+    if raster is None:  # GL did not open and nothing had needed Mitsuba until now
+        renderer = raster = _path_renderer(spec, cfg.resolution)
+    return renderer, raster, used
+
+
+def _path_renderer(spec: SceneSpec, resolution: int) -> Renderer:
+    from gicore.render import Renderer
+
+    return Renderer(spec, resolution)
 
 
 def run_client(
@@ -242,8 +259,8 @@ def run_client(
     spec = load_scene(cfg.scene)
     if raster is None:
         renderer, raster, _ = open_renderers(cfg, spec, renderer)
-    elif renderer is None:
-        renderer, _, _ = open_renderers(replace(cfg, renderer="mitsuba"), spec)
+    elif renderer is None and needs_path_tracer(cfg):
+        renderer = _path_renderer(spec, cfg.resolution)
     if cfg.gi_source == "gt" or cfg.gt_every:
         check_denoiser(cfg.denoise)
     local_fov, _ = cfg.fovs(spec)

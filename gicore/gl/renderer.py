@@ -268,6 +268,13 @@ class GLRenderer:
         self.last_level = 0
         #: Shadow maps rendered so far (a static light renders one).
         self.shadow_updates = 0
+        #: Time each pass's draw calls (its shadow map included) on the GPU with a GL timer query; off by default,
+        #: since reading the query waits for the GPU before the read-back would.
+        self.gpu_timing = False
+        #: With :attr:`gpu_timing`: GPU time in ms of the last pass's draw calls, without its read-back to host
+        #: memory (what a client that keeps the pass on the GPU would pay).
+        self.draw_ms: float | None = None
+        self._timer: Any = None
         self._upload_geometry()
         self._programs: dict[tuple[str, bool], Any] = {}
         self._shadow_program = ctx.program(vertex_shader=SHADOW_VERTEX, fragment_shader=SHADOW_FRAGMENT)
@@ -523,7 +530,17 @@ class GLRenderer:
     # -- passes ----------------------------------------------------------------------------------
     def _draw(self, name: str, camera: Camera, level: int | None = None) -> Any:
         """Run pass ``name`` at ``camera`` (at ``level``, default :meth:`level_for`); returns its framebuffer
-        (read it with :meth:`_read`)."""
+        (read it with :meth:`_read`). With :attr:`gpu_timing` the draw calls are timed into :attr:`draw_ms`."""
+        if not self.gpu_timing:
+            return self._draw_calls(name, camera, level)
+        if self._timer is None:
+            self._timer = self.ctx.query(time=True)
+        with self._timer:
+            fbo = self._draw_calls(name, camera, level)
+        self.draw_ms = self._timer.elapsed / 1e6
+        return fbo
+
+    def _draw_calls(self, name: str, camera: Camera, level: int | None) -> Any:
         self._check_camera(camera)
         di = "DI" in _PASSES[name][0]
         if di:

@@ -331,3 +331,56 @@ def test_gl_without_a_context_falls_back_to_mitsuba(
     reference = run_client(gl_config(spec_file, model64, frames=2, renderer="mitsuba"), renderer64)
     assert list(fell_back[0]) == list(reference[0])
     assert [r["valid_frac"] for r in fell_back] == [str(r["valid_frac"]) for r in reference]
+
+
+#: Run in a child process: Mitsuba's and Dr.Jit's imports fail there, then the console script's main runs.
+_WITHOUT_MITSUBA = """
+import importlib.abc, runpy, sys
+class Refuse(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path, target=None):
+        if name.split(".")[0] in ("mitsuba", "drjit", "pyoidn"):
+            raise ImportError(f"{name} is refused in this test")
+sys.meta_path.insert(0, Refuse())
+sys.argv = sys.argv[1:]
+runpy.run_module(sys.argv[0], run_name="__main__")
+"""
+
+
+@pytest.mark.slow  # two child processes: GL setup, lod calibration (~10 s)
+def test_a_model_client_on_gl_and_bench_render_gl_need_no_mitsuba(spec_file, model64, tmp_path):
+    """What a GPU machine without Mitsuba (or a browser) runs: the model-source client on GL without GT, and
+    `bench render --renderers gl`. Where Mitsuba cannot be imported both still run and write their results."""
+    from gicore.gl import gl_available
+    from gicore.results import read_rows
+
+    ok, why = gl_available()
+    if not ok:
+        pytest.skip(f"no OpenGL context: {why}")
+
+    def without_mitsuba(module: str, *args: str) -> subprocess.CompletedProcess:
+        argv = [sys.executable, "-c", _WITHOUT_MITSUBA, module, *args]
+        return subprocess.run(argv, capture_output=True, text=True, timeout=300, cwd=tmp_path)
+
+    client = without_mitsuba(
+        "gigan_local.client_cli", "--scene", str(spec_file), "--frames", "3", "--resolution", str(GL_RES), "-k", "2",
+        "--orbit-frames", "40", "--gi-source", "model", "--model", str(model64), "--renderer", "gl",
+        "--out", str(tmp_path / "client"),
+    )  # fmt: skip
+    assert client.returncode == 0, client.stderr
+    summary = json.loads((tmp_path / "client" / "summary.json").read_text())
+    assert summary["renderer"] == "gl" and summary["median"]["inference_ms"] > 0
+    # GT scoring path-traces: there the refused import surfaces (it is not silently skipped)
+    scored = without_mitsuba("gigan_local.client_cli", "--scene", str(spec_file), "--frames", "2", "--resolution",
+                             str(GL_RES), "--gi-source", "model", "--model", str(model64), "--renderer", "gl",
+                             "--gt-every", "1", "--out", str(tmp_path / "scored"))  # fmt: skip
+    assert scored.returncode != 0 and "is refused in this test" in scored.stderr
+
+    bench = without_mitsuba(
+        "bench", "render", "--renderers", "gl", "--scenes", str(spec_file), "--gl-resolutions", "32",
+        "--gl-repeats", "2", "--out", str(tmp_path / "render"),
+    )  # fmt: skip
+    assert bench.returncode == 0, bench.stderr
+    rows = read_rows(tmp_path / "render" / "render.csv")
+    assert {r["system"] for r in rows} == {"scene", "gl"}  # no Mitsuba passes, no gl / mitsuba ratios
+    [scene] = {r["scene"] for r in rows}
+    assert f"### {scene}, 32²" in (tmp_path / "render" / "render_client_passes.md").read_text()
