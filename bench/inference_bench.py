@@ -1,0 +1,258 @@
+"""`bench inference`: one GI map's inference per backend, precision and device -- error against run time.
+
+The network input is a real frame's: the GI-camera DI + G-buffers of ``scene`` (GL where a context opens,
+else Mitsuba; the run's ``input_renderer`` setting says which), encoded as the client encodes them
+(:func:`gigan_local.preprocess.frame_to_input`). Each configuration runs the generator ``repeats`` times
+after ``warmup`` runs; rows (``scene`` = the input's scene):
+
+- ``system = onnxruntime``: each file of ``models`` (``precision`` from its ``model.json``) on the CPU at
+  each of ``threads`` -- what the clients run;
+- ``system = torch``: the generator's weights read back from ``models[0]`` (:mod:`gigan_local.warmstart`)
+  on ``torch_device`` at each of ``precisions`` (fp16 and bf16 on CUDA only), ``copies = device`` (input
+  on the device, output left there) and ``copies = host`` (input copied from host memory and the output
+  back, as a client whose G-buffers come from a GL read-back pays). On CUDA, TF32 convolutions stay
+  torch's default (on): the fp32 row's error shows what that costs.
+
+Metrics: ``inference`` (median, p95, n in ms) and the output's ``max_abs_error`` / ``mean_abs_error``
+against onnxruntime on ``models[0]`` at the first of ``threads`` (the network's raw output: log-radiance
+units of :func:`gigan_local.preprocess.output_to_radiance`).
+"""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bench.models import model_info
+from bench.runner import Bench
+from gicore.cli import UserError
+from gicore.results import Results, read_rows
+from gicore.timing import time_repeats
+
+#: Precisions the torch rows may run at (the ONNX rows take theirs from the model file).
+TORCH_PRECISIONS = ("fp32", "fp16", "bf16")
+#: Where the torch input and output live during the timed call (see the module docstring).
+COPIES = ("device", "host")
+
+
+def _shipped(name: str) -> Path:
+    from gigan_local.inference import DEFAULT_MODEL
+
+    return DEFAULT_MODEL.parent / name
+
+
+@dataclass(frozen=True)
+class InferenceConfig:
+    """Which model files, backends and settings to time."""
+
+    #: Exported model files (``gigan-export``); the first is the reference of the error rows and the torch weights.
+    models: tuple[Path, ...] = field(default_factory=lambda: (_shipped("model_fp32.onnx"), _shipped("model_fp16.onnx")))
+    #: Scene whose GI-camera buffers are the network input.
+    scene: str = "lung_plane"
+    #: onnxruntime intra-op threads, one row set each.
+    threads: tuple[int, ...] = (1, 2)
+    #: Backends: onnxruntime (CPU, as the clients) and/or torch.
+    backends: tuple[str, ...] = ("onnxruntime", "torch")
+    #: torch's device: auto (cuda where torch sees one, else cpu), cpu or cuda.
+    torch_device: str = "auto"
+    #: torch precisions (fp32, fp16, bf16); fp16 and bf16 are left out on the CPU.
+    precisions: tuple[str, ...] = TORCH_PRECISIONS
+    #: Timed runs per configuration.
+    repeats: int = 30
+    #: Untimed runs before them.
+    warmup: int = field(default=5, metadata={"min": 0})
+
+    @classmethod
+    def quick(cls) -> InferenceConfig:
+        return cls(models=(_shipped("model_fp32.onnx"),), threads=(1,), repeats=5, warmup=2)
+
+    def check(self) -> None:
+        for path in self.models:
+            model_info(Path(path), "--models")
+        for name, given, allowed in (
+            ("--backends", self.backends, ("onnxruntime", "torch")),
+            ("--precisions", self.precisions, TORCH_PRECISIONS),
+        ):
+            for value in given:
+                if value not in allowed:
+                    raise UserError(f"{name} {value!r} is not one of {', '.join(allowed)}", "pick some of those")
+        if self.torch_device not in ("auto", "cpu", "cuda"):
+            raise UserError(f"--torch-device {self.torch_device!r} is not auto, cpu or cuda", "pick one of those")
+
+
+def network_input(model_path: Path, scene: str) -> tuple[np.ndarray, str]:
+    """(The encoded 1xCxHxW input of ``scene``'s first GI camera at the model's resolution, the renderer that
+    rendered it)."""
+    from gicore.gl import GLRenderer, RasterUnavailable
+    from gicore.loop import CLIENT_LOD, open_raster
+    from gicore.paths import camera_path, light_position
+    from gicore.scene import load_scene
+    from gigan_local.inference import read_model_json
+    from gigan_local.preprocess import InputSpec, frame_to_input
+
+    doc = read_model_json(model_path)
+    resolution, spec_in = int(doc["resolution"]), InputSpec.from_dict(doc["input"])
+    spec = load_scene(scene)
+    raster, used = open_raster("gl", None, lambda: GLRenderer(spec, resolution, lod=CLIENT_LOD), RasterUnavailable)
+    if raster is None:
+        from gicore.render import Renderer
+
+        raster = Renderer(spec, resolution)
+    [local] = camera_path(spec, 1, seed=0, fov=spec.camera.local_fov, resolution=resolution)
+    buffers = raster.render_di_gbuffers(local.with_fov(spec.camera.gi_fov), light_position(spec, 0), centre=True)
+    return frame_to_input(buffers, spec_in)[None], used
+
+
+def _errors(y: np.ndarray, reference: np.ndarray) -> dict[str, float]:
+    diff = np.abs(np.asarray(y, np.float64) - reference)
+    return {"max_abs_error": float(diff.max()), "mean_abs_error": float(diff.mean())}
+
+
+def _record(res: Results, system: str, scene: str, samples: list[float], y: np.ndarray, ref: np.ndarray, **config):
+    res.add_timing(system=system, scene=scene, metric="inference", samples_s=samples, **config)
+    for metric, value in _errors(y, ref).items():
+        res.add(system=system, scene=scene, metric=metric, value=value, unit="1", **config)
+
+
+def measure(cfg: InferenceConfig, res: Results) -> None:
+    from gigan_local.inference import GIModel
+
+    x, res.settings["input_renderer"] = network_input(Path(cfg.models[0]), cfg.scene)
+    reference = GIModel(cfg.models[0], cfg.threads[0], warmup=0)
+    ref = np.asarray(reference.session.run(None, {reference.input_name: x})[0], np.float64)
+    if "onnxruntime" in cfg.backends:
+        for path in cfg.models:
+            precision = model_info(Path(path), "--models")["precision"]
+            for threads in cfg.threads:
+                model = GIModel(path, threads, warmup=0)
+                samples, y = time_repeats(
+                    lambda m=model: m.session.run(None, {m.input_name: x})[0], cfg.repeats, cfg.warmup
+                )
+                _record(res, "onnxruntime", cfg.scene, samples, y, ref, model=Path(path).name, precision=precision,
+                        threads=threads, device="cpu")  # fmt: skip
+    if "torch" in cfg.backends:
+        measure_torch(cfg, res, x, ref)
+
+
+def measure_torch(cfg: InferenceConfig, res: Results, x: np.ndarray, ref: np.ndarray) -> None:
+    """The torch rows (module docstring)."""
+    import torch
+
+    from gigan_local.config import NetworkConfig
+    from gigan_local.inference import read_model_json
+    from gigan_local.networks import define_G
+    from gigan_local.preprocess import InputSpec
+    from gigan_local.warmstart import load_into
+
+    device = cfg.torch_device
+    if device == "auto":
+        device = "cuda" if torch.cuda.is_available() else "cpu"
+    if device == "cuda" and not torch.cuda.is_available():
+        raise UserError("--torch-device cuda: torch sees no CUDA device here", "use --torch-device cpu or auto")
+    res.settings["torch"] = {"version": torch.__version__, "device": device} | (
+        {"name": torch.cuda.get_device_name()} if device == "cuda" else {"threads": torch.get_num_threads()}
+    )
+    path = Path(cfg.models[0])
+    doc = read_model_json(path)
+    network, spec = NetworkConfig.from_dict(doc["network"]), InputSpec.from_dict(doc["input"])
+    generator = define_G(network)
+    load_into(generator, path, network, spec, calibration=None)
+    generator.eval().to(device)
+
+    def synced(fn: Callable[[], Any]) -> Callable[[], Any]:
+        def run() -> Any:
+            out = fn()
+            if device == "cuda":
+                torch.cuda.synchronize()
+            return out
+
+        return run
+
+    dtypes = {"fp32": torch.float32, "fp16": torch.float16, "bf16": torch.bfloat16}
+    with torch.inference_mode():
+        for precision in cfg.precisions:
+            if device == "cpu" and precision != "fp32":
+                continue  # half-precision convolutions on the CPU are not what any client would run
+            dtype = dtypes[precision]
+            net = copy.deepcopy(generator).to(dtype)  # from the fp32 weights each time
+            on_device = torch.from_numpy(x).to(device, dtype)
+            calls = {
+                "device": lambda n=net, i=on_device: n(i),
+                "host": lambda n=net, d=dtype: n(torch.from_numpy(x).to(device, d)).float().cpu().numpy(),
+            }
+            for copies in COPIES:
+                samples, y = time_repeats(synced(calls[copies]), cfg.repeats, cfg.warmup)
+                y = y if isinstance(y, np.ndarray) else y.float().cpu().numpy()
+                _record(res, "torch", cfg.scene, samples, y, ref, model=path.name, precision=precision, device=device,
+                        copies=copies)  # fmt: skip
+
+
+def table(rows: list[dict]) -> str:
+    """Median inference ms, p95 and error per configuration, fastest first."""
+    timed = [r for r in rows if r["metric"] == "inference" and r["stat"] == "median"]
+
+    def value(row: dict, metric: str, stat: str = "value") -> float:
+        return next(
+            r["value"]
+            for r in rows
+            if (r["system"], r["metric"], r["stat"], r["config"]) == (row["system"], metric, stat, row["config"])
+        )
+
+    # setting: onnxruntime threads, or where torch's input and output live (copies)
+    lines = [
+        "| backend | model | precision | device | setting | median ms | p95 ms | max abs error | mean abs error |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in sorted(timed, key=lambda r: r["value"]):
+        c = r["config"]
+        setting = c.get("threads", c.get("copies"))
+        lines.append(
+            f"| {r['system']} | {c['model']} | {c['precision']} | {c['device']} | {setting} | {r['value']:.2f} | "
+            f"{value(r, 'inference', 'p95'):.2f} | {value(r, 'max_abs_error'):.1e} | {value(r, 'mean_abs_error'):.1e} |"
+        )
+    return "\n".join(lines)
+
+
+def plot(csv_path: Path, out_dir: Path) -> list[Path]:
+    """Error against run time (log-log), one point per configuration; and the table as markdown."""
+    from gicore.plotting import plt, save, ticker
+
+    rows = read_rows(csv_path)
+    md = out_dir / "inference.md"
+    md.write_text(table(rows) + "\n")
+    timed = [r for r in rows if r["metric"] == "inference" and r["stat"] == "median"]
+    fig, ax = plt.subplots(figsize=(6.4, 4.2))
+    for r in timed:
+        c = r["config"]
+        error = next(
+            e["value"] for e in rows if (e["system"], e["metric"], e["config"]) == (r["system"], "mean_abs_error", c)
+        )
+        label = f"{r['system']} {c['precision']} {c['device']} " + (
+            f"{c['threads']} thr" if "threads" in c else f"copies {c['copies']}"
+        )
+        ax.scatter(r["value"], max(error, 1e-9), label=label, marker="o" if r["system"] == "torch" else "s")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    for axis in (ax.xaxis.set_major_formatter, ax.xaxis.set_minor_formatter):
+        axis(ticker.FormatStrFormatter("%g"))
+    ax.set_xlabel("inference, median [ms]")
+    ax.set_ylabel("mean |output - onnxruntime fp32| (1e-9 floor)")
+    ax.set_title("GI-map inference: error against run time")
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=6)
+    return [save(fig, out_dir / "inference.png"), md]
+
+
+BENCH = Bench(
+    "inference",
+    InferenceConfig,
+    measure,
+    plot,
+    help="One GI map's inference per backend (onnxruntime threads, torch fp32/fp16/bf16 on CPU or CUDA, with and "
+    "without host copies): median ms against the output's error vs onnxruntime fp32.",
+)
