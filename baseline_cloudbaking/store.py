@@ -29,10 +29,18 @@ store whose index cannot be written is refused when it is opened, before any wor
 Optional byte budget: an insert evicts least-recently-used entries (lookups count as use) until the
 payload bytes fit. Hit times and counts are buffered in memory and written with the next insert (or
 :meth:`GITree.flush`), so a cache hit does not write to SQLite.
+
+Lookups read no SQLite rows while the index is unchanged: the viewpoints of each key group looked up are kept
+in memory (:class:`_Views`, shared by all threads) with the index version they were read at, and a group is
+read again after any commit to the index, by this process or another (``PRAGMA data_version`` of a connection
+that never writes); payloads read are kept in an LRU of ``cache_bytes`` (content-addressed, so a kept payload
+is never stale). ``lookup(..., io=False)`` answers from memory alone or raises :class:`WouldBlock`, so a
+server can answer most hits on its event loop and send only the rest to a thread.
 """
 
 from __future__ import annotations
 
+import bisect
 import errno
 import fcntl
 import hashlib
@@ -40,6 +48,7 @@ import math
 import sqlite3
 import threading
 import time
+from collections import OrderedDict
 from collections.abc import Iterator
 from contextlib import contextmanager, suppress
 from dataclasses import dataclass
@@ -57,6 +66,8 @@ INDEX_NAME = "index.sqlite"
 READ_ONLY_TODO = "make it, its -wal and -shm files and the store folder writable, or give another --store"
 #: Default light-cell side, scene units: the paper scenes' lights sweep ±0.6 to ±1 along x, so 4 to 8 cells.
 DEFAULT_LIGHT_CELL = 0.25
+#: Default size of the in-memory LRU of payloads (bytes): a few hundred maps of 256² JPEG.
+DEFAULT_CACHE_BYTES = 64 << 20
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS scenes(
     scene TEXT PRIMARY KEY,
@@ -84,6 +95,10 @@ CREATE TABLE IF NOT EXISTS usage(
 
 class StoreConflict(ValueError):
     """The store already holds a scene under another spec or light-cell size."""
+
+
+class WouldBlock(Exception):
+    """A lookup with ``io=False`` would have to read the index or a payload file: ask again with ``io=True``."""
 
 
 #: OS errors that mean "no space": the disk or a quota.
@@ -148,11 +163,13 @@ class Viewpoint:
 
     @classmethod
     def look_at(cls, eye: Vec3, target: Vec3) -> Viewpoint:
-        d = np.subtract(target, eye, dtype=np.float64)
-        n = float(np.linalg.norm(d))
+        """Plain floats (a server makes one per request; numpy's per-call cost was most of it)."""
+        e = tuple(map(float, eye))
+        d = [float(t) - c for t, c in zip(target, e, strict=True)]
+        n = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
         if not (math.isfinite(n) and n > 0.0):
             raise ValueError(f"eye {eye} and target {target} must be distinct finite points")
-        return cls(tuple(map(float, eye)), tuple(map(float, d / n)))
+        return cls(e, (d[0] / n, d[1] / n, d[2] / n))  # type: ignore[arg-type]
 
 
 @dataclass(frozen=True)
@@ -205,6 +222,8 @@ def nearest(eyes: np.ndarray, dirs: np.ndarray, view: Viewpoint, tol: Tolerance)
     return i, float(dp[i]), float(angle[i])
 
 
+#: Key groups whose viewpoints are kept in memory (requests choose them, e.g. a light cell per light position).
+_MAX_GROUPS = 1024
 #: Up to this many candidates, :func:`_nearest_few` (plain floats) is cheaper than numpy's per-call cost.
 _FEW = 16
 
@@ -263,6 +282,44 @@ def simulate_fill(views: list[Viewpoint], cells: list[Any], tol: Tolerance) -> l
 
 
 @dataclass(frozen=True)
+class _Views:
+    """The viewpoints of one key group (scene, light cell, resolution, codec, spp) in memory, sorted by the
+    eye's x (as the index's ``entries_key``) so that a lookup reads only the slab of x within the tolerance;
+    FOV and DI are filtered per lookup, as the index's query does."""
+
+    xs: list[float]  # eye x, ascending
+    rows: list[tuple]  # (ex, ey, ez, dx, dy, dz, fov, di, id, sha), in the order of xs
+
+    @classmethod
+    def from_rows(cls, rows: list[tuple]) -> _Views:
+        """From index rows (id, sha, fov, di, ex, ey, ez, dx, dy, dz)."""
+        ordered = sorted((r[4:10] + (r[2], r[3], r[0], r[1]) for r in rows), key=lambda r: (r[0], r[8]))
+        return cls([r[0] for r in ordered], ordered)
+
+    def find(self, key: MapKey, view: Viewpoint, tol: Tolerance) -> tuple[int, str, float, float] | None:
+        """As :meth:`GITree.find`'s query and rule: the box of side 2 x ``tol.position`` around the eye
+        (inclusive, as SQL's BETWEEN), then the nearest within tolerance."""
+        (x, y, z), r = view.eye, tol.position
+        lo, hi = bisect.bisect_left(self.xs, x - r), bisect.bisect_right(self.xs, x + r)
+        candidates = [
+            row
+            for row in self.rows[lo:hi]
+            if abs(row[1] - y) <= r and abs(row[2] - z) <= r and row[7] >= key.di and abs(row[6] - key.fov) < 1e-6
+        ]
+        if not candidates:
+            return None
+        if len(candidates) <= _FEW:
+            found = _nearest_few([row[:6] for row in candidates], view, tol)
+        else:
+            arr = np.array([row[:6] for row in candidates], dtype=np.float64)
+            found = nearest(arr[:, :3], arr[:, 3:], view, tol)
+        if found is None:
+            return None
+        i, dist, angle = found
+        return candidates[i][8], candidates[i][9], dist, angle
+
+
+@dataclass(frozen=True)
 class Hit:
     """A lookup that found a map: its entry id, payload bytes, how far it is from the request, and
     what the lookup (SQL + nearest test) and the payload read cost."""
@@ -290,11 +347,20 @@ class Entry:
 
 class GITree:
     """The GI tree in folder ``root`` (created if missing). Thread-safe: one SQLite connection per
-    thread; many processes may open one store (SQLite WAL)."""
+    thread; many processes may open one store (SQLite WAL). ``cache_bytes``: the in-memory LRU of payloads
+    (0: none)."""
 
-    def __init__(self, root: Path, budget_bytes: int | None = None, tolerance: Tolerance = Tolerance()):
+    def __init__(
+        self,
+        root: Path,
+        budget_bytes: int | None = None,
+        tolerance: Tolerance = Tolerance(),
+        cache_bytes: int = DEFAULT_CACHE_BYTES,
+    ):
         if budget_bytes is not None and budget_bytes <= 0:
             raise ValueError(f"budget_bytes must be > 0 (or None for no budget), got {budget_bytes}")
+        if cache_bytes < 0:
+            raise ValueError(f"cache_bytes must be >= 0, got {cache_bytes}")
         self.root = Path(root)
         self.payload_dir = self.root / "payloads"
         self.payload_dir.mkdir(parents=True, exist_ok=True)
@@ -305,6 +371,12 @@ class GITree:
         self._lock = threading.Lock()
         self._touched: dict[int, tuple[float, int]] = {}
         self.counters = {"inserts": 0, "evictions": 0, "rejected": 0}
+        self.cache_bytes = cache_bytes
+        self._payloads: OrderedDict[str, bytes] = OrderedDict()
+        self._payload_bytes = 0
+        self._views_cache: dict[tuple, tuple[int, _Views]] = {}  # key group -> (index version read at, views)
+        self._version_lock = threading.Lock()
+        self._version_db: sqlite3.Connection | None = None
         try:
             db = self._db()
             db.execute("PRAGMA journal_mode=WAL")
@@ -382,6 +454,10 @@ class GITree:
                 db.close()
             self._connections.clear()
         self._local = threading.local()
+        with self._version_lock:
+            if self._version_db is not None:
+                self._version_db.close()
+                self._version_db = None
 
     def close(self) -> None:
         """Write buffered hit times and close every connection and the lock."""
@@ -450,59 +526,53 @@ class GITree:
         return row[0]
 
     # -- lookup ------------------------------------------------------------------------------------
-    def find(self, key: MapKey, view: Viewpoint, tol: Tolerance | None = None) -> tuple[int, str, float, float] | None:
+    def find(
+        self, key: MapKey, view: Viewpoint, tol: Tolerance | None = None, io: bool = True
+    ) -> tuple[int, str, float, float] | None:
         """(entry id, sha, distance, angle) of the best stored map for ``key``/``view``, or None.
-        Pure query: no LRU update."""
-        tol = tol or self.tolerance
-        (x, y, z), r = view.eye, tol.position
+        Pure query: no LRU update. The key group's viewpoints come from memory while the index is unchanged
+        (module docstring); ``io=False``: :class:`WouldBlock` where they would have to be read."""
+        return self._views(key, io).find(key, view, tol or self.tolerance)
+
+    def index_version(self) -> int:
+        """The index's version: it changes with every commit to it, from any connection of any process."""
+        with self._version_lock:
+            if self._version_db is None:  # never writes, so every commit is another connection's
+                self._version_db = sqlite3.connect(self.root / INDEX_NAME, timeout=30.0, check_same_thread=False)
+            return int(self._version_db.execute("PRAGMA data_version").fetchone()[0])
+
+    def _views(self, key: MapKey, io: bool) -> _Views:
+        """The viewpoints of ``key``'s group as of the index's current version."""
+        group = (key.scene, key.cell_text, key.resolution, key.codec, key.spp)
+        version = self.index_version()  # before the rows: a commit in between makes them newer, never stale
+        cached = self._views_cache.get(group)
+        if cached is not None and cached[0] == version:
+            return cached[1]
+        if not io:
+            raise WouldBlock
         rows = (
             self._db()
             .execute(
-                "SELECT id, sha, ex, ey, ez, dx, dy, dz FROM entries "
-                "WHERE scene = ? AND light_cell IS ? AND resolution = ? AND codec = ? "
-                "AND spp = ? AND di >= ? AND abs(fov - ?) < 1e-6 "
-                "AND ex BETWEEN ? AND ? AND ey BETWEEN ? AND ? AND ez BETWEEN ? AND ?",
-                (
-                    key.scene,
-                    key.cell_text,
-                    key.resolution,
-                    key.codec,
-                    key.spp,
-                    int(key.di),
-                    key.fov,
-                    x - r,
-                    x + r,
-                    y - r,
-                    y + r,
-                    z - r,
-                    z + r,
-                ),
+                "SELECT id, sha, fov, di, ex, ey, ez, dx, dy, dz FROM entries "
+                "WHERE scene = ? AND light_cell IS ? AND resolution = ? AND codec = ? AND spp = ? ORDER BY id",
+                group,
             )
             .fetchall()
         )
-        if not rows:
-            return None
-        if len(rows) <= _FEW:
-            found = _nearest_few([row[2:] for row in rows], view, tol)
-        else:
-            arr = np.array([row[2:] for row in rows], dtype=np.float64)
-            found = nearest(arr[:, :3], arr[:, 3:], view, tol)
-        if found is None:
-            return None
-        i, dist, angle = found
-        return rows[i][0], rows[i][1], dist, angle
+        views = _Views.from_rows(rows)
+        with self._lock:
+            self._views_cache[group] = (version, views)
+            while len(self._views_cache) > _MAX_GROUPS:  # requests choose the groups: keep the newest
+                self._views_cache.pop(next(iter(self._views_cache)))
+        return views
 
-    def lookup(self, key: MapKey, view: Viewpoint, tol: Tolerance | None = None) -> Hit | None:
-        """The nearest stored map within tolerance (its payload read from disk), or None (a miss)."""
+    def lookup(self, key: MapKey, view: Viewpoint, tol: Tolerance | None = None, io: bool = True) -> Hit | None:
+        """The nearest stored map within tolerance (its payload from memory or disk), or None (a miss).
+        ``io=False``: from memory alone, else :class:`WouldBlock`."""
         t0 = time.perf_counter()
-        found = self.find(key, view, tol)
+        found = self.find(key, view, tol, io)
         t1 = time.perf_counter()
-        payload = None
-        if found is not None:
-            try:
-                payload = self.payload_path(found[1]).read_bytes()
-            except FileNotFoundError:  # removed behind our back (or evicted by another process just now)
-                payload = None
+        payload = None if found is None else self._payload(found[1], io)
         t2 = time.perf_counter()
         if payload is None:
             return None
@@ -517,14 +587,42 @@ class GITree:
     def payload_by_sha(self, sha: str) -> bytes | None:
         """The stored payload whose SHA-256 is ``sha`` (counted as a use), or None when no entry has it."""
         row = self._db().execute("SELECT id FROM entries WHERE sha = ?", (sha,)).fetchone()
-        if row is None:
-            return None
-        try:
-            payload = self.payload_path(sha).read_bytes()
-        except FileNotFoundError:  # evicted by another process just now
+        payload = None if row is None else self._payload(sha)
+        if payload is None:
             return None
         self._touch(int(row[0]))
         return payload
+
+    def _payload(self, sha: str, io: bool = True) -> bytes | None:
+        """The payload ``sha`` from the in-memory LRU or its file (then kept), or None when the file is gone
+        (removed behind our back, or evicted by another process just now); ``io=False``: WouldBlock where the
+        file would have to be read."""
+        with self._lock:
+            payload = self._payloads.get(sha)
+            if payload is not None:
+                self._payloads.move_to_end(sha)
+                return payload
+        if not io:
+            raise WouldBlock
+        try:
+            payload = self.payload_path(sha).read_bytes()
+        except FileNotFoundError:
+            return None
+        if len(payload) <= self.cache_bytes:
+            with self._lock:
+                if sha not in self._payloads:
+                    self._payloads[sha] = payload
+                    self._payload_bytes += len(payload)
+                while self._payload_bytes > self.cache_bytes:
+                    self._payload_bytes -= len(self._payloads.popitem(last=False)[1])
+        return payload
+
+    def _uncache(self, shas: list[str]) -> None:
+        with self._lock:
+            for sha in shas:
+                payload = self._payloads.pop(sha, None)
+                if payload is not None:
+                    self._payload_bytes -= len(payload)
 
     # -- insert and eviction -------------------------------------------------------------------------
     def insert(self, key: MapKey, view: Viewpoint, payload: bytes) -> int | None:
@@ -543,6 +641,7 @@ class GITree:
         sha = payload_sha(payload)
         with self._writing():
             entry_id, evicted = self._insert(key, view, payload, sha)
+        self._uncache(evicted)
         for old in evicted:  # after the commit: a kill before this leaves orphans, which are swept
             self.payload_path(old).unlink(missing_ok=True)
         with self._lock:

@@ -31,12 +31,24 @@ NEAR_MIN, FAR_MAX = 1e-10, 1e30
 
 
 def _vec3(name: str, value: Any) -> tuple[float, float, float]:
-    arr = np.asarray(value, dtype=np.float64)
-    if arr.shape != (3,):
-        raise ValueError(f"camera.{name} must have 3 components, got {value!r}")
-    if not np.all(np.isfinite(arr)):
+    """``value`` as three finite floats (plain Python: the server checks a camera per request, and numpy's
+    per-call cost was most of that check)."""
+    try:
+        if isinstance(value, (str, bytes)) or len(value) != 3:
+            raise TypeError
+        components = [float(c) for c in value]
+    except (TypeError, ValueError):
+        raise ValueError(f"camera.{name} must have 3 components, got {value!r}") from None
+    except OverflowError:
+        components = [math.inf]
+    if not all(math.isfinite(c) for c in components):
         raise ValueError(f"camera.{name} must be finite, got {value!r}")
-    return (float(arr[0]), float(arr[1]), float(arr[2]))
+    x, y, z = components
+    return (x, y, z)
+
+
+def _norm(v: tuple[float, float, float]) -> float:
+    return math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
 
 
 @dataclass(frozen=True)
@@ -84,12 +96,13 @@ class Camera:
                     f"camera.{name} must be an integer in [{RESOLUTION_MIN}, {RESOLUTION_MAX}], got {value}"
                 )
             object.__setattr__(self, name, int(value))
-        direction = np.subtract(self.target, self.origin)
-        length = np.linalg.norm(direction)
+        d = tuple(t - o for t, o in zip(self.target, self.origin))
+        length = _norm(d)
         if length < 1e-9:
             raise ValueError("camera.origin and camera.target coincide; the view direction is undefined")
-        up = np.asarray(self.up)
-        if np.linalg.norm(up) < 1e-12 or np.linalg.norm(np.cross(direction / length, up / np.linalg.norm(up))) < 1e-6:
+        up_length = _norm(self.up)
+        (a, b, c), (u, v, w) = (x / length for x in d), (x / max(up_length, 1e-300) for x in self.up)
+        if up_length < 1e-12 or _norm((b * w - c * v, c * u - a * w, a * v - b * u)) < 1e-6:
             raise ValueError(
                 f"camera.up {self.up} is parallel to the view direction (degenerate look-at); pick another up"
             )

@@ -10,11 +10,13 @@ from baseline_cloudbaking.server.service import MapService
 from baseline_cloudbaking.server.settings import Settings
 
 
-def app_settings(request: Request) -> Settings:
+# async: FastAPI runs a plain-def dependency on anyio's thread pool, a thread hop per request that cost more CPU
+# than a whole hit (see service.py); these only read app state
+async def app_settings(request: Request) -> Settings:
     return request.app.state.settings
 
 
-def app_service(request: Request) -> MapService:
+async def app_service(request: Request) -> MapService:
     return request.app.state.service
 
 

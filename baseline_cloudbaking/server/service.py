@@ -1,13 +1,14 @@
 """Serving GI maps: look up the GI tree, or bake (render, denoise, encode), insert and serve.
 
-No FastAPI here. :meth:`MapService.prepare` (validation) and :meth:`MapService.find` (a hit: SQL and a file
-read, milliseconds) run on the app's worker threads; a miss goes through :class:`MissQueue` to its own
-one-thread executor, so however many misses wait, no worker thread waits with them and hits are served
-at once. One thread bakes because Mitsuba is not thread-safe, not even across scenes: two threads
-rendering two different scenes fail inside Dr.Jit ("jit_var_sub ... incompatible sizes", measured), and
-a render already uses every core. The queue is bounded: a miss beyond it is refused at once
-(:class:`QueueFull`, answered 503 with Retry-After) instead of waiting without limit; a queued miss whose
-client has gone is dropped before it renders. A miss re-checks the tree when its turn comes, so
+No FastAPI here. :meth:`MapService.prepare` (validation) and :meth:`MapService.find` (a hit) run on the event
+loop when the GI tree can answer from memory (its viewpoints and payload cached, ``io=False``: tens of
+microseconds), else on the hit threads (SQL and a file read; a thread hop costs more CPU than such a lookup).
+A miss goes through :class:`MissQueue` to its own one-thread executor, so however many misses wait, no worker
+thread waits with them and hits are served at once. One thread bakes because Mitsuba is not thread-safe, not
+even across scenes: two threads rendering two different scenes fail inside Dr.Jit ("jit_var_sub ...
+incompatible sizes", measured), and a render already uses every core. The queue is bounded: a miss beyond it
+is refused at once (:class:`QueueFull`, answered 503 with Retry-After) instead of waiting without limit; a
+queued miss whose client has gone is dropped before it renders. A miss re-checks the tree when its turn comes, so
 concurrent identical misses bake once.
 """
 
@@ -34,7 +35,15 @@ from baseline_cloudbaking.bake import SceneCatalog, UnknownScene, bake_map, enco
 from baseline_cloudbaking.protocol import with_header
 from baseline_cloudbaking.server.schemas import GIMapRequest
 from baseline_cloudbaking.server.settings import Settings
-from baseline_cloudbaking.store import GITree, MapKey, StoreConflict, Viewpoint, light_cell, payload_sha
+from baseline_cloudbaking.store import (
+    GITree,
+    MapKey,
+    StoreConflict,
+    Viewpoint,
+    WouldBlock,
+    light_cell,
+    payload_sha,
+)
 from gicore.paths import frame_seed
 from gicore.scene import SceneSpec, SceneSpecError
 
@@ -186,7 +195,8 @@ class MapService:
         self.catalog = catalog
         self._renderers: OrderedDict[tuple[str, int], Renderer] = OrderedDict()
         self._lock = threading.Lock()
-        self.counters = {"requests": 0, "hits": 0, "misses": 0}
+        #: lookups_threaded: requests whose lookup needed the index or a payload file (a hit thread's work)
+        self.counters = {"requests": 0, "hits": 0, "misses": 0, "lookups_threaded": 0}
         self.misses = MissQueue(settings.miss_queue)
         # a plain executor: anyio's to_thread costs ~0.45 ms of CPU per call here, as much as a hit itself
         self._hits = ThreadPoolExecutor(HIT_THREADS, thread_name_prefix="hit")
@@ -263,10 +273,13 @@ class MapService:
             raise FieldError("light", f"scene {req.scene!r} has a static light at {list(rest)}; omit light")
         return tuple(req.light)
 
-    def prepare(self, req: GIMapRequest) -> Prepared:
-        """Check ``req`` against the server's bounds and its scene (FieldError naming the field)."""
+    def prepare(self, req: GIMapRequest, io: bool = True) -> Prepared:
+        """Check ``req`` against the server's bounds and its scene (FieldError naming the field); ``io=False``:
+        WouldBlock where the scene is not yet registered (that writes to the GI tree)."""
         t0 = time.perf_counter()
         self._check_bounds(req)
+        if not io and req.scene not in self._scenes:
+            raise WouldBlock
         spec = self.scene(req.scene)
         light = self._light(req, spec)
         c = req.camera
@@ -274,26 +287,32 @@ class MapService:
         key = MapKey(
             req.scene, light_cell(light, self.light_cell_size(spec)), req.resolution, c.fov, req.codec, req.spp, req.di
         )
-        with self._lock:
-            self.counters["requests"] += 1
         return Prepared(req, spec, light, key, view, t0)
 
-    def lookup(self, req: GIMapRequest) -> tuple[Prepared, Served | None]:
-        """:meth:`prepare` and :meth:`find` in one call (one worker-thread hop per request)."""
-        p = self.prepare(req)
-        return p, self.find(p)
+    def lookup(self, req: GIMapRequest, io: bool = True) -> tuple[Prepared, Served | None]:
+        """:meth:`prepare` and :meth:`find` in one call (one worker-thread hop per request where ``io``)."""
+        p = self.prepare(req, io)
+        return p, self.find(p, io)
 
     async def answer(self, req: GIMapRequest, gone: Callable[[], Awaitable[None]]) -> Served:
-        """The response to ``req``: a hit from a hit thread, else a miss through the queue (QueueFull,
-        ClientGone when ``gone()`` finishes before its turn, FieldError, StoreUnwritable)."""
-        p, served = await asyncio.get_running_loop().run_in_executor(self._hits, self.lookup, req)
+        """The response to ``req``: a hit from memory or a hit thread, else a miss through the queue
+        (QueueFull, ClientGone when ``gone()`` finishes before its turn, FieldError, StoreUnwritable)."""
+        with self._lock:
+            self.counters["requests"] += 1
+        try:
+            p, served = self.lookup(req, io=False)
+        except WouldBlock:
+            with self._lock:
+                self.counters["lookups_threaded"] += 1
+            p, served = await asyncio.get_running_loop().run_in_executor(self._hits, self.lookup, req)
         if served is not None:
             return served
         return await self.misses.run(lambda: self.bake(p), gone)
 
-    def find(self, p: Prepared) -> Served | None:
-        """The nearest stored map within tolerance as a response (a hit), or None (a miss)."""
-        hit = self.store.lookup(p.key, p.view)
+    def find(self, p: Prepared, io: bool = True) -> Served | None:
+        """The nearest stored map within tolerance as a response (a hit), or None (a miss); ``io=False``:
+        from memory alone, else WouldBlock."""
+        hit = self.store.lookup(p.key, p.view, io=io)
         if hit is None:
             return None
         with self._lock:

@@ -157,6 +157,16 @@ def test_payload_round_trip_carries_map_depth_and_camera(baked: BakedMap) -> Non
     assert bytes(sections["gi"]) == bytes(unpack(payload)[1]["gi"])
     again = decode_payload(served)
     assert again.di is None and again.hit is True and again.timings_ms == {"lookup": 0.1}
+    # nothing dropped: the extra fields are spliced into the header's text, the result as if encoded again
+    extra = {"hit": True, "distance": {"position": 0.01, "angle_deg": 0.5}, "timings_ms": {"total": 1.5}}
+    spliced = with_header(payload, extra)
+    header, sections = unpack(spliced)
+    assert header == unpack(payload)[0] | extra and list(sections) == ["gi", "di", "depth"]
+    assert all(bytes(sections[n]) == bytes(unpack(payload)[1][n]) for n in sections)
+    assert decode_payload(spliced).hit is True
+    # a key the header has already is replaced, not repeated
+    assert unpack(with_header(spliced, {"hit": False}))[0]["hit"] is False
+    assert spliced.count(b'"hit"') == 1 and with_header(spliced, {"hit": False}).count(b'"hit"') == 1
 
 
 def test_static_light_payload_names_no_light(baked: BakedMap) -> None:

@@ -1,7 +1,7 @@
 """The cloud-baking server under load and when its storage fails, as its own process on 127.0.0.1.
 
-Loopback only, every wait bounded. With 80 concurrent misses and 32 clients of hits, hit p99 <= 150 ms (the
-issue's 50 ms is measured by the loadtest command, see P99_MS), misses beyond the queue get 503 with
+Loopback only, every wait bounded. With 80 concurrent misses and 32 clients of hits, hit p99 <= 50 ms (the
+issue's load and bound, see P99_MS), misses beyond the queue get 503 with
 Retry-After and nothing else is a 5xx; idle connections do not stall hits; a read-only index and a full disk
 are answered 503 / 507 with one line and recover without a restart; stored maps carry an ETag and answer 304.
 """
@@ -111,12 +111,12 @@ def ring(n: int, scene: str = "ball_moving", radius: float = 2.0, **fields) -> l
     return [gimap_body(scene, eye=(radius * np.sin(a), 1.1, radius * np.cos(a)), **fields) for a in angles]
 
 
-#: Hit latency bound and how many runs may try to meet it. The issue's 50 ms is not reliably reachable on a 2-core
-#: machine with the load generator on the same cores: this test measured 77-119 ms in module runs on either event
-#: loop (39.7-47.7 ms when run alone, on uvloop), and the loadtest command (a hit per client every 20 ms, a server of
-#: its own) 48.5-57.7 ms on uvloop, 53.9-99.2 ms on asyncio's loop. It judges what admission control guarantees,
-#: hits that never queue behind the 9 admitted misses (a miss is ~300 ms of render and denoise), at 3x the target.
-P99_MS, RUNS = 150.0, 2
+#: Hit latency bound and how many runs may try to meet it: the issue's 50 ms at the issue's load (32 clients, a hit
+#: each every 20 ms: 1,600 a second offered) with the load generator on the same two cores. Measured in this test:
+#: 30.9-36.4 ms with 80 misses, 2.9-3.9 ms beside 2,000 idle connections (three module runs each). Before hits were
+#: answered from memory on the event loop and FastAPI's dependencies hopped to a thread, 77-119 ms at a fifth of
+#: this rate.
+P99_MS, RUNS, PERIOD_S = 50.0, 3, 0.02
 
 
 def check_p99(p99: list[float], loads: list[float]) -> None:
@@ -130,18 +130,18 @@ def load_per_core() -> float:
 
 def test_80_misses_and_32_hit_clients(srv: Server) -> None:
     """Misses beyond the queue are refused at once (503 + Retry-After), the admitted ones are baked, no
-    other 5xx; hits are served while misses render, p99 <= P99_MS (each client a request every 100 ms:
-    320 hits/s, 2 s before and after the burst)."""
+    other 5xx; hits are served while misses render, p99 <= P99_MS (each client a request every PERIOD_S:
+    1,600 hits/s, 2 s before and after the burst)."""
     p99, loads = [], []
     for run in range(RUNS):
         loads.append(load_per_core())
         before = srv.stats()
         log_before = srv.stderr.stat().st_size
         misses = ring(80, radius=1.9 + 0.1 * run)  # new views each run: all misses
-        res = asyncio.run(run_load(srv.url, HIT, misses, hit_clients=32, period_s=0.1, settle_s=2.0))
+        res = asyncio.run(run_load(srv.url, HIT, misses, hit_clients=32, period_s=PERIOD_S, settle_s=2.0))
         counts = delta(before, srv.stats(), "misses_refused", "misses", "hits")
         summary = res.summary()
-        print(f"80 misses + 32 hit clients: {json.dumps(summary)}")
+        print(f"80 misses + 32 hit clients: {json.dumps(summary)} {delta(before, srv.stats(), 'lookups_threaded')}")
         assert not res.errors and set(res.hit_status) == {200} and len(res.hit_ms) >= 32 * 30, summary
         assert set(res.miss_status) <= {200, 503} and sum(res.miss_status.values()) == 80, summary
         refused, baked = res.miss_status[503], res.miss_status[200]
@@ -201,7 +201,7 @@ def test_idle_connections_do_not_stall_hits(srv: Server) -> None:
         loads.append(load_per_core())
         before = srv.stats()
         log_before = srv.stderr.stat().st_size
-        res = asyncio.run(run_load(srv.url, HIT, [], hit_clients=32, period_s=0.1, idle=2000, settle_s=2.0))
+        res = asyncio.run(run_load(srv.url, HIT, [], hit_clients=32, period_s=PERIOD_S, idle=2000, settle_s=2.0))
         counts = delta(before, srv.stats(), "connections_drained", "connections_timed_out", "connections_refused")
         summary = res.summary()
         print(f"2000 idle connections + 32 hit clients: {json.dumps(summary)} {counts}")

@@ -369,3 +369,70 @@ def test_the_few_candidate_path_picks_what_numpy_picks() -> None:
             assert got[0] == want[0] and got[1:] == pytest.approx(want[1:], rel=1e-9, abs=1e-9)
             agreed += 1
     assert agreed > 100  # most draws have a candidate within tolerance
+
+
+def test_find_from_memory_picks_what_a_full_scan_picks(tree: GITree) -> None:
+    """GITree.find reads a key group's viewpoints once and then a slab of them from memory: over random
+    entries (mixed FOVs and DI) and requests, the same entry as nearest() over every entry the index's
+    query would have returned."""
+    from baseline_cloudbaking.store import nearest
+
+    rng = np.random.default_rng(7)
+    entries = []
+    for i in range(150):
+        fov, di = (90.0, bool(i % 3)) if i % 5 else (60.0, True)
+        eye = tuple(rng.normal(0.0, 0.12, 3) + (0.0, 1.0, 2.0))
+        k = MapKey("s", (0, 0, 0), 64, fov, "jpeg", 4, di)
+        entries.append((tree.insert(k, view(*eye), blob(1000 + i)), k, view(*eye)))
+    agreed = 0
+    for _ in range(300):
+        want_di = bool(rng.integers(0, 2))
+        asked = MapKey("s", (0, 0, 0), 64, 90.0, "jpeg", 4, want_di)
+        v = view(*(rng.normal(0.0, 0.12, 3) + (0.0, 1.0, 2.0)))
+        pool = [(i, e) for i, k, e in entries if k.fov == 90.0 and (k.di or not want_di)]
+        eyes = np.array([e.eye for _, e in pool])
+        dirs = np.array([e.direction for _, e in pool])
+        want = nearest(eyes, dirs, v, TOL)
+        got = tree.find(asked, v)
+        assert (want is None) == (got is None)
+        if want is not None:
+            assert got[0] == pool[want[0]][0] and got[2:] == pytest.approx(want[1:], rel=1e-9, abs=1e-12)
+            agreed += 1
+    assert agreed > 50
+
+
+def test_lookups_from_memory_see_every_commit(tmp_path: Path) -> None:
+    """``io=False`` answers from memory or raises WouldBlock; an insert or an eviction by another opener (a
+    connection of its own, as another process) is seen by the next lookup, never a stale entry."""
+    from baseline_cloudbaking.store import WouldBlock
+
+    root = tmp_path / "store"
+    with GITree(root, tolerance=TOL) as server, GITree(root, tolerance=TOL, budget_bytes=2500) as other:
+        server.register_scene("s", "sha-s", light_cell_size=0.25)
+        first = server.insert(key(), view(0.0), blob(1))
+        with pytest.raises(WouldBlock):  # a fresh opener has read nothing yet
+            other.lookup(key(), view(0.0), io=False)
+        assert server.lookup(key(), view(0.0)).entry_id == first
+        assert server.lookup(key(), view(0.0), io=False).payload == blob(1)  # index and payload from memory
+        assert server.lookup(key(), view(1.0), io=False) is None  # a miss is known without I/O too
+        second = other.insert(key(), view(1.0), blob(2))  # another connection commits
+        with pytest.raises(WouldBlock):
+            server.lookup(key(), view(1.0), io=False)
+        assert server.lookup(key(), view(1.0)).entry_id == second
+        other.insert(key(), view(2.0), blob(3))  # over other's budget: evicts the least recently used (first)
+        assert other.stats()["evictions"] == 1
+        assert server.lookup(key(), view(0.0)) is None  # evicted there: not served from this memory
+        # this process's own commits are seen too (the version connection never writes)
+        third = server.insert(key(), view(3.0), blob(4))
+        assert server.lookup(key(), view(3.0)).entry_id == third
+
+
+def test_the_payload_cache_keeps_to_its_budget(tmp_path: Path) -> None:
+    with GITree(tmp_path / "store", tolerance=TOL, cache_bytes=2500) as t:
+        t.register_scene("s", "sha-s", light_cell_size=0.25)
+        for i in range(4):
+            t.insert(key(), view(float(i)), blob(i))
+            assert t.lookup(key(), view(float(i))).payload == blob(i)
+        assert t._payload_bytes == 2000 and len(t._payloads) == 2  # the two most recent of 1000 bytes each
+    with pytest.raises(ValueError, match="cache_bytes must be >= 0"):
+        GITree(tmp_path / "other", cache_bytes=-1)
