@@ -86,6 +86,9 @@ CREATE TABLE IF NOT EXISTS entries(
 );
 CREATE INDEX IF NOT EXISTS entries_key ON entries(scene, light_cell, resolution, codec, spp, ex);
 CREATE INDEX IF NOT EXISTS entries_lru ON entries(last_used);
+CREATE TABLE IF NOT EXISTS meta(  -- deletions: entries deleted so far (lookups kept in memory reload on a change)
+    name TEXT PRIMARY KEY, value INTEGER NOT NULL
+);
 CREATE TABLE IF NOT EXISTS usage(
     scene TEXT NOT NULL, codec TEXT NOT NULL, entries INTEGER NOT NULL, bytes INTEGER NOT NULL,
     PRIMARY KEY(scene, codec)
@@ -281,6 +284,33 @@ def simulate_fill(views: list[Viewpoint], cells: list[Any], tol: Tolerance) -> l
     return served
 
 
+def fewest_maps(views: list[Viewpoint], cells: list[Any], maps: list[tuple[Viewpoint, Any]], tol: Tolerance) -> int:
+    """The fewest of ``maps`` (viewpoint, light cell) that serve every view of a path (``views`` with their
+    ``cells``, in order) by the GI tree's rule, each view by a map within ``tol`` in its cell: a floor for any
+    request policy of a client that must show each view a map within tolerance. Each map serves runs of
+    consecutive views; covering the path by such runs, always taking the run reaching farthest from the first
+    view not yet served, is optimal for runs. ValueError when some view no map serves."""
+    runs: list[tuple[int, int]] = []
+    for eye, direction, cell in ((m.eye, m.direction, c) for m, c in maps):
+        start = None
+        for i, (view, view_cell) in enumerate(zip(views, cells, strict=True)):
+            served = view_cell == cell and nearest(np.array([eye]), np.array([direction]), view, tol) is not None
+            if served and start is None:
+                start = i
+            elif not served and start is not None:
+                runs.append((start, i - 1))
+                start = None
+        if start is not None:
+            runs.append((start, len(views) - 1))
+    count, first = 0, 0
+    while first < len(views):
+        reach = max((end for start, end in runs if start <= first <= end), default=None)
+        if reach is None:
+            raise ValueError(f"no map serves view {first} of the path")
+        count, first = count + 1, reach + 1
+    return count
+
+
 @dataclass(frozen=True)
 class _Views:
     """The viewpoints of one key group (scene, light cell, resolution, codec, spp) in memory, sorted by the
@@ -289,12 +319,22 @@ class _Views:
 
     xs: list[float]  # eye x, ascending
     rows: list[tuple]  # (ex, ey, ez, dx, dy, dz, fov, di, id, sha), in the order of xs
+    max_id: int  # the largest entry id read (0: none)
 
     @classmethod
-    def from_rows(cls, rows: list[tuple]) -> _Views:
-        """From index rows (id, sha, fov, di, ex, ey, ez, dx, dy, dz)."""
-        ordered = sorted((r[4:10] + (r[2], r[3], r[0], r[1]) for r in rows), key=lambda r: (r[0], r[8]))
-        return cls([r[0] for r in ordered], ordered)
+    def from_rows(cls, rows: list[tuple], base: _Views | None = None) -> _Views:
+        """From index rows (id, sha, fov, di, ex, ey, ez, dx, dy, dz), added to ``base``'s when given: rows
+        newer than all of ``base``'s (their ids are larger) go after its equal x, as the index orders them."""
+        new = sorted((r[4:10] + (r[2], r[3], r[0], r[1]) for r in rows), key=lambda r: (r[0], r[8]))
+        max_id = max([base.max_id if base else 0, *(r[0] for r in rows)])
+        if base is None:
+            return cls([r[0] for r in new], new, max_id)
+        xs, ordered = base.xs.copy(), base.rows.copy()  # copies: lookups on other threads read the old lists
+        for row in new:
+            i = bisect.bisect_right(xs, row[0])
+            xs.insert(i, row[0])
+            ordered.insert(i, row)
+        return cls(xs, ordered, max_id)
 
     def find(self, key: MapKey, view: Viewpoint, tol: Tolerance) -> tuple[int, str, float, float] | None:
         """As :meth:`GITree.find`'s query and rule: the box of side 2 x ``tol.position`` around the eye
@@ -304,7 +344,10 @@ class _Views:
         candidates = [
             row
             for row in self.rows[lo:hi]
-            if abs(row[1] - y) <= r and abs(row[2] - z) <= r and row[7] >= key.di and abs(row[6] - key.fov) < 1e-6
+            if y - r <= row[1] <= y + r
+            and z - r <= row[2] <= z + r
+            and row[7] >= key.di
+            and abs(row[6] - key.fov) < 1e-6
         ]
         if not candidates:
             return None
@@ -374,7 +417,9 @@ class GITree:
         self.cache_bytes = cache_bytes
         self._payloads: OrderedDict[str, bytes] = OrderedDict()
         self._payload_bytes = 0
-        self._views_cache: dict[tuple, tuple[int, _Views]] = {}  # key group -> (index version read at, views)
+        # key group -> (index version and deletions read at, views); the most recently read last
+        self._views_cache: OrderedDict[tuple, tuple[int, int, _Views]] = OrderedDict()
+        self._refresh_lock = threading.Lock()  # one thread reads a stale group; the others then find it fresh
         self._version_lock = threading.Lock()
         self._version_db: sqlite3.Connection | None = None
         try:
@@ -495,8 +540,18 @@ class GITree:
         if broken:
             with self._transaction() as db:
                 db.executemany("DELETE FROM entries WHERE sha = ?", [(s,) for s in broken])
+                self._count_deletions(db, len(broken))
                 self._recount(db)
         return {"temporaries": temporaries, "orphans": orphans, "broken_entries": len(broken)}
+
+    @staticmethod
+    def _count_deletions(db: sqlite3.Connection, n: int) -> None:
+        if n:
+            db.execute(
+                "INSERT INTO meta VALUES ('deletions', ?) "
+                "ON CONFLICT(name) DO UPDATE SET value = value + excluded.value",
+                (n,),
+            )
 
     @staticmethod
     def _recount(db: sqlite3.Connection) -> None:
@@ -542,28 +597,41 @@ class GITree:
             return int(self._version_db.execute("PRAGMA data_version").fetchone()[0])
 
     def _views(self, key: MapKey, io: bool) -> _Views:
-        """The viewpoints of ``key``'s group as of the index's current version."""
+        """The viewpoints of ``key``'s group as of the index's current version: from memory while the index is
+        unchanged; after a commit, the entries added since (by id, the table's own order: ids only grow while
+        nothing is deleted) merged in, or the whole group read again once entries were deleted (an eviction)."""
         group = (key.scene, key.cell_text, key.resolution, key.codec, key.spp)
-        version = self.index_version()  # before the rows: a commit in between makes them newer, never stale
+        try:
+            version = self.index_version()  # before the rows: a commit in between makes them newer, never stale
+        except sqlite3.OperationalError:
+            if io:
+                raise
+            raise WouldBlock from None  # busy: a thread waits for it
         cached = self._views_cache.get(group)
         if cached is not None and cached[0] == version:
-            return cached[1]
+            return cached[2]
         if not io:
             raise WouldBlock
-        rows = (
-            self._db()
-            .execute(
-                "SELECT id, sha, fov, di, ex, ey, ez, dx, dy, dz FROM entries "
-                "WHERE scene = ? AND light_cell IS ? AND resolution = ? AND codec = ? AND spp = ? ORDER BY id",
-                group,
-            )
-            .fetchall()
-        )
-        views = _Views.from_rows(rows)
-        with self._lock:
-            self._views_cache[group] = (version, views)
-            while len(self._views_cache) > _MAX_GROUPS:  # requests choose the groups: keep the newest
-                self._views_cache.pop(next(iter(self._views_cache)))
+        with self._refresh_lock:
+            cached = self._views_cache.get(group)
+            if cached is not None and cached[0] == version:
+                return cached[2]
+            db = self._db()
+            row = db.execute("SELECT value FROM meta WHERE name = 'deletions'").fetchone()
+            deletions = 0 if row is None else int(row[0])
+            base = cached[2] if cached is not None and cached[1] == deletions else None
+            columns = "SELECT id, sha, fov, di, ex, ey, ez, dx, dy, dz FROM entries"
+            where = "scene = ? AND light_cell IS ? AND resolution = ? AND codec = ? AND spp = ?"
+            if base is None:  # the whole group, through the index on it
+                rows = db.execute(f"{columns} WHERE {where}", group).fetchall()
+            else:  # what was added since: a range of the table's own ids, then the group's
+                rows = db.execute(f"{columns} NOT INDEXED WHERE id > ? AND {where}", (base.max_id, *group)).fetchall()
+            views = base if base is not None and not rows else _Views.from_rows(rows, base)
+            with self._lock:
+                self._views_cache[group] = (version, deletions, views)
+                self._views_cache.move_to_end(group)
+                while len(self._views_cache) > _MAX_GROUPS:  # requests choose the groups: keep the latest read
+                    self._views_cache.popitem(last=False)
         return views
 
     def lookup(self, key: MapKey, view: Viewpoint, tol: Tolerance | None = None, io: bool = True) -> Hit | None:
@@ -719,6 +787,7 @@ class GITree:
                 total -= size
                 evicted.append(sha)
         db.execute("DELETE FROM usage WHERE entries = 0")
+        self._count_deletions(db, len(evicted))
         return evicted
 
     def _take_touches(self) -> dict[int, tuple[float, int]]:

@@ -21,6 +21,7 @@ units of :func:`gigan_local.preprocess.output_to_radiance`).
 from __future__ import annotations
 
 import copy
+import json
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -72,8 +73,18 @@ class InferenceConfig:
         return cls(models=(_shipped("model_fp32.onnx"),), threads=(1,), repeats=5, warmup=2)
 
     def check(self) -> None:
+        from gigan_local.inference import read_model_json
+
+        inputs = set()
         for path in self.models:
             model_info(Path(path), "--models")
+            doc = read_model_json(Path(path))
+            inputs.add((doc["resolution"], json.dumps(doc["input"], sort_keys=True)))
+        if len(inputs) > 1:
+            raise UserError(
+                f"--models {','.join(map(str, self.models))} take different inputs (resolution or encoding)",
+                "compare models of one export or of one architecture",
+            )
         for name, given, allowed in (
             ("--backends", self.backends, ("onnxruntime", "torch")),
             ("--precisions", self.precisions, TORCH_PRECISIONS),

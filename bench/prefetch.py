@@ -30,7 +30,9 @@ Metrics (``metric``; config: ``profile``, ``variant`` and the run's settings):
   their own view;
 - ``ssim`` (mean over the frames scored against the path-traced GT every ``gt_every`` frames, path-traced once
   per bench run and shared by its client runs through ``prefetch_runs/gt_cache``): staleness;
-- ``requests``, ``failed_requests``, ``bytes_up``, ``bytes_down`` (totals), ``request_latency`` (ms).
+- ``requests``, ``failed_requests``, ``bytes_up``, ``bytes_down`` (totals), ``request_latency`` (ms);
+- ``request_floor`` (config ``store = prebaked | placed``, once per run): the fewest requests that serve every
+  view of the path by the server's rule, with perfect foresight (:func:`request_floors`).
 
 Targets (``stat = target_met``, issue 23): at ``wan``, the median perceived latency with prefetch is at most
 0.5 x that of ``hold`` (checked on every frame, and on the frames served by a hit: on the prebaked store nearly
@@ -51,6 +53,7 @@ from typing import Any, Literal
 
 import numpy as np
 
+from baseline_cloudbaking.client import check_server
 from baseline_cloudbaking.codecs import CODEC_NAMES, DEFAULT_CODEC
 from bench.processes import BIN, ask_path, check_served, pinned_proxy, pinned_server, run_client, run_place
 from bench.runner import Bench, Block, Rows, Section, Table, cell, need, pick
@@ -132,7 +135,11 @@ def measure(cfg: PrefetchConfig, res: Results) -> None:
     shutil.rmtree(prebaked, ignore_errors=True)
     with pinned_server(plan, prebaked, scenes_dir) as url:
         misses = ask_path(url, scene, cfg, res.seed)["misses"]
+        server = check_server(url, Path(scene).stem, cfg.resolution, cfg.codec, cfg.spp, cfg.read_timeout_s)
     res.add(system=SYSTEM, scene=spec.name, metric="prebake_maps", value=misses, unit="count", **common)
+    for store, floor in request_floors(spec, cfg, res.seed, prebaked, server).items():
+        res.add(system=SYSTEM, scene=spec.name, metric="request_floor", value=floor, unit="count", store=store,
+                **common)  # fmt: skip
     argv = [str(BIN / "cloudbaking-client"), "--scene", scene, "--frames", str(cfg.frames),
             "--resolution", str(cfg.resolution), "--orbit-frames", str(cfg.orbit_frames), "--spp", str(cfg.spp),
             "--gt-every", str(cfg.gt_every), "--codec", cfg.codec, "--frame-rate", str(cfg.frame_rate),
@@ -156,6 +163,25 @@ def measure(cfg: PrefetchConfig, res: Results) -> None:
             record(res, spec.name, folder, config)
     shutil.rmtree(prebaked, ignore_errors=True)
     targets(res, spec.name)
+
+
+def request_floors(spec: Any, cfg: PrefetchConfig, seed: int, prebaked: Path, server: Any) -> dict[str, int]:
+    """The fewest requests that can serve every GI view of the path by the server's rule
+    (:func:`baseline_cloudbaking.store.fewest_maps`), with perfect foresight: ``prebaked``, from the prebaked
+    store's maps (what every run's store holds: no request policy sends fewer); ``placed``, from maps centred on
+    the path's own views (a client that chose where the maps are baked, on a cold store: each request a bake)."""
+    from baseline_cloudbaking.store import GITree, Viewpoint, fewest_maps, light_cell
+    from gicore.loop import path_views
+
+    views, cells = [], []
+    for camera, light in path_views(spec, cfg.frames, cfg.orbit_frames, seed, spec.camera.local_fov, cfg.resolution):
+        gi = camera.with_fov(spec.camera.gi_fov)
+        views.append(Viewpoint.look_at(gi.origin, gi.target))
+        cells.append(light_cell(light, server.light_cell))
+    with GITree(prebaked) as tree:
+        stored = [(e.view, e.key.light_cell) for e in tree.entries(spec.name)]
+    tol, own = server.tolerance, list(zip(views, cells, strict=True))
+    return {"prebaked": fewest_maps(views, cells, stored, tol), "placed": fewest_maps(views, cells, own, tol)}
 
 
 def _csv(path: Path) -> list[dict[str, str]]:
@@ -276,6 +302,15 @@ def table(rows: Rows) -> str:
             f"| {cell(v('perceived', 'median', cache='hit'), '.0f')} "
             f"| {cell(v('censored'), '.0f')} | {cell(v('ssim', 'mean'), '.3f')} |"
         )
+    floors = {r["config"]["store"]: r["value"] for r in pick(rows, "request_floor", "value")}
+    if floors:
+        lines += [
+            "",
+            f"Fewest requests that serve every view of the path, with perfect foresight: "
+            f"{cell(floors.get('prebaked'), '.0f')} from the prebaked store's maps (no request policy sends fewer "
+            f"here), {cell(floors.get('placed'), '.0f')} from maps centred on the path's own views (a client "
+            "choosing where maps are baked, on a cold store: each request a bake).",
+        ]
     met = [r for r in rows if r["stat"] == "target_met"]
     if met:
         lines += ["", "| target | measured | ratio | met |", "|---|---|---|---|"]

@@ -72,8 +72,8 @@ class RenderBenchConfig:
     gl_resolutions: tuple[int, ...] = field(default=(256, 512), metadata={**RESOLUTION, "min_len": 0})
     #: Timed repeats of each client raster pass, after two warm-ups.
     gl_repeats: int = 15
-    #: Renderers timed: mitsuba (its passes above, and the client passes beside GL with gl / mitsuba ratios)
-    #: and/or gl (the client passes). ``gl`` alone needs no Mitsuba: a GPU machine's GL passes by themselves.
+    #: Renderers timed: mitsuba (its passes above; with gl, the client passes beside GL's with gl / mitsuba
+    #: ratios) and/or gl (the client passes). ``gl`` alone needs no Mitsuba: a GPU machine's GL passes by themselves.
     renderers: tuple[str, ...] = ("gl", "mitsuba")
 
     def __post_init__(self) -> None:
@@ -97,7 +97,7 @@ def measure(cfg: RenderBenchConfig, res: Results) -> None:
         res.add(system="scene", scene=spec.name, metric="triangles", value=triangles, unit="count")
     if "mitsuba" in cfg.renderers:
         measure_mitsuba_passes(cfg, res)
-    if cfg.gl_resolutions:
+    if cfg.gl_resolutions and "gl" in cfg.renderers:
         measure_client_passes(cfg, res)
 
 
@@ -239,9 +239,11 @@ def measure_client_passes(cfg: RenderBenchConfig, res: Results) -> None:
                     for mine, gpu, fns, (system, _, renderer) in zip(samples, gpu_samples, passes, renderers):
                         mine += time_repeats(fns[stage], 1, warmup=0)[0]
                         if system == "gl":  # a call of its own: reading the timer query waits for the GPU
-                            renderer.gpu_timing = True
-                            fns[stage]()
-                            renderer.gpu_timing = False
+                            renderer.gpu_timing, renderer.draw_ms = True, None
+                            try:
+                                fns[stage]()
+                            finally:
+                                renderer.gpu_timing = False
                             gpu.append(renderer.draw_ms / 1e3)
                 for (system, extra, _), mine, gpu in zip(renderers, samples, gpu_samples):
                     config = {"resolution": resolution, "pass_set": "client"} | extra

@@ -297,14 +297,14 @@ class MapService:
     async def answer(self, req: GIMapRequest, gone: Callable[[], Awaitable[None]]) -> Served:
         """The response to ``req``: a hit from memory or a hit thread, else a miss through the queue
         (QueueFull, ClientGone when ``gone()`` finishes before its turn, FieldError, StoreUnwritable)."""
-        with self._lock:
-            self.counters["requests"] += 1
         try:
             p, served = self.lookup(req, io=False)
         except WouldBlock:
             with self._lock:
                 self.counters["lookups_threaded"] += 1
             p, served = await asyncio.get_running_loop().run_in_executor(self._hits, self.lookup, req)
+        with self._lock:  # valid requests only, as before hits were answered on the event loop
+            self.counters["requests"] += 1
         if served is not None:
             return served
         return await self.misses.run(lambda: self.bake(p), gone)

@@ -436,3 +436,44 @@ def test_the_payload_cache_keeps_to_its_budget(tmp_path: Path) -> None:
         assert t._payload_bytes == 2000 and len(t._payloads) == 2  # the two most recent of 1000 bytes each
     with pytest.raises(ValueError, match="cache_bytes must be >= 0"):
         GITree(tmp_path / "other", cache_bytes=-1)
+
+
+def test_fewest_maps_is_the_smallest_cover_of_the_path() -> None:
+    """Views every 0.04 along x; candidate maps every 0.05 and on the views themselves (tolerance 0.1 in
+    position, 5 degrees): the count equals the smallest set found by brute force, fewer than the maps a greedy
+    fill places; a light cell of its own per map; a view no map serves is an error."""
+    import itertools
+
+    from baseline_cloudbaking.store import fewest_maps, nearest
+
+    views = [view(0.04 * i + 0.001) for i in range(26)]
+    cells = [(0, 0, 0)] * len(views)
+
+    def smallest(maps: list) -> int:
+        served = [
+            frozenset(i for i, v in enumerate(views) if nearest(np.array([m.eye]), np.array([m.direction]), v, TOL))
+            for m, _ in maps
+        ]
+        everything = set(range(len(views)))
+        return next(k for k in range(1, len(maps) + 1)
+                    for combo in itertools.combinations(served, k) if set().union(*combo) == everything)  # fmt: skip
+
+    for maps in ([(view(0.05 * i), (0, 0, 0)) for i in range(21)], list(zip(views, cells))):
+        assert fewest_maps(views, cells, maps, TOL) == smallest(maps)
+    assert fewest_maps(views, cells, list(zip(views, cells)), TOL) < max(simulate_fill(views, cells, TOL)) + 1
+    with pytest.raises(ValueError, match="no map serves view 0"):
+        fewest_maps(views, cells, [(view(0.05 * i), (1, 0, 0)) for i in range(21)], TOL)
+    with pytest.raises(ValueError, match="no map serves view 13"):  # a hole around x = 0.52
+        fewest_maps(views, cells, [(view(0.05 * i), (0, 0, 0)) for i in range(21) if not 8 < i < 13], TOL)
+
+
+def test_a_prebake_finds_its_maps_to_rounding(tree: GITree) -> None:
+    """cloudbaking-prebake's EXACT: a stored view whose direction differs in the last bit (another normalising
+    formula) is the same configuration; a view 1e-6 away is not."""
+    from baseline_cloudbaking.prebake_cli import EXACT
+
+    v = view(0.3)
+    tree.insert(key(), v, blob(7))
+    nudged = Viewpoint(v.eye, tuple(float(c) for c in np.nextafter(np.array(v.direction), 2.0)))
+    assert nudged.direction != v.direction and tree.find(key(), nudged, EXACT) is not None
+    assert tree.find(key(), view(0.3 + 1e-6), EXACT) is None

@@ -57,3 +57,16 @@ def test_inference_rows_and_the_warm_started_torch_generator_match_onnxruntime(t
 def test_config_is_checked(changes, message) -> None:
     with pytest.raises(UserError, match=message):
         InferenceConfig(**changes).check()
+
+
+def test_models_of_different_inputs_are_refused(tmp_path: Path) -> None:
+    import json
+    import shutil
+
+    shipped = _shipped("model_fp16.onnx")
+    other = tmp_path / "model_fp16.onnx"
+    shutil.copy(shipped, other)
+    doc = json.loads((shipped.parent / "model.json").read_text())
+    (tmp_path / "model.json").write_text(json.dumps(doc | {"resolution": 128}))
+    with pytest.raises(UserError, match="take different inputs"):
+        InferenceConfig(models=(_shipped("model_fp32.onnx"), other)).check()

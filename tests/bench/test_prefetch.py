@@ -65,6 +65,8 @@ def test_targets_compare_the_variants_named_by_the_issue(tmp_path: Path) -> None
         folder = write_run(tmp_path / f"{profile}_{variant}", perceived, n)
         record(res, "s", folder, {"profile": profile, "variant": variant, "in_flight": 3})
     targets(res, "s")
+    for store, floor in (("prebaked", 58), ("placed", 41)):
+        res.add(system="cloud_baking", scene="s", metric="request_floor", value=floor, unit="count", store=store)
     rows = read_rows(res.write())
     met = {
         r["config"]["target"].split(",")[0] + r["config"]["target"][-5:]: r for r in rows if r["stat"] == "target_met"
@@ -76,6 +78,7 @@ def test_targets_compare_the_variants_named_by_the_issue(tmp_path: Path) -> None
     assert lan["value"] == 0 and lan["config"]["ratio"] == pytest.approx(0.6)
     text = readme_block(rows)[0].markdown
     assert "| wan | hold (3) | 5 |" in text and "MISSED" in text and "| yes |" in text
+    assert "with perfect foresight: 58 from the prebaked store's maps" in text and ", 41 from maps centred" in text
 
 
 def test_options_it_refuses() -> None:
@@ -105,4 +108,8 @@ def test_bench_prefetch_end_to_end(tmp_path: Path) -> None:
         assert {"requests", "perceived", "in_tolerance", "ssim"} <= got, (variant, got)
     [prebake] = [r for r in rows if r["metric"] == "prebake_maps"]
     assert prebake["value"] >= 1
+    # the floors: the stored maps are path views where the prebake missed, so centring maps on every view of
+    # the path needs no more of them, and the stored maps all together serve the path
+    floor = {r["config"]["store"]: r["value"] for r in rows if r["metric"] == "request_floor"}
+    assert 1 <= floor["placed"] <= floor["prebaked"] <= prebake["value"], (floor, prebake["value"])
     assert len(list((tmp_path / "out" / "prefetch_runs" / "gt_cache").glob("*.npz"))) == 4  # frames 0, 5, 10, 15

@@ -42,8 +42,9 @@ async def _gone(request: Request) -> None:
 @router.post("/gimap", response_class=Response, responses=_PAYLOAD_DOC, summary="GI map at a GI camera")
 async def get_gimap(body: GIMapRequest, request: Request, service: ServiceDep) -> Response:
     """Nearest stored map within the tolerance (a hit), else path-traced + OIDN at the camera, encoded,
-    stored and returned (a miss). Validation and hits run on the hit threads; a miss waits in the bounded
-    miss queue for the one render thread (503 + Retry-After when the queue is full; dropped if the client
+    stored and returned (a miss). A hit the GI tree answers from memory is served on the event loop, others on
+    the hit threads (they read the index or a file); a miss waits in the bounded miss queue for the one render
+    thread (503 + Retry-After when the queue is full; dropped if the client
     leaves before its turn)."""
     try:
         served = await service.answer(body, lambda: _gone(request))
