@@ -31,11 +31,12 @@ payload bytes fit. Hit times and counts are buffered in memory and written with 
 :meth:`GITree.flush`), so a cache hit does not write to SQLite.
 
 Lookups read no SQLite rows while the index is unchanged: the viewpoints of each key group looked up are kept
-in memory (:class:`_Views`, shared by all threads) with the index version they were read at, and a group is
-read again after any commit to the index, by this process or another (``PRAGMA data_version`` of a connection
-that never writes); payloads read are kept in an LRU of ``cache_bytes`` (content-addressed, so a kept payload
-is never stale). ``lookup(..., io=False)`` answers from memory alone or raises :class:`WouldBlock`, so a
-server can answer most hits on its event loop and send only the rest to a thread.
+in memory (:class:`_Views`, shared by all threads) with the index version they were read at, and after any
+commit to the index, by this process or another (``PRAGMA data_version`` of a connection that never writes), a
+group takes in the entries added since (by id), or is read again whole once entries were deleted (the
+``deletions`` count in ``meta``); payloads read are kept in an LRU of ``cache_bytes`` (content-addressed, so a
+kept payload is never stale). ``lookup(..., io=False)`` answers from memory alone or raises :class:`WouldBlock`,
+so a server can answer most hits on its event loop and send only the rest to a thread.
 """
 
 from __future__ import annotations
