@@ -26,9 +26,11 @@ would cover the decoder too, ran slower than fp32 on this CPU.)
 
 from __future__ import annotations
 
+import contextlib
 import io
 import json
 import os
+import tempfile
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -150,22 +152,23 @@ def int8_static(fp32_path: Path, out_path: Path, calibration: list[np.ndarray]) 
             x = next(self.inputs, None)
             return None if x is None else {INPUT_NAME: x}
 
-    prepared = out_path.with_name(out_path.stem + "__prepared.onnx")
-    try:
+    # The pre-processing and the calibrator write scratch models (sym_shape_infer_temp.onnx, UUID-named external
+    # data) into the working folder; run them inside a temporary one so that nothing is left behind.
+    source, target = fp32_path.resolve(), out_path.resolve()
+    with tempfile.TemporaryDirectory(prefix="gigan-int8-") as scratch, contextlib.chdir(scratch):
+        prepared = Path(scratch) / "prepared.onnx"
         # onnx's shape inference suffices (fixed image size); the symbolic one gives up on the sub-pixel graph's
         # computed kernels, which the pre-processing's optimisation then folds into constants to quantize
-        quant_pre_process(str(fp32_path), str(prepared), skip_symbolic_shape=True)
+        quant_pre_process(str(source), str(prepared), skip_symbolic_shape=True)
         quantize_static(
             str(prepared),
-            str(out_path),
+            str(target),
             Reader(),
             quant_format=QuantFormat.QOperator,
             per_channel=True,
             activation_type=QuantType.QUInt8,
             weight_type=QuantType.QInt8,
         )
-    finally:
-        prepared.unlink(missing_ok=True)
 
 
 def _ort_outputs(model: Path | bytes, inputs: list[np.ndarray]) -> list[np.ndarray]:
