@@ -1,11 +1,19 @@
-"""The one error policy of every console script (SPEC §8a), in the spirit of asv's ``UserError`` handler.
+"""The one error and signal policy of every console script (docs/architecture.md, Errors).
 
 A user error (bad flag value, missing or corrupt file, refused rerun, invalid scene spec, NaN input, an
 ``--out`` that cannot be written) prints one line ``error: <what is wrong>: <what to do>`` and exits 2.
-A traceback appears only for a bug, or for any error with ``--debug``. Ctrl-C prints how to resume and
-exits 130; SIGTERM (``kill``, a service manager, a batch scheduler) ends a run the same way, clean-ups
-included (locks released, worker processes stopped), and exits 143. Every entry point is built with
-:func:`entry_point`; no command catches errors itself::
+A traceback appears only for a bug, or for any error with ``--debug``.
+
+Signals: SIGTERM (``kill``, a service manager, a batch scheduler) is handled exactly like Ctrl-C (SIGINT):
+both raise :class:`KeyboardInterrupt` in the main thread, so every ``finally`` and ``with`` runs (locks
+released, worker processes stopped, nothing half-written kept). Then
+
+- a batch command (a dataset, a training, a bench, a client run) stopped before it finished prints one line
+  ``interrupted: <what was kept and how to resume>`` on stderr and exits 130;
+- a service (a server, a proxy, a viewer) runs its body in :func:`serving`: a requested stop is how it ends
+  normally, so once its in-flight work is finished or dropped it exits 0, silently.
+
+Every entry point is built with :func:`entry_point`; no command catches errors itself::
 
     app = typer.Typer()
     main = entry_point(app, resume="run the same command again; finished frames are kept")
@@ -21,39 +29,44 @@ import os
 import signal
 import sys
 import threading
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 from types import FrameType
 from typing import Any, NoReturn
 
 import typer
 
-#: Exit status of a user error (as click's usage errors), of an interrupt (128 + SIGINT), and of a run
-#: ended by SIGTERM (128 + SIGTERM).
+#: Exit status of a user error (as click's usage errors) and of a batch command stopped by SIGINT or SIGTERM
+#: (128 + SIGINT, what a shell reports for Ctrl-C).
 EXIT_USER_ERROR = 2
 EXIT_INTERRUPTED = 130
-EXIT_TERMINATED = 128 + signal.SIGTERM
 
 
-class Terminated(KeyboardInterrupt):
-    """SIGTERM, raised in the main thread by the handler :func:`run` installs, so that a run ends as on
-    Ctrl-C: every ``finally`` and ``with`` runs (locks released, worker pools killed, nothing half-written
-    kept) and the command exits :data:`EXIT_TERMINATED` with the resume hint."""
-
-
-def _raise_terminated(signum: int, frame: FrameType | None) -> None:
+def _interrupt_on_sigterm(signum: int, frame: FrameType | None) -> None:
     signal.signal(signal.SIGTERM, signal.SIG_DFL)  # a second SIGTERM during the clean-up ends the process at once
-    raise Terminated
+    raise KeyboardInterrupt
 
 
 def _catch_sigterm() -> Any:
-    """Turn SIGTERM into :class:`Terminated` (main thread only, and only where SIGTERM has its default
-    action: an ignored one stays ignored); returns the handler to put back, or None if none was set."""
+    """Make SIGTERM a :class:`KeyboardInterrupt`, as Ctrl-C is (main thread only, and only where SIGTERM has
+    its default action: an ignored one stays ignored); returns the handler to put back, or None if none was set."""
     if threading.current_thread() is not threading.main_thread():
         return None
     if signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL:
         return None
-    return signal.signal(signal.SIGTERM, _raise_terminated)
+    return signal.signal(signal.SIGTERM, _interrupt_on_sigterm)
+
+
+@contextmanager
+def serving() -> Iterator[None]:
+    """The body of a service: a stop requested by SIGINT or SIGTERM, which reaches it as a
+    :class:`KeyboardInterrupt` (or as a signal the service re-raises after its own graceful shutdown, as
+    uvicorn does), ends it normally, so the command exits 0. Clean-ups inside the body run first."""
+    try:
+        yield
+    except KeyboardInterrupt:
+        pass
 
 
 class UserError(Exception):
@@ -120,12 +133,11 @@ def run(
         if debug or exc.filename is None:
             raise
         _fail(_oserror_line(exc))
-    except (KeyboardInterrupt, typer.Abort) as exc:
-        _interrupted(resume, exc)
+    except (KeyboardInterrupt, typer.Abort):
+        _interrupted(resume)
     except Exception as exc:
-        interrupt = None if debug else _interrupt_behind(exc)
-        if interrupt is not None:  # e.g. Dr.Jit wraps a Ctrl-C during a render in a RuntimeError
-            _interrupted(resume, interrupt)
+        if not debug and _interrupt_behind(exc):  # e.g. Dr.Jit wraps a Ctrl-C during a render in a RuntimeError
+            _interrupted(resume)
         raise
     finally:
         if previous_sigterm is not None:
@@ -133,23 +145,21 @@ def run(
     sys.exit(0)
 
 
-def _interrupt_behind(exc: BaseException) -> KeyboardInterrupt | None:
-    """The Ctrl-C (or SIGTERM) among ``exc``'s causes and contexts, if any."""
+def _interrupt_behind(exc: BaseException) -> bool:
+    """Whether a Ctrl-C (or SIGTERM) is among ``exc``'s causes and contexts."""
     seen: set[int] = set()
     cause: BaseException | None = exc
     while cause is not None and id(cause) not in seen:
         if isinstance(cause, KeyboardInterrupt):
-            return cause
+            return True
         seen.add(id(cause))
         cause = cause.__cause__ or cause.__context__
-    return None
+    return False
 
 
-def _interrupted(resume: str | None, interrupt: BaseException) -> NoReturn:
-    terminated = isinstance(interrupt, Terminated)
-    how = "interrupted by SIGTERM" if terminated else "interrupted"
-    print(f"\n{how}: {resume or 'nothing half-written was kept; run the command again'}", file=sys.stderr)
-    sys.exit(EXIT_TERMINATED if terminated else EXIT_INTERRUPTED)
+def _interrupted(resume: str | None) -> NoReturn:
+    print(f"\ninterrupted: {resume or 'nothing half-written was kept; run the command again'}", file=sys.stderr)
+    sys.exit(EXIT_INTERRUPTED)
 
 
 def _fail(line: str) -> NoReturn:

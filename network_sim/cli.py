@@ -16,7 +16,7 @@ from typing import Annotated, Any, Literal
 
 import typer
 
-from gicore.cli import UserError, entry_point, writable_dir
+from gicore.cli import UserError, entry_point, serving, writable_dir
 from gicore.options import HOST_PORT, SEED, build_config, check_fields, config_command, extra, split_host_port
 from network_sim import profiles as profile_table
 from network_sim.link import DEFAULT_WINDOW_BYTES, JITTER_DISTS, DirectionConfig, LinkConfig
@@ -123,13 +123,14 @@ def proxy(given: dict[str, Any]) -> None:
     """Proxy TCP connections through an emulated link until SIGTERM/SIGINT."""
     from network_sim.proxy import run
 
-    opts = build_config(ProxyOptions, given)
-    config = opts.link()
-    if opts.log is not None:
-        writable_dir(opts.log.parent, name="--log folder")
-    assert opts.upstream is not None  # a required option
-    listen, upstream = split_host_port(opts.listen, "--listen"), split_host_port(opts.upstream, "--upstream")
-    run(config, listen, upstream, opts.log, opts.max_connections)
+    with serving():
+        opts = build_config(ProxyOptions, given)
+        config = opts.link()
+        if opts.log is not None:
+            writable_dir(opts.log.parent, name="--log folder")
+        assert opts.upstream is not None  # a required option
+        listen, upstream = split_host_port(opts.listen, "--listen"), split_host_port(opts.upstream, "--upstream")
+        run(config, listen, upstream, opts.log, opts.max_connections)
 
 
 config_command(app, ProxyOptions, proxy)
@@ -158,7 +159,8 @@ def server(given: dict[str, Any]) -> None:
     opts = build_config(ServerOptions, given)
     host, port = split_host_port(opts.listen, "--listen")
     try:
-        asyncio.run(serve(host, port))
+        with serving():
+            asyncio.run(serve(host, port))
     except OSError as exc:
         raise UserError(
             f"--listen {opts.listen}: cannot listen ({exc.strerror or exc})", "pick a free port, or 0 for any"

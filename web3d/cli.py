@@ -15,7 +15,7 @@ from typing import Any, Literal
 import typer
 
 from baseline_cloudbaking.codecs import CODEC_NAMES, DEFAULT_CODEC
-from gicore.cli import UserError, entry_point
+from gicore.cli import UserError, entry_point, serving
 from gicore.options import (
     FRAMES,
     HOST_PORT,
@@ -105,17 +105,20 @@ def prepare(cfg: WebConfig) -> Site:
 
 
 def serve_command(given: dict[str, Any]) -> None:
-    """Export the scene's assets and serve the page until interrupted."""
-    cfg = build_config(WebConfig, given)
-    host, port = split_host_port(cfg.listen, "--listen")
-    try:
-        server = WebServer(None, host, port)  # the address first: a taken port fails before anything is written
-    except OSError as exc:
-        raise UserError(f"--listen {cfg.listen}: cannot listen ({exc.strerror or exc})", "pick a free port") from None
-    site = prepare(cfg)
-    server.attach(site)
-    typer.echo(f"serving {site.config['scene']} at {server.url}/ (cloud baking: {cfg.server or 'off'})")
-    server.serve_forever()
+    """Export the scene's assets and serve the page until SIGINT or SIGTERM (a service: a stop exits 0)."""
+    with serving():
+        cfg = build_config(WebConfig, given)
+        host, port = split_host_port(cfg.listen, "--listen")
+        try:
+            server = WebServer(None, host, port)  # the address first: a taken port fails before anything is written
+        except OSError as exc:
+            raise UserError(
+                f"--listen {cfg.listen}: cannot listen ({exc.strerror or exc})", "pick a free port"
+            ) from None
+        site = prepare(cfg)  # rewritten whole on every start, so one cut short by a stop is simply redone
+        server.attach(site)
+        typer.echo(f"serving {site.config['scene']} at {server.url}/ (cloud baking: {cfg.server or 'off'})")
+        server.serve_forever()
 
 
 config_command(app, WebConfig, serve_command)

@@ -164,7 +164,12 @@ class WebServer:
         return self
 
     def serve_forever(self) -> None:
-        self.httpd.serve_forever()
+        """Serve in this thread until interrupted; requests in flight (daemon threads) are dropped with the
+        process: the page retries, and a GI map the cloud server was making is stored there regardless."""
+        try:
+            self.httpd.serve_forever()
+        finally:
+            self.httpd.server_close()
 
     def close(self) -> None:
         self.httpd.shutdown()

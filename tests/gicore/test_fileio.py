@@ -1,6 +1,6 @@
 """One run per output folder (issue 21): the lock file names its holder, a second run is refused naming
 it, a lock that a killed run left behind is taken over with one note, and SIGTERM releases the lock
-(the console-script entry point turns it into an interrupt: exit 143, the resume hint)."""
+(the console-script entry point turns it into an interrupt, as Ctrl-C: exit 130, the resume hint)."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from gicore.cli import EXIT_TERMINATED, UserError
+from gicore.cli import EXIT_INTERRUPTED, UserError
 from gicore.fileio import FolderHeld, exclusive_run
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -93,6 +93,6 @@ def test_sigterm_ends_a_command_as_an_interrupt_and_releases_the_lock(tmp_path: 
     started = time.monotonic()
     proc.send_signal(signal.SIGTERM)
     _, err = proc.communicate(timeout=30)
-    assert proc.returncode == EXIT_TERMINATED == 143, err
-    assert err.strip() == "interrupted by SIGTERM: run it again" and time.monotonic() - started < 10
+    assert proc.returncode == EXIT_INTERRUPTED == 130, err
+    assert err.strip() == "interrupted: run it again" and time.monotonic() - started < 10
     assert not folder.exists()  # the lock removed, and the folder the run created with it
