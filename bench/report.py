@@ -53,6 +53,9 @@ class ReportConfig:
     #: Markdown file (e.g. README.md) whose text between the lines <!-- results:begin --> and
     #: <!-- results:end --> becomes results.md; none: no file is changed.
     readme: Path | None = None
+    #: Folder to copy each block's PNG figures into, linked from the --readme file (e.g. --readme
+    #: docs/results.md --figures docs/figures); none: the Markdown holds the tables only.
+    figures: Path | None = None
 
     @classmethod
     def quick(cls) -> ReportConfig:
@@ -64,6 +67,11 @@ class ReportConfig:
                 f"--results {self.results} is not a folder", "give the folder your bench runs wrote into (their --out)"
             )
         check_readme(self.readme)
+        if self.figures is not None and self.readme is None:
+            raise UserError(
+                "--figures needs --readme",
+                "name the Markdown file that links the figures, e.g. --readme docs/results.md",
+            )
 
 
 def sections() -> list[tuple[str, Section]]:
@@ -177,7 +185,7 @@ def measure(cfg: ReportConfig, res: Results) -> None:
     results = cfg.results.resolve()
     parts = [render(bench, section, results, cfg.ignore) for bench, section in sections()]
     atomic_write_bytes(res.output("report.html"), page(parts, results).encode())
-    text = results_markdown(cfg.results, cfg.ignore)
+    text = results_markdown(cfg.results, cfg.ignore, cfg.figures, cfg.readme)
     atomic_write_bytes(res.output("results.md"), text.encode())
     if cfg.readme is not None:
         update_readme(cfg.readme, text)

@@ -18,6 +18,7 @@ is its bench's.
 
 from __future__ import annotations
 
+import os
 import re
 from collections.abc import Sequence
 from pathlib import Path
@@ -56,13 +57,27 @@ def block_text(parts: Sequence[Part]) -> str:
 
 
 def command_line(a: Attempt) -> str:
-    """Where a block's numbers come from: the command, git SHA, date and machine of its CSV."""
+    """Where a block's numbers come from: the command, date and machine of its CSV. The git SHA stays in the
+    provenance JSON beside the CSV (and on the dashboard): this text is committed, a SHA in it would go stale."""
     assert a.path is not None
     where = f"`{a.rel}`" + (f", the newest of {len(a.others) + 1} runs" if a.others else "")
     prov = provenance_fields(a.path)
     if prov is None:
         return f"Command: unknown (no {a.path.stem}.provenance.json beside {where})."
-    return f"Command: `{prov['command']}` (git {prov['git']}, {prov['date']}, {prov['machine']}; {where})."
+    return f"Command: `{prov['command']}` ({prov['date']}, {prov['machine']}; {where})."
+
+
+def figure_links(a: Attempt, figures: Path, page: Path) -> str:
+    """Copy the PNG figures the bench drew beside its CSV (``<bench>*.png``) into ``figures/<bench>/`` and link
+    them as Markdown images relative to ``page``, the file the text goes into; empty when it drew none."""
+    assert a.path is not None
+    links = []
+    for png in sorted(a.path.parent.glob(f"{a.path.stem}*.png")):
+        target = figures / a.path.stem / png.name
+        target.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write_bytes(target, png.read_bytes())
+        links.append(f"![{png.stem}]({Path(os.path.relpath(target, page.parent)).as_posix()})")
+    return "\n".join(links)
 
 
 def _shown(results: Path) -> Path:
@@ -74,10 +89,13 @@ def _shown(results: Path) -> Path:
         return results
 
 
-def results_markdown(results: Path, ignore: tuple[str, ...] = ()) -> str:
+def results_markdown(
+    results: Path, ignore: tuple[str, ...] = (), figures: Path | None = None, page: Path | None = None
+) -> str:
     """The results section: a heading per block, its numbers and the command that made them (or one line saying
-    what is missing or malformed). Nothing in it depends on when it is built, so rebuilding it from the same
-    results gives the same text."""
+    what is missing or malformed), and with ``figures`` each block's PNG figures, copied there and linked from
+    ``page``. Nothing in it depends on when it is built, so rebuilding it from the same results gives the same
+    text."""
     results = _shown(results)
     options = f"--results {results}" + (f" --ignore {','.join(ignore)}" if ignore else "")
     parts = [
@@ -95,6 +113,8 @@ def results_markdown(results: Path, ignore: tuple[str, ...] = ()) -> str:
             parts.append(f"Not shown: {a.problem}.")
         else:
             parts += [block_text(a.parts), command_line(a)]
+            images = figure_links(a, figures, page) if figures is not None and page is not None else ""
+            parts += [images] if images else []
     return "\n\n".join(parts) + "\n"
 
 
