@@ -20,7 +20,7 @@ from gicore.cli import UserError, entry_point, serving, writable_dir
 from gicore.options import HOST_PORT, SEED, build_config, check_fields, config_command, extra, split_host_port
 from network_sim import profiles as profile_table
 from network_sim.link import DEFAULT_WINDOW_BYTES, JITTER_DISTS, DirectionConfig, LinkConfig
-from network_sim.proxy import MAX_CONNECTIONS
+from network_sim.proxy import IDLE_TIMEOUT_S, MAX_CONNECTIONS
 from network_sim.trace import OPPORTUNITY_BYTES, Trace
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, help=__doc__.split("\n\n")[0])
@@ -32,6 +32,8 @@ DELAY_MS_MAX = 60_000.0
 RATE_MBIT_MAX = 100_000.0
 #: Largest bottleneck queue or connection window, bytes (1 GiB; the proxy may hold that much per direction).
 BUFFER_BYTES_MAX = 2**30
+#: Longest idle timeout, s (a day).
+IDLE_TIMEOUT_MAX_S = 86_400.0
 
 DELAY: dict[str, Any] = {"min": 0.0, "max": DELAY_MS_MAX}
 #: A rate may be 0: a dead link (nothing passes; SPEC §9's zero bandwidth ends in the client's timeout).
@@ -78,6 +80,8 @@ class ProxyOptions:
     log: Path | None = None
     #: Client connections at once; one more is closed on accept (lowered to fit the file-descriptor limit).
     max_connections: int = field(default=MAX_CONNECTIONS, metadata={"min": 1, "max": 1_000_000})
+    #: A connection that moved no byte either way for this long, s, is closed on both sides.
+    idle_timeout_s: float = field(default=IDLE_TIMEOUT_S, metadata={"min": 0.1, "max": IDLE_TIMEOUT_MAX_S})
 
     def __post_init__(self) -> None:
         check_fields(self)  # code building the options meets the command line's limits
@@ -130,7 +134,7 @@ def proxy(given: dict[str, Any]) -> None:
             writable_dir(opts.log.parent, name="--log folder")
         assert opts.upstream is not None  # a required option
         listen, upstream = split_host_port(opts.listen, "--listen"), split_host_port(opts.upstream, "--upstream")
-        run(config, listen, upstream, opts.log, opts.max_connections)
+        run(config, listen, upstream, opts.log, opts.max_connections, opts.idle_timeout_s)
 
 
 config_command(app, ProxyOptions, proxy)

@@ -23,7 +23,9 @@ window full) or while the receiver's socket buffer is full; it never drops strea
 Connection cap: at most ``max_connections`` client connections at once (each holds two sockets); one
 more is closed as soon as it is accepted (the client sees the connection closed before any byte), and
 the refusals are reported on stderr at most once per 10 s, so a flood neither exhausts file descriptors
-nor grows the log.
+nor grows the log. A connection that moved no byte either way for ``idle_timeout_s`` (and has none due in
+the link) is closed on both sides, so clients that hold sockets open (their upstream long gone, or a peer
+that vanished) give their slots back.
 
 SIGTERM/SIGINT: stop accepting, close every connection with FIN (bytes still inside the emulated link
 are discarded, as when a link goes down), write the log, exit 0.
@@ -76,6 +78,11 @@ MAX_CONNECTIONS = 1024
 FD_RESERVE = 64
 #: Refused connections are reported at most this often, s.
 REFUSAL_REPORT_S = 10.0
+#: Default idle timeout, s: as a carrier NAT forgets an idle TCP flow after minutes, and longer than any
+#: client here waits for an answer (a miss path-traced in silence is the client's to give up on, not the link's).
+IDLE_TIMEOUT_S = 300.0
+#: Idle connections are looked for this many times per idle timeout (one is closed within 1.25 timeouts).
+IDLE_CHECKS = 4
 
 
 class PreciseSelector(selectors.EpollSelector):
@@ -150,6 +157,7 @@ class _Side(asyncio.Protocol):
         self.conn.side_connected(self)
 
     def data_received(self, data: bytes) -> None:
+        self.conn.active = self.conn.proxy.now()
         self.conn.pipes[self.feeds].feed(data)
 
     def eof_received(self) -> bool:
@@ -253,6 +261,7 @@ class _Pipe:
             chunk, data = self.pending.popleft()
             if transport is not None and not self.dst.lost:
                 transport.write(data)
+                self.src.conn.active = now
             self.proxy.logged(chunk, now)
         self._schedule_flush(now)
         self._maybe_finish()
@@ -300,6 +309,13 @@ class _Connection:
             DOWN: _Pipe(proxy, link.stream(conn_id, DOWN), self.upstream, self.client),
         }
         self.closed = False
+        #: When a byte was last read from or written to either leg (the model's clock).
+        self.active = proxy.now()
+
+    def idle_since(self, t: float) -> bool:
+        """No byte moved since ``t`` and none is due: the link holds nothing it will ever deliver."""
+        due = any(p.offer_timer is not None or p.flush_timer is not None for p in self.pipes.values())
+        return self.active <= t and not due
 
     def pipe_into(self, side: _Side) -> _Pipe:
         return self.pipes[DOWN] if side is self.client else self.pipes[UP]
@@ -380,6 +396,7 @@ class Proxy:
         upstream: tuple[str, int],
         log: ChunkLog | None = None,
         max_connections: int = MAX_CONNECTIONS,
+        idle_timeout_s: float = IDLE_TIMEOUT_S,
     ) -> None:
         self.loop = asyncio.get_running_loop()
         self.link = Link(config)
@@ -393,6 +410,8 @@ class Proxy:
         self.refused = 0
         self._refused_reported = 0
         self._report: asyncio.TimerHandle | None = None
+        self.idle_timeout_s = idle_timeout_s
+        self._idle_check = self.loop.call_later(idle_timeout_s / IDLE_CHECKS, self.close_idle)
 
     def now(self) -> float:
         """The model's clock: seconds since the origin."""
@@ -446,19 +465,17 @@ class Proxy:
         self.connections.pop(conn.id, None)
         self.link.forget(conn.id)
 
+    def close_idle(self) -> None:
+        """Close both legs of every connection idle for the idle timeout; check again a fraction of it later."""
+        since = self.now() - self.idle_timeout_s
+        for conn in [c for c in self.connections.values() if c.idle_since(since)]:
+            conn.close()
+        self._idle_check = self.loop.call_later(self.idle_timeout_s / IDLE_CHECKS, self.close_idle)
+
     def close_all(self) -> None:
+        self._idle_check.cancel()
         for conn in list(self.connections.values()):
             conn.close()
-
-
-def parse_hostport(value: str, flag: str) -> tuple[str, int]:
-    """``HOST:PORT`` (port 0 = any free port) or a :class:`UserError` naming ``flag``."""
-    host, sep, port = value.rpartition(":")
-    if not sep or not host or not port.isdigit() or not 0 <= int(port) <= 65535:
-        raise UserError(
-            f"{flag} {value!r} is not HOST:PORT", f"give e.g. {flag} 127.0.0.1:8000 (port 0 picks a free port)"
-        )
-    return host.strip("[]"), int(port)
 
 
 def check_upstream(upstream: tuple[str, int], timeout_s: float = 3.0) -> None:
@@ -480,11 +497,12 @@ async def serve(
     upstream: tuple[str, int],
     log_path: Path | None,
     max_connections: int = MAX_CONNECTIONS,
+    idle_timeout_s: float = IDLE_TIMEOUT_S,
 ) -> None:
     """Run the proxy until SIGTERM or SIGINT; prints ``listening on HOST:PORT`` first."""
     loop = asyncio.get_running_loop()
     log = ChunkLog(log_path) if log_path is not None else None
-    proxy = Proxy(config, upstream, log, connection_budget(max_connections))
+    proxy = Proxy(config, upstream, log, connection_budget(max_connections), idle_timeout_s)
     stop = asyncio.Event()
     for sig in (signal.SIGTERM, signal.SIGINT):  # before announcing the port: a signal right after it must stop cleanly
         loop.add_signal_handler(sig, stop.set)
@@ -514,11 +532,12 @@ def run(
     upstream: tuple[str, int],
     log_path: Path | None = None,
     max_connections: int = MAX_CONNECTIONS,
+    idle_timeout_s: float = IDLE_TIMEOUT_S,
 ) -> None:
     """Check the upstream, then proxy on a precise event loop until signalled."""
     check_upstream(upstream)
     loop = new_event_loop()
     try:
-        loop.run_until_complete(serve(config, listen, upstream, log_path, max_connections))
+        loop.run_until_complete(serve(config, listen, upstream, log_path, max_connections, idle_timeout_s))
     finally:
         loop.close()
