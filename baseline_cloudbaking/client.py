@@ -1,45 +1,14 @@
-"""The cloud-baking client's GI source: GI maps asked from a ``cloudbaking-server`` over HTTP (SPEC §6).
+"""The cloud-baking client's GI source: GI maps asked from a ``cloudbaking-server`` over HTTP
+(docs/architecture.md, Data flow of a cloud-baking frame).
 
 :class:`RemoteSource` is a :class:`gicore.loop.GISource` that works in background threads over keep-alive
-``httpx`` connections, one request in flight at most per thread (one thread unless its :class:`RequestPolicy`
-allows more): :meth:`~RemoteSource.request` hands the GI camera to the threads and returns at once (False
-while they are all busy or, after a failure, for ``retry_after_s``), :meth:`~RemoteSource.latest` returns the
-newest map that has arrived (with a tolerance, the held one that serves the view best).
-A failed request (connect or read timeout, total deadline, dropped connection, an HTTP error, a bad
-payload) is logged and recorded; the loop goes on composing with the map it has.
-
-How each request's time is split (``stages`` of its :class:`~gicore.loop.GIMap`, which sum to its
-latency, request to arrival):
-
-- ``request``: from :meth:`~RemoteSource.request` to the first byte of the response (its status line
-  and headers), minus the server's own time. It holds the hand-off to the thread, the request's
-  upload, the link's round trip, and the HTTP and proxy overhead at both ends. The client cannot split
-  the round trip into its two one-way delays without synchronised clocks, so the response's
-  propagation delay is counted here, paid by its first bytes;
-- the server's time, from the payload header's ``timings_ms`` (measured inside the server, from the
-  parsed request to the finished payload): ``lookup``, then ``read`` (a hit) or ``render``,
-  ``denoise``, ``encode`` (a miss), and ``server_other`` = the server's total minus those (storing a
-  miss in the GI tree, re-packing the header);
-- ``transfer``: first to last byte of the response, i.e. the body's serialization at the link's rate
-  (its propagation delay is already in ``request``);
-- ``decode``: the GI map (and DI) codec and the depth section.
-
-``transmission`` = ``request`` + ``transfer`` is the network's share. Each request's record (see
-:data:`RECORD_COLUMNS`) also has the bytes each way (body plus HTTP header bytes; TCP/IP headers are not
-counted), the hit flag, and ``pickup_ms``: arrival to the first :meth:`~RemoteSource.latest` call that
-returned the map, i.e. how long it waited for the loop's next frame.
-
-When to ask (:class:`RequestPolicy`, issue 23): with the server's tolerance given, a source asked for a view
-sends nothing while a map it holds (one of the last :data:`KEPT_MAPS` arrived) or the one in flight would
-serve that view by the GI tree's own rule (:func:`covers`: same light cell, and
-:func:`baseline_cloudbaking.store.nearest` within the tolerance), since the server would answer with that same
-map; :meth:`~RemoteSource.latest` then returns the held map that best serves the last view asked for (the
-newest when none does). Prefetch ``extrapolate`` asks instead for the view the camera will have when the
-answer is shown, as Outatime speculates one round trip ahead (:class:`MotionPredictor`: its recent motion
-extrapolated ``lead`` s ahead; the lead is the median latency of the source's own recent requests, plus half a
-frame interval, plus half the time the camera takes to cross the tolerance, so that the map's tolerance is
-centred on the views from its arrival on). A ``503`` with ``Retry-After`` holds every request back for that
-long (at most the request deadline).
+``httpx`` connections: :meth:`~RemoteSource.request` hands the GI camera to a thread and returns at once,
+:meth:`~RemoteSource.latest` returns the newest map that has arrived (with a tolerance, the held one that
+serves the view best). A failed request is logged and recorded; the loop keeps composing with the map it has.
+A request's time is split into ``request``, the server's own stages, ``transfer`` and ``decode``, which sum to
+its latency (:data:`RECORD_COLUMNS`). :class:`RequestPolicy` decides when to ask (only when no held or
+in-flight map serves the view by the GI tree's rule) and :class:`MotionPredictor` what to ask for when it
+prefetches (docs/architecture.md, Request policy and prefetch).
 """
 
 from __future__ import annotations

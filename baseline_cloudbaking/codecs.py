@@ -1,28 +1,12 @@
 """GI-map codecs: one :class:`Codec` protocol, a registry, and the measurement every codec reports.
 
-An image codec turns a linear-radiance map (HxWx3 float32, >= 0) into bytes and back:
-
-- ``jpeg``, ``webp``, ``avif``, ``png``: 8-bit. The map goes through the project's tone map
-  (:func:`gicore.tonemap.tonemap`), is rounded to 8 bits, encoded by Pillow, and decoded back through the
-  inverse tone map. JPEG/WebP/AVIF are lossy; PNG is lossless *on the 8-bit tone-mapped image*.
-- ``exr-half``: OpenEXR, half float, ZIP compression; lossless on the float16-rounded map.
-- ``zstd-f16``: zstandard on the raw float16 array (with a 12-byte shape header); lossless on float16.
-
-``Codec.quantize`` is the codec's exact domain: for a lossless codec ``decode(encode(x)) ==
-quantize(x)`` bit for bit (tested); for a lossy one it is the 8-bit rounding before the lossy step.
-``Codec.max_rmse`` is the stated error bound: the tone-mapped RMSE against the source that a rendered
-map (denoised GI or 1-spp DI, 64² or larger) stays within (tested on renders; :func:`measure` reports
-the actual error, plus SSIM). Measured: JPEG ~0.018 at 64² and ~0.009 at 256², WebP/AVIF ~0.013 and
-~0.007; small maps have more edges per pixel, hence more error.
-
-8-bit codecs represent radiance up to ``T^-1(254.5/255) ~ 230`` (the top bin's lower edge); brighter
-pixels (only a visible light source reaches that) saturate there.
-
-Depth travels with :data:`DEPTH_CODEC` (``zstd-f16-delta``): float16, each row's bit patterns delta-coded,
-byte planes split, then zstandard. Lossless float32 depth was measured at ~6x the bytes (~85 KB vs ~14 KB
-per 256² lung map, more than a JPEG map: ray-hit mantissas are noise in their low bits), so depth is
-rounded to float16 instead: relative error <= 2^-11 (4.9e-4), 40x below the structure-aware warp's 2 %
-depth test, and a reprojected texel moves < 0.1 px (both tested); the rest of the path is bit-exact.
+``jpeg``, ``webp``, ``avif``, ``png``: 8-bit, through the project's tone map (:func:`gicore.tonemap.tonemap`),
+decoded back through its inverse; ``exr-half``: OpenEXR half float; ``zstd-f16``: zstandard on the raw float16
+array. ``Codec.quantize`` is a codec's exact domain (a lossless codec decodes to it bit for bit) and
+``Codec.max_rmse`` its stated tone-mapped error bound on rendered maps (both tested); :func:`measure` reports
+bytes, encode and decode time, and the actual error. Depth travels with :data:`DEPTH_CODEC` (float16,
+delta-coded rows, split byte planes, zstandard): relative error <= 2^-11, far below the structure-aware warp's
+depth test. docs/architecture.md, Codecs.
 """
 
 from __future__ import annotations

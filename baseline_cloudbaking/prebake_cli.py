@@ -4,27 +4,11 @@ into a GI tree, ahead of any client.
     cloudbaking-prebake lung_plane --store gi_store --frames 1500 --codec jpeg --resolution 256 --workers 2
     cloudbaking-prebake lung_cornell --store gi_store --space all --executor ray --ray-address HEAD:6379
 
-The fly-through is the scene's camera path (``gicore.paths.camera_path`` with the GI-camera FOV) with
-its light schedule. Walking it in order, a frame needs a new map unless the store, or a map planned
-earlier in this run, serves it within the tolerance (same light cell): the same rule the server's
-lookups apply, so a client flying the path afterwards only hits. Maps are rendered by the render
-executor (``gicore.executor``: this process, ``--workers`` local processes, or Ray tasks with ``--executor
-ray --ray-address auto|HOST:PORT`` for a bake farm; one compiled scene per worker) and inserted by this
-process alone as they arrive (one writer); a rerun (after Ctrl-C, a crash or kill -9) plans again from what
-the store holds and bakes only the rest.
-
-``--space all`` bakes the scene's whole configuration space instead
-(:func:`baseline_cloudbaking.bake.configuration_space`: grid views covering the camera's envelope at the
-tolerance, x every light cell the light reaches), light state after light state in runs of
-:data:`SPACE_CHUNK` maps, so that millions of maps never sit in memory at once. A configuration counts as
-baked when the store holds a map at exactly its view (a map of a fly-through nearby does not: the grid's
-covering argument needs its own views); a rerun bakes only the rest.
-
-Workers never outlive the driver (``gicore.executor``): local workers die with it, kill -9 included; Ray
-tasks are owned by the driver, and Ray fails them when their owner dies (a cluster joined by HOST:PORT
-lives on; its nodes are not the driver's to stop); a local Ray instance that ``--ray-address auto``
-started is stopped at the end, and after a kill -9 of the driver Ray and the driver's watchdog end all
-of it.
+A frame of the fly-through needs a new map unless the store, or a map planned earlier in the run, serves it by
+the server's own lookup rule, so a client flying the path afterwards only hits. ``--space all`` bakes every
+view of the camera's envelope at the tolerance times every light cell, in chunks of :data:`SPACE_CHUNK` maps.
+Maps are rendered by the render executor and inserted by this process alone; a rerun (after Ctrl-C, a crash
+or kill -9) bakes only what is missing, and workers never outlive the driver. docs/architecture.md, GI tree.
 """
 
 from __future__ import annotations

@@ -4,31 +4,11 @@ Layout (little endian)::
 
     b"GIM1"  | u32 header length | header (UTF-8 JSON) | section bytes, in the header's order
 
-The header says what the sections are (``sections``: name, codec, byte count) and what the map is:
-scene, GI camera (``camera`` as :class:`gicore.camera.Camera` fields, ``view``/``proj`` OpenGL
-matrices), the light it was rendered with (``light``, absent for a static light), resolution, spp,
-and the bake cost (``bake_ms``: render, denoise, encode). A served payload's header adds ``hit`` and
-``timings_ms`` (lookup, read, render, denoise, encode, total). Sections:
-
-- ``gi``: the GI map (the image codec named in the header), linear radiance HxWx3;
-- ``di``: the direct illumination of the GI view (same codec), present when asked for: the residual
-  composition subtracts it from ``gi`` to get the indirect light;
-- ``depth``: linear view depth at texel centres (:data:`~baseline_cloudbaking.codecs.DEPTH_CODEC`).
-
-:func:`decode_payload` is the client side: bytes in, arrays and camera out. Bad bytes raise
-:class:`PayloadError` (a ValueError) naming what is wrong.
-
-Over HTTP (``cloudbaking-server``; its ``/openapi.json`` states every limit and response):
-
-- ``POST /v1/gimap`` answers 200 with a payload; ``X-GIMap-Hit`` is 1 for a stored map, 0 for one baked
-  for the request; ``Content-Location: /v1/maps/{sha}`` names the stored map.
-- ``GET /v1/maps/{sha}``: the stored payload by its SHA-256 (no ``hit``/``timings_ms``), with
-  ``ETag: "{sha}"`` and ``Cache-Control: public, max-age=31536000, immutable``; 304 when
-  ``If-None-Match`` names it.
-- Errors are JSON ``{"detail": [{"loc", "msg", "type"}]}`` with a one-line ``msg``: 4xx for the request
-  (422 names the field; 408 slow body; 413/431 too large); 503 with ``Retry-After`` (seconds) when the
-  miss queue or the connection limit is full or the store cannot be written now: retry after that long,
-  keep warping the map held meanwhile; 507 when there is no space to store a baked map.
+The header names the sections (``gi``, optional ``di``, ``depth``: name, codec, byte count) and what the map
+is: scene, GI camera and its OpenGL matrices, light, resolution, spp and bake cost; a served payload's header
+adds ``hit`` and ``timings_ms``. :func:`decode_payload` is the client side: bytes in, arrays and camera out;
+bad bytes raise :class:`PayloadError` (a ValueError) naming what is wrong. The fields, the HTTP endpoints and
+their error answers: docs/architecture.md, GI-map payload.
 """
 
 from __future__ import annotations

@@ -1,75 +1,13 @@
 """`bench latency` (paper Table 1): interaction latency of GIGAN and of cloud baking, stage by stage, from
 real processes talking over the simulated network.
 
-One run starts, as separate processes pinned to separate cores where the machine has them (see
-:func:`pinning`; recorded in the provenance's ``settings.pinning``):
-
-- ``gigan-client`` with the ONNX model (``--gi-source model``): it needs no network, so it runs once (per
-  renderer) and its rows carry ``profile = "none"``;
-- per network profile, ``network-sim proxy --profile P`` in front of a ``cloudbaking-server`` and a
-  ``cloudbaking-client`` behind the proxy, twice: against a **prebaked** store (the server answered
-  every GI camera of the path once before, directly: a first pass along the same path, so the run's
-  requests hit) and against a **cold** store (a fresh store per profile, the server warmed up by one
-  request far off the path: its requests miss, except where the run itself has just baked a map within
-  the tolerance). Rows are grouped by each request's own ``hit`` flag (``cache`` = ``hit`` | ``miss``),
-  whatever store it went to.
-
-Both clients fly the same camera path (``orbit_frames`` frames per orbit, seed) at ``resolution``, ask for
-a GI map every ``every`` frames (the cloud client also when its view leaves the server's tolerance, with
-at most one request in flight) and compose with ``composition``.
-
-**Renderers.** Every client run above is made once per renderer of ``renderers`` (the clients'
-``--renderer``: ``gl``, OpenGL at level of detail auto, or ``mitsuba``), one right after the other, each
-cold run against a fresh store of its own; every row's config names its ``renderer``. Where no GL context
-opens, ``gl`` is left out after one warning. Rows with ``stat = renderer_ratio`` (config ``renderer =
-gl/mitsuba``) divide each stage's median with gl by the same stage's median with mitsuba, same run.
-
-**Prefetch.** With ``prefetch_in_flight`` > 0, per profile the cloud client also flies the path against the
-prebaked store with ``--prefetch extrapolate --in-flight N`` (system ``cloud_baking_prefetch``; first renderer
-only), right after the plain client. For both, on the prebaked store, per-frame rows (:mod:`bench.prefetch` has
-the full comparison): ``perceived`` (median and p95 as order statistics, frames no map ever served counted as
-endless): the time from a camera move to a frame showing a map within the server's tolerance of that view
-(:func:`baseline_cloudbaking.client.perceived_latency`); ``in_tolerance``: the share of frames showing such a
-map of their own view; ``requests`` sent. A prefetched map's request-to-shown total is in no Table 1 column:
-speculation does not shorten a request, it asks earlier.
-
-**Stages** (``metric``; median and p95 over the maps, ms). A map's interaction latency (``total``) is the
-sum of every stage from the request to the composition of the first frame showing it, that frame's local
-render (``di``) included: both systems run it, and it is no longer free to leave out once the other
-passes are rasterised. The local render is the frame's DI together with the pass its warp reads (the
-structure-aware warp's uv + position, the pixel-level warp's surface mask), as a real-time client draws them:
-one geometry pass into several render targets with gl, two passes with mitsuba. Every stage counts toward the
-system that needs it:
-
-- GIGAN: ``di``, ``gi_render`` (DI + G-buffers + texel depth at the GI camera: the generator's input),
-  ``inference`` (``GIModel.predict``, with its pre- and post-processing), ``warp`` (the structure-aware
-  warp's per-map ``bind`` plus its per-frame stages: projection, depth test, lookup, fill; on the frame that
-  binds the map), ``blend`` (composition);
-- cloud baking (the split is :mod:`baseline_cloudbaking.client`'s): ``transmission`` = ``request`` (time to
-  the response's first byte minus the server's time: upload, round trip, HTTP and proxy overhead) +
-  ``transfer`` (first to last response byte); the server's ``lookup``, ``read`` (hit) or ``render``,
-  ``denoise``, ``encode`` (miss) and ``server_other``; ``decode``; ``di``; ``warp`` (pixel-level: ``bind``
-  plus per-frame splat and hole filling); ``blend``. ``pickup`` (arrival to the next
-  frame taking the map) is reported, not counted: it is a wait for the frame clock.
-
-Stage medians do not add up to the median total (each is a median of its own samples).
-
-**Ratio and crossover.** ``total_ratio``: cloud baking's median total over GIGAN's, per profile, cache state
-and renderer (both systems on the same renderer). The crossover RTT (``crossover_rtt``, per cache state and
-renderer) is where the link model says GIGAN's median total beats cloud baking's: cloud's total at a
-round-trip time ``r`` is its measured non-network stages (median of total minus transmission) plus the network
-time of its median request and response bytes through :mod:`network_sim.link`'s virtual-clock model of a link
-with ``r / 2`` each way at ``sweep_rate_mbit`` (unlimited by default: RTT alone, as the ``rtt*`` profiles); 0
-when GIGAN is faster at any RTT. The same model at each measured profile (``total_model``) is set beside the
-process runs' median; their difference is the HTTP and proxy overhead the link model does not have (so the
-crossover errs in cloud baking's favour by about that much).
-
-**Quality along the path.** Each client scores its composed frames against the path-traced GT every
-``gt_every`` frames (``ssim`` rows with ``stat = frame``): the cost of stale maps while requests are in
-flight. The GT frames are path-traced once per bench run and shared by every client run through
-``latency_runs/gt_cache`` (``--gt-cache``; GT is in no stage time). Outputs besides the CSV:
-``latency_table.md`` (Table 1 per profile, also printed), stacked stage bars, the ratio against RTT,
-SSIM along the path; each client's own CSVs under ``latency_runs/``.
+One run starts a ``gigan-client`` (once per renderer: it needs no network) and, per network profile, a
+``network-sim proxy`` in front of a ``cloudbaking-server`` with a ``cloudbaking-client`` behind it, against a
+prebaked store (hits) and a cold one (misses); every client run is made once per renderer of ``renderers``.
+Rows: each stage's median and p95 per system, profile, cache state and renderer; ``total_ratio`` (cloud over
+GIGAN, same run), ``renderer_ratio`` (gl over mitsuba, same run), the crossover RTT from the link model, and
+SSIM along the path. What each stage holds, and why the local render counts for both systems:
+docs/architecture.md, bench latency and Honest accounting.
 """
 
 from __future__ import annotations

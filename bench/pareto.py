@@ -1,46 +1,12 @@
 """`bench pareto`: error against run time over every speed/quality knob of both systems, with the fronts.
 
-Error is ``1 - SSIM`` against a path-traced GT (tone-mapped, SPEC §3), so every point, measured here or
-read from another bench, is on one axis. Run time is a median over repeats after warm-up, in one of two
-units of work, each its own plot and front:
-
-- **per GI map** (the time until a GI map is at the client; error of that map at its GI camera against
-  a path-traced reference with ``reference_spp`` and OIDN):
-
-  - GIGAN: DI + G-buffers rendered at the GI camera plus the generator's inference, for each model
-    (width and precision: ``models``) and GI-camera FOV (``gi_fovs``);
-  - cloud baking, bake spp × denoising (``spps``): the server's path tracing (+ G-buffer guide pass and
-    OIDN); read from ``convergence.csv`` under ``from_dir`` when it has this scene (its reference is its own);
-  - cloud baking, bake resolution (``resolutions``): a map baked at ``bake_spp`` + OIDN at a lower
-    resolution, upsampled (bilinear) to the reference's;
-  - cloud baking, codec and quality (``codecs``) × network profile (``profiles``) × cache state: a miss
-    costs the bake, the encode, the request and response on the profile's link (``network_sim.link``'s
-    virtual-clock model, the payload's real bytes) and the decode; a hit skips bake and encode;
-  - cloud baking, store tolerance (``tolerances``: Δp, Δθ pairs): a request half a tolerance away from
-    the stored view is served the stored map, pixel-level warped (error at the request's camera); the
-    time is the mean of a hit and a miss (``lan`` link, first codec) weighted by the hit rate the GI
-    tree's lookup rule gives along the fly-through with views perturbed by that half tolerance.
-
-- **per frame** (a client frame: the median of its local work -- DI, warp, composition -- plus, for
-  the generator's maps, their cost amortised over the period k; a path-traced map is made on the server
-  and paid in latency, per GI map above): ``bench frequency`` runs over GI period k × warp method ×
-  composition, with GIGAN's generator (``gi_source = model``) and with path-traced maps as the server
-  sends them (``gi_source = gt``). Read from ``frequency.csv`` under ``from_dir`` when one has that
-  source at this scene and resolution, else run here into ``pareto_runs/``. A point is labelled by the
-  system it is (SPEC §5-§6): ``gigan`` = model maps, structure-aware warp (or none); ``cloud_baking`` =
-  path-traced maps, pixel-level warp (or none). The other pairings (model maps warped pixel-level,
-  path-traced maps warped structure-aware) are cross-system ablations, ``system = ablation``: kept in
-  the CSV and plotted grey, but on no front and in no best-configuration row. A path-traced-map point's
-  config holds ``map_latency_budget_ms`` = k × its frame time: the GI-map latency it assumes, since the
-  client keeps rendering with the old map only until the next one is due.
-
-Rows (``system`` = ``gigan`` | ``cloud_baking`` | ``ablation``; ``config`` = the point's full config, with
-``knob``, the unit ``per`` and ``source``: ``measured`` or the CSV it was read from): ``run_time`` (ms,
-median), ``error`` (1 - SSIM), and ``dominated`` with ``stat`` ``system`` (by points of its own system)
-and ``combined`` (by ``gigan`` and ``cloud_baking`` points of the same unit; an ablation dominates
-nothing). Plots: one per system and unit, and the combined front per unit (ablations grey);
-``pareto_best.md`` names the best configuration of each system within three time budgets per unit, with
-the caveat of each row's run time.
+Error is ``1 - SSIM`` against a path-traced GT (tone-mapped); run time is a median after warm-up, per GI map
+(GIGAN's render + inference per model and GI-camera FOV; cloud baking's bake spp, bake resolution, codec x
+profile x cache state and store tolerance) or per frame (``bench frequency``'s k x warp x composition runs,
+read from ``from_dir`` when there). A point is labelled by the system it is: ``gigan``, ``cloud_baking``, or
+``ablation`` for a cross-system pairing (plotted grey, on no front). Rows: ``run_time``, ``error`` and
+``dominated``; ``pareto_best.md`` names each system's best configuration per time budget.
+docs/architecture.md, bench pareto.
 """
 
 from __future__ import annotations

@@ -1,44 +1,12 @@
-"""`bench prefetch` (issue 23 item 2): how well the cloud-baking client hides the network, per network profile,
-with three request rules on the same camera path against the same prebaked GI tree.
+"""`bench prefetch`: how well the cloud-baking client hides the network, per network profile, with three
+request rules on the same camera path against the same prebaked GI tree.
 
-Variants (``system``), each a ``cloudbaking-client`` process behind ``network-sim proxy --profile P``:
-
-- ``period``: the rule before issue 23 (``--hold none``): a request every ``every`` frames and whenever the
-  view has left the tolerance of the bound map;
-- ``hold``: ``--hold tolerance``: a request only when no map held or in flight serves the view by the GI
-  tree's own rule (:func:`baseline_cloudbaking.client.covers`);
-- ``prefetch``: ``hold`` with ``--prefetch extrapolate``: the request is for the view the camera's recent
-  motion (and the light's) reaches one measured request latency (plus half a frame and half a tolerance
-  crossing) ahead.
-
-``hold`` and ``prefetch`` may have ``in_flight`` requests in flight (``--in-flight``; ``period`` has one, as
-before issue 23), so that they differ only in which view they ask for: with one request per round trip, a
-camera crossing the tolerance faster than that leaves views no map ever serves.
-
-Every run gets a fresh copy of one prebaked store (the server answered every GI camera of the path once,
-directly), so one run's misses (a predicted view no stored map serves) are never another's hits; the server
-is warmed up by one request far off the path (its scene compiled). Frames are paced at ``frame_rate`` as a
-display would, so the camera's speed in scene units per second is the same in every run.
-
-Metrics (``metric``; config: ``profile``, ``variant`` and the run's settings):
-
-- ``perceived`` (ms; median, p95 as order statistics, n): per frame, from its start (the camera moved) to the
-  composition of the first frame showing a map that serves its view
-  (:func:`baseline_cloudbaking.client.perceived_latency`); ``cache = all``: every frame, those no map of the run
-  ever served (``censored``, a count of its own) as an endless wait; ``cache = hit | miss``: the served frames by
-  the ``hit`` flag of the map that ended the wait. ``in_tolerance``: the share of frames whose shown map serves
-  their own view;
-- ``ssim`` (mean over the frames scored against the path-traced GT every ``gt_every`` frames, path-traced once
-  per bench run and shared by its client runs through ``prefetch_runs/gt_cache``): staleness;
-- ``requests``, ``failed_requests``, ``bytes_up``, ``bytes_down`` (totals), ``request_latency`` (ms);
-- ``request_floor`` (config ``store = prebaked | placed``, once per run): the fewest requests that serve every
-  view of the path by the server's rule, with perfect foresight (:func:`request_floors`).
-
-Targets (``stat = target_met``, issue 23): at ``wan``, the median perceived latency with prefetch is at most
-0.5 x that of ``hold`` (checked on every frame, and on the frames served by a hit: on the prebaked store nearly
-every request hits, and frames prefetch skips over are never served); at ``lan``, ``hold`` (and ``prefetch``)
-send at most 0.5 x the requests of ``period``. Each row says the target, the measured ratio and whether it was
-met (profiles not run give no row).
+Variants (``system``), each a ``cloudbaking-client`` behind ``network-sim proxy --profile P``: ``period``
+(``--hold none``: a request every k frames and when the view leaves the bound map's tolerance), ``hold``
+(``--hold tolerance``: only when no map held or in flight serves the view) and ``prefetch`` (``hold`` with
+``--prefetch extrapolate``: the view the camera reaches one request latency ahead). Metrics: ``perceived``
+latency per frame, ``in_tolerance``, ``ssim`` against GT, requests, bytes, ``request_latency`` and
+``request_floor``; the targets as ``stat = target_met`` rows. docs/architecture.md, bench prefetch.
 """
 
 from __future__ import annotations

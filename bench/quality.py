@@ -1,29 +1,12 @@
 """`bench quality` (paper Fig. 6): GI-map quality of GIGAN, Deep Shading, Deep Illumination and DI alone.
 
-Every model is an exported ONNX generator (``gigan-export``) run by onnxruntime exactly as the client
-runs it, on the held-out validation frames of each scene's dataset. Metrics compare tone-mapped
-predictions with tone-mapped path-traced GT: RMSE/SSIM/PSNR (SPEC §3); the low-frequency error
-``lf_error`` (:func:`gicore.metrics.lf_error`), which sees the brightness blotches SSIM barely moves
-under; the checkerboard error ``checker_error`` (:func:`gicore.metrics.checker_error`), the part of the
-error that repeats on a 4x4 pixel tile; and ``shadow_tint`` (:func:`gicore.metrics.shadow_tint`), the
-signed red tint where only indirect light arrives. "di_only" scores the DI input itself (what a
-client without GI shows). Inference time is the median of repeated ``predict`` calls after warm-up, so
-each model is also a point of error against run time (width and precision knobs).
-
-Renderers of the inputs (``--renderers``, issue 22): every model is scored on each renderer's inputs (DI +
-G-buffers) of the same held-out frames against the same GT, side by side in one run; each row's config names
-its ``renderer``. A renderer's inputs are what ``gicore-dataset --renderer`` stores for that frame: the
-dataset's own when it was made with that renderer (and, for gl, that ``--gl-lod``), else rendered now at the
-frame's camera, light and seed (``gicore.dataset_cli.render_inputs``): mitsuba's 1-spp DI with G-buffers at a
-random point of each pixel (the shipped model's training inputs), or gl's ``GLRenderer`` at ``gl_lod`` (``auto``:
-the level a client picks per view; rows carry the mean level drawn). With both, per model and scene:
-``ssim_diff`` (mean and standard error over frames of SSIM(gl) − SSIM(mitsuba), paired) and
-``lf_error_ratio`` (mean LF error on gl over mean LF error on mitsuba), and the table says whether issue 22's
-rule holds (:data:`GL_SSIM_LOSS_MAX`, :data:`GL_LF_RISE_MAX`).
-
-The image grid (``quality_grid.png``) shows, per frame, the inputs, each model's map and the GT, and under
-DI and under each model two error maps (:func:`grid_rows`): the per-channel |tone-mapped prediction − GT|
-and the low-frequency signed error on a fixed diverging scale, so a blotch or a tint is seen at a glance.
+Every model is an exported ONNX generator run by onnxruntime exactly as the client runs it, on the held-out
+validation frames of each scene's dataset, scored on tone-mapped images against path-traced GT: RMSE, SSIM,
+PSNR, ``lf_error``, ``checker_error`` and ``shadow_tint`` (:mod:`gicore.metrics`); "di_only" scores the DI input
+itself. Inference time is the median of repeated ``predict`` calls after warm-up. With ``--renderers
+gl,mitsuba`` every model is scored on each renderer's inputs of the same frames, paired (``ssim_diff``,
+``lf_error_ratio``), against :data:`GL_SSIM_LOSS_MAX` and :data:`GL_LF_RISE_MAX`. The grid
+(``quality_grid.png``) shows inputs, maps, GT and error maps. docs/architecture.md, bench quality.
 """
 
 from __future__ import annotations

@@ -1,70 +1,14 @@
 """The one bench runner: every ``bench`` subcommand is a declared config plus ``measure`` and ``plot``.
 
-How to add a bench (say ``bench latency``), in ``bench/latency.py``::
-
-    @dataclass(frozen=True)
-    class LatencyConfig:
-        \"\"\"What one run measures.\"\"\"
-
-        #: Scene names or spec files.
-        scenes: tuple[str, ...] = ("lung_plane",)
-        #: Square resolution in pixels.
-        resolution: int = 256
-        #: Network profiles to replay (``network_sim``).
-        profiles: tuple[str, ...] = ("4g", "wifi")
-        #: Seconds between requests; 0 sends back to back.
-        gap_s: float = field(default=0.5, metadata={"min": 0.0})
-
-        @classmethod
-        def quick(cls) -> "LatencyConfig":
-            return cls(resolution=128, profiles=("wifi",))
-
-    def measure(cfg: LatencyConfig, results: Results) -> None:
-        ...  # results.add(...) / results.add_timing(...); seed: results.seed; extra files: results.output("x.md")
-
-    def plot(csv_path: Path, out_dir: Path) -> list[Path]:
-        ...  # reads only the CSV; returns the PNGs it wrote
-
-    def dashboard_section(rows: Rows) -> list[Part]:
-        ...  # the dashboard's tables and figures, from the CSV's rows alone; need(rows, ...) refuses others
-
-    def readme_block(rows: Rows) -> list[Table]:
-        ...  # the README's results block
-
-    BENCH = Bench(
-        "latency", LatencyConfig, measure, plot, help="Table 1: ...",
-        dashboard=Section("table1", "Table 1: interaction latency", 10, dashboard_section),
-        readme=Block("Interaction latency, Table 1", 10, readme_block),
-    )
-
-and register it in ``bench/registry.py`` (its import and its line in ``BENCHES``): that gives it its
-subcommand, its dashboard section and its README block; nothing else changes. A bench that runs others
-(``run-default``) calls :func:`execute` on their ``BENCH`` objects.
-
-What the runner derives from the config with :mod:`gicore.options` (so no bench declares options by hand):
-
-- one option per field, ``--field-name``; help is the field's ``#:`` comment (or ``metadata["help"]``),
-  followed by its default and its ``quick()`` value; every field must be documented;
-- types: ``int``/``float``/``str``/``Path`` as they are, ``bool`` as ``--x/--no-x``, ``X | None`` as X
-  (absent = the preset's value, which may be None), ``Literal[...]`` as a choice, ``tuple[X, ...]`` as one
-  comma-separated option (``--scenes a,b``), ``dict[str, X]`` as comma-separated ``NAME=VALUE`` pairs;
-- checks on the final config (preset, then the options the user gave; an absent option never falls back
-  to a default by truthiness): numbers must be > 0 unless the field's metadata sets ``min`` (inclusive;
-  ``max`` inclusive too), tuples must be non-empty unless ``metadata["min_len"] = 0`` and hold at most
-  ``metadata["max_len"]`` entries (``max_len=1``: a bench of one scene), and every entry of
-  a ``scenes`` field must load as a scene; a config may add a ``check(self)`` method raising ``UserError``;
-- always ``--out DIR`` (checked with :func:`gicore.cli.writable_dir`), ``--quick`` (start from
-  ``quick()`` instead of the defaults) and ``--seed``.
-
-A run: ``measure`` fills a :class:`gicore.results.Results`; the runner writes ``<out>/<bench>.csv`` and
-``<out>/<bench>.provenance.json`` (whose ``settings`` is the final config), calls ``plot`` on the CSV and
-prints every path written. User errors raise :class:`gicore.cli.UserError`; the ``bench`` entry point
-turns them into one ``error:`` line and exit status 2.
-
-``bench report`` finds each registered bench's newest CSV under a results folder (:func:`attempt`) and
-renders what its ``dashboard`` and ``readme`` hooks return: :class:`Table` (Markdown, in both outputs),
-:class:`Figure` (charts of :mod:`bench.svg`, dashboard only) and :class:`Alert`. Dependencies run one
-way: this module <- each bench <- ``bench.registry`` <- the report and the command line.
+A bench module defines a frozen config dataclass (one option per field, documented by its ``#:`` comment,
+with a ``quick()`` preset), ``measure(cfg, results)``, ``plot(csv_path, out_dir)``, optional
+``dashboard_section`` and ``readme_block`` hooks and ``BENCH = Bench(...)``; its line in ``bench/registry.py``
+gives it its subcommand, its dashboard section and its results block. The runner derives the options
+(:mod:`gicore.options`), adds ``--out``, ``--quick`` and ``--seed``, writes ``<out>/<bench>.csv`` and
+``<out>/<bench>.provenance.json``, calls ``plot`` on the CSV and prints every path written; user errors raise
+:class:`gicore.cli.UserError`. ``bench report`` renders what the hooks return (:class:`Table`,
+:class:`Figure`, :class:`Alert`). Dependencies run one way: this module <- each bench <- ``bench.registry``
+<- the report and the command line. An example bench: docs/architecture.md, Bench runner.
 """
 
 from __future__ import annotations

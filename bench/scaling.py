@@ -2,30 +2,12 @@
 against Ray on one node and against a Ray cluster of one 1-CPU node per worker, and what the measured
 cost projects for the paper's data set and for baking GI trees.
 
-Measured, on the real tasks that ``gicore-dataset`` and ``cloudbaking-prebake`` submit (a data-set
-frame: GT path-traced + OIDN and every G-buffer, encoded; a GI map: GT + OIDN + depth, JPEG payload):
-
-- ``throughput`` (items/s) of each executor with each worker count; every worker is a single-threaded
-  process (Dr.Jit threads = 1), so "N workers" means N cores. Each point first runs two warm-up items
-  per worker (process start, scene build, kernel compile), then times the same items on every point;
-- ``item_time``: worker-seconds per item (workers × wall / items), and ``efficiency`` against 1 worker;
-- the per-task overhead: ``task_roundtrip`` (one no-op job submitted and its result received, median
-  and p95) and ``task_overhead_batched`` (ms per no-op job when many are submitted at once);
-- ``instance_start`` of the local Ray instance and ``warmup`` of each point.
-
-``ray-cluster`` is a Ray cluster simulated on this machine (``ray.cluster_utils.Cluster``): N nodes of 1
-CPU each for N workers, each node its own raylet and object store, the driver on the head; its points say
-what a second node costs and gains (maps/s vs nodes, the per-task overhead across nodes, ``nodes_used``:
-how many nodes ran the timed items). The simulated nodes share this machine's cores, so the figure
-measures the cluster's overhead, not a second machine's speed.
-
-Projected (``stat = projection``, never a measurement): the wall time of the paper's data set
-(1500 + 100 frames per scene at 512², five scenes) and of baking each scene's 1500-frame fly-through
-(the maps its plan needs, counted with the prebake's rule: ``bake_maps``), on N workers, from each
-executor's 1-worker item time scaled by the pixel count (cost ∝ pixels) and assuming linear scaling:
-``ceil(items / N) × item_time``. The measured efficiency at 2 workers says how far that holds here.
-``space_maps`` counts each scene's whole configuration space (``cloudbaking-prebake --space all`` at the
-default tolerance and light cell) and ``space_wall`` projects its bake the same way.
+Measured on the real tasks of ``gicore-dataset`` and ``cloudbaking-prebake``, single-threaded workers, after
+two warm-up items per worker: ``throughput``, ``item_time``, ``efficiency``, the per-task overhead
+(``task_roundtrip``, ``task_overhead_batched``), ``instance_start`` and ``warmup``. The simulated cluster's
+nodes share this machine's cores, so they measure a node's overhead, not a second machine's speed. Projected
+(``stat = projection``, never a measurement): wall time on N workers as ``ceil(items / N) x item_time`` scaled
+by pixels. docs/architecture.md, bench scaling.
 """
 
 from __future__ import annotations

@@ -1,28 +1,12 @@
-"""`bench service` (issue 10's targets): how fast a real ``cloudbaking-server`` answers GI-map requests.
+"""`bench service`: how fast a real ``cloudbaking-server`` answers GI-map requests, against its targets.
 
-One run starts ``cloudbaking-server`` as its own process on 127.0.0.1 (an ephemeral port, a fresh GI tree
-in a temporary folder under ``--out``, removed afterwards; pinned as :func:`bench.processes.pinning` says,
-the bench's own client threads on the client cores) and sends ``POST /v1/gimap`` over loopback with httpx
-(keep-alive clients). Three phases, rows per ``metric``:
-
-- **misses**: the first request of each of ``views`` distinct GI cameras of the scene's fly-through (far
-  enough apart to miss). ``miss_e2e``: the client's round trip (request sent to last response byte);
-  ``miss_server``: the server's own ``timings_ms`` from the payload header (``part`` = lookup, render,
-  denoise, encode, total). The first miss also loads and compiles the scene: it is its own row
-  (``stat = first``), the median and p95 are over the others.
-- **hits**: one untimed pass over the baked views, then ``sequential`` requests cycling over them from one
-  client. ``hit_server`` (``part`` = ``lookup_read``: the GI-tree lookup plus the read of the stored
-  encoded payload, the issue's "cache hit inside the server"; ``total``: the server's whole handling);
-  ``hit_e2e``: the round trip.
-- **load**: ``concurrency`` threads, each with its own ``httpx.Client``, start together and send
-  ``per_client`` hit requests each. ``load_latency``: every request's round trip; ``load_throughput``:
-  requests over the wall time from the start to the last answer; ``load_errors``: requests that raised,
-  were not a 200, or were not a hit (every load request asks for a baked view).
-
-Per-request samples of ``hit_server``, ``hit_e2e`` and ``load_latency`` are rows with ``stat = sample``
-(the plot's CDFs); summaries are ``median``/``p95``/``p99``/``n``. Each of the issue's targets gets a row
-``stat = target_met`` (1 or 0, the target in its config); a missed target is reported, not an error.
-Also written: ``service_table.md`` (printed too) and ``service.png``.
+One run starts ``cloudbaking-server`` on 127.0.0.1 (an ephemeral port, a fresh GI tree in a temporary folder)
+and sends ``POST /v1/gimap`` over loopback with keep-alive httpx clients, in three phases: misses
+(``miss_e2e``; the server's own ``miss_server`` per part; the first miss, with the scene's compile, is its own
+row), hits (``hit_server`` lookup + read and total; ``hit_e2e``) and concurrent load (``load_latency``,
+``load_throughput``, ``load_errors``). Summaries are ``median``/``p95``/``p99``/``n``, samples ``stat =
+sample``; each target gets a ``target_met`` row (a missed target is reported, not an error).
+docs/architecture.md, bench service.
 """
 
 from __future__ import annotations

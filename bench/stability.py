@@ -1,35 +1,12 @@
-"""`bench stability` (SPEC §9): extreme and stiff inputs through every stage, each with its expected behaviour.
+"""`bench stability`: extreme and stiff inputs through every stage, each with its expected behaviour.
 
-Every case runs one stage on one extreme input and expects one of two behaviours:
-
-- ``finite``: the stage runs to the end and every output is finite; where a reference exists the error
-  against it is measured and must stay within the case's stated bound (e.g. a render with near/far
-  1e-4/1e4 equals the default clip render; a light ×1e4 scales the DI by 1e4; zero motion warps to the
-  identity on surface pixels; a lossless codec decodes to its quantized input exactly);
-- ``rejected``: the stage refuses the input with a clear message -- a ``ValueError``/``UserError`` naming
-  what is wrong (NaN/Inf anywhere, a degenerate look-at), an HTTP 4xx whose detail names the field, or
-  a client timeout / never-delivered message on a dead link.
-
-Stages and cases (see :func:`cases`): ``render`` (Mitsuba passes: DI, G-buffers, path tracing, the warp
-raster) at FOV 1° and 170°, near/far 1e-4/1e4, a degenerate look-at, light ×1e4 and ×1e-4, a light 1e-4
-from a visible surface, a black frame, NaN camera and light; ``tonemap``; ``inference`` (the shipped ONNX
-model on extreme buffers, NaN/Inf refused); ``warp`` (structure-aware and pixel-level: zero motion,
-local camera behind, at and turned away from the GI camera's plane, GI and local FOV 1°/170°, a black
-map, NaN/Inf maps); ``composition`` (both modes on extreme HDR values); ``codecs`` (every codec of the
-registry and the depth codec on extreme HDR, black, tiny and rendered maps; NaN and corrupt bytes);
-``store`` (the GI tree: zero tolerance, far coordinates, NaN/degenerate viewpoints, a payload over
-budget); ``network`` (:mod:`network_sim.link`'s model with zero bandwidth, 100 % loss and a 1000 s delay,
-then the same links as real ``network-sim proxy`` processes in front of a real ``cloudbaking-server``,
-asked by the real cloud-baking client with short timeouts); ``server`` (malformed and extreme requests
-to that server process over HTTP).
-
-Each case runs in a worker thread with a time limit (``case_timeout_s``): past it the case is a hang.
-An exception other than a clean rejection is a crash. One CSV row per case and metric (``system`` =
-stage; ``metric`` = ``status`` / ``finite`` / ``rejected`` / ``time`` / ``error``; the row's config holds
-the case, the expectation, the outcome and the message), ``stability_table.md`` and a summary plot.
-Any failed case (crash, hang, non-finite output, an error above its bound, a valid input refused or an
-invalid one accepted) makes the command exit with status 2 naming the cases, after the files are written;
-the tracebacks of crashes go to ``stability_failures.txt``.
+Every case runs one stage on one extreme input and expects ``finite`` (the stage runs to the end, every output
+finite, within the case's error bound where a reference exists) or ``rejected`` (a clear refusal: a
+``ValueError``/``UserError`` naming what is wrong, an HTTP 4xx naming the field, or a client timeout on a dead
+link). Stages: ``render``, ``tonemap``, ``inference``, ``warp``, ``composition``, ``codecs``, ``store``,
+``network`` and ``server`` (see :func:`cases`). Each case runs in a worker thread with a time limit (past it:
+a hang); any other exception is a crash. Any failed case makes the command exit 2 naming it, after the files
+are written; crash tracebacks go to ``stability_failures.txt``. docs/architecture.md, Numerical stability.
 """
 
 from __future__ import annotations

@@ -1,52 +1,11 @@
 """`bench storage` (paper Table 2): the GI tree's size after a fly-through, against GIGAN's model.
 
-Per scene, along its fly-through of ``frames`` frames (camera path with the GI-camera FOV, light
-schedule; what ``cloudbaking-prebake`` bakes), at each resolution and codec:
-
-- **entries: counted, exactly.** The GI tree's own rule (:func:`baseline_cloudbaking.store.simulate_fill`:
-  nearest stored viewpoint within Δp/Δθ in the same light cell, else a new entry) walks the path. No
-  rendering is needed to count; the count is what a prebake of the path stores (tested against the store).
-- **bytes per entry: measured** on ``samples`` maps rendered at entries spread evenly along the path
-  (path traced at ``spp`` + OIDN, the GI view's DI, texel depth), encoded with every codec and packed as
-  the stored payload. ``blend`` entries hold GI + depth (what GIGAN's output replaces), ``residual``
-  entries GI + DI + depth.
-- **GI-tree bytes: extrapolated** as entries × mean bytes per entry, with a 95 % interval from the
-  sample's spread (``stat`` = ``estimate`` / ``ci95``); when ``samples`` covers every entry the value is
-  the measured sum (``basis`` in the row's config says which).
-- **GIGAN's client storage: measured**: the shipped model's files (ONNX + model.json), fp32 and fp16,
-  the same for every scene.
-
-Also the codec table (bytes, encode/decode ms, tone-mapped RMSE/SSIM of each codec on the sampled GI
-maps) and the tolerance knob on the first scene, first resolution and first codec: for each (Δp, Δθ),
-the entries of the first pass (counted), their bytes (extrapolated as above), the hit rate of a second,
-perturbed pass (eyes moved by N(0, σ_p²) per axis, targets by N(0, (d·tan σ_θ)²) per axis; counted with
-the same lookup rule), and the SSIM of the served map, pixel-level warped to the perturbed camera
-(:class:`baseline_cloudbaking.warp.PointCloud`, decoded through the codec), against the map rendered at
-that camera (``warp_samples`` hits per setting; also unwarped, i.e. the stale map as is).
-
-**The growth law** (issue 23): the tree a server keeps when many users visit, not one fly-through.
-
-- **Sessions** (:mod:`gicore.sessions`): ``sessions`` seeded visits of ``session_frames`` frames over the
-  scene's navigable space (fly-throughs and steady orbits at varied speeds, each from its own light state
-  when the light moves), from ``users`` users in turn (one curve per value of ``users``).
-- **Entries after each session: counted**, by walking every frame through one tree with the store's own
-  rule (:func:`baseline_cloudbaking.store.simulate_fill`), at the store's tolerance and at Δ 0 (the paper's
-  accounting: every frame its own map; computed for the largest ``users`` only, as it needs no user model).
-- **Bytes per entry: measured** on ``growth_samples`` maps per scene and resolution, baked (``spp`` + OIDN)
-  at entries spread over the session tree and cached in ``map_cache``: the stored payload (GI + depth) per
-  codec, and the GI map as uncompressed RGB8 (``rgb8``, the paper's accounting). Not every entry is baked:
-  tree bytes are counted entries × that mean.
-- **Saturation**: the session after which no session adds more than ``saturation_rate`` × its frames
-  (``beyond`` when not within the sessions run), and the **saturation level**, estimated: the lookup rule
-  over ``capacity_samples`` uniform viewpoints of the navigable space (one light cell) × the light cells the
-  light's schedule reaches; a lower estimate while the last tenth of the samples still adds entries.
-- **Crossover**: the first session whose tree passes the model (fp16, fp32) and the paper's GB figure.
-- **The paper's accounting, decomposed**, along the ``frames``-frame fly-through at ``paper_resolution``:
-  Δ 0 with RGB8 maps (1500 frames at 512²: 1.18 GB against the paper's 1.15 GB for the lung), then the
-  store's tolerance, then each codec's payload.
-
-Entries depend on the camera envelope and the light only, so scenes that share both (the three ``*_plane``
-scenes) share one fill; their bytes differ.
+Per scene, resolution and codec: entries counted exactly with the GI tree's own rule
+(:func:`baseline_cloudbaking.store.simulate_fill`), bytes per entry measured on baked maps sampled along the
+path, tree bytes extrapolated with a 95 % interval, against the shipped model's files. Also the codec table,
+the tolerance knob, and the growth law over seeded user sessions (:mod:`gicore.sessions`): entries after each
+session, saturation, the crossover with the model, and the paper's accounting decomposed. What each row holds:
+docs/architecture.md, bench storage.
 """
 
 from __future__ import annotations

@@ -1,34 +1,12 @@
 """`bench warp` (paper Fig. 7): CPU cost, load, memory and quality of pixel-level (cloud baking) vs
 structure-aware (GIGAN, Alg. 1) 3D image warping, side by side in one run.
 
-Per scene, GT GI maps (the oracle stand-in for generated maps) are rendered at GI cameras along the
-camera path (FOV ``gi_fov``) and warped to the local cameras ``offsets`` frames later (FOV
-``local_fov``), where they are compared with the path-traced GT. The light stays where it was for the GI
-map, so the error is the warp's alone.
-
-What is timed, per local frame, after a warm-up, ``repeats`` times each, alternating the two methods:
-
-- ``structure-aware``: per-pixel projection, depth-tested bilinear lookup and the fallback for invalid
-  pixels (:mod:`gigan_local.warp`);
-- ``pixel-level``: reprojection of the GI map's point cloud, z-buffered splat and push-pull hole
-  filling (:mod:`baseline_cloudbaking.warp`).
-
-Not in those times, and reported on their own: each method's local render of the frame (``raster_time``), its
-DI with the pass the method reads, as the clients render the two (``render_di_raster``: on GL one geometry
-pass, with the uv + position targets structure-aware reads, or the surface mask pixel-level reads from the DI
-target's alpha; on Mitsuba a second, centre-sampled pass), beside the DI alone (system ``DI alone``), each
-pass first in turn and none of them redrawing the shadow map; and the once-per-GI-map work (``bind``:
-structure-aware's texture and per-vertex coordinates, pixel-level's unprojection into a point cloud).
-
-``renderer`` (issue 22): what renders those local passes and the current DI the structure-aware fallback
-reads: gl (``gicore.gl.GLRenderer`` at ``gl_lod``, as the clients' default; without a GL context one warning
-and mitsuba) or mitsuba. The GI maps and the GT stay path-traced by Mitsuba. Every row's config names the
-renderer that ran (gl: its ``gl_lod`` and the mean level the uv passes drew).
-CPU % is process CPU time over wall time of each method's timed calls (``time.process_time``, all
-threads; 100 % = one core),
-peak memory the largest numpy allocation total during one call (``tracemalloc``). Also measured: how far
-the interpolated GI-map coordinates land from per-pixel projection of the position AOV, for
-interpolated homogeneous clip coordinates (ours) and for eq. 5's per-vertex uv interpolated directly.
+Per scene, GT GI maps rendered at GI cameras along the path are warped to the local cameras ``offsets`` frames
+later and compared with the path-traced GT there (the light stays, so the error is the warp's alone). Each
+method's per-frame work is timed after a warm-up, alternating the two; each method's local render
+(``raster_time``, rendered by ``renderer``) and its once-per-map ``bind`` are reported apart. CPU % is process
+CPU time over wall time (100 % = one core), peak memory the largest numpy allocation during a call. Also: how
+far interpolated GI-map coordinates land from per-pixel projection. docs/architecture.md, bench warp.
 """
 
 from __future__ import annotations

@@ -1,33 +1,13 @@
-"""`bench web` (issue 24): the browser-side Table 1. Playwright drives the Web3D viewer (``gigan-web``) headless in
+"""`bench web`: the browser-side Table 1. Playwright drives the Web3D viewer (``gigan-web``) headless in
 Debian's Chromium, both systems flying the scene's camera path in one page.
 
-One run starts a ``cloudbaking-server`` (a fresh store, filled along the path first when ``store`` is
-``prebaked``, so the page's requests hit; ``cold``: they miss and the server path-traces), a
-``network-sim proxy --profile P`` in front of it and the viewer's server (:mod:`web3d.serve`, which forwards the
-page's ``/v1/gimap`` to the proxy), then loads the page and waits for it to play ``frames`` frames.
-
-**Stages** (``metric``; median, p95 and n over the GI maps, ms, as the page's HUD measures them with
-``performance.now`` after a GPU sync): GIGAN's ``gi_render`` (DI + G-buffers at the GI camera, read back),
-``inference`` (encoding, onnxruntime-web's ``session.run``, decoding and upload), ``warp`` (the coarse level's
-bind plus the first frame's uv pass and warp shader), ``blend``; cloud baking's ``transmission`` (fetch to the
-last byte minus the server's own time), ``server``, ``decode`` (JPEG via ``createImageBitmap``, zstd depth, upload),
-``warp`` (bind plus the first frame's splat and fill), ``blend``. ``total`` sums a system's stages; ``di`` (the
-local DI, shared) is reported and counted in neither. ``total_ratio``: cloud's median total over GIGAN's. Each
-map's stages also come as ``stat = map`` rows (``config.frame``).
-
-**Inference against Python** (same run, same machine, same input tensor: the page's first GI map):
-``inference_run`` is ``session.run`` alone, ``timing_runs`` times each, alternately (so that both see the same
-load): in the browser (onnxruntime-web) and in Python (onnxruntime, :class:`gigan_local.inference.GIModel` with
-the same thread count); ``inference_ratio`` is browser over Python. **Parity**: ``parity_max_abs_diff`` /
-``parity_mean_abs_diff`` between the browser's tone-mapped prediction and ``tonemap(GIModel.predict(buffers))``
-on the G-buffers the page rendered. **Port**: those DI + G-buffers against :class:`gicore.gl.GLRenderer`'s at the
-same GI camera and light (the WebGL2 shaders against the GLSL they were ported from): ``port_coverage_mismatch``
-and ``port_<buffer>_rel_diff`` (mean |difference| over pixels both cover, relative to the mean); absent where no
-GL context opens.
-
-Outputs besides the CSV: ``web_screenshot.png`` (both canvases and their HUDs at the last frame). The
-provenance's ``settings.browser`` records Chromium's version, the WebGL renderer (SwiftShader: software WebGL
-on the CPU), the onnxruntime-web backend and its threads, and whether the page was cross-origin isolated.
+One run starts a ``cloudbaking-server`` (prebaked along the path, or cold), a ``network-sim proxy --profile P``
+and the viewer's server (:mod:`web3d.serve`), loads the page and waits for ``frames`` frames. Rows: each
+stage's median, p95 and n over the GI maps as the page's HUD measures them, ``total_ratio``; ``session.run``
+timed alternately in the browser and in Python on the same tensor (``inference_ratio``); the browser's
+prediction against :class:`gigan_local.inference.GIModel`'s (``parity_*``); the WebGL2 port's buffers against
+:class:`gicore.gl.GLRenderer`'s (``port_*``). Also written: ``web_screenshot.png``; the provenance records the
+browser, its WebGL renderer and the onnxruntime-web backend. docs/architecture.md, bench web.
 """
 
 from __future__ import annotations

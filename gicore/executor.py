@@ -1,33 +1,14 @@
-"""The render executor (SPEC §1): where the embarrassingly parallel render jobs of a run execute.
+"""The render executor: where the embarrassingly parallel render jobs of a run execute
+(docs/architecture.md, Render executor).
 
-A run (the frames of a scene's data set, the maps of a prebake) is a :class:`Task` and a list of jobs.
-The task says how a worker process builds its state once (``build(*args)``: a compiled scene) and how
-it turns one job into a result (``work(state, job)``: a frame's file bytes, a map's payload). Every
-backend runs the same :func:`run_job` in its workers, so they cannot diverge; results come back to the
-calling process (the driver) in completion order, and the driver writes them, so a worker that dies
-mid-job leaves no file behind. Each worker process keeps the state of the last :data:`CACHED_STATES`
-tasks it built (keyed by the task's value), so a scene is compiled once per process, not per job.
-
-Backends (:func:`open_executor` picks one; on a command line :class:`ExecutorOptions` asks for it):
-
-- :class:`InProcess`: the calling process; one job at a time with every core to the renderer.
-- :class:`LocalPool`: spawned worker processes (``spawn``, not ``fork``: a forked worker inherits OIDN's
-  thread-pool state and can deadlock in it). Workers ignore Ctrl-C; when a run ends by an exception
-  (Ctrl-C, SIGTERM turned into one by :func:`gicore.cli.run`, a failed job) the driver drops the queued
-  jobs and kills the workers, whose results it would discard. Workers die with the driver however it
-  ends, ``kill -9`` included (:func:`_init_worker`), so no orphan keeps rendering.
-- :class:`RayExecutor`: Ray tasks on a local instance or a cluster (the optional extra
-  ``pip install '.[ray]'``; Ray is imported only when chosen). A task whose worker dies is retried
-  (``max_retries``); Ctrl-C (or any error in the driver) cancels every outstanding task. Every node needs
-  this package installed in the same environment (the tasks import it by name). It counts the jobs each
-  Ray node ran (``nodes``), and can report every job's node as it finishes (``placed``). Tasks are owned by
-  the driver: when it dies, Ray fails them and their workers stop. A local instance the driver started
-  (``--ray-address auto`` with no cluster to join) ends with it, ``kill -9`` included: Ray ends its GCS, raylet
-  and workers, and a watchdog process (:func:`watch_ray_instance`) the two node agents Ray 2.60 leaves
-  behind. A cluster the driver joined is not its to stop.
-
-:class:`ExecutorOptions` is the command-line form (``--executor local|ray``, ``--ray-address``,
-``--workers``) a command derives its options from (:mod:`gicore.options`).
+A run (the frames of a data set, the maps of a prebake) is a :class:`Task` (how a worker builds its state
+once, and turns one job into a result) and a list of jobs. Every backend runs the same :func:`run_job`;
+results come back to the driver in completion order and the driver writes them, so a worker that dies mid-job
+leaves no file. Each worker keeps the state of its last :data:`CACHED_STATES` tasks. Backends
+(:func:`open_executor`): :class:`InProcess`, :class:`LocalPool` (spawned workers that die with the driver,
+``kill -9`` included) and :class:`RayExecutor` (Ray tasks owned by the driver; a local instance it started
+ends with it). :class:`ExecutorOptions` is the command-line form (``--executor``, ``--ray-address``,
+``--workers``).
 """
 
 from __future__ import annotations

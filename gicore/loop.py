@@ -1,31 +1,14 @@
-"""The per-frame client loop shared by both systems (SPEC §5), its two protocols and the GI-map value.
+"""The per-frame client loop shared by both systems, its two protocols and the GI-map value
+(docs/architecture.md, Client loop).
 
-Each system brings a :class:`GISource` (GIGAN: the ONNX generator on DI + G-buffers rendered at the GI
-camera; cloud baking: a server asked over HTTP in a background thread) and a :class:`Warp` (GIGAN:
-structure-aware, Alg. 1; cloud baking: pixel-level 3D warping). :class:`ClientLoop` runs them, frame by
-frame, at the local camera ``C_t``:
-
-1. ask the source for a GI map at the GI camera -- ``C_t``'s position and orientation with FOV ``F_GI``
-   -- when no map is bound yet, the bound map's request is ``every`` (k) frames old, or ``C_t`` has left
-   the bound map's tolerance (``max_move``, ``max_turn``); a source that is still busy refuses;
-2. ``gi_wait``: take the newest map that has arrived (:meth:`GISource.latest`); only when none has arrived
-   yet does the frame wait for one. A synchronous source makes its map inside ``request``, so the whole
-   generation lands here; a remote one returns at once and the frame goes on with the map it has;
-3. ``bind`` a newly arrived map to the warp (per-map work);
-4. ``di``: render direct illumination at ``C_t`` (the one pass both systems run) together with the pass the
-   warp reads there (``render_di_raster``; after binding, since the structure-aware warp's pass interpolates
-   the bound map's coordinates), then warp the map to ``C_t`` (per-frame work, the warp's own stages);
-5. ``compose``: eq. 1 ``tau * DI + (1 - tau) * GI`` (``blend``) or the current DI plus the warped
-   indirect light (``residual``); the warp is told which layer of the map to warp (:data:`LAYERS`).
-
-Every frame gives a row (:meth:`ClientLoop.columns`): each stage's time (ms, ``""`` where a stage did
-not run), the frame's total ``frame_ms`` (``di + gi_wait + bind + warp stages + compose``: what this
-frame spent), ``gi_wait_ms`` (what the frame blocked on the source), ``gi_ms`` (what producing the newly
-bound map cost, on the frame that binds it: the sum of its stages, which are also given one column each;
-for a synchronous source it is inside ``gi_wait_ms``, for a remote one it ran in the background),
-``gi_latency_ms`` (the bound map's request to arrival), and the bound map's age in frames and ms (since
-its request). :func:`run_frames` drives a loop along a camera path and, every ``gt_every`` frames,
-scores the composed frame against the path-traced GT (untimed).
+Each system brings a :class:`GISource` (GIGAN: the generator on DI + G-buffers rendered at the GI camera;
+cloud baking: a server asked over HTTP in a background thread) and a :class:`Warp` (structure-aware or
+pixel-level). :class:`ClientLoop` runs them frame by frame at the local camera: request a map every k frames
+or when the view leaves the bound map's tolerance, take the newest map that has arrived (``gi_wait``), bind a
+new one, render DI with the warp's pass and warp (``di``, the warp's stages), compose (``blend`` or
+``residual``). Every frame gives a row of stage times, what it blocked on, what the bound map cost and its age
+(:meth:`ClientLoop.columns`); :func:`run_frames` drives a loop along a camera path and scores frames against
+the path-traced GT every ``gt_every`` frames, untimed.
 """
 
 from __future__ import annotations

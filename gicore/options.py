@@ -1,49 +1,19 @@
 """Command-line options derived from a config dataclass: each option is declared once, as a field.
 
-Every console script (``gigan-client``, ``cloudbaking-client``, ``cloudbaking-prebake``, ``gicore-dataset``,
-``gigan-train``, ``gigan-export``, ``network-sim``) and every ``bench`` subcommand builds its Typer command
-from the config dataclass it runs: the field declares the option's type, its default, its limits (field
-metadata) and its help (the ``#:`` comment above it), and nothing else declares them again::
+Every console script and every ``bench`` subcommand builds its Typer command from the config dataclass it
+runs: the field declares the option's type, its default, its limits (field metadata) and its help (the ``#:``
+comment above it), and nothing else declares them again::
 
     @dataclass(frozen=True)
     class ClientConfig:
-        #: Frames to run.
-        frames: int = field(default=60, metadata=FRAMES)
         #: GI-map period k: a new GI map every ``every`` frames.
         every: int = field(default=30, metadata={"aliases": ("-k",)})
 
-    def client(given: dict[str, Any], *, out: Path) -> None:
-        cfg = build_config(ClientConfig, given)  # the defaults, the options given, checked
-        ...
-
     config_command(app, ClientConfig, client, extras=[extra("out", Annotated[Path, typer.Option()])])
 
-What is derived from a field:
-
-- one option per field, ``--field-name`` (``metadata["option"]`` renames it, e.g. ``n_train`` -> ``--train``;
-  ``metadata["aliases"]`` adds short names such as ``-k``; ``metadata["argument"]`` makes it the command's
-  positional argument); help is the field's ``#:`` comment (or ``metadata["help"]``, looked up along the
-  class's bases), followed by its default (and its preset's value, e.g. ``--quick``) and its limits; every
-  field must be documented;
-- types: ``int``/``float``/``str``/``Path`` as they are, ``bool`` as ``--x/--no-x``, ``X | None`` as X
-  (absent = the base config's value, which may be None), ``Literal[...]`` as a choice, ``tuple[X, ...]`` and
-  ``list[X]`` as one comma-separated option (``--scenes a,b``; as an argument, several words),
-  ``dict[str, X]`` as comma-separated ``NAME=VALUE`` pairs; ``metadata["metavar"]`` names a scalar's value
-  in --help, and ``metadata["required"]`` makes the option one the user must give (absent: a usage error);
-- checks on the final config (the base config, then the options the user gave; an absent option never
-  falls back to a default by truthiness): numbers must be finite and > 0 unless the field's metadata sets
-  ``min`` (inclusive; ``max`` inclusive too, exclusive with ``max_open``), a ``Literal`` one of its values,
-  tuples and lists non-empty unless ``metadata["min_len"] = 0`` and at most ``metadata["max_len"]`` long;
-  a field named ``resolution`` (or ``*_resolution``) takes :data:`RESOLUTION`'s limits unless its metadata
-  sets its own, every entry of a ``scenes`` field must load as a scene, and a string field with
-  :data:`HOST_PORT` metadata must read as ``HOST:PORT`` (:func:`split_host_port`); a config may add a
-  ``check(self)`` method raising :class:`~gicore.cli.UserError`, and a ``ValueError`` of its constructor is
-  a user error too.
-
-Limits that many configs share are declared here once (:data:`RESOLUTION`, whose bounds scene specs import
-from :mod:`gicore.cli`; :data:`SPP`, :data:`FRAMES`, :data:`SEED`, :data:`FOV_DEGREES`, :data:`THREADS`,
-:data:`HOST_PORT`); a config may call :func:`check_fields` in its ``__post_init__`` so that code building it
-directly meets the same limits as the command line.
+How types map to options, the checks on the final config, and the limits declared here once
+(:data:`RESOLUTION`, :data:`SPP`, :data:`FRAMES`, :data:`SEED`, :data:`FOV_DEGREES`, :data:`THREADS`,
+:data:`HOST_PORT`): docs/architecture.md, Command-line options.
 """
 
 from __future__ import annotations

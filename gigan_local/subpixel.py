@@ -1,29 +1,14 @@
 """Resize up-sampling as sub-pixel convolutions: the same generator, exactly, in a faster ONNX graph.
 
-A nearest-neighbour 2x resize followed by a 3x3 convolution (``upsample = "resize"``, padding 1) computes
-each output pixel ``(2i + dy, 2j + dx)`` from a 2x2 window of the *input*: the resize repeats rows, so
-kernel rows 1 and 2 (phase ``dy = 0``) or 0 and 1 (``dy = 1``) land on the same input row, and likewise
-for columns. So the layer is four 2x2 convolutions on the low-resolution input, one per phase, with
-summed kernel taps and a one-pixel pad on the phase's own sides, whose outputs interleave by
-``DepthToSpace`` (the phase convolution of Shi et al. 2016, "sub-pixel convolution"). Zero padding of
-the up-sampled image is zero padding of the input, so borders match too; outputs differ from the
-resize graph by float rounding only (sums in another order).
-
-Why: the resize graph runs every 3x3 convolution at the doubled size on an image it made four times
-larger; the phase form does 4/9 of the multiply-adds and writes no resized image. The outermost layer
-(3 output channels) is one 3x3 convolution with 12 outputs instead (the four phases stacked, unused taps
-zero): onnxruntime's blocked convolution rounds output channels up to its block (16 on AVX-512), so
-four 3-channel convolutions would waste more than the zero taps do. Layers on inputs under
-:data:`MIN_SIDE` pixels a side are left as they are.
-
-The file keeps each layer's 3x3 weight as exported (the same size, and a warm start reads it back by its
-torch name); the phase kernels are computed from it in the graph (``MatMul`` by a constant 0/1 tap
-matrix), which onnxruntime folds into constants when it loads the model, as it folds the fp16 file's
-``Cast``s.
-
-:func:`subpixel_upsampling` rewrites a model that ``torch.onnx.export`` wrote from a ``resize`` U-Net;
-``gigan-export`` applies it to every export, and ``python -m gigan_local.rewrite_cli MODEL_DIR``
-(:func:`gigan_local.export.rewrite_export`) rewrites an earlier export folder in place.
+A nearest 2x resize followed by a 3x3 convolution (padding 1) computes each output pixel ``(2i + dy, 2j + dx)``
+from a 2x2 window of the input, so the layer is four 2x2 convolutions on the low-resolution input, one per
+phase, interleaved by ``DepthToSpace`` (Shi et al. 2016): 4/9 of the multiply-adds and no resized image;
+outputs differ from the resize graph by float rounding only. The outermost layer (3 output channels) is one
+3x3 convolution with 12 outputs instead, since onnxruntime rounds output channels up to its block; layers on
+inputs under :data:`MIN_SIDE` pixels stay as they are. The file keeps each 3x3 weight; the phase kernels are
+computed from it in the graph and folded by onnxruntime at load. :func:`subpixel_upsampling` rewrites a model
+``torch.onnx.export`` wrote; ``gigan-export`` applies it, and ``python -m gigan_local.rewrite_cli MODEL_DIR``
+rewrites an export folder in place. docs/architecture.md, Exported model.
 """
 
 from __future__ import annotations

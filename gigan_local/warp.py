@@ -1,47 +1,14 @@
-"""Structure-aware 3D image warping (paper V, Algorithm 1, eq. 5).
+"""Structure-aware 3D image warping (paper V, Algorithm 1, eq. 5): GIGAN's way to re-use a GI map at
+another viewpoint.
 
-The GIGAN client re-uses the newest GI map, generated at the GI camera ``C_GI``, at the current local
-camera. Instead of warping the map pixel by pixel (cloud baking, ``baseline_cloudbaking.warp``), the GI
-map becomes a projective texture on the scene's own triangles:
-
-1. **bind** (once per GI map, per vertex): every vertex P of every scene object is transformed by the GI
-   camera, ``clip = M_p · M_v · M_w · P`` (eq. 5; our meshes are stored in world space, so M_w = I), and
-   ``(clip.x, clip.y)`` is uploaded as the vertex texture coordinates (no BVH rebuild).
-2. **raster** (per frame): the local render interpolates them across each triangle with the hit's
-   barycentrics (:meth:`gicore.render.Renderer.render_uv`, or :class:`gicore.gl.GLRenderer`'s, whose vertex
-   shader computes step 1 itself), in the same pass as the world position; a client renders it with the
-   frame's DI (``render_di_raster``: one geometry pass on the GL renderer), so it is counted with the DI.
-3. **project** (per pixel): ``uv = clip.xy / (2 w) + 0.5`` as in eq. 5, with ``w`` (the GI camera's view
-   depth of the pixel's point) computed exactly from the position.
-4. **depth test + lookup**: bilinear lookup in the GI map whose four taps each pass a depth test;
-   the pixel is valid when at least one tap does.
-5. **fill**: invalid pixels get the fallback below.
-
-Why the homogeneous coordinates are interpolated and not eq. 5's per-vertex uv: clip coordinates are
-affine in world position, so barycentric interpolation of them is exact anywhere on a triangle, whereas
-``clip.xy / w`` is not affine (perspective), so interpolating per-vertex uv is wrong inside big triangles
-and undefined at ``w <= 0`` -- the scene's 2-triangle ground plane reaches behind the GI camera. The
-per-pixel divide is what a GPU's projective texturing (``texture2DProj``) does; a pixel whose point has
-``w <= near`` is simply invalid, so no inf/NaN or smeared uv can arise. ``bench warp`` measures both
-against per-pixel projection of the position.
-
-Depth test (occlusion): a tap (GI texel) is accepted when the GI depth map there agrees with the
-pixel's own GI-camera depth ``w``: ``|d_tap - w| <= DEPTH_REL_TOL * w + slack_tap``. ``slack`` is a
-slope-scaled bias as in shadow mapping: the depth change to the next texel along each axis, taking the
-smaller of the two sides so that a silhouette's depth jump does not count as slope. It lets a grazing
-surface (whose depth changes a lot within one texel) pass, while an occluder in front of a surface (a
-relative gap well above the 2 % tolerance) fails. Rejected taps drop out of the bilinear weights, so
-colour never bleeds across a depth edge.
-
-Fallback for invalid pixels (outside the GI frustum, behind the GI camera, occluded in the GI map, or an
-untextured surface such as an area light): the *current* frame's DI (``base``) plus the GI map's indirect
-light (GI minus the DI it was generated with, >= 0) looked up, bilinearly and without depth test, in a
-coarse mip level of it (about ``FALLBACK_TEXELS`` texels across, built once per GI map from surface
-texels only) at the pixel's uv clamped to the map's edge; behind the GI camera, where uv is undefined,
-the map's mean indirect light. Direct light and shadows are then right (they come from this frame's
-render) and only the low-frequency indirect part is extrapolated, which is where a coarse neighbourhood
-average errs least; per frame it costs one gather per invalid pixel, as a GPU mipmap lookup would. Per-
-pixel projection would not help: it finds the same uv and the same occlusion.
+The GI map becomes a projective texture on the scene's own triangles: **bind** (per map: each vertex's
+GI-camera clip coordinates become its texture coordinates), **raster** (per frame: interpolated in the frame's
+DI pass), **project** (per pixel: ``uv = clip.xy / (2 w) + 0.5``), **depth test + lookup** (bilinear, each tap
+depth-tested with a slope-scaled bias, so colour never bleeds across a depth edge) and **fill** (invalid pixels:
+this frame's DI plus the map's coarse indirect light). Clip coordinates are interpolated rather than eq. 5's
+per-vertex uv because they are affine in world position: exact inside large triangles, and a point behind the
+GI camera is simply invalid, never inf or NaN. The reasoning in full: docs/architecture.md, Structure-aware
+warping.
 """
 
 from __future__ import annotations

@@ -1,38 +1,13 @@
-"""A deterministic virtual-clock model of one emulated link (SPEC §7): chunk arrivals in, release times out.
+"""A deterministic virtual-clock model of one emulated link: chunk arrivals in, release times out
+(docs/architecture.md, Link model).
 
-The proxy (:mod:`network_sim.proxy`) schedules every chunk with this same code, so the model and the
-process cannot drift apart; benches use it directly for fast sweeps. Times are seconds on a virtual
-clock whose origin is the link's start (the proxy's start; trace time 0).
-
-Each direction of a chunk of stream bytes passes four stages:
-
-1. **Admission** (backpressure, never loss). The direction's bottleneck queue holds at most
-   ``queue_bytes`` (drop-tail in bytes, shared by every connection of the direction, as a real
-   bottleneck buffer is); a chunk that does not fit waits in the sender until it does. Each connection
-   also has a TCP-like window: at most ``window_bytes`` sent but not yet acknowledged (an ACK returns one
-   reverse base delay after the chunk's release), so a stalled link stops the sender instead of filling
-   the proxy's memory.
-2. **Serialization** at ``rate_mbit`` (payload bytes; a fluid FIFO shared by the direction's connections),
-   or at a Mahimahi trace's delivery opportunities (1500 bytes each; an unused opportunity is wasted,
-   as in ``mm-link``). Header overhead is not charged: the configured rate is the goodput ceiling.
-3. **Loss** as TCP sees it: bytes are never lost, but each lost segment (``MSS`` bytes of the stream,
-   numbered by stream offset so chunking does not change which are lost; each transmission lost with
-   probability ``loss``) holds the stream for one retransmission timeout ``max(200 ms, 2 RTT)`` per lost
-   transmission (200 ms is Linux's ``TCP_RTO_MIN``; RFC 6298 §2.4 would round up to 1 s, Linux does not).
-   Losses in one chunk are recovered in parallel (the chunk waits for its latest segment); exponential
-   RTO back-off and congestion-window cuts are not modelled, so loss delays a stream but does not lower
-   its rate.
-4. **Propagation**: the one-way ``delay_ms`` plus seeded jitter. The jitter is a stationary random
-   process of time (see :class:`DelayProcess`) whose value at any instant has exactly the configured
-   distribution (normal, netem's Pareto or uniform, standard deviation ``jitter_ms``); it varies smoothly enough
-   that a stream is not reordered, and bytes that leave the bottleneck together see the same delay, as
-   packets of one burst do behind the same router queue. A stream is released in order:
-   ``release_i = max(release_{i-1}, ready_i + delay(ready_i))`` — the max rarely binds (measured in
-   ``tests/network_sim/test_link.py``), so the realised jitter keeps the configured spread instead of
-   collapsing and drifting up as with per-chunk independent delays behind a FIFO (Toxiproxy).
-
-Random numbers are seeded by ``(seed, direction[, connection])`` (jitter knots are hashes, loss draws a
-:class:`random.Random` stream per connection), so a run is reproduced by its seed and its chunk arrivals.
+The proxy (:mod:`network_sim.proxy`) schedules every chunk with this same code, so the model and the process
+cannot drift apart; benches use it directly for fast sweeps. Times are seconds on a virtual clock whose origin
+is the link's start. Each direction of a chunk passes admission (a shared drop-tail queue and a per-connection
+window: backpressure, never loss), serialization (a rate, or a Mahimahi trace's delivery opportunities), loss
+as TCP sees it (one retransmission timeout ``max(200 ms, 2 RTT)`` per lost segment) and propagation (one-way
+delay plus a seeded jitter process that never reorders a stream). Random numbers are seeded by ``(seed,
+direction[, connection])``, so a run is reproduced by its seed and its chunk arrivals.
 """
 
 from __future__ import annotations

@@ -1,30 +1,12 @@
 """Levels of detail of a scene's meshes for :class:`gicore.gl.renderer.GLRenderer` (what a Web3D client does).
 
-A CPU rasteriser (llvmpipe) is vertex-bound: the GI-camera pass costs about the triangles it sets up, not
-the pixels. Real-time clients draw each view at a level of detail (LOD) chosen by the error it costs; so
-does the GL renderer. This module builds the levels and measures their G-buffer error; the renderer
-uploads them all once and picks one per view.
-
-Levels: level ``k`` keeps :data:`LOD_RATIOS` ``[k]`` of each large mesh's triangles (level 0 is the mesh
-itself), by quadric edge-collapse decimation (``fast_simplification``: Garland-Heckbert error quadrics,
-which keep silhouettes and creases and flatten what is flat). Meshes below :data:`MIN_TRIANGLES` (the
-environment's quads, small user meshes) stay as they are at every level. A decimated level's shading
-normals are the full mesh's smooth normals carried over to its vertices (:func:`transfer_normals`), not
-its own faceted ones: the normal G-buffer then differs from full detail only by interpolation across the
-larger triangles.
-
-Error of a level at a view, against full detail at that view (:func:`lod_errors`):
-
-- ``normal``: mean over interior pixels of max |delta| over the components of the view-space normal;
-- ``depth``: mean over interior pixels of |delta depth| / depth (relative linear view depth);
-- ``mask``: fraction of all pixels whose coverage differs (a silhouette moved).
-
-Interior pixels are those away from silhouettes in both renders (:func:`gicore.gl.edges.silhouettes`), as
-for the GL-vs-Mitsuba errors. Albedo is constant per object and position follows depth, so these three
-bound what a level changes in the G-buffers. :data:`LOD_BOUND` is the default bound of ``lod="auto"``:
-the error of one sub-pixel shift of the samples, the difference between Mitsuba's jittered G-buffers
-(what the shipped model was trained on) and its centre-sampled ones (what a rasteriser gives), measured
-on the paper's scenes at 256² (see the constant).
+A CPU rasteriser is vertex-bound, so real-time clients draw each view at a level of detail chosen by the error
+it costs; so does the GL renderer. Level ``k`` keeps :data:`LOD_RATIOS` ``[k]`` of each large mesh's triangles
+(quadric edge-collapse decimation, ``fast_simplification``; meshes below :data:`MIN_TRIANGLES` stay whole), with
+the full mesh's smooth normals carried over (:func:`transfer_normals`). :func:`lod_errors` measures a level's
+G-buffer error against full detail at a view (``normal``, ``depth``, ``mask``, away from silhouettes);
+:data:`LOD_BOUND`, the default bound of ``lod="auto"``, is about one sub-pixel shift of the samples.
+docs/architecture.md, Level of detail.
 """
 
 from __future__ import annotations

@@ -1,51 +1,15 @@
-"""OpenGL rasterisation of a scene spec: what a Web3D client renders per frame (SPEC §1, §3, §5).
+"""OpenGL rasterisation of a scene spec: what a Web3D client renders per frame (docs/architecture.md,
+OpenGL passes).
 
 :class:`GLRenderer` mirrors the per-frame passes of :class:`gicore.render.Renderer` (Mitsuba) with the same
-signatures and outputs, so a client can hold either (``renderer = "gl" | "mitsuba"``):
-
-- :meth:`~GLRenderer.render_gbuffers`: albedo, view-space normal (GL convention), linear view depth, world
-  position and mask; the conventions of ``gicore.buffers`` and of Mitsuba's AOV pass (flat objects carry
-  their geometric face normal, the others their interpolated vertex normal; background 0).
-- :meth:`~GLRenderer.render_di`: direct light of the spec's point or square area light with Mitsuba's
-  BSDFs (``gicore.gl.brdf``) and a shadow map; the area light's quad is visible, as in Mitsuba.
-- :meth:`~GLRenderer.render_uv`: the structure-aware warp's pass: vertex coordinates set by
-  :meth:`~GLRenderer.set_texcoords` (or projected in the vertex shader by
-  :meth:`~GLRenderer.set_texcoord_projection`) interpolated over each triangle, with position and masks.
-- :meth:`~GLRenderer.render_depth`: the GI map's depth (linear view depth at texel centres) and the
-  surface mask.
-- :meth:`~GLRenderer.render_di_raster`: a shown frame's DI and the pass its warp reads (the structure-aware
-  warp's uv pass, or the pixel-level warp's surface mask) in one geometry pass, into several render targets,
-  as a real-time client draws them: on llvmpipe 17.8 ms for DI + uv against 15.5 + 7.4 ms in two passes
-  (lung_plane, 256², one core).
-
-A rasteriser samples each pixel at its centre, so every pass equals Mitsuba's *centre-sampled* passes
-(``render_uv``, ``render_gbuffers(centre=True)``); Mitsuba's default G-buffer pass puts its one sample at
-a random point of the pixel, which no rasteriser reproduces (measured in ``gicore.gl.fidelity``). Path-
-traced ``gt`` is not a raster pass and stays with Mitsuba. Outputs are float32 HxWxC numpy arrays, row 0
-at the top, as Mitsuba's.
-
-Geometry is uploaded once per renderer (one vertex buffer, one index buffer). Closed meshes (watertight,
-wound outwards: all procedural anatomy) are drawn with back faces culled, which halves the triangles a
-CPU rasteriser sets up; a camera inside such a mesh would see nothing of it (Mitsuba sees its inside).
-
-Level of detail (``lod``; :mod:`gicore.gl.lod`): with ``"full"`` (the default) the renderer uploads and draws
-the meshes themselves, as Mitsuba traces them. Otherwise every level of every large mesh (quadric
-decimation to 1/2 ... 1/32 of its triangles, with the full mesh's smooth normals carried over) is uploaded
-once, with the meshes, in the same vertex and index buffers, and each pass draws one level: a fixed one
-(``lod=k``), or with ``"auto"`` per view the coarsest level whose G-buffer error against full detail,
-predicted at the view's pixel scale by an error model measured at construction on views of the scene's GI-
-camera path, stays within ``lod_bound`` (``shown_lod_bound``, looser, for the passes a client only shows:
-:meth:`~GLRenderer.render_di_raster`). The shadow map's casters are drawn at ``shadow_lod``. The uv pass
-draws level 0 when its coordinates were uploaded (they belong to the full meshes' vertices) and the view's
-level when the vertex shader projects them. :attr:`GLRenderer.last_level` is the level of the last pass.
-
-Shadows: one perspective shadow map fitted around the casters (the spec's objects, and environment quads
-the light is behind) when the light lies outside their bounding sphere, else six cube faces in one atlas.
-It is a depth texture holding distance to the light over the far distance, looked up with normal-offset
-and slope-scaled bias through the sampler's bilinear depth comparison: four taps (a tent over 3 x 3
-texels) for a point light; PCSS for an area light (blocker search, then 32 taps over a penumbra sized by
-the light). It is rendered when a DI pass first needs it for a light position and reused while the light
-stays there: a static light renders it once per renderer, a moving one once per position.
+signatures and outputs, so a client can hold either: :meth:`~GLRenderer.render_gbuffers`,
+:meth:`~GLRenderer.render_di` (with a shadow map), :meth:`~GLRenderer.render_uv` (the structure-aware warp's
+pass), :meth:`~GLRenderer.render_depth` and :meth:`~GLRenderer.render_di_raster` (a shown frame's DI and its
+warp's pass in one geometry pass). A rasteriser samples pixel centres, so every pass equals Mitsuba's
+centre-sampled one; outputs are float32 HxWxC arrays, row 0 at the top. Geometry, every level of detail
+included (:mod:`gicore.gl.lod`; docs/architecture.md, Level of detail), is uploaded once; closed meshes are
+drawn with back faces culled. The shadow map (perspective, or six cube faces in one atlas when the light is
+inside the casters' bounding sphere) is rendered once per light position and reused while the light stays.
 """
 
 from __future__ import annotations
