@@ -1,4 +1,4 @@
-"""The map the server bakes, and the scene catalog it bakes from (SPEC §6).
+"""The map the server bakes, and the scene catalog it bakes from (docs/architecture.md, Cloud-baking server).
 
 A GI map is exactly what GIGAN predicts: the ``gt`` buffer of the GIGAN dataset, i.e. the path-traced
 image (max depth :data:`gicore.render.GT_MAX_DEPTH`) at the GI camera, OIDN-denoised with albedo and

@@ -651,8 +651,8 @@ class CloudClientConfig(PathRunConfig):
     #: Seconds after which a request fails however it is going.
     deadline: float = field(default=RemoteConfig.deadline_s, metadata=TIMEOUT_S)
     #: When to ask: tolerance (only when no map held or in flight is within the server's tolerance of the view, by
-    #: the GI tree's rule; -k is not used) or none (the rule before issue 23: every k frames, and when the bound
-    #: map leaves the tolerance).
+    #: the GI tree's rule; -k is not used) or none (periodic: every k frames, and when the bound map leaves
+    #: the tolerance).
     hold: Literal[HOLDS] = "tolerance"  # type: ignore[valid-type]
     #: Prefetch: none, or extrapolate (ask for the view the camera's recent motion reaches one measured request
     #: latency ahead; needs --hold tolerance).
@@ -762,7 +762,7 @@ def perceived_latency(
     shown: list[tuple[float, float, GIMap | None, LightCell]],
     tol: Tolerance,
 ) -> list[dict[str, Any]]:
-    """Issue 23's perceived latency, the time from a camera move to a frame with a map within tolerance, per
+    """The perceived latency, the time from a camera move to a frame with a map within tolerance, per
     frame (every frame of a path moves its camera): :data:`PERCEIVED_COLUMNS`, i.e.
 
     - ``start_s`` / ``shown_s``: when the frame started (its camera moved) and when it was composed;

@@ -221,7 +221,7 @@ class DepthF16:
 
 
 #: Every image codec by name. Settings: JPEG quality 90 (4:2:0), WebP quality 90 method 4, AVIF
-#: quality 80 speed 8, PNG compress level 1 (SPEC §6's measured settings).
+#: quality 80 speed 8, PNG compress level 1.
 CODECS: dict[str, Codec] = {
     c.name: c
     for c in (

@@ -117,7 +117,7 @@ class PrebakeResult:
 #: Configurations of a space planned and baked per executor run (memory stays bounded for millions of maps).
 SPACE_CHUNK = 4096
 #: A configuration is baked when the store holds a map at its view, to rounding: directions normalised by another
-#: formula (numpy's norm before git a7525f2, plain floats since) differ in the last bit, ~1e-14 degrees.
+#: formula (numpy's norm, or plain floats) differ in the last bit, ~1e-14 degrees.
 EXACT = Tolerance(1e-9, 1e-6)
 #: Up vector of the space's GI cameras (the fly-through's cameras use the same).
 UP = (0.0, 1.0, 0.0)

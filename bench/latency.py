@@ -333,7 +333,7 @@ def record_renderer(
             continue
         frames = _csv(folder / "frames.csv")
         requests = _csv(folder / "requests.csv")
-        if store == "prebaked" and frames and "perceived_ms" in frames[0]:  # clients before issue 23 lack it
+        if store == "prebaked" and frames and "perceived_ms" in frames[0]:  # absent: no perceived rows
             _perceived_rows(res, scene, system, frames, requests, {"profile": profile, "store": store} | common)
         if system == CLOUD_PREFETCH:  # its requests ask ahead: its per-map stages are no Table 1 column
             continue

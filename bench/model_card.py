@@ -231,7 +231,7 @@ def write_model_card(
         f"PSNR {val.get('psnr', float('nan')):.2f} dB, RMSE {val.get('rmse', float('nan')):.4f}"
         + (f", LF error {val['lf_error']:.4f}." if "lf_error" in val else "."),
         "",
-        "## Metrics per scene (`bench quality`, all held-out frames, tone-mapped, SPEC §3)",
+        "## Metrics per scene (`bench quality`, all held-out frames, tone-mapped)",
         "",
         f"LF error: low-frequency error, mean |Gaussian(σ = {LF_SIGMA:g} px) of the tone-mapped difference| "
         "(`gicore.metrics.lf_error`; lower is better): the brightness blotches SSIM barely sees"

@@ -460,7 +460,7 @@ def _offset_camera(camera, distance: float, angle_deg: float):
 
 def frame_system(gi_source: str, warp: str) -> str:
     """The system a per-frame point is: GIGAN = the generator's maps (``gi_source`` ``model``) warped
-    structure-aware; cloud baking = path-traced maps (``gt``) warped pixel-level (SPEC §5-§6); either
+    structure-aware; cloud baking = path-traced maps (``gt``) warped pixel-level; either
     without warping too. Any other pairing (``warp`` is a ``WARP_LABELS`` value) is a cross-system ablation."""
     system, own = {"model": (GIGAN, "structure"), "gt": (CLOUD, "pixel")}[gi_source]
     return system if warp in (WARP_LABELS[own], WARP_LABELS["none"]) else ABLATION

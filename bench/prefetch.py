@@ -36,7 +36,7 @@ VARIANTS = {
     "hold": ["--hold", "tolerance", "--prefetch", "none"],
     "prefetch": ["--hold", "tolerance", "--prefetch", "extrapolate"],
 }
-#: Issue 23's bounds: prefetch's perceived latency of hits at wan over hold's; hold's requests at lan over period's.
+#: The targets' bounds: prefetch's perceived latency of hits at wan over hold's; hold's requests at lan over period's.
 PERCEIVED_BOUND, REQUESTS_BOUND = 0.5, 0.5
 
 
@@ -60,7 +60,7 @@ class PrefetchConfig:
     frame_rate: float = field(default=30.0, metadata={"min": 1.0, "max": 1000.0})
     #: The period variant's k: a request every k frames (bench latency's default).
     every: int = 10
-    #: Requests in flight at most for the hold and prefetch variants (period: 1, as before issue 23).
+    #: Requests in flight at most for the hold and prefetch variants (period: 1).
     in_flight: int = field(default=3, metadata={"min": 1, "max": 16})
     #: GI-map codec.
     codec: CodecName = DEFAULT_CODEC
@@ -218,7 +218,7 @@ def _value(rows: list[dict[str, Any]], metric: str, stat: str, **config: Any) ->
 
 
 def targets(res: Results, scene: str) -> None:
-    """Issue 23's two targets as ``target_met`` rows, where the runs they compare were made."""
+    """The two targets as ``target_met`` rows, where the runs they compare were made."""
     rows = res.rows
     checks = [
         ("wan", "perceived", "median", {"cache": "all"}, "prefetch", "hold", PERCEIVED_BOUND,
@@ -335,7 +335,7 @@ BENCH = Bench(
     PrefetchConfig,
     measure,
     plot,
-    help="Issue 23: the cloud client's request rules and prefetch: perceived latency, staleness, requests, bytes",
+    help="The cloud client's request rules and prefetch: perceived latency, staleness, requests, bytes",
     dashboard=Section(
         "prefetch", "Prefetch: hiding the network in cloud baking", 12, lambda rows: [Table(table(rows))]
     ),

@@ -54,7 +54,7 @@ GridCell = tuple[np.ndarray, str]
 #: The small dataset a fresh checkout renders per scene (``bench quality --quick``, ``bench run-default``):
 #: 6 training and 3 held-out frames at 256², the shipped model's resolution (about 7 s per scene on 2 cores).
 QUICK_DATASET = DatasetConfig(n_train=6, n_val=3, resolution=256, spp=64, denoise=True)
-#: Issue 22's rule for the GL client's inputs: a model on gl inputs may lose at most this much SSIM against
+#: The rule for the GL client's inputs: a model on gl inputs may lose at most this much SSIM against
 #: mitsuba inputs on any scene, and raise the LF error by at most this fraction; beyond either, it is to be
 #: fine-tuned on gl inputs.
 GL_SSIM_LOSS_MAX = 0.005
@@ -421,7 +421,7 @@ def table(rows: Rows) -> str:
 
 def renderer_table(rows: Rows) -> str:
     """Each renderer's inputs against :data:`REFERENCE_RENDERER`'s, per system and scene (empty when the rows
-    compare none): the paired SSIM difference ± its standard error, the LF error ratio, and whether issue 22's
+    compare none): the paired SSIM difference ± its standard error, the LF error ratio, and whether the GL
     rule holds (SSIM lost at most :data:`GL_SSIM_LOSS_MAX`, LF error raised at most :data:`GL_LF_RISE_MAX`)."""
     diffs = pick(rows, "ssim_diff", "mean")
     if not diffs:

@@ -1,4 +1,4 @@
-"""`bench render`: per-pass render cost of each scene (SPEC §3 numbers, measured here).
+"""`bench render`: per-pass render cost of each scene, measured here.
 
 Mitsuba (``system = mitsuba``, at ``resolution``): DI at 1 spp, the G-buffer (AOV) pass, DI + G-buffers
 together, GT at 64 spp, GT at 64 spp + OIDN (incl. its G-buffer guide pass) and GT at 256 spp. Also the

@@ -1,5 +1,5 @@
 """`bench report`: a static HTML dashboard built only from the CSV files (and provenance JSON) under a
-results folder (SPEC §8).
+results folder (docs/architecture.md, Report).
 
 The dashboard has one section per registered bench that declares one (``Bench.dashboard``, in
 :mod:`bench.registry`), placed by the section's ``order``: Table 1 (``latency``), Table 2 (``storage``),

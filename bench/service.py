@@ -38,7 +38,7 @@ STATS = ("median", "p95", "p99")
 
 @dataclass(frozen=True)
 class Target:
-    """One of issue 10's targets: ``metric``'s ``stat`` compared with ``bound`` (``at_most`` or not)."""
+    """One of the service targets: ``metric``'s ``stat`` compared with ``bound`` (``at_most`` or not)."""
 
     metric: str
     stat: str
@@ -53,7 +53,7 @@ class Target:
         return value <= self.bound if self.at_most else value >= self.bound
 
 
-#: Issue 10's service targets (the hit-time ones are stated at 256²).
+#: The service targets (the hit-time ones are stated at 256²).
 TARGETS = (
     Target(
         "hit_server",
@@ -430,6 +430,6 @@ BENCH = Bench(
     ServiceConfig,
     measure,
     plot,
-    help="Issue 10 targets: GI-map server hit/miss service times and concurrent load",
+    help="GI-map server hit/miss service times and concurrent load",
     readme=Block("Cloud-baking server", 80, readme_block),
 )

@@ -975,7 +975,7 @@ def table(entries: list[dict[str, Any]]) -> str:
     """``stability_table.md``: the counts, then one line per case."""
     n = counts(entries)
     lines = [
-        f"## Numerical stability (SPEC §9): {n['cases']} cases, {n['finite']} finite, "
+        f"## Numerical stability: {n['cases']} cases, {n['finite']} finite, "
         f"{n['rejected']} cleanly rejected, {n['failed']} failed",
         "",
         "| stage | case | expected | outcome | error (bound) | time (ms) | message |",
@@ -1038,7 +1038,7 @@ def dashboard_section(rows: Rows) -> list[Part]:
 
 
 def readme_block(rows: Rows) -> list[Table]:
-    """SPEC §9's cases: the counts, per stage, and the failed cases by name."""
+    """The stability cases: the counts, per stage, and the failed cases by name."""
     need(rows, "status")
     entries = summary(rows)
     n = counts(entries)
@@ -1061,7 +1061,7 @@ BENCH = Bench(
     StabilityConfig,
     measure,
     plot,
-    help="SPEC §9: extreme and stiff inputs through every stage (render, tone map, inference, warps, composition, "
+    help="Extreme and stiff inputs through every stage (render, tone map, inference, warps, composition, "
     "codecs, store, network, server); finite or cleanly rejected, never a crash or a hang (exit 2 naming any failed "
     "case).",
     dashboard=Section("stability", "Numerical stability", 80, dashboard_section),

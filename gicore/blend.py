@@ -1,6 +1,6 @@
 """Composition of direct illumination (DI) and a global-illumination (GI) map.
 
-Two modes (SPEC §5), both on linear radiance:
+Two modes (docs/architecture.md, Composition), both on linear radiance:
 
 - ``blend`` — the paper's eq. 1, ``P = tau * DI + (1 - tau) * GI``, a per-pixel weighted average where
   GI is the network's (or server's) full GI image.

@@ -1,7 +1,7 @@
 """The per-frame image buffers the project knows, with their channel counts and storage precision.
 
-A run config names the buffers it needs; only those are rendered and stored (SPEC §2: leave out what a
-consumer does not need). All are linear, HxWxC, in the frame's camera:
+A run config names the buffers it needs; only those are rendered and stored (leave out what no
+consumer needs). All are linear, HxWxC, in the frame's camera:
 
 - ``di``: direct illumination (diffuse + glossy, with shadows), linear radiance.
 - ``gt``: path-traced global illumination (the "GI map" the networks learn), linear radiance.

@@ -1,4 +1,4 @@
-"""Pinhole cameras and their OpenGL-convention matrices (SPEC §3).
+"""Pinhole cameras and their OpenGL-convention matrices (docs/architecture.md, Cameras and matrices).
 
 A :class:`Camera` is a look-at pinhole with a horizontal field of view. Mitsuba's ``to_world`` maps camera
 space (+x left, +y up, +z forward) to world space; the OpenGL matrices used by warping are::

@@ -1,4 +1,4 @@
-"""`gicore-dataset`: render training/validation datasets of scene specs (SPEC §3).
+"""`gicore-dataset`: render training/validation datasets of scene specs (docs/architecture.md, Dataset folder).
 
     gicore-dataset lung_plane digestive_cornell --out data/ds --train 120 --val 12 --resolution 256
     gicore-dataset lung_plane --out data/ds_gl --renderer gl   # inputs rasterised as the GL client does

@@ -1,7 +1,7 @@
-"""Image-quality metrics on tone-mapped images in [0, 1] (SPEC §3).
+"""Image-quality metrics on tone-mapped images in [0, 1] (docs/architecture.md, Tone mapping and metrics).
 
 Inputs outside [0, 1] (e.g. linear HDR radiance, where SSIM's ``data_range=1`` is meaningless) and
-NaN/Inf are refused with a ValueError rather than scored (SPEC §9): tone-map with ``gicore.tonemap`` first.
+NaN/Inf are refused with a ValueError rather than scored: tone-map with ``gicore.tonemap`` first.
 
 SSIM follows the Wang et al. settings that scikit-image reproduces: Gaussian window with sigma 1.5,
 population covariance, ``data_range=1``. Identical images give PSNR = inf (not an error); constant
@@ -23,7 +23,7 @@ from skimage.filters import gaussian
 from skimage.metrics import structural_similarity
 
 #: Standard deviation, in pixels at the evaluated resolution, of the Gaussian that :func:`lf_error` blurs
-#: the difference with (issue 14: 6 px at 256², a few percent of the frame). At another resolution the same
+#: the difference with (6 px at 256²: a few percent of the frame). At another resolution the same
 #: number of pixels is a different fraction of the image: compare lf_error values only at one resolution.
 LF_SIGMA = 6.0
 #: How :func:`lf_difference` extends the image past its border (scipy.ndimage's 'reflect': the edge pixel
@@ -98,7 +98,7 @@ def lf_difference(a: np.ndarray, b: np.ndarray, sigma: float = LF_SIGMA) -> np.n
 def lf_error(a: np.ndarray, b: np.ndarray, sigma: float = LF_SIGMA) -> float:
     """Low-frequency error: mean over pixels and channels of |Gaussian_sigma(a - b)| (:func:`lf_difference`).
 
-    Why it exists (issue 14): a brightness error that covers a region (a "blotch") moves SSIM very little,
+    Why it exists: a brightness error that covers a region (a "blotch") moves SSIM very little,
     because SSIM's luminance term (2 mu_a mu_b + C1) / (mu_a^2 + mu_b^2 + C1) stays near 1 for a small
     offset (0.05 at mean 0.5: 0.995) and its structure term ignores offsets altogether; RMSE/PSNR do see it,
     but cannot tell it from fine noise. Here fine, zero-mean errors (noise, a checkerboard) average out under

@@ -1,4 +1,4 @@
-"""Camera fly-throughs and light schedules derived from a scene spec (SPEC §2).
+"""Camera fly-throughs and light schedules derived from a scene spec (docs/architecture.md, Scenes).
 
 Both are pure functions of (spec, frame index or count, seed), so any frame can be regenerated alone
 (resumable datasets, servers rendering a requested frame). The camera orbit is smooth: azimuth advances

@@ -1,4 +1,5 @@
-"""Mitsuba 3 rendering of scene specs: path-traced GT, direct illumination, G-buffers (SPEC §3).
+"""Mitsuba 3 rendering of scene specs: path-traced GT, direct illumination, G-buffers
+(docs/architecture.md, Mitsuba passes).
 
 This is the only module that imports Mitsuba and the only place the variant is chosen. ``llvm_ad_rgb``
 needs LLVM >= 16 (Debian: ``apt-get install libllvm19``); older LLVMs abort the process inside Dr.Jit,

@@ -1,4 +1,4 @@
-"""Tidy, long-format benchmark results with provenance (SPEC §8).
+"""Tidy, long-format benchmark results with provenance (docs/architecture.md, Results files).
 
 Every bench writes ``<out>/<bench>.csv`` with one row per measurement and ``<out>/<bench>.provenance.json``
 describing how the numbers were produced. Plots and dashboards read only these files.

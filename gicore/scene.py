@@ -1,4 +1,4 @@
-"""Scene specifications: validated plain data (TOML or JSON) describing one scene (SPEC §2).
+"""Scene specifications: validated plain data (TOML or JSON) describing one scene (docs/architecture.md, Scenes).
 
 A spec names its objects (procedural anatomy or a user mesh), the environment (a white ground plane,
 a Cornell box, or nothing), one light and the camera fly-through. Built-in specs for the paper's five

@@ -1,4 +1,4 @@
-"""Seeded user sessions over a scene's navigable space: what a server's GI tree sees from many visits (issue 23).
+"""Seeded user sessions over a scene's navigable space: what a server's GI tree sees from many visits.
 
 A scene's *navigable space* is what its camera spec lets a client reach: eyes around ``target`` at radius
 ``radius * (1 ± wobble)`` and height ``height * (1 ± wobble)``, within the spec's azimuth arc, looking at

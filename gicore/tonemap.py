@@ -9,7 +9,7 @@ a 2.2 display gamma::
 It is monotone and invertible on ``[0, inf)``; ``inverse`` clips ``y`` just below 1 so that values a
 network produces at the top of its range stay finite. Networks work in ``[-1, 1]`` (tanh outputs):
 ``to_signed`` / ``from_signed`` convert. NaN or Inf anywhere is an upstream bug (a diverged network, a
-broken render) and every function here rejects it rather than passing it on (SPEC §9).
+broken render) and every function here rejects it rather than passing it on.
 """
 
 from __future__ import annotations

@@ -66,7 +66,7 @@ class NetworkConfig:
     #: unet only: how many up layers after the innermost one carry dropout.
     n_dropout: int = 3
     #: unet only: how up layers double the side: ``transposed`` (pix2pix 4x4 stride-2 transposed conv)
-    #: or ``resize`` (nearest 2x + 3x3 conv, which cannot make a checkerboard; issue 14's diagnosis).
+    #: or ``resize`` (nearest 2x + 3x3 conv, which cannot make a checkerboard).
     upsample: str = "transposed"
 
     def __post_init__(self) -> None:

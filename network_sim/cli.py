@@ -36,7 +36,7 @@ BUFFER_BYTES_MAX = 2**30
 IDLE_TIMEOUT_MAX_S = 86_400.0
 
 DELAY: dict[str, Any] = {"min": 0.0, "max": DELAY_MS_MAX}
-#: A rate may be 0: a dead link (nothing passes; SPEC §9's zero bandwidth ends in the client's timeout).
+#: A rate may be 0: a dead link (nothing passes; a client's request ends in its timeout, never a hang).
 RATE: dict[str, Any] = {"min": 0.0, "max": RATE_MBIT_MAX}
 BUFFER: dict[str, Any] = {"min": OPPORTUNITY_BYTES, "max": BUFFER_BYTES_MAX}
 

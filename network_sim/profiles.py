@@ -1,6 +1,6 @@
 """Named link profiles, each number with its source (``network-sim profiles`` lists them).
 
-``delay_ms`` is one-way (SPEC §7), so a source's round-trip time is split evenly over the two directions.
+``delay_ms`` is one-way, so a source's round-trip time is split evenly over the two directions.
 No profile adds jitter or loss: none of the sources gives a number for them (add ``--jitter-ms`` /
 ``--loss`` on top of a profile). Explicit proxy flags override a profile's values.
 """

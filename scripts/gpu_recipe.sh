@@ -33,7 +33,7 @@ mkdir -p "$WORK"
 
 # Per model: the paper's settings (batch 8, lr 2e-4, n_critic 1) on whole 256² frames with a 1x1
 # bottleneck (n_down 8, as pix2pix's unet_256 runs), width 16 for the CPU client's 25 ms budget.
-# GIGAN up-samples by resize (its one departure, issue 14); the rivals keep their own designs.
+# GIGAN up-samples by resize (its one departure from the paper: no checkerboard); the rivals keep their own designs.
 model_args() {
   case "$1" in
     gigan) echo "--model gigan --upsample resize --n-down 8" ;;

@@ -125,7 +125,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app = FastAPI(
         title="cloud-baking GI-map server",
         version=metadata.version("gigan-testbed"),
-        description="Serves path-traced GI maps from a persistent GI tree (baseline of the GIGAN testbed, SPEC §6).",
+        description="Serves path-traced GI maps from a persistent GI tree (the GIGAN testbed's baseline).",
         lifespan=lifespan,
     )
     for module in (gimap, maps, health, stats, scenes):

@@ -1,4 +1,4 @@
-"""OpenGL side of the testbed: what a Web3D client rasterises per frame (SPEC §1).
+"""OpenGL side of the testbed: what a Web3D client rasterises per frame (docs/architecture.md, OpenGL passes).
 
 ``gicore.render`` (Mitsuba) path-traces; this package rasterises the per-frame client passes with
 moderngl on a headless EGL context. :mod:`gicore.gl.context` owns the process's one context,

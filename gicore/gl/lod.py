@@ -109,8 +109,8 @@ LOD_CHANNELS = ("normal", "depth", "coverage")
 #: G-buffers (the shipped model's training data) against its centre-sampled ones, by :func:`lod_errors` on 4
 #: GI-camera views each of the plane scenes at 256², differ by normal 1.0e-3 to 3.3e-3 (vessels < 2.1e-4: their
 #: interior is mostly the plane), depth 2.4e-3 to 3.0e-3, coverage 2.0e-3 to 5.6e-3. The model does not see
-#: that difference: its SSIM against path-traced GT (``scripts/gl_model_quality.py`` of commit 02a7e5e, since
-#: folded into ``bench quality --renderers``; 8 held-out GI views per scene, 256 spp + OIDN) moves by 0.0001 to
+#: that difference: its SSIM against path-traced GT (``bench quality --renderers``;
+#: 8 held-out GI views per scene, 256 spp + OIDN) moves by 0.0001 to
 #: 0.0008 between the two; and on GL inputs levels 1-4 stay within 0.0003 of full detail (lung_plane,
 #: digestive_plane, vessels_plane, lung_cornell), where level 4 has normal error up to 2.8e-3 on lung_plane's
 #: path; level 5 (normal 3.0e-3 and more) loses up to 0.0013.

@@ -1,5 +1,5 @@
 """User errors of `cloudbaking-server` and `cloudbaking-prebake`: exit 2, one `error:` line naming the
-culprit, no traceback (SPEC §8a)."""
+culprit, no traceback (docs/architecture.md, Errors)."""
 
 from __future__ import annotations
 

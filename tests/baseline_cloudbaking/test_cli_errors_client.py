@@ -1,4 +1,4 @@
-"""User errors of `cloudbaking-client`: exit 2, one `error:` line naming the culprit, no traceback (SPEC §8a).
+"""User errors of `cloudbaking-client`: exit 2, one `error:` line naming the culprit, no traceback (Errors).
 The server is checked at start, so an unreachable server or a dead link is one line, not a hang."""
 
 from __future__ import annotations

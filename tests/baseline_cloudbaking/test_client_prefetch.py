@@ -1,4 +1,4 @@
-"""The cloud client's request rule and prefetch (issue 23 item 2): the GI tree's tolerance rule held on the client,
+"""The cloud client's request rule and prefetch: the GI tree's tolerance rule held on the client,
 the motion extrapolation, Retry-After and the perceived latency of a run (the hold against a real server is in
 test_client.py, beside its server)."""
 

@@ -1,4 +1,4 @@
-"""GI-map codecs, depth coding and the payload protocol of cloud baking (SPEC §6)."""
+"""GI-map codecs, depth coding and the payload protocol of cloud baking (docs/architecture.md, Codecs)."""
 
 from __future__ import annotations
 

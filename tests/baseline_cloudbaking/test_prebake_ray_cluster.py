@@ -1,4 +1,4 @@
-"""`cloudbaking-prebake --space all` on a two-node Ray cluster simulated on one machine (issue 23 item 4):
+"""`cloudbaking-prebake --space all` on a two-node Ray cluster simulated on one machine:
 ``ray.cluster_utils.Cluster`` with two nodes of 1 CPU each bakes a small configuration space (6 maps at
 16², 1 spp); each task's node is recorded, both nodes work, the driver alone writes and the tree holds
 every configuration's map exactly once; the command line as its own driver, killed with -9, leaves no

@@ -59,7 +59,7 @@ def test_dominated_means_another_point_is_no_slower_and_no_worse_and_better_in_o
         ("model", "no warping", GIGAN),
         ("gt", "pixel-level", CLOUD),
         ("gt", "no warping", CLOUD),
-        ("gt", "structure-aware", ABLATION),  # cloud baking's client warps pixel-level (SPEC §5-§6)
+        ("gt", "structure-aware", ABLATION),  # cloud baking's client warps pixel-level
         ("model", "pixel-level", ABLATION),
     ],
 )

@@ -1,4 +1,4 @@
-"""`bench prefetch` (issue 23 item 2) from its rows: what one client run's CSVs give, the targets' verdicts, the
+"""`bench prefetch` from its rows: what one client run's CSVs give, the targets' verdicts, the
 table, and the options it refuses. (The processes it drives are tested in tests/baseline_cloudbaking.)"""
 
 from __future__ import annotations

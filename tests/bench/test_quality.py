@@ -1,4 +1,4 @@
-"""The low-frequency error (issue 14) in the quality tables: ``bench quality`` (rows, bars, error-map grid),
+"""The low-frequency error in the quality tables: ``bench quality`` (rows, bars, error-map grid),
 ``bench model-card`` and the report's quality section, on a synthetic dataset whose GT is its DI made
 brighter by a known amount, scored with a real ONNX pass-through "generator" (no rendering: seconds)."""
 
@@ -166,10 +166,10 @@ def test_model_card_and_report_show_the_low_frequency_error(scored: tuple[Path, 
     assert f"<td>{lf['copy']:.4g}</td>" in html
 
 
-# -- the inputs' renderer (issue 22) --------------------------------------------------------------------------------
+# -- the inputs' renderer --------------------------------------------------------------------------------------------
 #: The shipped model on GL inputs against Mitsuba inputs, 2 held-out lung_plane frames at 256² (raw 32-spp GT): paired
 #: SSIM difference measured +0.0007 (standard error 1.2e-4) and LF error ratio 1.03 here (0.93 with 16 held-out
-#: frames and a 64-spp + OIDN GT); the bounds are issue 22's rule.
+#: frames and a 64-spp + OIDN GT); the bounds are bench quality's GL rule.
 GL_SSIM_DIFF_MIN = -0.005
 GL_LF_RATIO_MAX = 1.2
 
@@ -177,7 +177,7 @@ GL_LF_RATIO_MAX = 1.2
 def test_shipped_model_loses_little_on_gl_inputs(tmp_path: Path) -> None:
     """``bench quality --renderers gl,mitsuba`` on a small held-out lung_plane dataset (Mitsuba inputs and GT): the
     gl rows are the model on inputs GLRenderer(lod="auto") renders now at the same frames, scored against the same
-    GT, and the paired SSIM difference and LF ratio stay within issue 22's rule."""
+    GT, and the paired SSIM difference and LF ratio stay within the GL rule."""
     from gicore.dataset_cli import DatasetConfig
     from gicore.gl import gl_available
     from gigan_local.inference import DEFAULT_MODEL

@@ -1,4 +1,4 @@
-"""``bench warp --renderer gl|mitsuba`` (issue 22): the warps' local passes (structure-aware's uv pass, pixel-level's
+"""``bench warp --renderer gl|mitsuba``: the warps' local passes (structure-aware's uv pass, pixel-level's
 surface-mask pass) and the DI from OpenGL or Mitsuba, on the same path-traced GI maps; a tiny user-mesh scene at
 32² (seconds)."""
 
@@ -91,7 +91,7 @@ def test_gl_without_a_context_runs_mitsuba_and_says_so(
 def test_renderer_options_are_checked() -> None:
     cfg = build_config(warp_bench.WarpBenchConfig, {"renderer": "mitsuba", "gl_lod": "2"})
     assert (cfg.renderer, cfg.gl_lod) == ("mitsuba", "2")
-    assert warp_bench.WarpBenchConfig().renderer == "gl"  # the clients' default (issue 22)
+    assert warp_bench.WarpBenchConfig().renderer == "gl"  # the clients' default
     with pytest.raises(UserError, match="--renderer 'vulkan' is not one of gl, mitsuba"):
         build_config(warp_bench.WarpBenchConfig, {"renderer": "vulkan"})
     with pytest.raises(UserError, match="--gl-lod 'coarse' is not one of"):

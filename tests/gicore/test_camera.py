@@ -74,7 +74,7 @@ def test_bad_resolution_rejected(width):
 @pytest.mark.parametrize("field", ["width", "height"])
 @pytest.mark.parametrize("bad", [math.nan, math.inf])
 def test_nan_inf_resolution_rejected_naming_field(field, bad):
-    # SPEC §9: NaN/Inf in any input is rejected with a clear error (ValueError naming the field).
+    # NaN/Inf in any input is rejected with a clear error (ValueError naming the field).
     with pytest.raises(ValueError, match=rf"camera\.{field}"):
         Camera((0, 1, 3), (0, 0, 0), **{field: bad})
 

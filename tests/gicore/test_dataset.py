@@ -1,4 +1,5 @@
-"""Dataset format and builder: determinism, resumability, settings guard, buffers, light records (SPEC §3)."""
+"""Dataset format and builder: determinism, resumability, settings guard, buffers, light records
+(docs/architecture.md, Dataset folder)."""
 
 from __future__ import annotations
 
@@ -336,7 +337,7 @@ def test_read_meta_errors(tmp_path):
         DatasetMeta({}, 8, 1, False, 0, ["gt"]).split_frames("test")
 
 
-# -- bad files and bad settings are user errors naming the culprit (issue 8) -------------------------------------
+# -- bad files and bad settings are user errors naming the culprit -----------------------------------------------
 @pytest.mark.parametrize(
     "damage",
     [
@@ -440,7 +441,7 @@ def test_two_writers_of_one_frame_do_not_share_a_temporary_file(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["000000.npz"]
 
 
-# -- the inputs' renderer (issue 22) --------------------------------------------------------------------------------
+# -- the inputs' renderer --------------------------------------------------------------------------------------------
 def _no_gl(monkeypatch) -> None:
     """Make this process's GL context unavailable, as on a machine without EGL."""
     import gicore.gl.context as context

@@ -1,4 +1,4 @@
-"""The local render pool's process lifetime (issue 21): its workers die with the driver however the
+"""The local render pool's process lifetime: its workers die with the driver however the
 driver ends (kill -9 included: PR_SET_PDEATHSIG, and a watchdog thread where that is missing or came
 too late), and a driver that stops by an exception kills its running workers instead of waiting."""
 

@@ -1,4 +1,4 @@
-"""The render executor on Ray (issue 13): a local Ray instance (2 CPUs, started once for the module)
+"""The render executor on Ray: a local Ray instance (2 CPUs, started once for the module)
 renders a tiny data set and a tiny prebake identical to the local pool's, survives a worker killed
 mid-frame, cancels its tasks on Ctrl-C, and the command lines fail in one line where they should;
 `bench scaling` measures both executors and labels its projections."""

@@ -1,4 +1,4 @@
-"""One run per output folder (issue 21): the lock file names its holder, a second run is refused naming
+"""One run per output folder: the lock file names its holder, a second run is refused naming
 it, a lock that a killed run left behind is taken over with one note, and SIGTERM releases the lock
 (the console-script entry point turns it into an interrupt, as Ctrl-C: exit 130, the resume hint)."""
 

@@ -92,7 +92,7 @@ def test_nan_inf_input_rejected(fn, bad, which):
 @pytest.mark.parametrize("fn", [rmse, psnr, ssim, lf_error, lf_difference, all_metrics])
 @pytest.mark.parametrize("value", [-0.01, 1.01, 40.0])
 def test_values_outside_unit_range_rejected(fn, value):
-    """SPEC §9: linear HDR radiance (or any value outside [0, 1]) is not scored as if it were display values."""
+    """Linear HDR radiance (or any value outside [0, 1]) is not scored as if it were display values."""
     imgs = [image(), image()]
     imgs[1][5, 6, 0] = value
     with pytest.raises(ValueError, match=r"second image has values in \[.*\], outside \[0, 1\]; tone-map it first"):
@@ -154,7 +154,7 @@ def test_black_vs_black_and_black_vs_white():
     assert m["ssim"] == pytest.approx(1e-4 / (1.0 + 1e-4), abs=1e-6)
 
 
-# -- low-frequency error (issue 14) -------------------------------------------------------------------------
+# -- low-frequency error ------------------------------------------------------------------------------------
 @pytest.mark.parametrize("c", [0.05, -0.05, 0.2])
 @pytest.mark.parametrize("shape", [(64, 64, 3), (40, 72), (7, 9, 3)])
 def test_lf_error_of_a_constant_offset_is_the_offset(c, shape):
@@ -249,7 +249,7 @@ def test_tonemap_hand_values_and_clipping():
 
 
 def test_tonemap_non_finite_input():
-    # SPEC §9: NaN/Inf inputs are rejected with a clear error. +inf radiance must not silently become
+    # NaN/Inf inputs are rejected with a clear error. +inf radiance must not silently become
     # NaN (x / (1 + x) = inf / inf): either reject it or map it to the top of the range.
     try:
         top = tonemap(np.array([np.inf], dtype=np.float32))

@@ -1,6 +1,7 @@
-"""The OpenGL renderer (gicore.gl) against Mitsuba (gicore.render) on the same cameras (SPEC §1, §3, §5).
+"""The OpenGL renderer (gicore.gl) against Mitsuba (gicore.render) on the same cameras
+(docs/architecture.md, OpenGL passes).
 
-G-buffers: per channel, mean |gl - mitsuba| away from silhouettes within 1e-3 (issue 22) against Mitsuba's
+G-buffers: per channel, mean |gl - mitsuba| away from silhouettes within 1e-3 against Mitsuba's
 centre-sampled pass, which samples what a rasteriser samples; against the default pass (one sample at a
 random point of each pixel) the interior error is the sub-pixel offset times the image gradient, reported
 and shown to be an order larger. DI: SSIM against converged Mitsuba DI with bounds measured here. The
@@ -24,7 +25,7 @@ if not OK:
     pytest.skip(f"no OpenGL context: {WHY}", allow_module_level=True)
 
 RES = 64
-#: Mean |gl - mitsuba| away from silhouettes (issue 22's target).
+#: Mean |gl - mitsuba| away from silhouettes: the target of the GL port.
 INTERIOR_MEAN = 1e-3
 #: Largest interior error measured against the centre-sampled pass: 1.1e-4 (a normal), 1.7e-5 (depth,
 #: position); float32 interpolation differences, bounded with a margin.

@@ -1,4 +1,5 @@
-"""Mitsuba rendering: GT/DI/indirect relations, determinism, buffers, and extreme inputs (SPEC §3, §9)."""
+"""Mitsuba rendering: GT/DI/indirect relations, determinism, buffers, and extreme inputs
+(docs/architecture.md, Mitsuba passes)."""
 
 from __future__ import annotations
 
@@ -153,7 +154,7 @@ def test_texcoords_and_uv_pass(renderer):
     np.testing.assert_array_equal(again["position"], out["position"])
 
 
-# -- extreme cameras (SPEC §9) ----------------------------------------------------------------------------
+# -- extreme cameras -------------------------------------------------------------------------------------
 @pytest.mark.parametrize(
     "overrides",
     [
@@ -198,7 +199,7 @@ def test_resolution_zero_is_not_the_specs(sphere_spec):
 @pytest.mark.parametrize("environment", ["white_plane", "cornell_box"])
 def test_light_inside_a_closed_mesh_does_not_leak(make_spec, box_mesh_path, environment):
     """A closed box normalised onto the ground with a light inside it: no light reaches the camera
-    outside (issue 8: with its base coplanar with the floor, 611 of 4096 GT pixels were lit)."""
+    outside (with its base coplanar with the floor, 611 of 4096 GT pixels were lit)."""
     cam = Camera((0.0, 1.5, 2.2), (0.0, 0.3, 0.0), fov=60.0, width=64, height=64)
     box = {"name": "box", "mesh": str(box_mesh_path), "height": 1.0}
     inside = make_spec(objects=[box], environment=environment, light={"position": [0.0, 0.5, 0.0], "intensity": 10.0})
@@ -228,7 +229,7 @@ def test_light_none_means_the_specs_light_not_the_last_one(restore_light):
     np.testing.assert_array_equal(r.render_di(cam, spp=1, seed=0), rest)
 
 
-# -- extreme lights (SPEC §9) -------------------------------------------------------------------------------
+# -- extreme lights ----------------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def scaled_renderers(make_spec):
     base = 12.0

@@ -1,4 +1,4 @@
-"""Scene specs, built-in scenes, environments, and camera/light paths (SPEC §2)."""
+"""Scene specs, built-in scenes, environments, and camera/light paths (docs/architecture.md, Scenes)."""
 
 from __future__ import annotations
 

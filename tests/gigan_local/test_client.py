@@ -237,7 +237,7 @@ def test_network_input_is_encoded_in_place():
         frame_to_input(frame, spec, out=np.empty((10, 8, 7), np.float32))
 
 
-# -- the renderer of the raster passes (issue 22) -----------------------------------------------------------
+# -- the renderer of the raster passes -----------------------------------------------------------------
 #: Composed frames of a ``--renderer gl`` run against the same run on Mitsuba, DI pass-through model (so the
 #: GI map is the GI camera's DI, and every pass of the frame is a raster pass), at 64² on the sphere-and-box
 #: scene: SSIM 0.888-0.945 (mean 0.920) over 6 frames measured. Mitsuba's DI puts its one sample at a random

@@ -1,4 +1,4 @@
-"""Issue 14's checkerboard and critic-conditioning diagnosis: the checkerboard metric against hand-computed
+"""The checkerboard and critic-conditioning diagnosis: the checkerboard metric against hand-computed
 cases, the U-Net's resize up-sampling (which cannot print a tile pattern) and the unconditional critic."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Running console scripts as subprocesses and checking the one error policy (SPEC §8a)."""
+"""Running console scripts as subprocesses and checking the one error policy (docs/architecture.md, Errors)."""
 
 from __future__ import annotations
 

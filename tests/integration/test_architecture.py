@@ -1,7 +1,8 @@
-"""The architecture of SPEC §1, checked: the import-linter contracts in pyproject.toml (layers bench ->
-the two systems and the network simulator -> gicore, the systems independent of each other, no cycle among
-a package's modules, Mitsuba only behind gicore.render) and no import inside a function between bench
-modules (such imports hide cycles from the reader)."""
+"""The architecture (docs/architecture.md, Import contracts), checked: the import-linter contracts in
+pyproject.toml (layers bench -> the two systems and the network simulator -> gicore, the systems independent
+of each other, no cycle among a package's modules, Mitsuba only behind gicore.render) and no import inside a
+function between bench modules (such imports hide cycles from the reader).
+"""
 
 from __future__ import annotations
 

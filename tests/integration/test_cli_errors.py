@@ -1,4 +1,4 @@
-"""Every console script fails cleanly on bad input (SPEC §8a, issue 8).
+"""Every console script fails cleanly on bad input (docs/architecture.md, Errors).
 
 Each row runs one installed console script as a subprocess, in its own copy of a scratch workspace that
 holds valid and broken inputs (see :func:`workspace`), and checks the policy: exit status 2, exactly one
@@ -425,7 +425,7 @@ def test_bad_input_is_one_clean_error_line(
 
 @pytest.mark.slow
 def test_debug_shows_the_traceback(workspace: Path):
-    """--debug is the way to a traceback for a user error (SPEC §8a)."""
+    """--debug is the way to a traceback for a user error."""
     proc = subprocess.run(
         [str(BIN / "gicore-dataset"), "nope", "--debug"],
         cwd=workspace,

@@ -31,11 +31,11 @@ from gigan_local.client import GTSource
 from gigan_local.warp import StructureAwareWarp
 
 RES = 32
-#: Per-frame SSIM of the pre-refactor client loop (``gigan_local.client.run_frames`` and both warps as of
-#: commit 58af213, run on today's gicore, objects seated 2e-3 above the ground) on the sphere-and-box
-#: scene: 6 frames, k = 3, 40 frames per orbit, tau 0.25, GT stand-in and GT at 4 spp without denoising,
-#: seed 0. The shared loop must give the same numbers (Table 3, Fig. 7 and Fig. 9 rest on it). A change to
-#: rendering changes them: re-run that old loop on the new gicore to renew them, never the new loop.
+#: Reference per-frame SSIM on the sphere-and-box scene (6 frames, k = 3, 40 frames per orbit, tau 0.25, GT
+#: stand-in and GT at 4 spp without denoising, seed 0, objects seated 2e-3 above the ground), computed by a
+#: client loop and warps written apart from ``gicore.loop`` (git history keeps it). The shared loop must give
+#: the same numbers (Table 3, Fig. 7 and Fig. 9 rest on it). A change to rendering changes them: renew them
+#: with that independent loop on the new gicore, never with the loop under test.
 OLD_LOOP_SSIM = {
     ("structure", "blend"): [0.795174, 0.7538591, 0.7426477, 0.7875738, 0.7769855, 0.7759012],
     ("structure", "residual"): [0.7568697, 0.7545441, 0.763511, 0.7721336, 0.7575253, 0.7475378],

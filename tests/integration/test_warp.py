@@ -1,5 +1,5 @@
 """Structure-aware (Alg. 1) and pixel-level 3D image warping: identity, benefit over not warping, the
-ground plane behind the GI camera, occlusion, and extreme cameras (SPEC §5, §9)."""
+ground plane behind the GI camera, occlusion, and extreme cameras (docs/architecture.md, Structure-aware warping)."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
-"""``network-sim`` fails cleanly on bad input (SPEC §8a): exit 2, one ``error:`` line naming the culprit,
-no traceback, nothing written. Uses the shared harness of ``tests/helpers/cli.py``."""
+"""``network-sim`` fails cleanly on bad input (docs/architecture.md, Errors): exit 2, one ``error:`` line
+naming the culprit, no traceback, nothing written. Uses the shared harness of ``tests/helpers/cli.py``."""
 
 from __future__ import annotations
 
@@ -113,7 +113,7 @@ def test_options_map_onto_the_link_in_one_place() -> None:
     assert (link.up.delay_ms, link.down.delay_ms, link.up.rate_mbit, link.down.rate_mbit) == (20.0, 20.0, 3.0, 7.0)
     assert link.up.queue_bytes == wan.up.queue_bytes and link.down.loss == wan.down.loss and link.seed == 5
     assert link_config() == LinkConfig()  # no profile, no option: an unshaped link
-    assert link_config(rate_mbit=0.0).up.rate_mbit == 0.0  # a dead link stays possible (SPEC §9)
+    assert link_config(rate_mbit=0.0).up.rate_mbit == 0.0  # a dead link stays possible
     with pytest.raises(UserError, match="--window-bytes = 1073741825 is above"):
         ProxyOptions(window_bytes=2**30 + 1)  # code building the options meets the command line's limits
 

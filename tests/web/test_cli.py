@@ -1,4 +1,5 @@
-"""gigan-web's error policy: one error line naming the option, exit 2, nothing exported (SPEC §8a)."""
+"""gigan-web's error policy: one error line naming the option, exit 2, nothing exported
+(docs/architecture.md, Errors)."""
 
 from __future__ import annotations
 
