@@ -279,7 +279,7 @@ def graph_lines(model_doc: dict) -> list[str]:
         "outermost do 4/9 of the multiply-adds)"
     )
     rewrite = model_doc.get("graph_rewrite")
-    if rewrite:  # an earlier export rewritten in place (python -m gigan_local.rewrite_cli)
+    if rewrite:  # an export rewritten in place (python -m gigan_local.rewrite_cli)
         diffs = ", ".join(f"{k} {v:.2e}" for k, v in rewrite["max_abs_diff_vs_resize_graph"].items())
         line += f"; rewritten after export, max |rewritten − resize graph| on a random input: {diffs}"
     return [line + "."]

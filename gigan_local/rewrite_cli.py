@@ -1,4 +1,4 @@
-"""``python -m gigan_local.rewrite_cli MODEL_DIR``: rewrite an earlier export of a resize U-Net in place as
+"""``python -m gigan_local.rewrite_cli MODEL_DIR``: rewrite an export of a resize U-Net in place as
 sub-pixel convolutions (:func:`gigan_local.export.rewrite_export`; ``gigan-export`` does it to every new export).
 """
 

@@ -71,7 +71,7 @@ class RunState:
     finish_seconds: float = 0.0
     #: Metrics of the latest validation.
     val_metrics: dict[str, float] = field(default_factory=dict)
-    #: Data rows of metrics.csv written up to this state (None: a checkpoint from before it was counted).
+    #: Data rows of metrics.csv written up to this state (None: a checkpoint that does not record it).
     metrics_rows: int | None = None
 
 

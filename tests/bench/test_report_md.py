@@ -78,7 +78,7 @@ def test_every_block_has_its_numbers_and_the_command_that_made_them(generated) -
         "--out /tmp/fx/latency` (20" in text
     )
     # the SHA stays in the provenance JSON: the Markdown is committed and would name a commit that goes stale
-    assert "git " not in text and "6b8b71443bae" not in text
+    assert "git " not in text and "5ca1ab1e5ca1" not in text
     assert "Command: `network-sim selftest --out results/final/netself`" in text  # not bench: the program by its name
 
     # Table 1: one row per profile, recomputed from the CSV's medians

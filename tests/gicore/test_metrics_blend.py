@@ -107,7 +107,7 @@ def test_unit_range_endpoints_are_accepted():
 @pytest.mark.parametrize("fn", [inverse_tonemap, from_signed])
 @pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
 def test_inverse_tone_map_and_from_signed_reject_non_finite(fn, bad):
-    """NaN used to pass straight through (np.clip keeps NaN) into the GI maps."""
+    """np.clip keeps NaN, so without the check it would pass straight through into the GI maps."""
     with pytest.raises(ValueError, match=f"{fn.__name__} input contains NaN or Inf"):
         fn(np.array([0.2, bad, 0.7], dtype=np.float32))
 
@@ -115,7 +115,7 @@ def test_inverse_tone_map_and_from_signed_reject_non_finite(fn, bad):
 @pytest.mark.parametrize("which", ["image", "weight"])
 @pytest.mark.parametrize("bad", [np.nan, np.inf])
 def test_push_pull_rejects_non_finite(which, bad):
-    """Even a NaN in a zero-weight pixel used to spread through the pyramid into every hole."""
+    """Even a NaN in a zero-weight pixel would spread through the pyramid into every hole."""
     img, wgt = np.ones((8, 8, 3), np.float32), np.ones((8, 8), np.float32)
     wgt[2:5, 2:5] = 0.0
     (img if which == "image" else wgt)[3, 3] = bad

@@ -1,4 +1,4 @@
-"""The shared client loop (gicore.loop) with both systems' warps: the old loop's SSIM reproduced at a fixed
+"""The shared client loop (gicore.loop) with both systems' warps: a reference loop's SSIM reproduced at a fixed
 seed, identity through the loop, and the timing semantics a background-thread (remote) source needs."""
 
 from __future__ import annotations

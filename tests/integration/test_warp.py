@@ -230,8 +230,8 @@ def test_extreme_local_fov_covers_and_fills(warp_renderer, method, local_fov):
     """A 90° GI map seen through a 1° zoom (one texel spans ~115 pixels) and a 170° wide angle (the map
     covers the middle 9 % of the width), from the GI camera's own position and direction.
 
-    Every surface pixel whose centre ray meets the map gets it (pixel-level used to cap the splat at 4
-    pixels and return a black frame here); elsewhere the fill stays within the map's range. Values: the
+    Every surface pixel whose centre ray meets the map gets it (a splat capped at a few pixels would
+    leave a black frame here); elsewhere the fill stays within the map's range. Values: the
     structure-aware lookup is bilinear at the ray's texel coordinates; a pixel-level pixel holds a texel
     it covers (at 1°: the texel its centre ray meets, up to a one-pixel seam; at 170°: one of the ~11 x 11
     texels inside it)."""
