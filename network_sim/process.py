@@ -77,3 +77,11 @@ class Running:
 def network_sim(*args: str, timeout: float = 30.0) -> Running:
     """``network-sim ARGS...`` with this interpreter, started and listening."""
     return Running([sys.executable, "-m", "network_sim", *args], timeout)
+
+
+def proxy(upstream: tuple[str, int], *args: str, timeout: float = 30.0) -> Running:
+    """``network-sim proxy --upstream HOST:PORT ARGS...``, started, listening, its clock-origin line read."""
+    host, port = upstream
+    running = network_sim("proxy", "--upstream", f"{host}:{port}", *args, timeout=timeout)
+    running.readline(timeout)
+    return running

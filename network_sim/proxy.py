@@ -1,38 +1,17 @@
-"""The link-emulating TCP proxy: every byte between a client and its upstream crosses :mod:`network_sim.link`.
+"""The link-emulating TCP proxy: every byte between a client and its upstream crosses :mod:`network_sim.link`
+(docs/architecture.md, Proxy).
 
-One asyncio event loop; per accepted client connection one upstream connection, TCP_NODELAY on both legs,
-and per direction a pipe that offers what it reads to the link model (:meth:`Stream.send`) and writes
-each chunk at the release time the model gave it. So the process does exactly what the model computes;
-what it actually did is in the optional per-chunk log (``sent_s`` next to ``release_s``).
-
-Rate, queue and delay are shared by the connections of a direction, as on one real bottleneck link (two
-concurrent downloads together get the configured rate; measured by the self-test); the shared queue
-serves chunks in the order they were read, without congestion control, so concurrent bulk senders are
-served in arrival order rather than in fair shares. Each connection has its own FIFO (a stream is never
-reordered), window and loss draws.
-
-Timing: each release is a ``loop.call_at`` on an absolute deadline (errors never accumulate), and the
-event loop waits with :class:`PreciseSelector`, whose timeouts have microsecond rather than epoll's
-millisecond resolution, so a timer fires within tens of microseconds of its deadline without busy-waiting
-(measured on the loaded 2-core machine, 5 ms delay probes: median excess 0.20 ms vs 0.48 ms with plain
-epoll, p95 0.43 vs 1.07 ms; the excess includes both loopback hops).
-
-Backpressure: a pipe stops reading its sender while the model has not admitted what it holds (queue or
-window full) or while the receiver's socket buffer is full; it never drops stream bytes.
-
-Connection cap: at most ``max_connections`` client connections at once (each holds two sockets); one
-more is closed as soon as it is accepted (the client sees the connection closed before any byte), and
-the refusals are reported on stderr at most once per 10 s, so a flood neither exhausts file descriptors
-nor grows the log. A connection that moved no byte either way for ``idle_timeout_s`` (and has none due in
-the link) is closed on both sides, so clients that hold sockets open (their upstream long gone, or a peer
-that vanished) give their slots back.
-
-SIGTERM/SIGINT: stop accepting, close every connection with FIN (bytes still inside the emulated link
-are discarded, as when a link goes down), write the log, exit 0.
-
-Not emulated: the TCP handshake (the kernel accepts the client at once, so a fresh connection's first
-request misses the one RTT a real path adds; clients that keep connections alive do not pay it anyway),
-congestion control (loss delays a stream but does not cut its rate), and loss bursts (Gilbert-Elliott).
+One asyncio event loop; per client connection one upstream connection, TCP_NODELAY on both legs, and per
+direction a pipe that offers what it reads to the link model (:meth:`Stream.send`) and writes each chunk at the
+release time the model gave it (``loop.call_at`` on absolute deadlines; :class:`PreciseSelector` waits with
+microsecond timeouts, so a timer fires within tens of microseconds without busy-waiting); the optional
+per-chunk log has ``sent_s`` next to ``release_s``. Rate, queue and delay are shared by a direction's
+connections, as on one bottleneck link; each connection has its own FIFO, window and loss draws. A pipe stops
+reading its sender while the model has not admitted what it holds or the receiver's buffer is full: it never
+drops stream bytes. At most ``max_connections`` client connections are kept (one more is closed on accept;
+refusals reported at most once per 10 s), and a connection that moved no byte for ``idle_timeout_s`` is closed
+on both sides, so held sockets give their slots back. SIGTERM/SIGINT: stop accepting, close every connection
+with FIN, write the log, exit 0. Not emulated: the TCP handshake, congestion control, loss bursts.
 """
 
 from __future__ import annotations
@@ -47,6 +26,8 @@ import signal
 import socket
 import sys
 from collections import deque
+from collections.abc import Iterator
+from contextlib import contextmanager, suppress
 from pathlib import Path
 from typing import TextIO
 
@@ -110,33 +91,39 @@ def new_event_loop() -> asyncio.AbstractEventLoop:
 
 
 class ChunkLog:
-    """The per-chunk CSV log: one row per chunk when it is written (or, at shutdown, never written)."""
+    """The per-chunk CSV log: one row per chunk when it is written (or, at shutdown, never written).
+
+    A log that cannot be written (a folder, no space, ``/dev/full``) raises :class:`UserError`: at once when
+    it is opened (the header is flushed), else from the row or the close that met the failure.
+    """
 
     def __init__(self, path: Path) -> None:
-        self._fh: TextIO = path.open("w", newline="")
-        self._writer = csv.writer(self._fh)
-        self._writer.writerow(LOG_COLUMNS)
+        self.path = path
+        with self._failing():
+            self._fh: TextIO = path.open("w", newline="")
+            self._writer = csv.writer(self._fh)
+            self._writer.writerow(LOG_COLUMNS)
+            self._fh.flush()
+
+    @contextmanager
+    def _failing(self) -> Iterator[None]:
+        try:
+            yield
+        except OSError as exc:
+            raise UserError(
+                f"--log {self.path} cannot be written ({exc.strerror or exc})", "give a writable file path"
+            ) from None
 
     def row(self, chunk: Chunk, sent: float | None) -> None:
         c = chunk
-        self._writer.writerow(
-            (
-                c.seq,
-                c.conn,
-                c.direction,
-                c.nbytes,
-                repr(c.arrival),
-                repr(c.admitted),
-                repr(c.finish),
-                repr(c.ready),
-                repr(c.release),
-                "" if sent is None else repr(sent),
-                repr(c.lost),
-            )
-        )
+        sent_s = "" if sent is None else repr(sent)
+        times = (c.arrival, c.admitted, c.finish, c.ready, c.release)
+        with self._failing():
+            self._writer.writerow((c.seq, c.conn, c.direction, c.nbytes, *map(repr, times), sent_s, repr(c.lost)))
 
     def close(self) -> None:
-        self._fh.close()
+        with self._failing():
+            self._fh.close()  # the file is closed even when the last flush fails
 
 
 class _Side(asyncio.Protocol):
@@ -411,6 +398,9 @@ class Proxy:
         self._refused_reported = 0
         self._report: asyncio.TimerHandle | None = None
         self.idle_timeout_s = idle_timeout_s
+        #: Set by SIGTERM/SIGINT or by a fatal error (then in :attr:`error`): the proxy shuts down.
+        self.stopped = asyncio.Event()
+        self.error: UserError | None = None
         self._idle_check = self.loop.call_later(idle_timeout_s / IDLE_CHECKS, self.close_idle)
 
     def now(self) -> float:
@@ -453,8 +443,16 @@ class Proxy:
         )
 
     def logged(self, chunk: Chunk, sent: float | None) -> None:
-        if self.log is not None:
+        """Log a chunk; a log that cannot be written any more stops the proxy with that error."""
+        if self.log is None:
+            return
+        try:
             self.log.row(chunk, sent)
+        except UserError as exc:
+            with suppress(UserError):  # closed now, so that the unwritable rest is not flushed again at exit
+                self.log.close()
+            self.log, self.error = None, exc
+            self.stopped.set()
 
     def connection_step(self, conn: _Connection) -> None:
         """Close a connection once both directions are finished."""
@@ -499,13 +497,13 @@ async def serve(
     max_connections: int = MAX_CONNECTIONS,
     idle_timeout_s: float = IDLE_TIMEOUT_S,
 ) -> None:
-    """Run the proxy until SIGTERM or SIGINT; prints ``listening on HOST:PORT`` first."""
+    """Run the proxy until SIGTERM or SIGINT (or until its log fails: that UserError is raised after the
+    shutdown); prints ``listening on HOST:PORT`` first."""
     loop = asyncio.get_running_loop()
     log = ChunkLog(log_path) if log_path is not None else None
     proxy = Proxy(config, upstream, log, connection_budget(max_connections), idle_timeout_s)
-    stop = asyncio.Event()
     for sig in (signal.SIGTERM, signal.SIGINT):  # before announcing the port: a signal right after it must stop cleanly
-        loop.add_signal_handler(sig, stop.set)
+        loop.add_signal_handler(sig, proxy.stopped.set)
     try:
         server = await loop.create_server(proxy.accept, listen[0], listen[1])
     except OSError as exc:
@@ -516,14 +514,19 @@ async def serve(
     print(f"listening on {host}:{port}", flush=True)
     print(f"clock origin {proxy.origin!r} (CLOCK_MONOTONIC s; log and trace times count from it)", flush=True)
     try:
-        await stop.wait()
+        await proxy.stopped.wait()
     finally:
         server.close()
         proxy.close_all()
         if proxy.refused > proxy._refused_reported:
             proxy.report_refusals()
-        if log is not None:
-            log.close()
+        if proxy.log is not None:
+            try:
+                proxy.log.close()
+            except UserError as exc:
+                proxy.error = exc
+    if proxy.error is not None:
+        raise proxy.error
 
 
 def run(

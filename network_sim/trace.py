@@ -7,13 +7,16 @@ packets in that millisecond. The trace repeats with a period equal to its last t
 does by default (``base_timestamp_ += schedule_.back()`` in Mahimahi's ``link_queue.cc``).
 
 Parsing follows ``mm-link``'s rules (no empty lines, non-decreasing, at least one line, last timestamp
-> 0) but every error names the file *and the line*.
+> 0) but every error names the file *and the line*. A file is ASCII text of at most :data:`MAX_BYTES`
+(:data:`MAX_LINES` lines, timestamps up to :data:`MAX_TIMESTAMP_MS`); anything else (``/dev/zero``, a
+binary file) is refused with one error line before it is held in memory whole.
 """
 
 from __future__ import annotations
 
 import bisect
 import math
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -21,6 +24,13 @@ from gicore.cli import UserError
 
 #: Bytes one delivery opportunity may carry (Mahimahi's ``PACKET_SIZE``, one MTU).
 OPPORTUNITY_BYTES = 1500
+#: Largest trace file read, bytes (Mahimahi's own cellular traces are under 2 MB).
+MAX_BYTES = 32 * 2**20
+#: Most lines (delivery opportunities per period) a trace may have.
+MAX_LINES = 4_000_000
+#: Largest timestamp, ms (11.6 days: a period longer than any run).
+MAX_TIMESTAMP_MS = 10**9
+_TIMESTAMP = re.compile(r"(-?)([0-9]+)")
 
 
 @dataclass(frozen=True)
@@ -45,11 +55,27 @@ class Trace:
         """Parse a Mahimahi trace file; a malformed one raises :class:`UserError` naming file and line."""
         path = Path(path)
         try:
-            text = path.read_text()
+            with path.open("rb") as fh:
+                data = fh.read(MAX_BYTES + 1)
         except OSError as exc:
             raise UserError(
                 f"trace {path} cannot be read ({exc.strerror})", "give an existing Mahimahi trace file"
             ) from exc
+        if len(data) > MAX_BYTES:
+            raise UserError(
+                f"trace {path} is larger than {MAX_BYTES // 2**20} MiB",
+                "give a Mahimahi trace file (text, one line per packet)",
+            )
+        if data.count(b"\n") > MAX_LINES:  # counted before the lines are split out and held
+            raise UserError(f"trace {path} has more than {MAX_LINES} lines", "give a shorter trace")
+        try:
+            text = data.decode("ascii")
+        except UnicodeDecodeError as exc:
+            line = data.count(b"\n", 0, exc.start) + 1
+            raise UserError(
+                f"trace {path} line {line}: byte 0x{data[exc.start]:02x} is not ASCII text",
+                "give a Mahimahi trace file (text, one whole number of milliseconds per line)",
+            ) from None
         return cls.from_ms(str(path), parse_lines(str(path), text.splitlines()))
 
     @property
@@ -95,14 +121,14 @@ def parse_lines(name: str, lines: list[str]) -> list[int]:
         line = raw.strip()
         if not line:
             raise UserError(f"trace {name} line {number} is empty", fix)
-        try:
-            value = int(line)
-        except ValueError:
-            raise UserError(
-                f"trace {name} line {number}: {line[:40]!r} is not a whole number of milliseconds", fix
-            ) from None
-        if value < 0:
-            raise UserError(f"trace {name} line {number}: timestamp {value} is negative", fix)
+        match = _TIMESTAMP.fullmatch(line)
+        if match is None:
+            raise UserError(f"trace {name} line {number}: {line[:40]!r} is not a whole number of milliseconds", fix)
+        if match[1]:
+            raise UserError(f"trace {name} line {number}: timestamp {line[:40]} is negative", fix)
+        if len(match[2]) > len(str(MAX_TIMESTAMP_MS)) or int(match[2]) > MAX_TIMESTAMP_MS:
+            raise UserError(f"trace {name} line {number}: timestamp {line[:40]} is above {MAX_TIMESTAMP_MS} ms", fix)
+        value = int(match[2])
         if ms and value < ms[-1]:
             raise UserError(
                 f"trace {name} line {number}: timestamp {value} is smaller than the line before ({ms[-1]})", fix

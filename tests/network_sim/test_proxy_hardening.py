@@ -5,28 +5,27 @@ from __future__ import annotations
 
 import socket
 import struct
+import sys
 import time
 from collections.abc import Iterator
+from pathlib import Path
 
 import pytest
 
+from gicore.cli import UserError
 from network_sim import endpoint
-from network_sim.process import Running, network_sim
+from network_sim.process import Running, network_sim, proxy
+from network_sim.trace import MAX_BYTES, MAX_LINES, Trace
+from tests.helpers.cli import assert_user_error
 
 TIMEOUT = 60.0
 
 
 @pytest.fixture(scope="module")
-def server() -> Iterator[Running]:
+def upstream() -> Iterator[tuple[str, int]]:
+    """The endpoint server's address."""
     with network_sim("server") as running:
-        yield running
-
-
-def proxy(server: Running, *args: str) -> Running:
-    host, port = server.addr
-    running = network_sim("proxy", "--upstream", f"{host}:{port}", *args)
-    running.readline(10.0)  # the clock-origin line
-    return running
+        yield running.addr
 
 
 def echoes(addr: tuple[str, int], payload: bytes = b"ping") -> bool:
@@ -49,10 +48,10 @@ def wait_closed(sock: socket.socket) -> None:
         pass
 
 
-def test_idle_sockets_give_their_slots_back(server: Running) -> None:
+def test_idle_sockets_give_their_slots_back(upstream: tuple[str, int]) -> None:
     """Sockets held open without a byte, both legs open or the upstream gone, fill the cap only until the
     idle timeout: then both legs are closed and new clients get through."""
-    with proxy(server, "--max-connections", "4", "--idle-timeout-s", "1") as p:
+    with proxy(upstream, "--max-connections", "4", "--idle-timeout-s", "1") as p:
         both_open = [endpoint.connect(p.addr, b"E", TIMEOUT) for _ in range(2)]
         upstream_gone = [endpoint.connect(p.addr, b"G", TIMEOUT) for _ in range(2)]
         for sock in upstream_gone:  # the source sends nothing and closes: the client keeps its socket
@@ -73,15 +72,78 @@ def test_idle_sockets_give_their_slots_back(server: Running) -> None:
             sock.close()
 
 
-def test_a_connection_that_moves_bytes_or_has_bytes_due_is_not_idle(server: Running) -> None:
+def test_a_connection_that_moves_bytes_or_has_bytes_due_is_not_idle(upstream: tuple[str, int]) -> None:
     """Echoes every 50 ms for 2.5 idle timeouts, and a round trip whose delay is 3 idle timeouts long,
     both come through whole."""
-    with proxy(server, "--idle-timeout-s", "2") as p:
+    with proxy(upstream, "--idle-timeout-s", "2") as p:
         with endpoint.connect(p.addr, b"E", TIMEOUT) as sock:
             end = time.monotonic() + 5.0
             while time.monotonic() < end:
                 sock.sendall(b"k")
                 assert endpoint.recv_exactly(sock, 1) == b"k"
                 time.sleep(0.05)
-    with proxy(server, "--idle-timeout-s", "0.5", "--delay-ms", "1500") as p:
+    with proxy(upstream, "--idle-timeout-s", "0.5", "--delay-ms", "1500") as p:
         assert echoes(p.addr, struct.pack("!Q", 7))
+
+
+# -- trace files: bounded, ASCII text, errors naming file and line ----------------------------------------------
+@pytest.mark.parametrize(
+    ("content", "line", "what"),
+    [
+        pytest.param(b"10\n20\n\x92\x00\xff\n", 3, "byte 0x92 is not ASCII text", id="binary"),
+        pytest.param("10\n20\n3é\n".encode(), 3, "byte 0xc3 is not ASCII text", id="utf8"),
+        pytest.param(b"10\n" + b"9" * 5000 + b"\n", 2, "is above 1000000000 ms", id="huge-timestamp"),
+        pytest.param(b"10\n1_000\n", 2, "is not a whole number", id="underscore"),
+        pytest.param(b"10\n+20\n", 2, "is not a whole number", id="plus-sign"),
+    ],
+)
+def test_a_bad_trace_file_is_one_error_naming_file_and_line(
+    tmp_path: Path, content: bytes, line: int, what: str
+) -> None:
+    path = tmp_path / "bad.trace"
+    path.write_bytes(content)
+    with pytest.raises(UserError) as err:
+        Trace.load(path)
+    assert f"trace {path} line {line}" in str(err.value) and what in str(err.value)
+
+
+def test_a_trace_is_read_bounded(tmp_path: Path) -> None:
+    with pytest.raises(UserError, match=f"trace /dev/zero is larger than {MAX_BYTES // 2**20} MiB"):
+        Trace.load("/dev/zero")  # endless: read no further than the bound
+    many = tmp_path / "many.trace"
+    many.write_bytes(b"1\n" * (MAX_LINES + 1))
+    with pytest.raises(UserError, match=f"has more than {MAX_LINES} lines"):
+        Trace.load(many)
+
+
+@pytest.mark.parametrize("flag", ["--trace-up", "--trace-down"])
+def test_the_proxy_refuses_an_endless_or_binary_trace_with_one_line(tmp_path: Path, flag: str) -> None:
+    (tmp_path / "bin.trace").write_bytes(bytes(range(256)))
+    for trace in ("/dev/zero", "bin.trace"):
+        assert_user_error(["network-sim", "proxy", "--upstream", "127.0.0.1:9", flag, trace], trace, tmp_path)
+
+
+# -- the per-chunk log -------------------------------------------------------------------------------------------
+def test_a_log_that_cannot_be_written_is_one_error_line(upstream: tuple[str, int], tmp_path: Path) -> None:
+    host, port = upstream
+    for log in ("/dev/full", str(tmp_path)):
+        line = assert_user_error(["network-sim", "proxy", "--upstream", f"{host}:{port}", "--log", log], log, tmp_path)
+        assert "cannot be written" in line
+
+
+def test_a_log_that_fails_mid_run_stops_the_proxy_with_one_error_line(
+    upstream: tuple[str, int], tmp_path: Path
+) -> None:
+    """A file-size limit (as a full disk) hit after the start: the proxy shuts down and says why, exit 2."""
+    host, port = upstream
+    log = tmp_path / "chunks.csv"
+    command = f"ulimit -f 16 && exec {sys.executable} -m network_sim proxy --upstream {host}:{port} --log {log}"
+    with Running(["bash", "-c", command], TIMEOUT) as p:
+        p.readline(TIMEOUT)
+        with pytest.raises(ConnectionError):
+            for _ in range(100):  # each echo logs ~30 rows of ~130 bytes: the 16 KiB limit comes within 5
+                endpoint.echo(p.addr, bytes(3_000_000), TIMEOUT)
+        status = p.proc.wait(TIMEOUT)
+        err = p.stderr()
+    assert status == 2, err
+    assert err.splitlines() == [f"error: --log {log} cannot be written (File too large): give a writable file path"]
