@@ -1,4 +1,4 @@
-"""The Web3D viewer (issue 24): GIGAN and cloud baking side by side in a browser.
+"""The Web3D viewer (docs/architecture.md, Web3D viewer): GIGAN and cloud baking side by side in a browser.
 
 - :mod:`web3d.export`: the scene's meshes, materials, WebGL2 shaders (``gicore.gl``'s GLSL, ported by its
   version line and precision qualifiers) and camera path as static files, plus the shipped ONNX model;
