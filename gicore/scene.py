@@ -20,24 +20,40 @@ import tomllib
 from pathlib import Path
 from typing import Annotated, Any, Literal, get_args
 
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, Strict, ValidationError, model_validator
 
 from gicore.anatomy import AnatomyKind
 from gicore.camera import FAR_MAX, NEAR_MIN
 from gicore.cli import RESOLUTION_MAX, RESOLUTION_MIN, UserError
 from gicore.mesh import load_mesh
+from gicore.options import SEED_MAX
 
 BUILTIN_DIR = Path(__file__).parent / "scenes"
-Vec3 = tuple[float, float, float]
-Unit = Annotated[float, Field(ge=0.0, le=1.0)]
-NAME_PATTERN = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+#: Every number of a spec has a finite range in which it means something physical, so that a typo (1e308, a
+#: negative seed) is refused naming its field instead of overflowing in the renderer. Scene units: the paper's
+#: objects are 1-1.5 tall; the renderer's ground plane and Cornell box span a few units.
+EXTENT = 1e3  # largest |coordinate| of a position or target, and largest object, light or orbit size
+MIN_SIZE = 1e-3  # smallest object height and orbit radius (below it a mesh's float32 vertices collapse)
+INTENSITY_MAX = 1e6  # a light 1e5 times the paper scenes' (8-12) is a typo
+PERIOD_MAX = 1e6  # frames of one light swing (a period under 1 frame is no motion one could see)
+NAME_MAX = 64  # characters of a scene or object name (it becomes a folder name)
+OBJECTS_MAX = 64  # objects in one spec (each is a mesh that the renderers and the viewer hold in memory)
+#: Numbers are strict: a quoted "1.5" or a boolean is refused rather than read as a number.
+Real = Annotated[float, Strict()]
+Coordinate = Annotated[Real, Field(ge=-EXTENT, le=EXTENT)]
+Vec3 = tuple[Coordinate, Coordinate, Coordinate]
+Unit = Annotated[Real, Field(ge=0.0, le=1.0)]
+Degrees = Annotated[Real, Field(ge=-360.0, le=360.0)]
+Period = Annotated[Real, Field(ge=1.0, le=PERIOD_MAX)]
+Seed = Annotated[int, Strict(), Field(ge=0, le=SEED_MAX)]
+NAME_PATTERN = re.compile(rf"[A-Za-z_][A-Za-z0-9_]{{0,{NAME_MAX - 1}}}")
 
 
 def _check_name(name: str) -> str:
     if not NAME_PATTERN.fullmatch(name):
         raise ValueError(
-            f"{name!r} is not a name: use a letter or _ followed by letters, digits or _"
-            " (it names a folder and a shape)"
+            f"{name[: NAME_MAX + 8]!r} is not a name: use a letter or _ followed by letters, digits or _,"
+            f" at most {NAME_MAX} in all (it names a folder and a shape)"
         )
     return name
 
@@ -68,13 +84,13 @@ class ObjectSpec(_Strict):
     name: Name
     anatomy: AnatomyKind | None = None
     mesh: Path | None = None
-    seed: int = 0
-    detail: float = Field(1.0, gt=0.0, le=4.0)
-    height: float = Field(1.0, gt=0.0)
+    seed: Seed = 0
+    detail: Real = Field(1.0, gt=0.0, le=4.0)
+    height: Real = Field(1.0, ge=MIN_SIZE, le=EXTENT)
     position: Vec3 = (0.0, 0.0, 0.0)
-    rotate_y: float = 0.0
+    rotate_y: Degrees = 0.0
     albedo: tuple[Unit, Unit, Unit] = (0.8, 0.35, 0.3)
-    roughness: float = Field(0.35, gt=0.0, le=1.0)
+    roughness: Real = Field(0.35, gt=0.0, le=1.0)
 
     @model_validator(mode="after")
     def _one_readable_source(self) -> ObjectSpec:
@@ -97,17 +113,10 @@ class LightSpec(_Strict):
     """
 
     position: Vec3
-    intensity: float = Field(gt=0.0)
-    size: float = Field(0.0, ge=0.0)
-    amplitude: tuple[float, float] = (0.0, 0.0)
-    period: tuple[float, float] = (200.0, 300.0)
-
-    @field_validator("period")
-    @classmethod
-    def _positive_period(cls, v: tuple[float, float]) -> tuple[float, float]:
-        if min(v) <= 0:
-            raise ValueError("periods must be > 0 frames")
-        return v
+    intensity: Real = Field(gt=0.0, le=INTENSITY_MAX)
+    size: Real = Field(0.0, ge=0.0, le=EXTENT)
+    amplitude: tuple[Coordinate, Coordinate] = (0.0, 0.0)
+    period: tuple[Period, Period] = (200.0, 300.0)
 
     @property
     def moves(self) -> bool:
@@ -121,16 +130,16 @@ class CameraPathSpec(_Strict):
     """
 
     target: Vec3 = (0.0, 0.5, 0.0)
-    radius: float = Field(2.4, gt=0.0)
-    height: float = 1.2
-    azimuth_center: float = 0.0
-    azimuth_range: float = Field(360.0, gt=0.0, le=360.0)
-    wobble: float = Field(0.15, ge=0.0, lt=1.0)
-    local_fov: float = Field(60.0, gt=0.0, lt=180.0)
-    gi_fov: float = Field(90.0, gt=0.0, lt=180.0)
+    radius: Real = Field(2.4, ge=MIN_SIZE, le=EXTENT)
+    height: Coordinate = 1.2
+    azimuth_center: Degrees = 0.0
+    azimuth_range: Real = Field(360.0, gt=0.0, le=360.0)
+    wobble: Real = Field(0.15, ge=0.0, lt=1.0)
+    local_fov: Real = Field(60.0, gt=0.0, lt=180.0)
+    gi_fov: Real = Field(90.0, gt=0.0, lt=180.0)
     #: Clip distances; the renderer represents [gicore.camera.NEAR_MIN, FAR_MAX] (measured, see there).
-    near: float = 0.01
-    far: float = 100.0
+    near: Real = 0.01
+    far: Real = 100.0
 
     @model_validator(mode="after")
     def _near_far(self) -> CameraPathSpec:
@@ -146,11 +155,11 @@ class SceneSpec(_Strict):
     """A whole scene; see the module docstring."""
 
     name: Name
-    objects: list[ObjectSpec] = Field(min_length=1)
+    objects: list[ObjectSpec] = Field(min_length=1, max_length=OBJECTS_MAX)
     environment: Literal["white_plane", "cornell_box", "none"] = "white_plane"
     light: LightSpec
     camera: CameraPathSpec = CameraPathSpec()
-    resolution: int = Field(256, ge=RESOLUTION_MIN, le=RESOLUTION_MAX)
+    resolution: Annotated[int, Strict()] = Field(256, ge=RESOLUTION_MIN, le=RESOLUTION_MAX)
 
     @model_validator(mode="after")
     def _unique_names(self) -> SceneSpec:
