@@ -1,42 +1,16 @@
-"""The GI tree: a persistent store of baked GI maps keyed by scene, light cell and viewpoint (SPEC §6).
+"""The GI tree: a persistent store of baked GI maps keyed by scene, light cell and viewpoint
+(docs/architecture.md, GI tree).
 
-After the sprite tree of cloud baking: per scene, a light level only when the scene's light moves
-(maps rendered with the light in the same cell of side ``light_cell_size`` are interchangeable), then
-viewpoints (eye position, unit view direction). Maps of different formats (resolution, GI-camera FOV,
-codec, spp) never stand in for each other; a map that carries the GI view's DI also serves a request
-that does not need it. A lookup returns the nearest stored map within a :class:`Tolerance` (eye
-distance Δp and view-direction angle Δθ, both must hold) or a miss; the client warps what it gets.
-
-Storage, under one folder::
-
-    index.sqlite            entries, per-(scene, codec) byte accounting, scenes (WAL)
-    payloads/ab/<sha256>.gim  one payload file per entry, named by the SHA-256 of its bytes
-    index.lock              flock: exclusive while sweeping at open, shared while open
-
-Crash safety: a payload is written to a temporary file, fsynced and renamed (:func:`atomic_write_bytes`)
-and only then indexed in one SQLite transaction, so an entry never points at a partial file. A kill -9
-can leave a temporary file or a complete but unindexed payload: the first process to open the store
-(nobody else holding it) sweeps both, and drops any entry whose file is missing or has the wrong size.
-
-Writes are transactions (``BEGIN IMMEDIATE`` ... ``COMMIT``) that roll back on any error, so one failed
-write never blocks the next. A write that fails for a reason outside the caller (no space left, a read-only
-or failing index or payload folder) raises :class:`StoreUnwritable`, one line naming the store and the real
-cause (SQLite's or the OS's), which stays its ``__cause__``; a failed insert removes the payload file it
-wrote, so a full disk leaves no orphan, and the hits it would have written wait for the next write. A
-store whose index cannot be written is refused when it is opened, before any work, with a
-:class:`gicore.cli.UserError`.
-
-Optional byte budget: an insert evicts least-recently-used entries (lookups count as use) until the
-payload bytes fit. Hit times and counts are buffered in memory and written with the next insert (or
-:meth:`GITree.flush`), so a cache hit does not write to SQLite.
-
-Lookups read no SQLite rows while the index is unchanged: the viewpoints of each key group looked up are kept
-in memory (:class:`_Views`, shared by all threads) with the index version they were read at, and after any
-commit to the index, by this process or another (``PRAGMA data_version`` of a connection that never writes), a
-group takes in the entries added since (by id), or is read again whole once entries were deleted (the
-``deletions`` count in ``meta``); payloads read are kept in an LRU of ``cache_bytes`` (content-addressed, so a
-kept payload is never stale). ``lookup(..., io=False)`` answers from memory alone or raises :class:`WouldBlock`,
-so a server can answer most hits on its event loop and send only the rest to a thread.
+A lookup returns the nearest stored map within a :class:`Tolerance` (eye distance and view angle, in the same
+light cell and map format) or a miss. Under one folder: ``index.sqlite`` (SQLite, WAL), one content-addressed
+payload file per entry (``payloads/ab/<sha256>.gim``) and ``index.lock``. A payload is written atomically and
+only then indexed, so a kill -9 leaves no torn entry (the next opener sweeps what it left); writes are
+transactions, and a write that fails for a reason outside the caller raises :class:`StoreUnwritable`. An
+optional byte budget evicts least-recently-used entries; hit counts are buffered and written with the next
+insert. A closed tree refuses every call with :class:`StoreClosed`, and :meth:`GITree.close` waits for an
+insert in progress. Lookups are answered from memory while the index is unchanged (``PRAGMA data_version``),
+and ``lookup(..., io=False)`` raises :class:`WouldBlock` rather than read a file, so a server answers most
+hits on its event loop.
 """
 
 from __future__ import annotations
@@ -69,6 +43,9 @@ READ_ONLY_TODO = "make it, its -wal and -shm files and the store folder writable
 DEFAULT_LIGHT_CELL = 0.25
 #: Default size of the in-memory LRU of payloads (bytes): a few hundred maps of 256² JPEG.
 DEFAULT_CACHE_BYTES = 64 << 20
+#: Default payload budget of a server's GI tree (bytes): tens of thousands of 256² maps, and a bound on what
+#: requests can make it write.
+DEFAULT_BUDGET_BYTES = 4 << 30
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS scenes(
     scene TEXT PRIMARY KEY,
@@ -99,6 +76,10 @@ CREATE TABLE IF NOT EXISTS usage(
 
 class StoreConflict(ValueError):
     """The store already holds a scene under another spec or light-cell size."""
+
+
+class StoreClosed(RuntimeError):
+    """A call on a :class:`GITree` after :meth:`GITree.close`: the tree does not reopen itself."""
 
 
 class WouldBlock(Exception):
@@ -423,6 +404,8 @@ class GITree:
         self._refresh_lock = threading.Lock()  # one thread reads a stale group; the others then find it fresh
         self._version_lock = threading.Lock()
         self._version_db: sqlite3.Connection | None = None
+        self._write_lock = threading.Lock()  # an insert, or close(): close never cuts an insert short
+        self._closed = False
         try:
             db = self._db()
             db.execute("PRAGMA journal_mode=WAL")
@@ -446,6 +429,7 @@ class GITree:
     def _db(self) -> sqlite3.Connection:
         db = getattr(self._local, "db", None)
         if db is None:
+            self._check_open()
             # autocommit mode: transactions are explicit BEGIN IMMEDIATE ... COMMIT
             db = sqlite3.connect(self.root / INDEX_NAME, timeout=30.0, isolation_level=None, check_same_thread=False)
             db.execute("PRAGMA synchronous=NORMAL")  # WAL: commits survive a killed process; payloads are fsynced
@@ -505,13 +489,22 @@ class GITree:
                 self._version_db.close()
                 self._version_db = None
 
+    def _check_open(self) -> None:
+        if self._closed:
+            raise StoreClosed(f"the GI tree at {self.root} is closed: open it again with GITree(...)")
+
     def close(self) -> None:
-        """Write buffered hit times and close every connection and the lock."""
-        try:
-            self.flush()
-        finally:
-            self._close_connections()
-            self._lock_file.close()
+        """Write buffered hit times and close every connection and the lock, after an insert in progress
+        on another thread; later calls raise :class:`StoreClosed`. Closing again does nothing."""
+        with self._write_lock:
+            if self._closed:
+                return
+            try:
+                self.flush()
+            finally:
+                self._closed = True
+                self._close_connections()
+                self._lock_file.close()
 
     def __enter__(self) -> Self:
         return self
@@ -593,6 +586,7 @@ class GITree:
     def index_version(self) -> int:
         """The index's version: it changes with every commit to it, from any connection of any process."""
         with self._version_lock:
+            self._check_open()
             if self._version_db is None:  # never writes, so every commit is another connection's
                 self._version_db = sqlite3.connect(self.root / INDEX_NAME, timeout=30.0, check_same_thread=False)
             return int(self._version_db.execute("PRAGMA data_version").fetchone()[0])
@@ -708,7 +702,8 @@ class GITree:
             kind = "a static light (no light level)" if cell_size is None else "a moving light (keys need a light cell)"
             raise ValueError(f"scene {key.scene!r} has {kind}; got light_cell={key.light_cell}")
         sha = payload_sha(payload)
-        with self._writing():
+        with self._write_lock, self._writing():
+            self._check_open()
             entry_id, evicted = self._insert(key, view, payload, sha)
         self._uncache(evicted)
         for old in evicted:  # after the commit: a kill before this leaves orphans, which are swept

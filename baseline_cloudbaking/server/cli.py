@@ -8,24 +8,33 @@ in the listen backlog until the app is ready. Options override ``CLOUDBAKING_*``
 Under load (:mod:`~baseline_cloudbaking.server.limits`): at most ``--miss-queue`` misses wait (then 503 +
 Retry-After), at most ``--max-connections`` connections stay open (the longest-idle one is closed for a
 new one), a connection idle for ``--idle-timeout-s`` (or trickling its request head that long) is closed,
-and repeated log lines are throttled.
+and repeated log lines are throttled. SIGTERM and SIGINT (Ctrl-C) stop it alike: no new connection is taken,
+the miss being rendered is finished, stored and answered within ``--graceful-timeout-s`` (waiting misses are
+answered 503 at once), the GI tree is closed, and the process exits 0 (:mod:`~baseline_cloudbaking.server.stop`).
 """
 
 from __future__ import annotations
 
+import re
 import socket
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 import typer
 
 from gicore.cli import UserError, entry_point, writable_dir
 from gicore.options import SPP, build_config, config_command, extra
 
+if TYPE_CHECKING:
+    import uvicorn
+    from fastapi import FastAPI
+
+    from baseline_cloudbaking.server.settings import Settings
+
 app = typer.Typer(add_completion=False, help=__doc__)
-#: Largest GI-tree budget, MiB (16 TiB).
+#: Largest GI-tree budget, MiB (16 TiB, the settings' limit).
 BUDGET_MB_MAX = 2.0**24
 
 
@@ -79,7 +88,7 @@ class ServeOptions:
     host: str = "127.0.0.1"
     #: TCP port; 0 picks a free one.
     port: int = field(default=8000, metadata={"min": 0, "max": 65535})
-    #: GI-tree byte budget in MiB (LRU eviction); absent: none.
+    #: GI-tree byte budget in MiB (LRU eviction); absent: CLOUDBAKING_BUDGET_BYTES or 4 GiB.
     budget_mb: float | None = field(default=None, metadata={"min": 0.001, "max": BUDGET_MB_MAX})
     #: Largest spp a request may ask for; absent: CLOUDBAKING_MAX_SPP or 256.
     max_spp: int | None = field(default=None, metadata=SPP)
@@ -89,47 +98,79 @@ class ServeOptions:
     max_connections: int | None = field(default=None, metadata={"min": 8, "max": 1_000_000})
     #: Seconds a connection may stay without a whole request head; absent: CLOUDBAKING_IDLE_TIMEOUT_S or 5.
     idle_timeout_s: float | None = field(default=None, metadata={"min": 0.01, "max": 3600.0})
+    #: Seconds the miss being rendered may take to finish once told to stop; absent: CLOUDBAKING_GRACEFUL_TIMEOUT_S
+    #: or 30.
+    graceful_timeout_s: float | None = field(default=None, metadata={"min": 0.01, "max": 3600.0})
     #: uvicorn log level.
     log_level: Literal[LOG_LEVELS] = "warning"  # type: ignore[valid-type]
 
 
-def serve(given: dict[str, Any], *, store: Path, scenes: Path | None) -> None:
-    """Serve GI maps over HTTP from the GI tree in --store."""
-    import uvicorn
+#: Settings that an option of the same name (``--miss-queue`` for ``miss_queue``) overrides.
+_SAME_NAME = ("max_spp", "miss_queue", "max_connections", "idle_timeout_s", "graceful_timeout_s")
+
+
+def load_settings(opts: ServeOptions, store: Path, scenes: Path | None) -> Settings:
+    """The settings: ``CLOUDBAKING_*`` variables, overridden by the options given; UserError naming the
+    option or variable of the first invalid one, or a variable that is no setting."""
     from pydantic import ValidationError
+    from pydantic_settings import SettingsError
 
-    from baseline_cloudbaking.server.app import create_app
-    from baseline_cloudbaking.server.limits import ConnectionLimits, capped_protocol, fd_budget, throttle_logs
-    from baseline_cloudbaking.server.settings import Settings
+    from baseline_cloudbaking.server.settings import Settings, check_environment, env_name
 
-    opts = build_config(ServeOptions, given)
-    writable_dir(store, name="--store")
-    if scenes is not None and not scenes.is_dir():
-        raise UserError(f"--scenes {scenes} is not a folder", "give a folder of scene spec files")
-    overrides = {
-        "store": store,
-        "scenes_dir": scenes,
-        "max_spp": opts.max_spp,
-        "budget_bytes": None if opts.budget_mb is None else max(1, round(opts.budget_mb * 2**20)),
-        "miss_queue": opts.miss_queue,
-        "max_connections": opts.max_connections,
-        "idle_timeout_s": opts.idle_timeout_s,
-    }
+    check_environment()
+    overrides = {name: getattr(opts, name) for name in _SAME_NAME}
+    overrides |= {"store": store, "scenes_dir": scenes}
+    overrides["budget_bytes"] = None if opts.budget_mb is None else max(1, round(opts.budget_mb * 2**20))
     try:
-        settings = Settings(**{k: v for k, v in overrides.items() if v is not None})
+        return Settings(**{k: v for k, v in overrides.items() if v is not None})
+    except SettingsError as exc:  # a variable of a list setting is not JSON
+        match = re.search(r'field "(\w+)"', str(exc))
+        name = env_name(match.group(1)) if match else "a CLOUDBAKING_* variable"
+        raise UserError(
+            f"{name} is not valid JSON", "give a JSON value, e.g. CLOUDBAKING_RESOLUTIONS='[64, 256]'"
+        ) from None
     except ValidationError as exc:
         err = exc.errors()[0]
         field_name = str(err["loc"][0])
         where = ".".join(map(str, err["loc"]))
-        option = {"store": "--store", "scenes_dir": "--scenes", "budget_bytes": "--budget-mb", "max_spp": "--max-spp"}
-        option |= {k: "--" + k.replace("_", "-") for k in ("miss_queue", "max_connections", "idle_timeout_s")}
-        env = f"CLOUDBAKING_{field_name.upper()}"
+        option = {"store": "--store", "scenes_dir": "--scenes", "budget_bytes": "--budget-mb"}
+        option |= {k: "--" + k.replace("_", "-") for k in _SAME_NAME}
+        env = env_name(field_name)
         source = f"{option[field_name]} or {env}" if field_name in option else env
         raise UserError(f"setting {where} (from {source}) is invalid: {err['msg']}", "fix its value") from None
-    sock = bind(opts.host, opts.port)
-    actual_host, actual_port = sock.getsockname()[:2]
-    shown = f"[{actual_host}]" if ":" in actual_host else actual_host
-    print(f"listening on http://{shown}:{actual_port}", flush=True)
+
+
+def serve(given: dict[str, Any], *, store: str, scenes: Path | None) -> None:
+    """Serve GI maps over HTTP from the GI tree in --store."""
+    from baseline_cloudbaking.server.stop import RequestedStop, StoppingServer
+
+    with RequestedStop() as stop:
+        opts = build_config(ServeOptions, given)
+        if not store.strip():  # Path("") is the working folder
+            raise UserError("--store is empty", "give the GI-tree folder, e.g. --store gi_store")
+        if scenes is not None and not scenes.is_dir():
+            raise UserError(f"--scenes {scenes} is not a folder", "give a folder of scene spec files")
+        settings = load_settings(opts, Path(store), scenes)
+        writable_dir(settings.store, name="--store")
+        sock = bind(opts.host, opts.port)
+        actual_host, actual_port = sock.getsockname()[:2]
+        shown = f"[{actual_host}]" if ":" in actual_host else actual_host
+        print(f"listening on http://{shown}:{actual_port}", flush=True)
+        app, config = server_config(settings, opts.log_level)
+        # The event loop, the hit threads and the miss thread share the GIL: a thread waiting for it waits up to
+        # the switch interval (5 ms by default) while another computes, which a hit would pay several times.
+        sys.setswitchinterval(SWITCH_INTERVAL_S)
+        stop.server = StoppingServer(config, app)
+        stop.server.run(sockets=[sock])
+
+
+def server_config(settings: Settings, log_level: str) -> tuple[FastAPI, uvicorn.Config]:
+    """The app for ``settings`` and uvicorn's configuration of it, held to the connection limits."""
+    import uvicorn
+
+    from baseline_cloudbaking.server.app import create_app
+    from baseline_cloudbaking.server.limits import ConnectionLimits, capped_protocol, fd_budget, throttle_logs
+
     max_connections, fd_limit = fd_budget(settings.max_connections)
     if max_connections < settings.max_connections:
         print(
@@ -145,17 +186,15 @@ def serve(given: dict[str, Any], *, store: Path, scenes: Path | None) -> None:
         app,
         http=capped_protocol(limits),
         loop=EVENT_LOOP,
-        log_level=opts.log_level,
-        timeout_graceful_shutdown=5,
+        log_level=log_level,
+        # after the service's own deadline, which answers a miss still rendering (stop.StoppingServer)
+        timeout_graceful_shutdown=settings.graceful_timeout_s + 1,
         timeout_keep_alive=settings.idle_timeout_s,  # type: ignore[arg-type]  # a float works: call_later
         h11_max_incomplete_event_size=settings.max_header_bytes,
         backlog=ACCEPT_BACKLOG,
     )
     throttle_logs()  # after uvicorn.Config, which configures logging
-    # The event loop, the hit threads and the miss thread share the GIL: a thread waiting for it waits up to
-    # the switch interval (5 ms by default) while another computes, which a hit would pay several times.
-    sys.setswitchinterval(SWITCH_INTERVAL_S)
-    uvicorn.Server(config).run(sockets=[sock])
+    return app, config
 
 
 config_command(
@@ -163,7 +202,7 @@ config_command(
     ServeOptions,
     serve,
     extras=[
-        extra("store", Annotated[Path, typer.Option("--store", help="GI-tree folder (created if missing)")]),
+        extra("store", Annotated[str, typer.Option("--store", help="GI-tree folder (created if missing)")]),
         extra(
             "scenes",
             Annotated[

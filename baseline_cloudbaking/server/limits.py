@@ -9,7 +9,8 @@ never sent a request (a flood of empty connections then never costs a working cl
 then the longest-idle kept-alive one; only when every connection is busy is the new one answered 503
 and closed.
 Every idle period (a fresh connection, or after a response) must end with a whole request head within
-``idle_timeout_s``, else the connection is closed.
+``idle_timeout_s``, else the connection is closed. A request head (request line and headers, each request of
+a pipeline on its own, never its body) larger than ``max_head_bytes`` is answered 431 and the connection closed.
 """
 
 from __future__ import annotations
@@ -145,11 +146,54 @@ def http_protocol() -> type[H11Protocol]:
     return HttpToolsProtocol  # type: ignore[return-value]
 
 
+#: What ends a request head.
+_HEAD_END = b"\r\n\r\n"
+
+
+def head_bytes(counted: int, was_in_head: bool, seen: bytes, received: int) -> int:
+    """Bytes of the request head still incomplete after a chunk of ``received`` bytes, ``seen`` being the chunk
+    with the 3 bytes before it, ``counted`` the head's bytes before it (``was_in_head``: a head was incomplete).
+    The incomplete head holds no head end, so it lies after the chunk's last one: counting from there counts at
+    most the bytes of a body that ends before it, never a whole earlier request."""
+    end = seen.rfind(_HEAD_END)
+    if end >= 0:
+        return len(seen) - end - len(_HEAD_END)
+    return (counted if was_in_head else 0) + received
+
+
 def capped_protocol(limits: ConnectionLimits, base: type[H11Protocol] | None = None) -> type[H11Protocol]:
     """uvicorn's protocol ``base`` (default :func:`http_protocol`) held to ``limits`` (pass it as
-    ``uvicorn.Config(http=...)``); both of uvicorn's protocols keep ``connections`` and ``cycle`` alike."""
+    ``uvicorn.Config(http=...)``); both of uvicorn's protocols keep ``connections`` and ``cycle`` alike. The head
+    limit is counted here for httptools, whose parser calls ``on_message_begin`` and ``on_headers_complete``
+    (it has no limit of its own); h11 keeps its own (``uvicorn.Config(h11_max_incomplete_event_size=...)``)."""
 
     class CappedProtocol(base or http_protocol()):  # type: ignore[misc, valid-type]
+        in_head = False  # a request head has begun and is not complete
+        head_bytes = 0  # of the head in progress, or of the whole head that was too large
+        tail = b""  # the last bytes received: a head end may straddle two chunks
+        refused = False  # a head was too large: nothing more of this connection is parsed
+
+        def on_message_begin(self) -> None:
+            self.in_head = True
+            super().on_message_begin()
+
+        def on_headers_complete(self) -> None:
+            """A whole head arrived: its size is its request line and headers, as parsed."""
+            self.in_head = False
+            size = len(self.url) + 16 + sum(len(name) + len(value) + 4 for name, value in self.headers)
+            if size > limits.max_head_bytes:  # not passed on to the app; answered 431 after this chunk
+                self.refused, self.head_bytes = True, size
+                return
+            super().on_headers_complete()
+
+        def on_body(self, body: bytes) -> None:
+            if not self.refused:
+                super().on_body(body)
+
+        def on_message_complete(self) -> None:
+            if not self.refused:
+                super().on_message_complete()
+
         def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
             super().connection_made(transport)
             over = limits.over(len(self.connections))
@@ -162,17 +206,21 @@ def capped_protocol(limits: ConnectionLimits, base: type[H11Protocol] | None = N
             limits.became_idle(self, fresh=True)
 
         def data_received(self, data: bytes) -> None:
-            if not busy(self):  # a request head is arriving: bounded (httptools itself has no limit)
-                self.head_bytes = getattr(self, "head_bytes", 0) + len(data)
-                if self.head_bytes > limits.max_head_bytes:
-                    msg = f"the request head exceeds {limits.max_head_bytes} bytes"
-                    self.transport.write(_answer("431 Request Header Fields Too Large", "headers", msg, "too_large"))
-                    limits.close(self, "heads_too_large")
-                    return
-            super().data_received(data)
+            if self.refused:
+                return
+            was_in_head, seen = self.in_head, self.tail + data
+            super().data_received(data)  # a chunk is at most the transport's read size
+            self.tail = seen[-(len(_HEAD_END) - 1) :]
+            if not self.refused:
+                self.head_bytes = head_bytes(self.head_bytes, was_in_head, seen, len(data)) if self.in_head else 0
+            if self.head_bytes > limits.max_head_bytes and not self.transport.is_closing():
+                self.refused = True
+                msg = f"the request head exceeds {limits.max_head_bytes} bytes"
+                self.transport.write(_answer("431 Request Header Fields Too Large", "headers", msg, "too_large"))
+                limits.close(self, "heads_too_large")
+                return
             if busy(self):
                 limits.forget(self)
-                self.head_bytes = 0
 
         def on_response_complete(self) -> None:
             super().on_response_complete()

@@ -1,9 +1,11 @@
 """Request and response models of the HTTP API (pydantic only; the routers attach them to FastAPI).
 
 Every field is bounded and finite (``allow_inf_nan=False``; JSON's ``NaN``/``Infinity`` and overflowing
-literals such as ``1e999`` are rejected), unknown fields are refused, so a bad request is a 422 whose
-``detail[].loc`` names the field. Bounds that depend on the server's settings (served resolutions, the
-spp limit) and on the scene (a static light) are checked by the service with the same error shape.
+literals such as ``1e999`` are rejected), of its JSON type without coercion (strict: ``"spp": "4"`` and
+``"resolution": true`` are refused, an integer serves for a float), unknown fields are refused, so a bad request
+is a 422 whose ``detail[].loc`` names the field. Bounds that depend on the server's settings (served
+resolutions, the spp limit) and on the scene (its light range) are checked by the service with the same error
+shape.
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ from gicore.camera import Camera
 #: Largest |coordinate| of a camera or light position: far beyond any scene, small enough that the
 #: camera matrices stay finite.
 MAX_COORD = 1e4
-Coord = Annotated[float, Field(ge=-MAX_COORD, le=MAX_COORD)]
+Coord = Annotated[float, Field(ge=-MAX_COORD, le=MAX_COORD, strict=True)]
 Vec3 = tuple[Coord, Coord, Coord]
 CodecName = Literal[CODEC_NAMES]  # type: ignore[valid-type]
 
@@ -34,7 +36,7 @@ class GICameraIn(_Strict):
     eye: Vec3 = Field(description="camera position, scene units")
     target: Vec3 = Field(description="point looked at")
     up: Vec3 = Field((0.0, 1.0, 0.0), description="up vector (not parallel to target - eye)")
-    fov: float = Field(90.0, ge=1.0, le=170.0, description="horizontal field of view, degrees (paper: 90)")
+    fov: float = Field(90.0, ge=1.0, le=170.0, strict=True, description="horizontal field of view, degrees (paper: 90)")
 
     @model_validator(mode="after")
     def _not_degenerate(self) -> GICameraIn:
@@ -50,18 +52,26 @@ class GIMapRequest(_Strict):
     )
     camera: GICameraIn
     light: Vec3 | None = Field(
-        None, description="light position; omit for the scene's rest position (a static light must be omitted)"
+        None,
+        description="light position within the scene's light range (GET /v1/scenes: light_min to light_max, "
+        "± light_cell); omit for the scene's rest position (a static light must be omitted)",
     )
-    resolution: int = Field(256, description="square map size; one of the server's resolutions (GET /v1/scenes)")
+    resolution: int = Field(
+        256, strict=True, description="square map size; one of the server's resolutions (GET /v1/scenes)"
+    )
     codec: CodecName = Field(DEFAULT_CODEC, description=f"GI-map codec, one of {', '.join(CODEC_NAMES)}")
-    spp: int = Field(64, ge=1, description="path-tracing samples per pixel (bounded by the server's max_spp)")
-    di: bool = Field(False, description="also send the DI of the GI view (the residual composition needs it)")
+    spp: int = Field(
+        64, ge=1, strict=True, description="path-tracing samples per pixel (bounded by the server's max_spp)"
+    )
+    di: bool = Field(
+        False, strict=True, description="also send the DI of the GI view (the residual composition needs it)"
+    )
 
 
 class Health(BaseModel):
     status: Literal["ok"] = "ok"
     version: str
-    store: str
+    store: str = Field(description="the GI tree's folder name (no path: responses reveal no file-system layout)")
 
 
 class SceneInfo(BaseModel):
@@ -74,7 +84,8 @@ class SceneInfo(BaseModel):
     light_min: tuple[float, float, float]
     light_max: tuple[float, float, float]
     light_cell: float | None = Field(
-        description="light-cell side of GI-tree keys; null for a static light (no light level)"
+        description="light-cell side of GI-tree keys, and how far beyond light_min/light_max a requested light "
+        "may be; null for a static light (no light level)"
     )
     camera_target: tuple[float, float, float]
     camera_radius: tuple[float, float]

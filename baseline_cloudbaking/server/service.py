@@ -9,7 +9,10 @@ even across scenes: two threads rendering two different scenes fail inside Dr.Ji
 incompatible sizes", measured), and a render already uses every core. The queue is bounded: a miss beyond it
 is refused at once (:class:`QueueFull`, answered 503 with Retry-After) instead of waiting without limit; a
 queued miss whose client has gone is dropped before it renders. A miss re-checks the tree when its turn comes, so
-concurrent identical misses bake once.
+concurrent identical misses bake once. Told to stop (:meth:`MapService.stop`), the queue answers waiting and new
+misses :class:`ServerStopping` at once and lets the miss being rendered finish, be stored and answered within
+the graceful timeout; one still rendering then is answered ServerStopping and abandoned (a render cannot be cut
+short; its map is not stored).
 """
 
 from __future__ import annotations
@@ -39,6 +42,7 @@ from baseline_cloudbaking.store import (
     GITree,
     MapKey,
     StoreConflict,
+    Vec3,
     Viewpoint,
     WouldBlock,
     light_cell,
@@ -67,6 +71,16 @@ class ClientGone(Exception):
     """The client disconnected while its miss waited."""
 
 
+class ServerStopping(Exception):
+    """The server is stopping: this miss was not rendered, or not finished within the graceful timeout."""
+
+    #: Seconds a client should wait before asking again (a restarted server takes a few to start).
+    retry_after_s = 5
+
+    def __init__(self) -> None:
+        super().__init__(f"the server is stopping and did not make this map; retry after {self.retry_after_s} s")
+
+
 #: Niceness of the miss thread, and so of the render threads Dr.Jit starts from it (a new thread takes its
 #: creator's): renders use every core, and at equal priority hits waited for CPU behind them.
 MISS_NICENESS = 10
@@ -81,7 +95,8 @@ def _lower_priority() -> None:
 class MissQueue:
     """Misses run one at a time on their own thread; at most ``capacity`` more wait. ``run`` refuses a miss
     beyond that (QueueFull, with a Retry-After estimated from recent miss times) and drops a waiting miss
-    whose client went away (ClientGone; a miss already rendering finishes and is stored)."""
+    whose client went away (ClientGone; a miss already rendering finishes and is stored). After :meth:`stop`
+    every miss but the one rendering is refused (ServerStopping)."""
 
     def __init__(self, capacity: int) -> None:
         self.capacity = capacity
@@ -89,11 +104,25 @@ class MissQueue:
         self._lock = threading.Lock()
         self._pending = 0  # admitted and not finished: waiting + rendering
         self._recent_s: deque[float] = deque(maxlen=16)  # the last misses' times on the thread
+        self._stopped = False
+        self._deadline = asyncio.Event()  # set when the graceful timeout after stop() has passed
         self.counters = {"misses_refused": 0, "misses_dropped": 0}
 
     @property
     def pending(self) -> int:
         return self._pending
+
+    @property
+    def abandoned(self) -> bool:
+        """A render still runs after the graceful timeout (its map will not be stored)."""
+        return self._deadline.is_set() and self._pending > 0
+
+    def stop(self, grace_s: float) -> None:
+        """On the event loop: refuse new misses, drop the waiting ones, give the one rendering ``grace_s``."""
+        with self._lock:
+            self._stopped = True
+        self._executor.shutdown(wait=False, cancel_futures=True)
+        asyncio.get_running_loop().call_later(grace_s, self._deadline.set)
 
     def retry_after_s(self) -> int:
         """Seconds until the misses now admitted have likely run, at the median of the recent miss times (a
@@ -104,6 +133,8 @@ class MissQueue:
     async def run(self, fn: Callable[[], T], gone: Callable[[], Awaitable[None]]) -> T:
         """``fn()`` on the miss thread, or QueueFull / ClientGone (when ``gone()`` finishes first)."""
         with self._lock:
+            if self._stopped:
+                raise ServerStopping
             if self._pending > self.capacity:  # one rendering + capacity waiting
                 self.counters["misses_refused"] += 1
                 raise QueueFull(self.retry_after_s())
@@ -111,13 +142,19 @@ class MissQueue:
         future = self._executor.submit(self._timed, fn)
         future.add_done_callback(self._finished)
         result = asyncio.wrap_future(future)
-        watcher = asyncio.ensure_future(gone())
+        watchers = (asyncio.ensure_future(gone()), asyncio.ensure_future(self._deadline.wait()))
         try:
-            await asyncio.wait((result, watcher), return_when=asyncio.FIRST_COMPLETED)
+            await asyncio.wait((result, *watchers), return_when=asyncio.FIRST_COMPLETED)
         finally:
-            watcher.cancel()
+            for watcher in watchers:
+                watcher.cancel()
         if result.done():
+            if result.cancelled():  # dropped by stop() before its turn
+                raise ServerStopping
             return result.result()
+        if self._deadline.is_set():  # still rendering at the graceful timeout: answered now, abandoned
+            result.cancel()
+            raise ServerStopping
         if future.cancel():
             with self._lock:
                 self.counters["misses_dropped"] += 1
@@ -137,7 +174,8 @@ class MissQueue:
             self._pending -= 1
 
     def close(self) -> None:
-        self._executor.shutdown(wait=True, cancel_futures=True)
+        """Wait for the miss being rendered, unless it was abandoned; drop those waiting."""
+        self._executor.shutdown(wait=not self.abandoned, cancel_futures=True)
 
 
 @dataclass(frozen=True)
@@ -180,6 +218,13 @@ class FieldError(ValueError):
         self.field = field
         self.message = message
         self.status = status
+
+
+def light_range(spec: SceneSpec) -> tuple[Vec3, Vec3]:
+    """Corners of the box the light of ``spec`` sweeps: rest ± amplitude in x and y (the rest point for a
+    static light)."""
+    (x, y, z), (ax, ay) = spec.light.position, spec.light.amplitude
+    return (x - abs(ax), y - abs(ay), z), (x + abs(ax), y + abs(ay), z)
 
 
 def _ms(t0: float) -> float:
@@ -265,12 +310,24 @@ class MapService:
         if req.spp > s.max_spp:
             raise FieldError("spp", f"{req.spp} exceeds this server's max_spp {s.max_spp}")
 
-    def _light(self, req: GIMapRequest, spec: SceneSpec) -> tuple[float, float, float]:
+    def _light(self, req: GIMapRequest, spec: SceneSpec) -> Vec3:
+        """The request's light: the rest position when omitted; else within the box the scene's light sweeps,
+        widened by a light cell (a cell the sweep touches), so that requests cannot fill the GI tree with
+        lights the scene never has."""
         rest = tuple(spec.light.position)
         if req.light is None:
             return rest
-        if not spec.light.moves and math.dist(req.light, rest) > 1e-6:
-            raise FieldError("light", f"scene {req.scene!r} has a static light at {list(rest)}; omit light")
+        if not spec.light.moves:
+            if math.dist(req.light, rest) > 1e-6:
+                raise FieldError("light", f"scene {req.scene!r} has a static light at {list(rest)}; omit light")
+            return tuple(req.light)
+        low, high = light_range(spec)
+        margin = self.settings.light_cell
+        if not all(lo - margin <= v <= hi + margin for v, lo, hi in zip(req.light, low, high, strict=True)):
+            box = " to ".join(str([round(c, 4) for c in corner]) for corner in (low, high))
+            raise FieldError(
+                "light", f"{list(req.light)} is outside the light range of scene {req.scene!r}: {box}, ± {margin:g}"
+            )
         return tuple(req.light)
 
     def prepare(self, req: GIMapRequest, io: bool = True) -> Prepared:
@@ -358,6 +415,10 @@ class MapService:
         }
         extra = {"hit": False, "distance": {"position": 0.0, "angle_deg": 0.0}, "timings_ms": timings}
         return Served(with_header(payload, extra), False, payload_sha(payload))
+
+    def stop(self) -> None:
+        """On the event loop, when the server is told to stop: see :meth:`MissQueue.stop`."""
+        self.misses.stop(self.settings.graceful_timeout_s)
 
     def close(self) -> None:
         self.misses.close()

@@ -1,8 +1,11 @@
 """Server settings: environment variables prefixed ``CLOUDBAKING_`` (e.g. ``CLOUDBAKING_STORE=/data/gi``),
-overridden by ``cloudbaking-server`` options."""
+overridden by ``cloudbaking-server`` options. A ``CLOUDBAKING_*`` variable that names no setting is refused
+(:func:`check_environment`): a typo would otherwise leave the default in force without a word."""
 
 from __future__ import annotations
 
+import os
+from collections.abc import Mapping
 from functools import lru_cache
 from pathlib import Path
 from typing import Annotated
@@ -10,8 +13,13 @@ from typing import Annotated
 from pydantic import Field, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
-from baseline_cloudbaking.store import DEFAULT_LIGHT_CELL, Tolerance
+from baseline_cloudbaking.store import DEFAULT_BUDGET_BYTES, DEFAULT_LIGHT_CELL, Tolerance
+from gicore.cli import UserError
 from gicore.options import RESOLUTION_MAX, RESOLUTION_MIN, SPP_MAX
+
+ENV_PREFIX = "CLOUDBAKING_"
+#: Largest GI-tree budget, bytes (16 TiB).
+BUDGET_BYTES_MAX = 1 << 44
 
 #: A square map resolution the server may serve (the one limit of every run, :mod:`gicore.options`).
 ServedResolution = Annotated[int, Field(ge=RESOLUTION_MIN, le=RESOLUTION_MAX)]
@@ -20,12 +28,15 @@ ServedResolution = Annotated[int, Field(ge=RESOLUTION_MIN, le=RESOLUTION_MAX)]
 class Settings(BaseSettings):
     """Everything the server process needs; immutable once the app is created."""
 
-    model_config = SettingsConfigDict(env_prefix="CLOUDBAKING_", frozen=True, extra="forbid")
+    model_config = SettingsConfigDict(env_prefix=ENV_PREFIX, frozen=True, extra="forbid")
 
     store: Path = Field(Path("gi_store"), description="GI-tree folder (created if missing)")
     scenes_dir: Path | None = Field(None, description="extra scene specs (*.toml, *.json) served by file stem")
-    budget_bytes: int | None = Field(
-        None, gt=0, description="payload byte budget of the GI tree (LRU eviction); None: unbounded"
+    budget_bytes: int = Field(
+        DEFAULT_BUDGET_BYTES,
+        gt=0,
+        le=BUDGET_BYTES_MAX,
+        description="payload byte budget of the GI tree (least recently used maps are evicted beyond it)",
     )
     tolerance_position: float = Field(
         Tolerance.position,
@@ -71,6 +82,14 @@ class Settings(BaseSettings):
         allow_inf_nan=False,
         description="a connection without a whole request head for this long is closed (keep-alive, slow headers)",
     )
+    graceful_timeout_s: float = Field(
+        30.0,
+        gt=0.0,
+        le=3600.0,
+        allow_inf_nan=False,
+        description="on SIGTERM or SIGINT, how long the miss being rendered may take to finish, be stored and "
+        "answered (misses still waiting are answered 503 at once)",
+    )
     body_timeout_s: float = Field(
         10.0, gt=0.0, le=3600.0, allow_inf_nan=False, description="a request body not complete in this time gets 408"
     )
@@ -93,6 +112,19 @@ class Settings(BaseSettings):
     @property
     def tolerance(self) -> Tolerance:
         return Tolerance(self.tolerance_position, self.tolerance_angle_deg)
+
+
+def env_name(field: str) -> str:
+    """The environment variable of setting ``field``."""
+    return f"{ENV_PREFIX}{field.upper()}"
+
+
+def check_environment(environ: Mapping[str, str] = os.environ) -> None:
+    """UserError naming the first ``CLOUDBAKING_*`` variable that is no setting, with the valid names."""
+    valid = sorted(env_name(name) for name in Settings.model_fields)
+    for name in sorted(environ):
+        if name.upper().startswith(ENV_PREFIX) and name.upper() not in valid:
+            raise UserError(f"environment variable {name} is not a setting", f"unset it; valid: {', '.join(valid)}")
 
 
 @lru_cache

@@ -9,7 +9,7 @@ from baseline_cloudbaking.server import errors
 from baseline_cloudbaking.server.deps import ServiceDep
 from baseline_cloudbaking.server.routers.maps import map_path
 from baseline_cloudbaking.server.schemas import GIMapRequest
-from baseline_cloudbaking.server.service import ClientGone, QueueFull
+from baseline_cloudbaking.server.service import ClientGone, QueueFull, ServerStopping
 
 router = APIRouter(prefix="/v1", tags=["gimap"])
 
@@ -45,12 +45,14 @@ async def get_gimap(body: GIMapRequest, request: Request, service: ServiceDep) -
     stored and returned (a miss). A hit the GI tree answers from memory is served on the event loop, others on
     the hit threads (they read the index or a file); a miss waits in the bounded miss queue for the one render
     thread (503 + Retry-After when the queue is full; dropped if the client
-    leaves before its turn)."""
+    leaves before its turn); once the server is told to stop, misses but the one rendering get 503."""
     try:
         served = await service.answer(body, lambda: _gone(request))
     except ClientGone:
         return Response(status_code=499)  # nginx's "client closed request": nobody reads it
     except QueueFull as exc:  # answered here, not by an exception handler: a burst of misses is cheaper
         return errors.queue_full(exc)
+    except ServerStopping as exc:
+        return errors.stopping(exc)
     headers = {"X-GIMap-Hit": "1" if served.hit else "0", "Content-Location": map_path(served.sha)}
     return Response(content=served.payload, media_type=MEDIA_TYPE, headers=headers)

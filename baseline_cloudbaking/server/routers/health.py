@@ -14,4 +14,4 @@ router = APIRouter(prefix="/v1", tags=["health"])
 
 @router.get("/health", response_model=Health, summary="liveness")
 async def health(settings: SettingsDep) -> Health:
-    return Health(version=metadata.version("gigan-testbed"), store=str(settings.store))
+    return Health(version=metadata.version("gigan-testbed"), store=settings.store.resolve().name)

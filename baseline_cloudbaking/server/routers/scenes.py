@@ -6,7 +6,9 @@ from fastapi import APIRouter
 
 from baseline_cloudbaking.codecs import CODEC_NAMES
 from baseline_cloudbaking.server.deps import ServiceDep, SettingsDep
+from baseline_cloudbaking.server.errors import public_roots, redact
 from baseline_cloudbaking.server.schemas import SceneInfo, ScenesOut
+from baseline_cloudbaking.server.service import light_range
 from gicore.scene import SceneSpec, SceneSpecError
 
 router = APIRouter(prefix="/v1", tags=["scenes"])
@@ -16,7 +18,7 @@ def scene_info(name: str, spec: SceneSpec, light_cell: float | None) -> SceneInf
     """Ranges of ``spec``: the light sweeps rest ± amplitude in x and y; the camera orbits ``target`` at a
     radius and height wobbling by ± ``wobble``, over the azimuth arc (the whole circle when 360°)."""
     light, cam = spec.light, spec.camera
-    (x, y, z), (ax, ay) = light.position, light.amplitude
+    light_min, light_max = light_range(spec)
     if cam.azimuth_range >= 360.0:
         azimuth = (0.0, 360.0)
     else:
@@ -25,9 +27,9 @@ def scene_info(name: str, spec: SceneSpec, light_cell: float | None) -> SceneInf
         name=name,
         environment=spec.environment,
         light_moves=light.moves,
-        light_rest=(x, y, z),
-        light_min=(x - abs(ax), y - abs(ay), z),
-        light_max=(x + abs(ax), y + abs(ay), z),
+        light_rest=light.position,
+        light_min=light_min,
+        light_max=light_max,
         light_cell=light_cell,
         camera_target=cam.target,
         camera_radius=(cam.radius * (1 - cam.wobble), cam.radius * (1 + cam.wobble)),
@@ -47,7 +49,7 @@ def scenes(service: ServiceDep, settings: SettingsDep) -> ScenesOut:
         try:
             spec = service.catalog.get(name)
         except SceneSpecError as exc:
-            invalid[name] = str(exc)
+            invalid[name] = redact(str(exc), public_roots(settings))
             continue
         infos.append(scene_info(name, spec, service.light_cell_size(spec)))
     return ScenesOut(

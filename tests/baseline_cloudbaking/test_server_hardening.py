@@ -1,0 +1,196 @@
+"""cloudbaking-server against an attacker's inputs: request heads counted alone (pipelines answered, a large
+body 413, a large head 431), settings and environment refused in one line, coerced JSON refused, lights kept
+to the scene's range, a bounded GI tree by default, and no absolute path in any answer."""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+import subprocess
+import time
+from pathlib import Path
+
+import httpx
+import pytest
+from fastapi.testclient import TestClient
+
+from baseline_cloudbaking.server.app import create_app
+from baseline_cloudbaking.server.errors import redact
+from baseline_cloudbaking.server.settings import Settings
+from baseline_cloudbaking.store import DEFAULT_BUDGET_BYTES, GITree
+from tests.helpers.cli import assert_error_line, check_user_error, run_script
+from tests.helpers.cloud import BIN, gimap_body, server_process, write_scenes
+
+TIMEOUT_S = 60.0
+
+
+@pytest.fixture(scope="module")
+def scenes_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return write_scenes(tmp_path_factory.mktemp("hardening_scenes"))
+
+
+def read_until_closed(sock: socket.socket) -> bytes:
+    sock.settimeout(TIMEOUT_S)
+    chunks = []
+    while chunk := sock.recv(1 << 16):
+        chunks.append(chunk)
+    return b"".join(chunks)
+
+
+HEALTH = b"GET /v1/health HTTP/1.1\r\nhost: x\r\n\r\n"
+
+
+def test_only_the_bytes_of_one_request_head_count_against_the_head_limit(tmp_path: Path, scenes_dir: Path) -> None:
+    with server_process(tmp_path / "store", scenes_dir) as url:
+        address = url.removeprefix("http://").split(":")
+        address = (address[0], int(address[1]))
+        with socket.create_connection(address, timeout=TIMEOUT_S) as sock:  # 500 pipelined heads: 18 KiB in all
+            sock.sendall(HEALTH * 500 + HEALTH.replace(b"\r\n\r\n", b"\r\nconnection: close\r\n\r\n"))
+            answers = read_until_closed(sock)
+        assert answers.count(b"HTTP/1.1 200") == 501 and b"HTTP/1.1 431" not in answers
+        with socket.create_connection(address, timeout=TIMEOUT_S) as sock:  # a 1 MiB body: too large a body
+            body = b"x" * (1 << 20)
+            head = (
+                f"POST /v1/gimap HTTP/1.1\r\nhost: x\r\ncontent-type: application/json\r\ncontent-length: {len(body)}"
+            )
+            sock.sendall(head.encode() + b"\r\n\r\n")
+            try:
+                sock.sendall(body)
+            except OSError:
+                pass  # the server answered and closed before reading it all
+            assert sock.recv(64).startswith(b"HTTP/1.1 413")
+        two_heads = HEALTH.replace(b"\r\n\r\n", b"\r\nx-pad: " + b"a" * 15_000 + b"\r\n\r\n") * 2
+        with socket.create_connection(address, timeout=TIMEOUT_S) as sock:  # two 15 KB heads, each within the limit
+            sock.sendall(two_heads + HEALTH.replace(b"\r\n\r\n", b"\r\nconnection: close\r\n\r\n"))
+            assert read_until_closed(sock).count(b"HTTP/1.1 200") == 3
+        padded = HEALTH.replace(b"\r\n\r\n", b"\r\nx-pad: " + b"a" * 20_000 + b"\r\n\r\n")
+        with socket.create_connection(address, timeout=TIMEOUT_S) as sock:  # a whole 20 KB head at once
+            sock.sendall(padded)
+            assert read_until_closed(sock).startswith(b"HTTP/1.1 431")
+        with socket.create_connection(address, timeout=TIMEOUT_S) as sock:  # the same head, in pieces
+            try:
+                for i in range(0, len(padded), 4096):
+                    sock.sendall(padded[i : i + 4096])
+                    time.sleep(0.01)
+            except OSError:
+                pass  # answered and closed
+            assert read_until_closed(sock).startswith(b"HTTP/1.1 431")
+        assert httpx.get(f"{url}/v1/stats", timeout=TIMEOUT_S).json()["heads_too_large"] == 2
+
+
+def server_run(tmp_path: Path, env: dict[str, str], *args: str) -> subprocess.CompletedProcess:
+    argv = [str(BIN / "cloudbaking-server"), "--store", str(tmp_path / "s"), "--port", "0", *args]
+    return subprocess.run(argv, capture_output=True, text=True, timeout=TIMEOUT_S, env=os.environ | env)
+
+
+def test_settings_from_the_environment_are_checked_in_one_line(tmp_path: Path) -> None:
+    assert_error_line(server_run(tmp_path, {"CLOUDBAKING_RESOLUTIONS": "abc"}), "CLOUDBAKING_RESOLUTIONS", "JSON")
+    typo = server_run(tmp_path, {"CLOUDBAKING_SPPP": "4"})
+    assert_error_line(typo, "CLOUDBAKING_SPPP", "CLOUDBAKING_MAX_SPP", "CLOUDBAKING_BUDGET_BYTES")
+    assert_error_line(server_run(tmp_path, {"CLOUDBAKING_BUDGET_BYTES": "0"}), "CLOUDBAKING_BUDGET_BYTES")
+    assert_error_line(server_run(tmp_path, {}, "--graceful-timeout-s", "inf"), "--graceful-timeout-s")
+    assert not (tmp_path / "s").exists()
+
+
+def test_an_empty_store_is_refused_and_writes_nothing(tmp_path: Path) -> None:
+    outcome = run_script(["cloudbaking-server", "--store", "", "--port", "0"], cwd=tmp_path)
+    check_user_error(outcome, "--store is empty")
+
+
+@pytest.fixture(scope="module")
+def app_client(tmp_path_factory: pytest.TempPathFactory, scenes_dir: Path):
+    settings = Settings(
+        store=tmp_path_factory.mktemp("hardening") / "store", scenes_dir=scenes_dir, resolutions=(32,), max_spp=1
+    )
+    with TestClient(create_app(settings)) as client:
+        yield client
+
+
+def post(client: TestClient, body: dict | str) -> httpx.Response:
+    content = body if isinstance(body, str) else json.dumps(body)
+    return client.post("/v1/gimap", content=content, headers={"content-type": "application/json"})
+
+
+def cheap(**fields) -> dict:
+    return gimap_body(resolution=32, spp=1) | fields
+
+
+COERCED = [
+    ("spp as a string", cheap(spp="1"), ["body", "spp"]),
+    ("spp as a float", cheap(spp=1.0), ["body", "spp"]),
+    ("resolution true", cheap(resolution=True), ["body", "resolution"]),
+    ("di as 1", cheap(di=1), ["body", "di"]),
+    ("di as a string", cheap(di="true"), ["body", "di"]),
+    (
+        "fov as a string",
+        cheap(camera={"eye": [1, 1, 1], "target": [0, 0.5, 0], "fov": "90"}),
+        ["body", "camera", "fov"],
+    ),
+    ("eye as strings", cheap(camera={"eye": ["1", 1, 1], "target": [0, 0.5, 0]}), ["body", "camera", "eye", "0"]),
+    ("light true", cheap(light=[True, 2.2, 0.3]), ["body", "light", "0"]),
+]
+
+
+@pytest.mark.parametrize("what,body,loc", COERCED, ids=[c[0] for c in COERCED])
+def test_json_of_the_wrong_type_is_422_naming_the_field(app_client: TestClient, what: str, body: dict, loc) -> None:
+    response = post(app_client, body)
+    assert response.status_code == 422, (what, response.text)
+    assert loc in [[str(part) for part in d["loc"]] for d in response.json()["detail"]], response.text
+
+
+def test_a_light_outside_the_scene_range_is_422_and_stores_nothing(app_client: TestClient) -> None:
+    """ball_moving's light sweeps x in [-0.6, 0.6], y in [2.05, 2.35] at z = 0.3; a light cell (0.25) of margin."""
+    before = app_client.get("/v1/stats").json()["entries"]
+    for light in ([1e4, 2.2, 0.3], [0.0, -1e4, 0.3], [0.0, 2.2, 0.6], [0.9, 2.2, 0.3]):
+        response = post(app_client, cheap(light=light))
+        assert response.status_code == 422, (light, response.text)
+        (detail,) = response.json()["detail"]
+        assert detail["loc"] == ["body", "light"] and "light range" in detail["msg"], detail
+    assert post(app_client, cheap(light=[0.8, 2.2, 0.3])).status_code == 200  # within the margin
+    assert app_client.get("/v1/stats").json()["entries"] == before + 1
+    scene = next(s for s in app_client.get("/v1/scenes").json()["scenes"] if s["name"] == "ball_moving")
+    assert scene["light_min"] == pytest.approx([-0.6, 2.05, 0.3]) and scene["light_cell"] == 0.25
+
+
+def test_the_gi_tree_has_a_byte_budget_by_default(
+    app_client: TestClient, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    assert app_client.get("/v1/stats").json()["budget_bytes"] == DEFAULT_BUDGET_BYTES == 4 << 30
+    monkeypatch.setenv("CLOUDBAKING_BUDGET_BYTES", "12345")
+    assert Settings(store=tmp_path).budget_bytes == 12345
+
+
+def test_no_answer_names_an_absolute_path(tmp_path: Path) -> None:
+    """Specs that fail (invalid, a mesh named by absolute path that is missing), a store holding a scene of
+    another spec: the answers name files by their names only."""
+    scenes = write_scenes(tmp_path / "scenes")
+    (scenes / "broken.json").write_text(json.dumps({"name": "broken", "objects": []}))
+    spec = json.loads((scenes / "ball_static.json").read_text())
+    spec["objects"][0]["mesh"] = str(tmp_path / "elsewhere" / "gone.obj")
+    (scenes / "ghost.json").write_text(json.dumps(spec | {"name": "ghost"}))
+    store = tmp_path / "store"
+    with GITree(store) as tree:
+        tree.register_scene("ball_moving", "0" * 64, 0.25)  # baked from another spec
+    settings = Settings(store=store, scenes_dir=scenes, resolutions=(32,), max_spp=1)
+    with TestClient(create_app(settings)) as client:
+        answers = [client.get("/v1/health"), client.get("/v1/scenes"), client.get("/openapi.json")]
+        answers += [post(client, cheap(scene=name)) for name in ("broken", "ghost", "ball_moving")]
+    assert [a.status_code for a in answers] == [200, 200, 200, 422, 422, 409]
+    assert answers[0].json()["store"] == "store"
+    assert {"broken", "ghost"} <= set(answers[1].json()["invalid"])
+    for answer in answers:
+        assert str(tmp_path) not in answer.text and "/tmp/" not in answer.text, answer.text
+    assert "ghost.json" in answers[4].text and "gone.obj" in answers[4].text and "store" in answers[5].text
+
+
+def test_redact_keeps_names_relative_to_the_public_folders() -> None:
+    store, scenes = Path("/srv/gi/store"), Path("/srv/specs")
+    text = (
+        "cannot write the GI tree at /srv/gi/store (No space: /srv/gi/store/payloads/ab/x.gim); "
+        f"{scenes}/a.json: mesh file {Path.home()}/meshes/b.obj: not found; see GET /v1/scenes"
+    )
+    assert redact(text, [store, scenes]) == (
+        "cannot write the GI tree at store (No space: payloads/ab/x.gim); a.json: mesh file b.obj: not found; "
+        "see GET /v1/scenes"
+    )
