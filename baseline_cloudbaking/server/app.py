@@ -27,10 +27,10 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 from baseline_cloudbaking.bake import SceneCatalog
 from baseline_cloudbaking.server import errors
 from baseline_cloudbaking.server.routers import gimap, health, maps, scenes, stats
-from baseline_cloudbaking.server.service import MapService, preload
+from baseline_cloudbaking.server.service import MapService, light_bounds, preload
 from baseline_cloudbaking.server.settings import Settings, get_settings
 from baseline_cloudbaking.store import GITree
-from gicore.scene import SceneSpecError
+from gicore.scene import SceneSpec, SceneSpecError
 
 
 class BodyLimit:
@@ -82,21 +82,25 @@ class BodyLimit:
         return None
 
 
-def request_limits(schema: dict[str, Any], settings: Settings, scene_names: list[str]) -> dict[str, Any]:
+def request_limits(schema: dict[str, Any], settings: Settings, scenes: dict[str, SceneSpec]) -> dict[str, Any]:
     """``schema`` (FastAPI's OpenAPI document) with this server's limits on a GI-map request: the scenes it
-    serves as an enum, its resolutions, its spp range."""
+    serves as an enum, the box holding all their light ranges, its resolutions, its spp range."""
     schema = copy.deepcopy(schema)
     props = schema["components"]["schemas"]["GIMapRequest"]["properties"]
-    props["scene"]["enum"] = scene_names
-    props["resolution"] |= {"enum": list(settings.resolutions), "default": settings.resolutions[0]}
-    if 256 in settings.resolutions:
-        props["resolution"]["default"] = 256
-    props["spp"] |= {"minimum": 1, "maximum": settings.max_spp, "default": min(64, settings.max_spp)}
+    props["scene"]["enum"] = list(scenes)
+    bounds = [light_bounds(spec, settings.light_cell) for spec in scenes.values()]
+    if bounds:
+        light = next(s for s in props["light"]["anyOf"] if s.get("type") == "array")
+        for axis, item in enumerate(light["prefixItems"]):
+            item |= {"minimum": min(b[0][axis] for b in bounds), "maximum": max(b[1][axis] for b in bounds)}
+    props["resolution"] |= {"enum": list(settings.resolutions), "default": settings.default_resolution}
+    props["spp"] |= {"minimum": 1, "maximum": settings.max_spp, "default": settings.default_spp}
     return schema
 
 
-def create_app(settings: Settings | None = None) -> FastAPI:
-    """The server app for ``settings`` (default: from the environment, :func:`get_settings`)."""
+def create_app(settings: Settings | None = None, store: GITree | None = None) -> FastAPI:
+    """The server app for ``settings`` (default: from the environment, :func:`get_settings`), serving from
+    ``store`` (default: the GI tree of the settings, opened at startup); the app closes it on shutdown."""
     settings = settings or get_settings()
     catalog = SceneCatalog(settings.scenes_dir)
 
@@ -106,10 +110,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             from gicore.render import set_render_threads
 
             set_render_threads(settings.render_threads)
-        store = GITree(settings.store, settings.budget_bytes, settings.tolerance)
-        service = MapService(settings, store, catalog)
+        tree = store if store is not None else GITree(settings.store, settings.budget_bytes, settings.tolerance)
+        service = MapService(settings, tree, catalog)
         app.state.settings = settings
-        app.state.store = store
+        app.state.store = tree
         app.state.service = service
         preload()
         # A full collection walks every object (Mitsuba's, FastAPI's, pydantic's): 115-145 ms measured here,
@@ -120,7 +124,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             yield
         finally:
             service.close()
-            store.close()
+            tree.close()
 
     app = FastAPI(
         title="cloud-baking GI-map server",
@@ -134,14 +138,13 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     base_openapi = app.openapi
 
     def openapi() -> dict[str, Any]:
-        names = []
+        specs = {}
         for name in catalog.names():
             try:
-                catalog.get(name)
+                specs[name] = catalog.get(name)
             except (SceneSpecError, FileNotFoundError):
                 continue  # refused on request: not a scene this server serves
-            names.append(name)
-        return request_limits(base_openapi(), settings, names)
+        return request_limits(base_openapi(), settings, specs)
 
     app.openapi = openapi  # type: ignore[method-assign]
     app.add_middleware(BodyLimit, limit=settings.max_body_bytes, timeout_s=settings.body_timeout_s)

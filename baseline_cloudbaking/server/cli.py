@@ -152,11 +152,11 @@ def serve(given: dict[str, Any], *, store: str, scenes: Path | None) -> None:
             raise UserError(f"--scenes {scenes} is not a folder", "give a folder of scene spec files")
         settings = load_settings(opts, Path(store), scenes)
         writable_dir(settings.store, name="--store")
+        app, config = server_config(settings, opts.log_level)
         sock = bind(opts.host, opts.port)
         actual_host, actual_port = sock.getsockname()[:2]
         shown = f"[{actual_host}]" if ":" in actual_host else actual_host
         print(f"listening on http://{shown}:{actual_port}", flush=True)
-        app, config = server_config(settings, opts.log_level)
         # The event loop, the hit threads and the miss thread share the GIL: a thread waiting for it waits up to
         # the switch interval (5 ms by default) while another computes, which a hit would pay several times.
         sys.setswitchinterval(SWITCH_INTERVAL_S)
@@ -170,6 +170,7 @@ def server_config(settings: Settings, log_level: str) -> tuple[FastAPI, uvicorn.
 
     from baseline_cloudbaking.server.app import create_app
     from baseline_cloudbaking.server.limits import ConnectionLimits, capped_protocol, fd_budget, throttle_logs
+    from baseline_cloudbaking.store import GITree
 
     max_connections, fd_limit = fd_budget(settings.max_connections)
     if max_connections < settings.max_connections:
@@ -180,7 +181,8 @@ def server_config(settings: Settings, log_level: str) -> tuple[FastAPI, uvicorn.
             flush=True,
         )
     limits = ConnectionLimits(max_connections, settings.idle_timeout_s, settings.max_header_bytes)
-    app = create_app(settings)
+    # opened here, not at the app's startup: a store it cannot use is one error line, not uvicorn's traceback
+    app = create_app(settings, GITree(settings.store, settings.budget_bytes, settings.tolerance))
     app.state.connections = limits
     config = uvicorn.Config(
         app,

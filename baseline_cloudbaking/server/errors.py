@@ -14,6 +14,7 @@ from typing import Any
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
+from starlette.exceptions import HTTPException
 
 from baseline_cloudbaking.server.service import FieldError, QueueFull, ServerStopping
 from baseline_cloudbaking.server.settings import Settings
@@ -47,7 +48,10 @@ _RETRY = {"Retry-After": {"description": "seconds to wait before trying again", 
 
 #: Responses every route may give besides its own (the OpenAPI document lists them).
 ERROR_RESPONSES: dict[int | str, dict[str, Any]] = {
-    400: {"description": "the HTTP request itself is malformed (answered by the HTTP layer, as text)"},
+    400: {
+        "description": "the HTTP request itself is malformed (answered by the HTTP layer, as text), or its body "
+        "cannot be parsed"
+    },
     408: {"description": "the request body did not arrive within body_timeout_s", "content": _DETAIL},
     413: {"description": "request body too large (max_body_bytes)", "content": _DETAIL},
     431: {"description": "request head too large (max_header_bytes); the connection is closed", "content": _DETAIL},
@@ -107,6 +111,12 @@ def stopping(exc: ServerStopping) -> JSONResponse:
 
 def install(app: FastAPI) -> None:
     """The exception handlers that answer in this shape."""
+
+    @app.exception_handler(HTTPException)
+    async def http_error(_: Request, exc: HTTPException) -> JSONResponse:
+        # FastAPI's own refusals (a body it cannot parse, e.g. nested too deep; an unknown path or method)
+        loc = {400: ["body"], 404: ["path"], 405: ["method"]}.get(exc.status_code, ["request"])
+        return error(exc.status_code, loc, str(exc.detail), "http_error", exc.headers)
 
     @app.exception_handler(RequestValidationError)
     async def invalid_request(request: Request, exc: RequestValidationError) -> JSONResponse:

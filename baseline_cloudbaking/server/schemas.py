@@ -17,6 +17,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from baseline_cloudbaking.bake import SCENE_NAME
 from baseline_cloudbaking.codecs import CODEC_NAMES, DEFAULT_CODEC
 from gicore.camera import Camera
+from gicore.options import RESOLUTION_MAX, RESOLUTION_MIN, SPP_MAX
 
 #: Largest |coordinate| of a camera or light position: far beyond any scene, small enough that the
 #: camera matrices stay finite.
@@ -57,11 +58,19 @@ class GIMapRequest(_Strict):
         "± light_cell); omit for the scene's rest position (a static light must be omitted)",
     )
     resolution: int = Field(
-        256, strict=True, description="square map size; one of the server's resolutions (GET /v1/scenes)"
+        256,
+        ge=RESOLUTION_MIN,
+        le=RESOLUTION_MAX,
+        strict=True,
+        description="square map size; one of the server's resolutions (GET /v1/scenes); omitted: the server's default",
     )
     codec: CodecName = Field(DEFAULT_CODEC, description=f"GI-map codec, one of {', '.join(CODEC_NAMES)}")
     spp: int = Field(
-        64, ge=1, strict=True, description="path-tracing samples per pixel (bounded by the server's max_spp)"
+        64,
+        ge=1,
+        le=SPP_MAX,
+        strict=True,
+        description="path-tracing samples per pixel (bounded by the server's max_spp); omitted: the server's default",
     )
     di: bool = Field(
         False, strict=True, description="also send the DI of the GI view (the residual composition needs it)"

@@ -227,6 +227,15 @@ def light_range(spec: SceneSpec) -> tuple[Vec3, Vec3]:
     return (x - abs(ax), y - abs(ay), z), (x + abs(ax), y + abs(ay), z)
 
 
+def light_bounds(spec: SceneSpec, margin: float) -> tuple[Vec3, Vec3]:
+    """Corners of the box a request's light must lie in: a moving light's range widened by ``margin`` on every
+    side (a light cell: the cells its sweep touches), a static light's rest point."""
+    low, high = light_range(spec)
+    if not spec.light.moves:
+        return low, high
+    return tuple(c - margin for c in low), tuple(c + margin for c in high)  # type: ignore[return-value]
+
+
 def _ms(t0: float) -> float:
     return (time.perf_counter() - t0) * 1e3
 
@@ -301,6 +310,15 @@ class MapService:
         return self.store.stats() | counters | self.misses.counters | {"misses_pending": self.misses.pending}
 
     # -- serving ----------------------------------------------------------------------------------
+    def _with_defaults(self, req: GIMapRequest) -> GIMapRequest:
+        """``req`` with this server's defaults (as its OpenAPI document states them) for the resolution and spp
+        it omits."""
+        missing = {"resolution", "spp"} - req.model_fields_set
+        if not missing:
+            return req
+        defaults = {"resolution": self.settings.default_resolution, "spp": self.settings.default_spp}
+        return req.model_copy(update={name: defaults[name] for name in missing})
+
     def _check_bounds(self, req: GIMapRequest) -> None:
         s = self.settings
         if req.resolution not in s.resolutions:
@@ -321,19 +339,17 @@ class MapService:
             if math.dist(req.light, rest) > 1e-6:
                 raise FieldError("light", f"scene {req.scene!r} has a static light at {list(rest)}; omit light")
             return tuple(req.light)
-        low, high = light_range(spec)
-        margin = self.settings.light_cell
-        if not all(lo - margin <= v <= hi + margin for v, lo, hi in zip(req.light, low, high, strict=True)):
+        low, high = light_bounds(spec, self.settings.light_cell)
+        if not all(lo <= v <= hi for v, lo, hi in zip(req.light, low, high, strict=True)):
             box = " to ".join(str([round(c, 4) for c in corner]) for corner in (low, high))
-            raise FieldError(
-                "light", f"{list(req.light)} is outside the light range of scene {req.scene!r}: {box}, ± {margin:g}"
-            )
+            raise FieldError("light", f"{list(req.light)} is outside the light range of scene {req.scene!r}: {box}")
         return tuple(req.light)
 
     def prepare(self, req: GIMapRequest, io: bool = True) -> Prepared:
         """Check ``req`` against the server's bounds and its scene (FieldError naming the field); ``io=False``:
         WouldBlock where the scene is not yet registered (that writes to the GI tree)."""
         t0 = time.perf_counter()
+        req = self._with_defaults(req)
         self._check_bounds(req)
         if not io and req.scene not in self._scenes:
             raise WouldBlock

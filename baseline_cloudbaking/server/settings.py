@@ -113,6 +113,16 @@ class Settings(BaseSettings):
     def tolerance(self) -> Tolerance:
         return Tolerance(self.tolerance_position, self.tolerance_angle_deg)
 
+    @property
+    def default_resolution(self) -> int:
+        """The resolution of a request that names none: 256 where served, else the first served."""
+        return 256 if 256 in self.resolutions else self.resolutions[0]
+
+    @property
+    def default_spp(self) -> int:
+        """The spp of a request that names none."""
+        return min(64, self.max_spp)
+
 
 def env_name(field: str) -> str:
     """The environment variable of setting ``field``."""

@@ -98,6 +98,20 @@ def test_an_empty_store_is_refused_and_writes_nothing(tmp_path: Path) -> None:
     check_user_error(outcome, "--store is empty")
 
 
+def test_a_store_whose_index_cannot_be_written_is_one_line_before_serving(tmp_path: Path) -> None:
+    store = tmp_path / "s"
+    GITree(store).close()
+    index = store / "index.sqlite"
+    if subprocess.run(["chattr", "+i", str(index)], capture_output=True).returncode != 0:
+        pytest.skip("chattr +i is refused here (it needs root)")
+    try:
+        result = server_run(tmp_path, {})
+    finally:
+        subprocess.run(["chattr", "-i", str(index)], check=True)
+    assert_error_line(result, "index.sqlite", "read-only")
+    assert result.stdout == ""  # refused before it said it listens
+
+
 @pytest.fixture(scope="module")
 def app_client(tmp_path_factory: pytest.TempPathFactory, scenes_dir: Path):
     settings = Settings(
