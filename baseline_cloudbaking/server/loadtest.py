@@ -8,7 +8,11 @@ request, a burst of concurrent misses, and a flood of idle connections that send
         --idle 20000 --misses 80 --hit-clients 32
 
 prints one JSON object: hit latency percentiles, status counts of hits and misses, idle connections
-opened and how many the server closed.
+opened and how many the server closed. ``bench load`` runs it against a server of its own and judges the
+figures against their targets.
+
+Instants (when a hit or miss was sent, the side load's window) are ``time.monotonic()``: on Linux one
+system-wide clock, so the side process's instants compare with the hit clients'.
 """
 
 from __future__ import annotations
@@ -26,6 +30,8 @@ from typing import Any
 from urllib.parse import urlsplit
 
 import numpy as np
+
+from baseline_cloudbaking.server.limits import fd_budget
 
 
 def loopback(url: str) -> tuple[str, int]:
@@ -70,25 +76,48 @@ class Conn:
             self.writer = None
 
 
+#: Fields of :class:`LoadResult` that :meth:`LoadResult.summary` condenses instead of listing.
+_PER_REQUEST = ("hit_ms", "hit_at", "misses", "side_window")
+
+
 @dataclass
 class LoadResult:
     hit_ms: list[float] = field(default_factory=list)
-    hit_at: list[float] = field(default_factory=list)  # when each hit was sent, perf_counter s
+    hit_at: list[float] = field(default_factory=list)  # when each hit was sent (module docstring: instants)
     hit_status: Counter = field(default_factory=Counter)
     miss_status: Counter = field(default_factory=Counter)
+    #: (status, sent, answered) of each answered miss.
+    misses: list[tuple[int, float, float]] = field(default_factory=list)
     retry_after: Counter = field(default_factory=Counter)
     idle_opened: int = 0
     idle_closed_by_server: int = 0
+    #: The side load's window: from sending the misses (and opening the flood) to releasing the flood.
+    side_window: tuple[float, float] = (0.0, 0.0)
     errors: Counter = field(default_factory=Counter)
 
+    def hits_sent_between(self, start: float, end: float) -> list[float]:
+        """Latencies (ms) of the hits sent from ``start`` to ``end``."""
+        return [ms for ms, at in zip(self.hit_ms, self.hit_at) if start <= at <= end]
+
     def summary(self) -> dict[str, Any]:
-        ms = np.asarray(self.hit_ms) if self.hit_ms else np.zeros(1)
-        out = {f.name: getattr(self, f.name) for f in fields(self) if f.name not in ("hit_ms", "hit_at")}
+        out = {f.name: getattr(self, f.name) for f in fields(self) if f.name not in _PER_REQUEST}
         out = {k: {str(c): n for c, n in v.items()} if isinstance(v, Counter) else v for k, v in out.items()}
         out["hits"] = len(self.hit_ms)
-        out |= {f"hit_{p}_ms": round(float(np.percentile(ms, q)), 2) for p, q in (("p50", 50), ("p99", 99))}
-        out["hit_max_ms"] = round(float(ms.max()), 2)
+        out |= percentiles("hit", self.hit_ms)
         return out
+
+
+def percentiles(name: str, ms: list[float]) -> dict[str, float]:
+    """p50, p99 and max of ``ms`` as ``{name}_p50_ms`` ...; zeros when there are none."""
+    values = np.asarray(ms) if ms else np.zeros(1)
+    out = {f"{name}_{p}_ms": round(float(np.percentile(values, q)), 2) for p, q in (("p50", 50), ("p99", 99))}
+    return out | {f"{name}_max_ms": round(float(values.max()), 2)}
+
+
+def idle_room() -> int:
+    """Idle connections this process can hold open: its file-descriptor limit, raised as the server raises its
+    own, less the server's reserve for everything else."""
+    return fd_budget(1 << 30)[0]
 
 
 async def _hit_client(
@@ -100,7 +129,7 @@ async def _hit_client(
     next_t = loop.time()
     try:
         while not stop.is_set():
-            t0 = time.perf_counter()
+            sent, t0 = time.monotonic(), time.perf_counter()
             try:
                 status, _, _ = await conn.request("POST", "/v1/gimap", body)
             except (OSError, asyncio.IncompleteReadError) as exc:
@@ -108,7 +137,7 @@ async def _hit_client(
                 conn.close()
                 continue
             res.hit_ms.append((time.perf_counter() - t0) * 1e3)
-            res.hit_at.append(t0)
+            res.hit_at.append(sent)
             res.hit_status[status] += 1
             next_t += period_s
             await asyncio.sleep(max(0.0, next_t - loop.time()))
@@ -118,8 +147,10 @@ async def _hit_client(
 
 async def _miss(host: str, port: int, body: bytes, res: LoadResult) -> None:
     conn = Conn(host, port)
+    sent = time.monotonic()
     try:
         status, headers, _ = await conn.request("POST", "/v1/gimap", body)
+        res.misses.append((status, sent, time.monotonic()))
         res.miss_status[status] += 1
         if "retry-after" in headers:
             res.retry_after[headers["retry-after"]] += 1
@@ -130,7 +161,8 @@ async def _miss(host: str, port: int, body: bytes, res: LoadResult) -> None:
 
 
 async def _idle_flood(host: str, port: int, n: int, res: LoadResult, stop: asyncio.Event, rate: float) -> None:
-    """Open ``n`` connections that send nothing, ``rate`` a second; each is released once the server closes it."""
+    """Open ``n`` connections that send nothing, ``rate`` a second, and hold each until the server closes it or
+    ``stop`` is set."""
     held: set[asyncio.Task] = set()
 
     async def hold(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
@@ -159,6 +191,8 @@ async def _idle_flood(host: str, port: int, n: int, res: LoadResult, stop: async
         held.add(task)
         task.add_done_callback(held.discard)
     await stop.wait()
+    for task in list(held):  # the connections the server left open are closed by this side
+        task.cancel()
     await asyncio.gather(*held, return_exceptions=True)
 
 
@@ -168,11 +202,15 @@ async def _side_load(
     """The misses (all at once) and the idle flood, then ``hold_s`` more with the flood held."""
     res = LoadResult()
     stop = asyncio.Event()
+    start = time.monotonic()
+    if idle > idle_room():
+        raise ValueError(f"{idle} idle connections do not fit this process's file-descriptor limit ({idle_room()})")
     flood = asyncio.ensure_future(_idle_flood(host, port, idle, res, stop, idle_rate))
     await asyncio.gather(*(_miss(host, port, body, res) for body in miss_bodies))
     while idle and res.idle_opened + sum(res.errors.values()) < idle and not flood.done():
         await asyncio.sleep(0.05)
     await asyncio.sleep(hold_s)
+    res.side_window = (start, time.monotonic())
     stop.set()
     await flood
     return res
@@ -227,6 +265,7 @@ async def run_load(
         stop.set()
         await asyncio.gather(*clients, return_exceptions=True)
     res.miss_status, res.retry_after, res.errors = other.miss_status, other.retry_after, res.errors + other.errors
+    res.misses, res.side_window = other.misses, other.side_window
     res.idle_opened, res.idle_closed_by_server = other.idle_opened, other.idle_closed_by_server
     return res
 
@@ -269,6 +308,30 @@ def gimap_request(scene: str, eye: tuple[float, float, float], resolution: int, 
     }
 
 
+def hit_request(scene: str, resolution: int, spp: int) -> dict[str, Any]:
+    """The one view every hit client asks for (stored first with :func:`store`)."""
+    return gimap_request(scene, (0.0, 1.2, 2.0), resolution, spp)
+
+
+def miss_requests(scene: str, resolution: int, spp: int, n: int, offset: float = 0.0) -> list[dict[str, Any]]:
+    """``n`` viewpoints on a circle of radius 2 around the target (0, 0.5, 0), at least 0.14 apart for n <= 80
+    (farther than any tolerance, so each is a miss); ``offset`` (radians) turns the circle, giving new views
+    against a kept store."""
+    angles = np.linspace(0.3, 2 * np.pi - 0.3, n) + offset
+    return [gimap_request(scene, (2.0 * np.sin(a), 1.1, 2.0 * np.cos(a)), resolution, spp) for a in angles]
+
+
+async def store(url: str, body: dict[str, Any]) -> None:
+    """Ask for ``body`` once so that it is stored (RuntimeError unless answered 200)."""
+    conn = Conn(*loopback(url))
+    try:
+        status, _, content = await conn.request("POST", "/v1/gimap", json.dumps(body).encode())
+    finally:
+        conn.close()
+    if status != 200:
+        raise RuntimeError(f"the hit request was answered {status}: {content[:300]!r}")
+
+
 async def load_for_scene(
     url: str,
     scene: str,
@@ -280,16 +343,11 @@ async def load_for_scene(
     idle: int = 0,
     idle_rate: float = 2000.0,
 ) -> LoadResult:
-    """Store one map (the hit clients' request), then :func:`run_load` with ``misses`` distinct viewpoints
-    on a circle around the target (0, 0.5, 0), 0.2 apart: farther than any tolerance, so each is a miss."""
-    host, port = loopback(url)
-    hit = gimap_request(scene, (0.0, 1.2, 2.0), resolution, spp)
-    status, _, _ = await Conn(host, port).request("POST", "/v1/gimap", json.dumps(hit).encode())
-    if status != 200:
-        raise RuntimeError(f"the hit request was answered {status}")
-    seed = int(time.time() * 1e3) % 997  # fresh viewpoints on each run against a kept store
-    angles = np.linspace(0.3, 2 * np.pi - 0.3, misses) + seed * 1e-4
-    bodies = [gimap_request(scene, (2.0 * np.sin(a), 1.1, 2.0 * np.cos(a)), resolution, spp) for a in angles]
+    """Store the hit clients' view, then :func:`run_load` with ``misses`` new viewpoints (:func:`miss_requests`)."""
+    hit = hit_request(scene, resolution, spp)
+    await store(url, hit)
+    offset = (time.time() * 1e3) % 997 * 1e-4  # fresh viewpoints on each run against a kept store
+    bodies = miss_requests(scene, resolution, spp, misses, offset)
     return await run_load(
         url, hit, bodies, hit_clients=hit_clients, period_s=period_ms / 1e3, idle=idle, idle_rate=idle_rate
     )

@@ -1,9 +1,10 @@
 """The cloud-baking server under load and when its storage fails, as its own process on 127.0.0.1.
 
-Loopback only, every wait bounded. With 80 concurrent misses and 32 clients of hits, hit p99 <= 50 ms (the
-issue's load and bound, see P99_MS), misses beyond the queue get 503 with
-Retry-After and nothing else is a 5xx; idle connections do not stall hits; a read-only index and a full disk
-are answered 503 / 507 with one line and recover without a restart; stored maps carry an ETag and answer 304.
+Loopback only; every wait is a poll with a generous hang guard. These tests judge behaviour, not speed (the
+absolute figures are ``bench load``'s): misses beyond the queue get 503 with Retry-After and nothing else is a
+5xx; hits are answered while misses render, none waiting for a render; idle connections beyond the cap are
+closed for new ones and none is refused; a read-only index and a full disk are answered 503 / 507 with one
+line and recover without a restart; stored maps carry an ETag and answer 304.
 """
 
 from __future__ import annotations
@@ -12,10 +13,11 @@ import asyncio
 import hashlib
 import json
 import os
+import select
 import socket
 import subprocess
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -28,9 +30,9 @@ from baseline_cloudbaking.server.loadtest import run_load
 from baseline_cloudbaking.server.routers.maps import CACHE_CONTROL
 from tests.helpers.cloud import BIN, gimap_body, write_scenes
 
-TIMEOUT = httpx.Timeout(60.0, connect=10.0)
-#: Hit latency under the load these tests make is judged with nothing else running (make test runs them alone).
-pytestmark = pytest.mark.serial
+TIMEOUT = httpx.Timeout(300.0, connect=30.0)
+#: Hang guard of every wait for the server to reach a state (never what a test judges).
+HANG_S = 300.0
 
 
 @pytest.fixture(scope="module")
@@ -68,13 +70,7 @@ def server(
         line = proc.stdout.readline()  # the first line comes at once (the socket is bound before uvicorn starts)
         assert line.startswith("listening on http://127.0.0.1:"), (line, stderr.read_text())
         srv = Server(line.split()[-1], store, stderr, proc)
-        deadline = time.monotonic() + 60
-        while time.monotonic() < deadline:  # the app is ready once it answers
-            try:
-                if httpx.get(f"{srv.url}/v1/health", timeout=5).status_code == 200:
-                    break
-            except httpx.HTTPError:
-                time.sleep(0.1)
+        until(lambda: healthy(srv.url), "the server answers /v1/health")
         yield srv
     finally:
         proc.terminate()
@@ -83,6 +79,21 @@ def server(
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait(timeout=15)
+
+
+def healthy(url: str) -> bool:
+    try:
+        return httpx.get(f"{url}/v1/health", timeout=TIMEOUT).status_code == 200
+    except httpx.HTTPError:
+        return False
+
+
+def until(done: Callable[[], bool], what: str) -> None:
+    """Poll ``done`` until it holds; fail after HANG_S (a hang, not slowness)."""
+    deadline = time.monotonic() + HANG_S
+    while not done():
+        assert time.monotonic() < deadline, f"still not true after {HANG_S} s: {what}"
+        time.sleep(0.05)
 
 
 #: The module's server: queue 8, a cap of 256 connections, 1 s idle and body timeouts, spp up to 64.
@@ -95,10 +106,18 @@ def srv(tmp_path_factory: pytest.TempPathFactory, scenes_dir: Path) -> Iterator[
     store = tmp_path_factory.mktemp("load") / "store"
     with server(store, scenes_dir, *args, "--max-spp", "64", env={"CLOUDBAKING_BODY_TIMEOUT_S": "1"}) as running:
         assert running.post(HIT).status_code == 200  # compiles the renderer; from now on HIT is a hit
+        # compiles the misses' renderer, so that every miss of the storm costs one render and no compile
+        assert running.post(gimap_body(eye=(0.0, 2.5, 0.6), **STORM)).status_code == 200
         yield running
 
 
 HIT = gimap_body(eye=(0.0, 1.3, 2.2))
+#: The storm's misses: each render long enough (about 0.5 s on 2 idle cores) that a hit waiting for one would
+#: stand out against the hits' own latency on any machine.
+STORM = {"resolution": 128, "spp": 64}
+#: Hit clients and the time between one client's requests: a load every machine answers with room to spare
+#: (the issue's 32 clients every 20 ms, 1,600 hits/s, is ``bench load``'s).
+HIT_CLIENTS, PERIOD_S = 8, 0.05
 
 
 def delta(before: dict, after: dict, *keys: str) -> dict:
@@ -111,49 +130,35 @@ def ring(n: int, scene: str = "ball_moving", radius: float = 2.0, **fields) -> l
     return [gimap_body(scene, eye=(radius * np.sin(a), 1.1, radius * np.cos(a)), **fields) for a in angles]
 
 
-#: Hit latency bound and how many runs may try to meet it: the issue's 50 ms at the issue's load (32 clients, a hit
-#: each every 20 ms: 1,600 a second offered) with the load generator on the same two cores. Measured in this test:
-#: 30.9-36.4 ms with 80 misses, 2.9-3.9 ms beside 2,000 idle connections (three module runs each). Before hits were
-#: answered from memory on the event loop and FastAPI's dependencies hopped to a thread, 77-119 ms at a fifth of
-#: this rate.
-P99_MS, RUNS, PERIOD_S = 50.0, 3, 0.02
+def test_80_misses_and_hits_while_they_render(srv: Server) -> None:
+    """80 misses at once: those beyond the queue are refused at once (503 + Retry-After), the admitted ones are
+    baked, nothing else is a 5xx; hits are answered while the misses render and none waits for a render: the
+    hits' p99 during the storm is under half the shortest baked miss's round trip (one render), a same-run
+    ratio that a hit queued behind a render would break on any machine."""
+    before = srv.stats()
+    log_before = srv.stderr.stat().st_size
+    misses = ring(80, radius=1.9, **STORM)
+    res = asyncio.run(run_load(srv.url, HIT, misses, hit_clients=HIT_CLIENTS, period_s=PERIOD_S, settle_s=1.0))
+    counts = delta(before, srv.stats(), "misses_refused", "misses", "hits")
+    summary = res.summary()
+    assert not res.errors and set(res.hit_status) == {200}, summary
+    assert set(res.miss_status) <= {200, 503} and sum(res.miss_status.values()) == 80, summary
+    refused, baked = res.miss_status[503], res.miss_status[200]
+    # all 80 are sent at once and a render takes far longer than their arrival: most find the queue full
+    assert refused >= 80 - 4 * (QUEUE + 1) and baked >= QUEUE + 1, summary
+    assert sum(res.retry_after.values()) == refused and all(1 <= int(s) <= 60 for s in res.retry_after), summary
+    assert counts == {"misses_refused": refused, "misses": baked, "hits": len(res.hit_ms)}, counts
+    assert srv.stats()["misses_pending"] == 0
+    assert srv.stderr.stat().st_size - log_before < 4096, srv.stderr.read_text()[-2000:]
 
-
-def check_p99(p99: list[float], loads: list[float]) -> None:
-    """The best run's hit p99 within the bound."""
-    assert min(p99) <= P99_MS, f"hit p99 {p99} ms > {P99_MS} ms (load average per core {loads})"
-
-
-def load_per_core() -> float:
-    return round(os.getloadavg()[0] / (os.cpu_count() or 1), 2)
-
-
-def test_80_misses_and_32_hit_clients(srv: Server) -> None:
-    """Misses beyond the queue are refused at once (503 + Retry-After), the admitted ones are baked, no
-    other 5xx; hits are served while misses render, p99 <= P99_MS (each client a request every PERIOD_S:
-    1,600 hits/s, 2 s before and after the burst)."""
-    p99, loads = [], []
-    for run in range(RUNS):
-        loads.append(load_per_core())
-        before = srv.stats()
-        log_before = srv.stderr.stat().st_size
-        misses = ring(80, radius=1.9 + 0.1 * run)  # new views each run: all misses
-        res = asyncio.run(run_load(srv.url, HIT, misses, hit_clients=32, period_s=PERIOD_S, settle_s=2.0))
-        counts = delta(before, srv.stats(), "misses_refused", "misses", "hits")
-        summary = res.summary()
-        print(f"80 misses + 32 hit clients: {json.dumps(summary)} {delta(before, srv.stats(), 'lookups_threaded')}")
-        assert not res.errors and set(res.hit_status) == {200} and len(res.hit_ms) >= 32 * 30, summary
-        assert set(res.miss_status) <= {200, 503} and sum(res.miss_status.values()) == 80, summary
-        refused, baked = res.miss_status[503], res.miss_status[200]
-        assert refused >= 80 - 4 * (QUEUE + 1) and baked >= QUEUE + 1, summary  # most arrive at a full queue
-        assert sum(res.retry_after.values()) == refused and all(1 <= int(s) <= 60 for s in res.retry_after), summary
-        assert counts == {"misses_refused": refused, "misses": baked, "hits": len(res.hit_ms)}, counts
-        assert srv.stats()["misses_pending"] == 0
-        assert srv.stderr.stat().st_size - log_before < 4096, srv.stderr.read_text()[-2000:]
-        p99.append(summary["hit_p99_ms"])
-        if p99[-1] <= P99_MS:
-            break
-    check_p99(p99, loads)
+    rendering = [(sent, answered) for status, sent, answered in res.misses if status == 200]
+    one_render_ms = 1e3 * min(answered - sent for sent, answered in rendering)
+    during = res.hits_sent_between(min(s for s, _ in rendering), max(a for _, a in rendering))
+    p99 = float(np.percentile(during, 99))
+    print(f"80 misses + {HIT_CLIENTS} hit clients: {json.dumps(summary)}; during the renders: {len(during)} hits, "
+          f"p99 {p99:.1f} ms; one render {one_render_ms:.0f} ms")  # fmt: skip
+    assert len(during) >= HIT_CLIENTS, summary
+    assert p99 <= 0.5 * one_render_ms, (p99, one_render_ms)
 
 
 def test_a_queued_miss_whose_client_left_is_dropped(srv: Server) -> None:
@@ -162,23 +167,21 @@ def test_a_queued_miss_whose_client_left_is_dropped(srv: Server) -> None:
     before = srv.stats()
     leavers_bodies = ring(4, radius=2.1)
     with httpx.Client(base_url=srv.url, timeout=TIMEOUT) as c:
-        with socket.create_connection((srv.host, srv.port), timeout=10) as blocker:
+        pending = lambda: c.get("/v1/stats").json()["misses_pending"]  # noqa: E731
+        with socket.create_connection((srv.host, srv.port), timeout=30) as blocker:
             send_request(blocker, gimap_body(resolution=512, spp=64))  # a renderer to compile, then a 512² bake
-            time.sleep(0.3)
+            until(lambda: pending() == 1, "the slow miss is admitted")
             leavers = []
             for body in leavers_bodies:
-                sock = socket.create_connection((srv.host, srv.port), timeout=10)
+                sock = socket.create_connection((srv.host, srv.port), timeout=30)
                 send_request(sock, body)
                 leavers.append(sock)
-            time.sleep(0.3)
-            assert c.get("/v1/stats").json()["misses_pending"] == 5
+            until(lambda: pending() == 5, "four misses wait behind the slow one")
             for sock in leavers:
                 sock.close()
-            blocker.settimeout(120)
+            blocker.settimeout(HANG_S)
             assert blocker.recv(64).startswith(b"HTTP/1.1 200")
-        deadline = time.monotonic() + 30
-        while c.get("/v1/stats").json()["misses_pending"] and time.monotonic() < deadline:
-            time.sleep(0.1)
+        until(lambda: pending() == 0, "the queue is empty")
         counts = delta(before, c.get("/v1/stats").json(), "misses_dropped", "entries", "misses")
         assert counts == {"misses_dropped": 4, "entries": 1, "misses": 1}, counts
         # the dropped views really are not stored: asking again is a miss
@@ -193,61 +196,68 @@ def send_request(sock: socket.socket, body: dict) -> None:
     sock.sendall(head.encode() + data)
 
 
-def test_idle_connections_do_not_stall_hits(srv: Server) -> None:
-    """2,000 connections that send nothing (opened 2,000 a second) against a cap of 256: the longest-idle
-    ones are closed for the new ones, every hit is served within the bound, the log stays a few lines."""
-    p99, loads = [], []
-    for _ in range(RUNS):
-        loads.append(load_per_core())
+def test_idle_connections_beyond_the_cap_are_closed_and_none_is_refused(tmp_path: Path, scenes_dir: Path) -> None:
+    """600 connections that send nothing against a cap of 64 and an idle timeout longer than the test: every one
+    beyond the cap is closed for a newer one (the longest-idle first), however fast they arrive; no connection
+    is refused, no hit client loses its connection, every hit is answered and hits go on during the flood;
+    the log stays a few lines."""
+    idle, cap = 600, 64
+    args = ("--max-connections", str(cap), "--idle-timeout-s", str(HANG_S))
+    with server(tmp_path / "store", scenes_dir, *args) as srv:
+        assert srv.post(HIT).status_code == 200
         before = srv.stats()
         log_before = srv.stderr.stat().st_size
-        res = asyncio.run(run_load(srv.url, HIT, [], hit_clients=32, period_s=PERIOD_S, idle=2000, settle_s=2.0))
+        res = asyncio.run(
+            run_load(srv.url, HIT, [], hit_clients=HIT_CLIENTS, period_s=PERIOD_S, idle=idle, settle_s=1.0)
+        )
         counts = delta(before, srv.stats(), "connections_drained", "connections_timed_out", "connections_refused")
         summary = res.summary()
-        print(f"2000 idle connections + 32 hit clients: {json.dumps(summary)} {counts}")
-        assert not res.errors and set(res.hit_status) == {200} and res.idle_opened == 2000, summary
-        assert res.idle_closed_by_server >= 2000 - MAX_CONNECTIONS, summary
-        assert counts["connections_drained"] + counts["connections_timed_out"] >= 2000 - MAX_CONNECTIONS, counts
-        assert counts["connections_refused"] == 0, counts
+        print(f"{idle} idle connections + {HIT_CLIENTS} hit clients: {json.dumps(summary)} {counts}")
+        assert not res.errors and set(res.hit_status) == {200} and res.idle_opened == idle, summary
+        assert idle - cap <= counts["connections_drained"] <= idle, counts  # only the idle ones, never a hit's
+        assert counts["connections_timed_out"] == counts["connections_refused"] == 0, counts
+        assert res.idle_closed_by_server >= idle - cap, summary
+        assert len(res.hits_sent_between(*res.side_window)) >= HIT_CLIENTS, summary
         assert srv.stderr.stat().st_size - log_before < 4096, srv.stderr.read_text()[-2000:]
-        p99.append(summary["hit_p99_ms"])
-        if p99[-1] <= P99_MS:
-            break
-    check_p99(p99, loads)
+
+
+def trickle_until_closed(sock: socket.socket) -> bool:
+    """Send a byte every 0.1 s until the server closes the connection (True, with no answer) or HANG_S pass."""
+    deadline = time.monotonic() + HANG_S
+    while time.monotonic() < deadline:
+        try:
+            sock.sendall(b"a")
+            if select.select([sock], [], [], 0.1)[0]:
+                return sock.recv(1) == b""
+        except OSError:  # reset by the server
+            return True
+    return False
 
 
 def test_slow_heads_and_bodies_time_out_and_a_flood_of_bad_requests_logs_a_few_lines(srv: Server) -> None:
     log_before = srv.stderr.stat().st_size
-    # a head trickled byte by byte is cut after the idle timeout
-    with socket.create_connection((srv.host, srv.port), timeout=10) as sock:
+    # a head trickled byte by byte, never complete, is cut by the server: not before the idle timeout (1 s)
+    with socket.create_connection((srv.host, srv.port), timeout=30) as sock:
         t0 = time.monotonic()
-        closed = False
-        for byte in b"POST /v1/gimap HTTP/1.1\r\nhost: x\r\n":
-            try:
-                sock.sendall(bytes([byte]))
-            except OSError:
-                closed = True
-                break
-            time.sleep(0.1)
-        closed = closed or sock.recv(1) == b""
-        assert closed and time.monotonic() - t0 < 2.5  # 1 s timeout, checked every 0.25 s
+        sock.sendall(b"POST /v1/gimap HTTP/1.1\r\nhost: x\r\nx-pad: ")
+        assert trickle_until_closed(sock), "the server kept a connection whose head never completed"
+        assert time.monotonic() - t0 >= 0.9  # the 1 s timeout runs from the connection's start, just before t0
     # a head then a body that never completes: 408
-    with socket.create_connection((srv.host, srv.port), timeout=10) as sock:
+    with socket.create_connection((srv.host, srv.port), timeout=30) as sock:
         sock.sendall(
             b"POST /v1/gimap HTTP/1.1\r\nhost: x\r\ncontent-type: application/json\r\ncontent-length: 100\r\n\r\n{"
         )
         assert sock.recv(4096).startswith(b"HTTP/1.1 408")
     # a head beyond max_header_bytes (16 KiB): 431, closed
-    with socket.create_connection((srv.host, srv.port), timeout=10) as sock:
+    with socket.create_connection((srv.host, srv.port), timeout=30) as sock:
         sock.sendall(b"GET /v1/health HTTP/1.1\r\nhost: x\r\n" + b"x-pad: " + b"a" * 20_000 + b"\r\n\r\n")
         assert sock.recv(4096).startswith(b"HTTP/1.1 431")
     # 1,000 malformed requests: uvicorn answers each 400 and warns; the log keeps a few lines
     for _ in range(1000):
-        with socket.create_connection((srv.host, srv.port), timeout=10) as sock:
+        with socket.create_connection((srv.host, srv.port), timeout=30) as sock:
             sock.sendall(b"NOT HTTP\r\n\r\n")
             assert sock.recv(64).startswith(b"HTTP/1.1 400")
-    time.sleep(0.2)
-    log = srv.stderr.read_bytes()[log_before:].decode()
+    log = srv.stderr.read_bytes()[log_before:].decode()  # uvicorn logs each one before its 400
     assert log.count("Invalid HTTP request received.") <= 10 and len(log) < 4096, log[-2000:]
 
 
@@ -395,7 +405,7 @@ def test_schemathesis_checks_all_find_no_failure(tmp_path: Path, scenes_dir: Pat
         config.write_text(SCHEMATHESIS_CONFIG.format(sha=sha))
         argv = [str(BIN / "schemathesis"), "--config-file", str(config), "run", "--checks", "all"]
         argv += ["--max-examples", "25", "--seed", "1", "--no-color", f"{srv.url}/openapi.json"]
-        run = subprocess.run(argv, capture_output=True, text=True, timeout=120, cwd=tmp_path)
+        run = subprocess.run(argv, capture_output=True, text=True, timeout=HANG_S, cwd=tmp_path)
     print(run.stdout[-1500:])
     assert run.returncode == 0 and " passed" in run.stdout and "failed" not in run.stdout, run.stdout[-4000:]
 
@@ -451,25 +461,25 @@ def test_the_cloud_client_honours_the_real_servers_503_and_retry_after(srv: Serv
 
     before = srv.stats()
     waiting = []
-    with socket.create_connection((srv.host, srv.port), timeout=10) as blocker:
+    with socket.create_connection((srv.host, srv.port), timeout=30) as blocker:
         send_request(blocker, gimap_body(eye=(2.3, 1.4, 0.3), resolution=512, spp=64))  # holds the render thread
-        time.sleep(0.3)
+        until(lambda: srv.stats()["misses_pending"] == 1, "the slow miss is admitted")
         for body in ring(QUEUE, radius=2.4):
-            sock = socket.create_connection((srv.host, srv.port), timeout=10)
+            sock = socket.create_connection((srv.host, srv.port), timeout=30)
             send_request(sock, body)
             waiting.append(sock)
-        time.sleep(0.3)
-        assert srv.stats()["misses_pending"] == QUEUE + 1
+        until(lambda: srv.stats()["misses_pending"] == QUEUE + 1, "the queue is full")
         camera = Camera((-2.0, 1.2, 0.9), (0.0, 0.5, 0.0), fov=90.0, width=RES, height=RES)
+        light = (0.0, 2.0, 0.3)  # within ball_moving's light range
         remote = RemoteConfig(srv.url, "ball_moving", RES, "jpeg", SPP, retry_after_s=0.0)
         with RemoteSource(remote) as source:
-            assert source.request(camera, (0.0, 2.0, 0.0), 0) and source.wait(30.0)
+            assert source.request(camera, light, 0) and source.wait(HANG_S)
             [record] = source.records
             assert record["status"] == "overloaded", record
             retry = int(record["error"].split("retry after ")[1].split()[0])
-            assert 1 <= retry <= 60 and not source.request(camera, (0.0, 2.0, 0.0), 1)  # held back, not resent
+            assert 1 <= retry <= 60 and not source.request(camera, light, 1)  # held back, not resent
         for sock in waiting:
             sock.close()
-        blocker.settimeout(120)
+        blocker.settimeout(HANG_S)
         assert blocker.recv(64).startswith(b"HTTP/1.1 200")
     assert delta(before, srv.stats(), "misses_refused")["misses_refused"] == 1
