@@ -16,6 +16,7 @@ import copy
 import gc
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
+from functools import cache
 from importlib import metadata
 from typing import Any
 
@@ -137,6 +138,7 @@ def create_app(settings: Settings | None = None, store: GITree | None = None) ->
     errors.install(app)
     base_openapi = app.openapi
 
+    @cache  # built once: a flood of requests for it costs nothing, and the scenes served do not change
     def openapi() -> dict[str, Any]:
         specs = {}
         for name in catalog.names():

@@ -15,7 +15,7 @@ from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from baseline_cloudbaking.store import DEFAULT_BUDGET_BYTES, DEFAULT_LIGHT_CELL, Tolerance
 from gicore.cli import UserError
-from gicore.options import RESOLUTION_MAX, RESOLUTION_MIN, SPP_MAX
+from gicore.options import RESOLUTION_MAX, RESOLUTION_MIN, SEED_MAX, SPP_MAX, THREADS
 
 ENV_PREFIX = "CLOUDBAKING_"
 #: Largest GI-tree budget, bytes (16 TiB).
@@ -61,10 +61,14 @@ class Settings(BaseSettings):
         (64, 128, 256, 512), min_length=1, description="square map resolutions served"
     )
     max_spp: int = Field(256, ge=1, le=SPP_MAX, description="largest spp a request may ask for")
-    max_body_bytes: int = Field(4096, ge=256, description="largest accepted request body")
-    max_renderers: int = Field(4, ge=1, description="compiled (scene, resolution) renderers kept in memory")
-    render_threads: int | None = Field(None, ge=1, description="Dr.Jit threads for rendering (default: all cores)")
-    seed: int = Field(0, description="seeds every render's noise (with the scene and the camera)")
+    max_body_bytes: int = Field(4096, ge=256, le=1 << 20, description="largest accepted request body (held in memory)")
+    max_renderers: int = Field(
+        4, ge=1, le=64, description="compiled (scene, resolution) renderers kept in memory (each holds its scene)"
+    )
+    render_threads: int | None = Field(
+        None, ge=1, le=THREADS["max"], description="Dr.Jit threads for rendering (default: all cores)"
+    )
+    seed: int = Field(0, ge=0, le=SEED_MAX, description="seeds every render's noise (with the scene and the camera)")
     miss_queue: int = Field(
         8, ge=0, le=10_000, description="misses that may wait for the renderer; one more is answered 503 + Retry-After"
     )

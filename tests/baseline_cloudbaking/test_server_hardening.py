@@ -88,7 +88,8 @@ def test_settings_from_the_environment_are_checked_in_one_line(tmp_path: Path) -
     assert_error_line(server_run(tmp_path, {"CLOUDBAKING_RESOLUTIONS": "abc"}), "CLOUDBAKING_RESOLUTIONS", "JSON")
     typo = server_run(tmp_path, {"CLOUDBAKING_SPPP": "4"})
     assert_error_line(typo, "CLOUDBAKING_SPPP", "CLOUDBAKING_MAX_SPP", "CLOUDBAKING_BUDGET_BYTES")
-    assert_error_line(server_run(tmp_path, {"CLOUDBAKING_BUDGET_BYTES": "0"}), "CLOUDBAKING_BUDGET_BYTES")
+    for name, value in (("BUDGET_BYTES", "0"), ("MAX_BODY_BYTES", str(10**12)), ("SEED", "-1")):
+        assert_error_line(server_run(tmp_path, {f"CLOUDBAKING_{name}": value}), f"CLOUDBAKING_{name}")
     assert_error_line(server_run(tmp_path, {}, "--graceful-timeout-s", "inf"), "--graceful-timeout-s")
     assert not (tmp_path / "s").exists()
 
