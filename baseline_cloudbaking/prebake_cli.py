@@ -35,7 +35,16 @@ from baseline_cloudbaking.bake import (
     spec_sha,
 )
 from baseline_cloudbaking.codecs import CODEC_NAMES, DEFAULT_CODEC
-from baseline_cloudbaking.store import DEFAULT_LIGHT_CELL, GITree, MapKey, StoreConflict, Tolerance, Viewpoint, ViewSet
+from baseline_cloudbaking.store import (
+    DEFAULT_LIGHT_CELL,
+    GITree,
+    MapKey,
+    StoreConflict,
+    Tolerance,
+    Viewpoint,
+    ViewSet,
+    store_folder,
+)
 from gicore.camera import Camera
 from gicore.cli import UserError, entry_point, writable_dir
 from gicore.executor import Executor, ExecutorOptions, InProcess, RayExecutor, Task
@@ -280,7 +289,7 @@ def prebake(
     given: dict[str, Any],
     *,
     scene: str,
-    store: Path,
+    store: str,
     tolerance_p: float | None,
     tolerance_deg: float | None,
     executor: str | None,
@@ -294,11 +303,11 @@ def prebake(
     name, spec = _scene(scene)
     if cfg.space == "all":
         space_of(spec, cfg)  # refused before the store or a Ray instance is touched
-    writable_dir(store, name="--store")
+    folder = writable_dir(store_folder(store), name="--store")
     t0 = time.perf_counter()
     with ExitStack() as stack:
         try:
-            stack.enter_context(exclusive_run(store / ".prebake" / name))
+            stack.enter_context(exclusive_run(folder / ".prebake" / name))
         except FolderHeld as exc:
             by = "" if exc.holder is None else f" (process {exc.holder})"
             raise UserError(
@@ -306,11 +315,11 @@ def prebake(
                 "wait for it to finish, then rerun to check",
             ) from None
         pool = stack.enter_context(run_on.open())
-        result = prebake_scene(store, name, spec, cfg, pool)
+        result = prebake_scene(folder, name, spec, cfg, pool)
     what = "configurations of the space stored" if cfg.space == "all" else "frames served by the store"
     typer.echo(
         f"{name}: {result.served}/{result.frames} {what}; {result.baked} maps baked now; "
-        f"{result.bytes / 2**20:.1f} MiB of {cfg.codec} maps for {name} in {store} ({time.perf_counter() - t0:.1f} s)"
+        f"{result.bytes / 2**20:.1f} MiB of {cfg.codec} maps for {name} in {folder} ({time.perf_counter() - t0:.1f} s)"
     )
     if isinstance(pool, RayExecutor) and pool.nodes:
         per_node = ", ".join(f"{node[:12]} {n}" for node, n in sorted(pool.nodes.items()))
@@ -326,7 +335,7 @@ config_command(
     exclude=("tolerance",),
     extras=[
         extra("scene", Annotated[str, typer.Argument(help=SCENE_HELP)]),
-        extra("store", Annotated[Path, typer.Option("--store", help=STORE_HELP)]),
+        extra("store", Annotated[str, typer.Option("--store", help=STORE_HELP)]),
         *config_options(ToleranceOptions),
         *config_options(ExecutorOptions),
     ],

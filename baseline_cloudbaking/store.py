@@ -175,6 +175,13 @@ class MapKey:
         return None if self.light_cell is None else ",".join(map(str, self.light_cell))
 
 
+def store_folder(text: str, option: str = "--store") -> Path:
+    """The GI-tree folder an option names; UserError when it is empty (``Path("")`` is the working folder)."""
+    if not text.strip():
+        raise UserError(f"{option} is empty", f"give the GI-tree folder, e.g. {option} gi_store")
+    return Path(text)
+
+
 def payload_sha(payload: bytes) -> str:
     """The content address of a payload: its SHA-256, hex (its file name and its HTTP ETag)."""
     return hashlib.sha256(payload).hexdigest()

@@ -143,14 +143,14 @@ def load_settings(opts: ServeOptions, store: Path, scenes: Path | None) -> Setti
 def serve(given: dict[str, Any], *, store: str, scenes: Path | None) -> None:
     """Serve GI maps over HTTP from the GI tree in --store."""
     from baseline_cloudbaking.server.stop import RequestedStop, StoppingServer
+    from baseline_cloudbaking.store import store_folder
 
     with RequestedStop() as stop:
         opts = build_config(ServeOptions, given)
-        if not store.strip():  # Path("") is the working folder
-            raise UserError("--store is empty", "give the GI-tree folder, e.g. --store gi_store")
+        folder = store_folder(store)
         if scenes is not None and not scenes.is_dir():
             raise UserError(f"--scenes {scenes} is not a folder", "give a folder of scene spec files")
-        settings = load_settings(opts, Path(store), scenes)
+        settings = load_settings(opts, folder, scenes)
         writable_dir(settings.store, name="--store")
         app, config = server_config(settings, opts.log_level)
         sock = bind(opts.host, opts.port)

@@ -94,9 +94,12 @@ def test_settings_from_the_environment_are_checked_in_one_line(tmp_path: Path) -
     assert not (tmp_path / "s").exists()
 
 
-def test_an_empty_store_is_refused_and_writes_nothing(tmp_path: Path) -> None:
-    outcome = run_script(["cloudbaking-server", "--store", "", "--port", "0"], cwd=tmp_path)
-    check_user_error(outcome, "--store is empty")
+@pytest.mark.parametrize(
+    "argv", [["cloudbaking-server", "--port", "0"], ["cloudbaking-prebake", "lung_plane"]], ids=lambda a: a[0]
+)
+def test_an_empty_store_is_refused_and_writes_nothing(tmp_path: Path, argv: list[str]) -> None:
+    """``--store ""`` would be the working folder."""
+    check_user_error(run_script([*argv, "--store", ""], cwd=tmp_path), "--store is empty")
 
 
 def test_a_store_whose_index_cannot_be_written_is_one_line_before_serving(tmp_path: Path) -> None:
