@@ -7,17 +7,17 @@ release time the model gave it (``loop.call_at`` on absolute deadlines; :class:`
 microsecond timeouts, so a timer fires within tens of microseconds without busy-waiting); the optional
 per-chunk log has ``sent_s`` next to ``release_s``. Rate, queue and delay are shared by a direction's
 connections, as on one bottleneck link; each connection has its own FIFO, window and loss draws. A pipe stops
-reading its sender while the model has not admitted what it holds or the receiver's buffer is full: it never
-drops stream bytes. At most ``max_connections`` client connections are kept (one more is closed on accept;
-refusals reported at most once per 10 s), and a connection that moved no byte for ``idle_timeout_s`` is closed
-on both sides, so held sockets give their slots back. SIGTERM/SIGINT: stop accepting, close every connection
-with FIN, write the log, exit 0. Not emulated: the TCP handshake, congestion control, loss bursts.
+reading its sender while the model has not admitted what it holds, the receiver's buffer is full or all
+connections together hold :data:`MAX_HELD_BYTES`: it never drops stream bytes. At most ``max_connections``
+client connections are kept (one more is closed on accept; refusals reported at most once per 10 s), and a
+connection that moved no byte for ``idle_timeout_s`` is closed on both sides, so held sockets give their slots
+back. SIGTERM/SIGINT: stop accepting, close every connection with FIN, write the log, exit 0. Not emulated: the
+TCP handshake, congestion control, loss bursts.
 """
 
 from __future__ import annotations
 
 import asyncio
-import csv
 import math
 import resource
 import select
@@ -26,28 +26,13 @@ import signal
 import socket
 import sys
 from collections import deque
-from collections.abc import Iterator
-from contextlib import contextmanager, suppress
+from contextlib import suppress
 from pathlib import Path
-from typing import TextIO
 
 from gicore.cli import UserError
+from network_sim.chunklog import ChunkLog
 from network_sim.link import DOWN, UP, Chunk, Link, LinkConfig, Stream
 
-#: Columns of the per-chunk log; times are seconds from the link origin (the model's clock).
-LOG_COLUMNS = (
-    "seq",
-    "conn",
-    "direction",
-    "bytes",
-    "arrival_s",
-    "admitted_s",
-    "finish_s",
-    "ready_s",
-    "release_s",
-    "sent_s",
-    "lost",
-)
 #: A timer that fires this close before its deadline counts as on time (asyncio runs handles due within
 #: its clock resolution).
 _EARLY_S = 1e-6
@@ -64,6 +49,10 @@ REFUSAL_REPORT_S = 10.0
 IDLE_TIMEOUT_S = 300.0
 #: Idle connections are looked for this many times per idle timeout (one is closed within 1.25 timeouts).
 IDLE_CHECKS = 4
+#: Most stream bytes held inside the emulated link, all connections together: past it no sender is read until
+#: half of it has been delivered (a 1024-connection flood through a long unshaped delay would otherwise hold
+#: every connection's window, 3 MiB each way).
+MAX_HELD_BYTES = 256 * 2**20
 
 
 class PreciseSelector(selectors.EpollSelector):
@@ -88,42 +77,6 @@ class PreciseSelector(selectors.EpollSelector):
 def new_event_loop() -> asyncio.AbstractEventLoop:
     """An asyncio loop that waits with :class:`PreciseSelector`."""
     return asyncio.SelectorEventLoop(PreciseSelector())
-
-
-class ChunkLog:
-    """The per-chunk CSV log: one row per chunk when it is written (or, at shutdown, never written).
-
-    A log that cannot be written (a folder, no space, ``/dev/full``) raises :class:`UserError`: at once when
-    it is opened (the header is flushed), else from the row or the close that met the failure.
-    """
-
-    def __init__(self, path: Path) -> None:
-        self.path = path
-        with self._failing():
-            self._fh: TextIO = path.open("w", newline="")
-            self._writer = csv.writer(self._fh)
-            self._writer.writerow(LOG_COLUMNS)
-            self._fh.flush()
-
-    @contextmanager
-    def _failing(self) -> Iterator[None]:
-        try:
-            yield
-        except OSError as exc:
-            raise UserError(
-                f"--log {self.path} cannot be written ({exc.strerror or exc})", "give a writable file path"
-            ) from None
-
-    def row(self, chunk: Chunk, sent: float | None) -> None:
-        c = chunk
-        sent_s = "" if sent is None else repr(sent)
-        times = (c.arrival, c.admitted, c.finish, c.ready, c.release)
-        with self._failing():
-            self._writer.writerow((c.seq, c.conn, c.direction, c.nbytes, *map(repr, times), sent_s, repr(c.lost)))
-
-    def close(self) -> None:
-        with self._failing():
-            self._fh.close()  # the file is closed even when the last flush fails
 
 
 class _Side(asyncio.Protocol):
@@ -190,8 +143,11 @@ class _Pipe:
             self.holds.discard(reason)
             if not self.holds and self.src.transport is not None and not self.src.lost:
                 self.src.transport.resume_reading()
+            if reason == "receiver":  # what came due meanwhile is written now
+                self._schedule_flush(self.proxy.now())
 
     def feed(self, data: bytes) -> None:
+        self.proxy.take(self, len(data))
         if len(data) <= self.max_chunk:
             self.waiting.append(data)
         else:
@@ -232,8 +188,8 @@ class _Pipe:
 
     # -- writing --------------------------------------------------------------------------------------
     def _schedule_flush(self, now: float) -> None:
-        if self.flush_timer is not None or not self.pending:
-            return
+        if self.flush_timer is not None or not self.pending or "receiver" in self.holds:
+            return  # a receiver that reads nothing gets nothing more: the bytes stay counted in the link
         head = self.pending[0][0].release
         if head <= now + _EARLY_S:
             self._flush()
@@ -244,10 +200,11 @@ class _Pipe:
         self.flush_timer = None
         now = self.proxy.now()
         transport = self.dst.transport
-        while self.pending and self.pending[0][0].release <= now + _EARLY_S:
+        while self.pending and self.pending[0][0].release <= now + _EARLY_S and "receiver" not in self.holds:
             chunk, data = self.pending.popleft()
+            self.proxy.give(len(data))
             if transport is not None and not self.dst.lost:
-                transport.write(data)
+                transport.write(data)  # may pause writing: the receiver hold ends this loop
                 self.src.conn.active = now
             self.proxy.logged(chunk, now)
         self._schedule_flush(now)
@@ -278,6 +235,7 @@ class _Pipe:
         self.offer_timer = self.flush_timer = None
         for chunk, _ in self.pending:
             self.proxy.logged(chunk, None)
+        self.proxy.give(sum(len(data) for _, data in self.pending) + sum(map(len, self.waiting)))
         self.pending.clear()
         self.waiting.clear()
 
@@ -384,6 +342,7 @@ class Proxy:
         log: ChunkLog | None = None,
         max_connections: int = MAX_CONNECTIONS,
         idle_timeout_s: float = IDLE_TIMEOUT_S,
+        max_held_bytes: int = MAX_HELD_BYTES,
     ) -> None:
         self.loop = asyncio.get_running_loop()
         self.link = Link(config)
@@ -401,6 +360,9 @@ class Proxy:
         #: Set by SIGTERM/SIGINT or by a fatal error (then in :attr:`error`): the proxy shuts down.
         self.stopped = asyncio.Event()
         self.error: UserError | None = None
+        #: Stream bytes read and not yet written or dropped, and the pipes not read until they shrink.
+        self.held_bytes, self.max_held_bytes = 0, max_held_bytes
+        self._short_of_memory: set[_Pipe] = set()
         self._idle_check = self.loop.call_later(idle_timeout_s / IDLE_CHECKS, self.close_idle)
 
     def now(self) -> float:
@@ -441,6 +403,21 @@ class Proxy:
             file=sys.stderr,
             flush=True,
         )
+
+    def take(self, pipe: _Pipe, nbytes: int) -> None:
+        """``pipe`` read ``nbytes`` into the link; past the bound it is not read again until :meth:`give`."""
+        self.held_bytes += nbytes
+        if self.held_bytes > self.max_held_bytes:
+            pipe.hold("memory")
+            self._short_of_memory.add(pipe)
+
+    def give(self, nbytes: int) -> None:
+        """``nbytes`` left the link (written or dropped); at half the bound every held sender is read again."""
+        self.held_bytes -= nbytes
+        if self._short_of_memory and self.held_bytes <= self.max_held_bytes // 2:
+            pipes, self._short_of_memory = self._short_of_memory, set()
+            for pipe in pipes:
+                pipe.unhold("memory")
 
     def logged(self, chunk: Chunk, sent: float | None) -> None:
         """Log a chunk; a log that cannot be written any more stops the proxy with that error."""

@@ -3,18 +3,22 @@ bounded and as text, an unwritable log and absurd flag values are one error line
 
 from __future__ import annotations
 
+import asyncio
 import socket
 import struct
 import sys
 import time
 from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
 
 from gicore.cli import UserError
 from network_sim import endpoint
+from network_sim.cli import link_config
 from network_sim.process import Running, network_sim, proxy
+from network_sim.proxy import MAX_HELD_BYTES, Proxy
 from network_sim.trace import MAX_BYTES, MAX_LINES, Trace
 from tests.helpers.cli import assert_user_error
 
@@ -147,3 +151,44 @@ def test_a_log_that_fails_mid_run_stops_the_proxy_with_one_error_line(
         err = p.stderr()
     assert status == 2, err
     assert err.splitlines() == [f"error: --log {log} cannot be written (File too large): give a writable file path"]
+
+
+# -- memory: what a flood can make the proxy hold ---------------------------------------------------------------
+#: Bytes one read of a socket may bring (asyncio's read size); a sender is held after the read that passes the bound.
+READ_BYTES = 2**18
+
+
+def held_peak(upstream: tuple[str, int], senders: int, max_held_bytes: int) -> tuple[int, list[endpoint.Transfer]]:
+    """The most stream bytes an in-process proxy with a 1 s delay held while ``senders`` clients each uploaded
+    2 MiB through it at once (a connection's window takes 3 MiB), and the sink's reports."""
+
+    async def run() -> tuple[int, list[endpoint.Transfer]]:
+        loop = asyncio.get_running_loop()
+        link = link_config(delay_ms=1000.0)
+        p = Proxy(link, upstream, max_connections=senders, max_held_bytes=max_held_bytes)
+        server = await loop.create_server(p.accept, "127.0.0.1", 0)
+        addr = server.sockets[0].getsockname()[:2]
+        with ThreadPoolExecutor(senders) as pool:
+            jobs = [
+                loop.run_in_executor(pool, endpoint.upload, addr, 2 * 2**20, seed, TIMEOUT) for seed in range(senders)
+            ]
+            peak = 0
+            while not all(job.done() for job in jobs):
+                peak = max(peak, p.held_bytes)
+                await asyncio.sleep(0.005)
+            transfers = [job.result() for job in jobs]
+        server.close()
+        p.close_all()
+        return peak, transfers
+
+    return asyncio.run(run())
+
+
+@pytest.mark.slow
+def test_a_flood_holds_bounded_memory_and_still_delivers_every_byte(upstream: tuple[str, int]) -> None:
+    senders, bound = 8, 2**20
+    peak, transfers = held_peak(upstream, senders, bound)
+    assert peak <= bound + senders * READ_BYTES, peak
+    assert all(t.intact for t in transfers)
+    unbounded, _ = held_peak(upstream, senders, MAX_HELD_BYTES)  # what the same flood holds below the default bound
+    assert unbounded > 2 * (bound + senders * READ_BYTES), unbounded
