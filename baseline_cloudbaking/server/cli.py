@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 import typer
 
-from gicore.cli import UserError, entry_point, writable_dir
+from gicore.cli import UserError, entry_point, serving, writable_dir
 from gicore.options import SPP, build_config, config_command, extra
 
 if TYPE_CHECKING:
@@ -142,10 +142,10 @@ def load_settings(opts: ServeOptions, store: Path, scenes: Path | None) -> Setti
 
 def serve(given: dict[str, Any], *, store: str, scenes: Path | None) -> None:
     """Serve GI maps over HTTP from the GI tree in --store."""
-    from baseline_cloudbaking.server.stop import RequestedStop, StoppingServer
+    from baseline_cloudbaking.server.stop import StoppingServer
     from baseline_cloudbaking.store import store_folder
 
-    with RequestedStop() as stop:
+    with serving():
         opts = build_config(ServeOptions, given)
         folder = store_folder(store)
         if scenes is not None and not scenes.is_dir():
@@ -160,8 +160,7 @@ def serve(given: dict[str, Any], *, store: str, scenes: Path | None) -> None:
         # The event loop, the hit threads and the miss thread share the GIL: a thread waiting for it waits up to
         # the switch interval (5 ms by default) while another computes, which a hit would pay several times.
         sys.setswitchinterval(SWITCH_INTERVAL_S)
-        stop.server = StoppingServer(config, app)
-        stop.server.run(sockets=[sock])
+        StoppingServer(config, app).run(sockets=[sock])
 
 
 def server_config(settings: Settings, log_level: str) -> tuple[FastAPI, uvicorn.Config]:

@@ -1,4 +1,5 @@
-"""How ``cloudbaking-server`` stops: SIGTERM exactly as Ctrl-C (SIGINT), a requested stop that ends in exit 0.
+"""How ``cloudbaking-server`` stops (docs/architecture.md, Errors): SIGTERM exactly as Ctrl-C, and a requested
+stop ends in exit 0 (:func:`gicore.cli.serving`).
 
 On either signal uvicorn stops taking connections and waits for the requests in progress;
 :class:`StoppingServer` first tells the map service (:meth:`~baseline_cloudbaking.server.service.MapService.stop`),
@@ -12,26 +13,11 @@ crash-safe, so that too loses no stored map.
 from __future__ import annotations
 
 import os
-import signal
 import socket
 import sys
-from types import FrameType, TracebackType
-from typing import Any
 
 import uvicorn
 from fastapi import FastAPI
-
-#: The signals that ask the server to stop (uvicorn handles both alike while it runs).
-STOP_SIGNALS = (signal.SIGTERM, signal.SIGINT)
-
-
-class StopRequested(Exception):
-    """SIGTERM or SIGINT before or after uvicorn ran (uvicorn raises the signal it caught again once it has
-    stopped, which lands here)."""
-
-
-def _raise_stop(signum: int, frame: FrameType | None) -> None:
-    raise StopRequested
 
 
 class StoppingServer(uvicorn.Server):
@@ -47,38 +33,24 @@ class StoppingServer(uvicorn.Server):
             service.stop()
         await super().shutdown(sockets)
 
+    def run(self, sockets: list[socket.socket] | None = None) -> None:
+        """Serve until stopped (uvicorn raises the signal that stopped it again on its way out); if a render was
+        abandoned, end the process at once with exit 0 rather than wait for it."""
+        try:
+            super().run(sockets)
+        finally:
+            if self.abandoned:
+                print(
+                    "cloudbaking-server: stopped; a render still running after the graceful timeout was abandoned "
+                    "(its map is not stored)",
+                    file=sys.stderr,
+                    flush=True,
+                )
+                sys.stdout.flush()
+                os._exit(0)  # the render thread cannot be stopped, and the interpreter would wait for it
+
     @property
     def abandoned(self) -> bool:
         """A render was still running at the graceful timeout."""
         service = getattr(self.app.state, "service", None)
         return service is not None and service.misses.abandoned
-
-
-class RequestedStop:
-    """A context in which SIGTERM and SIGINT end the run normally (the ``with`` block is left, exit 0 follows):
-    before uvicorn runs, at once; while it runs, once it has stopped. Set ``server`` when it starts: if a render
-    was abandoned, the process ends on leaving the block rather than wait for it."""
-
-    def __init__(self) -> None:
-        self.server: StoppingServer | None = None
-        self._previous: dict[int, Any] = {}
-
-    def __enter__(self) -> RequestedStop:
-        self._previous = {sig: signal.signal(sig, _raise_stop) for sig in STOP_SIGNALS}
-        return self
-
-    def __exit__(self, kind: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None) -> bool:
-        for sig, handler in self._previous.items():
-            signal.signal(sig, handler)
-        if kind is not None and not issubclass(kind, StopRequested):
-            return False
-        if self.server is not None and self.server.abandoned:
-            print(
-                "cloudbaking-server: stopped; a render still running after the graceful timeout was abandoned "
-                "(its map is not stored)",
-                file=sys.stderr,
-                flush=True,
-            )
-            sys.stdout.flush()
-            os._exit(0)  # the render thread cannot be stopped, and the interpreter would wait for it
-        return True
