@@ -269,6 +269,8 @@ class _Connection:
         if side is self.client:
             self.pipes[UP].hold("connect")  # nothing can be written upstream before it is connected
             self.proxy.spawn(self._connect())
+        elif self.closed and side.transport is not None:  # the client went away while the upstream connected
+            side.transport.close()
         else:
             self.pipes[UP].unhold("connect")
 

@@ -192,3 +192,25 @@ def test_a_flood_holds_bounded_memory_and_still_delivers_every_byte(upstream: tu
     assert all(t.intact for t in transfers)
     unbounded, _ = held_peak(upstream, senders, MAX_HELD_BYTES)  # what the same flood holds below the default bound
     assert unbounded > 2 * (bound + senders * READ_BYTES), unbounded
+
+
+def test_an_upstream_that_connects_after_its_client_left_is_closed() -> None:
+    """A client that resets while the proxy still connects upstream: the late upstream leg is closed, not kept."""
+
+    class Leg(asyncio.Transport):
+        closed = False
+
+        def close(self) -> None:
+            self.closed = True
+
+    async def run() -> Leg:
+        p = Proxy(link_config(), ("127.0.0.1", 9))
+        p.accept()  # a client connects
+        (conn,) = p.connections.values()
+        conn.close()  # what the client's reset leads to
+        late = Leg()
+        conn.upstream.connection_made(late)
+        p.close_all()
+        return late
+
+    assert asyncio.run(run()).closed
