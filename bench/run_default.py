@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 
 from bench import latency, storage
 from bench.runner import Bench, check_config, execute
+from gicore.options import FRAMES
 from gicore.results import Results
 
 
@@ -29,6 +30,8 @@ class RunDefaultConfig:
     #: Renderers of the latency clients' raster passes (bench latency --renderers): gl, what a Web3D client
     #: rasterises with (mitsuba where no GL context opens); gl,mitsuba adds the side-by-side comparison.
     renderers: tuple[str, ...] = ("gl",)
+    #: Frames each latency client flies (fewer: a faster look, fewer maps per median).
+    frames: int = field(default=latency.LatencyConfig.quick().frames, metadata=FRAMES)
 
     @classmethod
     def quick(cls) -> RunDefaultConfig:
@@ -38,7 +41,7 @@ class RunDefaultConfig:
 #: The benches of the main job with their quick presets, the table each writes, and what the main job's own
 #: options change in the preset.
 JOBS = (
-    (latency.BENCH, latency.LatencyConfig, "latency_table.md", ("scenes", "renderers")),
+    (latency.BENCH, latency.LatencyConfig, "latency_table.md", ("scenes", "renderers", "frames")),
     (storage.BENCH, storage.StorageConfig, "storage_table2.md", ("scenes",)),
 )
 
