@@ -171,6 +171,21 @@ def test_a_light_outside_the_scene_range_is_422_and_stores_nothing(app_client: T
     assert scene["light_min"] == pytest.approx([-0.6, 2.05, 0.3]) and scene["light_cell"] == 0.25
 
 
+def test_the_openapi_document_states_what_the_server_applies(app_client: TestClient) -> None:
+    """Its defaults are the ones a request that omits the field gets; its light box holds every scene's range."""
+    doc = app_client.get("/openapi.json").json()["components"]["schemas"]["GIMapRequest"]["properties"]
+    assert (doc["resolution"]["default"], doc["spp"]["default"]) == (32, 1)
+    body = {k: v for k, v in gimap_body(eye=(1.3, 1.0, 1.7)).items() if k not in ("resolution", "spp")}
+    response = post(app_client, body)
+    assert response.status_code == 200, response.text
+    assert app_client.get("/v1/stats").json()["by_scene_codec"]  # stored
+    items = next(s for s in doc["light"]["anyOf"] if s.get("type") == "array")["prefixItems"]
+    for scene in app_client.get("/v1/scenes").json()["scenes"]:
+        for axis, item in enumerate(items):
+            assert item["minimum"] <= scene["light_min"][axis] <= scene["light_max"][axis] <= item["maximum"]
+    assert all(-100 < item["minimum"] and item["maximum"] < 100 for item in items)
+
+
 def test_the_gi_tree_has_a_byte_budget_by_default(
     app_client: TestClient, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
