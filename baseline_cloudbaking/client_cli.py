@@ -48,6 +48,7 @@ def client_command(given: dict[str, Any], *, server: str, out: Path) -> None:
 
     cfg = build_config(CloudClientConfig, given)
     load_scene(cfg.scene)  # a bad spec is one error line before the server is asked
+    cfg.check_gt_cache()
     if cfg.gt_every:
         check_denoiser(cfg.denoise)
     timeout = cfg.connect_timeout + cfg.read_timeout

@@ -28,7 +28,7 @@ import numpy as np
 
 from gicore.blend import COMPOSITIONS, blend, residual
 from gicore.camera import Camera
-from gicore.cli import UserError
+from gicore.cli import UserError, writable_dir
 from gicore.fileio import atomic_write_bytes
 from gicore.metrics import lf_error, psnr, ssim
 from gicore.options import FOV_DEGREES, FRAMES, RESOLUTION, SEED, SPP, check_fields
@@ -342,6 +342,11 @@ class PathRunConfig:
             check_fields(self)
         except UserError as err:
             raise ValueError(str(err)) from None
+
+    def check_gt_cache(self) -> None:
+        """Refuse a ``--gt-cache`` that is a file or cannot be made a folder, before any frame is path-traced."""
+        if self.gt_cache is not None:
+            writable_dir(self.gt_cache, name="--gt-cache")
 
     def local_fov_of(self, spec: SceneSpec) -> float:
         """The local camera's FOV: the given one, else the scene's (zero is not absent)."""

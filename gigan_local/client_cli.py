@@ -17,7 +17,7 @@ from typing import Annotated, Any
 
 import typer
 
-from gicore.cli import entry_point, writable_dir
+from gicore.cli import entry_point
 from gicore.fileio import exclusive_run
 from gicore.options import build_config, config_command, extra
 from gigan_local.client import ClientConfig, run
@@ -30,8 +30,7 @@ def client_command(given: dict[str, Any], *, with_gt: bool, out: Path, save_fram
     if with_gt:
         given = given | {"gt_every": 1}
     cfg = build_config(ClientConfig, given)
-    if cfg.gt_cache is not None:  # a file or an unwritable place is refused before any frame is path-traced
-        writable_dir(cfg.gt_cache, name="--gt-cache")
+    cfg.check_gt_cache()
     with exclusive_run(out):
         summary = run(cfg, out, save_frames=save_frames, video=video)
     line = f"{cfg.frames} frames, {summary['fps']:.1f} fps"
