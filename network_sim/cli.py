@@ -108,7 +108,10 @@ class ProxyOptions:
                 changes.update(rate_mbit=rate, trace=None)
             if trace is not None:
                 changes["trace"] = Trace.load(trace)
-            return replace(current, **changes)
+            try:
+                return replace(current, **changes)
+            except ValueError as exc:  # what the option limits cannot say, e.g. a rate that is neither 0 nor usable
+                raise UserError(f"the {name} direction's {exc}", "change that option (see --help)") from None
 
         up_rate = self.rate_up_mbit if self.rate_up_mbit is not None else self.rate_mbit
         down_rate = self.rate_down_mbit if self.rate_down_mbit is not None else self.rate_mbit

@@ -52,6 +52,10 @@ UP, DOWN = "up", "down"
 _STANDARD_NORMAL = NormalDist()
 
 
+#: Smallest non-zero rate, Mbit/s (1 kbit/s: a 1 KiB chunk every 8 s).
+RATE_MBIT_MIN = 1e-3
+
+
 @dataclass(frozen=True)
 class DirectionConfig:
     """How one direction of the link treats the bytes crossing it (``up``: client to upstream)."""
@@ -80,6 +84,9 @@ class DirectionConfig:
             raise ValueError(f"jitter_dist = {self.jitter_dist!r} must be one of {', '.join(JITTER_DISTS)}")
         if self.rate_mbit is not None and not (math.isfinite(self.rate_mbit) and self.rate_mbit >= 0):
             raise ValueError(f"rate_mbit = {self.rate_mbit!r} must be a finite number >= 0 (or None for unlimited)")
+        if self.rate_mbit is not None and 0 < self.rate_mbit < RATE_MBIT_MIN:
+            # a rate this small schedules bytes centuries ahead: the connection would never count as idle
+            raise ValueError(f"rate_mbit = {self.rate_mbit!r} must be 0 (a dead link) or >= {RATE_MBIT_MIN:g}")
         if not (isinstance(self.queue_bytes, int) and self.queue_bytes >= OPPORTUNITY_BYTES):
             raise ValueError(f"queue_bytes = {self.queue_bytes!r} must be an integer >= {OPPORTUNITY_BYTES}")
         if not (0.0 <= self.loss <= 1.0):

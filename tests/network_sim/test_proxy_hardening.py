@@ -214,3 +214,12 @@ def test_an_upstream_that_connects_after_its_client_left_is_closed() -> None:
         return late
 
     assert asyncio.run(run()).closed
+
+
+# -- rates: 0 is a dead link; a positive rate too small to ever finish a chunk is refused ------------------------
+def test_a_vanishing_rate_is_refused_in_one_line_and_zero_stays_a_dead_link(tmp_path: Path) -> None:
+    for flag in ("--rate-mbit", "--rate-up-mbit"):
+        argv = ["network-sim", "proxy", "--upstream", "127.0.0.1:9", flag, "1e-300"]
+        line = assert_user_error(argv, "rate_mbit = 1e-300", tmp_path)
+        assert "must be 0 (a dead link) or >= 0.001" in line
+    assert link_config(rate_mbit=0.0).up.rate_mbit == 0.0 and link_config(rate_mbit=1e-3).down.rate_mbit == 1e-3
