@@ -92,13 +92,14 @@ def threads(plan: dict[str, Any], role: str) -> int:
 
 
 @contextmanager
-def pinned_server(plan: dict[str, Any], store: Path, scenes_dir: Path | None) -> Iterator[str]:
-    """A pinned ``cloudbaking-server`` on an ephemeral port; yields its base URL."""
+def pinned_server(plan: dict[str, Any], store: Path, scenes_dir: Path | None, *options: str) -> Iterator[str]:
+    """A pinned ``cloudbaking-server`` on an ephemeral port, given ``options`` besides; yields its base URL."""
     from network_sim.process import Running
 
     env = ["env", f"CLOUDBAKING_RENDER_THREADS={threads(plan, 'server')}"]
     argv = [*env, *taskset(plan, "server"), str(BIN / "cloudbaking-server"), "--port", "0", "--store", str(store)]
-    with Running(argv + (["--scenes", str(scenes_dir)] if scenes_dir else []), timeout=120.0) as server:
+    argv += [*(["--scenes", str(scenes_dir)] if scenes_dir else []), *options]
+    with Running(argv, timeout=120.0) as server:
         host, port = server.addr
         yield f"{host}:{port}"  # host is "http://127.0.0.1" (the server prints a URL)
 

@@ -161,11 +161,18 @@ async def _miss(host: str, port: int, body: bytes, res: LoadResult) -> None:
 
 
 async def _idle_flood(host: str, port: int, n: int, res: LoadResult, stop: asyncio.Event, rate: float) -> None:
-    """Open ``n`` connections that send nothing, ``rate`` a second, and hold each until the server closes it or
-    ``stop`` is set."""
+    """Open ``n`` connections that send nothing, ``rate`` a second whether or not the earlier ones are through
+    (independent clients: one whose handshake waits does not hold back the next), and hold each until the
+    server closes it or ``stop`` is set."""
     held: set[asyncio.Task] = set()
 
-    async def hold(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+    async def open_and_hold() -> None:
+        try:
+            reader, writer = await asyncio.open_connection(host, port)
+        except OSError as exc:
+            res.errors[f"idle {exc.strerror or type(exc).__name__}"] += 1
+            return
+        res.idle_opened += 1
         try:
             while not stop.is_set() and await reader.read(4096):
                 pass  # a server's 503 refusal, then EOF
@@ -180,14 +187,7 @@ async def _idle_flood(host: str, port: int, n: int, res: LoadResult, stop: async
         if stop.is_set():
             break
         await asyncio.sleep(max(0.0, t0 + i / rate - asyncio.get_running_loop().time()))
-        try:
-            reader, writer = await asyncio.open_connection(host, port)
-        except OSError as exc:
-            res.errors[f"idle {exc.strerror or type(exc).__name__}"] += 1
-            await asyncio.sleep(0.01)
-            continue
-        res.idle_opened += 1
-        task = asyncio.ensure_future(hold(reader, writer))
+        task = asyncio.ensure_future(open_and_hold())
         held.add(task)
         task.add_done_callback(held.discard)
     await stop.wait()
