@@ -169,7 +169,7 @@ def test_client_survives_the_server_shutting_down(scenes_dir: Path, tmp_path: Pa
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         )  # fmt: skip
         deadline = time.monotonic() + 90
-        while httpx.get(f"{url}/v1/stats", timeout=10).json()["requests"] < 2:
+        while httpx.get(f"{url}/v1/stats", timeout=60).json()["requests"] < 2:
             assert time.monotonic() < deadline and client.poll() is None, "the client did not get two maps"
             time.sleep(0.02)
         srv.proc.kill()
@@ -182,7 +182,9 @@ def test_client_survives_the_server_shutting_down(scenes_dir: Path, tmp_path: Pa
     last = max((r for r in requests if r["bound_frame"]), key=lambda r: int(r["bound_frame"]))
     after = frames[int(last["bound_frame"]) + 1 :]
     assert len(frames) == 150 and len(after) > 10
-    assert all(r["gi_new"] == "0" and float(r["valid_frac"]) > 0.5 and float(r["gi_wait_ms"]) < 50 for r in after)
+    assert all(r["gi_new"] == "0" and float(r["valid_frac"]) > 0.5 for r in after)
+    # none waits for the dead server: each a small part of the first frame's wait for its map (a compile and a bake)
+    assert max(float(r["gi_wait_ms"]) for r in after) < 0.5 * float(frames[0]["gi_wait_ms"])
     assert int(after[-1]["gi_age_frames"]) == 149 - int(last["frame"])  # still the last map, ageing
 
 
@@ -194,20 +196,22 @@ def test_a_dead_link_ends_in_a_timeout_never_a_hang(server: str, scenes_dir: Pat
     from gicore.loop import ClientLoop, LoopConfig
     from gicore.render import Renderer
 
+    read_s, deadline_s, first_map_s = 0.5, 2.0, 1.5
     spec, path = views(scenes_dir, 3)
     with network_sim("proxy", "--upstream", server.removeprefix("http://"), *link) as proxy:
-        cfg = remote("http://{}:{}".format(*proxy.addr), read_timeout_s=0.5, deadline_s=2.0, retry_after_s=30.0)
+        url = "http://{}:{}".format(*proxy.addr)
+        cfg = remote(url, read_timeout_s=read_s, deadline_s=deadline_s, retry_after_s=30.0)
         with caplog.at_level(logging.WARNING, logger="cloudbaking.client"), RemoteSource(cfg) as source:
             renderer = Renderer(spec, RES)
-            loop = ClientLoop(LoopConfig(every=1, gi_fov=90.0, first_map_timeout_s=1.5), renderer, source, PixelWarp())
-            t0 = time.perf_counter()
+            loop_cfg = LoopConfig(every=1, gi_fov=90.0, first_map_timeout_s=first_map_s)
+            loop = ClientLoop(loop_cfg, renderer, source, PixelWarp())
             rows = [loop.step(f, cam.with_fov(60.0), light).row for f, (cam, light) in enumerate(path)]
-            elapsed = time.perf_counter() - t0
-    assert elapsed < 5.0
+    # each wait ends at its timeout, not later than a busy machine makes it (the margins are multiples of it)
     [record] = source.records
-    assert record["status"] == "timeout" and 400 < record["latency_ms"] < 2500 and source.latest() is None
-    assert any("failed: timeout" in m for m in caplog.messages)
-    assert 1000 < rows[0]["gi_wait_ms"] < 2500 and all(r["gi_wait_ms"] < 50 and r["valid_frac"] == 0 for r in rows[1:])
+    assert record["status"] == "timeout" and 0.8 * read_s * 1e3 < record["latency_ms"] < 2 * deadline_s * 1e3
+    assert source.latest() is None and any("failed: timeout" in m for m in caplog.messages)
+    assert 0.9 * first_map_s * 1e3 <= rows[0]["gi_wait_ms"] < 3 * first_map_s * 1e3, rows[0]
+    assert all(r["gi_wait_ms"] < 0.5 * read_s * 1e3 and r["valid_frac"] == 0 for r in rows[1:]), rows
     assert [r["gi_requested"] for r in rows] == [1, 0, 0]  # retry_after holds the next request back
 
 

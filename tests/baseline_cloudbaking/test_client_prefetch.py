@@ -79,8 +79,14 @@ def test_retry_after_values() -> None:
     assert retry_after_s("3", 1.0, 60.0) == 3.0
     assert retry_after_s(None, 1.0, 60.0) == 1.0 and retry_after_s("soon", 1.0, 60.0) == 1.0
     assert retry_after_s("100000", 1.0, 60.0) == 60.0 and retry_after_s("-5", 1.0, 60.0) == 0.0
-    date = email.utils.formatdate(time.time() + 20.0, usegmt=True)
-    assert 18.0 <= retry_after_s(date, 1.0, 60.0) <= 21.0
+    sent = time.time()
+    date = email.utils.formatdate(sent + 20.0, usegmt=True)  # whole seconds: up to 1 s less than asked
+    waited = retry_after_s(date, 1.0, 60.0)
+    assert 19.0 - (time.time() - sent) <= waited <= 20.0
+
+
+#: Hang guard of a wait for a request's answer.
+WAIT_S = 60.0
 
 
 @pytest.fixture
@@ -116,12 +122,12 @@ def test_a_503_holds_requests_back_for_its_retry_after(overloaded) -> None:
     url = f"http://127.0.0.1:{overloaded.server_address[1]}"
     remote = RemoteConfig(url, "ball_moving", RES, "jpeg", SPP, retry_after_s=0.0)
     with RemoteSource(remote) as source:
-        assert source.request(cam(0.0), (0.0, 2.0, 0.0), 0) and source.wait(10.0)
+        assert source.request(cam(0.0), (0.0, 2.0, 0.0), 0) and source.wait(WAIT_S)
         t_failed = time.perf_counter()
         assert source.records[0]["status"] == "overloaded" and "retry after" in source.records[0]["error"]
         assert not source.request(cam(0.0), (0.0, 2.0, 0.0), 1)  # retry_after_s 0 would have sent it
         time.sleep(max(0.0, t_failed + 1.05 - time.perf_counter()))
-        assert source.request(cam(0.0), (0.0, 2.0, 0.0), 2) and source.wait(10.0)
+        assert source.request(cam(0.0), (0.0, 2.0, 0.0), 2) and source.wait(WAIT_S)
     assert overloaded.posts == 2
 
 
@@ -129,7 +135,7 @@ def test_requests_in_flight_at_most_as_allowed_each_recorded_once(overloaded) ->
     remote = RemoteConfig(f"http://127.0.0.1:{overloaded.server_address[1]}", "ball_moving", RES, "jpeg", SPP)
     with RemoteSource(remote, RequestPolicy(in_flight=2)) as source:
         assert [source.request(cam(0.0), (0.0, 2.0, 0.0), f) for f in range(3)] == [True, True, False]
-        assert source.wait(10.0)
+        assert source.wait(WAIT_S)
     assert sorted((r["request_id"], r["frame"], r["status"]) for r in source.records) == [
         (0, 0, "overloaded"),
         (1, 1, "overloaded"),

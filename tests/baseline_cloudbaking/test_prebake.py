@@ -83,7 +83,7 @@ def test_kill_9_mid_bake_then_reopen_and_resume(scenes_dir: Path, tmp_path: Path
     while count_rows(store) < 4 and proc.poll() is None and time.monotonic() < deadline:
         time.sleep(0.01)
     os.killpg(proc.pid, signal.SIGKILL)
-    proc.wait(timeout=30)
+    proc.wait(timeout=120)
     assert proc.returncode == -signal.SIGKILL  # killed, not finished
     partial = check_store(store)
     assert 4 <= partial < total
@@ -117,8 +117,9 @@ def test_ctrl_c_in_a_worker_pool_leaves_a_resumable_store(scenes_dir: Path, tmp_
 
 # --- process lifetime: workers end with the prebake, locks, a read-only store -----------------------------
 
-#: A worker process or a lock this long past the prebake's end is a leak.
-GONE_S = 5.0
+#: A worker process or a lock this long past the prebake's end is a leak (left alone, one would never end; a busy
+#: machine only takes longer to reap them).
+GONE_S = 60.0
 needs_proc = pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads process states from /proc")
 
 
@@ -187,7 +188,7 @@ def test_kill_9_of_a_pool_prebake_leaves_no_process_and_the_rerun_takes_its_lock
     try:
         started = time.monotonic()
         os.kill(proc.pid, signal.SIGKILL)
-        proc.wait(timeout=30)
+        proc.wait(timeout=120)
         wait_session_gone(proc.pid)
         took = time.monotonic() - started
     finally:
@@ -211,7 +212,7 @@ def test_sigterm_of_a_pool_prebake_stops_its_workers_and_releases_its_lock(scene
     try:
         started = time.monotonic()
         proc.send_signal(signal.SIGTERM)
-        proc.wait(timeout=30)
+        proc.wait(timeout=120)
         wait_session_gone(proc.pid)
         took = time.monotonic() - started
     finally:
@@ -272,8 +273,8 @@ def test_kill_9_of_a_ray_prebake_ends_the_local_instance_it_started(scenes_dir: 
         assert any(c.startswith(b"ray::DashboardAgent") for c in ray_processes.values())  # what Ray leaves behind
         killed = time.monotonic()
         os.kill(proc.pid, signal.SIGKILL)
-        proc.wait(timeout=30)
-        while (left := session_processes(proc.pid)) and time.monotonic() - killed < 20:
+        proc.wait(timeout=120)
+        while (left := session_processes(proc.pid)) and time.monotonic() - killed < GONE_S:
             time.sleep(0.05)
         took = time.monotonic() - killed
         print(f"{len(ray_processes)} processes of the local Ray instance gone {took:.1f} s after kill -9")

@@ -148,7 +148,7 @@ def test_kill_9_of_the_driver_stops_its_tasks_and_the_rerun_completes(
     os.killpg(proc.pid, signal.SIGKILL)
     proc.wait(timeout=30)
     killed = time.monotonic()
-    while busy_ray_workers() and time.monotonic() - killed < 30:
+    while busy_ray_workers() and time.monotonic() - killed < 60:  # a hang guard: left alone they render every map
         time.sleep(0.1)
     print(f"the dead driver's tasks ended {time.monotonic() - killed:.1f} s after kill -9")
     assert busy_ray_workers() == [] and len(alive_nodes()) == 2

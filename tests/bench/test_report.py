@@ -176,12 +176,12 @@ def test_dashboard_in_chromium_every_section_has_data_and_a_pareto_point_shows_i
     point = page.locator("section#pareto svg circle.pt").first
     point.scroll_into_view_if_needed()
     point.hover()
-    tip.wait_for(state="visible", timeout=5000)
+    tip.wait_for(state="visible", timeout=30_000)
     text = tip.inner_text()
     assert re.search(r"^(gigan|cloud_baking) \(lung_plane\), (dominated|on the front)", text), text
     assert '"knob":' in text and '"per":' in text and "run time" in text and "error (1-SSIM)" in text
     page.mouse.move(2, 2)
-    tip.wait_for(state="hidden", timeout=5000)
+    tip.wait_for(state="hidden", timeout=30_000)
     ARTIFACTS.mkdir(parents=True, exist_ok=True)
     page.screenshot(path=str(ARTIFACTS / "report_dashboard.png"), full_page=True)
     assert page.errors == []

@@ -44,8 +44,7 @@ def test_service_bench_measures_every_metric_against_a_real_server(tmp_path: Pat
         < value("hit_server", "median", part="lookup_read")
         <= value("hit_server", "median", part="total")
         < value("hit_e2e", "median")
-        < 1000
-    )
+    )  # the server's part of a hit, within the whole round trip
     assert (
         value("miss_server", "first", part="render") > 0 and value("miss_server", "n", part="render") == 1
     )  # the second view missed too

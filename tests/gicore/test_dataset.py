@@ -294,7 +294,7 @@ def test_denoised_dataset_and_build_after_in_process_denoise(sphere_mesh_path, t
         cwd=Path(__file__).resolve().parents[2],
     )
     try:
-        out, _ = proc.communicate(timeout=25)
+        out, _ = proc.communicate(timeout=240)  # a hang guard: the work takes seconds
     except subprocess.TimeoutExpired:
         os.killpg(proc.pid, signal.SIGKILL)
         out, _ = proc.communicate()

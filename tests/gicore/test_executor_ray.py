@@ -224,16 +224,19 @@ def test_without_retries_a_dead_worker_fails_the_run(ray_address: str, tmp_path:
 
 
 def test_interrupting_the_driver_cancels_the_running_tasks(ray_address: str, tmp_path: Path) -> None:
+    interrupted: list[float] = []
+
     def interrupt(job: float, result: float) -> None:
+        interrupted.append(time.monotonic())
         raise KeyboardInterrupt
 
-    started = time.monotonic()
     with pytest.raises(KeyboardInterrupt):
         RayExecutor().run(Task(_marker, (str(tmp_path),), _sleep), [0.0, 60.0, 60.0, 60.0], interrupt)
-    deadline = time.monotonic() + 15
+    # the 60 s sleeps were stopped: their workers are idle long before the sleeps could have ended
+    deadline = interrupted[0] + 40
     while busy_ray_workers() and time.monotonic() < deadline:
         time.sleep(0.05)
-    assert busy_ray_workers() == [] and time.monotonic() - started < 30  # the 60 s sleeps were stopped
+    assert busy_ray_workers() == []
 
 
 @pytest.mark.parametrize("backend", ["local_pool", "ray"])
@@ -314,11 +317,10 @@ PREBAKE = [
     ],
 )
 def test_a_bad_ray_address_is_one_error_line(argv: list[str], address: str, culprit: str, scenes: Path) -> None:
-    started = time.monotonic()
+    # the culprit is the address check's, made before Ray is asked (which would reconnect for minutes)
     one_error_line(
         run_cli([*argv, "--executor", "ray", "--ray-address", address], scenes), culprit.format("--ray-address")
     )
-    assert time.monotonic() - started < 30  # not Ray's minutes of reconnecting
     assert not (scenes / "out").exists() and not (scenes / "store" / "index.sqlite").exists()
 
 

@@ -165,22 +165,25 @@ class ThreadedSource:
 
 
 def test_a_background_source_does_not_block_frames_after_the_first_map(loop_renderer):
-    delay = 0.1
+    """Maps take ``delay`` to arrive: the first frame waits for one, later frames go on with the map they have
+    (each waits far less than a map takes: a same-run ratio, however slow the frames are)."""
+    delay = 0.5
     source = ThreadedSource(delay)
     loop = make_loop(loop_renderer, source, "none", every=2)
-    views = path_views(loop_renderer.spec, 8, 40, 0, 60.0, RES)
     rows = []
-    for frame, (camera, light) in enumerate(views):
+    for frame, (camera, light) in enumerate(path_views(loop_renderer.spec, 400, 40, 0, 60.0, RES)):
         rows.append(loop.step(frame, camera, light).row)
+        if sum(r["gi_new"] for r in rows) == 2:  # the second map is bound: every case below has happened
+            break
         time.sleep(0.02)  # the rest of a frame's work
     for t in source.threads:
-        t.join(timeout=5)
+        t.join(timeout=60)
     assert rows[0]["gi_requested"] == 1 and rows[0]["gi_wait_ms"] >= 0.9 * delay * 1e3, (
         "the first frame waits for the first map"
     )
     assert all(r["gi_wait_ms"] < 0.5 * delay * 1e3 for r in rows[1:]), "later frames go on with the map they have"
     new = [r for r in rows if r["gi_new"]]
-    assert len(new) >= 2 and all(r["gi_latency_ms"] >= 0.9 * delay * 1e3 for r in new)
+    assert len(new) == 2 and all(r["gi_latency_ms"] >= 0.9 * delay * 1e3 for r in new)
     assert all(r["server_ms"] == pytest.approx(delay * 1e3) for r in new) and all(
         r["server_ms"] == "" for r in rows if not r["gi_new"]
     )
@@ -195,14 +198,18 @@ def test_a_background_source_does_not_block_frames_after_the_first_map(loop_rend
 def test_frames_show_the_di_alone_until_a_map_arrives(loop_renderer):
     """A source that never delivers (a dead server): the run waits for its first map once, up to the
     timeout, then every frame shows its DI without waiting again, and the source is asked again."""
-    loop = make_loop(loop_renderer, ThreadedSource(0.0, fail=True), "structure", first_map_timeout_s=0.05)
+    timeout_s = 0.5
+    loop = make_loop(loop_renderer, ThreadedSource(0.0, fail=True), "structure", first_map_timeout_s=timeout_s)
     views = path_views(loop_renderer.spec, 3, 40, 0, 60.0, RES)
     rows = []
     for frame, (camera, light) in enumerate(views):
         result = loop.step(frame, camera, light)
         rows.append(result.row)
         np.testing.assert_array_equal(result.image, loop_renderer.render_di(camera, light, seed=frame_seed_di(frame)))
-    assert 45.0 <= rows[0]["gi_wait_ms"] < 1000.0 and all(r["gi_wait_ms"] < 20.0 for r in rows[1:])
+    timeout_ms = timeout_s * 1e3
+    # the first frame waits the timeout (not forever: the 4x margin is for a busy machine), the others do not
+    assert 0.9 * timeout_ms <= rows[0]["gi_wait_ms"] < 4 * timeout_ms, rows[0]
+    assert all(r["gi_wait_ms"] < 0.5 * timeout_ms for r in rows[1:]), rows
     assert all(r["valid_frac"] == 0.0 and r["gi_age_frames"] == "" and r["lookup_ms"] == "" for r in rows)
     assert sum(r["gi_requested"] for r in rows) >= 2
 
@@ -267,14 +274,15 @@ def test_rows_summary_and_config_errors(loop_renderer):
 
 
 def test_stopwatch_laps_sum_and_restart_skips():
+    pause_ms = 200.0  # the time restart() skips; a lap right after it takes a small part of that anywhere
     sw = Stopwatch()
-    time.sleep(0.01)
-    assert sw.lap("a") >= 9.0
-    time.sleep(0.01)
+    time.sleep(pause_ms / 1e3)
+    assert sw.lap("a") >= 0.9 * pause_ms
+    time.sleep(pause_ms / 1e3)
     sw.restart()
     sw.lap("b")
     sw.lap("a")
-    assert list(sw.ms) == ["a", "b"] and sw.ms["b"] < 5.0 and sw.ms["a"] >= 9.0
+    assert list(sw.ms) == ["a", "b"] and sw.ms["b"] < 0.5 * pause_ms and sw.ms["a"] >= 0.9 * pause_ms
 
 
 def test_rows_write_as_csv(loop_renderer, tmp_path: Path):

@@ -22,7 +22,7 @@ def server(tmp_path_factory: pytest.TempPathFactory):
 
 def get(web: WebServer, path: str, method: str = "GET", body: bytes | None = None) -> http.client.HTTPResponse:
     host, port = web.httpd.server_address[:2]
-    conn = http.client.HTTPConnection(host, port, timeout=10)
+    conn = http.client.HTTPConnection(host, port, timeout=60)
     conn.request(method, path, body=body, headers={"Content-Type": "application/json"})
     response = conn.getresponse()
     response.body = response.read()  # type: ignore[attr-defined]
