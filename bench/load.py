@@ -24,10 +24,11 @@ from __future__ import annotations
 
 import asyncio
 import shutil
+import sys
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -35,6 +36,9 @@ from bench.processes import check_served, pinned_server, pinning
 from bench.runner import Bench, Block, Rows, Table, need, pick
 from bench.service import Target, client_cores
 from gicore.results import Results
+
+if TYPE_CHECKING:
+    from baseline_cloudbaking.server.loadtest import LoadResult
 
 SYSTEM = "cloud_baking"
 PHASES = ("alone", "misses", "idle")
@@ -56,8 +60,8 @@ class LoadConfig:
     hit_clients: int = 32
     #: Time between one hit client's requests, ms.
     period_ms: float = 20.0
-    #: New views sent at once in the misses phase.
-    misses: int = 80
+    #: New views sent at once in the misses phase (at most 200: more would stand within a stored map's tolerance).
+    misses: int = field(default=80, metadata={"max": 200})
     #: Misses that may wait for the renderer (cloudbaking-server --miss-queue).
     miss_queue: int = field(default=8, metadata={"min": 0})
     #: Idle connections opened in the idle phase (at most what the file-descriptor limit holds).
@@ -93,7 +97,7 @@ def _stats(url: str) -> dict[str, Any]:
     return httpx.get(f"{url}/v1/stats", timeout=60.0).json()
 
 
-def _phase(url: str, cfg: LoadConfig, phase: str, hit: dict[str, Any], idle: int) -> tuple[Any, dict[str, int]]:
+def _phase(url: str, cfg: LoadConfig, phase: str, hit: dict[str, Any], idle: int) -> tuple[LoadResult, dict[str, int]]:
     """One phase's :class:`~baseline_cloudbaking.server.loadtest.LoadResult` and the server's counters over it."""
     from baseline_cloudbaking.server.loadtest import miss_requests, run_load
 
@@ -107,7 +111,7 @@ def _phase(url: str, cfg: LoadConfig, phase: str, hit: dict[str, Any], idle: int
     return res, {k: after[k] - before[k] for k in COUNTERS}
 
 
-def errors(res: Any) -> int:
+def errors(res: LoadResult) -> int:
     """Hits not answered 200, misses answered neither 200 nor 503 with Retry-After, failed connections."""
     bad_hits = sum(n for status, n in res.hit_status.items() if status != 200)
     bad_misses = sum(n for status, n in res.miss_status.items() if status not in (200, 503))
@@ -124,7 +128,7 @@ def measure(cfg: LoadConfig, res: Results) -> None:
     scenes_dir = Path(scene_arg).resolve().parent if Path(scene_arg).suffix else None
     idle = min(cfg.idle, idle_room())
     if idle < cfg.idle:
-        print(f"note: {idle} idle connections instead of {cfg.idle}: the file-descriptor limit (ulimit -Hn)")
+        print(f"note: {idle} idle connections, not {cfg.idle}: the file-descriptor limit (ulimit -Hn)", file=sys.stderr)
     plan = pinning(cfg.pin)
     res.settings["pinning"] = plan
     options = ("--miss-queue", str(cfg.miss_queue), "--max-connections", str(cfg.max_connections))
@@ -144,7 +148,7 @@ def measure(cfg: LoadConfig, res: Results) -> None:
     print(text)
 
 
-def _record(res: Results, cfg: LoadConfig, scene: str, phase: str, load: Any, counters: dict[str, int]) -> None:
+def _record(res: Results, cfg: LoadConfig, scene: str, phase: str, load: LoadResult, counters: dict[str, int]) -> None:
     """A phase's rows (module docstring); its load is in every row's config."""
     config = {"phase": phase, "hit_clients": cfg.hit_clients, "period_ms": cfg.period_ms,
               "offered_per_s": round(cfg.hit_clients * 1e3 / cfg.period_ms, 1), "resolution": cfg.resolution,

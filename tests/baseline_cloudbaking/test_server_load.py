@@ -412,6 +412,7 @@ def test_schemathesis_checks_all_find_no_failure(tmp_path: Path, scenes_dir: Pat
         config.write_text(SCHEMATHESIS_CONFIG.format(sha=sha))
         argv = [str(BIN / "schemathesis"), "--config-file", str(config), "run", "--checks", "all"]
         argv += ["--max-examples", "25", "--seed", "1", "--no-color", f"{srv.url}/openapi.json"]
+        argv += ["--request-timeout", "120"]  # a valid request for a paper scene loads and compiles it first
         run = subprocess.run(argv, capture_output=True, text=True, timeout=HANG_S, cwd=tmp_path)
     print(run.stdout[-1500:])
     assert run.returncode == 0 and " passed" in run.stdout and "failed" not in run.stdout, run.stdout[-4000:]
