@@ -854,15 +854,21 @@ def process_cases(s: Scene, cfg: StabilityConfig, server_url: str, scene_name: s
         Case("server", "1 MB body", "rejected", post(json.dumps(body | {"pad": "x" * 1_000_000}))),
     ]
     if s.spec.light.moves:
-        cases.append(
-            Case(
-                "server",
-                "light 1e-4 from a surface",
-                "finite",
-                post(json.dumps(body | {"light": list(s.touching_light())})),
-            )
-        )
+        cases.append(touching_light_case(s, body, post))
     return cases + network
+
+
+def touching_light_case(s: Scene, body: dict[str, Any], post: Callable[[str], Callable[[], Outcome]]) -> Case:
+    """A light 1e-4 from a surface, sent to the server: baked where the scene's light can be there, otherwise
+    refused, since the server only bakes lights within the range the scene's light sweeps (plus a light cell)."""
+    from baseline_cloudbaking.server.service import light_bounds
+    from baseline_cloudbaking.server.settings import Settings
+
+    light = s.touching_light()
+    low, high = light_bounds(s.spec, Settings.model_fields["light_cell"].default)
+    inside = all(lo <= v <= hi for v, lo, hi in zip(light, low, high))
+    name = "light 1e-4 from a surface" + ("" if inside else " (outside the scene's light range)")
+    return Case("server", name, "finite" if inside else "rejected", post(json.dumps(body | {"light": list(light)})))
 
 
 @contextmanager
