@@ -29,6 +29,8 @@ run frequency no
 run fov no
 run quality no
 run service no
+run load no
+run web no
 run prefetch no
 run stability no
 run scaling no
