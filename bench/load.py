@@ -22,7 +22,6 @@ stated at and the load it was run at in its config); a missed target is reported
 
 from __future__ import annotations
 
-import asyncio
 import shutil
 import sys
 import tempfile
@@ -99,11 +98,11 @@ def _stats(url: str) -> dict[str, Any]:
 
 def _phase(url: str, cfg: LoadConfig, phase: str, hit: dict[str, Any], idle: int) -> tuple[LoadResult, dict[str, int]]:
     """One phase's :class:`~baseline_cloudbaking.server.loadtest.LoadResult` and the server's counters over it."""
-    from baseline_cloudbaking.server.loadtest import miss_requests, run_load
+    from baseline_cloudbaking.server.loadtest import miss_requests, run_interruptibly, run_load
 
     misses = miss_requests(hit["scene"], cfg.resolution, cfg.spp, cfg.misses) if phase == "misses" else []
     before = _stats(url)
-    res = asyncio.run(
+    res = run_interruptibly(
         run_load(url, hit, misses, hit_clients=cfg.hit_clients, period_s=cfg.period_ms / 1e3,
                  idle=idle if phase == "idle" else 0, idle_rate=cfg.idle_rate, settle_s=cfg.settle_s, max_s=3600.0)
     )  # fmt: skip
@@ -120,7 +119,7 @@ def errors(res: LoadResult) -> int:
 
 
 def measure(cfg: LoadConfig, res: Results) -> None:
-    from baseline_cloudbaking.server.loadtest import hit_request, idle_room, store
+    from baseline_cloudbaking.server.loadtest import hit_request, idle_room, run_interruptibly, store
 
     check_served(cfg.resolution)
     scene_arg = cfg.scenes[0]
@@ -137,7 +136,7 @@ def measure(cfg: LoadConfig, res: Results) -> None:
     work = Path(tempfile.mkdtemp(prefix="load_store_", dir=res.out))
     try:
         with pinned_server(plan, work / "store", scenes_dir, *options) as url, client_cores(plan):
-            asyncio.run(store(url, hit))  # compiles the renderer: every miss after it costs one render
+            run_interruptibly(store(url, hit))  # compiles the renderer: every miss after it costs one render
             for phase in PHASES:
                 _record(res, cfg, scene, phase, *_phase(url, cfg, phase, hit, idle))
     finally:

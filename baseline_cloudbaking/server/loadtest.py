@@ -22,11 +22,14 @@ import asyncio
 import ipaddress
 import json
 import multiprocessing
+import signal
+import threading
 import time
 from collections import Counter
+from collections.abc import Coroutine
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field, fields
-from typing import Any
+from typing import Any, TypeVar
 from urllib.parse import urlsplit
 
 import numpy as np
@@ -270,6 +273,31 @@ async def run_load(
     return res
 
 
+T = TypeVar("T")
+
+
+def run_interruptibly(coro: Coroutine[Any, Any, T]) -> T:
+    """``asyncio.run(coro)`` with SIGTERM handled as asyncio handles Ctrl-C: ``coro`` is cancelled (its clean-up
+    runs) and KeyboardInterrupt is raised here. A KeyboardInterrupt raised by a signal handler wherever the loop
+    happens to be can instead leave the loop waiting for ever on a future nobody completes."""
+    if threading.current_thread() is not threading.main_thread():
+        return asyncio.run(coro)  # signals reach the main thread only
+
+    async def cancelled_by_sigterm() -> T:
+        task = asyncio.current_task()
+        assert task is not None
+        asyncio.get_running_loop().add_signal_handler(signal.SIGTERM, task.cancel)
+        return await coro
+
+    previous = signal.getsignal(signal.SIGTERM)
+    try:
+        return asyncio.run(cancelled_by_sigterm())
+    except asyncio.CancelledError:
+        raise KeyboardInterrupt from None
+    finally:
+        signal.signal(signal.SIGTERM, previous)  # closing the loop set the default action
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--url", required=True, help="the server, on a loopback address")
@@ -283,7 +311,7 @@ def main() -> None:
     parser.add_argument("--idle-rate", type=float, default=2000.0, help="idle connections opened a second")
     args = parser.parse_args()
     loopback(args.url)
-    res = asyncio.run(
+    res = run_interruptibly(
         load_for_scene(
             args.url,
             args.scene,
