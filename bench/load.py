@@ -6,7 +6,7 @@ and drives it with the load generator (:mod:`baseline_cloudbaking.server.loadtes
 keep-alive clients each ask for one stored view every ``period_ms``, in three phases, each with its own side load
 sent by a second process:
 
-- ``alone``: none (the reference);
+- ``alone``: none, for ``reference_s`` (the reference);
 - ``misses``: ``misses`` new views at once; beyond ``--miss-queue`` they are answered 503 + Retry-After;
 - ``idle``: ``idle`` connections that send nothing, ``idle_rate`` a second (at most what the file-descriptor
   limit holds; the row says how many were opened).
@@ -71,13 +71,16 @@ class LoadConfig:
     max_connections: int = field(default=1024, metadata={"min": 8})
     #: Seconds the hit clients run before each side load and after it.
     settle_s: float = 3.0
+    #: Seconds the reference phase (``alone``) measures: as long as a side load lasts, so that its p99 is as
+    #: sensitive to one stall of the machine as theirs.
+    reference_s: float = 5.0
     #: Pin the server and the load generator to separate cores (taskset). Off: the targets are stated with both
     #: sharing every core, as on one machine; on 2 cores pinning leaves each of them one.
     pin: bool = False
 
     @classmethod
     def quick(cls) -> LoadConfig:
-        return cls(idle=2000, settle_s=1.0)
+        return cls(idle=2000, settle_s=1.0, reference_s=3.0)
 
 
 #: The targets, each with the load it is stated at.
@@ -104,7 +107,8 @@ def _phase(url: str, cfg: LoadConfig, phase: str, hit: dict[str, Any], idle: int
     before = _stats(url)
     res = run_interruptibly(
         run_load(url, hit, misses, hit_clients=cfg.hit_clients, period_s=cfg.period_ms / 1e3,
-                 idle=idle if phase == "idle" else 0, idle_rate=cfg.idle_rate, settle_s=cfg.settle_s, max_s=3600.0)
+                 idle=idle if phase == "idle" else 0, idle_rate=cfg.idle_rate, settle_s=cfg.settle_s,
+                 hold_s=cfg.reference_s if phase == "alone" else None, max_s=3600.0)
     )  # fmt: skip
     after = _stats(url)
     return res, {k: after[k] - before[k] for k in COUNTERS}

@@ -239,13 +239,14 @@ async def run_load(
     idle: int = 0,
     idle_rate: float = 2000.0,
     settle_s: float = 3.0,
+    hold_s: float | None = None,
     max_s: float = 120.0,
 ) -> LoadResult:
     """Hit clients (each a request every ``period_s``, their phases spread evenly over the period, as
     independent clients are not in lockstep) running while another process sends ``miss_bodies`` at once
     and opens ``idle`` idle connections, ``idle_rate`` a second (in its own process, so that its work does
-    not delay the hit clients' clocks); the hit clients run ``settle_s`` before and after it (at most
-    ``max_s`` in all)."""
+    not delay the hit clients' clocks), then holds them ``hold_s`` (default ``settle_s``); the hit clients run
+    ``settle_s`` before it (at most ``max_s`` in all)."""
     host, port = loopback(url)
     res = LoadResult()
     stop = asyncio.Event()
@@ -261,7 +262,7 @@ async def run_load(
             await asyncio.get_running_loop().run_in_executor(pool, _ready)
             await asyncio.sleep(settle_s)
             side = asyncio.get_running_loop().run_in_executor(
-                pool, _side_process, host, port, misses, idle, idle_rate, settle_s
+                pool, _side_process, host, port, misses, idle, idle_rate, settle_s if hold_s is None else hold_s
             )
             other = await asyncio.wait_for(side, max_s)
     finally:

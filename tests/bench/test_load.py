@@ -14,7 +14,8 @@ from tests.helpers.cloud import write_scenes
 
 def test_load_bench_writes_every_phase_and_target(tmp_path: Path) -> None:
     spec = write_scenes(tmp_path / "scenes") / "ball_static.json"
-    small = {"hit_clients": 2, "period_ms": 50.0, "misses": 12, "idle": 40, "max_connections": 16, "settle_s": 0.3}
+    small = {"hit_clients": 2, "period_ms": 50.0, "misses": 12, "idle": 40, "max_connections": 16}
+    small |= {"settle_s": 0.3, "reference_s": 0.3}
     cfg = replace(LoadConfig.quick(), scenes=(str(spec),), **small)
     files = execute(BENCH, cfg, tmp_path / "out")
     assert {p.name for p in files} == {"load.csv", "load.provenance.json", "load_table.md"}
