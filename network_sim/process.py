@@ -22,7 +22,11 @@ class Running:
         self._stderr = tempfile.TemporaryFile()
         self.proc = subprocess.Popen(list(argv), stdout=subprocess.PIPE, stderr=self._stderr)
         self._buffer = b""
-        first = self.readline(timeout)
+        try:
+            first = self.readline(timeout)
+        except BaseException:  # a timeout, Ctrl-C or SIGTERM while it starts: no child is left running
+            self.stop()
+            raise
         if not first.startswith(LISTENING):
             self.stop()
             raise RuntimeError(f"{' '.join(argv)} did not start: {first!r}; stderr: {self.stderr()}")

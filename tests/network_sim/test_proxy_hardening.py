@@ -223,3 +223,19 @@ def test_a_vanishing_rate_is_refused_in_one_line_and_zero_stays_a_dead_link(tmp_
         line = assert_user_error(argv, "rate_mbit = 1e-300", tmp_path)
         assert "must be 0 (a dead link) or >= 0.001" in line
     assert link_config(rate_mbit=0.0).up.rate_mbit == 0.0 and link_config(rate_mbit=1e-3).down.rate_mbit == 1e-3
+
+
+def test_a_process_that_does_not_start_in_time_is_not_left_running() -> None:
+    """Running waits for 'listening on'; a timeout (as a Ctrl-C) while it waits stops the child."""
+    started: list[Running] = []
+    original = Running.readline
+
+    def remember(self: Running, timeout: float) -> str:
+        started.append(self)
+        return original(self, timeout)
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(Running, "readline", remember)
+        with pytest.raises(TimeoutError):
+            Running([sys.executable, "-c", "import time; time.sleep(600)"], timeout=0.5)
+    assert started and started[0].proc.poll() is not None  # ended, not orphaned
