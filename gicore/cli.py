@@ -181,6 +181,8 @@ def entry_point(app: typer.Typer, *, resume: str | None = None) -> Callable[[], 
 #: The square resolution any run takes, in pixels: a scene's, a client's renders and GI maps, a dataset's
 #: frames, a server's maps, a bench's renders (:mod:`gicore.options` makes it field metadata).
 RESOLUTION_MIN, RESOLUTION_MAX = 8, 2048
+#: Seeds are 32-bit (numpy's generators take no negative seed): a scene's, a run's, a server's.
+SEED_MAX = 2**32 - 1
 
 
 def require_positive(name: str, value: float) -> float:

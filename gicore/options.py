@@ -31,14 +31,12 @@ from typing import Annotated, Any, Literal
 
 import typer
 
-from gicore.cli import RESOLUTION_MAX, RESOLUTION_MIN, UserError
+from gicore.cli import RESOLUTION_MAX, RESOLUTION_MIN, SEED_MAX, UserError
 
 #: Most path-tracing samples per pixel a run may ask for (a 2048² map at 4096 spp takes hours on 2 cores).
 SPP_MAX = 4096
 #: Most frames one run renders (a fly-through, a dataset split): 100 000 frames are 55 minutes at 30 fps.
 FRAMES_MAX = 100_000
-#: Seeds are 32-bit (numpy's generators take no negative seed).
-SEED_MAX = 2**32 - 1
 
 #: Field metadata of a square resolution (:data:`gicore.cli.RESOLUTION_MIN` to ``RESOLUTION_MAX``).
 RESOLUTION: Mapping[str, Any] = {"min": RESOLUTION_MIN, "max": RESOLUTION_MAX}

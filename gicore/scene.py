@@ -24,9 +24,8 @@ from pydantic import AfterValidator, BaseModel, ConfigDict, Field, Strict, Valid
 
 from gicore.anatomy import AnatomyKind
 from gicore.camera import FAR_MAX, NEAR_MIN
-from gicore.cli import RESOLUTION_MAX, RESOLUTION_MIN, UserError
+from gicore.cli import RESOLUTION_MAX, RESOLUTION_MIN, SEED_MAX, UserError
 from gicore.mesh import load_mesh
-from gicore.options import SEED_MAX
 
 BUILTIN_DIR = Path(__file__).parent / "scenes"
 #: Every number of a spec has a finite range in which it means something physical, so that a typo (1e308, a
