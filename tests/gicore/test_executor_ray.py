@@ -392,9 +392,12 @@ def test_ctrl_c_of_a_ray_run_keeps_whole_frames_and_the_rerun_finishes_identical
     for _attempt in range(3):
         shutil.rmtree(root, ignore_errors=True)
         proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        deadline = time.monotonic() + TIMEOUT_S
+        # interrupt once the first frame is kept; the guard only stops a hung run (a busy machine's first frame,
+        # with the workers' start, took over 120 s)
+        deadline = time.monotonic() + 5 * TIMEOUT_S
         while not list(root.rglob("*.npz")) and proc.poll() is None and time.monotonic() < deadline:
             time.sleep(0.01)
+        assert list(root.rglob("*.npz")), "no frame was kept before the hang guard: " + str(proc.poll())
         proc.send_signal(signal.SIGINT)
         _, err = proc.communicate(timeout=60)
         if "Tried to complete task that was not pending" not in err:
