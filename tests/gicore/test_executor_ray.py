@@ -37,7 +37,8 @@ CFG = DatasetConfig(n_train=2, n_val=1, resolution=32, spp=4, denoise=True, seed
 #: Frames slow enough (~0.4 s each on one thread) to kill or interrupt a worker in the middle of one.
 SLOW = replace(CFG, n_train=3, n_val=1, spp=1024)
 BAKE = PrebakeConfig(frames=10, codec="jpeg", resolution=32, spp=4, seed=3)
-TIMEOUT_S = 120
+#: Hang guard of every process and wait here, never a bound the tests judge (a busy 2-core machine is slow).
+TIMEOUT_S = 600
 
 
 @pytest.fixture(scope="module")
@@ -392,9 +393,7 @@ def test_ctrl_c_of_a_ray_run_keeps_whole_frames_and_the_rerun_finishes_identical
     for _attempt in range(3):
         shutil.rmtree(root, ignore_errors=True)
         proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        # interrupt once the first frame is kept; the guard only stops a hung run (a busy machine's first frame,
-        # with the workers' start, took over 120 s)
-        deadline = time.monotonic() + 5 * TIMEOUT_S
+        deadline = time.monotonic() + TIMEOUT_S  # interrupt once the first frame is kept
         while not list(root.rglob("*.npz")) and proc.poll() is None and time.monotonic() < deadline:
             time.sleep(0.01)
         assert list(root.rglob("*.npz")), "no frame was kept before the hang guard: " + str(proc.poll())
