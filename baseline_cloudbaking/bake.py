@@ -33,7 +33,7 @@ from baseline_cloudbaking.codecs import DEPTH_CODEC, get_codec
 from baseline_cloudbaking.protocol import pack
 from baseline_cloudbaking.store import Tolerance, Viewpoint, light_cell
 from gicore.camera import Camera
-from gicore.paths import camera_path, light_position
+from gicore.paths import camera_path, light_position, light_range
 from gicore.scene import SceneSpec, builtin_scenes, load_scene
 
 if TYPE_CHECKING:
@@ -171,8 +171,9 @@ def light_states(spec: SceneSpec, cell_size: float) -> list[tuple[tuple[int, int
     light = spec.light
     if not light.moves:
         return [(None, tuple(map(float, light.position)))]
-    (x, y, z), (ax, ay) = light.position, light.amplitude
-    spans = [(x - abs(ax), x + abs(ax)), (y - abs(ay), y + abs(ay))]
+    low, high = light_range(spec)
+    z = low[2]
+    spans = [(low[0], high[0]), (low[1], high[1])]
     axes = []
     for lo, hi in spans:
         cells = range(math.floor(lo / cell_size), math.floor(hi / cell_size) + 1)

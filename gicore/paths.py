@@ -31,6 +31,13 @@ def light_position(spec: SceneSpec, frame: int) -> tuple[float, float, float]:
     return (x + ax * math.sin(2 * math.pi * frame / px), y + ay * math.sin(2 * math.pi * frame / py), z)
 
 
+def light_range(spec: SceneSpec) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+    """Corners of the box the light of ``spec`` sweeps (:func:`light_position`): rest ± amplitude in x and y;
+    the rest point for a static light."""
+    (x, y, z), (ax, ay) = spec.light.position, spec.light.amplitude
+    return (x - abs(ax), y - abs(ay), z), (x + abs(ax), y + abs(ay), z)
+
+
 def camera_path(
     spec: SceneSpec, n_frames: int, seed: int = 0, fov: float | None = None, resolution: int | None = None
 ) -> list[Camera]:

@@ -48,7 +48,7 @@ from baseline_cloudbaking.store import (
     light_cell,
     payload_sha,
 )
-from gicore.paths import frame_seed
+from gicore.paths import frame_seed, light_range
 from gicore.scene import SceneSpec, SceneSpecError
 
 T = TypeVar("T")
@@ -218,13 +218,6 @@ class FieldError(ValueError):
         self.field = field
         self.message = message
         self.status = status
-
-
-def light_range(spec: SceneSpec) -> tuple[Vec3, Vec3]:
-    """Corners of the box the light of ``spec`` sweeps: rest ± amplitude in x and y (the rest point for a
-    static light)."""
-    (x, y, z), (ax, ay) = spec.light.position, spec.light.amplitude
-    return (x - abs(ax), y - abs(ay), z), (x + abs(ax), y + abs(ay), z)
 
 
 def light_bounds(spec: SceneSpec, margin: float) -> tuple[Vec3, Vec3]:

@@ -8,7 +8,7 @@ from baseline_cloudbaking.codecs import CODEC_NAMES
 from baseline_cloudbaking.server.deps import ServiceDep, SettingsDep
 from baseline_cloudbaking.server.errors import public_roots, redact
 from baseline_cloudbaking.server.schemas import SceneInfo, ScenesOut
-from baseline_cloudbaking.server.service import light_range
+from gicore.paths import light_range
 from gicore.scene import SceneSpec, SceneSpecError
 
 router = APIRouter(prefix="/v1", tags=["scenes"])
