@@ -107,7 +107,7 @@ def test_a_store_whose_index_cannot_be_written_is_one_line_before_serving(tmp_pa
     GITree(store).close()
     index = store / "index.sqlite"
     if subprocess.run(["chattr", "+i", str(index)], capture_output=True).returncode != 0:
-        pytest.skip("chattr +i is refused here (it needs root)")
+        pytest.skip("making the index read-only needs chattr +i: root on a file system with immutable files")
     try:
         result = server_run(tmp_path, {})
     finally:
