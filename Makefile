@@ -7,7 +7,7 @@ OUT   ?= results
 .PHONY: setup run test clean
 setup: $(STAMP)
 
-$(STAMP): pyproject.toml scripts/setup.sh web/package-lock.json
+$(STAMP): pyproject.toml scripts/setup.sh web3d/static/package-lock.json
 	bash scripts/setup.sh
 	touch $(STAMP)
 

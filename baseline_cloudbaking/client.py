@@ -577,9 +577,9 @@ class ServerInfo:
 
 
 def check_server(server: str, scene: str, resolution: int, codec: str, spp: int, timeout_s: float) -> ServerInfo:
-    """Ask the server for its health and scenes; a :class:`~gicore.cli.UserError` naming the option at
+    """Ask the server for its health and scenes; a :class:`~gicore.error_policy.UserError` naming the option at
     fault if it is unreachable, is not a cloud-baking server, or does not serve what the client needs."""
-    from gicore.cli import UserError
+    from gicore.error_policy import UserError
 
     try:
         url = httpx.URL(server)

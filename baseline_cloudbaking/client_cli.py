@@ -35,7 +35,7 @@ import numpy as np
 import typer
 
 from baseline_cloudbaking.client import CloudClientConfig, check_server, request_summary, run_client
-from gicore.cli import check_denoiser, entry_point, writable_dir
+from gicore.error_policy import check_denoiser, entry_point, writable_dir
 from gicore.fileio import atomic_write_bytes, exclusive_run
 from gicore.options import build_config, config_command, extra
 

@@ -46,7 +46,7 @@ from baseline_cloudbaking.store import (
     store_folder,
 )
 from gicore.camera import Camera
-from gicore.cli import UserError, entry_point, writable_dir
+from gicore.error_policy import UserError, entry_point, writable_dir
 from gicore.executor import Executor, ExecutorOptions, InProcess, RayExecutor, Task
 from gicore.fileio import FolderHeld, exclusive_run
 from gicore.options import (

@@ -32,7 +32,7 @@ from typing import Any, Self
 
 import numpy as np
 
-from gicore.cli import UserError
+from gicore.error_policy import UserError
 from gicore.fileio import atomic_write_bytes, sweep_temporaries
 
 Vec3 = tuple[float, float, float]

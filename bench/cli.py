@@ -10,7 +10,7 @@ import typer
 
 from bench import registry, report
 from bench.runner import register
-from gicore.cli import entry_point
+from gicore.error_policy import entry_point
 
 #: Every ``bench`` subcommand, in the order ``bench --help`` lists them: the registered benches, then the
 #: report that shows them.

@@ -22,7 +22,7 @@ from typing import Literal
 
 import numpy as np
 
-from bench.models import check_model_resolution
+from bench.exported_models import check_model_resolution
 from bench.runner import Bench, Block, Figure, Part, Rows, Section, Table, need, pick
 from bench.svg import Point, Series, XYChart
 from bench.warp_bench import WARP_LABELS, WARPS, make_warp

@@ -29,9 +29,9 @@ from typing import Any
 
 import numpy as np
 
-from bench.models import model_info
+from bench.exported_models import model_info
 from bench.runner import Bench
-from gicore.cli import UserError
+from gicore.error_policy import UserError
 from gicore.results import Results, read_rows
 from gicore.timing import time_repeats
 

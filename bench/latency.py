@@ -24,12 +24,12 @@ from typing import Any, Literal
 import numpy as np
 
 from baseline_cloudbaking.codecs import CODEC_NAMES, DEFAULT_CODEC
-from bench.models import check_model_resolution
+from bench.exported_models import check_model_resolution
 from bench.processes import BIN, ask_path, check_served, pinned_proxy, pinned_server, run_client, run_place, threads
 from bench.runner import Bench, Block, Figure, Part, Rows, Section, Table, cell, need, pick
 from bench.svg import Point, Series, XYChart
 from gicore.blend import COMPOSITIONS
-from gicore.cli import UserError
+from gicore.error_policy import UserError
 from gicore.loop import RENDERERS
 from gicore.results import Results, read_rows
 from gigan_local.inference import DEFAULT_MODEL

@@ -33,7 +33,7 @@ import numpy as np
 
 from bench.processes import check_served, pinned_server, pinning
 from bench.runner import Bench, Block, Rows, Table, need, pick
-from bench.service import Target, client_cores
+from bench.server_bench import Target, client_cores
 from gicore.results import Results
 
 if TYPE_CHECKING:

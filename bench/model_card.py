@@ -22,7 +22,7 @@ from bench.quality import BENCH as QUALITY
 from bench.quality import QualityConfig
 from bench.runner import Bench, execute
 from bench.training import train_small, training_minutes
-from gicore.cli import UserError
+from gicore.error_policy import UserError
 from gicore.metrics import LF_SIGMA
 from gicore.results import Results, read_rows
 

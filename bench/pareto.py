@@ -22,12 +22,12 @@ from typing import Any
 import numpy as np
 
 from bench import frequency
+from bench.exported_models import check_model_resolution, model_info
 from bench.latency import CloudCost
-from bench.models import check_model_resolution, model_info
 from bench.runner import FOV_DEGREES, Bench, Block, Figure, Part, Rows, Section, Table, execute, find
 from bench.svg import PALETTE, Point, Series, XYChart
 from bench.warp_bench import WARP_LABELS
-from gicore.cli import UserError
+from gicore.error_policy import UserError
 from gicore.results import Results, read_rows
 from gigan_local.inference import DEFAULT_MODEL
 

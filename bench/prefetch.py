@@ -25,7 +25,7 @@ from baseline_cloudbaking.client import check_server
 from baseline_cloudbaking.codecs import CODEC_NAMES, DEFAULT_CODEC
 from bench.processes import BIN, ask_path, check_served, pinned_proxy, pinned_server, run_client, run_place
 from bench.runner import Bench, Block, Rows, Section, Table, cell, need, pick
-from gicore.cli import UserError
+from gicore.error_policy import UserError
 from gicore.results import Results, read_rows
 
 CodecName = Literal[CODEC_NAMES]  # type: ignore[valid-type]

@@ -71,7 +71,7 @@ def check_served(resolution: int) -> None:
     """Refuse, before any process starts, a map resolution the benches' servers would not serve (their settings:
     the defaults, or CLOUDBAKING_RESOLUTIONS of this environment, which they inherit)."""
     from baseline_cloudbaking.server.settings import Settings
-    from gicore.cli import UserError
+    from gicore.error_policy import UserError
 
     served = Settings().resolutions
     if resolution not in served:

@@ -18,12 +18,12 @@ from typing import Literal
 
 import numpy as np
 
-from bench.models import model_info
+from bench.exported_models import model_info
 from bench.runner import Bench, Block, Figure, Part, Rows, Section, Table, need, pick
 from bench.svg import BarChart
-from gicore.cli import UserError
 from gicore.dataset import INPUT_RENDERERS, DatasetMeta, frame_paths, load_frame, read_meta
 from gicore.dataset_cli import DatasetConfig, FrameRenderer, build_dataset, render_inputs
+from gicore.error_policy import UserError
 from gicore.gl.lod import LOD_CHOICES
 from gicore.loop import CLIENT_LOD
 from gicore.metrics import CHECKER_PERIOD, LF_SIGMA, all_metrics, checker_error, lf_difference, shadow_tint

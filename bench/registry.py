@@ -23,12 +23,12 @@ from bench import (
     render_bench,
     run_default,
     scaling,
-    service,
+    server_bench,
     stability,
     storage,
     training,
+    viewer_bench,
     warp_bench,
-    web,
 )
 from bench.runner import Bench, External
 
@@ -47,12 +47,12 @@ BENCHES: tuple[Bench, ...] = (
     latency.BENCH,
     prefetch.BENCH,
     storage.BENCH,
-    service.BENCH,
+    server_bench.BENCH,
     load.BENCH,
     stability.BENCH,
     scaling.BENCH,
     pareto.BENCH,
-    web.BENCH,
+    viewer_bench.BENCH,
 )
 
 #: Everything ``bench report`` shows: the benches, and the CSVs other programs write.

@@ -33,7 +33,7 @@ import numpy as np
 
 from bench.runner import Bench
 from gicore.camera import Camera
-from gicore.cli import UserError
+from gicore.error_policy import UserError
 from gicore.geometry import scene_objects
 from gicore.loop import RENDERERS
 from gicore.options import RESOLUTION

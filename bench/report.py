@@ -34,7 +34,7 @@ from typing import Any
 from bench import registry
 from bench.report_md import check_readme, results_markdown, update_readme
 from bench.runner import Alert, Bench, Figure, Part, Section, Table, attempt, provenance_fields
-from gicore.cli import UserError
+from gicore.error_policy import UserError
 from gicore.fileio import atomic_write_bytes
 from gicore.results import Results
 

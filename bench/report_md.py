@@ -26,7 +26,7 @@ from typing import Any
 
 from bench import registry
 from bench.runner import Attempt, Block, Part, Table, attempt, provenance_fields
-from gicore.cli import UserError
+from gicore.error_policy import UserError
 from gicore.fileio import atomic_write_bytes
 
 BEGIN, END = "<!-- results:begin -->", "<!-- results:end -->"

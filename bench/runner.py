@@ -6,7 +6,7 @@ with a ``quick()`` preset), ``measure(cfg, results)``, ``plot(csv_path, out_dir)
 gives it its subcommand, its dashboard section and its results block. The runner derives the options
 (:mod:`gicore.options`), adds ``--out``, ``--quick`` and ``--seed``, writes ``<out>/<bench>.csv`` and
 ``<out>/<bench>.provenance.json``, calls ``plot`` on the CSV and prints every path written; user errors raise
-:class:`gicore.cli.UserError`. ``bench report`` renders what the hooks return (:class:`Table`,
+:class:`gicore.error_policy.UserError`. ``bench report`` renders what the hooks return (:class:`Table`,
 :class:`Figure`, :class:`Alert`). Dependencies run one way: this module <- each bench <- ``bench.registry``
 <- the report and the command line. An example bench: docs/architecture.md, Bench runner.
 """
@@ -28,7 +28,7 @@ import typer
 
 from bench.svg import Chart
 from gicore import options
-from gicore.cli import writable_dir
+from gicore.error_policy import writable_dir
 from gicore.options import (  # noqa: F401  (field_docs, check_config, config_dict: the bench API)
     FOV_DEGREES,
     SEED_MAX,

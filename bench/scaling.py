@@ -25,7 +25,7 @@ from typing import Any, Literal
 import numpy as np
 
 from bench.runner import Bench, Block, Rows, Table, cell, need, pick
-from gicore.cli import UserError
+from gicore.error_policy import UserError
 from gicore.executor import INSTALL_RAY, Executor, LocalPool, RayExecutor, Task
 from gicore.results import Results, read_rows
 from gicore.scene import builtin_scenes, load_scene

@@ -27,7 +27,7 @@ from typing import Any, Literal
 import numpy as np
 
 from bench.runner import Alert, Bench, Block, Part, Rows, Section, Table, need
-from gicore.cli import UserError
+from gicore.error_policy import UserError
 from gicore.results import Results, read_rows
 from gigan_local.inference import DEFAULT_MODEL
 from network_sim.cli import DELAY_MS_MAX

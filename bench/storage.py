@@ -34,7 +34,7 @@ from baseline_cloudbaking.store import (
 from bench.runner import Bench, Block, Figure, Part, Rows, Section, Table, need, pick
 from bench.svg import BarChart, Point, Series, XYChart
 from gicore.camera import Camera
-from gicore.cli import UserError, writable_dir
+from gicore.error_policy import UserError, writable_dir
 from gicore.loop import Light
 from gicore.metrics import ssim
 from gicore.options import FRAMES

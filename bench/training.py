@@ -22,7 +22,7 @@ import numpy as np
 
 from bench.quality import QUICK_DATASET
 from bench.runner import Bench
-from gicore.cli import UserError
+from gicore.error_policy import UserError
 from gicore.results import Results, read_rows
 
 

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from gicore.cli import UserError
+from gicore.error_policy import UserError
 
 CHANNELS: dict[str, int] = {"di": 3, "gt": 3, "albedo": 3, "normal": 3, "depth": 1, "position": 3, "mask": 1}
 STORAGE_DTYPE: dict[str, type] = {name: np.float16 for name in CHANNELS} | {"position": np.float32}

@@ -20,8 +20,8 @@ from typing import Any
 
 import numpy as np
 
-from gicore.cli import RESOLUTION_MAX, RESOLUTION_MIN
 from gicore.config import strict_from_dict
+from gicore.error_policy import RESOLUTION_MAX, RESOLUTION_MIN
 
 GL_FROM_MITSUBA = np.diag([-1.0, 1.0, -1.0, 1.0])
 #: Clip distances the renderer represents, with a wide margin. Measured with Mitsuba 3.9 (llvm_ad_rgb) on a

@@ -11,7 +11,7 @@ Frames are written atomically (:func:`gicore.fileio.atomic_write_bytes`: a uniqu
 rename), so an interrupted run leaves only complete frames and a rerun skips them (resumable).
 ``meta.json`` is written before any frame; a rerun with different settings is refused rather than
 mixing two datasets. Reading a missing, corrupt or truncated ``meta.json`` or frame raises a
-:class:`~gicore.cli.UserError` that names the file.
+:class:`~gicore.error_policy.UserError` that names the file.
 """
 
 from __future__ import annotations
@@ -25,8 +25,8 @@ from typing import Any
 import numpy as np
 
 from gicore.buffers import CHANNELS, STORAGE_DTYPE, TARGET, check_buffer_names
-from gicore.cli import UserError
 from gicore.config import strict_from_dict
+from gicore.error_policy import UserError
 from gicore.fileio import atomic_write_bytes
 
 FORMAT_VERSION = 1

@@ -29,7 +29,6 @@ from tqdm import tqdm
 
 from gicore.buffers import DATASET_BUFFERS, TARGET, check_buffer_names
 from gicore.camera import Camera
-from gicore.cli import UserError, entry_point, require_between
 from gicore.dataset import (
     INPUT_RENDERERS,
     SPLITS,
@@ -40,6 +39,7 @@ from gicore.dataset import (
     write_frame,
     write_meta,
 )
+from gicore.error_policy import UserError, entry_point, require_between
 from gicore.executor import Executor, ExecutorOptions, InProcess, Task
 from gicore.fileio import exclusive_run, sweep_temporaries
 from gicore.gl.lod import LOD_CHOICES, lod_value

@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal, Protocol
 
-from gicore.cli import UserError
+from gicore.error_policy import UserError
 from gicore.options import THREADS
 
 #: Task states a worker process keeps (least recently used dropped first): a run's scene, plus one

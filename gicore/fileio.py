@@ -18,7 +18,7 @@ from contextlib import contextmanager, suppress
 from pathlib import Path
 from typing import IO
 
-from gicore.cli import UserError, writable_dir
+from gicore.error_policy import UserError, writable_dir
 
 #: Temporary files carry this marker so that a sweep can remove those a killed writer left behind.
 TMP_MARKER = ".tmp-"

@@ -28,7 +28,7 @@ import numpy as np
 
 from gicore.blend import COMPOSITIONS, blend, residual
 from gicore.camera import Camera
-from gicore.cli import UserError, writable_dir
+from gicore.error_policy import UserError, writable_dir
 from gicore.fileio import atomic_write_bytes
 from gicore.metrics import lf_error, psnr, ssim
 from gicore.options import FOV_DEGREES, FRAMES, RESOLUTION, SEED, SPP, check_fields

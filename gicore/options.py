@@ -31,14 +31,14 @@ from typing import Annotated, Any, Literal
 
 import typer
 
-from gicore.cli import RESOLUTION_MAX, RESOLUTION_MIN, SEED_MAX, UserError
+from gicore.error_policy import RESOLUTION_MAX, RESOLUTION_MIN, SEED_MAX, UserError
 
 #: Most path-tracing samples per pixel a run may ask for (a 2048² map at 4096 spp takes hours on 2 cores).
 SPP_MAX = 4096
 #: Most frames one run renders (a fly-through, a dataset split): 100 000 frames are 55 minutes at 30 fps.
 FRAMES_MAX = 100_000
 
-#: Field metadata of a square resolution (:data:`gicore.cli.RESOLUTION_MIN` to ``RESOLUTION_MAX``).
+#: Field metadata of a square resolution (:data:`gicore.error_policy.RESOLUTION_MIN` to ``RESOLUTION_MAX``).
 RESOLUTION: Mapping[str, Any] = {"min": RESOLUTION_MIN, "max": RESOLUTION_MAX}
 #: Field metadata of path-tracing samples per pixel.
 SPP: Mapping[str, Any] = {"min": 1, "max": SPP_MAX}

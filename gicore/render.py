@@ -22,7 +22,7 @@ import numpy as np
 
 from gicore.buffers import DATASET_BUFFERS, GBUFFERS, check_buffer_names, check_raster
 from gicore.camera import Camera
-from gicore.cli import RESOLUTION_MAX, RESOLUTION_MIN
+from gicore.error_policy import RESOLUTION_MAX, RESOLUTION_MIN
 from gicore.geometry import SceneObject, scene_objects
 from gicore.scene import SceneSpec
 

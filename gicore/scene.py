@@ -8,7 +8,7 @@ scenes live in ``gicore/scenes/*.toml`` and load by name::
     spec = load_scene("my_scene.toml")         # a file
     spec = SceneSpec.from_dict({...})          # plain dict
 
-Invalid specs raise :class:`SceneSpecError` (a :class:`~gicore.cli.UserError`) naming each offending
+Invalid specs raise :class:`SceneSpecError` (a :class:`~gicore.error_policy.UserError`) naming each offending
 field. User meshes are read and checked when the spec loads, not when the first frame renders.
 """
 
@@ -24,7 +24,7 @@ from pydantic import AfterValidator, BaseModel, ConfigDict, Field, Strict, Valid
 
 from gicore.anatomy import AnatomyKind
 from gicore.camera import FAR_MAX, NEAR_MIN
-from gicore.cli import RESOLUTION_MAX, RESOLUTION_MIN, SEED_MAX, UserError
+from gicore.error_policy import RESOLUTION_MAX, RESOLUTION_MIN, SEED_MAX, UserError
 from gicore.mesh import load_mesh
 
 BUILTIN_DIR = Path(__file__).parent / "scenes"

@@ -32,7 +32,7 @@ from typing import TYPE_CHECKING, Any, Literal
 import numpy as np
 
 from gicore.camera import Camera
-from gicore.cli import UserError, check_denoiser
+from gicore.error_policy import UserError, check_denoiser
 from gicore.loop import (
     CLIENT_LOD,
     LAYERS,

@@ -17,7 +17,7 @@ from typing import Annotated, Any
 
 import typer
 
-from gicore.cli import entry_point
+from gicore.error_policy import entry_point
 from gicore.fileio import exclusive_run
 from gicore.options import build_config, config_command, extra
 from gigan_local.client import ClientConfig, run

@@ -15,8 +15,8 @@ from pathlib import Path
 from typing import Any, Literal
 
 from gicore.buffers import GENERATOR_INPUTS
-from gicore.cli import UserError
 from gicore.config import strict_from_dict
+from gicore.error_policy import UserError
 from gicore.fileio import atomic_write_bytes
 from gicore.options import RESOLUTION, RESOLUTION_MAX, SEED
 from gigan_local.preprocess import InputSpec

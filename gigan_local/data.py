@@ -17,8 +17,8 @@ import torch
 from torch.utils.data import Dataset
 
 from gicore.buffers import TARGET
-from gicore.cli import UserError
 from gicore.dataset import frame_paths, load_frame, read_meta
+from gicore.error_policy import UserError
 from gigan_local.preprocess import InputSpec, frame_to_input, frame_to_target
 
 

@@ -42,7 +42,7 @@ import onnxruntime as ort
 import torch
 from onnx import TensorProto, helper, numpy_helper
 
-from gicore.cli import UserError
+from gicore.error_policy import UserError
 from gicore.fileio import TMP_MARKER, atomic_write_bytes, exclusive_run
 from gigan_local.config import read_run_config
 from gigan_local.inference import FORMAT, MODEL_JSON, read_model_json

@@ -11,7 +11,7 @@ from typing import Annotated, Any
 
 import typer
 
-from gicore.cli import entry_point
+from gicore.error_policy import entry_point
 from gicore.options import FRAMES, build_config, config_command, extra
 from gigan_local.inference import MODEL_JSON
 

@@ -2,7 +2,7 @@
 
 ``GIModel`` loads a file written by ``gigan-export`` together with the ``model.json`` beside it, checks
 that the two agree, and turns frame buffers into linear GI radiance with the same encoding as training
-(``gigan_local.preprocess``). A missing, corrupt or mismatched model is a :class:`~gicore.cli.UserError`
+(``gigan_local.preprocess``). A missing, corrupt or mismatched model is a :class:`~gicore.error_policy.UserError`
 naming the file.
 """
 
@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 import onnxruntime as ort
 
-from gicore.cli import UserError
+from gicore.error_policy import UserError
 from gigan_local.preprocess import InputSpec, frame_to_input, output_to_radiance
 
 MODEL_JSON = "model.json"

@@ -9,7 +9,7 @@ from typing import Annotated
 
 import typer
 
-from gicore.cli import entry_point
+from gicore.error_policy import entry_point
 
 app = typer.Typer(
     add_completion=False, help="Rewrite an exported resize U-Net's up-sampling as sub-pixel convolutions."

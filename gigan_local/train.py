@@ -36,7 +36,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from gicore.cli import UserError
+from gicore.error_policy import UserError
 from gicore.fileio import atomic_write, atomic_write_bytes, exclusive_run
 from gicore.metrics import all_metrics
 from gigan_local.config import BUDGET_FIELDS, TrainConfig, read_run_config, write_run_config

@@ -11,7 +11,7 @@ from typing import Annotated, Any
 
 import typer
 
-from gicore.cli import UserError, entry_point
+from gicore.error_policy import UserError, entry_point
 from gicore.options import build_config, config_command, extra, parse_options
 from gigan_local.config import BUDGET_FIELDS, TrainConfig, read_run_config
 

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from gicore.cli import UserError
+from gicore.error_policy import UserError
 from gigan_local.config import NetworkConfig
 from gigan_local.inference import MODEL_JSON, read_model_json
 from gigan_local.preprocess import InputSpec

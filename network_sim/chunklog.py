@@ -8,7 +8,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import TextIO
 
-from gicore.cli import UserError
+from gicore.error_policy import UserError
 from network_sim.link import Chunk
 
 #: Columns of the per-chunk log; times are seconds from the link origin (the model's clock).

@@ -16,7 +16,7 @@ from typing import Annotated, Any, Literal
 
 import typer
 
-from gicore.cli import UserError, entry_point, serving, writable_dir
+from gicore.error_policy import UserError, entry_point, serving, writable_dir
 from gicore.options import HOST_PORT, SEED, build_config, check_fields, config_command, extra, split_host_port
 from network_sim import profiles as profile_table
 from network_sim.link import DEFAULT_WINDOW_BYTES, JITTER_DISTS, DirectionConfig, LinkConfig

@@ -10,7 +10,7 @@ from __future__ import annotations
 import functools
 from dataclasses import dataclass
 
-from gicore.cli import UserError
+from gicore.error_policy import UserError
 from network_sim.link import DirectionConfig, LinkConfig
 from network_sim.trace import Trace
 from network_sim.tracegen import MODELS, shipped_path

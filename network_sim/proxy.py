@@ -29,7 +29,7 @@ from collections import deque
 from contextlib import suppress
 from pathlib import Path
 
-from gicore.cli import UserError
+from gicore.error_policy import UserError
 from network_sim.chunklog import ChunkLog
 from network_sim.link import DOWN, UP, Chunk, Link, LinkConfig, Stream
 

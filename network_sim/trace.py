@@ -20,7 +20,7 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
-from gicore.cli import UserError
+from gicore.error_policy import UserError
 
 #: Bytes one delivery opportunity may carry (Mahimahi's ``PACKET_SIZE``, one MTU).
 OPPORTUNITY_BYTES = 1500

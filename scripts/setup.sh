@@ -46,10 +46,10 @@ fi
 .venv/bin/python -m pip install -q "torch==2.13.0"
 # ray: the optional extra behind --ray (gicore.executor), installed so that its tests run.
 .venv/bin/python -m pip install -q -e ".[test,ray]"
-# The Web3D viewer's JavaScript (onnxruntime-web, fzstd) from web/package-lock.json; without npm the viewer,
-# bench web and tests/web are unavailable (the tests skip and say so).
+# The Web3D viewer's JavaScript (onnxruntime-web, fzstd) from web3d/static/package-lock.json; without npm the viewer,
+# bench web and tests/web3d are unavailable (the tests skip and say so).
 if command -v npm >/dev/null; then
-  (cd web && npm ci --no-audit --no-fund --loglevel=error) || echo "setup: npm ci in web/ failed: the Web3D viewer is unavailable" >&2
+  (cd web3d/static && npm ci --no-audit --no-fund --loglevel=error) || echo "setup: npm ci in web3d/static/ failed: the Web3D viewer is unavailable" >&2
 else
   echo "setup: npm is missing: the Web3D viewer (gigan-web, bench web) needs Node 20 + npm" >&2
 fi

@@ -2,10 +2,10 @@
 
 - :mod:`web3d.export`: the scene's meshes, materials, WebGL2 shaders (``gicore.gl``'s GLSL, ported by its
   version line and precision qualifiers) and camera path as static files, plus the shipped ONNX model;
-- :mod:`web3d.serve`: ``gigan-web``, a static server for ``web/`` and the assets that forwards
+- :mod:`web3d.serve`: ``gigan-web``, a static server for ``web3d/static/`` and the assets that forwards
   ``POST /v1/gimap`` to a cloud-baking server (or the ``network-sim`` proxy in front of it), so the page
   talks to one origin and needs no CORS;
-- the page itself lives in ``web/`` (ES modules, onnxruntime-web from ``web/node_modules``).
+- the page itself lives in ``web3d/static/`` (ES modules, onnxruntime-web from ``web/node_modules``).
 
 This package sits beside ``bench``: it depends on ``gicore`` and on ``gigan_local``'s model files, and
 passes cloud-baking payloads through as bytes (the browser decodes them).

@@ -1,4 +1,4 @@
-"""``gigan-web``: export a scene's assets and serve the Web3D viewer (``web/``) for it.
+"""``gigan-web``: export a scene's assets and serve the Web3D viewer (``web3d/static/``) for it.
 
     gigan-web --scene lung_plane --server http://127.0.0.1:8001      # the URL of cloudbaking-server or of
                                                                      # the network-sim proxy in front of it
@@ -15,7 +15,7 @@ from typing import Any, Literal
 import typer
 
 from baseline_cloudbaking.codecs import CODEC_NAMES, DEFAULT_CODEC
-from gicore.cli import UserError, entry_point, serving
+from gicore.error_policy import UserError, entry_point, serving
 from gicore.options import (
     FRAMES,
     HOST_PORT,
@@ -94,7 +94,7 @@ class WebConfig:
 def prepare(cfg: WebConfig) -> Site:
     """Export the assets of ``cfg.scene`` (into ``cfg.assets``) and describe the site serving them."""
     if not (WEB_DIR / "node_modules" / "onnxruntime-web").is_dir():
-        raise UserError(f"{WEB_DIR}/node_modules is missing", "run `make setup` (npm ci in web/)")
+        raise UserError(f"{WEB_DIR}/node_modules is missing", "run `make setup` (npm ci in web3d/static/)")
     spec = load_scene(cfg.scene)
     assets = cfg.assets or Path(".cache") / "web3d" / spec.name
     model = cfg.model or DEFAULT_MODEL

@@ -8,7 +8,7 @@ the page shows the cloud side as off.
 
 Every response carries ``Cross-Origin-Opener-Policy: same-origin`` and ``Cross-Origin-Embedder-Policy:
 require-corp``: they make the page cross-origin isolated, which is what lets onnxruntime-web's wasm run
-with threads (SharedArrayBuffer). Files are served only from three roots (``web/`` without its
+with threads (SharedArrayBuffer). Files are served only from three roots (``web3d/static/`` without its
 ``node_modules``, the two npm packages' distribution folders, the exported assets); any other path is 404.
 """
 
@@ -23,9 +23,9 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from typing import Any
 
-#: The page's folder (``web/`` at the repository root).
-WEB_DIR = Path(__file__).resolve().parent.parent / "web"
-#: npm files the page imports, by URL prefix: only these folders of ``web/node_modules`` are served.
+#: The page's folder (``web3d/static/`` at the repository root).
+WEB_DIR = Path(__file__).resolve().parent / "static"
+#: npm files the page imports, by URL prefix: only these folders of ``web3d/static/node_modules`` are served.
 NPM_ROOTS = {
     "/npm/onnxruntime-web/": Path("onnxruntime-web/dist"),
     "/npm/fzstd/": Path("fzstd/esm"),

@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 import typer
 
-from gicore.cli import UserError, entry_point, serving, writable_dir
+from gicore.error_policy import UserError, entry_point, serving, writable_dir
 from gicore.options import SPP, build_config, config_command, extra
 
 if TYPE_CHECKING:

@@ -14,7 +14,7 @@ from pydantic import Field, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from baseline_cloudbaking.store import DEFAULT_BUDGET_BYTES, DEFAULT_LIGHT_CELL, Tolerance
-from gicore.cli import UserError
+from gicore.error_policy import UserError
 from gicore.options import RESOLUTION_MAX, RESOLUTION_MIN, SEED_MAX, SPP_MAX, THREADS
 
 ENV_PREFIX = "CLOUDBAKING_"

@@ -26,7 +26,7 @@ from baseline_cloudbaking.client import (
 )
 from baseline_cloudbaking.store import Tolerance
 from gicore.camera import Camera
-from gicore.cli import UserError
+from gicore.error_policy import UserError
 from gicore.loop import GIMap, path_views
 from gicore.options import build_config
 from gicore.scene import load_scene

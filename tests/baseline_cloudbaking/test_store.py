@@ -26,7 +26,7 @@ from baseline_cloudbaking.store import (
     payload_sha,
     simulate_fill,
 )
-from gicore.cli import UserError
+from gicore.error_policy import UserError
 
 TOL = Tolerance(position=0.1, angle_deg=5.0)
 

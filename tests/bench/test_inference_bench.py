@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from bench.inference_bench import InferenceConfig, _shipped, measure, plot, table
-from gicore.cli import UserError
+from gicore.error_policy import UserError
 from gicore.results import Results, read_rows
 
 

@@ -239,7 +239,7 @@ def test_totals_count_the_local_di_and_the_renderers_stand_side_by_side(tmp_path
 def test_renderers_option(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture) -> None:
     """Unknown or repeated renderers are user errors; gl without a GL context is left out after one warning."""
     import gicore.gl
-    from gicore.cli import UserError
+    from gicore.error_policy import UserError
 
     for renderers, message in ((("gl", "vulkan"), "'vulkan' is not a renderer"), (("gl", "gl"), "twice")):
         with pytest.raises(UserError, match=message):

@@ -26,7 +26,7 @@ from bench.pareto import (
     mark_dominated,
 )
 from bench.runner import build_config, execute
-from gicore.cli import UserError
+from gicore.error_policy import UserError
 from gicore.results import read_rows
 
 BIN = Path(sys.executable).parent

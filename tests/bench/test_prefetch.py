@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from bench.prefetch import BENCH, PrefetchConfig, readme_block, record, run_metrics, targets
-from gicore.cli import UserError
+from gicore.error_policy import UserError
 from gicore.options import build_config
 from gicore.results import Results, read_rows
 

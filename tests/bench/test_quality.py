@@ -15,8 +15,8 @@ from PIL import Image
 from bench import model_card, quality
 from bench.report import body
 from bench.runner import execute
-from gicore.cli import UserError
 from gicore.dataset import DatasetMeta, FrameRecord, load_frame, read_meta, save_frame, write_meta
+from gicore.error_policy import UserError
 from gicore.metrics import lf_error
 from gicore.results import Results, read_rows
 from gicore.tonemap import inverse_tonemap, tonemap
@@ -244,7 +244,7 @@ def test_renderer_table_applies_the_rule() -> None:
 
 
 def test_renderers_option_is_checked(scored: tuple[Path, Path], tmp_path: Path, monkeypatch) -> None:
-    from gicore.cli import UserError
+    from gicore.error_policy import UserError
     from gicore.options import build_config
 
     _, data = scored

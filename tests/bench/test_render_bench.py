@@ -15,7 +15,7 @@ from bench.render_bench import (
     client_table,
     measure_client_passes,
 )
-from gicore.cli import UserError
+from gicore.error_policy import UserError
 from gicore.results import Results, read_rows
 
 

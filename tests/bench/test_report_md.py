@@ -17,7 +17,7 @@ import pytest
 
 from bench.report_md import BEGIN, END, results_markdown, update_readme
 from bench.report_md import blocks as readme_blocks
-from gicore.cli import UserError
+from gicore.error_policy import UserError
 from gicore.results import read_rows
 from tests.bench.test_report import spoil_value
 

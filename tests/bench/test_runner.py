@@ -17,7 +17,7 @@ from typer.testing import CliRunner
 
 from bench.cli import app
 from bench.runner import Bench, build_config, execute, field_docs, register
-from gicore.cli import UserError
+from gicore.error_policy import UserError
 from gicore.results import COLUMNS, Results, read_rows
 from gicore.timing import summarize_ms, time_repeats
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from bench.runner import execute
-from bench.service import BENCH, ServiceConfig
+from bench.server_bench import BENCH, ServiceConfig
 from gicore.results import read_rows
 from tests.helpers.cloud import write_scenes
 

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from bench.stability import DEAD_LINKS, PASSED, STAGES, Case, Outcome, Rejected, counts, judge, plot, record, summary
-from gicore.cli import UserError
+from gicore.error_policy import UserError
 from gicore.results import Results, read_rows
 
 BIN = Path(sys.executable).parent

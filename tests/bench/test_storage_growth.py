@@ -24,7 +24,7 @@ from bench.storage import (
     saturation_session,
     session_frames,
 )
-from gicore.cli import UserError
+from gicore.error_policy import UserError
 from gicore.results import Results, read_rows
 from gicore.scene import SceneSpec, load_scene
 from gicore.sessions import plan_sessions

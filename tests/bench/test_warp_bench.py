@@ -11,7 +11,7 @@ import pytest
 
 from bench import warp_bench
 from bench.runner import execute
-from gicore.cli import UserError
+from gicore.error_policy import UserError
 from gicore.options import build_config
 from gicore.results import read_rows
 

@@ -12,9 +12,9 @@ import pytest
 
 from gicore.buffers import STORAGE_DTYPE
 from gicore.camera import Camera
-from gicore.cli import UserError
 from gicore.dataset import DatasetMeta, frame_paths, load_frame, read_meta, save_frame
 from gicore.dataset_cli import DatasetConfig, build_dataset, plan_frames
+from gicore.error_policy import UserError
 from gicore.paths import frame_seed
 from tests.helpers.dataset import npz_arrays
 

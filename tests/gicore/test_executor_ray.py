@@ -23,8 +23,8 @@ from baseline_cloudbaking.bake import configuration_space
 from baseline_cloudbaking.prebake_cli import PrebakeConfig, prebake_scene
 from baseline_cloudbaking.protocol import unpack
 from baseline_cloudbaking.store import DEFAULT_LIGHT_CELL, GITree, Tolerance
-from gicore.cli import UserError
 from gicore.dataset_cli import DatasetConfig, build_dataset
+from gicore.error_policy import UserError
 from gicore.executor import InProcess, LocalPool, RayExecutor, Task
 from gicore.fileio import TMP_MARKER
 from gicore.results import read_rows

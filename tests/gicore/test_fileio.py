@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from gicore.cli import EXIT_INTERRUPTED, UserError
+from gicore.error_policy import EXIT_INTERRUPTED, UserError
 from gicore.fileio import FolderHeld, exclusive_run
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -28,12 +28,12 @@ with exclusive_run(Path(sys.argv[1])):
     time.sleep(60)
 """
 
-#: A console script (through gicore.cli.run, as every entry point) that holds the lock of argv[1].
+#: A console script (through gicore.error_policy.run, as every entry point) that holds the lock of argv[1].
 SCRIPT = """
 import time
 from pathlib import Path
 import typer
-from gicore.cli import run
+from gicore.error_policy import run
 from gicore.fileio import exclusive_run
 app = typer.Typer(add_completion=False)
 @app.command()

@@ -12,7 +12,7 @@ import pytest
 import typer
 from typer.testing import CliRunner
 
-from gicore.cli import UserError
+from gicore.error_policy import UserError
 from gicore.options import (
     FRAMES,
     HOST_PORT,
@@ -148,7 +148,7 @@ def test_bad_values_are_user_errors_naming_the_option(given: dict, message: str)
 def test_bad_input_is_one_error_line_and_exit_2_under_the_policy(
     capsys: pytest.CaptureFixture[str], args: list[str], line: str
 ) -> None:
-    from gicore.cli import run
+    from gicore.error_policy import run
 
     with pytest.raises(SystemExit) as info:
         run(_app([]), args, prog_name="prog")

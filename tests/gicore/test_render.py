@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from gicore.camera import Camera
-from gicore.cli import UserError
+from gicore.error_policy import UserError
 from gicore.metrics import all_metrics
 from gicore.paths import camera_path
 from gicore.render import Renderer

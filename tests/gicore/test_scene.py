@@ -10,7 +10,7 @@ import pytest
 from pydantic import ValidationError
 
 from gicore import geometry
-from gicore.cli import UserError
+from gicore.error_policy import UserError
 from gicore.paths import camera_path, light_position
 from gicore.scene import SceneSpec, SceneSpecError, builtin_scenes, load_scene
 

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gicore.cli import UserError
+from gicore.error_policy import UserError
 from gicore.loop import amortized_fps
 from gicore.paths import camera_path, frame_seed, light_position
 from gigan_local.client import ClientConfig, run_client

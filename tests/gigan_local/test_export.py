@@ -15,8 +15,8 @@ import pytest
 import torch
 from typer.testing import CliRunner
 
-from gicore.cli import UserError
 from gicore.dataset import load_frame
+from gicore.error_policy import UserError
 from gigan_local.config import NetworkConfig
 from gigan_local.export import export_onnx, load_generator
 from gigan_local.export_cli import app

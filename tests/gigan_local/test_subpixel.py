@@ -17,7 +17,7 @@ import pytest
 import torch
 from typer.testing import CliRunner
 
-from gicore.cli import UserError
+from gicore.error_policy import UserError
 from gigan_local.config import NetworkConfig
 from gigan_local.export import FILES, fp16_weights, rewrite_export
 from gigan_local.inference import DEFAULT_MODEL, MODEL_JSON

@@ -11,7 +11,7 @@ import pytest
 import torch
 from typer.testing import CliRunner
 
-from gicore.cli import UserError
+from gicore.error_policy import UserError
 from gigan_local.config import TrainConfig, read_run_config
 from gigan_local.data import FrameDataset
 from gigan_local.models import GIGAN, create_model

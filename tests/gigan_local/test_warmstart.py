@@ -12,7 +12,7 @@ import onnxruntime as ort
 import pytest
 import torch
 
-from gicore.cli import UserError
+from gicore.error_policy import UserError
 from gigan_local.config import NetworkConfig
 from gigan_local.inference import DEFAULT_MODEL
 from gigan_local.networks import define_G

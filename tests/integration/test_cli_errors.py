@@ -568,7 +568,7 @@ def _failing_app(error: BaseException):
     ],
 )
 def test_runner_turns_errors_into_one_line(capsys: pytest.CaptureFixture[str], error, status: int, line: str):
-    from gicore.cli import UserError, run
+    from gicore.error_policy import UserError, run
 
     if error == "user":
         error = UserError("scene.toml is broken", "fix it")
@@ -588,7 +588,7 @@ def test_user_errors_cross_process_boundaries_intact():
     """gicore-dataset's render workers raise UserErrors that the parent prints: they must unpickle whole."""
     import pickle
 
-    from gicore.cli import UserError
+    from gicore.error_policy import UserError
     from gicore.scene import SceneSpecError
 
     for error in (
@@ -600,7 +600,7 @@ def test_user_errors_cross_process_boundaries_intact():
 
 
 def test_runner_keeps_bugs_and_debug_as_tracebacks():
-    from gicore.cli import UserError, run
+    from gicore.error_policy import UserError, run
 
     with pytest.raises(ZeroDivisionError):  # a bug is not a user error
         run(_failing_app(ZeroDivisionError("bug")), [], prog_name="prog")

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from gicore.cli import UserError
+from gicore.error_policy import UserError
 from gicore.options import option_name
 from network_sim import profiles as profile_table
 from network_sim.cli import ProxyOptions, link_config

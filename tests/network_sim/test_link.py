@@ -12,7 +12,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from gicore.cli import UserError
+from gicore.error_policy import UserError
 from network_sim.link import DOWN, UP, DirectionConfig, Link, LinkConfig, standardized
 from network_sim.profiles import get as get_profile
 from network_sim.profiles import profiles

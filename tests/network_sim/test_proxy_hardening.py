@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from gicore.cli import UserError
+from gicore.error_policy import UserError
 from network_sim import endpoint
 from network_sim.cli import link_config
 from network_sim.process import Running, network_sim, proxy

@@ -60,4 +60,4 @@ def test_gimap_without_an_upstream_is_503_and_a_huge_body_413(server) -> None:
 
 
 def test_web_dir_is_the_repositorys_page() -> None:
-    assert (WEB_DIR / "index.html").is_file() and WEB_DIR == Path(__file__).resolve().parents[2] / "web"
+    assert (WEB_DIR / "index.html").is_file() and WEB_DIR == Path(__file__).resolve().parents[2] / "web3d" / "static"

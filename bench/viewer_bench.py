@@ -26,7 +26,7 @@ from typing import Any, Literal
 import numpy as np
 
 from bench.runner import Bench, Block, Part, Rows, Section, Table, cell, need, pick
-from gicore.cli import UserError
+from gicore.error_policy import UserError
 from gicore.options import FRAMES, SPP, THREADS
 from gicore.results import Results
 

@@ -13,7 +13,7 @@ import re
 
 import pytest
 
-from bench.web import (
+from bench.viewer_bench import (
     SCREENSHOT,
     Reference,
     WebBenchConfig,

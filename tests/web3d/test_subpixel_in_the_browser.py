@@ -19,7 +19,7 @@ import onnxruntime as ort
 import pytest
 import torch
 
-from bench.web import CHROMIUM, WEBGL_FLAGS, require_browser
+from bench.viewer_bench import CHROMIUM, WEBGL_FLAGS, require_browser
 from gigan_local import subpixel as sp
 from gigan_local.subpixel import subpixel_upsampling
 from web3d.serve import WEB_DIR

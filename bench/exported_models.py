@@ -7,7 +7,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from gicore.cli import UserError
+from gicore.error_policy import UserError
 
 
 def model_info(path: Path, option: str) -> dict[str, Any]:
