@@ -21,10 +21,10 @@ from typing import Literal
 
 import numpy as np
 
+from bench.common import WARP_LABELS, make_warp
 from bench.exported_models import check_model_resolution
 from bench.runner import FOV_DEGREES, Bench, Block, Figure, Part, Rows, Section, Table, need, pick
 from bench.svg import Point, Series, XYChart
-from bench.warp_bench import WARP_LABELS, make_warp
 from gicore.camera import Camera
 from gicore.results import Results, read_rows
 from gigan_local.client import GI_SOURCES

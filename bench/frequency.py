@@ -4,7 +4,7 @@ warping, for both compositions.
 Each configuration runs the shared client loop (:func:`gicore.loop.run_frames`) along the scene's camera
 path (``orbit_frames`` frames per full orbit) with a new GI map every k frames, from GIGAN's source
 (:mod:`gigan_local.client`) brought to the view by GIGAN's warp, cloud baking's, or none
-(:func:`bench.warp_bench.make_warp`). Frame rate: the median per-frame client work plus the mean cost of
+(:func:`bench.common.make_warp`). Frame rate: the median per-frame client work plus the mean cost of
 one GI map spread over its k frames (:func:`gicore.loop.amortized_fps`); the GI-map cost is whatever the
 configured source costs -- the generator's inference (``gi_source = "model"``) or, by default, the
 path-traced GT stand-in, which is far slower than a network -- unless ``inference_ms`` replaces it with a
@@ -22,10 +22,10 @@ from typing import Literal
 
 import numpy as np
 
+from bench.common import WARP_LABELS, WARPS, make_warp
 from bench.exported_models import check_model_resolution
 from bench.runner import Bench, Block, Figure, Part, Rows, Section, Table, need, pick
 from bench.svg import Point, Series, XYChart
-from bench.warp_bench import WARP_LABELS, WARPS, make_warp
 from gicore.blend import COMPOSITIONS
 from gicore.results import Results, read_rows
 from gigan_local.client import GI_SOURCES

@@ -33,6 +33,7 @@ from gicore.error_policy import UserError
 from gicore.loop import RENDERERS
 from gicore.results import Results, read_rows
 from gigan_local.inference import DEFAULT_MODEL
+from network_sim.exchange import CloudCost, sweep_link
 
 CodecName = Literal[CODEC_NAMES]  # type: ignore[valid-type]
 GIGAN, CLOUD = "gigan", "cloud_baking"
@@ -506,73 +507,6 @@ def _ssim_rows(res: Results, scene: str, system: str, frames: list[dict[str, str
             stat="mean",
             **config,
         )
-
-
-# -- the link model: cloud baking's total at any link ---------------------------------------------------------
-def sweep_link(rtt_ms: float, rate_mbit: float | None):
-    """A link with ``rtt_ms / 2`` one-way delay each way at ``rate_mbit`` (None: unlimited)."""
-    from network_sim.link import DirectionConfig, LinkConfig
-
-    direction = DirectionConfig(delay_ms=rtt_ms / 2, rate_mbit=rate_mbit)
-    return LinkConfig(up=direction, down=direction)
-
-
-@dataclass(frozen=True)
-class CloudCost:
-    """Cloud baking's cost of one map apart from the network (medians of the measured requests), and what
-    it sends: enough to put its total on any link with :mod:`network_sim.link`'s model."""
-
-    #: Median of total minus transmission: server, decode, warp, blend (ms).
-    local_ms: float
-    #: Median server time (ms): the response leaves the server this long after the request arrived.
-    server_ms: float
-    bytes_up: int
-    bytes_down: int
-
-    @classmethod
-    def of(cls, samples: dict[str, list[float]]) -> CloudCost:
-        rest = np.subtract(samples["total"], samples["transmission"])
-        return cls(
-            float(np.median(rest)),
-            float(np.median(samples["server"])),
-            int(np.median(samples["bytes_up"])),
-            int(np.median(samples["bytes_down"])),
-        )
-
-    def network_ms(self, link, starts: int = 1) -> float:
-        """Request upload plus response download on ``link`` (the virtual-clock model; median over
-        ``starts`` start times 0.5 s apart, which matters for traces and jitter)."""
-        from network_sim.link import DOWN, UP, Link
-
-        times = []
-        for i in range(starts):
-            model, t0 = Link(link), 0.5 * i
-            arrived = model.message(0, UP, self.bytes_up, t0)
-            done = model.message(0, DOWN, self.bytes_down, arrived + self.server_ms / 1e3)
-            times.append((done - t0) * 1e3 - self.server_ms)
-        return float(np.median(times))
-
-    def total_ms(self, link, starts: int = 1) -> float:
-        return self.local_ms + self.network_ms(link, starts)
-
-    def crossover_rtt_ms(self, gigan_ms: float, rate_mbit: float | None) -> float:
-        """The RTT beyond which GIGAN's total ``gigan_ms`` beats this cost on a ``rate_mbit`` link (0: at any
-        RTT; inf: at none up to a minute)."""
-
-        def gap(rtt: float) -> float:
-            return self.total_ms(sweep_link(rtt, rate_mbit)) - gigan_ms
-
-        if gap(0.0) >= 0:
-            return 0.0
-        low, high = 0.0, 100.0
-        while gap(high) < 0:
-            low, high = high, 2 * high
-            if high > 60_000.0:
-                return math.inf
-        while high - low > 0.05:
-            mid = 0.5 * (low + high)
-            low, high = (mid, high) if gap(mid) < 0 else (low, mid)
-        return 0.5 * (low + high)
 
 
 # -- table and plots (from the CSV only) --------------------------------------------------------------------

@@ -31,9 +31,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from bench.processes import check_served, pinned_server, pinning
+from bench.common import Target
+from bench.processes import check_served, client_cores, pinned_server, pinning
 from bench.runner import Bench, Block, Rows, Table, need, pick
-from bench.server_bench import Target, client_cores
 from gicore.results import Results
 
 if TYPE_CHECKING:

@@ -16,12 +16,11 @@ import csv
 import dataclasses
 import json
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 
-from bench.quality import BENCH as QUALITY
-from bench.quality import QualityConfig
+from bench.common import train_small, training_minutes
 from bench.runner import Bench, execute
-from bench.training import train_small, training_minutes
 from gicore.error_policy import UserError
 from gicore.metrics import LF_SIGMA
 from gicore.results import Results, read_rows
@@ -89,17 +88,17 @@ class ModelCardConfig:
             raise UserError(f"--quality-csv {self.quality_csv} is missing", "give a CSV written by bench quality")
 
 
-def measure(cfg: ModelCardConfig, res: Results) -> None:
+def measure(cfg: ModelCardConfig, res: Results, quality: Bench) -> None:
     run, export, quality_csv = cfg.run, cfg.export, cfg.quality_csv
     dataset_command, train_command = cfg.dataset_command, cfg.train_command
     if run is None:  # the small chain; check() made sure train_steps is set
         [run] = train_small(cfg.scenes, (cfg.width,), cfg.train_steps, res)
         dataset_command = (
-            f"bench model-card --quick: bench.quality.QUICK_DATASET of {', '.join(cfg.scenes)} "
+            f"bench model-card --quick: bench.common.QUICK_DATASET of {', '.join(cfg.scenes)} "
             f"into {res.out / 'dataset'}"
         )
         train_command = (
-            f"bench model-card --quick: bench.training.train_small, GIGAN ngf {cfg.width}, {cfg.train_steps} steps"
+            f"bench model-card --quick: bench.common.train_small, GIGAN ngf {cfg.width}, {cfg.train_steps} steps"
         )
     if export is None:
         from gigan_local.export import export_onnx
@@ -108,8 +107,8 @@ def measure(cfg: ModelCardConfig, res: Results) -> None:
         export_onnx(run, export)
     if quality_csv is None:  # only in the small chain (check()): score on the small datasets it trained on
         model = export / json.loads((export / "model.json").read_text())["files"]["fp32"]
-        quality = dataclasses.replace(QualityConfig.quick(), scenes=cfg.scenes, models={cfg.system: model})
-        scored = execute(QUALITY, quality, res.out / "quality", res.seed)
+        scoring = dataclasses.replace(quality.config.quick(), scenes=cfg.scenes, models={cfg.system: model})
+        scored = execute(quality, scoring, res.out / "quality", res.seed)
         res.files += scored
         quality_csv = scored[0]
     res.files.append(write_model_card(run, export, quality_csv, cfg.system, dataset_command, train_command, res))
@@ -306,10 +305,13 @@ def plot(csv_path: Path, out_dir: Path) -> list[Path]:
     return [save(fig, out_dir / "model_card.png")]
 
 
-BENCH = Bench(
-    "model-card",
-    ModelCardConfig,
-    measure,
-    plot,
-    help="MODEL_CARD.md for an exported model from its run, export and quality results.",
-)
+def bench(quality: Bench) -> Bench:
+    """``bench model-card``, scoring the small model it makes with ``quality`` (``bench quality``;
+    :mod:`bench.registry` hands it in: benches import no bench)."""
+    return Bench(
+        "model-card",
+        ModelCardConfig,
+        partial(measure, quality=quality),
+        plot,
+        help="MODEL_CARD.md for an exported model from its run, export and quality results.",
+    )

@@ -16,20 +16,20 @@ import math
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from functools import partial
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from bench import frequency
+from bench.common import WARP_LABELS
 from bench.exported_models import check_model_resolution, model_info
-from bench.latency import CloudCost
 from bench.runner import FOV_DEGREES, Bench, Block, Figure, Part, Rows, Section, Table, execute, find
 from bench.svg import PALETTE, Point, Series, XYChart
-from bench.warp_bench import WARP_LABELS
 from gicore.error_policy import UserError
 from gicore.results import Results, read_rows
 from gigan_local.inference import DEFAULT_MODEL
+from network_sim.exchange import CloudCost
 
 GIGAN, CLOUD, ABLATION = "gigan", "cloud_baking", "ablation"
 PER_MAP, PER_FRAME = "GI map", "frame"
@@ -466,8 +466,9 @@ def frame_system(gi_source: str, warp: str) -> str:
     return system if warp in (WARP_LABELS[own], WARP_LABELS["none"]) else ABLATION
 
 
-def per_frame(ctx: Context, pts: Points, res: Results) -> None:
-    """Per frame: GI period k × warp × composition, GIGAN's maps and the server's (frequency.csv, read or run)."""
+def per_frame(ctx: Context, pts: Points, res: Results, frequency: Bench) -> None:
+    """Per frame: GI period k × warp × composition, GIGAN's maps and the server's (frequency.csv, read or run by
+    ``frequency``)."""
 
     cfg = ctx.cfg
     for source in ("model", "gt"):
@@ -475,13 +476,13 @@ def per_frame(ctx: Context, pts: Points, res: Results) -> None:
             _frequency_rows(cfg.from_dir, ctx.spec.name, source, cfg.resolution) if cfg.from_dir else ([], "")
         )
         if not rows:
-            run = frequency.FrequencyConfig(
+            run = frequency.config(
                 scenes=cfg.scenes, resolution=cfg.resolution, ks=cfg.ks, frames=cfg.frames, warps=cfg.warps,
                 compositions=cfg.compositions, gt_every=cfg.gt_every, spp=cfg.frame_spp, gi_source=source,
                 model=cfg.models.get("fp16", next(iter(cfg.models.values()))),
             )  # fmt: skip
             folder = res.out / "pareto_runs" / f"frequency_{source}"
-            execute(frequency.BENCH, run, folder, res.seed)
+            execute(frequency, run, folder, res.seed)
             rows, origin = (
                 [r for r in read_rows(folder / "frequency.csv") if r["scene"] == ctx.spec.name],
                 f"pareto_runs/frequency_{source}/frequency.csv",
@@ -533,7 +534,7 @@ def mark_dominated(items: list[dict[str, Any]]) -> None:
             )
 
 
-def measure(cfg: ParetoConfig, res: Results) -> None:
+def measure(cfg: ParetoConfig, res: Results, frequency: Bench) -> None:
     from gicore.paths import camera_path, light_position
     from gicore.render import Renderer
     from gicore.scene import load_scene
@@ -555,7 +556,7 @@ def measure(cfg: ParetoConfig, res: Results) -> None:
     bake = bake_resolution(ctx, pts)
     hit_path = codecs_and_links(ctx, pts, bake["bake_ms"])
     tolerances(ctx, pts, bake["bake_ms"], hit_path)
-    per_frame(ctx, pts, res)
+    per_frame(ctx, pts, res, frequency)
     mark_dominated(pts.items)
     for p in pts.items:
         add = {"system": p["system"], "scene": spec.name, **p["config"]}
@@ -773,14 +774,19 @@ def readme_block(rows: Rows) -> list[Table]:
     return [Table(head + "\n\n" + best_table(points))]
 
 
-BENCH = Bench(
-    "pareto",
-    ParetoConfig,
-    measure,
-    plot,
-    help="Error against run time over every speed/quality knob of both systems (per GI map and per frame), fronts "
-    "with dominated points marked, the best configuration per time budget; reuses convergence/frequency CSVs under "
-    "--from-dir.",
-    dashboard=Section("pareto", "Error against run time (Pareto fronts)", 70, dashboard_section),
-    readme=Block("Error against run time", 30, readme_block, make="bench pareto --from-dir {out} --out {out}/pareto"),
-)
+def bench(frequency: Bench) -> Bench:
+    """``bench pareto``, running ``frequency`` (``bench frequency``) where ``--from-dir`` holds no frequency.csv
+    (:mod:`bench.registry` hands it in: benches import no bench)."""
+    return Bench(
+        "pareto",
+        ParetoConfig,
+        partial(measure, frequency=frequency),
+        plot,
+        help="Error against run time over every speed/quality knob of both systems (per GI map and per frame), fronts "
+        "with dominated points marked, the best configuration per time budget; reuses convergence/frequency CSVs under "
+        "--from-dir.",
+        dashboard=Section("pareto", "Error against run time (Pareto fronts)", 70, dashboard_section),
+        readme=Block(
+            "Error against run time", 30, readme_block, make="bench pareto --from-dir {out} --out {out}/pareto"
+        ),
+    )

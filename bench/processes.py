@@ -44,6 +44,20 @@ def pinning(enabled: bool) -> dict[str, Any]:
     return {"method": "taskset -c", "cores": cores} | roles
 
 
+@contextmanager
+def client_cores(plan: dict[str, Any]) -> Iterator[None]:
+    """Run this thread (and the threads it starts) on the plan's client cores, then restore."""
+    if plan["method"] == "none":
+        yield
+        return
+    before = os.sched_getaffinity(0)
+    os.sched_setaffinity(0, plan["client"])
+    try:
+        yield
+    finally:
+        os.sched_setaffinity(0, before)
+
+
 class RunPlace(NamedTuple):
     """Where a client bench's run happens."""
 

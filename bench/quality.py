@@ -18,11 +18,12 @@ from typing import Literal
 
 import numpy as np
 
+from bench.common import QUICK_DATASET
 from bench.exported_models import model_info
 from bench.runner import Bench, Block, Figure, Part, Rows, Section, Table, need, pick
 from bench.svg import BarChart
 from gicore.dataset import INPUT_RENDERERS, DatasetMeta, frame_paths, load_frame, read_meta
-from gicore.dataset_cli import DatasetConfig, FrameRenderer, build_dataset, render_inputs
+from gicore.dataset_cli import FrameRenderer, build_dataset, render_inputs
 from gicore.error_policy import UserError
 from gicore.gl.lod import LOD_CHOICES
 from gicore.loop import CLIENT_LOD
@@ -51,9 +52,6 @@ GRID_LF_RANGE = 0.1
 GRID_LF_CMAP = "RdBu_r"
 #: One grid cell: an HxWx3 image in [0, 1] and the text drawn on it ("" for none).
 GridCell = tuple[np.ndarray, str]
-#: The small dataset a fresh checkout renders per scene (``bench quality --quick``, ``bench run-default``):
-#: 6 training and 3 held-out frames at 256², the shipped model's resolution (about 7 s per scene on 2 cores).
-QUICK_DATASET = DatasetConfig(n_train=6, n_val=3, resolution=256, spp=64, denoise=True)
 #: The rule for the GL client's inputs: a model on gl inputs may lose at most this much SSIM against
 #: mitsuba inputs on any scene, and raise the LF error by at most this fraction; beyond either, it is to be
 #: fine-tuned on gl inputs.

@@ -2,8 +2,9 @@
 shows the dashboard section and README block each declares (placed by their own ``order``).
 
 To add a bench, write its module (:mod:`bench.runner` says how), import it here and add its ``BENCH`` to
-:data:`BENCHES`. ``bench report`` is not in the list: it reads the list, so :mod:`bench.cli` adds it after
-the others.
+:data:`BENCHES`. Benches import no bench (pyproject.toml, the protected contract): one that runs others
+(run-default, model-card, pareto) is made here, from theirs, by its module's ``bench(...)``. ``bench report``
+is not in the list: it reads the list, so :mod:`bench.cli` adds it after the others.
 """
 
 from __future__ import annotations
@@ -34,13 +35,13 @@ from bench.runner import Bench, External
 
 #: Every ``bench`` subcommand but ``report``, in the order ``bench --help`` lists them.
 BENCHES: tuple[Bench, ...] = (
-    run_default.BENCH,
+    run_default.bench(latency.BENCH, storage.BENCH),
     convergence.BENCH,
     render_bench.BENCH,
     inference_bench.BENCH,
     quality.BENCH,
     training.BENCH,
-    model_card.BENCH,
+    model_card.bench(quality.BENCH),
     warp_bench.BENCH,
     frequency.BENCH,
     fov.BENCH,
@@ -51,7 +52,7 @@ BENCHES: tuple[Bench, ...] = (
     load.BENCH,
     stability.BENCH,
     scaling.BENCH,
-    pareto.BENCH,
+    pareto.bench(frequency.BENCH),
     viewer_bench.BENCH,
 )
 

@@ -14,8 +14,8 @@ import dataclasses
 import io
 import time
 from dataclasses import dataclass, field
+from functools import partial
 
-from bench import latency, storage
 from bench.runner import Bench, check_config, execute
 from gicore.options import FRAMES
 from gicore.results import Results
@@ -30,26 +30,23 @@ class RunDefaultConfig:
     #: Renderers of the latency clients' raster passes (bench latency --renderers): gl, what a Web3D client
     #: rasterises with (mitsuba where no GL context opens); gl,mitsuba adds the side-by-side comparison.
     renderers: tuple[str, ...] = ("gl",)
-    #: Frames each latency client flies (fewer: a faster look, fewer maps per median).
-    frames: int = field(default=latency.LatencyConfig.quick().frames, metadata=FRAMES)
+    #: Frames each latency client flies (fewer: a faster look, fewer maps per median); none: bench latency
+    #: --quick's.
+    frames: int | None = field(default=None, metadata=FRAMES)
 
     @classmethod
     def quick(cls) -> RunDefaultConfig:
         return cls()  # the main job runs the quick presets already
 
 
-#: The benches of the main job with their quick presets, the table each writes, and what the main job's own
-#: options change in the preset.
-JOBS = (
-    (latency.BENCH, latency.LatencyConfig, "latency_table.md", ("scenes", "renderers", "frames")),
-    (storage.BENCH, storage.StorageConfig, "storage_table2.md", ("scenes",)),
-)
+#: A bench of the main job: the bench, run from its quick preset, the table it writes, and the main job's own
+#: options it takes (those given: not None).
+Job = tuple[Bench, str, tuple[str, ...]]
 
 
-def measure(cfg: RunDefaultConfig, res: Results) -> None:
+def measure(cfg: RunDefaultConfig, res: Results, jobs: tuple[Job, ...]) -> None:
     configs = [
-        (bench, dataclasses.replace(config.quick(), **{name: getattr(cfg, name) for name in given}), table)
-        for bench, config, table, given in JOBS
+        (bench, dataclasses.replace(bench.config.quick(), **_given(cfg, names)), table) for bench, table, names in jobs
     ]
     for _, config, _ in configs:  # both checked before either runs: a missing model fails at once
         check_config(config)
@@ -69,11 +66,22 @@ def measure(cfg: RunDefaultConfig, res: Results) -> None:
         print(f"\n{(res.out / table).read_text()}")
 
 
-BENCH = Bench(
-    "run-default",
-    RunDefaultConfig,
-    measure,
-    None,
-    help="The main job (make run): bench latency --quick (Table 1) and bench storage --quick (Table 2) on the "
-    "default scene, with the shipped GIGAN model; both tables printed at the end.",
-)
+def _given(cfg: RunDefaultConfig, names: tuple[str, ...]) -> dict[str, object]:
+    return {name: getattr(cfg, name) for name in names if getattr(cfg, name) is not None}
+
+
+def bench(latency: Bench, storage: Bench) -> Bench:
+    """``bench run-default``, running ``latency`` and ``storage`` (:mod:`bench.registry` hands them in: benches
+    import no bench)."""
+    jobs = (
+        (latency, "latency_table.md", ("scenes", "renderers", "frames")),
+        (storage, "storage_table2.md", ("scenes",)),
+    )
+    return Bench(
+        "run-default",
+        RunDefaultConfig,
+        partial(measure, jobs=jobs),
+        None,
+        help="The main job (make run): bench latency --quick (Table 1) and bench storage --quick (Table 2) on the "
+        "default scene, with the shipped GIGAN model; both tables printed at the end.",
+    )

@@ -12,13 +12,10 @@ docs/architecture.md, bench service.
 from __future__ import annotations
 
 import json
-import os
 import shutil
 import tempfile
 import threading
 import time
-from collections.abc import Iterator
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -27,30 +24,14 @@ import numpy as np
 
 from baseline_cloudbaking.codecs import CODEC_NAMES, DEFAULT_CODEC
 from baseline_cloudbaking.protocol import unpack
-from bench.processes import pinned_server, pinning
+from bench.common import Target
+from bench.processes import client_cores, pinned_server, pinning
 from bench.runner import Bench, Block, Rows, Table, need
 from gicore.results import Results, read_rows
 
 CodecName = Literal[CODEC_NAMES]  # type: ignore[valid-type]
 SYSTEM = "cloud_baking"
 STATS = ("median", "p95", "p99")
-
-
-@dataclass(frozen=True)
-class Target:
-    """One of the service targets: ``metric``'s ``stat`` compared with ``bound`` (``at_most`` or not)."""
-
-    metric: str
-    stat: str
-    bound: float
-    unit: str
-    at_most: bool
-    label: str
-    #: Extra config keys that select the row (e.g. the hit_server part).
-    where: tuple[tuple[str, str], ...] = ()
-
-    def met(self, value: float) -> bool:
-        return value <= self.bound if self.at_most else value >= self.bound
 
 
 #: The service targets (the hit-time ones are stated at 256²).
@@ -141,20 +122,6 @@ def timed_post(client, body: dict[str, Any]) -> tuple[float, dict[str, Any]]:
     if r.status_code != 200:
         raise RuntimeError(f"POST /v1/gimap answered {r.status_code}: {r.text[:500]}")
     return elapsed, unpack(r.content)[0]
-
-
-@contextmanager
-def client_cores(plan: dict[str, Any]) -> Iterator[None]:
-    """Run this thread (and the threads it starts) on the plan's client cores, then restore."""
-    if plan["method"] == "none":
-        yield
-        return
-    before = os.sched_getaffinity(0)
-    os.sched_setaffinity(0, plan["client"])
-    try:
-        yield
-    finally:
-        os.sched_setaffinity(0, before)
 
 
 def run_load(url: str, cfg: ServiceConfig, bodies: list[dict[str, Any]]) -> tuple[list[float], int, float, list[str]]:

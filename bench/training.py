@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.quality import QUICK_DATASET
+from bench.common import train_small, training_minutes
 from bench.runner import Bench
 from gicore.error_policy import UserError
 from gicore.results import Results, read_rows
@@ -53,40 +53,6 @@ class TrainingBenchConfig:
             for name in ("metrics.csv", "config.json"):
                 if not (run_dir / name).is_file():
                     raise UserError(f"--runs {run_dir}: {run_dir / name} is missing", "give gigan-train run folders")
-
-
-def train_small(scenes: tuple[str, ...], widths: tuple[int, ...], steps: int, res: Results) -> list[Path]:
-    """Train one small GIGAN per width on the small datasets of ``scenes`` (``bench.quality.QUICK_DATASET``,
-    rendered into ``<out>/dataset``) into ``<out>/runs/gigan_ngf<W>``; a finished run is kept, a partial one
-    resumed. Returns the run folders."""
-    from gicore.dataset_cli import build_dataset
-    from gicore.scene import load_scene
-    from gigan_local.config import TrainConfig
-    from gigan_local.train import train
-
-    datasets = []
-    for scene in scenes:
-        spec = load_scene(scene)
-        build_dataset(spec, res.out / "dataset" / spec.name, QUICK_DATASET, progress=False)
-        datasets.append(str(res.out / "dataset" / spec.name))
-    runs = []
-    for width in widths:
-        run_dir = res.out / "runs" / f"gigan_ngf{width}"
-        cfg = TrainConfig(
-            model="gigan",
-            datasets=datasets,
-            ngf=width,
-            crop=64,
-            batch_size=2,
-            epochs=100_000,
-            max_steps=steps,
-            max_val_frames=QUICK_DATASET.n_val,
-            checkpoint_every=0,
-            seed=res.seed,
-        )
-        train(cfg, run_dir, resume=(run_dir / "checkpoint.pt").is_file(), progress=False)
-        runs.append(run_dir)
-    return runs
 
 
 def measure(cfg: TrainingBenchConfig, res: Results) -> None:
@@ -139,16 +105,6 @@ def plot(csv_path: Path, out_dir: Path) -> list[Path]:
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=7)
     return [save(fig, out_dir / "training.png")]
-
-
-def training_minutes(step_seconds: list[tuple[int, float]], steps: tuple[int, ...] | list[int]) -> list[float]:
-    """Training minutes spent up to each of ``steps``, from (step, mean step seconds since the previous
-    row) rows; validation and checkpoint time is not counted. Steps past the last row extrapolate at
-    its rate (a run stopped before its next train row)."""
-    ends = np.array([0] + [s for s, _ in step_seconds], dtype=float)
-    cumulative = np.concatenate([[0.0], np.cumsum(np.diff(ends) * np.array([v for _, v in step_seconds]))])
-    last_rate = step_seconds[-1][1]
-    return [float(np.interp(s, ends, cumulative) + max(0, s - ends[-1]) * last_rate) / 60.0 for s in steps]
 
 
 BENCH = Bench(

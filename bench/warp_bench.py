@@ -23,11 +23,12 @@ from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
+from bench.common import WARP_LABELS
 from bench.runner import FOV_DEGREES, Bench, Block, Figure, Part, Rows, Section, Table, need, pick
 from bench.svg import BarChart
 from gicore.camera import Camera
 from gicore.gl.lod import LOD_CHOICES, lod_value
-from gicore.loop import CLIENT_LOD, LAYERS, RENDERERS, Warp, open_raster
+from gicore.loop import CLIENT_LOD, RENDERERS, open_raster
 from gicore.metrics import ssim
 from gicore.paths import camera_path, light_position
 from gicore.results import Results, read_rows
@@ -37,23 +38,7 @@ from gicore.tonemap import tonemap
 if TYPE_CHECKING:
     from gicore.render import Renderer
 
-#: Plot and CSV names of the warp methods the benches compare: GIGAN's structure-aware warp, cloud
-#: baking's pixel-level warp, and none (the map pasted as is).
-WARP_LABELS = {"structure": "structure-aware", "pixel": "pixel-level", "none": "no warping"}
-WARPS = tuple(WARP_LABELS)
 SYSTEMS = {m: WARP_LABELS[m] for m in ("structure", "pixel")}
-
-
-def make_warp(method: str, renderer, composition: str = "blend") -> Warp:
-    """The :class:`gicore.loop.Warp` ``method`` (:data:`WARPS`) for ``composition``. Cross-system
-    ablations (GIGAN maps with cloud baking's pixel-level warp) are assembled here, in ``bench``."""
-    if method == "pixel":
-        from baseline_cloudbaking.warp import PixelWarp
-
-        return PixelWarp(LAYERS[composition])
-    from gigan_local.client import make_warp as gigan_warp
-
-    return gigan_warp(method, renderer, composition)
 
 
 @dataclass(frozen=True)

@@ -1,5 +1,5 @@
 """`bench latency` (Table 1): the whole bench end to end at 64² (server, proxy, both clients as processes),
-the link-model crossover against closed forms, and its option checks."""
+and its option checks (the link model's crossover: tests/network_sim/test_exchange.py)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from bench import latency
-from bench.latency import CloudCost, LatencyConfig, sweep_link
+from bench.latency import LatencyConfig
 from bench.runner import execute
 from gicore.results import read_rows
 from tests.helpers.cloud import passthrough_model, write_scenes
@@ -111,26 +111,6 @@ def _csv(path: Path) -> list[dict[str, str]]:
 
     with path.open(newline="") as fh:
         return list(csv.DictReader(fh))
-
-
-def test_crossover_matches_the_closed_form() -> None:
-    """Unlimited rate: the network costs exactly the RTT, so GIGAN wins beyond (its total - cloud's local
-    part); at 5 Mbit/s the response's serialization (bytes * 8 / rate) is added to cloud's side."""
-    cost = CloudCost(local_ms=10.0, server_ms=5.0, bytes_up=500, bytes_down=100_000)
-    assert cost.network_ms(sweep_link(80.0, None)) == pytest.approx(80.0, abs=1e-6)
-    assert cost.crossover_rtt_ms(40.0, None) == pytest.approx(30.0, abs=0.1)
-    assert cost.crossover_rtt_ms(5.0, None) == 0.0  # GIGAN faster at any RTT
-    serialization_ms = (500 + 100_000) * 8 / 5e6 * 1e3
-    assert cost.network_ms(sweep_link(80.0, 5.0)) == pytest.approx(80.0 + serialization_ms, abs=0.01)
-    assert cost.crossover_rtt_ms(400.0, 5.0) == pytest.approx(400.0 - 10.0 - serialization_ms, abs=0.1)
-
-
-def test_link_model_of_a_profile() -> None:
-    """The wan profile: 130 ms RTT and 5 Mbit/s each way."""
-    from network_sim.profiles import get
-
-    cost = CloudCost(local_ms=0.0, server_ms=50.0, bytes_up=1000, bytes_down=62_500)
-    assert cost.total_ms(get("wan").link(), starts=5) == pytest.approx(130.0 + (1000 + 62_500) * 8 / 5e6 * 1e3, abs=0.1)
 
 
 def test_unknown_profile_is_a_user_error(tmp_path: Path) -> None:

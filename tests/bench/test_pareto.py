@@ -9,14 +9,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from bench import frequency
 from bench.pareto import (
     ABLATION,
-    BENCH,
     CLOUD,
     GIGAN,
     PER_FRAME,
     PER_MAP,
     ParetoConfig,
+    bench,
     best_table,
     best_within,
     budgets,
@@ -194,7 +195,7 @@ def test_tiny_sweep_measures_both_systems_reads_convergence_and_marks_dominated_
         tolerances=("0.1:5",), path_frames=40, ks=(4,),
         warps=("structure",), compositions=("blend",), frames=8, gt_every=4, frame_spp=2, repeats=1,
     )  # fmt: skip
-    files = execute(BENCH, cfg, tmp_path)
+    files = execute(bench(frequency.BENCH), cfg, tmp_path)
     assert {p.name for p in files} >= {"pareto.csv", "pareto_gi_map.png", "pareto_frame.png", "pareto_best.md"}
     points = front_points(read_rows(tmp_path / "pareto.csv"))
     knobs = {(p["system"], p["config"]["knob"]) for p in points}

@@ -1,7 +1,8 @@
 """The architecture (docs/architecture.md, Import contracts), checked: the import-linter contracts in
 pyproject.toml (layers bench -> the two systems and the network simulator -> gicore, the systems independent
-of each other, no cycle among a package's modules, Mitsuba only behind gicore.render) and no import inside a
-function between bench modules (such imports hide cycles from the reader).
+of each other, no cycle among a package's modules, benches import no bench, Mitsuba only behind gicore.render),
+every registered bench under the benches' contract, and no import inside a function between bench modules
+(such imports hide cycles from the reader).
 """
 
 from __future__ import annotations
@@ -9,6 +10,7 @@ from __future__ import annotations
 import ast
 import subprocess
 import sys
+import tomllib
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -32,3 +34,12 @@ def test_bench_modules_import_each_other_only_at_top_level() -> None:
                     if isinstance(inner, ast.Import) and any(a.name.split(".")[0] == "bench" for a in inner.names):
                         late.append(f"{path.name}:{inner.lineno} import")
     assert not late, late
+
+
+def test_every_registered_bench_is_under_the_benches_contract() -> None:
+    from bench import registry
+
+    contracts = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["importlinter"]["contracts"]
+    [protected] = [c for c in contracts if c["type"] == "protected"]
+    benches = {b.config.__module__ for b in registry.BENCHES}
+    assert benches <= set(protected["protected_modules"]), benches - set(protected["protected_modules"])

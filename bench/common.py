@@ -1,0 +1,108 @@
+"""What several benches share, so that no bench imports another (pyproject.toml, the protected contract):
+the warp methods they compare, the small model a fresh checkout trains and scores, and a stated target.
+
+The warps are wired here, in ``bench``, because cross-system ablations (GIGAN maps with cloud baking's
+pixel-level warp) may not be assembled inside either system (docs/architecture.md, Import contracts).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from gicore.dataset_cli import DatasetConfig
+from gicore.loop import LAYERS, Warp
+from gicore.results import Results
+
+# --- the warp methods ----------------------------------------------------------------------------------------
+
+#: Plot and CSV names of the warp methods the benches compare: GIGAN's structure-aware warp, cloud
+#: baking's pixel-level warp, and none (the map pasted as is).
+WARP_LABELS = {"structure": "structure-aware", "pixel": "pixel-level", "none": "no warping"}
+WARPS = tuple(WARP_LABELS)
+
+
+def make_warp(method: str, renderer, composition: str = "blend") -> Warp:
+    """The :class:`gicore.loop.Warp` ``method`` (:data:`WARPS`) for ``composition``."""
+    if method == "pixel":
+        from baseline_cloudbaking.warp import PixelWarp
+
+        return PixelWarp(LAYERS[composition])
+    from gigan_local.client import make_warp as gigan_warp
+
+    return gigan_warp(method, renderer, composition)
+
+
+# --- the small model of a fresh checkout ---------------------------------------------------------------------
+
+#: The small dataset a fresh checkout renders per scene (``bench quality --quick``, ``bench training --quick``,
+#: ``bench model-card --quick``): 6 training and 3 held-out frames at 256², the shipped model's resolution
+#: (about 7 s per scene on 2 cores).
+QUICK_DATASET = DatasetConfig(n_train=6, n_val=3, resolution=256, spp=64, denoise=True)
+
+
+def train_small(scenes: tuple[str, ...], widths: tuple[int, ...], steps: int, res: Results) -> list[Path]:
+    """Train one small GIGAN per width on the small datasets of ``scenes`` (:data:`QUICK_DATASET`, rendered
+    into ``<out>/dataset``) into ``<out>/runs/gigan_ngf<W>``; a finished run is kept, a partial one resumed.
+    Returns the run folders."""
+    from gicore.dataset_cli import build_dataset
+    from gicore.scene import load_scene
+    from gigan_local.config import TrainConfig
+    from gigan_local.train import train
+
+    datasets = []
+    for scene in scenes:
+        spec = load_scene(scene)
+        build_dataset(spec, res.out / "dataset" / spec.name, QUICK_DATASET, progress=False)
+        datasets.append(str(res.out / "dataset" / spec.name))
+    runs = []
+    for width in widths:
+        run_dir = res.out / "runs" / f"gigan_ngf{width}"
+        cfg = TrainConfig(
+            model="gigan",
+            datasets=datasets,
+            ngf=width,
+            crop=64,
+            batch_size=2,
+            epochs=100_000,
+            max_steps=steps,
+            max_val_frames=QUICK_DATASET.n_val,
+            checkpoint_every=0,
+            seed=res.seed,
+        )
+        train(cfg, run_dir, resume=(run_dir / "checkpoint.pt").is_file(), progress=False)
+        runs.append(run_dir)
+    return runs
+
+
+def training_minutes(step_seconds: list[tuple[int, float]], steps: tuple[int, ...] | list[int]) -> list[float]:
+    """Training minutes spent up to each of ``steps``, from (step, mean step seconds since the previous
+    row) rows; validation and checkpoint time is not counted. Steps past the last row extrapolate at
+    its rate (a run stopped before its next train row)."""
+    ends = np.array([0] + [s for s, _ in step_seconds], dtype=float)
+    cumulative = np.concatenate([[0.0], np.cumsum(np.diff(ends) * np.array([v for _, v in step_seconds]))])
+    last_rate = step_seconds[-1][1]
+    return [float(np.interp(s, ends, cumulative) + max(0, s - ends[-1]) * last_rate) / 60.0 for s in steps]
+
+
+# --- stated targets ------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Target:
+    """One of the server's stated targets (``bench service``, ``bench load``): ``metric``'s ``stat`` compared
+    with ``bound`` (``at_most`` or not)."""
+
+    metric: str
+    stat: str
+    bound: float
+    unit: str
+    at_most: bool
+    label: str
+    #: Extra config keys that select the row (e.g. the hit_server part).
+    where: tuple[tuple[str, str], ...] = ()
+
+    def met(self, value: float) -> bool:
+        return value <= self.bound if self.at_most else value >= self.bound
