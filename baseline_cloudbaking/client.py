@@ -24,7 +24,7 @@ from collections import deque
 from dataclasses import dataclass, field, replace
 from functools import partial
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import httpx
 import numpy as np
@@ -34,6 +34,9 @@ from baseline_cloudbaking.protocol import MEDIA_TYPE, PayloadError, decode_paylo
 from baseline_cloudbaking.store import Tolerance, Viewpoint, light_cell, nearest
 from gicore.camera import Camera
 from gicore.loop import GIMap, Light, PathRunConfig
+
+if TYPE_CHECKING:
+    from gicore.path_file import PathFile
 
 log = logging.getLogger("cloudbaking.client")
 
@@ -689,9 +692,10 @@ class CloudClientConfig(PathRunConfig):
 
 
 def run_client(
-    cfg: CloudClientConfig, server: str, tolerance: ServerInfo
+    cfg: CloudClientConfig, server: str, tolerance: ServerInfo, flown: PathFile | None = None
 ) -> tuple[list[dict[str, Any]], list[dict[str, Any]], str]:
-    """Fly the scene's camera path composing with ``server``'s maps; returns (per-frame rows, per-request rows,
+    """Fly the run's path (``flown``; default: :func:`gicore.path_file.flown_path` of ``cfg``) composing with
+    ``server``'s maps; returns (per-frame rows, per-request rows,
     the renderer that ran the per-frame raster passes: ``"mitsuba"`` when ``gl`` was asked and no GL context
     opened, see :func:`gicore.loop.open_raster`).
 
@@ -703,7 +707,8 @@ def run_client(
     """
     from baseline_cloudbaking.warp import PixelWarp
     from gicore.gl import GLRenderer, RasterUnavailable
-    from gicore.loop import CLIENT_LOD, LAYERS, ClientLoop, LoopConfig, open_raster, path_views, run_frames
+    from gicore.loop import CLIENT_LOD, LAYERS, ClientLoop, LoopConfig, open_raster, run_frames
+    from gicore.path_file import flown_path
     from gicore.render import Renderer
     from gicore.scene import load_scene
 
@@ -720,7 +725,7 @@ def run_client(
         max_turn=None if held else tolerance.tolerance_angle_deg or None, composition=cfg.composition, tau=cfg.tau,
         seed=cfg.seed, first_map_timeout_s=remote.connect_timeout_s + remote.deadline_s,
     )  # fmt: skip
-    views = path_views(spec, cfg.frames, cfg.orbit_frames, cfg.seed, cfg.local_fov_of(spec), cfg.resolution)
+    views = (flown or flown_path(spec, cfg, cfg.seed, cfg.local_fov_of(spec))).views(cfg.resolution)
     kept: dict[int, np.ndarray] = {}
     shown: list[tuple[float, float, GIMap | None, LightCell]] = []  # (start s, shown s, bound map, its cell)
     next_start: list[float] = []

@@ -13,15 +13,15 @@ scene or an unserved resolution, codec or spp is one ``error:`` line. Once runni
 never stops the frames: failed requests are logged on stderr and recorded, and the frames go on with the
 last map.
 
-Writes under ``--out``: ``frames.csv`` (per frame: every stage in ms, the map's age and latency, what
-the frame waited for, SSIM/PSNR against the path-traced GT every ``--gt-every`` frames, scored after the
-run, and how long its view waited for a map within tolerance: ``perceived_ms``, see
-:func:`baseline_cloudbaking.client.perceived_latency`), ``requests.csv`` (per request: status, hit, bytes,
-every stage from transmission to blend; the split is explained in :mod:`baseline_cloudbaking.client`) and
-``summary.json`` (``renderer``: the one that ran the local DI and the warp's mask pass: ``--renderer gl``
-without a GL context falls back to mitsuba with one warning). Its options are derived from
-:class:`baseline_cloudbaking.client.CloudClientConfig` (the fields both clients share live in
-:class:`gicore.loop.PathRunConfig`).
+Flies the scene's fly-through, or a recorded session (``--path FILE``, :mod:`gicore.path_file`). Writes
+under ``--out``: ``path.json`` (the path flown, which ``--path`` replays), ``frames.csv`` (per frame: every
+stage in ms, the map's age and latency, what it waited for, SSIM/PSNR against the path-traced GT every
+``--gt-every`` frames, scored after the run, and how long its view waited for a map within tolerance:
+``perceived_ms``, :func:`baseline_cloudbaking.client.perceived_latency`), ``requests.csv`` (per request:
+status, hit, bytes, every stage from transmission to blend, split as :mod:`baseline_cloudbaking.client`
+says) and ``summary.json`` (``renderer``: the one that ran the local DI and the warp's mask pass; gl without
+a context falls back to mitsuba with one warning). Options: the fields of
+:class:`~baseline_cloudbaking.client.CloudClientConfig` and :class:`~gicore.loop.PathRunConfig`.
 """
 
 from __future__ import annotations
@@ -44,10 +44,12 @@ app = typer.Typer(add_completion=False, help=__doc__)
 
 def client_command(given: dict[str, Any], *, server: str, out: Path) -> None:
     """Run the cloud-baking client against --server and print its summary."""
+    from gicore.path_file import flown_path, write_path_file
     from gicore.scene import load_scene
 
     cfg = build_config(CloudClientConfig, given)
-    load_scene(cfg.scene)  # a bad spec is one error line before the server is asked
+    spec = load_scene(cfg.scene)  # a bad spec or path file is one error line before the server is asked
+    flown = flown_path(spec, cfg, cfg.seed, cfg.local_fov_of(spec))
     cfg.check_gt_cache()
     if cfg.gt_every:
         check_denoiser(cfg.denoise)
@@ -56,9 +58,10 @@ def client_command(given: dict[str, Any], *, server: str, out: Path) -> None:
     writable_dir(out)
     logging.basicConfig(format="%(asctime)s %(name)s: %(message)s", level=logging.INFO)
     with exclusive_run(out):
-        rows, requests, used = run_client(cfg, server, tolerance)
+        write_path_file(out / "path.json", flown.scene, flown.frames, flown.source)
+        rows, requests, used = run_client(cfg, server, tolerance, flown)
         summary = write_outputs(cfg, rows, requests, out, renderer=used)
-    line = f"{cfg.frames} frames, {summary['fps']:.1f} fps; {summary['requests']} requests"
+    line = f"{summary['frames']} frames, {summary['fps']:.1f} fps; {summary['requests']} requests"
     line += f" ({summary['hits']} hits, {summary['misses']} misses"
     failed = {s: n for s, n in summary["status"].items() if s != "ok"}
     line += "".join(f", {n} {s}" for s, n in failed.items()) + ")"
@@ -71,7 +74,7 @@ def client_command(given: dict[str, Any], *, server: str, out: Path) -> None:
         line += f", mean SSIM {summary['mean_ssim']:.3f}, PSNR {summary['mean_psnr']:.2f} dB"
         line += f", LF error {summary['mean_lf_error']:.4f}"
     typer.echo(line)
-    typer.echo(f"wrote {out / 'frames.csv'}, {out / 'requests.csv'} and {out / 'summary.json'}")
+    typer.echo(f"wrote {out / 'path.json'}, {out / 'frames.csv'}, {out / 'requests.csv'} and {out / 'summary.json'}")
 
 
 SERVER_HELP = "base URL of cloudbaking-server (or of a network-sim proxy in front of it)"
@@ -95,7 +98,7 @@ def write_outputs(
 
     write_rows(rows, out / "frames.csv")
     write_rows(requests, out / "requests.csv")  # frame 0 always asks, so there is a record (if only "abandoned")
-    summary = {"config": cfg.as_json(), "renderer": renderer or cfg.renderer}
+    summary = {"config": cfg.as_json(), "frames": len(rows), "renderer": renderer or cfg.renderer}
     summary |= summarize(rows, cfg.every) | request_summary(requests)
     # maps come in the background, so the frame rate is what the frames took (not the amortised GI cost)
     summary["fps"] = 1000.0 / float(np.mean([float(r["frame_ms"]) for r in rows]))

@@ -34,13 +34,12 @@ import numpy as np
 
 from gicore.error_policy import UserError
 from gicore.fileio import atomic_write_bytes, sweep_temporaries
+from gicore.paths import DEFAULT_LIGHT_CELL as DEFAULT_LIGHT_CELL  # the light's space is gicore.paths'
 
 Vec3 = tuple[float, float, float]
 PAYLOAD_SUFFIX = ".gim"
 INDEX_NAME = "index.sqlite"
 READ_ONLY_TODO = "make it, its -wal and -shm files and the store folder writable, or give another --store"
-#: Default light-cell side, scene units: the paper scenes' lights sweep ±0.6 to ±1 along x, so 4 to 8 cells.
-DEFAULT_LIGHT_CELL = 0.25
 #: Default size of the in-memory LRU of payloads (bytes): a few hundred maps of 256² JPEG.
 DEFAULT_CACHE_BYTES = 64 << 20
 #: Default payload budget of a server's GI tree (bytes): tens of thousands of 256² maps, and a bound on what

@@ -31,7 +31,7 @@ from gicore.camera import Camera
 from gicore.error_policy import UserError, writable_dir
 from gicore.fileio import atomic_write_bytes
 from gicore.metrics import lf_error, psnr, ssim
-from gicore.options import FOV_DEGREES, FRAMES, RESOLUTION, SEED, SPP, check_fields
+from gicore.options import FOV_DEGREES, FRAMES, PATH_FILE, RESOLUTION, SEED, SPP, check_fields
 from gicore.paths import camera_path, frame_seed, light_position
 from gicore.render_cache import RenderCache
 from gicore.scene import SceneSpec
@@ -294,7 +294,8 @@ UNSCORED = dict.fromkeys(TAIL_COLUMNS[1:], "")
 @dataclass(frozen=True)
 class PathRunConfig:
     """What every client run (``gigan-client``, ``cloudbaking-client``) shares: the scene, the camera path
-    both clients fly, the GI period, composition and GT scoring. ``None`` FOVs come from the scene spec
+    both clients fly (the scene's fly-through, or a ``--path`` file: :func:`gicore.path_file.flown_path`), the GI
+    period, composition and GT scoring. ``None`` FOVs come from the scene spec
     (local 60°, GI 90°). Each system's config adds its own GI source and warp fields.
 
     Both clients' command lines are derived from these fields (:mod:`gicore.options`): each option, its
@@ -315,6 +316,7 @@ class PathRunConfig:
     local_fov: float | None = field(default=None, metadata=FOV_DEGREES)
     #: Frames per full orbit of the camera path (sets the motion per frame: 360° / orbit_frames).
     orbit_frames: int = field(default=300, metadata=FRAMES)
+    path: Path | None = field(default=None, metadata=PATH_FILE)
     #: Eq. 1 weight of DI in the blend (0: the GI map alone, which already holds direct light).
     tau: float = field(default=0.0, metadata={"min": 0.0, "max": 1.0})
     #: Composition: blend (eq. 1) or residual (current DI + warped indirect light).

@@ -13,7 +13,7 @@ comment above it), and nothing else declares them again::
 
 How types map to options, the checks on the final config, and the limits declared here once
 (:data:`RESOLUTION`, :data:`SPP`, :data:`FRAMES`, :data:`SEED`, :data:`FOV_DEGREES`, :data:`THREADS`,
-:data:`HOST_PORT`): docs/architecture.md, Command-line options.
+:data:`HOST_PORT`, :data:`PATH_FILE`): docs/architecture.md, Command-line options.
 """
 
 from __future__ import annotations
@@ -52,6 +52,14 @@ FOV_DEGREES: Mapping[str, Any] = {"max": 179.0}
 THREADS: Mapping[str, Any] = {"min": 1, "max": 256}
 #: Field metadata of a ``HOST:PORT`` address string (port 0 to 65535; 0: any free port).
 HOST_PORT: Mapping[str, Any] = {"host_port": True, "metavar": "HOST:PORT"}
+#: Field metadata of the path file a run flies (``--path``, :mod:`gicore.path_file`) in place of the scene's
+#: scripted fly-through; it sets every frame, so the options that shape the scripted path conflict with it.
+PATH_FILE: Mapping[str, Any] = {
+    "help": "path file (gigan-path/1: a recorded session, or any run's path.json) to fly in place of the scene's"
+    " fly-through; it sets each frame's camera, light and the frame count (--seed still seeds the render noise)",
+    "metavar": "FILE",
+    "conflicts": ("frames", "orbit_frames", "local_fov"),
+}
 
 
 # --- fields: documentation, names, types, parsing ------------------------------------------------------------
@@ -314,6 +322,11 @@ def parse_options(cls: type, given: Mapping[str, Any]) -> dict[str, Any]:
         value = _parse(hints[name], raw, option_name(fields[name]))
         check_field(fields[name], hints[name], value)
         values[name] = value
+    for name in values:
+        clash = [fields[c] for c in fields[name].metadata.get("conflicts", ()) if c in values]
+        if clash:
+            option, other = option_name(fields[name]), option_name(clash[0])
+            raise UserError(f"{option} and {other} conflict: {option} sets what {other} would", f"drop {other}")
     return values
 
 

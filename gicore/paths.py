@@ -1,19 +1,29 @@
-"""Camera fly-throughs and light schedules derived from a scene spec (docs/architecture.md, Scenes).
+"""Camera fly-throughs, light schedules and the space they move in, derived from a scene spec
+(docs/architecture.md, Scenes).
 
-Both are pure functions of (spec, frame index or count, seed), so any frame can be regenerated alone
+Paths are pure functions of (spec, frame index or count, seed), so any frame can be regenerated alone
 (resumable datasets, servers rendering a requested frame). The camera orbit is smooth: azimuth advances
 linearly over the path while radius and height wobble with two seeded low-frequency sinusoids.
+:func:`navigation` is the envelope those orbits stay in and :func:`light_bounds` the box a light may take:
+what a served or recorded camera and light are checked against.
 """
 
 from __future__ import annotations
 
 import math
 import zlib
+from typing import Any
 
 import numpy as np
 
 from gicore.camera import Camera
 from gicore.scene import SceneSpec
+
+Vec3 = tuple[float, float, float]
+#: Default light-cell side, scene units: the paper scenes' lights sweep ±0.6 to ±1 along x, so 4 to 8 cells.
+DEFAULT_LIGHT_CELL = 0.25
+#: The fly-through's look-at target moves up to this fraction of the wobble from the spec's target, in x and y.
+TARGET_WOBBLE = 0.1
 
 
 def frame_seed(seed: int, purpose: str, frame: int) -> int:
@@ -36,6 +46,50 @@ def light_range(spec: SceneSpec) -> tuple[tuple[float, float, float], tuple[floa
     the rest point for a static light."""
     (x, y, z), (ax, ay) = spec.light.position, spec.light.amplitude
     return (x - abs(ax), y - abs(ay), z), (x + abs(ax), y + abs(ay), z)
+
+
+def light_bounds(spec: SceneSpec, margin: float = DEFAULT_LIGHT_CELL) -> tuple[Vec3, Vec3]:
+    """Corners of the box a requested light must lie in: a moving light's range widened by ``margin`` on every
+    side (a light cell: the cells its sweep touches), a static light's rest point."""
+    low, high = light_range(spec)
+    if not spec.light.moves:
+        return low, high
+    return tuple(c - margin for c in low), tuple(c + margin for c in high)  # type: ignore[return-value]
+
+
+def navigation(spec: SceneSpec) -> dict[str, Any]:
+    """The envelope the fly-throughs of ``spec`` (:func:`camera_path`) keep the eye in, as JSON data: the
+    look-at ``target`` and how far the path moves it in x and y (``target_wobble``), the eye's horizontal
+    distance from the target (``radius``) and height (``height``) as [lo, hi], and its azimuth (degrees,
+    ``atan2(x - tx, z - tz)``) as [lo, hi], or None for the full circle."""
+    c = spec.camera
+    arc = c.azimuth_range >= 360.0
+    return {
+        "target": [float(v) for v in c.target],
+        "target_wobble": TARGET_WOBBLE * c.wobble,
+        "radius": [c.radius * (1.0 - c.wobble), c.radius * (1.0 + c.wobble)],
+        "height": sorted([c.height * (1.0 - c.wobble), c.height * (1.0 + c.wobble)]),
+        "azimuth": None if arc else [c.azimuth_center - c.azimuth_range / 2, c.azimuth_center + c.azimuth_range / 2],
+    }
+
+
+def outside_navigation(nav: dict[str, Any], eye: Vec3, margin: float) -> str | None:
+    """What puts ``eye`` outside the envelope ``nav`` (:func:`navigation`) widened by ``margin`` scene units
+    (the azimuth arc by the angle ``margin`` spans at the inner radius); None when it is inside."""
+    tx, _, tz = nav["target"]
+    dx, dz = eye[0] - tx, eye[2] - tz
+    checks = [("radius", math.hypot(dx, dz), nav["radius"], margin), ("height", eye[1], nav["height"], margin)]
+    for name, value, (lo, hi), slack in checks:
+        if not lo - slack <= value <= hi + slack:
+            return f"its {name} {value:.4g} is outside [{lo:.4g}, {hi:.4g}]"
+    if nav["azimuth"] is not None:
+        lo, hi = nav["azimuth"]
+        slack = math.degrees(margin / max(nav["radius"][0], 1e-9))
+        azimuth = math.degrees(math.atan2(dx, dz))
+        past = (azimuth - lo) % 360.0  # degrees past the arc's start, going round
+        if not (past <= hi - lo + slack or past >= 360.0 - slack):
+            return f"its azimuth {azimuth:.4g}° is outside [{lo:.4g}°, {hi:.4g}°]"
+    return None
 
 
 def camera_path(
@@ -64,7 +118,7 @@ def camera_path(
         height = c.height * (1.0 + c.wobble * math.sin(2 * math.pi * 3 * t + phases[1]))
         a = math.radians(az)
         origin = (c.target[0] + radius * math.sin(a), height, c.target[2] + radius * math.cos(a))
-        wob = 0.1 * c.wobble
+        wob = TARGET_WOBBLE * c.wobble
         target = (
             c.target[0] + wob * math.sin(2 * math.pi * 2 * t + phases[2]),
             c.target[1] + wob * math.sin(2 * math.pi * 3 * t + phases[3]),

@@ -3,9 +3,9 @@
 The loop itself -- DI every frame, a GI map every ``k`` frames, warp, compose, per-frame rows -- is
 :mod:`gicore.loop`'s, shared with the cloud-baking client. GIGAN brings:
 
-- :class:`ModelSource`: the ONNX generator (:class:`gigan_local.inference.GIModel`) on DI + G-buffers it
-  renders at the GI camera (FOV ``F_GI``, default 90°); both the render (``gi_render``) and the inference
-  count as GIGAN's stages;
+- :class:`ModelSource`: the exported generator (:func:`gigan_local.backend_choice.open_model`: onnxruntime,
+  or torch on a CUDA GPU) on DI + G-buffers it renders at the GI camera (FOV ``F_GI``, default 90°); both the
+  render (``gi_render``) and the inference count as GIGAN's stages;
 - :class:`GTSource`: the path-traced GT GI map at the GI camera, an oracle stand-in for a perfect model
   (so the loop runs without a trained model; its cost is path tracing, not a network's);
 - the structure-aware warp (:class:`gigan_local.warp.StructureAwareWarp`), or none (the map pasted as
@@ -46,7 +46,6 @@ from gicore.loop import (
     SynchronousSource,
     Warp,
     open_raster,
-    path_views,
     render_gt,
     run_frames,
     summarize,
@@ -54,15 +53,17 @@ from gicore.loop import (
     write_rows,
 )
 from gicore.options import THREADS
+from gicore.path_file import PathFile, flown_path, write_path_file
 from gicore.paths import frame_seed
 from gicore.scene import SceneSpec, load_scene
 from gicore.timing import Stopwatch
 from gicore.tonemap import tonemap
+from gigan_local.backend_choice import INFERENCE_BACKENDS, resolve_inference
 from gigan_local.warp import StructureAwareWarp
 
 if TYPE_CHECKING:
     from gicore.render import Renderer
-    from gigan_local.inference import GIModel
+    from gigan_local.inference import ExportedGenerator
 
 #: GIGAN's warps: structure-aware (Alg. 1), or none (the map pasted as is, made at the local FOV).
 WARPS = ("structure", "none")
@@ -81,8 +82,11 @@ class ClientConfig(PathRunConfig):
     gi_source: Literal[GI_SOURCES] = "gt"  # type: ignore[valid-type]
     #: ONNX model; absent: the shipped gigan_local/models/gigan_default/model_fp16.onnx.
     model: Path | None = None
-    #: onnxruntime threads.
+    #: onnxruntime threads (torch's on the CPU).
     threads: int = field(default=2, metadata=THREADS)
+    #: Backend of the model source's inference: auto (torch on a CUDA GPU, in float16, where torch sees one; else
+    #: onnxruntime), onnxruntime (CPU) or torch (CUDA where there is one, else the CPU in float32).
+    inference: Literal[INFERENCE_BACKENDS] = "auto"  # type: ignore[valid-type]
 
     def check(self) -> None:
         """A given model must be a file (checked before the run, as the command line builds the config)."""
@@ -105,9 +109,9 @@ class ClientConfig(PathRunConfig):
         return local, local
 
     def loop_config(self, spec: SceneSpec) -> LoopConfig:
-        return LoopConfig(
-            every=self.every, gi_fov=self.fovs(spec)[1], composition=self.composition, tau=self.tau, seed=self.seed
-        )
+        # without warping the GI camera is the frame's own camera (gi_fov None), whatever FOV its path gives it
+        gi_fov = None if self.warp == "none" else self.fovs(spec)[1]
+        return LoopConfig(every=self.every, gi_fov=gi_fov, composition=self.composition, tau=self.tau, seed=self.seed)
 
 
 # -- GI sources ---------------------------------------------------------------------------------------------
@@ -144,11 +148,12 @@ class GTSource(SynchronousSource):
 
 
 class ModelSource(SynchronousSource):
-    """The GIGAN generator (ONNX) on DI + G-buffers rendered at the GI camera.
+    """The GIGAN generator (an exported model on its inference backend) on DI + G-buffers rendered at the GI camera.
 
     Stages: ``gi_render`` (DI, and G-buffers sampled at pixel centres as a rasteriser samples them, so that
     their depth is also the texel-centre depth the warp's occlusion test reads: no separate depth pass)
-    and ``inference`` (:meth:`GIModel.predict`, encoding and decoding included). Centre-sampled G-buffers
+    and ``inference`` (:meth:`~gigan_local.inference.ExportedGenerator.predict`: encoding, host copies to and
+    from the backend's device, and decoding included). Centre-sampled G-buffers
     leave the shipped model's quality as it was with the jittered ones it was trained on: mean SSIM
     against path-traced GT at the GI camera 0.9331 vs 0.9326 (30 views, five scenes, paired difference
     0.0004 +- 0.0004).
@@ -157,7 +162,7 @@ class ModelSource(SynchronousSource):
     name = "model"
     stages = ("gi_render", "inference")
 
-    def __init__(self, renderer: Renderer, model: GIModel, seed: int = 0):
+    def __init__(self, renderer: Renderer, model: ExportedGenerator, seed: int = 0):
         super().__init__()
         self.renderer, self.model, self.seed = renderer, model, seed
 
@@ -172,14 +177,16 @@ class ModelSource(SynchronousSource):
         return GIMap(camera, radiance, buffers["depth"][..., 0], buffers["di"], stages=sw.ms)
 
 
-def load_model(path: Path | None, threads: int, resolution: int) -> GIModel:
-    """The ONNX model at ``path`` (default: the shipped one), checked against the client's resolution."""
-    from gigan_local.inference import DEFAULT_MODEL, GIModel
+def load_model(path: Path | None, threads: int, resolution: int, inference: str = "auto") -> ExportedGenerator:
+    """The ONNX model at ``path`` (default: the shipped one) on the backend ``inference`` chooses
+    (:data:`~gigan_local.backend_choice.INFERENCE_BACKENDS`), checked against the client's resolution."""
+    from gigan_local.backend_choice import open_model
+    from gigan_local.inference import DEFAULT_MODEL
 
     path = Path(path or DEFAULT_MODEL)
     if not path.is_file():
         raise UserError(f"no GI model at {path}", "export one with gigan-export, pass --model, or use --gi-source gt")
-    model = GIModel(path, threads)
+    model = open_model(path, inference, threads)
     if model.resolution != resolution:
         raise UserError(
             f"the model at {path} runs at {model.resolution}² but the client renders {resolution}²",
@@ -199,7 +206,7 @@ def make_gi_source(
     if cfg.gi_source == "gt":
         return GTSource(renderer, cfg.spp, cfg.denoise, cfg.seed, cache)
     raster = renderer if raster is None else raster
-    return ModelSource(raster, load_model(cfg.model, cfg.threads, raster.resolution), cfg.seed)
+    return ModelSource(raster, load_model(cfg.model, cfg.threads, raster.resolution, cfg.inference), cfg.seed)
 
 
 def make_warp(method: str, renderer: Renderer, composition: str) -> Warp:
@@ -249,9 +256,14 @@ def _path_renderer(spec: SceneSpec, resolution: int) -> Renderer:
 
 
 def run_client(
-    cfg: ClientConfig, renderer: Renderer | None = None, on_frame=None, raster: Any | None = None
+    cfg: ClientConfig,
+    renderer: Renderer | None = None,
+    on_frame=None,
+    raster: Any | None = None,
+    flown: PathFile | None = None,
 ) -> list[dict[str, Any]]:
-    """Run the configured client along the scene's camera path; returns the per-frame rows.
+    """Run the configured client along its path (``flown``; default: :func:`gicore.path_file.flown_path` of
+    ``cfg``); returns the per-frame rows.
 
     ``renderer`` (optional, shared): the Mitsuba renderer of path tracing; ``raster`` (optional): the
     renderer of the per-frame raster passes (local DI, the model source's DI + G-buffers, the warp's uv
@@ -266,15 +278,15 @@ def run_client(
     local_fov, _ = cfg.fovs(spec)
     source = make_gi_source(cfg, renderer, raster=raster)
     loop = ClientLoop(cfg.loop_config(spec), raster, source, make_warp(cfg.warp, raster, cfg.composition))
-    views = path_views(spec, cfg.frames, cfg.orbit_frames, cfg.seed, local_fov, cfg.resolution)
+    views = (flown or flown_path(spec, cfg, cfg.seed, local_fov)).views(cfg.resolution)
     ground_truth = cfg.ground_truth(renderer, spec) if cfg.gt_every else None
     return run_frames(loop, views, ground_truth, on_frame)
 
 
 def run(cfg: ClientConfig, out: Path, save_frames: bool = False, video: bool = False) -> dict[str, Any]:
-    """Run the client and write ``frames.csv``, ``summary.json`` (with ``renderer``: the renderer that ran the
-    raster passes, which is mitsuba when gl was asked and no GL context opened) and optionally PNG frames / an
-    MP4."""
+    """Run the client and write ``path.json`` (the path it flies, :mod:`gicore.path_file`), ``frames.csv``,
+    ``summary.json`` (with ``frames``, and ``renderer``: the renderer that ran the raster passes, which is
+    mitsuba when gl was asked and no GL context opened) and optionally PNG frames / an MP4."""
     from PIL import Image
 
     out = Path(out)
@@ -289,11 +301,17 @@ def run(cfg: ClientConfig, out: Path, save_frames: bool = False, video: bool = F
         if video:
             images.append(rgb)
 
-    renderer, raster, used = open_renderers(cfg, load_scene(cfg.scene))
-    rows = run_client(cfg, renderer, on_frame=keep if (save_frames or video) else None, raster=raster)
+    spec = load_scene(cfg.scene)
+    flown = flown_path(spec, cfg, cfg.seed, cfg.fovs(spec)[0])
+    out.mkdir(parents=True, exist_ok=True)
+    write_path_file(out / "path.json", flown.scene, flown.frames, flown.source)
+    renderer, raster, used = open_renderers(cfg, spec)
+    rows = run_client(cfg, renderer, on_frame=keep if (save_frames or video) else None, raster=raster, flown=flown)
     write_rows(rows, out / "frames.csv")
-    summary = {"config": cfg.as_json()}
+    summary = {"config": cfg.as_json(), "frames": len(rows)}
     summary |= {"renderer": used} | summarize(rows, cfg.every)
+    if cfg.gi_source == "model":
+        summary["inference"] = resolve_inference(cfg.inference)
     if video:
         summary["video"] = _write_video(images, out / "frames.mp4")
     (out / "summary.json").write_text(json.dumps(summary, indent=1))

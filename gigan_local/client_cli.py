@@ -2,12 +2,13 @@
 
     gigan-client --scene lung_plane --frames 120 -k 30 --warp structure --gi-source gt --gt-every 10 --out runs/client
 
-Writes ``frames.csv`` (per-frame stage times in ms, valid fraction, SSIM/PSNR where GT was rendered) and
-``summary.json`` (amortised fps, median stage times, mean quality, the renderer that ran the raster passes:
-``--renderer gl`` falls back to mitsuba with one warning where no GL context opens) under ``--out``;
-optionally PNG frames and an MP4 (needs imageio-ffmpeg). Its options are derived from
-:class:`gigan_local.client.ClientConfig` (the fields both clients share live in
-:class:`gicore.loop.PathRunConfig`).
+The path is the scene's fly-through, or a recorded session with ``--path FILE`` (:mod:`gicore.path_file`).
+Writes under ``--out``: ``path.json`` (the path flown, a path file that ``--path`` replays), ``frames.csv``
+(per-frame stage times in ms, valid fraction, SSIM/PSNR where GT was rendered) and ``summary.json`` (amortised
+fps, median stage times, mean quality, the renderer that ran the raster passes: ``--renderer gl`` falls back
+to mitsuba with one warning where no GL context opens); optionally PNG frames and an MP4 (needs
+imageio-ffmpeg). Its options are derived from :class:`gigan_local.client.ClientConfig` (the fields both
+clients share live in :class:`gicore.loop.PathRunConfig`).
 """
 
 from __future__ import annotations
@@ -33,13 +34,13 @@ def client_command(given: dict[str, Any], *, with_gt: bool, out: Path, save_fram
     cfg.check_gt_cache()
     with exclusive_run(out):
         summary = run(cfg, out, save_frames=save_frames, video=video)
-    line = f"{cfg.frames} frames, {summary['fps']:.1f} fps"
+    line = f"{summary['frames']} frames, {summary['fps']:.1f} fps"
     line += f" (local {summary['local_ms']:.1f} ms + GI {summary['gi_ms']:.0f} ms / {cfg.every})"
     if "mean_ssim" in summary:
         line += f", mean SSIM {summary['mean_ssim']:.3f}, PSNR {summary['mean_psnr']:.2f} dB"
         line += f", LF error {summary['mean_lf_error']:.4f}"
     typer.echo(line)
-    typer.echo(f"wrote {out / 'frames.csv'} and {out / 'summary.json'}")
+    typer.echo(f"wrote {out / 'path.json'}, {out / 'frames.csv'} and {out / 'summary.json'}")
 
 
 config_command(

@@ -48,7 +48,7 @@ from baseline_cloudbaking.store import (
     light_cell,
     payload_sha,
 )
-from gicore.paths import frame_seed, light_range
+from gicore.paths import frame_seed, light_bounds
 from gicore.scene import SceneSpec, SceneSpecError
 
 T = TypeVar("T")
@@ -218,15 +218,6 @@ class FieldError(ValueError):
         self.field = field
         self.message = message
         self.status = status
-
-
-def light_bounds(spec: SceneSpec, margin: float) -> tuple[Vec3, Vec3]:
-    """Corners of the box a request's light must lie in: a moving light's range widened by ``margin`` on every
-    side (a light cell: the cells its sweep touches), a static light's rest point."""
-    low, high = light_range(spec)
-    if not spec.light.moves:
-        return low, high
-    return tuple(c - margin for c in low), tuple(c + margin for c in high)  # type: ignore[return-value]
 
 
 def _ms(t0: float) -> float:
