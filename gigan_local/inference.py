@@ -1,19 +1,22 @@
-"""Client-side GI inference with onnxruntime (the paper's TensorFlow.js role); needs no torch.
+"""Client-side GI inference (the paper's TensorFlow.js role): an exported generator on onnxruntime or torch.
 
-``GIModel`` loads a file written by ``gigan-export`` together with the ``model.json`` beside it, checks
-that the two agree, and turns frame buffers into linear GI radiance with the same encoding as training
-(``gigan_local.preprocess``). A missing, corrupt or mismatched model is a :class:`~gicore.error_policy.UserError`
-naming the file.
+:class:`ExportedGenerator` loads a file written by ``gigan-export`` together with the ``model.json`` beside
+it, checks that the two agree, and turns frame buffers into linear GI radiance with the same encoding as
+training (``gigan_local.preprocess``); a backend brings only the network's run. :class:`GIModel` runs the
+ONNX graph on onnxruntime's CPU provider (needs no torch); :class:`gigan_local.torch_backend.TorchGIModel`
+runs the same weights on torch (fp16 on a CUDA GPU); :func:`gigan_local.backend_choice.open_model` picks
+one for ``--inference auto|onnxruntime|torch``. A missing, corrupt or mismatched model is a
+:class:`~gicore.error_policy.UserError` naming the file.
 """
 
 from __future__ import annotations
 
 import json
+from abc import ABC, abstractmethod
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import onnxruntime as ort
 
 from gicore.error_policy import UserError
 from gigan_local.preprocess import InputSpec, frame_to_input, output_to_radiance
@@ -54,24 +57,71 @@ def check_model_option(path: str | Path, option: str = "--model") -> None:
     read_model_json(path)
 
 
-class GIModel:
-    """An exported generator ready to predict GI maps on the CPU.
+class ExportedGenerator(ABC):
+    """An exported generator ready to predict GI maps; a subclass brings the backend that runs it.
 
     ``path`` is a ``.onnx`` file from ``gigan-export`` (``model.json`` must sit beside it); ``threads``
-    sets onnxruntime's intra-op threads; ``warmup`` runs that many dummy inferences so the first real
-    frame is not slowed by lazy initialisation.
+    sets the backend's CPU threads; ``warmup`` runs that many dummy inferences so the first real frame is
+    not slowed by lazy initialisation.
     """
+
+    #: What runs the network, e.g. "onnxruntime cpu" or "torch cuda float16" (a run's provenance).
+    backend: str
 
     def __init__(self, path: str | Path, threads: int = 2, warmup: int = 2) -> None:
         self.path = Path(path)
         if not self.path.is_file():
             raise UserError(f"model file {self.path} is missing", "export one with `gigan-export RUN --out DIR`")
-        config_path = self.path.parent / MODEL_JSON
         self.config: dict[str, Any] = read_model_json(self.path)
         self.spec = InputSpec.from_dict(self.config["input"])
         self.resolution = int(self.config["resolution"])
         if threads < 1:
             raise ValueError(f"threads must be >= 1, got {threads}")
+        shape = (1, self.spec.in_channels, self.resolution, self.resolution)
+        self._load(threads, shape)
+        # the network input, encoded in place by every predict (one model serves one caller at a time)
+        self._input = self._input_array(shape)
+        for _ in range(warmup):
+            self._run(self._input)
+
+    @abstractmethod
+    def _load(self, threads: int, shape: tuple[int, int, int, int]) -> None:
+        """Load the network for inputs of ``shape`` (1xCxHxW); a UserError naming the file if it cannot."""
+
+    @abstractmethod
+    def _run(self, x: np.ndarray) -> np.ndarray:
+        """The network's output (3xHxW float32 in [-1, 1], on the host) for the input ``x`` (1xCxHxW)."""
+
+    def _input_array(self, shape: tuple[int, ...]) -> np.ndarray:
+        """The host array the frame is encoded into (a backend may place it in memory it copies from faster)."""
+        return np.zeros(shape, np.float32)
+
+    @property
+    def buffers(self) -> tuple[str, ...]:
+        """Buffers ``predict`` needs, in channel order."""
+        return self.spec.buffers
+
+    def predict(self, frame_buffers: dict[str, np.ndarray]) -> np.ndarray:
+        """Linear GI radiance (HxWx3 float32, C-contiguous) from the frame's buffers (name -> HxWxC linear
+        arrays), host copies to and from the backend's device included. Not reentrant: the buffers are encoded
+        into the model's one input array."""
+        sizes = {np.shape(frame_buffers[b])[:2] for b in self.spec.buffers if b in frame_buffers}
+        if sizes - {(self.resolution, self.resolution)}:
+            raise ValueError(
+                f"frame buffers are {' and '.join(f'{h}x{w}' for h, w in sorted(sizes))} but the model runs at "
+                f"{self.resolution}x{self.resolution}; render the GI-camera buffers at the model's resolution"
+            )
+        frame_to_input(frame_buffers, self.spec, out=self._input[0])
+        return output_to_radiance(self._run(self._input))
+
+
+class GIModel(ExportedGenerator):
+    """The exported ONNX graph on onnxruntime's CPU provider (``threads`` intra-op threads)."""
+
+    backend = "onnxruntime cpu"
+
+    def _load(self, threads: int, shape: tuple[int, int, int, int]) -> None:
+        import onnxruntime as ort
 
         options = ort.SessionOptions()
         options.intra_op_num_threads = threads
@@ -96,34 +146,20 @@ class GIModel:
                 "re-export it with `gigan-export`",
             )
         self.input_name = inputs[0].name
-        expected = [self.spec.in_channels, self.resolution, self.resolution]
-        if list(inputs[0].shape[1:]) != expected:
-            raise UserError(
-                f"{self.path} takes input of shape {inputs[0].shape[1:]} (CxHxW) but {config_path} describes "
-                f"{expected} "
-                f"(buffers {list(self.spec.buffers)} at {self.resolution}px), so the model and its model.json "
-                "do not belong together",
-                "re-export with `gigan-export` so both come from one run",
-            )
-        # the network input, encoded in place by every predict (one model serves one caller at a time)
-        self._input = np.zeros((1, *expected), np.float32)
-        for _ in range(warmup):
-            self.session.run(None, {self.input_name: self._input})
+        check_input_shape(self, inputs[0].shape[1:], shape)
 
-    @property
-    def buffers(self) -> tuple[str, ...]:
-        """Buffers ``predict`` needs, in channel order."""
-        return self.spec.buffers
+    def _run(self, x: np.ndarray) -> np.ndarray:
+        return self.session.run(None, {self.input_name: x})[0][0]
 
-    def predict(self, frame_buffers: dict[str, np.ndarray]) -> np.ndarray:
-        """Linear GI radiance (HxWx3 float32, C-contiguous) from the frame's buffers (name -> HxWxC linear
-        arrays). Not reentrant: the buffers are encoded into the model's one input array."""
-        sizes = {np.shape(frame_buffers[b])[:2] for b in self.spec.buffers if b in frame_buffers}
-        if sizes - {(self.resolution, self.resolution)}:
-            raise ValueError(
-                f"frame buffers are {' and '.join(f'{h}x{w}' for h, w in sorted(sizes))} but the model runs at "
-                f"{self.resolution}x{self.resolution}; render the GI-camera buffers at the model's resolution"
-            )
-        frame_to_input(frame_buffers, self.spec, out=self._input[0])
-        y = self.session.run(None, {self.input_name: self._input})[0][0]
-        return output_to_radiance(y)
+
+def check_input_shape(model: ExportedGenerator, file_shape: list, shape: tuple[int, ...]) -> None:
+    """The graph's input (CxHxW ``file_shape``, as the ONNX file declares it) must be what ``model.json``
+    describes (1xCxHxW ``shape``): a UserError naming both files otherwise."""
+    if list(file_shape) != list(shape[1:]):
+        raise UserError(
+            f"{model.path} takes input of shape {list(file_shape)} (CxHxW) but "
+            f"{model.path.parent / MODEL_JSON} describes {list(shape[1:])} "
+            f"(buffers {list(model.spec.buffers)} at {model.resolution}px), so the model and its model.json "
+            "do not belong together",
+            "re-export with `gigan-export` so both come from one run",
+        )

@@ -1,0 +1,110 @@
+"""GIGAN's generator on torch (`--inference torch`): the ONNX file's weights in the torch network, the same
+predictions as onnxruntime's on the same file, and the choice between the two backends."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from gicore.cuda_probe import cuda_device_count
+from gicore.error_policy import UserError
+from gigan_local.backend_choice import open_model, resolve_inference
+from gigan_local.inference import DEFAULT_MODEL, GIModel
+from gigan_local.torch_backend import TorchGIModel
+
+#: Largest difference between the two backends' predictions (linear radiance) on the shipped model.
+PREDICT_TOLERANCE = 1e-3
+
+
+@pytest.fixture(scope="module")
+def frame(make_spec) -> dict[str, np.ndarray]:
+    """The sphere-and-box scene's DI + G-buffers at the shipped model's resolution, as the model source
+    renders them at the GI camera."""
+    from gicore.paths import camera_path, light_position
+    from gicore.render import Renderer
+
+    resolution = int(json.loads((DEFAULT_MODEL.parent / "model.json").read_text())["resolution"])
+    renderer = Renderer(make_spec(with_box=True), resolution)
+    camera = camera_path(renderer.spec, 40, fov=90.0, resolution=resolution)[3]
+    return renderer.render_di_gbuffers(camera, light_position(renderer.spec, 3), centre=True)
+
+
+@pytest.mark.parametrize("name", ["model_fp16.onnx", "model_fp32.onnx"])
+def test_torch_on_the_cpu_predicts_what_onnxruntime_predicts(frame, name):
+    path = DEFAULT_MODEL.parent / name
+    reference = GIModel(path, threads=1, warmup=0).predict(frame)
+    model = TorchGIModel(path, threads=1, warmup=0)
+    if model.device.type == "cuda":
+        pytest.skip("torch runs on CUDA here (float16): the CPU comparison is for machines without a GPU")
+    predicted = model.predict(frame)
+    assert model.backend.startswith("torch cpu float32")
+    assert predicted.shape == reference.shape == (*frame["di"].shape[:2], 3) and predicted.flags.c_contiguous
+    assert np.abs(predicted - reference).max() <= PREDICT_TOLERANCE
+    assert reference.max() > 0.05  # real GI, not an all-dark map that any two backends agree on
+
+
+def test_auto_is_torch_on_cuda_and_onnxruntime_without():
+    assert resolve_inference("auto", cuda=True) == "torch"
+    assert resolve_inference("auto", cuda=False) == "onnxruntime"
+    for forced in ("onnxruntime", "torch"):
+        assert resolve_inference(forced, cuda=True) == resolve_inference(forced, cuda=False) == forced
+    with pytest.raises(UserError, match="--inference 'tensorflow' is not a backend: use one of auto, onnxruntime"):
+        resolve_inference("tensorflow", cuda=False)
+
+
+def test_auto_without_a_gpu_runs_onnxruntime_without_importing_torch():
+    if cuda_device_count():
+        pytest.skip("this machine has a CUDA device")
+    code = (
+        "import sys; from gigan_local.backend_choice import open_model; "
+        f"m = open_model({str(DEFAULT_MODEL)!r}, 'auto', threads=1, warmup=0); "
+        "print(type(m).__name__, m.backend, 'torch' in sys.modules)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True).stdout
+    assert out.split() == ["GIModel", "onnxruntime", "cpu", "False"]
+
+
+def test_forced_torch_opens_the_torch_backend():
+    model = open_model(DEFAULT_MODEL, "torch", threads=1, warmup=1)
+    assert isinstance(model, TorchGIModel) and model.backend.startswith("torch ")
+
+
+def test_a_model_without_its_architecture_is_a_user_error_on_torch(tmp_path: Path):
+    folder = shutil.copytree(DEFAULT_MODEL.parent, tmp_path / "m")
+    doc = json.loads((folder / "model.json").read_text())
+    del doc["network"]
+    (folder / "model.json").write_text(json.dumps(doc))
+    with pytest.raises(UserError, match="no generator architecture.*--inference onnxruntime"):
+        TorchGIModel(folder / DEFAULT_MODEL.name, threads=1, warmup=0)
+    assert GIModel(folder / DEFAULT_MODEL.name, threads=1, warmup=0).backend == "onnxruntime cpu"
+
+
+def test_a_graph_of_another_resolution_is_refused_on_torch(tmp_path: Path):
+    folder = shutil.copytree(DEFAULT_MODEL.parent, tmp_path / "m")
+    doc = json.loads((folder / "model.json").read_text())
+    (folder / "model.json").write_text(json.dumps(doc | {"resolution": 2 * doc["resolution"]}))
+    with pytest.raises(UserError, match="do not belong together"):
+        TorchGIModel(folder / DEFAULT_MODEL.name, threads=1, warmup=0)
+
+
+def test_gigan_client_runs_the_model_on_the_backend_asked(make_spec, tmp_path: Path):
+    """`gigan-client --inference torch` predicts its GI maps on torch and says so in its summary; an unknown
+    backend is one error line."""
+    spec_file = tmp_path / "scene.json"
+    spec_file.write_text(json.dumps(make_spec(with_box=True).to_dict()))
+    resolution = json.loads((DEFAULT_MODEL.parent / "model.json").read_text())["resolution"]
+    exe = str(Path(sys.executable).parent / "gigan-client")
+    args = ["--scene", str(spec_file), "--frames", "2", "-k", "1", "--resolution", str(resolution)]
+    args += ["--gi-source", "model", "--gt-every", "0", "--out", str(tmp_path / "run")]
+    proc = subprocess.run([exe, *args, "--inference", "torch"], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert summary["inference"] == "torch" and summary["config"]["inference"] == "torch"
+    bad = subprocess.run([exe, *args, "--inference", "tflite"], capture_output=True, text=True, timeout=300)
+    assert bad.returncode == 2 and "Traceback" not in bad.stderr and "auto" in bad.stderr + bad.stdout
