@@ -23,10 +23,10 @@ import numpy as np
 
 from bench.common import WARP_LABELS, make_warp
 from bench.exported_models import check_model_resolution
-from bench.runner import FOV_DEGREES, Bench, Block, Figure, Part, Rows, Section, Table, need, pick
-from bench.svg import Point, Series, XYChart
+from bench.present.declarations import Chart, Column, Figure, Rows, Table, per, pick, spread, unique, wide
+from bench.runner import FOV_DEGREES, Bench, Block, Section
 from gicore.camera import Camera
-from gicore.results import Results, read_rows
+from gicore.results import Results
 from gigan_local.client import GI_SOURCES
 from gigan_local.inference import DEFAULT_MODEL
 
@@ -211,156 +211,81 @@ def _measure_scene(cfg: FovConfig, res: Results, scene: str) -> None:
                     )
 
 
-def plot(csv_path: Path, out_dir: Path) -> list[Path]:
-    """Fig. 9 (GI-map SSIM against F_GI) and Fig. 8 (warped SSIM, and the share of the frame the GI map
-    covers, against camera motion; one line per scene, method and F_GI)."""
-    from gicore.plotting import plt, save
-
-    rows = read_rows(csv_path)
-    scenes = list(dict.fromkeys(r["scene"] for r in rows))
-    fig, axes = plt.subplots(1, 4, figsize=(19, 4.2))
-    for scene in scenes:
-        maps = sorted(
-            (r["config"]["gi_fov"], r["value"]) for r in rows if r["metric"] == "ssim_gi_map" and r["scene"] == scene
-        )
-        axes[0].plot(*zip(*maps), "-o", label=scene)
-    axes[0].set_xlabel("GI-camera FOV F_GI [deg]")
-    axes[0].set_ylabel(f"SSIM of the GI map ({next(r['system'] for r in rows if r['metric'] == 'ssim_gi_map')})")
-    panels = (
-        ("rotation", "ssim_warped", "SSIM of the warped GI vs GT"),
-        ("translation", "ssim_warped", "SSIM of the warped GI vs GT"),
-        ("rotation", "valid_fraction", "frame covered by the GI map"),
-    )
-    for ax, (kind, metric, label) in zip(axes[1:], panels):
-        sel = [r for r in rows if r["metric"] == metric and r["config"]["motion"] == kind]
-        for scene in scenes:
-            for system, style in zip(WARP_LABELS.values(), ("-o", "--s", ":^")):
-                for gi_fov in sorted({r["config"]["gi_fov"] for r in sel}):
-                    pts = sorted(
-                        (r["config"]["amount"], r["value"])
-                        for r in sel
-                        if (r["scene"], r["system"], r["config"]["gi_fov"]) == (scene, system, gi_fov)
-                    )
-                    if pts:
-                        label = (
-                            f"{system}, F_GI {gi_fov:g}°"
-                            if len(scenes) == 1
-                            else f"{scene}: {system}, F_GI {gi_fov:g}°"
-                        )
-                        ax.plot(*zip(*pts), style, ms=4, label=label)
-        ax.set_xlabel(f"camera {kind} [{next((r['config']['amount_unit'] for r in sel), '')}]")
-        ax.set_ylabel(label)
-    axes[2].legend(fontsize=6)
-    for ax in axes:
-        ax.grid(alpha=0.3)
-    if len(scenes) > 1:
-        axes[0].legend(fontsize=7)
-    fig.suptitle("GI-camera FOV: GI-map quality (Fig. 9) and warping after camera motion (Fig. 8)")
-    return [save(fig, out_dir / "fov.png")]
+# -- what it shows ------------------------------------------------------------------------------------------
+def _warps(rows: Rows) -> list[str]:
+    return unique(r["system"] for r in rows if r["metric"] == "ssim_warped")
 
 
-# -- bench report: the dashboard's section and the README's block ------------------------------------------
-def table(rows: Rows) -> str:
-    """Fig. 9 as Markdown: per scene and GI-camera FOV, the GI map's SSIM and each warp's SSIM (and the share of
-    pixels the map covers), each the mean over every camera motion measured."""
-    need(rows, "ssim_gi_map", "ssim_warped")
-    warped = pick(rows, "ssim_warped")
-    systems = list(dict.fromkeys(r["system"] for r in warped))
-    source = ", ".join(dict.fromkeys(r["system"] for r in pick(rows, "ssim_gi_map")))
+def table_rows(rows: Rows) -> list[dict]:
+    """Per scene and F_GI: the GI map's SSIM, and each warp's SSIM and covered share (means over every motion)."""
+    keys = ("scene", "gi_fov")
+    warped = wide(rows, (*keys, "system"), {"ssim": "ssim_warped", "covered": "valid_fraction"}, mean=True)
+    out: dict[tuple, dict] = {}
+    for r in wide(rows, keys, {"gi_map": "ssim_gi_map"}, mean=True) + spread(warped, keys, "system", _warps(rows)):
+        out.setdefault((r["scene"], r["gi_fov"]), {}).update(r)
+    return list(out.values())
+
+
+def caption(rows: Rows) -> str:
+    warped = pick("ssim_warped")(rows)
     motions = []
-    for motion in dict.fromkeys(r["config"]["motion"] for r in warped):
-        sel = [r["config"] for r in warped if r["config"]["motion"] == motion]
-        amounts = ", ".join(dict.fromkeys(f"{c['amount']:g}" for c in sel))
-        motions.append(f"{motion} {amounts} {sel[0]['amount_unit']}")
-    lines = [
+    for m in unique(r["motion"] for r in warped):
+        mine = [r for r in warped if r["motion"] == m]
+        motions.append(f"{m} {', '.join(unique(format(r['amount'], 'g') for r in mine))} {mine[0]['amount_unit']}")
+    source = ", ".join(unique(r["system"] for r in rows if r["metric"] == "ssim_gi_map"))
+    return (
         f"GI maps: {source}. Warped: the mean over {'; '.join(motions)}; in brackets, the share of pixels the map "
-        "covers.",
-        "",
-        "| scene | F_GI | SSIM of the GI map | " + " | ".join(f"SSIM warped: {s}" for s in systems) + " |",
-        "|---" * (3 + len(systems)) + "|",
-    ]
-    for scene, fov in dict.fromkeys(
-        (r["scene"], r["config"]["gi_fov"]) for r in rows if r["metric"] in ("ssim_gi_map", "ssim_warped")
-    ):
-
-        def mean(metric: str, system: str | None = None) -> float | None:
-            vs = [
-                r["value"]
-                for r in pick(rows, metric)
-                if (r["scene"], r["config"]["gi_fov"]) == (scene, fov) and system in (None, r["system"])
-            ]
-            return sum(vs) / len(vs) if vs else None
-
-        cells = []
-        for s in systems:
-            ssim, covered = mean("ssim_warped", s), mean("valid_fraction", s)
-            cells.append("—" if ssim is None else f"{ssim:.3f}" + ("" if covered is None else f" ({covered:.0%})"))
-        gi_map = mean("ssim_gi_map")
-        lines.append(
-            f"| {scene} | {fov:g}° | {'—' if gi_map is None else f'{gi_map:.3f}'} | " + " | ".join(cells) + " |"
-        )
-    return "\n".join(lines)
+        "covers."
+    )
 
 
-def dashboard_section(rows: Rows) -> list[Part]:
-    """The GI map's SSIM against F_GI per scene, the warped SSIM against each camera motion, then the table."""
-    need(rows, "ssim_gi_map", "ssim_warped")
-    maps = [
-        Series(
-            scene,
-            [
-                Point(
-                    r["config"]["gi_fov"],
-                    r["value"],
-                    f"{scene}, F_GI {r['config']['gi_fov']:g}°: SSIM {r['value']:.4f}",
-                )
-                for r in pick(rows, "ssim_gi_map")
-                if r["scene"] == scene
-            ],
-        )
-        for scene in dict.fromkeys(r["scene"] for r in pick(rows, "ssim_gi_map"))
-    ]
-    figures = [
-        XYChart(
-            maps,
-            "GI-camera FOV F_GI [°]",
-            "SSIM of the GI map vs GT",
-            caption=f"Source: {pick(rows, 'ssim_gi_map')[0]['system']}.",
-        )
-    ]
-    for motion in dict.fromkeys(r["config"]["motion"] for r in pick(rows, "ssim_warped")):
-        sel = [r for r in pick(rows, "ssim_warped") if r["config"]["motion"] == motion]
-        lines = []
-        for system, gi_fov in dict.fromkeys((r["system"], r["config"]["gi_fov"]) for r in sel):
-            name = f"{system}, F_GI {gi_fov:g}°"
-            tip = "{name}, {motion} {amount:g} {unit}: SSIM {value:.4f}"
-            pts = [
-                Point(
-                    c["amount"],
-                    r["value"],
-                    tip.format(name=name, motion=motion, amount=c["amount"], unit=c["amount_unit"], value=r["value"]),
-                )
-                for r in sel
-                if (r["system"], (c := r["config"])["gi_fov"]) == (system, gi_fov)
-            ]
-            lines.append(Series(name, pts))
-        figures.append(
-            XYChart(lines, f"camera {motion} [{sel[0]['config']['amount_unit']}]", "SSIM of the warped GI vs GT")
-        )
-    return [Figure(tuple(figures)), Table(table(rows))]
+def _moved(motion: str, metric: str, label: str) -> Chart:
+    """A warp quality against camera motion, per scene, warp and F_GI."""
+    unit = lambda rows: next((r["config"]["amount_unit"] for r in rows if r["config"].get("motion") == motion), "")  # noqa: E731
+    return Chart(pick(metric, motion=motion), "amount", series="{scene}: {system}, F_GI {gi_fov:g}°",
+                 xlabel=lambda rows: f"camera {motion} [{unit(rows)}]", ylabel=label,
+                 tip="{series}, {motion} {amount:g} {amount_unit}: {value:.4f}")  # fmt: skip
 
 
-def readme_block(rows: Rows) -> list[Table]:
-    """The same table as the dashboard's."""
-    return [Table(table(rows))]
+PARTS = (
+    Figure(
+        "fov",
+        (
+            Chart(
+                pick("ssim_gi_map"),
+                "gi_fov",
+                series="{scene}",
+                xlabel="GI-camera FOV F_GI [°]",
+                ylabel="SSIM of the GI map vs GT",
+                tip="{scene}, F_GI {gi_fov:g}°: SSIM {value:.4f}",
+            ),
+            _moved("rotation", "ssim_warped", "SSIM of the warped GI vs GT"),
+            _moved("translation", "ssim_warped", "SSIM of the warped GI vs GT"),
+            _moved("rotation", "valid_fraction", "frame covered by the GI map"),
+        ),  # fmt: skip
+        title="GI-camera FOV: GI-map quality (Fig. 9) and warping after camera motion (Fig. 8)",
+    ),
+    Table(
+        table_rows,
+        lambda rows: (
+            Column("scene", "{scene}"),
+            Column("F_GI", "{gi_fov:g}°"),
+            Column("SSIM of the GI map", "{gi_map:.3f}"),
+            *per(_warps(rows), "SSIM warped: {}", "{ssim[#]:.3f}[[ ({covered[#]:.0%})]]"),
+        ),
+        caption=caption,
+    ),
+)
 
 
 BENCH = Bench(
     "fov",
     FovConfig,
     measure,
-    plot,
+    None,
     help="Fig. 9 and Fig. 8: GI-camera FOV against GI-map quality and warped quality after camera motion.",
-    dashboard=Section("fig9", "Fig. 9: GI-camera FOV", 60, dashboard_section),
-    readme=Block("GI-camera FOV, Fig. 9", 70, readme_block),
+    dashboard=Section("fig9", "Fig. 9: GI-camera FOV", 60),
+    readme=Block("GI-camera FOV, Fig. 9", 70),
+    parts=PARTS,
+    needs=("ssim_gi_map", "ssim_warped"),
 )

@@ -26,14 +26,16 @@ from __future__ import annotations
 
 import html
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from bench import registry
+from bench.present.declarations import Rows, shown
+from bench.present.html import parts_html
 from bench.report_md import check_readme, results_markdown, update_readme
-from bench.runner import Alert, Bench, Figure, Part, Section, Table, attempt, provenance_fields
+from bench.runner import Alert, Bench, External, Figure, Part, Section, Table, attempt, need, provenance_fields
 from gicore.error_policy import UserError
 from gicore.fileio import atomic_write_bytes
 from gicore.results import Results
@@ -74,10 +76,23 @@ class ReportConfig:
             )
 
 
-def sections() -> list[tuple[str, Section]]:
+def sections() -> list[tuple[Bench | External, Section]]:
     """(bench, section) of every registered bench with a dashboard section, in the sections' order."""
-    shown = [(s.name, s.dashboard) for s in registry.SHOWN if s.dashboard is not None]
-    return sorted(shown, key=lambda pair: pair[1].order)
+    with_section = [(s, s.dashboard) for s in registry.SHOWN if s.dashboard is not None]
+    return sorted(with_section, key=lambda pair: pair[1].order)
+
+
+def drawing(bench: Bench | External, section: Section) -> Callable[[Rows, Path], str]:
+    """How a section's HTML is made from its CSV's rows and folder: the bench's dashboard parts."""
+    if section.draw is not None:
+        old = section.draw
+        return lambda rows, _: body(old(rows))
+
+    def draw(rows: Rows, folder: Path) -> str:
+        need(rows, *bench.needs)
+        return parts_html(shown(bench.parts, "dashboard"), rows, folder)
+
+    return draw
 
 
 # -- HTML of a section's parts -------------------------------------------------------------------------------
@@ -141,9 +156,10 @@ class Rendered:
     others: list[str] = field(default_factory=list)
 
 
-def render(bench: str, section: Section, results: Path, ignore: tuple[str, ...] = ()) -> Rendered:
+def render(shown_bench: Bench | External, section: Section, results: Path, ignore: tuple[str, ...] = ()) -> Rendered:
     """The section of ``bench``'s newest CSV under ``results``, or one naming what is missing or malformed."""
-    a = attempt(bench, results, section.draw, ignore)
+    bench = shown_bench.name
+    a = attempt(bench, results, drawing(shown_bench, section), ignore)
     if a.path is None:
         todo = f"run <code>bench {bench} --out {_e(results)}</code> (or into a folder under it)"
         return Rendered(
@@ -154,7 +170,7 @@ def render(bench: str, section: Section, results: Path, ignore: tuple[str, ...] 
         problem = f'<p class="problem">{_e(a.problem)}</p>'
         return Rendered(bench, section, a.status, prov + problem, a.rel, problem=a.problem, others=a.others)
     note = f"<p>Newest of {len(a.others) + 1} runs; older: {_e(', '.join(a.others))}.</p>" if a.others else ""
-    return Rendered(bench, section, "ok", prov + note + body(a.parts), a.rel, a.rows, others=a.others)
+    return Rendered(bench, section, "ok", prov + note + a.parts, a.rel, a.rows, others=a.others)
 
 
 def page(parts: list[Rendered], results: Path) -> str:

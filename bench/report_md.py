@@ -20,12 +20,14 @@ from __future__ import annotations
 
 import os
 import re
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
 from bench import registry
-from bench.runner import Attempt, Block, Part, Table, attempt, provenance_fields
+from bench.present.declarations import Rows, shown
+from bench.present.markdown import tables_text
+from bench.runner import Attempt, Bench, Block, External, Part, Table, attempt, need, provenance_fields
 from gicore.error_policy import UserError
 from gicore.fileio import atomic_write_bytes
 
@@ -34,8 +36,25 @@ BEGIN, END = "<!-- results:begin -->", "<!-- results:end -->"
 
 def blocks() -> list[tuple[str, Block]]:
     """(bench, block) of every registered bench with a README block, in the blocks' order."""
-    shown = [(s.name, s.readme) for s in registry.SHOWN if s.readme is not None]
-    return sorted(shown, key=lambda pair: pair[1].order)
+    return [(b.name, block) for b, block in shown_blocks()]
+
+
+def shown_blocks() -> list[tuple[Bench | External, Block]]:
+    with_block = [(s, s.readme) for s in registry.SHOWN if s.readme is not None]
+    return sorted(with_block, key=lambda pair: pair[1].order)
+
+
+def writing(bench: Bench | External, block: Block) -> Callable[[Rows, Path], str]:
+    """How a block's Markdown is made from its CSV's rows: the bench's README tables."""
+    if block.write is not None:
+        old = block.write
+        return lambda rows, _: block_text(old(rows))
+
+    def write(rows: Rows, _: Path) -> str:
+        need(rows, *bench.needs)
+        return tables_text(shown(bench.parts, "readme"), rows, 4)
+
+    return write
 
 
 def make_command(bench: str, block: Block, results: Path) -> str:
@@ -104,15 +123,16 @@ def results_markdown(
         f"Generated from the CSV files under `{results}` by `bench report`; each block ends with the command that "
         "wrote its CSV.",
     ]
-    for bench, block in blocks():
-        a = attempt(bench, results, block.write, ignore)
+    for shown_bench, block in shown_blocks():
+        bench = shown_bench.name
+        a = attempt(bench, results, writing(shown_bench, block), ignore)
         parts.append(f"### {block.title}")
         if a.status == "missing":
             parts.append(f"Not in these results: {a.problem}; `{make_command(bench, block, results)}` makes it.")
         elif a.status == "malformed":
             parts.append(f"Not shown: {a.problem}.")
         else:
-            parts += [block_text(a.parts), command_line(a)]
+            parts += [a.parts, command_line(a)]
             images = figure_links(a, figures, page) if figures is not None and page is not None else ""
             parts += [images] if images else []
     return "\n\n".join(parts) + "\n"

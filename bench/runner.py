@@ -19,13 +19,15 @@ import fnmatch
 import json
 import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any
 
 import typer
 
+from bench import present
+from bench.present.declarations import Rows
 from bench.svg import Chart
 from gicore import options
 from gicore.error_policy import writable_dir
@@ -47,8 +49,8 @@ RESERVED = ("out", "quick", "seed")
 @dataclass(frozen=True)
 class Bench:
     """One ``bench`` subcommand: its config class (defaults, ``quick()`` preset), what it measures into a
-    :class:`Results`, how it plots the resulting CSV into a folder (returning the files written), and what
-    ``bench report`` shows of that CSV (so a bench's tables live with the bench, not in the report)."""
+    :class:`Results`, and what it shows of the resulting CSV (its tables and figures, declared once:
+    :mod:`bench.present`), written beside the CSV and shown by ``bench report``."""
 
     name: str
     config: type
@@ -59,6 +61,12 @@ class Bench:
     dashboard: Section | None = None
     #: Its block of the README's results (``results.md``); None: it has none.
     readme: Block | None = None
+    #: Its tables, figures, images and alerts, in the order shown.
+    parts: tuple[present.Part, ...] = ()
+    #: Metrics a CSV must hold to be the bench's (another bench's CSV is reported as malformed).
+    needs: tuple[str, ...] = ()
+    #: Raises a UserError on rows that fail the bench's verdict, once every file is written.
+    verdict: Callable[[Rows], None] | None = None
 
 
 # --- options: derived from the config (gicore.options) -----------------------------------------------------
@@ -74,12 +82,17 @@ def build_config(cls: type, quick: bool, given: dict[str, Any]) -> Any:
 
 
 def execute(bench: Bench, cfg: Any, out: Path, seed: int = 0) -> list[Path]:
-    """Measure ``cfg`` into ``out``, write CSV + provenance, plot; returns every file written."""
+    """Measure ``cfg`` into ``out``, write CSV + provenance, the bench's tables and figures, then apply its
+    verdict; returns every file written."""
     results = Results(bench.name, out, seed, settings=config_dict(cfg))
     bench.measure(cfg, results)
     csv_path = results.write()
+    rows = read_rows(csv_path)
+    shown = present.write_files(bench.name, bench.parts, rows, out)
     plots = bench.plot(csv_path, out) if bench.plot else []
-    return [csv_path, results.provenance_path, *results.files, *plots]
+    if bench.verdict is not None:
+        bench.verdict(rows)
+    return [csv_path, results.provenance_path, *results.files, *shown, *plots]
 
 
 def register(app: typer.Typer, bench: Bench) -> Bench:
@@ -107,9 +120,6 @@ def register(app: typer.Typer, bench: Bench) -> Bench:
 
 
 # --- what `bench report` shows of a bench ---------------------------------------------------------------------
-
-#: The rows of a results CSV as :func:`gicore.results.read_rows` gives them (``config`` decoded).
-Rows = list[dict[str, Any]]
 
 
 @dataclass(frozen=True)
@@ -152,7 +162,7 @@ class Section:
     order: int
     #: Its tables and figures from the rows of the bench's newest CSV; raises (e.g. :func:`need`) on rows
     #: that are not the bench's, and the section says so.
-    draw: Callable[[Rows], list[Part]]
+    draw: Callable[[Rows], list[Part]] | None = None
 
 
 @dataclass(frozen=True)
@@ -163,7 +173,7 @@ class Block:
     #: Place among the blocks, lowest first.
     order: int
     #: Its text from the rows of the bench's newest CSV; raises on rows that are not the bench's.
-    write: Callable[[Rows], list[Table]]
+    write: Callable[[Rows], list[Table]] | None = None
     #: The command that makes the CSV when it is missing (``{out}``: the results folder); empty:
     #: ``bench <name> --out {out}``.
     make: str = ""
@@ -176,6 +186,8 @@ class External:
     name: str
     dashboard: Section | None = None
     readme: Block | None = None
+    parts: tuple[present.Part, ...] = ()
+    needs: tuple[str, ...] = ()
 
 
 def pick(rows: Rows, metric: str, stat: str | None = None) -> Rows:
@@ -279,7 +291,7 @@ class Attempt:
     drawing made of it (when ``ok``), the file (None when missing), the problem in one line, the older runs."""
 
     status: str
-    parts: Sequence[Part] = ()
+    parts: Any = ()
     path: Path | None = None
     rel: str = ""
     rows: int = 0
@@ -287,10 +299,10 @@ class Attempt:
     others: list[str] = field(default_factory=list)
 
 
-def attempt(bench: str, results: Path, draw: Callable[[Rows], Sequence[Part]], ignore: tuple[str, ...] = ()) -> Attempt:
+def attempt(bench: str, results: Path, draw: Callable[[Rows, Path], Any], ignore: tuple[str, ...] = ()) -> Attempt:
     """Find the newest ``<bench>.csv`` under ``results`` (outside the ``ignore`` folders), load it and ``draw`` its
-    rows (a dashboard section or a README block): a CSV that is missing, or does not load or draw, comes back
-    with its problem."""
+    rows and folder (a dashboard section or a README block): a CSV that is missing, or does not load or draw,
+    comes back with its problem."""
     found = find(results, bench, ignore)
     if not found:
         left_out = f" (leaving out {', '.join(ignore)})" if ignore else ""
@@ -300,7 +312,7 @@ def attempt(bench: str, results: Path, draw: Callable[[Rows], Sequence[Part]], i
     others = [str(p.relative_to(results)) for p in found[1:]]
     try:
         rows = load(path)
-        parts = draw(rows)
+        parts = draw(rows, path.parent)
     except Exception as exc:  # noqa: BLE001 -- any reason a CSV cannot be drawn is reported in its place, and the others still render
         why = " ".join(str(exc if isinstance(exc, Malformed) else f"{type(exc).__name__}: {exc}").split())
         return Attempt("malformed", path=path, rel=rel, problem=f"malformed: {rel}: {why}", others=others)
