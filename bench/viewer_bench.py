@@ -225,23 +225,23 @@ class Reference:
 
 def _prefill(server: str, spec: Any, assets: Path, cfg: WebBenchConfig) -> None:
     """Ask the server (directly, not through the proxy) for every map the page will ask for, so they hit."""
-    import json
-
     import httpx
 
-    path = json.loads((assets / "path.json").read_text())["frames"]
+    from gicore.path_file import read_path_file
+
+    path = read_path_file(assets / "path.json", spec).frames
     with httpx.Client(timeout=600.0) as client:
         for f in range(0, min(cfg.frames, len(path)), cfg.every):
-            gi = path[f]["gi"]
+            gi = path[f].camera  # the page's GI camera: the frame's view at the scene's GI FOV
             body: dict[str, Any] = {
                 "scene": spec.name,
-                "camera": {"eye": gi["eye"], "target": gi["target"], "up": [0, 1, 0], "fov": gi["fov"]},
+                "camera": {"eye": gi.origin, "target": gi.target, "up": gi.up, "fov": spec.camera.gi_fov},
                 "resolution": spec_resolution(assets),
                 "codec": cfg.codec,
                 "spp": cfg.spp,
             }
             if spec.light.moves:
-                body["light"] = path[f]["light"]
+                body["light"] = path[f].light
             client.post(f"{server}/v1/gimap", json=body).raise_for_status()
 
 

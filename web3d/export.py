@@ -8,17 +8,13 @@
   meshes first (drawn with back faces culled) and the others after; then the shadow map's casters (positions and
   indices) at GLRenderer's ``SHADOW_LOD`` (a quarter of the triangles, as the clients draw them);
 - ``scene.json``: the header: byte offsets and counts, the draw ranges, the material tables (the shaders'
-  ``u_materials``), the light, and the WebGL2 programs: ``gicore.gl.shaders``' GLSL 330 sources for the
-  passes the page runs (``di_gbuffer`` at the GI camera, ``di`` and ``uv`` at the local camera, the shadow
-  map), with the version line swapped for GLSL ES 3.00 and precision qualifiers added (that module is
-  written so that this is the whole port);
-- ``path.json``: per frame of the fly-through, the local and GI cameras (OpenGL view and projection
-  matrices, column-major as WebGL takes them), the light and its shadow-map setup (the views
-  :class:`~gicore.gl.GLRenderer` fits around the casters for that light);
+  ``u_materials``), the light (with the box it may move in, ``light_range``, and its rest point), the
+  cameras' FOVs and clip distances, the navigable envelope (:func:`gicore.paths.navigation`), and the WebGL2
+  programs: ``gicore.gl.shaders``' GLSL 330 sources for the passes the page runs, with the version line
+  swapped for GLSL ES 3.00 and precision qualifiers added (that module is written so that this is the port);
+- ``path.json``: the scripted fly-through as a path file (:mod:`gicore.path_file`), the cameras the Python
+  clients fly; the page computes the matrices, and asks for a light's shadow setup (:func:`shadow_setup`);
 - ``model/``: the ONNX model and its ``model.json`` (input buffers, depth scale, resolution).
-
-The page reads nothing else; nothing in it is computed differently from the Python client except what
-WebGL does itself (rasterisation, the shadow sampler's comparison).
 """
 
 from __future__ import annotations
@@ -30,22 +26,13 @@ from typing import Any
 
 import numpy as np
 
-from gicore.camera import Camera
 from gicore.geometry import scene_objects
 from gicore.gl.brdf import ETA, TABLE_RES, roughplastic_tables
 from gicore.gl.lod import LOD_RATIOS, mesh_levels
-from gicore.gl.renderer import (
-    AREA_SAMPLES,
-    SHADOW_LOD,
-    Bounds,
-    GLRenderer,
-    _closed,
-    fit_shadow_views,
-    object_bounds,
-    shadow_size_for,
-)
+from gicore.gl.renderer import AREA_SAMPLES, SHADOW_LOD, Bounds, GLRenderer, _closed, fit_shadow_views, shadow_size_for
 from gicore.gl.shaders import MATERIAL_VEC4S, SCENE_VERTEX, SHADOW_FRAGMENT, SHADOW_VERTEX, scene_fragment
-from gicore.loop import path_views
+from gicore.path_file import scripted_path, write_path_file
+from gicore.paths import light_bounds, navigation
 from gicore.scene import SceneSpec, load_scene
 from gigan_local.inference import DEFAULT_MODEL, read_model_json
 
@@ -72,19 +59,6 @@ def to_es(source: str, fragment: bool) -> str:
 
 def _column_major(m: np.ndarray) -> list[float]:
     return [float(x) for x in np.asarray(m, dtype=np.float64).T.ravel()]
-
-
-def _camera(camera: Camera) -> dict[str, Any]:
-    return {
-        "eye": list(camera.origin),
-        "target": list(camera.target),
-        "fov": camera.fov,
-        "near": camera.near,
-        "far": camera.far,
-        "view": _column_major(camera.view()),
-        "proj": _column_major(camera.proj()),
-        "view_proj": _column_major(camera.view_proj()),
-    }
 
 
 def shadow_setup(bounds: list[Bounds], light: np.ndarray, size: int) -> dict[str, Any]:
@@ -130,6 +104,7 @@ def export_assets(
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     objects = scene_objects(spec)
+    c = spec.camera
 
     roughness = sorted({o.roughness for o in objects if o.roughness is not None})
     rows = {r: i for i, r in enumerate(roughness)}
@@ -174,23 +149,16 @@ def export_assets(
         "material_vec4s": MATERIAL_VEC4S,
         "eta": ETA,
         "light": {"size": spec.light.size, "intensity": spec.light.intensity, "samples": AREA_SAMPLES},
+        "light_range": [list(corner) for corner in light_bounds(spec)],
+        "light_rest": [float(v) for v in spec.light.position],
+        "camera": {"local_fov": c.local_fov, "gi_fov": c.gi_fov, "near": c.near, "far": c.far, "up": [0.0, 1.0, 0.0]},
+        "navigation": navigation(spec),
         "shadow_size": shadow_size,
         "programs": _programs(spec, len(table)),
     }
     (out / "scene.json").write_text(json.dumps(header))
-
-    local_fov, gi_fov = spec.camera.local_fov, spec.camera.gi_fov
-    bounds = object_bounds(objects, len(spec.objects))
-    setups: dict[tuple[float, ...], dict[str, Any]] = {}
-    path = []
-    for camera, light in path_views(spec, frames, orbit_frames, seed, local_fov, resolution):
-        key = tuple(light)
-        if key not in setups:
-            setups[key] = shadow_setup(bounds, np.asarray(light, dtype=np.float64), shadow_size)
-        gi = camera.with_fov(gi_fov)
-        path.append({"local": _camera(camera), "gi": _camera(gi), "light": list(light), "shadow": setups[key]})
-    doc = {"scene": spec.name, "seed": seed, "orbit_frames": orbit_frames, "frames": path}
-    (out / "path.json").write_text(json.dumps(doc))
+    flown = scripted_path(spec, frames, orbit_frames, seed)
+    write_path_file(out / "path.json", flown.scene, flown.frames, flown.source)
 
     model_dir = out / "model"
     model_dir.mkdir(exist_ok=True)

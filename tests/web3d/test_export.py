@@ -1,5 +1,6 @@
 """web3d.export: the viewer's assets are the scene's own triangles, GLRenderer's shaders as GLSL ES 3.00, the
-fly-through's cameras, and the shadow setup GLRenderer fits for each light."""
+fly-through as a path file, the scene's camera space and light box, and the shadow setup GLRenderer fits for
+each light."""
 
 from __future__ import annotations
 
@@ -9,8 +10,12 @@ import numpy as np
 import pytest
 
 from gicore.geometry import scene_objects
+from gicore.gl.renderer import object_bounds
 from gicore.loop import path_views
-from web3d.export import VERTEX_FLOATS, export_assets, object_bounds, shadow_setup, to_es
+from gicore.path_file import read_path_file
+from gicore.paths import DEFAULT_LIGHT_CELL, camera_path, light_position, light_range
+from gicore.scene import load_scene
+from web3d.export import VERTEX_FLOATS, export_assets, shadow_setup, to_es
 
 
 @pytest.fixture(scope="module")
@@ -20,7 +25,7 @@ def exported(make_spec, tmp_path_factory: pytest.TempPathFactory) -> tuple:
     spec_file = folder / "scene.json"
     spec_file.write_text(json.dumps(spec.to_dict()))
     header = export_assets(spec_file, folder / "out", frames=5, orbit_frames=10)
-    return spec, header, folder / "out"
+    return load_scene(spec_file), header, folder / "out"
 
 
 def test_the_exported_triangles_are_the_scenes(exported) -> None:
@@ -56,14 +61,11 @@ def test_the_programs_are_glsl_es_300_and_the_path_is_the_clients(exported) -> N
     assert "#define CUBE_SHADOW" in header["programs"]["di_cube"]["fragment"]
     with pytest.raises(ValueError, match="330 core"):
         to_es("#version 450\nvoid main() {}", fragment=True)
-    path = json.loads((out / "path.json").read_text())["frames"]
+    assert json.loads((out / "path.json").read_text())["format"] == "gigan-path/1"
+    path = read_path_file(out / "path.json", spec)
     views = path_views(spec, 5, 10, 0, spec.camera.local_fov, header["resolution"])
-    assert len(path) == 5
-    for frame, (camera, light) in zip(path, views):
-        assert np.allclose(frame["local"]["view_proj"], camera.view_proj().T.ravel(), atol=1e-6)
-        assert np.allclose(frame["gi"]["view_proj"], camera.with_fov(spec.camera.gi_fov).view_proj().T.ravel())
-        assert frame["light"] == list(light)
-    assert len({tuple(f["light"]) for f in path}) == 5  # the light moves: each frame its own shadow setup
+    assert path.views(header["resolution"]) == views  # exactly the clients' cameras and lights
+    assert len({light for _, _, light in path.frames}) == 5  # the light moves
     model = json.loads((out / "model" / "model.json").read_text())
     assert (out / "model" / "model.onnx").stat().st_size > 1e6 and model["resolution"] == header["resolution"]
 
@@ -89,3 +91,25 @@ def test_shadow_setup_is_glrenderers(gl_renderer, light) -> None:
     for key in ("tile", "blocker_min", "far"):
         assert ours[key] == pytest.approx(theirs[key])
     assert ours["texel"] == pytest.approx(theirs["texel"]) and tuple(ours["atlas"]) == tuple(theirs["atlas"])
+
+
+def test_scene_json_holds_the_camera_space_and_the_light_box(exported) -> None:
+    """The page clamps the user's camera to ``navigation`` and the light to ``light_range``: every camera and
+    light the fly-through takes lies inside them, and the light box is the server's (one light cell wider)."""
+    spec, header, _ = exported
+    c = spec.camera
+    assert header["camera"] == {"local_fov": c.local_fov, "gi_fov": c.gi_fov, "near": c.near, "far": c.far,
+                                "up": [0.0, 1.0, 0.0]}  # fmt: skip
+    nav = header["navigation"]
+    assert nav["target"] == list(c.target) and nav["target_wobble"] == pytest.approx(0.1 * c.wobble)
+    assert nav["azimuth"] is None  # the test scene's orbit is a full circle
+    for camera in camera_path(spec, 400, seed=3):
+        dx, dz = camera.origin[0] - c.target[0], camera.origin[2] - c.target[2]
+        assert nav["radius"][0] - 1e-9 <= np.hypot(dx, dz) <= nav["radius"][1] + 1e-9
+        assert nav["height"][0] - 1e-9 <= camera.origin[1] <= nav["height"][1] + 1e-9
+        assert np.all(np.abs(np.subtract(camera.target[:2], c.target[:2])) <= nav["target_wobble"] + 1e-9)
+    (low, high), cell = light_range(spec), DEFAULT_LIGHT_CELL
+    assert header["light_range"] == [[v - cell for v in low], [v + cell for v in high]]
+    lights = np.array([light_position(spec, f) for f in range(0, 5000, 7)])
+    assert np.all(lights >= np.array(header["light_range"][0])) and np.all(lights <= np.array(header["light_range"][1]))
+    assert header["light_rest"] == list(spec.light.position)
