@@ -24,10 +24,10 @@ import numpy as np
 
 from bench.common import WARP_LABELS, WARPS, make_warp
 from bench.exported_models import check_model_resolution
-from bench.runner import Bench, Block, Figure, Part, Rows, Section, Table, need, pick
-from bench.svg import Point, Series, XYChart
+from bench.present.declarations import Chart, Column, Figure, Rows, Table, per, pick, spread, unique, wide
+from bench.runner import Bench, Block, Section
 from gicore.blend import COMPOSITIONS
-from gicore.results import Results, read_rows
+from gicore.results import Results
 from gigan_local.client import GI_SOURCES
 from gigan_local.inference import DEFAULT_MODEL
 
@@ -144,120 +144,67 @@ def measure(cfg: FrequencyConfig, res: Results) -> None:
                     add("valid_fraction", float(np.mean([r["valid_frac"] for r in rows])), "1", "mean")
 
 
-def table(rows: Rows) -> str:
-    """Table 3 from the CSV's rows, one block per scene and composition: k, then fps and SSIM per warp, and the
-    low-frequency error per warp where the CSV has it (CSVs older than the metric do not)."""
-    systems = list(dict.fromkeys(r["system"] for r in rows))
-    lf = [s for s in systems if any(r["metric"] == "lf_error" and r["system"] == s for r in rows)]
-    lines = []
-    for scene, composition in dict.fromkeys((r["scene"], r["config"]["composition"]) for r in rows):
-        sel = [r for r in rows if r["scene"] == scene and r["config"]["composition"] == composition]
-        lines += [
-            f"### {scene}, composition: {composition}",
-            "",
-            "| k | "
-            + " | ".join(f"fps ({s})" for s in systems)
-            + " | "
-            + " | ".join(f"SSIM ({s})" for s in systems)
-            + "".join(f" | LF error ({s})" for s in lf)
-            + " |",
-            "|---" * (1 + 2 * len(systems) + len(lf)) + "|",
-        ]
-        for k in sorted({r["config"]["k"] for r in sel}):
-
-            def get(system: str, metric: str) -> float:
-                return next(
-                    (r["value"] for r in sel if (r["system"], r["metric"], r["config"]["k"]) == (system, metric, k)),
-                    float("nan"),
-                )
-
-            lines.append(
-                f"| {k} | "
-                + " | ".join(f"{get(s, 'fps'):.1f}" for s in systems)
-                + " | "
-                + " | ".join(f"{get(s, 'ssim'):.3f}" for s in systems)
-                + "".join(f" | {get(s, 'lf_error'):.4f}" for s in lf)
-                + " |"
-            )
-        lines.append("")
-    return "\n".join(lines)
+# -- what it shows ------------------------------------------------------------------------------------------
+def _warps(rows: Rows) -> list[str]:
+    return unique(r["system"] for r in rows)
 
 
-def plot(csv_path: Path, out_dir: Path) -> list[Path]:
-    """Frame rate and SSIM against the GI-map period k, per scene, warp and composition; and the Table 3
-    Markdown (``frequency_table.md``), both from the CSV."""
-    from gicore.plotting import plt, save, ticker
-
-    rows = read_rows(csv_path)
-    scenes = list(dict.fromkeys(r["scene"] for r in rows))
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
-    for scene in scenes:
-        for system in dict.fromkeys(r["system"] for r in rows):
-            for composition, style in (("blend", "-o"), ("residual", "--s")):
-                for ax, metric in zip(axes, ("fps", "ssim")):
-                    sel = [
-                        r
-                        for r in rows
-                        if (r["scene"], r["system"], r["metric"], r["config"]["composition"])
-                        == (scene, system, metric, composition)
-                    ]
-                    if sel:
-                        label = (
-                            f"{system} ({composition})" if len(scenes) == 1 else f"{scene}: {system} ({composition})"
-                        )
-                        ax.plot(*zip(*sorted((r["config"]["k"], r["value"]) for r in sel)), style, ms=4, label=label)
-    for ax, label in zip(axes, ("frames per second (GI cost amortised over k)", "mean SSIM vs path-traced GT")):
-        ax.set_xlabel("GI-map period k [frames]")
-        ax.set_ylabel(label)
-        ax.grid(alpha=0.3)
-    axes[0].set_yscale("log")
-    axes[0].yaxis.set_major_formatter(ticker.ScalarFormatter())
-    axes[0].yaxis.set_minor_formatter(ticker.NullFormatter())
-    axes[1].legend(fontsize=7)
-    fig.suptitle("Inference frequency vs system performance (Table 3)")
-    md = out_dir / "frequency_table.md"
-    md.write_text(table(rows))
-    return [save(fig, out_dir / "frequency.png"), md]
+def table_rows(rows: Rows) -> list[dict]:
+    """Per scene, composition and k (ascending): fps, SSIM and LF error of each warp."""
+    keys = ("scene", "composition", "k")
+    derived = wide(rows, (*keys, "system"), {"fps": "fps", "ssim": "ssim", "lf": "lf_error"})
+    groups = unique((r["scene"], r["composition"]) for r in derived)
+    spread_rows = spread(derived, keys, "system", _warps(rows))
+    return sorted(spread_rows, key=lambda r: (groups.index((r["scene"], r["composition"])), r["k"]))
 
 
-# -- bench report: the dashboard's section and the README's block ------------------------------------------
-def dashboard_section(rows: Rows) -> list[Part]:
-    """Table 3, then frame rate and SSIM against k per warp and composition."""
-    need(rows, "fps", "ssim")
-    scenes = list(dict.fromkeys(r["scene"] for r in rows))
-    figures = []
-    for metric, label, log in (("fps", "frames per second", True), ("ssim", "mean SSIM vs GT", False)):
-        lines = []
-        for key in dict.fromkeys((r["scene"], r["system"], r["config"]["composition"]) for r in pick(rows, metric)):
-            name = f"{key[1]} ({key[2]})" if len(scenes) == 1 else f"{key[0]}: {key[1]} ({key[2]})"
-            pts = [
-                Point(r["config"]["k"], r["value"], f"{name}, k = {r['config']['k']}: {metric} {r['value']:.4g}")
-                for r in pick(rows, metric)
-                if (r["scene"], r["system"], r["config"]["composition"]) == key
-            ]
-            lines.append(Series(name, pts))
-        figures.append(XYChart(lines, "GI-map period k [frames]", label, ylog=log))
-    return [Table(table(rows)), Figure(tuple(figures))]
+def columns(rows: Rows) -> tuple[Column, ...]:
+    """k, then fps and SSIM per warp, and the LF error of each warp that has it (CSVs older than it do not)."""
+    warps = _warps(rows)
+    lf = [i for i, w in enumerate(warps) if any(r["metric"] == "lf_error" and r["system"] == w for r in rows)]
+    return (
+        Column("k", "{k}"),
+        *per(warps, "fps ({})", "{fps[#]:.1f}"),
+        *per(warps, "SSIM ({})", "{ssim[#]:.3f}"),
+        *(Column(f"LF error ({warps[i]})", f"{{lf[{i}]:.4f}}") for i in lf),
+    )
 
 
-def readme_block(rows: Rows) -> list[Table]:
-    """Table 3 under a line on where its GI maps come from."""
-    need(rows, "fps", "ssim")
+def caption(rows: Rows) -> str:
     c = rows[0]["config"]
-    sources = ", ".join(str(s) for s in dict.fromkeys(r["config"].get("gi_source") for r in rows))
-    head = (
+    sources = ", ".join(str(s) for s in unique(r["config"].get("gi_source") for r in rows))
+    return (
         f"GI maps: {sources} (model: the generator's; gt: path-traced, a perfect-model stand-in); "
         f"{c.get('resolution')}², {c.get('frames')} frames; SSIM against path-traced GT at the local camera."
     )
-    return [Table(head + "\n\n" + table(rows))]
+
+
+def _against_k(metric: str, label: str, log: bool) -> Chart:
+    return Chart(pick(metric), "k", series="{scene}: {system} ({composition})", xlabel="GI-map period k [frames]",
+                 ylabel=label, ylog=log, tip="{series}, k = {k}: " + metric + " {value:.4g}")  # fmt: skip
+
+
+PARTS = (
+    Table(table_rows, columns, caption=caption, group="{scene}, composition: {composition}"),
+    Figure(
+        "frequency",
+        (
+            _against_k("fps", "frames per second (GI cost amortised over k)", True),
+            _against_k("ssim", "mean SSIM vs path-traced GT", False),
+        ),
+        title="Inference frequency vs system performance (Table 3)",
+    ),
+)
 
 
 BENCH = Bench(
     "frequency",
     FrequencyConfig,
     measure,
-    plot,
+    None,
     help="Table 3: GI-map period k against fps and SSIM, with and without warping, both compositions.",
-    dashboard=Section("table3", "Table 3: inference frequency", 30, dashboard_section),
-    readme=Block("Inference frequency, Table 3", 40, readme_block),
+    dashboard=Section("table3", "Table 3: inference frequency", 30),
+    readme=Block("Inference frequency, Table 3", 40),
+    parts=PARTS,
+    needs=("fps", "ssim"),
 )

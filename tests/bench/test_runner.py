@@ -409,8 +409,9 @@ def test_tiny_warp_frequency_and_fov_runs(tmp_path: Path) -> None:
     }
     for (system, k), _ in fps.items():  # the low-frequency error beside SSIM and PSNR, at most RMSE = 10^(-PSNR/20)
         assert 0 < quality[system, k, "lf_error"] <= 10 ** (-quality[system, k, "psnr"] / 20), (system, k)
-    table = (tmp_path / "frequency" / "frequency_table.md").read_text()
+    table = (tmp_path / "frequency" / "frequency.md").read_text()
     assert "| 10 |" in table and "| LF error (structure-aware) |" in table
+    assert "lung_plane: structure-aware (blend)" in (tmp_path / "frequency" / "frequency.svg").read_text()
 
     cfg = fov.FovConfig(
         resolution=32, gi_fovs=(60.0, 90.0), base_frames=(0,), rotations=(10.0,), translations=(0.2,), spp=4
@@ -423,3 +424,4 @@ def test_tiny_warp_frequency_and_fov_runs(tmp_path: Path) -> None:
     }
     assert valid[90.0] >= valid[60.0]  # a wider GI camera still covers the turned view
     assert all(p.is_file() for p in paths) and (tmp_path / "fov" / "fov.png").is_file()
+    assert "lung_plane: structure-aware, F_GI 90°" in (tmp_path / "fov" / "fov.svg").read_text()  # a declared series
