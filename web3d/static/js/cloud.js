@@ -95,66 +95,54 @@ export class CloudSystem {
     this.splat = target(gl, n, n, [gl.RGBA16F], { mips: [0] });
     this.warped = target(gl, n, n, [gl.RGBA32F], { depth: false });
     this.bound = null;
-    this.inflight = null;
   }
 
   body(frame) {
     const c = this.config;
-    const req = {
+    return JSON.stringify({
       scene: c.scene,
-      camera: { eye: frame.gi.eye, target: frame.gi.target, up: [0, 1, 0], fov: frame.gi.fov },
-      resolution: c.resolution, codec: c.codec, spp: c.spp,
-    };
-    if (c.light_moves) req.light = frame.light;
-    return JSON.stringify(req);
+      camera: { eye: frame.gi.eye, target: frame.gi.target, up: frame.gi.up, fov: frame.gi.fov },
+      light: frame.light, resolution: c.resolution, codec: c.codec, spp: c.spp,
+    });
   }
 
-  // Ask for the map at the frame's GI camera (at most one request in flight); resolves to the received map.
-  request(frame, index) {
-    if (this.inflight) return false;
+  // The map at the frame's GI camera from `url` (/v1/gimap?profile=&store=), fetched and decoded (image, depth)
+  // off the frame loop; resolves to what join() binds.
+  async request(frame, url) {
     const started = performance.now();
-    this.inflight = (async () => {
-      const response = await fetch("/v1/gimap", { method: "POST", headers: { "Content-Type": "application/json" }, body: this.body(frame) });
-      const firstByte = performance.now();
-      if (!response.ok) throw new Error(`/v1/gimap answered ${response.status}: ${await response.text()}`);
-      const buffer = await response.arrayBuffer();
-      const arrived = performance.now();
-      // the network stack's own timestamps: the page's thread may be busy rendering when the bytes arrive
-      const entry = performance.getEntriesByType("resource")
-        .find((e) => e.name.endsWith("/v1/gimap") && e.startTime >= started - 1 && e.responseEnd > 0);
-      performance.clearResourceTimings();
-      if (entry) return { frame: index, started: entry.startTime, firstByte: entry.responseStart,
-        arrived: entry.responseEnd, buffer, bytes: buffer.byteLength, timing: "resource" };
-      return { frame: index, started, firstByte, arrived, buffer, bytes: buffer.byteLength, timing: "script" };
-    })();
-    return true;
-  }
-
-  // The arrived map, decoded and uploaded, or null while the request is in flight (waits when `wait`).
-  async take(wait) {
-    if (!this.inflight) return null;
-    let done = null;
-    if (wait) done = await this.inflight;
-    else {
-      const marker = {};
-      const r = await Promise.race([this.inflight, Promise.resolve(marker)]);
-      if (r === marker) return null;
-      done = r;
-    }
-    this.inflight = null;
-    const gl = this.gl;
+    const response = await fetch(url, { method: "POST", headers: { "Content-Type": "application/json" }, body: this.body(frame) });
+    const firstByte = performance.now();
+    if (!response.ok) throw new Error(`/v1/gimap answered ${response.status}: ${await response.text()}`);
+    const buffer = await response.arrayBuffer();
+    const arrived = performance.now();
+    // the network stack's own timestamps: the page's thread may be busy rendering when the bytes arrive
+    const href = new URL(url, location.href).href;
+    const entry = performance.getEntriesByType("resource").find((e) => e.name === href && e.startTime >= started - 1 && e.responseEnd > 0);
+    performance.clearResourceTimings();
+    const times = entry ? { started: entry.startTime, firstByte: entry.responseStart, arrived: entry.responseEnd, timing: "resource" }
+      : { started, firstByte, arrived, timing: "script" };
     const t0 = performance.now();
-    const { header, sections } = unpack(done.buffer);
+    const { header, sections } = unpack(buffer);
     const bitmap = await decodeImage(header.codec, sections.gi);
     const { depth, h, w } = decodeDepth(sections.depth);
+    return { ...times, bytes: buffer.byteLength, header, bitmap, depth, h, w, decode: performance.now() - t0 };
+  }
+
+  // A fetched map uploaded and bound (in the frame loop). Stages: transmission (request + transfer), server (its
+  // own timings), decode (the image and depth decoded, then uploaded), bind.
+  join(done) {
+    const gl = this.gl;
+    const { header, h, w } = done;
+    const t0 = performance.now();
     const gi = texture(gl, w, h, gl.RGBA8);
     gl.bindTexture(gl.TEXTURE_2D, gi);
-    gl.texSubImage2D(gl.TEXTURE_2D, 0, 0, 0, gl.RGBA, gl.UNSIGNED_BYTE, bitmap);
+    gl.texSubImage2D(gl.TEXTURE_2D, 0, 0, 0, gl.RGBA, gl.UNSIGNED_BYTE, done.bitmap);
     const dt = texture(gl, w, h, gl.R32F);
     gl.bindTexture(gl.TEXTURE_2D, dt);
-    gl.texSubImage2D(gl.TEXTURE_2D, 0, 0, 0, w, h, gl.RED, gl.FLOAT, depth);
+    gl.texSubImage2D(gl.TEXTURE_2D, 0, 0, 0, w, h, gl.RED, gl.FLOAT, done.depth);
     sync(gl, null);
-    const decode = performance.now() - t0;
+    done.bitmap.close();
+    const decode = done.decode + performance.now() - t0;
     const t1 = performance.now();
     if (this.bound) for (const t of [this.bound.gi, this.bound.depth]) gl.deleteTexture(t);
     const view = columnMajor(header.view);
@@ -166,7 +154,7 @@ export class CloudSystem {
     const request = done.firstByte - done.started - total;
     const transfer = done.arrived - done.firstByte;
     return {
-      frame: done.frame, hit: header.hit, bytes: done.bytes, timing: done.timing,
+      hit: header.hit, bytes: done.bytes, timing: done.timing,
       stages: { transmission: request + transfer, request, transfer, server: total, decode, bind, ...Object.fromEntries(
         Object.entries(server).filter(([k]) => k !== "total").map(([k, v]) => [`server_${k}`, v])) },
     };

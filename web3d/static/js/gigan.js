@@ -179,7 +179,10 @@ export class GiganSystem {
     this.encodedReads = this.encoded.textures.map(() => new Float32Array(n * n * 4));
     this.coarse = target(gl, n, n, [gl.RGBA16F], { depth: false, mips: [0] });
     this.warped = target(gl, n, n, [gl.RGBA32F], { depth: false });
-    this.input = new Float32Array(channels.length * n * n);
+    // the bound map's GI-camera depth: the G-buffer target is rendered anew by the next request while this map
+    // is still warped
+    this.mapDepth = target(gl, n, n, [gl.R32F], { depth: false });
+    this.channels = channels.length;
     this.bound = null;
   }
 
@@ -190,7 +193,7 @@ export class GiganSystem {
   }
 
   // gigan_local.preprocess.frame_to_input on the GPU (the encoding shader, 4 channels per target), read back and
-  // reordered to NCHW with rows top-down (GL's are bottom-up).
+  // reordered to NCHW with rows top-down (GL's are bottom-up), into a new array (the inference takes it over).
   encode() {
     const gl = this.gl;
     const gi = this.scene.giTarget;
@@ -203,8 +206,8 @@ export class GiganSystem {
     fullscreen(gl);
     const n = this.n;
     const plane = n * n;
-    const out = this.input;
-    const channels = out.length / plane;
+    const channels = this.channels;
+    const out = new Float32Array(channels * plane);
     this.encoded.textures.forEach((_, a) => {
       const px = readFloats(gl, this.encoded, a, this.encodedReads[a]);
       for (let k = 0; k < 4 && 4 * a + k < channels; k++) {
@@ -241,6 +244,7 @@ export class GiganSystem {
     return out;
   }
 
+  // session.run on a tensor (its buffer moves to onnxruntime-web's proxy worker: the caller keeps no view of it).
   async infer(tensor) {
     const n = this.n;
     const feeds = { [this.session.inputNames[0]]: new this.ort.Tensor("float32", tensor, [1, tensor.length / (n * n), n, n]) };
@@ -250,24 +254,34 @@ export class GiganSystem {
     return { y: result[this.session.outputNames[0]].data, ms };
   }
 
-  // One GI map: stages gi_render (DI + G-buffers at the GI camera), inference (encoding, session.run, decoding),
-  // and its bind. With `keep`, also the raw buffers and the display values (the parity check's), untimed.
-  async produce(frame, keep = false) {
-    const t = {};
+  // A map's first half, at request time: DI + G-buffers at the GI camera, encoded and read back, and session.run
+  // started (it runs in the worker). With `keep`, also the raw buffers and the input (the parity check's).
+  request(frame, keep = false) {
+    const stages = {};
     let t0 = performance.now();
     sync(this.gl, this.scene.renderGI(frame), 0);
-    t.gi_render = performance.now() - t0;
+    stages.gi_render = performance.now() - t0;
     t0 = performance.now();
     const tensor = this.encode();
-    const { y, ms } = await this.infer(tensor);
+    stages.encode = performance.now() - t0;
+    const kept = keep ? { buffers: this.readBuffers(), input: tensor.slice() } : null;
+    return { frame, stages, kept, run: this.infer(tensor), posted: performance.now() };
+  }
+
+  // Its second half, once session.run is done: the output decoded into the GI map and bound to the request's GI
+  // camera. Stages: inference (encoding, the run as the page waited for it, decoding), session_run, bind.
+  join(request, { y, ms }) {
+    const waited = performance.now() - request.posted;
+    const t0 = performance.now();
     this.decode(y);
     sync(this.gl, this.giMap, 0);
-    t.inference = performance.now() - t0;
-    t.session_run = ms;
-    t0 = performance.now();
-    this.bind(frame);
-    t.bind = performance.now() - t0;
-    return { stages: t, ...(keep ? { buffers: this.readBuffers(), display: this.display(y) } : {}) };
+    const decode = performance.now() - t0;
+    const t1 = performance.now();
+    this.bind(request.frame);
+    const bind = performance.now() - t1;
+    if (request.kept) request.kept.display = this.display(y);
+    const s = request.stages;
+    return { gi_render: s.gi_render, inference: s.encode + waited + decode, session_run: ms, bind };
   }
 
   // Per map: the coarse fallback level (indirect light, mipmapped), and the GI camera's projection row.
@@ -281,6 +295,10 @@ export class GiganSystem {
     gl.bindTexture(gl.TEXTURE_2D, this.coarse.textures[0]);
     gl.generateMipmap(gl.TEXTURE_2D);
     sync(gl, this.coarse, 0);
+    gl.bindFramebuffer(gl.READ_FRAMEBUFFER, gi.fbo);
+    gl.readBuffer(gl.COLOR_ATTACHMENT0 + 3);
+    gl.bindFramebuffer(gl.DRAW_FRAMEBUFFER, this.mapDepth.fbo);
+    gl.blitFramebuffer(0, 0, this.n, this.n, 0, 0, this.n, this.n, gl.COLOR_BUFFER_BIT, gl.NEAREST);
     const vp = frame.gi.view_proj; // column-major: row 3 is elements 3, 7, 11, 15
     this.bound = { wRow: [vp[3], vp[7], vp[11], vp[15]], near: frame.gi.near, viewProj: vp };
   }
@@ -291,10 +309,9 @@ export class GiganSystem {
     const uv = this.scene.renderUV(frame, this.bound.viewProj);
     bindTarget(gl, this.warped);
     gl.useProgram(this.warpProg.p);
-    const gi = this.scene.giTarget;
     bindTextures(gl, this.warpProg, {
       u_uv: [4, uv.textures[0]], u_pos: [5, uv.textures[1]], u_code: [6, uv.textures[2]], u_di: [7, diTarget.textures[0]],
-      u_gi: [8, this.giTex], u_gidepth: [9, gi.textures[3]], u_coarse: [10, this.coarse.textures[0]],
+      u_gi: [8, this.giTex], u_gidepth: [9, this.mapDepth.textures[0]], u_coarse: [10, this.coarse.textures[0]],
     });
     setUniforms(gl, this.warpProg, {
       u_w_row: this.bound.wRow, u_near: this.bound.near, u_tol: DEPTH_REL_TOL,

@@ -1,16 +1,30 @@
-// The viewer: both systems fly the scene's camera path, each on its own canvas (own WebGL2 context, as two
-// separate clients would), and the HUD shows their per-stage times (performance.now, after a GPU sync).
-// window.viewer holds everything measured, for bench web and the tests.
+// The viewer: GIGAN (left) and cloud baking (right), each on its own canvas (own WebGL2 context, as two separate
+// clients would), both following one camera a person drives (controls.js) under one light (light.js), drawn by
+// the frame loop (loop.js) with GI maps that arrive when they are ready (pane.js). window.viewer is the page's API
+// for bench web and the tests (docs/architecture.md, Web3D viewer).
+//
+// URL parameters override /config.json's keys; also ?autoplay=1&frames=N (replay the scripted path's first N
+// frames, let the maps in flight land, then viewer.done) and ?record=1 (record from the first frame).
 
-import { context, median, readFloats } from "./glutil.js";
+import { context, readFloats } from "./glutil.js";
 import { SceneRenderer } from "./scene.js";
 import { GiganSystem } from "./gigan.js";
 import { CloudSystem } from "./cloud.js";
+import { clampLight, withMatrices } from "./camera.js";
+import { Navigation } from "./controls.js";
+import { LightInput, ShadowSetups } from "./light.js";
+import { FrameLoop } from "./loop.js";
+import { CLOUD_STAGES, GIGAN_STAGES, Pane } from "./pane.js";
+import { Recorder, Replay, download } from "./record.js";
+import { showHud } from "./hud.js";
+import { openSession } from "./inference.js";
 
-const GIGAN_STAGES = ["gi_render", "inference", "warp", "blend"];
-const CLOUD_STAGES = ["transmission", "server", "decode", "warp", "blend"];
-const viewer = (window.viewer = { done: false, error: null, maps: [], frames: [], info: {} });
+const viewer = (window.viewer = {
+  ready: false, done: false, error: null, config: null, info: {}, maps: [], frames: [], parity: null,
+  profile: null, store: null,
+});
 const params = new URLSearchParams(location.search);
+const $ = (id) => document.getElementById(id);
 
 async function json(url) {
   const r = await fetch(url);
@@ -25,152 +39,15 @@ function b64(typed) {
   return btoa(s);
 }
 
-// onnxruntime-web: the WebGPU build when the browser has an adapter (and --backend allows it), else the wasm-only
-// build (half the wasm to compile). Returns the module and the session.
-async function session(config) {
-  const adapter = config.backend !== "wasm" && "gpu" in navigator && (await navigator.gpu.requestAdapter().catch(() => null));
-  if (config.backend === "webgpu" && !adapter) throw new Error("--backend webgpu: this browser has no WebGPU adapter");
-  const ort = await import(adapter ? "/npm/onnxruntime-web/ort.all.min.mjs" : "/npm/onnxruntime-web/ort.wasm.min.mjs");
-  ort.env.wasm.wasmPaths = "/npm/onnxruntime-web/";
-  ort.env.wasm.numThreads = crossOriginIsolated ? config.threads : 1;
-  const model = await (await fetch("/assets/model/model.onnx")).arrayBuffer();
-  const providers = adapter ? ["webgpu", "wasm"] : ["wasm"];
-  // GIModel's settings: all graph optimisations, intra-op threads that do not spin after a run (they would hold
-  // the cores the next WebGL passes need)
-  const options = { executionProviders: providers, graphOptimizationLevel: "all",
-    extra: { session: { intra_op: { allow_spinning: "0" } } } };
-  const s = await ort.InferenceSession.create(model, options);
-  viewer.info.backend = adapter ? "webgpu" : "wasm";
-  viewer.info.wasm_threads = ort.env.wasm.numThreads;
-  return { ort, session: s };
-}
-
-// ---- HUD -------------------------------------------------------------------------------------------------
-function row(name, last, values) {
-  const f = (v) => (Number.isFinite(v) ? v.toFixed(1) : "—");
-  return `<tr><td>${name}</td><td>${f(last)}</td><td>${f(median(values))}</td></tr>`;
-}
-
-function hud(id, stages, maps, di) {
-  const rows = stages.map((s) => row(s, maps.at(-1)?.stages[s], maps.map((m) => m.stages[s]).filter(Number.isFinite)));
-  rows.push(row("<b>total</b>", maps.at(-1)?.total, maps.map((m) => m.total)));
-  rows.push(row("di (shared, not counted)", di.at(-1), di));
-  document.getElementById(id).innerHTML =
-    `<tr><th>stage (ms)</th><th>last</th><th>median</th></tr>${rows.join("")}<tr><td>maps</td><td colspan=2>${maps.length}</td></tr>`;
-}
-
-function showHud() {
-  const g = viewer.maps.filter((m) => m.system === "gigan");
-  const c = viewer.maps.filter((m) => m.system === "cloud_baking");
-  hud("hud-gigan", GIGAN_STAGES, g, viewer.frames.map((f) => f.gigan_di));
-  hud("hud-cloud", CLOUD_STAGES, c, viewer.frames.map((f) => f.cloud_di).filter(Number.isFinite));
-  const ratio = median(c.map((m) => m.total)) / median(g.map((m) => m.total));
-  document.getElementById("ratio").textContent = Number.isFinite(ratio)
-    ? `median total: cloud baking / GIGAN = ${ratio.toFixed(2)}` : "";
-  document.getElementById("status").textContent =
-    `frame ${viewer.frames.length} / ${viewer.config.frames} · ${viewer.info.backend} · ${viewer.info.renderer}`;
-}
-
-// ---- one system's frame ----------------------------------------------------------------------------------
-function timed(fn) {
-  const t0 = performance.now();
-  fn();
-  return performance.now() - t0;
-}
-
-async function main() {
-  const config = (viewer.config = { ...(await json("/config.json")), ...Object.fromEntries(params) });
+async function loadConfig() {
+  const config = { ...(await json("/config.json")), ...Object.fromEntries(params) };
   for (const k of ["frames", "every", "tau", "spp", "threads", "resolution"]) config[k] = Number(config[k]);
-  config.cloud = String(config.cloud) === "true";
-  const [scene, path, modelConfig, bin] = await Promise.all([
-    json("/assets/scene.json"), json("/assets/path.json"), json("/assets/model/model.json"),
-    fetch("/assets/scene.bin").then((r) => r.arrayBuffer()),
-  ]);
-  config.light_moves = new Set(path.frames.map((f) => f.light.join(","))).size > 1;
-  const glG = context(document.getElementById("gigan"));
-  const glC = context(document.getElementById("cloud"));
-  const dbg = glG.getExtension("WEBGL_debug_renderer_info");
-  viewer.info.renderer = dbg ? glG.getParameter(dbg.UNMASKED_RENDERER_WEBGL) : glG.getParameter(glG.RENDERER);
-  viewer.info.cross_origin_isolated = crossOriginIsolated;
-  viewer.info.triangles = scene.triangles;
-  const sceneG = new SceneRenderer(glG, scene, bin);
-  const sceneC = new SceneRenderer(glC, scene, bin);
-  const first = path.frames[0];
-  const cloud = config.cloud ? new CloudSystem(glC, sceneC, config) : null;
-  if (!cloud) document.getElementById("cloud-off").hidden = false;
-  // cloud baking's first request (frame 0's) goes out now: its server works while the page sets up GIGAN
-  if (cloud) cloud.request(first, 0);
-  const { ort, session: s } = await session(config);
-  const gigan = new GiganSystem(glG, sceneG, modelConfig, s, ort);
-
-  // warm-up, untimed (as the Python clients' warm_up): every shader compiled and run once, onnxruntime's first
-  // runs (lazy initialisation) done; GIGAN's map from it is dropped
-  await gigan.produce(first);
-  await gigan.infer(gigan.input);
-  const diWarmG = sceneG.renderDI(first);
-  gigan.warp(first, diWarmG);
-  gigan.blend(diWarmG, config.tau);
-  if (cloud) cloud.warmUp(first, sceneC.renderDI(first));
-  let parityInput = null; // the first map's input tensor: bench web times session.run on it against Python
-  viewer.infer = async () => (await gigan.infer(parityInput)).ms;
-
-  const frames = Math.min(config.frames, path.frames.length);
-  let pendingG = null; // a new map's stages until its first frame is composed
-  let pendingC = null;
-  for (let f = 0; f < frames; f++) {
-    const frame = path.frames[f];
-    const rec = { frame: f };
-    // GIGAN: a map every k frames, made here (synchronously, as gigan-client does)
-    if (f % config.every === 0) {
-      const made = await gigan.produce(frame, !viewer.parity);
-      pendingG = { system: "gigan", frame: f, stages: made.stages };
-      if (!viewer.parity) {
-        parityInput = gigan.input.slice();
-        viewer.parity = { ...Object.fromEntries(Object.entries(made.buffers).map(([k, v]) => [k, b64(v)])),
-          display: b64(made.display), resolution: gigan.n, light: frame.light,
-          camera: { eye: frame.gi.eye, target: frame.gi.target, fov: frame.gi.fov, near: frame.gi.near, far: frame.gi.far } };
-      }
-    }
-    let diG;
-    rec.gigan_di = timed(() => { diG = sceneG.renderDI(frame); glSyncDI(glG, diG); });
-    rec.gigan_warp = timed(() => gigan.warp(frame, diG));
-    rec.gigan_blend = timed(() => gigan.blend(diG, config.tau));
-    if (pendingG) {
-      const s = pendingG.stages;
-      s.warp = s.bind + rec.gigan_warp;
-      s.blend = rec.gigan_blend;
-      pendingG.total = GIGAN_STAGES.reduce((a, k) => a + s[k], 0);
-      viewer.maps.push(pendingG);
-      pendingG = null;
-    }
-    // cloud baking: a request every k frames (one in flight), the first map awaited
-    if (cloud) {
-      if (f % config.every === 0) cloud.request(frame, f);
-      const got = await cloud.take(!cloud.bound);
-      if (got) pendingC = { system: "cloud_baking", ...got };
-      let diC;
-      rec.cloud_di = timed(() => { diC = sceneC.renderDI(frame); glSyncDI(glC, diC); });
-      rec.cloud_warp = timed(() => cloud.warp(frame, diC));
-      rec.cloud_blend = timed(() => cloud.blend(diC, config.tau));
-      if (pendingC) {
-        const s = pendingC.stages;
-        s.warp = s.bind + rec.cloud_warp;
-        s.blend = rec.cloud_blend;
-        pendingC.total = CLOUD_STAGES.reduce((a, k) => a + s[k], 0);
-        viewer.maps.push(pendingC);
-        pendingC = null;
-      }
-    }
-    viewer.frames.push(rec);
-    showHud();
-    await new Promise((r) => setTimeout(r, 0)); // let the page paint and the fetch progress
-  }
-  // the last frame of each canvas and its DI alone, for the checks that the canvases show GI (bench web, tests)
-  viewer.snapshot = () => ({ gigan: snapshot(glG, sceneG.diTarget), cloud: cloud ? snapshot(glC, sceneC.diTarget) : null });
-  viewer.done = true;
-  showHud();
+  config.autoplay = config.autoplay === "1";
+  config.record = config.record === "1";
+  return config;
 }
 
+// The canvas's last frame and its DI alone, for the checks that the canvases show GI (bench web, tests).
 function snapshot(gl, diTarget) {
   const n = diTarget.w;
   const canvas = new Uint8Array(n * n * 4);
@@ -179,16 +56,170 @@ function snapshot(gl, diTarget) {
   return { canvas: b64(canvas), di: b64(readFloats(gl, diTarget, 0)), resolution: n };
 }
 
-function glSyncDI(gl, t) {
-  const px = new Float32Array(4);
-  gl.bindFramebuffer(gl.FRAMEBUFFER, t.fbo);
-  gl.readBuffer(gl.COLOR_ATTACHMENT0);
-  gl.readPixels(0, 0, 1, 1, gl.RGBA, gl.FLOAT, px);
+// A select's options from `names` (a person's pick calls `pick`).
+function fillSelect(select, names, value, pick) {
+  select.innerHTML = names.map((n) => `<option>${n}</option>`).join("");
+  select.value = value;
+  select.addEventListener("change", () => pick(select.value));
 }
 
-main().catch((e) => {
+// The cloud pane's side: its system, the profile and store selects, the request URL. Null when the cloud is off.
+function cloudSide(config, gl, scene, loop) {
+  if (!config.profiles?.length) {
+    $("cloud-off").hidden = false;
+    $("cloud-settings").hidden = true;
+    return null;
+  }
+  const system = new CloudSystem(gl, scene, config);
+  const choose = (kind, names) => (name) => {
+    if (!names.includes(name)) throw new Error(`set${kind}: ${name} is not one of ${names.join(", ")}`);
+    viewer[kind.toLowerCase()] = name;
+    $(kind.toLowerCase()).value = name;
+    loop().panes[1]?.forget(); // a map through the new profile or store at once
+  };
+  viewer.setProfile = choose("Profile", config.profiles);
+  viewer.setStore = choose("Store", config.stores);
+  viewer.profile = config.profiles.includes(config.profile) ? config.profile : config.profiles[0];
+  viewer.store = config.stores.includes(config.store) ? config.store : config.stores[0];
+  fillSelect($("profile"), config.profiles, viewer.profile, viewer.setProfile);
+  fillSelect($("store"), config.stores, viewer.store, viewer.setStore);
+  const url = () => `/v1/gimap?profile=${encodeURIComponent(viewer.profile)}&store=${encodeURIComponent(viewer.store)}`;
+  return { system, url };
+}
+
+// GIGAN's warm-up, untimed (as the Python clients' warm_up): every shader compiled and run once, onnxruntime's
+// first run done. Its map (at the first frame's view) stays bound until the first timed one lands; its buffers
+// are viewer.parity, its input what viewer.infer() times session.run on.
+async function warmUp(gigan, pane, frame, tau) {
+  const req = gigan.request(frame, true);
+  gigan.join(req, await req.run);
+  pane.shown = { index: 0, captured: req.posted };
+  const di = pane.scene.renderDI(frame);
+  gigan.warp(frame, di);
+  gigan.blend(di, tau);
+  const { buffers, display, input } = req.kept;
+  const gi = frame.gi;
+  viewer.parity = { ...Object.fromEntries(Object.entries(buffers).map(([k, v]) => [k, b64(v)])),
+    display: b64(display), resolution: gigan.n, light: frame.light,
+    camera: { eye: gi.eye, target: gi.target, fov: gi.fov, near: gi.near, far: gi.far } };
+  viewer.infer = async () => (await gigan.infer(input.slice())).ms;
+}
+
+function giganPane(gigan, scene, every) {
+  return new Pane({ label: "gigan", system: gigan, scene, stages: GIGAN_STAGES, every, fatal: true, maps: viewer.maps,
+    start: (frame) => gigan.request(frame), join: (req, r) => ({ stages: gigan.join(req, r) }) });
+}
+
+function cloudPane({ system, url }, scene, every) {
+  return new Pane({ label: "cloud_baking", system, scene, stages: CLOUD_STAGES, every, fatal: false, maps: viewer.maps,
+    start: (frame) => ({ run: system.request(frame, url()), profile: viewer.profile, store: viewer.store }),
+    join: (req, done) => ({ ...system.join(done), profile: req.profile, store: req.store }) });
+}
+
+// window.viewer's methods over the page's parts (docs/architecture.md, Web3D viewer).
+function api(page) {
+  const { scene, navigation, lightInput, shadows, recorder, loop } = page;
+  const cam = scene.camera;
+  viewer.camera = () =>
+    withMatrices({ ...navigation.pose(), up: cam.up, fov: cam.local_fov, near: cam.near, far: cam.far });
+  viewer.setCamera = (pose) => {
+    navigation.set({ ...navigation.pose(), ...pose });
+    return viewer.camera();
+  };
+  viewer.light = () => [...lightInput.value];
+  viewer.setLight = (light) => [...lightInput.set(light)];
+  viewer.record = (on) => {
+    recorder.set(Boolean(on));
+    $("record").textContent = recorder.on ? "Stop and download" : "Record";
+  };
+  viewer.recording = () => recorder.doc();
+  viewer.replay = async (doc, { realtime = false } = {}) => {
+    const apply = (f) => {
+      viewer.setCamera(f.camera);
+      viewer.setLight(f.light);
+    };
+    const replay = new Replay(doc, realtime, apply);
+    await shadows.prefetch(doc.frames.map((f) => clampLight(f.light, scene.light_range)));
+    return loop.play(replay);
+  };
+  viewer.snapshot = () => ({
+    gigan: snapshot(page.glG, page.sceneG.diTarget), cloud: page.cloud ? snapshot(page.glC, page.sceneC.diTarget) : null,
+  });
+}
+
+// What a person does on the page: the Record button, and any input lifts an autoplay's hold on new maps.
+function wireInput(page) {
+  $("record").addEventListener("click", () => {
+    const was = page.recorder.on;
+    viewer.record(!was);
+    if (was) download(viewer.recording());
+  });
+  const release = () => page.loop.release();
+  for (const type of ["pointerdown", "wheel", "keydown"]) $("stage").addEventListener(type, release, { capture: true });
+  for (const id of ["light-x", "light-y", "profile", "store"]) $(id).addEventListener("input", release);
+}
+
+// The page's parts that need no model: both canvases' renderers, the camera and light inputs, the cloud side.
+async function parts(config, scene, bin, path) {
+  const glG = context($("gigan"));
+  const glC = context($("cloud"));
+  const dbg = glG.getExtension("WEBGL_debug_renderer_info");
+  const renderer = dbg ? glG.getParameter(dbg.UNMASKED_RENDERER_WEBGL) : glG.getParameter(glG.RENDERER);
+  Object.assign(viewer.info, { renderer, cross_origin_isolated: crossOriginIsolated, triangles: scene.triangles });
+  const page = { scene, glG, glC, sceneG: new SceneRenderer(glG, scene, bin), sceneC: new SceneRenderer(glC, scene, bin) };
+  page.recorder = new Recorder(scene.scene);
+  page.shadows = new ShadowSetups();
+  const first = path.frames[0];
+  const light = clampLight(first.light, scene.light_range);
+  await page.shadows.prefetch([light]);
+  page.navigation = new Navigation($("stage"), scene.camera, scene.navigation, first.camera);
+  page.lightInput = new LightInput(scene.light_range, light, [$("light-x"), $("light-y")], $("stage"));
+  page.cloud = cloudSide(config, glC, page.sceneC, () => page.loop);
+  page.loop = new FrameLoop({ viewer, navigation: page.navigation, light: page.lightInput, shadows: page.shadows,
+    camera: scene.camera, tau: config.tau, start: { light, setup: page.shadows.get(light) }, fail,
+    onFrame: (record, frame) => {
+      page.recorder.push(record.t, frame.local, frame.light);
+      showHud(viewer, page.recorder.on);
+    } });
+  return page;
+}
+
+async function main() {
+  const config = (viewer.config = await loadConfig());
+  const [scene, path, modelConfig, bin] = await Promise.all([
+    json("/assets/scene.json"), json("/assets/path.json"), json("/assets/model/model.json"),
+    fetch("/assets/scene.bin").then((r) => r.arrayBuffer()),
+  ]);
+  const page = await parts(config, scene, bin, path);
+  const loop = page.loop;
+  const frame0 = loop.frameAt(page.navigation.pose());
+  const cPane = page.cloud && cloudPane(page.cloud, page.sceneC, config.every);
+  // cloud baking's first request (the first frame's view) goes out now: its server works while GIGAN sets up
+  if (cPane) cPane.request(0, loop.key(page.navigation.pose()), frame0);
+  const { ort, session } = await openSession(config, viewer.info);
+  const gigan = new GiganSystem(page.glG, page.sceneG, modelConfig, session, ort);
+  const gPane = giganPane(gigan, page.sceneG, config.every);
+  loop.panes = [gPane, cPane];
+  await warmUp(gigan, gPane, frame0, config.tau);
+  if (cPane) cPane.system.warmUp(frame0, page.sceneC.renderDI(frame0));
+  api(page);
+  wireInput(page);
+  viewer.record(config.record);
+  loop.start();
+  viewer.ready = true;
+  if (config.autoplay) {
+    await viewer.replay({ ...path, frames: path.frames.slice(0, config.frames) });
+    await loop.drain();
+    viewer.done = true;
+    showHud(viewer, page.recorder.on);
+  }
+}
+
+function fail(e) {
   viewer.error = String(e && e.stack ? e.stack : e);
   viewer.done = true;
-  document.getElementById("status").textContent = `error: ${e}`;
+  $("status").textContent = `error: ${e}`;
   console.error(e);
-});
+}
+
+main().catch(fail);

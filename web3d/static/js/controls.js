@@ -1,0 +1,51 @@
+// Navigation: three.js's OrbitControls (orbit, zoom, pan by mouse, touch and keys) on a PerspectiveCamera over both
+// canvases; the page reads the eye and target from it each frame, clamped to the scene's navigable envelope. The
+// three camera is never rendered: the page computes its own matrices (camera.js).
+
+import { PerspectiveCamera } from "three";
+import { OrbitControls } from "three/addons/controls/OrbitControls.js";
+import { clampToNavigation } from "./camera.js";
+
+const ZOOM_STEP = 1.1;
+const ZOOM_KEYS = { Equal: true, NumpadAdd: true, PageUp: true, Minus: false, NumpadSubtract: false, PageDown: false };
+
+export class Navigation {
+  // `surface`: the element over both canvases; `camera`: scene.json's camera; `nav`: its navigation envelope.
+  constructor(surface, camera, nav, start) {
+    this.nav = nav;
+    this.three = new PerspectiveCamera(camera.local_fov, 1, camera.near, camera.far); // square images
+    this.three.up.set(...camera.up);
+    this.controls = new OrbitControls(this.three, surface);
+    this.controls.listenToKeyEvents(surface); // arrows pan, Shift/Ctrl + arrows orbit
+    surface.addEventListener("keydown", (e) => {
+      if (!(e.code in ZOOM_KEYS) || !this.controls.enabled) return;
+      if (ZOOM_KEYS[e.code]) this.controls.dollyIn(ZOOM_STEP);
+      else this.controls.dollyOut(ZOOM_STEP);
+      e.preventDefault();
+    });
+    this.set(start);
+  }
+
+  // {eye, target} clamped, written to the three camera and the controls (their next update starts from it).
+  set(pose) {
+    const { eye, target } = clampToNavigation(pose, this.nav);
+    this.three.position.set(...eye);
+    this.controls.target.set(...target);
+    this.three.lookAt(this.controls.target);
+    return { eye, target };
+  }
+
+  // The current {eye, target}: what the controls made of a person's input, clamped (and the clamp written back).
+  pose() {
+    const p = this.three.position;
+    const t = this.controls.target;
+    const raw = { eye: [p.x, p.y, p.z], target: [t.x, t.y, t.z] };
+    const pose = clampToNavigation(raw, this.nav);
+    const moved = pose.eye.some((v, i) => v !== raw.eye[i]) || pose.target.some((v, i) => v !== raw.target[i]);
+    return moved ? this.set(pose) : pose;
+  }
+
+  set enabled(on) {
+    this.controls.enabled = on;
+  }
+}

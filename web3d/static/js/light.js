@@ -1,0 +1,97 @@
+// The light a person moves (a slider per axis of light_range that varies, and Shift+drag over the canvases) and
+// the shadow-map setups the server fits for each light (GET /v1/shadow), cached by light. A frame draws the
+// newest light whose setup has arrived, so its shadows always match it.
+
+import { clampLight } from "./camera.js";
+
+const key = (light) => light.join(",");
+
+export class ShadowSetups {
+  constructor() {
+    this.cache = new Map();
+    this.fetching = null;
+  }
+
+  // The setup for `light`, or null while it is fetched (one fetch at a time; `onError` hears a failed one).
+  get(light, onError) {
+    const k = key(light);
+    if (this.cache.has(k)) return this.cache.get(k);
+    if (!this.fetching) {
+      this.fetching = this.fetch(light)
+        .catch(onError)
+        .finally(() => (this.fetching = null));
+    }
+    return null;
+  }
+
+  async fetch(light) {
+    const k = key(light);
+    const r = await fetch(`/v1/shadow?light=${encodeURIComponent(k)}`);
+    if (!r.ok) throw new Error(`/v1/shadow?light=${k} answered ${r.status}: ${await r.text()}`);
+    this.cache.set(k, await r.json());
+  }
+
+  // Every setup of `lights` fetched, a few at a time (a replay's lights, before it starts).
+  async prefetch(lights, parallel = 4) {
+    const todo = [...new Set(lights.map(key))].filter((k) => !this.cache.has(k)).map((k) => k.split(",").map(Number));
+    const worker = async () => {
+      while (todo.length) await this.fetch(todo.pop());
+    };
+    await Promise.all(Array.from({ length: parallel }, worker));
+  }
+}
+
+// The requested light: two sliders (x, y) and Shift+drag on `surface` (a canvas width moves the light across its
+// range); z stays put. The frame loop reads `value`.
+export class LightInput {
+  constructor(range, light, sliders, surface) {
+    this.range = range;
+    this.sliders = sliders;
+    sliders.forEach((slider, axis) => {
+      const [lo, hi] = [range[0][axis], range[1][axis]];
+      Object.assign(slider, { min: lo, max: hi, step: (hi - lo) / 1000 || 1, disabled: !(hi > lo) });
+      slider.addEventListener("input", () => this.input(axis, Number(slider.value)));
+    });
+    this.set(light);
+    this.dragOn(surface);
+  }
+
+  set(light) {
+    this.value = clampLight(light, this.range);
+    this.sliders.forEach((slider, axis) => (slider.value = this.value[axis]));
+    return this.value;
+  }
+
+  input(axis, v) {
+    const light = [...this.value];
+    light[axis] = v;
+    this.set(light);
+  }
+
+  // Shift+drag: captured before the orbit controls see the pointer (they pan on Shift+drag otherwise).
+  dragOn(surface) {
+    let last = null;
+    const move = (e) => {
+      if (!last) return;
+      const w = surface.clientWidth / 2 || 1; // one canvas
+      const [lo, hi] = this.range;
+      const light = [...this.value];
+      light[0] += ((e.clientX - last[0]) / w) * (hi[0] - lo[0]);
+      light[1] -= ((e.clientY - last[1]) / w) * (hi[1] - lo[1]);
+      last = [e.clientX, e.clientY];
+      this.set(light);
+    };
+    const up = () => {
+      last = null;
+      document.removeEventListener("pointermove", move);
+      document.removeEventListener("pointerup", up);
+    };
+    surface.parentElement.addEventListener("pointerdown", (e) => {
+      if (!e.shiftKey || e.button !== 0 || !surface.contains(e.target)) return;
+      e.stopPropagation(); // the controls on `surface` never see it
+      last = [e.clientX, e.clientY];
+      document.addEventListener("pointermove", move);
+      document.addEventListener("pointerup", up);
+    }, { capture: true });
+  }
+}
