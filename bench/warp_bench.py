@@ -11,27 +11,25 @@ far interpolated GI-map coordinates land from per-pixel projection. docs/archite
 
 from __future__ import annotations
 
-import math
 import time
 import tracemalloc
 from collections import defaultdict
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import partial
-from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
 from bench.common import WARP_LABELS
-from bench.runner import FOV_DEGREES, Bench, Block, Figure, Part, Rows, Section, Table, need, pick
-from bench.svg import BarChart
+from bench.present.declarations import Chart, Column, Figure, Rows, Table, wide
+from bench.runner import FOV_DEGREES, Bench, Block, Section
 from gicore.camera import Camera
 from gicore.gl.lod import LOD_CHOICES, lod_value
 from gicore.loop import CLIENT_LOD, RENDERERS, open_raster
 from gicore.metrics import ssim
 from gicore.paths import camera_path, light_position
-from gicore.results import Results, read_rows
+from gicore.results import Results
 from gicore.scene import SceneSpec, load_scene
 from gicore.tonemap import tonemap
 
@@ -300,108 +298,59 @@ def measure(cfg: WarpBenchConfig, res: Results) -> None:
                 )
 
 
-def plot(csv_path: Path, out_dir: Path) -> list[Path]:
-    """Fig. 7 from the CSV: warp time (median, p95 whisker), CPU %, and SSIM per scene and method."""
-    from gicore.plotting import plt, save
-
-    rows = read_rows(csv_path)
-    scenes = list(dict.fromkeys(r["scene"] for r in rows))
-    systems = list(SYSTEMS.values())
-
-    def value(scene: str, system: str, metric: str, stat: str) -> float:
-        return next(
-            (
-                r["value"]
-                for r in rows
-                if (r["scene"], r["system"], r["metric"], r["stat"]) == (scene, system, metric, stat)
-            ),
-            float("nan"),
-        )
-
-    fig, axes = plt.subplots(1, 3, figsize=(13, 4))
-    x = np.arange(len(scenes))
-    width = 0.38
-    for i, system in enumerate(systems):
-        med = np.array([value(s, system, "warp_time", "median") for s in scenes])
-        p95 = np.array([value(s, system, "warp_time", "p95") for s in scenes])
-        axes[0].bar(x + (i - 0.5) * width, med, width, yerr=[np.zeros_like(med), p95 - med], capsize=3, label=system)
-        axes[1].bar(
-            x + (i - 0.5) * width, [value(s, system, "cpu_percent", "mean") for s in scenes], width, label=system
-        )
-        axes[2].bar(x + (i - 0.5) * width, [value(s, system, "ssim", "mean") for s in scenes], width, label=system)
-    for ax, label in zip(
-        axes, ("warp time per frame [ms] (median, p95)", "process CPU [% of one core]", "SSIM of warped GI vs GT")
-    ):
-        ax.set_xticks(x, scenes, fontsize=8)
-        ax.set_ylabel(label)
-        ax.grid(axis="y", alpha=0.3)
-    axes[2].set_ylim(bottom=max(0.0, min(r["value"] for r in rows if r["metric"] == "ssim") - 0.05))
-    axes[0].legend(fontsize=8)
-    fig.suptitle("Pixel-level vs structure-aware 3D image warping (CPU, one process)")
-    return [save(fig, out_dir / "warp.png")]
+# -- what it shows ------------------------------------------------------------------------------------------
+def _costs(rows: Rows) -> list[dict]:
+    """Per scene and warp: time per frame (median, p95), CPU and SSIM (means)."""
+    fields = {"median": "warp_time/median", "p95": "warp_time/p95", "cpu": "cpu_percent/mean", "ssim": "ssim/mean"}
+    return wide(rows, ("scene", "system"), fields)
 
 
-# -- bench report: the dashboard's section and the README's block ------------------------------------------
-def table(rows: Rows) -> str:
-    """Fig. 7 as Markdown: per scene and warp, time per frame, CPU and SSIM; then the pixel / structure ratios."""
-    need(rows, "warp_time")
-    scenes = list(dict.fromkeys(r["scene"] for r in pick(rows, "warp_time")))
-    systems = list(dict.fromkeys(r["system"] for r in pick(rows, "warp_time")))
-    value = {(r["scene"], r["system"], r["metric"], r["stat"]): r["value"] for r in rows}
-    lines = [
-        "| scene | warp | time per frame ms (median, p95) | CPU % of one core (mean) | SSIM vs GT (mean) |",
-        "|---|---|---|---|---|",
-    ]
-    for scene in scenes:
-        for s in systems:
-            cells = [value.get((scene, s, "warp_time", stat), math.nan) for stat in ("median", "p95")]
-            cells += [value.get((scene, s, metric, "mean"), math.nan) for metric in ("cpu_percent", "ssim")]
-            lines.append(f"| {scene} | {s} | {cells[0]:.2f} ({cells[1]:.2f}) | {cells[2]:.0f} | {cells[3]:.3f} |")
-    lines += ["", "| scene | pixel / structure time (median) | pixel / structure CPU (mean) |", "|---|---|---|"]
-    for scene in scenes:
-        ratio = {
-            r["metric"]: r["value"] for r in rows if r["scene"] == scene and r["metric"] in ("time_ratio", "cpu_ratio")
-        }
-        lines.append(
-            f"| {scene} | {ratio.get('time_ratio', math.nan):.2f}× | {ratio.get('cpu_ratio', math.nan):.2f}× |"
-        )
-    return "\n".join(lines)
+def _bars(metric: str, label: str) -> Chart:
+    fields = {"value": f"{metric}/{'median' if metric == 'warp_time' else 'mean'}", "p95": f"{metric}/p95"}
+    return Chart(lambda rows: [r for r in wide(rows, ("scene", "system"), fields) if r["value"] is not None],
+                 "scene", series="{system}", kind="bar", ylabel=label,
+                 tip="{system}, {scene}: {value:.4g}[[, p95 {p95:.4g}]]")  # fmt: skip
 
 
-def dashboard_section(rows: Rows) -> list[Part]:
-    """Bars of time per frame, CPU and SSIM per scene and warp (p95 in the tooltips), then the table."""
-    need(rows, "warp_time")
-    scenes = list(dict.fromkeys(r["scene"] for r in pick(rows, "warp_time")))
-    systems = list(dict.fromkeys(r["system"] for r in pick(rows, "warp_time")))
-    figures = []
-    for metric, stat, label in (
-        ("warp_time", "median", "warp time per frame [ms]"),
-        ("cpu_percent", "mean", "CPU [% of one core]"),
-        ("ssim", "mean", "SSIM vs GT"),
-    ):
-        value = {(r["scene"], r["system"]): r["value"] for r in pick(rows, metric, stat)}
-        p95 = {(r["scene"], r["system"]): r["value"] for r in pick(rows, metric, "p95")}
-
-        def tip(s: str, sc: str) -> str:
-            shown = f"{s}, {sc}: {stat} {value.get((sc, s), math.nan):.4g}"
-            return shown + (f", p95 {p95[sc, s]:.4g}" if (sc, s) in p95 else "")
-
-        tips = {s: [tip(s, sc) for sc in scenes] for s in systems}
-        figures.append(BarChart(scenes, {s: [value.get((sc, s)) for sc in scenes] for s in systems}, label, tips=tips))
-    return [Figure(tuple(figures)), Table(table(rows))]
-
-
-def readme_block(rows: Rows) -> list[Table]:
-    """The same table as the dashboard's."""
-    return [Table(table(rows))]
+PARTS = (
+    Figure(
+        "warp",
+        (
+            _bars("warp_time", "warp time per frame [ms] (median)"),
+            _bars("cpu_percent", "process CPU [% of one core]"),
+            _bars("ssim", "SSIM of warped GI vs GT"),
+        ),
+        title="Pixel-level vs structure-aware 3D image warping (CPU, one process)",
+    ),
+    Table(
+        _costs,
+        (
+            Column("scene", "{scene}"),
+            Column("warp", "{system}"),
+            Column("time per frame ms (median, p95)", "{median:.2f} ({p95:.2f})"),
+            Column("CPU % of one core (mean)", "{cpu:.0f}"),
+            Column("SSIM vs GT (mean)", "{ssim:.3f}"),
+        ),
+    ),
+    Table(
+        lambda rows: wide(rows, ("scene",), {"time": "time_ratio", "cpu": "cpu_ratio"}),
+        (
+            Column("scene", "{scene}"),
+            Column("pixel / structure time (median)", "{time:.2f}×"),
+            Column("pixel / structure CPU (mean)", "{cpu:.2f}×"),
+        ),
+    ),
+)
 
 
 BENCH = Bench(
     "warp",
     WarpBenchConfig,
     measure,
-    plot,
+    None,
     help="Fig. 7: CPU time, CPU load, memory and SSIM of pixel-level vs structure-aware warping.",
-    dashboard=Section("fig7", "Fig. 7: cost of warping", 50, dashboard_section),
-    readme=Block("Cost of warping, Fig. 7", 60, readme_block),
+    dashboard=Section("fig7", "Fig. 7: cost of warping", 50),
+    readme=Block("Cost of warping, Fig. 7", 60),
+    parts=PARTS,
+    needs=("warp_time",),
 )
