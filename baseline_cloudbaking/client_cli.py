@@ -35,8 +35,9 @@ import numpy as np
 import typer
 
 from baseline_cloudbaking.client import CloudClientConfig, check_server, request_summary, run_client
-from gicore.error_policy import check_denoiser, entry_point, writable_dir
+from gicore.error_policy import entry_point, writable_dir
 from gicore.fileio import atomic_write_bytes, exclusive_run
+from gicore.mitsuba_variant import check_denoiser
 from gicore.options import build_config, config_command, extra
 
 app = typer.Typer(add_completion=False, help=__doc__)

@@ -23,7 +23,6 @@ and ``pyproject.toml`` names ``package.module:main``.
 
 from __future__ import annotations
 
-import importlib.util
 import math
 import os
 import signal
@@ -200,13 +199,6 @@ def require_between(name: str, value: float, low: float, high: float) -> float:
             f"give {name} a value between {low:g} and {high:g}, both excluded",
         )
     return value
-
-
-def check_denoiser(denoise: bool) -> None:
-    """Denoising the path-traced GT (``gicore.render``'s OIDN pass) needs pyoidn: say so before any frame is
-    rendered."""
-    if denoise and importlib.util.find_spec("pyoidn") is None:
-        raise UserError("denoising the GT renders needs pyoidn", "pip install pyoidn, or turn it off with --no-denoise")
 
 
 def writable_dir(path: Path, *, name: str = "--out") -> Path:

@@ -1,10 +1,10 @@
 """Mitsuba 3 rendering of scene specs: path-traced GT, direct illumination, G-buffers
 (docs/architecture.md, Mitsuba passes).
 
-This is the only module that imports Mitsuba and the only place the variant is chosen. ``llvm_ad_rgb``
-needs LLVM >= 16 (Debian: ``apt-get install libllvm19``); older LLVMs abort the process inside Dr.Jit,
-so the library is located *before* import and, if none is found, the ~45x slower ``scalar_rgb`` is used
-with a warning. ``GIGAN_MITSUBA_VARIANT`` overrides the choice.
+This is the only module that imports Mitsuba. Its variant, and the denoiser of the GT, are chosen before the
+import by :mod:`gicore.mitsuba_variant` (``GIGAN_MITSUBA_VARIANT=auto|cpu|cuda``): ``cuda_ad_rgb`` with
+Mitsuba's OptiX denoiser where a CUDA device is present, else ``llvm_ad_rgb`` (libLLVM >= 16, located before
+the import; without one the ~45x slower ``scalar_rgb``) with Intel Open Image Denoise.
 
 One :class:`Renderer` holds one compiled scene at one resolution. Cameras, the light and vertex
 texture coordinates are updated in place through ``mi.traverse`` (no recompilation). All passes share
@@ -14,9 +14,7 @@ back inside that pixel.
 
 from __future__ import annotations
 
-import glob
 import os
-import warnings
 
 import numpy as np
 
@@ -24,39 +22,13 @@ from gicore.buffers import DATASET_BUFFERS, GBUFFERS, check_buffer_names, check_
 from gicore.camera import Camera
 from gicore.error_policy import RESOLUTION_MAX, RESOLUTION_MIN
 from gicore.geometry import SceneObject, scene_objects
+from gicore.mitsuba_variant import find_libllvm, mitsuba_choice
 from gicore.scene import SceneSpec
 
-
-def _find_libllvm() -> str | None:
-    """Path of a libLLVM >= 16 shared library, or None."""
-    if os.environ.get("DRJIT_LIBLLVM_PATH"):
-        return os.environ["DRJIT_LIBLLVM_PATH"]
-    for pattern in ("/usr/lib/*/libLLVM-{v}.so*", "/usr/lib/*/libLLVM.so.{v}*", "/usr/lib/llvm-{v}/lib/libLLVM*.so*"):
-        for version in range(22, 15, -1):
-            hits = sorted(glob.glob(pattern.format(v=version)))
-            if hits:
-                return hits[0]
-    return None
-
-
-def _select_variant() -> str:
-    wanted = os.environ.get("GIGAN_MITSUBA_VARIANT")
-    if wanted:
-        return wanted
-    lib = _find_libllvm()
-    if lib is None:
-        warnings.warn(
-            "No libLLVM >= 16 found (install it: apt-get install libllvm19, or set DRJIT_LIBLLVM_PATH); "
-            "falling back to Mitsuba's scalar_rgb variant, about 45x slower.",
-            RuntimeWarning,
-            stacklevel=2,
-        )
-        return "scalar_rgb"
-    os.environ["DRJIT_LIBLLVM_PATH"] = lib
-    return "llvm_ad_rgb"
-
-
-VARIANT = _select_variant()
+CHOICE = mitsuba_choice()
+VARIANT = CHOICE.variant
+if libllvm := find_libllvm():  # beside the CUDA variant too: Dr.Jit must never load an older LLVM of the system
+    os.environ["DRJIT_LIBLLVM_PATH"] = libllvm
 import drjit as dr  # noqa: E402  (after DRJIT_LIBLLVM_PATH is set)
 import mitsuba as mi  # noqa: E402
 
@@ -343,16 +315,20 @@ class Renderer:
         return self._centre_sensor
 
     def denoise(self, color: np.ndarray, gbuffers: dict[str, np.ndarray]) -> np.ndarray:
-        """Intel Open Image Denoise (HDR, albedo- and normal-guided)."""
+        """The HDR ``color`` denoised with albedo and normal guides by the variant's denoiser: Intel Open Image
+        Denoise on the CPU variants, Mitsuba's OptiX denoiser on the CUDA one."""
+        color, albedo = np.ascontiguousarray(color), np.ascontiguousarray(gbuffers["albedo"])
+        if CHOICE.denoiser == "optix":
+            if getattr(self, "_optix", None) is None:
+                self._optix = mi.OptixDenoiser([self.resolution, self.resolution], albedo=True, normals=True)
+            # the G-buffer normals are OpenGL view-space (x right, z back); Mitsuba's sensor frame has x left,
+            # z forward, and its denoiser turns that frame into OptiX's (which is OpenGL's) itself
+            normal = np.ascontiguousarray(gbuffers["normal"] * np.float32([-1.0, 1.0, -1.0]))
+            out = self._optix(mi.TensorXf(color), albedo=mi.TensorXf(albedo), normals=mi.TensorXf(normal))
+            return np.array(out, dtype=np.float32)
         import pyoidn
 
-        normal = gbuffers["normal"]
-        return pyoidn.denoise(
-            np.ascontiguousarray(color),
-            np.ascontiguousarray(gbuffers["albedo"]),
-            np.ascontiguousarray(normal),
-            hdr=True,
-        )
+        return pyoidn.denoise(color, albedo, np.ascontiguousarray(gbuffers["normal"]), hdr=True)
 
     def render_frame(
         self, camera: Camera, light=None, buffers=DATASET_BUFFERS, spp: int = 64, seed: int = 0, denoise: bool = False

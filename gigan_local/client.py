@@ -32,7 +32,7 @@ from typing import TYPE_CHECKING, Any, Literal
 import numpy as np
 
 from gicore.camera import Camera
-from gicore.error_policy import UserError, check_denoiser
+from gicore.error_policy import UserError
 from gicore.loop import (
     CLIENT_LOD,
     LAYERS,
@@ -52,6 +52,7 @@ from gicore.loop import (
     texel_depth,
     write_rows,
 )
+from gicore.mitsuba_variant import check_denoiser
 from gicore.options import THREADS
 from gicore.path_file import PathFile, flown_path, write_path_file
 from gicore.paths import frame_seed

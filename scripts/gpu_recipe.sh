@@ -25,7 +25,7 @@ SEED=${SEED:-2}
 MINUTES=${MINUTES:-6}
 MODELS=${MODELS:-gigan deep_illumination deep_shading}
 STAGES=${STAGES:-render train export}
-export GIGAN_MITSUBA_VARIANT=${GIGAN_MITSUBA_VARIANT:-cuda_ad_rgb}
+export GIGAN_MITSUBA_VARIANT=${GIGAN_MITSUBA_VARIANT:-cuda}
 for stage in $STAGES; do
   case "$stage" in render | train | export) ;; *) echo "error: unknown stage '$stage'; STAGES takes render, train, export (space-separated)" >&2; exit 2 ;; esac
 done
