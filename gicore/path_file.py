@@ -206,7 +206,8 @@ def _waypoint(doc: Any, rules: _Rules, previous_ms: float) -> Waypoint:
     light = _vec3(doc["light"], "light")
     low, high, slack = rules.light_low, rules.light_high, rules.light_slack
     if not all(lo - slack <= v <= hi + slack for v, lo, hi in zip(light, low, high, strict=True)):
-        raise ValueError(f"light {list(light)} is outside the scene's light range {list(low)} to {list(high)}")
+        box = " to ".join(str([round(c, 4) for c in corner]) for corner in (low, high))
+        raise ValueError(f"light {list(light)} is outside the scene's light range {box}")
     return Waypoint(t_ms, camera, light)
 
 
