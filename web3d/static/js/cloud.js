@@ -125,11 +125,13 @@ export class CloudSystem {
     const { header, sections } = unpack(buffer);
     const bitmap = await decodeImage(header.codec, sections.gi);
     const { depth, h, w } = decodeDepth(sections.depth);
-    return { ...times, bytes: buffer.byteLength, header, bitmap, depth, h, w, decode: performance.now() - t0 };
+    return { ...times, bytes: buffer.byteLength, header, bitmap, depth, h, w, decodeWork: performance.now() - t0 };
   }
 
   // A fetched map uploaded and bound (in the frame loop). Stages: transmission (request + transfer), server (its
-  // own timings), decode (the image and depth decoded, then uploaded), bind.
+  // own timings), decode (from the last byte's arrival until the map is uploaded: the image and depth decoded,
+  // with any wait for the page's thread, as GIGAN's inference counts its wait; decode_work: the decoding and
+  // upload alone), bind.
   join(done) {
     const gl = this.gl;
     const { header, h, w } = done;
@@ -142,7 +144,8 @@ export class CloudSystem {
     gl.texSubImage2D(gl.TEXTURE_2D, 0, 0, 0, w, h, gl.RED, gl.FLOAT, done.depth);
     sync(gl, null);
     done.bitmap.close();
-    const decode = done.decode + performance.now() - t0;
+    const decodeWork = done.decodeWork + performance.now() - t0;
+    const decode = performance.now() - done.arrived;
     const t1 = performance.now();
     if (this.bound) for (const t of [this.bound.gi, this.bound.depth]) gl.deleteTexture(t);
     const view = columnMajor(header.view);
@@ -155,7 +158,8 @@ export class CloudSystem {
     const transfer = done.arrived - done.firstByte;
     return {
       hit: header.hit, bytes: done.bytes, timing: done.timing,
-      stages: { transmission: request + transfer, request, transfer, server: total, decode, bind, ...Object.fromEntries(
+      stages: { transmission: request + transfer, request, transfer, server: total, decode, decode_work: decodeWork, bind,
+        ...Object.fromEntries(
         Object.entries(server).filter(([k]) => k !== "total").map(([k, v]) => [`server_${k}`, v])) },
     };
   }

@@ -194,8 +194,6 @@ async function main() {
   const loop = page.loop;
   const frame0 = loop.frameAt(page.navigation.pose());
   const cPane = page.cloud && cloudPane(page.cloud, page.sceneC, config.every);
-  // cloud baking's first request (the first frame's view) goes out now: its server works while GIGAN sets up
-  if (cPane) cPane.request(0, loop.key(page.navigation.pose()), frame0);
   const { ort, session } = await openSession(config, viewer.info);
   const gigan = new GiganSystem(page.glG, page.sceneG, modelConfig, session, ort);
   const gPane = giganPane(gigan, page.sceneG, config.every);
@@ -205,14 +203,22 @@ async function main() {
   api(page);
   wireInput(page);
   viewer.record(config.record);
+  if (config.autoplay) return autoplay(page, { ...path, frames: path.frames.slice(0, config.frames) });
   loop.start();
   viewer.ready = true;
-  if (config.autoplay) {
-    await viewer.replay({ ...path, frames: path.frames.slice(0, config.frames) });
-    await loop.drain();
-    viewer.done = true;
-    showHud(viewer, page.recorder.on);
-  }
+}
+
+// ?autoplay=1: the path replayed from the loop's first frame, the maps in flight landed, then viewer.done (new
+// maps wait for a person's input from then on).
+async function autoplay(page, doc) {
+  await page.shadows.prefetch(doc.frames.map((f) => clampLight(f.light, page.scene.light_range)));
+  const played = viewer.replay(doc); // its setups are cached: it plays before the loop's first frame
+  page.loop.start();
+  viewer.ready = true;
+  await played;
+  await page.loop.drain();
+  viewer.done = true;
+  showHud(viewer, page.recorder.on);
 }
 
 function fail(e) {

@@ -44,7 +44,8 @@ export function download(doc) {
 }
 
 // A path file's frames played through `apply(frame)`: one per rendered frame, or (`realtime`) per rendered frame
-// the latest whose t_ms has passed since the first (held while the next one's has not). step() gives the index applied this frame, or -1 once past the last.
+// the latest whose t_ms has passed since the first (held while the next one's has not). step() gives the index
+// applied this frame, or -1 once past the last; `done` resolves with the last frame drawn.
 export class Replay {
   constructor(doc, realtime, apply) {
     if (doc?.format !== PATH_FORMAT || !Array.isArray(doc.frames) || !doc.frames.length) {
@@ -56,10 +57,7 @@ export class Replay {
 
   step(now) {
     const frames = this.frames;
-    if (this.next >= frames.length) {
-      this.resolve();
-      return -1;
-    }
+    if (this.next >= frames.length) return -1;
     let i = this.next;
     if (this.realtime) { // hold the last frame applied until the next one's time has come
       if (this.t0 === null) this.t0 = now - frames[0].t_ms;
@@ -68,6 +66,7 @@ export class Replay {
     }
     this.apply(frames[i]);
     this.next = i + 1;
+    if (this.next === frames.length) this.resolve(); // its awaiters run once this frame is drawn
     return i;
   }
 }
