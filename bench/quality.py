@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Literal
 
@@ -20,15 +21,16 @@ import numpy as np
 
 from bench.common import QUICK_DATASET
 from bench.exported_models import model_info
-from bench.runner import Bench, Block, Figure, Part, Rows, Section, Table, need, pick
-from bench.svg import BarChart
+from bench.present.declarations import Chart, Column, Figure, Image, Rows, Table, flat, matches, unique
+from bench.quality_grid import GRID_CAPTION, GridCell, grid_rows, save_grid
+from bench.runner import Bench, Block, Section
 from gicore.dataset import INPUT_RENDERERS, DatasetMeta, frame_paths, load_frame, read_meta
 from gicore.dataset_cli import FrameRenderer, build_dataset, render_inputs
 from gicore.error_policy import UserError
 from gicore.gl.lod import LOD_CHOICES
 from gicore.loop import CLIENT_LOD
-from gicore.metrics import CHECKER_PERIOD, LF_SIGMA, all_metrics, checker_error, lf_difference, shadow_tint
-from gicore.results import Results, read_rows
+from gicore.metrics import CHECKER_PERIOD, LF_SIGMA, all_metrics, checker_error, shadow_tint
+from gicore.results import Results
 from gicore.scene import SceneSpec, builtin_scenes, load_scene
 from gicore.timing import time_repeats
 from gicore.tonemap import tonemap
@@ -44,14 +46,6 @@ TITLES = {
     "checker_error": f"checkerboard error ({CHECKER_PERIOD} px tile; lower is better)",
     "shadow_tint": "red tint in indirect-only light (0 is best)",
 }
-#: The grid's |error| images show |tone-mapped prediction − GT| times this gain (white from 1 / gain = 0.25 up).
-GRID_ABS_GAIN = 4.0
-#: The grid's low-frequency images map the blurred signed error (prediction − GT, channel mean) from
-#: −GRID_LF_RANGE (blue: darker than GT) through 0 (white) to +GRID_LF_RANGE (red: brighter), clipped.
-GRID_LF_RANGE = 0.1
-GRID_LF_CMAP = "RdBu_r"
-#: One grid cell: an HxWx3 image in [0, 1] and the text drawn on it ("" for none).
-GridCell = tuple[np.ndarray, str]
 #: The rule for the GL client's inputs: a model on gl inputs may lose at most this much SSIM against
 #: mitsuba inputs on any scene, and raise the LF error by at most this fraction; beyond either, it is to be
 #: fine-tuned on gl inputs.
@@ -239,243 +233,121 @@ def series(rows: Rows) -> dict[tuple[str, str], str]:
     return {k: f"{k[0]} ({k[1]})" if several else k[0] for k in keys}
 
 
-def plot(csv_path: Path, out_dir: Path) -> list[Path]:
-    """Fig. 6 style bars per scene and metric; and mean SSIM against inference time per model."""
-    from gicore.plotting import plt, save, ticker
-
-    rows = read_rows(csv_path)
-    scenes = sorted({r["scene"] for r in rows})
+# -- what it shows ------------------------------------------------------------------------------------------
+def _labelled(rows: Rows, metric: str, stat: str = "mean") -> list[dict]:
+    """The rows of ``metric`` and ``stat``, flat, each with its series' ``label``."""
     labels = series(rows)
-    metrics = [m for m in UNITS if any(r["metric"] == m for r in rows)]  # CSVs older than lf_error lack it
-    mean = {(r["scene"], r["system"], renderer_of(r), r["metric"]): r["value"] for r in rows if r["stat"] == "mean"}
-    fig, axes = plt.subplots(1, len(metrics), figsize=(4.7 * len(metrics), 4))
-    width = 0.8 / len(labels)
-    for ax, metric in zip(axes, metrics):
-        for j, ((system, renderer), label) in enumerate(labels.items()):
-            vals = [mean.get((s, system, renderer, metric), np.nan) for s in scenes]
-            ax.bar(np.arange(len(scenes)) + j * width, vals, width, label=label)
-        ax.set_xticks(np.arange(len(scenes)) + 0.4 - width / 2, scenes, rotation=25, ha="right", fontsize=7)
-        ax.set_title(TITLES[metric], fontsize=9)
-        if metric == "shadow_tint":
-            ax.axhline(0.0, color="k", lw=0.6)
-        ax.grid(axis="y", alpha=0.3)
-    axes[-1].legend(fontsize=7)
-    bars = save(fig, out_dir / "quality.png")
-
-    fig, ax = plt.subplots(figsize=(10, 5))
-    markers = {"fp32": "o", "fp16": "s", "int8": "^"}
-    for (system, renderer), name in labels.items():
-        times = [
-            r["value"]
-            for r in rows
-            if r["system"] == system and r["metric"] == "inference_time" and r["stat"] == "median"
-        ]
-        ssims = [v for (_, sys_, rend, metric), v in mean.items() if (sys_, rend, metric) == (system, renderer, "ssim")]
-        if times:
-            cfg = next(r["config"] for r in rows if r["system"] == system and r["metric"] == "inference_time")
-            x, y = float(np.median(times)), float(np.mean(ssims))
-            label = f"{name} (ngf {cfg.get('ngf')}, {cfg.get('precision')}, {cfg.get('size_mib')} MiB)"
-            ax.scatter(x, y, s=45, marker=markers.get(cfg.get("precision"), "x"), label=label, alpha=0.8)
-    ax.legend(fontsize=6, loc="center left", bbox_to_anchor=(1.01, 0.5))
-    ax.set_xscale("log")
-    ax.xaxis.set_major_formatter(ticker.ScalarFormatter())
-    ax.xaxis.set_minor_formatter(ticker.ScalarFormatter())
-    ax.tick_params(axis="x", which="minor", labelsize=6)
-    ax.set_xlabel("median onnxruntime inference time per frame [ms] (log)")
-    ax.set_ylabel("mean SSIM over scenes")
-    ax.grid(alpha=0.3, which="both")
-    ax.set_title("GI-map error against run time")
-    return [bars, save(fig, out_dir / "quality_pareto.png")]
+    return [flat(r) | {"label": labels.get((r["system"], renderer_of(r)))} for r in rows if matches(r, metric, stat)]
 
 
-GRID_CAPTION = (  # ASCII: PIL's default font has no glyphs for sigma or the minus sign
-    f"Per frame: row 1 inputs, maps, GT; row 2 |tone-mapped prediction - GT| x{GRID_ABS_GAIN:g} per channel (black 0, "
-    f"full colour from {1 / GRID_ABS_GAIN:g}); row 3 Gaussian (sigma {LF_SIGMA:g} px) of the signed tone-mapped "
-    "difference, "
-    f"channel mean: blue -{GRID_LF_RANGE:g} (darker than GT), white 0, red +{GRID_LF_RANGE:g} (brighter), clipped. "
-    "Under DI: DI alone's error. 'LF': that frame's lf_error."
-)
-
-
-def abs_error_image(prediction: np.ndarray, reference: np.ndarray) -> np.ndarray:
-    """|prediction - reference| per channel (both tone-mapped), times :data:`GRID_ABS_GAIN`, clipped to [0, 1]."""
-    return np.clip(np.abs(prediction - reference) * GRID_ABS_GAIN, 0.0, 1.0)
-
-
-def lf_colours(signed: np.ndarray) -> np.ndarray:
-    """Signed values (any shape) as colours (shape + (3,)) of :data:`GRID_LF_CMAP` on ±:data:`GRID_LF_RANGE`,
-    clipped."""
-    from matplotlib import colormaps
-
-    t = np.clip(0.5 + 0.5 * np.asarray(signed) / GRID_LF_RANGE, 0.0, 1.0)
-    return np.asarray(colormaps[GRID_LF_CMAP](t))[..., :3]
-
-
-def _legend(shape: tuple[int, ...], ramp: np.ndarray) -> np.ndarray:
-    """A white cell with a horizontal colour ``ramp`` (Wx3) across its middle (its scale is written on it)."""
-    h = shape[0]
-    cell = np.ones(shape[:2] + (3,))
-    cell[h // 3 : h * 2 // 3] = ramp[None]
-    return cell
-
-
-def grid_rows(
-    frame: dict[str, np.ndarray], maps: dict[str, np.ndarray], reference: np.ndarray, title: str
-) -> list[list[GridCell]]:
-    """The three grid rows of one frame: ``[DI, albedo, normal, models..., GT]``; then under DI and under each
-    model its |error| image (:func:`abs_error_image`); then its low-frequency signed error (:func:`lf_colours`
-    of :func:`gicore.metrics.lf_difference`'s channel mean) with the frame's lf_error written on it. Legends
-    stand under albedo. ``maps``: tone-mapped, ``"di_only"`` (the DI input) and the models in column order;
-    ``reference``: the tone-mapped GT."""
-    blank: GridCell = (np.ones_like(reference), "")
-    models = [n for n in maps if n != "di_only"]
-    signed = {n: lf_difference(maps[n], reference) for n in maps}
-    abs_cells = {n: (abs_error_image(maps[n], reference), "|error|") for n in maps}
-    lf_cells = {n: (lf_colours(d.mean(axis=-1)), f"LF {float(np.mean(np.abs(d))):.4f}") for n, d in signed.items()}
-    x = np.linspace(0.0, 1.0, reference.shape[1])
-    abs_legend = (
-        _legend(reference.shape, np.repeat(x[:, None], 3, axis=1)),
-        f"|error| x{GRID_ABS_GAIN:g}: 0 .. {1 / GRID_ABS_GAIN:g}+",
-    )
-    lf_legend = (
-        _legend(reference.shape, lf_colours((2 * x - 1) * GRID_LF_RANGE)),
-        f"LF signed: -{GRID_LF_RANGE:g} .. +{GRID_LF_RANGE:g}",
-    )
-    images = [(maps["di_only"], title), (frame["albedo"], ""), (frame["normal"] * 0.5 + 0.5, "")]
-    return [
-        images + [(maps[n], "") for n in models] + [(reference, "")],
-        [abs_cells["di_only"], abs_legend, blank] + [abs_cells[n] for n in models] + [blank],
-        [lf_cells["di_only"], lf_legend, blank] + [lf_cells[n] for n in models] + [blank],
-    ]
-
-
-def save_grid(rows: list[list[GridCell]], labels: list[str], png: Path, caption: str = "") -> Path:
-    """Write the cells as one PNG: a header of column ``labels``, each cell's text on it, ``caption`` below."""
-    from PIL import Image, ImageDraw
-
-    sheet = np.concatenate([np.concatenate([img for img, _ in r], axis=1) for r in rows], axis=0)
-    header = 16
-    w = sheet.shape[1] // len(labels)
-    h = sheet.shape[0] // len(rows)
-    draw_probe = ImageDraw.Draw(Image.new("RGB", (1, 1)))
-    caption_lines = _wrap(caption, lambda t: draw_probe.textlength(t), sheet.shape[1] - 6) if caption else []
-    footer = 14 * len(caption_lines) + (4 if caption_lines else 0)
-    img = Image.new("RGB", (sheet.shape[1], sheet.shape[0] + header + footer), "white")
-    img.paste(Image.fromarray((np.clip(sheet, 0, 1) * 255).astype(np.uint8)), (0, header))
-    draw = ImageDraw.Draw(img)
-    for i, label in enumerate(labels):
-        draw.text((i * w + 3, 2), label, fill="black")
-    for r, row in enumerate(rows):
-        for c, (_, text) in enumerate(row):
-            if text:
-                x, y = c * w + 3, header + r * h + 3
-                draw.rectangle(draw.textbbox((x, y), text), fill="white")
-                draw.text((x, y), text, fill="black")
-    for k, line in enumerate(caption_lines):
-        draw.text((3, header + sheet.shape[0] + 2 + 14 * k), line, fill="black")
-    png.parent.mkdir(parents=True, exist_ok=True)  # with --datasets nothing else has made --out yet
-    img.save(png)
-    return png
-
-
-def _wrap(text: str, width_of, max_width: float) -> list[str]:
-    lines, line = [], ""
-    for word in text.split():
-        candidate = f"{line} {word}".strip()
-        if line and width_of(candidate) > max_width:
-            lines.append(line)
-            candidate = word
-        line = candidate
-    return [*lines, line] if line else lines
-
-
-# -- bench report: the dashboard's section and the README's block ------------------------------------------
-def table(rows: Rows) -> str:
-    """Fig. 6 as Markdown: per system (and renderer of its inputs, when there are several) and scene, the mean
-    RMSE, SSIM, PSNR, LF and checkerboard errors, the shadow tint and the median inference time; then, when
-    the rows compare renderers, :func:`renderer_table`."""
-    need(rows, "ssim", "rmse", "psnr")
-    scenes = list(dict.fromkeys(r["scene"] for r in pick(rows, "ssim")))
-    lines = [
-        "| system | scene | RMSE | SSIM | PSNR (dB) | LF error | checker error | shadow tint "
-        "| inference ms (median) | config |",
-        "|---|---|---|---|---|---|---|---|---|---|",
-    ]
+def table_rows(rows: Rows) -> list[dict]:
+    """Per series and scene: the mean of each error metric, the median inference time and the model's knobs."""
+    scenes = unique(r["scene"] for r in rows if matches(r, "ssim"))
     mean = {(r["scene"], r["system"], renderer_of(r), r["metric"]): r for r in rows if r["stat"] == "mean"}
     median = {(r["scene"], r["system"], r["metric"]): r for r in rows if r["stat"] == "median"}
+    out = []
     for (system, renderer), label in series(rows).items():
         for scene in scenes:
-            cells = [
-                mean.get((scene, system, renderer, m))
-                for m in ("rmse", "ssim", "psnr", "lf_error", "checker_error", "shadow_tint")
-            ] + [median.get((scene, system, "inference_time"))]
-            shown = ["—" if c is None else f"{c['value']:.4g}" for c in cells]
-            config = next((c["config"] for c in cells if c is not None and c["config"]), {})
+            found = {m: mean.get((scene, system, renderer, m)) for m in UNITS}
+            found["inference"] = median.get((scene, system, "inference_time"))
+            config = next((c["config"] for c in found.values() if c is not None and c["config"]), {})
             knobs = ", ".join(f"{k}={v}" for k, v in config.items() if k not in ("frames", "renderer"))
-            lines.append(f"| {label} | {scene} | " + " | ".join(shown) + f" | {knobs.replace('|', '/')} |")
-    comparison = renderer_table(rows)
-    return "\n".join(lines) + (f"\n\n{comparison}" if comparison else "")
+            values = {m: None if c is None else c["value"] for m, c in found.items()}
+            out.append({"label": label, "scene": scene, "knobs": knobs, **values})
+    return out
 
 
-def renderer_table(rows: Rows) -> str:
-    """Each renderer's inputs against :data:`REFERENCE_RENDERER`'s, per system and scene (empty when the rows
-    compare none): the paired SSIM difference ± its standard error, the LF error ratio, and whether the GL
-    rule holds (SSIM lost at most :data:`GL_SSIM_LOSS_MAX`, LF error raised at most :data:`GL_LF_RISE_MAX`)."""
-    diffs = pick(rows, "ssim_diff", "mean")
-    if not diffs:
-        return ""
-    se = {(r["scene"], r["system"], renderer_of(r)): r["value"] for r in pick(rows, "ssim_diff", "se")}
-    ratio = {(r["scene"], r["system"], renderer_of(r)): r["value"] for r in pick(rows, "lf_error_ratio")}
-    lines = [
-        f"| system | scene | inputs | SSIM − {REFERENCE_RENDERER}'s (± s.e.) | LF error / {REFERENCE_RENDERER}'s "
-        f"| within the rule (SSIM ≥ −{GL_SSIM_LOSS_MAX:g}, LF ≤ {1 + GL_LF_RISE_MAX:g}×) |",
-        "|---|---|---|---|---|---|",
-    ]
-    for r in diffs:
+def renderer_rows(rows: Rows) -> list[dict]:
+    """Each renderer's inputs against the reference renderer's, with the GL rule's verdict."""
+    se = {(r["scene"], r["system"], renderer_of(r)): r["value"] for r in rows if matches(r, "ssim_diff", "se")}
+    ratio = {(r["scene"], r["system"], renderer_of(r)): r["value"] for r in rows if matches(r, "lf_error_ratio")}
+    out = []
+    for r in (r for r in rows if matches(r, "ssim_diff", "mean")):
         key = (r["scene"], r["system"], renderer_of(r))
         lf = ratio.get(key, math.nan)
         ok = r["value"] >= -GL_SSIM_LOSS_MAX and lf <= 1 + GL_LF_RISE_MAX
-        lines.append(
-            f"| {r['system']} | {r['scene']} | {key[2]} | {r['value']:+.4f} (± {se.get(key, math.nan):.4f}) "
-            f"| {lf:.3f}× | {'yes' if ok else '**no**'} |"
-        )
-    return "\n".join(lines)
+        out.append(flat(r) | {"inputs": key[2], "se": se.get(key), "lf": lf, "ok": "yes" if ok else "**no**"})
+    return out
 
 
-def dashboard_section(rows: Rows) -> list[Part]:
-    """A bar chart per error metric (scenes × systems and renderers), then the table."""
-    need(rows, "ssim", "rmse", "psnr")
-    scenes = list(dict.fromkeys(r["scene"] for r in pick(rows, "ssim")))
-    labels = series(rows)
-    figures = []
-    # lf_error: the low-frequency error (gicore.metrics.lf_error); quality CSVs older than it have none ("—").
-    shown_metrics = (
-        ("rmse", "RMSE (tone-mapped)"),
-        ("ssim", "SSIM"),
-        ("psnr", "PSNR [dB]"),
-        ("lf_error", "LF error (tone-mapped)"),
-    )
-    for metric, label in shown_metrics:
-        value = {(r["scene"], r["system"], renderer_of(r)): r["value"] for r in pick(rows, metric, "mean")}
-        if value:
-            figures.append(
-                BarChart(scenes, {name: [value.get((sc, *k)) for sc in scenes] for k, name in labels.items()}, label)
-            )
-    return [Figure(tuple(figures)), Table(table(rows))]
+def _pareto_points(rows: Rows) -> list[dict]:
+    """Per series: the median inference time against the mean SSIM over the scenes."""
+    out = []
+    for (system, renderer), label in series(rows).items():
+        times = [r["value"] for r in rows if r["system"] == system and matches(r, "inference_time", "median")]
+        ssims = [r["value"] for r in _labelled(rows, "ssim") if (r["system"], renderer_of(r)) == (system, renderer)]
+        if times and ssims:
+            c = next(r["config"] for r in rows if r["system"] == system and r["metric"] == "inference_time")
+            model = f"{label} (ngf {c.get('ngf')}, {c.get('precision')}, {c.get('size_mib')} MiB)"
+            out.append({"model": model, "time": float(np.median(times)), "ssim": float(np.mean(ssims))})
+    return out
 
 
-def readme_block(rows: Rows) -> list[Table]:
-    """The same table as the dashboard's."""
-    return [Table(table(rows))]
+TABLE = Table(
+    table_rows,
+    (
+        Column("system", "{label}"),
+        Column("scene", "{scene}"),
+        Column("RMSE", "{rmse:.4g}"),
+        Column("SSIM", "{ssim:.4g}"),
+        Column("PSNR (dB)", "{psnr:.4g}"),
+        Column("LF error", "{lf_error:.4g}"),
+        Column("checker error", "{checker_error:.4g}"),
+        Column("shadow tint", "{shadow_tint:.4g}"),
+        Column("inference ms (median)", "{inference:.4g}"),
+        Column("config", "{knobs}"),
+    ),
+)
+RENDERERS = Table(
+    renderer_rows,
+    (
+        Column("system", "{system}"),
+        Column("scene", "{scene}"),
+        Column("inputs", "{inputs}"),
+        Column(f"SSIM − {REFERENCE_RENDERER}'s (± s.e.)", "{value:+.4f} (± {se:.4f})"),
+        Column(f"LF error / {REFERENCE_RENDERER}'s", "{lf:.3f}×"),
+        Column(f"within the rule (SSIM ≥ −{GL_SSIM_LOSS_MAX:g}, LF ≤ {1 + GL_LF_RISE_MAX:g}×)", "{ok}"),
+    ),
+)
+PARTS = (
+    Figure(
+        "quality",
+        tuple(
+            Chart(partial(_labelled, metric=m), "scene", series="{label}", kind="bar", title=title)
+            for m, title in TITLES.items()
+        ),
+    ),
+    Figure(
+        "quality_pareto",
+        (
+            Chart(
+                _pareto_points,
+                "time",
+                "ssim",
+                series="{model}",
+                kind="scatter",
+                xlog=True,
+                xlabel="median onnxruntime inference time per frame [ms]",
+                ylabel="mean SSIM over scenes",
+                title="GI-map error against run time",
+            ),
+        ),
+    ),
+    Image("quality_grid.png"),
+    TABLE,
+    RENDERERS,
+)
 
 
 BENCH = Bench(
     "quality",
     QualityConfig,
     measure,
-    plot,
+    None,
     help="Fig. 6: RMSE/SSIM/PSNR and low-frequency error of each model and of DI alone on held-out frames, plus "
     "inference ms and error maps.",
-    dashboard=Section("fig6", "Fig. 6: GI-map quality", 40, dashboard_section),
-    readme=Block("GI-map quality, Fig. 6", 50, readme_block),
+    dashboard=Section("fig6", "Fig. 6: GI-map quality", 40),
+    readme=Block("GI-map quality, Fig. 6", 50),
+    parts=PARTS,
+    needs=("ssim", "rmse", "psnr"),
 )

@@ -17,6 +17,8 @@ from bench.present.declarations import Chart, Figure, Rows, fill, text, unique
 
 #: Marks' tooltips by the gid of the artist that drew them, in drawing order.
 Tips = dict[str, list[str]]
+#: Charts side by side in a figure; more wrap onto further rows.
+PER_ROW = 3
 
 
 def _finite(chart: Chart, points: list[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -110,10 +112,14 @@ def _draw(figure: Figure, rows: Rows) -> tuple[Any, Tips] | None:
     panels = [(c, p) for c in figure.charts if (p := _finite(c, c.points(rows)))]
     if not panels:
         return None
-    fig, axes = plt.subplots(1, len(panels), figsize=(5.4 * len(panels), 4.2), squeeze=False)
+    across = min(len(panels), PER_ROW)
+    down = -(-len(panels) // across)
+    fig, axes = plt.subplots(down, across, figsize=(5.4 * across, 4.2 * down), squeeze=False)
     tips: Tips = {}
-    for ax, (chart, points) in zip(axes[0], panels):
+    for ax, (chart, points) in zip(axes.flat, panels):
         _panel(ax, chart, points, rows, tips)
+    for ax in axes.flat[len(panels) :]:
+        ax.set_visible(False)
     title = text(figure.title, rows)
     if title:
         fig.suptitle(title, fontsize=10)
@@ -140,7 +146,8 @@ def render(figure: Figure, rows: Rows, png: Path | None = None) -> str:
     too, from the same drawing."""
     from gicore.plotting import plt
 
-    with plt.rc_context({"svg.fonttype": "none", "svg.hashsalt": figure.name}):
+    style = {"svg.fonttype": "none", "svg.hashsalt": figure.name, "font.sans-serif": ["DejaVu Sans"]}
+    with plt.rc_context(style):
         drawn = _draw(figure, rows)
         if drawn is None:
             return ""

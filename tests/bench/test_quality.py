@@ -13,7 +13,10 @@ import pytest
 from PIL import Image
 
 from bench import model_card, quality
-from bench.report import body
+from bench.present.declarations import shown
+from bench.present.html import parts_html
+from bench.present.markdown import table_text, tables_text
+from bench.quality_grid import grid_rows, lf_colours
 from bench.runner import execute
 from gicore.dataset import DatasetMeta, FrameRecord, load_frame, read_meta, save_frame, write_meta
 from gicore.error_policy import UserError
@@ -89,7 +92,9 @@ def test_quality_rows_carry_the_low_frequency_error(scored: tuple[Path, Path]) -
     # A uniform offset is neither a checkerboard nor (grey) a tint.
     for metric in ("checker_error", "shadow_tint"):
         assert all(abs(r["value"]) < 1e-3 for r in rows if r["metric"] == metric)
-    assert {"quality.png", "quality_pareto.png", "quality_grid.png"} <= {p.name for p in out.iterdir()}
+    assert {"quality.png", "quality.svg", "quality_pareto.png", "quality_grid.png"} <= {p.name for p in out.iterdir()}
+    bars = (out / "quality.svg").read_text()
+    assert all(f">{name}</text>" in bars for name in ("di_only", "copy"))  # each system's bars, in the legend
 
 
 def test_quality_grid_shows_the_error_maps_on_the_fixed_scale(scored: tuple[Path, Path]) -> None:
@@ -104,7 +109,7 @@ def test_quality_grid_shows_the_error_maps_on_the_fixed_scale(scored: tuple[Path
         # |error| x4 of a 0.05 offset: 0.2 in every channel
         np.testing.assert_allclose(grid[y_abs, x], 4 * OFFSET, atol=0.02)
         # darker than GT by 0.05: half-way to the blue end of the +-0.1 scale
-        np.testing.assert_allclose(grid[y_lf, x], quality.lf_colours(np.array(-OFFSET)), atol=0.03)
+        np.testing.assert_allclose(grid[y_lf, x], lf_colours(np.array(-OFFSET)), atol=0.03)
         assert grid[y_lf, x, 2] > grid[y_lf, x, 0] + 0.2  # blue, not red
     assert np.all(grid[y_lf, 4 * RES + RES // 2] == 1.0)  # nothing under GT
 
@@ -112,12 +117,12 @@ def test_quality_grid_shows_the_error_maps_on_the_fixed_scale(scored: tuple[Path
 def test_grid_rows_sign_and_layout() -> None:
     ref = np.full((16, 16, 3), 0.5)
     frame = {"albedo": np.full((16, 16, 3), 0.3), "normal": np.zeros((16, 16, 3))}
-    rows = quality.grid_rows(frame, {"di_only": ref - 0.1, "a": ref + 0.05, "b": ref}, ref, "t")
+    rows = grid_rows(frame, {"di_only": ref - 0.1, "a": ref + 0.05, "b": ref}, ref, "t")
     assert [len(r) for r in rows] == [6, 6, 6]
     (lf_di, text_di), (lf_a, text_a), (lf_b, text_b) = rows[2][0], rows[2][3], rows[2][4]
     assert (text_di, text_a, text_b) == ("LF 0.1000", "LF 0.0500", "LF 0.0000")
-    np.testing.assert_allclose(lf_di, quality.lf_colours(np.full((16, 16), -0.1)))  # the scale's blue end
-    np.testing.assert_allclose(lf_b, quality.lf_colours(np.zeros((16, 16))))  # no error: the scale's middle,
+    np.testing.assert_allclose(lf_di, lf_colours(np.full((16, 16), -0.1)))  # the scale's blue end
+    np.testing.assert_allclose(lf_b, lf_colours(np.zeros((16, 16))))  # no error: the scale's middle,
     assert lf_b.min() > 0.95 and np.ptp(lf_b) < 0.01  # near-white grey (RdBu_r's middle is 0.97, 0.97, 0.96)
     assert lf_a[0, 0, 0] > lf_a[0, 0, 2] + 0.2  # brighter than GT: red
     np.testing.assert_allclose(rows[1][3][0], 4 * 0.05)
@@ -161,8 +166,8 @@ def test_model_card_and_report_show_the_low_frequency_error(scored: tuple[Path, 
         and res_rows["export", "val_lf_error"]["unit"] == "1"
     )
 
-    html = body(quality.dashboard_section(read_rows(out / "quality.csv")))
-    assert "LF error (tone-mapped)" in html and "<th>LF error</th>" in html
+    html = parts_html(shown(quality.PARTS, "dashboard"), read_rows(out / "quality.csv"), out)
+    assert quality.TITLES["lf_error"] in html and "<th>LF error</th>" in html  # its bars, and its column
     assert f"<td>{lf['copy']:.4g}</td>" in html
 
 
@@ -217,7 +222,7 @@ def test_shipped_model_loses_little_on_gl_inputs(tmp_path: Path) -> None:
         mean["gigan", "gl", "lf_error"]["value"] / mean["gigan", "mitsuba", "lf_error"]["value"]
     )
     assert GL_SSIM_DIFF_MIN <= diff and ratio <= GL_LF_RATIO_MAX, (diff, ratio)
-    table = quality.table(rows)
+    table = tables_text(quality.PARTS, rows, 2)
     assert "| gigan (gl) | lung_plane |" in table and "| gigan | lung_plane | gl | " in table and "| yes |" in table
 
 
@@ -237,10 +242,10 @@ def test_renderer_table_applies_the_rule() -> None:
     rows += [row("lf", "ssim_diff", 0.001, "mean"), row("lf", "lf_error_ratio", 1.21, "ratio")]
     verdict = {
         line.split(" | ")[0][2:]: line.rstrip(" |").rsplit("| ", 1)[1]
-        for line in quality.renderer_table(rows).splitlines()[2:]
+        for line in table_text(quality.RENDERERS, rows, 2).splitlines()[2:]
     }
     assert verdict == {"ok": "yes", "ssim": "**no**", "lf": "**no**"}
-    assert quality.renderer_table([row("a", "ssim", 0.9, "mean")]) == ""
+    assert table_text(quality.RENDERERS, [row("a", "ssim", 0.9, "mean")], 2) == ""
 
 
 def test_renderers_option_is_checked(scored: tuple[Path, Path], tmp_path: Path, monkeypatch) -> None:
