@@ -8,14 +8,14 @@ repeats after a warm-up; the OIDN variant's time includes its G-buffer pass and 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
+from bench.present.declarations import Chart, Figure, wide
 from bench.runner import Bench
 from gicore.metrics import all_metrics
 from gicore.paths import camera_path, light_position
-from gicore.results import Results, read_rows
+from gicore.results import Results
 from gicore.scene import builtin_scenes, load_scene
 from gicore.timing import time_repeats
 from gicore.tonemap import tonemap
@@ -83,45 +83,28 @@ def measure(cfg: ConvergenceConfig, res: Results) -> None:
                     )
 
 
-def plot(csv_path: Path, out_dir: Path) -> list[Path]:
-    """RMSE and SSIM against median render time, one line per scene and denoiser setting."""
-    from gicore.plotting import plt, save, ticker
+def _against_time(metric: str, label: str, log: bool) -> Chart:
+    """``metric`` against the median render time, one line per scene and denoiser setting (marks: spp)."""
+    fields = {"time": "render_time/median", "value": metric}
+    return Chart(lambda rows: wide(rows, ("scene", "system", "spp"), fields), "time", series="{scene} ({system})",
+                 xlabel="median render time per frame [ms]", ylabel=label, xlog=True, ylog=log, label="{spp}",
+                 tip="{series}, {spp} spp: {time:.4g} ms, " + metric + " {value:.4g}")  # fmt: skip
 
-    rows = read_rows(csv_path)
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
-    keys = sorted({(r["scene"], r["system"]) for r in rows})
-    for scene, system in keys:
-        sel = [r for r in rows if r["scene"] == scene and r["system"] == system]
-        times = {r["config"]["spp"]: r["value"] for r in sel if r["metric"] == "render_time" and r["stat"] == "median"}
-        for ax, metric in zip(axes, ("rmse", "ssim")):
-            vals = {r["config"]["spp"]: r["value"] for r in sel if r["metric"] == metric}
-            spps = sorted(vals)
-            ax.plot(
-                [times[s] for s in spps],
-                [vals[s] for s in spps],
-                "-o" if system == "path" else "--s",
-                label=f"{scene} ({system})",
-                ms=4,
-            )
-            for s in spps:
-                ax.annotate(str(s), (times[s], vals[s]), fontsize=6, alpha=0.6)
-    for ax, metric in zip(axes, ("RMSE (tone-mapped)", "SSIM")):
-        ax.set_xscale("log")
-        ax.xaxis.set_minor_formatter(ticker.NullFormatter())
-        ax.set_xlabel("median render time per frame [ms]")
-        ax.set_ylabel(metric)
-        ax.grid(alpha=0.3)
-    axes[0].set_yscale("log")
-    axes[0].yaxis.set_minor_formatter(ticker.NullFormatter())
-    axes[1].legend(fontsize=6, loc="lower right")
-    fig.suptitle("GT convergence: error vs render time (labels: spp; reference: high-spp path tracing)")
-    return [save(fig, out_dir / "convergence.png")]
+
+PARTS = (
+    Figure(
+        "convergence",
+        (_against_time("rmse", "RMSE (tone-mapped)", True), _against_time("ssim", "SSIM", False)),
+        title="GT convergence: error vs render time (labels: spp; reference: high-spp path tracing)",
+    ),
+)
 
 
 BENCH = Bench(
     "convergence",
     ConvergenceConfig,
     measure,
-    plot,
+    None,
     help="GT error (RMSE/SSIM against a high-spp reference) against render time, with and without OIDN.",
+    parts=PARTS,
 )

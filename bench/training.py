@@ -18,12 +18,11 @@ import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
-
 from bench.common import train_small, training_minutes
+from bench.present.declarations import Chart, Figure, Rows, matches, pick, unique
 from bench.runner import Bench
 from gicore.error_policy import UserError
-from gicore.results import Results, read_rows
+from gicore.results import Results
 
 
 @dataclass(frozen=True)
@@ -77,40 +76,57 @@ def measure(cfg: TrainingBenchConfig, res: Results) -> None:
                 )
 
 
-def plot(csv_path: Path, out_dir: Path) -> list[Path]:
-    """Validation SSIM and training L1 against step, and validation SSIM against training minutes."""
-    from gicore.plotting import plt, save
+def ssim_by_minutes(rows: Rows) -> list[dict]:
+    """Each run's validation SSIM at the training minutes it had spent by then."""
+    out = []
+    for run in unique(r["system"] for r in rows):
+        ssim = sorted((r["config"]["step"], r["value"]) for r in rows if matches(r, "val_ssim") and r["system"] == run)
+        times = sorted(
+            (r["config"]["step"], r["value"]) for r in rows if matches(r, "train_step_seconds") and r["system"] == run
+        )
+        if ssim and times:
+            minutes = training_minutes(times, [step for step, _ in ssim])
+            out += [{"system": run, "minutes": m, "value": v} for m, (_, v) in zip(minutes, ssim)]
+    return out
 
-    rows = read_rows(csv_path)
-    fig, axes = plt.subplots(1, 3, figsize=(16, 4))
-    for run_id in dict.fromkeys(r["system"] for r in rows):
-        curves = {
-            m: sorted((r["config"]["step"], r["value"]) for r in rows if r["system"] == run_id and r["metric"] == m)
-            for m in ("val_ssim", "train_G_L1", "train_step_seconds")
-        }
-        for ax, metric in zip(axes, ("val_ssim", "train_G_L1")):
-            if curves[metric]:
-                ax.plot(*zip(*curves[metric]), label=run_id)
-        if curves["val_ssim"] and curves["train_step_seconds"]:
-            steps, ssim = zip(*curves["val_ssim"])
-            axes[2].plot(np.asarray(training_minutes(curves["train_step_seconds"], steps)), ssim, label=run_id)
-    axes[0].set_ylabel("validation SSIM (tone-mapped, full frames)")
-    axes[1].set_ylabel("training L1 ([-1, 1] units)")
-    axes[1].set_yscale("log")
-    for ax in axes[:2]:
-        ax.set_xlabel("optimizer step (critic steps for GIGAN)")
-    axes[2].set_xlabel("training compute [min] (summed step times, as logged)")
-    axes[2].set_ylabel("validation SSIM")
-    for ax in axes:
-        ax.grid(alpha=0.3)
-    axes[0].legend(fontsize=7)
-    return [save(fig, out_dir / "training.png")]
+
+STEP = "optimizer step (critic steps for GIGAN)"
+PARTS = (
+    Figure(
+        "training",
+        (
+            Chart(
+                pick("val_ssim"),
+                "step",
+                series="{system}",
+                xlabel=STEP,
+                ylabel="validation SSIM (tone-mapped, full frames)",
+            ),
+            Chart(
+                pick("train_G_L1"),
+                "step",
+                series="{system}",
+                xlabel=STEP,
+                ylabel="training L1 ([-1, 1] units)",
+                ylog=True,
+            ),
+            Chart(
+                ssim_by_minutes,
+                "minutes",
+                series="{system}",
+                ylabel="validation SSIM",
+                xlabel="training compute [min] (summed step times, as logged)",
+            ),
+        ),  # fmt: skip
+    ),
+)
 
 
 BENCH = Bench(
     "training",
     TrainingBenchConfig,
     measure,
-    plot,
+    None,
     help="Learning curves of training runs: validation SSIM and training L1 against step and against training minutes.",
+    parts=PARTS,
 )

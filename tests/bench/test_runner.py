@@ -277,6 +277,7 @@ def test_tiny_convergence_run_writes_csv_and_plot(tmp_path: Path) -> None:
     execute(BENCH, cfg, tmp_path)
     rows = read_rows(tmp_path / "convergence.csv")
     assert (tmp_path / "convergence.png").stat().st_size > 0
+    assert ">lung_plane (path+oidn)</text>" in (tmp_path / "convergence.svg").read_text()
     rmse = {(r["system"], r["config"]["spp"]): r["value"] for r in rows if r["metric"] == "rmse"}
     assert set(rmse) == {("path", 1), ("path", 4), ("path+oidn", 1), ("path+oidn", 4)}
     assert rmse[("path", 4)] < rmse[("path", 1)]  # more samples, less error against the reference
@@ -307,6 +308,7 @@ def test_training_curves_from_run_folders(tmp_path: Path) -> None:
         ("runA", "val_ssim", 10),
     }
     assert (tmp_path / "out" / "training.png").stat().st_size > 0
+    assert ">runA</text>" in (tmp_path / "out" / "training.svg").read_text()  # the run's curve, in the legend
 
 
 @pytest.mark.slow
