@@ -257,7 +257,7 @@ def viewer_site(cfg: WebBenchConfig, seed: int, work: Path) -> Iterator[str]:
     ``network-sim proxy`` in front of it and the viewer's server forwarding to the proxy; yields the page's URL."""
     from gicore.scene import load_scene
     from network_sim.process import Running
-    from web3d.cli import WebConfig, prepare
+    from web3d.cli import WebConfig, cloud_for, prepare
     from web3d.serve import WebServer
 
     spec = load_scene(cfg.scenes[0])
@@ -281,7 +281,7 @@ def viewer_site(cfg: WebBenchConfig, seed: int, work: Path) -> Iterator[str]:
                 assets=work / "assets",
                 model=cfg.model,
             )
-            site = prepare(page_cfg)
+            site = prepare(page_cfg, cloud_for(page_cfg))
             if cfg.store == "prebaked":
                 _prefill(server_url, spec, site.assets, cfg)
             with WebServer(site) as web:

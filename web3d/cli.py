@@ -1,13 +1,19 @@
-"""``gigan-web``: export a scene's assets and serve the Web3D viewer (``web3d/static/``) for it.
+"""``gigan-web``: export a scene's assets and serve the Web3D viewer (``web3d/static/``) for it, with its
+own cloud side: a ``cloudbaking-server`` and a ``network-sim proxy`` per profile in front of it, as child
+processes (:mod:`web3d.children`).
 
-    gigan-web --scene lung_plane --server http://127.0.0.1:8001      # the URL of cloudbaking-server or of
-                                                                     # the network-sim proxy in front of it
+    gigan-web --scene lung_plane                          # a cold store; proxies lan, wifi, lte, wan
+    gigan-web --scene lung_plane --store gi_store         # a prebaked GI tree (and a cold one on demand)
+    gigan-web --scene lung_plane --server http://127.0.0.1:8001   # a server the user runs, no children
+    gigan-web --scene lung_plane --no-cloud               # GIGAN alone
 
 then open the printed address in Chrome or Chromium. Its options are derived from :class:`WebConfig`.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator
+from contextlib import ExitStack, contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -29,8 +35,12 @@ from gicore.options import (
 )
 from gicore.scene import load_scene
 from gigan_local.inference import DEFAULT_MODEL, check_model_option
+from web3d.children import ChildCloud
 from web3d.export import export_assets
-from web3d.serve import WEB_DIR, Site, WebServer
+from web3d.routes_shadow import Shadows
+from web3d.serve import WebServer
+from web3d.site import WEB_DIR, Site
+from web3d.upstreams import OFF, Cloud, Fixed, Unavailable
 
 app = typer.Typer(add_completion=False, help="Serve the Web3D viewer: GIGAN and cloud baking side by side.")
 BACKENDS = ("auto", "wasm", "webgpu")
@@ -43,8 +53,17 @@ class WebConfig:
 
     #: Scene name or spec file.
     scene: str = "lung_plane"
-    #: URL of the cloud-baking server, or of the network-sim proxy in front of it; absent: the cloud side is off.
-    server: str | None = None
+    #: URL of a cloud-baking server the user runs (or of a network-sim proxy in front of it), which the page talks to
+    #: as profile 'direct'; absent: gigan-web starts its own server and proxies.
+    server: str | None = field(default=None, metadata={"conflicts": ("store", "profiles", "cloud")})
+    #: Cloud baking beside GIGAN (--no-cloud: GIGAN alone, no server started).
+    cloud: bool = True
+    #: GI-tree folder the started server serves (a prebaked or an earlier run's); the page may also pick a cold
+    #: store (a second server, started on demand). Absent: an empty temporary store, the only one.
+    store: Path | None = None
+    #: network-sim profiles of the proxies started in front of the server (see 'network-sim profiles'); the
+    #: first is the page's default.
+    profiles: tuple[str, ...] = ("lan", "wifi", "lte", "wan")
     #: HOST:PORT to serve the page on (port 0: any free port; the address is printed).
     listen: str = field(default="127.0.0.1:8080", metadata=HOST_PORT)
     #: Frames of the fly-through the page plays (then it stops and shows the medians).
@@ -81,18 +100,42 @@ class WebConfig:
             check_model_option(self.model)
         if self.codec in ("exr-half", "zstd-f16"):
             raise UserError(f"--codec {self.codec}: the page decodes 8-bit images only", "pick jpeg, webp or png")
+        self._check_cloud()
+
+    def _check_cloud(self) -> None:
+        from network_sim.profiles import profiles
+
+        unknown = [p for p in self.profiles if p not in profiles()]
+        if unknown:
+            raise UserError(f"--profiles {unknown[0]} is not a profile", f"pick from {', '.join(profiles())}")
+        if self.store is not None and not self.cloud:
+            raise UserError("--store and --no-cloud conflict: --no-cloud starts no server", "drop one")
+        if self.store is not None and not self.store.is_dir():
+            raise UserError(
+                f"--store {self.store} is not a folder",
+                "give a GI-tree folder (cloudbaking-prebake --store), or leave --store out for a cold store",
+            )
 
     def page_config(self, resolution: int) -> dict[str, Any]:
         """What ``/config.json`` tells the page."""
         keys = ("scene", "frames", "every", "tau", "codec", "spp", "backend", "threads")
-        return {k: v for k, v in asdict(self).items() if k in keys} | {
-            "cloud": self.server is not None,
-            "resolution": resolution,
-        }
+        return {k: v for k, v in asdict(self).items() if k in keys} | {"resolution": resolution}
 
 
-def prepare(cfg: WebConfig) -> Site:
-    """Export the assets of ``cfg.scene`` (into ``cfg.assets``) and describe the site serving them."""
+def cloud_for(cfg: WebConfig, report: Callable[[str], None] = typer.echo) -> Cloud:
+    """The cloud side ``cfg`` asks for: none, the user's server, or children (started when it is entered;
+    ``report`` gets a line per child)."""
+    if not cfg.cloud:
+        return OFF
+    if cfg.server is not None:
+        return Fixed.direct(cfg.server)
+    scenes = Path(cfg.scene).resolve().parent if Path(cfg.scene).suffix else None  # a spec file's folder
+    return ChildCloud(cfg.profiles, cfg.store, scenes, cfg.seed, report)
+
+
+def prepare(cfg: WebConfig, cloud: Cloud) -> Site:
+    """Export the assets of ``cfg.scene`` (into ``cfg.assets``) and describe the site serving them with
+    ``cloud`` (:func:`cloud_for`)."""
     if not (WEB_DIR / "node_modules" / "onnxruntime-web").is_dir():
         raise UserError(f"{WEB_DIR}/node_modules is missing", "run `make setup` (npm ci in web3d/static/)")
     spec = load_scene(cfg.scene)
@@ -101,11 +144,13 @@ def prepare(cfg: WebConfig) -> Site:
     header = export_assets(
         cfg.scene, assets, frames=cfg.frames, orbit_frames=cfg.orbit_frames, seed=cfg.seed, model=model
     )
-    return Site(assets.resolve(), cfg.page_config(header["resolution"]) | {"scene": spec.name}, cfg.server)
+    config = cfg.page_config(header["resolution"]) | {"scene": spec.name}
+    return Site(assets.resolve(), config, cloud, Shadows(spec, header["shadow_size"]))
 
 
 def serve_command(given: dict[str, Any]) -> None:
-    """Export the scene's assets and serve the page until SIGINT or SIGTERM (a service: a stop exits 0)."""
+    """Export the scene's assets, start the cloud side and serve the page until SIGINT or SIGTERM (a service: a
+    stop exits 0, its children stopped)."""
     with serving():
         cfg = build_config(WebConfig, given)
         host, port = split_host_port(cfg.listen, "--listen")
@@ -115,10 +160,32 @@ def serve_command(given: dict[str, Any]) -> None:
             raise UserError(
                 f"--listen {cfg.listen}: cannot listen ({exc.strerror or exc})", "pick a free port"
             ) from None
-        site = prepare(cfg)  # rewritten whole on every start, so one cut short by a stop is simply redone
-        server.attach(site)
-        typer.echo(f"serving {site.config['scene']} at {server.url}/ (cloud baking: {cfg.server or 'off'})")
-        server.serve_forever()
+        cloud = cloud_for(cfg)
+        site = prepare(cfg, cloud)  # rewritten whole on every start, so one cut short by a stop is simply redone
+        with _started(cloud):
+            server.attach(site)
+            typer.echo(f"serving {site.config['scene']} at {server.url}/ ({_describe(cfg, cloud)})")
+            server.serve_forever()
+
+
+@contextmanager
+def _started(cloud: Cloud) -> Iterator[None]:
+    """``cloud``'s children running for the body; a child that does not start is one error line (the others
+    are stopped)."""
+    with ExitStack() as children:
+        try:
+            children.enter_context(cloud)
+        except Unavailable as exc:
+            raise UserError(str(exc), "see its message; check --store and --scene") from None
+        yield
+
+
+def _describe(cfg: WebConfig, cloud: Cloud) -> str:
+    if not cloud.profiles:
+        return "cloud baking: off"
+    if cfg.server is not None:
+        return f"cloud baking: {cfg.server}"
+    return f"cloud baking: profiles {', '.join(cloud.profiles)}; stores {', '.join(cloud.stores)}"
 
 
 config_command(app, WebConfig, serve_command)

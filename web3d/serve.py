@@ -1,179 +1,172 @@
-"""``gigan-web``'s server: the page, its modules and assets, and ``/v1/gimap`` forwarded to cloud baking.
+"""``gigan-web``'s server: a Starlette app (FastAPI) on uvicorn, held to the cloud-baking server's limits.
 
-One origin serves everything the page loads, so the browser needs no CORS: the cloud canvas's
-``fetch("/v1/gimap")`` comes here and is forwarded, body and content type unchanged, to the configured
-cloud-baking server (or the ``network-sim proxy`` in front of it); the response's bytes, status, content
-type and ``X-GIMap-Hit`` go back as they came. With no upstream configured, ``/v1/gimap`` answers 503 and
-the page shows the cloud side as off.
+:func:`create_app` assembles one router per resource: the page and its files (:mod:`web3d.routes_static`),
+``/config.json`` and the forwarding of ``/v1/gimap`` (:mod:`web3d.routes_cloud`), the shadow-map setups
+(:mod:`web3d.routes_shadow`). One origin serves everything the page loads, so the browser needs no CORS.
 
-Every response carries ``Cross-Origin-Opener-Policy: same-origin`` and ``Cross-Origin-Embedder-Policy:
-require-corp``: they make the page cross-origin isolated, which is what lets onnxruntime-web's wasm run
-with threads (SharedArrayBuffer). Files are served only from three roots (``web3d/static/`` without its
-``node_modules``, the two npm packages' distribution folders, the exported assets); any other path is 404.
+Every response the app makes carries ``Cross-Origin-Opener-Policy: same-origin`` and
+``Cross-Origin-Embedder-Policy: require-corp`` (errors and 404s too): they make the page cross-origin isolated,
+which lets onnxruntime-web's wasm run with threads (SharedArrayBuffer). A request whose ``Host`` is not this
+server's (DNS rebinding) is refused 400. ``OPTIONS`` answers 204 with the path's ``Allow``.
+
+uvicorn runs with :mod:`baseline_cloudbaking.server.limits`: at most ``max_connections`` open (an idle one is
+closed for a new one), every idle period ends with a whole request head within ``idle_timeout_s`` (a slow or
+unfinished head is closed), a head larger than ``max_head_bytes`` is answered 431; a request body must arrive
+within ``body_timeout_s`` (408). :class:`WebServer` serves in this thread (``gigan-web``) or in a background one
+(benches, tests) on a socket bound first, so port 0 gives a free port known before anything starts.
 """
 
 from __future__ import annotations
 
-import json
+import socket
 import threading
-import urllib.error
-import urllib.request
-from dataclasses import dataclass
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
-from pathlib import Path
-from typing import Any
 
-#: The page's folder (``web3d/static/`` at the repository root).
-WEB_DIR = Path(__file__).resolve().parent / "static"
-#: npm files the page imports, by URL prefix: only these folders of ``web3d/static/node_modules`` are served.
-NPM_ROOTS = {
-    "/npm/onnxruntime-web/": Path("onnxruntime-web/dist"),
-    "/npm/fzstd/": Path("fzstd/esm"),
-}
-MEDIA = {
-    ".html": "text/html; charset=utf-8",
-    ".js": "text/javascript; charset=utf-8",
-    ".mjs": "text/javascript; charset=utf-8",
-    ".json": "application/json",
-    ".wasm": "application/wasm",
-    ".bin": "application/octet-stream",
-    ".onnx": "application/octet-stream",
-    ".css": "text/css; charset=utf-8",
-    ".png": "image/png",
-}
-#: Largest request body forwarded (the cloud server refuses more than 4 KiB anyway).
-MAX_BODY = 1 << 16
-ISOLATION = {"Cross-Origin-Opener-Policy": "same-origin", "Cross-Origin-Embedder-Policy": "require-corp"}
+import uvicorn
+from fastapi import FastAPI, Response
+from starlette.middleware.trustedhost import TrustedHostMiddleware
+from starlette.routing import BaseRoute, Match, Mount
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
+
+from baseline_cloudbaking.server.cli import ACCEPT_BACKLOG
+from baseline_cloudbaking.server.limits import ConnectionLimits, uvicorn_config
+from web3d import routes_cloud, routes_shadow, routes_static
+from web3d.site import WEB_DIR as WEB_DIR  # where callers look for the page's folder
+from web3d.site import Site
+
+ISOLATION = [(b"cross-origin-opener-policy", b"same-origin"), (b"cross-origin-embedder-policy", b"require-corp")]
+#: Hosts any loopback server answers to, besides the one it listens on.
+LOOPBACK_HOSTS = ("127.0.0.1", "localhost")
+#: Methods an ``OPTIONS`` answer may list (besides OPTIONS itself).
+METHODS = ("GET", "HEAD", "POST", "PUT", "PATCH", "DELETE")
 
 
-@dataclass(frozen=True)
-class Site:
-    """What the server serves: the exported ``assets`` folder, the page's ``config`` (``/config.json``) and
-    the cloud-baking ``upstream`` URL (None: the cloud side is off)."""
+class Isolated:
+    """ASGI middleware: the cross-origin isolation headers on every response."""
 
-    assets: Path
-    config: dict[str, Any]
-    upstream: str | None = None
-    web: Path = WEB_DIR
-    #: Seconds a forwarded request may take (a miss path-traces on the server).
-    timeout_s: float = 120.0
+    def __init__(self, app: ASGIApp) -> None:
+        self.app = app
 
-    def resolve(self, url_path: str) -> Path | None:
-        """The file behind ``url_path``, or None when it is outside the served roots or missing."""
-        roots: list[tuple[str, Path]] = [("/assets/", self.assets)]
-        roots += [(prefix, self.web / "node_modules" / sub) for prefix, sub in NPM_ROOTS.items()]
-        roots += [("/", self.web)]
-        for prefix, root in roots:
-            if url_path.startswith(prefix):
-                rel = url_path[len(prefix) :] or "index.html"
-                path = (root / rel).resolve()
-                root = root.resolve()
-                if root not in path.parents or (prefix == "/" and "node_modules" in path.relative_to(root).parts):
-                    return None
-                return path if path.is_file() else None
-        return None
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        async def isolated(message: Message) -> None:
+            if message["type"] == "http.response.start":
+                message["headers"] = [*message.get("headers", []), *ISOLATION]
+            await send(message)
+
+        await self.app(scope, receive, isolated)
 
 
-def _handler(site: Site) -> type[BaseHTTPRequestHandler]:
-    class Handler(BaseHTTPRequestHandler):
-        protocol_version = "HTTP/1.1"
+class Options:
+    """ASGI middleware: ``OPTIONS`` answered 204 with the methods the path takes (404 for a path nothing serves)."""
 
-        def log_message(self, format: str, *args: Any) -> None:  # noqa: A002 -- the stdlib's signature
-            pass  # a request line per file is noise; errors reach the page and the bench
+    def __init__(self, app: ASGIApp, routes: list[BaseRoute]) -> None:
+        self.app = app
+        self.routes = routes
 
-        def _send(self, status: int, body: bytes, media: str, extra: dict[str, str] | None = None) -> None:
-            self.send_response(status)
-            headers = {**ISOLATION, "Content-Type": media, "Cache-Control": "no-store", **(extra or {})}
-            for key, value in headers.items():
-                self.send_header(key, value)
-            self.send_header("Content-Length", str(len(body)))
-            self.end_headers()
-            try:
-                self.wfile.write(body)
-            except (BrokenPipeError, ConnectionResetError):  # the page went away (closed mid-request)
-                self.close_connection = True
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http" or scope["method"] != "OPTIONS":
+            await self.app(scope, receive, send)
+            return
+        allowed = allowed_methods(self.routes, scope)
+        headers = {"Allow": ", ".join(sorted(allowed | {"OPTIONS"}))}
+        await Response(status_code=204 if allowed else 404, headers=headers)(scope, receive, send)
 
-        def do_GET(self) -> None:
-            path = self.path.split("?", 1)[0]
-            if path == "/config.json":
-                self._send(200, json.dumps(site.config).encode(), MEDIA[".json"])
-                return
-            file = site.resolve(path)
-            if file is None:
-                self._send(404, b"not found", "text/plain")
-                return
-            self._send(200, file.read_bytes(), MEDIA.get(file.suffix, "application/octet-stream"))
 
-        def do_POST(self) -> None:
-            if self.path != "/v1/gimap":
-                self._send(404, b"not found", "text/plain")
-                return
-            length = int(self.headers.get("Content-Length") or 0)
-            if not 0 < length <= MAX_BODY:
-                self._send(413, b"request body missing or too large", "text/plain")
-                return
-            body = self.rfile.read(length)
-            if site.upstream is None:
-                self._send(503, b"no cloud-baking server configured (gigan-web --server URL)", "text/plain")
-                return
-            request = urllib.request.Request(
-                site.upstream.rstrip("/") + "/v1/gimap",
-                data=body,
-                method="POST",
-                headers={"Content-Type": self.headers.get("Content-Type", "application/json")},
-            )
-            try:
-                with urllib.request.urlopen(request, timeout=site.timeout_s) as response:
-                    status, data, headers = response.status, response.read(), response.headers
-            except urllib.error.HTTPError as err:  # the server's own error (422, 409, ...) goes back as it is
-                status, data, headers = err.code, err.read(), err.headers
-            except (urllib.error.URLError, TimeoutError, ConnectionError) as err:
-                self._send(502, f"cloud-baking server {site.upstream}: {err}".encode(), "text/plain")
-                return
-            extra = {"X-GIMap-Hit": headers["X-GIMap-Hit"]} if headers.get("X-GIMap-Hit") else {}
-            self._send(status, data, headers.get("Content-Type", "application/octet-stream"), extra)
+def create_app(site: Site, hosts: list[str] | None = None) -> FastAPI:
+    """The app serving ``site``; ``hosts``: the ``Host`` names it answers (default: loopback's)."""
+    app = FastAPI(docs_url=None, redoc_url=None, openapi_url=None, lifespan=routes_cloud.lifespan)
+    app.state.site = site
+    app.include_router(routes_cloud.router)
+    app.include_router(routes_shadow.router)
+    app.router.routes.extend(routes_static.routes(site.assets, site.web))
+    app.add_middleware(Options, routes=app.router.routes)
+    app.add_middleware(TrustedHostMiddleware, allowed_hosts=hosts or list(LOOPBACK_HOSTS), www_redirect=False)
+    app.add_middleware(Isolated)  # added last: outermost, so the host check's refusal is isolated too
+    return app
 
-    return Handler
+
+def allowed_methods(routes: list[BaseRoute], scope: Scope) -> set[str]:
+    """The methods the first route for ``scope``'s path takes (a static folder: GET and HEAD)."""
+    for route in routes:
+        if isinstance(route, Mount):  # a static folder: every method matches
+            if route.matches(scope)[0] is not Match.NONE:
+                return {"GET", "HEAD"}
+            continue
+        methods = {m for m in METHODS if route.matches({**scope, "method": m})[0] is Match.FULL}
+        if methods:
+            return methods
+    return set()
+
+
+def allowed_hosts(host: str, sock: socket.socket) -> list[str]:
+    """The ``Host`` names a server listening on ``host`` (bound as ``sock``) answers: that name, the address
+    bound, loopback's; and this machine's names and addresses when it listens on every interface."""
+    names = {host, sock.getsockname()[0], *LOOPBACK_HOSTS}
+    if host in ("0.0.0.0", "::", ""):
+        names |= {socket.gethostname(), socket.getfqdn()}
+        names |= {str(info[4][0]) for info in socket.getaddrinfo(socket.gethostname(), None)}
+    return sorted(names)
 
 
 class WebServer:
-    """A threaded HTTP server for ``site`` on ``host:port`` (port 0: a free one); :attr:`url` is its address.
-    ``site`` may come later (:meth:`attach`), so that the address is taken before anything is exported. Use
-    :meth:`start` (a background thread) or :meth:`serve_forever`."""
+    """The server for ``site`` on ``host:port`` (port 0: a free one); :attr:`url` is its address as soon as it
+    is made. ``site`` may come later (:meth:`attach`), so that the address is taken before anything is
+    exported. Use :meth:`start` (a background thread; :meth:`close` stops it) or :meth:`serve_forever`."""
 
     def __init__(self, site: Site | None, host: str = "127.0.0.1", port: int = 0) -> None:
-        self.httpd = ThreadingHTTPServer((host, port), BaseHTTPRequestHandler)
-        self.httpd.daemon_threads = True
-        self.site: Site | None = None
-        if site is not None:
-            self.attach(site)
+        self.socket = socket.create_server((host, port), backlog=ACCEPT_BACKLOG)
+        self.host = host
+        self.site = site
+        self._server: uvicorn.Server | None = None
         self._thread: threading.Thread | None = None
 
     def attach(self, site: Site) -> None:
         self.site = site
-        self.httpd.RequestHandlerClass = _handler(site)
 
     @property
     def url(self) -> str:
-        host, port = self.httpd.server_address[:2]
+        host, port = self.socket.getsockname()[:2]
         return f"http://{host}:{port}"
 
+    def _uvicorn(self) -> uvicorn.Server:
+        assert self.site is not None, "attach a site first"
+        settings = self.site.settings
+        limits = ConnectionLimits(settings.max_connections, settings.idle_timeout_s, settings.max_head_bytes)
+        app = create_app(self.site, allowed_hosts(self.host, self.socket))
+        config = uvicorn_config(
+            app,
+            limits,
+            log_level="warning",
+            access_log=False,
+            backlog=ACCEPT_BACKLOG,
+            timeout_graceful_shutdown=settings.graceful_timeout_s,
+        )
+        self._server = uvicorn.Server(config)
+        return self._server
+
     def start(self) -> WebServer:
-        self._thread = threading.Thread(target=self.httpd.serve_forever, daemon=True)
+        """Serve in a background thread; returns once it accepts requests."""
+        server = self._uvicorn()
+        self._thread = threading.Thread(target=server.run, kwargs={"sockets": [self.socket]}, daemon=True)
         self._thread.start()
+        while not server.started and self._thread.is_alive():
+            self._thread.join(0.01)
+        if not server.started:
+            raise RuntimeError(f"the viewer's server at {self.url} did not start")
         return self
 
     def serve_forever(self) -> None:
-        """Serve in this thread until interrupted; requests in flight (daemon threads) are dropped with the
-        process: the page retries, and a GI map the cloud server was making is stored there regardless."""
+        """Serve in this thread until SIGINT or SIGTERM (uvicorn finishes the requests in flight within the
+        graceful timeout, then raises the signal again)."""
         try:
-            self.httpd.serve_forever()
+            self._uvicorn().run(sockets=[self.socket])
         finally:
-            self.httpd.server_close()
+            self.socket.close()
 
     def close(self) -> None:
-        self.httpd.shutdown()
-        self.httpd.server_close()
+        if self._server is not None and self._thread is not None:
+            self._server.should_exit = True
+            self._thread.join()
+        self.socket.close()
 
     def __enter__(self) -> WebServer:
         return self.start()

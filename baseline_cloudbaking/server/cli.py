@@ -165,10 +165,8 @@ def serve(given: dict[str, Any], *, store: str, scenes: Path | None) -> None:
 
 def server_config(settings: Settings, log_level: str) -> tuple[FastAPI, uvicorn.Config]:
     """The app for ``settings`` and uvicorn's configuration of it, held to the connection limits."""
-    import uvicorn
-
     from baseline_cloudbaking.server.app import create_app
-    from baseline_cloudbaking.server.limits import ConnectionLimits, capped_protocol, fd_budget, throttle_logs
+    from baseline_cloudbaking.server.limits import ConnectionLimits, fd_budget, uvicorn_config
     from baseline_cloudbaking.store import GITree
 
     max_connections, fd_limit = fd_budget(settings.max_connections)
@@ -183,18 +181,15 @@ def server_config(settings: Settings, log_level: str) -> tuple[FastAPI, uvicorn.
     # opened here, not at the app's startup: a store it cannot use is one error line, not uvicorn's traceback
     app = create_app(settings, GITree(settings.store, settings.budget_bytes, settings.tolerance))
     app.state.connections = limits
-    config = uvicorn.Config(
+    config = uvicorn_config(
         app,
-        http=capped_protocol(limits),
+        limits,
         loop=EVENT_LOOP,
         log_level=log_level,
         # after the service's own deadline, which answers a miss still rendering (stop.StoppingServer)
         timeout_graceful_shutdown=settings.graceful_timeout_s + 1,
-        timeout_keep_alive=settings.idle_timeout_s,  # type: ignore[arg-type]  # a float works: call_later
-        h11_max_incomplete_event_size=settings.max_header_bytes,
         backlog=ACCEPT_BACKLOG,
     )
-    throttle_logs()  # after uvicorn.Config, which configures logging
     return app, config
 
 

@@ -21,7 +21,10 @@ import logging
 import resource
 import time
 from collections import OrderedDict
+from typing import Any
 
+import uvicorn
+from starlette.types import ASGIApp
 from uvicorn.protocols.http.h11_impl import H11Protocol
 
 #: File descriptors kept for everything but client connections (SQLite files of each worker thread,
@@ -232,6 +235,21 @@ def capped_protocol(limits: ConnectionLimits, base: type[H11Protocol] | None = N
             super().connection_lost(exc)
 
     return CappedProtocol
+
+
+def uvicorn_config(app: ASGIApp, limits: ConnectionLimits, **options: Any) -> uvicorn.Config:
+    """uvicorn's configuration of ``app`` held to ``limits`` (:func:`capped_protocol`; kept-alive connections closed
+    after the idle timeout; h11's head limit the same as httptools'), its log lines throttled (:func:`throttle_logs`,
+    after uvicorn configured logging); ``options`` set the rest (event loop, log level, backlog, graceful timeout)."""
+    config = uvicorn.Config(
+        app,
+        http=capped_protocol(limits),
+        timeout_keep_alive=limits.idle_timeout_s,  # type: ignore[arg-type]  # a float works: call_later
+        h11_max_incomplete_event_size=limits.max_head_bytes,
+        **options,
+    )
+    throttle_logs()
+    return config
 
 
 class Throttle(logging.Filter):

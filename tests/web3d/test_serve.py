@@ -1,62 +1,155 @@
-"""gigan-web's server: the page's files only from its roots (no path out of them, no node_modules but the two
-packages' distribution folders), every response cross-origin isolated, /v1/gimap refused without an upstream."""
+"""gigan-web's server: the page's files only from their roots and allow-lists (no dotfile, no package.json, no
+file of the assets folder that the export did not write), caching headers with ETag and 304, HEAD and OPTIONS,
+the Host check, every response cross-origin isolated, /config.json and /v1/shadow."""
 
 from __future__ import annotations
 
-import http.client
 import json
 from pathlib import Path
 
+import httpx
+import numpy as np
 import pytest
 
-from web3d.serve import WEB_DIR, Site, WebServer
+from gicore.geometry import scene_objects
+from gicore.gl.renderer import object_bounds
+from gicore.paths import light_bounds
+from gicore.scene import load_scene
+from web3d.export import shadow_setup
+from web3d.routes_shadow import Shadows
+from web3d.routes_static import ASSET_FILES
+from web3d.serve import WebServer
+from web3d.site import WEB_DIR, Site
+
+SHADOW_SIZE = 256
+ISOLATION = {"cross-origin-opener-policy": "same-origin", "cross-origin-embedder-policy": "require-corp"}
+NPM = (WEB_DIR / "node_modules" / "onnxruntime-web" / "dist").is_dir()
 
 
 @pytest.fixture(scope="module")
-def server(tmp_path_factory: pytest.TempPathFactory):
+def web(tmp_path_factory: pytest.TempPathFactory):
+    """The server for an assets folder holding the exported files and others an earlier use left there."""
     assets = tmp_path_factory.mktemp("assets")
-    (assets / "scene.bin").write_bytes(b"\x00\x01")
-    with WebServer(Site(assets, {"scene": "s", "cloud": False})) as web:
-        yield web
+    (assets / "model").mkdir()
+    for name in ASSET_FILES:
+        (assets / name).write_bytes(name.encode())
+    for stray in (".env", "notes.txt", "model/other.onnx", "model/.hidden"):
+        (assets / stray).write_text("not exported")
+    shadows = Shadows(load_scene("lung_plane"), SHADOW_SIZE)
+    with WebServer(Site(assets, {"scene": "lung_plane"}, shadows=shadows)) as server:
+        yield server
 
 
-def get(web: WebServer, path: str, method: str = "GET", body: bytes | None = None) -> http.client.HTTPResponse:
-    host, port = web.httpd.server_address[:2]
-    conn = http.client.HTTPConnection(host, port, timeout=60)
-    conn.request(method, path, body=body, headers={"Content-Type": "application/json"})
-    response = conn.getresponse()
-    response.body = response.read()  # type: ignore[attr-defined]
-    conn.close()
-    return response
+def get(web: WebServer, path: str, method: str = "GET", **kwargs) -> httpx.Response:
+    return httpx.request(method, web.url + path, timeout=60, **kwargs)
 
 
-def test_files_come_from_the_roots_only_and_every_response_is_isolated(server) -> None:
-    for path, status in [
-        ("/", 200),
-        ("/js/main.js", 200),
-        ("/config.json", 200),
-        ("/assets/scene.bin", 200),
-        ("/assets/../../etc/passwd", 404),
-        ("/../pyproject.toml", 404),
-        ("/node_modules/fzstd/package.json", 404),
-        ("/assets/missing.bin", 404),
+def test_files_come_from_the_roots_and_allow_lists_only(web: WebServer) -> None:
+    served = ["/", "/index.html", "/js/main.js", *(f"/assets/{name}" for name in sorted(ASSET_FILES))]
+    refused = [
+        "/assets/.env",
+        "/assets/notes.txt",
+        "/assets/model/other.onnx",
+        "/assets/model/.hidden",
+        "/assets/../../etc/passwd",
+        "/assets/%2e%2e/%2e%2e/pyproject.toml",
+        "/../pyproject.toml",
+        "/package.json",
+        "/package-lock.json",
+        "/screenshot.png",
+        "/node_modules/fzstd/package.json",
+        "/npm/fzstd/../package.json",
+        "/npm/onnxruntime-web/../package.json",
+        "/npm/three/package.json",
+        "/js/",
+        "/js/.eslintrc",
+        "/assets/missing.bin",
+        "/v1/nothing",
+    ]
+    for path in served:
+        assert get(web, path).status_code == 200, path
+    for path in refused:
+        assert get(web, path).status_code == 404, path
+    assert get(web, "/assets/scene.bin").content == b"scene.bin"
+    assert get(web, "/js/main.js").headers["content-type"].startswith("text/javascript")
+    if NPM:
+        r = get(web, "/npm/onnxruntime-web/ort.all.min.mjs")
+        assert r.status_code == 200 and r.headers["content-type"].startswith("text/javascript")
+
+
+def test_every_response_is_cross_origin_isolated(web: WebServer) -> None:
+    cases = [("GET", "/"), ("GET", "/missing"), ("POST", "/js/main.js"), ("GET", "/v1/shadow?light=x")]
+    cases += [("POST", "/v1/gimap"), ("OPTIONS", "/"), ("HEAD", "/config.json")]
+    for method, path in cases:
+        r = get(web, path, method)
+        assert {k: r.headers.get(k) for k in ISOLATION} == ISOLATION, (method, path, r.status_code)
+    refused = get(web, "/", headers={"Host": "attacker.example"})
+    assert refused.status_code == 400 and {k: refused.headers.get(k) for k in ISOLATION} == ISOLATION
+
+
+def test_the_host_header_must_name_this_server(web: WebServer) -> None:
+    port = web.socket.getsockname()[1]
+    for host in ("127.0.0.1", "localhost", f"127.0.0.1:{port}", f"localhost:{port}"):
+        assert get(web, "/config.json", headers={"Host": host}).status_code == 200, host
+    for host in ("attacker.example", f"attacker.example:{port}", "127.0.0.2"):
+        assert get(web, "/config.json", headers={"Host": host}).status_code == 400, host
+
+
+def test_files_carry_etags_and_caching_headers(web: WebServer) -> None:
+    for path in ("/", "/js/main.js", "/assets/scene.json", "/assets/model/model.onnx"):
+        first = get(web, path)
+        assert first.headers["cache-control"] == "no-cache" and first.headers["etag"], path
+        again = get(web, path, headers={"If-None-Match": first.headers["etag"]})
+        assert again.status_code == 304 and again.content == b"" and again.headers["etag"] == first.headers["etag"]
+        since = get(web, path, headers={"If-Modified-Since": first.headers["last-modified"]})
+        assert since.status_code == 304, path
+        assert get(web, path, headers={"If-None-Match": '"other"'}).status_code == 200
+    assert get(web, "/config.json").headers["cache-control"] == "no-store"
+    if NPM:
+        npm = get(web, "/npm/onnxruntime-web/ort.all.min.mjs")
+        assert "max-age=" in npm.headers["cache-control"] and npm.headers["etag"]
+
+
+def test_head_and_options_are_answered(web: WebServer) -> None:
+    for path in ("/", "/js/main.js", "/assets/scene.bin", "/config.json", "/v1/status"):
+        head, body = get(web, path, "HEAD"), get(web, path)
+        assert head.status_code == 200 and head.content == b"", path
+        assert head.headers.get("content-length") == body.headers.get("content-length"), path
+    for path, allow in [
+        ("/v1/gimap", "OPTIONS, POST"),
+        ("/v1/shadow", "GET, HEAD, OPTIONS"),
+        ("/config.json", "GET, HEAD, OPTIONS"),
+        ("/js/main.js", "GET, HEAD, OPTIONS"),
+        ("/assets/scene.bin", "GET, HEAD, OPTIONS"),
     ]:
-        r = get(server, path)
-        assert r.status == status, path
-        assert r.getheader("Cross-Origin-Opener-Policy") == "same-origin", path
-        assert r.getheader("Cross-Origin-Embedder-Policy") == "require-corp", path
-    assert json.loads(get(server, "/config.json").body) == {"scene": "s", "cloud": False}
-    assert get(server, "/assets/scene.bin").body == b"\x00\x01"
-    assert get(server, "/js/main.js").getheader("Content-Type").startswith("text/javascript")
-    if (WEB_DIR / "node_modules" / "onnxruntime-web").is_dir():
-        r = get(server, "/npm/onnxruntime-web/ort.all.min.mjs")
-        assert r.status == 200 and r.getheader("Content-Type").startswith("text/javascript")
+        r = get(web, path, "OPTIONS")
+        assert (r.status_code, r.headers["allow"]) == (204, allow), path
+    assert get(web, "/js/main.js", "POST").status_code in (404, 405)
+    assert get(web, "/v1/gimap", "GET").status_code == 405
 
 
-def test_gimap_without_an_upstream_is_503_and_a_huge_body_413(server) -> None:
-    assert get(server, "/v1/gimap", "POST", b"{}").status == 503
-    assert get(server, "/v1/gimap", "POST", b"x" * (1 << 17)).status == 413
-    assert get(server, "/v1/other", "POST", b"{}").status == 404
+def test_config_names_no_profile_without_a_cloud_side(web: WebServer) -> None:
+    config = json.loads(get(web, "/config.json").content)
+    assert config == {"scene": "lung_plane", "profiles": [], "profile": None, "stores": [], "store": None}
+    assert get(web, "/v1/gimap", "POST", json={}).status_code == 503
+    status = json.loads(get(web, "/v1/status").content)
+    assert status == {"profiles": {}, "stores": {}, "scene": "lung_plane"}
+
+
+def test_shadow_setup_is_the_exports_for_the_same_light(web: WebServer) -> None:
+    spec = load_scene("lung_plane")
+    bounds = object_bounds(scene_objects(spec), len(spec.objects))
+    low, high = light_bounds(spec)
+    for light in (spec.light.position, low, high, tuple((a + b) / 2 for a, b in zip(low, high))):
+        r = get(web, "/v1/shadow", params={"light": ",".join(repr(float(c)) for c in light)})
+        assert r.status_code == 200, (light, r.text)
+        expected = shadow_setup(bounds, np.asarray(light, dtype=np.float64), SHADOW_SIZE)
+        assert r.json() == json.loads(json.dumps(expected)), light
+    outside = f"{high[0] + 0.01},{high[1]},{high[2]}"
+    for bad in (outside, "1,2", "1,2,3,4", "a,b,c", "nan,1,1", "inf,1,1", ""):
+        r = get(web, "/v1/shadow", params={"light": bad})
+        assert r.status_code == 422 and isinstance(r.json()["detail"], str), bad
+    assert get(web, "/v1/shadow").status_code == 422
 
 
 def test_web_dir_is_the_repositorys_page() -> None:

@@ -1,0 +1,158 @@
+"""``gigan-web``'s own cloud side: a ``cloudbaking-server`` per store state and a ``network-sim proxy`` per
+profile in front of each, as child processes (:class:`network_sim.process.Running`: each started on port 0 and
+waited for until it prints ``listening on``).
+
+The ``given`` store (``--store``, or else an empty temporary folder: a cold store) has its server and every
+profile's proxy started before the page is served. Beside a given store, the ``cold`` state is a second server
+on an empty temporary folder, started with each of its proxies on the first request for it. A child that does
+not start is :class:`~web3d.upstreams.Unavailable` (the command's one error line, or a 503 for a lazy one).
+Closing the cloud (on Ctrl-C, SIGTERM, or a start that failed) stops every child (SIGTERM, SIGKILL 10 s later),
+proxies before their server, waits for a start still in progress, and removes the temporary stores.
+"""
+
+from __future__ import annotations
+
+import shutil
+import sys
+import tempfile
+import threading
+from collections.abc import Callable
+from contextlib import ExitStack
+from pathlib import Path
+
+from network_sim.process import Running, proxy
+from web3d.upstreams import Unavailable
+
+#: The console scripts of this environment.
+BIN = Path(sys.executable).parent
+#: Seconds a server may take to print ``listening on`` (it imports its renderer) and a proxy.
+SERVER_START_S = 120.0
+PROXY_START_S = 60.0
+
+
+def _url(child: Running) -> str:
+    host, port = child.addr  # the server prints a URL, the proxy HOST:PORT
+    return f"{host}:{port}" if host.startswith("http") else f"http://{host}:{port}"
+
+
+class Stack:
+    """One store state's server and its proxies, each started on its first use, once."""
+
+    def __init__(self, name: str, store: Path | None, scenes: Path | None, seed: int, report: Callable[[str], None]):
+        self.name = name
+        self.store = store  # None: an empty temporary folder, made when the server starts
+        self.scenes = scenes
+        self.seed = seed
+        self.report = report
+        self.lock = threading.Lock()
+        self.children = ExitStack()
+        self.server: Running | None = None
+        self.proxies: dict[str, Running] = {}
+        self.closed = False
+
+    def url(self, profile: str) -> str:
+        """The base URL of ``profile``'s proxy in front of this store's server, both started if need be."""
+        with self.lock:
+            if self.closed:
+                raise Unavailable("the viewer's server is stopping")
+            if self.server is None:
+                self.server = self._start_server()
+            if profile not in self.proxies:
+                self.proxies[profile] = self._start_proxy(profile)
+            return _url(self.proxies[profile])
+
+    def _start_server(self) -> Running:
+        if self.store is None:
+            self.store = Path(tempfile.mkdtemp(prefix=f"gigan-web-{self.name}-store-"))
+            self.children.callback(shutil.rmtree, self.store, ignore_errors=True)  # after the server stopped
+        argv = [str(BIN / "cloudbaking-server"), "--port", "0", "--store", str(self.store)]
+        argv += ["--scenes", str(self.scenes)] if self.scenes is not None else []
+        server = self._start(lambda: Running(argv, SERVER_START_S), "cloudbaking-server")
+        self.report(f"cloudbaking-server, {self.name} store {self.store}: {_url(server)} (pid {server.proc.pid})")
+        return server
+
+    def _start_proxy(self, profile: str) -> Running:
+        assert self.server is not None
+        host, port = self.server.addr
+        upstream = (host.removeprefix("http://"), port)
+        args = ("--profile", profile, "--seed", str(self.seed))
+        child = self._start(lambda: proxy(upstream, *args, timeout=PROXY_START_S), f"network-sim proxy {profile}")
+        self.report(f"network-sim proxy {profile} -> {self.name} store: {_url(child)} (pid {child.proc.pid})")
+        return child
+
+    def _start(self, start: Callable[[], Running], what: str) -> Running:
+        try:
+            return self.children.enter_context(start())
+        except (RuntimeError, TimeoutError) as exc:  # it printed no 'listening on' line; Running stopped it
+            last = str(exc).strip().splitlines()[-1]
+            raise Unavailable(f"{what} did not start ({last})") from None
+
+    def state(self, child: Running | None) -> str:
+        if child is None:
+            return "idle"
+        return "up" if child.proc.poll() is None else "down"
+
+    def close(self) -> None:
+        """Stop the children, proxies first; a start in progress finishes first (it holds the lock)."""
+        with self.lock:
+            self.closed = True
+            self.children.close()
+
+
+class ChildCloud:
+    """The cloud side as ``gigan-web`` starts it (module docstring): ``profiles`` (network-sim profile names; the
+    first is the page's default) in front of the ``given`` store's server (``store``, else a cold temporary
+    one) and, beside a given store, a lazily started ``cold`` one. ``scenes``: the folder of a scene spec file
+    the servers are given. ``report`` receives one line per child started. Use as a context manager: entering
+    starts the given store's children, leaving stops them all."""
+
+    def __init__(
+        self,
+        profiles: tuple[str, ...],
+        store: Path | None = None,
+        scenes: Path | None = None,
+        seed: int = 0,
+        report: Callable[[str], None] = print,
+    ) -> None:
+        self._profiles = profiles
+        self._stacks = {"given": Stack("given", store, scenes, seed, report)}
+        if store is not None:
+            self._stacks["cold"] = Stack("cold", None, scenes, seed, report)
+
+    @property
+    def profiles(self) -> tuple[str, ...]:
+        return self._profiles
+
+    @property
+    def stores(self) -> tuple[str, ...]:
+        return tuple(self._stacks)
+
+    def upstream(self, profile: str, store: str) -> str:
+        return self._stacks[store].url(profile)
+
+    def status(self) -> dict[str, dict[str, str]]:
+        given = self._stacks["given"]
+        return {
+            "profiles": {p: given.state(given.proxies.get(p)) for p in self._profiles},
+            "stores": {name: stack.state(stack.server) for name, stack in self._stacks.items()},
+        }
+
+    def start(self) -> None:
+        """Start the given store's server and every profile's proxy."""
+        for profile in self._profiles:
+            self._stacks["given"].url(profile)
+
+    def close(self) -> None:
+        for stack in self._stacks.values():
+            stack.close()
+
+    def __enter__(self) -> ChildCloud:
+        try:
+            self.start()
+        except BaseException:  # a failed start, Ctrl-C or SIGTERM: nothing is left running
+            self.close()
+            raise
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

@@ -1,0 +1,127 @@
+"""The page's settings (``/config.json``), ``POST /v1/gimap`` forwarded to cloud baking, and ``/v1/status``.
+
+``/v1/gimap?profile=NAME&store=STATE`` goes, body and content type unchanged, to the chosen profile's server
+for the chosen store (:mod:`web3d.upstreams`; absent: the first of each), through one shared
+:class:`httpx.AsyncClient` (made at startup, with connect and read timeouts). The upstream's status, bytes,
+content type, ``X-GIMap-Hit`` and ``Retry-After`` come back, with ``X-Profile`` and ``X-Store``. Refused
+before anything is forwarded: the cloud side off or its server unavailable (503), an unknown profile or store
+(422), a body that is not JSON (415), larger than ``max_body_bytes`` as it arrives whatever Content-Length
+says (413) or slower than ``body_timeout_s`` (408). An upstream that cannot be reached or breaks off is 502; one
+slower than ``read_timeout_s`` 504. Every refusal here is ``{"detail": "..."}``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+from typing import TYPE_CHECKING, Any
+
+import httpx
+from fastapi import APIRouter, FastAPI, HTTPException, Request, Response
+from fastapi.responses import JSONResponse
+from starlette.concurrency import run_in_threadpool
+from starlette.requests import ClientDisconnect
+
+from web3d.upstreams import Unavailable
+
+if TYPE_CHECKING:
+    from web3d.site import Site, WebSettings
+
+router = APIRouter()
+#: Upstream response headers the page reads, passed through.
+PASSED_HEADERS = ("X-GIMap-Hit", "Retry-After")
+#: The request body as OpenAPI states it (any JSON object: the cloud server validates it).
+_JSON_BODY = {"requestBody": {"required": True, "content": {"application/json": {"schema": {"type": "object"}}}}}
+
+
+@asynccontextmanager
+async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+    """The one HTTP client every forwarded request uses (its connections to the upstreams are kept alive)."""
+    settings: WebSettings = app.state.site.settings
+    timeout = httpx.Timeout(settings.read_timeout_s, connect=settings.connect_timeout_s)
+    async with httpx.AsyncClient(timeout=timeout) as client:
+        app.state.client = client
+        yield
+
+
+def page_config(site: Site) -> dict[str, Any]:
+    """``/config.json``: the page's settings, the cloud side's profiles and stores, and the default of each."""
+    profiles, stores = site.cloud.profiles, site.cloud.stores
+    return site.config | {
+        "profiles": list(profiles),
+        "profile": profiles[0] if profiles else None,
+        "stores": list(stores),
+        "store": stores[0] if stores else None,
+    }
+
+
+@router.api_route("/config.json", methods=["GET", "HEAD"], include_in_schema=False)
+async def config(request: Request) -> JSONResponse:
+    return JSONResponse(page_config(request.app.state.site), headers={"Cache-Control": "no-store"})
+
+
+@router.api_route("/v1/status", methods=["GET", "HEAD"], include_in_schema=False)
+async def status(request: Request) -> JSONResponse:
+    """Which profiles and stores answer now (``idle``: started on its first request)."""
+    site: Site = request.app.state.site
+    state = await run_in_threadpool(site.cloud.status)
+    return JSONResponse(state | {"scene": site.config.get("scene")}, headers={"Cache-Control": "no-store"})
+
+
+def _choose(kind: str, given: str | None, names: tuple[str, ...]) -> str:
+    if given is None:
+        return names[0]
+    if given not in names:
+        raise HTTPException(422, f"{kind} {given!r} is not served here; pick one of {', '.join(names)}")
+    return given
+
+
+async def read_body(request: Request, settings: WebSettings) -> bytes:
+    """The request body, counted as it arrives (413 past the limit) and bounded in time (408)."""
+    chunks: list[bytes] = []
+    size = 0
+    try:
+        async with asyncio.timeout(settings.body_timeout_s):
+            async for chunk in request.stream():
+                size += len(chunk)
+                if size > settings.max_body_bytes:
+                    raise HTTPException(413, f"the request body exceeds {settings.max_body_bytes} bytes")
+                chunks.append(chunk)
+    except TimeoutError:
+        msg = f"the request body did not arrive within {settings.body_timeout_s:g} s"
+        raise HTTPException(408, msg, headers={"Connection": "close"}) from None
+    return b"".join(chunks)
+
+
+@router.post("/v1/gimap", openapi_extra=_JSON_BODY)
+async def gimap(request: Request, profile: str | None = None, store: str | None = None) -> Response:
+    """The GI map the chosen profile's server for the chosen store answers (module docstring)."""
+    site: Site = request.app.state.site
+    cloud = site.cloud
+    if not cloud.profiles:
+        raise HTTPException(503, "the cloud side is off: start gigan-web without --no-cloud, or with --server URL")
+    profile = _choose("profile", profile, cloud.profiles)
+    store = _choose("store", store, cloud.stores)
+    media = request.headers.get("content-type", "")
+    if media.split(";")[0].strip().lower() != "application/json":
+        raise HTTPException(415, f"the request body must be application/json, not {media or 'untyped'}")
+    try:
+        body = await read_body(request, site.settings)
+    except ClientDisconnect:
+        return Response(status_code=499)  # nobody reads it
+    try:
+        url = await run_in_threadpool(cloud.upstream, profile, store)
+    except Unavailable as exc:
+        raise HTTPException(503, str(exc)) from None
+    client: httpx.AsyncClient = request.app.state.client
+    try:
+        answer = await client.post(f"{url}/v1/gimap", content=body, headers={"Content-Type": media})
+    except httpx.TimeoutException:
+        raise HTTPException(504, f"the cloud-baking server at {url} did not answer in time") from None
+    except httpx.HTTPError as exc:
+        raise HTTPException(502, f"the cloud-baking server at {url} failed: {type(exc).__name__} {exc}") from None
+    headers = {name: answer.headers[name] for name in PASSED_HEADERS if name in answer.headers}
+    headers |= {"X-Profile": profile, "X-Store": store}
+    headers["Content-Type"] = answer.headers.get("Content-Type", "application/octet-stream")
+    return Response(answer.content, status_code=answer.status_code, headers=headers)
