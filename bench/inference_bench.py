@@ -30,9 +30,10 @@ from typing import Any
 import numpy as np
 
 from bench.exported_models import model_info
+from bench.present.declarations import Chart, Column, Figure, Rows, Table, wide
 from bench.runner import Bench
 from gicore.error_policy import UserError
-from gicore.results import Results, read_rows
+from gicore.results import Results
 from gicore.timing import time_repeats
 
 #: Precisions the torch rows may run at (the ONNX rows take theirs from the model file).
@@ -203,67 +204,60 @@ def measure_torch(cfg: InferenceConfig, res: Results, x: np.ndarray, ref: np.nda
                         copies=copies)  # fmt: skip
 
 
-def table(rows: list[dict]) -> str:
-    """Median inference ms, p95 and error per configuration, fastest first."""
-    timed = [r for r in rows if r["metric"] == "inference" and r["stat"] == "median"]
-
-    def value(row: dict, metric: str, stat: str = "value") -> float:
-        return next(
-            r["value"]
-            for r in rows
-            if (r["system"], r["metric"], r["stat"], r["config"]) == (row["system"], metric, stat, row["config"])
-        )
-
-    # setting: onnxruntime threads, or where torch's input and output live (copies)
-    lines = [
-        "| backend | model | precision | device | setting | median ms | p95 ms | max abs error | mean abs error |",
-        "|---|---|---|---|---|---|---|---|---|",
-    ]
-    for r in sorted(timed, key=lambda r: r["value"]):
-        c = r["config"]
-        setting = c.get("threads", c.get("copies"))
-        lines.append(
-            f"| {r['system']} | {c['model']} | {c['precision']} | {c['device']} | {setting} | {r['value']:.2f} | "
-            f"{value(r, 'inference', 'p95'):.2f} | {value(r, 'max_abs_error'):.1e} | {value(r, 'mean_abs_error'):.1e} |"
-        )
-    return "\n".join(lines)
+# -- what it shows ------------------------------------------------------------------------------------------
+def configurations(rows: Rows) -> list[dict]:
+    """One row per configuration, fastest first: median and p95 ms, the output's errors, its setting (onnxruntime
+    threads, or where torch's input and output live) and its label."""
+    keys = ("system", "model", "precision", "device", "threads", "copies")
+    fields = {"median": "inference/median", "p95": "inference/p95", "max": "max_abs_error", "mean": "mean_abs_error"}
+    out = [r for r in wide(rows, keys, fields) if r["median"] is not None]
+    for r in out:
+        r["setting"] = r["copies"] if r["threads"] is None else r["threads"]
+        setting = f"copies {r['copies']}" if r["threads"] is None else f"{r['threads']} thr"
+        r["label"] = f"{r['system']} {r['precision']} {r['device']} {setting}"
+        r["floored"] = None if r["mean"] is None else max(r["mean"], 1e-9)
+    return sorted(out, key=lambda r: r["median"])
 
 
-def plot(csv_path: Path, out_dir: Path) -> list[Path]:
-    """Error against run time (log-log), one point per configuration; and the table as markdown."""
-    from gicore.plotting import plt, save, ticker
-
-    rows = read_rows(csv_path)
-    md = out_dir / "inference.md"
-    md.write_text(table(rows) + "\n")
-    timed = [r for r in rows if r["metric"] == "inference" and r["stat"] == "median"]
-    fig, ax = plt.subplots(figsize=(6.4, 4.2))
-    for r in timed:
-        c = r["config"]
-        error = next(
-            e["value"] for e in rows if (e["system"], e["metric"], e["config"]) == (r["system"], "mean_abs_error", c)
-        )
-        label = f"{r['system']} {c['precision']} {c['device']} " + (
-            f"{c['threads']} thr" if "threads" in c else f"copies {c['copies']}"
-        )
-        ax.scatter(r["value"], max(error, 1e-9), label=label, marker="o" if r["system"] == "torch" else "s")
-    ax.set_xscale("log")
-    ax.set_yscale("log")
-    for axis in (ax.xaxis.set_major_formatter, ax.xaxis.set_minor_formatter):
-        axis(ticker.FormatStrFormatter("%g"))
-    ax.set_xlabel("inference, median [ms]")
-    ax.set_ylabel("mean |output - onnxruntime fp32| (1e-9 floor)")
-    ax.set_title("GI-map inference: error against run time")
-    ax.grid(alpha=0.3, which="both")
-    ax.legend(fontsize=6)
-    return [save(fig, out_dir / "inference.png"), md]
+TABLE = Table(
+    configurations,
+    (
+        Column("backend", "{system}"),
+        Column("model", "{model}"),
+        Column("precision", "{precision}"),
+        Column("device", "{device}"),
+        Column("setting", "{setting}"),
+        Column("median ms", "{median:.2f}"),
+        Column("p95 ms", "{p95:.2f}"),
+        Column("max abs error", "{max:.1e}"),
+        Column("mean abs error", "{mean:.1e}"),
+    ),
+)
+FIGURE = Figure(
+    "inference",
+    (
+        Chart(
+            configurations,
+            "median",
+            "floored",
+            series="{label}",
+            kind="scatter",
+            xlog=True,
+            ylog=True,
+            xlabel="inference, median [ms]",
+            ylabel="mean |output - onnxruntime fp32| (1e-9 floor)",
+            title="GI-map inference: error against run time",
+        ),
+    ),  # fmt: skip
+)
 
 
 BENCH = Bench(
     "inference",
     InferenceConfig,
     measure,
-    plot,
+    None,
     help="One GI map's inference per backend (onnxruntime threads, torch fp32/fp16/bf16 on CPU or CUDA, with and "
     "without host copies): median ms against the output's error vs onnxruntime fp32.",
+    parts=(TABLE, FIGURE),
 )

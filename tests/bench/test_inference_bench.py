@@ -6,7 +6,9 @@ from pathlib import Path
 
 import pytest
 
-from bench.inference_bench import InferenceConfig, _shipped, measure, plot, table
+from bench.inference_bench import BENCH, TABLE, InferenceConfig, _shipped, measure
+from bench.present import write_files
+from bench.present.markdown import table_text
 from gicore.error_policy import UserError
 from gicore.results import Results, read_rows
 
@@ -38,11 +40,12 @@ def test_inference_rows_and_the_warm_started_torch_generator_match_onnxruntime(t
         assert get("torch", "inference", "median", copies=copies) > 0
         assert get("torch", "inference", "n", copies=copies) == 3
     assert not [r for r in rows if r["system"] == "torch" and r["config"]["precision"] != "fp32"]  # CPU: fp32 only
-    text = table(rows)
+    text = table_text(TABLE, rows, 2)
     medians = [float(line.split(" | ")[5]) for line in text.splitlines()[2:]]
     assert len(medians) == 4 and medians == sorted(medians)
-    written = plot(csv_path, tmp_path)
-    assert [p.name for p in written] == ["inference.png", "inference.md"]
+    written = write_files("inference", BENCH.parts, rows, tmp_path)
+    assert [p.name for p in written] == ["inference.md", "inference.png", "inference.svg"]
+    assert ">torch fp32 cpu copies host</text>" in (tmp_path / "inference.svg").read_text()  # a declared series
 
 
 @pytest.mark.parametrize(
