@@ -25,12 +25,24 @@ import numpy as np
 
 from baseline_cloudbaking.codecs import CODEC_NAMES, DEFAULT_CODEC
 from bench.exported_models import check_model_resolution
-from bench.processes import BIN, ask_path, check_served, pinned_proxy, pinned_server, run_client, run_place, threads
+from bench.processes import (
+    BIN,
+    ask_path,
+    check_served,
+    path_options,
+    pinned_proxy,
+    pinned_server,
+    run_client,
+    run_place,
+    threads,
+    with_path_frames,
+)
 from bench.runner import Bench, Block, Figure, Part, Rows, Section, Table, cell, need, pick
 from bench.svg import Point, Series, XYChart
 from gicore.blend import COMPOSITIONS
 from gicore.error_policy import UserError
 from gicore.loop import RENDERERS
+from gicore.options import PATH_FILE
 from gicore.results import Results, read_rows
 from gigan_local.inference import DEFAULT_MODEL
 from network_sim.exchange import CloudCost, sweep_link
@@ -76,6 +88,7 @@ class LatencyConfig:
     every: int = 10
     #: Frames per full orbit of the camera path.
     orbit_frames: int = 300
+    path: Path | None = field(default=None, metadata=PATH_FILE)
     #: GI-map codec of the cloud-baking maps.
     codec: CodecName = DEFAULT_CODEC
     #: Samples per pixel of path tracing: the server's maps and the evaluation GT.
@@ -155,6 +168,7 @@ def _ran_on(folder: Path, renderer: str) -> Path:
 def measure(cfg: LatencyConfig, res: Results) -> None:
     scene = cfg.scenes[0]
     spec, scenes_dir, work, plan = run_place(scene, res, "latency_runs", cfg.pin)
+    cfg = with_path_frames(cfg, spec)
     renderers, res.settings["renderers"] = available_renderers(cfg.renderers)
     common = {
         "resolution": cfg.resolution,
@@ -166,9 +180,8 @@ def measure(cfg: LatencyConfig, res: Results) -> None:
     per_run = (
         180.0 + cfg.frames * 2.0 + (cfg.frames // cfg.gt_every + 1 if cfg.gt_every else 0) * 20.0 + cfg.read_timeout_s
     )
-    path_args = ["--scene", scene, "--frames", str(cfg.frames), "--resolution", str(cfg.resolution),
-                 "-k", str(cfg.every), "--orbit-frames", str(cfg.orbit_frames), "--spp", str(cfg.spp),
-                 "--gt-every", str(cfg.gt_every), "--composition", cfg.composition,
+    path_args = ["--scene", scene, *path_options(cfg), "--resolution", str(cfg.resolution), "-k", str(cfg.every),
+                 "--spp", str(cfg.spp), "--gt-every", str(cfg.gt_every), "--composition", cfg.composition,
                  "--seed", str(res.seed), "--gt-cache", str(work / "gt_cache")]  # fmt: skip
     shutil.rmtree(work / "gt_cache", ignore_errors=True)  # rendered again by each bench run's code
 

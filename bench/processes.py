@@ -152,25 +152,41 @@ class PathRun(Protocol):
     spp: int
     frames: int
     orbit_frames: int
+    path: Path | None
     read_timeout_s: float
+
+
+def with_path_frames(cfg: Any, spec: SceneSpec) -> Any:
+    """``cfg`` with ``frames`` the count of its ``path`` file (checked against ``spec``: one error line before
+    any process starts); ``cfg`` itself without one."""
+    from gicore.path_file import read_path_file
+
+    return cfg if cfg.path is None else replace(cfg, frames=len(read_path_file(cfg.path, spec).frames))
+
+
+def path_options(cfg: PathRun) -> list[str]:
+    """A client's options for the path of ``cfg``: its path file, else the scripted path's frames and lap."""
+    if cfg.path is not None:
+        return ["--path", str(cfg.path)]
+    return ["--frames", str(cfg.frames), "--orbit-frames", str(cfg.orbit_frames)]
 
 
 def ask_path(
     url: str, scene: str, cfg: PathRun, seed: int, *, residual: bool = False, off_path: bool = False
 ) -> dict[str, int]:
-    """Ask ``url`` directly for the GI camera of every frame of the path, one request at a time (``off_path``:
-    for one camera one unit above the first, which no path frame is within tolerance of: it compiles the
-    server's scene and passes and stores nothing a run would hit); returns the hit and miss counts."""
+    """Ask ``url`` directly for the GI camera of every frame of the path (its ``path`` file, else the scripted
+    one from ``seed``), one request at a time (``off_path``: for one camera one unit above the first, which no
+    path frame is within tolerance of: it compiles the server's scene and passes and stores nothing a run
+    would hit); returns the hit and miss counts."""
     from baseline_cloudbaking.client import RemoteConfig, RemoteSource
-    from gicore.loop import path_views
+    from gicore.path_file import flown_path
     from gicore.scene import load_scene
 
     spec = load_scene(scene)
     timeout = cfg.read_timeout_s
     remote = RemoteConfig(url, Path(scene).stem, cfg.resolution, cfg.codec, cfg.spp, residual, spec.light.moves,
                           read_timeout_s=timeout, deadline_s=2 * timeout, retry_after_s=0.0)  # fmt: skip
-    frames = 1 if off_path else cfg.frames
-    views = path_views(spec, frames, cfg.orbit_frames, seed, spec.camera.local_fov, cfg.resolution)
+    views = flown_path(spec, cfg, seed).views(cfg.resolution)[: 1 if off_path else None]
     with RemoteSource(remote) as source:
         for frame, (camera, light) in enumerate(views):
             gi_camera = camera.with_fov(spec.camera.gi_fov)
