@@ -1,0 +1,155 @@
+#!/usr/bin/env bash
+# Table 1 on a GPU machine without network: install the project from carried wheels, then measure.
+#
+#   bash scripts/gpu_table1.sh [--dry-run | --stage-only] [--wheels DIR] [--out DIR]
+#
+# 1. Wheels: every wheel SHA256SUMS names (scripts/gpu_wheels.sh wrote it into each batch under --wheels, default
+#    .gpu_wheels) is found whole or reassembled from its parts (cat NAME.whl.part.* in order) and its sha256
+#    checked. A wheel whose parts have not all arrived is named (--stage-only: listed, exit 0; else exit 3).
+# 2. Install, without network: each wheel whose distribution PYTHON's environment lacks, holds at an older
+#    version, or is named in FORCE, with pip install --no-index --no-deps --find-links (what is there at the
+#    wheel's version or newer is skipped); then the project itself, editable (its console scripts are what the
+#    benches start). GL: .gl/*.deb, where carried, are unpacked first (the device notes'
+#    EGL loaders).
+# 3. Measure, into --out (default $OUT, the device run's folder): per resolution of RESOLUTIONS, bench latency
+#    --quick (profiles lan and wan) with the shipped model, or MODEL_<R> where the shipped one is not at R (none:
+#    that resolution is skipped with a line); bench render --quick --renderers gl at every resolution; bench
+#    report. What comes back: provenance.txt (GPU name, driver, CUDA, the Mitsuba variant and inference backend
+#    chosen), latency_table_<R>.md, table1.md (bench report's results.md), results.tar.gz (every CSV,
+#    provenance JSON and figure), log.txt.
+# --dry-run does step 1 in a temporary folder and prints what steps 2 and 3 would install and run.
+#
+# Settings (environment): PYTHON (python3), FORCE (distributions installed even where present), RESOLUTIONS
+# (256 512), MODEL_<R>, STAGE (where wheels are reassembled: /tmp/gigan_gpu_wheels), GL_DEBS (.gl).
+set -euo pipefail
+
+PYTHON=${PYTHON:-python3}
+FORCE=${FORCE:-}
+RESOLUTIONS=${RESOLUTIONS:-256 512}
+GL_DEBS=${GL_DEBS:-.gl}
+MODE=run
+WHEELS=.gpu_wheels
+DEST=${OUT:-}
+while (($#)); do
+  case "$1" in
+    --dry-run) MODE=dry ;;
+    --stage-only) MODE=stage ;;
+    --wheels) WHEELS=${2:?--wheels needs a folder}; shift ;;
+    --out) DEST=${2:?--out needs a folder}; shift ;;
+    *) echo "error: unknown argument '$1': use --dry-run, --stage-only, --wheels DIR, --out DIR" >&2; exit 2 ;;
+  esac
+  shift
+done
+if [[ -z $DEST && $MODE != stage ]]; then echo "error: no output folder: pass --out DIR (or set OUT)" >&2; exit 2; fi
+STAGE=${STAGE:-/tmp/gigan_gpu_wheels}
+if [[ $MODE == dry ]]; then STAGE=$(mktemp -d); trap 'rm -rf "$STAGE"' EXIT; fi
+if [[ $MODE == run ]]; then
+  mkdir -p "$DEST"
+  exec > >(tee "$DEST/log.txt") 2> >(tee -a "$DEST/log.txt" >&2)
+fi
+
+say() { echo "gpu_table1: $*"; }
+act() {  # run a command, or print it on a dry run
+  if [[ $MODE == dry ]]; then echo "would run: $*"; else "$@"; fi
+}
+
+# -- 1. wheels ----------------------------------------------------------------------------------------------
+sums=$(find "$WHEELS" -name SHA256SUMS -print -quit 2>/dev/null || true)
+if [[ -z $sums ]]; then
+  echo "error: no SHA256SUMS under $WHEELS: make the wheels with scripts/gpu_wheels.sh and carry a batch" >&2
+  exit 2
+fi
+mkdir -p "$STAGE"
+missing=()
+while read -r sha name; do
+  target="$STAGE/$name"
+  if [[ -f $target ]] && sha256sum -c --status <<<"$sha  $target"; then continue; fi
+  whole=$(find "$WHEELS" -name "$name" -type f -print -quit)
+  mapfile -t parts < <(find "$WHEELS" -name "$name.part.*" -type f -printf '%f\t%p\n' | sort | cut -f2)
+  how=whole
+  if [[ -n $whole ]]; then
+    cp "$whole" "$target"
+  elif ((${#parts[@]})); then
+    cat "${parts[@]}" >"$target"
+    how="from ${#parts[@]} parts"
+  fi
+  if [[ -f $target ]] && sha256sum -c --status <<<"$sha  $target"; then
+    say "wheel $name ready ($how)"
+  else
+    rm -f "$target"
+    missing+=("$name (${#parts[@]} parts here)")
+  fi
+done <"$sums"
+if ((${#missing[@]})); then
+  for m in "${missing[@]}"; do say "incomplete: $m"; done
+  if [[ $MODE == stage ]]; then say "carry the remaining batches, then run without --stage-only"; exit 0; fi
+  echo "error: ${#missing[@]} wheels are incomplete (${missing[0]}, ...): carry the batches that hold their parts" >&2
+  exit 3
+fi
+if [[ $MODE == stage ]]; then say "every wheel is here: run without --stage-only"; exit 0; fi
+
+# -- 2. install -----------------------------------------------------------------------------------------------
+to_install=()
+normal() { tr '[:upper:]_' '[:lower:]-'; }  # a distribution name as pip compares it
+forced=" $(normal <<<"$FORCE") "
+installed() {  # the installed version of distribution $1, or nothing
+  "$PYTHON" -c 'import importlib.metadata as m, sys; print(m.version(sys.argv[1]))' "$1" 2>/dev/null || true
+}
+at_least() {  # whether version $1 >= version $2
+  "$PYTHON" -c 'import sys; from packaging.version import Version as V; sys.exit(V(sys.argv[1]) < V(sys.argv[2]))' "$1" "$2"
+}
+for wheel in "$STAGE"/*.whl; do
+  dist=$(basename "$wheel" | cut -d- -f1 | normal)
+  version=$(basename "$wheel" | cut -d- -f2)
+  have=$(installed "$dist")
+  if [[ $forced != *" $dist "* && -n $have ]] && at_least "$have" "$version"; then
+    say "have $dist $have: skipped"
+  else
+    say "install $dist $version (have: ${have:-none})"
+    to_install+=("$wheel")
+  fi
+done
+if ((${#to_install[@]})); then
+  act "$PYTHON" -m pip install --quiet --no-index --no-deps --find-links "$STAGE" "${to_install[@]}"
+fi
+act "$PYTHON" -m pip install --quiet --no-index --no-deps --no-build-isolation -e .
+if compgen -G "$GL_DEBS/*.deb" >/dev/null; then
+  for deb in "$GL_DEBS"/*.deb; do act dpkg -x "$deb" /; done
+  act ldconfig
+fi
+
+# -- 3. measure -------------------------------------------------------------------------------------------------
+BIN=$("$PYTHON" -c 'import sys, pathlib; print(pathlib.Path(sys.executable).parent)')
+RESULTS=${DEST%/}/results
+act mkdir -p "$RESULTS"
+provenance() {
+  nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv || echo "nvidia-smi: not found"
+  nvidia-smi | grep -o 'CUDA Version: [0-9.]*' || true
+  "$PYTHON" - <<'EOF'
+import platform, torch
+from gicore.mitsuba_variant import mitsuba_choice
+from gigan_local.backend_choice import resolve_inference
+from gicore.gl import gl_available
+print("python", platform.python_version(), "torch", torch.__version__, "cuda", torch.version.cuda)
+print("mitsuba", mitsuba_choice().variant, "denoiser", mitsuba_choice().denoiser)
+print("inference (--inference auto)", resolve_inference("auto"))
+print("gl", gl_available())
+EOF
+}
+if [[ $MODE == dry ]]; then echo "would write: $DEST/provenance.txt (nvidia-smi, python, torch, mitsuba, inference, gl)"; else
+  provenance >"$DEST/provenance.txt" 2>&1
+fi
+shipped=$("$PYTHON" -c 'from gigan_local.inference import DEFAULT_MODEL as m, read_model_json as r; print(m, r(m)["resolution"])')
+read -r shipped_model shipped_res <<<"$shipped"
+for res in $RESOLUTIONS; do
+  model_var="MODEL_$res"
+  model=${!model_var:-}
+  if [[ -z $model && $res == "$shipped_res" ]]; then model=$shipped_model; fi
+  if [[ -z $model ]]; then say "skip latency at ${res}²: the shipped model runs at ${shipped_res}²; set MODEL_$res"; continue; fi
+  act "$BIN/bench" latency --quick --resolution "$res" --model "$model" --out "$RESULTS/latency_$res"
+  act cp "$RESULTS/latency_$res/latency_table.md" "$DEST/latency_table_$res.md"
+done
+act "$BIN/bench" render --quick --renderers gl --gl-resolutions "${RESOLUTIONS// /,}" --out "$RESULTS/render_gl"
+act "$BIN/bench" report --results "$RESULTS" --out "$RESULTS/report"
+act cp "$RESULTS/report/results.md" "$DEST/table1.md"
+act tar czf "$DEST/results.tar.gz" -C "$RESULTS" .
