@@ -31,7 +31,7 @@ import numpy as np
 
 from baseline_cloudbaking.codecs import DEPTH_CODEC, get_codec
 from baseline_cloudbaking.protocol import pack
-from baseline_cloudbaking.store import Tolerance, Viewpoint, light_cell
+from baseline_cloudbaking.viewpoints import Tolerance, Viewpoint, light_cell
 from gicore.camera import Camera
 from gicore.paths import camera_path, light_position, light_range
 from gicore.scene import SceneSpec, builtin_scenes, load_scene

@@ -31,7 +31,7 @@ import numpy as np
 
 from baseline_cloudbaking.codecs import CODEC_NAMES, DEFAULT_CODEC, CodecError, get_codec
 from baseline_cloudbaking.protocol import MEDIA_TYPE, PayloadError, decode_payload
-from baseline_cloudbaking.store import Tolerance, Viewpoint, light_cell, nearest
+from baseline_cloudbaking.viewpoints import Tolerance, Viewpoint, light_cell, nearest
 from gicore.camera import Camera
 from gicore.loop import GIMap, Light, PathRunConfig
 
@@ -162,7 +162,7 @@ class RequestPolicy:
 
 def covers(map_camera: Camera, map_cell: LightCell, camera: Camera, cell: LightCell, tol: Tolerance) -> bool:
     """Whether a map at ``map_camera`` (made in light cell ``map_cell``) serves a request at ``camera`` in light
-    cell ``cell``: the GI tree's own lookup rule (:func:`baseline_cloudbaking.store.nearest`)."""
+    cell ``cell``: the GI tree's own lookup rule (:func:`baseline_cloudbaking.viewpoints.nearest`)."""
     if map_cell != cell:
         return False
     held = _viewpoint(map_camera)

@@ -35,16 +35,9 @@ from baseline_cloudbaking.bake import (
     spec_sha,
 )
 from baseline_cloudbaking.codecs import CODEC_NAMES, DEFAULT_CODEC
-from baseline_cloudbaking.store import (
-    DEFAULT_LIGHT_CELL,
-    GITree,
-    MapKey,
-    StoreConflict,
-    Tolerance,
-    Viewpoint,
-    ViewSet,
-    store_folder,
-)
+from baseline_cloudbaking.store import DEFAULT_LIGHT_CELL, GITree, store_folder
+from baseline_cloudbaking.store_errors import StoreConflict
+from baseline_cloudbaking.viewpoints import MapKey, Tolerance, Viewpoint, ViewSet
 from gicore.camera import Camera
 from gicore.error_policy import UserError, entry_point, writable_dir
 from gicore.executor import Executor, ExecutorOptions, InProcess, RayExecutor, Task
@@ -100,7 +93,7 @@ class PrebakeConfig:
 
 @dataclass(frozen=True)
 class ToleranceOptions:
-    """The command-line form of :class:`~baseline_cloudbaking.store.Tolerance` (its defaults)."""
+    """The command-line form of :class:`~baseline_cloudbaking.viewpoints.Tolerance` (its defaults)."""
 
     #: Δp: eye distance a stored map serves, scene units.
     tolerance_p: float = field(default=Tolerance.position, metadata={"min": 0.0, "max": 1e6})

@@ -398,7 +398,7 @@ def codecs_and_links(ctx: Context, pts: Points, bake_ms: float) -> dict[str, Any
 
 def tolerances(ctx: Context, pts: Points, bake_ms: float, hit_path: dict[str, Any]) -> None:
     """Cloud baking per map: store tolerance (warped stale map at half the tolerance; hit-rate-weighted time)."""
-    from baseline_cloudbaking.store import Tolerance, Viewpoint, simulate_fill
+    from baseline_cloudbaking.viewpoints import Tolerance, Viewpoint, simulate_fill
     from baseline_cloudbaking.warp import PointCloud
     from gicore.loop import texel_depth
     from gicore.paths import camera_path

@@ -135,10 +135,11 @@ def measure(cfg: PrefetchConfig, res: Results) -> None:
 
 def request_floors(spec: Any, cfg: PrefetchConfig, seed: int, prebaked: Path, server: Any) -> dict[str, int]:
     """The fewest requests that can serve every GI view of the path by the server's rule
-    (:func:`baseline_cloudbaking.store.fewest_maps`), with perfect foresight: ``prebaked``, from the prebaked
+    (:func:`baseline_cloudbaking.viewpoints.fewest_maps`), with perfect foresight: ``prebaked``, from the prebaked
     store's maps (what every run's store holds: no request policy sends fewer); ``placed``, from maps centred on
     the path's own views (a client that chose where the maps are baked, on a cold store: each request a bake)."""
-    from baseline_cloudbaking.store import GITree, Viewpoint, fewest_maps, light_cell
+    from baseline_cloudbaking.store import GITree
+    from baseline_cloudbaking.viewpoints import Viewpoint, fewest_maps, light_cell
     from gicore.loop import path_views
 
     views, cells = [], []

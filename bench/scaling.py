@@ -238,7 +238,8 @@ def bake_maps(frames: int, resolution: int) -> dict[str, int]:
     """Maps a prebake of each built-in scene's ``frames``-frame fly-through bakes into an empty store
     (the prebake's plan rule, default tolerance and light cell): counted, nothing rendered."""
     from baseline_cloudbaking.bake import fly_through
-    from baseline_cloudbaking.store import DEFAULT_LIGHT_CELL, Tolerance, simulate_fill
+    from baseline_cloudbaking.store import DEFAULT_LIGHT_CELL
+    from baseline_cloudbaking.viewpoints import Tolerance, simulate_fill
 
     out = {}
     for scene in builtin_scenes():
@@ -251,7 +252,8 @@ def space_maps() -> dict[str, int]:
     """Maps of each built-in scene's whole configuration space (``cloudbaking-prebake --space all`` at the
     default tolerance and light cell): counted, nothing rendered."""
     from baseline_cloudbaking.bake import configuration_space
-    from baseline_cloudbaking.store import DEFAULT_LIGHT_CELL, Tolerance
+    from baseline_cloudbaking.store import DEFAULT_LIGHT_CELL
+    from baseline_cloudbaking.viewpoints import Tolerance
 
     return {s: configuration_space(load_scene(s), Tolerance(), DEFAULT_LIGHT_CELL).size for s in builtin_scenes()}
 

@@ -649,7 +649,8 @@ def codec_cases(s: Scene) -> list[Case]:
 
 
 def store_cases(work: Path) -> list[Case]:
-    from baseline_cloudbaking.store import GITree, MapKey, Tolerance, Viewpoint
+    from baseline_cloudbaking.store import GITree
+    from baseline_cloudbaking.viewpoints import MapKey, Tolerance, Viewpoint
 
     key = MapKey("stability", None, 64, 90.0, "jpeg", 4, False)
     payload = b"GIM1" + bytes(range(256)) * 8

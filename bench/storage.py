@@ -1,7 +1,7 @@
 """`bench storage` (paper Table 2): the GI tree's size after a fly-through, against GIGAN's model.
 
 Per scene, resolution and codec: entries counted exactly with the GI tree's own rule
-(:func:`baseline_cloudbaking.store.simulate_fill`), bytes per entry measured on baked maps sampled along the
+(:func:`baseline_cloudbaking.viewpoints.simulate_fill`), bytes per entry measured on baked maps sampled along the
 path, tree bytes extrapolated with a 95 % interval, against the shipped model's files. Also the codec table,
 the tolerance knob, and the growth law over seeded user sessions (:mod:`gicore.sessions`): entries after each
 session, saturation, the crossover with the model, and the paper's accounting decomposed. What each row holds:
@@ -23,14 +23,8 @@ from baseline_cloudbaking.bake import BakedMap, PathFrame, bake_map, fly_through
 from baseline_cloudbaking.codecs import CODEC_NAMES, DEPTH_CODEC, get_codec
 from baseline_cloudbaking.codecs import measure as measure_codec
 from baseline_cloudbaking.protocol import pack
-from baseline_cloudbaking.store import (
-    DEFAULT_LIGHT_CELL,
-    Tolerance,
-    Viewpoint,
-    ViewSet,
-    light_cell,
-    simulate_fill,
-)
+from baseline_cloudbaking.store import DEFAULT_LIGHT_CELL
+from baseline_cloudbaking.viewpoints import Tolerance, Viewpoint, ViewSet, light_cell, simulate_fill
 from bench.runner import Bench, Block, Figure, Part, Rows, Section, Table, need, pick
 from bench.svg import BarChart, Point, Series, XYChart
 from gicore.camera import Camera
@@ -463,7 +457,7 @@ def session_frames(spec: SceneSpec, sessions: list[Session], light_cell_size: fl
 
 def fill_sessions(run: SessionFrames, tol: Tolerance) -> SessionFill:
     """Walk the sessions' frames through one empty tree with the store's own rule
-    (:func:`baseline_cloudbaking.store.simulate_fill`: nearest stored viewpoint within ``tol`` in the same
+    (:func:`baseline_cloudbaking.viewpoints.simulate_fill`: nearest stored viewpoint within ``tol`` in the same
     light cell, else a new entry)."""
     served = simulate_fill(run.views, run.cells, tol)
     running = np.maximum.accumulate(served) + 1

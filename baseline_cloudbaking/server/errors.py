@@ -18,7 +18,7 @@ from starlette.exceptions import HTTPException
 
 from baseline_cloudbaking.server.service import FieldError, QueueFull, ServerStopping
 from baseline_cloudbaking.server.settings import Settings
-from baseline_cloudbaking.store import StoreClosed, StoreUnwritable
+from baseline_cloudbaking.store_errors import StoreClosed, StoreUnwritable
 
 log = logging.getLogger("baseline_cloudbaking.server")
 

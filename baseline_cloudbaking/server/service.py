@@ -35,19 +35,13 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, TypeVar
 
 from baseline_cloudbaking.bake import SceneCatalog, UnknownScene, bake_map, encode_map, gi_camera, spec_sha
+from baseline_cloudbaking.payload_files import payload_sha
 from baseline_cloudbaking.protocol import with_header
 from baseline_cloudbaking.server.schemas import GIMapRequest
 from baseline_cloudbaking.server.settings import Settings
-from baseline_cloudbaking.store import (
-    GITree,
-    MapKey,
-    StoreConflict,
-    Vec3,
-    Viewpoint,
-    WouldBlock,
-    light_cell,
-    payload_sha,
-)
+from baseline_cloudbaking.store import GITree
+from baseline_cloudbaking.store_errors import StoreConflict, WouldBlock
+from baseline_cloudbaking.viewpoints import MapKey, Vec3, Viewpoint, light_cell
 from gicore.paths import frame_seed, light_bounds
 from gicore.scene import SceneSpec, SceneSpecError
 

@@ -13,7 +13,8 @@ from typing import Annotated
 from pydantic import Field, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
-from baseline_cloudbaking.store import DEFAULT_BUDGET_BYTES, DEFAULT_LIGHT_CELL, Tolerance
+from baseline_cloudbaking.store import DEFAULT_BUDGET_BYTES, DEFAULT_LIGHT_CELL
+from baseline_cloudbaking.viewpoints import Tolerance
 from gicore.error_policy import UserError
 from gicore.options import RESOLUTION_MAX, RESOLUTION_MIN, SEED_MAX, SPP_MAX, THREADS
 

@@ -15,7 +15,7 @@ import httpx
 import pytest
 
 from baseline_cloudbaking.client import STAGES, RemoteConfig, RemoteSource, RequestPolicy, covers
-from baseline_cloudbaking.store import Tolerance
+from baseline_cloudbaking.viewpoints import Tolerance
 from gicore.loop import path_views
 from gicore.scene import load_scene
 from network_sim.process import Running, network_sim

@@ -24,7 +24,7 @@ from baseline_cloudbaking.client import (
     perceived_latency,
     retry_after_s,
 )
-from baseline_cloudbaking.store import Tolerance
+from baseline_cloudbaking.viewpoints import Tolerance
 from gicore.camera import Camera
 from gicore.error_policy import UserError
 from gicore.loop import GIMap, path_views

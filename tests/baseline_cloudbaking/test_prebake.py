@@ -16,7 +16,8 @@ import pytest
 
 from baseline_cloudbaking.bake import fly_through
 from baseline_cloudbaking.protocol import decode_payload
-from baseline_cloudbaking.store import DEFAULT_LIGHT_CELL, GITree, Tolerance, simulate_fill
+from baseline_cloudbaking.store import DEFAULT_LIGHT_CELL, GITree
+from baseline_cloudbaking.viewpoints import Tolerance, simulate_fill
 from gicore.scene import load_scene
 from tests.baseline_cloudbaking.test_store import read_only
 from tests.helpers.cloud import BIN, RES, SPP, write_scenes

@@ -20,7 +20,8 @@ import pytest
 from baseline_cloudbaking.bake import configuration_space
 from baseline_cloudbaking.prebake_cli import PrebakeConfig, prebake_scene
 from baseline_cloudbaking.protocol import decode_payload
-from baseline_cloudbaking.store import GITree, Tolerance
+from baseline_cloudbaking.store import GITree
+from baseline_cloudbaking.viewpoints import Tolerance
 from gicore.executor import RayExecutor
 from gicore.scene import SceneSpec, load_scene
 from tests.gicore.test_executor_ray import busy_ray_workers

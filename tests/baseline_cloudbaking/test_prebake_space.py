@@ -15,7 +15,8 @@ import pytest
 
 from baseline_cloudbaking.bake import SPACE_VIEWS_MAX, configuration_space, fly_through, light_states
 from baseline_cloudbaking.prebake_cli import PrebakeConfig, prebake_scene
-from baseline_cloudbaking.store import DEFAULT_LIGHT_CELL, GITree, Tolerance, Viewpoint, light_cell, nearest
+from baseline_cloudbaking.store import DEFAULT_LIGHT_CELL, GITree
+from baseline_cloudbaking.viewpoints import Tolerance, Viewpoint, light_cell, nearest
 from gicore.paths import light_position
 from gicore.scene import SceneSpec, load_scene
 from tests.helpers.cloud import BIN, write_scenes

@@ -17,8 +17,10 @@ import httpx
 import numpy as np
 import pytest
 
-from baseline_cloudbaking import store as store_module
-from baseline_cloudbaking.store import GITree, MapKey, StoreClosed, Viewpoint
+from baseline_cloudbaking import payload_files
+from baseline_cloudbaking.store import GITree
+from baseline_cloudbaking.store_errors import StoreClosed
+from baseline_cloudbaking.viewpoints import MapKey, Viewpoint
 from tests.helpers.cloud import BIN, gimap_body, write_scenes
 
 #: Guards against a hung test only (a render on a busy 2-core machine takes seconds).
@@ -169,21 +171,21 @@ def test_a_closed_tree_refuses_every_call_and_never_reopens(tmp_path: Path) -> N
     for name, call in calls.items():
         with pytest.raises(StoreClosed, match="is closed"):
             call()
-        assert not tree._connections, name  # nothing reopened behind the caller's back
+        assert not tree.index._connections, name  # nothing reopened behind the caller's back
     tree.close()  # closing again does nothing
 
 
 def test_close_waits_for_an_insert_in_progress(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """A bake finishing on another thread while the tree closes: the insert completes, then the tree closes."""
     writing, release = threading.Event(), threading.Event()
-    write = store_module.atomic_write_bytes
+    write = payload_files.atomic_write_bytes
 
     def slow_write(path: Path, data: bytes) -> None:
         writing.set()
         release.wait(HANG_S)
         write(path, data)
 
-    monkeypatch.setattr(store_module, "atomic_write_bytes", slow_write)
+    monkeypatch.setattr(payload_files, "atomic_write_bytes", slow_write)
     tree = GITree(tmp_path / "store")
     tree.register_scene("s", "sha-s", 0.25)
     inserted: list[int | None] = []

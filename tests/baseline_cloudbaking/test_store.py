@@ -15,17 +15,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from baseline_cloudbaking.store import (
-    GITree,
-    MapKey,
-    StoreConflict,
-    StoreUnwritable,
-    Tolerance,
-    Viewpoint,
-    light_cell,
-    payload_sha,
-    simulate_fill,
-)
+from baseline_cloudbaking.payload_files import payload_sha
+from baseline_cloudbaking.store import GITree
+from baseline_cloudbaking.store_errors import StoreConflict, StoreUnwritable
+from baseline_cloudbaking.viewpoints import MapKey, Tolerance, Viewpoint, light_cell, simulate_fill
 from gicore.error_policy import UserError
 
 TOL = Tolerance(position=0.1, angle_deg=5.0)
@@ -277,7 +270,7 @@ def test_a_full_index_names_the_cause_and_the_next_insert_works(tree: GITree) ->
     is gone (no orphan until a restart); the hits it would have written are written by the next insert."""
     first = tree.insert(key(), view(-1.0), blob(9999, 100))
     assert tree.lookup(key(), view(-1.0)).entry_id == first  # one buffered hit
-    db = tree._db()
+    db = tree.index.db()
     (pages,) = db.execute("PRAGMA page_count").fetchone()
     db.execute(f"PRAGMA max_page_count = {pages}")
     stored = 0
@@ -298,12 +291,12 @@ def test_a_full_payload_folder_is_named_and_leaves_no_file(tree: GITree, monkeyp
     """ENOSPC while the payload is written (the OS's error, as a full file system raises it mid-write)."""
     import errno
 
-    from baseline_cloudbaking import store as store_module
+    from baseline_cloudbaking import payload_files as files_module
 
     def full(path: Path, data: bytes, **_: object) -> Path:
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
 
-    monkeypatch.setattr(store_module, "atomic_write_bytes", full)
+    monkeypatch.setattr(files_module, "atomic_write_bytes", full)
     with pytest.raises(StoreUnwritable, match="No space left on device") as caught:
         tree.insert(key(), view(0.0), blob(0))
     assert caught.value.full and payload_files(tree) == set() and tree.entries() == []
@@ -337,12 +330,12 @@ def test_a_failed_flush_rolls_back_and_later_writes_work(tree: GITree) -> None:
     """A write that fails inside its transaction (here a trigger aborts the hit-count update) is rolled
     back and raises its own error; the next writes do not find a transaction still open."""
     first = tree.insert(key(), view(0.0), blob(0))
-    db = tree._db()
+    db = tree.index.db()
     db.execute("CREATE TRIGGER fail_hits BEFORE UPDATE OF hits ON entries BEGIN SELECT RAISE(ABORT, 'hits lost'); END")
     assert tree.lookup(key(), view(0.0)).entry_id == first  # buffers a hit
     with pytest.raises(sqlite3.IntegrityError, match="hits lost"):
         tree.flush()
-    assert not tree._db().in_transaction
+    assert not tree.index.db().in_transaction
     second = tree.insert(key(), view(1.0), blob(1))
     assert second is not None and [e.id for e in tree.entries()] == [first, second]
     db.execute("DROP TRIGGER fail_hits")
@@ -352,7 +345,7 @@ def test_a_failed_flush_rolls_back_and_later_writes_work(tree: GITree) -> None:
 
 def test_the_few_candidate_path_picks_what_numpy_picks() -> None:
     """GITree.find scores up to 16 candidates in plain floats: the same entry and distances as nearest()."""
-    from baseline_cloudbaking.store import _nearest_few, nearest
+    from baseline_cloudbaking.viewpoints import _nearest_few, nearest
 
     rng = np.random.default_rng(3)
     agreed = 0
@@ -375,7 +368,7 @@ def test_find_from_memory_picks_what_a_full_scan_picks(tree: GITree) -> None:
     """GITree.find reads a key group's viewpoints once and then a slab of them from memory: over random
     entries (mixed FOVs and DI) and requests, the same entry as nearest() over every entry the index's
     query would have returned."""
-    from baseline_cloudbaking.store import nearest
+    from baseline_cloudbaking.viewpoints import nearest
 
     rng = np.random.default_rng(7)
     entries = []
@@ -404,7 +397,7 @@ def test_find_from_memory_picks_what_a_full_scan_picks(tree: GITree) -> None:
 def test_lookups_from_memory_see_every_commit(tmp_path: Path) -> None:
     """``io=False`` answers from memory or raises WouldBlock; an insert or an eviction by another opener (a
     connection of its own, as another process) is seen by the next lookup, never a stale entry."""
-    from baseline_cloudbaking.store import WouldBlock
+    from baseline_cloudbaking.store_errors import WouldBlock
 
     root = tmp_path / "store"
     with GITree(root, tolerance=TOL) as server, GITree(root, tolerance=TOL, budget_bytes=2500) as other:
@@ -433,7 +426,7 @@ def test_the_payload_cache_keeps_to_its_budget(tmp_path: Path) -> None:
         for i in range(4):
             t.insert(key(), view(float(i)), blob(i))
             assert t.lookup(key(), view(float(i))).payload == blob(i)
-        assert t._payload_bytes == 2000 and len(t._payloads) == 2  # the two most recent of 1000 bytes each
+        assert t.files.cached_bytes == 2000 and len(t.files._cached) == 2  # the two most recent of 1000 bytes each
     with pytest.raises(ValueError, match="cache_bytes must be >= 0"):
         GITree(tmp_path / "other", cache_bytes=-1)
 
@@ -444,7 +437,7 @@ def test_fewest_maps_is_the_smallest_cover_of_the_path() -> None:
     fill places; a light cell of its own per map; a view no map serves is an error."""
     import itertools
 
-    from baseline_cloudbaking.store import fewest_maps, nearest
+    from baseline_cloudbaking.viewpoints import fewest_maps, nearest
 
     views = [view(0.04 * i + 0.001) for i in range(26)]
     cells = [(0, 0, 0)] * len(views)

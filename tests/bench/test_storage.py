@@ -7,7 +7,8 @@ from pathlib import Path
 import pytest
 
 from baseline_cloudbaking.prebake_cli import PrebakeConfig, prebake_scene
-from baseline_cloudbaking.store import GITree, Tolerance
+from baseline_cloudbaking.store import GITree
+from baseline_cloudbaking.viewpoints import Tolerance
 from bench.runner import execute
 from bench.storage import BENCH, StorageConfig
 from gicore.results import read_rows

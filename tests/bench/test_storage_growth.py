@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from baseline_cloudbaking.bake import fly_through, gi_camera
-from baseline_cloudbaking.store import DEFAULT_LIGHT_CELL, GITree, MapKey, Tolerance, light_cell
+from baseline_cloudbaking.store import DEFAULT_LIGHT_CELL, GITree
+from baseline_cloudbaking.viewpoints import MapKey, Tolerance, light_cell
 from bench.runner import build_config
 from bench.storage import (
     PAPER_TOLERANCE,

@@ -22,7 +22,8 @@ import pytest
 from baseline_cloudbaking.bake import configuration_space
 from baseline_cloudbaking.prebake_cli import PrebakeConfig, prebake_scene
 from baseline_cloudbaking.protocol import unpack
-from baseline_cloudbaking.store import DEFAULT_LIGHT_CELL, GITree, Tolerance
+from baseline_cloudbaking.store import DEFAULT_LIGHT_CELL, GITree
+from baseline_cloudbaking.viewpoints import Tolerance
 from gicore.dataset_cli import DatasetConfig, build_dataset
 from gicore.error_policy import UserError
 from gicore.executor import InProcess, LocalPool, RayExecutor, Task
