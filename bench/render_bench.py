@@ -26,11 +26,11 @@ from __future__ import annotations
 import sys
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from bench.present.declarations import Chart, Column, Figure, Rows, Table, flat, matches, unique
 from bench.runner import Bench
 from gicore.camera import Camera
 from gicore.error_policy import UserError
@@ -38,7 +38,7 @@ from gicore.geometry import scene_objects
 from gicore.loop import RENDERERS
 from gicore.options import RESOLUTION
 from gicore.paths import camera_path, light_position
-from gicore.results import Results, read_rows
+from gicore.results import Results
 from gicore.scene import SceneSpec, builtin_scenes, load_scene
 from gicore.timing import time_repeats
 
@@ -272,115 +272,98 @@ def measure_client_passes(cfg: RenderBenchConfig, res: Results) -> None:
                     )
 
 
-def client_table(rows: list[dict]) -> str:
-    """The clients' raster passes per scene and resolution: median ms on GL (full, auto; wall and GPU draw) and
-    Mitsuba, gl / mitsuba, and the level auto drew with its G-buffer error."""
+# -- what it shows ------------------------------------------------------------------------------------------
+def client_rows(rows: Rows) -> list[dict]:
+    """Per scene, resolution and client pass: median ms on GL (full, auto: wall, gl / mitsuba, GPU draw) and
+    on Mitsuba; each row also holds the level lod auto drew at each view and its G-buffer error."""
+    client = [r for r in rows if r["config"].get("pass_set") == "client"]
 
-    def get(scene: str, system: str, metric: str, stat: str, **config: Any) -> float | None:
-        return next(
-            (
-                r["value"]
-                for r in rows
-                if (r["scene"], r["system"], r["metric"], r["stat"]) == (scene, system, metric, stat)
-                and r["config"].get("pass_set") == "client"
-                and all(r["config"].get(k) == v for k, v in config.items())
-            ),
-            None,
-        )
+    def get(scene: str, resolution: int, system: str, metric: str, stat: str, **config: Any) -> float | None:
+        where = (scene, system, resolution)
+        found = (r for r in client if (r["scene"], r["system"], r["config"]["resolution"]) == where)
+        return next((r["value"] for r in found if matches(r, metric, stat, **config)), None)
 
-    def ms(value: float | None, spec: str = ".1f") -> str:
-        return "—" if value is None else format(value, spec)
-
-    keys = list(dict.fromkeys((r["scene"], r["config"]["resolution"]) for r in rows if r["config"].get("pass_set")))
-    lines = [
-        "## Client raster passes: OpenGL beside Mitsuba",
-        "",
-        "Median ms per pass, read-back to host memory included (gl / mitsuba in brackets); GPU draw: the pass's",
-        "draw calls alone (its shadow map included), timed on the GPU by a GL timer query.",
-        "",
-    ]
-    for scene, resolution in keys:
-        at = {"resolution": resolution}
-        lines += [
-            f"### {scene}, {resolution}²",
-            "",
-            "| pass | gl, full detail | GPU draw | gl, lod auto | GPU draw | mitsuba |",
-            "|---|---|---|---|---|---|",
-        ]
-        for stage in CLIENT_PASSES:
-            cells = []
-            for lod in GL_LODS:
-                median, ratio, draw = (
-                    get(scene, "gl", stage, "median", lod=lod, **at),
-                    get(scene, "gl/mitsuba", stage, "ratio", lod=lod, **at),
-                    get(scene, "gl", f"{stage}{GPU_DRAW}", "median", lod=lod, **at),
-                )
-                cells += [f"{ms(median)} ({ms(ratio, '.2f')})", ms(draw, ".2f")]
-            mitsuba = ms(get(scene, "mitsuba", stage, "median", **at))
-            lines.append(f"| {stage} | " + " | ".join(cells) + f" | {mitsuba} |")
+    out = []
+    for scene, resolution in unique((r["scene"], r["config"]["resolution"]) for r in client):
+        lod = {}
         for view in LOD_VIEWS:
-            where = at | {"lod": "auto", "view": view}
-            errors = []
-            for c in ("normal", "depth", "coverage"):
-                mean, top = (get(scene, "gl", f"lod_error_{c}", stat, **where) for stat in ("mean", "max"))
-                errors.append(f"{c} {ms(mean, '.1e')} (max {ms(top, '.1e')})")
-            level, top = (get(scene, "gl", "lod_level", stat, **where) for stat in ("mean", "max"))
-            lines.append(
-                f"\nlod auto at the {LOD_VIEWS[view]}: level {ms(level, '.1f')} on average (max {ms(top, '.0f')}); "
-                f"G-buffer error against full detail: {', '.join(errors)}."
-            )
-        lines.append("")
-    return "\n".join(lines)
+            for name, metric in [("level", "lod_level")] + [(c, f"lod_error_{c}") for c in LOD_ERRORS]:
+                for stat, suffix in (("mean", ""), ("max", "_max")):
+                    lod[f"{name}_{view}{suffix}"] = get(scene, resolution, "gl", metric, stat, lod="auto", view=view)
+        for stage in CLIENT_PASSES:
+            row = {"scene": scene, "resolution": resolution, "stage": stage, **lod}
+            row["mitsuba"] = get(scene, resolution, "mitsuba", stage, "median")
+            for level in GL_LODS:
+                row[f"{level}"] = get(scene, resolution, "gl", stage, "median", lod=level)
+                row[f"{level}_ratio"] = get(scene, resolution, "gl/mitsuba", stage, "ratio", lod=level)
+                row[f"{level}_draw"] = get(scene, resolution, "gl", f"{stage}{GPU_DRAW}", "median", lod=level)
+            out.append(row)
+    return out
 
 
-def plot(csv_path: Path, out_dir: Path) -> list[Path]:
-    """Median time of each pass per scene (bars, p95 whiskers, log scale: passes span three decades)."""
-    from gicore.plotting import plt, save, ticker
-
-    rows = read_rows(csv_path)
-    written = []
-    if any(r["config"].get("pass_set") == "client" for r in rows):
-        md = out_dir / "render_client_passes.md"
-        md.write_text(client_table(rows) + "\n")
-        written.append(md)
-    mitsuba_passes = [r for r in rows if r["system"] == "mitsuba" and r["config"].get("pass_set") != "client"]
-    if not mitsuba_passes:  # --renderers gl
-        return written
-    scenes = list(dict.fromkeys(r["scene"] for r in mitsuba_passes))
-    stages = [s for s in PASSES if any(r["metric"] == s for r in mitsuba_passes)]
-
-    def value(scene: str, stage: str, stat: str) -> float:
-        return next(
-            (r["value"] for r in mitsuba_passes if (r["scene"], r["metric"], r["stat"]) == (scene, stage, stat)),
-            float("nan"),
-        )
-
-    fig, ax = plt.subplots(figsize=(max(7.0, 1.6 * len(scenes) + 4), 4.2))
-    width = 0.8 / len(stages)
-    x = np.arange(len(scenes))
-    for i, stage in enumerate(stages):
-        med = np.array([value(s, stage, "median") for s in scenes])
-        p95 = np.array([value(s, stage, "p95") for s in scenes])
-        ax.bar(x + (i + 0.5) * width - 0.4, med, width, yerr=[np.zeros_like(med), p95 - med], capsize=2, label=stage)
+def _pass_bars(rows: Rows) -> list[dict]:
+    """Mitsuba's passes per scene (labelled with its triangles)."""
     triangles = {r["scene"]: int(r["value"]) for r in rows if r["metric"] == "triangles"}
-    ax.set_xticks(x, [f"{s}\n{triangles.get(s, 0):,} triangles" for s in scenes], fontsize=7)
-    ax.set_yscale("log")
-    for axis in (ax.yaxis.set_major_formatter, ax.yaxis.set_minor_formatter):
-        axis(ticker.FormatStrFormatter("%g"))
-    ax.set_ylabel("time per frame [ms] (median, p95 whisker)")
-    ax.grid(axis="y", alpha=0.3, which="both")
-    ax.legend(fontsize=7, ncols=2)
-    resolution = next((r["config"].get("resolution") for r in mitsuba_passes if r["stat"] == "median"), "?")
-    variant = next((r["config"].get("variant") for r in mitsuba_passes if r["stat"] == "median"), "")
-    ax.set_title(f"Render passes at {resolution}² (Mitsuba {variant})")
-    return [save(fig, out_dir / "render.png"), *written]
+    return [
+        flat(r) | {"label": f"{r['scene']}\n{triangles.get(r['scene'], 0):,} triangles"}
+        for r in rows
+        if r["system"] == "mitsuba" and r["config"].get("pass_set") != "client" and r["metric"] in PASSES
+        and r["stat"] == "median"
+    ]  # fmt: skip
+
+
+def _passes_title(rows: Rows) -> str:
+    mitsuba = _pass_bars(rows)
+    return f"Render passes at {mitsuba[0].get('resolution', '?')}² (Mitsuba {mitsuba[0].get('variant', '')})"
+
+
+LOD_ERRORS = ("normal", "depth", "coverage")
+LOD_NOTE = "\n\n".join(
+    f"lod auto at the {label}: level {{level_{v}:.1f}} on average (max {{level_{v}_max:.0f}}); G-buffer error against "
+    "full detail: " + ", ".join(f"{c} {{{c}_{v}:.1e}} (max {{{c}_{v}_max:.1e}})" for c in LOD_ERRORS) + "."
+    for v, label in LOD_VIEWS.items()
+)
+PARTS = (
+    Table(
+        client_rows,
+        (
+            Column("pass", "{stage}"),
+            Column("gl, full detail", "{full:.1f} ({full_ratio:.2f})"),
+            Column("GPU draw", "{full_draw:.2f}"),
+            Column("gl, lod auto", "{auto:.1f} ({auto_ratio:.2f})"),
+            Column("GPU draw", "{auto_draw:.2f}"),
+            Column("mitsuba", "{mitsuba:.1f}"),
+        ),
+        title="Client raster passes: OpenGL beside Mitsuba",
+        caption="Median ms per pass, read-back to host memory included (gl / mitsuba in brackets); GPU draw: the "
+        "pass's draw calls alone (its shadow map included), timed on the GPU by a GL timer query.",
+        group="{scene}, {resolution}²",
+        group_note=LOD_NOTE,
+    ),
+    Figure(
+        "render",
+        (
+            Chart(
+                _pass_bars,
+                "label",
+                series="{metric}",
+                kind="bar",
+                ylog=True,
+                title=_passes_title,
+                ylabel="time per frame [ms] (median)",
+                tip="{metric}, {scene}: {value:.4g} ms",
+            ),
+        ),  # fmt: skip
+    ),
+)
 
 
 BENCH = Bench(
     "render",
     RenderBenchConfig,
     measure,
-    plot,
+    None,
     help="Per-pass render times (DI, G-buffers, GT with/without OIDN) and triangle counts per scene; the clients' "
     "raster passes (GI camera, local DI, uv, depth) on OpenGL (full detail and lod auto) beside Mitsuba.",
+    parts=PARTS,
 )

@@ -89,6 +89,8 @@ def _bars(ax: Any, chart: Chart, series: dict[str, list[dict]], tips: Tips) -> N
 
 
 def _panel(ax: Any, chart: Chart, points: list[dict], rows: Rows, tips: Tips) -> None:
+    from gicore.plotting import ticker
+
     series = _series(chart, points)
     (_xy if chart.kind in ("line", "scatter") else _bars)(ax, chart, series, tips)
     xlabel, ylabel = text(chart.xlabel, rows), text(chart.ylabel, rows)
@@ -97,10 +99,11 @@ def _panel(ax: Any, chart: Chart, points: list[dict], rows: Rows, tips: Tips) ->
     ax.set_xlabel(xlabel, fontsize=8)
     ax.set_ylabel(ylabel, fontsize=8)
     ax.set_title(text(chart.title, rows), fontsize=9)
-    if chart.xlog:
-        ax.set_xscale("log")
-    if chart.ylog:
-        ax.set_yscale("log")
+    for log, axis, scale in ((chart.xlog, ax.xaxis, ax.set_xscale), (chart.ylog, ax.yaxis, ax.set_yscale)):
+        if log:  # plain numbers (20, 300) rather than powers of ten
+            scale("log")
+            axis.set_major_formatter(ticker.LogFormatter())
+            axis.set_minor_formatter(ticker.LogFormatter(minor_thresholds=(1, 0.4)))
     ax.grid(alpha=0.3, which="both")
     if any(series):
         ax.legend(fontsize=6)

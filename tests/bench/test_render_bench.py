@@ -7,12 +7,13 @@ from pathlib import Path
 
 import pytest
 
+from bench.present.markdown import tables_text
 from bench.render_bench import (
     CLIENT_PASSES,
     GL_LODS,
     GPU_DRAW,
+    PARTS,
     RenderBenchConfig,
-    client_table,
     measure_client_passes,
 )
 from gicore.error_policy import UserError
@@ -58,7 +59,7 @@ def test_client_passes_side_by_side(tmp_path: Path) -> None:
     assert get("gl", "lod_level", "mean", view="gi") >= get("gl", "lod_level", "mean", view="local")
     # the shown passes' looser bound never draws a finer level than the model-input bound at the same views
     assert get("gl", "lod_level", "mean", view="local_shown") >= get("gl", "lod_level", "mean", view="local")
-    text = client_table(rows)
+    text = tables_text(PARTS, rows, 2)
     assert "### lung_plane, 32²" in text and text.count("| gi_camera |") == 1 and "lod auto at the gi views" in text
     assert "lod auto at the local views, shown passes" in text
 
@@ -75,7 +76,7 @@ def test_client_table_keeps_each_scene_to_its_own_rows() -> None:
                              "config": config})  # fmt: skip
                 rows.append({"system": "gl", "scene": scene, "metric": f"{stage}{GPU_DRAW}", "stat": "median",
                              "value": ms / 10, "config": config})  # fmt: skip
-    text = client_table(rows)
+    text = tables_text(PARTS, rows, 2)
     lung, vessels = text.split("### vessels_plane, 256²")
     assert "| gi_camera | 1.5 (—) | 0.15 | 1.5 (—) | 0.15 | — |" in lung and "7.2" not in lung
     assert "| gi_camera | 7.2 (—) | 0.72 | 7.2 (—) | 0.72 | — |" in vessels and "1.5 (" not in vessels

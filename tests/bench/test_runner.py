@@ -235,7 +235,7 @@ def test_tiny_render_run_through_the_command(tmp_path: Path) -> None:
         "--gl-repeats", "1", "--out", str(tmp_path),
     )  # fmt: skip
     assert result.returncode == 0, result.stderr
-    written = ["render.csv", "render.provenance.json", "render.png", "render_client_passes.md"]
+    written = ["render.csv", "render.provenance.json", "render.md", "render.png", "render.svg"]
     assert result.stdout.split() == [word for name in written for word in ("wrote", str(tmp_path / name))]
     rows = read_rows(tmp_path / "render.csv")
     assert {r["metric"] for r in rows} >= {"triangles", "di_1spp", "gt_256spp"}
@@ -245,6 +245,7 @@ def test_tiny_render_run_through_the_command(tmp_path: Path) -> None:
         "settings"
     ].items()
     assert (tmp_path / "render.png").stat().st_size > 10_000
+    assert ">gt_256spp</text>" in (tmp_path / "render.svg").read_text()  # each pass a series of bars
 
 
 def test_results_are_tidy_with_provenance(tmp_path: Path) -> None:

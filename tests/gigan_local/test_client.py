@@ -383,4 +383,4 @@ def test_a_model_client_on_gl_and_bench_render_gl_need_no_mitsuba(spec_file, mod
     rows = read_rows(tmp_path / "render" / "render.csv")
     assert {r["system"] for r in rows} == {"scene", "gl"}  # no Mitsuba passes, no gl / mitsuba ratios
     [scene] = {r["scene"] for r in rows}
-    assert f"### {scene}, 32²" in (tmp_path / "render" / "render_client_passes.md").read_text()
+    assert f"### {scene}, 32²" in (tmp_path / "render" / "render.md").read_text()
