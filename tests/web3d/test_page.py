@@ -1,0 +1,188 @@
+"""The Web3D page a person drives, in headless Chromium (SwiftShader WebGL2) served by gigan-web's server with a
+real cloud-baking server on a cold store (1 spp) behind one network-sim proxy: a drag and a wheel move the camera
+and both canvases, frames keep coming while GIGAN's map is computed, the page's camera matrices are
+gicore.camera's, recordings are path files the clients read, and the light slider moves the light and the GI.
+
+One page serves the whole module; each test first waits until no map is in flight. Skips, saying why, without
+Chromium, Playwright or web3d/static/node_modules.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from gicore.camera import Camera
+from gicore.path_file import read_path_file
+from gicore.paths import navigation, outside_navigation
+from gicore.scene import SceneSpec, load_scene
+from tests.helpers.browser import canvases, missing, viewer_page, wait
+
+SCENE = "lung_plane"
+#: Path frames a replay plays (small: each frame draws both panes in software).
+REPLAYED = 6
+#: A canvas has changed when its mean |difference| is above this (0-255): the DI alone moves it by far more.
+CHANGED = 1.0
+IDLE = "(() => { const f = viewer.frames.at(-1); return f && !f.gigan.inflight && !(f.cloud && f.cloud.inflight); })()"
+
+
+@pytest.fixture(scope="module")
+def spec() -> SceneSpec:
+    return load_scene(SCENE)
+
+
+@pytest.fixture(scope="module")
+def page(tmp_path_factory: pytest.TempPathFactory) -> Any:
+    why = missing()
+    if why:
+        pytest.skip(f"the Web3D page cannot run here: {why}")
+    from web3d.cli import WebConfig, cloud_for, prepare
+    from web3d.serve import WebServer
+
+    assets = tmp_path_factory.mktemp("page") / "assets"
+    cfg = WebConfig(scene=SCENE, profiles=("lan",), listen="127.0.0.1:0", assets=assets, spp=1, every=1)
+    cloud = cloud_for(cfg, report=lambda line: None)
+    site = prepare(cfg, cloud)
+    with cloud, WebServer(site) as web, viewer_page(web.url) as page:
+        yield page
+
+
+def settle(page: Any) -> None:
+    """Wait until the page has a frame and no map in flight (nothing draws until something changes)."""
+    wait(page, IDLE)
+
+
+def path_frames(page: Any, count: int) -> dict[str, Any]:
+    """The exported scripted path (a path file) cut to its first ``count`` frames."""
+    doc = page.evaluate("fetch('/assets/path.json').then((r) => r.json())")
+    return doc | {"frames": doc["frames"][:count]}
+
+
+def changed(before: dict[str, np.ndarray], after: dict[str, np.ndarray]) -> dict[str, float]:
+    return {k: float(np.abs(after[k].astype(np.float64) - before[k]).mean()) for k in before}
+
+
+def drawn_after(page: Any, n: int) -> None:
+    wait(page, "n => viewer.frames.length > n", n)
+
+
+def test_a_drag_and_a_wheel_move_the_camera_and_both_canvases(page: Any) -> None:
+    settle(page)
+    cam0, shot0, n = page.evaluate("viewer.camera()"), canvases(page), len(page.evaluate("viewer.frames"))
+    assert set(shot0) == {"gigan", "cloud"}
+    box = page.locator("#gigan").bounding_box()
+    x, y = box["x"] + box["width"] / 2, box["y"] + box["height"] / 2
+    page.mouse.move(x, y)
+    page.mouse.down()
+    page.mouse.move(x + 150, y + 10, steps=5)
+    page.mouse.up()
+    drawn_after(page, n)
+    settle(page)
+    cam1, shot1 = page.evaluate("viewer.camera()"), canvases(page)
+    assert math.dist(cam0["eye"], cam1["eye"]) > 0.05  # an orbit: the eye moved round the target
+    assert cam1["target"] == pytest.approx(cam0["target"], abs=1e-9)
+    assert all(v > CHANGED for v in changed(shot0, shot1).values()), changed(shot0, shot1)
+
+    n = len(page.evaluate("viewer.frames"))
+    page.mouse.move(x, y)
+    page.mouse.wheel(0, -200)  # zoom in
+    drawn_after(page, n)
+    settle(page)
+    cam2, shot2 = page.evaluate("viewer.camera()"), canvases(page)
+    assert math.dist(cam2["eye"], cam2["target"]) < math.dist(cam1["eye"], cam1["target"]) - 1e-3
+    assert all(v > CHANGED for v in changed(shot1, shot2).values()), changed(shot1, shot2)
+
+
+def test_frames_keep_coming_while_a_gigan_map_is_computed(page: Any) -> None:
+    settle(page)
+    start = len(page.evaluate("viewer.frames"))
+    page.evaluate("doc => viewer.replay(doc)", path_frames(page, REPLAYED))
+    settle(page)
+    frames = page.evaluate("viewer.frames")[start:]
+    assert [f["replay"] for f in frames[:REPLAYED]] == list(range(REPLAYED))  # one path frame per drawn frame
+    first = min(m["frame"] for m in page.evaluate("viewer.maps") if m["system"] == "gigan" and m["frame"] >= start)
+    # the frames drawn while that map was computed: from the one that sent its request (it drew with the map
+    # before, not waiting for this one) to the one before it was shown; all of them, and at least that one
+    during = []
+    for f in frames[first - start :]:
+        if f["gigan"]["map_frame"] == first:
+            break
+        during.append(f)
+    assert during and all(f["gigan"]["inflight"] and f["gigan"]["map_frame"] < first for f in during), frames
+    assert len(during) < len(frames) - (first - start)  # and it was shown after
+
+
+def test_the_pages_camera_matrices_are_gicore_cameras(page: Any, spec: SceneSpec) -> None:
+    nav = navigation(spec)
+    rng = np.random.default_rng(0)
+    tx, ty, tz = nav["target"]
+    for _ in range(5):
+        r, a, h = rng.uniform(*nav["radius"]), rng.uniform(0, 2 * math.pi), rng.uniform(*nav["height"])
+        eye = [tx + r * math.sin(a), h, tz + r * math.cos(a)]
+        target = [tx + rng.uniform(-1, 1) * nav["target_wobble"], ty + rng.uniform(-1, 1) * nav["target_wobble"], tz]
+        cam = page.evaluate("p => viewer.setCamera(p)", {"eye": eye, "target": target})
+        assert cam["eye"] == eye and cam["target"] == target  # inside the envelope: as given
+        assert (cam["fov"], cam["near"], cam["far"]) == (spec.camera.local_fov, spec.camera.near, spec.camera.far)
+        ref = Camera(cam["eye"], cam["target"], cam["up"], cam["fov"], cam["near"], cam["far"])
+        for name, matrix in (("view", ref.view()), ("proj", ref.proj()), ("view_proj", ref.view_proj())):
+            page_matrix = np.asarray(cam[name]).reshape(4, 4).T  # column-major
+            np.testing.assert_allclose(page_matrix, matrix, rtol=0, atol=1e-6, err_msg=name)
+    far = page.evaluate("p => viewer.setCamera(p)", {"eye": [10.0, 10.0, -10.0], "target": [1.0, 2.0, 3.0]})
+    assert outside_navigation(nav, far["eye"], 1e-9) is None  # clamped into the envelope
+    assert far["target"] == pytest.approx([tx + nav["target_wobble"], ty + nav["target_wobble"], tz])
+
+
+def test_a_recorded_replay_is_a_path_file_of_the_cameras_and_lights_replayed(
+    page: Any, spec: SceneSpec, tmp_path: Path
+) -> None:
+    settle(page)
+    doc = path_frames(page, REPLAYED)
+    page.evaluate("viewer.record(true)")
+    page.evaluate("doc => viewer.replay(doc)", doc)
+    page.evaluate("viewer.record(false)")
+    recorded = page.evaluate("viewer.recording()")
+    (tmp_path / "session.json").write_text(json.dumps(recorded))
+    flown = read_path_file(tmp_path / "session.json", spec)
+    assert len(flown.frames) == len(recorded["frames"]) >= REPLAYED
+    for got, want in zip(flown.frames, doc["frames"]):  # the replay's frames first, exactly
+        assert list(got.camera.origin) == want["camera"]["eye"]
+        assert list(got.camera.target) == want["camera"]["target"]
+        assert list(got.light) == want["light"]
+    assert recorded["frames"][0]["t_ms"] == 0.0
+
+
+def test_the_record_button_downloads_the_session(page: Any, spec: SceneSpec, tmp_path: Path) -> None:
+    settle(page)
+    page.click("#record")
+    n = len(page.evaluate("viewer.frames"))
+    pose = path_frames(page, 1)["frames"][0]["camera"]
+    page.evaluate("p => viewer.setCamera(p)", {"eye": pose["eye"], "target": pose["target"]})
+    drawn_after(page, n)
+    with page.expect_download() as download:
+        page.click("#record")
+    name = download.value.suggested_filename
+    assert re.fullmatch(r"session-[0-9T-]+Z\.json", name), name
+    download.value.save_as(tmp_path / name)
+    flown = read_path_file(tmp_path / name, spec)
+    assert flown.frames and list(flown.frames[-1].camera.origin) == pose["eye"]
+
+
+def test_the_light_slider_moves_the_light_and_the_gi(page: Any) -> None:
+    settle(page)
+    light0, shot0 = page.evaluate("viewer.light()"), canvases(page)
+    start = len(page.evaluate("viewer.frames"))
+    page.evaluate("viewer.record(true)")
+    page.locator("#light-x").press("End")  # a person's keys on the slider: its largest x
+    light1 = page.evaluate("viewer.light()")
+    assert light1[0] > light0[0] and light1[1:] == light0[1:]
+    wait(page, "x => viewer.recording().frames.some((f) => f.light[0] === x)", light1[0])  # drawn with it
+    settle(page)
+    page.evaluate("viewer.record(false)")
+    assert all(v > CHANGED for v in changed(shot0, canvases(page)).values())
+    assert any(m["system"] == "gigan" and m["frame"] >= start for m in page.evaluate("viewer.maps"))  # new GI
