@@ -23,9 +23,20 @@ import numpy as np
 
 from baseline_cloudbaking.client import check_server
 from baseline_cloudbaking.codecs import CODEC_NAMES, DEFAULT_CODEC
-from bench.processes import BIN, ask_path, check_served, pinned_proxy, pinned_server, run_client, run_place
+from bench.processes import (
+    BIN,
+    ask_path,
+    check_served,
+    path_options,
+    pinned_proxy,
+    pinned_server,
+    run_client,
+    run_place,
+    with_path_frames,
+)
 from bench.runner import Bench, Block, Rows, Section, Table, cell, need, pick
 from gicore.error_policy import UserError
+from gicore.options import PATH_FILE
 from gicore.results import Results, read_rows
 
 CodecName = Literal[CODEC_NAMES]  # type: ignore[valid-type]
@@ -56,6 +67,7 @@ class PrefetchConfig:
     frames: int = 300
     #: Frames per full orbit of the camera path (the camera's motion per frame).
     orbit_frames: int = 300
+    path: Path | None = field(default=None, metadata=PATH_FILE)
     #: Frames per second the clients are paced to.
     frame_rate: float = field(default=30.0, metadata={"min": 1.0, "max": 1000.0})
     #: The period variant's k: a request every k frames (bench latency's default).
@@ -97,6 +109,7 @@ class PrefetchConfig:
 def measure(cfg: PrefetchConfig, res: Results) -> None:
     scene = cfg.scenes[0]
     spec, scenes_dir, work, plan = run_place(scene, res, "prefetch_runs", cfg.pin)
+    cfg = with_path_frames(cfg, spec)
     common = {"resolution": cfg.resolution, "frames": cfg.frames, "orbit_frames": cfg.orbit_frames,
               "frame_rate": cfg.frame_rate, "spp": cfg.spp, "codec": cfg.codec}  # fmt: skip
     prebaked = work / "store_prebaked"
@@ -108,8 +121,8 @@ def measure(cfg: PrefetchConfig, res: Results) -> None:
     for store, floor in request_floors(spec, cfg, res.seed, prebaked, server).items():
         res.add(system=SYSTEM, scene=spec.name, metric="request_floor", value=floor, unit="count", store=store,
                 **common)  # fmt: skip
-    argv = [str(BIN / "cloudbaking-client"), "--scene", scene, "--frames", str(cfg.frames),
-            "--resolution", str(cfg.resolution), "--orbit-frames", str(cfg.orbit_frames), "--spp", str(cfg.spp),
+    argv = [str(BIN / "cloudbaking-client"), "--scene", scene, *path_options(cfg),
+            "--resolution", str(cfg.resolution), "--spp", str(cfg.spp),
             "--gt-every", str(cfg.gt_every), "--codec", cfg.codec, "--frame-rate", str(cfg.frame_rate),
             "-k", str(cfg.every), "--seed", str(res.seed), "--read-timeout", str(cfg.read_timeout_s),
             "--deadline", str(2 * cfg.read_timeout_s), "--gt-cache", str(work / "gt_cache")]  # fmt: skip
@@ -140,10 +153,10 @@ def request_floors(spec: Any, cfg: PrefetchConfig, seed: int, prebaked: Path, se
     the path's own views (a client that chose where the maps are baked, on a cold store: each request a bake)."""
     from baseline_cloudbaking.store import GITree
     from baseline_cloudbaking.viewpoints import Viewpoint, fewest_maps, light_cell
-    from gicore.loop import path_views
+    from gicore.path_file import flown_path
 
     views, cells = [], []
-    for camera, light in path_views(spec, cfg.frames, cfg.orbit_frames, seed, spec.camera.local_fov, cfg.resolution):
+    for camera, light in flown_path(spec, cfg, seed).views(cfg.resolution):
         gi = camera.with_fov(spec.camera.gi_fov)
         views.append(Viewpoint.look_at(gi.origin, gi.target))
         cells.append(light_cell(light, server.light_cell))

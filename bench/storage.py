@@ -13,9 +13,10 @@ from __future__ import annotations
 import json
 import math
 from collections import defaultdict
-from dataclasses import dataclass, field
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Literal
+from typing import Literal, NamedTuple
 
 import numpy as np
 
@@ -32,6 +33,7 @@ from gicore.error_policy import UserError, writable_dir
 from gicore.loop import Light
 from gicore.metrics import ssim
 from gicore.options import FRAMES
+from gicore.path_file import PathFile, read_sessions
 from gicore.paths import frame_seed, light_position
 from gicore.render_cache import RenderCache
 from gicore.results import Results, read_rows
@@ -91,6 +93,9 @@ class StorageConfig:
     users: tuple[int, ...] = field(default=(1, 8), metadata={"min": 1, "max": 10_000})
     #: Growth law: frames per session.
     session_frames: int = field(default=1500, metadata=FRAMES)
+    #: Growth law: a folder of recorded sessions flown in place of the seeded ones: every *.json path file in it
+    #: (gigan-path/1, in name order; each scene's are those naming it), one curve, recorded as 1 user.
+    sessions_from: Path | None = field(default=None, metadata={"conflicts": ("sessions", "users", "session_frames")})
     #: Growth law: maps baked per scene and resolution at entries of the session tree to measure bytes per entry.
     growth_samples: int = field(default=4, metadata={"min": 1, "max": 256})
     #: Growth law: saturated from the session after which no session adds more entries than this fraction of its
@@ -141,6 +146,8 @@ class StorageConfig:
                 f"--model-dir {self.model_dir} lacks {', '.join(missing)}",
                 "give the folder of an exported GIGAN model (gigan-export)",
             )
+        if self.sessions_from is not None:  # every recorded session checked before anything is measured
+            read_sessions(self.sessions_from, [load_scene(s) for s in self.scenes])
 
     @property
     def tolerance(self) -> Tolerance:
@@ -437,15 +444,22 @@ class SessionFill:
     creators: list[tuple[Camera, Light]]
 
 
-def session_frames(spec: SceneSpec, sessions: list[Session], light_cell_size: float, fov: float) -> SessionFrames:
-    """The frames of ``sessions`` in turn (:func:`gicore.sessions.session_views`)."""
+def session_frames(
+    spec: SceneSpec, sessions: Sequence[Session | PathFile], light_cell_size: float, fov: float
+) -> SessionFrames:
+    """The frames of ``sessions`` in turn at GI FOV ``fov``: seeded ones (:func:`gicore.sessions.session_views`)
+    or recorded ones (path files)."""
     size = light_cell_size if spec.light.moves else None
     frames: list[tuple[Camera, Light]] = []
     views: list[Viewpoint] = []
     ends = []
     for session in sessions:
         seen: dict[int, Viewpoint] = {}  # a session's laps repeat their cameras: one viewpoint per camera
-        for cam, light in session_views(spec, session, fov, spec.resolution):
+        if isinstance(session, PathFile):
+            flown = session.views(spec.resolution, fov)
+        else:
+            flown = session_views(spec, session, fov, spec.resolution)
+        for cam, light in flown:
             if id(cam) not in seen:
                 seen[id(cam)] = Viewpoint.look_at(cam.origin, cam.target)
             views.append(seen[id(cam)])
@@ -484,8 +498,9 @@ def capacity(spec: SceneSpec, tol: Tolerance, light_cell_size: float, samples: i
     }
 
 
-def saturation_session(entries: np.ndarray, frames: int, rate: float) -> int | None:
-    """The session count after which no later session adds more than ``rate`` × ``frames`` entries, with at
+def saturation_session(entries: np.ndarray, frames: int | np.ndarray, rate: float) -> int | None:
+    """The session count after which no later session adds more than ``rate`` × ``frames`` entries (``frames``:
+    one count for all, or each session's), with at
     least max(2, n // 10) sessions seen after it (else None: not saturated within the sessions run)."""
     added = np.diff(np.concatenate([[0], entries]))
     over = np.flatnonzero(added > rate * frames)
@@ -549,6 +564,30 @@ def _growth_sessions_grid(n: int) -> list[int]:
     return sorted({int(round(x)) for x in np.geomspace(1, n, min(n, 24))} | {1, n})
 
 
+class GrowthSessions(NamedTuple):
+    """The sessions of ``spec``'s growth law: ``cfg`` as it runs them, the recorded sessions (None: seeded
+    ones), each session's frames, and the key of the fill they make (:func:`growth_sessions`)."""
+
+    cfg: StorageConfig
+    recorded: list[PathFile] | None
+    frames: int | np.ndarray
+    space: str
+
+
+def growth_sessions(cfg: StorageConfig, spec: SceneSpec) -> GrowthSessions:
+    """The seeded sessions of ``cfg``, or with ``cfg.sessions_from`` the recorded ones of ``spec``: one curve, of
+    as many sessions as there are files, each its own length (``session_frames`` their mean). Entries depend on
+    the camera envelope and the light only, so scenes that share both share a seeded fill; recorded sessions
+    are the scene's own."""
+    key = [spec.camera.model_dump(mode="json"), spec.light.model_dump(mode="json")]
+    if cfg.sessions_from is None:
+        return GrowthSessions(cfg, None, cfg.session_frames, json.dumps(key, sort_keys=True))
+    recorded = read_sessions(cfg.sessions_from, [load_scene(s) for s in cfg.scenes])[spec.name]
+    lengths = np.array([len(p.frames) for p in recorded])
+    cfg = replace(cfg, sessions=len(recorded), users=(1,), session_frames=round(float(lengths.mean())))
+    return GrowthSessions(cfg, recorded, lengths, json.dumps([*key, spec.name], sort_keys=True))
+
+
 def measure_growth(
     cfg: StorageConfig, res: Results, scene: str, model_bytes: dict[str, int], memo: dict
 ) -> dict[tuple[int, str], list[int]]:
@@ -556,8 +595,7 @@ def measure_growth(
     tolerance, bytes per codec and resolution, saturation, crossover with the model, the paper's figures."""
     spec, name = load_scene(scene), Path(scene).stem
     fov = spec.camera.gi_fov
-    # entries depend on the camera envelope and the light only: scenes that share both share the fill
-    space = json.dumps([spec.camera.model_dump(mode="json"), spec.light.model_dump(mode="json")], sort_keys=True)
+    cfg, recorded, session_lengths, space = growth_sessions(cfg, spec)
     widest = max(cfg.users)
     fills: dict[tuple[int, str], SessionFill] = {}
     for users in cfg.users:
@@ -566,7 +604,7 @@ def measure_growth(
             key = (space, users, label)
             if key not in memo:
                 if (space, users) not in memo:
-                    plan = plan_sessions(spec, cfg.sessions, users, cfg.session_frames, res.seed)
+                    plan = recorded or plan_sessions(spec, cfg.sessions, users, cfg.session_frames, res.seed)
                     memo[(space, users)] = session_frames(spec, plan, cfg.light_cell, fov)
                 memo[key] = fill_sessions(memo[(space, users)], tol)
             fills[(users, label)] = memo[key]
@@ -581,6 +619,7 @@ def measure_growth(
         "tolerance_position": cfg.tolerance.position,
         "tolerance_angle_deg": cfg.tolerance.angle_deg,
     }
+    common |= {} if recorded is None else {"sessions_from": str(cfg.sessions_from)}
     basis = f"measured: {len(next(iter(sizes.values())))} maps baked at entries spread over the session tree"
     for (resolution, codec), values in sizes.items():
         row = {"resolution": resolution, "codec": codec, "composition": "gi" if codec == RAW_CODEC else "blend"}
@@ -631,7 +670,7 @@ def measure_growth(
                 basis="counted: the GI tree's lookup rule along the sessions",
                 **at,
             )
-        sat = saturation_session(fill.entries, cfg.session_frames, cfg.saturation_rate)
+        sat = saturation_session(fill.entries, session_lengths, cfg.saturation_rate)
         res.add(
             system="cloud_baking",
             scene=name,
