@@ -77,6 +77,7 @@ class TorchGIModel(ExportedGenerator):
         import torch
 
         with torch.inference_mode():
-            x_device = torch.from_numpy(x).to(self.device, non_blocking=True).to(self.dtype)
+            host = self._host_input if x is self._input else torch.from_numpy(x)  # the pinned tensor itself
+            x_device = host.to(self.device, non_blocking=True).to(self.dtype)
             # .cpu() waits for the device, so the time of the whole call is what the network took
             return self.net(x_device)[0].float().cpu().numpy()
