@@ -3,7 +3,7 @@ software adapter) compute what onnxruntime computes in Python. onnxruntime-web 1
 2x2 kernels padded on one side wrong on a 2x2 input, which a rewrite of the U-Net's innermost layers hit (max
 |error| 0.12 on the shipped model's output); this test runs up layers on inputs of 2 to 32 px.
 
-Skips, saying why, without Chromium, Playwright or web/node_modules.
+Skips, saying why, without Chromium, Playwright or web3d/static/node_modules.
 """
 
 from __future__ import annotations
@@ -19,9 +19,9 @@ import onnxruntime as ort
 import pytest
 import torch
 
-from bench.viewer_bench import CHROMIUM, WEBGL_FLAGS, require_browser
 from gigan_local import subpixel as sp
 from gigan_local.subpixel import subpixel_upsampling
+from tests.helpers.browser import SWIFTSHADER_WEBGPU, chromium, missing
 from web3d.serve import WEB_DIR
 
 LAYERS, CHANNELS = 5, 16
@@ -43,7 +43,7 @@ window.ready = true;
 def site(tmp_path_factory: pytest.TempPathFactory):
     """A folder served on loopback: the page, onnxruntime-web's files and the rewritten model; and the
     model's input and onnxruntime's output on it."""
-    why = require_browser()
+    why = missing()
     if why:
         pytest.skip(f"onnxruntime-web cannot run here: {why}")
     root = tmp_path_factory.mktemp("subpixel_web")
@@ -76,19 +76,13 @@ def site(tmp_path_factory: pytest.TempPathFactory):
 
 @pytest.mark.parametrize("backend", ["wasm", "webgpu"])
 def test_onnxruntime_web_computes_the_sub_pixel_graph_as_python_does(site, backend: str) -> None:
-    from playwright.sync_api import sync_playwright
-
     url, x, expected = site
-    with sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=str(CHROMIUM), args=WEBGL_FLAGS["swiftshader_webgpu"])
-        try:
-            page = browser.new_page()
-            page.goto(url)
-            page.wait_for_function("window.ready === true")
-            if backend == "webgpu" and not page.evaluate("async () => !!(await navigator.gpu?.requestAdapter())"):
-                pytest.skip("this Chromium offers no WebGPU adapter, not even SwiftShader's")
-            out = page.evaluate("([b, x, s]) => window.predict(b, x, s)", [backend, x.ravel().tolist(), list(x.shape)])
-        finally:
-            browser.close()
+    with chromium(SWIFTSHADER_WEBGPU) as browser:
+        page = browser.new_page()
+        page.goto(url)
+        page.wait_for_function("window.ready === true")
+        if backend == "webgpu" and not page.evaluate("async () => !!(await navigator.gpu?.requestAdapter())"):
+            pytest.skip("this Chromium offers no WebGPU adapter, not even SwiftShader's")
+        out = page.evaluate("([b, x, s]) => window.predict(b, x, s)", [backend, x.ravel().tolist(), list(x.shape)])
     error = np.abs(np.asarray(out, np.float32).reshape(expected.shape) - expected).max()
     assert error < 1e-5 * np.abs(expected).max()
