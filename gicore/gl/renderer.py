@@ -8,19 +8,19 @@ pass), :meth:`~GLRenderer.render_depth` and :meth:`~GLRenderer.render_di_raster`
 warp's pass in one geometry pass). A rasteriser samples pixel centres, so every pass equals Mitsuba's
 centre-sampled one; outputs are float32 HxWxC arrays, row 0 at the top. Geometry, every level of detail
 included (:mod:`gicore.gl.lod`; docs/architecture.md, Level of detail), is uploaded once; closed meshes are
-drawn with back faces culled. The shadow map (perspective, or six cube faces in one atlas when the light is
-inside the casters' bounding sphere) is rendered once per light position and reused while the light stays.
+drawn with back faces culled. The shadow map (:mod:`gicore.gl.shadow`: perspective, or six cube faces in one
+atlas when the light is inside the casters' bounding sphere) is rendered once per light position and reused
+while the light stays.
 """
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
 
 from gicore.buffers import DATASET_BUFFERS, GBUFFERS, check_buffer_names, check_raster
-from gicore.camera import NEAR_MIN, Camera
+from gicore.camera import Camera
 from gicore.geometry import SceneObject, scene_objects
 from gicore.gl.brdf import ETA, TABLE_RES, roughplastic_tables
 from gicore.gl.context import gl_context
@@ -35,38 +35,20 @@ from gicore.gl.lod import (
     calibration_views,
     mesh_levels,
 )
-from gicore.gl.shaders import (
-    DIFFUSE_ROW,
-    EMITTER_ROW,
-    MATERIAL_VEC4S,
-    SCENE_VERTEX,
-    SHADOW_FRAGMENT,
-    SHADOW_VERTEX,
-    scene_fragment,
+from gicore.gl.shaders import DIFFUSE_ROW, EMITTER_ROW, MATERIAL_VEC4S, SCENE_VERTEX, mat_bytes, scene_fragment
+from gicore.gl.shadow import (
+    SHADOW_LOD,
+    Bounds,
+    ShadowMap,
+    face_normals,
+    fit_shadow_views,
+    object_bounds,
+    shadow_size_for,
 )
 from gicore.scene import SceneSpec
 
 #: Albedo of the area light's quad: Mitsuba gives an emitter without a BSDF a black diffuse one.
 EMITTER_ALBEDO = 0.0
-#: Shadow-map texels per image pixel along a side (:func:`shadow_size_for`): at 256² a 512² map costs 3 to 6 ms
-#: less per moving-light frame than 1024² on one core (llvmpipe) and its DI stays closer to 256-spp Mitsuba DI than
-#: the 1-spp Mitsuba DI it replaces (SSIM 0.9848 / 0.9715 / 0.9775 vs 0.9798 / 0.9506 / 0.9704 on lung_plane /
-#: vessels_plane / digestive_cornell; 1024²: 0.9869 / 0.9714 / 0.9800).
-SHADOW_TEXELS_PER_PIXEL = 2
-
-
-def shadow_size_for(resolution: int) -> int:
-    """Side of the fitted shadow map (texels) for square images of ``resolution``: :data:`SHADOW_TEXELS_PER_PIXEL`
-    per pixel, within [512, 4096]: cube faces get half of it each and cover 90° apiece, which needs the floor
-    (a light among the objects at 64²: DI SSIM 0.93 against Mitsuba with 256², >= 0.94 with 512²)."""
-    return min(max(SHADOW_TEXELS_PER_PIXEL * int(resolution), 512), 4096)
-
-
-#: Level of the shadow map's casters when the renderer has levels (``lod`` other than "full"): level 2 (1/4 of
-#: the triangles) renders the 1024² map in 7 ms instead of 18 (lung_plane) and changes DI by at most 1e-3
-#: SSIM against full-detail casters (relative mean |delta| <= 1.2e-3; lung and vessels, 3 lights x 2 views);
-#: coarser casters save no more time (the map's fragments are the floor).
-SHADOW_LOD = 2
 #: K x K points on an area light for its unshadowed light.
 AREA_SAMPLES = 2
 #: The passes: the scene program's defines and the colour attachments (of the four float targets) written.
@@ -91,19 +73,6 @@ def _checked_bound(name: str, bound: dict[str, float]) -> dict[str, float]:
     return dict(bound)
 
 
-def _mat(m: np.ndarray) -> bytes:
-    """A 4x4 row-major numpy matrix as GLSL's column-major float32 bytes."""
-    return np.ascontiguousarray(np.asarray(m, dtype=np.float64).T, dtype=np.float32).tobytes()
-
-
-def _face_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Unit geometric normals (counter-clockwise winding), +y for degenerate faces."""
-    tri = vertices[faces].astype(np.float32)
-    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    length = np.linalg.norm(n, axis=1, keepdims=True)
-    return np.where(length > 0, n / np.where(length > 0, length, 1.0), np.float32([0, 1, 0])).astype(np.float32)
-
-
 def _closed(mesh) -> bool:
     """A watertight mesh wound counter-clockwise seen from outside (positive signed volume): seen from
     outside, its back faces are always hidden behind its front faces."""
@@ -111,70 +80,6 @@ def _closed(mesh) -> bool:
         return False
     v = mesh.vertices.astype(np.float64)[mesh.faces]
     return float(np.einsum("ij,ij->i", v[:, 0], np.cross(v[:, 1], v[:, 2])).sum()) > 0.0
-
-
-def _up_for(direction: np.ndarray) -> tuple[float, float, float]:
-    """An up vector far from parallel to ``direction``."""
-    d = np.abs(direction) / np.linalg.norm(direction)
-    return (0.0, 0.0, 1.0) if d[1] > 0.9 else (0.0, 1.0, 0.0)
-
-
-def _views(views: list, tan_half: float, tile: int, atlas: tuple[int, int], blocker_min: float, far: float) -> dict:
-    """A shadow setup: view-projection matrices (one tile of ``tile`` texels each in an ``atlas``), the
-    tangent-plane size of a texel, the nearest distance from the light a blocker can have, and the
-    distance that depth 1 stands for (the map stores distance / far)."""
-    texel = [2 * tan_half / tile] * len(views)
-    return {"views": views, "texel": texel, "tile": tile, "atlas": atlas, "blocker_min": blocker_min, "far": far}
-
-
-#: Per object: bounding-sphere centre and radius, the plane (normal, point) of a flat environment quad (None for
-#: the spec's objects) and the bounding box's corners.
-Bounds = tuple[np.ndarray, float, np.ndarray | None, np.ndarray]
-
-
-def object_bounds(objects: list, n_spec: int) -> list[Bounds]:
-    """:data:`Bounds` of each object; the first ``n_spec`` are the spec's, the rest environment quads."""
-    out = []
-    for i, obj in enumerate(objects):
-        v = obj.mesh.vertices.astype(np.float64)
-        lo, hi = v.min(axis=0), v.max(axis=0)
-        centre = (lo + hi) / 2.0
-        plane = None if i < n_spec else np.stack([_face_normals(v, obj.mesh.faces[:1])[0], v[0]])
-        corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
-        out.append((centre, float(np.linalg.norm(v - centre, axis=1).max()), plane, corners))
-    return out
-
-
-def fit_shadow_views(bounds: list[Bounds], light: np.ndarray, size: int) -> dict[str, Any]:
-    """The shadow views for a light at ``light`` (``size`` texels a side): matrices, texel sizes, the atlas layout.
-
-    Casters: the spec's objects, and the environment quads the light is behind (a quad shadows only
-    what lies beyond it); their bounding sphere (a union of the objects' spheres) is what a fitted
-    frustum must hold. Its far plane reaches the farthest corner of any object's box."""
-    casters = [(c, r) for c, r, plane, _ in bounds if plane is None or float(np.dot(plane[0], light - plane[1])) < 0]
-    lo = np.min([c - r for c, r in casters], axis=0)
-    hi = np.max([c + r for c, r in casters], axis=0)
-    centre = (lo + hi) / 2.0
-    radius = max(float(np.linalg.norm(c - centre)) + r for c, r in casters) + 1e-4
-    corners = np.concatenate([b[3] for b in bounds])
-    far = float(np.linalg.norm(corners - light, axis=1).max()) * 1.01 + 1e-3
-    dist = float(np.linalg.norm(centre - light))
-    if dist > 1.02 * radius:
-        tan_half = math.tan(math.asin(radius / dist)) * (1.0 + 4.0 / size)  # + 2 texels for the PCF kernel
-        near = max(0.5 * (dist - radius), NEAR_MIN * 10)
-        fov = math.degrees(2 * math.atan(tan_half))
-        cam = Camera(tuple(light), tuple(centre), _up_for(centre - light), fov, near, max(far, 2 * near), size, size)
-        return _views([cam.view_proj()], tan_half, size, (size, size), dist - radius, max(far, 2 * near))
-    tile = max(16, size // 2)
-    tan_half = 1.0 + 8.0 / tile  # 90 degrees + 4 texels, so that kernels near a face's edge stay inside
-    fov = math.degrees(2 * math.atan(tan_half))
-    near = max(1e-4 * far, NEAR_MIN * 10)
-    views = []
-    for axis in np.eye(3):
-        for sign in (1.0, -1.0):
-            target = tuple(light + sign * axis)
-            views.append(Camera(tuple(light), target, _up_for(axis), fov, near, far, tile, tile).view_proj())
-    return _views(views, tan_half, tile, (3 * tile, 2 * tile), max(near, 0.01 * radius), far)
 
 
 class GLRenderer:
@@ -241,10 +146,7 @@ class GLRenderer:
         self._timer: Any = None
         self._upload_geometry()
         self._programs: dict[tuple[str, bool], Any] = {}
-        self._shadow_program = ctx.program(vertex_shader=SHADOW_VERTEX, fragment_shader=SHADOW_FRAGMENT)
-        self._shadow_vao = ctx.vertex_array(
-            self._shadow_program, [(self._vbo, "3f 28x", "in_pos")], self._ibo, skip_errors=True
-        )
+        self._shadow = ShadowMap(ctx, self._vbo, self._ibo)
         size = (self.resolution, self.resolution)
         self._targets = [ctx.renderbuffer(size, 1 if i == 3 else 4, dtype="f4") for i in range(5)]
         self._depth = ctx.depth_renderbuffer(size)
@@ -252,7 +154,6 @@ class GLRenderer:
             name: ctx.framebuffer([self._targets[i] for i in attachments], self._depth)
             for name, (_, attachments) in _PASSES.items()
         }
-        self._shadow: dict[str, Any] = {}
         self._shadow_key: tuple | None = None
         self._light: tuple[float, float, float] | None = None
         self._uv_projection: np.ndarray | None = None
@@ -328,7 +229,7 @@ class GLRenderer:
         mesh = level.mesh
         if obj.roughness is None:  # flat: each corner its own vertex with the face's geometric normal
             vertices = mesh.vertices[mesh.faces].reshape(-1, 3)
-            normals = np.repeat(_face_normals(mesh.vertices, mesh.faces), 3, axis=0)
+            normals = np.repeat(face_normals(mesh.vertices, mesh.faces), 3, axis=0)
             source = mesh.faces.ravel()
             faces = np.arange(len(vertices), dtype=np.int64).reshape(-1, 3)
             row = DIFFUSE_ROW
@@ -465,29 +366,7 @@ class GLRenderer:
         if key == self._shadow_key:
             return
         setup = self._shadow_views(np.asarray(self._light, dtype=np.float64))
-        ctx = self.ctx
-        if self._shadow.get("atlas") != setup["atlas"]:
-            tex = ctx.depth_texture(setup["atlas"])
-            tex.repeat_x = tex.repeat_y = False
-            compare = ctx.sampler(repeat_x=False, repeat_y=False, filter=(ctx.LINEAR, ctx.LINEAR), compare_func="<=")
-            raw = ctx.sampler(repeat_x=False, repeat_y=False, filter=(ctx.NEAREST, ctx.NEAREST), compare_func="")
-            compare.texture = raw.texture = tex
-            fbo = ctx.framebuffer(depth_attachment=tex)
-            self._shadow = {"atlas": setup["atlas"], "fbo": fbo, "samplers": (compare, raw)}
-        fbo = self._shadow["fbo"]
-        fbo.use()
-        fbo.clear(depth=1.0)
-        ctx.enable(ctx.DEPTH_TEST)
-        ctx.disable(ctx.CULL_FACE)
-        prog = self._shadow_program
-        prog["u_light"].value = self._light
-        prog["u_far"].value = setup["far"]
-        tile = setup["tile"]
-        for face, vp in enumerate(setup["views"]):
-            fbo.viewport = ((face % 3) * tile, (face // 3) * tile, tile, tile)
-            prog["u_vp"].write(_mat(vp))
-            self._render_scene(self._shadow_vao, self.shadow_lod)
-        self._shadow |= setup
+        self._shadow.render(setup, self._light, lambda vao: self._render_scene(vao, self.shadow_lod))
         self._shadow_key = key
         self.shadow_updates += 1
 
@@ -509,21 +388,18 @@ class GLRenderer:
         di = "DI" in _PASSES[name][0]
         if di:
             self._ensure_shadow()
-        variant = (name, di and len(self._shadow["views"]) == 6)
+        variant = (name, di and self._shadow.cube)
         ctx, prog = self.ctx, self._program(*variant)
         uniforms: dict[str, Any] = {
-            "u_view_proj": _mat(_FLIP_Y @ camera.view_proj()),
-            "u_view": _mat(camera.view()),
+            "u_view_proj": mat_bytes(_FLIP_Y @ camera.view_proj()),
+            "u_view": mat_bytes(camera.view()),
             "u_eye": camera.origin,
             "u_project_uv": self._uv_projection is not None,
         }
         if self._uv_projection is not None:
-            uniforms["u_uv_proj"] = _mat(self._uv_projection)
+            uniforms["u_uv_proj"] = mat_bytes(self._uv_projection)
         if di:
-            uniforms |= self._di_uniforms()
-            compare, raw = self._shadow["samplers"]
-            compare.use(location=1)
-            raw.use(location=3)
+            uniforms |= self._di_uniforms() | self._shadow.uniforms()
         for key, value in uniforms.items():
             uniform = prog.get(key, None)
             if uniform is None:  # not used by this variant (compiled out)
@@ -561,10 +437,10 @@ class GLRenderer:
             vao.render(vertices=n_rest, first=first + n_closed)
 
     def _di_uniforms(self) -> dict[str, Any]:
-        light, s = self.spec.light, self._shadow
+        """The DI pass's light and material uniforms (the shadow's come from :class:`ShadowMap`)."""
+        light = self.spec.light
         area = light.size > 0
         k = AREA_SAMPLES if area else 1
-        vps = b"".join(_mat(v) for v in s["views"]) + bytes(64 * (6 - len(s["views"])))
         return {
             "u_light": self._light,
             "u_intensity": light.intensity / (k * k),
@@ -572,13 +448,6 @@ class GLRenderer:
             "u_light_size": light.size,
             "u_eta": ETA,
             "u_materials": self._materials,
-            "u_shadow": 1,
-            "u_shadow_raw": 3,
-            "u_shadow_far": s["far"],
-            "u_shadow_vp": vps,
-            "u_shadow_texel": np.float32(s["texel"] + [0.0] * (6 - len(s["texel"]))).tobytes(),
-            "u_shadow_size": s["tile"],
-            "u_blocker_min": s["blocker_min"],
         }
 
     def _read(self, fbo: Any, attachment: int, components: int) -> np.ndarray:

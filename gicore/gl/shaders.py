@@ -16,6 +16,8 @@ changing the version line and adding precision qualifiers.
 
 from __future__ import annotations
 
+import numpy as np
+
 #: Vertex attribute ``in_mat.w`` (the material row) of a diffuse surface and of the area light's quad.
 DIFFUSE_ROW, EMITTER_ROW = -1, -2
 #: Largest PCF / blocker-search radius in shadow-map texels, and the PCF taps of an area light.
@@ -23,6 +25,12 @@ MAX_RADIUS = 48.0
 PCF_TAPS = 32
 #: vec4s per material row of the tables (64 transmittance entries, alpha, 1 / (1 - internal), 2 unused).
 MATERIAL_VEC4S = 17
+
+
+def mat_bytes(m: np.ndarray) -> bytes:
+    """A 4x4 row-major numpy matrix as the column-major float32 bytes of a GLSL ``mat4`` uniform."""
+    return np.ascontiguousarray(np.asarray(m, dtype=np.float64).T, dtype=np.float32).tobytes()
+
 
 SCENE_VERTEX = """
 #version 330 core

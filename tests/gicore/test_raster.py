@@ -218,7 +218,7 @@ def test_light_inside_the_casters_bounding_sphere_uses_cube_faces(make_spec):
     gl, mi = GLRenderer(spec, RES), Renderer(spec, RES)
     cam = view()
     ours = gl.render_di(cam)
-    assert len(gl._shadow["views"]) == 6
+    assert gl._shadow.cube and len(gl._shadow.setup["views"]) == 6
     e = di_errors(ours, mi.render_di(cam, spp=256, seed=1))
     print(f"\ncube-face shadows: SSIM {e['ssim']:.4f}")
     assert e["ssim"] >= DI_SSIM, e
