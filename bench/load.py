@@ -17,7 +17,7 @@ while the side load ran), ``errors`` (hits not answered 200, misses answered nei
 Retry-After, connections that failed), ``miss_status`` (count per status) and ``connections`` (the server's
 counters: drained, timed_out, refused). Each target gets a row ``stat = target_met`` (1 or 0; the load it is
 stated at and the load it was run at in its config); a missed target is reported, not an error. Also written:
-``load_table.md`` (printed too).
+``load.md``.
 """
 
 from __future__ import annotations
@@ -32,8 +32,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from bench.common import Target
+from bench.present.declarations import Column, Rows, Table, matches
 from bench.processes import check_served, client_cores, pinned_server, pinning
-from bench.runner import Bench, Block, Rows, Table, need, pick
+from bench.runner import Bench, Block
 from gicore.results import Results
 
 if TYPE_CHECKING:
@@ -146,9 +147,6 @@ def measure(cfg: LoadConfig, res: Results) -> None:
     finally:
         shutil.rmtree(work, ignore_errors=True)
     _targets(res, scene)
-    text = table(res.rows)
-    res.output("load_table.md").write_text(text)
-    print(text)
 
 
 def _record(res: Results, cfg: LoadConfig, scene: str, phase: str, load: LoadResult, counters: dict[str, int]) -> None:
@@ -176,7 +174,7 @@ def _targets(res: Results, scene: str) -> None:
     rows = [{**r, "config": _config(r)} for r in res.rows]
     for target, stated_at in TARGETS:
         where = dict(target.where)
-        found = [r for r in pick(rows, target.metric, target.stat) if where.items() <= r["config"].items()]
+        found = [r for r in rows if matches(r, target.metric, target.stat, **where)]
         measured = sum(r["value"] for r in found) if target.metric == "errors" else next(
             (r["value"] for r in found), None)  # fmt: skip
         load = {k: found[0]["config"][k] for k in stated_at} if found and stated_at else {}
@@ -199,35 +197,58 @@ def _config(row: dict[str, Any]) -> dict[str, Any]:
     return row["config"] if isinstance(row["config"], dict) else json.loads(row["config"])
 
 
-def table(rows: list[dict[str, Any]]) -> str:
-    """Markdown: each phase's hit latency and errors, then each target with its figure, met or not met."""
-    rows = [{**r, "config": _config(r)} for r in rows]
-    lines = ["| phase | load | hits | p50 (ms) | p99 (ms) | max (ms) | errors |", "|---|---|---|---|---|---|---|"]
+# -- what it shows ------------------------------------------------------------------------------------------
+def phases(rows: Rows) -> list[dict]:
+    """Each phase's load, and its hits' count, p50, p99 and max latency and its errors."""
+    out = []
     for phase in PHASES:
         mine = [r for r in rows if r["config"].get("phase") == phase and r["stat"] != "target_met"]
-        if not mine:
-            continue
-        cfg = mine[0]["config"]
-        value = {(r["metric"], r["stat"]): r["value"] for r in mine}
-        side = {"alone": "", "misses": f" + {cfg['misses']} misses", "idle": f" + {cfg['idle']} idle"}[phase]
-        load = f"{cfg['hit_clients']} clients, {cfg['offered_per_s']:g} hits/s{side}"
-        cells = [f"{value[('hit_latency', s)]:.1f}" for s in ("median", "p99", "max")]
-        lines.append(f"| {phase} | {load} | {value[('hit_latency', 'n')]:.0f} | " + " | ".join(cells)
-                     + f" | {value[('errors', 'value')]:.0f} |")  # fmt: skip
-    lines += ["", "| target | measured | at | met |", "|---|---|---|---|"]
+        if mine:
+            c = mine[0]["config"]
+            side = {"alone": "", "misses": f" + {c['misses']} misses", "idle": f" + {c['idle']} idle"}[phase]
+            value = {f"{r['metric']}_{r['stat']}": r["value"] for r in mine}
+            out.append(
+                {"phase": phase, "load": f"{c['hit_clients']} clients, {c['offered_per_s']:g} hits/s{side}", **value}
+            )
+    return out
+
+
+def targets(rows: Rows) -> list[dict]:
+    """Each target with its figure (its unit when measured), the load it ran at and its verdict."""
+    out = []
     for r in (r for r in rows if r["stat"] == "target_met"):
         c = r["config"]
-        measured = "n/a" if c["measured"] is None else f"{c['measured']:.1f} {c['bound_unit']}"
-        at = ", ".join(f"{k} {v:g}" for k, v in c["run_at"].items()) or "every phase"
         verdict = ("met" if r["value"] else "not met") + ("" if c["at_stated_load"] else " (at a lighter load)")
-        lines.append(f"| {c['target']} | {measured} | {at} | {verdict} |")
-    return "\n".join(lines) + "\n"
+        at = ", ".join(f"{k} {v:g}" for k, v in c["run_at"].items()) or "every phase"
+        unit = None if c["measured"] is None else c["bound_unit"]
+        out.append({"target": c["target"], "measured": c["measured"], "unit": unit, "at": at, "verdict": verdict})
+    return out
 
 
-def readme_block(rows: Rows) -> list[Table]:
-    """The server under many clients: each phase's hit latency, and the targets."""
-    need(rows, "hit_latency", "errors")
-    return [Table("Hit latency while each side load ran.\n\n" + table(rows).rstrip())]
+PARTS = (
+    Table(
+        phases,
+        (
+            Column("phase", "{phase}"),
+            Column("load", "{load}"),
+            Column("hits", "{hit_latency_n:.0f}"),
+            Column("p50 (ms)", "{hit_latency_median:.1f}"),
+            Column("p99 (ms)", "{hit_latency_p99:.1f}"),
+            Column("max (ms)", "{hit_latency_max:.1f}"),
+            Column("errors", "{errors_value:.0f}"),
+        ),
+        caption="Hit latency while each side load ran.",
+    ),
+    Table(
+        targets,
+        (
+            Column("target", "{target}"),
+            Column("measured", "{measured:.1f} {unit}"),
+            Column("at", "{at}"),
+            Column("met", "{verdict}"),
+        ),
+    ),
+)
 
 
 BENCH = Bench(
@@ -237,5 +258,7 @@ BENCH = Bench(
     None,
     help="GI-map server under load: hit p99 with 80 misses + 32 hit clients and beside 20,000 idle connections, "
     "against the 50 ms targets",
-    readme=Block("Cloud-baking server under load", 85, readme_block),
+    readme=Block("Cloud-baking server under load", 85),
+    parts=PARTS,
+    needs=("hit_latency", "errors"),
 )

@@ -25,9 +25,10 @@ import numpy as np
 from baseline_cloudbaking.codecs import CODEC_NAMES, DEFAULT_CODEC
 from baseline_cloudbaking.protocol import unpack
 from bench.common import Target
+from bench.present.declarations import Chart, Column, Derive, Figure, Rows, Table, Text, matches
 from bench.processes import client_cores, pinned_server, pinning
-from bench.runner import Bench, Block, Rows, Table, need
-from gicore.results import Results, read_rows
+from bench.runner import Bench, Block
+from gicore.results import Results
 
 CodecName = Literal[CODEC_NAMES]  # type: ignore[valid-type]
 SYSTEM = "cloud_baking"
@@ -236,9 +237,6 @@ def measure(cfg: ServiceConfig, res: Results) -> None:
         **load,
     )
     _targets(res, scene, cfg)
-    text = table(res.rows)
-    res.output("service_table.md").write_text(text)
-    print(text)
 
 
 def _misses(res: Results, scene: str, misses: list[tuple[float, dict[str, float]]], common: dict[str, Any]) -> None:
@@ -287,10 +285,6 @@ def _config(row: dict[str, Any]) -> dict[str, Any]:
     return row["config"] if isinstance(row["config"], dict) else json.loads(row["config"])
 
 
-def _fmt(value: float | None) -> str:
-    return "" if value is None else f"{value:.2f}"
-
-
 def _value(rows: list[dict[str, Any]], metric: str, stat: str, **config: Any) -> float | None:
     for r in rows:
         if r["metric"] == metric and r["stat"] == stat and config.items() <= _config(r).items():
@@ -298,105 +292,113 @@ def _value(rows: list[dict[str, Any]], metric: str, stat: str, **config: Any) ->
     return None
 
 
-def table(rows: list[dict[str, Any]]) -> str:
-    """Markdown: each timed metric's p50/p95/p99/n, the load figures, and the targets with met / MISSED."""
-    lines = ["| metric | part | first | p50 | p95 | p99 | n |", "|---|---|---|---|---|---|---|"]
-    for metric, part in (("miss_e2e", None),
-                         *(("miss_server", p) for p in ("lookup", "render", "denoise", "encode", "total")),
-                         ("hit_server", "lookup_read"), ("hit_server", "total"), ("hit_e2e", None),
-                         ("load_latency", None)):  # fmt: skip
+# -- what it shows ------------------------------------------------------------------------------------------
+#: The timed metrics the table shows, in order: (metric, part).
+TIMED = (
+    ("miss_e2e", None),
+    *(("miss_server", p) for p in ("lookup", "render", "denoise", "encode", "total")),
+    ("hit_server", "lookup_read"),
+    ("hit_server", "total"),
+    ("hit_e2e", None),
+    ("load_latency", None),
+)
+#: The sequential hits' samples, drawn as distributions: (metric, part, name).
+HITS = (
+    ("hit_server", "lookup_read", "server lookup + read"),
+    ("hit_server", "total", "server total"),
+    ("hit_e2e", None, "end to end (loopback)"),
+)
+
+
+def timings(rows: Rows) -> list[dict]:
+    """Each timed metric's first, p50, p95, p99 and n (those measured)."""
+    out = []
+    for metric, part in TIMED:
         where = {"part": part} if part else {}
-        p50 = _value(rows, metric, "median", **where)
-        first = _value(rows, metric, "first", **where)
-        if p50 is None and first is None:
-            continue
-        n = _value(rows, metric, "n", **where)
-        cells = [
-            _fmt(first),
-            _fmt(p50),
-            *(_fmt(_value(rows, metric, s, **where)) for s in ("p95", "p99")),
-            "" if n is None else f"{n:.0f}",
-        ]
-        lines.append(f"| {metric} (ms) | {part or ''} | " + " | ".join(cells) + " |")
-    lines += [
-        "",
-        f"load: {_fmt(_value(rows, 'load_throughput', 'value'))} requests/s, "
-        f"{_value(rows, 'load_errors', 'value') or 0:.0f} errors",
-        "",
-        "| target | measured | met |",
-        "|---|---|---|",
-    ]
-    for r in rows:
-        if r["stat"] == "target_met":
-            cfg = _config(r)
-            measured = "n/a" if cfg["measured"] is None else f"{cfg['measured']:.2f} {cfg['bound_unit']}"
-            lines.append(f"| {cfg['target']} | {measured} | {'yes' if r['value'] else 'MISSED'} |")
-    return "\n".join(lines) + "\n"
+        row = {"metric": metric, "part": part or ""}
+        row |= {stat: _value(rows, metric, stat, **where) for stat in ("first", "median", "p95", "p99", "n")}
+        out += [row] if row["median"] is not None or row["first"] is not None else []
+    return out
 
 
-def plot(csv_path: Path, out_dir: Path) -> list[Path]:
-    """CDFs: left, sequential hits (server lookup + read, server total, end to end) with the 5 and 10 ms
-    targets; right, the concurrent load's latencies with p50/p99 and the throughput against its target."""
-    from gicore.plotting import plt, save
-
-    rows = read_rows(csv_path)
-
-    def samples(metric: str, **config: Any) -> np.ndarray:
-        return np.sort(
-            [
-                r["value"]
-                for r in rows
-                if r["metric"] == metric and r["stat"] == "sample" and config.items() <= r["config"].items()
-            ]
+def targets(rows: Rows) -> list[dict]:
+    """Each target with its figure (and unit, when it was measured) and whether it was met."""
+    out = []
+    for r in (r for r in rows if r["stat"] == "target_met"):
+        c = r["config"]
+        unit = c["bound_unit"] if c["measured"] is not None else None
+        out.append(
+            {"target": c["target"], "measured": c["measured"], "unit": unit, "met": "yes" if r["value"] else "MISSED"}
         )
+    return out
 
-    def cdf(ax, values: np.ndarray, label: str) -> None:
-        if len(values):
-            ax.step(
-                values, np.arange(1, len(values) + 1) / len(values), where="post", label=f"{label} (n={len(values)})"
-            )
 
-    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.2))
-    cdf(left, samples("hit_server", part="lookup_read"), "server lookup + read")
-    cdf(left, samples("hit_server", part="total"), "server total")
-    cdf(left, samples("hit_e2e"), "end to end (loopback)")
-    left.axvline(5.0, color="k", ls=":", label="target: server p50 <= 5 ms")
-    left.axvline(10.0, color="k", ls="--", label="target: e2e p50 <= 10 ms")
-    left.set_title("Sequential cache hits", fontsize=9)
-    load = samples("load_latency")
-    cdf(right, load, "request latency")
-    for stat, style in (("median", ":"), ("p99", "--")):
-        v = _value(rows, "load_latency", stat)
-        if v is not None:
-            right.axvline(v, color="C3", ls=style, label=f"{'p50' if stat == 'median' else stat} {v:.1f} ms")
-    rate = _value(rows, "load_throughput", "value")
-    errors = _value(rows, "load_errors", "value")
+def cdf(which: tuple[tuple[str, str | None, str], ...]) -> Derive:
+    """The samples of each (metric, part, name) as a cumulative distribution."""
+
+    def points(rows: Rows) -> list[dict]:
+        out = []
+        for metric, part, name in which:
+            mine = sorted(r["value"] for r in rows if matches(r, metric, "sample") and r["config"].get("part") == part)
+            out += [
+                {"name": f"{name} (n={len(mine)})", "ms": v, "share": (i + 1) / len(mine)} for i, v in enumerate(mine)
+            ]
+        return out
+
+    return points
+
+
+def _load_title(rows: Rows) -> str:
     clients = next((r["config"] for r in rows if r["metric"] == "load_throughput"), {})
-    right.set_title(
-        f"{clients.get('clients')} clients x {clients.get('per_client')} hits: {rate or 0:.0f} req/s (target >= 300), "
-        f"{errors or 0:.0f} errors",
-        fontsize=9,
+    return (
+        f"{clients.get('clients')} clients x {clients.get('per_client')} hits: "
+        f"{_value(rows, 'load_throughput', 'value') or 0:.0f} req/s (target >= 300), "
+        f"{_value(rows, 'load_errors', 'value') or 0:.0f} errors"
     )
-    for ax in (left, right):
-        ax.set_xscale("log")
-        ax.set_xlabel("latency [ms]")
-        ax.set_ylabel("fraction of requests")
-        ax.grid(alpha=0.3, which="both")
-        ax.legend(fontsize=7, loc="lower right")
-    return [save(fig, out_dir / "service.png")]
 
 
-def readme_block(rows: Rows) -> list[Table]:
-    """The cloud-baking server on loopback: stage times, load and its targets (the table above)."""
-    need(rows, "hit_e2e", "miss_e2e")
-    return [Table("Times in ms (first: the first miss, with its JIT compile).\n\n" + table(rows).rstrip())]
+def _cdf_chart(points: Derive, title: Text) -> Chart:
+    tip = "{name}: {ms:.3g} ms, {share:.0%} at or below"
+    return Chart(points, "ms", "share", "{name}", xlog=True, xlabel="latency [ms]", ylabel="fraction of requests",
+                 title=title, tip=tip)  # fmt: skip
+
+
+PARTS = (
+    Table(
+        timings,
+        (
+            Column("metric", "{metric} (ms)"),
+            Column("part", "{part}"),
+            Column("first", "{first:.2f}"),
+            Column("p50", "{median:.2f}"),
+            Column("p95", "{p95:.2f}"),
+            Column("p99", "{p99:.2f}"),
+            Column("n", "{n:.0f}"),
+        ),
+        caption="Times in ms (first: the first miss, with its JIT compile).",
+        notes=lambda rows: (
+            f"load: {_value(rows, 'load_throughput', 'value') or 0:.2f} requests/s, "
+            f"{_value(rows, 'load_errors', 'value') or 0:.0f} errors"
+        ),
+    ),
+    Table(targets, (Column("target", "{target}"), Column("measured", "{measured:.2f} {unit}"), Column("met", "{met}"))),
+    Figure(
+        "service",
+        (
+            _cdf_chart(cdf(HITS), "Sequential cache hits (targets: server p50 <= 5 ms, e2e p50 <= 10 ms)"),
+            _cdf_chart(cdf((("load_latency", None, "request latency"),)), _load_title),
+        ),
+    ),
+)
 
 
 BENCH = Bench(
     "service",
     ServiceConfig,
     measure,
-    plot,
+    None,
     help="GI-map server hit/miss service times and concurrent load",
-    readme=Block("Cloud-baking server", 80, readme_block),
+    readme=Block("Cloud-baking server", 80),
+    parts=PARTS,
+    needs=("hit_e2e", "miss_e2e"),
 )

@@ -18,7 +18,7 @@ def test_load_bench_writes_every_phase_and_target(tmp_path: Path) -> None:
     small |= {"settle_s": 0.3, "reference_s": 0.3}
     cfg = replace(LoadConfig.quick(), scenes=(str(spec),), **small)
     files = execute(BENCH, cfg, tmp_path / "out")
-    assert {p.name for p in files} == {"load.csv", "load.provenance.json", "load_table.md"}
+    assert {p.name for p in files} == {"load.csv", "load.provenance.json", "load.md"}
     rows = read_rows(tmp_path / "out" / "load.csv")
     for phase in PHASES:
         mine = {(r["metric"], r["stat"]) for r in rows if r["config"].get("phase") == phase}
@@ -27,6 +27,6 @@ def test_load_bench_writes_every_phase_and_target(tmp_path: Path) -> None:
     targets = [r for r in rows if r["stat"] == "target_met"]
     assert [r["config"]["target"] for r in targets] == [t.label for t, _ in TARGETS]
     assert {r["value"] for r in targets} <= {0, 1}
-    assert "met" in (tmp_path / "out" / "load_table.md").read_text()
+    assert "met" in (tmp_path / "out" / "load.md").read_text()
     assert json.loads((tmp_path / "out" / "load.provenance.json").read_text())["machine"]
     assert not any(p.name.startswith("load_store_") for p in (tmp_path / "out").iterdir())  # the store is gone

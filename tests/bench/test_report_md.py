@@ -133,7 +133,7 @@ def test_every_block_has_its_numbers_and_the_command_that_made_them(generated) -
     )
     assert "| server | 19 | 5 | 14 | 0 |" in text
     # server, network self-test, scaling (projections labelled)
-    assert "| hit_e2e (ms) |  |  | 2.33 | 4.77 | 5.58 | 10 |" in text and "load: 450.83 requests/s, 0 errors" in text
+    assert "| hit_e2e (ms) |  | — | 2.33 | 4.77 | 5.58 | 10 |" in text and "load: 450.83 requests/s, 0 errors" in text
     assert (
         "26 of 26 targets met." in text
         and "| delay5 | one_way_delay (median) | 5 ms | 5.225 ms | \\|err\\| <= 1 ms | yes |" in text

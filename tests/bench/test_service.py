@@ -25,7 +25,14 @@ def test_service_bench_measures_every_metric_against_a_real_server(tmp_path: Pat
         read_timeout_s=60.0,
     )
     files = execute(BENCH, cfg, tmp_path / "out")
-    assert {p.name for p in files} >= {"service.csv", "service.provenance.json", "service_table.md", "service.png"}
+    assert {p.name for p in files} >= {
+        "service.csv",
+        "service.provenance.json",
+        "service.md",
+        "service.png",
+        "service.svg",
+    }
+    assert "server lookup + read (n=5)" in (tmp_path / "out" / "service.svg").read_text()  # a declared series
     rows = read_rows(tmp_path / "out" / "service.csv")
     assert set(METRICS) <= {r["metric"] for r in rows}
 
