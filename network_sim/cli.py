@@ -189,7 +189,8 @@ class SelftestOptions:
 
 def selftest(given: dict[str, Any], *, out: Path) -> None:
     """Measure configured vs realised delay, jitter, goodput, loss delay and overhead; exit 1 if a target is missed."""
-    from network_sim.selftest import SelftestConfig, run_selftest
+    from network_sim.selftest import run_selftest
+    from network_sim.selftest_checks import SelftestConfig
 
     opts = build_config(SelftestOptions, given)
     config = SelftestConfig.quick() if opts.quick else SelftestConfig()

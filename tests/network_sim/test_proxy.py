@@ -307,7 +307,8 @@ def test_selftest_writes_tidy_results_and_counts_missed_targets(tmp_path: Path) 
     """A miniature self-test (seconds, not minutes): every check lands in the CSV with its configured
     value and target verdict, provenance and plot are written, and the return value counts the misses."""
     from gicore.results import read_rows
-    from network_sim.selftest import BENCH, SelftestConfig, run_selftest
+    from network_sim.selftest import BENCH, run_selftest
+    from network_sim.selftest_checks import SelftestConfig
 
     tiny = SelftestConfig(
         probe_s=0.3,
