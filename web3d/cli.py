@@ -35,6 +35,7 @@ from gicore.options import (
 )
 from gicore.scene import load_scene
 from gigan_local.inference import DEFAULT_MODEL, check_model_option
+from network_sim.profiles import profiles
 from web3d.children import ChildCloud
 from web3d.export import export_assets
 from web3d.routes_shadow import Shadows
@@ -55,7 +56,7 @@ class WebConfig:
     scene: str = "lung_plane"
     #: URL of a cloud-baking server the user runs (or of a network-sim proxy in front of it), which the page talks to
     #: as profile 'direct'; absent: gigan-web starts its own server and proxies.
-    server: str | None = field(default=None, metadata={"conflicts": ("store", "profiles", "cloud")})
+    server: str | None = field(default=None, metadata={"conflicts": ("store", "profiles")})
     #: Cloud baking beside GIGAN (--no-cloud: GIGAN alone, no server started).
     cloud: bool = True
     #: GI-tree folder the started server serves (a prebaked or an earlier run's); the page may also pick a cold
@@ -103,13 +104,12 @@ class WebConfig:
         self._check_cloud()
 
     def _check_cloud(self) -> None:
-        from network_sim.profiles import profiles
-
         unknown = [p for p in self.profiles if p not in profiles()]
         if unknown:
             raise UserError(f"--profiles {unknown[0]} is not a profile", f"pick from {', '.join(profiles())}")
-        if self.store is not None and not self.cloud:
-            raise UserError("--store and --no-cloud conflict: --no-cloud starts no server", "drop one")
+        if not self.cloud and (self.store is not None or self.server is not None):
+            option = "--store" if self.store is not None else "--server"
+            raise UserError(f"{option} and --no-cloud conflict: --no-cloud turns the cloud side off", "drop one")
         if self.store is not None and not self.store.is_dir():
             raise UserError(
                 f"--store {self.store} is not a folder",

@@ -1,5 +1,5 @@
-"""gigan-web's error policy: one error line naming the option, exit 2, nothing exported
-(docs/architecture.md, Errors)."""
+"""gigan-web's error policy: one error line naming the option, exit 2, nothing exported, no child started
+(docs/architecture.md, Errors). Its children and signals: test_children.py."""
 
 from __future__ import annotations
 
@@ -23,6 +23,12 @@ def test_bad_options_are_one_error_line_and_write_nothing(tmp_path: Path) -> Non
             (["--scene", "no_such_scene"], "no_such_scene"),
             (["--model", str(tmp_path / "missing.onnx")], "--model"),
             (["--model", str(_model_without_config(tmp_path))], "model.json"),
+            (["--profiles", "lan,moon"], "moon"),
+            (["--store", str(tmp_path / "no_such_store")], "--store"),
+            (["--server", "http://127.0.0.1:1", "--store", str(tmp_path)], "--store"),
+            (["--server", "http://127.0.0.1:1", "--profiles", "lan"], "--profiles"),
+            (["--server", "http://127.0.0.1:1", "--no-cloud"], "--server"),
+            (["--no-cloud", "--store", str(tmp_path)], "--no-cloud"),
         ]
         with ThreadPoolExecutor(len(cases)) as pool:
             outcomes = list(pool.map(lambda c: run_script(["gigan-web", *c[0]], tmp_path), cases))
