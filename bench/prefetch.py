@@ -23,6 +23,7 @@ import numpy as np
 
 from baseline_cloudbaking.client import check_server
 from baseline_cloudbaking.codecs import CODEC_NAMES, DEFAULT_CODEC
+from bench.present.declarations import Chart, Column, Figure, Rows, Table, fill, flat, matches, pick
 from bench.processes import (
     BIN,
     ask_path,
@@ -34,10 +35,10 @@ from bench.processes import (
     run_place,
     with_path_frames,
 )
-from bench.runner import Bench, Block, Rows, Section, Table, cell, need, pick
+from bench.runner import Bench, Block, Section
 from gicore.error_policy import UserError
 from gicore.options import PATH_FILE
-from gicore.results import Results, read_rows
+from gicore.results import Results
 
 CodecName = Literal[CODEC_NAMES]  # type: ignore[valid-type]
 SYSTEM = "cloud_baking"
@@ -253,105 +254,90 @@ def targets(res: Results, scene: str) -> None:
                 profile=profile, target=text, ratio=ratio, measured=mine, baseline=base)  # fmt: skip
 
 
-# -- presenting ---------------------------------------------------------------------------------------------
-def table(rows: Rows) -> str:
-    """Per profile and variant: requests, bytes, in-tolerance share, perceived latency (all and hits), censored
-    frames, mean SSIM; then the targets."""
-    need(rows, "perceived", "requests")
-    runs = list(
-        dict.fromkeys((r["config"]["profile"], r["config"]["variant"]) for r in pick(rows, "requests", "value"))
-    )
-    in_flight = {(r["config"]["profile"], r["config"]["variant"]): r["config"].get("in_flight", "—")
-                 for r in pick(rows, "requests", "value")}  # fmt: skip
-    lines = [
-        "| profile | variant (in flight) | requests | KiB down | in tolerance | perceived median (p95) ms "
-        "| hits: median ms | censored frames | mean SSIM |",
-        "|---|---|---|---|---|---|---|---|---|",
-    ]
-    for profile, variant in runs:
-        key = {"profile": profile, "variant": variant}
+# -- what it shows ------------------------------------------------------------------------------------------
+def runs(rows: Rows) -> list[dict]:
+    """Per profile and variant: requests, KiB down, in-tolerance share, perceived latency (all, and hits), censored
+    frames and mean SSIM."""
+    out = []
+    for r in (r for r in rows if matches(r, "requests", "value")):
+        key = {"profile": r["config"]["profile"], "variant": r["config"]["variant"]}
 
         def v(metric: str, stat: str = "value", **extra: Any) -> float | None:
             return _value(rows, metric, stat, **key, **extra)  # noqa: B023 -- used within this iteration
 
-        down = v("bytes_down", "total")
-        tol = v("in_tolerance")
-        lines.append(
-            f"| {profile} | {variant} ({in_flight[profile, variant]}) | {cell(v('requests'), '.0f')} "
-            f"| {cell(down and down / 1024, '.0f')} "
-            f"| {cell(tol and 100 * tol, '.0f')} % | {cell(v('perceived', 'median', cache='all'), '.0f')} "
-            f"({cell(v('perceived', 'p95', cache='all'), '.0f')}) "
-            f"| {cell(v('perceived', 'median', cache='hit'), '.0f')} "
-            f"| {cell(v('censored'), '.0f')} | {cell(v('ssim', 'mean'), '.3f')} |"
-        )
-    floors = {r["config"]["store"]: r["value"] for r in pick(rows, "request_floor", "value")}
-    if floors:
-        lines += [
-            "",
-            f"Fewest requests that serve every view of the path, with perfect foresight: "
-            f"{cell(floors.get('prebaked'), '.0f')} from the prebaked store's maps (no request policy sends fewer "
-            f"here), {cell(floors.get('placed'), '.0f')} from maps centred on the path's own views (a client "
-            "choosing where maps are baked, on a cold store: each request a bake).",
-        ]
-    met = [r for r in rows if r["stat"] == "target_met"]
-    if met:
-        lines += ["", "| target | measured | ratio | met |", "|---|---|---|---|"]
-        for r in met:
-            c = r["config"]
-            measured = f"{c['measured']:.1f} vs {c['baseline']:.1f}"
-            lines.append(f"| {c['target']} | {measured} | {c['ratio']:.2f} | {'yes' if r['value'] else 'MISSED'} |")
-    return "\n".join(lines)
+        down, tol = v("bytes_down", "total"), v("in_tolerance")
+        row = key | {"in_flight": r["config"].get("in_flight"), "requests": r["value"], "ssim": v("ssim", "mean")}
+        row |= {"kib": down and down / 1024, "tol": tol and 100 * tol, "censored": v("censored")}
+        row |= {"p50": v("perceived", "median", cache="all"), "p95": v("perceived", "p95", cache="all")}
+        out.append(row | {"hits": v("perceived", "median", cache="hit")})
+    return out
 
 
-def readme_block(rows: Rows) -> list[Table]:
-    """The table above, after what the columns mean."""
-    text = (
-        "Perceived latency: per frame, from its start (the camera moved) to the first frame showing a map within "
-        "the server's tolerance of its view; frames no map ever served (censored) count as endless in the median "
-        "and p95 of all frames and are left out of the hits' median. Same path, a fresh copy of the same prebaked "
-        "store per run, frames paced like a display; hold and prefetch with the run's in_flight requests in "
-        "flight, period with one.\n\n"
-    )
-    return [Table(text + table(rows), scroll=True)]
+def floors(rows: Rows) -> str:
+    floor = {r["config"]["store"]: r["value"] for r in rows if matches(r, "request_floor", "value")}
+    return fill(
+        "Fewest requests that serve every view of the path, with perfect foresight: {prebaked:.0f} from the prebaked "
+        "store's maps (no request policy sends fewer here), {placed:.0f} from maps centred on the path's own views (a "
+        "client choosing where maps are baked, on a cold store: each request a bake).",
+        floor,
+    ) if floor else ""  # fmt: skip
 
 
-def plot(csv_path: Path, out_dir: Path) -> list[Path]:
-    """Bars per profile and variant: median perceived latency of hits, and requests sent."""
-    from gicore.plotting import plt, save
-
-    rows = read_rows(csv_path)
-    runs = list(
-        dict.fromkeys((r["config"]["profile"], r["config"]["variant"]) for r in pick(rows, "requests", "value"))
-    )
-    profiles = list(dict.fromkeys(p for p, _ in runs))
-    variants = list(dict.fromkeys(v for _, v in runs))
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
-    for ax, (metric, stat, extra, label) in zip(
-        axes,
-        [("perceived", "median", {"cache": "hit"}, "perceived latency of hits, median [ms]"),
-         ("requests", "value", {}, "requests")],
-        strict=True,
-    ):  # fmt: skip
-        width = 0.8 / max(len(variants), 1)
-        for i, variant in enumerate(variants):
-            values = [_value(rows, metric, stat, profile=p, variant=variant, **extra) for p in profiles]
-            x = np.arange(len(profiles)) + i * width
-            ax.bar(x, [np.nan if v is None else v for v in values], width, label=variant)
-        ax.set_xticks(np.arange(len(profiles)) + width * (len(variants) - 1) / 2, profiles)
-        ax.set_ylabel(label)
-        ax.grid(alpha=0.3, axis="y")
-        ax.legend(fontsize=8)
-    return [save(fig, out_dir / "prefetch.png")]
+PARTS = (
+    Table(
+        runs,
+        (
+            Column("profile", "{profile}"),
+            Column("variant (in flight)", "{variant} ({in_flight})"),
+            Column("requests", "{requests:.0f}"),
+            Column("KiB down", "{kib:.0f}"),
+            Column("in tolerance", "{tol:.0f} %"),
+            Column("perceived median (p95) ms", "{p50:.0f} ({p95:.0f})"),
+            Column("hits: median ms", "{hits:.0f}"),
+            Column("censored frames", "{censored:.0f}"),
+            Column("mean SSIM", "{ssim:.3f}"),
+        ),
+        caption="Perceived latency: per frame, from its start (the camera moved) to the first frame showing a map "
+        "within the server's tolerance of its view; frames no map ever served (censored) count as endless in the "
+        "median and p95 of all frames and are left out of the hits' median. Same path, a fresh copy of the same "
+        "prebaked store per run, frames paced like a display; hold and prefetch with the run's in_flight requests in "
+        "flight, period with one.",
+        notes=floors,
+        scroll=True,
+    ),
+    Table(
+        lambda rows: [flat(r) | {"met": "yes" if r["value"] else "MISSED"} for r in rows if r["stat"] == "target_met"],
+        (
+            Column("target", "{target}"),
+            Column("measured", "{measured:.1f} vs {baseline:.1f}"),
+            Column("ratio", "{ratio:.2f}"),
+            Column("met", "{met}"),
+        ),
+    ),
+    Figure(
+        "prefetch",
+        (
+            Chart(
+                pick("perceived", "median", cache="hit"),
+                "profile",
+                series="{variant}",
+                kind="bar",
+                ylabel="perceived latency of hits, median [ms]",
+            ),
+            Chart(pick("requests", "value"), "profile", series="{variant}", kind="bar", ylabel="requests"),
+        ),  # fmt: skip
+    ),
+)
 
 
 BENCH = Bench(
     "prefetch",
     PrefetchConfig,
     measure,
-    plot,
+    None,
     help="The cloud client's request rules and prefetch: perceived latency, staleness, requests, bytes",
-    dashboard=Section(
-        "prefetch", "Prefetch: hiding the network in cloud baking", 12, lambda rows: [Table(table(rows))]
-    ),
-    readme=Block("Cloud-baking prefetch", 12, readme_block),
+    dashboard=Section("prefetch", "Prefetch: hiding the network in cloud baking", 12),
+    readme=Block("Cloud-baking prefetch", 12),
+    parts=PARTS,
+    needs=("perceived", "requests"),
 )

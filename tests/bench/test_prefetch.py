@@ -8,7 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from bench.prefetch import BENCH, PrefetchConfig, readme_block, record, run_metrics, targets
+from bench.prefetch import BENCH, PrefetchConfig, record, run_metrics, targets
+from bench.present.markdown import tables_text
 from gicore.error_policy import UserError
 from gicore.options import build_config
 from gicore.results import Results, read_rows
@@ -76,7 +77,7 @@ def test_targets_compare_the_variants_named_by_the_issue(tmp_path: Path) -> None
     assert wan["value"] == 1 and wan["config"]["ratio"] == pytest.approx(50.0 / 300.0)
     lan = met["requests(lan)"]
     assert lan["value"] == 0 and lan["config"]["ratio"] == pytest.approx(0.6)
-    text = readme_block(rows)[0].markdown
+    text = tables_text(BENCH.parts, rows, 2)
     assert "| wan | hold (3) | 5 |" in text and "MISSED" in text and "| yes |" in text
     assert "with perfect foresight: 58 from the prebaked store's maps" in text and ", 41 from maps centred" in text
 
