@@ -25,7 +25,8 @@ from typing import Any, Literal
 
 import numpy as np
 
-from bench.runner import Bench, Block, Part, Rows, Section, Table, cell, need, pick
+from bench.present.declarations import Column, Image, Rows, Table, fill, matches
+from bench.runner import Bench, Block, Section
 from gicore.error_policy import UserError
 from gicore.options import FRAMES, SPP, THREADS
 from gicore.results import Results
@@ -365,75 +366,52 @@ def record(
         res.add(system=GIGAN, scene=scene, metric=metric, value=check[stat], unit="tonemapped", **common)
 
 
-# -- presentation --------------------------------------------------------------------------------------------------
-def _median(rows: Rows, system: str, metric: str, **config: Any) -> float | None:
-    found = [
-        r["value"]
-        for r in pick(rows, metric, "median")
-        if r["system"] == system and all(r["config"].get(k) == v for k, v in config.items())
+# -- what it shows ------------------------------------------------------------------------------------------
+STAGES = ("gi_render", "inference", "transmission", "server", "decode", "warp", "blend", "total")
+
+
+def stages(rows: Rows) -> list[dict]:
+    """The browser-side Table 1: each stage's median over the GI maps, per system; then the shared local DI."""
+
+    def median(system: str, metric: str) -> float | None:
+        return next((r["value"] for r in rows if r["system"] == system and matches(r, metric, "median")), None)
+
+    out = [{"stage": s, "gigan": median(GIGAN, s), "cloud": median(CLOUD, s)} for s in STAGES]
+    out[-1]["stage"] = "**total**"
+    return [
+        *out,
+        {"stage": "di (local, shared; not counted)", "gigan": median(GIGAN, "di"), "cloud": median(CLOUD, "di")},
     ]
-    return found[0] if found else None
 
 
-def _value(rows: Rows, metric: str) -> float | None:
-    found = pick(rows, metric, "value")
-    return found[0]["value"] if found else None
-
-
-def table(rows: Rows) -> str:
-    """The browser-side Table 1 (medians over the GI maps, ms) with the inference comparison and parity."""
-    need(rows, "total", "total_ratio", "parity_max_abs_diff")
-    config = rows[0]["config"]
-    lines = ["| stage (median ms) | GIGAN | cloud baking |", "|---|---:|---:|"]
-    for stage in ("gi_render", "inference", "transmission", "server", "decode", "warp", "blend", "total"):
-        g, c = _median(rows, GIGAN, stage), _median(rows, CLOUD, stage)
-        bold = "**" if stage == "total" else ""
-        lines.append(f"| {bold}{stage}{bold} | {cell(g)} | {cell(c)} |")
-    lines.append(
-        f"| di (local, shared; not counted) | {cell(_median(rows, GIGAN, 'di'))} | {cell(_median(rows, CLOUD, 'di'))} |"
-    )
-    browser = _median(rows, GIGAN, "inference_run", runtime="onnxruntime-web")
-    python = _median(rows, GIGAN, "inference_run", runtime="onnxruntime-python")
-    n_maps = [r["value"] for r in pick(rows, "total", "n")]
-    return "\n".join(
-        [
-            *lines,
-            "",
-            f"Cloud baking / GIGAN median total: **{cell(_value(rows, 'total_ratio'), '.2f')}x** "
-            f"({', '.join(str(int(n)) for n in n_maps)} maps; {config['frames']} frames, k = {config['every']}, "
-            f"profile {config['profile']}, {config['store']} store, {config['codec']}, {config['spp']} spp). "
-            f"WebGL: {config['webgl']}; onnxruntime-web {config['backend']}, {config['threads']} threads.",
-            "",
-            f"session.run on the same input: browser {cell(browser)} ms, Python onnxruntime {cell(python)} ms "
-            f"(**{cell(_value(rows, 'inference_ratio'), '.2f')}x**). Parity with GIModel.predict on the page's "
-            f"G-buffers, tone-mapped: max |Δ| = {cell(_value(rows, 'parity_max_abs_diff'), '.2e')}, "
-            f"mean {cell(_value(rows, 'parity_mean_abs_diff'), '.2e')}. The page's DI + G-buffers against "
-            f"GLRenderer's at the same GI camera: coverage differs on "
-            f"{cell(_value(rows, 'port_coverage_mismatch'), '.1e')} of the pixels; mean |Δ| relative to the mean: "
-            + ", ".join(f"{b} {cell(_value(rows, f'port_{b}_rel_diff'), '.1e')}" for b in PORT_BUFFERS)
-            + ".",
-        ]
+def summary(rows: Rows) -> str:
+    """The ratio of totals, the run's settings, the inference comparison and the parity checks."""
+    values = {r["metric"]: r["value"] for r in rows if r["stat"] == "value"}
+    runs = {r["config"]["runtime"]: r["value"] for r in rows if matches(r, "inference_run", "median")}
+    maps = ", ".join(str(int(r["value"])) for r in rows if matches(r, "total", "n"))
+    c = rows[0]["config"]
+    ports = ", ".join(f"{b} {{port_{b}_rel_diff:.1e}}" for b in PORT_BUFFERS)
+    return fill(
+        "Cloud baking / GIGAN median total: **{total_ratio:.2f}x** "
+        f"({maps} maps; {c['frames']} frames, k = {c['every']}, profile {c['profile']}, {c['store']} store, "
+        f"{c['codec']}, {c['spp']} spp). WebGL: {c['webgl']}; onnxruntime-web {c['backend']}, {c['threads']} "
+        "threads.\n\nsession.run on the same input: browser {web:.1f} ms, Python onnxruntime {python:.1f} ms "
+        "(**{inference_ratio:.2f}x**). Parity with GIModel.predict on the page's G-buffers, tone-mapped: max |Δ| = "
+        "{parity_max_abs_diff:.2e}, mean {parity_mean_abs_diff:.2e}. The page's DI + G-buffers against GLRenderer's "
+        "at the same GI camera: coverage differs on {port_coverage_mismatch:.1e} of the pixels; mean |Δ| relative to "
+        f"the mean: {ports}.",
+        values | {"web": runs.get("onnxruntime-web"), "python": runs.get("onnxruntime-python")},
     )
 
 
-def screenshot(rows: Rows) -> str:
-    """The run's screenshot as a Markdown image (a data URI: the dashboard opens offline), or a line saying
-    where it was and that it is gone."""
-    found = pick(rows, "screenshot")
-    if not found:
-        return "(this run took no screenshot)"
-    path = Path(found[0]["config"]["file"])
-    if not path.is_file():
-        return f"(the screenshot {path} is gone)"
-    return f"![Both canvases and their HUDs](data:image/png;base64,{base64.b64encode(path.read_bytes()).decode()})"
-
-
-def dashboard_section(rows: Rows) -> list[Part]:
-    return [Table(screenshot(rows)), Table(table(rows))]
-
-
-def readme_block(rows: Rows) -> list[Table]:
-    return [Table(table(rows))]
+PARTS = (
+    Image(SCREENSHOT, "Both canvases and their HUDs", where="dashboard"),
+    Table(
+        stages,
+        (Column("stage (median ms)", "{stage}"), Column("GIGAN", "{gigan:.1f}"), Column("cloud baking", "{cloud:.1f}")),
+        notes=summary,
+    ),  # fmt: skip
+)
 
 
 BENCH = Bench(
@@ -442,6 +420,8 @@ BENCH = Bench(
     measure,
     None,
     help="Browser-side Table 1: the Web3D viewer in headless Chromium (Playwright), both systems side by side",
-    dashboard=Section("web", "Web3D viewer: browser-side Table 1", 15, dashboard_section),
-    readme=Block("Web3D viewer, browser-side Table 1", 15, readme_block),
+    dashboard=Section("web", "Web3D viewer: browser-side Table 1", 15),
+    readme=Block("Web3D viewer, browser-side Table 1", 15),
+    parts=PARTS,
+    needs=("total", "total_ratio", "parity_max_abs_diff"),
 )
