@@ -2,9 +2,9 @@
 
 - :mod:`web3d.export`: the scene's meshes, materials, WebGL2 shaders (``gicore.gl``'s GLSL, ported by its
   version line and precision qualifiers) and camera path as static files, plus the shipped ONNX model;
-- :mod:`web3d.serve`: ``gigan-web``, a static server for ``web3d/static/`` and the assets that forwards
-  ``POST /v1/gimap`` to a cloud-baking server (or the ``network-sim`` proxy in front of it), so the page
-  talks to one origin and needs no CORS;
+- :mod:`web3d.serve`: ``gigan-web``'s server (Starlette on uvicorn): the page, its npm files and the assets,
+  ``POST /v1/gimap`` forwarded to the chosen profile's ``network-sim`` proxy of the chosen store's cloud-baking
+  server (:mod:`web3d.children` starts them), the shadow-map setups; one origin, so no CORS;
 - the page itself lives in ``web3d/static/`` (ES modules, onnxruntime-web from ``web/node_modules``).
 
 This package sits beside ``bench``: it depends on ``gicore`` and on ``gigan_local``'s model files, and
