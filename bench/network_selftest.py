@@ -6,35 +6,44 @@ from __future__ import annotations
 
 import json
 
-from bench.runner import Block, External, Rows, Table
+from bench.present.declarations import Column, Rows, Table
+from bench.runner import Block, External
 from network_sim.selftest import BENCH as NAME
 
 
-def readme_block(rows: Rows) -> list[Table]:
-    """The self-test's checks: each with a target, what was configured and measured, and whether it was met."""
-    targets = [r for r in rows if r["stat"] == "target_met"]
-    if not targets:
-        raise ValueError("it has no target_met rows")
+def checks(rows: Rows) -> list[dict]:
+    """Each check with a target: what was configured and measured, the target and whether it was met."""
     value = {(r["scene"], r["metric"], r["stat"], json.dumps(r["config"], sort_keys=True)): r for r in rows}
-    lines = [
-        f"{sum(r['value'] == 1 for r in targets)} of {len(targets)} targets met.",
-        "",
-        "| check | metric | configured | measured | target | met |",
-        "|---|---|---|---|---|---|",
-    ]
-    for t in targets:
-        config = {k: v for k, v in t["config"].items() if k not in ("target", "measured_stat")}
-        key = json.dumps(config, sort_keys=True)
-        measured = value.get((t["scene"], t["metric"], t["config"]["measured_stat"], key))
-        configured = value.get((t["scene"], t["metric"], "configured", key))
-        cells = [f"{c['value']:.4g} {c['unit']}" if c else "—" for c in (configured, measured)]
-        target = str(t["config"]["target"]).replace("|", "\\|")  # e.g. |err| <= 1 ms, inside a table cell
+    out = []
+    for t in (r for r in rows if r["stat"] == "target_met"):
+        key = json.dumps({k: v for k, v in t["config"].items() if k not in ("target", "measured_stat")}, sort_keys=True)
         stat = t["config"]["measured_stat"]
-        met = "yes" if t["value"] else "MISSED"
-        lines.append(f"| {t['scene']} | {t['metric']} ({stat}) | {cells[0]} | {cells[1]} | {target} | {met} |")
-    return [Table("\n".join(lines))]
+        measured, configured = (value.get((t["scene"], t["metric"], s, key)) for s in (stat, "configured"))
+        row = {"check": t["scene"], "metric": f"{t['metric']} ({stat})", "target": t["config"]["target"]}
+        out.append(row | {"configured": configured, "measured": measured, "met": "yes" if t["value"] else "MISSED"})
+    return out
+
+
+def _met(rows: Rows) -> str:
+    targets = [r for r in rows if r["stat"] == "target_met"]
+    return f"{sum(r['value'] == 1 for r in targets)} of {len(targets)} targets met."
 
 
 SELFTEST = External(
-    NAME, readme=Block("Network simulator", 90, readme_block, make="network-sim selftest --out {out}/netself")
+    NAME,
+    readme=Block("Network simulator", 90, make="network-sim selftest --out {out}/netself"),
+    parts=(
+        Table(
+            checks,
+            (
+                Column("check", "{check}"),
+                Column("metric", "{metric}"),
+                Column("configured", "{configured[value]:.4g} {configured[unit]}"),
+                Column("measured", "{measured[value]:.4g} {measured[unit]}"),
+                Column("target", "{target}"),
+                Column("met", "{met}"),
+            ),
+            caption=_met,
+        ),
+    ),
 )
