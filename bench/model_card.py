@@ -20,6 +20,7 @@ from functools import partial
 from pathlib import Path
 
 from bench.common import train_small, training_minutes
+from bench.present.declarations import Chart, Figure, flat, matches
 from bench.runner import Bench, execute
 from gicore.error_policy import UserError
 from gicore.metrics import LF_SIGMA
@@ -284,25 +285,19 @@ def graph_lines(model_doc: dict) -> list[str]:
     return [line + "."]
 
 
-def plot(csv_path: Path, out_dir: Path) -> list[Path]:
-    """SSIM per scene of the model and of DI alone (the card's table, as bars)."""
-    import numpy as np
-
-    from gicore.plotting import plt, save
-
-    rows = [r for r in read_rows(csv_path) if r["metric"] == "ssim" and r["scene"] != "all"]
-    scenes = sorted({r["scene"] for r in rows})
-    systems = list(dict.fromkeys(r["system"] for r in rows))
-    fig, ax = plt.subplots(figsize=(max(6.0, 1.2 * len(scenes) + 3), 4))
-    width = 0.8 / max(1, len(systems))
-    for j, system in enumerate(systems):
-        values = [next((r["value"] for r in rows if (r["scene"], r["system"]) == (s, system)), np.nan) for s in scenes]
-        ax.bar(np.arange(len(scenes)) + (j + 0.5) * width - 0.4, values, width, label=system)
-    ax.set_xticks(np.arange(len(scenes)), scenes, rotation=20, ha="right", fontsize=8)
-    ax.set_ylabel("mean SSIM on held-out frames (tone-mapped)")
-    ax.grid(axis="y", alpha=0.3)
-    ax.legend(fontsize=8)
-    return [save(fig, out_dir / "model_card.png")]
+#: SSIM per scene of the model and of DI alone (the card's table, as bars).
+FIGURE = Figure(
+    "model_card",
+    (
+        Chart(
+            lambda rows: [flat(r) for r in rows if matches(r, "ssim") and r["scene"] != "all"],
+            "scene",
+            series="{system}",
+            kind="bar",
+            ylabel="mean SSIM on held-out frames (tone-mapped)",
+        ),
+    ),  # fmt: skip
+)
 
 
 def bench(quality: Bench) -> Bench:
@@ -312,6 +307,7 @@ def bench(quality: Bench) -> Bench:
         "model-card",
         ModelCardConfig,
         partial(measure, quality=quality),
-        plot,
+        None,
         help="MODEL_CARD.md for an exported model from its run, export and quality results.",
+        parts=(FIGURE,),
     )
