@@ -24,6 +24,7 @@ export class FrameLoop {
   }
 
   tick(now) {
+    if (this.viewer.error) return; // stopped (a failed shadow fetch, say)
     try {
       this.step(now);
     } catch (e) {

@@ -155,8 +155,9 @@ function wireInput(page) {
     if (was) download(viewer.recording());
   });
   const release = () => page.loop.release();
-  for (const type of ["pointerdown", "wheel", "keydown"]) $("stage").addEventListener(type, release, { capture: true });
-  for (const id of ["light-x", "light-y", "profile", "store"]) $(id).addEventListener("input", release);
+  for (const type of ["pointerdown", "wheel", "keydown", "input"]) {
+    window.addEventListener(type, release, { capture: true });
+  }
 }
 
 // The page's parts that need no model: both canvases' renderers, the camera and light inputs, the cloud side.
