@@ -113,189 +113,186 @@ def open_local_raster(cfg: WarpBenchConfig, spec: SceneSpec, renderer: Renderer)
     return open_raster(cfg.renderer, renderer, gl, RasterUnavailable)
 
 
+#: Each method's raster pass, and DI alone.
+PASSES = {"structure": "uv", "pixel": "mask", "di": None}
+
+
+@dataclass
+class _Scene:
+    """One scene of a run: its renderers (the local raster is ``used``: gl or mitsuba), fly-through, GT maps
+    and structure-aware warper, the config columns of its rows, and the run's seed."""
+
+    name: str
+    spec: SceneSpec
+    renderer: Renderer
+    raster: Any
+    used: str
+    cams: list[Camera]
+    source: Any
+    warper: Any
+    common: dict[str, Any]
+    seed: int
+
+
+@dataclass
+class _Tally:
+    """What a scene's run collects: timings (s) by name, stage times and CPU (cpu s, wall s, calls) per method,
+    peak MiB, quality, the uv errors, the gl levels drawn; ``order``: the raster passes, first in turn."""
+
+    samples: dict[str, list[float]] = field(default_factory=lambda: defaultdict(list))
+    stages: dict[str, dict[str, list[float]]] = field(default_factory=lambda: {m: defaultdict(list) for m in SYSTEMS})
+    cpu: dict[str, list[float]] = field(default_factory=lambda: {m: [0.0, 0.0, 0] for m in SYSTEMS})
+    peaks: dict[str, list[float]] = field(default_factory=lambda: defaultdict(list))
+    quality: dict[str, list[float]] = field(default_factory=lambda: defaultdict(list))
+    uv_err: dict[str, list[np.ndarray]] = field(default_factory=lambda: defaultdict(list))
+    levels: list[int] = field(default_factory=list)
+    order: list[str] = field(default_factory=lambda: list(PASSES))
+
+
 def measure(cfg: WarpBenchConfig, res: Results) -> None:
-    from baseline_cloudbaking.warp import PointCloud
-    from gicore.loop import render_gt
+    for name in cfg.scenes:
+        scene = _open_scene(cfg, name, res.seed)
+        for pass_name in PASSES.values():  # untimed: a pass's first call compiles its program
+            scene.raster.render_di_raster(scene.cams[0], light_position(scene.spec, 0), pass_name)
+        tally = _Tally()
+        for g in cfg.gi_frames:
+            _measure_gi_frame(cfg, scene, g, tally, res)
+        _record(cfg, scene, tally, res)
+
+
+def _open_scene(cfg: WarpBenchConfig, name: str, seed: int) -> _Scene:
     from gicore.render import Renderer
     from gigan_local.client import GTSource
     from gigan_local.warp import StructureAwareWarp
 
-    seed = res.seed
-    for name in cfg.scenes:
-        spec = load_scene(name)
-        renderer = Renderer(spec, cfg.resolution)
-        raster, used = open_local_raster(cfg, spec, renderer)
-        common: dict[str, Any] = {"resolution": cfg.resolution, "gi_fov": cfg.gi_fov, "local_fov": cfg.local_fov}
-        common |= {"renderer": used} | ({"gl_lod": cfg.gl_lod} if used == "gl" else {})
-        levels: list[int] = []  # the levels of detail the gl uv passes drew
-        cams = camera_path(spec, cfg.orbit_frames, seed=seed, fov=cfg.local_fov, resolution=cfg.resolution)
-        source = GTSource(renderer, cfg.spp, cfg.denoise, seed)
-        warper = StructureAwareWarp(raster)
-        samples: dict[str, list[float]] = defaultdict(list)
-        stages: dict[str, dict[str, list[float]]] = {m: defaultdict(list) for m in SYSTEMS}
-        cpu = {m: [0.0, 0.0, 0] for m in SYSTEMS}  # cpu seconds, wall seconds, calls
-        peaks: dict[str, list[float]] = defaultdict(list)
-        quality: dict[str, list[float]] = defaultdict(list)
-        uv_err: dict[str, list[np.ndarray]] = defaultdict(list)
-        n_vertices = sum(len(o.mesh.vertices) for o in raster.objects)
-        passes = {"structure": "uv", "pixel": "mask", "di": None}  # each method's raster pass; DI alone
-        for pass_name in passes.values():  # untimed: a pass's first call compiles its program
-            raster.render_di_raster(cams[0], light_position(spec, 0), pass_name)
-        order = list(passes)
-        for g in cfg.gi_frames:
-            light = light_position(spec, g)
-            gi = source.produce(cams[g % cfg.orbit_frames].with_fov(cfg.gi_fov), light, g)
-            t0 = time.perf_counter()
-            warper.bind(gi)
-            t1 = time.perf_counter()
-            cloud = PointCloud(gi.radiance, gi.depth, gi.camera)
-            samples["bind/structure"].append(t1 - t0)
-            samples["bind/pixel"].append(time.perf_counter() - t1)
-            for offset in cfg.offsets:
-                frame = g + offset
-                cam = cams[frame % cfg.orbit_frames]
-                raster.render_di_raster(cam, light)  # untimed: this light's shadow map, which no timed pass redraws
-                rendered = {}
-                order = order[1:] + order[:1]  # each pass first in turn
-                for m in order:
-                    t0 = time.perf_counter()
-                    rendered[m] = raster.render_di_raster(cam, light, passes[m], seed=frame)
-                    samples[f"raster/{m}"].append(time.perf_counter() - t0)
-                    if m == "structure" and used == "gl":
-                        levels.append(raster.last_level)
-                di, uv_pass = rendered["structure"]
-                mask = rendered["pixel"][1]["mask"]
+    spec = load_scene(name)
+    renderer = Renderer(spec, cfg.resolution)
+    raster, used = open_local_raster(cfg, spec, renderer)
+    common: dict[str, Any] = {"resolution": cfg.resolution, "gi_fov": cfg.gi_fov, "local_fov": cfg.local_fov}
+    common |= {"renderer": used} | ({"gl_lod": cfg.gl_lod} if used == "gl" else {})
+    cams = camera_path(spec, cfg.orbit_frames, seed=seed, fov=cfg.local_fov, resolution=cfg.resolution)
+    source = GTSource(renderer, cfg.spp, cfg.denoise, seed)
+    return _Scene(name, spec, renderer, raster, used, cams, source, StructureAwareWarp(raster), common, seed)
 
-                def structure():
-                    return warper.resample(uv_pass, base=di)
 
-                def pixel():
-                    return cloud.splat(cam, target_mask=mask)
+def _measure_gi_frame(cfg: WarpBenchConfig, scene: _Scene, g: int, tally: _Tally, res: Results) -> None:
+    """GI frame ``g``: its GT map bound by both methods (timed), then warped to each offset's camera; the uv
+    errors at the last offset."""
+    from baseline_cloudbaking.warp import PointCloud
 
-                methods = {"structure": structure, "pixel": pixel}
-                for fn in methods.values():
-                    for _ in range(cfg.warmup):
-                        fn()
-                for _ in range(cfg.repeats):
-                    for m, fn in methods.items():  # alternate, so both see the same machine load
-                        c0, t0 = time.process_time(), time.perf_counter()
-                        _, _, t = fn()
-                        wall, c1 = time.perf_counter() - t0, time.process_time()
-                        samples[m].append(wall)
-                        cpu[m][0] += c1 - c0
-                        cpu[m][1] += wall
-                        cpu[m][2] += 1
-                        for stage, ms in t.items():
-                            stages[m][stage].append(ms / 1e3)
-                gt = tonemap(render_gt(renderer, cam, light, cfg.spp, seed + 7919 * frame + 1, cfg.denoise))
-                for m, fn in methods.items():
-                    peaks[m].append(_peak_mib(fn))
-                    gi_w, valid, _ = fn()
-                    quality[f"{m}/ssim"].append(ssim(tonemap(gi_w), gt))
-                    quality[f"{m}/valid"].append(float(valid[mask].mean()) if mask.any() else 1.0)
-                    res.add(
-                        system=SYSTEMS[m],
-                        scene=name,
-                        metric="ssim",
-                        value=quality[f"{m}/ssim"][-1],
-                        unit="1",
-                        offset=offset,
-                        gi_frame=g,
-                        **common,
-                    )
-            for method, errors in uv_errors(
-                raster, warper, gi.camera, cams[(g + cfg.offsets[-1]) % cfg.orbit_frames]
-            ).items():
-                uv_err[method].append(errors)
+    light = light_position(scene.spec, g)
+    gi = scene.source.produce(scene.cams[g % cfg.orbit_frames].with_fov(cfg.gi_fov), light, g)
+    t0 = time.perf_counter()
+    scene.warper.bind(gi)
+    t1 = time.perf_counter()
+    cloud = PointCloud(gi.radiance, gi.depth, gi.camera)
+    tally.samples["bind/structure"].append(t1 - t0)
+    tally.samples["bind/pixel"].append(time.perf_counter() - t1)
+    for offset in cfg.offsets:
+        _measure_offset(cfg, scene, g, offset, light, cloud, tally, res)
+    last = scene.cams[(g + cfg.offsets[-1]) % cfg.orbit_frames]
+    for method, errors in uv_errors(scene.raster, scene.warper, gi.camera, last).items():
+        tally.uv_err[method].append(errors)
 
-        cfg_row = common | {"repeats": cfg.repeats, "frames": len(cfg.gi_frames) * len(cfg.offsets), "spp": cfg.spp}
-        cfg_row |= {"gl_level_mean": float(np.mean(levels))} if levels else {}
-        for m, system in SYSTEMS.items():
-            res.add_timing(system=system, scene=name, metric="warp_time", samples_s=samples[m], **cfg_row)
-            for stage, values in stages[m].items():
-                res.add_timing(system=system, scene=name, metric=f"stage_time:{stage}", samples_s=values, **cfg_row)
-            cpu_s, wall_s, calls = cpu[m]
-            res.add(
-                system=system,
-                scene=name,
-                metric="cpu_time",
-                value=cpu_s / calls * 1e3,
-                unit="ms",
-                stat="mean",
-                **cfg_row,
-            )
-            res.add(
-                system=system,
-                scene=name,
-                metric="cpu_percent",
-                value=100.0 * cpu_s / wall_s,
-                unit="%",
-                stat="mean",
-                **cfg_row,
-            )
-            res.add(
-                system=system,
-                scene=name,
-                metric="peak_memory",
-                value=float(np.max(peaks[m])),
-                unit="MiB",
-                stat="max",
-                **cfg_row,
-            )
-            res.add(
-                system=system,
-                scene=name,
-                metric="ssim",
-                value=float(np.mean(quality[f"{m}/ssim"])),
-                unit="1",
-                stat="mean",
-                **cfg_row,
-            )
-            res.add(
-                system=system,
-                scene=name,
-                metric="valid_fraction",
-                value=float(np.mean(quality[f"{m}/valid"])),
-                unit="1",
-                stat="mean",
-                **cfg_row,
-            )
-        res.add_timing(
-            system="structure-aware",
-            scene=name,
-            metric="bind_time",
-            samples_s=samples["bind/structure"],
-            vertices=n_vertices,
-            **cfg_row,
-        )
-        res.add_timing(system="pixel-level", scene=name, metric="bind_time", samples_s=samples["bind/pixel"], **cfg_row)
-        for m, system in (*SYSTEMS.items(), ("di", "DI alone")):
-            res.add_timing(system=system, scene=name, metric="raster_time", samples_s=samples[f"raster/{m}"], **cfg_row)
-        ratio = np.median(samples["pixel"]) / np.median(samples["structure"])
-        res.add(
-            system="pixel/structure",
-            scene=name,
-            metric="time_ratio",
-            value=float(ratio),
-            unit="x",
-            stat="median",
-            **cfg_row,
-        )
-        res.add(
-            system="pixel/structure",
-            scene=name,
-            metric="cpu_ratio",
-            value=cpu["pixel"][0] / cpu["pixel"][2] / (cpu["structure"][0] / cpu["structure"][2]),
-            unit="x",
-            stat="mean",
-            **cfg_row,
-        )
-        for method, errors in uv_err.items():
-            e = np.concatenate(errors)
-            for stat, value in (("median", np.median(e)), ("p99", np.percentile(e, 99)), ("max", e.max())):
-                res.add(
-                    system=method, scene=name, metric="uv_error", value=float(value), unit="px", stat=stat, **cfg_row
-                )
+
+def _measure_offset(
+    cfg: WarpBenchConfig, scene: _Scene, g: int, offset: int, light, cloud: Any, tally: _Tally, res: Results
+) -> None:
+    """The local frame ``offset`` frames after GI frame ``g``: each method's raster pass and warp timed, then
+    its peak memory and its SSIM against the path-traced GT there."""
+    frame = g + offset
+    cam = scene.cams[frame % cfg.orbit_frames]
+    raster = scene.raster
+    raster.render_di_raster(cam, light)  # untimed: this light's shadow map, which no timed pass redraws
+    rendered = {}
+    tally.order = tally.order[1:] + tally.order[:1]  # each pass first in turn
+    for m in tally.order:
+        t0 = time.perf_counter()
+        rendered[m] = raster.render_di_raster(cam, light, PASSES[m], seed=frame)
+        tally.samples[f"raster/{m}"].append(time.perf_counter() - t0)
+        if m == "structure" and scene.used == "gl":
+            tally.levels.append(raster.last_level)
+    di, uv_pass = rendered["structure"]
+    mask = rendered["pixel"][1]["mask"]
+    methods = {
+        "structure": lambda: scene.warper.resample(uv_pass, base=di),
+        "pixel": lambda: cloud.splat(cam, target_mask=mask),
+    }
+    _time_methods(cfg, methods, tally)
+    _score_methods(cfg, scene, methods, cam, light, frame, mask, tally)
+    for m in methods:
+        res.add(system=SYSTEMS[m], scene=scene.name, metric="ssim", value=tally.quality[f"{m}/ssim"][-1], unit="1",
+                offset=offset, gi_frame=g, **scene.common)  # fmt: skip
+
+
+def _time_methods(cfg: WarpBenchConfig, methods: dict[str, Callable[[], Any]], tally: _Tally) -> None:
+    """Each method's warp after ``cfg.warmup`` untimed calls, ``cfg.repeats`` times, alternating the two so
+    both see the same machine load: wall time, stage times and process CPU time."""
+    for fn in methods.values():
+        for _ in range(cfg.warmup):
+            fn()
+    for _ in range(cfg.repeats):
+        for m, fn in methods.items():
+            c0, t0 = time.process_time(), time.perf_counter()
+            _, _, t = fn()
+            wall, c1 = time.perf_counter() - t0, time.process_time()
+            tally.samples[m].append(wall)
+            tally.cpu[m][0] += c1 - c0
+            tally.cpu[m][1] += wall
+            tally.cpu[m][2] += 1
+            for stage, ms in t.items():
+                tally.stages[m][stage].append(ms / 1e3)
+
+
+def _score_methods(
+    cfg: WarpBenchConfig, scene: _Scene, methods: dict[str, Callable[[], Any]], cam: Camera, light, frame: int,
+    mask: np.ndarray, tally: _Tally,
+) -> None:  # fmt: skip
+    """Each method's peak memory, and the SSIM of its warped map against the path-traced GT at ``cam`` and the
+    share of surface pixels it covers."""
+    from gicore.loop import render_gt
+
+    gt = tonemap(render_gt(scene.renderer, cam, light, cfg.spp, scene.seed + 7919 * frame + 1, cfg.denoise))
+    for m, fn in methods.items():
+        tally.peaks[m].append(_peak_mib(fn))
+        gi_w, valid, _ = fn()
+        tally.quality[f"{m}/ssim"].append(ssim(tonemap(gi_w), gt))
+        tally.quality[f"{m}/valid"].append(float(valid[mask].mean()) if mask.any() else 1.0)
+
+
+def _record(cfg: WarpBenchConfig, scene: _Scene, tally: _Tally, res: Results) -> None:
+    """A scene's rows: per method its timings, CPU, memory and quality; the binds and raster passes; the
+    pixel / structure ratios; the uv errors."""
+    name, cpu = scene.name, tally.cpu
+    row = scene.common | {"repeats": cfg.repeats, "frames": len(cfg.gi_frames) * len(cfg.offsets), "spp": cfg.spp}
+    row |= {"gl_level_mean": float(np.mean(tally.levels))} if tally.levels else {}
+    for m, system in SYSTEMS.items():
+        res.add_timing(system=system, scene=name, metric="warp_time", samples_s=tally.samples[m], **row)
+        for stage, values in tally.stages[m].items():
+            res.add_timing(system=system, scene=name, metric=f"stage_time:{stage}", samples_s=values, **row)
+        cpu_s, wall_s, calls = cpu[m]
+        for metric, value, unit, stat in (
+            ("cpu_time", cpu_s / calls * 1e3, "ms", "mean"),
+            ("cpu_percent", 100.0 * cpu_s / wall_s, "%", "mean"),
+            ("peak_memory", float(np.max(tally.peaks[m])), "MiB", "max"),
+            ("ssim", float(np.mean(tally.quality[f"{m}/ssim"])), "1", "mean"),
+            ("valid_fraction", float(np.mean(tally.quality[f"{m}/valid"])), "1", "mean"),
+        ):
+            res.add(system=system, scene=name, metric=metric, value=value, unit=unit, stat=stat, **row)
+    n_vertices = sum(len(o.mesh.vertices) for o in scene.raster.objects)
+    res.add_timing(system="structure-aware", scene=name, metric="bind_time", samples_s=tally.samples["bind/structure"],
+                   vertices=n_vertices, **row)  # fmt: skip
+    res.add_timing(system="pixel-level", scene=name, metric="bind_time", samples_s=tally.samples["bind/pixel"], **row)
+    for m, system in (*SYSTEMS.items(), ("di", "DI alone")):
+        res.add_timing(system=system, scene=name, metric="raster_time", samples_s=tally.samples[f"raster/{m}"], **row)
+    ratio = float(np.median(tally.samples["pixel"]) / np.median(tally.samples["structure"]))
+    cpu_ratio = cpu["pixel"][0] / cpu["pixel"][2] / (cpu["structure"][0] / cpu["structure"][2])
+    res.add(system="pixel/structure", scene=name, metric="time_ratio", value=ratio, unit="x", stat="median", **row)
+    res.add(system="pixel/structure", scene=name, metric="cpu_ratio", value=cpu_ratio, unit="x", stat="mean", **row)
+    for method, errors in tally.uv_err.items():
+        e = np.concatenate(errors)
+        for stat, value in (("median", np.median(e)), ("p99", np.percentile(e, 99)), ("max", e.max())):
+            res.add(system=method, scene=name, metric="uv_error", value=float(value), unit="px", stat=stat, **row)
 
 
 # -- what it shows ------------------------------------------------------------------------------------------
