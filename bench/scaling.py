@@ -12,22 +12,20 @@ by pixels. docs/architecture.md, bench scaling.
 
 from __future__ import annotations
 
-import json
 import logging
 import math
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass, field
-from pathlib import Path
+from functools import partial
 from typing import Any, Literal
 
-import numpy as np
-
-from bench.runner import Bench, Block, Rows, Table, cell, need, pick
+from bench.present.declarations import Chart, Column, Figure, Rows, Table, flat, matches, per, unique
+from bench.runner import Bench, Block
 from gicore.error_policy import UserError
 from gicore.executor import INSTALL_RAY, Executor, LocalPool, RayExecutor, Task
-from gicore.results import Results, read_rows
+from gicore.results import Results
 from gicore.scene import builtin_scenes, load_scene
 
 Kind = Literal["frame", "map"]
@@ -218,7 +216,6 @@ def measure(cfg: ScalingConfig, res: Results) -> None:
                                 system=ex, scene=name, metric="efficiency", value=efficiency, unit="ratio", **config
                             )
     _project(cfg, res, name, item_s)
-    _write_table(cfg, res)
 
 
 def _overhead(res: Results, ex: str, name: str, executor: Executor, n: int) -> None:
@@ -325,28 +322,19 @@ PROJECTED = {
 }
 
 
+# -- what it shows ------------------------------------------------------------------------------------------
 def _label(ex: str, workers: int) -> str:
     """An executor's row name: a cluster point names its simulated nodes."""
     return f"ray, {workers} node{'s' * (workers > 1)} x 1 CPU (simulated)" if ex == CLUSTER else ex
 
 
+def _executors(rows: Rows) -> list[str]:
+    return unique(r["system"] for r in rows if r["metric"] == "throughput")
+
+
 def _projected_on(executors: list[str]) -> list[str]:
     """Executors the projection tables show: a simulated cluster's 1-node point is the ``ray`` one again."""
     return [ex for ex in executors if ex != CLUSTER] or executors
-
-
-def _two_nodes(rows: list[dict]) -> str | None:
-    """The two-node sentence: maps/s and the no-op round trip of 2 simulated nodes against 1, nodes used."""
-    one, two = (_value(rows, system=CLUSTER, metric="throughput", workers=n, kind="map") for n in (1, 2))
-    if math.isnan(two):
-        return None
-    trips = [_value(rows, system=CLUSTER, metric="task_roundtrip", stat="median", workers=n) for n in (1, 2)]
-    used = _value(rows, system=CLUSTER, metric="nodes_used", workers=2, kind="map")
-    return (
-        f"Two simulated Ray nodes (1 CPU each, sharing this machine's cores): {two:.3g} maps/s against {one:.3g} on "
-        f"one node ({two / one:.2f}x); no-op task round trip {trips[1]:.3g} ms against {trips[0]:.3g} ms; "
-        f"{used:.0f} of 2 nodes ran the timed maps."
-    )
 
 
 def _value(rows: list[dict], **match: Any) -> float:
@@ -357,171 +345,160 @@ def _value(rows: list[dict], **match: Any) -> float:
     return float("nan")
 
 
-def _write_table(cfg: ScalingConfig, res: Results) -> None:
-    """``scaling.md``: the measured table, the two-node sentence and the projection table."""
-    rows = [r | {"config": json.loads(r["config"])} for r in res.rows]
-    planned = int(sum(_value(rows, system="plan", metric="bake_maps", scene=s) for s in builtin_scenes()))
-    space = int(sum(_value(rows, system="plan", metric="space_maps", scene=s) for s in builtin_scenes()))
-    lines = [
-        f"Measured on {cfg.scenes[0]} at {cfg.resolution}², {cfg.spp} spp + OIDN; single-threaded workers.",
-        "",
-        "| executor | workers | frames/s | maps/s | efficiency (frames) | no-op round trip [ms] "
-        "| no-op batched [ms/job] |",
-        "|---|---|---|---|---|---|---|",
-    ]
-    for ex in cfg.executors:
-        for w in sorted(cfg.workers):
-            frame = _value(rows, system=ex, metric="throughput", workers=w, kind="frame")
-            maps = _value(rows, system=ex, metric="throughput", workers=w, kind="map")
-            eff = 1.0 if w == 1 else _value(rows, system=ex, metric="efficiency", workers=w, kind="frame")
-            trip = _value(rows, system=ex, metric="task_roundtrip", stat="median", workers=w)
-            batched = _value(rows, system=ex, metric="task_overhead_batched", workers=w)
-            lines.append(
-                f"| {_label(ex, w)} | {w} | {frame:.3g} | {maps:.3g} | {eff:.2f} | {trip:.3g} | {batched:.3g} |"
-            )
-    two = _two_nodes(rows)
-    shown = _projected_on(list(cfg.executors))
-    lines += [
-        *(["", two] if two else []),
-        "",
-        f"PROJECTION (not measured), {cfg.spp} spp + OIDN: {cfg.project_frames} frames x 5 scenes at "
-        f"{cfg.project_resolution}²; baking each scene's {cfg.bake_frames}-frame fly-through ({planned} maps) and its "
-        f"whole configuration space ({space} maps) at {cfg.bake_resolution}²; {ASSUMPTION}.",
-        "",
-        "| N workers | " + " | ".join(f"{PROJECTED[m]}, {ex} [h]" for ex in shown for m in PROJECTED) + " |",
-        "|---|" + "---|" * len(PROJECTED) * len(shown),
-    ]
-    for n in cfg.project_workers:
-        cells = [f"{_value(rows, system=ex, scene=ALL, metric=m, workers=n):.3g}" for ex in shown for m in PROJECTED]
-        lines.append(f"| {n} | " + " | ".join(cells) + " |")
-    res.output("scaling.md").write_text("\n".join(lines) + "\n")
+def measured(rows: Rows) -> list[dict]:
+    """Per executor and worker count: frames/s, maps/s, efficiency against 1 worker, the no-op task's round trip
+    and its batched cost."""
+    out = []
+    for ex in _executors(rows):
+        for w in sorted({r["config"]["workers"] for r in rows if r["metric"] == "throughput"}):
+            get = partial(_value, rows, system=ex, workers=w)
+            row = {"label": _label(ex, w), "workers": w, "trip": get(metric="task_roundtrip", stat="median")}
+            row |= {"frames": get(metric="throughput", kind="frame"), "maps": get(metric="throughput", kind="map")}
+            row["efficiency"] = 1.0 if w == 1 else get(metric="efficiency", kind="frame")
+            out.append(row | {"batched": get(metric="task_overhead_batched")})
+    return out
 
 
-def plot(csv_path: Path, out_dir: Path) -> list[Path]:
-    """Left: measured throughput per executor and worker count. Middle: maps/s against Ray nodes (simulated
-    on this machine) with the no-op round trip. Right: the projections (labelled so)."""
-    from gicore.plotting import plt, save
-
-    rows = read_rows(csv_path)
-    executors = list(dict.fromkeys(r["system"] for r in rows if r["metric"] == "throughput"))
-    workers = sorted({r["config"]["workers"] for r in rows if r["metric"] == "throughput"})
-    fig, (left, middle, right) = plt.subplots(1, 3, figsize=(16, 4.2))
-    bars = [(ex, kind) for ex in executors for kind in UNITS]
-    width = 0.8 / max(1, len(bars))
-    for i, (ex, kind) in enumerate(bars):
-        values = [_value(rows, system=ex, metric="throughput", workers=w, kind=kind) for w in workers]
-        left.bar(np.arange(len(workers)) + (i + 0.5) * width - 0.4, values, width, label=f"{ex}: {UNITS[kind]}")
-    trips = ", ".join(
-        f"{ex} {_value(rows, system=ex, metric='task_roundtrip', stat='median', workers=1):.2g} ms" for ex in executors
+def two_nodes(rows: Rows) -> str:
+    """The two-node sentence: maps/s and the no-op round trip of 2 simulated nodes against 1, nodes used."""
+    one, two = (_value(rows, system=CLUSTER, metric="throughput", workers=n, kind="map") for n in (1, 2))
+    if math.isnan(two):
+        return ""
+    trips = [_value(rows, system=CLUSTER, metric="task_roundtrip", stat="median", workers=n) for n in (1, 2)]
+    used = _value(rows, system=CLUSTER, metric="nodes_used", workers=2, kind="map")
+    return (
+        f"Two simulated Ray nodes (1 CPU each, sharing this machine's cores): {two:.3g} maps/s against {one:.3g} on "
+        f"one node ({two / one:.2f}x); no-op task round trip {trips[1]:.3g} ms against {trips[0]:.3g} ms; "
+        f"{used:.0f} of 2 nodes ran the timed maps."
     )
-    left.set_xticks(np.arange(len(workers)), [f"{w} worker{'s' * (w > 1)}" for w in workers])
-    left.set_ylabel("items per second (measured)")
-    left.set_title(f"Measured throughput; no-op round trip: {trips}", fontsize=9)
-    left.legend(fontsize=7)
-    left.grid(axis="y", alpha=0.3)
-    nodes = sorted(
-        r["config"]["workers"]
+
+
+def _projections(rows: Rows) -> list[tuple[str, str]]:
+    """(executor, metric) of each projection column."""
+    shown = [m for m in PROJECTED if any(r["metric"] == m and r["stat"] == "projection" for r in rows)]
+    return [(ex, m) for ex in _projected_on(_executors(rows)) for m in shown]
+
+
+def projected(rows: Rows) -> list[dict]:
+    """Per worker count, the projected wall hours of each projection column."""
+    mine = [r for r in rows if r["stat"] == "projection" and r["scene"] == ALL]
+    workers = sorted({r["config"]["workers"] for r in mine})
+    return [
+        {"n": n, "h": [_value(mine, system=ex, metric=m, workers=n) for ex, m in _projections(rows)]} for n in workers
+    ]
+
+
+def _projected_caption(rows: Rows) -> str:
+    mine = [r for r in rows if r["stat"] == "projection" and r["scene"] == ALL]
+    what = {r["metric"]: r["config"] for r in mine}
+    shown = "; ".join(
+        f"{PROJECTED[m]}: {what[m].get('items')} items at {what[m].get('resolution')}²" for m in PROJECTED if m in what
+    )
+    return f"PROJECTED, not measured: wall hours on N workers ({shown}; {mine[0]['config'].get('assumption')})."
+
+
+def _measured_caption(rows: Rows) -> str:
+    r = next(r for r in rows if r["metric"] == "throughput")
+    c = r["config"]
+    return f"Measured on {r['scene']} at {c.get('resolution')}², {c.get('spp')} spp + OIDN, single-threaded workers."
+
+
+def _bars(rows: Rows) -> list[dict]:
+    return [
+        flat(r)
+        | {
+            "at": f"{r['config']['workers']} worker{'s' * (r['config']['workers'] > 1)}",
+            "name": f"{r['system']}: {r['unit']}",
+        }
         for r in rows
-        if (r["system"], r["metric"], r["config"].get("kind")) == (CLUSTER, "throughput", "map")
-    )
-    for ex in executors:
-        points = [(w, _value(rows, system=ex, metric="throughput", workers=w, kind="map")) for w in workers]
-        label = "Ray nodes of 1 CPU (simulated)" if ex == CLUSTER else f"{ex}: workers on one node"
-        middle.plot(*zip(*points), "-" if ex == CLUSTER else ":", marker="o", label=label)
-    if nodes:
-        trips = [_value(rows, system=CLUSTER, metric="task_roundtrip", stat="median", workers=n) for n in nodes]
-        middle.set_title(
-            "maps/s vs Ray nodes; no-op round trip "
-            + ", ".join(f"{t:.2g} ms ({n})" for n, t in zip(nodes, trips))
-            + "\nsimulated nodes share this machine's cores",
-            fontsize=9,
-        )
-    middle.set_xticks(workers)
-    middle.set_xlabel("nodes (ray-cluster) or workers")
-    middle.set_ylabel("maps per second (measured)")
-    middle.set_ylim(bottom=0)
-    middle.legend(fontsize=7)
-    middle.grid(alpha=0.3)
-    for ex, style in zip(_projected_on(executors), ("-", "--")):
-        for metric, label in (
-            ("dataset_wall", "paper data set"),
-            ("bake_wall", "GI-tree bake, 5 scenes"),
-            ("space_wall", "configuration spaces, 5 scenes"),
-        ):
-            points = sorted(
-                (r["config"]["workers"], r["value"])
-                for r in rows
-                if (r["system"], r["metric"], r["scene"]) == (ex, metric, ALL)
-            )
-            if points:
-                right.plot(*zip(*points), style, marker="o", label=f"{label} ({ex})")
-    right.set_xscale("log")
-    right.set_yscale("log")
-    right.set_xlabel("workers (single-threaded)")
-    right.set_ylabel("PROJECTED wall time [h]")
-    right.set_title("PROJECTION from the measured 1-worker cost (linear scaling assumed)", fontsize=9)
-    right.legend(fontsize=7)
-    right.grid(alpha=0.3, which="both")
-    return [save(fig, out_dir / "scaling.png")]
-
-
-def readme_block(rows: Rows) -> list[Table]:
-    """Measured throughput per executor and worker count, the two-node sentence; then the projections,
-    labelled as such."""
-    need(rows, "throughput")
-    measured = pick(rows, "throughput")
-    c = measured[0]["config"]
-    executors = list(dict.fromkeys(r["system"] for r in measured))
-    workers = sorted({r["config"]["workers"] for r in measured})
-    lines = [
-        f"Measured on {measured[0]['scene']} at {c.get('resolution')}², {c.get('spp')} spp + OIDN, single-threaded "
-        "workers.",
-        "",
-        "| executor | workers | frames/s | maps/s | efficiency (frames, against 1 worker) "
-        "| no-op task round trip ms (median) |",
-        "|---|---|---|---|---|---|",
+        if matches(r, "throughput")
     ]
-    for ex in executors:
-        for w in workers:
-            frames, maps = (
-                _value(rows, system=ex, metric="throughput", workers=w, kind=kind) for kind in ("frame", "map")
-            )
-            efficiency = 1.0 if w == 1 else _value(rows, system=ex, metric="efficiency", workers=w, kind="frame")
-            trip = _value(rows, system=ex, metric="task_roundtrip", stat="median", workers=w)
-            lines.append(
-                f"| {_label(ex, w)} | {w} | {cell(frames, '.3g')} | {cell(maps, '.3g')} | {cell(efficiency, '.2f')} "
-                f"| {cell(trip, '.3g')} |"
-            )
-    two = _two_nodes(rows)
-    if two:
-        lines += ["", two]
-    projected = [r for r in rows if r["stat"] == "projection" and r["scene"] == ALL]
-    if projected:
-        what = {r["metric"]: r["config"] for r in projected}
-        shown = [m for m in PROJECTED if m in what]
-        on = _projected_on(executors)
-        lines += [
-            "",
-            "PROJECTED, not measured: wall hours on N workers ("
-            + "; ".join(f"{PROJECTED[m]}: {what[m].get('items')} items at {what[m].get('resolution')}²" for m in shown)
-            + f"; {projected[0]['config'].get('assumption')}).",
-            "",
-            "| N workers | " + " | ".join(f"{PROJECTED[m]}, {ex} [h]" for ex in on for m in shown) + " |",
-            "|---" * (1 + len(on) * len(shown)) + "|",
-        ]
-        for n in sorted({r["config"]["workers"] for r in projected}):
-            cells = [cell(_value(rows, system=ex, scene=ALL, metric=m, workers=n), ".3g") for ex in on for m in shown]
-            lines.append(f"| {n} | " + " | ".join(cells) + " |")
-    return [Table("\n".join(lines))]
+
+
+def _maps(rows: Rows) -> list[dict]:
+    named = {CLUSTER: "Ray nodes of 1 CPU (simulated)"}
+    return [
+        flat(r) | {"name": named.get(r["system"], f"{r['system']}: workers on one node")}
+        for r in rows
+        if matches(r, "throughput", kind="map")
+    ]
+
+
+def _projection_points(rows: Rows) -> list[dict]:
+    on = _projected_on(_executors(rows))
+    return [
+        flat(r) | {"name": f"{PROJECTED[r['metric']]} ({r['system']})"}
+        for r in rows
+        if r["stat"] == "projection" and r["scene"] == ALL and r["system"] in on
+    ]
+
+
+PARTS = (
+    Table(
+        measured,
+        (
+            Column("executor", "{label}"),
+            Column("workers", "{workers}"),
+            Column("frames/s", "{frames:.3g}"),
+            Column("maps/s", "{maps:.3g}"),
+            Column("efficiency (frames, against 1 worker)", "{efficiency:.2f}"),
+            Column("no-op task round trip ms (median)", "{trip:.3g}"),
+            Column("no-op batched ms per job", "{batched:.3g}"),
+        ),
+        caption=_measured_caption,
+        notes=two_nodes,
+    ),
+    Table(
+        projected,
+        lambda rows: (
+            Column("N workers", "{n}"),
+            *per((f"{PROJECTED[m]}, {ex} [h]" for ex, m in _projections(rows)), "{}", "{h[#]:.3g}"),
+        ),
+        caption=_projected_caption,
+    ),
+    Figure(
+        "scaling",
+        (
+            Chart(
+                _bars,
+                "at",
+                series="{name}",
+                kind="bar",
+                ylabel="items per second (measured)",
+                title="Measured throughput",
+            ),
+            Chart(
+                _maps,
+                "workers",
+                series="{name}",
+                xlabel="nodes (ray-cluster) or workers",
+                ylabel="maps per second (measured)",
+                title="maps/s against Ray nodes (they share this machine's cores)",
+            ),
+            Chart(
+                _projection_points,
+                "workers",
+                series="{name}",
+                xlog=True,
+                ylog=True,
+                xlabel="workers (single-threaded)",
+                ylabel="PROJECTED wall time [h]",
+                title="PROJECTION from the measured 1-worker cost (linear scaling assumed)",
+            ),
+        ),
+    ),
+)
 
 
 BENCH = Bench(
     "scaling",
     ScalingConfig,
     measure,
-    plot,
+    None,
     help="Render executor: frames/maps per second with 1 and 2 workers, local processes vs Ray vs Ray nodes (a cluster "
     "simulated on this machine), per-task overhead, and the projected wall time of the paper's data set, of GI-tree "
     "bakes and of whole configuration spaces on N workers.",
-    readme=Block("Scaling", 110, readme_block),
+    readme=Block("Scaling", 110),
+    parts=PARTS,
+    needs=("throughput",),
 )

@@ -495,5 +495,5 @@ def test_bench_scaling_measures_every_executor_and_labels_the_projection(tmp_pat
     assert space_total["config"]["items"] == sum(space.values()) and space_total["value"] == pytest.approx(
         sum(only(system="ray", scene=s, metric="space_wall", workers=4)["value"] for s in space)
     )
-    assert "PROJECTION (not measured)" in (tmp_path / "scaling.md").read_text()
+    assert "PROJECTED, not measured" in (tmp_path / "scaling.md").read_text()
     assert (tmp_path / "scaling.png").stat().st_size > 10_000
