@@ -115,6 +115,30 @@ def measure(cfg: ModelCardConfig, res: Results, quality: Bench) -> None:
     res.files.append(write_model_card(run, export, quality_csv, cfg.system, dataset_command, train_command, res))
 
 
+@dataclass(frozen=True)
+class _Training:
+    """What a gigan-train run folder says about the model: its train config and metrics rows, the last step,
+    the logged step times (s) and their sum (min), and the validation metrics at the last step."""
+
+    train: dict
+    metrics: list[dict[str, str]]
+    last_step: int
+    step_s: list[float]
+    compute_min: float
+    val: dict[str, float]
+
+    @classmethod
+    def read(cls, run_dir: Path) -> _Training:
+        train = json.loads((run_dir / "config.json").read_text())["train"]
+        with (run_dir / "metrics.csv").open(newline="") as fh:
+            metrics = list(csv.DictReader(fh))
+        last_step = max(int(r["step"]) for r in metrics)
+        step_rows = sorted((int(r["step"]), float(r["value"])) for r in metrics if r["metric"] == "step_seconds")
+        compute_min = training_minutes(step_rows, [last_step])[0] if step_rows else float("nan")
+        val = {r["metric"]: float(r["value"]) for r in metrics if r["split"] == "val" and int(r["step"]) == last_step}
+        return cls(train, metrics, last_step, [v for _, v in step_rows], compute_min, val)
+
+
 def write_model_card(
     run_dir: Path,
     export_dir: Path,
@@ -125,18 +149,24 @@ def write_model_card(
     res: Results,
 ) -> Path:
     """Write ``export_dir/MODEL_CARD.md`` and add its numbers to ``res``; returns the card's path."""
-    config = json.loads((run_dir / "config.json").read_text())
-    train = config["train"]
+    training = _Training.read(run_dir)
     model_doc = json.loads((export_dir / "model.json").read_text())
-    with (run_dir / "metrics.csv").open(newline="") as fh:
-        metrics = list(csv.DictReader(fh))
-    last_step = max(int(r["step"]) for r in metrics)
-    step_rows = sorted((int(r["step"]), float(r["value"])) for r in metrics if r["metric"] == "step_seconds")
-    step_s = [v for _, v in step_rows]
-    compute_min = training_minutes(step_rows, [last_step])[0] if step_rows else float("nan")
-    val = {r["metric"]: float(r["value"]) for r in metrics if r["split"] == "val" and int(r["step"]) == last_step}
+    rows = _quality_rows(quality_csv, system)
+    sizes = {k: (export_dir / v).stat().st_size / 2**20 for k, v in model_doc["files"].items()}
+    _record(res, export_dir.name, run_dir, training, rows, system, quality_csv, sizes)
+    lines = [
+        *_model_lines(export_dir.name, model_doc, training, dataset_command, train_command),
+        *_scene_lines(rows, system),
+        *_file_lines(model_doc, sizes, quality_csv, rows),
+    ]
+    card = export_dir / "MODEL_CARD.md"
+    card.write_text("\n".join(lines) + "\n")
+    return card
+
+
+def _quality_rows(quality_csv: Path, system: str) -> list[dict]:
+    """The rows of a bench quality CSV that scored ``system`` on one renderer's inputs."""
     rows = read_rows(quality_csv)
-    scenes = sorted({r["scene"] for r in rows})
     if not any(r["system"] == system for r in rows):
         raise UserError(
             f"--quality-csv {quality_csv} has no rows of system {system!r}",
@@ -149,56 +179,41 @@ def write_model_card(
             f"--quality-csv {quality_csv} scores {system!r} on the inputs of renderers {', '.join(renderers)}",
             "score the model with one `bench quality --renderers R` for its card",
         )
-    model_name = export_dir.name
-    res.add(system=model_name, scene="all", metric="training_steps", value=last_step, unit="count", run=run_dir.name)
-    res.add(
-        system=model_name,
-        scene="all",
-        metric="training_time",
-        value=compute_min,
-        unit="min",
-        stat="sum",
-        run=run_dir.name,
-    )
-    for metric, value in val.items():
-        res.add(
-            system=model_name,
-            scene="all",
-            metric=f"val_{metric}",
-            value=value,
-            unit="dB" if metric == "psnr" else "1",
-            step=last_step,
-        )
+    return rows
+
+
+def _record(
+    res: Results, model_name: str, run_dir: Path, training: _Training, rows: list[dict], system: str,
+    quality_csv: Path, sizes: dict[str, float],
+) -> None:  # fmt: skip
+    """The card's numbers as tidy rows: training, validation, the quality CSV's means (and median inference
+    time) of the model and of DI alone, the file sizes."""
+    res.add(system=model_name, scene="all", metric="training_steps", value=training.last_step, unit="count",
+            run=run_dir.name)  # fmt: skip
+    res.add(system=model_name, scene="all", metric="training_time", value=training.compute_min, unit="min",
+            stat="sum", run=run_dir.name)  # fmt: skip
+    for metric, value in training.val.items():
+        unit = "dB" if metric == "psnr" else "1"
+        res.add(system=model_name, scene="all", metric=f"val_{metric}", value=value, unit=unit,
+                step=training.last_step)  # fmt: skip
     for r in rows:
         if r["system"] in (system, "di_only") and (
             r["stat"] == "mean" or r["metric"] == "inference_time" and r["stat"] == "median"
         ):
-            res.add(
-                system=model_name if r["system"] == system else "di_only",
-                scene=r["scene"],
-                metric=r["metric"],
-                value=r["value"],
-                unit=r["unit"],
-                stat=r["stat"],
-                source=str(quality_csv),
-                source_run=r["run_id"],
-            )
-
-    def cell(sys: str, scene: str, metric: str, stat: str = "mean") -> str:
-        v = [
-            r["value"]
-            for r in rows
-            if r["system"] == sys and r["scene"] == scene and r["metric"] == metric and r["stat"] == stat
-        ]
-        digits = {"psnr": 2, "inference_time": 1}.get(metric, 4)
-        return f"{v[0]:.{digits}f}" if v else "n/a"
-
-    sizes = {k: (export_dir / v).stat().st_size / 2**20 for k, v in model_doc["files"].items()}
+            res.add(system=model_name if r["system"] == system else "di_only", scene=r["scene"], metric=r["metric"],
+                    value=r["value"], unit=r["unit"], stat=r["stat"], source=str(quality_csv),
+                    source_run=r["run_id"])  # fmt: skip
     for precision, mib in sizes.items():
         res.add(system=model_name, scene="all", metric="file_size", value=mib, unit="MiB", precision=precision)
-    lf_missing = any(cell(s, scene, "lf_error") == "n/a" for s in (system, "di_only") for scene in scenes)
-    lines = [
-        f"# Model card: {export_dir.name}",
+
+
+def _model_lines(
+    name: str, model_doc: dict, training: _Training, dataset_command: str, train_command: str
+) -> list[str]:
+    """The card's title, the generator, its data and its training."""
+    train, val, step_s = training.train, training.val, training.step_s
+    return [
+        f"# Model card: {name}",
         "",
         f"Generator `{model_doc['model']}` (U-Net, ngf {model_doc['ngf']}, {model_doc['n_down']} down-samplings, "
         f"{UPSAMPLING_WORDS[model_doc.get('network', {}).get('upsample', 'transposed')]}), "
@@ -221,9 +236,9 @@ def write_model_card(
         + (f"warm-started from `{train['init_generator']}`, " if train.get("init_generator") else "")
         + (f"random {train['crop']}² crops" if train["crop"] else "whole frames")
         + f", seed {train['seed']}. "
-        f"Stopped at optimizer step {last_step} (epoch {max(int(r['epoch']) for r in metrics)}); "
+        f"Stopped at optimizer step {training.last_step} (epoch {max(int(r['epoch']) for r in training.metrics)}); "
         f"median step time {sorted(step_s)[len(step_s) // 2]:.3g} s {STEP_WHERE[train.get('device', 'cpu')]}, "
-        f"{compute_min:.3g} min of steps in all "
+        f"{training.compute_min:.3g} min of steps in all "
         "(validation and checkpoints not counted; logged per epoch in metrics.csv). "
         f"Validation at the last step ({train['max_val_frames'] or 'all'} evenly spaced val frames of the training "
         "data sets): "
@@ -231,6 +246,24 @@ def write_model_card(
         f"PSNR {val.get('psnr', float('nan')):.2f} dB, RMSE {val.get('rmse', float('nan')):.4f}"
         + (f", LF error {val['lf_error']:.4f}." if "lf_error" in val else "."),
         "",
+    ]
+
+
+def _scene_lines(rows: list[dict], system: str) -> list[str]:
+    """The card's table of the quality CSV's metrics per scene, the model's beside DI alone's."""
+
+    def cell(sys: str, scene: str, metric: str, stat: str = "mean") -> str:
+        v = [
+            r["value"]
+            for r in rows
+            if r["system"] == sys and r["scene"] == scene and r["metric"] == metric and r["stat"] == stat
+        ]
+        digits = {"psnr": 2, "inference_time": 1}.get(metric, 4)
+        return f"{v[0]:.{digits}f}" if v else "n/a"
+
+    scenes = sorted({r["scene"] for r in rows})
+    lf_missing = any(cell(s, scene, "lf_error") == "n/a" for s in (system, "di_only") for scene in scenes)
+    lines = [
         "## Metrics per scene (`bench quality`, all held-out frames, tone-mapped)",
         "",
         f"LF error: low-frequency error, mean |Gaussian(σ = {LF_SIGMA:g} px) of the tone-mapped difference| "
@@ -247,7 +280,12 @@ def write_model_card(
             f"{cell('di_only', scene, 'lf_error')} | "
             f"{cell(system, scene, 'inference_time', 'median')} |"
         )
-    lines += [
+    return lines
+
+
+def _file_lines(model_doc: dict, sizes: dict[str, float], quality_csv: Path, rows: list[dict]) -> list[str]:
+    """The card's list of the exported files, and where its metrics came from."""
+    return [
         "",
         "## Files",
         *[
@@ -261,9 +299,6 @@ def write_model_card(
         "",
         f"Metrics source: `{quality_csv.name}` (run {rows[0]['run_id'] if rows else '?'}).",
     ]
-    card = export_dir / "MODEL_CARD.md"
-    card.write_text("\n".join(lines) + "\n")
-    return card
 
 
 def graph_lines(model_doc: dict) -> list[str]:
