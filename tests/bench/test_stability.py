@@ -11,7 +11,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bench.stability import DEAD_LINKS, PASSED, STAGES, Case, Outcome, Rejected, counts, judge, plot, record, summary
+from bench.present import write_files
+from bench.stability import BENCH, PASSED, STAGES, counts, judge, record, summary, verdict
+from bench.stability_cases import Case, Outcome, Rejected
+from bench.stability_io import DEAD_LINKS
 from gicore.error_policy import UserError
 from gicore.results import Results, read_rows
 
@@ -69,13 +72,15 @@ def test_failed_cases_are_written_then_named_in_one_user_error(tmp_path: Path) -
     ]
     for case in cases:
         record(res, "none", case, judge(case, 5.0))
+    rows = read_rows(res.write())
+    write_files("stability", BENCH.parts, rows, tmp_path)
     with pytest.raises(
         UserError,
         match=r"2 of 3 stability cases failed: codecs/jpeg: broken \(crashed\); "
         r"server/NaN eye \(invalid input accepted\)",
     ):
-        plot(res.write(), tmp_path)
-    table = (tmp_path / "stability_table.md").read_text()
+        verdict(rows)
+    table = (tmp_path / "stability.md").read_text()
     assert "3 cases, 1 finite, 0 cleanly rejected, 2 failed" in table and "KeyError" in table
     assert counts(summary(read_rows(tmp_path / "stability.csv"))) == {
         "cases": 3,
@@ -119,4 +124,4 @@ def test_quick_run_every_case_finite_or_cleanly_rejected(tmp_path: Path) -> None
     touching = by_case["server", "light 1e-4 from a surface (outside the scene's light range)"]
     assert touching["status"] == "rejected" and "outside the light range" in touching["message"]
     assert by_case["server", "NaN eye"]["message"].startswith("Rejected: HTTP 422 at body/camera/eye")
-    assert (tmp_path / "stability_table.md").read_text().startswith(f"## Numerical stability: {n['cases']} cases")
+    assert (tmp_path / "stability.md").read_text().startswith(f"## Numerical stability: {n['cases']} cases")
