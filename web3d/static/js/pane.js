@@ -73,10 +73,14 @@ export class Pane {
   }
 
   // One frame: land an answer, send a request when one is due (not while `hold`), draw. Returns the frame's
-  // statistics for this pane.
+  // statistics for this pane: its time (ms: landing, sending and drawing), whether it sent a request and whether
+  // an answer landed, the map shown and its age, a request in flight after it.
   frame(index, key, moving, frame, tau, hold) {
-    const map = this.landed() ? this.land() : null;
-    if (!hold && this.wants(index, key, moving)) this.request(index, key, frame);
+    const start = performance.now();
+    const landed = this.landed();
+    const map = landed ? this.land() : null;
+    const sent = !hold && this.wants(index, key, moving);
+    if (sent) this.request(index, key, frame);
     let di;
     const diMs = elapsed(() => {
       di = this.scene.renderDI(frame);
@@ -93,7 +97,8 @@ export class Pane {
     const now = performance.now();
     const shown = this.shown;
     return {
-      di: diMs, map_frame: shown ? shown.index : null, map_age_frames: shown ? index - shown.index : null,
+      ms: now - start, sent, landed, di: diMs, map_frame: shown ? shown.index : null,
+      map_age_frames: shown ? index - shown.index : null,
       map_age_ms: shown ? now - shown.captured : null, inflight: Boolean(this.inflight), error: this.error,
     };
   }
