@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import ctypes
+import functools
 import os
 import select
 import signal
@@ -13,23 +15,43 @@ from collections.abc import Sequence
 from types import TracebackType
 
 LISTENING = "listening on "
+#: prctl(2)'s option that signals a process when the thread that started it ends (Linux).
+PR_SET_PDEATHSIG = 1
+_PRCTL = ctypes.CDLL(None, use_errno=True).prctl if sys.platform == "linux" else None
+
+
+def _die_with(parent: int) -> None:
+    """In the child between fork and exec: SIGTERM when the starting thread ends (even by SIGKILL), and no start
+    at all when the parent is already gone. Only a prebuilt ctypes call: nothing here takes a lock."""
+    if _PRCTL is not None:
+        _PRCTL(PR_SET_PDEATHSIG, signal.SIGTERM)
+    if os.getppid() != parent:
+        os._exit(1)
 
 
 class Running:
-    """A started process, the address it listens on, and its remaining stdout lines."""
+    """A started process, the address it listens on, and its remaining stdout lines.
 
-    def __init__(self, argv: Sequence[str], timeout: float = 30.0) -> None:
+    ``die_with_parent`` (Linux): the child gets SIGTERM when the thread that started it ends, even when this
+    process is killed with SIGKILL and runs no cleanup; start it from a thread that lives as long as the child
+    should (the main thread, or a dedicated one)."""
+
+    def __init__(self, argv: Sequence[str], timeout: float = 30.0, die_with_parent: bool = False) -> None:
         self._stderr = tempfile.TemporaryFile()
-        self.proc = subprocess.Popen(list(argv), stdout=subprocess.PIPE, stderr=self._stderr)
+        guard = functools.partial(_die_with, os.getpid()) if die_with_parent else None
+        self.proc = subprocess.Popen(list(argv), stdout=subprocess.PIPE, stderr=self._stderr, preexec_fn=guard)
         self._buffer = b""
         try:
             first = self.readline(timeout)
         except BaseException:  # a timeout, Ctrl-C or SIGTERM while it starts: no child is left running
             self.stop()
+            self._stderr.close()
             raise
         if not first.startswith(LISTENING):
+            why = f"{' '.join(argv)} did not start: {first!r}; stderr: {self.stderr()}"
             self.stop()
-            raise RuntimeError(f"{' '.join(argv)} did not start: {first!r}; stderr: {self.stderr()}")
+            self._stderr.close()
+            raise RuntimeError(why)
         host, _, port = first[len(LISTENING) :].strip().rpartition(":")
         self.addr = (host, int(port))
 
@@ -78,14 +100,16 @@ class Running:
         self._stderr.close()
 
 
-def network_sim(*args: str, timeout: float = 30.0) -> Running:
+def network_sim(*args: str, timeout: float = 30.0, die_with_parent: bool = False) -> Running:
     """``network-sim ARGS...`` with this interpreter, started and listening."""
-    return Running([sys.executable, "-m", "network_sim", *args], timeout)
+    return Running([sys.executable, "-m", "network_sim", *args], timeout, die_with_parent)
 
 
-def proxy(upstream: tuple[str, int], *args: str, timeout: float = 30.0) -> Running:
+def proxy(upstream: tuple[str, int], *args: str, timeout: float = 30.0, die_with_parent: bool = False) -> Running:
     """``network-sim proxy --upstream HOST:PORT ARGS...``, started, listening, its clock-origin line read."""
     host, port = upstream
-    running = network_sim("proxy", "--upstream", f"{host}:{port}", *args, timeout=timeout)
+    running = network_sim(
+        "proxy", "--upstream", f"{host}:{port}", *args, timeout=timeout, die_with_parent=die_with_parent
+    )
     running.readline(timeout)
     return running

@@ -12,11 +12,13 @@ proxies before their server, waits for a start still in progress, and removes th
 
 from __future__ import annotations
 
+import functools
 import shutil
 import sys
 import tempfile
 import threading
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import ExitStack
 from pathlib import Path
 
@@ -38,12 +40,21 @@ def _url(child: Running) -> str:
 class Stack:
     """One store state's server and its proxies, each started on its first use, once."""
 
-    def __init__(self, name: str, store: Path | None, scenes: Path | None, seed: int, report: Callable[[str], None]):
+    def __init__(
+        self,
+        name: str,
+        store: Path | None,
+        scenes: Path | None,
+        seed: int,
+        report: Callable[[str], None],
+        spawner: ThreadPoolExecutor,
+    ):
         self.name = name
         self.store = store  # None: an empty temporary folder, made when the server starts
         self.scenes = scenes
         self.seed = seed
         self.report = report
+        self.spawner = spawner
         self.lock = threading.Lock()
         self.children = ExitStack()
         self.server: Running | None = None
@@ -67,7 +78,7 @@ class Stack:
             self.children.callback(shutil.rmtree, self.store, ignore_errors=True)  # after the server stopped
         argv = [str(BIN / "cloudbaking-server"), "--port", "0", "--store", str(self.store)]
         argv += ["--scenes", str(self.scenes)] if self.scenes is not None else []
-        server = self._start(lambda: Running(argv, SERVER_START_S), "cloudbaking-server")
+        server = self._start(lambda: Running(argv, SERVER_START_S, die_with_parent=True), "cloudbaking-server")
         self.report(f"cloudbaking-server, {self.name} store {self.store}: {_url(server)} (pid {server.proc.pid})")
         return server
 
@@ -76,13 +87,24 @@ class Stack:
         host, port = self.server.addr
         upstream = (host.removeprefix("http://"), port)
         args = ("--profile", profile, "--seed", str(self.seed))
-        child = self._start(lambda: proxy(upstream, *args, timeout=PROXY_START_S), f"network-sim proxy {profile}")
+        start = functools.partial(proxy, upstream, *args, timeout=PROXY_START_S, die_with_parent=True)
+        child = self._start(start, f"network-sim proxy {profile}")
         self.report(f"network-sim proxy {profile} -> {self.name} store: {_url(child)} (pid {child.proc.pid})")
         return child
 
     def _start(self, start: Callable[[], Running], what: str) -> Running:
+        """Start a child on the spawner thread: it outlives every child, which gets SIGTERM from the kernel when
+        that thread ends, so not even a SIGKILL of ``gigan-web`` leaves one behind."""
+
+        def spawn() -> Running:
+            child = start()
+            if self.closed:  # closed while it started (Ctrl-C reaches the main thread, not this one)
+                child.stop()
+                raise Unavailable("the viewer's server is stopping")
+            return self.children.enter_context(child)
+
         try:
-            return self.children.enter_context(start())
+            return self.spawner.submit(spawn).result()
         except (RuntimeError, TimeoutError) as exc:  # it printed no 'listening on' line; Running stopped it
             last = str(exc).strip().splitlines()[-1]
             raise Unavailable(f"{what} did not start ({last})") from None
@@ -93,9 +115,10 @@ class Stack:
         return "up" if child.proc.poll() is None else "down"
 
     def close(self) -> None:
-        """Stop the children, proxies first; a start in progress finishes first (it holds the lock)."""
+        """Stop the children, proxies first. A start in progress when the caller was interrupted is stopped by
+        the spawner once it has started (``closed``); :meth:`ChildCloud.close` waits for it."""
+        self.closed = True
         with self.lock:
-            self.closed = True
             self.children.close()
 
 
@@ -115,9 +138,10 @@ class ChildCloud:
         report: Callable[[str], None] = print,
     ) -> None:
         self._profiles = profiles
-        self._stacks = {"given": Stack("given", store, scenes, seed, report)}
+        self._spawner = ThreadPoolExecutor(1, thread_name_prefix="gigan-web-children")
+        self._stacks = {"given": Stack("given", store, scenes, seed, report, self._spawner)}
         if store is not None:
-            self._stacks["cold"] = Stack("cold", None, scenes, seed, report)
+            self._stacks["cold"] = Stack("cold", None, scenes, seed, report, self._spawner)
 
     @property
     def profiles(self) -> tuple[str, ...]:
@@ -145,6 +169,7 @@ class ChildCloud:
     def close(self) -> None:
         for stack in self._stacks.values():
             stack.close()
+        self._spawner.shutdown(wait=True)  # a start in flight finishes, sees ``closed`` and stops its child
 
     def __enter__(self) -> ChildCloud:
         try:

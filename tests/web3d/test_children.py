@@ -1,7 +1,7 @@
 """gigan-web's own cloud side (real processes): a cloudbaking-server on the given store and a network-sim proxy per
 profile before the page is served, a cold store's server and proxy started on its first request, each request
-reaching the chosen profile's proxy of the chosen store's server; and no child left behind: not after SIGTERM or
-Ctrl-C (SIGINT to gigan-web alone, while it serves or while its children start), not after a child failed to
+reaching the chosen profile's proxy of the chosen store's server; and no child left behind: not after SIGTERM,
+SIGKILL or Ctrl-C (SIGINT to gigan-web alone, while it serves or while its children start), not after a child failed to
 start. Every process gigan-web starts stays in its session, so the session's members are what it left."""
 
 from __future__ import annotations
@@ -9,6 +9,7 @@ from __future__ import annotations
 import os
 import re
 import select
+import shutil
 import signal
 import subprocess
 import sys
@@ -154,6 +155,21 @@ def test_ctrl_c_leaves_no_child(tmp_path: Path, when: str) -> None:
     assert not Path(server.removeprefix("cloudbaking-server, given store ")).exists()  # the temporary store
 
 
+def test_sigkill_leaves_no_child(tmp_path: Path) -> None:
+    """SIGKILL runs no cleanup in gigan-web: the kernel signals its children (parent-death signal), and they stop."""
+    with viewer(["--scene", "lung_plane", "--profiles", "lan"], tmp_path) as run:
+        run.read_until("serving")
+        assert len(session_members(run.proc.pid)) == 1 + 2  # gigan-web, the server, the proxy
+        run.proc.kill()
+        run.proc.wait()
+        deadline = time.monotonic() + HANG_GUARD_S
+        while session_members(run.proc.pid) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert session_members(run.proc.pid) == []
+    (server,) = [k for k in run.children() if k.startswith("cloudbaking-server")]
+    shutil.rmtree(server.removeprefix("cloudbaking-server, given store "), ignore_errors=True)  # nobody else can
+
+
 def test_a_server_that_does_not_start_is_one_error_line(tmp_path: Path) -> None:
     env = os.environ | {"CLOUDBAKING_NO_SUCH_SETTING": "1"}  # the server refuses an unknown setting
     with viewer(["--scene", "lung_plane", "--profiles", "lan"], tmp_path, env) as run:
@@ -167,9 +183,7 @@ def test_a_server_that_does_not_start_is_one_error_line(tmp_path: Path) -> None:
 def test_a_proxy_that_does_not_start_stops_the_server(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """A start that fails half-way (the server up, a proxy refused) leaves nothing running."""
     real = web3d.children.proxy
-    monkeypatch.setattr(
-        web3d.children, "proxy", lambda up, *args, timeout: real(up, *args, "--no-such", timeout=timeout)
-    )
+    monkeypatch.setattr(web3d.children, "proxy", lambda up, *args, **kwargs: real(up, *args, "--no-such", **kwargs))
     lines: list[str] = []
     with pytest.raises(Unavailable, match="network-sim proxy lan did not start"):
         with ChildCloud(("lan",), report=lines.append):
