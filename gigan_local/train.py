@@ -227,146 +227,177 @@ def train(
 
 def _train(cfg: TrainConfig, out_dir: Path, resume: bool, progress: bool, cache_frames: bool) -> TrainResult:
     t_start = time.monotonic()
-    ckpt_path, metrics_path = out_dir / CHECKPOINT, out_dir / METRICS
-    if resume:
-        saved, _ = read_run_config(out_dir)
-        ckpt = load_checkpoint(ckpt_path)
-        filled = replace(
-            cfg,
-            resolution=saved.resolution if cfg.resolution is None else cfg.resolution,
-            depth_scale=saved.depth_scale if cfg.depth_scale is None else cfg.depth_scale,
-            run_id=cfg.run_id or saved.run_id,
-        )
-        cfg = prepare_config(filled, out_dir)
-        _check_resume(saved, cfg)
-    else:
+    cfg, ckpt = _prepared(cfg, out_dir, resume)
+    run = _Run(cfg, out_dir, ckpt, cache_frames)
+    deadline = math.inf if cfg.max_minutes is None else t_start + 60.0 * cfg.max_minutes
+    return run.loop(deadline, progress)
+
+
+def _prepared(cfg: TrainConfig, out_dir: Path, resume: bool) -> tuple[TrainConfig, dict[str, Any] | None]:
+    """The run's config (on resume: the saved run's, with this call's budget) and the checkpoint it resumes
+    from (None for a new run)."""
+    ckpt_path = out_dir / CHECKPOINT
+    if not resume:
         if ckpt_path.exists():
             raise UserError(
                 f"--out {out_dir} already holds a run", "pass --resume to continue it or choose another --out"
             )
-        cfg = prepare_config(cfg, out_dir)
+        return prepare_config(cfg, out_dir), None
+    saved, _ = read_run_config(out_dir)
+    ckpt = load_checkpoint(ckpt_path)
+    filled = replace(
+        cfg,
+        resolution=saved.resolution if cfg.resolution is None else cfg.resolution,
+        depth_scale=saved.depth_scale if cfg.depth_scale is None else cfg.depth_scale,
+        run_id=cfg.run_id or saved.run_id,
+    )
+    cfg = prepare_config(filled, out_dir)
+    _check_resume(saved, cfg)
+    return cfg, ckpt
 
-    device = _device(cfg.device)  # refused before any data is read
-    torch.manual_seed(cfg.seed)
-    roots = [Path(d) for d in cfg.datasets]
-    spec = cfg.input_spec()
-    train_set = FrameDataset(roots, "train", spec, crop=cfg.crop, seed=cfg.seed, cache=cache_frames)
-    val_set = FrameDataset(roots, "val", spec, cache=cache_frames)
-    model = create_model(cfg)
-    state = RunState(metrics_rows=0)
-    if not resume and cfg.init_generator is not None:
-        # batch-norm statistics of the folded layers from a few training samples (see load_into)
-        calibration = torch.stack([train_set[i][0] for i in range(min(len(train_set), 2 * cfg.batch_size))])
-        load_into(model.generator, Path(cfg.init_generator), model.net_configs["G"], spec, calibration)
-    model.to(device)  # before the optimizer states load, so that they land beside their parameters
-    if resume:
-        model.load_state_dict(ckpt["model"])
-        state = RunState(**ckpt["state"])
+
+class _Run:
+    """One call's training: its data, model and state (from ``ckpt`` on resume), the rows it appends to
+    metrics.csv, its checkpoints and the step loop."""
+
+    def __init__(self, cfg: TrainConfig, out_dir: Path, ckpt: dict[str, Any] | None, cache_frames: bool) -> None:
+        self.cfg = cfg
+        self.ckpt_path, self.metrics_path = out_dir / CHECKPOINT, out_dir / METRICS
+        self.device = _device(cfg.device)  # refused before any data is read
+        torch.manual_seed(cfg.seed)
+        roots = [Path(d) for d in cfg.datasets]
+        spec = cfg.input_spec()
+        self.train_set = FrameDataset(roots, "train", spec, crop=cfg.crop, seed=cfg.seed, cache=cache_frames)
+        self.val_set = FrameDataset(roots, "val", spec, cache=cache_frames)
+        self.model = create_model(cfg)
+        self.state = RunState(metrics_rows=0)
+        if ckpt is None and cfg.init_generator is not None:
+            # batch-norm statistics of the folded layers from a few training samples (see load_into)
+            n = min(len(self.train_set), 2 * cfg.batch_size)
+            calibration = torch.stack([self.train_set[i][0] for i in range(n)])
+            load_into(self.model.generator, Path(cfg.init_generator), self.model.net_configs["G"], spec, calibration)
+        self.model.to(self.device)  # before the optimizer states load, so that they land beside their parameters
+        if ckpt is not None:
+            self._resume(ckpt)
+        else:  # no checkpoint: rows of a run interrupted before its first one count for nothing
+            self.metrics_path.unlink(missing_ok=True)
+        write_run_config(out_dir, cfg, self.model.net_configs)  # on resume: records this invocation's budget
+        self.saved_step = self.state.step if ckpt is not None else -1
+        #: The checkpoint a divergence falls back to, as the error names it.
+        self.last_ckpt = f"step {self.state.step}"
+        #: Moving average of a step's seconds (0: none yet), for the time budget.
+        self.step_seconds = 0.0
+
+    def _resume(self, ckpt: dict[str, Any]) -> None:
+        self.model.load_state_dict(ckpt["model"])
+        self.state = RunState(**ckpt["state"])
         torch.set_rng_state(ckpt["torch_rng"])
-        if device.type == "cuda" and "cuda_rng" in ckpt:  # dropout and the penalty's interpolation draw on the GPU
+        if self.device.type == "cuda" and "cuda_rng" in ckpt:  # dropout and the penalty's interpolation draw on the GPU
             torch.cuda.set_rng_state(ckpt["cuda_rng"])
-        if state.metrics_rows is not None:  # rows an interrupted run wrote after its checkpoint are redone
-            _keep_rows(metrics_path, state.metrics_rows)
-    else:  # no checkpoint: rows of a run interrupted before its first one count for nothing
-        metrics_path.unlink(missing_ok=True)
-    write_run_config(out_dir, cfg, model.net_configs)  # on resume: records this invocation's budget
+        if self.state.metrics_rows is not None:  # rows an interrupted run wrote after its checkpoint are redone
+            _keep_rows(self.metrics_path, self.state.metrics_rows)
 
-    def row(split: str, metric: str, value: float, unit: str) -> dict[str, Any]:
-        return {
-            "run_id": cfg.run_id,
-            "model": cfg.model,
-            "epoch": state.epoch,
-            "step": state.step,
-            "split": split,
-            "metric": metric,
-            "value": value,
-            "unit": unit,
-        }
+    # -- metrics and checkpoints -------------------------------------------------------------------
+    def row(self, split: str, metric: str, value: float, unit: str) -> dict[str, Any]:
+        cfg, state = self.cfg, self.state
+        return {"run_id": cfg.run_id, "model": cfg.model, "epoch": state.epoch, "step": state.step, "split": split,
+                "metric": metric, "value": value, "unit": unit}  # fmt: skip
 
-    def append(rows: list[dict[str, Any]]) -> None:
-        n = _append_rows(metrics_path, rows)
-        if state.metrics_rows is not None:
-            state.metrics_rows += n
+    def append(self, rows: list[dict[str, Any]]) -> None:
+        n = _append_rows(self.metrics_path, rows)
+        if self.state.metrics_rows is not None:
+            self.state.metrics_rows += n
 
-    def flush_train_means() -> None:
-        rows = [row("train", k, s / state.loss_counts[k], UNITS.get(k, "1")) for k, s in state.loss_sums.items()]
+    def flush_train_means(self) -> None:
+        state = self.state
+        rows = [self.row("train", k, s / state.loss_counts[k], UNITS.get(k, "1")) for k, s in state.loss_sums.items()]
         if rows:
-            append(rows)
+            self.append(rows)
         state.loss_sums, state.loss_counts = {}, {}
 
-    saved_step = state.step if resume else -1
-
-    def save() -> None:
-        nonlocal saved_step
-        data = {"model": model.state_dict(), "state": asdict(state), "torch_rng": torch.get_rng_state()}
-        if device.type == "cuda":
+    def save(self) -> None:
+        data = {"model": self.model.state_dict(), "state": asdict(self.state), "torch_rng": torch.get_rng_state()}
+        if self.device.type == "cuda":
             data["cuda_rng"] = torch.cuda.get_rng_state()
-        atomic_write(
-            ckpt_path, lambda handle: torch.save(data, handle)
-        )  # a crash mid-save keeps the previous checkpoint
-        saved_step = state.step
+        # a crash mid-save keeps the previous checkpoint
+        atomic_write(self.ckpt_path, lambda handle: torch.save(data, handle))
+        self.saved_step = self.state.step
 
-    def finish_work() -> None:
+    def finish_work(self) -> None:
         """Validate and checkpoint (each unless already done at this step), timing both for the budget."""
+        state = self.state
         t = time.monotonic()
         if state.last_val_step != state.step:
-            state.val_metrics = validate(model.generator, val_set, cfg.max_val_frames)
-            append([row("val", k, v, UNITS[k]) for k, v in state.val_metrics.items()])
+            state.val_metrics = validate(self.model.generator, self.val_set, self.cfg.max_val_frames)
+            self.append([self.row("val", k, v, UNITS[k]) for k, v in state.val_metrics.items()])
             state.last_val_step = state.step
             state.finish_seconds = time.monotonic() - t
-        if saved_step != state.step:
-            save()
+        if self.saved_step != state.step:
+            self.save()
             state.finish_seconds = time.monotonic() - t
 
-    deadline = math.inf if cfg.max_minutes is None else t_start + 60.0 * cfg.max_minutes
-    if state.last_val_step < 0:
-        finish_work()  # baseline before any step; also measures validation + checkpoint time
-    last_ckpt = f"step {state.step}"
-    steps_per_epoch = math.ceil(len(train_set) / cfg.batch_size)
-    total = cfg.epochs * steps_per_epoch if cfg.max_steps is None else min(cfg.max_steps, cfg.epochs * steps_per_epoch)
-    step_seconds = 0.0
-    stop_reason = ""
-    model.train()
-    with tqdm(
-        total=total, initial=state.step, disable=not progress, desc=f"{cfg.model} {cfg.run_id}", unit="step"
-    ) as bar:
-        while not stop_reason:
-            if state.epoch >= cfg.epochs:
-                stop_reason = "epochs"
-                break
-            order = np.random.default_rng([cfg.seed, state.epoch]).permutation(len(train_set))
-            train_set.set_epoch(state.epoch)
-            while state.batch < steps_per_epoch:
-                if cfg.max_steps is not None and state.step >= cfg.max_steps:
-                    stop_reason = "max_steps"
+    # -- the loop ----------------------------------------------------------------------------------
+    def loop(self, deadline: float, progress: bool) -> TrainResult:
+        """Epochs of steps until the first of epochs / max_steps / the ``deadline`` (monotonic seconds);
+        validation and a checkpoint before the first step, after every epoch and at the end."""
+        cfg, state = self.cfg, self.state
+        if state.last_val_step < 0:
+            self.finish_work()  # baseline before any step; also measures validation + checkpoint time
+        steps_per_epoch = math.ceil(len(self.train_set) / cfg.batch_size)
+        total = (
+            cfg.epochs * steps_per_epoch if cfg.max_steps is None else min(cfg.max_steps, cfg.epochs * steps_per_epoch)
+        )
+        stop_reason = ""
+        self.model.train()
+        with tqdm(
+            total=total, initial=state.step, disable=not progress, desc=f"{cfg.model} {cfg.run_id}", unit="step"
+        ) as bar:
+            while not stop_reason:
+                if state.epoch >= cfg.epochs:
+                    stop_reason = "epochs"
                     break
-                if time.monotonic() + step_seconds + state.finish_seconds > deadline:
-                    stop_reason = "max_minutes"
+                stop_reason = self._epoch(steps_per_epoch, deadline, bar)
+                if stop_reason:
                     break
-                t = time.monotonic()
-                idx = order[state.batch * cfg.batch_size : (state.batch + 1) * cfg.batch_size]
-                xs, ys = zip(*(train_set[int(i)] for i in idx))
-                losses = model.optimize((torch.stack(xs).to(device), torch.stack(ys).to(device)))
-                state.step += 1
-                state.batch += 1
-                _check_divergence(state.step, losses, model, cfg, last_ckpt)
-                dt = time.monotonic() - t
-                step_seconds = dt if step_seconds == 0 else 0.8 * step_seconds + 0.2 * dt
-                for k, v in (losses | {"step_seconds": dt}).items():
-                    state.loss_sums[k] = state.loss_sums.get(k, 0.0) + v
-                    state.loss_counts[k] = state.loss_counts.get(k, 0) + 1
-                bar.update(1)
-                bar.set_postfix({k: f"{v:.3g}" for k, v in losses.items() if k in ("G_L1", "D_W", "G_SSIM")})
-                if cfg.checkpoint_every and state.step % cfg.checkpoint_every == 0:
-                    save()
-                    last_ckpt = f"step {state.step}"
-            if stop_reason:
-                break
-            state.epoch += 1
-            state.batch = 0
-            flush_train_means()
-            finish_work()
-            last_ckpt = f"step {state.step}"
-        flush_train_means()
-        finish_work()
-    return TrainResult(state.step, state.epoch, stop_reason, state.val_metrics, ckpt_path)
+                state.epoch += 1
+                state.batch = 0
+                self.flush_train_means()
+                self.finish_work()
+                self.last_ckpt = f"step {state.step}"
+            self.flush_train_means()
+            self.finish_work()
+        return TrainResult(state.step, state.epoch, stop_reason, state.val_metrics, self.ckpt_path)
+
+    def _epoch(self, steps_per_epoch: int, deadline: float, bar: tqdm) -> str:
+        """The rest of the current epoch's steps, in its (seed, epoch) order; the reason it stopped early, if
+        it did ("max_steps", "max_minutes")."""
+        cfg, state = self.cfg, self.state
+        order = np.random.default_rng([cfg.seed, state.epoch]).permutation(len(self.train_set))
+        self.train_set.set_epoch(state.epoch)
+        while state.batch < steps_per_epoch:
+            if cfg.max_steps is not None and state.step >= cfg.max_steps:
+                return "max_steps"
+            if time.monotonic() + self.step_seconds + state.finish_seconds > deadline:
+                return "max_minutes"
+            self._step(order[state.batch * cfg.batch_size : (state.batch + 1) * cfg.batch_size], bar)
+        return ""
+
+    def _step(self, idx: np.ndarray, bar: tqdm) -> None:
+        """One optimizer step on the samples ``idx``: losses checked, logged into the epoch's sums, shown."""
+        cfg, state = self.cfg, self.state
+        t = time.monotonic()
+        xs, ys = zip(*(self.train_set[int(i)] for i in idx))
+        losses = self.model.optimize((torch.stack(xs).to(self.device), torch.stack(ys).to(self.device)))
+        state.step += 1
+        state.batch += 1
+        _check_divergence(state.step, losses, self.model, cfg, self.last_ckpt)
+        dt = time.monotonic() - t
+        self.step_seconds = dt if self.step_seconds == 0 else 0.8 * self.step_seconds + 0.2 * dt
+        for k, v in (losses | {"step_seconds": dt}).items():
+            state.loss_sums[k] = state.loss_sums.get(k, 0.0) + v
+            state.loss_counts[k] = state.loss_counts.get(k, 0) + 1
+        bar.update(1)
+        bar.set_postfix({k: f"{v:.3g}" for k, v in losses.items() if k in ("G_L1", "D_W", "G_SSIM")})
+        if cfg.checkpoint_every and state.step % cfg.checkpoint_every == 0:
+            self.save()
+            self.last_ckpt = f"step {state.step}"
