@@ -73,14 +73,15 @@ export class Pane {
   }
 
   // One frame: land an answer, send a request when one is due (not while `hold`), draw. Returns the frame's
-  // statistics for this pane: its time (ms: landing, sending and drawing), whether it sent a request and whether
-  // an answer landed, the map shown and its age, a request in flight after it.
+  // statistics for this pane: its time (ms: landing, sending and drawing; land_ms and request_ms the first two),
+  // whether it sent a request and whether an answer landed, the map shown and its age, a request in flight after it.
   frame(index, key, moving, frame, tau, hold) {
     const start = performance.now();
     const landed = this.landed();
-    const map = landed ? this.land() : null;
+    let map = null;
+    const landMs = landed ? elapsed(() => (map = this.land())) : 0;
     const sent = !hold && this.wants(index, key, moving);
-    if (sent) this.request(index, key, frame);
+    const requestMs = sent ? elapsed(() => this.request(index, key, frame)) : 0;
     let di;
     const diMs = elapsed(() => {
       di = this.scene.renderDI(frame);
@@ -97,8 +98,8 @@ export class Pane {
     const now = performance.now();
     const shown = this.shown;
     return {
-      ms: now - start, sent, landed, di: diMs, map_frame: shown ? shown.index : null,
-      map_age_frames: shown ? index - shown.index : null,
+      ms: now - start, land_ms: landMs, request_ms: requestMs, sent, landed, di: diMs,
+      map_frame: shown ? shown.index : null, map_age_frames: shown ? index - shown.index : null,
       map_age_ms: shown ? now - shown.captured : null, inflight: Boolean(this.inflight), error: this.error,
     };
   }
