@@ -57,7 +57,9 @@ def _xy(ax: Any, chart: Chart, series: dict[str, list[dict]], tips: Tips) -> Non
                 gid = f"pts{len(tips)}"
                 xs, ys = [p[chart.x] for p in group], [p[chart.y] for p in group]
                 first = group is solid or not solid
-                ax.scatter(xs, ys, s=22, facecolors=face, edgecolors=colour, label=name if first else None, gid=gid)
+                ax.scatter(
+                    xs, ys, s=22, facecolors=face, edgecolors=colour, label=name if first else None, gid=gid, zorder=3
+                )
                 tips[gid] = [_tip(chart, p) for p in group]
         for p in points if chart.label else ():
             ax.annotate(fill(chart.label, p), (p[chart.x], p[chart.y]), fontsize=6, alpha=0.7)
