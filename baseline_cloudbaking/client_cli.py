@@ -17,11 +17,11 @@ Flies the scene's fly-through, or a recorded session (``--path FILE``, :mod:`gic
 under ``--out``: ``path.json`` (the path flown, which ``--path`` replays), ``frames.csv`` (per frame: every
 stage in ms, the map's age and latency, what it waited for, SSIM/PSNR against the path-traced GT every
 ``--gt-every`` frames, scored after the run, and how long its view waited for a map within tolerance:
-``perceived_ms``, :func:`baseline_cloudbaking.client.perceived_latency`), ``requests.csv`` (per request:
+``perceived_ms``, :func:`baseline_cloudbaking.client_run.perceived_latency`), ``requests.csv`` (per request:
 status, hit, bytes, every stage from transmission to blend, split as :mod:`baseline_cloudbaking.client`
 says) and ``summary.json`` (``renderer``: the one that ran the local DI and the warp's mask pass; gl without
 a context falls back to mitsuba with one warning). Options: the fields of
-:class:`~baseline_cloudbaking.client.CloudClientConfig` and :class:`~gicore.loop.PathRunConfig`.
+:class:`~baseline_cloudbaking.client_run.CloudClientConfig` and :class:`~gicore.loop.PathRunConfig`.
 """
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ from typing import Annotated, Any
 import numpy as np
 import typer
 
-from baseline_cloudbaking.client import CloudClientConfig, check_server, request_summary, run_client
+from baseline_cloudbaking.client_run import CloudClientConfig, check_server, request_summary, run_client
 from gicore.error_policy import entry_point, writable_dir
 from gicore.fileio import atomic_write_bytes, exclusive_run
 from gicore.mitsuba_variant import check_denoiser

@@ -21,7 +21,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from baseline_cloudbaking.client import check_server
+from baseline_cloudbaking.client_run import check_server
 from baseline_cloudbaking.codecs import CODEC_NAMES, DEFAULT_CODEC
 from bench.present.declarations import Chart, Column, Figure, Rows, Table, fill, flat, matches, pick
 from bench.processes import (

@@ -14,7 +14,8 @@ from pathlib import Path
 import httpx
 import pytest
 
-from baseline_cloudbaking.client import STAGES, RemoteConfig, RemoteSource, RequestPolicy, covers
+from baseline_cloudbaking.client import STAGES, RemoteConfig, RemoteSource
+from baseline_cloudbaking.request_policy import RequestPolicy, covers
 from baseline_cloudbaking.viewpoints import Tolerance
 from gicore.loop import path_views
 from gicore.scene import load_scene

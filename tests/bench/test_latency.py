@@ -143,7 +143,7 @@ def _gigan_frames(di: float, gi_render: float) -> list[dict]:
 
 
 def _cloud_run(folder: Path, di: float, hit: int) -> None:
-    from baseline_cloudbaking.client import REQUEST_COLUMNS
+    from baseline_cloudbaking.client_run import REQUEST_COLUMNS
 
     stages = {"transmission": 70.0, "request": 65.0, "transfer": 5.0, "lookup": 0.1, "decode": 2.0, "blend": 0.5}
     stages |= {"read": 0.2} if hit else {"render": 300.0, "denoise": 100.0, "encode": 3.0}
