@@ -148,7 +148,9 @@ class GLRenderer:
         self._programs: dict[tuple[str, bool], Any] = {}
         self._shadow = ShadowMap(ctx, self._vbo, self._ibo)
         size = (self.resolution, self.resolution)
-        self._targets = [ctx.renderbuffer(size, 1 if i == 3 else 4, dtype="f4") for i in range(5)]
+        # textures rather than renderbuffers, so that shaders can read a pass where it was drawn
+        # (:meth:`draw_di_raster`); on llvmpipe drawing into either costs the same
+        self._targets = [ctx.texture(size, 1 if i == 3 else 4, dtype="f4") for i in range(5)]
         self._depth = ctx.depth_renderbuffer(size)
         self._fbos = {
             name: ctx.framebuffer([self._targets[i] for i in attachments], self._depth)
@@ -513,16 +515,27 @@ class GLRenderer:
         a shown pass (level 0 for uploaded uv coordinates): ``"uv"`` (as :meth:`render_uv`) in three more
         render targets; ``"mask"`` (the surface mask) from the DI target's alpha, which every surface writes as
         1; ``None`` (DI alone) an empty dict."""
+        self.draw_di_raster(camera, light, raster)
+        if raster == "uv":
+            fbo = self._fbos["di_uv"]
+            return self._read(fbo, 3, 3), self._uv_pass(fbo)
+        rgba = self._read(self._fbos["di"], 0, 4)
+        passes = {} if raster is None else {"mask": rgba[..., 3] > 0.0}
+        return np.ascontiguousarray(rgba[..., :3]), passes
+
+    def draw_di_raster(self, camera: Camera, light=None, raster: str | None = None) -> dict[str, Any]:
+        """:meth:`render_di_raster`'s geometry pass with nothing read back: its targets as textures, for
+        shaders that go on from them in this context (the warps' GL backends): ``di`` (RGBA: the DI, alpha 1 on
+        every surface, which is the ``"mask"`` pass), and with ``raster="uv"`` also ``uv`` (RG), ``position``
+        (RGB) and ``code`` (R: 0 background, 1 an untextured surface, 2 textured). Rows are the image's rows
+        (texel row 0 at the top); the textures are redrawn by the next pass."""
         check_raster(raster)
         self._set_light(light)
         uploaded_uv = raster == "uv" and self._uv_projection is None  # coordinates of the full meshes' vertices
         level = 0 if uploaded_uv else self.level_for(camera, shown=True)
-        if raster == "uv":
-            fbo = self._draw("di_uv", camera, level)
-            return self._read(fbo, 3, 3), self._uv_pass(fbo)
-        rgba = self._read(self._draw("di", camera, level), 0, 4)
-        passes = {} if raster is None else {"mask": rgba[..., 3] > 0.0}
-        return np.ascontiguousarray(rgba[..., :3]), passes
+        self._draw("di_uv" if raster == "uv" else "di", camera, level)
+        uv = {"uv": self._targets[0], "position": self._targets[2], "code": self._targets[3]}
+        return {"di": self._targets[4]} | (uv if raster == "uv" else {})
 
     def render_depth(self, camera: Camera) -> dict[str, np.ndarray]:
         """Linear view depth at pixel centres (HxW, 0 on background; ``gicore.loop.texel_depth``) and the

@@ -1,0 +1,73 @@
+"""A client frame whose warp and composition run in shaders on a :class:`gicore.gl.GLRenderer`'s own textures:
+the DI and the warp's pass are drawn (:meth:`~gicore.gl.GLRenderer.draw_di_raster`), the warp's passes read
+them where they were drawn, the composition (:mod:`gicore.gl.blend`) reads the DI and the warped layer, and
+only the composed frame comes back to host memory (docs/architecture.md, OpenGL passes).
+
+:class:`ShaderWarp` is the base of the warps' GL backends (``gigan_local.gl_warp``,
+``baseline_cloudbaking.gl_warp``): each brings :meth:`ShaderWarp.draw`, its passes from the frame's textures
+to the warped layer. Stage times wait for the GPU (``glFinish``) at the end of each stage, so each stage holds
+its own GPU work and none is pushed into the read-back.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from gicore.gl.blend import GLCompose
+from gicore.gl.passes import Target
+from gicore.timing import Stopwatch
+
+if TYPE_CHECKING:
+    from gicore.camera import Camera
+    from gicore.gl.renderer import GLRenderer
+
+
+class ShaderWarp:
+    """A warp of the bound map whose per-frame work runs in ``renderer``'s GL context (a
+    :class:`gicore.loop.FrameWarp`). Subclasses set ``name``, ``layer``, ``raster`` and ``stages`` and implement
+    ``bind`` and :meth:`draw`."""
+
+    name: str
+    layer: str
+    raster: str
+    stages: tuple[str, ...]
+
+    def __init__(self, renderer: GLRenderer):
+        self.renderer = renderer
+        self.ctx = renderer.ctx
+        n = renderer.resolution
+        self._compose = GLCompose(self.ctx, n, n)
+
+    def draw(self, camera: Camera, textures: dict[str, Any], sw: Stopwatch) -> Target:
+        """The warped layer at ``camera`` (RGBA: the layer, alpha 1 where it came from the map or on background,
+        0 where from the fallback or hole filling) from the frame's ``textures`` (``draw_di_raster``), lapping
+        ``sw`` at the end of each of its per-frame stages."""
+        raise NotImplementedError
+
+    def lap(self, sw: Stopwatch, stage: str) -> None:
+        """Close ``stage`` once the GPU has done its work."""
+        self.ctx.finish()
+        sw.lap(stage)
+
+    def frame(
+        self, camera: Camera, light: Any, composition: str = "blend", tau: float = 0.0
+    ) -> tuple[np.ndarray, np.ndarray, dict[str, float]]:
+        """One composed frame at ``camera``: (HxWx3 linear radiance, HxW valid mask, ms of ``di``, the warp's
+        per-frame stages and ``compose``, the read-back included)."""
+        sw = Stopwatch()
+        textures = self.renderer.draw_di_raster(camera, light, self.raster)
+        self.lap(sw, "di")
+        warped = self.draw(camera, textures, sw)
+        self._compose.draw(textures["di"], warped.texture, composition, tau)
+        image, valid = self._compose.read()
+        sw.lap("compose")
+        return image, valid, sw.ms
+
+    def warped(self, camera: Camera, light: Any) -> tuple[np.ndarray, np.ndarray]:
+        """The bound layer at ``camera`` read back (HxWx3, HxW valid mask): what the numpy warp returns, for
+        comparing the two (tests, ``bench warp``)."""
+        textures = self.renderer.draw_di_raster(camera, light, self.raster)
+        rgba = self.draw(camera, textures, Stopwatch()).read()
+        return rgba[..., :3], rgba[..., 3] > 0.5
