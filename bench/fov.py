@@ -17,7 +17,7 @@ import math
 from collections import defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
@@ -110,105 +110,99 @@ def measure(cfg: FovConfig, res: Results) -> None:
 
 
 def _measure_scene(cfg: FovConfig, res: Results, scene: str) -> None:
-    from gicore.loop import render_gt, warp_view
-    from gicore.metrics import ssim
-    from gicore.paths import camera_path, frame_seed, light_position
+    from gicore.paths import camera_path, light_position
     from gicore.render import Renderer
     from gicore.scene import load_scene
-    from gicore.tonemap import tonemap
     from gigan_local.client import ClientConfig, make_gi_source
 
-    seed = res.seed
     spec = load_scene(scene)
     renderer = Renderer(spec, cfg.resolution)
-    source = make_gi_source(
-        ClientConfig(
-            scene=scene,
-            resolution=cfg.resolution,
-            gi_source=cfg.gi_source,
-            model=cfg.model,
-            spp=cfg.spp,
-            denoise=cfg.denoise,
-            seed=seed,
-        ),
-        renderer,
-    )
-    cams = camera_path(spec, cfg.orbit_frames, seed=seed, fov=cfg.local_fov, resolution=cfg.resolution)
-    motions = [("rotation", r, "deg") for r in cfg.rotations] + [("translation", t, "units") for t in cfg.translations]
-    warps = {m: make_warp(m, renderer) for m in cfg.warps}
-    paste = make_warp("none", renderer)
-    quality: dict[tuple, list[float]] = defaultdict(list)
+    client = ClientConfig(scene=scene, resolution=cfg.resolution, gi_source=cfg.gi_source, model=cfg.model,
+                          spp=cfg.spp, denoise=cfg.denoise, seed=res.seed)  # fmt: skip
+    run = _SceneRun(cfg, renderer, make_gi_source(client, renderer), res.seed)
+    cams = camera_path(spec, cfg.orbit_frames, seed=res.seed, fov=cfg.local_fov, resolution=cfg.resolution)
     for b in cfg.base_frames:
-        base = cams[b % cfg.orbit_frames]
-        light = light_position(spec, b)
-        moves = {}  # every moved camera with its tone-mapped GT, shared by all F_GI
-        for kind, amount, _ in motions:
-            cam = turned(base, amount) if kind == "rotation" else moved(base, amount)
-            gt = tonemap(
-                render_gt(renderer, cam, light, cfg.spp, frame_seed(seed, f"gt/{kind}/{amount}", b), cfg.denoise)
-            )
-            moves[kind, amount] = (cam, gt)
-        for gi_fov in cfg.gi_fovs:
-            gi = source.produce(base.with_fov(gi_fov), light, b)
-            reference = render_gt(renderer, gi.camera, light, cfg.spp, frame_seed(seed, "gt/gi", b), cfg.denoise)
-            quality["map", gi_fov].append(ssim(tonemap(gi.radiance), tonemap(reference)))
-            for method, warp in warps.items():
-                warp.bind(gi)
-                for kind, amount, _ in motions:
-                    cam, ref = moves[kind, amount]
-                    _, image, valid = warp_view(warp, renderer, cam, light, seed=b)
-                    quality[method, gi_fov, kind, amount].append(ssim(tonemap(image), ref))
-                    quality["valid", method, gi_fov, kind, amount].append(float(valid.mean()))
-            if gi_fov == cfg.local_fov:
-                paste.bind(gi)
-                for kind, amount, _ in motions:
-                    cam, ref = moves[kind, amount]
-                    image = warp_view(paste, renderer, cam, light, seed=b)[1]
-                    quality["none", gi_fov, kind, amount].append(ssim(tonemap(image), ref))
+        run.base_view(cams[b % cfg.orbit_frames], light_position(spec, b), b)
+    run.record(res, spec.name)
 
-    common = {
-        "resolution": cfg.resolution,
-        "local_fov": cfg.local_fov,
-        "views": len(cfg.base_frames),
-        "spp": cfg.spp,
-        "gi_source": cfg.gi_source,
-    }
-    source_label = "generator" if cfg.gi_source == "model" else "GT stand-in"
-    for gi_fov in cfg.gi_fovs:
-        res.add(
-            system=source_label,
-            scene=spec.name,
-            metric="ssim_gi_map",
-            value=float(np.mean(quality["map", gi_fov])),
-            unit="1",
-            stat="mean",
-            gi_fov=gi_fov,
-            **common,
-        )
-        for method in (*cfg.warps, "none"):
-            for kind, amount, unit in motions:
-                if (method, gi_fov, kind, amount) not in quality:
-                    continue
-                cfg_row = common | {"gi_fov": gi_fov, "motion": kind, "amount": amount, "amount_unit": unit}
-                res.add(
-                    system=WARP_LABELS[method],
-                    scene=spec.name,
-                    metric="ssim_warped",
-                    value=float(np.mean(quality[method, gi_fov, kind, amount])),
-                    unit="1",
-                    stat="mean",
-                    **cfg_row,
-                )
-                if method != "none":
-                    res.add(
-                        system=WARP_LABELS[method],
-                        scene=spec.name,
-                        metric="valid_fraction",
-                        value=float(np.mean(quality["valid", method, gi_fov, kind, amount])),
-                        unit="1",
-                        stat="mean",
-                        **cfg_row,
-                    )
+
+class _SceneRun:
+    """One scene's measurements: per base view, the moved cameras' GT, then each GI-camera FOV's map and its
+    warps to every moved camera; their SSIM and covered share collected in ``quality`` until :meth:`record`."""
+
+    def __init__(self, cfg: FovConfig, renderer: Any, source: Any, seed: int) -> None:
+        self.cfg, self.renderer, self.source, self.seed = cfg, renderer, source, seed
+        self.motions = [("rotation", r, "deg") for r in cfg.rotations]
+        self.motions += [("translation", t, "units") for t in cfg.translations]
+        self.warps = {m: make_warp(m, renderer) for m in cfg.warps}
+        self.paste = make_warp("none", renderer)
+        self.quality: dict[tuple, list[float]] = defaultdict(list)
+
+    def base_view(self, base: Camera, light, b: int) -> None:
+        """Base frame ``b``: every motion's moved camera with its tone-mapped GT (shared by all F_GI), then each
+        F_GI's map scored and warped."""
+        from gicore.loop import render_gt
+        from gicore.paths import frame_seed
+        from gicore.tonemap import tonemap
+
+        cfg = self.cfg
+        moves = {}
+        for kind, amount, _ in self.motions:
+            cam = turned(base, amount) if kind == "rotation" else moved(base, amount)
+            seed = frame_seed(self.seed, f"gt/{kind}/{amount}", b)
+            moves[kind, amount] = (cam, tonemap(render_gt(self.renderer, cam, light, cfg.spp, seed, cfg.denoise)))
+        for gi_fov in cfg.gi_fovs:
+            self._gi_fov(base, light, b, gi_fov, moves)
+
+    def _gi_fov(self, base: Camera, light, b: int, gi_fov: float, moves: dict) -> None:
+        """The map at ``gi_fov`` against its own GT, each warp of it to every moved camera, and (at the local FOV)
+        the map pasted without warping."""
+        from gicore.loop import render_gt, warp_view
+        from gicore.metrics import ssim
+        from gicore.paths import frame_seed
+        from gicore.tonemap import tonemap
+
+        cfg, renderer, quality = self.cfg, self.renderer, self.quality
+        gi = self.source.produce(base.with_fov(gi_fov), light, b)
+        reference = render_gt(renderer, gi.camera, light, cfg.spp, frame_seed(self.seed, "gt/gi", b), cfg.denoise)
+        quality["map", gi_fov].append(ssim(tonemap(gi.radiance), tonemap(reference)))
+        for method, warp in self.warps.items():
+            warp.bind(gi)
+            for kind, amount, _ in self.motions:
+                cam, ref = moves[kind, amount]
+                _, image, valid = warp_view(warp, renderer, cam, light, seed=b)
+                quality[method, gi_fov, kind, amount].append(ssim(tonemap(image), ref))
+                quality["valid", method, gi_fov, kind, amount].append(float(valid.mean()))
+        if gi_fov == cfg.local_fov:
+            self.paste.bind(gi)
+            for kind, amount, _ in self.motions:
+                cam, ref = moves[kind, amount]
+                image = warp_view(self.paste, renderer, cam, light, seed=b)[1]
+                quality["none", gi_fov, kind, amount].append(ssim(tonemap(image), ref))
+
+    def record(self, res: Results, scene: str) -> None:
+        """The means over the base views: the map's SSIM per F_GI, each warp's SSIM and covered share per F_GI
+        and motion."""
+        cfg, quality = self.cfg, self.quality
+        common = {"resolution": cfg.resolution, "local_fov": cfg.local_fov, "views": len(cfg.base_frames),
+                  "spp": cfg.spp, "gi_source": cfg.gi_source}  # fmt: skip
+        source_label = "generator" if cfg.gi_source == "model" else "GT stand-in"
+        for gi_fov in cfg.gi_fovs:
+            value = float(np.mean(quality["map", gi_fov]))
+            res.add(system=source_label, scene=scene, metric="ssim_gi_map", value=value, unit="1", stat="mean",
+                    gi_fov=gi_fov, **common)  # fmt: skip
+            for method in (*cfg.warps, "none"):
+                for kind, amount, unit in self.motions:
+                    if (method, gi_fov, kind, amount) not in quality:
+                        continue
+                    row = common | {"gi_fov": gi_fov, "motion": kind, "amount": amount, "amount_unit": unit}
+                    value = float(np.mean(quality[method, gi_fov, kind, amount]))
+                    res.add(system=WARP_LABELS[method], scene=scene, metric="ssim_warped", value=value, unit="1",
+                            stat="mean", **row)  # fmt: skip
+                    if method != "none":
+                        value = float(np.mean(quality["valid", method, gi_fov, kind, amount]))
+                        res.add(system=WARP_LABELS[method], scene=scene, metric="valid_fraction", value=value,
+                                unit="1", stat="mean", **row)  # fmt: skip
 
 
 # -- what it shows ------------------------------------------------------------------------------------------
