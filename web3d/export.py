@@ -29,8 +29,9 @@ import numpy as np
 from gicore.geometry import scene_objects
 from gicore.gl.brdf import ETA, TABLE_RES, roughplastic_tables
 from gicore.gl.lod import LOD_RATIOS, mesh_levels
-from gicore.gl.renderer import AREA_SAMPLES, SHADOW_LOD, Bounds, GLRenderer, _closed, fit_shadow_views, shadow_size_for
+from gicore.gl.renderer import AREA_SAMPLES, GLRenderer, _closed
 from gicore.gl.shaders import MATERIAL_VEC4S, SCENE_VERTEX, SHADOW_FRAGMENT, SHADOW_VERTEX, scene_fragment
+from gicore.gl.shadow import SHADOW_LOD, Bounds, fit_shadow_views, shadow_size_for
 from gicore.path_file import scripted_path, write_path_file
 from gicore.paths import light_bounds, navigation
 from gicore.scene import SceneSpec, load_scene

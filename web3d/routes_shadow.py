@@ -17,7 +17,7 @@ from fastapi import APIRouter, HTTPException, Request
 from fastapi.responses import JSONResponse
 
 from gicore.geometry import scene_objects
-from gicore.gl.renderer import object_bounds
+from gicore.gl.shadow import object_bounds
 from gicore.paths import light_bounds
 from gicore.scene import SceneSpec
 from web3d.export import shadow_setup

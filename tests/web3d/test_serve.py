@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from gicore.geometry import scene_objects
-from gicore.gl.renderer import object_bounds
+from gicore.gl.shadow import object_bounds
 from gicore.paths import light_bounds
 from gicore.scene import load_scene
 from web3d.export import shadow_setup
