@@ -74,8 +74,8 @@ def bench(latency: Bench, storage: Bench) -> Bench:
     """``bench run-default``, running ``latency`` and ``storage`` (:mod:`bench.registry` hands them in: benches
     import no bench)."""
     jobs = (
-        (latency, "latency_table.md", ("scenes", "renderers", "frames")),
-        (storage, "storage_table2.md", ("scenes",)),
+        (latency, "latency.md", ("scenes", "renderers", "frames")),
+        (storage, "storage.md", ("scenes",)),
     )
     return Bench(
         "run-default",

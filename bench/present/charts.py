@@ -36,6 +36,13 @@ def _series(chart: Chart, points: list[dict[str, Any]]) -> dict[str, list[dict[s
     return {n: [p | {"series": n} for p, m in zip(points, names) if m == n] for n in unique(names)}
 
 
+def _colour(i: int, n: int) -> Any:
+    """The ``i``-th of ``n`` series' colours: matplotlib's cycle, or tab20's for more than ten series."""
+    from gicore.plotting import plt
+
+    return f"C{i}" if n <= 10 else plt.get_cmap("tab20")(i % 20)
+
+
 def _tip(chart: Chart, p: dict[str, Any]) -> str:
     if chart.tip:
         return fill(chart.tip, p)
@@ -45,7 +52,7 @@ def _tip(chart: Chart, p: dict[str, Any]) -> str:
 
 def _xy(ax: Any, chart: Chart, series: dict[str, list[dict]], tips: Tips) -> None:
     for i, (name, points) in enumerate(series.items()):
-        colour = f"C{i % 10}"
+        colour = _colour(i, len(series))
         points = sorted(points, key=lambda p: p[chart.x])
         flags = [bool(chart.hollow and p.get(chart.hollow)) for p in points]
         solid = [p for p, f in zip(points, flags) if not f]
@@ -74,11 +81,13 @@ def _bars(ax: Any, chart: Chart, series: dict[str, list[dict]], tips: Tips) -> N
         at = [groups.index(str(p[chart.x])) for p in points]
         values = [p[chart.y] for p in points]
         if chart.kind == "stack":
-            bars = ax.barh(at, values, left=[left[g] for g in at], color=f"C{i % 10}", label=name)
+            bars = ax.barh(at, values, left=[left[g] for g in at], color=_colour(i, len(series)), label=name)
             for g, v in zip(at, values):
                 left[g] += v
         else:
-            bars = ax.bar([g + (i + 0.5) * width - 0.4 for g in at], values, width, color=f"C{i % 10}", label=name)
+            bars = ax.bar(
+                [g + (i + 0.5) * width - 0.4 for g in at], values, width, color=_colour(i, len(series)), label=name
+            )
         for patch, p in zip(bars.patches, points):
             gid = f"bar{len(tips)}"
             patch.set_gid(gid)

@@ -91,7 +91,7 @@ def test_bench_latency_end_to_end(tmp_path: Path) -> None:
 
     provenance = json.loads((out / "latency.provenance.json").read_text())
     assert provenance["settings"]["pinning"]["method"] in ("taskset -c", "none")
-    table = (out / "latency_table.md").read_text()
+    table = (out / "latency.md").read_text()
     assert (
         "### profile `rtt60` (RTT 60 ms)" in table
         and "**total (interaction latency)**" in table
@@ -99,8 +99,9 @@ def test_bench_latency_end_to_end(tmp_path: Path) -> None:
     )
     assert {p.name for p in files} >= {
         "latency.csv",
-        "latency_table.md",
+        "latency.md",
         "latency_stages.png",
+        "latency_stages.svg",
         "latency_ratio_rtt.png",
         "latency_ssim.png",
     }
@@ -156,7 +157,9 @@ def _cloud_run(folder: Path, di: float, hit: int) -> None:
 
 
 def test_totals_count_the_local_di_and_the_renderers_stand_side_by_side(tmp_path: Path) -> None:
-    from bench.latency import CLOUD, GIGAN, gigan_samples, readme_block, record, table
+    from bench.latency_record import CLOUD, GIGAN, gigan_samples, record
+    from bench.latency_tables import PARTS, SHORT
+    from bench.present.markdown import table_text, tables_text
     from gicore.results import Results
 
     gl, mi = {"di": 2.0, "gi_render": 5.0}, {"di": 10.0, "gi_render": 15.0}
@@ -200,20 +203,17 @@ def test_totals_count_the_local_di_and_the_renderers_stand_side_by_side(tmp_path
     assert value(CLOUD, "di", "renderer_ratio", renderer="gl/mitsuba", cache="hit") == pytest.approx(0.2)
     assert not [r for r in rows if r["stat"] == "renderer_ratio" and r["metric"] == "inference" and r["value"] != 1.0]
 
-    text = table(rows)
+    text = tables_text([p for p in PARTS if p is not SHORT], rows, 2)
     assert "| stage | GIGAN, gl | cloud baking, hit, gl | cloud baking, miss, gl | GIGAN, mitsuba |" in text
     local = "| local render: DI + the warp's pass (the frame showing the map) |"
     assert f"{local} 2.0 (2.0) | 2.0 (2.0) | 2.0 (2.0) | 10.0 (10.0) |" in text
-    assert "### renderers side by side: median with gl / median with mitsuba (same run)" in text
+    assert "## renderers side by side: median with gl / median with mitsuba (same run)" in text
     assert f"| total | {gl_over_mi:.2f} |" in text and "| local render (DI + warp pass) | 0.20 | 0.20 | 0.20 |" in text
     assert "| gl | miss | 0 (GIGAN is faster at any RTT) |" in text
-    [block] = readme_block(rows)
-    assert f"| `rtt60` (60 ms) | gl | {gigan_total['gl']:.1f} |" in block.markdown
-    assert f"| `rtt60` (60 ms) | mitsuba | {gigan_total['mitsuba']:.1f} |" in block.markdown
-    assert (
-        f"gl / mitsuba in the same run, GIGAN: total {gl_over_mi:.2f}, warp 1.00, GI-camera render 0.33"
-        in block.markdown
-    )
+    block = table_text(SHORT, rows, 4)
+    assert f"| `rtt60` (60 ms) | gl | {gigan_total['gl']:.1f} |" in block
+    assert f"| `rtt60` (60 ms) | mitsuba | {gigan_total['mitsuba']:.1f} |" in block
+    assert f"gl / mitsuba in the same run, GIGAN: total {gl_over_mi:.2f}, warp 1.00, GI-camera render 0.33" in block
 
 
 def test_renderers_option(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture) -> None:

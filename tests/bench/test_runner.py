@@ -358,10 +358,10 @@ def test_run_default_is_the_make_run_job(tmp_path: Path) -> None:
     names = {p.name for p in tmp_path.iterdir()}
     assert {
         "latency.csv",
-        "latency_table.md",
+        "latency.md",
         "latency_stages.png",
         "storage.csv",
-        "storage_table2.md",
+        "storage.md",
         "run-default.csv",
     } <= names
     assert json.loads((tmp_path / "latency.provenance.json").read_text())["settings"]["frames"] == 30

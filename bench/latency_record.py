@@ -1,0 +1,311 @@
+"""`bench latency`'s rows from its client runs: each run's frames.csv and requests.csv (``gigan-client``,
+``cloudbaking-client``) read into stage timings per system, profile, cache state and renderer; the ratio of
+totals, the link model's check and crossover (:class:`network_sim.exchange.CloudCost`), perceived latency, SSIM
+along the path, and the renderers' ratios."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+
+from gicore.results import Results
+from network_sim.exchange import CloudCost, sweep_link
+
+GIGAN, CLOUD = "gigan", "cloud_baking"
+#: The cloud client with --prefetch extrapolate (see the module docstring).
+CLOUD_PREFETCH = "cloud_baking_prefetch"
+#: GIGAN's stages, then cloud baking's, in the order a map goes through them (``total`` last).
+GIGAN_STAGES = ("di", "gi_render", "inference", "warp", "blend")
+CLOUD_STAGES = (
+    "transmission",
+    "request",
+    "transfer",
+    "lookup",
+    "read",
+    "render",
+    "denoise",
+    "encode",
+    "server_other",
+    "decode",
+    "di",
+    "warp",
+    "blend",
+)
+#: Sub-stages of ``transmission`` (its parts, not added again).
+TRANSMISSION_PARTS = ("request", "transfer")
+#: The renderers' ratio rows: numerator / denominator, each stage's median of one run over the other's.
+RENDERER_RATIO = ("gl", "mitsuba")
+
+
+class Recorded(Protocol):
+    """What the rows of a run record of the bench's config (:class:`bench.latency.LatencyConfig`)."""
+
+    model: Path
+    codec: str
+    sweep_rate_mbit: float | None
+    sweep_max_rtt_ms: float
+
+
+def _csv(path: Path) -> list[dict[str, str]]:
+    import csv
+
+    with path.open(newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+def _f(value: str) -> float | None:
+    return float(value) if value not in ("", None) else None
+
+
+def gigan_samples(frames: list[dict[str, str]]) -> dict[str, list[float]]:
+    """Per-map stage times (ms) of a ``gigan-client`` run: one sample per frame that bound a new map."""
+    from gigan_local.warp import StructureAwareWarp
+
+    per_frame = [s for s in StructureAwareWarp.stages if s != "bind"]
+    samples: dict[str, list[float]] = {s: [] for s in (*GIGAN_STAGES, "total")}
+    for row in (r for r in frames if r["gi_new"] == "1"):
+        stage = {
+            "di": float(row["di_ms"]),
+            "gi_render": float(row["gi_render_ms"]),
+            "inference": float(row["inference_ms"]),
+            "warp": float(row["bind_ms"]) + sum(float(row[f"{s}_ms"]) for s in per_frame),
+            "blend": float(row["compose_ms"]),
+        }
+        for name, ms in stage.items():
+            samples[name].append(ms)
+        samples["total"].append(sum(stage.values()))
+    return samples
+
+
+def cloud_samples(requests: list[dict[str, str]]) -> dict[str, dict[str, list[float]]]:
+    """Per-request stage times (ms) of a ``cloudbaking-client`` run by cache state (``hit``/``miss``), for
+    the requests whose map was shown (a ``total``); also the request and response bytes."""
+    out: dict[str, dict[str, list[float]]] = {}
+    for row in requests:
+        if row["status"] != "ok" or row["total_ms"] == "":
+            continue
+        samples = out.setdefault("hit" if row["hit"] == "1" else "miss", {})
+        values = {s: _f(row[f"{s}_ms"]) for s in CLOUD_STAGES if s != "warp"}
+        values |= {
+            "warp": float(row["bind_ms"]) + float(row["warp_ms"]),
+            "total": float(row["total_ms"]),
+            "pickup": _f(row["pickup_ms"]),
+        }
+        values |= {
+            "bytes_up": float(row["bytes_up"]),
+            "bytes_down": float(row["bytes_down"]),
+            "server": float(row["server_ms"]),
+        }
+        for name, value in values.items():
+            if value is not None:
+                samples.setdefault(name, []).append(value)
+    return out
+
+
+def record(
+    res: Results,
+    scene: str,
+    cfg: Recorded,
+    runs: dict[tuple[str, str, str, str], Path],
+    common: dict[str, Any],
+) -> None:
+    """Rows of every run (per renderer), then the renderers' ratios (:func:`record_renderer_ratios`)."""
+    for renderer in dict.fromkeys(key[3] for key in runs):
+        mine = {key[:3]: folder for key, folder in runs.items() if key[3] == renderer}
+        record_renderer(res, scene, cfg, mine, common | {"renderer": renderer})
+    record_renderer_ratios(res, scene)
+
+
+def record_renderer(
+    res: Results, scene: str, cfg: Recorded, runs: dict[tuple[str, str, str], Path], common: dict[str, Any]
+) -> None:
+    """Rows of one renderer's runs: stage timings, ratios, the link model's check and crossover, quality along
+    the path."""
+    gigan_total = _record_gigan(res, scene, cfg, runs[GIGAN, "none", "local"], common)
+    cloud = _record_cloud_runs(res, scene, cfg, runs, common)
+    for (profile, cache), samples in cloud.items():
+        config = {"profile": profile, "cache": cache, "codec": cfg.codec} | common
+        _record_cloud_stages(res, scene, profile, samples, gigan_total, config)
+    for cache in ("hit", "miss"):
+        pooled = _pool([s for (_, c), s in cloud.items() if c == cache])
+        if pooled.get("total"):
+            config = {"cache": cache, "rate_mbit": cfg.sweep_rate_mbit, "codec": cfg.codec} | common
+            _record_crossover(res, scene, cfg, pooled, gigan_total, config)
+
+
+def _record_gigan(res: Results, scene: str, cfg: Recorded, folder: Path, common: dict[str, Any]) -> float:
+    """GIGAN's stage timings and SSIM rows; its median total."""
+    frames = _csv(folder / "frames.csv")
+    gigan = gigan_samples(frames)
+    for stage, values in gigan.items():
+        res.add_timing(
+            system=GIGAN,
+            scene=scene,
+            metric=stage,
+            samples_s=[v / 1e3 for v in values],
+            profile="none",
+            **common,
+            model=cfg.model.name,
+        )
+    _ssim_rows(res, scene, GIGAN, frames, {"profile": "none", "store": "none"} | common)
+    return float(np.median(gigan["total"]))
+
+
+def _record_cloud_runs(
+    res: Results, scene: str, cfg: Recorded, runs: dict[tuple[str, str, str], Path], common: dict[str, Any]
+) -> dict[tuple[str, str], dict[str, list[float]]]:
+    """Each cloud run's perceived latency, failed requests and SSIM rows; the plain client's stage samples per
+    (profile, cache state), its runs on both stores pooled."""
+    cloud: dict[tuple[str, str], dict[str, list[float]]] = {}
+    for (system, profile, store), folder in runs.items():
+        if system not in (CLOUD, CLOUD_PREFETCH):
+            continue
+        frames, requests = _csv(folder / "frames.csv"), _csv(folder / "requests.csv")
+        where = {"profile": profile, "store": store} | common
+        if store == "prebaked" and frames and "perceived_ms" in frames[0]:  # absent: no perceived rows
+            _perceived_rows(res, scene, system, frames, requests, where)
+        if system == CLOUD_PREFETCH:  # its requests ask ahead: its per-map stages are no Table 1 column
+            continue
+        for cache, samples in cloud_samples(requests).items():
+            merged = cloud.setdefault((profile, cache), {})
+            for name, values in samples.items():
+                merged.setdefault(name, []).extend(values)
+        failures = sum(r["status"] not in ("ok", "abandoned") for r in requests)
+        res.add(system=CLOUD, scene=scene, metric="failed_requests", value=failures, unit="count", **where)
+        _ssim_rows(res, scene, CLOUD, frames, where | {"codec": cfg.codec})
+    return cloud
+
+
+def _record_cloud_stages(
+    res: Results, scene: str, profile: str, samples: dict[str, list[float]], gigan_total: float, config: dict
+) -> None:
+    """Cloud baking's stage timings, bytes, the ratio of totals and the link model's total at ``profile``."""
+    from network_sim import profiles as profile_table
+
+    for stage in (*CLOUD_STAGES, "total", "pickup"):
+        if samples.get(stage):
+            res.add_timing(
+                system=CLOUD, scene=scene, metric=stage, samples_s=[v / 1e3 for v in samples[stage]], **config
+            )
+    for name in ("bytes_up", "bytes_down"):
+        value = float(np.median(samples[name]))
+        res.add(system=CLOUD, scene=scene, metric=name, value=value, unit="B", stat="median", **config)
+    link = profile_table.get(profile).link(seed=res.seed)
+    rtt = {"rtt_ms": link.rtt_s * 1e3}
+    ratio = float(np.median(samples["total"])) / gigan_total
+    res.add(
+        system=f"{CLOUD}/{GIGAN}",
+        scene=scene,
+        metric="total_ratio",
+        value=ratio,
+        unit="1",
+        stat="median",
+        **rtt,
+        **config,
+    )
+    modelled = CloudCost.of(samples).total_ms(link, starts=20)
+    res.add(system=CLOUD, scene=scene, metric="total_model", value=modelled, unit="ms", stat="median", **rtt, **config)
+
+
+def _record_crossover(
+    res: Results, scene: str, cfg: Recorded, pooled: dict[str, list[float]], gigan_total: float, config: dict
+) -> None:
+    """The link model with one cache state's pooled stages: the crossover RTT, and the ratio over an RTT sweep."""
+    cost = CloudCost.of(pooled)
+    crossover = cost.crossover_rtt_ms(gigan_total, cfg.sweep_rate_mbit)
+    system = f"{CLOUD}/{GIGAN}"
+    res.add(system=system, scene=scene, metric="crossover_rtt", value=crossover, unit="ms", stat="model", **config)
+    for rtt in np.linspace(0.0, cfg.sweep_max_rtt_ms, 26):
+        total = cost.total_ms(sweep_link(float(rtt), cfg.sweep_rate_mbit))
+        res.add(
+            system=system,
+            scene=scene,
+            metric="ratio_model",
+            value=total / gigan_total,
+            unit="1",
+            stat="model",
+            rtt_ms=float(rtt),
+            **config,
+        )
+
+
+def record_renderer_ratios(res: Results, scene: str) -> None:
+    """``stat = "renderer_ratio"`` rows (config ``renderer = "gl/mitsuba"``): for every stage median both
+    renderers measured in this run with otherwise equal settings, gl's over mitsuba's."""
+    num, den = RENDERER_RATIO
+    medians = [r for r in res.rows if r["stat"] == "median" and r["unit"] == "ms"]
+
+    def key(r: dict[str, Any]) -> tuple:
+        config = json.loads(r["config"])
+        rest = tuple(sorted((k, json.dumps(v)) for k, v in config.items() if k != "renderer"))
+        return r["system"], r["metric"], rest
+
+    by_renderer: dict[str, dict[tuple, dict[str, Any]]] = {}
+    for r in medians:
+        by_renderer.setdefault(json.loads(r["config"]).get("renderer"), {})[key(r)] = r
+    for k, r in by_renderer.get(num, {}).items():
+        other = by_renderer.get(den, {}).get(k)
+        if other is None or not other["value"] > 0:
+            continue
+        config = json.loads(r["config"]) | {"renderer": f"{num}/{den}"}
+        res.add(
+            system=r["system"],
+            scene=scene,
+            metric=r["metric"],
+            value=r["value"] / other["value"],
+            unit="1",
+            stat="renderer_ratio",
+            **config,
+        )
+
+
+def _pool(groups: list[dict[str, list[float]]]) -> dict[str, list[float]]:
+    pooled: dict[str, list[float]] = {}
+    for group in groups:
+        for name, values in group.items():
+            pooled.setdefault(name, []).extend(values)
+    return pooled
+
+
+def _perceived_rows(
+    res: Results,
+    scene: str,
+    system: str,
+    frames: list[dict[str, str]],
+    requests: list[dict[str, str]],
+    config: dict[str, Any],
+) -> None:
+    """A cloud run's perceived latency (median, p95; never-served frames as endless), in-tolerance share, requests
+    and mean SSIM (see the module docstring)."""
+    waits = [math.inf if r["perceived_ms"] == "" else float(r["perceived_ms"]) for r in frames]
+    for stat, q in (("median", 50), ("p95", 95)):
+        value = float(np.percentile(waits, q, method="inverted_cdf"))
+        res.add(system=system, scene=scene, metric="perceived", value=value, unit="ms", stat=stat, **config)
+    shown = float(np.mean([int(r["in_tolerance"]) for r in frames]))
+    res.add(system=system, scene=scene, metric="in_tolerance", value=shown, unit="1", **config)
+    res.add(system=system, scene=scene, metric="requests", value=len(requests), unit="count", **config)
+    scored = [float(r["ssim"]) for r in frames if r.get("ssim")]
+    if system == CLOUD_PREFETCH and scored:  # the plain client's SSIM rows come with its Table 1 rows
+        res.add(
+            system=system, scene=scene, metric="ssim", value=float(np.mean(scored)), unit="1", stat="mean", **config
+        )
+
+
+def _ssim_rows(res: Results, scene: str, system: str, frames: list[dict[str, str]], config: dict[str, Any]) -> None:
+    scored = [(int(r["frame"]), float(r["ssim"])) for r in frames if r.get("ssim")]
+    for frame, value in scored:
+        res.add(system=system, scene=scene, metric="ssim", value=value, unit="1", stat="frame", frame=frame, **config)
+    if scored:
+        res.add(
+            system=system,
+            scene=scene,
+            metric="ssim",
+            value=float(np.mean([v for _, v in scored])),
+            unit="1",
+            stat="mean",
+            **config,
+        )
