@@ -35,6 +35,7 @@ import numpy as np
 import typer
 
 from baseline_cloudbaking.client_run import CloudClientConfig, check_server, request_summary, run_client
+from gicore import option_groups
 from gicore.error_policy import entry_point, writable_dir
 from gicore.fileio import atomic_write_bytes, exclusive_run
 from gicore.mitsuba_variant import check_denoiser
@@ -85,7 +86,7 @@ config_command(
     client_command,
     extras=[
         extra("server", Annotated[str, typer.Option("--server", help=SERVER_HELP)]),
-        extra("out", Annotated[Path, typer.Option("--out", help="output folder")]),
+        option_groups.out("path.json, frames.csv, requests.csv and summary.json"),
     ],
 )
 
@@ -94,12 +95,16 @@ def write_outputs(
     cfg: CloudClientConfig, rows: list[dict], requests: list[dict], out: Path, renderer: str | None = None
 ) -> dict:
     """``frames.csv``, ``requests.csv`` and ``summary.json`` under ``out``; returns the summary. ``renderer``:
-    the renderer that ran the raster passes (default: the one the config asks for)."""
+    the renderer that ran the raster passes (default: the one the config asks for); the summary's
+    ``warp_backend`` is the backend that ran the warp and the composition on it."""
     from gicore.loop import summarize, write_rows
 
     write_rows(rows, out / "frames.csv")
     write_rows(requests, out / "requests.csv")  # frame 0 always asks, so there is a record (if only "abandoned")
+    from gicore.gl.frame import warp_backend
+
     summary = {"config": cfg.as_json(), "frames": len(rows), "renderer": renderer or cfg.renderer}
+    summary["warp_backend"] = warp_backend(cfg.warp_backend, summary["renderer"])
     summary |= summarize(rows, cfg.every) | request_summary(requests)
     # maps come in the background, so the frame rate is what the frames took (not the amortised GI cost)
     summary["fps"] = 1000.0 / float(np.mean([float(r["frame_ms"]) for r in rows]))

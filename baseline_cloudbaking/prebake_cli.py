@@ -38,6 +38,7 @@ from baseline_cloudbaking.codecs import CODEC_NAMES, DEFAULT_CODEC
 from baseline_cloudbaking.store import DEFAULT_LIGHT_CELL, GITree, store_folder
 from baseline_cloudbaking.store_errors import StoreConflict
 from baseline_cloudbaking.viewpoints import MapKey, Tolerance, Viewpoint, ViewSet
+from gicore import option_groups
 from gicore.camera import Camera
 from gicore.error_policy import UserError, entry_point, writable_dir
 from gicore.executor import Executor, ExecutorOptions, InProcess, RayExecutor, Task
@@ -45,9 +46,6 @@ from gicore.fileio import FolderHeld, exclusive_run
 from gicore.options import (
     FOV_DEGREES,
     FRAMES,
-    RESOLUTION,
-    SEED,
-    SPP,
     build_config,
     build_options,
     config_command,
@@ -72,10 +70,8 @@ class PrebakeConfig:
     frames: int = field(default=1500, metadata=FRAMES)
     #: GI-map codec.
     codec: Literal[CODEC_NAMES] = DEFAULT_CODEC  # type: ignore[valid-type]
-    #: Square map resolution.
-    resolution: int = field(default=256, metadata=RESOLUTION)
-    #: Path-tracing samples per pixel (then OIDN).
-    spp: int = field(default=64, metadata=SPP)
+    resolution: int = option_groups.resolution(note="of the maps")
+    spp: int = option_groups.spp(note="then OIDN")
     #: Also store the GI view's DI (the residual composition needs it).
     di: bool = False
     #: GI-camera FOV in degrees; absent: the scene's (90).
@@ -84,8 +80,7 @@ class PrebakeConfig:
     tolerance: Tolerance = field(default_factory=Tolerance)
     #: Light-cell side for a moving light, scene units.
     light_cell: float = field(default=DEFAULT_LIGHT_CELL, metadata={"min": 1e-6, "max": 1e6})
-    #: Camera-path seed (as gicore-dataset) and render-noise seed.
-    seed: int = field(default=0, metadata=SEED)
+    seed: int = option_groups.seed(note="the camera path, as gicore-dataset's, and the render noise")
     #: What to bake: 'fly-through' (the maps the fly-through's --frames frames need) or 'all' (the scene's whole
     #: configuration space: views covering the camera's envelope at the tolerance x every light cell).
     space: Literal["fly-through", "all"] = "fly-through"

@@ -21,12 +21,13 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 import typer
 from tqdm import tqdm
 
+from gicore import option_groups
 from gicore.buffers import DATASET_BUFFERS, TARGET, check_buffer_names
 from gicore.camera import Camera
 from gicore.dataset import (
@@ -39,7 +40,7 @@ from gicore.dataset import (
     write_frame,
     write_meta,
 )
-from gicore.error_policy import UserError, entry_point, require_between
+from gicore.error_policy import UserError, entry_point
 from gicore.executor import Executor, ExecutorOptions, InProcess, Task
 from gicore.fileio import exclusive_run, sweep_temporaries
 from gicore.gl.lod import LOD_CHOICES, lod_value
@@ -47,17 +48,11 @@ from gicore.loop import CLIENT_LOD, open_raster
 from gicore.options import (
     FOV_DEGREES,
     FRAMES_MAX,
-    RESOLUTION,
-    RESOLUTION_MAX,
-    RESOLUTION_MIN,
-    SEED,
-    SPP,
     build_config,
     build_options,
     check_fields,
     config_command,
     config_options,
-    extra,
 )
 from gicore.paths import camera_path, frame_seed, light_position
 from gicore.scene import SceneSpec, load_scene
@@ -80,14 +75,10 @@ class DatasetConfig:
     n_train: int = field(default=60, metadata={"option": "train", "min": 0, "max": FRAMES_MAX})
     #: Validation frames per scene (paper: 100).
     n_val: int = field(default=8, metadata={"option": "val", "min": 0, "max": FRAMES_MAX})
-    #: Square frame side in pixels (paper: 512).
-    resolution: int = field(default=128, metadata=RESOLUTION)
-    #: Path-tracing samples per pixel of the GT.
-    spp: int = field(default=64, metadata=SPP)
-    #: Denoise the GT with Intel OIDN (albedo + normal guided).
-    denoise: bool = True
-    #: Seeds the camera trajectories and every frame's render noise.
-    seed: int = field(default=0, metadata=SEED)
+    resolution: int = option_groups.resolution(128, note="paper: 512")
+    spp: int = option_groups.spp(note="of the GT")
+    denoise: bool = option_groups.denoise()
+    seed: int = option_groups.seed(note="the camera trajectories and every frame's render noise")
     #: Camera FOV in degrees; absent: the scene's GI-camera FOV.
     fov: float | None = field(default=None, metadata=FOV_DEGREES)
     #: Buffers rendered and stored (``gicore.buffers``).
@@ -106,16 +97,7 @@ class DatasetConfig:
                 f"--train {self.n_train} --val {self.n_val} asks for no frames",
                 "give --train or --val a count of at least 1",
             )
-        if not RESOLUTION_MIN <= self.resolution <= RESOLUTION_MAX:
-            raise UserError(
-                f"--resolution {self.resolution} is outside [{RESOLUTION_MIN}, {RESOLUTION_MAX}]",
-                f"give a resolution from {RESOLUTION_MIN} to {RESOLUTION_MAX}",
-            )
-        if self.spp < 1:
-            raise UserError(f"--spp {self.spp} is below 1", "give at least one sample per pixel")
-        if self.fov is not None:
-            require_between("--fov", self.fov, 0.0, 180.0)
-        check_fields(self)  # the limits of the command line (frame counts, spp, seed, FOV)
+        check_fields(self)  # the limits of the command line (frame counts, resolution, spp, seed, FOV)
         check_buffer_names(list(self.buffers))
 
 
@@ -287,12 +269,8 @@ config_command(
     DatasetConfig,
     dataset_command,
     extras=[
-        extra("scenes", Annotated[list[str], typer.Argument(help="built-in scene names or spec files (.toml/.json)")]),
-        extra(
-            "out",
-            Annotated[Path, typer.Option("--out", help="root folder; one sub-folder per scene")],
-            Path("data/datasets"),
-        ),
+        option_groups.scenes_argument(),
+        option_groups.out("one sub-folder per scene", Path("data/datasets")),
         *config_options(ExecutorOptions),
     ],
 )

@@ -22,16 +22,17 @@ from collections.abc import Callable, Iterable, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from functools import cached_property
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal, Protocol
+from typing import TYPE_CHECKING, Any, Literal, Protocol, runtime_checkable
 
 import numpy as np
 
+from gicore import option_groups
 from gicore.blend import COMPOSITIONS, blend, residual
 from gicore.camera import Camera
 from gicore.error_policy import UserError, writable_dir
 from gicore.fileio import atomic_write_bytes
 from gicore.metrics import lf_error, psnr, ssim
-from gicore.options import FOV_DEGREES, FRAMES, PATH_FILE, RESOLUTION, SEED, SPP, check_fields
+from gicore.options import FOV_DEGREES, FRAMES, check_fields
 from gicore.paths import camera_path, frame_seed, light_position
 from gicore.render_cache import RenderCache
 from gicore.scene import SceneSpec
@@ -49,6 +50,9 @@ LAYERS = {"blend": "radiance", "residual": "indirect"}
 #: Renderers of a client's per-frame raster passes (:attr:`PathRunConfig.renderer`): OpenGL
 #: (:class:`gicore.gl.GLRenderer`) or Mitsuba's centre-sampled passes (:class:`gicore.render.Renderer`).
 RENDERERS = ("gl", "mitsuba")
+#: Backends of a client's warp and composition (:attr:`PathRunConfig.warp_backend`): numpy on the passes read
+#: back, or shaders on the GL renderer's textures (a :class:`FrameWarp`); auto picks per renderer.
+WARP_BACKENDS = ("auto", "numpy", "gl")
 #: The GL renderer's level of detail in both clients (``gicore.gl.GLRenderer(lod=...)``): per view, the coarsest
 #: level whose calibrated G-buffer error stays within its bound, as a real-time client draws. On llvmpipe the
 #: passes are vertex-bound, so full detail is no faster than Mitsuba; the bound costs the shipped model at most
@@ -166,6 +170,18 @@ class Warp(Protocol):
 
     def warp(
         self, camera: Camera, di: np.ndarray, passes: dict[str, np.ndarray]
+    ) -> tuple[np.ndarray, np.ndarray, Timings]: ...
+
+
+@runtime_checkable
+class FrameWarp(Warp, Protocol):
+    """A warp that also draws its frame and composes it in the GL renderer's context (``gicore.gl.frame``):
+    ``frame(camera, light, composition, tau)`` is a whole frame with a map bound, DI, warp and composition, as
+    (HxWx3 image, HxW valid mask, ms of ``di``, its per-frame ``stages`` and ``compose``); only the image and
+    the mask are read back."""
+
+    def frame(
+        self, camera: Camera, light: Light, composition: str, tau: float
     ) -> tuple[np.ndarray, np.ndarray, Timings]: ...
 
 
@@ -302,33 +318,26 @@ class PathRunConfig:
     default, its limits and its help are declared here once; building the config checks the same limits
     (``ValueError`` naming the option)."""
 
-    #: Built-in scene name or scene spec file (.toml/.json).
-    scene: str = "lung_plane"
+    scene: str = option_groups.scene()
     #: Frames to run.
     frames: int = field(default=60, metadata=FRAMES)
-    #: Square resolution of every render and GI map, in pixels.
-    resolution: int = field(default=256, metadata=RESOLUTION)
-    #: GI-map period k: a new GI map every k frames (Table 3's inference frequency).
-    every: int = field(default=30, metadata={"aliases": ("-k",)})
+    resolution: int = option_groups.resolution(note="of every render and GI map")
+    every: int = option_groups.every(note="Table 3's inference frequency")
     #: GI-camera FOV in degrees; absent: the scene's (90).
     gi_fov: float | None = field(default=None, metadata=FOV_DEGREES)
     #: Local-camera FOV in degrees; absent: the scene's (60).
     local_fov: float | None = field(default=None, metadata=FOV_DEGREES)
-    #: Frames per full orbit of the camera path (sets the motion per frame: 360° / orbit_frames).
-    orbit_frames: int = field(default=300, metadata=FRAMES)
-    path: Path | None = field(default=None, metadata=PATH_FILE)
+    orbit_frames: int = option_groups.orbit_frames()
+    path: Path | None = option_groups.path()
     #: Eq. 1 weight of DI in the blend (0: the GI map alone, which already holds direct light).
     tau: float = field(default=0.0, metadata={"min": 0.0, "max": 1.0})
     #: Composition: blend (eq. 1) or residual (current DI + warped indirect light).
     composition: Literal[COMPOSITIONS] = "blend"  # type: ignore[valid-type]
-    #: Samples per pixel of path tracing (GT renders; the cloud server's maps).
-    spp: int = field(default=64, metadata=SPP)
-    #: Denoise the path-traced GT with OIDN (albedo/normal guided).
-    denoise: bool = True
+    spp: int = option_groups.spp(note="of the GT renders and the cloud server's maps")
+    denoise: bool = option_groups.denoise()
     #: Compare the composed frame with the path-traced GT every N frames (0: never).
     gt_every: int = field(default=0, metadata={"min": 0})
-    #: Camera-path and render seed.
-    seed: int = field(default=0, metadata=SEED)
+    seed: int = option_groups.seed(note="the camera path and the renders' noise")
     #: Folder of path-traced GT frames shared between runs (keyed by scene spec, camera, light, spp, denoise, seed
     #: and frame; :mod:`gicore.render_cache`); absent: every run path-traces its own.
     gt_cache: Path | None = None
@@ -338,12 +347,19 @@ class PathRunConfig:
     #: shipped model scores within 0.005 SSIM of Mitsuba inputs on GL inputs at lod auto (-0.0009 to +0.0026 on
     #: the five scenes, bench quality --renderers gl,mitsuba; see the model card).
     renderer: Literal[RENDERERS] = "gl"  # type: ignore[valid-type]
+    #: Backend of the warp and the composition: numpy (on the passes read back), gl (shaders on the GL renderer's
+    #: textures, only the composed frame read back; needs --renderer gl) or auto (gl where the GL renderer runs on
+    #: a GPU; numpy on a CPU rasteriser such as llvmpipe, where numpy is as fast: docs/architecture.md, OpenGL
+    #: passes).
+    warp_backend: Literal[WARP_BACKENDS] = "auto"  # type: ignore[valid-type]
 
     def __post_init__(self) -> None:
         try:
             check_fields(self)
         except UserError as err:
             raise ValueError(str(err)) from None
+        if self.warp_backend == "gl" and self.renderer != "gl":
+            raise ValueError("--warp-backend gl runs on the GL renderer's textures: pass --renderer gl")
 
     def check_gt_cache(self) -> None:
         """Refuse a ``--gt-cache`` that is a file or cannot be made a folder, before any frame is path-traced."""
@@ -438,7 +454,10 @@ class ClientLoop:
         self.source.warm_up(self.gi_camera(camera), light)
         self.renderer.render_di_raster(camera, light)  # a frame before any map: DI alone
         self.warp.bind(GIMap.blank(self.gi_camera(camera)))
-        self.warp.warp(camera, *self.renderer.render_di_raster(camera, light, self.warp.raster))
+        if isinstance(self.warp, FrameWarp):
+            self.warp.frame(camera, light, self.cfg.composition, self.cfg.tau)
+        else:
+            self.warp.warp(camera, *self.renderer.render_di_raster(camera, light, self.warp.raster))
         self.bound = None
 
     def _wants_map(self, frame: int, camera: Camera) -> bool:
@@ -483,6 +502,30 @@ class ClientLoop:
             row |= {f"{s}_ms": ms for s, ms in gi.stages.items()}
             self.bound = gi
         sw.restart()
+        if self.bound is not None and isinstance(self.warp, FrameWarp):  # drawn, warped and composed in GL
+            image, valid, timings = self.warp.frame(camera, light, cfg.composition, cfg.tau)
+            sw.ms |= timings
+        else:
+            image, valid = self._render_and_compose(frame, camera, light, sw)
+        gi = self.bound
+        if gi is not None:
+            row |= {
+                "gi_age_frames": frame - gi.frame,
+                "gi_age_ms": (time.perf_counter() - gi.requested_at) * 1e3,
+                "gi_latency_ms": gi.latency_ms,
+            }
+        row |= {f"{s}_ms": ms for s, ms in sw.ms.items() if s != "gi_wait"}
+        row |= {"gi_wait_ms": sw.ms["gi_wait"], "valid_frac": float(valid.mean()), "frame_ms": sum(sw.ms.values())}
+        columns = self.columns()
+        unknown = set(row) - set(columns)
+        if unknown:  # a source or warp reported a stage it does not declare in its ``stages``
+            raise RuntimeError(f"undeclared stage columns {sorted(unknown)}; add them to the source's or warp's stages")
+        return FrameResult(image, {c: row.get(c, "") for c in columns if c not in TAIL_COLUMNS[1:]})
+
+    def _render_and_compose(self, frame: int, camera: Camera, light: Light, sw: Stopwatch) -> tuple[np.ndarray, ...]:
+        """The frame's DI and its warp's pass read back (stage ``di``), the warp's stages, then the composition
+        (``compose``): (image, valid mask); before any map the frame is its DI alone."""
+        cfg = self.cfg
         raster = None if self.bound is None else self.warp.raster
         di, passes = self.renderer.render_di_raster(camera, light, raster, seed=frame_seed(cfg.seed, "di", frame))
         sw.lap("di")
@@ -499,20 +542,7 @@ class ClientLoop:
                     self._no_indirect = np.zeros_like(di)
                 image = residual(di, warped, self._no_indirect)
         sw.lap("compose")
-        gi = self.bound
-        if gi is not None:
-            row |= {
-                "gi_age_frames": frame - gi.frame,
-                "gi_age_ms": (time.perf_counter() - gi.requested_at) * 1e3,
-                "gi_latency_ms": gi.latency_ms,
-            }
-        row |= {f"{s}_ms": ms for s, ms in sw.ms.items() if s != "gi_wait"}
-        row |= {"gi_wait_ms": sw.ms["gi_wait"], "valid_frac": float(valid.mean()), "frame_ms": sum(sw.ms.values())}
-        columns = self.columns()
-        unknown = set(row) - set(columns)
-        if unknown:  # a source or warp reported a stage it does not declare in its ``stages``
-            raise RuntimeError(f"undeclared stage columns {sorted(unknown)}; add them to the source's or warp's stages")
-        return FrameResult(image, {c: row.get(c, "") for c in columns if c not in TAIL_COLUMNS[1:]})
+        return image, valid
 
 
 # -- driving a loop along a path, scoring against GT ------------------------------------------------------

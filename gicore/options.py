@@ -159,7 +159,7 @@ def _is_number(tp: Any) -> bool:
     return inner in (int, float)
 
 
-def _limits(meta: Mapping[str, Any]) -> str:
+def limits_text(meta: Mapping[str, Any]) -> str:
     """A number's limits as --help states them, e.g. ``[> 0]``, ``[1 to 100000]``."""
     lo, hi = meta.get("min"), meta.get("max")
     low = "> 0" if lo is None else f">= {lo}"
@@ -194,7 +194,7 @@ def _option_type(f: dataclasses.Field, tp: Any, help_text: str) -> Any:
     raise TypeError(f"config field {f.name} of type {tp!r} has no command-line form")
 
 
-def _shown(value: Any) -> str:
+def as_typed(value: Any) -> str:
     """A default as it would be typed on the command line."""
     if isinstance(value, (tuple, list)):
         return ",".join(str(v) for v in value)
@@ -263,7 +263,11 @@ def check_field(f: dataclasses.Field, tp: Any, value: Any) -> None:
     if typing.get_origin(inner) is Literal and value is not None and value not in typing.get_args(inner):
         choices = ", ".join(map(str, typing.get_args(inner)))
         raise UserError(f"{option} {value!r} is not one of {choices}", "pick one of those")
-    if f.name == "scenes":
+    check = f.metadata.get("check")  # an entry's own check, e.g. that a scene loads (gicore.option_groups)
+    if check is not None and value is not None:
+        for item in items:
+            check(option, item)
+    if f.name == "scenes" and check is None and isinstance(value, (tuple, list)):
         _check_scenes(value)
     if f.metadata.get("host_port") and value is not None:
         split_host_port(value, option)
@@ -380,12 +384,12 @@ def config_options(
         if not docs.get(f.name):
             raise TypeError(f"{config.__name__}.{f.name} has no #: comment (its --help text)")
         default = getattr(defaults, f.name)
-        shown = [] if default is None or _shown(default) == "" else [f"default: {_shown(default)}"]
+        shown = [] if default is None or as_typed(default) == "" else [f"default: {as_typed(default)}"]
         if preset is not None and getattr(preset, f.name) != getattr(defaults, f.name):
-            shown.append(f"{preset_option}: {_shown(getattr(preset, f.name))}")
+            shown.append(f"{preset_option}: {as_typed(getattr(preset, f.name))}")
         help_text = docs[f.name] + (f" ({'; '.join(shown)})" if shown else "")
         if _is_number(hints[f.name]):
-            help_text += f" {_limits(limits(f))}"
+            help_text += f" {limits_text(limits(f))}"
         annotation = _option_type(f, hints[f.name], help_text)
         absent = inspect.Parameter.empty if f.metadata.get("required") else None  # no default: typer requires it
         params.append(inspect.Parameter(f.name, inspect.Parameter.KEYWORD_ONLY, default=absent, annotation=annotation))

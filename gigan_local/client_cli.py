@@ -18,6 +18,7 @@ from typing import Annotated, Any
 
 import typer
 
+from gicore import option_groups
 from gicore.error_policy import entry_point
 from gicore.fileio import exclusive_run
 from gicore.options import build_config, config_command, extra
@@ -53,7 +54,7 @@ config_command(
             Annotated[bool, typer.Option("--with-gt", help="compare with the GT every frame (= --gt-every 1)")],
             False,
         ),
-        extra("out", Annotated[Path, typer.Option("--out", help="output folder")], Path("runs/client")),
+        option_groups.out("path.json, frames.csv, summary.json and the frames asked for", Path("runs/client")),
         extra(
             "save_frames",
             Annotated[bool, typer.Option("--save-frames", help="write the composed frames as PNG")],

@@ -14,11 +14,12 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
+from gicore import option_groups
 from gicore.buffers import GENERATOR_INPUTS
 from gicore.config import strict_from_dict
 from gicore.error_policy import UserError
 from gicore.fileio import atomic_write_bytes
-from gicore.options import RESOLUTION, RESOLUTION_MAX, SEED
+from gicore.options import RESOLUTION_MAX
 from gigan_local.preprocess import InputSpec
 
 #: A run folder's config file: the TrainConfig and every NetworkConfig (see :func:`write_run_config`).
@@ -130,8 +131,7 @@ class TrainConfig:
     buffers: list[str] = field(default_factory=lambda: list(GENERATOR_INPUTS))
     #: Depth that encodes to 0; absent: the median foreground depth of the training data.
     depth_scale: float | None = None
-    #: Frame side in pixels; absent: read from the datasets (which must agree).
-    resolution: int | None = field(default=None, metadata=RESOLUTION)
+    resolution: int | None = option_groups.resolution(None, note="absent: read from the datasets, which must agree")
     #: Train on random crop x crop windows (cheaper steps); validation always uses whole frames.
     crop: int | None = field(default=None, metadata={"min": 1, "max": RESOLUTION_MAX})
     #: Generator width (pix2pix ngf).
@@ -173,8 +173,7 @@ class TrainConfig:
     max_steps: int | None = field(default=None, metadata={"min": 0})
     #: Budget: stop (validated and checkpointed) within this many minutes of wall time of one invocation.
     max_minutes: float | None = None
-    #: Seeds weights, dropout, penalty interpolation, data order and crops.
-    seed: int = field(default=0, metadata=SEED)
+    seed: int = option_groups.seed(note="weights, dropout, penalty interpolation, data order and crops")
     #: Validate on at most this many val frames (per epoch); absent: all of them.
     max_val_frames: int | None = field(default=None, metadata={"min": 1})
     #: Also checkpoint every this many steps (0: only at epoch ends and at the stop).

@@ -11,6 +11,7 @@ from typing import Annotated, Any
 
 import typer
 
+from gicore import option_groups
 from gicore.error_policy import entry_point
 from gicore.options import FRAMES, build_config, config_command, extra
 from gigan_local.inference import MODEL_JSON
@@ -53,14 +54,13 @@ def export_command(given: dict[str, Any], *, run: Path, out: Path) -> None:
 
 
 RUN_HELP = "Training run folder (config.json + checkpoint.pt, made by gigan-train)."
-OUT_HELP = "Folder for model_fp32.onnx, model_fp16.onnx and model.json."
 config_command(
     app,
     ExportConfig,
     export_command,
     extras=[
         extra("run", Annotated[Path, typer.Argument(help=RUN_HELP)]),
-        extra("out", Annotated[Path, typer.Option("--out", help=OUT_HELP)]),
+        option_groups.out("model_fp32.onnx, model_fp16.onnx and model.json"),
     ],
 )
 

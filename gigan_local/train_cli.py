@@ -11,6 +11,7 @@ from typing import Annotated, Any
 
 import typer
 
+from gicore import option_groups
 from gicore.error_policy import UserError, entry_point
 from gicore.options import build_config, config_command, extra, parse_options
 from gigan_local.config import BUDGET_FIELDS, TrainConfig, read_run_config
@@ -58,9 +59,7 @@ config_command(
     TrainConfig,
     train_command,
     extras=[
-        extra(
-            "out", Annotated[Path, typer.Option("--out", help="Run folder: config.json, checkpoint.pt, metrics.csv.")]
-        ),
+        option_groups.out("the run: config.json, checkpoint.pt, metrics.csv"),
         extra(
             "resume",
             Annotated[bool, typer.Option("--resume", help="Continue the run in --out from its checkpoint.")],

@@ -12,12 +12,13 @@ import asyncio
 import textwrap
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Any, Literal
 
 import typer
 
+from gicore import option_groups
 from gicore.error_policy import UserError, entry_point, serving, writable_dir
-from gicore.options import HOST_PORT, SEED, build_config, check_fields, config_command, extra, split_host_port
+from gicore.options import HOST_PORT, build_config, check_fields, config_command, split_host_port
 from network_sim import profiles as profile_table
 from network_sim.link import DEFAULT_WINDOW_BYTES, JITTER_DISTS, DirectionConfig, LinkConfig
 from network_sim.proxy import IDLE_TIMEOUT_S, MAX_CONNECTIONS
@@ -50,8 +51,7 @@ class ProxyOptions:
     upstream: str | None = field(default=None, metadata={**HOST_PORT, "required": True})
     #: HOST:PORT to accept clients on (port 0: any free port; printed first).
     listen: str = field(default="127.0.0.1:0", metadata=HOST_PORT)
-    #: Named link (see 'network-sim profiles'); the options below override its values.
-    profile: str | None = None
+    profile: str | None = profile_table.profile_field(None, note="the link; the options below override its values")
     #: One-way delay added in each direction, ms (an empty round trip takes twice it).
     delay_ms: float | None = field(default=None, metadata=DELAY)
     #: Standard deviation of the delay variation, ms (never reorders a stream).
@@ -74,8 +74,7 @@ class ProxyOptions:
     trace_up: Path | None = None
     #: Mahimahi trace shaping upstream -> client (the server's responses).
     trace_down: Path | None = None
-    #: Seed of the jitter and loss draws.
-    seed: int = field(default=0, metadata=SEED)
+    seed: int = option_groups.seed(note="the jitter and loss draws")
     #: Write one CSV row per chunk (arrival, admission, release, actual send time).
     log: Path | None = None
     #: Client connections at once; one more is closed on accept (lowered to fit the file-descriptor limit).
@@ -183,8 +182,7 @@ class SelftestOptions:
 
     #: Shorter runs (about a minute and a half).
     quick: bool = False
-    #: Seed of the links and of the probe schedule.
-    seed: int = field(default=0, metadata=SEED)
+    seed: int = option_groups.seed(note="the links and the probe schedule")
 
 
 def selftest(given: dict[str, Any], *, out: Path) -> None:
@@ -200,9 +198,8 @@ def selftest(given: dict[str, Any], *, out: Path) -> None:
         raise typer.Exit(1)
 
 
-OUT_HELP = "Folder for network_selftest.csv, its provenance JSON and the plot."
 config_command(
-    app, SelftestOptions, selftest, extras=[extra("out", Annotated[Path, typer.Option("--out", help=OUT_HELP)])]
+    app, SelftestOptions, selftest, extras=[option_groups.out("network_selftest.csv, its provenance JSON and the plot")]
 )
 
 

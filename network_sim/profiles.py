@@ -9,8 +9,10 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
+from typing import Any
 
 from gicore.error_policy import UserError
+from gicore.option_groups import shared
 from network_sim.link import DirectionConfig, LinkConfig
 from network_sim.trace import Trace
 from network_sim.tracegen import MODELS, shipped_path
@@ -110,9 +112,28 @@ def profiles() -> dict[str, Profile]:
 
 def get(name: str) -> Profile:
     """The profile called ``name``, or a :class:`UserError` listing the known ones."""
+    check_profile("--profile", name)
+    return profiles()[name]
+
+
+def check_profile(option: str, name: str) -> None:
+    """A :class:`UserError` naming ``option`` unless ``name`` is a profile."""
     known = profiles()
     if name not in known:
         raise UserError(
-            f"--profile {name!r} is not a known profile", f"use one of {', '.join(known)} (see network-sim profiles)"
+            f"{option} {name!r} is not a known profile", f"use one of {', '.join(known)} (see network-sim profiles)"
         )
-    return known[name]
+
+
+PROFILE_HELP = "Network profile (see 'network-sim profiles')"
+PROFILES_HELP = "Network profiles (see 'network-sim profiles')"
+
+
+def profile_field(default: str | None = "lan", *, note: str = "") -> Any:
+    """``--profile``, one named link (a shared option, :mod:`gicore.option_groups`), checked to be known."""
+    return shared("profile", default, PROFILE_HELP, note, check=check_profile)
+
+
+def profiles_field(default: tuple[str, ...] = ("lan", "wifi", "lte", "wan"), *, note: str = "") -> Any:
+    """``--profiles``, named links, each checked to be known."""
+    return shared("profiles", default, PROFILES_HELP, note, check=check_profile)

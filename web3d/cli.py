@@ -21,12 +21,11 @@ from typing import Any, Literal
 import typer
 
 from baseline_cloudbaking.codecs import CODEC_NAMES, DEFAULT_CODEC
+from gicore import option_groups
 from gicore.error_policy import UserError, entry_point, serving
 from gicore.options import (
     FRAMES,
     HOST_PORT,
-    SEED,
-    SPP,
     THREADS,
     build_config,
     check_fields,
@@ -35,7 +34,7 @@ from gicore.options import (
 )
 from gicore.scene import load_scene
 from gigan_local.inference import DEFAULT_MODEL, check_model_option
-from network_sim.profiles import profiles
+from network_sim.profiles import profiles_field
 from web3d.children import ChildCloud
 from web3d.export import export_assets
 from web3d.routes_shadow import Shadows
@@ -52,8 +51,7 @@ CodecName = Literal[CODEC_NAMES]  # type: ignore[valid-type]
 class WebConfig:
     """One viewer: the scene, where cloud baking answers, and what the page runs."""
 
-    #: Scene name or spec file.
-    scene: str = "lung_plane"
+    scene: str = option_groups.scene()
     #: URL of a cloud-baking server the user runs (or of a network-sim proxy in front of it), which the page talks to
     #: as profile 'direct'; absent: gigan-web starts its own server and proxies.
     server: str | None = field(default=None, metadata={"conflicts": ("store", "profiles")})
@@ -62,29 +60,25 @@ class WebConfig:
     #: GI-tree folder the started server serves (a prebaked or an earlier run's); the page may also pick a cold
     #: store (a second server, started on demand). Absent: an empty temporary store, the only one.
     store: Path | None = None
-    #: network-sim profiles of the proxies started in front of the server (see 'network-sim profiles'); the
-    #: first is the page's default.
-    profiles: tuple[str, ...] = ("lan", "wifi", "lte", "wan")
+    profiles: tuple[str, ...] = profiles_field(
+        note="of the proxies started in front of the server; the first is the page's default"
+    )
     #: HOST:PORT to serve the page on (port 0: any free port; the address is printed).
     listen: str = field(default="127.0.0.1:8080", metadata=HOST_PORT)
     #: Frames of the fly-through the page plays (then it stops and shows the medians).
     frames: int = field(default=120, metadata=FRAMES)
-    #: Frames per full orbit of the camera path.
-    orbit_frames: int = field(default=300, metadata=FRAMES)
-    #: GI-map period k: both systems make or fetch a new GI map every k frames.
-    every: int = field(default=10, metadata=FRAMES)
+    orbit_frames: int = option_groups.orbit_frames()
+    every: int = option_groups.every(10, note="both systems make or fetch one")
     #: Eq. 1's tau: the DI weight of the blend (0: the warped GI map alone, as the Python clients default).
     tau: float = field(default=0.0, metadata={"min": 0.0, "max": 1.0})
     #: GI-map codec the cloud side asks for (jpeg, webp and png decode with createImageBitmap).
     codec: CodecName = DEFAULT_CODEC
-    #: Path-tracing samples per pixel the cloud side asks for.
-    spp: int = field(default=64, metadata=SPP)
+    spp: int = option_groups.spp(note="of the maps the cloud side asks for")
     #: onnxruntime-web backend: webgpu when the browser has it (auto), or one of them.
     backend: Literal[BACKENDS] = "auto"  # type: ignore[valid-type]
     #: onnxruntime-web wasm threads (GIModel's default in Python is 2).
     threads: int = field(default=2, metadata=THREADS)
-    #: Seed of the camera path.
-    seed: int = field(default=0, metadata=SEED)
+    seed: int = option_groups.seed(note="the camera path")
     #: Folder for the exported assets (default: .cache/web3d/SCENE in the working folder).
     assets: Path | None = None
     #: ONNX model the page runs (a gigan-export output, its model.json beside it); absent: the shipped fp16 model.
@@ -104,9 +98,6 @@ class WebConfig:
         self._check_cloud()
 
     def _check_cloud(self) -> None:
-        unknown = [p for p in self.profiles if p not in profiles()]
-        if unknown:
-            raise UserError(f"--profiles {unknown[0]} is not a profile", f"pick from {', '.join(profiles())}")
         if not self.cloud and (self.store is not None or self.server is not None):
             option = "--store" if self.store is not None else "--server"
             raise UserError(f"{option} and --no-cloud conflict: --no-cloud turns the cloud side off", "drop one")

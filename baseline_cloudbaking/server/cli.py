@@ -4,7 +4,8 @@
 
 The socket is bound here, before uvicorn starts, so with ``--port 0`` the real port is known: the
 first stdout line is ``listening on http://HOST:PORT`` (flushed), and connections made after it wait
-in the listen backlog until the app is ready. Options override ``CLOUDBAKING_*`` environment settings.
+in the listen backlog until the app is ready. Every setting (:class:`~baseline_cloudbaking.server.settings.Settings`)
+is an option, which overrides its ``CLOUDBAKING_*`` variable; ``--help`` names each one's variable.
 Under load (:mod:`~baseline_cloudbaking.server.limits`): at most ``--miss-queue`` misses wait (then 503 +
 Retry-After), at most ``--max-connections`` connections stay open (the longest-idle one is closed for a
 new one), a connection idle for ``--idle-timeout-s`` (or trickling its request head that long) is closed,
@@ -15,27 +16,26 @@ answered 503 at once), the GI tree is closed, and the process exits 0 (:mod:`~ba
 
 from __future__ import annotations
 
+import dataclasses
 import re
 import socket
 import sys
 from dataclasses import dataclass, field
-from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import typer
+from pydantic import ValidationError
+from pydantic_settings import SettingsError
 
+from baseline_cloudbaking.server.settings import Settings, check_environment, env_name, given_settings, setting_options
 from gicore.error_policy import UserError, entry_point, serving, writable_dir
-from gicore.options import SPP, build_config, config_command, extra
+from gicore.options import build_config, config_command, option_name
 
 if TYPE_CHECKING:
     import uvicorn
     from fastapi import FastAPI
 
-    from baseline_cloudbaking.server.settings import Settings
-
 app = typer.Typer(add_completion=False, help=__doc__)
-#: Largest GI-tree budget, MiB (16 TiB, the settings' limit).
-BUDGET_MB_MAX = 2.0**24
 
 
 def bind(host: str, port: int) -> socket.socket:
@@ -80,49 +80,27 @@ LOG_LEVELS = ("critical", "error", "warning", "info", "debug", "trace")
 
 @dataclass(frozen=True)
 class ServeOptions:
-    """What the command line sets beside the GI tree: where to listen, and the settings it overrides
-    (:class:`~baseline_cloudbaking.server.settings.Settings`; absent: ``CLOUDBAKING_*`` or the default).
-    The command's options are derived from these fields (:mod:`gicore.options`)."""
+    """What the command line sets beside the settings: where to listen, and uvicorn's log level."""
 
     #: Address to bind; 127.0.0.1 keeps the server local.
     host: str = "127.0.0.1"
     #: TCP port; 0 picks a free one.
     port: int = field(default=8000, metadata={"min": 0, "max": 65535})
-    #: GI-tree byte budget in MiB (LRU eviction); absent: CLOUDBAKING_BUDGET_BYTES or 4 GiB.
-    budget_mb: float | None = field(default=None, metadata={"min": 0.001, "max": BUDGET_MB_MAX})
-    #: Largest spp a request may ask for; absent: CLOUDBAKING_MAX_SPP or 256.
-    max_spp: int | None = field(default=None, metadata=SPP)
-    #: Misses that may wait for the renderer (one more: 503 + Retry-After); absent: CLOUDBAKING_MISS_QUEUE or 8.
-    miss_queue: int | None = field(default=None, metadata={"min": 0, "max": 10_000})
-    #: Open connections kept (beyond: the longest-idle is closed); absent: CLOUDBAKING_MAX_CONNECTIONS or 1024.
-    max_connections: int | None = field(default=None, metadata={"min": 8, "max": 1_000_000})
-    #: Seconds a connection may stay without a whole request head; absent: CLOUDBAKING_IDLE_TIMEOUT_S or 5.
-    idle_timeout_s: float | None = field(default=None, metadata={"min": 0.01, "max": 3600.0})
-    #: Seconds the miss being rendered may take to finish once told to stop; absent: CLOUDBAKING_GRACEFUL_TIMEOUT_S
-    #: or 30.
-    graceful_timeout_s: float | None = field(default=None, metadata={"min": 0.01, "max": 3600.0})
     #: uvicorn log level.
     log_level: Literal[LOG_LEVELS] = "warning"  # type: ignore[valid-type]
 
 
-#: Settings that an option of the same name (``--miss-queue`` for ``miss_queue``) overrides.
-_SAME_NAME = ("max_spp", "miss_queue", "max_connections", "idle_timeout_s", "graceful_timeout_s")
+#: The command's options: :class:`ServeOptions`, then one per setting (absent: ``CLOUDBAKING_*`` or the default).
+CommandOptions = setting_options(ServeOptions)
 
 
-def load_settings(opts: ServeOptions, store: Path, scenes: Path | None) -> Settings:
-    """The settings: ``CLOUDBAKING_*`` variables, overridden by the options given; UserError naming the
-    option or variable of the first invalid one, or a variable that is no setting."""
-    from pydantic import ValidationError
-    from pydantic_settings import SettingsError
-
-    from baseline_cloudbaking.server.settings import Settings, check_environment, env_name
-
+def load_settings(opts: Any) -> Settings:
+    """The settings: ``CLOUDBAKING_*`` variables, overridden by the options given (``opts``, a
+    :data:`CommandOptions`); UserError naming the option or variable of the first invalid one, or a variable
+    that is no setting."""
     check_environment()
-    overrides = {name: getattr(opts, name) for name in _SAME_NAME}
-    overrides |= {"store": store, "scenes_dir": scenes}
-    overrides["budget_bytes"] = None if opts.budget_mb is None else max(1, round(opts.budget_mb * 2**20))
     try:
-        return Settings(**{k: v for k, v in overrides.items() if v is not None})
+        return Settings(**given_settings(opts))
     except SettingsError as exc:  # a variable of a list setting is not JSON
         match = re.search(r'field "(\w+)"', str(exc))
         name = env_name(match.group(1)) if match else "a CLOUDBAKING_* variable"
@@ -133,24 +111,20 @@ def load_settings(opts: ServeOptions, store: Path, scenes: Path | None) -> Setti
         err = exc.errors()[0]
         field_name = str(err["loc"][0])
         where = ".".join(map(str, err["loc"]))
-        option = {"store": "--store", "scenes_dir": "--scenes", "budget_bytes": "--budget-mb"}
-        option |= {k: "--" + k.replace("_", "-") for k in _SAME_NAME}
-        env = env_name(field_name)
-        source = f"{option[field_name]} or {env}" if field_name in option else env
+        option = {f.metadata.get("setting"): option_name(f) for f in dataclasses.fields(CommandOptions)}
+        source = " or ".join(filter(None, (option.get(field_name), env_name(field_name))))
         raise UserError(f"setting {where} (from {source}) is invalid: {err['msg']}", "fix its value") from None
 
 
-def serve(given: dict[str, Any], *, store: str, scenes: Path | None) -> None:
+def serve(given: dict[str, Any]) -> None:
     """Serve GI maps over HTTP from the GI tree in --store."""
     from baseline_cloudbaking.server.stop import StoppingServer
-    from baseline_cloudbaking.store import store_folder
 
     with serving():
-        opts = build_config(ServeOptions, given)
-        folder = store_folder(store)
-        if scenes is not None and not scenes.is_dir():
-            raise UserError(f"--scenes {scenes} is not a folder", "give a folder of scene spec files")
-        settings = load_settings(opts, folder, scenes)
+        opts = build_config(CommandOptions, given)
+        if opts.scenes is not None and not opts.scenes.is_dir():
+            raise UserError(f"--scenes {opts.scenes} is not a folder", "give a folder of scene spec files")
+        settings = load_settings(opts)
         writable_dir(settings.store, name="--store")
         app, config = server_config(settings, opts.log_level)
         sock = bind(opts.host, opts.port)
@@ -193,21 +167,6 @@ def server_config(settings: Settings, log_level: str) -> tuple[FastAPI, uvicorn.
     return app, config
 
 
-config_command(
-    app,
-    ServeOptions,
-    serve,
-    extras=[
-        extra("store", Annotated[str, typer.Option("--store", help="GI-tree folder (created if missing)")]),
-        extra(
-            "scenes",
-            Annotated[
-                Path | None,
-                typer.Option("--scenes", help="folder of extra scene specs (*.toml, *.json), served by file stem"),
-            ],
-            None,
-        ),
-    ],
-)
+config_command(app, CommandOptions, serve)
 
 main = entry_point(app, resume="nothing is lost: the GI tree keeps every finished map")

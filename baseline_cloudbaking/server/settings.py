@@ -1,22 +1,32 @@
-"""Server settings: environment variables prefixed ``CLOUDBAKING_`` (e.g. ``CLOUDBAKING_STORE=/data/gi``),
-overridden by ``cloudbaking-server`` options. A ``CLOUDBAKING_*`` variable that names no setting is refused
-(:func:`check_environment`): a typo would otherwise leave the default in force without a word."""
+"""Server settings, declared once: environment variables prefixed ``CLOUDBAKING_`` (e.g.
+``CLOUDBAKING_MAX_SPP=64``), overridden by ``cloudbaking-server`` options. A ``CLOUDBAKING_*`` variable that
+names no setting is refused (:func:`check_environment`): a typo would otherwise leave the default in force
+without a word.
+
+Each setting is also an option of ``cloudbaking-server`` (:func:`setting_options`): ``--max-spp`` for
+``max_spp``, with the setting's description, default, variable and limits as its help and checks;
+:data:`OPTION_FORMS` says where an option differs from the setting (its name, its unit).
+"""
 
 from __future__ import annotations
 
+import dataclasses
 import os
+import typing
 from collections.abc import Mapping
 from functools import lru_cache
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
+from annotated_types import Ge, Gt, Le, Lt, MinLen
 from pydantic import Field, field_validator
+from pydantic.fields import FieldInfo
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
-from baseline_cloudbaking.store import DEFAULT_BUDGET_BYTES, DEFAULT_LIGHT_CELL
+from baseline_cloudbaking.store import DEFAULT_BUDGET_BYTES, DEFAULT_LIGHT_CELL, store_folder
 from baseline_cloudbaking.viewpoints import Tolerance
 from gicore.error_policy import UserError
-from gicore.options import RESOLUTION_MAX, RESOLUTION_MIN, SEED_MAX, SPP_MAX, THREADS
+from gicore.options import RESOLUTION_MAX, RESOLUTION_MIN, SEED_MAX, SPP_MAX, THREADS, as_typed
 
 ENV_PREFIX = "CLOUDBAKING_"
 #: Largest GI-tree budget, bytes (16 TiB).
@@ -146,3 +156,80 @@ def check_environment(environ: Mapping[str, str] = os.environ) -> None:
 def get_settings() -> Settings:
     """The settings from the environment, read once per process."""
     return Settings()
+
+
+# --- the settings as command-line options -----------------------------------------------------------------
+
+#: Where a setting's option differs from ``--setting-name`` of the setting's type: ``option`` renames it;
+#: ``scale`` takes it in ``unit`` (the setting is the option's value times ``scale``, in ``setting_unit``);
+#: ``type`` reads it as that type, checked by ``check``; ``required`` makes the command require it.
+OPTION_FORMS: Mapping[str, Mapping[str, Any]] = {
+    "store": {"type": str, "required": True, "check": lambda option, text: store_folder(text, option)},
+    "scenes_dir": {"option": "scenes"},
+    "budget_bytes": {"option": "budget_mb", "type": float, "scale": 2**20, "unit": "MiB", "setting_unit": "bytes"},
+}
+
+
+def setting_options(base: type) -> type:
+    """A frozen dataclass of ``base``'s fields then one option field per setting (:mod:`gicore.options`), each
+    None unless given, when the variable or the default holds: help, limits and checks from the setting."""
+    fields = [_option_field(name, info) for name, info in Settings.model_fields.items()]
+    return dataclasses.make_dataclass("SettingOptions", fields, bases=(base,), frozen=True)
+
+
+def given_settings(options: Any) -> dict[str, Any]:
+    """The settings that ``options`` (of :func:`setting_options`) give, in the settings' units."""
+    given = {}
+    for f in dataclasses.fields(options):
+        value = getattr(options, f.name)
+        if "setting" in f.metadata and value is not None:
+            scale = f.metadata.get("scale")
+            given[f.metadata["setting"]] = value if scale is None else round(value * scale)
+    return given
+
+
+def _option_field(name: str, info: FieldInfo) -> tuple[str, Any, Any]:
+    """The option field of setting ``name``: (field name, type, field)."""
+    form = OPTION_FORMS.get(name, {})
+    plain, entry = _plain(info.annotation)
+    scale = form.get("scale", 1)
+    default = info.default if scale == 1 else info.default / scale
+    shown = "" if default is None or as_typed(default) == "" else f"default: {as_typed(default)}; "
+    unit = f", in {form['unit']}" if "unit" in form else ""
+    env = env_name(name) + (f" in {form['setting_unit']}" if "setting_unit" in form else "")
+    source = "" if form.get("required") else f" ({shown}env {env})"  # a required option overrides both
+    metadata = {
+        **_limits([*info.metadata, *entry], scale),
+        **{k: form[k] for k in ("required", "check") if k in form},
+        "help": f"{info.description}{unit}{source}",
+        "setting": name,
+        **({"scale": scale} if scale != 1 else {}),
+    }
+    return form.get("option", name), form.get("type", plain) | None, dataclasses.field(default=None, metadata=metadata)
+
+
+def _plain(annotation: Any) -> tuple[Any, list[Any]]:
+    """A setting's type without ``None`` or constraints, and the constraints on each entry of a tuple."""
+    args = [a for a in typing.get_args(annotation) if a is not type(None)]
+    if typing.get_origin(annotation) is tuple and typing.get_origin(args[0]) is Annotated:
+        entry, *infos = typing.get_args(args[0])
+        return tuple[entry, ...], [c for i in infos for c in i.metadata]
+    if type(None) in typing.get_args(annotation):
+        return args[0], []
+    return annotation, []
+
+
+def _limits(constraints: list[Any], scale: float) -> dict[str, Any]:
+    """Pydantic's constraints as :mod:`gicore.options` limits (a number without a lower one must be > 0)."""
+    limits: dict[str, Any] = {"min_len": 0}
+    for c in constraints:
+        if isinstance(c, Ge):
+            limits["min"] = c.ge if scale == 1 else c.ge / scale
+        elif isinstance(c, Gt) and c.gt != 0:
+            raise TypeError(f"no option form for > {c.gt}: give the setting ge= or gt=0")
+        elif isinstance(c, (Le, Lt)):
+            bound = c.le if isinstance(c, Le) else c.lt
+            limits |= {"max": bound if scale == 1 else bound / scale, "max_open": isinstance(c, Lt)}
+        elif isinstance(c, MinLen):
+            limits["min_len"] = c.min_length
+    return limits

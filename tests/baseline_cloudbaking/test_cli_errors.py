@@ -110,7 +110,7 @@ def test_server_bad_store_scenes_and_port(scenes_dir: Path, tmp_path: Path) -> N
         ("--budget-mb", "inf", "--budget-mb = inf is not finite"),
         ("--budget-mb", "nan", "--budget-mb = nan is not finite"),
         ("--budget-mb", "1e30", "--budget-mb = 1e+30 is above 16777216.0"),
-        ("--budget-mb", "0", "--budget-mb = 0.0 is below 0.001"),
+        ("--budget-mb", "0", "--budget-mb = 0.0 is not positive"),
         ("--max-spp", "100000", "--max-spp = 100000 is above 4096"),
         ("--log-level", "loud", "--log-level"),
     ],

@@ -94,6 +94,28 @@ def test_settings_from_the_environment_are_checked_in_one_line(tmp_path: Path) -
     assert not (tmp_path / "s").exists()
 
 
+def test_every_setting_is_an_option_that_names_its_variable_and_overrides_it(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The settings are declared once: each is a cloudbaking-server option whose help is the setting's
+    description with its default and variable, and the option given wins over the variable."""
+    from typer.testing import CliRunner
+
+    from baseline_cloudbaking.server.cli import CommandOptions, app, load_settings
+    from baseline_cloudbaking.server.settings import OPTION_FORMS, env_name
+
+    help_text = " ".join(CliRunner(env={"COLUMNS": "400"}).invoke(app, ["--help"]).output.split())
+    for name, info in Settings.model_fields.items():
+        option = "--" + OPTION_FORMS.get(name, {}).get("option", name).replace("_", "-")
+        assert f"{option} " in help_text and info.description in help_text, name
+        if not OPTION_FORMS.get(name, {}).get("required"):
+            assert env_name(name) in help_text, name
+    assert "(default: 256; env CLOUDBAKING_MAX_SPP) [1 to 4096]" in help_text
+    assert "in MiB (default: 4096.0; env CLOUDBAKING_BUDGET_BYTES in bytes)" in help_text
+    monkeypatch.setenv("CLOUDBAKING_MAX_SPP", "8")
+    monkeypatch.setenv("CLOUDBAKING_MISS_QUEUE", "3")
+    settings = load_settings(CommandOptions(store="s", max_spp=16, budget_mb=0.5))
+    assert (settings.max_spp, settings.miss_queue, settings.budget_bytes) == (16, 3, 1 << 19)
+
+
 @pytest.mark.parametrize(
     "argv", [["cloudbaking-server", "--port", "0"], ["cloudbaking-prebake", "lung_plane"]], ids=lambda a: a[0]
 )
