@@ -1,7 +1,8 @@
 // Cloud baking in the browser: POST /v1/gimap (same origin: gigan-web forwards it to the server or to the
 // network-sim proxy), decode, pixel-level 3D warp in shaders (baseline_cloudbaking.warp: every texel with a
 // depth unprojected, projected into the local camera and splatted as a z-tested square of its footprint;
-// holes on surfaces filled from coarser mip levels, a push-pull), then eq. 1's blend.
+// holes on surfaces filled by gicore.fill's push-pull pyramid over the splats that landed on a surface), then
+// eq. 1's blend.
 
 import { FULLSCREEN_VERTEX, TONEMAP_GLSL, bindTarget, bindTextures, fullscreen, program, setUniforms, sync, target,
   texture } from "./glutil.js";
@@ -41,24 +42,74 @@ in vec3 v_gi;
 out vec4 o;
 void main() { o = vec4(v_gi, 1.0); }`;
 
-// Holes on surfaces take the finest mip level that covers them (alpha: covered fraction): a pull pass.
+// gicore.fill.push_pull, one pass per pyramid level. Texel (x, y) of a level in the image's row order (row 0 at
+// the top, as numpy's) is GL texel (x, h - 1 - y): the 2x2 blocks and the zero-weight padding of odd sizes fall
+// where push_pull's do. Levels hold colour premultiplied by the weight, the weight in alpha.
+const PYRAMID_GLSL = `
+ivec2 flip(ivec2 t, ivec2 size) { return ivec2(t.x, size.y - 1 - t.y); }  // image rows <-> GL rows
+`;
+
+// Pull: a level from the finer one, weight-normalised 2x2 sums with the weight clipped to 1. From the splat
+// (u_first), the weight is 1 where a point landed on a surface of the local view, else 0.
+const PULL_FRAGMENT = `#version 300 es
+precision highp float;
+precision highp int;
+uniform highp sampler2D u_fine;
+uniform highp sampler2D u_di;  // u_first: the local surface mask in alpha
+uniform bool u_first;
+out vec4 o;
+${PYRAMID_GLSL}
+vec4 fine(ivec2 t, ivec2 size) {
+  if (t.x >= size.x || t.y >= size.y) return vec4(0.0);  // padding
+  ivec2 g = flip(t, size);
+  vec4 c = texelFetch(u_fine, g, 0);
+  if (!u_first) return c;
+  float w = c.a > 0.0 && texelFetch(u_di, g, 0).a > 0.0 ? 1.0 : 0.0;
+  return vec4(c.rgb * w, w);
+}
+void main() {
+  ivec2 size = textureSize(u_fine, 0);
+  ivec2 t = 2 * flip(ivec2(gl_FragCoord.xy), (size + 1) / 2);
+  vec4 s = fine(t, size) + fine(t + ivec2(1, 0), size) + fine(t + ivec2(0, 1), size) + fine(t + ivec2(1, 1), size);
+  float w = min(s.a, 1.0);
+  o = vec4(s.rgb * (w / max(s.a, 1e-12)), w);
+}`;
+
+// Push, coarse to fine: a level's own premultiplied colour plus (1 - weight) x its coarser parent (pixels
+// repeated 2x2, as push_pull's); the coarsest level (u_top) is its colour over its weight.
+const PUSH_FRAGMENT = `#version 300 es
+precision highp float;
+precision highp int;
+uniform highp sampler2D u_pull;
+uniform highp sampler2D u_coarser;
+uniform bool u_top;
+out vec4 o;
+${PYRAMID_GLSL}
+void main() {
+  ivec2 p = ivec2(gl_FragCoord.xy);
+  vec4 c = texelFetch(u_pull, p, 0);
+  if (u_top) { o = vec4(c.rgb / max(c.a, 1e-12), 1.0); return; }
+  ivec2 parent = flip(flip(p, textureSize(u_pull, 0)) / 2, textureSize(u_coarser, 0));
+  o = vec4(c.rgb + (1.0 - c.a) * texelFetch(u_coarser, parent, 0).rgb, 1.0);
+}`;
+
+// The finest level: the splat where a point landed on a surface (alpha 1), its pushed parent elsewhere on
+// surfaces (alpha 0), 0 off them.
 const FILL_FRAGMENT = `#version 300 es
 precision highp float;
+precision highp int;
 uniform highp sampler2D u_splat;
 uniform highp sampler2D u_di;   // alpha: the local surface mask
-uniform float u_levels;
+uniform highp sampler2D u_coarser;
 out vec4 o;
+${PYRAMID_GLSL}
 void main() {
   ivec2 p = ivec2(gl_FragCoord.xy);
   if (texelFetch(u_di, p, 0).a <= 0.0) { o = vec4(0.0); return; }
   vec4 s = texelFetch(u_splat, p, 0);
   if (s.a > 0.0) { o = vec4(s.rgb, 1.0); return; }
-  vec2 uv = (vec2(p) + 0.5) / vec2(textureSize(u_splat, 0));
-  for (float level = 1.0; level < u_levels; level += 1.0) {
-    vec4 c = textureLod(u_splat, uv, level);
-    if (c.a > 0.0) { o = vec4(c.rgb / c.a, 0.0); return; }
-  }
-  o = vec4(0.0);
+  ivec2 parent = flip(flip(p, textureSize(u_splat, 0)) / 2, textureSize(u_coarser, 0));
+  o = vec4(texelFetch(u_coarser, parent, 0).rgb, 0.0);
 }`;
 
 function invert(m) {
@@ -90,10 +141,19 @@ export class CloudSystem {
     this.config = config;
     const n = scene.n;
     this.splatProg = program(gl, SPLAT_VERTEX, SPLAT_FRAGMENT);
+    this.pullProg = program(gl, FULLSCREEN_VERTEX, PULL_FRAGMENT);
+    this.pushProg = program(gl, FULLSCREEN_VERTEX, PUSH_FRAGMENT);
     this.fillProg = program(gl, FULLSCREEN_VERTEX, FILL_FRAGMENT);
     this.blender = new Blend(gl);
-    this.splat = target(gl, n, n, [gl.RGBA16F], { mips: [0] });
+    this.splat = target(gl, n, n, [gl.RGBA16F]);
     this.warped = target(gl, n, n, [gl.RGBA32F], { depth: false });
+    // push-pull levels 1.. (each half the last, rounded up, down to 1x1): the pull's and the push's
+    this.pulled = [];
+    this.pushed = [];
+    for (let size = Math.ceil(n / 2); this.pulled.at(-1)?.w !== 1; size = Math.ceil(size / 2)) {
+      this.pulled.push(target(gl, size, size, [gl.RGBA32F], { depth: false }));
+      this.pushed.push(target(gl, size, size, [gl.RGBA32F], { depth: false }));
+    }
     this.bound = null;
   }
 
@@ -178,7 +238,7 @@ export class CloudSystem {
     this.bound = null;
   }
 
-  // Per frame: splat the bound map into the local camera, mipmap, fill holes on surfaces.
+  // Per frame: splat the bound map into the local camera, fill holes on surfaces (push-pull).
   warp(frame, diTarget) {
     const gl = this.gl;
     const b = this.bound;
@@ -196,14 +256,32 @@ export class CloudSystem {
       u_target_focal_px: frame.local.proj[0] * this.scene.n / 2, u_near: frame.local.near,
     });
     gl.drawArrays(gl.POINTS, 0, b.n);
-    gl.bindTexture(gl.TEXTURE_2D, this.splat.textures[0]);
-    gl.generateMipmap(gl.TEXTURE_2D);
-    bindTarget(gl, this.warped);
-    gl.useProgram(this.fillProg.p);
-    bindTextures(gl, this.fillProg, { u_splat: [4, this.splat.textures[0]], u_di: [5, diTarget.textures[0]] });
-    setUniforms(gl, this.fillProg, { u_levels: this.splat.textures[0].levels });
-    fullscreen(gl);
+    this.pushPull(diTarget);
     sync(gl, this.warped, 0);
+  }
+
+  // gicore.fill.push_pull of the splat over the local surface mask, into this.warped.
+  pushPull(diTarget) {
+    const gl = this.gl;
+    const pass = (prog, tgt, textures, uniforms) => {
+      bindTarget(gl, tgt);
+      gl.useProgram(prog.p);
+      bindTextures(gl, prog, textures);
+      setUniforms(gl, prog, uniforms);
+      fullscreen(gl);
+    };
+    const di = [5, diTarget.textures[0]];
+    this.pulled.forEach((level, i) => {
+      const fine = i === 0 ? this.splat : this.pulled[i - 1];
+      pass(this.pullProg, level, { u_fine: [4, fine.textures[0]], u_di: di }, { u_first: i === 0 });
+    });
+    for (let i = this.pushed.length - 1; i >= 0; i--) {
+      const coarser = this.pushed[i + 1] ?? this.pulled[i]; // the top reads no parent (any texture not drawn to)
+      pass(this.pushProg, this.pushed[i], { u_pull: [4, this.pulled[i].textures[0]], u_coarser: [6, coarser.textures[0]] },
+        { u_top: i === this.pushed.length - 1 });
+    }
+    pass(this.fillProg, this.warped,
+      { u_splat: [4, this.splat.textures[0]], u_di: di, u_coarser: [6, this.pushed[0].textures[0]] }, {});
   }
 
   blend(diTarget, tau) {
