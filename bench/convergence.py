@@ -13,6 +13,7 @@ import numpy as np
 
 from bench.present.declarations import Chart, Figure, wide
 from bench.runner import Bench
+from gicore import option_groups
 from gicore.metrics import all_metrics
 from gicore.paths import camera_path, light_position
 from gicore.results import Results
@@ -25,10 +26,8 @@ from gicore.tonemap import tonemap
 class ConvergenceConfig:
     """The parameter grid of one run."""
 
-    #: Scene names or spec files.
-    scenes: tuple[str, ...] = tuple(builtin_scenes())
-    #: Square resolution in pixels.
-    resolution: int = 256
+    scenes: tuple[str, ...] = option_groups.scenes(tuple(builtin_scenes()))
+    resolution: int = option_groups.resolution()
     #: Samples per pixel of the measured GT renders.
     spps: tuple[int, ...] = (1, 4, 16, 64, 256)
     #: Samples per pixel of the reference (other seed, no denoising).

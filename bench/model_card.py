@@ -22,6 +22,7 @@ from pathlib import Path
 from bench.common import train_small, training_minutes
 from bench.present.declarations import Chart, Figure, flat, matches
 from bench.runner import Bench, execute
+from gicore import option_groups
 from gicore.error_policy import UserError
 from gicore.metrics import LF_SIGMA
 from gicore.results import Results, read_rows
@@ -56,8 +57,9 @@ class ModelCardConfig:
     train_steps: int | None = None
     #: Generator width (ngf) of the small GIGAN trained here.
     width: int = 8
-    #: Scenes of the small datasets the model trained here learns from and is scored on.
-    scenes: tuple[str, ...] = ("lung_plane",)
+    scenes: tuple[str, ...] = option_groups.scenes(
+        note="the model trained here learns from their small datasets and is scored on them"
+    )
 
     @classmethod
     def quick(cls) -> ModelCardConfig:

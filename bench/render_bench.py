@@ -32,6 +32,7 @@ import numpy as np
 
 from bench.present.declarations import Chart, Column, Figure, Rows, Table, flat, matches, unique
 from bench.runner import Bench
+from gicore import option_groups
 from gicore.camera import Camera
 from gicore.error_policy import UserError
 from gicore.geometry import scene_objects
@@ -60,10 +61,8 @@ GPU_DRAW = "_gpu_draw"
 class RenderBenchConfig:
     """Which scenes to time, and how often."""
 
-    #: Scene names or spec files.
-    scenes: tuple[str, ...] = tuple(builtin_scenes())
-    #: Square resolution in pixels.
-    resolution: int = 256
+    scenes: tuple[str, ...] = option_groups.scenes(tuple(builtin_scenes()))
+    resolution: int = option_groups.resolution()
     #: Timed repeats of the cheap passes (DI, G-buffers), after two warm-ups.
     repeats: int = 7
     #: Timed repeats of the path-traced GT passes, after two warm-ups.

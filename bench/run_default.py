@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 from functools import partial
 
 from bench.runner import Bench, check_config, execute
+from gicore import option_groups
 from gicore.options import FRAMES
 from gicore.results import Results
 
@@ -25,8 +26,7 @@ from gicore.results import Results
 class RunDefaultConfig:
     """The scene and the renderers of the main job."""
 
-    #: The one scene (name or spec file) both benches run on.
-    scenes: tuple[str, ...] = field(default=("lung_plane",), metadata={"max_len": 1})
+    scenes: tuple[str, ...] = option_groups.scenes(one=True, note="both benches run on it")
     #: Renderers of the latency clients' raster passes (bench latency --renderers): gl, what a Web3D client
     #: rasterises with (mitsuba where no GL context opens); gl,mitsuba adds the side-by-side comparison.
     renderers: tuple[str, ...] = ("gl",)

@@ -16,7 +16,7 @@ import shutil
 import tempfile
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
@@ -28,6 +28,7 @@ from bench.common import Target
 from bench.present.declarations import Chart, Column, Derive, Figure, Rows, Table, Text, matches
 from bench.processes import client_cores, pinned_server, pinning
 from bench.runner import Bench, Block
+from gicore import option_groups
 from gicore.results import Results
 
 CodecName = Literal[CODEC_NAMES]  # type: ignore[valid-type]
@@ -56,14 +57,11 @@ TARGETS = (
 class ServiceConfig:
     """What one service run measures (see the module docstring)."""
 
-    #: The scene the server bakes and serves (name or spec file).
-    scenes: tuple[str, ...] = field(default=("lung_plane",), metadata={"max_len": 1})
-    #: Square GI-map resolution (the issue's targets are stated at 256).
-    resolution: int = 256
+    scenes: tuple[str, ...] = option_groups.scenes(one=True, note="the one the server bakes and serves")
+    resolution: int = option_groups.resolution(note="of the GI maps; the targets are stated at 256")
     #: GI-map codec.
     codec: CodecName = DEFAULT_CODEC
-    #: Path-tracing samples per pixel of each baked map (only the misses pay for it).
-    spp: int = 64
+    spp: int = option_groups.spp(note="of each baked map; only the misses pay for it")
     #: Distinct GI cameras baked by the misses and cycled over by the hits.
     views: int = 5
     #: Timed sequential hit requests from one client.

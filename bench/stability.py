@@ -18,7 +18,7 @@ import threading
 import time
 import traceback
 from contextlib import ExitStack
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -37,6 +37,7 @@ from bench.stability_io import (
     server_process,
     store_cases,
 )
+from gicore import option_groups
 from gicore.error_policy import UserError
 from gicore.results import Results
 from gigan_local.inference import DEFAULT_MODEL
@@ -50,12 +51,11 @@ STAGES = ("render", "tonemap", "inference", "warp", "composition", "codecs", "st
 class StabilityConfig:
     """What one stability run covers (see the module docstring)."""
 
-    #: The scene of the render, inference, warp and server cases (name or spec file).
-    scenes: tuple[str, ...] = field(default=("lung_plane",), metadata={"max_len": 1})
-    #: Square resolution of renders, GI maps and warps (inference runs at the model's own resolution).
-    resolution: int = 128
-    #: Samples per pixel of the path-traced GI maps, references and server maps.
-    spp: int = 16
+    scenes: tuple[str, ...] = option_groups.scenes(one=True, note="of the render, inference, warp and server cases")
+    resolution: int = option_groups.resolution(
+        128, note="of renders, GI maps and warps; inference runs at the model's own"
+    )
+    spp: int = option_groups.spp(16, note="of the GI maps, references and server maps")
     #: ONNX generator of the inference cases (gigan-export output).
     model: Path = DEFAULT_MODEL
     #: Longest one case may run, s; past it the case is a hang (a failure).

@@ -21,6 +21,7 @@ from pathlib import Path
 from bench.common import train_small, training_minutes
 from bench.present.declarations import Chart, Figure, Rows, matches, pick, unique
 from bench.runner import Bench
+from gicore import option_groups
 from gicore.error_policy import UserError
 from gicore.results import Results
 
@@ -35,8 +36,9 @@ class TrainingBenchConfig:
     train_steps: int | None = None
     #: Generator widths (ngf) of the runs trained here.
     widths: tuple[int, ...] = (8, 16)
-    #: Scenes whose small datasets (rendered into <out>/dataset) the runs trained here learn from.
-    scenes: tuple[str, ...] = ("lung_plane",)
+    scenes: tuple[str, ...] = option_groups.scenes(
+        note="the runs trained here learn from their small datasets, rendered into <out>/dataset"
+    )
 
     @classmethod
     def quick(cls) -> TrainingBenchConfig:
