@@ -116,7 +116,9 @@ def _panel(ax: Any, chart: Chart, points: list[dict], rows: Rows, tips: Tips) ->
             axis.set_major_formatter(ticker.LogFormatter())
             axis.set_minor_formatter(ticker.LogFormatter(minor_thresholds=(1, 0.4)))
     ax.grid(alpha=0.3, which="both")
-    if any(series):
+    if len(series) > 10:  # a long legend goes beside the chart, in columns of at most 18
+        ax.legend(fontsize=5, ncols=-(-len(series) // 18), loc="upper left", bbox_to_anchor=(1.02, 1.0))
+    elif any(series):
         ax.legend(fontsize=6)
 
 

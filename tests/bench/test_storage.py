@@ -29,8 +29,9 @@ def test_storage_bench_matches_a_real_prebake(tmp_path: Path) -> None:
     assert {p.name for p in files} >= {
         "storage.csv",
         "storage.provenance.json",
-        "storage_table2.md",
+        "storage.md",
         "storage.png",
+        "storage.svg",
         "storage_tolerance.png",
         "storage_growth.png",
     }
@@ -71,4 +72,4 @@ def test_storage_bench_matches_a_real_prebake(tmp_path: Path) -> None:
     assert value("knob_entries", knob_position=0.5) < value("knob_entries", knob_position=0.05)
     assert value("knob_hit_rate", knob_position=0.5) >= value("knob_hit_rate", knob_position=0.05)
     assert 0.0 < value("knob_ssim_warped", "mean", knob_position=0.5) <= 1.0
-    assert "| ball_moving |" in (tmp_path / "out" / "storage_table2.md").read_text()
+    assert "| ball_moving |" in (tmp_path / "out" / "storage.md").read_text()

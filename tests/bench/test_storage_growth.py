@@ -13,10 +13,8 @@ from baseline_cloudbaking.bake import fly_through, gi_camera
 from baseline_cloudbaking.store import DEFAULT_LIGHT_CELL, GITree
 from baseline_cloudbaking.viewpoints import MapKey, Tolerance, light_cell
 from bench.runner import build_config
-from bench.storage import (
-    PAPER_TOLERANCE,
-    RAW_CODEC,
-    StorageConfig,
+from bench.storage_config import PAPER_TOLERANCE, RAW_CODEC, StorageConfig
+from bench.storage_growth import (
     _growth_entry_bytes,
     capacity,
     fill_sessions,

@@ -1,0 +1,373 @@
+"""`bench storage`'s growth law: the GI tree under many user sessions (:mod:`gicore.sessions`, or recorded path
+files), filled by the store's own lookup rule; its saturation, the sessions until it passes the model or the
+paper's figure, bytes per entry measured on maps baked at entries spread over the tree; and the paper's
+accounting along the fly-through, decomposed."""
+
+from __future__ import annotations
+
+import json
+from collections import defaultdict
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+
+from baseline_cloudbaking.bake import BakedMap, PathFrame, bake_map, gi_camera, map_header
+from baseline_cloudbaking.codecs import DEPTH_CODEC, get_codec
+from baseline_cloudbaking.protocol import pack
+from baseline_cloudbaking.viewpoints import Tolerance, Viewpoint, light_cell, simulate_fill
+from bench.storage_config import LIGHT_SCAN_FRAMES, PAPER_TABLE2_GB, PAPER_TOLERANCE, RAW_CODEC, StorageConfig
+from gicore.camera import Camera
+from gicore.loop import Light
+from gicore.path_file import PathFile, read_sessions
+from gicore.paths import frame_seed, light_position
+from gicore.render_cache import RenderCache
+from gicore.results import Results
+from gicore.scene import SceneSpec, load_scene
+from gicore.sessions import Session, navigable_views, plan_sessions, session_views
+from gicore.tonemap import tonemap
+
+
+def entry_frames(served: list[int]) -> list[int]:
+    """The frame that created each entry (entries are numbered in insertion order)."""
+    first: dict[int, int] = {}
+    for frame, entry in enumerate(served):
+        first.setdefault(entry, frame)
+    return [first[e] for e in range(len(first))]
+
+
+@dataclass(frozen=True)
+class SessionFrames:
+    """Every frame of a run of sessions as the GI tree sees it: GI camera and light, viewpoint, light cell
+    (None for a static light), and the frame count after each session."""
+
+    frames: list[tuple[Camera, Light]]
+    views: list[Viewpoint]
+    cells: list[tuple[int, int, int] | None]
+    ends: np.ndarray
+
+
+@dataclass(frozen=True)
+class SessionFill:
+    """The GI tree filled by the lookup rule along sessions: entries after each session, and the frame (GI
+    camera, light) that created each entry, in insertion order."""
+
+    entries: np.ndarray
+    creators: list[tuple[Camera, Light]]
+
+
+def session_frames(
+    spec: SceneSpec, sessions: Sequence[Session | PathFile], light_cell_size: float, fov: float
+) -> SessionFrames:
+    """The frames of ``sessions`` in turn at GI FOV ``fov``: seeded ones (:func:`gicore.sessions.session_views`)
+    or recorded ones (path files)."""
+    size = light_cell_size if spec.light.moves else None
+    frames: list[tuple[Camera, Light]] = []
+    views: list[Viewpoint] = []
+    ends = []
+    for session in sessions:
+        seen: dict[int, Viewpoint] = {}  # a session's laps repeat their cameras: one viewpoint per camera
+        if isinstance(session, PathFile):
+            flown = session.views(spec.resolution, fov)
+        else:
+            flown = session_views(spec, session, fov, spec.resolution)
+        for cam, light in flown:
+            if id(cam) not in seen:
+                seen[id(cam)] = Viewpoint.look_at(cam.origin, cam.target)
+            views.append(seen[id(cam)])
+            frames.append((cam, light))
+        ends.append(len(views))
+    cells = [light_cell(light, size) for _, light in frames]
+    return SessionFrames(frames, views, cells, np.asarray(ends))
+
+
+def fill_sessions(run: SessionFrames, tol: Tolerance) -> SessionFill:
+    """Walk the sessions' frames through one empty tree with the store's own rule
+    (:func:`baseline_cloudbaking.viewpoints.simulate_fill`: nearest stored viewpoint within ``tol`` in the same
+    light cell, else a new entry)."""
+    served = simulate_fill(run.views, run.cells, tol)
+    running = np.maximum.accumulate(served) + 1
+    return SessionFill(running[run.ends - 1], [run.frames[f] for f in entry_frames(served)])
+
+
+def capacity(spec: SceneSpec, tol: Tolerance, light_cell_size: float, samples: int, seed: int) -> dict[str, float]:
+    """What the tree holds once every configuration has been visited, estimated: the lookup rule over
+    ``samples`` viewpoints drawn uniformly from the navigable space (:func:`gicore.sessions.navigable_views`)
+    fills one light cell; times the light cells the light's schedule reaches. A lower estimate while the
+    last tenth of the samples still adds entries (``last_tenth_miss_rate``)."""
+    views = [Viewpoint.look_at(eye, target) for eye, target in navigable_views(spec, samples, seed)]
+    served = np.asarray(simulate_fill(views, [None] * samples, tol))
+    per_cell = int(served.max()) + 1
+    tail = served[int(0.9 * samples) :]
+    before = int(served[: int(0.9 * samples)].max()) + 1 if samples >= 10 else 0
+    size = light_cell_size if spec.light.moves else None
+    cells = len({light_cell(light_position(spec, f), size) for f in range(LIGHT_SCAN_FRAMES)})
+    return {
+        "entries": per_cell * cells,
+        "per_cell": per_cell,
+        "light_cells": cells,
+        "last_tenth_miss_rate": (per_cell - before) / max(len(tail), 1),
+    }
+
+
+def saturation_session(entries: np.ndarray, frames: int | np.ndarray, rate: float) -> int | None:
+    """The session count after which no later session adds more than ``rate`` × ``frames`` entries (``frames``:
+    one count for all, or each session's), with at
+    least max(2, n // 10) sessions seen after it (else None: not saturated within the sessions run)."""
+    added = np.diff(np.concatenate([[0], entries]))
+    over = np.flatnonzero(added > rate * frames)
+    k = int(over[-1]) + 1 if len(over) else 0  # sessions up to k still grew the tree by more
+    return max(k, 1) if len(entries) - k >= max(2, len(entries) // 10) else None
+
+
+def first_session_over(entries: np.ndarray, bytes_per_entry: float, limit: float) -> int | None:
+    """The first session count whose tree (entries × bytes per entry) exceeds ``limit`` bytes, or None."""
+    over = np.flatnonzero(entries * bytes_per_entry > limit)
+    return int(over[0]) + 1 if len(over) else None
+
+
+def _cached_bake(cfg: StorageConfig, renderer, spec: SceneSpec, camera: Camera, light: Light, seed: int) -> BakedMap:
+    """A GI map (GI + texel depth, no DI) from ``cfg.map_cache``, baked and stored there on a miss."""
+
+    def bake() -> dict[str, np.ndarray]:
+        baked = bake_map(renderer, camera, light, cfg.spp, seed, di=False)
+        times = np.array([baked.render_ms, baked.denoise_ms])
+        return {"gi": baked.gi, "depth": baked.depth, "times_ms": times}
+
+    key = ("gi_map", camera, list(light), cfg.spp, seed, renderer.resolution)
+    entry = RenderCache(cfg.map_cache, spec).fetch(key, bake)
+    return BakedMap(camera, entry["gi"], None, entry["depth"], *map(float, entry["times_ms"]))
+
+
+def _growth_entry_bytes(
+    cfg: StorageConfig, spec: SceneSpec, name: str, creators: list[tuple[Camera, Light]], seed: int
+) -> dict[tuple[int, str], list[int]]:
+    """Bytes per entry, measured on ``growth_samples`` maps baked at entries spread over the session tree
+    (by insertion order, so over the sessions): the stored payload (GI + depth, blend) per codec, and the
+    GI map as uncompressed RGB8 (the paper's accounting), per resolution."""
+    from gicore.render import Renderer
+
+    n = min(cfg.growth_samples, len(creators))
+    picks = sorted({int(round(k)) for k in np.linspace(0, len(creators) - 1, n)})
+    sizes: dict[tuple[int, str], list[int]] = defaultdict(list)
+    for resolution in cfg.resolutions:
+        renderer = Renderer(spec, resolution)
+        for i in picks:
+            cam, light = creators[i]
+            camera = gi_camera(spec, cam.origin, cam.target, cam.up, cam.fov, resolution)
+            baked = _cached_bake(cfg, renderer, spec, camera, light, frame_seed(seed, f"growth/{name}", i))
+            sizes[(resolution, RAW_CODEC)].append(len(rgb8(baked.gi).tobytes()))
+            depth = DEPTH_CODEC.encode(baked.depth)
+            for codec_name in cfg.codecs:
+                header = map_header(baked, name, codec_name, cfg.spp, light if spec.light.moves else None, 0.0)
+                sizes[(resolution, codec_name)].append(
+                    len(pack(header, {"gi": get_codec(codec_name).encode(baked.gi), "depth": depth}))
+                )
+    return sizes
+
+
+def rgb8(gi: np.ndarray) -> np.ndarray:
+    """A GI map as the paper stores it: tone-mapped, 8 bits per channel, uncompressed (HxWx3 uint8)."""
+    return np.round(np.clip(tonemap(gi), 0.0, 1.0) * 255.0).astype(np.uint8)
+
+
+def _growth_sessions_grid(n: int) -> list[int]:
+    """Session counts at which byte curves are written: about 24, log-spaced, always 1 and n."""
+    return sorted({int(round(x)) for x in np.geomspace(1, n, min(n, 24))} | {1, n})
+
+
+class GrowthSessions(NamedTuple):
+    """The sessions of ``spec``'s growth law: ``cfg`` as it runs them, the recorded sessions (None: seeded
+    ones), each session's frames, and the key of the fill they make (:func:`growth_sessions`)."""
+
+    cfg: StorageConfig
+    recorded: list[PathFile] | None
+    frames: int | np.ndarray
+    space: str
+
+
+def growth_sessions(cfg: StorageConfig, spec: SceneSpec) -> GrowthSessions:
+    """The seeded sessions of ``cfg``, or with ``cfg.sessions_from`` the recorded ones of ``spec``: one curve, of
+    as many sessions as there are files, each its own length (``session_frames`` their mean). Entries depend on
+    the camera envelope and the light only, so scenes that share both share a seeded fill; recorded sessions
+    are the scene's own."""
+    key = [spec.camera.model_dump(mode="json"), spec.light.model_dump(mode="json")]
+    if cfg.sessions_from is None:
+        return GrowthSessions(cfg, None, cfg.session_frames, json.dumps(key, sort_keys=True))
+    recorded = read_sessions(cfg.sessions_from, [load_scene(s) for s in cfg.scenes])[spec.name]
+    lengths = np.array([len(p.frames) for p in recorded])
+    cfg = replace(cfg, sessions=len(recorded), users=(1,), session_frames=round(float(lengths.mean())))
+    return GrowthSessions(cfg, recorded, lengths, json.dumps([*key, spec.name], sort_keys=True))
+
+
+def measure_growth(
+    cfg: StorageConfig, res: Results, scene: str, model_bytes: dict[str, int], memo: dict
+) -> dict[tuple[int, str], list[int]]:
+    """The growth law of one scene (module docstring): entries after each session per user count and
+    tolerance, bytes per codec and resolution, saturation, crossover with the model, the paper's figures."""
+    spec, name = load_scene(scene), Path(scene).stem
+    cfg, recorded, session_lengths, space = growth_sessions(cfg, spec)
+    fills = _fills(cfg, spec, recorded, space, memo, res.seed)
+    if (space, "capacity") not in memo:
+        memo[(space, "capacity")] = capacity(spec, cfg.tolerance, cfg.light_cell, cfg.capacity_samples, res.seed)
+    cap = memo[(space, "capacity")]
+    sizes = _growth_entry_bytes(cfg, spec, name, fills[(max(cfg.users), "store")].creators, res.seed)
+    common = {"session_frames": cfg.session_frames, "light_cell": cfg.light_cell}
+    common |= {"tolerance_position": cfg.tolerance.position, "tolerance_angle_deg": cfg.tolerance.angle_deg}
+    common |= {} if recorded is None else {"sessions_from": str(cfg.sessions_from)}
+    add = {"system": "cloud_baking", "scene": name}
+    basis = f"measured: {len(next(iter(sizes.values())))} maps baked at entries spread over the session tree"
+    for (resolution, codec), values in sizes.items():
+        row = {"resolution": resolution, "codec": codec, "composition": "gi" if codec == RAW_CODEC else "blend"}
+        v = np.asarray(values, dtype=np.float64)
+        std = float(v.std(ddof=1)) if len(v) > 1 else 0.0
+        for stat, value, unit in (("mean", float(v.mean()), "bytes"), ("std", std, "bytes"), ("n", len(v), "count")):
+            res.add(**add, metric="growth_entry_bytes", value=value, unit=unit, stat=stat, basis=basis, **row)
+    res.add(
+        **add,
+        metric="capacity_entries",
+        value=cap["entries"],
+        unit="count",
+        stat="estimate",
+        samples=cfg.capacity_samples,
+        per_cell=cap["per_cell"],
+        light_cells=cap["light_cells"],
+        last_tenth_miss_rate=cap["last_tenth_miss_rate"],
+        basis="counted: the lookup rule over uniform samples of the navigable space, per light cell x light cells",
+        **common,
+    )
+    for (users, label), fill in fills.items():
+        tol = cfg.tolerance if label == "store" else PAPER_TOLERANCE
+        at = common | {"users": users, "tolerance": label, "tolerance_position": tol.position}
+        at |= {"tolerance_angle_deg": tol.angle_deg}
+        _record_fill(res, cfg, name, fill, session_lengths, cap if label == "store" else None, at)
+        for (resolution, codec), values in sizes.items():
+            if (codec == RAW_CODEC) == (label == "paper"):  # the paper's accounting is Δ 0 with RGB8 maps
+                row = at | {"resolution": resolution, "codec": codec}
+                row["composition"] = "gi" if codec == RAW_CODEC else "blend"
+                _record_bytes(res, cfg, name, fill, float(np.mean(values)), model_bytes, row)
+    return sizes
+
+
+def _fills(
+    cfg: StorageConfig, spec: SceneSpec, recorded: list[PathFile] | None, space: str, memo: dict, seed: int
+) -> dict[tuple[int, str], SessionFill]:
+    """The tree filled along the sessions per user count, at the store's tolerance and (for the most users) at
+    the paper's Δ 0, which needs no user model (every frame is its own map); fills of the same space are shared
+    through ``memo``."""
+    widest = max(cfg.users)
+    fills: dict[tuple[int, str], SessionFill] = {}
+    for users in cfg.users:
+        for label, tol in (("store", cfg.tolerance), ("paper", PAPER_TOLERANCE))[: 2 if users == widest else 1]:
+            key = (space, users, label)
+            if key not in memo:
+                if (space, users) not in memo:
+                    plan = recorded or plan_sessions(spec, cfg.sessions, users, cfg.session_frames, seed)
+                    memo[(space, users)] = session_frames(spec, plan, cfg.light_cell, spec.camera.gi_fov)
+                memo[key] = fill_sessions(memo[(space, users)], tol)
+            fills[(users, label)] = memo[key]
+        memo.pop((space, users), None)  # the frames are only needed until both fills are done
+    return fills
+
+
+def _record_fill(
+    res: Results,
+    cfg: StorageConfig,
+    name: str,
+    fill: SessionFill,
+    lengths: int | np.ndarray,
+    cap: dict | None,
+    at: dict,
+) -> None:
+    """The entries after each session of one fill, and when it saturated."""
+    add = {"system": "cloud_baking", "scene": name}
+    for k, n in enumerate(fill.entries, start=1):
+        res.add(
+            **add,
+            metric="growth_entries",
+            value=int(n),
+            unit="count",
+            sessions=k,
+            basis="counted: the GI tree's lookup rule along the sessions",
+            **at,
+        )
+    sat = saturation_session(fill.entries, lengths, cfg.saturation_rate)
+    entries = int(fill.entries[-1] if sat is None else fill.entries[sat - 1])
+    last = int(fill.entries[-1] - (fill.entries[-2] if len(fill.entries) > 1 else 0))
+    res.add(
+        **add,
+        metric="saturation_sessions",
+        value=cfg.sessions if sat is None else sat,
+        unit="count",
+        stat="beyond" if sat is None else "measured",
+        saturation_rate=cfg.saturation_rate,
+        sessions_run=cfg.sessions,
+        entries=entries,
+        capacity_fraction=None if cap is None else float(fill.entries[-1]) / cap["entries"],
+        last_added=last,
+        **at,
+    )
+
+
+def _record_bytes(
+    res: Results, cfg: StorageConfig, name: str, fill: SessionFill, per_entry: float, model_bytes: dict, row: dict
+) -> None:
+    """A fill's bytes (entries x ``per_entry``) after the grid's sessions, and the first session it passes each
+    model file and the paper's figure for the scene."""
+    add = {"system": "cloud_baking", "scene": name}
+    for k in _growth_sessions_grid(cfg.sessions):
+        res.add(
+            **add,
+            metric="growth_bytes",
+            value=float(fill.entries[k - 1]) * per_entry,
+            unit="bytes",
+            stat="estimate",
+            sessions=k,
+            basis="counted entries x measured mean bytes per entry",
+            **row,
+        )
+    limits = {f"model_{p}": float(b) for p, b in model_bytes.items()}
+    paper_gb = PAPER_TABLE2_GB.get(name.split("_")[0])
+    limits |= {} if paper_gb is None else {"paper_gb": paper_gb * 1e9}
+    for what, limit in limits.items():
+        k = first_session_over(fill.entries, per_entry, limit)
+        res.add(
+            **add,
+            metric="crossover_sessions",
+            value=cfg.sessions if k is None else k,
+            unit="count",
+            stat="beyond" if k is None else "measured",
+            against=what,
+            limit_bytes=limit,
+            **row,
+        )
+
+
+def paper_accounting(
+    cfg: StorageConfig, res: Results, name: str, path: list[PathFrame], n_entries: int, sizes: dict
+) -> None:
+    """The paper's GB figure along the fly-through, then decomposed: one uncompressed RGB8 map per frame (Δ 0,
+    counted with the lookup rule), the store's tolerance (same maps, counted entries), each codec's GI
+    section, then the stored payload (GI + depth + header). Bytes per entry measured (growth law's maps)."""
+    paper_entries = max(simulate_fill([f.view for f in path], [f.cell for f in path], PAPER_TOLERANCE)) + 1
+    resolution = cfg.paper_resolution
+    raw = float(np.mean(sizes[(resolution, RAW_CODEC)]))
+    steps = [("paper", "rgb8 per frame", paper_entries, raw), ("tolerance", RAW_CODEC, n_entries, raw)]
+    steps += [("payload", c, n_entries, float(np.mean(sizes[(resolution, c)]))) for c in cfg.codecs]
+    for step, codec, entries, per_entry in steps:
+        row = {"step": step, "codec": codec, "resolution": resolution, "frames": cfg.frames}
+        tol = PAPER_TOLERANCE if step == "paper" else cfg.tolerance
+        row |= {"tolerance_position": tol.position, "tolerance_angle_deg": tol.angle_deg}
+        res.add(system="cloud_baking", scene=name, metric="accounting_entries", value=int(entries), unit="count", **row)
+        res.add(
+            system="cloud_baking",
+            scene=name,
+            metric="accounting_bytes",
+            value=entries * per_entry,
+            unit="bytes",
+            stat="estimate",
+            bytes_per_entry=per_entry,
+            **row,
+        )
