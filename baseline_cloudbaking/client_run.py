@@ -163,14 +163,17 @@ def run_client(
     the renderer that ran the per-frame raster passes: ``"mitsuba"`` when ``gl`` was asked and no GL context
     opened, see :func:`gicore.loop.open_raster`).
 
-    The local DI and the warp's surface-mask pass use ``cfg.renderer``; the GT stays with Mitsuba. Composed
+    The local DI and the warp's surface-mask pass use ``cfg.renderer``, the warp and the composition
+    ``cfg.warp_backend`` (:func:`gicore.gl.frame.warp_backend`); the GT stays with Mitsuba. Composed
     frames of scored frames are kept and scored against the GT after the run, so the GT renders neither
     delay frames nor change when requests go out. With ``cfg.hold`` tolerance the loop asks every frame and the
     source decides (:class:`RequestPolicy`). Each row also has :data:`PERCEIVED_COLUMNS`
     (:func:`perceived_latency`).
     """
+    from baseline_cloudbaking.gl_warp import GLPixelWarp
     from baseline_cloudbaking.warp import PixelWarp
     from gicore.gl import GLRenderer, RasterUnavailable
+    from gicore.gl.frame import warp_backend
     from gicore.loop import CLIENT_LOD, LAYERS, ClientLoop, LoopConfig, open_raster, run_frames
     from gicore.path_file import flown_path
     from gicore.render import Renderer
@@ -195,7 +198,8 @@ def run_client(
     next_start: list[float] = []
 
     with RemoteSource(remote, policy) as source:
-        warp = PixelWarp(LAYERS[cfg.composition])
+        on_gl = warp_backend(cfg.warp_backend, used, warn=True) == "gl"
+        warp = GLPixelWarp(raster, LAYERS[cfg.composition]) if on_gl else PixelWarp(LAYERS[cfg.composition])
         loop = ClientLoop(loop_cfg, raster, source, warp)
 
         def keep(frame: int, result) -> None:

@@ -174,11 +174,18 @@ class Warp(Protocol):
 
 
 @runtime_checkable
-class FrameWarp(Warp, Protocol):
-    """A warp that also draws its frame and composes it in the GL renderer's context (``gicore.gl.frame``):
-    ``frame(camera, light, composition, tau)`` is a whole frame with a map bound, DI, warp and composition, as
-    (HxWx3 image, HxW valid mask, ms of ``di``, its per-frame ``stages`` and ``compose``); only the image and
-    the mask are read back."""
+class FrameWarp(Protocol):
+    """A warp whose frames are drawn, warped and composed in the GL renderer's context (``gicore.gl.frame``):
+    :class:`Warp`'s attributes and ``bind``, and in place of ``warp``, ``frame(camera, light, composition,
+    tau)``: a whole frame with a map bound, as (HxWx3 image, HxW valid mask, ms of ``di``, its per-frame
+    ``stages`` and ``compose``); only the image and the mask are read back."""
+
+    name: str
+    layer: str
+    raster: str | None
+    stages: tuple[str, ...]
+
+    def bind(self, gi: GIMap) -> Timings: ...
 
     def frame(
         self, camera: Camera, light: Light, composition: str, tau: float
@@ -427,7 +434,7 @@ class ClientLoop:
     """One client: DI renders on ``renderer``, GI maps from ``source``, brought to each view by ``warp``
     (see the module docstring). :meth:`step` runs one frame."""
 
-    def __init__(self, cfg: LoopConfig, renderer: Renderer, source: GISource, warp: Warp):
+    def __init__(self, cfg: LoopConfig, renderer: Renderer, source: GISource, warp: Warp | FrameWarp):
         if warp.layer != LAYERS[cfg.composition]:
             raise ValueError(
                 f"the {cfg.composition} composition needs a warp of the {LAYERS[cfg.composition]!r} layer,"

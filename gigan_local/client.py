@@ -210,12 +210,19 @@ def make_gi_source(
     return ModelSource(raster, load_model(cfg.model, cfg.threads, raster.resolution, cfg.inference), cfg.seed)
 
 
-def make_warp(method: str, renderer: Renderer, composition: str) -> Warp:
-    """GIGAN's warp ``method`` (:data:`WARPS`) for ``composition`` (which layer of the map it warps)."""
+def make_warp(method: str, renderer: Renderer, composition: str, backend: str = "numpy") -> Warp:
+    """GIGAN's warp ``method`` (:data:`WARPS`) for ``composition`` (which layer of the map it warps), on
+    ``backend`` (``numpy``, or ``gl``: :class:`gigan_local.gl_warp.GLStructureWarp` on a GL ``renderer``)."""
     if method not in WARPS:
         raise ValueError(f"warp must be one of {WARPS}, got {method!r}")
     layer = LAYERS[composition]
-    return StructureAwareWarp(renderer, layer) if method == "structure" else PasteWarp(layer)
+    if method == "none":
+        return PasteWarp(layer)
+    if backend == "gl":
+        from gigan_local.gl_warp import GLStructureWarp
+
+        return GLStructureWarp(renderer, layer)
+    return StructureAwareWarp(renderer, layer)
 
 
 # -- a run --------------------------------------------------------------------------------------------------
@@ -278,7 +285,10 @@ def run_client(
         check_denoiser(cfg.denoise)
     local_fov, _ = cfg.fovs(spec)
     source = make_gi_source(cfg, renderer, raster=raster)
-    loop = ClientLoop(cfg.loop_config(spec), raster, source, make_warp(cfg.warp, raster, cfg.composition))
+    from gicore.gl.frame import warp_backend
+
+    backend = warp_backend(cfg.warp_backend, getattr(raster, "name", "mitsuba"), warn=True)
+    loop = ClientLoop(cfg.loop_config(spec), raster, source, make_warp(cfg.warp, raster, cfg.composition, backend))
     views = (flown or flown_path(spec, cfg, cfg.seed, local_fov)).views(cfg.resolution)
     ground_truth = cfg.ground_truth(renderer, spec) if cfg.gt_every else None
     return run_frames(loop, views, ground_truth, on_frame)
@@ -310,7 +320,9 @@ def run(cfg: ClientConfig, out: Path, save_frames: bool = False, video: bool = F
     rows = run_client(cfg, renderer, on_frame=keep if (save_frames or video) else None, raster=raster, flown=flown)
     write_rows(rows, out / "frames.csv")
     summary = {"config": cfg.as_json(), "frames": len(rows)}
-    summary |= {"renderer": used} | summarize(rows, cfg.every)
+    from gicore.gl.frame import warp_backend
+
+    summary |= {"renderer": used, "warp_backend": warp_backend(cfg.warp_backend, used)} | summarize(rows, cfg.every)
     if cfg.gi_source == "model":
         summary["inference"] = resolve_inference(cfg.inference)
     if video:

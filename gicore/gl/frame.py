@@ -11,17 +11,45 @@ its own GPU work and none is pushed into the read-back.
 
 from __future__ import annotations
 
+import sys
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from gicore.gl.blend import GLCompose
+from gicore.gl.context import gl_info
 from gicore.gl.passes import Target
+from gicore.loop import WARP_BACKENDS
 from gicore.timing import Stopwatch
 
 if TYPE_CHECKING:
     from gicore.camera import Camera
     from gicore.gl.renderer import GLRenderer
+
+#: GL_RENDERER names (lower case) of rasterisers that run on the CPU.
+CPU_RASTERISERS = ("llvmpipe", "softpipe", "lavapipe", "swiftshader")
+
+
+def warp_backend(choice: str, renderer: str, warn: bool = False) -> str:
+    """The backend (``numpy`` or ``gl``) of a client's warp and composition for ``--warp-backend choice``
+    (:data:`gicore.loop.WARP_BACKENDS`) when its raster passes run on ``renderer`` (``gl`` or ``mitsuba``).
+
+    ``auto`` is the measured default per renderer: ``gl`` where GL renders on a GPU; ``numpy`` on Mitsuba and on
+    a CPU rasteriser (:data:`CPU_RASTERISERS`), where the shaders run no faster than numpy (docs/architecture.md,
+    OpenGL passes). ``gl`` without the GL renderer (no GL context opened) is ``numpy``, after one warning line
+    when ``warn``."""
+    if choice not in WARP_BACKENDS:
+        raise ValueError(f"warp backend must be one of {WARP_BACKENDS}, got {choice!r}")
+    if choice == "numpy" or (renderer != "gl" and choice == "auto"):
+        return "numpy"
+    if renderer != "gl":
+        if warn:
+            print("warning: warp backend gl needs the GL renderer, using numpy", file=sys.stderr, flush=True)
+        return "numpy"
+    if choice == "gl":
+        return "gl"
+    name = gl_info()["GL_RENDERER"].lower()
+    return "numpy" if any(cpu in name for cpu in CPU_RASTERISERS) else "gl"
 
 
 class ShaderWarp:
