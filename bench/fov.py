@@ -25,6 +25,7 @@ from bench.common import WARP_LABELS, make_warp
 from bench.exported_models import check_model_resolution
 from bench.present.declarations import Chart, Column, Figure, Rows, Table, per, pick, spread, unique, wide
 from bench.runner import FOV_DEGREES, Bench, Block, Section
+from gicore import option_groups
 from gicore.camera import Camera
 from gicore.results import Results
 from gigan_local.client import GI_SOURCES
@@ -35,28 +36,23 @@ from gigan_local.inference import DEFAULT_MODEL
 class FovConfig:
     """The parameter grid of one run."""
 
-    #: Scene names or spec files.
-    scenes: tuple[str, ...] = ("lung_plane",)
-    #: Square resolution in pixels.
-    resolution: int = 256
+    scenes: tuple[str, ...] = option_groups.scenes()
+    resolution: int = option_groups.resolution()
     #: GI-camera FOVs F_GI compared, degrees.
     gi_fovs: tuple[float, ...] = field(default=(60.0, 90.0, 120.0), metadata=FOV_DEGREES)
     #: FOV of the local (client) camera, degrees; at this F_GI the no-warping reference is scored too.
     local_fov: float = field(default=60.0, metadata=FOV_DEGREES)
     #: Frames along the camera path where GI maps are made (the views).
     base_frames: tuple[int, ...] = field(default=(0, 60, 120, 180, 240), metadata={"min": 0})
-    #: Frames per full orbit of the camera path.
-    orbit_frames: int = 300
+    orbit_frames: int = option_groups.orbit_frames()
     #: Camera turns after the GI map, degrees about the vertical axis.
     rotations: tuple[float, ...] = (5.0, 10.0, 20.0, 30.0)
     #: Sideways camera moves after the GI map, scene units.
     translations: tuple[float, ...] = (0.1, 0.2, 0.4)
     #: Warp methods compared.
     warps: tuple[Literal["structure", "pixel"], ...] = ("structure", "pixel")
-    #: Samples per pixel of path-traced GT (the gt GI source and the evaluation GT).
-    spp: int = 64
-    #: Denoise the path-traced renders with OIDN.
-    denoise: bool = True
+    spp: int = option_groups.spp(note="of the path-traced GT: the gt GI source and the evaluation GT")
+    denoise: bool = option_groups.denoise()
     #: Where GI maps come from: the path-traced GT stand-in, or the generator (--model).
     gi_source: Literal[GI_SOURCES] = "gt"
     #: ONNX generator for --gi-source model (gigan-export output).

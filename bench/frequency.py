@@ -26,6 +26,7 @@ from bench.common import WARP_LABELS, WARPS, make_warp
 from bench.exported_models import check_model_resolution
 from bench.present.declarations import Chart, Column, Figure, Rows, Table, per, pick, spread, unique, wide
 from bench.runner import Bench, Block, Section
+from gicore import option_groups
 from gicore.blend import COMPOSITIONS
 from gicore.results import Results
 from gigan_local.client import GI_SOURCES
@@ -36,10 +37,8 @@ from gigan_local.inference import DEFAULT_MODEL
 class FrequencyConfig:
     """The parameter grid of one run."""
 
-    #: Scene names or spec files.
-    scenes: tuple[str, ...] = ("lung_plane",)
-    #: Square resolution in pixels.
-    resolution: int = 256
+    scenes: tuple[str, ...] = option_groups.scenes()
+    resolution: int = option_groups.resolution()
     #: GI-map periods k (a new GI map every k frames).
     ks: tuple[int, ...] = (1, 10, 20, 30, 60)
     #: Client frames per configuration.
@@ -52,12 +51,9 @@ class FrequencyConfig:
     tau: float = field(default=0.0, metadata={"min": 0.0, "max": 1.0})
     #: Score the composed frame against path-traced GT every this many frames.
     gt_every: int = 4
-    #: Frames per full orbit of the camera path (360° / orbit_frames per frame).
-    orbit_frames: int = 300
-    #: Samples per pixel of path-traced GT (the gt GI source and the evaluation GT).
-    spp: int = 64
-    #: Denoise the path-traced renders with OIDN.
-    denoise: bool = True
+    orbit_frames: int = option_groups.orbit_frames()
+    spp: int = option_groups.spp(note="of the path-traced GT: the gt GI source and the evaluation GT")
+    denoise: bool = option_groups.denoise()
     #: Where GI maps come from: the path-traced GT stand-in, or the generator (--model).
     gi_source: Literal[GI_SOURCES] = "gt"
     #: ONNX generator for --gi-source model (gigan-export output).

@@ -32,6 +32,7 @@ import numpy as np
 from bench.exported_models import model_info
 from bench.present.declarations import Chart, Column, Figure, Rows, Table, wide
 from bench.runner import Bench
+from gicore import option_groups
 from gicore.error_policy import UserError
 from gicore.results import Results
 from gicore.timing import time_repeats
@@ -54,8 +55,7 @@ class InferenceConfig:
 
     #: Exported model files (``gigan-export``); the first is the reference of the error rows and the torch weights.
     models: tuple[Path, ...] = field(default_factory=lambda: (_shipped("model_fp32.onnx"), _shipped("model_fp16.onnx")))
-    #: Scene whose GI-camera buffers are the network input.
-    scene: str = "lung_plane"
+    scene: str = option_groups.scene(note="its GI-camera buffers are the network input")
     #: onnxruntime intra-op threads, one row set each.
     threads: tuple[int, ...] = (1, 2)
     #: Backends: onnxruntime (CPU, as the clients) and/or torch.

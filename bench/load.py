@@ -35,6 +35,7 @@ from bench.common import Target
 from bench.present.declarations import Column, Rows, Table, matches
 from bench.processes import check_served, client_cores, pinned_server, pinning
 from bench.runner import Bench, Block
+from gicore import option_groups
 from gicore.results import Results
 
 if TYPE_CHECKING:
@@ -50,12 +51,9 @@ COUNTERS = ("connections_drained", "connections_timed_out", "connections_refused
 class LoadConfig:
     """What one load run sends (see the module docstring)."""
 
-    #: The scene the server bakes and serves (name or spec file).
-    scenes: tuple[str, ...] = field(default=("lung_plane",), metadata={"max_len": 1})
-    #: Square GI-map resolution of every request.
-    resolution: int = 64
-    #: Path-tracing samples per pixel of each baked map (only the misses pay for it).
-    spp: int = 4
+    scenes: tuple[str, ...] = option_groups.scenes(one=True, note="the one the server bakes and serves")
+    resolution: int = option_groups.resolution(64, note="of the GI map of every request")
+    spp: int = option_groups.spp(4, note="of each baked map; only the misses pay for it")
     #: Keep-alive clients asking for the one stored view.
     hit_clients: int = 32
     #: Time between one hit client's requests, ms.

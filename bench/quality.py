@@ -24,6 +24,7 @@ from bench.exported_models import model_info
 from bench.present.declarations import Chart, Column, Figure, Image, Rows, Table, flat, matches, unique
 from bench.quality_grid import GRID_CAPTION, GridCell, grid_rows, save_grid
 from bench.runner import Bench, Block, Section
+from gicore import option_groups
 from gicore.dataset import INPUT_RENDERERS, DatasetMeta, frame_paths, load_frame, read_meta
 from gicore.dataset_cli import FrameRenderer, build_dataset, render_inputs
 from gicore.error_policy import UserError
@@ -61,8 +62,9 @@ class QualityConfig:
 
     #: Root of per-scene datasets (gicore-dataset --out); none: render QUICK_DATASET per scene into <out>/dataset.
     datasets: Path | None = Path("data/datasets")
-    #: Scene names (dataset folders under --datasets).
-    scenes: tuple[str, ...] = tuple(builtin_scenes())
+    scenes: tuple[str, ...] = option_groups.scenes(
+        tuple(builtin_scenes()), note="their dataset folders under --datasets"
+    )
     #: System name -> exported ONNX model (gigan-export), scored side by side.
     models: dict[str, Path] = field(default_factory=lambda: {"gigan": DEFAULT_MODEL})
     #: Score at most this many validation frames per scene; none: all.

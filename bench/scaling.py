@@ -17,12 +17,13 @@ import math
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager, nullcontext
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from functools import partial
 from typing import Any, Literal
 
 from bench.present.declarations import Chart, Column, Figure, Rows, Table, flat, matches, per, unique
 from bench.runner import Bench, Block
+from gicore import option_groups
 from gicore.error_policy import UserError
 from gicore.executor import INSTALL_RAY, Executor, LocalPool, RayExecutor, Task
 from gicore.results import Results
@@ -42,12 +43,9 @@ ASSUMPTION = "ceil(items/N) x 1-worker item time x pixel ratio; linear scaling, 
 class ScalingConfig:
     """What one scaling run renders and projects."""
 
-    #: The scene rendered (one; its cost stands for every scene in the projections).
-    scenes: tuple[str, ...] = field(default=("lung_plane",), metadata={"max_len": 1})
-    #: Square resolution of the measured frames and maps (projections scale by pixel count).
-    resolution: int = 256
-    #: Path-tracing samples per pixel of frames and maps (then OIDN), measured and projected.
-    spp: int = 64
+    scenes: tuple[str, ...] = option_groups.scenes(one=True, note="its cost stands for every scene in the projections")
+    resolution: int = option_groups.resolution(note="of the measured frames and maps; projections scale by pixel count")
+    spp: int = option_groups.spp(note="of frames and maps, then OIDN; measured and projected")
     #: Data-set frames timed per point (after two warm-up frames per worker).
     frames: int = 8
     #: GI maps timed per point (after two warm-up maps per worker).

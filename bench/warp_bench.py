@@ -24,6 +24,7 @@ import numpy as np
 from bench.common import WARP_LABELS
 from bench.present.declarations import Chart, Column, Figure, Rows, Table, wide
 from bench.runner import FOV_DEGREES, Bench, Block, Section
+from gicore import option_groups
 from gicore.camera import Camera
 from gicore.gl.lod import LOD_CHOICES, lod_value
 from gicore.loop import CLIENT_LOD, RENDERERS, open_raster
@@ -43,10 +44,8 @@ SYSTEMS = {m: WARP_LABELS[m] for m in ("structure", "pixel")}
 class WarpBenchConfig:
     """The parameter grid of one run."""
 
-    #: Scene names or spec files.
-    scenes: tuple[str, ...] = ("lung_plane", "digestive_plane", "vessels_plane")
-    #: Square resolution in pixels.
-    resolution: int = 256
+    scenes: tuple[str, ...] = option_groups.scenes(("lung_plane", "digestive_plane", "vessels_plane"))
+    resolution: int = option_groups.resolution()
     #: FOV of the local (client) camera, degrees.
     local_fov: float = field(default=60.0, metadata=FOV_DEGREES)
     #: FOV of the GI camera whose map is warped, degrees.
@@ -55,12 +54,9 @@ class WarpBenchConfig:
     gi_frames: tuple[int, ...] = field(default=(0, 100, 200), metadata={"min": 0})
     #: Local frames after each GI frame that the map is warped to (camera motion).
     offsets: tuple[int, ...] = (1, 5, 10, 15, 20, 25, 29)
-    #: Frames per full orbit of the camera path (360° / orbit_frames per frame).
-    orbit_frames: int = 300
-    #: Samples per pixel of the path-traced GI maps and GT.
-    spp: int = 64
-    #: Denoise the path-traced renders with OIDN.
-    denoise: bool = True
+    orbit_frames: int = option_groups.orbit_frames()
+    spp: int = option_groups.spp(note="of the path-traced GI maps and GT")
+    denoise: bool = option_groups.denoise()
     #: Timed calls of each method per local frame (alternating the two).
     repeats: int = 10
     #: Untimed calls of each method per local frame before timing.
