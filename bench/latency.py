@@ -38,12 +38,13 @@ from bench.processes import (
     with_path_frames,
 )
 from bench.runner import Bench, Block, Section
+from gicore import option_groups
 from gicore.blend import COMPOSITIONS
 from gicore.error_policy import UserError
 from gicore.loop import RENDERERS
-from gicore.options import PATH_FILE
 from gicore.results import Results
 from gigan_local.inference import DEFAULT_MODEL
+from network_sim.profiles import profiles_field
 
 CodecName = Literal[CODEC_NAMES]  # type: ignore[valid-type]
 
@@ -54,23 +55,17 @@ CodecName = Literal[CODEC_NAMES]  # type: ignore[valid-type]
 class LatencyConfig:
     """What one latency run measures (see the module docstring)."""
 
-    #: The scene both clients fly through (name or spec file).
-    scenes: tuple[str, ...] = field(default=("lung_plane",), metadata={"max_len": 1})
-    #: Network profiles the cloud-baking client runs behind (see network-sim profiles).
-    profiles: tuple[str, ...] = ("lan", "wifi", "lte", "wan")
-    #: Square resolution of every render and GI map (the model's).
-    resolution: int = 256
+    scenes: tuple[str, ...] = option_groups.scenes(one=True, note="the one both clients fly through")
+    profiles: tuple[str, ...] = profiles_field(note="the cloud-baking client runs behind each")
+    resolution: int = option_groups.resolution(note="of every render and GI map: the model's")
     #: Frames per client run.
     frames: int = 300
-    #: GI-map period k: a new map every k frames (the cloud client also asks when its view leaves the tolerance).
-    every: int = 10
-    #: Frames per full orbit of the camera path.
-    orbit_frames: int = 300
-    path: Path | None = field(default=None, metadata=PATH_FILE)
+    every: int = option_groups.every(10, note="the cloud client also asks when its view leaves the tolerance")
+    orbit_frames: int = option_groups.orbit_frames()
+    path: Path | None = option_groups.path()
     #: GI-map codec of the cloud-baking maps.
     codec: CodecName = DEFAULT_CODEC
-    #: Samples per pixel of path tracing: the server's maps and the evaluation GT.
-    spp: int = 64
+    spp: int = option_groups.spp(note="of the server's maps and the evaluation GT")
     #: Score composed frames against the path-traced GT every this many frames (0: never).
     gt_every: int = field(default=10, metadata={"min": 0})
     #: How the GI map and the frame's DI are composed.
@@ -97,16 +92,7 @@ class LatencyConfig:
         return cls(profiles=("lan", "wan"), frames=90, every=5, spp=16)
 
     def check(self) -> None:
-        from network_sim import profiles
-
         check_served(self.resolution)
-        known = profiles.profiles()
-        for name in self.profiles:
-            if name not in known:
-                raise UserError(
-                    f"--profiles {name!r} is not a network profile",
-                    f"use some of {', '.join(known)} (see network-sim profiles)",
-                )
         check_model_resolution(self.model, self.resolution)
         for name in self.renderers:
             if name not in RENDERERS:

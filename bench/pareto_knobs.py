@@ -17,10 +17,12 @@ import numpy as np
 from bench.common import WARP_LABELS
 from bench.exported_models import check_model_resolution, model_info
 from bench.runner import FOV_DEGREES, Bench, execute, find
+from gicore import option_groups
 from gicore.error_policy import UserError
 from gicore.results import Results, read_rows
 from gigan_local.inference import DEFAULT_MODEL
 from network_sim.exchange import CloudCost
+from network_sim.profiles import profiles_field
 
 GIGAN, CLOUD, ABLATION = "gigan", "cloud_baking", "ablation"
 PER_MAP, PER_FRAME = "GI map", "frame"
@@ -32,13 +34,11 @@ REQUEST_BYTES = 450
 class ParetoConfig:
     """The knobs swept (see the module docstring)."""
 
-    #: The scene of every point (name or spec file).
-    scenes: tuple[str, ...] = field(default=("lung_plane",), metadata={"max_len": 1})
+    scenes: tuple[str, ...] = option_groups.scenes(one=True, note="of every point")
     #: Folder of earlier bench outputs (convergence.csv, frequency.csv) whose points are read, not measured;
     #: none: measure all.
     from_dir: Path | None = None
-    #: Square resolution of GI maps and frames (the models' resolution).
-    resolution: int = 256
+    resolution: int = option_groups.resolution(note="of GI maps and frames: the models'")
     #: Views along the fly-through each per-map point averages over.
     views: int = 3
     #: Samples per pixel of the per-map reference (path traced, OIDN).
@@ -69,8 +69,9 @@ class ParetoConfig:
         "exr-half",
         "zstd-f16",
     )
-    #: Cloud baking: network profiles (network-sim profiles) the maps travel over.
-    profiles: tuple[str, ...] = ("lan", "wifi", "lte", "wan", "3g")
+    profiles: tuple[str, ...] = profiles_field(
+        ("lan", "wifi", "lte", "wan", "3g"), note="cloud baking: the maps travel over each"
+    )
     #: Cloud baking: store tolerances as DP:DTHETA (scene units : degrees).
     tolerances: tuple[str, ...] = ("0.01:0.5", "0.05:2", "0.1:5", "0.2:10")
     #: Fly-through frames of the tolerance points' hit rate.
@@ -101,7 +102,6 @@ class ParetoConfig:
 
     def check(self) -> None:
         from baseline_cloudbaking.codecs import CODEC_NAMES
-        from network_sim import profiles
 
         for name, path in self.models.items():
             check_model_resolution(path, self.resolution, f"--models {name}")
@@ -114,10 +114,6 @@ class ParetoConfig:
                     f"--codecs {spec!r} is not NAME or NAME:QUALITY",
                     f"use {', '.join(CODEC_NAMES)}; quality 1-100 for {', '.join(QUALITY_OPTION)}",
                 )
-        known = profiles.profiles()
-        for name in self.profiles:
-            if name not in known:
-                raise UserError(f"--profiles {name!r} is not a network profile", f"use some of {', '.join(known)}")
         for text in self.tolerances:
             parse_tolerance(text)
         for value, option, allowed in (

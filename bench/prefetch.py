@@ -36,9 +36,10 @@ from bench.processes import (
     with_path_frames,
 )
 from bench.runner import Bench, Block, Section
+from gicore import option_groups
 from gicore.error_policy import UserError
-from gicore.options import PATH_FILE
 from gicore.results import Results
+from network_sim.profiles import profiles_field
 
 CodecName = Literal[CODEC_NAMES]  # type: ignore[valid-type]
 SYSTEM = "cloud_baking"
@@ -56,29 +57,23 @@ PERCEIVED_BOUND, REQUESTS_BOUND = 0.5, 0.5
 class PrefetchConfig:
     """What one prefetch run measures (see the module docstring)."""
 
-    #: The scene the clients fly through (name or spec file).
-    scenes: tuple[str, ...] = field(default=("lung_plane",), metadata={"max_len": 1})
-    #: Network profiles the clients run behind (see network-sim profiles).
-    profiles: tuple[str, ...] = ("lan", "wan")
+    scenes: tuple[str, ...] = option_groups.scenes(one=True, note="the one the clients fly through")
+    profiles: tuple[str, ...] = profiles_field(("lan", "wan"), note="the clients run behind each")
     #: Request rules compared (period, hold, prefetch).
     variants: tuple[str, ...] = tuple(VARIANTS)
-    #: Square resolution of every render and GI map.
-    resolution: int = 256
+    resolution: int = option_groups.resolution(note="of every render and GI map")
     #: Frames per client run.
     frames: int = 300
-    #: Frames per full orbit of the camera path (the camera's motion per frame).
-    orbit_frames: int = 300
-    path: Path | None = field(default=None, metadata=PATH_FILE)
+    orbit_frames: int = option_groups.orbit_frames()
+    path: Path | None = option_groups.path()
     #: Frames per second the clients are paced to.
     frame_rate: float = field(default=30.0, metadata={"min": 1.0, "max": 1000.0})
-    #: The period variant's k: a request every k frames (bench latency's default).
-    every: int = 10
+    every: int = option_groups.every(10, note="the period variant's, as bench latency's")
     #: Requests in flight at most for the hold and prefetch variants (period: 1).
     in_flight: int = field(default=3, metadata={"min": 1, "max": 16})
     #: GI-map codec.
     codec: CodecName = DEFAULT_CODEC
-    #: Samples per pixel of the server's maps and of the evaluation GT.
-    spp: int = 64
+    spp: int = option_groups.spp(note="of the server's maps and the evaluation GT")
     #: Score composed frames against the path-traced GT every this many frames (staleness).
     gt_every: int = 10
     #: Pin the server, the proxy and the clients to separate cores (taskset) where the machine has them.
@@ -91,16 +86,7 @@ class PrefetchConfig:
         return cls(resolution=64, frames=150, spp=8)
 
     def check(self) -> None:
-        from network_sim import profiles
-
         check_served(self.resolution)
-        known = profiles.profiles()
-        for name in self.profiles:
-            if name not in known:
-                raise UserError(
-                    f"--profiles {name!r} is not a network profile",
-                    f"use some of {', '.join(known)} (see network-sim profiles)",
-                )
         for name in self.variants:
             if name not in VARIANTS:
                 raise UserError(f"--variants {name!r} is not a variant", f"use some of {', '.join(VARIANTS)}")

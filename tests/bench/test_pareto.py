@@ -162,7 +162,7 @@ def test_codec_quality_is_the_knob_it_claims() -> None:
     [
         ({"codecs": "jpeg:101"}, "--codecs 'jpeg:101' is not NAME or NAME:QUALITY"),
         ({"codecs": "png:50"}, "--codecs 'png:50' is not NAME or NAME:QUALITY"),
-        ({"profiles": "moon"}, "--profiles 'moon' is not a network profile"),
+        ({"profiles": "moon"}, "--profiles 'moon' is not a known profile"),
         ({"tolerances": "0.1"}, "--tolerances '0.1' is not DP:DTHETA"),
         ({"warps": "bilinear"}, "--warps bilinear holds an unknown value"),
         ({"resolution": "128"}, "runs at 256² but --resolution is 128"),
