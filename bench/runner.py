@@ -29,11 +29,10 @@ import typer
 from bench import present
 from bench.present.declarations import Rows
 from bench.svg import Chart
-from gicore import options
+from gicore import option_groups, options
 from gicore.error_policy import writable_dir
 from gicore.options import (  # noqa: F401  (field_docs, check_config, config_dict: the bench API)
     FOV_DEGREES,
-    SEED_MAX,
     check_config,
     config_command,
     config_dict,
@@ -101,13 +100,11 @@ def register(app: typer.Typer, bench: Bench) -> Bench:
     for f in dataclasses.fields(config):
         if f.name in RESERVED:
             raise TypeError(f"{config.__name__}.{f.name}: the runner already adds --{f.name}")
-    out_help = "folder for the CSV, provenance JSON and plots"
     quick_help = "start from the small preset (minutes on 2 cores)"
-    seed_help = f"seeds cameras, noise and training [0 to {SEED_MAX}]"
     extras = [
-        extra("out", Annotated[Path, typer.Option("--out", help=out_help)], Path("results")),
+        option_groups.out("the CSV, its provenance JSON, tables and figures", Path("results")),
         extra("quick", Annotated[bool, typer.Option("--quick", help=quick_help)], False),
-        extra("seed", Annotated[int, typer.Option("--seed", min=0, max=SEED_MAX, help=seed_help)], 0),
+        option_groups.seed_parameter("cameras, noise and training"),
     ]
 
     def run(given: dict[str, Any], *, out: Path, quick: bool, seed: int) -> None:
