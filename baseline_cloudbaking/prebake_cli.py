@@ -314,7 +314,6 @@ def prebake(
         typer.echo(f"{name}: maps per Ray node: {per_node}")
 
 
-SCENE_HELP = "built-in scene name or spec file (.toml/.json); the file stem names it in the store"
 STORE_HELP = "GI-tree folder (created if missing; shared with cloudbaking-server --store)"
 config_command(
     app,
@@ -322,7 +321,7 @@ config_command(
     prebake,
     exclude=("tolerance",),
     extras=[
-        extra("scene", Annotated[str, typer.Argument(help=SCENE_HELP)]),
+        option_groups.scene_argument(note="a spec file's stem names it in the store"),
         extra("store", Annotated[str, typer.Option("--store", help=STORE_HELP)]),
         *config_options(ToleranceOptions),
         *config_options(ExecutorOptions),

@@ -12,7 +12,7 @@ The fields stay the config's own, so the command line stays flat (``--scenes``, 
 :func:`gicore.options.config_dict` records them as before. Each carries ``metadata["group"]``, its group's
 name, which tells a composed option from a hand-declared one. Options that are no config field, such as
 ``--out`` and the bench runner's ``--seed``, are command parameters made here (:func:`out`,
-:func:`seed_parameter`, :func:`scenes_argument`). The executor's options are one dataclass,
+:func:`seed_parameter`, :func:`scenes_argument`, :func:`scene_argument`). The executor's options are one dataclass,
 :class:`gicore.executor.ExecutorOptions`; the network profiles' are :func:`network_sim.profiles.profiles_field`.
 """
 
@@ -118,8 +118,12 @@ def path() -> Any:
 
 def out(holds: str, default: Path | None = None) -> inspect.Parameter:
     """``--out DIR``, the folder a command writes (``holds``: what goes there); required without a default."""
-    option = typer.Option("--out", help=with_note(OUT_HELP, holds))
-    return extra("out", Annotated[Path, option], inspect.Parameter.empty if default is None else default)
+    return extra("out", Annotated[Path, out_option(holds)], inspect.Parameter.empty if default is None else default)
+
+
+def out_option(holds: str) -> Any:
+    """``--out DIR`` as the ``typer.Option`` of a command's own ``out`` parameter."""
+    return typer.Option("--out", help=with_note(OUT_HELP, holds))
 
 
 def seed_parameter(note: str) -> inspect.Parameter:
@@ -131,3 +135,8 @@ def seed_parameter(note: str) -> inspect.Parameter:
 def scenes_argument() -> inspect.Parameter:
     """The scenes as the command's arguments (``gicore-dataset SCENE...``)."""
     return extra("scenes", Annotated[list[str], typer.Argument(help=with_note(SCENES_HELP, ".toml or .json"))])
+
+
+def scene_argument(note: str = "") -> inspect.Parameter:
+    """The scene as the command's argument (``cloudbaking-prebake SCENE``)."""
+    return extra("scene", Annotated[str, typer.Argument(help=with_note(SCENE_HELP, note))])

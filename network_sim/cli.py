@@ -12,7 +12,7 @@ import asyncio
 import textwrap
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import typer
 
@@ -204,7 +204,7 @@ config_command(
 
 
 @app.command()
-def traces(out: Path = typer.Option(..., help="Folder to write the generated trace files into.")) -> None:
+def traces(out: Annotated[Path, option_groups.out_option("the generated trace files")]) -> None:
     """Regenerate the shipped LTE traces from their seeded models; show their statistics against the recorded ones."""
     from network_sim.tracegen import MODELS, trace_stats, write_traces
 
