@@ -6,7 +6,9 @@ later and compared with the path-traced GT there (the light stays, so the error 
 method's per-frame work is timed after a warm-up, alternating the two; each method's local render
 (``raster_time``, rendered by ``renderer``) and its once-per-map ``bind`` are reported apart. CPU % is process
 CPU time over wall time (100 % = one core), peak memory the largest numpy allocation during a call. Also: how
-far interpolated GI-map coordinates land from per-pixel projection. docs/architecture.md, bench warp.
+far interpolated GI-map coordinates land from per-pixel projection, and on the gl renderer both warp backends
+(``--warp-backend``): a whole frame timed on numpy and in GL shaders, and how far the two warps' outputs lie
+apart. docs/architecture.md, bench warp.
 """
 
 from __future__ import annotations
@@ -128,6 +130,8 @@ class _Scene:
     warper: Any
     common: dict[str, Any]
     seed: int
+    #: The warps' GL backends by method (gigan_local.gl_warp, baseline_cloudbaking.gl_warp); none off GL.
+    shaders: dict[str, Any] = field(default_factory=dict)
 
 
 @dataclass
@@ -168,7 +172,13 @@ def _open_scene(cfg: WarpBenchConfig, name: str, seed: int) -> _Scene:
     common |= {"renderer": used} | ({"gl_lod": cfg.gl_lod} if used == "gl" else {})
     cams = camera_path(spec, cfg.orbit_frames, seed=seed, fov=cfg.local_fov, resolution=cfg.resolution)
     source = GTSource(renderer, cfg.spp, cfg.denoise, seed)
-    return _Scene(name, spec, renderer, raster, used, cams, source, StructureAwareWarp(raster), common, seed)
+    scene = _Scene(name, spec, renderer, raster, used, cams, source, StructureAwareWarp(raster), common, seed)
+    if used == "gl":
+        from baseline_cloudbaking.gl_warp import GLPixelWarp
+        from gigan_local.gl_warp import GLStructureWarp
+
+        scene.shaders = {"structure": GLStructureWarp(raster), "pixel": GLPixelWarp(raster)}
+    return scene
 
 
 def _measure_gi_frame(cfg: WarpBenchConfig, scene: _Scene, g: int, tally: _Tally, res: Results) -> None:
@@ -184,6 +194,8 @@ def _measure_gi_frame(cfg: WarpBenchConfig, scene: _Scene, g: int, tally: _Tally
     cloud = PointCloud(gi.radiance, gi.depth, gi.camera)
     tally.samples["bind/structure"].append(t1 - t0)
     tally.samples["bind/pixel"].append(time.perf_counter() - t1)
+    for m, shader in scene.shaders.items():
+        tally.samples[f"gl_bind/{m}"].append(shader.bind(gi)["bind"] / 1e3)
     for offset in cfg.offsets:
         _measure_offset(cfg, scene, g, offset, light, cloud, tally, res)
     last = scene.cams[(g + cfg.offsets[-1]) % cfg.orbit_frames]
@@ -216,6 +228,8 @@ def _measure_offset(
     }
     _time_methods(cfg, methods, tally)
     _score_methods(cfg, scene, methods, cam, light, frame, mask, tally)
+    if scene.shaders:
+        _time_backends(cfg, scene, cam, light, cloud, tally)
     for m in methods:
         res.add(system=SYSTEMS[m], scene=scene.name, metric="ssim", value=tally.quality[f"{m}/ssim"][-1], unit="1",
                 offset=offset, gi_frame=g, **scene.common)  # fmt: skip
@@ -238,6 +252,54 @@ def _time_methods(cfg: WarpBenchConfig, methods: dict[str, Callable[[], Any]], t
             tally.cpu[m][2] += 1
             for stage, ms in t.items():
                 tally.stages[m][stage].append(ms / 1e3)
+
+
+def _time_backends(cfg: WarpBenchConfig, scene: _Scene, cam: Camera, light, cloud: Any, tally: _Tally) -> None:
+    """Each method's whole frame on both warp backends, alternating, after ``cfg.warmup`` untimed calls: numpy
+    (the DI and the method's pass read back, the warp, eq. 1's blend) and gl (drawn, warped and composed in
+    shaders, the frame read back: ``ShaderWarp.frame``, with its stage times); then how far the gl warp's map
+    lies from the numpy warp's."""
+    from gicore.blend import blend
+
+    def numpy_frame(m: str) -> np.ndarray:
+        di, passes = scene.raster.render_di_raster(cam, light, PASSES[m])
+        return blend(di, warped(m, di, passes), 0.0)
+
+    def warped(m: str, di: np.ndarray, passes: dict) -> np.ndarray:
+        return scene.warper.warp(cam, di, passes)[0] if m == "structure" else cloud.splat(cam, passes["mask"])[0]
+
+    frames = {(m, "numpy"): partial(numpy_frame, m) for m in SYSTEMS}
+    frames |= {(m, "gl"): partial(scene.shaders[m].frame, cam, light) for m in SYSTEMS}
+    for fn in frames.values():
+        for _ in range(cfg.warmup):
+            fn()
+    for _ in range(cfg.repeats):
+        for (m, backend), fn in frames.items():
+            t0 = time.perf_counter()
+            out = fn()
+            tally.samples[f"frame/{m}/{backend}"].append(time.perf_counter() - t0)
+            for stage, ms in out[2].items() if backend == "gl" else ():
+                tally.samples[f"gl_stage/{m}/{stage}"].append(ms / 1e3)
+    for m in SYSTEMS:
+        host = warped(m, *scene.raster.render_di_raster(cam, light, PASSES[m]))
+        tally.quality[f"{m}/gl_max_abs"].append(float(np.abs(scene.shaders[m].warped(cam, light)[0] - host).max()))
+
+
+def _record_backends(scene: _Scene, tally: _Tally, res: Results, row: dict[str, Any]) -> None:
+    """Per method, its frame on each warp backend, the gl backend's bind and stages, the gl / numpy frame time
+    ratio and the largest |gl - numpy| of the warped map."""
+    for m, system in SYSTEMS.items():
+        frames = {b: tally.samples[f"frame/{m}/{b}"] for b in ("numpy", "gl")}
+        for backend, samples in frames.items():
+            res.add_timing(system=system, scene=scene.name, metric=f"frame_time:{backend}", samples_s=samples, **row)
+        stages = {"bind": tally.samples[f"gl_bind/{m}"]}
+        stages |= {k.rsplit("/", 1)[1]: v for k, v in tally.samples.items() if k.startswith(f"gl_stage/{m}/")}
+        for stage, samples in stages.items():
+            res.add_timing(system=system, scene=scene.name, metric=f"gl_stage_time:{stage}", samples_s=samples, **row)
+        ratio = float(np.median(frames["gl"]) / np.median(frames["numpy"]))
+        res.add(system=system, scene=scene.name, metric="gl_numpy_ratio", value=ratio, unit="x", stat="median", **row)
+        diff = float(np.max(tally.quality[f"{m}/gl_max_abs"]))
+        res.add(system=system, scene=scene.name, metric="gl_max_abs", value=diff, unit="1", stat="max", **row)
 
 
 def _score_methods(
@@ -289,6 +351,8 @@ def _record(cfg: WarpBenchConfig, scene: _Scene, tally: _Tally, res: Results) ->
         e = np.concatenate(errors)
         for stat, value in (("median", np.median(e)), ("p99", np.percentile(e, 99)), ("max", e.max())):
             res.add(system=method, scene=name, metric="uv_error", value=float(value), unit="px", stat=stat, **row)
+    if scene.shaders:
+        _record_backends(scene, tally, res, row)
 
 
 # -- what it shows ------------------------------------------------------------------------------------------
@@ -296,6 +360,12 @@ def _costs(rows: Rows) -> list[dict]:
     """Per scene and warp: time per frame (median, p95), CPU and SSIM (means)."""
     fields = {"median": "warp_time/median", "p95": "warp_time/p95", "cpu": "cpu_percent/mean", "ssim": "ssim/mean"}
     return wide(rows, ("scene", "system"), fields)
+
+
+def _backends(rows: Rows) -> list[dict]:
+    """Per scene and warp: a frame's time on each warp backend (medians), their ratio and the warped maps' gap."""
+    fields = {"numpy": "frame_time:numpy/median", "gl": "frame_time:gl/median", "ratio": "gl_numpy_ratio"}
+    return wide(rows, ("scene", "system"), fields | {"diff": "gl_max_abs"})
 
 
 def _bars(metric: str, label: str) -> Chart:
@@ -332,6 +402,18 @@ PARTS = (
             Column("pixel / structure time (median)", "{time:.2f}×"),
             Column("pixel / structure CPU (mean)", "{cpu:.2f}×"),
         ),
+    ),
+    Table(
+        _backends,
+        (
+            Column("scene", "{scene}"),
+            Column("warp", "{system}"),
+            Column("frame ms, numpy (median)", "{numpy:.2f}"),
+            Column("frame ms, gl shaders (median)", "{gl:.2f}"),
+            Column("gl / numpy", "{ratio:.2f}×"),
+            Column("max abs gl − numpy, warped map", "{diff:.2g}"),
+        ),
+        title="Warp backends (--warp-backend): a whole frame, DI and the warp's pass, the warp and eq. 1",
     ),
 )
 
