@@ -63,16 +63,18 @@ def _f(value: str) -> float | None:
 
 def gigan_samples(frames: list[dict[str, str]]) -> dict[str, list[float]]:
     """Per-map stage times (ms) of a ``gigan-client`` run: one sample per frame that bound a new map."""
+    from gigan_local.gl_warp import GLStructureWarp
     from gigan_local.warp import StructureAwareWarp
 
-    per_frame = [s for s in StructureAwareWarp.stages if s != "bind"]
+    # the per-frame warp stages of the backend the run used (--warp-backend): its columns are the ones it has
+    per_frame = dict.fromkeys(s for w in (StructureAwareWarp, GLStructureWarp) for s in w.stages if s != "bind")
     samples: dict[str, list[float]] = {s: [] for s in (*GIGAN_STAGES, "total")}
     for row in (r for r in frames if r["gi_new"] == "1"):
         stage = {
             "di": float(row["di_ms"]),
             "gi_render": float(row["gi_render_ms"]),
             "inference": float(row["inference_ms"]),
-            "warp": float(row["bind_ms"]) + sum(float(row[f"{s}_ms"]) for s in per_frame),
+            "warp": float(row["bind_ms"]) + sum(float(row[f"{s}_ms"]) for s in per_frame if f"{s}_ms" in row),
             "blend": float(row["compose_ms"]),
         }
         for name, ms in stage.items():
