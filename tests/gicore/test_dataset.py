@@ -385,8 +385,8 @@ def test_meta_with_an_unknown_field_is_refused(base_dataset, tmp_path):
         pytest.param(dict(fov=0.0), "--fov", id="fov_0"),
         pytest.param(dict(fov=-30.0), "--fov", id="fov_negative"),
         pytest.param(dict(fov=180.0), "--fov", id="fov_180"),
-        pytest.param(dict(resolution=0), "--resolution 0", id="resolution_0"),
-        pytest.param(dict(spp=0), "--spp 0", id="spp_0"),
+        pytest.param(dict(resolution=0), "--resolution = 0", id="resolution_0"),
+        pytest.param(dict(spp=0), "--spp = 0", id="spp_0"),
     ],
 )
 def test_bad_dataset_settings_are_refused_before_anything_is_written(tmp_path, change, culprit):
