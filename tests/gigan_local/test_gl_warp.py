@@ -96,3 +96,20 @@ def test_warp_backend_choice(monkeypatch, capsys):
         frame.warp_backend("cuda", "gl")
     with pytest.raises(ValueError, match="--warp-backend gl runs on the GL renderer's textures: pass --renderer gl"):
         PathRunConfig(renderer="mitsuba", warp_backend="gl")
+
+
+def test_gigan_client_with_the_gl_warp_backend(make_spec, tmp_path):
+    """``gigan-client --warp-backend gl``: frames warped and composed in GL, the GL warp's stage in the frame
+    columns, and the summary naming the backend that ran (auto picks numpy on llvmpipe)."""
+    import json
+
+    from gigan_local.client import ClientConfig, run
+
+    spec_file = tmp_path / "scene.json"
+    spec_file.write_text(json.dumps(make_spec(with_box=True).to_dict()))
+    fields = dict(scene=str(spec_file), frames=4, resolution=32, every=2, orbit_frames=40, spp=2, denoise=False)
+    for backend, ran in (("gl", "gl"), ("auto", "numpy")):
+        summary = run(ClientConfig(**fields, warp_backend=backend), tmp_path / backend)
+        assert summary["renderer"] == "gl" and summary["warp_backend"] == ran
+        stage = {"gl": "warp_ms", "numpy": "project_ms"}[ran]
+        assert summary["median"][stage] > 0 and summary["mean_valid_frac"] > 0.5
