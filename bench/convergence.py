@@ -103,7 +103,6 @@ BENCH = Bench(
     "convergence",
     ConvergenceConfig,
     measure,
-    None,
     help="GT error (RMSE/SSIM against a high-spp reference) against render time, with and without OIDN.",
     parts=PARTS,
 )

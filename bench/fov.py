@@ -272,7 +272,6 @@ BENCH = Bench(
     "fov",
     FovConfig,
     measure,
-    None,
     help="Fig. 9 and Fig. 8: GI-camera FOV against GI-map quality and warped quality after camera motion.",
     dashboard=Section("fig9", "Fig. 9: GI-camera FOV", 60),
     readme=Block("GI-camera FOV, Fig. 9", 70),

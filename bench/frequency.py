@@ -197,7 +197,6 @@ BENCH = Bench(
     "frequency",
     FrequencyConfig,
     measure,
-    None,
     help="Table 3: GI-map period k against fps and SSIM, with and without warping, both compositions.",
     dashboard=Section("table3", "Table 3: inference frequency", 30),
     readme=Block("Inference frequency, Table 3", 40),

@@ -256,7 +256,6 @@ BENCH = Bench(
     "inference",
     InferenceConfig,
     measure,
-    None,
     help="One GI map's inference per backend (onnxruntime threads, torch fp32/fp16/bf16 on CPU or CUDA, with and "
     "without host copies): median ms against the output's error vs onnxruntime fp32.",
     parts=(TABLE, FIGURE),

@@ -200,7 +200,6 @@ BENCH = Bench(
     "latency",
     LatencyConfig,
     measure,
-    None,
     help="Table 1: interaction latency per stage of GIGAN and cloud baking (prebaked and cold store) from real "
     "processes over simulated network profiles; ratios, crossover RTT, SSIM along the path.",
     dashboard=Section("table1", "Table 1: interaction latency", 10),

@@ -253,7 +253,6 @@ BENCH = Bench(
     "load",
     LoadConfig,
     measure,
-    None,
     help="GI-map server under load: hit p99 with 80 misses + 32 hit clients and beside 20,000 idle connections, "
     "against the 50 ms targets",
     readme=Block("Cloud-baking server under load", 85),

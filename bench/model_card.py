@@ -344,7 +344,6 @@ def bench(quality: Bench) -> Bench:
         "model-card",
         ModelCardConfig,
         partial(measure, quality=quality),
-        None,
         help="MODEL_CARD.md for an exported model from its run, export and quality results.",
         parts=(FIGURE,),
     )

@@ -69,7 +69,6 @@ def bench(frequency: Bench) -> Bench:
         "pareto",
         ParetoConfig,
         partial(measure, frequency=frequency),
-        None,
         help="Error against run time over every speed/quality knob of both systems (per GI map and per frame), fronts "
         "with dominated points marked, the best configuration per time budget; reuses convergence/frequency CSVs under "
         "--from-dir.",

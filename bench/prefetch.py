@@ -320,7 +320,6 @@ BENCH = Bench(
     "prefetch",
     PrefetchConfig,
     measure,
-    None,
     help="The cloud client's request rules and prefetch: perceived latency, staleness, requests, bytes",
     dashboard=Section("prefetch", "Prefetch: hiding the network in cloud baking", 12),
     readme=Block("Cloud-baking prefetch", 12),

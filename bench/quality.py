@@ -345,7 +345,6 @@ BENCH = Bench(
     "quality",
     QualityConfig,
     measure,
-    None,
     help="Fig. 6: RMSE/SSIM/PSNR and low-frequency error of each model and of DI alone on held-out frames, plus "
     "inference ms and error maps.",
     dashboard=Section("fig6", "Fig. 6: GI-map quality", 40),

@@ -361,7 +361,6 @@ BENCH = Bench(
     "render",
     RenderBenchConfig,
     measure,
-    None,
     help="Per-pass render times (DI, G-buffers, GT with/without OIDN) and triangle counts per scene; the clients' "
     "raster passes (GI camera, local DI, uv, depth) on OpenGL (full detail and lod auto) beside Mitsuba.",
     parts=PARTS,

@@ -7,9 +7,10 @@ Table 3 (``frequency``), Fig. 6 (``quality``), Fig. 7 (``warp``), Fig. 9 (``fov`
 error against run time (``pareto``; hovering a point shows its full config) and the stability table
 (``stability``). Each section reads its bench's ``<bench>.csv`` (found anywhere under ``--results``
 outside the ``--ignore`` folders; the newest run's when there are several, :func:`bench.runner.attempt`)
-and the ``<bench>.provenance.json`` beside it, and shows what the bench's ``draw`` makes of those rows
-alone: Markdown tables rendered to HTML, charts as inline SVG (:mod:`bench.svg`). Each section names its
-provenance: command, git SHA, machine, date. This module only renders; what a section holds is its bench's.
+and the ``<bench>.provenance.json`` beside it, and shows the parts the bench declares for the dashboard,
+drawn from those rows alone (:mod:`bench.present.html`: tables as HTML, figures as the SVG matplotlib draws,
+each mark with its tooltip). Each section names its provenance: command, git SHA, machine, date. This module
+only lays out the page; what a section holds is its bench's.
 
 A section whose CSV is missing, or malformed (wrong columns, unparsable values, or rows its bench never
 writes), says so and names the file; the others still render. The page is one self-contained file
@@ -26,7 +27,7 @@ from __future__ import annotations
 
 import html
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -35,7 +36,7 @@ from bench import registry
 from bench.present.declarations import Rows, shown
 from bench.present.html import parts_html
 from bench.report_md import check_readme, results_markdown, update_readme
-from bench.runner import Alert, Bench, External, Figure, Part, Section, Table, attempt, need, provenance_fields
+from bench.runner import Bench, External, Section, attempt, need, provenance_fields
 from gicore.error_policy import UserError
 from gicore.fileio import atomic_write_bytes
 from gicore.results import Results
@@ -78,15 +79,12 @@ class ReportConfig:
 
 def sections() -> list[tuple[Bench | External, Section]]:
     """(bench, section) of every registered bench with a dashboard section, in the sections' order."""
-    with_section = [(s, s.dashboard) for s in registry.SHOWN if s.dashboard is not None]
+    with_section = [(s, s.dashboard) for s in registry.reported() if s.dashboard is not None]
     return sorted(with_section, key=lambda pair: pair[1].order)
 
 
-def drawing(bench: Bench | External, section: Section) -> Callable[[Rows, Path], str]:
+def drawing(bench: Bench | External) -> Callable[[Rows, Path], str]:
     """How a section's HTML is made from its CSV's rows and folder: the bench's dashboard parts."""
-    if section.draw is not None:
-        old = section.draw
-        return lambda rows, _: body(old(rows))
 
     def draw(rows: Rows, folder: Path) -> str:
         need(rows, *bench.needs)
@@ -98,30 +96,6 @@ def drawing(bench: Bench | External, section: Section) -> Callable[[Rows, Path],
 # -- HTML of a section's parts -------------------------------------------------------------------------------
 def _e(text: Any) -> str:
     return html.escape(str(text), quote=True)
-
-
-def markdown(text: str) -> str:
-    """A bench's Markdown table as HTML (headings demoted below the section's own)."""
-    from markdown_it import MarkdownIt
-
-    rendered = MarkdownIt("commonmark", {"html": False}).enable("table").render(text)
-    for level in (3, 2, 1):
-        rendered = rendered.replace(f"<h{level}>", f"<h{level + 2}>").replace(f"</h{level}>", f"</h{level + 2}>")
-    return f'<div class="md">{rendered}</div>'
-
-
-def body(parts: Sequence[Part]) -> str:
-    """A section's tables, figures and alerts as HTML, in their order."""
-    out = []
-    for part in parts:
-        match part:
-            case Table(text, scroll):
-                out.append(f'<div class="scroll">{markdown(text)}</div>' if scroll else markdown(text))
-            case Figure(panels):
-                out.append('<div class="charts">' + "".join(chart.svg() for chart in panels) + "</div>")
-            case Alert(text):
-                out.append(f'<p class="problem">{_e(text)}</p>')
-    return "".join(out)
 
 
 def provenance_html(csv_path: Path, results: Path) -> str:
@@ -159,7 +133,7 @@ class Rendered:
 def render(shown_bench: Bench | External, section: Section, results: Path, ignore: tuple[str, ...] = ()) -> Rendered:
     """The section of ``bench``'s newest CSV under ``results``, or one naming what is missing or malformed."""
     bench = shown_bench.name
-    a = attempt(bench, results, drawing(shown_bench, section), ignore)
+    a = attempt(bench, results, drawing(shown_bench), ignore)
     if a.path is None:
         todo = f"run <code>bench {bench} --out {_e(results)}</code> (or into a folder under it)"
         return Rendered(
@@ -221,7 +195,6 @@ BENCH = Bench(
     "report",
     ReportConfig,
     measure,
-    None,
     help="A static HTML dashboard (report.html, opens offline) from the CSV files and provenance under --results: "
     "Tables 1-3, Fig. 6, 7, 9, the Pareto fronts (hover a point for its config), the stability table; a missing or "
     "malformed CSV is named in its section. Also results.md, the README's results section (each block with the "

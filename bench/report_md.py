@@ -19,15 +19,15 @@ is its bench's.
 from __future__ import annotations
 
 import os
-import re
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from bench import registry
-from bench.present.declarations import Rows, shown
+from bench.present import charts
+from bench.present.declarations import Figure, Image, Part, Rows, shown
 from bench.present.markdown import tables_text
-from bench.runner import Attempt, Bench, Block, External, Part, Table, attempt, need, provenance_fields
+from bench.runner import Attempt, Bench, Block, External, attempt, need, provenance_fields
 from gicore.error_policy import UserError
 from gicore.fileio import atomic_write_bytes
 
@@ -40,19 +40,19 @@ def blocks() -> list[tuple[str, Block]]:
 
 
 def shown_blocks() -> list[tuple[Bench | External, Block]]:
-    with_block = [(s, s.readme) for s in registry.SHOWN if s.readme is not None]
+    with_block = [(s, s.readme) for s in registry.reported() if s.readme is not None]
     return sorted(with_block, key=lambda pair: pair[1].order)
 
 
-def writing(bench: Bench | External, block: Block) -> Callable[[Rows, Path], str]:
-    """How a block's Markdown is made from its CSV's rows: the bench's README tables."""
-    if block.write is not None:
-        old = block.write
-        return lambda rows, _: block_text(old(rows))
+def writing(bench: Bench | External, figures: Path | None, page: Path | None) -> Callable[[Rows, Path], list[str]]:
+    """How a block's Markdown is made from its CSV's rows and folder: the bench's README tables, and with
+    ``figures`` its figures' links (:func:`figure_links`)."""
 
-    def write(rows: Rows, _: Path) -> str:
+    def write(rows: Rows, folder: Path) -> list[str]:
         need(rows, *bench.needs)
-        return tables_text(shown(bench.parts, "readme"), rows, 4)
+        parts = shown(bench.parts, "readme")
+        links = figure_links(bench.name, parts, rows, folder, figures, page) if figures and page else ""
+        return [tables_text(parts, rows, 4), links]
 
     return write
 
@@ -60,19 +60,6 @@ def writing(bench: Bench | External, block: Block) -> Callable[[Rows, Path], str
 def make_command(bench: str, block: Block, results: Path) -> str:
     """The command that makes ``bench``'s CSV under ``results`` (named when it is missing)."""
     return (block.make or f"bench {bench} --out {{out}}").format(out=results)
-
-
-def _demote(text: str, top: int = 4) -> str:
-    """A bench's Markdown with its headings moved down so that the highest is level ``top`` (below the
-    block's own ``###``)."""
-    levels = [len(m.group(1)) for m in re.finditer(r"^(#+) ", text, re.MULTILINE)]
-    shift = max(0, top - min(levels)) if levels else 0
-    return re.sub(r"^(#+) ", lambda m: "#" * (len(m.group(1)) + shift) + " ", text, flags=re.MULTILINE)
-
-
-def block_text(parts: Sequence[Part]) -> str:
-    """A block's tables as Markdown (figures and alerts are the dashboard's)."""
-    return "\n\n".join(_demote(p.markdown).strip() for p in parts if isinstance(p, Table))
 
 
 def command_line(a: Attempt) -> str:
@@ -86,17 +73,18 @@ def command_line(a: Attempt) -> str:
     return f"Command: `{prov['command']}` ({prov['date']}, {prov['machine']}; {where})."
 
 
-def figure_links(a: Attempt, figures: Path, page: Path) -> str:
-    """Copy the PNG figures the bench drew beside its CSV (``<bench>*.png``) into ``figures/<bench>/`` and link
-    them as Markdown images relative to ``page``, the file the text goes into; empty when it drew none."""
-    assert a.path is not None
+def figure_links(name: str, parts: list[Part], rows: Rows, folder: Path, figures: Path, page: Path) -> str:
+    """Each figure of ``parts`` drawn from ``rows`` (and each picture the bench wrote into ``folder``) as a PNG in
+    ``figures/<name>/``, linked as a Markdown image relative to ``page``, the file the text goes into."""
     links = []
-    for png in sorted(a.path.parent.glob(f"{a.path.stem}*.png")):
-        target = figures / a.path.stem / png.name
-        target.parent.mkdir(parents=True, exist_ok=True)
-        atomic_write_bytes(target, png.read_bytes())
-        links.append(f"![{png.stem}]({Path(os.path.relpath(target, page.parent)).as_posix()})")
-    return "\n".join(links)
+    for part in parts:
+        if isinstance(part, Figure) and charts.render(part, rows, figures / name / f"{part.name}.png"):
+            links.append(figures / name / f"{part.name}.png")
+        elif isinstance(part, Image) and (folder / part.file).is_file():
+            links.append(figures / name / part.file)
+            links[-1].parent.mkdir(parents=True, exist_ok=True)
+            atomic_write_bytes(links[-1], (folder / part.file).read_bytes())
+    return "\n".join(f"![{t.stem}]({Path(os.path.relpath(t, page.parent)).as_posix()})" for t in links)
 
 
 def _shown(results: Path) -> Path:
@@ -125,16 +113,15 @@ def results_markdown(
     ]
     for shown_bench, block in shown_blocks():
         bench = shown_bench.name
-        a = attempt(bench, results, writing(shown_bench, block), ignore)
+        a = attempt(bench, results, writing(shown_bench, figures, page), ignore)
         parts.append(f"### {block.title}")
         if a.status == "missing":
             parts.append(f"Not in these results: {a.problem}; `{make_command(bench, block, results)}` makes it.")
         elif a.status == "malformed":
             parts.append(f"Not shown: {a.problem}.")
         else:
-            parts += [a.parts, command_line(a)]
-            images = figure_links(a, figures, page) if figures is not None and page is not None else ""
-            parts += [images] if images else []
+            text, images = a.parts
+            parts += [text, command_line(a)] + ([images] if images else [])
     return "\n\n".join(parts) + "\n"
 
 

@@ -81,7 +81,6 @@ def bench(latency: Bench, storage: Bench) -> Bench:
         "run-default",
         RunDefaultConfig,
         partial(measure, jobs=jobs),
-        None,
         help="The main job (make run): bench latency --quick (Table 1) and bench storage --quick (Table 2) on the "
         "default scene, with the shipped GIGAN model; both tables printed at the end.",
     )

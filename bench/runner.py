@@ -1,14 +1,14 @@
-"""The one bench runner: every ``bench`` subcommand is a declared config plus ``measure`` and ``plot``.
+"""The one bench runner: every ``bench`` subcommand is a declared config, its ``measure``, and what it shows.
 
 A bench module defines a frozen config dataclass (one option per field, documented by its ``#:`` comment,
-with a ``quick()`` preset), ``measure(cfg, results)``, ``plot(csv_path, out_dir)``, optional
-``dashboard_section`` and ``readme_block`` hooks and ``BENCH = Bench(...)``; its line in ``bench/registry.py``
-gives it its subcommand, its dashboard section and its results block. The runner derives the options
+with a ``quick()`` preset), ``measure(cfg, results)``, its tables and figures declared once as data
+(:mod:`bench.present.declarations`) and ``BENCH = Bench(...)``; its line in ``bench/registry.py`` gives it its
+subcommand, its dashboard section and its results block. The runner derives the options
 (:mod:`gicore.options`), adds ``--out``, ``--quick`` and ``--seed``, writes ``<out>/<bench>.csv`` and
-``<out>/<bench>.provenance.json``, calls ``plot`` on the CSV and prints every path written; user errors raise
-:class:`gicore.error_policy.UserError`. ``bench report`` renders what the hooks return (:class:`Table`,
-:class:`Figure`, :class:`Alert`). Dependencies run one way: this module <- each bench <- ``bench.registry``
-<- the report and the command line. An example bench: docs/architecture.md, Bench runner.
+``<out>/<bench>.provenance.json``, then the bench's tables (``<bench>.md``) and figures (PNG and SVG) from
+the CSV, and prints every path written; user errors raise :class:`gicore.error_policy.UserError`. ``bench
+report`` renders the same declarations. Dependencies run one way: this module <- each bench <-
+``bench.registry`` <- the report and the command line. An example bench: docs/architecture.md, Bench runner.
 """
 
 from __future__ import annotations
@@ -17,7 +17,6 @@ import csv
 import dataclasses
 import fnmatch
 import json
-import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -28,7 +27,6 @@ import typer
 
 from bench import present
 from bench.present.declarations import Rows
-from bench.svg import Chart
 from gicore import option_groups, options
 from gicore.error_policy import writable_dir
 from gicore.options import (  # noqa: F401  (field_docs, check_config, config_dict: the bench API)
@@ -54,7 +52,6 @@ class Bench:
     name: str
     config: type
     measure: Callable[[Any, Results], None]
-    plot: Callable[[Path, Path], list[Path]] | None
     help: str
     #: Its section of the dashboard (``report.html``); None: it has none.
     dashboard: Section | None = None
@@ -88,10 +85,9 @@ def execute(bench: Bench, cfg: Any, out: Path, seed: int = 0) -> list[Path]:
     csv_path = results.write()
     rows = read_rows(csv_path)
     shown = present.write_files(bench.name, bench.parts, rows, out)
-    plots = bench.plot(csv_path, out) if bench.plot else []
     if bench.verdict is not None:
         bench.verdict(rows)
-    return [csv_path, results.provenance_path, *results.files, *shown, *plots]
+    return [csv_path, results.provenance_path, *results.files, *shown]
 
 
 def register(app: typer.Typer, bench: Bench) -> Bench:
@@ -120,34 +116,6 @@ def register(app: typer.Typer, bench: Bench) -> Bench:
 
 
 @dataclass(frozen=True)
-class Table:
-    """A table (or a short text around one) in Markdown, the one form both outputs take: the dashboard renders
-    it to HTML, the README's results block shows it as written (headings moved below the block's title)."""
-
-    markdown: str
-    #: Dashboard: inside a horizontally scrolling box (a table wider than the page).
-    scroll: bool = False
-
-
-@dataclass(frozen=True)
-class Figure:
-    """A dashboard figure: its charts side by side (the README shows no figures)."""
-
-    panels: tuple[Chart, ...]
-
-
-@dataclass(frozen=True)
-class Alert:
-    """A line the dashboard shows as a problem (e.g. the stability cases that failed)."""
-
-    text: str
-
-
-#: What a dashboard section is made of, in the order shown.
-Part = Table | Figure | Alert
-
-
-@dataclass(frozen=True)
 class Section:
     """A bench's section of the dashboard."""
 
@@ -157,9 +125,6 @@ class Section:
     title: str
     #: Place among the sections, lowest first (registration order is ``bench --help``'s).
     order: int
-    #: Its tables and figures from the rows of the bench's newest CSV; raises (e.g. :func:`need`) on rows
-    #: that are not the bench's, and the section says so.
-    draw: Callable[[Rows], list[Part]] | None = None
 
 
 @dataclass(frozen=True)
@@ -169,8 +134,6 @@ class Block:
     title: str
     #: Place among the blocks, lowest first.
     order: int
-    #: Its text from the rows of the bench's newest CSV; raises on rows that are not the bench's.
-    write: Callable[[Rows], list[Table]] | None = None
     #: The command that makes the CSV when it is missing (``{out}``: the results folder); empty:
     #: ``bench <name> --out {out}``.
     make: str = ""
@@ -187,21 +150,11 @@ class External:
     needs: tuple[str, ...] = ()
 
 
-def pick(rows: Rows, metric: str, stat: str | None = None) -> Rows:
-    """The rows of ``metric`` (with ``stat`` when given)."""
-    return [r for r in rows if r["metric"] == metric and (stat is None or r["stat"] == stat)]
-
-
 def need(rows: Rows, *metrics: str) -> None:
-    """Refuse rows that hold none of the metrics a table draws (another bench's CSV, or a stub)."""
-    missing = [m for m in metrics if not pick(rows, m)]
+    """Refuse rows that hold none of the metrics a bench shows (another bench's CSV, or a stub)."""
+    missing = [m for m in metrics if not any(r["metric"] == m for r in rows)]
     if missing:
         raise ValueError(f"it has no {', '.join(missing)} rows")
-
-
-def cell(value: float | None, spec: str = ".1f") -> str:
-    """A table cell: ``value`` formatted, or a dash when it was not measured (None or NaN)."""
-    return "—" if value is None or (isinstance(value, float) and math.isnan(value)) else format(value, spec)
 
 
 # --- finding a bench's results ----------------------------------------------------------------------------------

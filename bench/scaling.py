@@ -492,7 +492,6 @@ BENCH = Bench(
     "scaling",
     ScalingConfig,
     measure,
-    None,
     help="Render executor: frames/maps per second with 1 and 2 workers, local processes vs Ray vs Ray nodes (a cluster "
     "simulated on this machine), per-task overhead, and the projected wall time of the paper's data set, of GI-tree "
     "bakes and of whole configuration spaces on N workers.",

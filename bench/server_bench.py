@@ -394,7 +394,6 @@ BENCH = Bench(
     "service",
     ServiceConfig,
     measure,
-    None,
     help="GI-map server hit/miss service times and concurrent load",
     readme=Block("Cloud-baking server", 80),
     parts=PARTS,

@@ -337,7 +337,6 @@ BENCH = Bench(
     "stability",
     StabilityConfig,
     measure,
-    None,
     help="Extreme and stiff inputs through every stage (render, tone map, inference, warps, composition, "
     "codecs, store, network, server); finite or cleanly rejected, never a crash or a hang (exit 2 naming any failed "
     "case).",

@@ -297,7 +297,6 @@ BENCH = Bench(
     "storage",
     StorageConfig,
     measure,
-    None,
     help="Table 2: GI-tree entries and bytes after a fly-through per scene, codec and resolution vs the GIGAN model; "
     "codec table; tolerance knob; the growth law over --sessions user sessions from --users users (saturation, "
     "crossover with the model, the paper's accounting decomposed).",

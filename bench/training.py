@@ -128,7 +128,6 @@ BENCH = Bench(
     "training",
     TrainingBenchConfig,
     measure,
-    None,
     help="Learning curves of training runs: validation SSIM and training L1 against step and against training minutes.",
     parts=PARTS,
 )

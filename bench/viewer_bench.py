@@ -418,7 +418,6 @@ BENCH = Bench(
     "web",
     WebBenchConfig,
     measure,
-    None,
     help="Browser-side Table 1: the Web3D viewer in headless Chromium (Playwright), both systems side by side",
     dashboard=Section("web", "Web3D viewer: browser-side Table 1", 15),
     readme=Block("Web3D viewer, browser-side Table 1", 15),

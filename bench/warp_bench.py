@@ -422,7 +422,6 @@ BENCH = Bench(
     "warp",
     WarpBenchConfig,
     measure,
-    None,
     help="Fig. 7: CPU time, CPU load, memory and SSIM of pixel-level vs structure-aware warping.",
     dashboard=Section("fig7", "Fig. 7: cost of warping", 50),
     readme=Block("Cost of warping, Fig. 7", 60),

@@ -228,18 +228,17 @@ def test_ignored_folders_are_left_out_and_the_newest_of_the_rest_is_shown(
     )
 
 
-def test_figures_are_copied_beside_the_page_and_linked_relative_to_it(
+def test_figures_are_drawn_beside_the_page_and_linked_relative_to_it(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     results = tmp_path / "results"
     shutil.copytree(FIXTURES / "warp", results / "warp")
-    (results / "warp" / "warp_cost.png").write_bytes(b"\x89PNG fixture")
-    (results / "warp" / "other_bench.png").write_bytes(b"\x89PNG not warp's")
+    (results / "warp" / "warp_old.png").write_bytes(b"\x89PNG a picture the bench does not declare")
     monkeypatch.chdir(tmp_path)
     page = tmp_path / "docs" / "results.md"
     text = results_markdown(results, figures=tmp_path / "docs" / "figures", page=page)
-    assert sections(text)["Cost of warping, Fig. 7"].endswith("\n![warp_cost](figures/warp/warp_cost.png)")
-    assert (tmp_path / "docs" / "figures" / "warp" / "warp_cost.png").read_bytes() == b"\x89PNG fixture"
-    assert not (tmp_path / "docs" / "figures" / "warp" / "other_bench.png").exists()
+    assert sections(text)["Cost of warping, Fig. 7"].endswith("\n![warp](figures/warp/warp.png)")
+    drawn = tmp_path / "docs" / "figures" / "warp" / "warp.png"  # drawn from the CSV's rows, as the bench declares
+    assert drawn.read_bytes().startswith(b"\x89PNG") and not (drawn.parent / "warp_old.png").exists()
     assert text == results_markdown(results, figures=tmp_path / "docs" / "figures", page=page)  # same text again
     assert "![" not in results_markdown(results)  # without --figures: tables only

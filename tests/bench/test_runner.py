@@ -16,6 +16,7 @@ import typer
 from typer.testing import CliRunner
 
 from bench.cli import app
+from bench.present.declarations import Chart, Column, Figure, Table, pick
 from bench.runner import Bench, build_config, execute, field_docs, register
 from gicore.error_policy import UserError
 from gicore.results import COLUMNS, Results, read_rows
@@ -55,23 +56,22 @@ def _demo_measure(cfg: DemoConfig, res: Results) -> None:
     res.output("note.md").write_text("a table")
 
 
-def _demo_plot(csv_path: Path, out_dir: Path) -> list[Path]:
-    from gicore.plotting import plt, save
-
-    fig, ax = plt.subplots()
-    ax.plot([r["value"] for r in read_rows(csv_path)])
-    return [save(fig, out_dir / "demo.png")]
-
-
-DEMO = Bench("demo", DemoConfig, _demo_measure, _demo_plot, help="A demo bench.")
+DEMO = Bench(
+    "demo",
+    DemoConfig,
+    _demo_measure,
+    help="A demo bench.",
+    parts=(
+        Table(pick("resolution"), (Column("scene", "{scene}"), Column("px", "{value:g}"))),
+        Figure("demo", (Chart(pick("resolution"), "scene", series="{system}", kind="bar"),)),
+    ),
+)
 
 
 def _demo_app() -> typer.Typer:
     demo = typer.Typer()
     register(demo, DEMO)
-    register(
-        demo, Bench("other", DemoConfig, _demo_measure, None, help="Typer needs two commands for subcommand names.")
-    )
+    register(demo, Bench("other", DemoConfig, _demo_measure, help="Typer needs two commands for subcommand names."))
     return demo
 
 
@@ -131,7 +131,7 @@ def test_field_docs_come_from_comments_or_metadata() -> None:
         undocumented = dataclasses.make_dataclass(
             "C", [("b", int, 2)], frozen=True, namespace={"quick": classmethod(lambda cls: cls())}
         )
-        register(typer.Typer(), Bench("c", undocumented, _demo_measure, None, help=""))
+        register(typer.Typer(), Bench("c", undocumented, _demo_measure, help=""))
 
 
 def test_quick_preset_then_only_the_options_given() -> None:
@@ -168,10 +168,11 @@ def test_bad_values_are_user_errors_naming_the_option(given: dict, message: str)
         build_config(DemoConfig, False, given)
 
 
-def test_execute_writes_csv_provenance_of_the_final_config_and_plots(tmp_path: Path) -> None:
+def test_execute_writes_csv_provenance_of_the_final_config_tables_and_figures(tmp_path: Path) -> None:
     cfg = build_config(DemoConfig, True, {"resolution": 24})
     paths = execute(DEMO, cfg, tmp_path, seed=5)
-    assert [p.name for p in paths] == ["demo.csv", "demo.provenance.json", "note.md", "demo.png"]
+    assert [p.name for p in paths] == ["demo.csv", "demo.provenance.json", "note.md", "demo.md", "demo.png", "demo.svg"]
+    assert "| lung_plane | 24 |" in (tmp_path / "demo.md").read_text()
     prov = json.loads((tmp_path / "demo.provenance.json").read_text())
     assert prov["settings"]["resolution"] == 24 and prov["settings"]["denoise"] is False and prov["seed"] == 5
     assert prov["settings"]["models"] == {"a": "a.onnx"} and prov["files"] == [str(tmp_path / "note.md")]
