@@ -48,8 +48,10 @@ class Stack:
         seed: int,
         report: Callable[[str], None],
         spawner: ThreadPoolExecutor,
+        logs: Path | None = None,
     ):
         self.name = name
+        self.logs = logs
         self.store = store  # None: an empty temporary folder, made when the server starts
         self.scenes = scenes
         self.seed = seed
@@ -87,6 +89,8 @@ class Stack:
         host, port = self.server.addr
         upstream = (host.removeprefix("http://"), port)
         args = ("--profile", profile, "--seed", str(self.seed))
+        if self.logs is not None:  # what the proxy carried, chunk by chunk (written out as it stops)
+            args += ("--log", str(self.logs / f"{self.name}_{profile}.csv"))
         start = functools.partial(proxy, upstream, *args, timeout=PROXY_START_S, die_with_parent=True)
         child = self._start(start, f"network-sim proxy {profile}")
         self.report(f"network-sim proxy {profile} -> {self.name} store: {_url(child)} (pid {child.proc.pid})")
@@ -126,8 +130,9 @@ class ChildCloud:
     """The cloud side as ``gigan-web`` starts it (module docstring): ``profiles`` (network-sim profile names; the
     first is the page's default) in front of the ``given`` store's server (``store``, else a cold temporary
     one) and, beside a given store, a lazily started ``cold`` one. ``scenes``: the folder of a scene spec file
-    the servers are given. ``report`` receives one line per child started. Use as a context manager: entering
-    starts the given store's children, leaving stops them all."""
+    the servers are given. ``report`` receives one line per child started. ``logs``: a folder where each proxy
+    writes its per-chunk log (``network-sim proxy --log``) as ``<store>_<profile>.csv``. Use as a context
+    manager: entering starts the given store's children, leaving stops them all."""
 
     def __init__(
         self,
@@ -136,12 +141,13 @@ class ChildCloud:
         scenes: Path | None = None,
         seed: int = 0,
         report: Callable[[str], None] = print,
+        logs: Path | None = None,
     ) -> None:
         self._profiles = profiles
         self._spawner = ThreadPoolExecutor(1, thread_name_prefix="gigan-web-children")
-        self._stacks = {"given": Stack("given", store, scenes, seed, report, self._spawner)}
+        self._stacks = {"given": Stack("given", store, scenes, seed, report, self._spawner, logs)}
         if store is not None:
-            self._stacks["cold"] = Stack("cold", None, scenes, seed, report, self._spawner)
+            self._stacks["cold"] = Stack("cold", None, scenes, seed, report, self._spawner, logs)
 
     @property
     def profiles(self) -> tuple[str, ...]:

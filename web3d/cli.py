@@ -113,15 +113,15 @@ class WebConfig:
         return {k: v for k, v in asdict(self).items() if k in keys} | {"resolution": resolution}
 
 
-def cloud_for(cfg: WebConfig, report: Callable[[str], None] = typer.echo) -> Cloud:
+def cloud_for(cfg: WebConfig, report: Callable[[str], None] = typer.echo, logs: Path | None = None) -> Cloud:
     """The cloud side ``cfg`` asks for: none, the user's server, or children (started when it is entered;
-    ``report`` gets a line per child)."""
+    ``report`` gets a line per child; ``logs``: a folder for the proxies' per-chunk logs, see ChildCloud)."""
     if not cfg.cloud:
         return OFF
     if cfg.server is not None:
         return Fixed.direct(cfg.server)
     scenes = Path(cfg.scene).resolve().parent if Path(cfg.scene).suffix else None  # a spec file's folder
-    return ChildCloud(cfg.profiles, cfg.store, scenes, cfg.seed, report)
+    return ChildCloud(cfg.profiles, cfg.store, scenes, cfg.seed, report, logs)
 
 
 def prepare(cfg: WebConfig, cloud: Cloud) -> Site:

@@ -8,9 +8,7 @@ import csv
 import math
 import subprocess
 import sys
-from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
 
 import pytest
 
@@ -26,6 +24,7 @@ from gicore.paths import light_position
 from gicore.results import Results, read_rows
 from gicore.scene import SceneSpec, load_scene
 from tests.helpers.cloud import write_scenes
+from tests.helpers.latency_runs import stand_in
 
 BIN = Path(sys.executable).parent
 
@@ -74,21 +73,8 @@ def test_bench_latency_gives_every_client_the_path_file(
     """The processes are stood in for: what is checked is what each client and the prefill are told."""
     spec = load_scene(scene)
     session = _session(spec, tmp_path / "session.json")
-    argvs: list[list[str]] = []
-    asked: list[Any] = []
-    recorded: dict[str, Any] = {}
-
-    @contextmanager
-    def process(*args: Any) -> Any:
-        yield "http://127.0.0.1:9"
-
-    monkeypatch.setattr(latency, "available_renderers", lambda asked: (("mitsuba",), {}))
-    monkeypatch.setattr(latency, "pinned_server", process)
-    monkeypatch.setattr(latency, "pinned_proxy", process)
-    monkeypatch.setattr(latency, "ask_path", lambda url, scene, cfg, seed, **kw: asked.append(cfg) or {"misses": 3})
-    monkeypatch.setattr(latency, "run_client", lambda plan, argv, out, timeout: argvs.append(argv) or out)
-    monkeypatch.setattr(latency, "_ran_on", lambda folder, renderer: folder)
-    monkeypatch.setattr(latency, "record", lambda res, name, cfg, runs, common: recorded.update(cfg=cfg, common=common))
+    told = stand_in(monkeypatch)
+    argvs, asked, recorded = told.argvs, told.asked, told.recorded
     cfg = LatencyConfig(scenes=(str(scene),), profiles=("lan",), resolution=16, path=session, renderers=("mitsuba",),
                         prefetch_in_flight=1)  # fmt: skip
     latency.measure(cfg, Results("latency", tmp_path / "out", 0))

@@ -1,7 +1,10 @@
-"""The Web3D viewer in headless Chromium (SwiftShader WebGL2), both systems against a real cloudbaking-server
-behind network-sim proxy: the page autoplays the scripted path's first frames (``?autoplay=1&frames=N``) as bench
-web measures it, both canvases show the scene lit by their GI (not blank, not the DI alone), the HUD's numbers are
-the CSV's, and the browser's prediction matches GIModel.predict.
+"""bench web end to end on a tiny run (headless Chromium, SwiftShader WebGL2; gigan-web's own children: a
+cloudbaking-server on a store prebaked along the path, a network-sim proxy per profile): the path replays through
+the page's camera API once per profile, each system's frame times, map ages, perceived latency, stages and
+checks land in the CSV and its tables, the browser's prediction matches GIModel.predict. On the same page:
+switching the profile reaches the new proxy, and the page's recording of the run is a session that
+``gigan-client --path`` flies to the same views and that drives ``bench latency --path`` and ``bench storage
+--sessions-from``. No test bounds a time.
 
 Without Chromium, Playwright or web3d/static/node_modules (``make setup`` runs npm ci) the tests skip and say which
 is missing.
@@ -9,116 +12,185 @@ is missing.
 
 from __future__ import annotations
 
+import json
 import math
-import re
-from collections.abc import Callable
+import shutil
+import subprocess
+import sys
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 
-from bench.viewer_bench import SCREENSHOT, Reference, WebBenchConfig, canvas_stats, record, viewer_site
+from bench import latency, present
+from bench.latency import LatencyConfig
+from bench.present.declarations import matches
+from bench.storage_config import StorageConfig
+from bench.storage_growth import fill_sessions, measure_growth, session_frames
+from bench.viewer_bench import BENCH, SESSION, WebBenchConfig, measure_viewer, open_viewer, record_links
+from bench.viewer_page import settle
+from bench.viewer_present import SCREENSHOT
+from gicore.camera import Camera
 from gicore.options import config_dict
+from gicore.path_file import read_path_file
 from gicore.results import Results, read_rows
-from tests.helpers.browser import missing, viewer_page, wait
+from gicore.scene import load_scene
+from tests.helpers.browser import missing
+from tests.helpers.latency_runs import stand_in
 
-#: Both systems ask for a map at frame 0, and at frame 2 when the first has landed (the page lets the maps in
-#: flight land before it is done); a cold store: the server path-traces each at 2 spp.
-CFG = WebBenchConfig(frames=3, every=2, spp=2, timing_runs=2, store="cold", profile="lan", timeout_s=240.0)
+#: Four path frames per profile, a map asked for every two while the view moves; 1 spp maps, prebaked.
+CFG = WebBenchConfig(frames=4, every=2, spp=1, timing_runs=2, profiles=("lan", "wan"), timeout_s=300.0)
 PARITY_BOUND = 1e-2
-
-
-def autoplay(url: str, screenshot: Path, reference: Callable[[dict[str, Any]], Callable[[], float]]) -> dict:
-    """bench web's measurement of the page: its autoplay of CFG.frames frames, a screenshot, ``session.run`` timed
-    alternately in the page and in Python (``reference(viewer)``: one Python run per call, seconds), the last
-    frame's snapshot and the HUD's text; returns what ``window.viewer`` holds with those."""
-    with viewer_page(url, f"autoplay=1&frames={CFG.frames}") as page:
-        wait(page, "window.viewer.done", timeout_s=CFG.timeout_s)
-        data = page.evaluate("window.viewer")
-        page.locator("#viewer").screenshot(path=str(screenshot))
-        python_run = reference(data)
-        data["browser_runs_ms"], data["python_runs_ms"] = [], []
-        for _ in range(CFG.timing_runs):
-            data["browser_runs_ms"].append(page.evaluate("window.viewer.infer()"))
-            data["python_runs_ms"].append(python_run() * 1e3)
-        data["snapshot"] = page.evaluate("window.viewer.snapshot()")
-        data["hud"] = {system: page.inner_text(f"#hud-{system}") for system in ("gigan", "cloud")}
-        data["chromium"] = page.context.browser.version
-    return data
+#: More than a response's status line and headers: what a proxy carries down besides a map's bytes.
+RESPONSE_HEAD_BYTES = 1024
+BIN = Path(sys.executable).parent
 
 
 @pytest.fixture(scope="module")
-def run(tmp_path_factory: pytest.TempPathFactory) -> dict:
+def run(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
+    """bench web's measure on CFG, and on the same page the matrices of each recorded view (set through the
+    page's controls); the CSV's rows once the proxies have stopped and written their logs."""
     why = missing()
     if why:
         pytest.skip(f"the Web3D viewer cannot run here: {why}")
     out = tmp_path_factory.mktemp("web")
     results = Results("web", out, seed=0, settings=config_dict(CFG))
-    reference = Reference(CFG.threads, "lung_plane")
-    with viewer_site(CFG, 0, out / "work") as url:
-        viewer = autoplay(url, out / SCREENSHOT, reference.check)
-    record(results, "lung_plane", CFG, viewer, reference.diff, reference.port)
+    with open_viewer(CFG, results) as viewer:
+        measure_viewer(viewer, CFG, results)  # what bench web's measure does inside its site
+        page = viewer.page
+        replayed = page.evaluate("viewer.frames.map((f) => f.replay)")
+        recorded = json.loads((out / SESSION).read_text())["frames"]
+        cameras = page.evaluate("frames => frames.map((f) => viewer.setCamera(f.camera))", recorded)
+        settle(page)  # the last view's maps landed: every request made has its map
+        maps = page.evaluate("viewer.maps")
+    record_links(results, viewer)
     rows = read_rows(results.write())
-    return {"viewer": viewer, "rows": rows, "diff": reference.diff, "port": reference.port, "out": out}
+    present.write_files(BENCH.name, BENCH.parts, rows, out)
+    return {"rows": rows, "out": out, "replayed": replayed, "maps": maps, "cameras": cameras}
 
 
-def test_the_page_plays_its_frames_and_both_canvases_show_the_scene_lit_by_gi(run) -> None:
-    viewer = run["viewer"]
-    assert viewer["info"]["cross_origin_isolated"] is True  # what lets onnxruntime-web run wasm threads
-    # one path frame per drawn frame from the first, then frames that only land the maps in flight
-    replayed = [f["replay"] for f in viewer["frames"]]
-    assert replayed == [*range(CFG.frames), *[None] * (len(replayed) - CFG.frames)]
-    systems = {m["system"] for m in viewer["maps"]}
-    assert systems == {"gigan", "cloud_baking"}
-    stats = canvas_stats(viewer["snapshot"])
-    for system in ("gigan", "cloud"):
-        # the lung and the ground plane cover most of the frame; the sky above the plane is black
-        assert stats[system]["lit"] > 0.4, (system, stats)
-        # tau = 0: the canvas is the warped GI map, whose indirect light the DI alone lacks
-        assert stats[system]["vs_di"] > 0.01, (system, stats)
-    assert (run["out"] / SCREENSHOT).stat().st_size > 20_000  # a PNG of two lit 256² canvases and their HUDs
+def rows_of(rows: list[dict], metric: str, stat: str | None = None, **config: Any) -> list[dict]:
+    return [r for r in rows if matches(r, metric, stat, **config)]
 
 
-def _hud_median(text: str, stage: str) -> float:
-    line = next(line for line in text.splitlines() if line.split("\t")[0].strip() == stage)
-    return float(re.split(r"\t", line)[2])
+def test_the_path_replays_through_the_pages_controls_once_per_profile(run) -> None:
+    replayed = [f for f in run["replayed"] if f is not None]
+    assert replayed == [*range(CFG.frames)] * len(CFG.profiles)  # one path frame per drawn frame, in order
+    profiles = [m["profile"] for m in run["maps"] if m["system"] == "cloud_baking"]
+    assert profiles == sorted(profiles, key=CFG.profiles.index) and set(profiles) == set(CFG.profiles)
+    session = read_path_file(run["out"] / SESSION, load_scene("lung_plane"))  # the page's recording: a path file
+    assert len(session.frames) == len(run["replayed"])  # one per frame drawn
 
 
-def test_the_huds_numbers_land_in_the_csv(run) -> None:
-    viewer, rows = run["viewer"], run["rows"]
-    for page_system, system in (("gigan", "gigan"), ("cloud", "cloud_baking")):
-        maps = [m for m in viewer["maps"] if m["system"] == system]
-        mine = [r for r in rows if r["system"] == system and r["stat"] == "map"]
-        per_map = {(r["config"]["frame"], r["metric"]): r["value"] for r in mine}
-        for m in maps:
-            assert per_map[m["frame"], "total"] == pytest.approx(m["total"])
-            for stage, value in m["stages"].items():
-                if (m["frame"], stage) in per_map:
-                    assert per_map[m["frame"], stage] == pytest.approx(value)
-        median = next(r["value"] for r in rows if (r["system"], r["metric"], r["stat"]) == (system, "total", "median"))
-        assert _hud_median(viewer["hud"][page_system], "total") == pytest.approx(median, abs=0.051)
-        assert median > 0
-    ratio = next(r["value"] for r in rows if r["metric"] == "total_ratio")
-    medians = {r["system"]: r["value"] for r in rows if r["metric"] == "total" and r["stat"] == "median"}
-    assert ratio == pytest.approx(medians["cloud_baking"] / medians["gigan"])
+def test_each_system_and_profile_reports_frame_times_map_age_perceived_latency_and_stages(run) -> None:
+    rows = run["rows"]
+    for profile in CFG.profiles:
+        for system in ("gigan", "cloud_baking"):
+            at = {"system": system, "profile": profile}
+            mine = [r for r in rows if r["system"] == system and r["config"].get("profile") == profile]
+            all_frames = rows_of(mine, "frame_ms", "n", phase="all")
+            assert all_frames and all_frames[0]["value"] >= CFG.frames, at
+            phases = {r["config"]["phase"] for r in rows_of(mine, "frame_ms", "median")}
+            assert {"all", "landing"} <= phases and phases <= {"all", "idle", "in_flight", "landing"}, at
+            during = rows_of(mine, "frames_during_map", "map")
+            assert during and all(r["value"] >= 1 for r in during), at  # no map is joined in the frame that asked
+            assert len(during) == rows_of(mine, "total", "n")[0]["value"], at
+            assert rows_of(mine, "map_age_ms", "median") and rows_of(mine, "map_age_frames", "p95"), at
+            assert rows_of(mine, "perceived_ms", "median") or rows_of(mine, "censored")[0]["value"] > 0, at
+        checks = rows_of(rows, "frame_ms", "target_met", profile=profile) + rows_of(
+            rows, "frames_during_map", "target_met", profile=profile
+        )
+        assert len(checks) == 2 and all(r["value"] in (0.0, 1.0) or math.isnan(r["value"]) for r in checks)
+        assert rows_of(rows, "hit_rate", profile=profile)[0]["value"] == 1.0  # the prebaked store serves each ask
+        assert rows_of(rows, "total_ratio", profile=profile)[0]["value"] > 0
+    text = (run["out"] / "web.md").read_text()
+    assert "| GIGAN | wan |" in text and "| cloud baking | wan |" in text and "fewest >= 1" in text
+    assert (run["out"] / SCREENSHOT).stat().st_size > 20_000  # a PNG of two lit canvases and their HUDs
 
 
 def test_browser_prediction_matches_gimodel_predict_and_both_inference_times_are_recorded(run) -> None:
     rows = run["rows"]
-    assert 0.0 <= run["diff"]["max"] <= PARITY_BOUND
-    assert next(r["value"] for r in rows if r["metric"] == "parity_max_abs_diff") == run["diff"]["max"]
-    runs = {r["config"]["runtime"]: r["value"] for r in rows if r["metric"] == "inference_run" and r["stat"] == "n"}
+    assert 0.0 <= rows_of(rows, "parity_max_abs_diff")[0]["value"] <= PARITY_BOUND
+    runs = {r["config"]["runtime"]: r["value"] for r in rows_of(rows, "inference_run", "n")}
     assert runs == {"onnxruntime-web": CFG.timing_runs, "onnxruntime-python": CFG.timing_runs}
-    ratio = next(r["value"] for r in rows if r["metric"] == "inference_ratio")
+    ratio = rows_of(rows, "inference_ratio")[0]["value"]
     assert math.isfinite(ratio) and ratio > 0
+
+
+def test_both_canvases_show_the_scene_lit_by_gi(run) -> None:
+    for system in ("gigan", "cloud_baking"):
+        value = {r["metric"]: r["value"] for r in run["rows"] if r["system"] == system}
+        # the lung and the ground plane cover most of the frame; the sky above the plane is black
+        assert value["canvas_lit"] > 0.4, system
+        # tau = 0: the canvas is the warped GI map, whose indirect light the DI alone lacks
+        assert value["canvas_vs_di"] > 0.01, system
 
 
 def test_the_pages_webgl2_passes_match_glrenderers(run) -> None:
     """The shaders ported to WebGL2 (SwiftShader) against the GLSL they come from (Mesa through moderngl)."""
-    port = run["port"]
+    port = {r["metric"].removeprefix("port_"): r["value"] for r in run["rows"] if r["metric"].startswith("port_")}
     if not port:
         pytest.skip("no OpenGL context for GLRenderer here (make setup installs Mesa's EGL when run as root)")
     assert port["coverage_mismatch"] <= 1e-3  # a few silhouette pixels rasterise differently
     for buffer in ("di", "albedo", "normal", "depth"):
         assert port[f"{buffer}_rel_diff"] <= 1e-2, (buffer, port)
-    assert {f"port_{k}" for k in port} <= {r["metric"] for r in run["rows"]}
+
+
+def test_switching_the_profile_reaches_the_new_proxy(run) -> None:
+    """Each profile's proxy carried down the maps the page got through that profile and no other's: its chunk log
+    counts them, and at most a response head's worth more per request."""
+    for profile in CFG.profiles:
+        mine = [m["bytes"] for m in run["maps"] if m.get("profile") == profile]
+        link = rows_of(run["rows"], "link_bytes_down", profile=profile)[0]["value"]
+        assert mine and sum(mine) <= link < sum(mine) + RESPONSE_HEAD_BYTES * len(mine), (profile, link, mine)
+        assert rows_of(run["rows"], "map_bytes", profile=profile)[0]["value"] == sum(mine)
+
+
+def test_the_recorded_session_flies_through_gigan_client_to_the_same_views(run, tmp_path: Path) -> None:
+    spec = load_scene("lung_plane")
+    session = run["out"] / SESSION
+    argv = [str(BIN / "gigan-client"), "--scene", "lung_plane", "--path", str(session), "--resolution", "16",
+            "-k", "100000", "--gi-source", "gt", "--spp", "1", "--no-denoise"]  # fmt: skip
+    client = subprocess.run([*argv, "--out", str(tmp_path / "client")], capture_output=True, text=True, timeout=600)
+    assert client.returncode == 0, client.stderr
+    flown = read_path_file(tmp_path / "client" / "path.json", spec)
+    recorded = read_path_file(session, spec)
+    assert flown == recorded
+    # the page's matrices of each recorded view (set through its controls) against the client's cameras
+    for doc, waypoint in zip(run["cameras"], flown.frames, strict=True):
+        cam: Camera = waypoint.camera
+        for name, matrix in (("view", cam.view()), ("proj", cam.proj()), ("view_proj", cam.view_proj())):
+            page_matrix = np.asarray(doc[name]).reshape(4, 4).T  # column-major
+            np.testing.assert_allclose(page_matrix, matrix, rtol=0, atol=1e-6, err_msg=name)
+
+
+def test_the_recorded_session_drives_bench_latency_and_bench_storage(
+    run, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """bench latency's processes are stood in for (what is checked is what each client is told); bench storage's
+    growth law runs on the session for real, at 16 pixels."""
+    session = run["out"] / SESSION
+    frames = len(read_path_file(session, load_scene("lung_plane")).frames)
+    told = stand_in(monkeypatch)
+    cfg = LatencyConfig(profiles=("lan",), resolution=16, path=session, renderers=("mitsuba",), prefetch_in_flight=0)
+    latency.measure(cfg, Results("latency", tmp_path / "latency", 0))
+    assert told.argvs and all(argv[argv.index("--path") + 1] == str(session) for argv in told.argvs)
+    assert told.recorded["cfg"].frames == frames and all(c.frames == frames for c in told.asked)
+
+    folder = tmp_path / "sessions"
+    folder.mkdir()
+    shutil.copy(session, folder / "session.json")
+    spec = load_scene("lung_plane")
+    cfg = StorageConfig(scenes=("lung_plane",), resolutions=(16,), codecs=("jpeg",), spp=1, growth_samples=1,
+                        capacity_samples=10, paper_resolution=16, sessions_from=folder,
+                        map_cache=tmp_path / "maps")  # fmt: skip
+    res = Results("storage", tmp_path / "storage", 0)
+    measure_growth(cfg, res, "lung_plane", {"fp16": 10_000}, {})
+    rows = read_rows(res.write())
+    flown = [read_path_file(folder / "session.json", spec)]
+    expected = fill_sessions(session_frames(spec, flown, cfg.light_cell, spec.camera.gi_fov), cfg.tolerance).entries
+    curve = [r["value"] for r in rows if r["metric"] == "growth_entries" and r["config"]["tolerance"] == "store"]
+    assert curve == list(expected) and len(curve) == 1
+    [store] = [r for r in rows if r["metric"] == "saturation_sessions" and r["config"]["tolerance"] == "store"]
+    assert store["config"]["sessions_run"] == 1 and store["config"]["session_frames"] == frames

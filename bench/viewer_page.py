@@ -1,0 +1,147 @@
+"""The Web3D page in headless Chromium (Playwright), as ``bench web`` and the browser tests drive it: launching
+Debian's Chromium with software or GPU WebGL, opening the page once ``window.viewer`` is ready, waiting on it,
+and replaying a path file through ``viewer.replay`` (the camera API the page's controls drive: each path frame
+moves the controls, as a person's drag would, one per drawn frame) behind a chosen network profile.
+
+A replay starts settled at its first view (both panes' maps made there, nothing in flight) and ends settled at its
+last: its frames are every frame drawn in between, the path's own and those that land the last maps.
+docs/architecture.md, bench web.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+CHROMIUM = Path("/usr/bin/chromium")
+#: Chromium's software WebGL2 (SwiftShader through ANGLE), for a machine without a GPU.
+SWIFTSHADER = ["--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist"]
+#: Also SwiftShader's WebGPU adapter (onnxruntime-web's WebGPU back end runs, in software: a functional check).
+SWIFTSHADER_WEBGPU = [*SWIFTSHADER, "--enable-unsafe-webgpu", "--use-webgpu-adapter=swiftshader"]
+#: Chromium's flags per ``--webgl`` choice; ``gpu``: the GPU through ANGLE's Vulkan back end, with WebGPU.
+WEBGL_FLAGS = {
+    "swiftshader": SWIFTSHADER,
+    "swiftshader_webgpu": SWIFTSHADER_WEBGPU,
+    "gpu": ["--use-angle=vulkan", "--enable-features=Vulkan", "--ignore-gpu-blocklist", "--enable-unsafe-webgpu"],
+}
+#: The npm folders the page imports (``make setup`` runs npm ci in web3d/static/).
+NPM_FOLDERS = ("onnxruntime-web/dist", "fzstd/esm", "three/build", "three/examples/jsm")
+#: Seconds the page may take to load, or to do one step asked of it, on 2 busy cores (a hang guard).
+PAGE_TIMEOUT_S = 300.0
+#: True once a whole tick of the page's frame loop has passed drawing nothing with no map in flight: nothing is
+#: due, so nothing will be drawn until something changes (the frame loop draws a tick only when something is new).
+SETTLED = """async () => {
+  const n = viewer.frames.length;
+  await new Promise((resolve) => requestAnimationFrame(() => requestAnimationFrame(resolve)));
+  const f = viewer.frames.at(-1);
+  return Boolean(viewer.error) || (viewer.frames.length === n && f !== undefined && !f.gigan.inflight
+    && !(f.cloud && f.cloud.inflight));
+}"""
+#: Start a replay; ``window.benchReplay`` says when it has finished or failed.
+START_REPLAY = """doc => {
+  window.benchReplay = { done: false, error: null };
+  viewer.replay(doc).then(() => (window.benchReplay.done = true), (e) => (window.benchReplay.error = String(e)));
+}"""
+
+
+def missing() -> str | None:
+    """Why the page cannot run here (no Chromium, no Playwright, no npm packages), or None."""
+    from web3d.site import WEB_DIR
+
+    if not CHROMIUM.is_file():
+        return f"{CHROMIUM} is missing (apt-get install chromium)"
+    try:
+        import playwright.sync_api  # noqa: F401
+    except ImportError:
+        return "playwright is not installed (pip install -e '.[test]')"
+    absent = [f for f in NPM_FOLDERS if not (WEB_DIR / "node_modules" / f).is_dir()]
+    if absent:
+        return f"{WEB_DIR}/node_modules lacks {absent[0]} (make setup runs npm ci in web3d/static/)"
+    return None
+
+
+@contextmanager
+def chromium(flags: list[str] = SWIFTSHADER) -> Iterator[Any]:
+    """A headless Chromium (a Playwright Browser), closed after."""
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=str(CHROMIUM), args=flags)
+        try:
+            yield browser
+        finally:
+            browser.close()
+
+
+@contextmanager
+def viewer_page(url: str, query: str = "", flags: list[str] = SWIFTSHADER) -> Iterator[Any]:
+    """The Web3D page at ``url/?query`` in a new headless Chromium, once ``window.viewer.ready``; a page error
+    raises RuntimeError with the page's message. The page's uncaught errors are kept in ``page.errors``."""
+    with chromium(flags) as browser:
+        page = browser.new_page(viewport={"width": 1200, "height": 1000}, accept_downloads=True)
+        page.errors = []
+        page.on("pageerror", lambda e: page.errors.append(str(e)))
+        page.goto(f"{url}/{'?' + query if query else ''}")
+        wait(page, "window.viewer && (window.viewer.ready || window.viewer.error)")
+        yield page
+
+
+def wait(page: Any, expression: str, arg: Any = None, timeout_s: float = PAGE_TIMEOUT_S) -> Any:
+    """Wait until ``expression`` (a JS expression, or a function of ``arg``) is truthy in the page; raise with
+    the page's error when it has one."""
+    handle = page.wait_for_function(expression, arg=arg, timeout=timeout_s * 1e3, polling=50)
+    error = page.evaluate("window.viewer && window.viewer.error") or (page.errors[0] if page.errors else None)
+    if error:
+        raise RuntimeError(f"the viewer failed: {error}")
+    return handle.json_value()
+
+
+def settle(page: Any, timeout_s: float = PAGE_TIMEOUT_S) -> None:
+    """Wait until the page has drawn a frame and has nothing in flight or due (:data:`SETTLED`)."""
+    import time
+
+    deadline = time.monotonic() + timeout_s
+    while not page.evaluate(SETTLED):
+        if time.monotonic() > deadline:
+            raise TimeoutError(f"the viewer did not settle within {timeout_s:g} s")
+    wait(page, "true")  # raises with the page's error, if it has one
+
+
+@dataclass(frozen=True)
+class Segment:
+    """One replay's share of the page's records: ``viewer.frames[frames[0]:frames[1]]`` and ``viewer.maps``
+    likewise, behind network ``profile``."""
+
+    profile: str
+    frames: tuple[int, int]
+    maps: tuple[int, int]
+
+
+def counts(page: Any) -> tuple[int, int]:
+    return tuple(page.evaluate("[viewer.frames.length, viewer.maps.length]"))  # type: ignore[return-value]
+
+
+def replay(page: Any, doc: dict[str, Any], profile: str, timeout_s: float = PAGE_TIMEOUT_S) -> Segment:
+    """Replay the path file ``doc`` behind ``profile``: the profile chosen and the camera and light put at the
+    path's first frame (a fresh map from each pane there), settled, then the path played one frame per drawn
+    frame and settled again (module docstring)."""
+    first = doc["frames"][0]
+    drawn = counts(page)[0]
+    page.evaluate(
+        "([profile, f]) => { viewer.setProfile(profile); viewer.setCamera(f.camera); viewer.setLight(f.light); }",
+        [profile, first],
+    )
+    wait(page, "n => viewer.frames.length > n", drawn, timeout_s)
+    settle(page, timeout_s)
+    frames0, maps0 = counts(page)
+    page.evaluate(START_REPLAY, doc)
+    wait(page, "window.benchReplay.done || window.benchReplay.error", None, timeout_s)
+    error = page.evaluate("window.benchReplay.error")
+    if error:
+        raise RuntimeError(f"the viewer's replay failed: {error}")
+    settle(page, timeout_s)
+    frames1, maps1 = counts(page)
+    return Segment(profile, (frames0, frames1), (maps0, maps1))
