@@ -147,7 +147,7 @@ for res in $RESOLUTIONS; do
   if [[ -z $model && $res == "$shipped_res" ]]; then model=$shipped_model; fi
   if [[ -z $model ]]; then say "skip latency at ${res}²: the shipped model runs at ${shipped_res}²; set MODEL_$res"; continue; fi
   act "$BIN/bench" latency --quick --resolution "$res" --model "$model" --out "$RESULTS/latency_$res"
-  act cp "$RESULTS/latency_$res/latency_table.md" "$DEST/latency_table_$res.md"
+  act cp "$RESULTS/latency_$res/latency.md" "$DEST/latency_table_$res.md"
 done
 act "$BIN/bench" render --quick --renderers gl --gl-resolutions "${RESOLUTIONS// /,}" --out "$RESULTS/render_gl"
 act "$BIN/bench" report --results "$RESULTS" --out "$RESULTS/report"
