@@ -33,9 +33,11 @@ from bench.viewer_page import WEBGL_FLAGS, Segment, missing, replay, viewer_page
 from bench.viewer_parity import Reference, canvas_stats, time_inference
 from bench.viewer_present import PARTS, SCREENSHOT
 from bench.viewer_stats import CLOUD, GIGAN, PANES, Replayed, record_checks, record_system
+from gicore import option_groups
 from gicore.error_policy import UserError
-from gicore.options import FRAMES, PATH_FILE, SPP, THREADS
+from gicore.options import FRAMES, THREADS
 from gicore.results import Results
+from network_sim.profiles import profiles_field
 
 #: The page's recording of the whole run, a path file.
 SESSION = "web_session.json"
@@ -45,25 +47,22 @@ SESSION = "web_session.json"
 class WebBenchConfig:
     """What one browser run measures (see the module docstring)."""
 
-    #: The scene both systems fly through (name or spec file).
-    scenes: tuple[str, ...] = field(default=("lung_plane",), metadata={"max_len": 1})
+    scenes: tuple[str, ...] = option_groups.scenes(one=True, note="the one both systems fly through")
     #: Frames of the scripted path replayed.
     frames: int = field(default=60, metadata=FRAMES)
-    #: Frames per full orbit of the scripted path.
-    orbit_frames: int = field(default=300, metadata=FRAMES)
-    path: Path | None = field(default=None, metadata=PATH_FILE)
-    #: GI-map period k: while the view moves, each system asks for a new map at most every k frames.
-    every: int = field(default=10, metadata=FRAMES)
-    #: Network profiles the cloud pane's maps come through (network-sim profiles), one replay of the path each.
-    profiles: tuple[str, ...] = ("lan", "wan")
+    orbit_frames: int = option_groups.orbit_frames()
+    path: Path | None = option_groups.path()
+    every: int = option_groups.every(10, note="while the view moves, each system asks at most this often")
+    profiles: tuple[str, ...] = profiles_field(
+        ("lan", "wan"), note="the cloud pane's maps come through each, one replay of the path each"
+    )
     #: URL of a cloud-baking server to use instead of starting one (profile 'direct'; prebaked: filled first).
     server: str | None = field(default=None, metadata={"conflicts": ("profiles",)})
     #: The cloud-baking store: prebaked (every path frame's map baked first: the page's requests hit) or cold.
     store: Literal["prebaked", "cold"] = "prebaked"
     #: GI-map codec the cloud side asks for.
     codec: Literal["jpeg", "webp", "png"] = "jpeg"
-    #: Path-tracing samples per pixel of the cloud maps.
-    spp: int = field(default=64, metadata=SPP)
+    spp: int = option_groups.spp(note="of the cloud maps")
     #: ONNX model run in the browser and in Python (gigan-export output); absent: the shipped fp16 model.
     model: Path | None = None
     #: onnxruntime threads, in the browser (wasm) and in Python.
@@ -81,11 +80,6 @@ class WebBenchConfig:
         return cls(frames=20, every=10, spp=16, timing_runs=5)
 
     def check(self) -> None:
-        from network_sim.profiles import profiles
-
-        unknown = [p for p in self.profiles if p not in profiles()]
-        if unknown:
-            raise UserError(f"--profiles {unknown[0]} is not a profile", f"pick from {', '.join(profiles())}")
         if self.server is not None and not self.server.startswith(("http://", "https://")):
             raise UserError(
                 f"--server {self.server!r} is not an http(s) URL", "give e.g. --server http://127.0.0.1:8001"
