@@ -351,19 +351,8 @@ def tree_bars(rows: Rows) -> list[dict[str, Any]]:
 
 
 def along_path(rows: Rows) -> list[dict[str, Any]]:
-    """The tree's bytes along the fly-through: entries so far × mean bytes per entry, per codec and resolution."""
-    mean = {
-        (r["scene"], r["config"]["resolution"], r["config"]["codec"]): r["value"]
-        for r in rows
-        if matches(r, "entry_bytes", "mean", composition="blend")
-    }
-    return [
-        {"frame": r["config"]["at_frame"], "bytes": r["value"] * b, "name": f"{scene}: {codec} {res}²"}
-        for r in rows
-        if matches(r, "entries_at")
-        for (scene, res, codec), b in mean.items()
-        if scene == r["scene"]
-    ]
+    """The tree's entries along the fly-through, per scene."""
+    return [flat(r) for r in rows if matches(r, "entries_at")]
 
 
 def knob(metric: str, stat: str | None = None) -> Any:
@@ -431,17 +420,15 @@ PARTS = (
                 "{name}",
                 kind="bar",
                 ylabel="MiB",
-                title="GI tree after the fly-through (GI + depth) per codec, against the model",
+                title="GI tree after the fly-through vs the model",
             ),
             Chart(
                 along_path,
-                "frame",
-                "bytes",
-                "{name}",
-                ylog=True,
+                "at_frame",
+                series="{scene}",
                 xlabel="fly-through frames",
-                ylabel="bytes",
-                title="GI tree (counted entries x measured mean bytes per GI + depth entry)",
+                ylabel="GI-tree entries (the lookup rule)",
+                title="Entries along the fly-through",
             ),
         ),
     ),
