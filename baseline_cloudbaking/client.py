@@ -38,7 +38,9 @@ from baseline_cloudbaking.request_policy import (
 )
 from baseline_cloudbaking.viewpoints import nearest
 from gicore.camera import Camera
-from gicore.loop import GIMap, Light, PathRunConfig
+from gicore.gi_map import GIMap
+from gicore.paths import Light
+from gicore.run_config import PathRunConfig
 
 if TYPE_CHECKING:
     pass

@@ -21,7 +21,7 @@ stage in ms, the map's age and latency, what it waited for, SSIM/PSNR against th
 status, hit, bytes, every stage from transmission to blend, split as :mod:`baseline_cloudbaking.client`
 says) and ``summary.json`` (``renderer``: the one that ran the local DI and the warp's mask pass; gl without
 a context falls back to mitsuba with one warning). Options: the fields of
-:class:`~baseline_cloudbaking.client_run.CloudClientConfig` and :class:`~gicore.loop.PathRunConfig`.
+:class:`~baseline_cloudbaking.client_run.CloudClientConfig` and :class:`~gicore.run_config.PathRunConfig`.
 """
 
 from __future__ import annotations
@@ -97,7 +97,7 @@ def write_outputs(
     """``frames.csv``, ``requests.csv`` and ``summary.json`` under ``out``; returns the summary. ``renderer``:
     the renderer that ran the raster passes (default: the one the config asks for); the summary's
     ``warp_backend`` is the backend that ran the warp and the composition on it."""
-    from gicore.loop import summarize, write_rows
+    from gicore.frame_rows import summarize, write_rows
 
     write_rows(rows, out / "frames.csv")
     write_rows(requests, out / "requests.csv")  # frame 0 always asks, so there is a record (if only "abandoned")

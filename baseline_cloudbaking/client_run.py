@@ -19,7 +19,8 @@ from baseline_cloudbaking.codecs import CODEC_NAMES, DEFAULT_CODEC
 from baseline_cloudbaking.request_policy import HOLDS, PREFETCH, LightCell, RequestPolicy, covers, viewpoint_of
 from baseline_cloudbaking.viewpoints import Tolerance, nearest
 from gicore.camera import Camera
-from gicore.loop import GIMap, PathRunConfig
+from gicore.gi_map import GIMap
+from gicore.run_config import PathRunConfig
 
 if TYPE_CHECKING:
     from gicore.path_file import PathFile
@@ -107,7 +108,7 @@ class CloudClientConfig(PathRunConfig):
     """One ``cloudbaking-client`` run: the shared path run (the same path as ``gigan-client``'s; ``spp`` is
     also the server's; the server's maps are always denoised) plus the GI-map codec and the timeouts of its
     requests. The server knows the scene by its name (a spec file's stem). Its command line is derived from
-    these fields and :class:`~gicore.loop.PathRunConfig`'s."""
+    these fields and :class:`~gicore.run_config.PathRunConfig`'s."""
 
     #: GI-map codec.
     codec: Literal[CODEC_NAMES] = DEFAULT_CODEC  # type: ignore[valid-type]
@@ -161,7 +162,7 @@ def run_client(
     """Fly the run's path (``flown``; default: :func:`gicore.path_file.flown_path` of ``cfg``) composing with
     ``server``'s maps; returns (per-frame rows, per-request rows,
     the renderer that ran the per-frame raster passes: ``"mitsuba"`` when ``gl`` was asked and no GL context
-    opened, see :func:`gicore.loop.open_raster`).
+    opened, see :func:`gicore.run_config.open_raster`).
 
     The local DI and the warp's surface-mask pass use ``cfg.renderer``, the warp and the composition
     ``cfg.warp_backend`` (:func:`gicore.gl.frame.warp_backend`); the GT stays with Mitsuba. Composed
@@ -172,11 +173,13 @@ def run_client(
     """
     from baseline_cloudbaking.gl_warp import GLPixelWarp
     from baseline_cloudbaking.warp import PixelWarp
+    from gicore.gi_map import LAYERS
     from gicore.gl import GLRenderer, RasterUnavailable
     from gicore.gl.frame import warp_backend
-    from gicore.loop import CLIENT_LOD, LAYERS, ClientLoop, LoopConfig, open_raster, run_frames
+    from gicore.loop import ClientLoop, LoopConfig, run_frames
     from gicore.path_file import flown_path
     from gicore.render import Renderer
+    from gicore.run_config import CLIENT_LOD, open_raster
     from gicore.scene import load_scene
 
     spec = load_scene(cfg.scene)

@@ -25,10 +25,10 @@ import numpy as np
 
 from baseline_cloudbaking.warp import FOOTPRINT_EPS, MAX_FOOTPRINT, PointCloud
 from gicore.camera import Camera
+from gicore.gi_map import LAYERS, GIMap, Timings
 from gicore.gl.frame import ShaderWarp
 from gicore.gl.passes import Pass, Target, upload
 from gicore.gl.shaders import mat_bytes
-from gicore.loop import LAYERS, GIMap, Timings
 from gicore.timing import Stopwatch
 
 if TYPE_CHECKING:

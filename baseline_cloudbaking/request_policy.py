@@ -13,7 +13,7 @@ import numpy as np
 
 from baseline_cloudbaking.viewpoints import Tolerance, Viewpoint, light_cell, nearest
 from gicore.camera import Camera
-from gicore.loop import Light
+from gicore.paths import Light
 
 #: Prefetch policies (:attr:`baseline_cloudbaking.client_run.CloudClientConfig.prefetch`).
 PREFETCH = ("none", "extrapolate")

@@ -29,7 +29,7 @@ import numpy as np
 
 from gicore.camera import Camera
 from gicore.fill import push_pull
-from gicore.loop import LAYERS, GIMap, Timings
+from gicore.gi_map import LAYERS, GIMap, Timings
 from gicore.timing import Stopwatch
 
 #: Footprint bound that only keeps integer coordinates finite: squares are clipped to the frame before

@@ -13,7 +13,8 @@ from pathlib import Path
 import numpy as np
 
 from gicore.dataset_cli import DatasetConfig
-from gicore.loop import LAYERS, Warp
+from gicore.gi_map import LAYERS
+from gicore.loop import Warp
 from gicore.results import Results
 
 # --- the warp methods ----------------------------------------------------------------------------------------

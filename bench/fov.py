@@ -137,7 +137,7 @@ class _SceneRun:
     def base_view(self, base: Camera, light, b: int) -> None:
         """Base frame ``b``: every motion's moved camera with its tone-mapped GT (shared by all F_GI), then each
         F_GI's map scored and warped."""
-        from gicore.loop import render_gt
+        from gicore.ground_truth import render_gt
         from gicore.paths import frame_seed
         from gicore.tonemap import tonemap
 
@@ -153,7 +153,8 @@ class _SceneRun:
     def _gi_fov(self, base: Camera, light, b: int, gi_fov: float, moves: dict) -> None:
         """The map at ``gi_fov`` against its own GT, each warp of it to every moved camera, and (at the local FOV)
         the map pasted without warping."""
-        from gicore.loop import render_gt, warp_view
+        from gicore.ground_truth import render_gt
+        from gicore.loop import warp_view
         from gicore.metrics import ssim
         from gicore.paths import frame_seed
         from gicore.tonemap import tonemap

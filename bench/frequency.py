@@ -5,7 +5,7 @@ Each configuration runs the shared client loop (:func:`gicore.loop.run_frames`) 
 path (``orbit_frames`` frames per full orbit) with a new GI map every k frames, from GIGAN's source
 (:mod:`gigan_local.client`) brought to the view by GIGAN's warp, cloud baking's, or none
 (:func:`bench.common.make_warp`). Frame rate: the median per-frame client work plus the mean cost of
-one GI map spread over its k frames (:func:`gicore.loop.amortized_fps`); the GI-map cost is whatever the
+one GI map spread over its k frames (:func:`gicore.frame_rows.amortized_fps`); the GI-map cost is whatever the
 configured source costs -- the generator's inference (``gi_source = "model"``) or, by default, the
 path-traced GT stand-in, which is far slower than a network -- unless ``inference_ms`` replaces it with a
 given inference time. Quality:
@@ -71,7 +71,10 @@ class FrequencyConfig:
 
 
 def measure(cfg: FrequencyConfig, res: Results) -> None:
-    from gicore.loop import ClientLoop, GroundTruth, LoopConfig, amortized_fps, path_views, run_frames
+    from gicore.frame_rows import amortized_fps
+    from gicore.ground_truth import GroundTruth
+    from gicore.loop import ClientLoop, LoopConfig, run_frames
+    from gicore.paths import path_views
     from gicore.render import Renderer
     from gicore.scene import load_scene
     from gigan_local.client import ClientConfig, check_denoiser, make_gi_source

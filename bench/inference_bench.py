@@ -101,8 +101,8 @@ def network_input(model_path: Path, scene: str) -> tuple[np.ndarray, str]:
     """(The encoded 1xCxHxW input of ``scene``'s first GI camera at the model's resolution, the renderer that
     rendered it)."""
     from gicore.gl import GLRenderer, RasterUnavailable
-    from gicore.loop import CLIENT_LOD, open_raster
     from gicore.paths import camera_path, light_position
+    from gicore.run_config import CLIENT_LOD, open_raster
     from gicore.scene import load_scene
     from gigan_local.inference import read_model_json
     from gigan_local.preprocess import InputSpec, frame_to_input

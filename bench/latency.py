@@ -41,8 +41,8 @@ from bench.runner import Bench, Block, Section
 from gicore import option_groups
 from gicore.blend import COMPOSITIONS
 from gicore.error_policy import UserError
-from gicore.loop import RENDERERS
 from gicore.results import Results
+from gicore.run_config import RENDERERS
 from gigan_local.inference import DEFAULT_MODEL
 from network_sim.profiles import profiles_field
 

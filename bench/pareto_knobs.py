@@ -177,7 +177,7 @@ class Context:
 
     def reference(self, camera, light) -> np.ndarray:
         """Tone-mapped path-traced reference at ``camera`` (``reference_spp``, OIDN; another seed)."""
-        from gicore.loop import render_gt
+        from gicore.ground_truth import render_gt
         from gicore.tonemap import tonemap
 
         key = (camera, tuple(light))
@@ -342,7 +342,7 @@ def codecs_and_links(ctx: Context, pts: Points, bake_ms: float) -> dict[str, Any
     payload bytes, encode and decode times (the tolerance points' hit and miss paths)."""
     from baseline_cloudbaking.codecs import DEPTH_CODEC
     from baseline_cloudbaking.protocol import pack
-    from gicore.loop import texel_depth
+    from gicore.gi_map import texel_depth
     from network_sim import profiles
 
     cfg = ctx.cfg
@@ -387,7 +387,7 @@ def tolerances(ctx: Context, pts: Points, bake_ms: float, hit_path: dict[str, An
     """Cloud baking per map: store tolerance (warped stale map at half the tolerance; hit-rate-weighted time)."""
     from baseline_cloudbaking.viewpoints import Tolerance, Viewpoint, simulate_fill
     from baseline_cloudbaking.warp import PointCloud
-    from gicore.loop import texel_depth
+    from gicore.gi_map import texel_depth
     from gicore.paths import camera_path
     from network_sim import profiles
 

@@ -29,9 +29,9 @@ from gicore.dataset import INPUT_RENDERERS, DatasetMeta, frame_paths, load_frame
 from gicore.dataset_cli import FrameRenderer, build_dataset, render_inputs
 from gicore.error_policy import UserError
 from gicore.gl.lod import LOD_CHOICES
-from gicore.loop import CLIENT_LOD
 from gicore.metrics import CHECKER_PERIOD, LF_SIGMA, all_metrics, checker_error, shadow_tint
 from gicore.results import Results
+from gicore.run_config import CLIENT_LOD
 from gicore.scene import SceneSpec, builtin_scenes, load_scene
 from gicore.timing import time_repeats
 from gicore.tonemap import tonemap

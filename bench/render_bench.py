@@ -36,10 +36,10 @@ from gicore import option_groups
 from gicore.camera import Camera
 from gicore.error_policy import UserError
 from gicore.geometry import scene_objects
-from gicore.loop import RENDERERS
 from gicore.options import RESOLUTION
 from gicore.paths import camera_path, light_position
 from gicore.results import Results
+from gicore.run_config import RENDERERS
 from gicore.scene import SceneSpec, builtin_scenes, load_scene
 from gicore.timing import time_repeats
 
@@ -50,7 +50,7 @@ CLIENT_PASSES = ("gi_camera", "local_di", "local_di_uv", "local_di_mask")
 #: The views whose ``lod = auto`` level and its G-buffer error are reported: the GI camera's and the local
 #: camera's under the model-input bound, and the local camera's under the bound of passes that are only shown.
 LOD_VIEWS = {"gi": "gi views", "local": "local views", "local_shown": "local views, shown passes"}
-#: GL levels of detail timed: full detail, and the clients' (``gicore.loop.CLIENT_LOD``).
+#: GL levels of detail timed: full detail, and the clients' (``gicore.run_config.CLIENT_LOD``).
 GL_LODS = ("full", "auto")
 #: Suffix of the metric of a GL pass's draw calls alone, timed on the GPU by a GL timer query (the pass's metric
 #: is its wall time, read-back to host memory included).

@@ -130,7 +130,7 @@ class Scene:
 
     def gi_map(self, camera=None):
         """A GI map at ``camera`` (default: the GI camera): path-traced GI, its DI, texel depth."""
-        from gicore.loop import GIMap, texel_depth
+        from gicore.gi_map import GIMap, texel_depth
 
         camera = camera or self.gi_camera
         r = self.renderer

@@ -217,7 +217,7 @@ class Warps:
         return run
 
     def black(self, kind: str) -> Callable[[], Outcome]:
-        from gicore.loop import GIMap
+        from gicore.gi_map import GIMap
 
         def run() -> Outcome:
             image, valid = self.warped(kind, GIMap.blank(self.s.gi_camera), self.s.local)

@@ -20,9 +20,8 @@ from baseline_cloudbaking.protocol import pack
 from baseline_cloudbaking.viewpoints import Tolerance, Viewpoint, light_cell, simulate_fill
 from bench.storage_config import LIGHT_SCAN_FRAMES, PAPER_TABLE2_GB, PAPER_TOLERANCE, RAW_CODEC, StorageConfig
 from gicore.camera import Camera
-from gicore.loop import Light
 from gicore.path_file import PathFile, read_sessions
-from gicore.paths import frame_seed, light_position
+from gicore.paths import Light, frame_seed, light_position
 from gicore.render_cache import RenderCache
 from gicore.results import Results
 from gicore.scene import SceneSpec, load_scene

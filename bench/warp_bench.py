@@ -29,10 +29,10 @@ from bench.runner import FOV_DEGREES, Bench, Block, Section
 from gicore import option_groups
 from gicore.camera import Camera
 from gicore.gl.lod import LOD_CHOICES, lod_value
-from gicore.loop import CLIENT_LOD, RENDERERS, open_raster
 from gicore.metrics import ssim
 from gicore.paths import camera_path, light_position
 from gicore.results import Results
+from gicore.run_config import CLIENT_LOD, RENDERERS, open_raster
 from gicore.scene import SceneSpec, load_scene
 from gicore.tonemap import tonemap
 
@@ -308,7 +308,7 @@ def _score_methods(
 ) -> None:  # fmt: skip
     """Each method's peak memory, and the SSIM of its warped map against the path-traced GT at ``cam`` and the
     share of surface pixels it covers."""
-    from gicore.loop import render_gt
+    from gicore.ground_truth import render_gt
 
     gt = tonemap(render_gt(scene.renderer, cam, light, cfg.spp, scene.seed + 7919 * frame + 1, cfg.denoise))
     for m, fn in methods.items():

@@ -31,7 +31,7 @@ from gicore.fileio import atomic_write_bytes
 
 FORMAT_VERSION = 1
 SPLITS = ("train", "val")
-#: Renderers of a dataset's inputs (``gicore.loop.RENDERERS``); the GT is path-traced by Mitsuba either way.
+#: Renderers of a dataset's inputs (``gicore.run_config.RENDERERS``); the GT is path-traced by Mitsuba either way.
 INPUT_RENDERERS = ("gl", "mitsuba")
 
 

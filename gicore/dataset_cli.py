@@ -44,7 +44,6 @@ from gicore.error_policy import UserError, entry_point
 from gicore.executor import Executor, ExecutorOptions, InProcess, Task
 from gicore.fileio import exclusive_run, sweep_temporaries
 from gicore.gl.lod import LOD_CHOICES, lod_value
-from gicore.loop import CLIENT_LOD, open_raster
 from gicore.options import (
     FOV_DEGREES,
     FRAMES_MAX,
@@ -55,6 +54,7 @@ from gicore.options import (
     config_options,
 )
 from gicore.paths import camera_path, frame_seed, light_position
+from gicore.run_config import CLIENT_LOD, open_raster
 from gicore.scene import SceneSpec, load_scene
 
 if TYPE_CHECKING:

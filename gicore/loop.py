@@ -1,130 +1,36 @@
-"""The per-frame client loop shared by both systems, its two protocols and the GI-map value
-(docs/architecture.md, Client loop).
+"""The per-frame client loop shared by both systems and its two protocols (docs/architecture.md, Client loop).
 
 Each system brings a :class:`GISource` (GIGAN: the generator on DI + G-buffers rendered at the GI camera;
 cloud baking: a server asked over HTTP in a background thread) and a :class:`Warp` (structure-aware or
-pixel-level). :class:`ClientLoop` runs them frame by frame at the local camera: request a map every k frames
-or when the view leaves the bound map's tolerance, take the newest map that has arrived (``gi_wait``), bind a
-new one, render DI with the warp's pass and warp (``di``, the warp's stages), compose (``blend`` or
-``residual``). Every frame gives a row of stage times, what it blocked on, what the bound map cost and its age
-(:meth:`ClientLoop.columns`); :func:`run_frames` drives a loop along a camera path and scores frames against
-the path-traced GT every ``gt_every`` frames, untimed.
+pixel-level) of :class:`gicore.gi_map.GIMap` values. :class:`ClientLoop` runs them frame by frame at the local
+camera: request a map every k frames or when the view leaves the bound map's tolerance, take the newest map
+that has arrived (``gi_wait``), bind a new one, render DI with the warp's pass and warp (``di``, the warp's
+stages), compose (``blend`` or ``residual``). Every frame gives a row of stage times, what it blocked on, what
+the bound map cost and its age (:meth:`ClientLoop.columns`); :func:`run_frames` drives a loop along a camera
+path and scores frames against the path-traced GT every ``gt_every`` frames, untimed
+(:mod:`gicore.ground_truth`).
 """
 
 from __future__ import annotations
 
-import csv
-import io
 import math
-import sys
 import time
-from collections.abc import Callable, Iterable, Sequence
-from dataclasses import asdict, dataclass, field, replace
-from functools import cached_property
-from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal, Protocol, runtime_checkable
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from gicore import option_groups
 from gicore.blend import COMPOSITIONS, blend, residual
 from gicore.camera import Camera
-from gicore.error_policy import UserError, writable_dir
-from gicore.fileio import atomic_write_bytes
-from gicore.metrics import lf_error, psnr, ssim
-from gicore.options import FOV_DEGREES, FRAMES, check_fields
-from gicore.paths import camera_path, frame_seed, light_position
-from gicore.render_cache import RenderCache
-from gicore.scene import SceneSpec
+from gicore.gi_map import LAYERS, GIMap, Timings
+from gicore.ground_truth import QUALITY_COLUMNS, UNSCORED
+from gicore.paths import Light, frame_seed
 from gicore.timing import Stopwatch
-from gicore.tonemap import tonemap
 
 if TYPE_CHECKING:
+    from gicore.ground_truth import GroundTruth
     from gicore.render import Renderer
-
-Light = tuple[float, float, float]
-Timings = dict[str, float]
-#: What a warp brings to the current view, per composition: the full GI map for eq. 1, its indirect
-#: part for the residual composition (which adds it to the current DI).
-LAYERS = {"blend": "radiance", "residual": "indirect"}
-#: Renderers of a client's per-frame raster passes (:attr:`PathRunConfig.renderer`): OpenGL
-#: (:class:`gicore.gl.GLRenderer`) or Mitsuba's centre-sampled passes (:class:`gicore.render.Renderer`).
-RENDERERS = ("gl", "mitsuba")
-#: Backends of a client's warp and composition (:attr:`PathRunConfig.warp_backend`): numpy on the passes read
-#: back, or shaders on the GL renderer's textures (a :class:`FrameWarp`); auto picks per renderer.
-WARP_BACKENDS = ("auto", "numpy", "gl")
-#: The GL renderer's level of detail in both clients (``gicore.gl.GLRenderer(lod=...)``): per view, the coarsest
-#: level whose calibrated G-buffer error stays within its bound, as a real-time client draws. On llvmpipe the
-#: passes are vertex-bound, so full detail is no faster than Mitsuba; the bound costs the shipped model at most
-#: 0.0003 SSIM against full detail (``gicore.gl.lod.LOD_BOUND``).
-CLIENT_LOD = "auto"
-
-
-# -- the GI map ---------------------------------------------------------------------------------------------
-@dataclass(frozen=True, eq=False)
-class GIMap:
-    """A GI map at its GI ``camera`` (whose ``view()``/``proj()`` are the OpenGL matrices the warps use),
-    with what warping and composition need, and when it was asked for and arrived.
-
-    ``radiance``: linear GI, HxWxC (C = 3 for real maps); ``depth``: linear view depth at texel centres,
-    HxW, 0 = background; ``di``: the direct illumination the map was made with at the same camera
-    (HxWxC), or None when the source did not send it (then :attr:`indirect` is unavailable);
-    ``frame``: the frame that requested it; ``requested_at`` / ``arrived_at``: ``time.perf_counter()``
-    stamps; ``stages``: what producing it cost, ms per stage (the source's :attr:`GISource.stages`).
-    """
-
-    camera: Camera
-    radiance: np.ndarray
-    depth: np.ndarray
-    di: np.ndarray | None = None
-    frame: int = -1
-    requested_at: float = 0.0
-    arrived_at: float = 0.0
-    stages: Timings = field(default_factory=dict)
-
-    def __post_init__(self) -> None:
-        shape = (self.camera.height, self.camera.width)
-        if self.radiance.ndim != 3 or self.radiance.shape[:2] != shape or self.depth.shape != shape:
-            raise ValueError(
-                f"GI map {self.radiance.shape} and depth {self.depth.shape} must be {shape[0]}x{shape[1]}(xC)"
-                " like the GI camera"
-            )
-        if self.di is not None and self.di.shape != self.radiance.shape:
-            raise ValueError(f"the GI map's DI is {self.di.shape}, its radiance {self.radiance.shape}")
-
-    @cached_property
-    def indirect(self) -> np.ndarray:
-        """The map's indirect light ``max(radiance - di, 0)`` (computed once, on first use)."""
-        if self.di is None:
-            raise ValueError(
-                "this GI map carries no DI of its view, so its indirect part is unknown; ask the source for the DI too"
-            )
-        return np.maximum(self.radiance - self.di, 0.0)
-
-    def layer(self, name: str) -> np.ndarray:
-        """``"radiance"`` or ``"indirect"`` (see :data:`LAYERS`)."""
-        if name not in ("radiance", "indirect"):
-            raise ValueError(f"layer must be 'radiance' or 'indirect', got {name!r}")
-        return self.radiance if name == "radiance" else self.indirect
-
-    @property
-    def latency_ms(self) -> float:
-        """Request to arrival."""
-        return (self.arrived_at - self.requested_at) * 1e3
-
-    @classmethod
-    def blank(cls, camera: Camera, channels: int = 3) -> GIMap:
-        """An all-background map (zero radiance and depth): binds and warps like any map, so it warms up a
-        warp's passes without a source."""
-        zeros = np.zeros((camera.height, camera.width, channels), np.float32)
-        return cls(camera, zeros, np.zeros(zeros.shape[:2], np.float32), zeros)
-
-
-def texel_depth(renderer: Renderer, camera: Camera) -> np.ndarray:
-    """A GI map's depth: linear view depth at texel centres from the centre-sampled pass (0 on background),
-    so that warps unproject exact centre rays and a map warped to its own camera is the identity."""
-    p = renderer.render_uv(camera)
-    return np.where(p["mask"], camera.view_depth(p["position"]), 0.0).astype(np.float32)
 
 
 # -- protocols ----------------------------------------------------------------------------------------------
@@ -309,110 +215,7 @@ HEAD_COLUMNS = (
     "gi_ms",
     "valid_frac",
 )
-TAIL_COLUMNS = ("frame_ms", "ssim", "psnr", "lf_error")
-#: The quality columns of a frame that is not scored against GT (:data:`TAIL_COLUMNS` after ``frame_ms``).
-UNSCORED = dict.fromkeys(TAIL_COLUMNS[1:], "")
-
-
-@dataclass(frozen=True)
-class PathRunConfig:
-    """What every client run (``gigan-client``, ``cloudbaking-client``) shares: the scene, the camera path
-    both clients fly (the scene's fly-through, or a ``--path`` file: :func:`gicore.path_file.flown_path`), the GI
-    period, composition and GT scoring. ``None`` FOVs come from the scene spec
-    (local 60°, GI 90°). Each system's config adds its own GI source and warp fields.
-
-    Both clients' command lines are derived from these fields (:mod:`gicore.options`): each option, its
-    default, its limits and its help are declared here once; building the config checks the same limits
-    (``ValueError`` naming the option)."""
-
-    scene: str = option_groups.scene()
-    #: Frames to run.
-    frames: int = field(default=60, metadata=FRAMES)
-    resolution: int = option_groups.resolution(note="of every render and GI map")
-    every: int = option_groups.every(note="Table 3's inference frequency")
-    #: GI-camera FOV in degrees; absent: the scene's (90).
-    gi_fov: float | None = field(default=None, metadata=FOV_DEGREES)
-    #: Local-camera FOV in degrees; absent: the scene's (60).
-    local_fov: float | None = field(default=None, metadata=FOV_DEGREES)
-    orbit_frames: int = option_groups.orbit_frames()
-    path: Path | None = option_groups.path()
-    #: Eq. 1 weight of DI in the blend (0: the GI map alone, which already holds direct light).
-    tau: float = field(default=0.0, metadata={"min": 0.0, "max": 1.0})
-    #: Composition: blend (eq. 1) or residual (current DI + warped indirect light).
-    composition: Literal[COMPOSITIONS] = "blend"  # type: ignore[valid-type]
-    spp: int = option_groups.spp(note="of the GT renders and the cloud server's maps")
-    denoise: bool = option_groups.denoise()
-    #: Compare the composed frame with the path-traced GT every N frames (0: never).
-    gt_every: int = field(default=0, metadata={"min": 0})
-    seed: int = option_groups.seed(note="the camera path and the renders' noise")
-    #: Folder of path-traced GT frames shared between runs (keyed by scene spec, camera, light, spp, denoise, seed
-    #: and frame; :mod:`gicore.render_cache`); absent: every run path-traces its own.
-    gt_cache: Path | None = None
-    #: Renderer of the per-frame raster passes (GIGAN's DI + G-buffers at the GI camera, each shown frame's DI
-    #: with its warp's uv or mask pass): gl (OpenGL on headless EGL at level of detail auto; without a context: one
-    #: warning and mitsuba) or mitsuba. Path tracing (GT, the gt source, the server) is always Mitsuba's. The
-    #: shipped model scores within 0.005 SSIM of Mitsuba inputs on GL inputs at lod auto (-0.0009 to +0.0026 on
-    #: the five scenes, bench quality --renderers gl,mitsuba; see the model card).
-    renderer: Literal[RENDERERS] = "gl"  # type: ignore[valid-type]
-    #: Backend of the warp and the composition: numpy (on the passes read back), gl (shaders on the GL renderer's
-    #: textures, only the composed frame read back; needs --renderer gl) or auto (gl where the GL renderer runs on
-    #: a GPU; numpy on a CPU rasteriser such as llvmpipe, where numpy is as fast: docs/architecture.md, OpenGL
-    #: passes).
-    warp_backend: Literal[WARP_BACKENDS] = "auto"  # type: ignore[valid-type]
-
-    def __post_init__(self) -> None:
-        try:
-            check_fields(self)
-        except UserError as err:
-            raise ValueError(str(err)) from None
-        if self.warp_backend == "gl" and self.renderer != "gl":
-            raise ValueError("--warp-backend gl runs on the GL renderer's textures: pass --renderer gl")
-
-    def check_gt_cache(self) -> None:
-        """Refuse a ``--gt-cache`` that is a file or cannot be made a folder, before any frame is path-traced."""
-        if self.gt_cache is not None:
-            writable_dir(self.gt_cache, name="--gt-cache")
-
-    def local_fov_of(self, spec: SceneSpec) -> float:
-        """The local camera's FOV: the given one, else the scene's (zero is not absent)."""
-        return spec.camera.local_fov if self.local_fov is None else self.local_fov
-
-    def gi_fov_of(self, spec: SceneSpec) -> float:
-        """The GI camera's FOV: the given one, else the scene's."""
-        return spec.camera.gi_fov if self.gi_fov is None else self.gi_fov
-
-    def as_json(self) -> dict[str, Any]:
-        """The fields as JSON data (paths as strings), for a run's summary."""
-        return {k: (str(v) if isinstance(v, Path) else v) for k, v in asdict(self).items()}
-
-    def ground_truth(self, renderer: Renderer, spec: SceneSpec) -> GroundTruth:
-        """The run's GT scorer (every ``gt_every`` frames, through ``gt_cache`` when given)."""
-        store = RenderCache(self.gt_cache, spec) if self.gt_cache is not None else None
-        return GroundTruth(renderer, self.gt_every, self.spp, self.denoise, self.seed, store=store)
-
-
-def open_raster(
-    choice: str, path_renderer: Renderer, open_gl: Callable[[], Any], unavailable: type[Exception]
-) -> tuple[Any, str]:
-    """The renderer of a client's per-frame raster passes for ``choice`` (:data:`RENDERERS`), and the name
-    of the one that will run them.
-
-    ``"mitsuba"`` is ``path_renderer`` itself. ``"gl"`` is ``open_gl()`` (the client's
-    :class:`gicore.gl.GLRenderer` of the same scene and resolution; passed in, as ``gicore.gl`` imports this
-    module); when it raises ``unavailable`` (:class:`gicore.gl.RasterUnavailable`: no GL context opens) the
-    run falls back to ``path_renderer`` after one line on stderr naming the reason: not an error, but the
-    name returned says what ran, for the run's summary.
-    """
-    if choice not in RENDERERS:
-        raise ValueError(f"renderer must be one of {RENDERERS}, got {choice!r}")
-    if choice == "mitsuba":
-        return path_renderer, "mitsuba"
-    try:
-        return open_gl(), "gl"
-    except unavailable as err:
-        reason = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
-    print(f"warning: renderer gl is unavailable, using mitsuba: {reason}", file=sys.stderr, flush=True)
-    return path_renderer, "mitsuba"
+TAIL_COLUMNS = ("frame_ms", *QUALITY_COLUMNS)
 
 
 @dataclass
@@ -527,7 +330,7 @@ class ClientLoop:
         unknown = set(row) - set(columns)
         if unknown:  # a source or warp reported a stage it does not declare in its ``stages``
             raise RuntimeError(f"undeclared stage columns {sorted(unknown)}; add them to the source's or warp's stages")
-        return FrameResult(image, {c: row.get(c, "") for c in columns if c not in TAIL_COLUMNS[1:]})
+        return FrameResult(image, {c: row.get(c, "") for c in columns if c not in QUALITY_COLUMNS})
 
     def _render_and_compose(self, frame: int, camera: Camera, light: Light, sw: Stopwatch) -> tuple[np.ndarray, ...]:
         """The frame's DI and its warp's pass read back (stage ``di``), the warp's stages, then the composition
@@ -552,72 +355,7 @@ class ClientLoop:
         return image, valid
 
 
-# -- driving a loop along a path, scoring against GT ------------------------------------------------------
-def path_views(
-    spec: SceneSpec, frames: int, orbit_frames: int, seed: int, fov: float, resolution: int
-) -> list[tuple[Camera, Light]]:
-    """(local camera, light) of each frame: the scene's fly-through with ``orbit_frames`` frames per orbit
-    (repeating), FOV ``fov``, and the light's schedule."""
-    cams = camera_path(spec, orbit_frames, seed=seed, fov=fov, resolution=resolution)
-    return [(cams[f % orbit_frames], light_position(spec, f)) for f in range(frames)]
-
-
-def render_gt(
-    renderer: Renderer, camera: Camera, light: Light | None, spp: int, seed: int, denoise: bool
-) -> np.ndarray:
-    """Path-traced GT at ``camera``, OIDN-denoised (albedo/normal guided) when asked."""
-    gt = renderer.render_gt(camera, light, spp=spp, seed=seed)
-    return renderer.denoise(gt, renderer.render_gbuffers(camera, seed=seed)) if denoise else gt
-
-
-@dataclass
-class GroundTruth:
-    """Scores composed frames against the path-traced GT at the local camera, every ``every`` frames.
-
-    ``cache`` (optional, shared between runs of a bench in one process) keeps GT renders by (camera, light,
-    spp, denoise, seed, frame); ``store`` (optional) keeps them on disk for other processes (a bench's client
-    runs along one path). Neither's renders are part of any stage time.
-    """
-
-    renderer: Renderer
-    every: int
-    spp: int = 64
-    denoise: bool = True
-    seed: int = 0
-    cache: dict | None = None
-    store: RenderCache | None = None
-
-    def __post_init__(self) -> None:
-        if self.every < 1 or self.spp < 1:
-            raise ValueError(f"GT every and spp must be >= 1, got {self.every} and {self.spp}")
-
-    def reference(self, frame: int, camera: Camera, light: Light) -> np.ndarray:
-        key = ("gt", camera, tuple(light), self.spp, self.denoise, self.seed, frame)
-        if self.cache is not None and key in self.cache:
-            return self.cache[key]
-
-        def render() -> np.ndarray:
-            return render_gt(self.renderer, camera, light, self.spp, frame_seed(self.seed, "gt", frame), self.denoise)
-
-        gt = self.store.fetch(key, lambda: {"gt": render()})["gt"] if self.store is not None else render()
-        if self.cache is not None:
-            self.cache[key] = gt
-        return gt
-
-    def score(self, frame: int, camera: Camera, light: Light, image: np.ndarray) -> dict[str, float | str]:
-        """SSIM, PSNR and low-frequency error (tone-mapped; PSNR may be inf) on scored frames, ``""`` on the others."""
-        if frame % self.every:
-            return dict(UNSCORED)
-        return evaluate(image, self.reference(frame, camera, light))
-
-
-def evaluate(image: np.ndarray, gt: np.ndarray) -> dict[str, float]:
-    """SSIM, PSNR and low-frequency error (:func:`gicore.metrics.lf_error`) of a composed frame against the
-    GT, both tone-mapped (PSNR may be inf)."""
-    a, b = tonemap(image), tonemap(gt)
-    return {"ssim": ssim(a, b), "psnr": psnr(a, b), "lf_error": lf_error(a, b)}
-
-
+# -- driving a loop along a path -------------------------------------------------------------------------
 def run_frames(
     loop: ClientLoop,
     views: Sequence[tuple[Camera, Light]],
@@ -635,48 +373,3 @@ def run_frames(
         if on_frame is not None:
             on_frame(frame, result)
     return rows
-
-
-# -- summaries ----------------------------------------------------------------------------------------------
-def _values(rows: Iterable[dict[str, Any]], column: str) -> list[float]:
-    return [float(r[column]) for r in rows if r.get(column, "") != ""]
-
-
-def amortized_fps(rows: list[dict[str, Any]], every: int) -> dict[str, float]:
-    """Frame rate with the GI-map cost spread over its ``every`` frames.
-
-    ``local_ms``: median per-frame work other than waiting for and binding maps; ``gi_ms``: mean cost of
-    one map (producing it, :attr:`GIMap.stages`, plus binding it); ``fps = 1000 / (local_ms + gi_ms /
-    every)``.
-    """
-    local = [float(r["frame_ms"]) - float(r["gi_wait_ms"]) - float(r.get("bind_ms") or 0.0) for r in rows]
-    per_map = [float(r["gi_ms"]) + float(r.get("bind_ms") or 0.0) for r in rows if r["gi_new"]]
-    local_ms = float(np.median(local))
-    gi_ms = float(np.mean(per_map)) if per_map else 0.0
-    return {"local_ms": local_ms, "gi_ms": gi_ms, "fps": 1000.0 / (local_ms + gi_ms / every)}
-
-
-def summarize(rows: list[dict[str, Any]], every: int) -> dict[str, Any]:
-    """Amortised fps, median of every ``*_ms`` column and of the map's age, mean quality (SSIM, PSNR,
-    low-frequency error) of scored frames."""
-    out: dict[str, Any] = amortized_fps(rows, every)
-    columns = [c for c in rows[0] if c.endswith("_ms")] + ["gi_age_frames"]
-    out["median"] = {c: float(np.median(v)) for c in columns if (v := _values(rows, c))}
-    out["mean_valid_frac"] = float(np.mean(_values(rows, "valid_frac")))
-    ssims = _values(rows, "ssim")
-    if ssims:
-        out["mean_ssim"] = float(np.mean(ssims))
-        finite = [p for p in _values(rows, "psnr") if math.isfinite(p)]
-        out["mean_psnr"] = float(np.mean(finite)) if finite else math.inf
-        out["mean_lf_error"] = float(np.mean(_values(rows, "lf_error")))
-    return out
-
-
-def write_rows(rows: list[dict[str, Any]], path: Path) -> Path:
-    """The per-frame rows as CSV (columns in the rows' order), written atomically."""
-    buffer = io.StringIO()
-    writer = csv.DictWriter(buffer, fieldnames=list(rows[0]))
-    writer.writeheader()
-    writer.writerows(rows)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    return atomic_write_bytes(path, buffer.getvalue().encode())

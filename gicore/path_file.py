@@ -24,9 +24,8 @@ from typing import Any, NamedTuple, Protocol
 from gicore.camera import Camera
 from gicore.error_policy import UserError
 from gicore.fileio import atomic_write_bytes
-from gicore.loop import Light, path_views
 from gicore.options import FRAMES_MAX
-from gicore.paths import light_bounds, navigation, outside_navigation
+from gicore.paths import Light, light_bounds, navigation, outside_navigation, path_views
 from gicore.scene import SceneSpec
 
 FORMAT = "gigan-path/1"
@@ -100,7 +99,7 @@ def write_path_file(path: Path, scene: str, views: Sequence[Waypoint], source: s
 
 
 def scripted_path(spec: SceneSpec, frames: int, orbit_frames: int, seed: int = 0, fov: float | None = None) -> PathFile:
-    """The scene's fly-through (:func:`gicore.loop.path_views`: ``orbit_frames`` frames per lap from ``seed``,
+    """The scene's fly-through (:func:`gicore.paths.path_views`: ``orbit_frames`` frames per lap from ``seed``,
     the light's schedule) as a path, local FOV ``fov`` (default: the scene's), ``t_ms`` at :data:`SCRIPTED_FPS`."""
     local = spec.camera.local_fov if fov is None else fov
     views = path_views(spec, frames, orbit_frames, seed, local, spec.resolution)

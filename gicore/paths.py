@@ -20,6 +20,8 @@ from gicore.camera import Camera
 from gicore.scene import SceneSpec
 
 Vec3 = tuple[float, float, float]
+#: A point light's position (:func:`light_position`).
+Light = Vec3
 #: Default light-cell side, scene units: the paper scenes' lights sweep ±0.6 to ±1 along x, so 4 to 8 cells.
 DEFAULT_LIGHT_CELL = 0.25
 #: The fly-through's look-at target moves up to this fraction of the wobble from the spec's target, in x and y.
@@ -128,3 +130,12 @@ def camera_path(
             Camera(origin, target, fov=c.gi_fov if fov is None else fov, near=c.near, far=c.far, width=res, height=res)
         )
     return cams
+
+
+def path_views(
+    spec: SceneSpec, frames: int, orbit_frames: int, seed: int, fov: float, resolution: int
+) -> list[tuple[Camera, Light]]:
+    """(local camera, light) of each frame of a client run: the scene's fly-through with ``orbit_frames`` frames
+    per orbit (repeating), FOV ``fov``, and the light's schedule."""
+    cams = camera_path(spec, orbit_frames, seed=seed, fov=fov, resolution=resolution)
+    return [(cams[f % orbit_frames], light_position(spec, f)) for f in range(frames)]

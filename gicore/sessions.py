@@ -3,7 +3,7 @@
 A scene's *navigable space* is what its camera spec lets a client reach: eyes around ``target`` at radius
 ``radius * (1 ± wobble)`` and height ``height * (1 ± wobble)``, within the spec's azimuth arc, looking at
 the target. A *session* is one visit of ``frames`` frames, as the clients fly it
-(:func:`gicore.loop.path_views`: a lap of ``orbit_frames`` frames, repeated), of one of two kinds:
+(:func:`gicore.paths.path_views`: a lap of ``orbit_frames`` frames, repeated), of one of two kinds:
 
 - ``fly``: the scene's own fly-through (:func:`gicore.paths.camera_path`) under the session's seed (start
   azimuth and wobble phases);
@@ -28,8 +28,7 @@ from typing import Literal
 import numpy as np
 
 from gicore.camera import Camera
-from gicore.loop import Light, path_views
-from gicore.paths import light_position
+from gicore.paths import Light, light_position, path_views
 from gicore.scene import SceneSpec
 
 Vec3 = tuple[float, float, float]

@@ -11,9 +11,9 @@ The loop itself -- DI every frame, a GI map every ``k`` frames, warp, compose, p
 - the structure-aware warp (:class:`gigan_local.warp.StructureAwareWarp`), or none (the map pasted as
   is, so it is made with the local camera's FOV).
 
-With ``renderer="gl"`` (:attr:`gicore.loop.PathRunConfig.renderer`) every per-frame raster pass -- the local
+With ``renderer="gl"`` (:attr:`gicore.run_config.PathRunConfig.renderer`) every per-frame raster pass -- the local
 DI, the model source's DI + G-buffers at the GI camera, the warp's uv pass -- is OpenGL's
-(:class:`gicore.gl.GLRenderer` at level of detail :data:`gicore.loop.CLIENT_LOD`); path tracing (the GT
+(:class:`gicore.gl.GLRenderer` at level of detail :data:`gicore.run_config.CLIENT_LOD`); path tracing (the GT
 source, GT scoring) stays Mitsuba's, so such a client holds both renderers; a model-source client on GL without
 GT scoring opens no Mitsuba at all (:func:`needs_path_tracer`). The stage names are the same either way.
 
@@ -33,29 +33,15 @@ import numpy as np
 
 from gicore.camera import Camera
 from gicore.error_policy import UserError
-from gicore.loop import (
-    CLIENT_LOD,
-    LAYERS,
-    ClientLoop,
-    FrameResult,
-    GIMap,
-    Light,
-    LoopConfig,
-    PasteWarp,
-    PathRunConfig,
-    SynchronousSource,
-    Warp,
-    open_raster,
-    render_gt,
-    run_frames,
-    summarize,
-    texel_depth,
-    write_rows,
-)
+from gicore.frame_rows import summarize, write_rows
+from gicore.gi_map import LAYERS, GIMap, texel_depth
+from gicore.ground_truth import render_gt
+from gicore.loop import ClientLoop, FrameResult, LoopConfig, PasteWarp, SynchronousSource, Warp, run_frames
 from gicore.mitsuba_variant import check_denoiser
 from gicore.options import THREADS
 from gicore.path_file import PathFile, flown_path, write_path_file
-from gicore.paths import frame_seed
+from gicore.paths import Light, frame_seed
+from gicore.run_config import CLIENT_LOD, PathRunConfig, open_raster
 from gicore.scene import SceneSpec, load_scene
 from gicore.timing import Stopwatch
 from gicore.tonemap import tonemap
@@ -75,7 +61,7 @@ GI_SOURCES = ("model", "gt")
 @dataclass(frozen=True)
 class ClientConfig(PathRunConfig):
     """One `gigan-client` run: the shared path run plus GIGAN's GI source and warp (its command line is
-    derived from these fields and :class:`~gicore.loop.PathRunConfig`'s)."""
+    derived from these fields and :class:`~gicore.run_config.PathRunConfig`'s)."""
 
     #: Warp: structure (Alg. 1) or none (the map pasted as is, made at the local FOV).
     warp: Literal[WARPS] = "structure"  # type: ignore[valid-type]
@@ -240,7 +226,7 @@ def open_renderers(
     ``renderer``: a Mitsuba renderer to share (it must render ``spec`` at the config's resolution); without
     one, one is opened where the run needs it (:func:`needs_path_tracer`) or GL does not open. With
     ``cfg.renderer == "gl"`` the raster passes get a :class:`gicore.gl.GLRenderer`, or Mitsuba's after one
-    warning when no GL context opens (:func:`gicore.loop.open_raster`)."""
+    warning when no GL context opens (:func:`gicore.run_config.open_raster`)."""
     if renderer is not None and (renderer.spec.name, renderer.resolution) != (spec.name, cfg.resolution):
         raise ValueError(
             f"the shared renderer renders {renderer.spec.name} at {renderer.resolution}²"

@@ -8,7 +8,7 @@ Writes under ``--out``: ``path.json`` (the path flown, a path file that ``--path
 fps, median stage times, mean quality, the renderer that ran the raster passes: ``--renderer gl`` falls back
 to mitsuba with one warning where no GL context opens); optionally PNG frames and an MP4 (needs
 imageio-ffmpeg). Its options are derived from :class:`gigan_local.client.ClientConfig` (the fields both
-clients share live in :class:`gicore.loop.PathRunConfig`).
+clients share live in :class:`gicore.run_config.PathRunConfig`).
 """
 
 from __future__ import annotations

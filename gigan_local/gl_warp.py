@@ -19,9 +19,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from gicore.camera import Camera
+from gicore.gi_map import GIMap, Timings
 from gicore.gl.frame import ShaderWarp
 from gicore.gl.passes import Pass, Target, upload
-from gicore.loop import GIMap, Timings
 from gicore.timing import Stopwatch
 from gigan_local.warp import DEPTH_REL_TOL, SUBTEXEL, StructureAwareWarp
 

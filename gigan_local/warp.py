@@ -20,7 +20,7 @@ import numpy as np
 
 from gicore.camera import Camera
 from gicore.fill import push_pull
-from gicore.loop import LAYERS, GIMap, Timings
+from gicore.gi_map import LAYERS, GIMap, Timings
 from gicore.timing import Stopwatch
 
 if TYPE_CHECKING:
@@ -134,7 +134,7 @@ class StructureAwareWarp:
     """Algorithm 1 on one renderer, as a :class:`gicore.loop.Warp`: :meth:`bind` a GI map once, then
     :meth:`warp` it to every frame.
 
-    ``layer`` is what is warped (:data:`gicore.loop.LAYERS`): the map itself (``radiance``, eq. 1), whose
+    ``layer`` is what is warped (:data:`gicore.gi_map.LAYERS`): the map itself (``radiance``, eq. 1), whose
     invalid pixels get the current DI plus the coarse indirect light, or its indirect part (``indirect``,
     the residual composition), whose invalid pixels get the coarse indirect light alone. Binding changes
     the renderer's vertex texture coordinates, so one renderer serves one bound GI map at a time.

@@ -101,8 +101,8 @@ def compare(spec, resolution: int, camera: Camera, light=None, reference_spp: in
 
 def timings(spec, resolution: int, repeats: int = 7, warmup: int = 2, seed: int = 0) -> list[dict[str, Any]]:
     """Median and p95 ms of each GL pass and of the Mitsuba pass it replaces (see the module docstring)."""
+    from gicore.gi_map import texel_depth
     from gicore.gl.renderer import GLRenderer
-    from gicore.loop import texel_depth
     from gicore.render import Renderer
 
     gl, mi = GLRenderer(spec, resolution), Renderer(spec, resolution)

@@ -19,7 +19,7 @@ import numpy as np
 from gicore.gl.blend import GLCompose
 from gicore.gl.context import gl_info
 from gicore.gl.passes import Target
-from gicore.loop import WARP_BACKENDS
+from gicore.run_config import WARP_BACKENDS
 from gicore.timing import Stopwatch
 
 if TYPE_CHECKING:
@@ -32,7 +32,7 @@ CPU_RASTERISERS = ("llvmpipe", "softpipe", "lavapipe", "swiftshader")
 
 def warp_backend(choice: str, renderer: str, warn: bool = False) -> str:
     """The backend (``numpy`` or ``gl``) of a client's warp and composition for ``--warp-backend choice``
-    (:data:`gicore.loop.WARP_BACKENDS`) when its raster passes run on ``renderer`` (``gl`` or ``mitsuba``).
+    (:data:`gicore.run_config.WARP_BACKENDS`) when its raster passes run on ``renderer`` (``gl`` or ``mitsuba``).
 
     ``auto`` is the measured default per renderer: ``gl`` where GL renders on a GPU; ``numpy`` on Mitsuba and on
     a CPU rasteriser (:data:`CPU_RASTERISERS`), where the shaders run no faster than numpy (docs/architecture.md,

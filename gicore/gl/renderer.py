@@ -538,7 +538,7 @@ class GLRenderer:
         return {"di": self._targets[4]} | (uv if raster == "uv" else {})
 
     def render_depth(self, camera: Camera) -> dict[str, np.ndarray]:
-        """Linear view depth at pixel centres (HxW, 0 on background; ``gicore.loop.texel_depth``) and the
+        """Linear view depth at pixel centres (HxW, 0 on background; ``gicore.gi_map.texel_depth``) and the
         surface mask (HxW bool): the pixel-level warp's passes."""
         depth = self._read(self._draw("depth", camera), 0, 1)[..., 0]
         return {"depth": depth, "mask": depth > 0}

@@ -17,7 +17,7 @@ import pytest
 from baseline_cloudbaking.client import STAGES, RemoteConfig, RemoteSource
 from baseline_cloudbaking.request_policy import RequestPolicy, covers
 from baseline_cloudbaking.viewpoints import Tolerance
-from gicore.loop import path_views
+from gicore.paths import path_views
 from gicore.scene import load_scene
 from network_sim.process import Running, network_sim
 from tests.helpers.cloud import BIN, RES, SPP, passthrough_model, server_process, write_scenes

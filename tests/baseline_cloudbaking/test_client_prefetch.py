@@ -20,8 +20,9 @@ from baseline_cloudbaking.request_policy import MotionPredictor, RequestPolicy, 
 from baseline_cloudbaking.viewpoints import Tolerance
 from gicore.camera import Camera
 from gicore.error_policy import UserError
-from gicore.loop import GIMap, path_views
+from gicore.gi_map import GIMap
 from gicore.options import build_config
+from gicore.paths import path_views
 from gicore.scene import load_scene
 from tests.helpers.cloud import RES, SPP
 

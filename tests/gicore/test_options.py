@@ -29,7 +29,7 @@ from gicore.options import (
 
 @dataclass(frozen=True)
 class BaseRun:
-    """Shared fields (as gicore.loop.PathRunConfig is for both clients)."""
+    """Shared fields (as gicore.run_config.PathRunConfig is for both clients)."""
 
     #: Frames to run.
     frames: int = field(default=60, metadata=FRAMES)

@@ -15,7 +15,6 @@ import pytest
 from gicore import path_file
 from gicore.camera import Camera
 from gicore.error_policy import UserError
-from gicore.loop import path_views
 from gicore.path_file import (
     PathFile,
     Waypoint,
@@ -25,7 +24,7 @@ from gicore.path_file import (
     scripted_path,
     write_path_file,
 )
-from gicore.paths import light_position, navigation, outside_navigation
+from gicore.paths import light_position, navigation, outside_navigation, path_views
 from gicore.scene import SceneSpec, load_scene
 
 

@@ -317,7 +317,7 @@ def test_set_texcoords_validates(point_scene):
 
 
 def test_depth_pass_is_the_texel_depth(point_scene):
-    from gicore.loop import texel_depth
+    from gicore.gi_map import texel_depth
 
     _, gl, mi = point_scene
     cam = view(fov=90.0)

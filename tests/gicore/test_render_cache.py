@@ -52,7 +52,7 @@ def test_a_file_where_the_folder_belongs_is_refused(tmp_path: Path, sphere_spec)
 
 def test_ground_truth_through_the_store_path_traces_each_frame_once(tmp_path: Path, renderer, sphere_spec) -> None:
     """Two scorers (two client runs) along one view: the second reads the first's GT, bit for bit."""
-    from gicore.loop import GroundTruth
+    from gicore.ground_truth import GroundTruth
 
     store = RenderCache(tmp_path, sphere_spec)
     cam = Camera((0.0, 1.2, 2.4), (0.0, 0.5, 0.0), width=renderer.resolution, height=renderer.resolution)

@@ -7,8 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from gicore.loop import path_views
-from gicore.paths import light_position
+from gicore.paths import light_position, path_views
 from gicore.scene import SceneSpec, load_scene
 from gicore.sessions import ORBIT_FRAMES_RANGE, navigable_views, plan_sessions, session_views
 

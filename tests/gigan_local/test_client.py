@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from gicore.error_policy import UserError
-from gicore.loop import amortized_fps
+from gicore.frame_rows import amortized_fps
 from gicore.paths import camera_path, frame_seed, light_position
 from gigan_local.client import ClientConfig, run_client
 
@@ -198,7 +198,7 @@ def test_model_source_feeds_the_generator_its_buffers(spec_file, client_renderer
 def test_model_source_depth_is_the_texel_centre_depth(client_renderer, passthrough_model):
     """The model source renders its G-buffers at pixel centres, so their depth is the warp's texel-centre
     depth (what a separate centre-sampled pass gave before) and the map warps to its own view unchanged."""
-    from gicore.loop import texel_depth
+    from gicore.gi_map import texel_depth
     from gigan_local.client import ModelSource, load_model
     from gigan_local.warp import StructureAwareWarp
 

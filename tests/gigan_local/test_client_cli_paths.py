@@ -21,7 +21,7 @@ PATH_RUN = [
     "1",
     "--no-denoise",
 ]
-#: Both clients share the option (gicore.loop.PathRunConfig); the cloud client's server is never asked.
+#: Both clients share the option (gicore.run_config.PathRunConfig); the cloud client's server is never asked.
 CLIENTS = [["gigan-client", *PATH_RUN], ["cloudbaking-client", "--server", "http://127.0.0.1:9", *PATH_RUN]]
 
 

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from gicore.gl import gl_available
-from gicore.loop import PathRunConfig
+from gicore.run_config import PathRunConfig
 from gigan_local.gl_warp import GLStructureWarp
 from gigan_local.warp import StructureAwareWarp
 from tests.helpers.gl_warps import RES, differences, loop_frames, lung_scene

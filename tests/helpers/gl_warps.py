@@ -10,7 +10,8 @@ from __future__ import annotations
 import numpy as np
 
 from gicore.camera import Camera
-from gicore.loop import ClientLoop, FrameResult, GIMap, LoopConfig, SynchronousSource, texel_depth
+from gicore.gi_map import GIMap, texel_depth
+from gicore.loop import ClientLoop, FrameResult, LoopConfig, SynchronousSource
 
 #: Square resolution of the comparisons: small, and not a power of two (odd push-pull levels, non-dyadic texels).
 RES = 48

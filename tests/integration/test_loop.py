@@ -13,19 +13,11 @@ import numpy as np
 import pytest
 
 from baseline_cloudbaking.warp import PixelWarp
-from gicore.loop import (
-    LAYERS,
-    ClientLoop,
-    GIMap,
-    GroundTruth,
-    LoopConfig,
-    PasteWarp,
-    SynchronousSource,
-    evaluate,
-    path_views,
-    run_frames,
-    summarize,
-)
+from gicore.frame_rows import summarize
+from gicore.gi_map import LAYERS, GIMap
+from gicore.ground_truth import GroundTruth, evaluate
+from gicore.loop import ClientLoop, LoopConfig, PasteWarp, SynchronousSource, run_frames
+from gicore.paths import path_views
 from gicore.timing import Stopwatch
 from gigan_local.client import GTSource
 from gigan_local.warp import StructureAwareWarp
@@ -286,7 +278,7 @@ def test_stopwatch_laps_sum_and_restart_skips():
 
 
 def test_rows_write_as_csv(loop_renderer, tmp_path: Path):
-    from gicore.loop import write_rows
+    from gicore.frame_rows import write_rows
 
     loop = make_loop(loop_renderer, GTSource(loop_renderer, spp=1, denoise=False), "pixel", every=2, gi_fov=90.0)
     rows = run_frames(loop, path_views(loop_renderer.spec, 2, 40, 0, 60.0, RES))

@@ -11,7 +11,8 @@ import pytest
 from baseline_cloudbaking.warp import PixelWarp, PointCloud
 from gicore.camera import Camera
 from gicore.fill import push_pull
-from gicore.loop import ClientLoop, GIMap, LoopConfig, PasteWarp, SynchronousSource, texel_depth
+from gicore.gi_map import GIMap, texel_depth
+from gicore.loop import ClientLoop, LoopConfig, PasteWarp, SynchronousSource
 from gicore.metrics import all_metrics, ssim
 from gicore.tonemap import tonemap
 from gigan_local.client import GTSource

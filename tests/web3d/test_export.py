@@ -11,9 +11,8 @@ import pytest
 
 from gicore.geometry import scene_objects
 from gicore.gl.renderer import object_bounds
-from gicore.loop import path_views
 from gicore.path_file import read_path_file
-from gicore.paths import DEFAULT_LIGHT_CELL, camera_path, light_position, light_range
+from gicore.paths import DEFAULT_LIGHT_CELL, camera_path, light_position, light_range, path_views
 from gicore.scene import load_scene
 from web3d.export import VERTEX_FLOATS, export_assets, shadow_setup, to_es
 
