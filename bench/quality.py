@@ -335,7 +335,7 @@ PARTS = (
             ),
         ),
     ),
-    Image("quality_grid.png"),
+    Image("quality_grid.png", where="readme"),  # the grid: thousands of pixels tall, a file to open
     TABLE,
     RENDERERS,
 )
