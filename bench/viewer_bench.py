@@ -146,11 +146,12 @@ def open_viewer(cfg: WebBenchConfig, results: Results) -> Iterator[Viewer]:
 
 
 def measure_viewer(viewer: Viewer, cfg: WebBenchConfig, results: Results) -> None:
-    """The path replayed behind each profile, then the screenshot, the session file, the inference timing and
-    the parity checks, all into ``results``."""
+    """The path replayed behind each profile (the screenshot as the last one drew its last path frame), then
+    the session file, the inference timing and the parity checks, all into ``results``."""
     page = viewer.page
-    segments = [replay(page, viewer.doc, profile, cfg.timeout_s) for profile in viewer.profiles]
-    page.locator("#viewer").screenshot(path=str(results.output(SCREENSHOT)))
+    last = viewer.profiles[-1]
+    shot = {last: results.output(SCREENSHOT)}
+    segments = [replay(page, viewer.doc, p, cfg.timeout_s, shot.get(p)) for p in viewer.profiles]
     data = page.evaluate(
         "({frames: viewer.frames, maps: viewer.maps, session: viewer.recording(), info: viewer.info, "
         "parity: viewer.parity, snapshot: viewer.snapshot()})"

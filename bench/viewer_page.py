@@ -124,10 +124,13 @@ def counts(page: Any) -> tuple[int, int]:
     return tuple(page.evaluate("[viewer.frames.length, viewer.maps.length]"))  # type: ignore[return-value]
 
 
-def replay(page: Any, doc: dict[str, Any], profile: str, timeout_s: float = PAGE_TIMEOUT_S) -> Segment:
+def replay(
+    page: Any, doc: dict[str, Any], profile: str, timeout_s: float = PAGE_TIMEOUT_S, shot: Path | None = None
+) -> Segment:
     """Replay the path file ``doc`` behind ``profile``: the profile chosen and the camera and light put at the
     path's first frame (a fresh map from each pane there), settled, then the path played one frame per drawn
-    frame and settled again (module docstring)."""
+    frame and settled again (module docstring). ``shot``: a screenshot of the page there once the path's last
+    frame is drawn (before settling: the maps shown are a few frames old, warped to it)."""
     first = doc["frames"][0]
     drawn = counts(page)[0]
     page.evaluate(
@@ -142,6 +145,8 @@ def replay(page: Any, doc: dict[str, Any], profile: str, timeout_s: float = PAGE
     error = page.evaluate("window.benchReplay.error")
     if error:
         raise RuntimeError(f"the viewer's replay failed: {error}")
+    if shot is not None:
+        page.locator("#viewer").screenshot(path=str(shot))
     settle(page, timeout_s)
     frames1, maps1 = counts(page)
     return Segment(profile, (frames0, frames1), (maps0, maps1))

@@ -85,7 +85,12 @@ def summary(rows: Rows) -> str:
 
 
 PARTS = (
-    Image(SCREENSHOT, "Both panes and their HUDs after the last replay", where="dashboard"),
+    Image(
+        SCREENSHOT,
+        "Both panes and their HUDs as the last replay drew its last path frame: each shows its latest map (a few "
+        "frames old) warped to that view",
+        where="dashboard",
+    ),
     Table(
         replays,
         (
@@ -98,7 +103,7 @@ PARTS = (
             Column("perceived ms: median (p95)", "{perceived:.0f} ({perceived95:.0f})"),
             Column("censored", "{censored:.0f}"),
             Column("maps", "{maps:.0f}[[ ({hits:.0%} hits)]]"),
-            Column("KiB of maps (through its proxy), whole run", "[[{maps_kib:.0f}]][[ ({link_kib:.0f})]]"),
+            Column("KiB of maps (through its proxy), whole run", "{maps_kib:.0f} ({link_kib:.0f})"),
         ),
         caption="Per replay of the path (one per network profile, the same page): a pane's frame time, and its p95 "
         "on frames drawn with no map in flight, while one was being made (its request's own G-buffer pass and "
