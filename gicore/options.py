@@ -13,7 +13,8 @@ comment above it), and nothing else declares them again::
 
 How types map to options, the checks on the final config, and the limits declared here once
 (:data:`RESOLUTION`, :data:`SPP`, :data:`FRAMES`, :data:`SEED`, :data:`FOV_DEGREES`, :data:`THREADS`,
-:data:`HOST_PORT`, :data:`PATH_FILE`): docs/architecture.md, Command-line options.
+:data:`HOST_PORT`): docs/architecture.md, Command-line options. Options many commands share (scenes,
+resolution, spp, seed, ``--out``, ...) are declared once in :mod:`gicore.option_groups`.
 """
 
 from __future__ import annotations
@@ -52,14 +53,6 @@ FOV_DEGREES: Mapping[str, Any] = {"max": 179.0}
 THREADS: Mapping[str, Any] = {"min": 1, "max": 256}
 #: Field metadata of a ``HOST:PORT`` address string (port 0 to 65535; 0: any free port).
 HOST_PORT: Mapping[str, Any] = {"host_port": True, "metavar": "HOST:PORT"}
-#: Field metadata of the path file a run flies (``--path``, :mod:`gicore.path_file`) in place of the scene's
-#: scripted fly-through; it sets every frame, so the options that shape the scripted path conflict with it.
-PATH_FILE: Mapping[str, Any] = {
-    "help": "path file (gigan-path/1: a recorded session, or any run's path.json) to fly in place of the scene's"
-    " fly-through; it sets each frame's camera, light and the frame count (--seed still seeds the render noise)",
-    "metavar": "FILE",
-    "conflicts": ("frames", "orbit_frames", "local_fov"),
-}
 
 
 # --- fields: documentation, names, types, parsing ------------------------------------------------------------
@@ -267,8 +260,6 @@ def check_field(f: dataclasses.Field, tp: Any, value: Any) -> None:
     if check is not None and value is not None:
         for item in items:
             check(option, item)
-    if f.name == "scenes" and check is None and isinstance(value, (tuple, list)):
-        _check_scenes(value)
     if f.metadata.get("host_port") and value is not None:
         split_host_port(value, option)
 
@@ -298,19 +289,6 @@ def check_config(cfg: Any) -> None:
     check_fields(cfg)
     if hasattr(cfg, "check"):
         cfg.check()
-
-
-def _check_scenes(scenes: Sequence[str]) -> None:
-    """Every scene must load before anything is measured (a typo should not cost a half-finished run)."""
-    from gicore.scene import load_scene
-
-    for scene in scenes:
-        try:
-            load_scene(scene)
-        except (OSError, ValueError) as exc:
-            raise UserError(
-                f"--scenes {scene!r}: {' '.join(str(exc).split())}", "give built-in scene names or spec files"
-            ) from None
 
 
 # --- config: base, options given, checks -------------------------------------------------------------------

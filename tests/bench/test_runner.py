@@ -18,6 +18,7 @@ from typer.testing import CliRunner
 from bench.cli import app
 from bench.present.declarations import Chart, Column, Figure, Table, pick
 from bench.runner import Bench, build_config, execute, field_docs, register
+from gicore import option_groups
 from gicore.error_policy import UserError
 from gicore.results import COLUMNS, Results, read_rows
 from gicore.timing import summarize_ms, time_repeats
@@ -29,8 +30,7 @@ REPO = Path(__file__).resolve().parents[2]
 class DemoConfig:
     """A config exercising every field form the runner supports."""
 
-    #: Scene names or spec files.
-    scenes: tuple[str, ...] = ("lung_plane",)
+    scenes: tuple[str, ...] = option_groups.scenes()  # a shared option, composed (each scene must load)
     #: Square resolution in pixels.
     resolution: int = 64
     #: A threshold that may be zero.
