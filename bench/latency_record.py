@@ -172,10 +172,8 @@ def _record_cloud_runs(
             _perceived_rows(res, scene, system, frames, requests, where)
         if system == CLOUD_PREFETCH:  # its requests ask ahead: its per-map stages are no Table 1 column
             continue
-        for cache, samples in cloud_samples(requests).items():
-            merged = cloud.setdefault((profile, cache), {})
-            for name, values in samples.items():
-                merged.setdefault(name, []).extend(values)
+        for cache, samples in cloud_samples(requests).items():  # both stores' runs pooled
+            cloud[profile, cache] = _pool([cloud.get((profile, cache), {}), samples])
         failures = sum(r["status"] not in ("ok", "abandoned") for r in requests)
         res.add(system=CLOUD, scene=scene, metric="failed_requests", value=failures, unit="count", **where)
         _ssim_rows(res, scene, CLOUD, frames, where | {"codec": cfg.codec})
