@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import json
 
-from bench.present.declarations import Column, Rows, Table
+from bench.present.declarations import Column, Image, Rows, Table
 from bench.runner import Block, External
 from network_sim.selftest import BENCH as NAME
 
@@ -45,5 +45,6 @@ SELFTEST = External(
             ),
             caption=_met,
         ),
+        Image(f"{NAME}.png"),  # the self-test's own figure, beside its CSV
     ),
 )
