@@ -9,8 +9,9 @@ frame times (with a map in flight and without), frames drawn while each map was 
 frame shows, perceived latency, and each map's stages (:mod:`bench.viewer_stats`); GIGAN's checks; then
 ``session.run`` timed in the browser and in Python on one tensor, the prediction's parity with Python and the
 WebGL2 port's buffers against GLRenderer's (:mod:`bench.viewer_parity`). Also written: ``web_screenshot.png``
-(both panes and their HUDs after the last replay) and ``web_session.json`` (the page's recording of every
-frame drawn: a path file the clients and benches replay). docs/architecture.md, bench web.
+(both panes and their HUDs as the last replay draws its last path frame), ``web_session.json`` (the page's
+recording of every frame drawn: a path file the clients and benches replay) and, per profile, the bytes its proxy
+carried (its chunk log). docs/architecture.md, bench web.
 """
 
 from __future__ import annotations
