@@ -10,10 +10,9 @@ function row(name, last, values) {
   return `<tr><td>${name}</td><td>${f1(last)}</td><td>${f1(median(values))}</td></tr>`;
 }
 
-function stageTable(id, stages, maps, di) {
+function stageTable(id, stages, maps) {
   const rows = stages.map((s) => row(s, maps.at(-1)?.stages[s], maps.map((m) => m.stages[s]).filter(Number.isFinite)));
   rows.push(row("<b>total</b>", maps.at(-1)?.total, maps.map((m) => m.total)));
-  rows.push(row("di (shared, not counted)", di.at(-1), di));
   document.getElementById(id).innerHTML =
     `<tr><th>stage (ms)</th><th>last</th><th>median</th></tr>${rows.join("")}<tr><td>maps</td><td colspan=2>${maps.length}</td></tr>`;
 }
@@ -36,8 +35,8 @@ export function showHud(viewer, recording) {
   const last = frames.at(-1);
   const g = viewer.maps.filter((m) => m.system === "gigan");
   const c = viewer.maps.filter((m) => m.system === "cloud_baking");
-  stageTable("hud-gigan", GIGAN_STAGES, g, frames.map((f) => f.gigan_di));
-  stageTable("hud-cloud", CLOUD_STAGES, c, frames.map((f) => f.cloud_di).filter(Number.isFinite));
+  stageTable("hud-gigan", GIGAN_STAGES, g);
+  stageTable("hud-cloud", CLOUD_STAGES, c);
   if (last) {
     live("live-gigan", last, last.gigan);
     live("live-cloud", last, last.cloud);
