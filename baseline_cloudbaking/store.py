@@ -163,10 +163,6 @@ class GITree:
         (module docstring); ``io=False``: :class:`WouldBlock` where they would have to be read."""
         return self._views(key, io).find(key, view, tol or self.tolerance)
 
-    def index_version(self) -> int:
-        """The index's version: it changes with every commit to it, from any connection of any process."""
-        return self.index.version()
-
     def _views(self, key: MapKey, io: bool) -> GroupViews:
         """The viewpoints of ``key``'s group as of the index's current version: from memory while the index is
         unchanged; after a commit, the entries added since (by id, the table's own order: ids only grow while

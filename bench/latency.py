@@ -48,8 +48,6 @@ from network_sim.profiles import profiles_field
 
 CodecName = Literal[CODEC_NAMES]  # type: ignore[valid-type]
 
-CodecName = Literal[CODEC_NAMES]  # type: ignore[valid-type]
-
 
 @dataclass(frozen=True)
 class LatencyConfig:

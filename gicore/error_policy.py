@@ -23,7 +23,6 @@ and ``pyproject.toml`` names ``package.module:main``.
 
 from __future__ import annotations
 
-import math
 import os
 import signal
 import sys
@@ -182,23 +181,6 @@ def entry_point(app: typer.Typer, *, resume: str | None = None) -> Callable[[], 
 RESOLUTION_MIN, RESOLUTION_MAX = 8, 2048
 #: Seeds are 32-bit (numpy's generators take no negative seed): a scene's, a run's, a server's.
 SEED_MAX = 2**32 - 1
-
-
-def require_positive(name: str, value: float) -> float:
-    """``value`` must be finite and > 0 (an absent option means the default; zero never does)."""
-    if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-        raise UserError(f"{name} = {value!r} is not a positive finite number", f"give {name} a value > 0")
-    return value
-
-
-def require_between(name: str, value: float, low: float, high: float) -> float:
-    """``value`` must be finite and strictly between ``low`` and ``high`` (e.g. a field of view in degrees)."""
-    if not (isinstance(value, (int, float)) and math.isfinite(value) and low < value < high):
-        raise UserError(
-            f"{name} = {value!r} is outside ({low:g}, {high:g})",
-            f"give {name} a value between {low:g} and {high:g}, both excluded",
-        )
-    return value
 
 
 def writable_dir(path: Path, *, name: str = "--out") -> Path:
