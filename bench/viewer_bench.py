@@ -33,7 +33,7 @@ from bench.runner import Bench, Block, Section
 from bench.viewer_page import WEBGL_FLAGS, Segment, missing, replay, viewer_page
 from bench.viewer_parity import Reference, canvas_stats, time_inference
 from bench.viewer_present import PARTS, SCREENSHOT
-from bench.viewer_stats import CLOUD, GIGAN, PANES, Replayed, record_checks, record_system
+from bench.viewer_stats import CLOUD, GIGAN, Replayed, record_checks, record_system
 from gicore import option_groups
 from gicore.error_policy import UserError
 from gicore.options import FRAMES, THREADS
@@ -196,9 +196,6 @@ def record(res: Results, scene: dict[str, Any], segments: list[Segment], data: d
         totals = {}
         for system in (GIGAN, CLOUD):
             record_system(res, run, system, scene, common)
-            di = [f[f"{PANES[system]}_di"] for f in run.frames]
-            res.add_timing(system=system, scene=scene["name"], metric="di", samples_s=[v / 1e3 for v in di],
-                           **common, profile=run.profile)  # fmt: skip
             maps = [m["total"] for m in run.maps if m["system"] == system]
             totals[system] = float(np.median(maps)) if maps else math.nan
         record_checks(res, run, scene["name"], common)

@@ -11,7 +11,7 @@ from bench.viewer_parity import PORT_BUFFERS
 from bench.viewer_stats import GIGAN
 
 SCREENSHOT = "web_screenshot.png"
-STAGES = ("gi_render", "inference", "transmission", "server", "decode", "warp", "blend", "total", "di")
+STAGES = ("gi_render", "inference", "transmission", "server", "decode", "di", "warp", "blend", "total")
 LABELS = {GIGAN: "GIGAN", "cloud_baking": "cloud baking"}
 
 
@@ -115,8 +115,8 @@ PARTS = (
     Table(
         stage_rows,
         stage_columns,
-        caption="Each stage's median over the replay's maps; di: the local DI, shared "
-        "by both systems and counted in neither.",
+        caption="Each stage's median over the replay's maps; di: the local render of the frame that first shows "
+        "the map, counted for both systems.",
         notes=summary,
     ),  # fmt: skip
     Table(

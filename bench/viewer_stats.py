@@ -30,8 +30,8 @@ GIGAN, CLOUD = "gigan", "cloud_baking"
 #: The page's key of each system's statistics in a frame record.
 PANES = {GIGAN: "gigan", CLOUD: "cloud"}
 STAGES = {
-    GIGAN: ("gi_render", "inference", "warp", "blend"),
-    CLOUD: ("transmission", "server", "decode", "warp", "blend"),
+    GIGAN: ("gi_render", "inference", "di", "warp", "blend"),
+    CLOUD: ("transmission", "server", "decode", "di", "warp", "blend"),
 }
 PHASES = ("all", "idle", "in_flight", "landing")
 #: The check: GIGAN's frame-time p95 with a map in flight at most this times its p95 without.
