@@ -240,18 +240,17 @@ def record_renderer_ratios(res: Results, scene: str) -> None:
     medians = [r for r in res.rows if r["stat"] == "median" and r["unit"] == "ms"]
 
     def key(r: dict[str, Any]) -> tuple:
-        config = json.loads(r["config"])
-        rest = tuple(sorted((k, json.dumps(v)) for k, v in config.items() if k != "renderer"))
+        rest = tuple(sorted((k, json.dumps(v)) for k, v in r["config"].items() if k != "renderer"))
         return r["system"], r["metric"], rest
 
     by_renderer: dict[str, dict[tuple, dict[str, Any]]] = {}
     for r in medians:
-        by_renderer.setdefault(json.loads(r["config"]).get("renderer"), {})[key(r)] = r
+        by_renderer.setdefault(r["config"].get("renderer"), {})[key(r)] = r
     for k, r in by_renderer.get(num, {}).items():
         other = by_renderer.get(den, {}).get(k)
         if other is None or not other["value"] > 0:
             continue
-        config = json.loads(r["config"]) | {"renderer": f"{num}/{den}"}
+        config = r["config"] | {"renderer": f"{num}/{den}"}
         res.add(
             system=r["system"],
             scene=scene,

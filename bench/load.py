@@ -169,7 +169,7 @@ def _record(res: Results, cfg: LoadConfig, scene: str, phase: str, load: LoadRes
 
 def _targets(res: Results, scene: str) -> None:
     """One ``target_met`` row per target, from the rows just measured (the errors target: over every phase)."""
-    rows = [{**r, "config": _config(r)} for r in res.rows]
+    rows = res.rows
     for target, stated_at in TARGETS:
         where = dict(target.where)
         found = [r for r in rows if matches(r, target.metric, target.stat, **where)]
@@ -186,13 +186,6 @@ def at_least(load: dict[str, float], stated: dict[str, float]) -> bool:
     """Whether ``load`` is at least the ``stated`` one: as many clients, misses and idle connections or more,
     each client asking as often or more."""
     return all(load[k] <= v if k == "period_ms" else load[k] >= v for k, v in stated.items())
-
-
-def _config(row: dict[str, Any]) -> dict[str, Any]:
-    """A row's config, whether from :class:`Results` (JSON text) or :func:`gicore.results.read_rows`."""
-    import json
-
-    return row["config"] if isinstance(row["config"], dict) else json.loads(row["config"])
 
 
 # -- what it shows ------------------------------------------------------------------------------------------

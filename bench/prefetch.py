@@ -23,7 +23,7 @@ import numpy as np
 
 from baseline_cloudbaking.client_run import check_server
 from baseline_cloudbaking.codecs import CODEC_NAMES, DEFAULT_CODEC
-from bench.present.declarations import Chart, Column, Figure, Rows, Table, fill, flat, matches, pick
+from bench.present.declarations import Chart, Column, Figure, Rows, Table, fill, first, flat, matches, pick
 from bench.processes import (
     BIN,
     ask_path,
@@ -210,14 +210,6 @@ def record(res: Results, scene: str, folder: Path, config: dict[str, Any]) -> No
         res.add(system=SYSTEM, scene=scene, metric=name, value=m[name], unit="bytes", stat="total", **config)
 
 
-def _value(rows: list[dict[str, Any]], metric: str, stat: str, **config: Any) -> float | None:
-    for r in rows:
-        cfg = r["config"] if isinstance(r["config"], dict) else json.loads(r["config"])
-        if r["metric"] == metric and r["stat"] == stat and config.items() <= cfg.items():
-            return float(r["value"])
-    return None
-
-
 def targets(res: Results, scene: str) -> None:
     """The two targets as ``target_met`` rows, where the runs they compare were made."""
     rows = res.rows
@@ -231,8 +223,8 @@ def targets(res: Results, scene: str) -> None:
          "requests, prefetch <= 0.5 x period (lan)"),
     ]  # fmt: skip
     for profile, metric, stat, extra, variant, against, bound, text in checks:
-        mine = _value(rows, metric, stat, profile=profile, variant=variant, **extra)
-        base = _value(rows, metric, stat, profile=profile, variant=against, **extra)
+        mine = first(rows, metric, stat, profile=profile, variant=variant, **extra)
+        base = first(rows, metric, stat, profile=profile, variant=against, **extra)
         if mine is None or base is None:
             continue
         ratio = mine / base if base > 0 else float("inf")
@@ -249,7 +241,7 @@ def runs(rows: Rows) -> list[dict]:
         key = {"profile": r["config"]["profile"], "variant": r["config"]["variant"]}
 
         def v(metric: str, stat: str = "value", **extra: Any) -> float | None:
-            return _value(rows, metric, stat, **key, **extra)  # noqa: B023 -- used within this iteration
+            return first(rows, metric, stat, **key, **extra)  # noqa: B023 -- used within this iteration
 
         down, tol = v("bytes_down", "total"), v("in_tolerance")
         row = key | {"in_flight": r["config"].get("in_flight"), "requests": r["value"], "ssim": v("ssim", "mean")}

@@ -11,7 +11,6 @@ docs/architecture.md, bench service.
 
 from __future__ import annotations
 
-import json
 import shutil
 import tempfile
 import threading
@@ -25,7 +24,7 @@ import numpy as np
 from baseline_cloudbaking.codecs import CODEC_NAMES, DEFAULT_CODEC
 from baseline_cloudbaking.protocol import unpack
 from bench.common import Target
-from bench.present.declarations import Chart, Column, Derive, Figure, Rows, Table, Text, matches
+from bench.present.declarations import Chart, Column, Derive, Figure, Rows, Table, Text, first, matches
 from bench.processes import client_cores, pinned_server, pinning
 from bench.runner import Bench, Block
 from gicore import option_groups
@@ -271,23 +270,11 @@ def _misses(res: Results, scene: str, misses: list[tuple[float, dict[str, float]
 def _targets(res: Results, scene: str, cfg: ServiceConfig) -> None:
     """One ``target_met`` row per issue target, from the rows just measured."""
     for target in TARGETS:
-        value = _value(res.rows, target.metric, target.stat, **dict(target.where))
+        value = first(res.rows, target.metric, target.stat, **dict(target.where))
         met = value is not None and target.met(value)
         res.add(system=SYSTEM, scene=scene, metric=target.metric, value=int(met), unit="bool", stat="target_met",
                 target=target.label, bound=target.bound, bound_unit=target.unit, measured=value,
                 resolution=cfg.resolution, stated_at_resolution=256)  # fmt: skip
-
-
-def _config(row: dict[str, Any]) -> dict[str, Any]:
-    """A row's config, whether from :class:`Results` (JSON text) or :func:`read_rows` (decoded)."""
-    return row["config"] if isinstance(row["config"], dict) else json.loads(row["config"])
-
-
-def _value(rows: list[dict[str, Any]], metric: str, stat: str, **config: Any) -> float | None:
-    for r in rows:
-        if r["metric"] == metric and r["stat"] == stat and config.items() <= _config(r).items():
-            return float(r["value"])
-    return None
 
 
 # -- what it shows ------------------------------------------------------------------------------------------
@@ -314,7 +301,7 @@ def timings(rows: Rows) -> list[dict]:
     for metric, part in TIMED:
         where = {"part": part} if part else {}
         row = {"metric": metric, "part": part or ""}
-        row |= {stat: _value(rows, metric, stat, **where) for stat in ("first", "median", "p95", "p99", "n")}
+        row |= {stat: first(rows, metric, stat, **where) for stat in ("first", "median", "p95", "p99", "n")}
         out += [row] if row["median"] is not None or row["first"] is not None else []
     return out
 
@@ -350,8 +337,8 @@ def _load_title(rows: Rows) -> str:
     clients = next((r["config"] for r in rows if r["metric"] == "load_throughput"), {})
     return (
         f"{clients.get('clients')} clients x {clients.get('per_client')} hits: "
-        f"{_value(rows, 'load_throughput', 'value') or 0:.0f} req/s (target >= 300), "
-        f"{_value(rows, 'load_errors', 'value') or 0:.0f} errors"
+        f"{first(rows, 'load_throughput', 'value') or 0:.0f} req/s (target >= 300), "
+        f"{first(rows, 'load_errors', 'value') or 0:.0f} errors"
     )
 
 
@@ -375,8 +362,8 @@ PARTS = (
         ),
         caption="Times in ms (first: the first miss, with its JIT compile).",
         notes=lambda rows: (
-            f"load: {_value(rows, 'load_throughput', 'value') or 0:.2f} requests/s, "
-            f"{_value(rows, 'load_errors', 'value') or 0:.0f} errors"
+            f"load: {first(rows, 'load_throughput', 'value') or 0:.2f} requests/s, "
+            f"{first(rows, 'load_errors', 'value') or 0:.0f} errors"
         ),
     ),
     Table(targets, (Column("target", "{target}"), Column("measured", "{measured:.2f} {unit}"), Column("met", "{met}"))),

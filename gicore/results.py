@@ -89,7 +89,8 @@ def package_versions() -> dict[str, str | None]:
 
 @dataclass
 class Results:
-    """Collects rows for one bench run and writes CSV + provenance JSON on :meth:`write`.
+    """Collects rows for one bench run and writes CSV + provenance JSON on :meth:`write`. A row is as
+    :func:`read_rows` gives it back, its ``config`` a dict (JSON in the CSV).
 
     ``settings`` is the run's final configuration (what the provenance records); ``files`` are the other
     files the run wrote, each named through :meth:`output`.
@@ -124,7 +125,7 @@ class Results:
                 "stat": stat,
                 "value": value,
                 "unit": unit,
-                "config": json.dumps(config, sort_keys=True, separators=(",", ":")),
+                "config": config,
             }
         )
 
@@ -151,7 +152,9 @@ class Results:
         text = io.StringIO(newline="")
         writer = csv.DictWriter(text, fieldnames=COLUMNS)
         writer.writeheader()
-        writer.writerows(self.rows)
+        writer.writerows(
+            r | {"config": json.dumps(r["config"], sort_keys=True, separators=(",", ":"))} for r in self.rows
+        )
         atomic_write_bytes(self.csv_path, text.getvalue().encode())
         provenance = {
             "run_id": self.run_id,
