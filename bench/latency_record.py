@@ -12,6 +12,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from gicore.frame_rows import read_csv_rows
 from gicore.results import Results
 from network_sim.exchange import CloudCost, sweep_link
 
@@ -48,13 +49,6 @@ class Recorded(Protocol):
     codec: str
     sweep_rate_mbit: float | None
     sweep_max_rtt_ms: float
-
-
-def _csv(path: Path) -> list[dict[str, str]]:
-    import csv
-
-    with path.open(newline="") as fh:
-        return list(csv.DictReader(fh))
 
 
 def _f(value: str) -> float | None:
@@ -141,7 +135,7 @@ def record_renderer(
 
 def _record_gigan(res: Results, scene: str, cfg: Recorded, folder: Path, common: dict[str, Any]) -> float:
     """GIGAN's stage timings and SSIM rows; its median total."""
-    frames = _csv(folder / "frames.csv")
+    frames = read_csv_rows(folder / "frames.csv")
     gigan = gigan_samples(frames)
     for stage, values in gigan.items():
         res.add_timing(
@@ -166,7 +160,7 @@ def _record_cloud_runs(
     for (system, profile, store), folder in runs.items():
         if system not in (CLOUD, CLOUD_PREFETCH):
             continue
-        frames, requests = _csv(folder / "frames.csv"), _csv(folder / "requests.csv")
+        frames, requests = read_csv_rows(folder / "frames.csv"), read_csv_rows(folder / "requests.csv")
         where = {"profile": profile, "store": store} | common
         if store == "prebaked" and frames and "perceived_ms" in frames[0]:  # absent: no perceived rows
             _perceived_rows(res, scene, system, frames, requests, where)

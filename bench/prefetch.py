@@ -11,7 +11,6 @@ latency per frame, ``in_tolerance``, ``ssim`` against GT, requests, bytes, ``req
 
 from __future__ import annotations
 
-import csv
 import json
 import math
 import shutil
@@ -38,6 +37,7 @@ from bench.processes import (
 from bench.runner import Bench, Block, Section
 from gicore import option_groups
 from gicore.error_policy import UserError
+from gicore.frame_rows import read_csv_rows
 from gicore.results import Results
 from network_sim.profiles import profiles_field
 
@@ -153,11 +153,6 @@ def request_floors(spec: Any, cfg: PrefetchConfig, seed: int, prebaked: Path, se
     return {"prebaked": fewest_maps(views, cells, stored, tol), "placed": fewest_maps(views, cells, own, tol)}
 
 
-def _csv(path: Path) -> list[dict[str, str]]:
-    with path.open(newline="") as fh:
-        return list(csv.DictReader(fh))
-
-
 def run_metrics(frames: list[dict[str, str]], requests: list[dict[str, str]]) -> dict[str, Any]:
     """What one client run measured (module docstring): perceived latency samples (ms) by the cache state of
     the map that ended each wait, censored frames, in-tolerance share, mean SSIM, request counts and bytes."""
@@ -187,7 +182,7 @@ def run_metrics(frames: list[dict[str, str]], requests: list[dict[str, str]]) ->
 
 def record(res: Results, scene: str, folder: Path, config: dict[str, Any]) -> None:
     """Rows of one client run (its ``frames.csv``, ``requests.csv`` and ``summary.json``)."""
-    m = run_metrics(_csv(folder / "frames.csv"), _csv(folder / "requests.csv"))
+    m = run_metrics(read_csv_rows(folder / "frames.csv"), read_csv_rows(folder / "requests.csv"))
     config = config | {"renderer": json.loads((folder / "summary.json").read_text())["renderer"]}
     for cache, values in m["perceived"].items():
         if values:  # order statistics, not interpolated: censored frames are infinite

@@ -1,5 +1,5 @@
 """A client run's per-frame rows (:meth:`gicore.loop.ClientLoop.columns`): the run's summary (amortised frame
-rate, medians, mean quality) and the rows as CSV.
+rate, medians, mean quality) and the rows as CSV, written and read back.
 """
 
 from __future__ import annotations
@@ -58,3 +58,9 @@ def write_rows(rows: list[dict[str, Any]], path: Path) -> Path:
     writer.writerows(rows)
     path.parent.mkdir(parents=True, exist_ok=True)
     return atomic_write_bytes(path, buffer.getvalue().encode())
+
+
+def read_csv_rows(path: Path) -> list[dict[str, str]]:
+    """The rows of a client run's CSV (``frames.csv``, ``requests.csv``) as text, an empty cell ``""``."""
+    with path.open(newline="") as fh:
+        return list(csv.DictReader(fh))
