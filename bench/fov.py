@@ -13,7 +13,6 @@ the map, so the error is the warp's and the FOV's alone.
 
 from __future__ import annotations
 
-import math
 from collections import defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -67,39 +66,6 @@ class FovConfig:
             check_model_resolution(self.model, self.resolution)
 
 
-def turned(camera: Camera, degrees: float) -> Camera:
-    """``camera`` turned about the vertical axis through its origin (positive: to the left)."""
-    a = math.radians(degrees)
-    d = np.subtract(camera.target, camera.origin)
-    rot = np.array([[math.cos(a), 0.0, math.sin(a)], [0.0, 1.0, 0.0], [-math.sin(a), 0.0, math.cos(a)]])
-    return Camera(
-        camera.origin,
-        tuple(np.add(camera.origin, rot @ d)),
-        camera.up,
-        camera.fov,
-        camera.near,
-        camera.far,
-        camera.width,
-        camera.height,
-    )
-
-
-def moved(camera: Camera, distance: float) -> Camera:
-    """``camera`` moved sideways (along its right vector) by ``distance``, looking the same way."""
-    right = -camera.to_world()[:3, 0]  # Mitsuba's camera x points left
-    shift = distance * right
-    return Camera(
-        tuple(np.add(camera.origin, shift)),
-        tuple(np.add(camera.target, shift)),
-        camera.up,
-        camera.fov,
-        camera.near,
-        camera.far,
-        camera.width,
-        camera.height,
-    )
-
-
 def measure(cfg: FovConfig, res: Results) -> None:
     for scene in cfg.scenes:
         _measure_scene(cfg, res, scene)
@@ -144,7 +110,7 @@ class _SceneRun:
         cfg = self.cfg
         moves = {}
         for kind, amount, _ in self.motions:
-            cam = turned(base, amount) if kind == "rotation" else moved(base, amount)
+            cam = base.turned(amount) if kind == "rotation" else base.moved(right=amount)
             seed = frame_seed(self.seed, f"gt/{kind}/{amount}", b)
             moves[kind, amount] = (cam, tonemap(render_gt(self.renderer, cam, light, cfg.spp, seed, cfg.denoise)))
         for gi_fov in cfg.gi_fovs:

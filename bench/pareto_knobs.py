@@ -419,7 +419,7 @@ def tolerances(ctx: Context, pts: Points, bake_ms: float, hit_path: dict[str, An
         warp_ms, errors = [], []
         for cam, light in zip(ctx.cameras, ctx.light):
             stored = cam.with_fov(gi_fov)
-            request = _offset_camera(stored, dp / 2, angle / 2)
+            request = stored.moved(right=dp / 2).turned(angle / 2)
             cloud = PointCloud(_bake(ctx, stored, light, cfg.bake_spp, True), texel_depth(ctx.renderer, stored), stored)
             mask = ctx.renderer.render_uv(request)["mask"]
             ms, (image, _, _) = _median_ms(
@@ -431,18 +431,6 @@ def tolerances(ctx: Context, pts: Points, bake_ms: float, hit_path: dict[str, An
         pts.add(CLOUD, PER_MAP, "store tolerance", mean_ms, float(np.mean(errors)), tolerance_position=dp,
                 tolerance_angle_deg=angle, hit_rate=round(hit_rate, 4), codec=hit_path["codec"], profile="lan",
                 spp=cfg.bake_spp, resolution=cfg.resolution, gi_fov=gi_fov)  # fmt: skip
-
-
-def _offset_camera(camera, distance: float, angle_deg: float):
-    """``camera`` moved sideways by ``distance`` and turned by ``angle_deg`` about the vertical."""
-    o, t = np.asarray(camera.origin), np.asarray(camera.target)
-    d = t - o
-    side = np.cross(d, (0.0, 1.0, 0.0))
-    side /= np.linalg.norm(side)
-    a = math.radians(angle_deg)
-    turned = np.array([d[0] * math.cos(a) + d[2] * math.sin(a), d[1], -d[0] * math.sin(a) + d[2] * math.cos(a)])
-    o2 = o + distance * side
-    return replace(camera, origin=tuple(o2), target=tuple(o2 + turned))
 
 
 def frame_system(gi_source: str, warp: str) -> str:

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any, Literal
 
 import numpy as np
@@ -140,13 +140,3 @@ class Scene:
             texel_depth(r, camera),
             r.render_di(camera, self.light),
         )
-
-
-def camera_moved(camera, *, back: float = 0.0, turn_deg: float = 0.0):
-    """``camera`` moved ``back`` units against its view direction and/or turned ``turn_deg`` about the vertical."""
-    o, t = np.asarray(camera.origin), np.asarray(camera.target)
-    d = (t - o) / np.linalg.norm(t - o)
-    o = o - back * d
-    a = math.radians(turn_deg)
-    rd = np.array([d[0] * math.cos(a) + d[2] * math.sin(a), d[1], -d[0] * math.sin(a) + d[2] * math.cos(a)])
-    return replace(camera, origin=tuple(o), target=tuple(o + rd))

@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from bench.stability_cases import Case, Outcome, Scene, camera_moved, max_rel, tm_rmse, with_nan
+from bench.stability_cases import Case, Outcome, Scene, max_rel, tm_rmse, with_nan
 
 
 def render_cases(s: Scene) -> list[Case]:
@@ -245,11 +245,11 @@ def warp_cases(s: Scene) -> list[Case]:
             Case("warp", f"{kind}: zero motion (identity)", "finite", w.identity(kind)),
             Case("warp", f"{kind}: reference view (control)", "finite", w.against_gt(kind, lambda: local)),
             Case("warp", f"{kind}: local camera 1 unit behind the GI camera", "finite",
-                 w.against_gt(kind, lambda: camera_moved(gi.with_fov(60.0), back=1.0))),
+                 w.against_gt(kind, lambda: gi.with_fov(60.0).moved(back=1.0))),
             Case("warp", f"{kind}: local camera at the GI camera plane, turned 90°", "finite",
-                 w.against_gt(kind, lambda: camera_moved(local, turn_deg=90.0))),
+                 w.against_gt(kind, lambda: local.turned(90.0))),
             Case("warp", f"{kind}: local camera turned 180° (all behind)", "finite",
-                 w.against_gt(kind, lambda: camera_moved(local, turn_deg=180.0))),
+                 w.against_gt(kind, lambda: local.turned(180.0))),
             Case("warp", f"{kind}: GI camera FOV 1°", "finite", w.against_gt(kind, lambda: local, gi_fov=1.0)),
             Case("warp", f"{kind}: GI camera FOV 170°", "finite", w.against_gt(kind, lambda: local, gi_fov=170.0)),
             Case("warp", f"{kind}: local FOV 1°", "finite", w.against_gt(kind, lambda: local.with_fov(1.0))),

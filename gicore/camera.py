@@ -171,6 +171,19 @@ class Camera:
     def with_fov(self, fov: float) -> Camera:
         return replace(self, fov=fov)
 
+    def turned(self, degrees: float) -> Camera:
+        """This camera turned about the vertical axis through its origin (positive: to the left)."""
+        c, s = math.cos(math.radians(degrees)), math.sin(math.radians(degrees))
+        yaw = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+        return replace(self, target=tuple(np.add(self.origin, yaw @ np.subtract(self.target, self.origin))))
+
+    def moved(self, right: float = 0.0, back: float = 0.0) -> Camera:
+        """This camera moved ``right`` units along its right vector and ``back`` units against its view
+        direction, looking the same way."""
+        m = self.to_world()
+        shift = -right * m[:3, 0] - back * m[:3, 2]  # Mitsuba's camera x points left, z forward
+        return replace(self, origin=tuple(np.add(self.origin, shift)), target=tuple(np.add(self.target, shift)))
+
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
 

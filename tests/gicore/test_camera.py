@@ -186,3 +186,14 @@ def test_depth_buffer_is_linear_view_depth(renderer):
     pos_eye = np.c_[gb["position"][mask], np.ones(mask.sum())] @ cam.view().T
     facing = np.einsum("ij,ij->i", n, -pos_eye[:, :3])
     assert np.mean(facing > 0) > 0.95
+
+
+def test_turned_and_moved_keep_the_camera_but_its_pose() -> None:
+    cam = Camera((0.0, 1.0, 3.0), (0.0, 1.0, 0.0), fov=70.0, width=32, height=24)
+    left = cam.turned(90.0)  # looking down -z, a quarter turn to the left looks down -x
+    assert np.allclose(np.subtract(left.target, left.origin), (-3.0, 0.0, 0.0)) and left.origin == cam.origin
+    right = cam.moved(right=0.5)  # its right is +x
+    assert np.allclose(right.origin, (0.5, 1.0, 3.0)) and np.allclose(right.target, (0.5, 1.0, 0.0))
+    back = cam.moved(back=1.0)
+    assert np.allclose(back.origin, (0.0, 1.0, 4.0)) and np.allclose(back.target, (0.0, 1.0, 1.0))
+    assert (left.fov, right.width, back.height) == (70.0, 32, 24)
