@@ -28,6 +28,7 @@ from bench import (
     stability,
     storage,
     training,
+    variant_bench,
     viewer_bench,
     warp_bench,
 )
@@ -49,6 +50,7 @@ BENCHES: tuple[Bench, ...] = (
     prefetch.BENCH,
     storage.BENCH,
     server_bench.BENCH,
+    variant_bench.BENCH,
     load.BENCH,
     stability.BENCH,
     scaling.BENCH,
