@@ -18,6 +18,7 @@ against the reference's of the same view (``mean``, ``min``), ``mean_ratio`` (it
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import os
 import subprocess
@@ -31,7 +32,9 @@ from bench.present.declarations import Column, Rows, Table, first, matches, uniq
 from bench.processes import BIN
 from bench.runner import Bench, Section
 from gicore import option_groups
+from gicore.cuda_probe import cuda_device_count
 from gicore.error_policy import UserError
+from gicore.mitsuba_variant import VARIANT_ENV, VariantChoice, choose_variant, cuda_variant_built, find_libllvm
 from gicore.results import Results, read_rows
 
 #: SSIM a variant's maps reach against the reference's, every map.
@@ -76,20 +79,22 @@ class VariantsConfig:
             reference_settings(self)
 
 
-def choice(device: str) -> Any:
+def choice(device: str) -> VariantChoice:
     """The :class:`gicore.mitsuba_variant.VariantChoice` a process with ``GIGAN_MITSUBA_VARIANT=device`` makes on
     this machine; a device that cannot run here is a one-line user error before anything is baked."""
-    from gicore.cuda_probe import cuda_device_count
-    from gicore.mitsuba_variant import choose_variant, cuda_variant_built, find_libllvm
-
+    cuda = cuda_device_count() if device != "cpu" else 0
     try:
-        return choose_variant(
-            device, cuda_device_count() if device != "cpu" else 0, cuda_variant_built(), find_libllvm()
-        )
+        made = choose_variant(device, cuda, cuda_variant_built(), find_libllvm())
     except UserError as exc:
         raise UserError(
             f"--variants {device}: {exc.what}", "bake it on a machine that has one, or leave it out"
         ) from None
+    if made.denoiser == "oidn" and importlib.util.find_spec("pyoidn") is None:
+        raise UserError(
+            f"--variants {device}: its denoiser, OIDN, needs pyoidn, which is not installed",
+            "pip install pyoidn, or give --reference the --out of a run made where it is",
+        )
+    return made
 
 
 def reference_settings(cfg: VariantsConfig) -> dict[str, Any]:
@@ -145,8 +150,6 @@ def bake(cfg: VariantsConfig, device: str, folder: Path, seed: int) -> Bake:
             "--codec", CODEC, "--resolution", str(cfg.resolution), "--spp", str(cfg.spp), "--seed", str(seed),
             "--tolerance-p", "0", "--tolerance-deg", "0", "--workers", "1"]  # fmt: skip
     folder.mkdir(parents=True, exist_ok=True)
-    from gicore.mitsuba_variant import VARIANT_ENV
-
     proc = subprocess.run(argv, capture_output=True, text=True, env=os.environ | {VARIANT_ENV: device}, check=False)
     (folder / "console.txt").write_text(proc.stdout + proc.stderr)
     if proc.returncode != 0:

@@ -13,20 +13,24 @@
 #    EGL loaders).
 # 3. Measure, into --out (default $OUT, the device run's folder): per resolution of RESOLUTIONS, bench latency
 #    --quick (profiles lan and wan) with the shipped model, or MODEL_<R> where the shipped one is not at R (none:
-#    that resolution is skipped with a line); bench render --quick --renderers gl at every resolution; bench
-#    report. What comes back: provenance.txt (GPU name, driver, CUDA, the Mitsuba variant and inference backend
-#    chosen), latency_table_<R>.md, table1.md (bench report's results.md), results.tar.gz (every CSV,
-#    provenance JSON and figure), log.txt.
+#    that resolution is skipped with a line); bench variants --quick (the server's bake on CUDA against the CPU's:
+#    SSIM >= 0.98 met or not; the CPU maps from VARIANT_REFERENCE where carried, else baked here, which needs
+#    pyoidn; a failure is a line in the log, not the end of the run); bench render --quick --renderers gl at every
+#    resolution; bench report. What comes back: provenance.txt (GPU name, driver, CUDA, the Mitsuba variant and
+#    inference backend chosen), latency_table_<R>.md, variants.md, table1.md (bench report's results.md),
+#    results.tar.gz (every CSV, provenance JSON and figure), log.txt.
 # --dry-run does step 1 in a temporary folder and prints what steps 2 and 3 would install and run.
 #
 # Settings (environment): PYTHON (python3), FORCE (distributions installed even where present), RESOLUTIONS
-# (256 512), MODEL_<R>, STAGE (where wheels are reassembled: /tmp/gigan_gpu_wheels), GL_DEBS (.gl).
+# (256 512), MODEL_<R>, STAGE (where wheels are reassembled: /tmp/gigan_gpu_wheels), GL_DEBS (.gl),
+# VARIANT_REFERENCE (.gpu_reference: the --out of `bench variants --quick --variants cpu` made with pyoidn).
 set -euo pipefail
 
 PYTHON=${PYTHON:-python3}
 FORCE=${FORCE:-}
 RESOLUTIONS=${RESOLUTIONS:-256 512}
 GL_DEBS=${GL_DEBS:-.gl}
+VARIANT_REFERENCE=${VARIANT_REFERENCE:-.gpu_reference}
 MODE=run
 WHEELS=.gpu_wheels
 DEST=${OUT:-}
@@ -149,6 +153,13 @@ for res in $RESOLUTIONS; do
   act "$BIN/bench" latency --quick --resolution "$res" --model "$model" --out "$RESULTS/latency_$res"
   act cp "$RESULTS/latency_$res/latency.md" "$DEST/latency_table_$res.md"
 done
+variants=(--quick)
+if [[ -d $VARIANT_REFERENCE ]]; then variants+=(--variants cuda --reference "$VARIANT_REFERENCE"); fi
+if act "$BIN/bench" variants "${variants[@]}" --out "$RESULTS/variants"; then
+  act cp "$RESULTS/variants/variants.md" "$DEST/variants.md"
+else
+  say "bench variants failed (its error is above): no variants.md; the rest of the run goes on"
+fi
 act "$BIN/bench" render --quick --renderers gl --gl-resolutions "${RESOLUTIONS// /,}" --out "$RESULTS/render_gl"
 act "$BIN/bench" report --results "$RESULTS" --out "$RESULTS/report"
 act cp "$RESULTS/report/results.md" "$DEST/table1.md"

@@ -3,6 +3,7 @@ CPU bake of the same maps (a run given as --reference), and CUDA where there is 
 
 from __future__ import annotations
 
+import importlib.util
 import subprocess
 import sys
 from pathlib import Path
@@ -64,6 +65,15 @@ def test_variant_names_are_checked() -> None:
             VariantsConfig(variants=variants).check()
     with pytest.raises(UserError, match="no variants.provenance.json"):
         VariantsConfig(variants=("cpu",), reference=Path("/nonexistent")).check()
+
+
+def test_a_cpu_bake_without_pyoidn_is_one_line_naming_the_reference(monkeypatch: pytest.MonkeyPatch) -> None:
+    find_spec = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "pyoidn" else find_spec(name, *a))
+    with pytest.raises(
+        UserError, match="needs pyoidn, which is not installed: pip install pyoidn, or give --reference"
+    ):
+        VariantsConfig(variants=("cpu",)).check()
 
 
 @pytest.mark.skipif(cuda_device_count() > 0, reason="a CUDA device is present")

@@ -81,7 +81,10 @@ def test_wheels_are_split_and_batched_to_fit_one_run_each(batches: Path):
 
 
 def test_dry_run_reassembles_skips_what_is_installed_and_prints_the_runs(batches: Path, tmp_path: Path):
-    proc = _bash("gpu_table1.sh", "--dry-run", "--wheels", str(batches), "--out", str(tmp_path / "out"))
+    no_reference = {"VARIANT_REFERENCE": str(tmp_path / "none")}
+    proc = _bash(
+        "gpu_table1.sh", "--dry-run", "--wheels", str(batches), "--out", str(tmp_path / "out"), env=no_reference
+    )
     assert proc.returncode == 0, proc.stderr
     out = proc.stdout
     assert f"wheel {next(iter(WHEELS))} ready (from 3 parts)" in out and "drjit-9.9.9" in out
@@ -91,6 +94,11 @@ def test_dry_run_reassembles_skips_what_is_installed_and_prints_the_runs(batches
     assert "would run: " in out and "pip install --quiet --no-index --no-deps --no-build-isolation -e ." in out
     assert "bench latency --quick --resolution 256 --model " in out
     assert "skip latency at 512²: the shipped model runs at 256²; set MODEL_512" in out
+    # the bake on CUDA against the CPU's after the latency runs; the CPU maps from VARIANT_REFERENCE where carried
+    assert out.index("bench variants --quick --out ") > out.index("bench latency --quick")
+    env = {"VARIANT_REFERENCE": str(tmp_path)}
+    again = _bash("gpu_table1.sh", "--dry-run", "--wheels", str(batches), "--out", str(tmp_path / "out"), env=env)
+    assert f"bench variants --quick --variants cuda --reference {tmp_path} --out " in again.stdout
     assert "bench render --quick --renderers gl --gl-resolutions 256,512" in out and "bench report" in out
     assert not (tmp_path / "out").exists()  # a dry run writes nothing
 
