@@ -109,11 +109,38 @@ def record(
     runs: dict[tuple[str, str, str, str], Path],
     common: dict[str, Any],
 ) -> None:
-    """Rows of every run (per renderer), then the renderers' ratios (:func:`record_renderer_ratios`)."""
+    """Rows of every run (per renderer), what each client run ran (:func:`record_backends`), then the renderers'
+    ratios (:func:`record_renderer_ratios`)."""
     for renderer in dict.fromkeys(key[3] for key in runs):
         mine = {key[:3]: folder for key, folder in runs.items() if key[3] == renderer}
         record_renderer(res, scene, cfg, mine, common | {"renderer": renderer})
+    record_backends(res, scene, runs, common)
     record_renderer_ratios(res, scene)
+
+
+def record_backends(
+    res: Results, scene: str, runs: dict[tuple[str, str, str, str], Path], common: dict[str, Any]
+) -> None:
+    """A ``frames`` row per client run (the frames it flew), its config naming what ran: the renderer and the warp
+    backend (``warp_backend``), GIGAN's inference backend (``inference``) and its device (``inference_device``), as
+    the run's summary.json says; for cloud baking, the server's Mitsuba variant and denoiser (``server_variant``,
+    ``server_denoiser``): the server inherits this process's environment on this machine, so it makes this
+    process's choice (:func:`gicore.mitsuba_variant.mitsuba_choice`)."""
+    from gicore.mitsuba_variant import mitsuba_choice
+    from gigan_local.torch_backend import cuda_for_torch
+
+    for (system, profile, store, renderer), folder in runs.items():
+        summary = json.loads((folder / "summary.json").read_text())
+        ran: dict[str, Any] = {"renderer": renderer, "warp_backend": summary["warp_backend"]}
+        if system == GIGAN:
+            # torch runs on CUDA where torch sees a device (gigan_local.torch_backend); onnxruntime on the CPU
+            device = "cuda" if summary["inference"] == "torch" and cuda_for_torch() else "cpu"
+            ran |= {"inference": summary["inference"], "inference_device": device}
+        else:
+            server = mitsuba_choice()
+            ran |= {"server_variant": server.variant, "server_denoiser": server.denoiser}
+        where = {"profile": profile, "store": store} | common | ran
+        res.add(system=system, scene=scene, metric="frames", value=summary["frames"], unit="count", **where)
 
 
 def record_renderer(

@@ -26,7 +26,7 @@ TABLE_ROWS = (
     ("lookup", "server: GI-tree lookup"),
     ("read", "server: read stored map"),
     ("render", "server: path tracing (+ DI, depth)"),
-    ("denoise", "server: denoise (OIDN)"),
+    ("denoise", "server: denoise (OIDN, or OptiX on CUDA)"),
     ("encode", "server: encode"),
     ("server_other", "server: other (store the map, header)"),
     ("gi_render", "GI-camera render (DI + G-buffers)"),
@@ -86,6 +86,26 @@ def _where(system: str, cache: str | None, profile: str, renderer: str) -> dict[
 def _columns(rows: Rows) -> list[tuple[str, str | None, str, str]]:
     """Table 1's columns: (system, cache, renderer, header)."""
     return [(s, c, r, f"{label}, {r}") for r in renderers_of(with_renderer(rows)) for s, c, label in SYSTEMS]
+
+
+#: The systems as the notes on what ran name them.
+SYSTEM_LABELS = {GIGAN: "GIGAN", CLOUD: "cloud baking", CLOUD_PREFETCH: "cloud baking with prefetch"}
+
+
+def what_ran(raw: Rows) -> str:
+    """What each system's client runs ran, per renderer, from their ``frames`` rows: the inference backend and its
+    device, the warp backend, the server's Mitsuba variant and denoiser (empty for runs that did not record it)."""
+    ran: dict[tuple[str, str], dict[str, None]] = {}
+    for r in raw:
+        if matches(r, "frames", "value") and "warp_backend" in r["config"]:
+            c = r["config"]
+            how = fill("[[inference {inference} on {inference_device}, ]]warp {warp_backend}[[, server "
+                       "{server_variant} with {server_denoiser}]]", c)  # fmt: skip
+            ran.setdefault((r["system"], c["renderer"]), {})[how] = None
+    if not ran:
+        return ""
+    shown = [f"{SYSTEM_LABELS.get(s, s)} on {renderer}: {' or '.join(how)}" for (s, renderer), how in ran.items()]
+    return "What ran: " + "; ".join(shown) + "."
 
 
 # -- Table 1 in full ------------------------------------------------------------------------------------------
@@ -276,7 +296,7 @@ def _short_notes(raw: Rows) -> str:
             + "; ".join(crossings)
             + "."
         )
-    return "\n".join(lines)
+    return "\n".join([*lines, what_ran(raw)]).strip()
 
 
 # -- figures ---------------------------------------------------------------------------------------------------
@@ -324,6 +344,7 @@ TABLE1 = Table(
     title=lambda rows: f"Table 1: interaction latency, {rows[0]['scene']} (ms: median, p95 in brackets)",
     group="profile `{profile}`[[ (RTT {rtt:g} ms)]]",
     group_note="{note}",
+    notes=what_ran,
     where="dashboard",
 )
 RENDERERS = Table(

@@ -160,6 +160,7 @@ def test_totals_count_the_local_di_and_the_renderers_stand_side_by_side(tmp_path
     from bench.latency_record import CLOUD, GIGAN, gigan_samples, record
     from bench.latency_tables import PARTS, SHORT
     from bench.present.markdown import table_text, tables_text
+    from gicore.mitsuba_variant import mitsuba_choice
     from gicore.results import Results
 
     gl, mi = {"di": 2.0, "gi_render": 5.0}, {"di": 10.0, "gi_render": 15.0}
@@ -175,6 +176,11 @@ def test_totals_count_the_local_di_and_the_renderers_stand_side_by_side(tmp_path
             folder = tmp_path / f"cloud_rtt60_{store}_{renderer}"
             _cloud_run(folder, times["di"], hit)
             runs[CLOUD, "rtt60", store, renderer] = folder
+    for (system, *_, renderer), folder in runs.items():  # what each client's summary.json says it ran
+        summary = {"frames": 2, "renderer": renderer, "warp_backend": "gl" if renderer == "gl" else "numpy"}
+        (folder / "summary.json").write_text(
+            json.dumps(summary | ({"inference": "onnxruntime"} if system == GIGAN else {}))
+        )
     cfg = LatencyConfig(profiles=("rtt60",), sweep_max_rtt_ms=100.0)
     res = Results("latency", tmp_path / "out", 0)
     record(res, "lung_plane", cfg, runs, {"resolution": 256, "k": 10, "frames": 2})
@@ -202,6 +208,14 @@ def test_totals_count_the_local_di_and_the_renderers_stand_side_by_side(tmp_path
     assert value(GIGAN, "di", "renderer_ratio", renderer="gl/mitsuba") == pytest.approx(0.2)
     assert value(CLOUD, "di", "renderer_ratio", renderer="gl/mitsuba", cache="hit") == pytest.approx(0.2)
     assert not [r for r in rows if r["stat"] == "renderer_ratio" and r["metric"] == "inference" and r["value"] != 1.0]
+    # a row per client run names what ran; the renderers' ratios are unaffected by the runs' differing backends
+    assert value(GIGAN, "frames", "value", inference="onnxruntime", inference_device="cpu", warp_backend="gl") == 2
+    server = mitsuba_choice()
+    assert value(CLOUD, "frames", "value", store="cold", renderer="mitsuba", server_variant=server.variant) == 2
+    ran = (
+        f"What ran: GIGAN on gl: inference onnxruntime on cpu, warp gl; cloud baking on gl: warp gl, server "
+        f"{server.variant} with {server.denoiser}; GIGAN on mitsuba: inference onnxruntime on cpu, warp numpy;"
+    )
 
     text = tables_text([p for p in PARTS if p is not SHORT], rows, 2)
     assert "| stage | GIGAN, gl | cloud baking, hit, gl | cloud baking, miss, gl | GIGAN, mitsuba |" in text
@@ -210,10 +224,12 @@ def test_totals_count_the_local_di_and_the_renderers_stand_side_by_side(tmp_path
     assert "## renderers side by side: median with gl / median with mitsuba (same run)" in text
     assert f"| total | {gl_over_mi:.2f} |" in text and "| local render (DI + warp pass) | 0.20 | 0.20 | 0.20 |" in text
     assert "| gl | miss | 0 (GIGAN is faster at any RTT) |" in text
+    assert ran in text  # Table 1's notes
     block = table_text(SHORT, rows, 4)
     assert f"| `rtt60` (60 ms) | gl | {gigan_total['gl']:.1f} |" in block
     assert f"| `rtt60` (60 ms) | mitsuba | {gigan_total['mitsuba']:.1f} |" in block
     assert f"gl / mitsuba in the same run, GIGAN: total {gl_over_mi:.2f}, warp 1.00, GI-camera render 0.33" in block
+    assert ran in block
 
 
 def test_renderers_option(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture) -> None:
