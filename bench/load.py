@@ -33,7 +33,7 @@ import numpy as np
 
 from bench.common import Target
 from bench.present.declarations import Column, Rows, Table, matches
-from bench.processes import check_served, client_cores, pinned_server, pinning
+from bench.processes import check_served, client_cores, pinned_server, pinning, scene_folder
 from bench.runner import Bench, Block
 from gicore import option_groups
 from gicore.results import Results
@@ -127,7 +127,6 @@ def measure(cfg: LoadConfig, res: Results) -> None:
     check_served(cfg.resolution)
     scene_arg = cfg.scenes[0]
     scene = Path(scene_arg).stem
-    scenes_dir = Path(scene_arg).resolve().parent if Path(scene_arg).suffix else None
     idle = min(cfg.idle, idle_room())
     if idle < cfg.idle:
         print(f"note: {idle} idle connections, not {cfg.idle}: the file-descriptor limit (ulimit -Hn)", file=sys.stderr)
@@ -138,7 +137,7 @@ def measure(cfg: LoadConfig, res: Results) -> None:
     res.out.mkdir(parents=True, exist_ok=True)
     work = Path(tempfile.mkdtemp(prefix="load_store_", dir=res.out))
     try:
-        with pinned_server(plan, work / "store", scenes_dir, *options) as url, client_cores(plan):
+        with pinned_server(plan, work / "store", scene_folder(scene_arg), *options) as url, client_cores(plan):
             run_interruptibly(store(url, hit))  # compiles the renderer: every miss after it costs one render
             for phase in PHASES:
                 _record(res, cfg, scene, phase, *_phase(url, cfg, phase, hit, idle))

@@ -78,7 +78,12 @@ def run_place(scene: str, res: Results, folder: str, pin: bool) -> RunPlace:
     work = res.out / folder
     work.mkdir(parents=True, exist_ok=True)
     res.settings["pinning"] = plan = pinning(pin)
-    return RunPlace(load_scene(scene), Path(scene).resolve().parent if Path(scene).suffix else None, work, plan)
+    return RunPlace(load_scene(scene), scene_folder(scene), work, plan)
+
+
+def scene_folder(scene: str) -> Path | None:
+    """The folder of ``scene``'s spec file, which a server is given (None for a built-in scene)."""
+    return Path(scene).resolve().parent if Path(scene).suffix else None
 
 
 def check_served(resolution: int) -> None:
@@ -107,27 +112,25 @@ def threads(plan: dict[str, Any], role: str) -> int:
 
 @contextmanager
 def pinned_server(plan: dict[str, Any], store: Path, scenes_dir: Path | None, *options: str) -> Iterator[str]:
-    """A pinned ``cloudbaking-server`` on an ephemeral port, given ``options`` besides; yields its base URL."""
-    from network_sim.process import Running
+    """A pinned ``cloudbaking-server`` (:func:`web3d.children.start_server`) given ``options`` besides; yields
+    its base URL."""
+    from web3d.children import start_server, url
 
     env = ["env", f"CLOUDBAKING_RENDER_THREADS={threads(plan, 'server')}"]
-    argv = [*env, *taskset(plan, "server"), str(BIN / "cloudbaking-server"), "--port", "0", "--store", str(store)]
-    argv += [*(["--scenes", str(scenes_dir)] if scenes_dir else []), *options]
-    with Running(argv, timeout=120.0) as server:
-        host, port = server.addr
-        yield f"{host}:{port}"  # host is "http://127.0.0.1" (the server prints a URL)
+    with start_server(store, scenes_dir, *options, prefix=[*env, *taskset(plan, "server")]) as server:
+        yield url(server)
 
 
 @contextmanager
 def pinned_proxy(plan: dict[str, Any], profile: str, upstream: str, seed: int) -> Iterator[str]:
     """A pinned ``network-sim proxy --profile`` in front of ``upstream`` (a URL); yields the proxy's URL."""
-    from network_sim.process import Running
+    from network_sim.process import proxy
+    from web3d.children import url
 
-    argv = [*taskset(plan, "proxy"), sys.executable, "-m", "network_sim", "proxy"]
-    argv += ["--upstream", upstream.removeprefix("http://"), "--profile", profile, "--seed", str(seed)]
-    with Running(argv, timeout=60.0) as proxy:
-        host, port = proxy.addr
-        yield f"http://{host}:{port}"
+    host, _, port = upstream.removeprefix("http://").rpartition(":")
+    args = ("--profile", profile, "--seed", str(seed))
+    with proxy((host, int(port)), *args, timeout=60.0, prefix=taskset(plan, "proxy")) as running:
+        yield url(running)
 
 
 def run_client(plan: dict[str, Any], argv: list[str], out: Path, timeout_s: float) -> Path:

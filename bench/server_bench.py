@@ -25,7 +25,7 @@ from baseline_cloudbaking.codecs import CODEC_NAMES, DEFAULT_CODEC
 from baseline_cloudbaking.protocol import unpack
 from bench.common import Target
 from bench.present.declarations import Chart, Column, Derive, Figure, Rows, Table, Text, first, matches
-from bench.processes import client_cores, pinned_server, pinning
+from bench.processes import client_cores, pinned_server, pinning, scene_folder
 from bench.runner import Bench, Block
 from gicore import option_groups
 from gicore.results import Results
@@ -171,8 +171,7 @@ def _summary(res: Results, scene: str, metric: str, samples_ms: list[float], sam
 
 def measure(cfg: ServiceConfig, res: Results) -> None:
     scene_arg = cfg.scenes[0]
-    scene = Path(scene_arg).stem
-    scenes_dir = Path(scene_arg).resolve().parent if Path(scene_arg).suffix else None
+    scene, scenes_dir = Path(scene_arg).stem, scene_folder(scene_arg)
     bodies = view_bodies(cfg, res.seed)
     plan = pinning(cfg.pin)
     res.settings["pinning"] = plan

@@ -7,7 +7,6 @@ from __future__ import annotations
 import json
 import math
 import shutil
-import sys
 from collections.abc import Callable, Iterator
 from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass
@@ -16,10 +15,9 @@ from typing import Any
 
 import numpy as np
 
+from bench.processes import scene_folder
 from bench.stability_cases import Case, Expect, Outcome, Rejected, Scene, max_rel, with_nan
 from network_sim.cli import DELAY_MS_MAX
-
-BIN = Path(sys.executable).parent
 
 
 def codec_cases(s: Scene) -> list[Case]:
@@ -333,11 +331,7 @@ def touching_light_case(s: Scene, served: Served) -> Case:
 @contextmanager
 def server_process(store: Path, scene: str, max_spp: int) -> Iterator[str]:
     """A real ``cloudbaking-server`` on an ephemeral port (serving ``scene``'s folder if it is a file); its URL."""
-    from network_sim.process import Running
+    from web3d.children import start_server, url
 
-    argv = [str(BIN / "cloudbaking-server"), "--port", "0", "--store", str(store), "--max-spp", str(max_spp)]
-    if Path(scene).suffix:
-        argv += ["--scenes", str(Path(scene).resolve().parent)]
-    with Running(argv, timeout=120.0) as server:
-        host, port = server.addr
-        yield f"{host}:{port}"  # host is "http://127.0.0.1" (the server prints a URL)
+    with start_server(store, scene_folder(scene), "--max-spp", str(max_spp)) as server:
+        yield url(server)

@@ -100,16 +100,25 @@ class Running:
         self._stderr.close()
 
 
-def network_sim(*args: str, timeout: float = 30.0, die_with_parent: bool = False) -> Running:
-    """``network-sim ARGS...`` with this interpreter, started and listening."""
-    return Running([sys.executable, "-m", "network_sim", *args], timeout, die_with_parent)
+def network_sim(
+    *args: str, timeout: float = 30.0, die_with_parent: bool = False, prefix: Sequence[str] = ()
+) -> Running:
+    """``network-sim ARGS...`` with this interpreter behind ``prefix`` (e.g. ``taskset -c 0``), started and
+    listening."""
+    return Running([*prefix, sys.executable, "-m", "network_sim", *args], timeout, die_with_parent)
 
 
-def proxy(upstream: tuple[str, int], *args: str, timeout: float = 30.0, die_with_parent: bool = False) -> Running:
-    """``network-sim proxy --upstream HOST:PORT ARGS...``, started, listening, its clock-origin line read."""
+def proxy(
+    upstream: tuple[str, int],
+    *args: str,
+    timeout: float = 30.0,
+    die_with_parent: bool = False,
+    prefix: Sequence[str] = (),
+) -> Running:
+    """``network-sim proxy --upstream HOST:PORT ARGS...`` as :func:`network_sim` starts it, its clock-origin line
+    read."""
     host, port = upstream
-    running = network_sim(
-        "proxy", "--upstream", f"{host}:{port}", *args, timeout=timeout, die_with_parent=die_with_parent
-    )
+    running = network_sim("proxy", "--upstream", f"{host}:{port}", *args, timeout=timeout,
+                          die_with_parent=die_with_parent, prefix=prefix)  # fmt: skip
     running.readline(timeout)
     return running

@@ -17,7 +17,7 @@ import shutil
 import sys
 import tempfile
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import ExitStack
 from pathlib import Path
@@ -32,9 +32,20 @@ SERVER_START_S = 120.0
 PROXY_START_S = 60.0
 
 
-def _url(child: Running) -> str:
+def url(child: Running) -> str:
+    """The base URL of a started server or proxy."""
     host, port = child.addr  # the server prints a URL, the proxy HOST:PORT
     return f"{host}:{port}" if host.startswith("http") else f"http://{host}:{port}"
+
+
+def start_server(
+    store: Path, scenes: Path | None, *options: str, prefix: Sequence[str] = (), die_with_parent: bool = False
+) -> Running:
+    """A ``cloudbaking-server`` on an ephemeral port on ``store`` (and the scene spec folder ``scenes``), given
+    ``options`` besides and started behind ``prefix`` (e.g. ``taskset -c 0``); started and listening."""
+    argv = [*prefix, str(BIN / "cloudbaking-server"), "--port", "0", "--store", str(store)]
+    argv += ["--scenes", str(scenes)] if scenes is not None else []
+    return Running([*argv, *options], SERVER_START_S, die_with_parent)
 
 
 class Stack:
@@ -72,16 +83,15 @@ class Stack:
                 self.server = self._start_server()
             if profile not in self.proxies:
                 self.proxies[profile] = self._start_proxy(profile)
-            return _url(self.proxies[profile])
+            return url(self.proxies[profile])
 
     def _start_server(self) -> Running:
         if self.store is None:
             self.store = Path(tempfile.mkdtemp(prefix=f"gigan-web-{self.name}-store-"))
             self.children.callback(shutil.rmtree, self.store, ignore_errors=True)  # after the server stopped
-        argv = [str(BIN / "cloudbaking-server"), "--port", "0", "--store", str(self.store)]
-        argv += ["--scenes", str(self.scenes)] if self.scenes is not None else []
-        server = self._start(lambda: Running(argv, SERVER_START_S, die_with_parent=True), "cloudbaking-server")
-        self.report(f"cloudbaking-server, {self.name} store {self.store}: {_url(server)} (pid {server.proc.pid})")
+        start = functools.partial(start_server, self.store, self.scenes, die_with_parent=True)
+        server = self._start(start, "cloudbaking-server")
+        self.report(f"cloudbaking-server, {self.name} store {self.store}: {url(server)} (pid {server.proc.pid})")
         return server
 
     def _start_proxy(self, profile: str) -> Running:
@@ -93,7 +103,7 @@ class Stack:
             args += ("--log", str(self.logs / f"{self.name}_{profile}.csv"))
         start = functools.partial(proxy, upstream, *args, timeout=PROXY_START_S, die_with_parent=True)
         child = self._start(start, f"network-sim proxy {profile}")
-        self.report(f"network-sim proxy {profile} -> {self.name} store: {_url(child)} (pid {child.proc.pid})")
+        self.report(f"network-sim proxy {profile} -> {self.name} store: {url(child)} (pid {child.proc.pid})")
         return child
 
     def _start(self, start: Callable[[], Running], what: str) -> Running:
