@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 from collections import defaultdict
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -24,7 +25,7 @@ from baseline_cloudbaking.protocol import pack
 from baseline_cloudbaking.viewpoints import Tolerance, Viewpoint, ViewSet, simulate_fill
 from bench.runner import Bench, Block, Section
 from bench.storage_config import COMPOSITIONS, StorageConfig
-from bench.storage_growth import entry_frames, measure_growth, paper_accounting
+from bench.storage_growth import SYSTEM, add_entry_bytes, entry_frames, measure_growth, paper_accounting, spread_picks
 from bench.storage_tables import PARTS
 from gicore.error_policy import writable_dir
 from gicore.metrics import ssim
@@ -46,15 +47,8 @@ def measure(cfg: StorageConfig, res: Results) -> None:
         for p in ("fp32", "fp16")
     }
     for precision, size in model_bytes.items():
-        res.add(
-            system="gigan",
-            scene="all",
-            metric="client_bytes",
-            value=size,
-            unit="bytes",
-            precision=precision,
-            basis="measured: model files",
-        )
+        res.add(system="gigan", scene="all", metric="client_bytes", value=size, unit="bytes", precision=precision,
+                basis="measured: model files")  # fmt: skip
     tol = cfg.tolerance
     common = {
         "frames": cfg.frames,
@@ -66,25 +60,17 @@ def measure(cfg: StorageConfig, res: Results) -> None:
     memo: dict = {}  # growth-law fills, shared by scenes of one camera envelope and light
     for si, scene in enumerate(cfg.scenes):
         spec, name = load_scene(scene), Path(scene).stem  # the name a prebake stores the scene under
+        add = partial(res.add, system=SYSTEM, scene=name)
         path = fly_through(spec, cfg.frames, cfg.resolutions[0], cfg.light_cell, res.seed)
         served = simulate_fill([f.view for f in path], [f.cell for f in path], tol)
         created = entry_frames(served)
         n_entries = len(created)
-        basis = "counted: GI-tree lookup rule along the path"
-        res.add(
-            system="cloud_baking", scene=name, metric="entries", value=n_entries, unit="count", basis=basis, **common
-        )
+        add(metric="entries", value=n_entries, unit="count", basis="counted: GI-tree lookup rule along the path",
+            **common)  # fmt: skip
         running = np.maximum.accumulate(served) + 1
         for f in sorted({int(x) for x in np.linspace(1, cfg.frames, 16)}):
-            res.add(
-                system="cloud_baking",
-                scene=name,
-                metric="entries_at",
-                value=int(running[f - 1]),
-                unit="count",
-                at_frame=f,
-            )
-        picks = sorted({created[int(round(k))] for k in np.linspace(0, n_entries - 1, min(cfg.samples, n_entries))})
+            add(metric="entries_at", value=int(running[f - 1]), unit="count", at_frame=f)
+        picks = [created[k] for k in spread_picks(n_entries, cfg.samples)]
         for resolution in cfg.resolutions:
             renderer = Renderer(spec, resolution)
             frames = fly_through(spec, cfg.frames, resolution, cfg.light_cell, res.seed)
@@ -126,33 +112,18 @@ def _measure_entries(
                 sizes[(codec_name, composition)].append(len(pack(header, {n: data[n] for n in names})))
             for section, blob in data.items():
                 sections[(codec_name, section)].append(len(blob))
+    add, timing = partial(res.add, system=SYSTEM, scene=name), partial(res.add_timing, system=SYSTEM, scene=name)
     resolution = renderer.resolution
-    res.add_timing(
-        system="cloud_baking", scene=name, metric="bake_ms", samples_s=bake_s, resolution=resolution, spp=cfg.spp
-    )
+    timing(metric="bake_ms", samples_s=bake_s, resolution=resolution, spp=cfg.spp)
     for codec_name, reps in reports.items():
         row = {"resolution": resolution, "codec": codec_name}
-        res.add_timing(
-            system="cloud_baking", scene=name, metric="encode_ms", samples_s=[r.encode_ms / 1e3 for r in reps], **row
-        )
-        res.add_timing(
-            system="cloud_baking", scene=name, metric="decode_ms", samples_s=[r.decode_ms / 1e3 for r in reps], **row
-        )
+        for metric in ("encode_ms", "decode_ms"):
+            timing(metric=metric, samples_s=[getattr(r, metric) / 1e3 for r in reps], **row)
         for metric in ("rmse", "ssim"):
-            mean = float(np.mean([getattr(r, metric) for r in reps]))
-            res.add(system="cloud_baking", scene=name, metric=metric, value=mean, unit="1", stat="mean", **row)
+            add(metric=metric, value=float(np.mean([getattr(r, metric) for r in reps])), unit="1", stat="mean", **row)
         for section in ("gi", "di", "depth"):
             mean = float(np.mean(sections[(codec_name, section)]))
-            res.add(
-                system="cloud_baking",
-                scene=name,
-                metric="section_bytes",
-                value=mean,
-                unit="bytes",
-                stat="mean",
-                section=section,
-                **row,
-            )
+            add(metric="section_bytes", value=mean, unit="bytes", stat="mean", section=section, **row)
     return sizes
 
 
@@ -161,40 +132,17 @@ def _add_tree_bytes(
 ) -> None:
     """Bytes per entry (mean, std, n) and the GI tree's bytes: measured when every entry was rendered,
     else extrapolated with a 95 % interval; and its ratio to the model."""
-    n = len(values)
-    std = float(values.std(ddof=1)) if n > 1 else 0.0
-    for stat, value, unit in (("mean", float(values.mean()), "bytes"), ("std", std, "bytes"), ("n", n, "count")):
-        res.add(system="cloud_baking", scene=name, metric="entry_bytes", value=value, unit=unit, stat=stat, **row)
+    add = partial(res.add, system=SYSTEM, scene=name)
+    n, std = add_entry_bytes(add, "entry_bytes", values, **row)
     measured = n == n_entries
     total = float(values.sum()) if measured else n_entries * float(values.mean())
     ci95 = 0.0 if measured else n_entries * 1.96 * std / math.sqrt(n)
-    basis = (
-        "measured: every entry rendered"
-        if measured
-        else f"extrapolated: {n_entries} counted entries x mean of {n} rendered maps"
-    )
+    basis = "measured: every entry rendered" if measured else (
+        f"extrapolated: {n_entries} counted entries x mean of {n} rendered maps")  # fmt: skip
     for stat, value in (("estimate", total), ("ci95", ci95)):
-        res.add(
-            system="cloud_baking",
-            scene=name,
-            metric="gi_tree_bytes",
-            value=value,
-            unit="bytes",
-            stat=stat,
-            basis=basis,
-            **row,
-        )
+        add(metric="gi_tree_bytes", value=value, unit="bytes", stat=stat, basis=basis, **row)
     for precision, size in model_bytes.items():
-        res.add(
-            system="cloud_baking",
-            scene=name,
-            metric="ratio_to_model",
-            value=total / size,
-            unit="1",
-            stat="estimate",
-            precision=precision,
-            **row,
-        )
+        add(metric="ratio_to_model", value=total / size, unit="1", stat="estimate", precision=precision, **row)
 
 
 def _size(path: Path) -> int:
@@ -254,26 +202,12 @@ def _tolerance_knob(
             "resolution": frames[0].camera.width,
             "codec": codec.name,
         }
-        res.add(system="cloud_baking", scene=name, metric="knob_entries", value=len(entries), unit="count", **row)
-        res.add(
-            system="cloud_baking",
-            scene=name,
-            metric="knob_bytes",
-            value=len(entries) * bytes_per_entry,
-            unit="bytes",
-            stat="estimate",
-            **row,
-        )
-        res.add(
-            system="cloud_baking", scene=name, metric="knob_hit_rate", value=len(hits) / len(second), unit="1", **row
-        )
+        add = partial(res.add, system=SYSTEM, scene=name, **row)
+        add(metric="knob_entries", value=len(entries), unit="count")
+        add(metric="knob_bytes", value=len(entries) * bytes_per_entry, unit="bytes", stat="estimate")
+        add(metric="knob_hit_rate", value=len(hits) / len(second), unit="1")
         scores = defaultdict(list)
-        for k in (
-            sorted({int(round(x)) for x in np.linspace(0, len(hits) - 1, min(cfg.warp_samples, len(hits)))})
-            if hits
-            else []
-        ):
-            i, j = hits[k]
+        for i, j in [hits[k] for k in spread_picks(len(hits), cfg.warp_samples)]:
             stored, reference = baked("stored", j), baked("request", i)
             gi, depth = codec.decode(codec.encode(stored.gi)), DEPTH_CODEC.decode(DEPTH_CODEC.encode(stored.depth))
             warped, _, _ = PointCloud(gi, depth, stored.camera).splat(second[i].camera, target_mask=reference.depth > 0)
@@ -281,16 +215,8 @@ def _tolerance_knob(
             scores["knob_ssim_warped"].append(ssim(tonemap(warped), ref))
             scores["knob_ssim_stale"].append(ssim(tonemap(gi), ref))
         for metric, values in scores.items():
-            res.add(
-                system="cloud_baking",
-                scene=name,
-                metric=metric,
-                value=float(np.mean(values)),
-                unit="1",
-                stat="mean",
-                **row,
-            )
-            res.add(system="cloud_baking", scene=name, metric=metric, value=len(values), unit="count", stat="n", **row)
+            add(metric=metric, value=float(np.mean(values)), unit="1", stat="mean")
+            add(metric=metric, value=len(values), unit="count", stat="n")
 
 
 BENCH = Bench(

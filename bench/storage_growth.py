@@ -7,10 +7,11 @@ from __future__ import annotations
 
 import json
 from collections import defaultdict
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
+from functools import partial
 from pathlib import Path
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -27,6 +28,22 @@ from gicore.results import Results
 from gicore.scene import SceneSpec, load_scene
 from gicore.sessions import Session, navigable_views, plan_sessions, session_views
 from gicore.tonemap import tonemap
+
+SYSTEM = "cloud_baking"
+
+
+def spread_picks(n: int, want: int) -> list[int]:
+    """Up to ``want`` indices of ``range(n)`` spread evenly, the first and the last included."""
+    return sorted({int(round(k)) for k in np.linspace(0, n - 1, min(want, n))})
+
+
+def add_entry_bytes(add: Callable[..., None], metric: str, values: Sequence[float], **row: Any) -> tuple[int, float]:
+    """``metric`` rows of bytes per entry: mean, std and n of ``values``; returns (n, std)."""
+    v = np.asarray(values, dtype=np.float64)
+    std = float(v.std(ddof=1)) if len(v) > 1 else 0.0
+    for stat, value, unit in (("mean", float(v.mean()), "bytes"), ("std", std, "bytes"), ("n", len(v), "count")):
+        add(metric=metric, value=value, unit=unit, stat=stat, **row)
+    return len(v), std
 
 
 def entry_frames(served: list[int]) -> list[int]:
@@ -148,8 +165,7 @@ def _growth_entry_bytes(
     GI map as uncompressed RGB8 (the paper's accounting), per resolution."""
     from gicore.render import Renderer
 
-    n = min(cfg.growth_samples, len(creators))
-    picks = sorted({int(round(k)) for k in np.linspace(0, len(creators) - 1, n)})
+    picks = spread_picks(len(creators), cfg.growth_samples)
     sizes: dict[tuple[int, str], list[int]] = defaultdict(list)
     for resolution in cfg.resolutions:
         renderer = Renderer(spec, resolution)
@@ -216,27 +232,14 @@ def measure_growth(
     common = {"session_frames": cfg.session_frames, "light_cell": cfg.light_cell}
     common |= {"tolerance_position": cfg.tolerance.position, "tolerance_angle_deg": cfg.tolerance.angle_deg}
     common |= {} if recorded is None else {"sessions_from": str(cfg.sessions_from)}
-    add = {"system": "cloud_baking", "scene": name}
+    add = partial(res.add, system=SYSTEM, scene=name)
     basis = f"measured: {len(next(iter(sizes.values())))} maps baked at entries spread over the session tree"
     for (resolution, codec), values in sizes.items():
         row = {"resolution": resolution, "codec": codec, "composition": "gi" if codec == RAW_CODEC else "blend"}
-        v = np.asarray(values, dtype=np.float64)
-        std = float(v.std(ddof=1)) if len(v) > 1 else 0.0
-        for stat, value, unit in (("mean", float(v.mean()), "bytes"), ("std", std, "bytes"), ("n", len(v), "count")):
-            res.add(**add, metric="growth_entry_bytes", value=value, unit=unit, stat=stat, basis=basis, **row)
-    res.add(
-        **add,
-        metric="capacity_entries",
-        value=cap["entries"],
-        unit="count",
-        stat="estimate",
-        samples=cfg.capacity_samples,
-        per_cell=cap["per_cell"],
-        light_cells=cap["light_cells"],
-        last_tenth_miss_rate=cap["last_tenth_miss_rate"],
-        basis="counted: the lookup rule over uniform samples of the navigable space, per light cell x light cells",
-        **common,
-    )
+        add_entry_bytes(add, "growth_entry_bytes", values, basis=basis, **row)
+    basis = "counted: the lookup rule over uniform samples of the navigable space, per light cell x light cells"
+    add(metric="capacity_entries", value=cap["entries"], unit="count", stat="estimate", samples=cfg.capacity_samples,
+        **{k: cap[k] for k in ("per_cell", "light_cells", "last_tenth_miss_rate")}, basis=basis, **common)  # fmt: skip
     for (users, label), fill in fills.items():
         tol = cfg.tolerance if label == "store" else PAPER_TOLERANCE
         at = common | {"users": users, "tolerance": label, "tolerance_position": tol.position}
@@ -281,33 +284,17 @@ def _record_fill(
     at: dict,
 ) -> None:
     """The entries after each session of one fill, and when it saturated."""
-    add = {"system": "cloud_baking", "scene": name}
+    add = partial(res.add, system=SYSTEM, scene=name)
     for k, n in enumerate(fill.entries, start=1):
-        res.add(
-            **add,
-            metric="growth_entries",
-            value=int(n),
-            unit="count",
-            sessions=k,
-            basis="counted: the GI tree's lookup rule along the sessions",
-            **at,
-        )
+        add(metric="growth_entries", value=int(n), unit="count", sessions=k,
+            basis="counted: the GI tree's lookup rule along the sessions", **at)  # fmt: skip
     sat = saturation_session(fill.entries, lengths, cfg.saturation_rate)
     entries = int(fill.entries[-1] if sat is None else fill.entries[sat - 1])
     last = int(fill.entries[-1] - (fill.entries[-2] if len(fill.entries) > 1 else 0))
-    res.add(
-        **add,
-        metric="saturation_sessions",
-        value=cfg.sessions if sat is None else sat,
-        unit="count",
-        stat="beyond" if sat is None else "measured",
-        saturation_rate=cfg.saturation_rate,
-        sessions_run=cfg.sessions,
-        entries=entries,
-        capacity_fraction=None if cap is None else float(fill.entries[-1]) / cap["entries"],
-        last_added=last,
-        **at,
-    )
+    add(metric="saturation_sessions", value=cfg.sessions if sat is None else sat, unit="count",
+        stat="beyond" if sat is None else "measured", saturation_rate=cfg.saturation_rate, sessions_run=cfg.sessions,
+        entries=entries, capacity_fraction=None if cap is None else float(fill.entries[-1]) / cap["entries"],
+        last_added=last, **at)  # fmt: skip
 
 
 def _record_bytes(
@@ -315,33 +302,17 @@ def _record_bytes(
 ) -> None:
     """A fill's bytes (entries x ``per_entry``) after the grid's sessions, and the first session it passes each
     model file and the paper's figure for the scene."""
-    add = {"system": "cloud_baking", "scene": name}
+    add = partial(res.add, system=SYSTEM, scene=name)
     for k in _growth_sessions_grid(cfg.sessions):
-        res.add(
-            **add,
-            metric="growth_bytes",
-            value=float(fill.entries[k - 1]) * per_entry,
-            unit="bytes",
-            stat="estimate",
-            sessions=k,
-            basis="counted entries x measured mean bytes per entry",
-            **row,
-        )
+        add(metric="growth_bytes", value=float(fill.entries[k - 1]) * per_entry, unit="bytes", stat="estimate",
+            sessions=k, basis="counted entries x measured mean bytes per entry", **row)  # fmt: skip
     limits = {f"model_{p}": float(b) for p, b in model_bytes.items()}
     paper_gb = PAPER_TABLE2_GB.get(name.split("_")[0])
     limits |= {} if paper_gb is None else {"paper_gb": paper_gb * 1e9}
     for what, limit in limits.items():
         k = first_session_over(fill.entries, per_entry, limit)
-        res.add(
-            **add,
-            metric="crossover_sessions",
-            value=cfg.sessions if k is None else k,
-            unit="count",
-            stat="beyond" if k is None else "measured",
-            against=what,
-            limit_bytes=limit,
-            **row,
-        )
+        add(metric="crossover_sessions", value=cfg.sessions if k is None else k, unit="count",
+            stat="beyond" if k is None else "measured", against=what, limit_bytes=limit, **row)  # fmt: skip
 
 
 def paper_accounting(
@@ -359,14 +330,7 @@ def paper_accounting(
         row = {"step": step, "codec": codec, "resolution": resolution, "frames": cfg.frames}
         tol = PAPER_TOLERANCE if step == "paper" else cfg.tolerance
         row |= {"tolerance_position": tol.position, "tolerance_angle_deg": tol.angle_deg}
-        res.add(system="cloud_baking", scene=name, metric="accounting_entries", value=int(entries), unit="count", **row)
-        res.add(
-            system="cloud_baking",
-            scene=name,
-            metric="accounting_bytes",
-            value=entries * per_entry,
-            unit="bytes",
-            stat="estimate",
-            bytes_per_entry=per_entry,
-            **row,
-        )
+        add = partial(res.add, system=SYSTEM, scene=name, **row)
+        add(metric="accounting_entries", value=int(entries), unit="count")
+        add(metric="accounting_bytes", value=entries * per_entry, unit="bytes", stat="estimate",
+            bytes_per_entry=per_entry)  # fmt: skip
