@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import math
+from functools import partial
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -165,15 +166,8 @@ def _record_gigan(res: Results, scene: str, cfg: Recorded, folder: Path, common:
     frames = read_csv_rows(folder / "frames.csv")
     gigan = gigan_samples(frames)
     for stage, values in gigan.items():
-        res.add_timing(
-            system=GIGAN,
-            scene=scene,
-            metric=stage,
-            samples_s=[v / 1e3 for v in values],
-            profile="none",
-            **common,
-            model=cfg.model.name,
-        )
+        res.add_timing(system=GIGAN, scene=scene, metric=stage, samples_s=[v / 1e3 for v in values], profile="none",
+                       **common, model=cfg.model.name)  # fmt: skip
     _ssim_rows(res, scene, GIGAN, frames, {"profile": "none", "store": "none"} | common)
     return float(np.median(gigan["total"]))
 
@@ -207,29 +201,18 @@ def _record_cloud_stages(
     """Cloud baking's stage timings, bytes, the ratio of totals and the link model's total at ``profile``."""
     from network_sim import profiles as profile_table
 
+    add = partial(res.add, system=CLOUD, scene=scene, stat="median")
     for stage in (*CLOUD_STAGES, "total", "pickup"):
         if samples.get(stage):
-            res.add_timing(
-                system=CLOUD, scene=scene, metric=stage, samples_s=[v / 1e3 for v in samples[stage]], **config
-            )
+            res.add_timing(system=CLOUD, scene=scene, metric=stage, samples_s=[v / 1e3 for v in samples[stage]],
+                           **config)  # fmt: skip
     for name in ("bytes_up", "bytes_down"):
-        value = float(np.median(samples[name]))
-        res.add(system=CLOUD, scene=scene, metric=name, value=value, unit="B", stat="median", **config)
+        add(metric=name, value=float(np.median(samples[name])), unit="B", **config)
     link = profile_table.get(profile).link(seed=res.seed)
-    rtt = {"rtt_ms": link.rtt_s * 1e3}
+    config = config | {"rtt_ms": link.rtt_s * 1e3}
     ratio = float(np.median(samples["total"])) / gigan_total
-    res.add(
-        system=f"{CLOUD}/{GIGAN}",
-        scene=scene,
-        metric="total_ratio",
-        value=ratio,
-        unit="1",
-        stat="median",
-        **rtt,
-        **config,
-    )
-    modelled = CloudCost.of(samples).total_ms(link, starts=20)
-    res.add(system=CLOUD, scene=scene, metric="total_model", value=modelled, unit="ms", stat="median", **rtt, **config)
+    add(system=f"{CLOUD}/{GIGAN}", metric="total_ratio", value=ratio, unit="1", **config)
+    add(metric="total_model", value=CloudCost.of(samples).total_ms(link, starts=20), unit="ms", **config)
 
 
 def _record_crossover(
@@ -238,20 +221,11 @@ def _record_crossover(
     """The link model with one cache state's pooled stages: the crossover RTT, and the ratio over an RTT sweep."""
     cost = CloudCost.of(pooled)
     crossover = cost.crossover_rtt_ms(gigan_total, cfg.sweep_rate_mbit)
-    system = f"{CLOUD}/{GIGAN}"
-    res.add(system=system, scene=scene, metric="crossover_rtt", value=crossover, unit="ms", stat="model", **config)
+    add = partial(res.add, system=f"{CLOUD}/{GIGAN}", scene=scene, stat="model", **config)
+    add(metric="crossover_rtt", value=crossover, unit="ms")
     for rtt in np.linspace(0.0, cfg.sweep_max_rtt_ms, 26):
         total = cost.total_ms(sweep_link(float(rtt), cfg.sweep_rate_mbit))
-        res.add(
-            system=system,
-            scene=scene,
-            metric="ratio_model",
-            value=total / gigan_total,
-            unit="1",
-            stat="model",
-            rtt_ms=float(rtt),
-            **config,
-        )
+        add(metric="ratio_model", value=total / gigan_total, unit="1", rtt_ms=float(rtt))
 
 
 def record_renderer_ratios(res: Results, scene: str) -> None:
@@ -272,15 +246,8 @@ def record_renderer_ratios(res: Results, scene: str) -> None:
         if other is None or not other["value"] > 0:
             continue
         config = r["config"] | {"renderer": f"{num}/{den}"}
-        res.add(
-            system=r["system"],
-            scene=scene,
-            metric=r["metric"],
-            value=r["value"] / other["value"],
-            unit="1",
-            stat="renderer_ratio",
-            **config,
-        )
+        res.add(system=r["system"], scene=scene, metric=r["metric"], value=r["value"] / other["value"], unit="1",
+                stat="renderer_ratio", **config)  # fmt: skip
 
 
 def _pool(groups: list[dict[str, list[float]]]) -> dict[str, list[float]]:
@@ -292,40 +259,25 @@ def _pool(groups: list[dict[str, list[float]]]) -> dict[str, list[float]]:
 
 
 def _perceived_rows(
-    res: Results,
-    scene: str,
-    system: str,
-    frames: list[dict[str, str]],
-    requests: list[dict[str, str]],
-    config: dict[str, Any],
+    res: Results, scene: str, system: str, frames: list[dict[str, str]], requests: list[dict[str, str]], config: dict
 ) -> None:
     """A cloud run's perceived latency (median, p95; never-served frames as endless), in-tolerance share, requests
     and mean SSIM (see the module docstring)."""
+    add = partial(res.add, system=system, scene=scene, **config)
     waits = [math.inf if r["perceived_ms"] == "" else float(r["perceived_ms"]) for r in frames]
     for stat, q in (("median", 50), ("p95", 95)):
-        value = float(np.percentile(waits, q, method="inverted_cdf"))
-        res.add(system=system, scene=scene, metric="perceived", value=value, unit="ms", stat=stat, **config)
-    shown = float(np.mean([int(r["in_tolerance"]) for r in frames]))
-    res.add(system=system, scene=scene, metric="in_tolerance", value=shown, unit="1", **config)
-    res.add(system=system, scene=scene, metric="requests", value=len(requests), unit="count", **config)
+        add(metric="perceived", value=float(np.percentile(waits, q, method="inverted_cdf")), unit="ms", stat=stat)
+    add(metric="in_tolerance", value=float(np.mean([int(r["in_tolerance"]) for r in frames])), unit="1")
+    add(metric="requests", value=len(requests), unit="count")
     scored = [float(r["ssim"]) for r in frames if r.get("ssim")]
     if system == CLOUD_PREFETCH and scored:  # the plain client's SSIM rows come with its Table 1 rows
-        res.add(
-            system=system, scene=scene, metric="ssim", value=float(np.mean(scored)), unit="1", stat="mean", **config
-        )
+        add(metric="ssim", value=float(np.mean(scored)), unit="1", stat="mean")
 
 
 def _ssim_rows(res: Results, scene: str, system: str, frames: list[dict[str, str]], config: dict[str, Any]) -> None:
+    add = partial(res.add, system=system, scene=scene, metric="ssim", unit="1", **config)
     scored = [(int(r["frame"]), float(r["ssim"])) for r in frames if r.get("ssim")]
     for frame, value in scored:
-        res.add(system=system, scene=scene, metric="ssim", value=value, unit="1", stat="frame", frame=frame, **config)
+        add(value=value, stat="frame", frame=frame)
     if scored:
-        res.add(
-            system=system,
-            scene=scene,
-            metric="ssim",
-            value=float(np.mean([v for _, v in scored])),
-            unit="1",
-            stat="mean",
-            **config,
-        )
+        add(value=float(np.mean([v for _, v in scored])), stat="mean")
