@@ -1,7 +1,8 @@
 """The Web3D page a person drives, in headless Chromium (SwiftShader WebGL2) served by gigan-web's server with a
 real cloud-baking server on a cold store (1 spp) behind one network-sim proxy: a drag and a wheel move the camera
-and both canvases, frames keep coming while GIGAN's map is computed, the page's camera matrices are
-gicore.camera's, recordings are path files the clients read, and the light slider moves the light and the GI.
+and both canvases, frames keep coming while GIGAN's map is computed and a cloud map is decoded (in its worker),
+the page's camera matrices are gicore.camera's, recordings are path files the clients read, and the light slider
+moves the light and the GI.
 
 One page serves the whole module; each test first waits until no map is in flight. Skips, saying why, without
 Chromium, Playwright or web3d/static/node_modules.
@@ -99,12 +100,19 @@ def test_a_drag_and_a_wheel_move_the_camera_and_both_canvases(page: Any) -> None
     assert all(v > CHANGED for v in changed(shot1, shot2).values()), changed(shot1, shot2)
 
 
-def test_frames_keep_coming_while_a_gigan_map_is_computed(page: Any) -> None:
+def test_frames_keep_coming_while_a_gigan_map_is_computed_and_a_cloud_map_decoded(page: Any) -> None:
     settle(page)
     start = len(page.evaluate("viewer.frames"))
     page.evaluate("doc => viewer.replay(doc)", path_frames(page, REPLAYED))
     settle(page)
     frames = page.evaluate("viewer.frames")[start:]
+    cloud = [m for m in page.evaluate("viewer.maps") if m["system"] == "cloud_baking" and m["frame"] >= start]
+    assert cloud and all(m["decoding"]["in"] == "DedicatedWorkerGlobalScope" for m in cloud), cloud
+    assert all(0 < m["stages"]["decode_work"] <= m["stages"]["decode"] for m in cloud), cloud
+    # a frame (from its rAF time, for frame_ms) was being drawn while the worker decoded a map
+    assert any(
+        f["t"] < m["decoding"]["to"] and m["decoding"]["from"] < f["t"] + f["frame_ms"] for m in cloud for f in frames
+    ), (cloud, frames)
     assert [f["replay"] for f in frames[:REPLAYED]] == list(range(REPLAYED))  # one path frame per drawn frame
     first = min(m["frame"] for m in page.evaluate("viewer.maps") if m["system"] == "gigan" and m["frame"] >= start)
     # the frames drawn while that map was computed: from the one that sent its request (it drew with the map

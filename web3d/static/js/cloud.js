@@ -1,13 +1,12 @@
 // Cloud baking in the browser: POST /v1/gimap (same origin: gigan-web forwards it to the server or to the
-// network-sim proxy), decode, pixel-level 3D warp in shaders (baseline_cloudbaking.warp: every texel with a
-// depth unprojected, projected into the local camera and splatted as a z-tested square of its footprint;
-// holes on surfaces filled by gicore.fill's push-pull pyramid over the splats that landed on a surface), then
-// eq. 1's blend.
+// network-sim proxy) and decoding, both in a worker (map_worker.js), off the page's thread; pixel-level 3D warp
+// in shaders (baseline_cloudbaking.warp: every texel with a depth unprojected, projected into the local camera
+// and splatted as a z-tested square of its footprint; holes on surfaces filled by gicore.fill's push-pull pyramid
+// over the splats that landed on a surface), then eq. 1's blend.
 
 import { FULLSCREEN_VERTEX, TONEMAP_GLSL, bindTarget, bindTextures, fullscreen, program, setUniforms, sync, target,
   texture } from "./glutil.js";
 import { Blend } from "./blend.js";
-import { decodeDepth, decodeImage, unpack } from "./payload.js";
 
 const SPLAT_VERTEX = `#version 300 es
 precision highp float;
@@ -134,6 +133,45 @@ function invert(m) {
 
 const columnMajor = (rows) => new Float32Array([0, 1, 2, 3].flatMap((c) => rows.map((r) => r[c])));
 
+// The maps fetched and decoded in a module worker (map_worker.js), so that a map's bytes need not wait for the
+// page's thread, busy drawing, to be read and decoded. get(url, body) resolves with the worker's reply, its times
+// on the page's clock; its errors reject, and once the worker itself fails every get rejects with that error.
+class MapWorker {
+  constructor() {
+    this.worker = new Worker(new URL("./map_worker.js", import.meta.url), { type: "module" });
+    this.pending = new Map(); // id -> {resolve, reject}
+    this.next = 0;
+    this.failed = null;
+    this.worker.onmessage = ({ data }) => {
+      const p = this.pending.get(data.id);
+      this.pending.delete(data.id);
+      if (data.error) p.reject(new Error(data.error));
+      else p.resolve(onPageClock(data));
+    };
+    this.worker.onerror = (e) => this.fail(e.message || "map_worker.js did not load");
+    this.worker.onmessageerror = () => this.fail("a reply could not be read");
+  }
+
+  fail(message) {
+    this.failed = new Error(`the cloud maps' worker: ${message}`);
+    for (const p of this.pending.values()) p.reject(this.failed);
+    this.pending.clear();
+  }
+
+  get(url, body) {
+    if (this.failed) return Promise.reject(this.failed);
+    const id = this.next++;
+    return new Promise((resolve, reject) => {
+      this.pending.set(id, { resolve, reject });
+      this.worker.postMessage({ id, url: new URL(url, location.href).href, body });
+    });
+  }
+}
+
+// A reply's times (ms since the epoch) as performance.now() readings of the page.
+const onPageClock = ({ times, ...rest }) =>
+  ({ ...rest, ...Object.fromEntries(Object.entries(times).map(([k, t]) => [k, t - performance.timeOrigin])) });
+
 export class CloudSystem {
   constructor(gl, scene, config) {
     this.gl = gl;
@@ -155,6 +193,7 @@ export class CloudSystem {
       this.pushed.push(target(gl, size, size, [gl.RGBA32F], { depth: false }));
     }
     this.bound = null;
+    this.worker = new MapWorker();
   }
 
   body(frame) {
@@ -167,31 +206,16 @@ export class CloudSystem {
   }
 
   // The map at the frame's GI camera from `url` (/v1/gimap?profile=&store=), fetched and decoded (image, depth)
-  // off the frame loop; resolves to what join() binds.
-  async request(frame, url) {
-    const started = performance.now();
-    const response = await fetch(url, { method: "POST", headers: { "Content-Type": "application/json" }, body: this.body(frame) });
-    const firstByte = performance.now();
-    if (!response.ok) throw new Error(`/v1/gimap answered ${response.status}: ${await response.text()}`);
-    const buffer = await response.arrayBuffer();
-    const arrived = performance.now();
-    // the network stack's own timestamps: the page's thread may be busy rendering when the bytes arrive
-    const href = new URL(url, location.href).href;
-    const entry = performance.getEntriesByType("resource").find((e) => e.name === href && e.startTime >= started - 1 && e.responseEnd > 0);
-    performance.clearResourceTimings();
-    const times = entry ? { started: entry.startTime, firstByte: entry.responseStart, arrived: entry.responseEnd, timing: "resource" }
-      : { started, firstByte, arrived, timing: "script" };
-    const t0 = performance.now();
-    const { header, sections } = unpack(buffer);
-    const bitmap = await decodeImage(header.codec, sections.gi);
-    const { depth, h, w } = decodeDepth(sections.depth);
-    return { ...times, bytes: buffer.byteLength, header, bitmap, depth, h, w, decodeWork: performance.now() - t0 };
+  // in the worker; resolves to what join() uploads and binds.
+  request(frame, url) {
+    return this.worker.get(url, this.body(frame));
   }
 
-  // A fetched map uploaded and bound (in the frame loop). Stages: transmission (request + transfer), server (its
-  // own timings), decode (from the last byte's arrival until the map is uploaded: the image and depth decoded,
-  // with any wait for the page's thread, as GIGAN's inference counts its wait; decode_work: the decoding and
-  // upload alone), bind.
+  // A decoded map uploaded and bound (in the frame loop). Stages: transmission (request + transfer, from the
+  // network stack's timestamps where it has them), server (its own timings), decode (from the last byte's
+  // arrival until the map is uploaded: decoded in the worker, then the wait for the page's thread and its next
+  // frame, and the upload: the page's own cost, as GIGAN's inference counts its wait), decode_work (the
+  // worker's decoding alone, timed there), upload, bind. `decoding`: where the decoding ran and when (page clock).
   join(done) {
     const gl = this.gl;
     const { header, h, w } = done;
@@ -204,7 +228,7 @@ export class CloudSystem {
     gl.texSubImage2D(gl.TEXTURE_2D, 0, 0, 0, w, h, gl.RED, gl.FLOAT, done.depth);
     sync(gl, null);
     done.bitmap.close();
-    const decodeWork = done.decodeWork + performance.now() - t0;
+    const upload = performance.now() - t0;
     const decode = performance.now() - done.arrived;
     const t1 = performance.now();
     if (this.bound) for (const t of [this.bound.gi, this.bound.depth]) gl.deleteTexture(t);
@@ -218,8 +242,9 @@ export class CloudSystem {
     const transfer = done.arrived - done.firstByte;
     return {
       hit: header.hit, bytes: done.bytes, timing: done.timing,
-      stages: { transmission: request + transfer, request, transfer, server: total, decode, decode_work: decodeWork, bind,
-        ...Object.fromEntries(
+      decoding: { in: done.scope, from: done.from, to: done.to },
+      stages: { transmission: request + transfer, request, transfer, server: total, decode,
+        decode_work: done.to - done.from, upload, bind, ...Object.fromEntries(
         Object.entries(server).filter(([k]) => k !== "total").map(([k, v]) => [`server_${k}`, v])) },
     };
   }

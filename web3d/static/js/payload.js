@@ -1,6 +1,7 @@
 // The GI-map payload (baseline_cloudbaking.protocol): b"GIM1" | u32 header length | JSON header | sections.
 // The image sections are 8-bit images the browser decodes; depth is zstd-f16-delta (baseline_cloudbaking.codecs:
-// a u32 x 3 shape header, zstandard, two byte planes, each row's float16 bit patterns delta-coded).
+// a u32 x 3 shape header, zstandard, two byte planes, each row's float16 bit patterns delta-coded). Imported by
+// map_worker.js, where the cloud pane's maps are decoded.
 
 import { decompress } from "/npm/fzstd/index.mjs";
 

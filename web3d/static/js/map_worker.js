@@ -1,0 +1,44 @@
+// The cloud pane's maps, fetched and decoded in a module worker, off the page's thread: while the page draws
+// back-to-back frames, its thread runs a response's tasks only between them, so bytes read there would wait for
+// frames to be handed on. Given {id, url, body}, it POSTs the body, unpacks the GI-map payload, decodes the
+// image to an ImageBitmap and the depth to a Float32Array and transfers both back: {id, header, bitmap, depth,
+// h, w, bytes, times, scope}, or {id, error} (one line). `times` (ms since the epoch, for the page to put on its
+// own clock): started, firstByte, arrived (the network stack's, from Resource Timing where it has the entry;
+// `timing` says which), and from, to: this decoding's start and end. `scope`: the global scope it ran in.
+
+import { decodeDepth, decodeImage, unpack } from "./payload.js";
+
+async function fetchMap(url, body) {
+  const started = performance.now();
+  const response = await fetch(url, { method: "POST", headers: { "Content-Type": "application/json" }, body });
+  const firstByte = performance.now();
+  if (!response.ok) throw new Error(`/v1/gimap answered ${response.status}: ${await response.text()}`);
+  const buffer = await response.arrayBuffer();
+  const arrived = performance.now();
+  const entry = performance.getEntriesByType("resource").find((e) => e.name === url && e.startTime >= started - 1 && e.responseEnd > 0);
+  performance.clearResourceTimings();
+  const times = entry ? { started: entry.startTime, firstByte: entry.responseStart, arrived: entry.responseEnd }
+    : { started, firstByte, arrived };
+  return { buffer, times, timing: entry ? "resource" : "script" };
+}
+
+async function decode(buffer) {
+  const { header, sections } = unpack(buffer);
+  const bitmap = await decodeImage(header.codec, sections.gi);
+  return { header, bitmap, ...decodeDepth(sections.depth) };
+}
+
+self.onmessage = async ({ data: { id, url, body } }) => {
+  try {
+    const { buffer, times, timing } = await fetchMap(url, body);
+    const from = performance.now();
+    const map = await decode(buffer);
+    const epoch = (t) => performance.timeOrigin + t;
+    const all = { ...times, from, to: performance.now() };
+    const reply = { id, ...map, bytes: buffer.byteLength, timing, scope: self.constructor.name,
+      times: Object.fromEntries(Object.entries(all).map(([k, t]) => [k, epoch(t)])) };
+    self.postMessage(reply, [map.bitmap, map.depth.buffer]);
+  } catch (e) {
+    self.postMessage({ id, error: String(e && e.message ? e.message : e) });
+  }
+};
