@@ -7,8 +7,11 @@ pixel-level warp) may not be assembled inside either system (docs/architecture.m
 
 from __future__ import annotations
 
+import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -107,3 +110,10 @@ class Target:
 
     def met(self, value: float) -> bool:
         return value <= self.bound if self.at_most else value >= self.bound
+
+    def record(self, add: Callable[..., None], measured: float | None, **config: Any) -> None:
+        """Its ``stat = target_met`` row through ``add`` (a ``Results.add`` with system and scene bound): 1 when
+        ``measured`` meets it, 0 when it does not or was not measured."""
+        met = measured is not None and not math.isnan(measured) and self.met(measured)
+        add(metric=self.metric, value=int(met), unit="bool", stat="target_met", target=self.label, bound=self.bound,
+            bound_unit=self.unit, measured=measured, **config)  # fmt: skip

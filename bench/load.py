@@ -26,6 +26,7 @@ import shutil
 import sys
 import tempfile
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -152,33 +153,29 @@ def _record(res: Results, cfg: LoadConfig, scene: str, phase: str, load: LoadRes
               "offered_per_s": round(cfg.hit_clients * 1e3 / cfg.period_ms, 1), "resolution": cfg.resolution,
               "misses": len(load.misses) if phase == "misses" else 0, "idle": load.idle_opened,
               "side_s": round(load.side_window[1] - load.side_window[0], 2)}  # fmt: skip
+    add = partial(res.add, system=SYSTEM, scene=scene, **config)
     ms = np.asarray(load.hits_sent_between(*load.side_window) or [np.nan])
     for stat, value in (("median", np.median(ms)), ("p99", np.percentile(ms, 99)), ("max", np.max(ms))):
-        res.add(system=SYSTEM, scene=scene, metric="hit_latency", value=float(value), unit="ms", stat=stat, **config)
-    n = int(np.isfinite(ms).sum())
-    res.add(system=SYSTEM, scene=scene, metric="hit_latency", value=n, unit="count", stat="n", **config)
-    res.add(system=SYSTEM, scene=scene, metric="errors", value=errors(load), unit="count", **config,
-            first=[f"{k}: {v}" for k, v in list(load.errors.items())[:5]])  # fmt: skip
+        add(metric="hit_latency", value=float(value), unit="ms", stat=stat)
+    add(metric="hit_latency", value=int(np.isfinite(ms).sum()), unit="count", stat="n")
+    first = [f"{k}: {v}" for k, v in list(load.errors.items())[:5]]
+    add(metric="errors", value=errors(load), unit="count", first=first)
     for status, count in sorted(load.miss_status.items()):
-        res.add(system=SYSTEM, scene=scene, metric="miss_status", value=count, unit="count", status=status, **config)
+        add(metric="miss_status", value=count, unit="count", status=status)
     for counter, count in counters.items():
-        res.add(system=SYSTEM, scene=scene, metric="connections", value=count, unit="count",
-                counter=counter.removeprefix("connections_"), **config)  # fmt: skip
+        add(metric="connections", value=count, unit="count", counter=counter.removeprefix("connections_"))
 
 
 def _targets(res: Results, scene: str) -> None:
     """One ``target_met`` row per target, from the rows just measured (the errors target: over every phase)."""
-    rows = res.rows
     for target, stated_at in TARGETS:
         where = dict(target.where)
-        found = [r for r in rows if matches(r, target.metric, target.stat, **where)]
+        found = [r for r in res.rows if matches(r, target.metric, target.stat, **where)]
         measured = sum(r["value"] for r in found) if target.metric == "errors" else next(
             (r["value"] for r in found), None)  # fmt: skip
         load = {k: found[0]["config"][k] for k in stated_at} if found and stated_at else {}
-        met = measured is not None and not np.isnan(measured) and target.met(measured)
-        res.add(system=SYSTEM, scene=scene, metric=target.metric, value=int(met), unit="bool", stat="target_met",
-                target=target.label, bound=target.bound, bound_unit=target.unit, measured=measured,
-                stated_at=stated_at, run_at=load, at_stated_load=at_least(load, stated_at), **where)  # fmt: skip
+        target.record(partial(res.add, system=SYSTEM, scene=scene), measured, stated_at=stated_at, run_at=load,
+                      at_stated_load=at_least(load, stated_at), **where)  # fmt: skip
 
 
 def at_least(load: dict[str, float], stated: dict[str, float]) -> bool:

@@ -15,7 +15,9 @@ import shutil
 import tempfile
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import Any, Literal
 
@@ -79,30 +81,17 @@ class ServiceConfig:
         return cls(spp=16, sequential=50, per_client=20)
 
 
-def view_bodies(cfg: ServiceConfig, seed: int) -> list[dict[str, Any]]:
-    """Request bodies of ``cfg.views`` GI cameras spread along the scene's fly-through (light at rest)."""
-    from gicore.paths import camera_path
+def view_bodies(cfg: ServiceConfig, seed: int) -> list[bytes]:
+    """Request bodies of ``cfg.views`` GI cameras spread along the scene's fly-through (light at rest), as the
+    cloud client sends them."""
+    from baseline_cloudbaking.client import RemoteConfig
+    from gicore.paths import camera_path, light_position
     from gicore.scene import load_scene
 
-    scene = cfg.scenes[0]
-    spec = load_scene(scene)
+    spec = load_scene(cfg.scenes[0])
     cams = camera_path(spec, cfg.views, seed=seed, fov=spec.camera.gi_fov, resolution=cfg.resolution)
-    name = Path(scene).stem
-    return [
-        {
-            "scene": name,
-            "camera": {
-                "eye": [float(v) for v in c.origin],
-                "target": [float(v) for v in c.target],
-                "up": [float(v) for v in c.up],
-                "fov": c.fov,
-            },
-            "resolution": cfg.resolution,
-            "codec": cfg.codec,
-            "spp": cfg.spp,
-        }
-        for c in cams
-    ]
+    remote = RemoteConfig("", Path(cfg.scenes[0]).stem, cfg.resolution, cfg.codec, cfg.spp, False, False)
+    return [remote.body(c, light_position(spec, 0)) for c in cams]
 
 
 def _client(url: str, cfg: ServiceConfig):
@@ -111,18 +100,18 @@ def _client(url: str, cfg: ServiceConfig):
     return httpx.Client(base_url=url, timeout=httpx.Timeout(cfg.read_timeout_s, connect=10.0))
 
 
-def timed_post(client, body: dict[str, Any]) -> tuple[float, dict[str, Any]]:
+def timed_post(client, body: bytes) -> tuple[float, dict[str, Any]]:
     """Round trip of one GI-map request (seconds, request sent to last byte read) and the payload header;
     raises RuntimeError on a non-200 answer."""
     t0 = time.perf_counter()
-    r = client.post("/v1/gimap", json=body)
+    r = client.post("/v1/gimap", content=body, headers={"content-type": "application/json"})
     elapsed = time.perf_counter() - t0
     if r.status_code != 200:
         raise RuntimeError(f"POST /v1/gimap answered {r.status_code}: {r.text[:500]}")
     return elapsed, unpack(r.content)[0]
 
 
-def run_load(url: str, cfg: ServiceConfig, bodies: list[dict[str, Any]]) -> tuple[list[float], int, float, list[str]]:
+def run_load(url: str, cfg: ServiceConfig, bodies: list[bytes]) -> tuple[list[float], int, float, list[str]]:
     """``cfg.concurrency`` threads × ``cfg.per_client`` hit requests: latencies (s) of the good ones, the
     error count, the wall time (s) from the common start to the last answer, and the first errors."""
     start = threading.Barrier(cfg.concurrency + 1)
@@ -156,17 +145,14 @@ def run_load(url: str, cfg: ServiceConfig, bodies: list[dict[str, Any]]) -> tupl
     return [s for lat in latencies for s in lat], len(flat_errors), wall, flat_errors[:5]
 
 
-def _summary(res: Results, scene: str, metric: str, samples_ms: list[float], samples: bool, **config: Any) -> None:
-    """Median, p95, p99 and n of ``samples_ms`` (and each sample when ``samples``)."""
+def _summary(add: Callable[..., None], metric: str, samples_ms: list[float], **config: Any) -> None:
+    """Median, p95, p99, n and each sample of ``samples_ms``."""
     ms = np.asarray(samples_ms, dtype=np.float64)
     for stat, q in zip(STATS, (50, 95, 99)):
-        res.add(
-            system=SYSTEM, scene=scene, metric=metric, value=float(np.percentile(ms, q)), unit="ms", stat=stat, **config
-        )
-    res.add(system=SYSTEM, scene=scene, metric=metric, value=len(ms), unit="count", stat="n", **config)
-    if samples:
-        for v in ms:
-            res.add(system=SYSTEM, scene=scene, metric=metric, value=float(v), unit="ms", stat="sample", **config)
+        add(metric=metric, value=float(np.percentile(ms, q)), unit="ms", stat=stat, **config)
+    add(metric=metric, value=len(ms), unit="count", stat="n", **config)
+    for v in ms:
+        add(metric=metric, value=float(v), unit="ms", stat="sample", **config)
 
 
 def measure(cfg: ServiceConfig, res: Results) -> None:
@@ -176,6 +162,7 @@ def measure(cfg: ServiceConfig, res: Results) -> None:
     plan = pinning(cfg.pin)
     res.settings["pinning"] = plan
     common = {"resolution": cfg.resolution, "codec": cfg.codec, "spp": cfg.spp}
+    add = partial(res.add, system=SYSTEM, scene=scene)
     res.out.mkdir(parents=True, exist_ok=True)
     work = Path(tempfile.mkdtemp(prefix="service_store_", dir=res.out))
     try:
@@ -187,7 +174,7 @@ def measure(cfg: ServiceConfig, res: Results) -> None:
                     misses.append((seconds * 1e3, header["timings_ms"]))
             if not misses:
                 raise RuntimeError(f"none of the {len(bodies)} views missed: the store at {work} was not fresh")
-            _misses(res, scene, misses, common)
+            _misses(add, partial(res.add_timing, system=SYSTEM, scene=scene), misses, common)
 
             for body in bodies:  # warm-up: every view once, untimed
                 timed_post(client, body)
@@ -202,78 +189,37 @@ def measure(cfg: ServiceConfig, res: Results) -> None:
                 lookup_read.append(header["timings_ms"]["lookup"] + header["timings_ms"]["read"])
                 total.append(header["timings_ms"]["total"])
             seq = common | {"views": len(bodies)}
-            _summary(res, scene, "hit_server", lookup_read, True, part="lookup_read", **seq)
-            _summary(res, scene, "hit_server", total, True, part="total", **seq)
-            _summary(res, scene, "hit_e2e", e2e, True, **seq)
+            _summary(add, "hit_server", lookup_read, part="lookup_read", **seq)
+            _summary(add, "hit_server", total, part="total", **seq)
+            _summary(add, "hit_e2e", e2e, **seq)
 
             latencies, n_errors, wall, first_errors = run_load(url, cfg, bodies)
     finally:
         shutil.rmtree(work, ignore_errors=True)
     load = common | {"clients": cfg.concurrency, "per_client": cfg.per_client, "views": len(bodies)}
     if latencies:
-        _summary(res, scene, "load_latency", [s * 1e3 for s in latencies], True, **load)
+        _summary(add, "load_latency", [s * 1e3 for s in latencies], **load)
     requests = cfg.concurrency * cfg.per_client
-    res.add(
-        system=SYSTEM,
-        scene=scene,
-        metric="load_errors",
-        value=n_errors,
-        unit="count",
-        requests=requests,
-        first_errors=first_errors,
-        **load,
-    )
-    res.add(
-        system=SYSTEM,
-        scene=scene,
-        metric="load_throughput",
-        value=requests / wall,
-        unit="req/s",
-        wall_s=round(wall, 4),
-        **load,
-    )
-    _targets(res, scene, cfg)
+    add(metric="load_errors", value=n_errors, unit="count", requests=requests, first_errors=first_errors, **load)
+    add(metric="load_throughput", value=requests / wall, unit="req/s", wall_s=round(wall, 4), **load)
+    for target in TARGETS:  # the targets, from the rows just measured
+        measured = first(res.rows, target.metric, target.stat, **dict(target.where))
+        target.record(add, measured, resolution=cfg.resolution, stated_at_resolution=256)
 
 
-def _misses(res: Results, scene: str, misses: list[tuple[float, dict[str, float]]], common: dict[str, Any]) -> None:
+def _misses(
+    add: Callable[..., None], timing: Callable[..., None], misses: list[tuple[float, dict]], common: dict
+) -> None:
     """``miss_e2e`` and ``miss_server`` rows: the first miss (scene load and compile included) alone, the
     median and p95 over the others."""
-    parts = list(misses[0][1])
-    first_ms, first_timings = misses[0]
-    res.add(system=SYSTEM, scene=scene, metric="miss_e2e", value=first_ms, unit="ms", stat="first", **common)
-    for part in parts:
-        res.add(
-            system=SYSTEM,
-            scene=scene,
-            metric="miss_server",
-            value=first_timings[part],
-            unit="ms",
-            stat="first",
-            part=part,
-            **common,
-        )
-    warm = misses[1:]
+    (first_ms, first_timings), warm = misses[0], misses[1:]
+    add(metric="miss_e2e", value=first_ms, unit="ms", stat="first", **common)
+    for part, ms in first_timings.items():
+        add(metric="miss_server", value=ms, unit="ms", stat="first", part=part, **common)
     if warm:
-        res.add_timing(system=SYSTEM, scene=scene, metric="miss_e2e", samples_s=[ms / 1e3 for ms, _ in warm], **common)
-        for part in parts:
-            res.add_timing(
-                system=SYSTEM,
-                scene=scene,
-                metric="miss_server",
-                samples_s=[t[part] / 1e3 for _, t in warm],
-                part=part,
-                **common,
-            )
-
-
-def _targets(res: Results, scene: str, cfg: ServiceConfig) -> None:
-    """One ``target_met`` row per issue target, from the rows just measured."""
-    for target in TARGETS:
-        value = first(res.rows, target.metric, target.stat, **dict(target.where))
-        met = value is not None and target.met(value)
-        res.add(system=SYSTEM, scene=scene, metric=target.metric, value=int(met), unit="bool", stat="target_met",
-                target=target.label, bound=target.bound, bound_unit=target.unit, measured=value,
-                resolution=cfg.resolution, stated_at_resolution=256)  # fmt: skip
+        timing(metric="miss_e2e", samples_s=[ms / 1e3 for ms, _ in warm], **common)
+        for part in first_timings:
+            timing(metric="miss_server", samples_s=[t[part] / 1e3 for _, t in warm], part=part, **common)
 
 
 # -- what it shows ------------------------------------------------------------------------------------------
