@@ -184,35 +184,17 @@ def measure(cfg: ScalingConfig, res: Results) -> None:
                             executor.nodes.clear()
                         wall = _wall(executor, task, jobs[warm : warm + counts[kind]])
                         config = common | {"workers": workers, "kind": kind, "items": counts[kind]}
-                        res.add(
-                            system=ex, scene=name, metric="warmup", value=warmup, unit="s", **config | {"items": warm}
-                        )
-                        res.add(
-                            system=ex,
-                            scene=name,
-                            metric="throughput",
-                            value=counts[kind] / wall,
-                            unit=UNITS[kind],
-                            **config,
-                        )
-                        res.add(
-                            system=ex,
-                            scene=name,
-                            metric="item_time",
-                            value=workers * wall / counts[kind],
-                            unit="s",
-                            **config,
-                        )
+                        add = partial(res.add, system=ex, scene=name)
+                        add(metric="warmup", value=warmup, unit="s", **config | {"items": warm})
+                        add(metric="throughput", value=counts[kind] / wall, unit=UNITS[kind], **config)
+                        add(metric="item_time", value=workers * wall / counts[kind], unit="s", **config)
                         if isinstance(executor, RayExecutor) and ex == CLUSTER:  # nodes that ran the timed items
-                            used = len(executor.nodes)
-                            res.add(system=ex, scene=name, metric="nodes_used", value=used, unit="count", **config)
+                            add(metric="nodes_used", value=len(executor.nodes), unit="count", **config)
                         if workers == 1:
                             item_s[ex, kind] = wall / counts[kind]
                         elif (ex, kind) in item_s:
                             efficiency = item_s[ex, kind] * counts[kind] / (workers * wall)
-                            res.add(
-                                system=ex, scene=name, metric="efficiency", value=efficiency, unit="ratio", **config
-                            )
+                            add(metric="efficiency", value=efficiency, unit="ratio", **config)
     _project(cfg, res, name, item_s)
 
 
@@ -224,9 +206,8 @@ def _overhead(res: Results, ex: str, name: str, executor: Executor, n: int) -> N
     samples = [_wall(executor, noop, [i]) for i in range(n)]
     res.add_timing(system=ex, scene=name, metric="task_roundtrip", samples_s=samples, workers=executor.workers)
     ms = _wall(executor, noop, list(range(n))) / n * 1e3
-    res.add(
-        system=ex, scene=name, metric="task_overhead_batched", value=ms, unit="ms", workers=executor.workers, jobs=n
-    )
+    res.add(system=ex, scene=name, metric="task_overhead_batched", value=ms, unit="ms", workers=executor.workers,
+            jobs=n)  # fmt: skip
 
 
 def bake_maps(frames: int, resolution: int) -> dict[str, int]:
@@ -257,9 +238,8 @@ def _project(cfg: ScalingConfig, res: Results, name: str, item_s: dict[tuple[str
     """Projection rows (see the module docstring) from each executor's 1-worker item times."""
     maps = bake_maps(cfg.bake_frames, cfg.bake_resolution)
     for scene, n in maps.items():
-        res.add(
-            system="plan", scene=scene, metric="bake_maps", value=n, unit="count", fly_through_frames=cfg.bake_frames
-        )
+        res.add(system="plan", scene=scene, metric="bake_maps", value=n, unit="count",
+                fly_through_frames=cfg.bake_frames)  # fmt: skip
     space = space_maps()
     for scene, n in space.items():
         res.add(system="plan", scene=scene, metric="space_maps", value=n, unit="count")
@@ -275,14 +255,7 @@ def _project(cfg: ScalingConfig, res: Results, name: str, item_s: dict[tuple[str
 
 
 def _project_one(
-    cfg: ScalingConfig,
-    res: Results,
-    name: str,
-    ex: str,
-    measured: float,
-    metric: str,
-    resolution: int,
-    items: dict[str, int],
+    cfg: ScalingConfig, res: Results, name: str, ex: str, measured: float, metric: str, resolution: int, items: dict
 ) -> None:
     """The ``metric`` projection rows of executor ``ex`` for ``items`` per scene at ``resolution``."""
     scale = (resolution / cfg.resolution) ** 2
@@ -299,17 +272,8 @@ def _project_one(
             hours[ALL] = sum(hours.values())
         for scene, value in hours.items():
             n = items.get(scene, sum(items.values()))
-            res.add(
-                system=ex,
-                scene=scene,
-                metric=metric,
-                stat="projection",
-                value=value,
-                unit="h",
-                workers=workers,
-                items=n,
-                **basis,
-            )
+            res.add(system=ex, scene=scene, metric=metric, stat="projection", value=value, unit="h", workers=workers,
+                    items=n, **basis)  # fmt: skip
 
 
 #: Projection metrics and how the tables name them.
