@@ -62,24 +62,10 @@ def measure(cfg: ConvergenceConfig, res: Results) -> None:
 
             for system, render in (("path", raw), ("path+oidn", denoised)):
                 samples, image = time_repeats(render, cfg.repeats)
-                res.add_timing(
-                    system=system,
-                    scene=name,
-                    metric="render_time",
-                    samples_s=samples,
-                    spp=spp,
-                    resolution=cfg.resolution,
-                )
+                where = {"system": system, "scene": name, "spp": spp, "resolution": cfg.resolution}
+                res.add_timing(metric="render_time", samples_s=samples, **where)
                 for metric, value in all_metrics(tonemap(image), reference).items():
-                    res.add(
-                        system=system,
-                        scene=name,
-                        metric=metric,
-                        value=value,
-                        unit="dB" if metric == "psnr" else "1",
-                        spp=spp,
-                        resolution=cfg.resolution,
-                    )
+                    res.add(metric=metric, value=value, unit="dB" if metric == "psnr" else "1", **where)
 
 
 def _against_time(metric: str, label: str, log: bool) -> Chart:

@@ -16,11 +16,11 @@ maps and the same references.
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Literal
-
-import numpy as np
 
 from bench.common import WARP_LABELS, WARPS, make_warp
 from bench.exported_models import check_model_resolution
@@ -71,7 +71,7 @@ class FrequencyConfig:
 
 
 def measure(cfg: FrequencyConfig, res: Results) -> None:
-    from gicore.frame_rows import amortized_fps
+    from gicore.frame_rows import summarize
     from gicore.ground_truth import GroundTruth
     from gicore.loop import ClientLoop, LoopConfig, run_frames
     from gicore.paths import path_views
@@ -97,50 +97,29 @@ def measure(cfg: FrequencyConfig, res: Results) -> None:
         ground_truth = GroundTruth(renderer, cfg.gt_every, cfg.spp, cfg.denoise, res.seed, cache)
         local_fov = spec.camera.local_fov
         views = path_views(spec, cfg.frames, cfg.orbit_frames, res.seed, local_fov, cfg.resolution)
-        for k in cfg.ks:
-            for warp in cfg.warps:
-                for composition in cfg.compositions:
-                    gi_fov = (
-                        local_fov if warp == "none" else spec.camera.gi_fov
-                    )  # pasting needs a map made at the local FOV
-                    loop_cfg = LoopConfig(every=k, gi_fov=gi_fov, composition=composition, tau=cfg.tau, seed=res.seed)
-                    rows = run_frames(
-                        ClientLoop(loop_cfg, renderer, source, make_warp(warp, renderer, composition)),
-                        views,
-                        ground_truth,
-                    )
-                    fps = amortized_fps(rows, k)
-                    gi_ms = cfg.inference_ms if cfg.inference_ms is not None else fps["gi_ms"]
-                    scored = [r for r in rows if r["ssim"] != ""]
-                    config = {
-                        "k": k,
-                        "composition": composition,
-                        "tau": cfg.tau,
-                        "gi_source": cfg.gi_source,
-                        "resolution": cfg.resolution,
-                        "frames": cfg.frames,
-                        "spp": cfg.spp,
-                        "orbit_frames": cfg.orbit_frames,
-                    }
-
-                    def add(metric: str, value: float, unit: str, stat: str = "value") -> None:
-                        res.add(
-                            system=WARP_LABELS[warp],
-                            scene=spec.name,
-                            metric=metric,
-                            value=value,
-                            unit=unit,
-                            stat=stat,
-                            **config,
-                        )
-
-                    add("fps", 1000.0 / (fps["local_ms"] + gi_ms / k), "1/s")
-                    add("frame_time", fps["local_ms"], "ms", "median")
-                    add("gi_time", gi_ms, "ms", "mean" if cfg.inference_ms is None else "given")
-                    add("ssim", float(np.mean([r["ssim"] for r in scored])), "1", "mean")
-                    add("psnr", float(np.mean([r["psnr"] for r in scored if np.isfinite(r["psnr"])])), "dB", "mean")
-                    add("lf_error", float(np.mean([r["lf_error"] for r in scored])), "1", "mean")
-                    add("valid_fraction", float(np.mean([r["valid_frac"] for r in rows])), "1", "mean")
+        for k, warp, composition in itertools.product(cfg.ks, cfg.warps, cfg.compositions):
+            gi_fov = local_fov if warp == "none" else spec.camera.gi_fov  # pasting needs a map made at the local FOV
+            loop_cfg = LoopConfig(every=k, gi_fov=gi_fov, composition=composition, tau=cfg.tau, seed=res.seed)
+            loop = ClientLoop(loop_cfg, renderer, source, make_warp(warp, renderer, composition))
+            run = summarize(run_frames(loop, views, ground_truth), k)
+            gi_ms = cfg.inference_ms if cfg.inference_ms is not None else run["gi_ms"]
+            config = {
+                "k": k,
+                "composition": composition,
+                "tau": cfg.tau,
+                "gi_source": cfg.gi_source,
+                "resolution": cfg.resolution,
+                "frames": cfg.frames,
+                "spp": cfg.spp,
+                "orbit_frames": cfg.orbit_frames,
+            }
+            add = partial(res.add, system=WARP_LABELS[warp], scene=spec.name, **config)
+            add(metric="fps", value=1000.0 / (run["local_ms"] + gi_ms / k), unit="1/s")
+            add(metric="frame_time", value=run["local_ms"], unit="ms", stat="median")
+            add(metric="gi_time", value=gi_ms, unit="ms", stat="mean" if cfg.inference_ms is None else "given")
+            for metric, unit in (("ssim", "1"), ("psnr", "dB"), ("lf_error", "1"), ("valid_frac", "1")):
+                name = "valid_fraction" if metric == "valid_frac" else metric
+                add(metric=name, value=run[f"mean_{metric}"], unit=unit, stat="mean")
 
 
 # -- what it shows ------------------------------------------------------------------------------------------

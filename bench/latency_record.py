@@ -166,8 +166,15 @@ def _record_gigan(res: Results, scene: str, cfg: Recorded, folder: Path, common:
     frames = read_csv_rows(folder / "frames.csv")
     gigan = gigan_samples(frames)
     for stage, values in gigan.items():
-        res.add_timing(system=GIGAN, scene=scene, metric=stage, samples_s=[v / 1e3 for v in values], profile="none",
-                       **common, model=cfg.model.name)  # fmt: skip
+        res.add_timing(
+            system=GIGAN,
+            scene=scene,
+            metric=stage,
+            samples_s=[v / 1e3 for v in values],
+            profile="none",
+            **common,
+            model=cfg.model.name,
+        )
     _ssim_rows(res, scene, GIGAN, frames, {"profile": "none", "store": "none"} | common)
     return float(np.median(gigan["total"]))
 
@@ -204,8 +211,9 @@ def _record_cloud_stages(
     add = partial(res.add, system=CLOUD, scene=scene, stat="median")
     for stage in (*CLOUD_STAGES, "total", "pickup"):
         if samples.get(stage):
-            res.add_timing(system=CLOUD, scene=scene, metric=stage, samples_s=[v / 1e3 for v in samples[stage]],
-                           **config)  # fmt: skip
+            res.add_timing(
+                system=CLOUD, scene=scene, metric=stage, samples_s=[v / 1e3 for v in samples[stage]], **config
+            )
     for name in ("bytes_up", "bytes_down"):
         add(metric=name, value=float(np.median(samples[name])), unit="B", **config)
     link = profile_table.get(profile).link(seed=res.seed)
@@ -246,8 +254,15 @@ def record_renderer_ratios(res: Results, scene: str) -> None:
         if other is None or not other["value"] > 0:
             continue
         config = r["config"] | {"renderer": f"{num}/{den}"}
-        res.add(system=r["system"], scene=scene, metric=r["metric"], value=r["value"] / other["value"], unit="1",
-                stat="renderer_ratio", **config)  # fmt: skip
+        res.add(
+            system=r["system"],
+            scene=scene,
+            metric=r["metric"],
+            value=r["value"] / other["value"],
+            unit="1",
+            stat="renderer_ratio",
+            **config,
+        )
 
 
 def _pool(groups: list[dict[str, list[float]]]) -> dict[str, list[float]]:

@@ -26,6 +26,7 @@ from __future__ import annotations
 import sys
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -195,14 +196,11 @@ def _lod_rows(res: Results, gl: Any, spec: SceneSpec, resolution: int, seed: int
             gl.lod = 0
             errors.append(lod_errors(at_level, gl.render_gbuffers(cam)))
             gl.lod = "auto"
-        where = config | {"view": view}
         for stat, fn in (("mean", np.mean), ("max", np.max)):
-            res.add(system="gl", scene=spec.name, metric="lod_level", value=float(fn(levels)), unit="1", stat=stat,
-                    **where)  # fmt: skip
+            add = partial(res.add, system="gl", scene=spec.name, unit="1", stat=stat, view=view, **config)
+            add(metric="lod_level", value=float(fn(levels)))
             for channel in LOD_CHANNELS:
-                value = float(fn([e[channel] for e in errors]))
-                res.add(system="gl", scene=spec.name, metric=f"lod_error_{channel}", value=value, unit="1", stat=stat,
-                        **where)  # fmt: skip
+                add(metric=f"lod_error_{channel}", value=float(fn([e[channel] for e in errors])))
 
 
 def measure_client_passes(cfg: RenderBenchConfig, res: Results) -> None:
@@ -245,12 +243,11 @@ def measure_client_passes(cfg: RenderBenchConfig, res: Results) -> None:
                                 renderer.gpu_timing = False
                             gpu.append(renderer.draw_ms / 1e3)
                 for (system, extra, _), mine, gpu in zip(renderers, samples, gpu_samples):
-                    config = {"resolution": resolution, "pass_set": "client"} | extra
-                    res.add_timing(system=system, scene=spec.name, metric=stage, samples_s=mine, **config)
+                    timing = partial(res.add_timing, system=system, scene=spec.name, resolution=resolution,
+                                     pass_set="client", **extra)  # fmt: skip
+                    timing(metric=stage, samples_s=mine)
                     if gpu:
-                        res.add_timing(
-                            system=system, scene=spec.name, metric=f"{stage}{GPU_DRAW}", samples_s=gpu, **config
-                        )
+                        timing(metric=f"{stage}{GPU_DRAW}", samples_s=gpu)
                     medians[system, extra.get("lod", ""), stage] = float(np.median(mine))
             for _, extra, renderer in renderers:
                 if extra.get("lod") == "auto":

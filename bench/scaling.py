@@ -206,8 +206,9 @@ def _overhead(res: Results, ex: str, name: str, executor: Executor, n: int) -> N
     samples = [_wall(executor, noop, [i]) for i in range(n)]
     res.add_timing(system=ex, scene=name, metric="task_roundtrip", samples_s=samples, workers=executor.workers)
     ms = _wall(executor, noop, list(range(n))) / n * 1e3
-    res.add(system=ex, scene=name, metric="task_overhead_batched", value=ms, unit="ms", workers=executor.workers,
-            jobs=n)  # fmt: skip
+    res.add(
+        system=ex, scene=name, metric="task_overhead_batched", value=ms, unit="ms", workers=executor.workers, jobs=n
+    )
 
 
 def bake_maps(frames: int, resolution: int) -> dict[str, int]:
@@ -238,8 +239,9 @@ def _project(cfg: ScalingConfig, res: Results, name: str, item_s: dict[tuple[str
     """Projection rows (see the module docstring) from each executor's 1-worker item times."""
     maps = bake_maps(cfg.bake_frames, cfg.bake_resolution)
     for scene, n in maps.items():
-        res.add(system="plan", scene=scene, metric="bake_maps", value=n, unit="count",
-                fly_through_frames=cfg.bake_frames)  # fmt: skip
+        res.add(
+            system="plan", scene=scene, metric="bake_maps", value=n, unit="count", fly_through_frames=cfg.bake_frames
+        )
     space = space_maps()
     for scene, n in space.items():
         res.add(system="plan", scene=scene, metric="space_maps", value=n, unit="count")
@@ -255,7 +257,14 @@ def _project(cfg: ScalingConfig, res: Results, name: str, item_s: dict[tuple[str
 
 
 def _project_one(
-    cfg: ScalingConfig, res: Results, name: str, ex: str, measured: float, metric: str, resolution: int, items: dict
+    cfg: ScalingConfig,
+    res: Results,
+    name: str,
+    ex: str,
+    measured: float,
+    metric: str,
+    resolution: int,
+    items: dict[str, int],
 ) -> None:
     """The ``metric`` projection rows of executor ``ex`` for ``items`` per scene at ``resolution``."""
     scale = (resolution / cfg.resolution) ** 2
@@ -272,8 +281,17 @@ def _project_one(
             hours[ALL] = sum(hours.values())
         for scene, value in hours.items():
             n = items.get(scene, sum(items.values()))
-            res.add(system=ex, scene=scene, metric=metric, stat="projection", value=value, unit="h", workers=workers,
-                    items=n, **basis)  # fmt: skip
+            res.add(
+                system=ex,
+                scene=scene,
+                metric=metric,
+                stat="projection",
+                value=value,
+                unit="h",
+                workers=workers,
+                items=n,
+                **basis,
+            )
 
 
 #: Projection metrics and how the tables name them.

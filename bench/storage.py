@@ -47,8 +47,15 @@ def measure(cfg: StorageConfig, res: Results) -> None:
         for p in ("fp32", "fp16")
     }
     for precision, size in model_bytes.items():
-        res.add(system="gigan", scene="all", metric="client_bytes", value=size, unit="bytes", precision=precision,
-                basis="measured: model files")  # fmt: skip
+        res.add(
+            system="gigan",
+            scene="all",
+            metric="client_bytes",
+            value=size,
+            unit="bytes",
+            precision=precision,
+            basis="measured: model files",
+        )
     tol = cfg.tolerance
     common = {
         "frames": cfg.frames,
