@@ -1,15 +1,6 @@
 """`bench latency` (paper Table 1): interaction latency of GIGAN and of cloud baking, stage by stage, from
-real processes talking over the simulated network.
-
-One run starts a ``gigan-client`` (once per renderer: it needs no network) and, per network profile, a
-``network-sim proxy`` in front of a ``cloudbaking-server`` with a ``cloudbaking-client`` behind it, against a
-prebaked store (hits) and a cold one (misses); every client run is made once per renderer of ``renderers``.
-Rows: each stage's median and p95 per system, profile, cache state and renderer; ``total_ratio`` (cloud over
-GIGAN, same run), ``renderer_ratio`` (gl over mitsuba, same run), the crossover RTT from the link model, and
-SSIM along the path. What each stage holds, and why the local render counts for both systems:
-docs/architecture.md, bench latency and Honest accounting. The rows: :mod:`bench.latency_record`; what the
-bench shows of them: :mod:`bench.latency_tables`.
-"""
+real processes talking over the simulated network (docs/architecture.md, bench latency and Honest accounting).
+The rows: :mod:`bench.latency_record`; what the bench shows of them: :mod:`bench.latency_tables`."""
 
 from __future__ import annotations
 

@@ -1,13 +1,6 @@
-"""`bench pareto`: error against run time over every speed/quality knob of both systems, with the fronts.
-
-Error is ``1 - SSIM`` against a path-traced GT (tone-mapped); run time is a median after warm-up, per GI map
-(GIGAN's render + inference per model and GI-camera FOV; cloud baking's bake spp, bake resolution, codec x
-profile x cache state and store tolerance) or per frame (``bench frequency``'s k x warp x composition runs,
-read from ``from_dir`` when there). A point is labelled by the system it is: ``gigan``, ``cloud_baking``, or
-``ablation`` for a cross-system pairing (drawn hollow, on no front). Rows: ``run_time``, ``error`` and
-``dominated``. The knobs: :mod:`bench.pareto_knobs`; the fronts and the best configuration per time budget
-(``pareto.md``): :mod:`bench.pareto_fronts`. docs/architecture.md, bench pareto.
-"""
+"""`bench pareto`: error against run time over every speed/quality knob of both systems, per GI map and per
+frame, with the fronts (docs/architecture.md, bench pareto). The knobs: :mod:`bench.pareto_knobs`; the fronts
+and the best configuration per time budget (``pareto.md``): :mod:`bench.pareto_fronts`."""
 
 from __future__ import annotations
 

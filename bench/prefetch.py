@@ -1,13 +1,6 @@
 """`bench prefetch`: how well the cloud-baking client hides the network, per network profile, with three
-request rules on the same camera path against the same prebaked GI tree.
-
-Variants (``system``), each a ``cloudbaking-client`` behind ``network-sim proxy --profile P``: ``period``
-(``--hold none``: a request every k frames and when the view leaves the bound map's tolerance), ``hold``
-(``--hold tolerance``: only when no map held or in flight serves the view) and ``prefetch`` (``hold`` with
-``--prefetch extrapolate``: the view the camera reaches one request latency ahead). Metrics: ``perceived``
-latency per frame, ``in_tolerance``, ``ssim`` against GT, requests, bytes, ``request_latency`` and
-``request_floor``; the targets as ``stat = target_met`` rows. docs/architecture.md, bench prefetch.
-"""
+request rules (``period``, ``hold``, ``prefetch``) on the same camera path against the same prebaked GI tree,
+and their targets (docs/architecture.md, bench prefetch)."""
 
 from __future__ import annotations
 

@@ -1,13 +1,7 @@
-"""`bench quality` (paper Fig. 6): GI-map quality of GIGAN, Deep Shading, Deep Illumination and DI alone.
-
-Every model is an exported ONNX generator run by onnxruntime exactly as the client runs it, on the held-out
-validation frames of each scene's dataset, scored on tone-mapped images against path-traced GT: RMSE, SSIM,
-PSNR, ``lf_error``, ``checker_error`` and ``shadow_tint`` (:mod:`gicore.metrics`); "di_only" scores the DI input
-itself. Inference time is the median of repeated ``predict`` calls after warm-up. With ``--renderers
-gl,mitsuba`` every model is scored on each renderer's inputs of the same frames, paired (``ssim_diff``,
-``lf_error_ratio``), against :data:`GL_SSIM_LOSS_MAX` and :data:`GL_LF_RISE_MAX`. The grid
-(``quality_grid.png``) shows inputs, maps, GT and error maps. docs/architecture.md, bench quality.
-"""
+"""`bench quality` (paper Fig. 6): GI-map quality of GIGAN, Deep Shading, Deep Illumination and DI alone, each
+an exported ONNX generator run as the client runs it on held-out frames; with ``--renderers gl,mitsuba`` each
+renderer's inputs paired against :data:`GL_SSIM_LOSS_MAX` and :data:`GL_LF_RISE_MAX` (docs/architecture.md,
+bench quality)."""
 
 from __future__ import annotations
 

@@ -1,14 +1,6 @@
-"""`bench scaling`: the render executor (``gicore.executor``) with 1 and 2 workers, local processes
-against Ray on one node and against a Ray cluster of one 1-CPU node per worker, and what the measured
-cost projects for the paper's data set and for baking GI trees.
-
-Measured on the real tasks of ``gicore-dataset`` and ``cloudbaking-prebake``, single-threaded workers, after
-two warm-up items per worker: ``throughput``, ``item_time``, ``efficiency``, the per-task overhead
-(``task_roundtrip``, ``task_overhead_batched``), ``instance_start`` and ``warmup``. The simulated cluster's
-nodes share this machine's cores, so they measure a node's overhead, not a second machine's speed. Projected
-(``stat = projection``, never a measurement): wall time on N workers as ``ceil(items / N) x item_time`` scaled
-by pixels. docs/architecture.md, bench scaling.
-"""
+"""`bench scaling`: the render executor (``gicore.executor``) with 1 and 2 workers, local processes against Ray
+on one node and against a simulated Ray cluster, and what the measured cost projects for the paper's data set
+and for baking GI trees (``stat = projection``, never a measurement; docs/architecture.md, bench scaling)."""
 
 from __future__ import annotations
 

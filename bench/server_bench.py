@@ -1,13 +1,5 @@
-"""`bench service`: how fast a real ``cloudbaking-server`` answers GI-map requests, against its targets.
-
-One run starts ``cloudbaking-server`` on 127.0.0.1 (an ephemeral port, a fresh GI tree in a temporary folder)
-and sends ``POST /v1/gimap`` over loopback with keep-alive httpx clients, in three phases: misses
-(``miss_e2e``; the server's own ``miss_server`` per part; the first miss, with the scene's compile, is its own
-row), hits (``hit_server`` lookup + read and total; ``hit_e2e``) and concurrent load (``load_latency``,
-``load_throughput``, ``load_errors``). Summaries are ``median``/``p95``/``p99``/``n``, samples ``stat =
-sample``; each target gets a ``target_met`` row (a missed target is reported, not an error).
-docs/architecture.md, bench service.
-"""
+"""`bench service`: how fast a real ``cloudbaking-server`` answers GI-map requests over loopback (misses, hits,
+concurrent load), against its targets (docs/architecture.md, bench service)."""
 
 from __future__ import annotations
 

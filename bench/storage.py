@@ -1,13 +1,6 @@
-"""`bench storage` (paper Table 2): the GI tree's size after a fly-through, against GIGAN's model.
-
-Per scene, resolution and codec: entries counted exactly with the GI tree's own rule
-(:func:`baseline_cloudbaking.viewpoints.simulate_fill`), bytes per entry measured on baked maps sampled along the
-path, tree bytes extrapolated with a 95 % interval, against the shipped model's files. Also the codec table,
-the tolerance knob, and the growth law over seeded user sessions (:mod:`gicore.sessions`): entries after each
-session, saturation, the crossover with the model, and the paper's accounting decomposed
-(:mod:`bench.storage_growth`); what it shows: :mod:`bench.storage_tables`. What each row holds:
-docs/architecture.md, bench storage.
-"""
+"""`bench storage` (paper Table 2): the GI tree's size after a fly-through, against GIGAN's model, the codecs,
+the tolerance knob and the growth law (docs/architecture.md, bench storage). The growth law and the paper's
+accounting: :mod:`bench.storage_growth`; what it shows: :mod:`bench.storage_tables`."""
 
 from __future__ import annotations
 

@@ -1,15 +1,5 @@
 """`bench warp` (paper Fig. 7): CPU cost, load, memory and quality of pixel-level (cloud baking) vs
-structure-aware (GIGAN, Alg. 1) 3D image warping, side by side in one run.
-
-Per scene, GT GI maps rendered at GI cameras along the path are warped to the local cameras ``offsets`` frames
-later and compared with the path-traced GT there (the light stays, so the error is the warp's alone). Each
-method's per-frame work is timed after a warm-up, alternating the two; each method's local render
-(``raster_time``, rendered by ``renderer``) and its once-per-map ``bind`` are reported apart. CPU % is process
-CPU time over wall time (100 % = one core), peak memory the largest numpy allocation during a call. Also: how
-far interpolated GI-map coordinates land from per-pixel projection, and on the gl renderer both warp backends
-(``--warp-backend``): a whole frame timed on numpy and in GL shaders, and how far the two warps' outputs lie
-apart. docs/architecture.md, bench warp.
-"""
+structure-aware (GIGAN, Alg. 1) 3D image warping, side by side in one run (docs/architecture.md, bench warp)."""
 
 from __future__ import annotations
 
