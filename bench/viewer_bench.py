@@ -29,6 +29,7 @@ from typing import Any, Literal
 
 import numpy as np
 
+from bench.processes import ask_path, pinned_server, run_place
 from bench.runner import Bench, Block, Section
 from bench.viewer_page import WEBGL_FLAGS, Segment, missing, replay, viewer_page
 from bench.viewer_parity import Reference, canvas_stats, time_inference
@@ -110,7 +111,6 @@ class Viewer:
 def open_viewer(cfg: WebBenchConfig, results: Results) -> Iterator[Viewer]:
     """``gigan-web``'s site for ``cfg`` (its children started on a store prebaked first when asked) and the page
     open on it, recording every frame drawn (``?record=1``); work files in ``results.out / web_runs``."""
-    from bench.processes import ask_path, pinned_server, run_place
     from gicore.path_file import flown_path
     from gicore.paths import DEFAULT_LIGHT_CELL
     from web3d.cli import WebConfig, cloud_for, prepare

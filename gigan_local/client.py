@@ -300,10 +300,10 @@ def run(cfg: ClientConfig, out: Path, save_frames: bool = False, video: bool = F
 
     spec = load_scene(cfg.scene)
     flown = flown_path(spec, cfg, cfg.seed, cfg.fovs(spec)[0])
-    out.mkdir(parents=True, exist_ok=True)
-    write_path_file(out / "path.json", flown.scene, flown.frames, flown.source)
     renderer, raster, used = open_renderers(cfg, spec)
     rows = run_client(cfg, renderer, on_frame=keep if (save_frames or video) else None, raster=raster, flown=flown)
+    out.mkdir(parents=True, exist_ok=True)  # after the run: a bad model or scene writes nothing
+    write_path_file(out / "path.json", flown.scene, flown.frames, flown.source)
     write_rows(rows, out / "frames.csv")
     summary = {"config": cfg.as_json(), "frames": len(rows)}
     from gicore.gl.frame import warp_backend

@@ -370,7 +370,7 @@ CASES = [
     case(*CLIENT, "--gi-fov", "inf", culprit="--gi-fov = inf is not finite", id="client-gi-fov-inf"),
     case(*CLIENT, "--seed", "-1", culprit="--seed = -1 is below 0", id="client-seed-negative"),
     case(*CLIENT, "--threads", "0", culprit="--threads = 0 is below 1", id="client-threads-0"),
-    case(*CLIENT, "-k", "0", culprit="--every = 0 is not positive", id="client-every-0"),
+    case(*CLIENT, "-k", "0", culprit="--every = 0 is below 1", id="client-every-0"),
     case(*CLIENT, "--warp", "bilinear", culprit="'--warp'", id="client-unknown-warp"),
     case(*CLIENT[:2], "nope", *CLIENT[3:], culprit="no scene spec 'nope'", id="client-unknown-scene"),
     case(*CLIENT[:2], "bad_field.toml", *CLIENT[3:], culprit="light.intensity", id="client-spec-field"),
