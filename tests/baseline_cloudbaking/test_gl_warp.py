@@ -29,6 +29,7 @@ from gicore.gl import gl_available
 from tests.helpers.cloud import BIN, SPP, server_process, write_scenes
 from tests.helpers.cloud import RES as CLOUD_RES
 from tests.helpers.gl_warps import contrast, differences, loop_frames, lung_scene
+from tests.helpers.guards import HANG_GUARD_S
 
 OK, WHY = gl_available()
 if not OK:
@@ -87,7 +88,9 @@ def test_cloud_client_with_the_gl_warp_backend(tmp_path: Path) -> None:
     with server_process(tmp_path / "store", scenes, "--max-spp", "16") as server:
         argv = [str(BIN / "cloudbaking-client"), "--server", server, "--scene", str(scenes / "ball_moving.json")]
         argv += ["--frames", "4", "--resolution", str(CLOUD_RES), "-k", "2", "--spp", str(SPP), "--warp-backend", "gl"]
-        proc = subprocess.run([*argv, "--out", str(tmp_path / "out")], capture_output=True, text=True, timeout=120)
+        proc = subprocess.run(
+            [*argv, "--out", str(tmp_path / "out")], capture_output=True, text=True, timeout=HANG_GUARD_S
+        )
     assert proc.returncode == 0, proc.stderr
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert summary["warp_backend"] == "gl" and summary["config"]["warp_backend"] == "gl"

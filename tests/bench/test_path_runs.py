@@ -24,6 +24,7 @@ from gicore.paths import light_position
 from gicore.results import Results, read_rows
 from gicore.scene import SceneSpec, load_scene
 from tests.helpers.cloud import write_scenes
+from tests.helpers.guards import HANG_GUARD_S
 from tests.helpers.latency_runs import stand_in
 
 BIN = Path(sys.executable).parent
@@ -52,7 +53,7 @@ def test_gigan_client_flies_a_path_file_and_writes_it_back(scene: Path, tmp_path
     session = _session(spec, tmp_path / "session.json")
     base = [str(BIN / "gigan-client"), "--scene", str(scene), "--path", str(session), "--resolution", "16",
             "-k", "2", "--gi-source", "gt", "--spp", "1", "--no-denoise", "--renderer", "mitsuba"]  # fmt: skip
-    run = subprocess.run([*base, "--out", str(tmp_path / "run")], capture_output=True, text=True, timeout=300)
+    run = subprocess.run([*base, "--out", str(tmp_path / "run")], capture_output=True, text=True, timeout=HANG_GUARD_S)
     assert run.returncode == 0, run.stderr
     assert run.stdout.startswith("3 frames,"), run.stdout
     with (tmp_path / "run" / "frames.csv").open() as fh:
@@ -60,7 +61,7 @@ def test_gigan_client_flies_a_path_file_and_writes_it_back(scene: Path, tmp_path
     flown = read_path_file(tmp_path / "run" / "path.json", spec)
     assert flown == read_path_file(session, spec)  # replaying the run's path.json flies the same session
     clash = subprocess.run([*base, "--frames", "5", "--out", str(tmp_path / "clash")], capture_output=True, text=True,
-                           timeout=120)  # fmt: skip
+                           timeout=HANG_GUARD_S)  # fmt: skip
     errors = [line for line in clash.stderr.splitlines() if line.startswith("error:")]
     assert clash.returncode == 2 and errors == ["error: --path and --frames conflict: --path sets what --frames would: "
                                                 "drop --frames"], clash.stderr  # fmt: skip

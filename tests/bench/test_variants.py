@@ -17,6 +17,7 @@ from gicore.cuda_probe import cuda_device_count
 from gicore.error_policy import UserError
 from gicore.results import read_rows
 from tests.helpers.cloud import write_scenes
+from tests.helpers.guards import HANG_GUARD_S
 
 
 @pytest.mark.slow  # two prebake processes at 32²: about 10 s on 2 idle cores
@@ -79,7 +80,7 @@ def test_a_cpu_bake_without_pyoidn_is_one_line_naming_the_reference(monkeypatch:
 @pytest.mark.skipif(cuda_device_count() > 0, reason="a CUDA device is present")
 def test_cuda_without_a_device_is_one_line_before_any_bake(tmp_path: Path) -> None:
     argv = [sys.executable, "-m", "bench", "variants", "--quick", "--variants", "cpu,cuda", "--out", str(tmp_path)]
-    proc = subprocess.run(argv, capture_output=True, text=True, timeout=120)
+    proc = subprocess.run(argv, capture_output=True, text=True, timeout=HANG_GUARD_S)
     assert proc.returncode == 2 and proc.stdout == ""
     assert proc.stderr.strip().splitlines() == [
         "error: --variants cuda: GIGAN_MITSUBA_VARIANT=cuda but no CUDA device: bake it on a machine that has one, "

@@ -13,6 +13,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.helpers.guards import HANG_GUARD_S
+
 ROOT = Path(__file__).resolve().parents[2]
 MIB = 1024 * 1024
 #: Fake wheels: file name -> size in bytes; mitsuba's is split into parts; numpy is installed here at a newer
@@ -43,7 +45,7 @@ CARRY_MIB = -(-_tree_bytes() // MIB) + BATCH_MIB
 def _bash(script: str, *args: str, env: dict[str, str] | None = None) -> subprocess.CompletedProcess:
     env = os.environ | {"PYTHON": sys.executable} | (env or {})
     return subprocess.run(
-        ["bash", f"scripts/{script}", *args], cwd=ROOT, env=env, capture_output=True, text=True, timeout=300
+        ["bash", f"scripts/{script}", *args], cwd=ROOT, env=env, capture_output=True, text=True, timeout=HANG_GUARD_S
     )
 
 

@@ -15,6 +15,7 @@ from gicore import mitsuba_variant
 from gicore.cuda_probe import cuda_device_count
 from gicore.error_policy import UserError
 from gicore.mitsuba_variant import VARIANT_ENV, VariantChoice, check_denoiser, choose_variant
+from tests.helpers.guards import HANG_GUARD_S
 
 LLVM = "/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1"
 
@@ -77,7 +78,9 @@ def _env(asked: str | None) -> dict[str, str]:
 @pytest.mark.parametrize("asked", [None, "auto", "cpu"])
 def test_without_cuda_the_cpu_variant_is_chosen_with_one_notice(asked):
     code = "import gicore.render as r; print(r.VARIANT, r.CHOICE.denoiser)"
-    proc = subprocess.run([sys.executable, "-c", code], env=_env(asked), capture_output=True, text=True, timeout=120)
+    proc = subprocess.run(
+        [sys.executable, "-c", code], env=_env(asked), capture_output=True, text=True, timeout=HANG_GUARD_S
+    )
     assert proc.returncode == 0, proc.stderr
     variant = proc.stdout.split()[0]
     assert variant in ("llvm_ad_rgb", "scalar_rgb") and proc.stdout.split()[1] == "oidn"
@@ -93,7 +96,11 @@ def test_forcing_cuda_without_it_is_one_error_line(make_spec, tmp_path: Path):
     exe = str(Path(sys.executable).parent / "gigan-client")
     args = ["--scene", str(spec_file), "--frames", "1", "--resolution", "16", "--gi-source", "gt", "--no-denoise"]
     proc = subprocess.run(
-        [exe, *args, "--out", str(tmp_path / "run")], env=_env("cuda"), capture_output=True, text=True, timeout=120
+        [exe, *args, "--out", str(tmp_path / "run")],
+        env=_env("cuda"),
+        capture_output=True,
+        text=True,
+        timeout=HANG_GUARD_S,
     )
     assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
     [line] = [x for x in proc.stderr.splitlines() if x.strip()]

@@ -17,6 +17,7 @@ from gicore.error_policy import UserError
 from gigan_local.backend_choice import open_model, resolve_inference
 from gigan_local.inference import DEFAULT_MODEL, GIModel
 from gigan_local.torch_backend import TorchGIModel
+from tests.helpers.guards import HANG_GUARD_S
 
 #: Largest difference between the two backends' predictions (linear radiance) on the shipped model.
 PREDICT_TOLERANCE = 1e-3
@@ -66,7 +67,9 @@ def test_auto_without_a_gpu_runs_onnxruntime_without_importing_torch():
         f"m = open_model({str(DEFAULT_MODEL)!r}, 'auto', threads=1, warmup=0); "
         "print(type(m).__name__, m.backend, 'torch' in sys.modules)"
     )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True).stdout
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=HANG_GUARD_S, check=True
+    ).stdout
     assert out.split() == ["GIModel", "onnxruntime", "cpu", "False"]
 
 
@@ -102,9 +105,9 @@ def test_gigan_client_runs_the_model_on_the_backend_asked(make_spec, tmp_path: P
     exe = str(Path(sys.executable).parent / "gigan-client")
     args = ["--scene", str(spec_file), "--frames", "2", "-k", "1", "--resolution", str(resolution)]
     args += ["--gi-source", "model", "--gt-every", "0", "--out", str(tmp_path / "run")]
-    proc = subprocess.run([exe, *args, "--inference", "torch"], capture_output=True, text=True, timeout=300)
+    proc = subprocess.run([exe, *args, "--inference", "torch"], capture_output=True, text=True, timeout=HANG_GUARD_S)
     assert proc.returncode == 0, proc.stderr
     summary = json.loads((tmp_path / "run" / "summary.json").read_text())
     assert summary["inference"] == "torch" and summary["config"]["inference"] == "torch"
-    bad = subprocess.run([exe, *args, "--inference", "tflite"], capture_output=True, text=True, timeout=300)
+    bad = subprocess.run([exe, *args, "--inference", "tflite"], capture_output=True, text=True, timeout=HANG_GUARD_S)
     assert bad.returncode == 2 and "Traceback" not in bad.stderr and "auto" in bad.stderr + bad.stdout
