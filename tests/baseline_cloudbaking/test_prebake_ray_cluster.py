@@ -26,6 +26,7 @@ from gicore.executor import RayExecutor
 from gicore.scene import SceneSpec, load_scene
 from tests.gicore.test_executor_ray import busy_ray_workers
 from tests.helpers.cloud import BIN, write_scenes
+from tests.helpers.guards import HANG_GUARD_S
 
 #: A tolerance of 1 scene unit / 30° and a 10-unit light cell: ball_moving's space is 3 views x 2 light states.
 TOLERANCE = Tolerance(1.0, 30.0)
@@ -149,7 +150,7 @@ def test_kill_9_of_the_driver_stops_its_tasks_and_the_rerun_completes(
     os.killpg(proc.pid, signal.SIGKILL)
     proc.wait(timeout=30)
     killed = time.monotonic()
-    while busy_ray_workers() and time.monotonic() - killed < 60:  # a hang guard: left alone they render every map
+    while busy_ray_workers() and time.monotonic() - killed < HANG_GUARD_S:  # Ray notices the dead owner late when busy
         time.sleep(0.1)
     print(f"the dead driver's tasks ended {time.monotonic() - killed:.1f} s after kill -9")
     assert busy_ray_workers() == [] and len(alive_nodes()) == 2
