@@ -1,18 +1,26 @@
-"""Running console scripts as subprocesses and checking the one error policy (docs/architecture.md, Errors)."""
+"""Running console scripts, as subprocesses or in this process, and checking the one error policy
+(docs/architecture.md, Errors)."""
 
 from __future__ import annotations
 
 import os
 import subprocess
 import sys
+import time
+from collections.abc import Callable
 from dataclasses import dataclass
+from importlib.metadata import entry_points
 from pathlib import Path
+
+import pytest
 
 BIN = Path(sys.executable).parent
 
 
 #: One subprocess run may take this long (imports of torch or Mitsuba dominate: ~1-2 s).
 TIMEOUT_S = 120
+#: The environment of every run: wide lines (usage errors are not wrapped), no colour codes.
+SCRIPT_ENV = {"COLUMNS": "200", "NO_COLOR": "1"}
 
 
 def snapshot(root: Path) -> dict[str, tuple[int, int]]:
@@ -41,9 +49,33 @@ def run_script(argv: list[str], cwd: Path) -> Outcome:
     exe = BIN / argv[0]
     assert exe.is_file(), f"console script {argv[0]} is not installed (pip install -e .)"
     before = snapshot(cwd)
-    env = os.environ | {"COLUMNS": "200", "NO_COLOR": "1"}
+    env = os.environ | SCRIPT_ENV
     proc = subprocess.run([str(exe), *argv[1:]], cwd=cwd, capture_output=True, text=True, timeout=TIMEOUT_S, env=env)
     return Outcome(tuple(argv), proc.returncode, proc.stdout, proc.stderr, before, snapshot(cwd))
+
+
+def script_main(name: str) -> Callable[[], object]:
+    """The function console script ``name`` runs (its entry point in the installed package's metadata)."""
+    [script] = entry_points(group="console_scripts", name=name)
+    return script.load()
+
+
+def run_main(argv: list[str], cwd: Path, monkeypatch: pytest.MonkeyPatch, capfd: pytest.CaptureFixture[str]) -> Outcome:
+    """:func:`run_script` in this process: :func:`script_main` of ``argv[0]`` runs with ``sys.argv`` set to
+    ``argv``, in ``cwd``, with the same environment, its output read at the file descriptors. No interpreter
+    start, so a run costs milliseconds; keep one :func:`run_script` per script for the real process."""
+    main = script_main(argv[0])
+    before = snapshot(cwd)
+    with monkeypatch.context() as patch:
+        patch.chdir(cwd)
+        patch.setattr(sys, "argv", list(argv))
+        for name, value in SCRIPT_ENV.items():
+            patch.setenv(name, value)
+        capfd.readouterr()
+        with pytest.raises(SystemExit) as exit:
+            main()
+        out, err = capfd.readouterr()
+    return Outcome(tuple(argv), int(exit.value.code or 0), out, err, before, snapshot(cwd))
 
 
 def check_user_error(outcome: Outcome, culprit: str) -> str:
@@ -62,6 +94,26 @@ def check_user_error(outcome: Outcome, culprit: str) -> str:
 def assert_user_error(argv: list[str], culprit: str, cwd: Path) -> str:
     """Run ``argv`` in ``cwd`` (see :func:`run_script`) and :func:`check_user_error` it; returns the error line."""
     return check_user_error(run_script(argv, cwd), culprit)
+
+
+def signal_when(argv: list[str], cwd: Path, ready: Callable[[subprocess.Popen], bool], sig: int) -> tuple[int, str]:
+    """Start console script ``argv``, send ``sig`` once ``ready(proc)`` holds; its exit status and stderr."""
+    proc = subprocess.Popen(
+        [str(BIN / argv[0]), *argv[1:]], cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    try:
+        deadline = time.monotonic() + TIMEOUT_S
+        while not ready(proc):
+            assert proc.poll() is None, f"{argv[0]} ended before it was ready: {proc.communicate()}"
+            assert time.monotonic() < deadline, f"{argv[0]} was not ready within {TIMEOUT_S} s"
+            time.sleep(0.05)
+        proc.send_signal(sig)
+        _, err = proc.communicate(timeout=TIMEOUT_S)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    return proc.returncode, err
 
 
 def run_command(cmd: list[str]) -> subprocess.CompletedProcess:

@@ -1,32 +1,34 @@
 """Every console script fails cleanly on bad input (docs/architecture.md, Errors).
 
-Each row runs one installed console script as a subprocess, in its own copy of a scratch workspace that
-holds valid and broken inputs (see :func:`workspace`), and checks the policy: exit status 2, exactly one
-``error:`` line on stderr that names the culprit (the file or field at fault), no traceback, and nothing
-written, changed or left behind in the workspace.
+Each row runs one console script in its own copy of a scratch workspace that holds valid and broken inputs
+(see :func:`workspace`), and checks the policy: exit status 2, exactly one ``error:`` line on stderr that
+names the culprit (the file or field at fault), no traceback, and nothing written, changed or left behind
+in the workspace. Rows run the script's ``main`` in this process (:func:`run_main`); one row per script
+(``process=True``) runs the installed script as a subprocess, so its entry point, exit status and streams
+are those of a real process.
 
 To cover a new script, add rows to ``CASES`` with :func:`case` (argv relative to the workspace; put new
-inputs in :func:`workspace`), or call :func:`assert_user_error` from your own test module. The rows run
-a few at a time (``outcomes``): each costs one interpreter start with its imports (~1-2 s of CPU).
+inputs in :func:`workspace`), or call :func:`assert_user_error` from your own test module.
 """
 
 from __future__ import annotations
 
 import shutil
-import subprocess
-from concurrent.futures import ThreadPoolExecutor
+import signal
+import sys
 from contextlib import nullcontext
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from tests.helpers.cli import BIN, TIMEOUT_S, Outcome, check_user_error, run_script
+from tests.helpers.cli import check_user_error, run_main, run_script, script_main, signal_when
 
 
-def case(*argv: str, culprit: str, id: str, hold: str | None = None):
-    """A row of ``CASES``: ``hold`` names a workspace folder that another run holds meanwhile."""
-    return pytest.param(list(argv), culprit, hold, id=id)
+def case(*argv: str, culprit: str, id: str, hold: str | None = None, process: bool = False):
+    """A row of ``CASES``: ``hold`` names a workspace folder that another run holds meanwhile; ``process``
+    runs the installed script as a subprocess instead of its ``main`` in this process."""
+    return pytest.param(list(argv), culprit, hold, process, id=id)
 
 
 # -- the workspace -------------------------------------------------------------------------------------------------
@@ -242,6 +244,7 @@ CASES = [
         *DATASET[4:],
         culprit="another run holds rendered/s",
         id="dataset-folder-held",
+        process=True,
         hold="rendered/s",
     ),
     # gigan-train: datasets, run folders and option values
@@ -310,7 +313,16 @@ CASES = [
         culprit="run_badckpt/checkpoint.pt is not a readable checkpoint",
         id="train-checkpoint-corrupt",
     ),
-    case("gigan-train", "--out", "run", "--resume", culprit="another run holds run", id="train-run-held", hold="run"),
+    case(
+        "gigan-train",
+        "--out",
+        "run",
+        "--resume",
+        culprit="another run holds run",
+        id="train-run-held",
+        process=True,
+        hold="run",
+    ),
     # gigan-export
     case("gigan-export", "nowhere", "--out", "out", culprit="nowhere/config.json is missing", id="export-run-missing"),
     case(
@@ -345,7 +357,16 @@ CASES = [
         culprit="int8 export calibrates on the run's train frames",
         id="export-int8-without-data",
     ),
-    case("gigan-export", "run", "--out", "out", culprit="another run holds out", id="export-out-held", hold="out"),
+    case(
+        "gigan-export",
+        "run",
+        "--out",
+        "out",
+        culprit="another run holds out",
+        id="export-out-held",
+        process=True,
+        hold="out",
+    ),
     # gigan-client
     case(*CLIENT, "--gi-fov", "0", culprit="--gi-fov = 0.0", id="client-gi-fov-0"),
     case(*CLIENT, "--local-fov", "0", culprit="--local-fov = 0.0", id="client-local-fov-0"),
@@ -371,7 +392,7 @@ CASES = [
     case(*CLIENT, "--seed", "-1", culprit="--seed = -1 is below 0", id="client-seed-negative"),
     case(*CLIENT, "--threads", "0", culprit="--threads = 0 is below 1", id="client-threads-0"),
     case(*CLIENT, "-k", "0", culprit="--every = 0 is below 1", id="client-every-0"),
-    case(*CLIENT, "--warp", "bilinear", culprit="'--warp'", id="client-unknown-warp"),
+    case(*CLIENT, "--warp", "bilinear", culprit="'--warp'", id="client-unknown-warp", process=True),
     case(*CLIENT[:2], "nope", *CLIENT[3:], culprit="no scene spec 'nope'", id="client-unknown-scene"),
     case(*CLIENT[:2], "bad_field.toml", *CLIENT[3:], culprit="light.intensity", id="client-spec-field"),
     case(*CLIENT[:2], "mesh_nan.toml", *CLIENT[3:], culprit="meshes/nan.obj", id="client-mesh-nan-vertex"),
@@ -397,90 +418,58 @@ CASES = [
 ]
 
 
-@pytest.fixture(scope="module")
-def outcomes(workspace: Path, tmp_path_factory: pytest.TempPathFactory) -> dict[str, Outcome]:
-    """Every row of ``CASES`` run once, each in its own copy of the workspace, three at a time."""
+@pytest.mark.parametrize("argv,culprit,hold,process", CASES)
+def test_bad_input_is_one_clean_error_line(
+    workspace: Path,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capfd: pytest.CaptureFixture[str],
+    argv: list[str],
+    culprit: str,
+    hold: str | None,
+    process: bool,
+):
     from gicore.fileio import exclusive_run
 
-    def run_case(row) -> tuple[str, Outcome]:
-        argv, _, hold = row.values
-        cwd = tmp_path_factory.mktemp("case")
-        shutil.copytree(workspace, cwd, dirs_exist_ok=True)
-        with exclusive_run(cwd / hold) if hold else nullcontext():
-            return row.id, run_script(argv, cwd)
-
-    with ThreadPoolExecutor(3) as pool:
-        return dict(pool.map(run_case, CASES))
-
-
-@pytest.mark.slow  # ~90 subprocesses: about two minutes on 2 cores
-@pytest.mark.parametrize("argv,culprit,hold", CASES)
-def test_bad_input_is_one_clean_error_line(
-    outcomes: dict[str, Outcome], request: pytest.FixtureRequest, argv: list[str], culprit: str, hold: str | None
-):
-    outcome = outcomes[request.node.callspec.id]
-    assert list(outcome.argv) == argv
+    shutil.copytree(workspace, tmp_path, dirs_exist_ok=True)
+    with exclusive_run(tmp_path / hold) if hold else nullcontext():
+        outcome = run_script(argv, tmp_path) if process else run_main(argv, tmp_path, monkeypatch, capfd)
     check_user_error(outcome, culprit)
 
 
+def test_every_script_has_a_process_row():
+    """Each console script of ``CASES`` runs once as a real process."""
+    scripts = {row.values[0][0] for row in CASES}
+    assert scripts == {row.values[0][0] for row in CASES if row.values[3]}
+
+
+def test_debug_shows_the_traceback(workspace: Path, monkeypatch: pytest.MonkeyPatch):
+    """--debug is the way to a traceback for a user error: the error leaves ``main`` uncaught, so the
+    interpreter prints its traceback (and exits 1)."""
+    from gicore.scene import SceneSpecError
+
+    monkeypatch.chdir(workspace)
+    monkeypatch.setattr(sys, "argv", ["gicore-dataset", "nope", "--debug"])
+    with pytest.raises(SceneSpecError, match="no scene spec 'nope'"):
+        script_main("gicore-dataset")()
+
+
+# -- Ctrl-C: the interrupted run is a process; the run that resumes it runs in this process -------------------------
 @pytest.mark.slow
-def test_debug_shows_the_traceback(workspace: Path):
-    """--debug is the way to a traceback for a user error."""
-    proc = subprocess.run(
-        [str(BIN / "gicore-dataset"), "nope", "--debug"],
-        cwd=workspace,
-        capture_output=True,
-        text=True,
-        timeout=TIMEOUT_S,
-    )
-    assert proc.returncode == 1 and "Traceback" in proc.stderr and "SceneSpecError" in proc.stderr
-
-
-# -- Ctrl-C ----------------------------------------------------------------------------------------------------------
-def interrupt_when(argv: list[str], cwd: Path, ready) -> subprocess.CompletedProcess:
-    """Start console script ``argv``, send it SIGINT (Ctrl-C) once ``ready()`` holds, and wait for it."""
-    import signal
-    import time
-
-    proc = subprocess.Popen(
-        [str(BIN / argv[0]), *argv[1:]], cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
-    )
-    deadline = time.monotonic() + TIMEOUT_S
-    while not ready() and proc.poll() is None and time.monotonic() < deadline:
-        time.sleep(0.05)
-    proc.send_signal(signal.SIGINT)
-    out, err = proc.communicate(timeout=TIMEOUT_S)
-    return subprocess.CompletedProcess(argv, proc.returncode, out, err)
-
-
-@pytest.mark.slow
-def test_interrupted_dataset_keeps_whole_frames_and_resumes(workspace: Path, tmp_path: Path):
+def test_interrupted_dataset_keeps_whole_frames_and_resumes(
+    workspace: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capfd: pytest.CaptureFixture[str]
+):
     from gicore.dataset import frame_paths, load_frame
     from gicore.fileio import TMP_MARKER
 
     shutil.copytree(workspace, tmp_path, dirs_exist_ok=True)
-    argv = [
-        "gicore-dataset",
-        "scene.toml",
-        "--out",
-        "ds_int",
-        "--train",
-        "200",
-        "--val",
-        "0",
-        "--resolution",
-        "8",
-        "--spp",
-        "1",
-        "--no-denoise",
-    ]
+    argv = [*DATASET[:3], "ds_int", "--train", "200", *DATASET[6:]]
     frames = tmp_path / "ds_int" / "s" / "train"
-    done = interrupt_when(argv, tmp_path, lambda: len(list(frames.glob("*.npz"))) >= 3)
-    assert done.returncode == 130, done.stderr
-    assert (
-        "Traceback" not in done.stderr
-        and "interrupted: finished frames are kept: run the same command again" in done.stderr
-    )
+    status, err = signal_when(argv, tmp_path, lambda _: len(list(frames.glob("*.npz"))) >= 3, signal.SIGINT)
+    assert status == 130, err
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert lines[-1] == "interrupted: finished frames are kept: run the same command again to render the rest", err
+    assert "Traceback" not in err
     kept = sorted(frames.glob("*.npz"))
     assert 3 <= len(kept) < 200, "the run should have stopped part-way"
     assert (
@@ -489,44 +478,27 @@ def test_interrupted_dataset_keeps_whole_frames_and_resumes(workspace: Path, tmp
     for path in kept:
         load_frame(path)  # every frame left behind is whole
     mtimes = {p: p.stat().st_mtime_ns for p in kept}
-    rerun = subprocess.run(
-        [str(BIN / argv[0]), *argv[1:]], cwd=tmp_path, capture_output=True, text=True, timeout=TIMEOUT_S
-    )
+    rerun = run_main(argv, tmp_path, monkeypatch, capfd)
     assert rerun.returncode == 0, rerun.stderr
     assert len(frame_paths(tmp_path / "ds_int" / "s", "train")) == 200
     assert all(p.stat().st_mtime_ns == t for p, t in mtimes.items()), "a kept frame was rendered again"
 
 
 @pytest.mark.slow
-def test_interrupted_training_resumes_from_its_checkpoint(workspace: Path, tmp_path: Path):
+def test_interrupted_training_resumes_from_its_checkpoint(
+    workspace: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capfd: pytest.CaptureFixture[str]
+):
     import csv
 
     shutil.copytree(workspace, tmp_path, dirs_exist_ok=True)
-    argv = [
-        "gigan-train",
-        "ds",
-        "--out",
-        "run_int",
-        "--ngf",
-        "4",
-        "--batch-size",
-        "1",
-        "--checkpoint-every",
-        "1",
-        "--no-progress",
-    ]
+    argv = [*TRAIN[:3], "run_int", "--ngf", "4", "--batch-size", "1", "--checkpoint-every", "1", "--no-progress"]
     checkpoint = tmp_path / "run_int" / "checkpoint.pt"
-    done = interrupt_when(argv, tmp_path, checkpoint.is_file)
-    assert done.returncode == 130, done.stderr
-    assert "Traceback" not in done.stderr and "run the same command with --resume" in done.stderr
+    status, err = signal_when(argv, tmp_path, lambda _: checkpoint.is_file(), signal.SIGINT)
+    assert status == 130, err
+    assert "Traceback" not in err and "run the same command with --resume" in err
     assert sorted(p.name for p in (tmp_path / "run_int").iterdir()) == ["checkpoint.pt", "config.json", "metrics.csv"]
-    resumed = subprocess.run(
-        [str(BIN / "gigan-train"), "--out", "run_int", "--resume", "--epochs", "2", "--no-progress"],
-        cwd=tmp_path,
-        capture_output=True,
-        text=True,
-        timeout=TIMEOUT_S,
-    )
+    resume = ["gigan-train", "--out", "run_int", "--resume", "--epochs", "2", "--no-progress"]
+    resumed = run_main(resume, tmp_path, monkeypatch, capfd)
     assert resumed.returncode == 0, resumed.stderr
     assert "stopped (epochs) at step 4, epoch 2" in resumed.stdout
     with (tmp_path / "run_int" / "metrics.csv").open() as f:
