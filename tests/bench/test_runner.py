@@ -1,12 +1,10 @@
-"""The bench framework: the runner (options from configs, presets, checks, --out), tidy CSV + provenance,
-and tiny real bench runs through the ``bench`` command."""
+"""The bench framework: the runner (options from configs, presets, checks, --out), tidy CSV + provenance, and
+the ``bench`` command's subcommands and its one-line errors (tiny real bench runs: tests/bench/test_tiny_runs.py)."""
 
 from __future__ import annotations
 
 import dataclasses
 import json
-import subprocess
-import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -22,6 +20,8 @@ from gicore import option_groups
 from gicore.error_policy import UserError
 from gicore.results import COLUMNS, Results, read_rows
 from gicore.timing import summarize_ms, time_repeats
+from tests.bench.command import bench_main
+from tests.helpers.cli import assert_user_error
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -179,10 +179,6 @@ def test_execute_writes_csv_provenance_of_the_final_config_tables_and_figures(tm
     assert read_rows(tmp_path / "demo.csv")[0]["value"] == 24.0
 
 
-def _bench(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "bench", *args], cwd=REPO, capture_output=True, text=True, timeout=120)
-
-
 @pytest.mark.parametrize(
     ("args", "culprit"),
     [
@@ -204,12 +200,20 @@ def _bench(*args: str) -> subprocess.CompletedProcess:
         (["web", "--model", "README.md"], "model.json is missing"),
     ],
 )
-def test_bench_command_rejects_bad_input_with_one_error_line(args: list[str], culprit: str) -> None:
-    result = _bench(*args)
-    assert result.returncode == 2, result.stderr
-    errors = [line for line in result.stderr.splitlines() if line.startswith("error:")]
-    assert len(errors) == 1 and culprit in errors[0], result.stderr
-    assert "Traceback" not in result.stderr + result.stdout
+def test_bench_command_rejects_bad_input_with_one_error_line(
+    args: list[str], culprit: str, capsys: pytest.CaptureFixture
+) -> None:
+    assert bench_main(*args, cwd=REPO) == 2
+    out, err = capsys.readouterr()
+    errors = [line for line in err.splitlines() if line.startswith("error:")]
+    assert len(errors) == 1 and culprit in errors[0], err
+    assert "Traceback" not in err + out
+
+
+def test_the_installed_bench_script_rejects_bad_input_in_one_line(tmp_path: Path) -> None:
+    """The console script as a process (the cases above run its main here): exit 2, one line, nothing written."""
+    (tmp_path / "a_file").write_text("")
+    assert_user_error(["bench", "render", "--out", "a_file"], "--out a_file is a file", cwd=tmp_path)
 
 
 def test_every_subcommand_has_out_quick_and_seed() -> None:
@@ -228,25 +232,6 @@ def test_every_subcommand_has_out_quick_and_seed() -> None:
     }  # type: ignore[attr-defined]
     for name in group.commands:  # type: ignore[attr-defined]
         assert {"--out", "--quick", "--seed"} <= set(_options(app, name)), name
-
-
-def test_tiny_render_run_through_the_command(tmp_path: Path) -> None:
-    result = _bench(
-        "render", "--quick", "--resolution", "16", "--repeats", "1", "--gt-repeats", "1", "--gl-resolutions", "16",
-        "--gl-repeats", "1", "--out", str(tmp_path),
-    )  # fmt: skip
-    assert result.returncode == 0, result.stderr
-    written = ["render.csv", "render.provenance.json", "render.md", "render.png", "render.svg"]
-    assert result.stdout.split() == [word for name in written for word in ("wrote", str(tmp_path / name))]
-    rows = read_rows(tmp_path / "render.csv")
-    assert {r["metric"] for r in rows} >= {"triangles", "di_1spp", "gt_256spp"}
-    assert any(r["config"].get("pass_set") == "client" for r in rows)
-    prov = json.loads((tmp_path / "render.provenance.json").read_text())
-    assert {"scenes": ["lung_plane"], "resolution": 16, "repeats": 1, "gt_repeats": 1}.items() <= prov[
-        "settings"
-    ].items()
-    assert (tmp_path / "render.png").stat().st_size > 10_000
-    assert ">gt_256spp</text>" in (tmp_path / "render.svg").read_text()  # each pass a series of bars
 
 
 def test_results_are_tidy_with_provenance(tmp_path: Path) -> None:
@@ -270,162 +255,3 @@ def test_timing_warms_up_and_summarises() -> None:
     assert summarize_ms([0.001, 0.003])["median"] == pytest.approx(2.0)
     with pytest.raises(ValueError, match="repeats"):
         time_repeats(lambda: None, repeats=0)
-
-
-def test_tiny_convergence_run_writes_csv_and_plot(tmp_path: Path) -> None:
-    from bench.convergence import BENCH, ConvergenceConfig
-
-    cfg = ConvergenceConfig(scenes=("lung_plane",), resolution=16, spps=(1, 4), reference_spp=16, repeats=1)
-    execute(BENCH, cfg, tmp_path)
-    rows = read_rows(tmp_path / "convergence.csv")
-    assert (tmp_path / "convergence.png").stat().st_size > 0
-    assert ">lung_plane (path+oidn)</text>" in (tmp_path / "convergence.svg").read_text()
-    rmse = {(r["system"], r["config"]["spp"]): r["value"] for r in rows if r["metric"] == "rmse"}
-    assert set(rmse) == {("path", 1), ("path", 4), ("path+oidn", 1), ("path+oidn", 4)}
-    assert rmse[("path", 4)] < rmse[("path", 1)]  # more samples, less error against the reference
-
-
-def test_training_minutes_sum_the_logged_step_times() -> None:
-    from bench.common import training_minutes
-
-    # 10 steps at 6 s, then 20 at 3 s; step 40 extrapolates at the last rate.
-    assert training_minutes([(10, 6.0), (30, 3.0)], [0, 5, 10, 30, 40]) == pytest.approx([0, 0.5, 1.0, 2.0, 2.5])
-
-
-def test_training_curves_from_run_folders(tmp_path: Path) -> None:
-    from bench.training import BENCH, TrainingBenchConfig
-
-    run_dir = tmp_path / "runA"
-    run_dir.mkdir()
-    (run_dir / "config.json").write_text(json.dumps({"train": {"ngf": 8, "n_critic": 5}}))
-    (run_dir / "metrics.csv").write_text(
-        "run_id,model,epoch,step,split,metric,value,unit\nx,gigan,0,0,val,ssim,0.5,1\nx,gigan,1,10,train,G_L1,0.2,1\nx,gigan,1,10,train,step_seconds,0.5,s\nx,gigan,1,10,val,ssim,0.7,1\n"
-    )
-    execute(BENCH, TrainingBenchConfig(runs=(run_dir,)), tmp_path / "out")
-    rows = read_rows(tmp_path / "out" / "training.csv")
-    assert {(r["system"], r["metric"], r["config"]["step"]) for r in rows} == {
-        ("runA", "val_ssim", 0),
-        ("runA", "train_G_L1", 10),
-        ("runA", "train_step_seconds", 10),
-        ("runA", "val_ssim", 10),
-    }
-    assert (tmp_path / "out" / "training.png").stat().st_size > 0
-    assert ">runA</text>" in (tmp_path / "out" / "training.svg").read_text()  # the run's curve, in the legend
-
-
-@pytest.mark.slow
-def test_quick_runs_work_on_a_fresh_checkout(tmp_path: Path) -> None:
-    """No data, no runs: --quick renders the small dataset, trains, exports and scores what it needs (~1 min)."""
-    out = tmp_path / "out"
-    result = _bench("training", "--quick", "--train-steps", "6", "--widths", "4", "--out", str(out))
-    assert result.returncode == 0, result.stderr
-    steps = {
-        r["config"]["step"]
-        for r in read_rows(out / "training.csv")
-        if r["system"] == "gigan_ngf4" and r["metric"] == "val_ssim"
-    }
-    assert max(steps) == 6 and (out / "dataset" / "lung_plane" / "meta.json").is_file()
-
-    result = _bench("quality", "--quick", "--scenes", "lung_plane", "--timing-repeats", "1", "--out", str(out))
-    assert result.returncode == 0, result.stderr
-    ssim = {r["system"]: r["value"] for r in read_rows(out / "quality.csv") if r["metric"] == "ssim"}
-    assert ssim["gigan"] > ssim["di_only"]  # the shipped model adds GI that DI lacks, on the rendered held-out frames
-    lf = {r["system"]: r["value"] for r in read_rows(out / "quality.csv") if r["metric"] == "lf_error"}
-    assert set(lf) == {"gigan", "di_only"} and all(0 < v < 0.1 for v in lf.values())
-    assert {"quality_grid.png", "quality.png", "quality_pareto.png"} <= {p.name for p in out.iterdir()}
-
-    result = _bench(
-        "model-card", "--quick", "--train-steps", "6", "--width", "4", "--out", str(out)
-    )  # resumes the run above
-    assert result.returncode == 0, result.stderr
-    card = (out / "export" / "gigan_ngf4" / "MODEL_CARD.md").read_text()
-    assert "Stopped at optimizer step 6" in card and "| lung_plane |" in card and "| LF error |" in card
-    assert {r["metric"] for r in read_rows(out / "model-card.csv")} >= {
-        "training_steps",
-        "val_ssim",
-        "ssim",
-        "file_size",
-    }
-    assert (out / "model_card.png").is_file() and (out / "quality" / "quality.csv").is_file()
-
-
-@pytest.mark.slow
-def test_run_default_is_the_make_run_job(tmp_path: Path) -> None:
-    """bench latency --quick --renderers gl and bench storage --quick on lung_plane with the shipped model, both
-    tables printed once, at the end; the clients fly 30 frames instead of 90 (the same path, a third of the maps)."""
-    argv = [sys.executable, "-m", "bench", "run-default", "--frames", "30", "--out", str(tmp_path)]
-    result = subprocess.run(argv, cwd=REPO, capture_output=True, text=True, timeout=1200)
-    assert result.returncode == 0, result.stderr
-    names = {p.name for p in tmp_path.iterdir()}
-    assert {
-        "latency.csv",
-        "latency.md",
-        "latency_stages.png",
-        "storage.csv",
-        "storage.md",
-        "run-default.csv",
-    } <= names
-    assert json.loads((tmp_path / "latency.provenance.json").read_text())["settings"]["frames"] == 30
-    assert {r["system"] for r in read_rows(tmp_path / "run-default.csv") if r["metric"] == "wall_time"} == {
-        "latency",
-        "storage",
-    }
-    totals = {
-        (r["system"], r["config"]["profile"], r["config"].get("cache"))
-        for r in read_rows(tmp_path / "latency.csv")
-        if r["metric"] == "total"
-    }
-    assert totals >= {("gigan", "none", None)} | {
-        ("cloud_baking", p, c) for p in ("lan", "wan") for c in ("hit", "miss")
-    }
-    # the clients rasterise with GL (mitsuba after one warning where no GL context opens), and say which ran
-    from gicore.gl import gl_available
-
-    renderers = json.loads((tmp_path / "latency.provenance.json").read_text())["settings"]["renderers"]
-    assert renderers["asked"] == ["gl"] and len(renderers["ran"]) == 1
-    ran = {r["config"]["renderer"] for r in read_rows(tmp_path / "latency.csv") if r["metric"] == "total"}
-    assert ran == set(renderers["ran"]) == ({"gl"} if gl_available()[0] else {"mitsuba"})
-    assert {r["scene"] for r in read_rows(tmp_path / "storage.csv") if r["scene"] != "all"} == {"lung_plane"}
-    assert result.stdout.count("## Table 1") == 1 and result.stdout.count("# Table 2") == 1
-
-
-def test_tiny_warp_frequency_and_fov_runs(tmp_path: Path) -> None:
-    """The three client benches end to end at 32², a few frames each: CSV, plots, and a sanity bound each."""
-    from bench import fov, frequency, warp_bench
-
-    cfg = warp_bench.WarpBenchConfig(
-        scenes=("lung_plane",), resolution=32, gi_frames=(0,), offsets=(1, 5), spp=4, repeats=1, warmup=0
-    )
-    execute(warp_bench.BENCH, cfg, tmp_path / "warp")
-    rows = read_rows(tmp_path / "warp" / "warp.csv")
-    assert {r["system"] for r in rows if r["metric"] == "ssim" and r["stat"] == "mean"} == {
-        "structure-aware",
-        "pixel-level",
-    }
-    assert all(0 < r["value"] <= 1 for r in rows if r["metric"] == "valid_fraction")
-
-    cfg = frequency.FrequencyConfig(resolution=32, ks=(1, 10), frames=12, gt_every=6, spp=4, compositions=("blend",))
-    paths = execute(frequency.BENCH, cfg, tmp_path / "frequency")
-    fps = {(r["system"], r["config"]["k"]): r["value"] for r in read_rows(paths[0]) if r["metric"] == "fps"}
-    assert fps["structure-aware", 10] > fps["structure-aware", 1]  # the GI map's cost spread over 10 frames
-    quality = {
-        (r["system"], r["config"]["k"], r["metric"]): r["value"] for r in read_rows(paths[0]) if r["stat"] == "mean"
-    }
-    for (system, k), _ in fps.items():  # the low-frequency error beside SSIM and PSNR, at most RMSE = 10^(-PSNR/20)
-        assert 0 < quality[system, k, "lf_error"] <= 10 ** (-quality[system, k, "psnr"] / 20), (system, k)
-    table = (tmp_path / "frequency" / "frequency.md").read_text()
-    assert "| 10 |" in table and "| LF error (structure-aware) |" in table
-    assert "lung_plane: structure-aware (blend)" in (tmp_path / "frequency" / "frequency.svg").read_text()
-
-    cfg = fov.FovConfig(
-        resolution=32, gi_fovs=(60.0, 90.0), base_frames=(0,), rotations=(10.0,), translations=(0.2,), spp=4
-    )
-    paths = execute(fov.BENCH, cfg, tmp_path / "fov")
-    valid = {
-        r["config"]["gi_fov"]: r["value"]
-        for r in read_rows(paths[0])
-        if r["metric"] == "valid_fraction" and r["system"] == "structure-aware" and r["config"]["motion"] == "rotation"
-    }
-    assert valid[90.0] >= valid[60.0]  # a wider GI camera still covers the turned view
-    assert all(p.is_file() for p in paths) and (tmp_path / "fov" / "fov.png").is_file()
-    assert "lung_plane: structure-aware, F_GI 90°" in (tmp_path / "fov" / "fov.svg").read_text()  # a declared series
