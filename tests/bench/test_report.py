@@ -2,7 +2,8 @@
 
 The results folder is ``tests/bench/fixtures/report_results``: small real outputs of ``bench latency``, ``storage``,
 ``frequency``, ``quality``, ``warp``, ``fov``, ``pareto``, ``stability``, ``convergence``, ``service``, ``scaling`` and
-``network-sim selftest`` (the commands are in each provenance JSON), copied into a temporary folder per test.
+``network-sim selftest`` (the commands are in each provenance JSON); the report of all of it is built once per test
+run (tests/bench/report_fixtures.py), the others from copies changed per test.
 The browser is Debian's ``chromium`` (``scripts/setup.sh`` installs it when root); without it the browser tests
 skip, except under ``CI=true``, where a missing browser fails. The dashboard's screenshot is kept in
 ``results/test_artifacts/``.
@@ -10,21 +11,18 @@ skip, except under ``CI=true``, where a missing browser fails. The dashboard's s
 
 from __future__ import annotations
 
-import csv
 import os
 import re
 import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
 from gicore.results import read_rows
+from tests.bench.command import bench_main
+from tests.bench.report_fixtures import FIXTURES, report_of_everything, spoil_value
 
 ROOT = Path(__file__).resolve().parents[2]
-FIXTURES = Path(__file__).parent / "fixtures" / "report_results"
-BIN = Path(sys.executable).parent
 CHROMIUM = Path("/usr/bin/chromium")
 ARTIFACTS = ROOT / "results" / "test_artifacts"
 SECTIONS = ("table1", "table2", "table3", "fig6", "fig7", "fig9", "pareto", "stability", "web", "prefetch", "variants")
@@ -33,22 +31,18 @@ MIN_DRAWN = {"variants": 2}
 
 
 def build(results: Path, out: Path) -> tuple[Path, dict[str, dict]]:
-    """Run ``bench report`` as a process; the HTML and each section's row of report.csv."""
-    proc = subprocess.run(
-        [str(BIN / "bench"), "report", "--results", str(results), "--out", str(out)],
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
-    assert proc.returncode == 0, proc.stderr[-2000:]
+    """Run ``bench report`` (its main, in this process); the HTML and each section's row of report.csv."""
+    assert bench_main("report", "--results", str(results), "--out", str(out)) == 0
+    return drawn(out)
+
+
+def drawn(out: Path) -> tuple[Path, dict[str, dict]]:
     return out / "report.html", {r["config"]["section"]: r for r in read_rows(out / "report.csv")}
 
 
 @pytest.fixture(scope="module")
 def complete(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, dict]]:
-    results = tmp_path_factory.mktemp("results")
-    shutil.copytree(FIXTURES, results, dirs_exist_ok=True)
-    return build(results, tmp_path_factory.mktemp("report"))
+    return drawn(report_of_everything(tmp_path_factory) / "one")
 
 
 @pytest.fixture(scope="module")
@@ -59,17 +53,6 @@ def broken(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, di
     (results / "pareto" / "pareto.csv").unlink()
     spoil_value(results / "warp" / "warp.csv")
     return build(results, tmp_path_factory.mktemp("report"))
-
-
-def spoil_value(path: Path, row: int = 3) -> None:
-    """Make the value of one row of a results CSV unparsable."""
-    with path.open(newline="") as fh:
-        rows = list(csv.DictReader(fh))
-    rows[row]["value"] = "not-a-number"
-    with path.open("w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
 
 
 def test_every_section_renders_from_the_fixture_csvs(complete) -> None:
@@ -113,14 +96,11 @@ def test_a_csv_of_another_shape_is_malformed_not_a_crash(tmp_path: Path) -> None
     )
 
 
-def test_a_missing_results_folder_is_one_error_line(tmp_path: Path) -> None:
-    proc = subprocess.run(
-        [str(BIN / "bench"), "report", "--results", str(tmp_path / "nope"), "--out", str(tmp_path)],
-        capture_output=True,
-        text=True,
-    )
-    errors = [line for line in proc.stderr.splitlines() if line.startswith("error:")]
-    assert proc.returncode == 2 and len(errors) == 1 and "--results" in errors[0] and "Traceback" not in proc.stderr
+def test_a_missing_results_folder_is_one_error_line(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    assert bench_main("report", "--results", str(tmp_path / "nope"), "--out", str(tmp_path)) == 2
+    err = capsys.readouterr().err
+    errors = [line for line in err.splitlines() if line.startswith("error:")]
+    assert len(errors) == 1 and "--results" in errors[0] and "Traceback" not in err
 
 
 # -- in a real browser ----------------------------------------------------------------------------------------

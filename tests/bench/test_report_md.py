@@ -2,15 +2,14 @@
 
 The fixtures (``tests/bench/fixtures/report_results``) are small real outputs of the benches; their commands are
 in each provenance JSON. The expected numbers below are read off those CSVs (some recomputed here from the
-rows, some as the fixture holds them).
+rows, some as the fixture holds them). The ``bench report --readme`` of all of them is the dashboard tests' run
+(tests/bench/report_fixtures.py).
 """
 
 from __future__ import annotations
 
 import json
 import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -19,14 +18,8 @@ from bench.report_md import BEGIN, END, results_markdown, update_readme
 from bench.report_md import blocks as readme_blocks
 from gicore.error_policy import UserError
 from gicore.results import read_rows
-from tests.bench.test_report import spoil_value
-
-FIXTURES = Path(__file__).parent / "fixtures" / "report_results"
-BIN = Path(sys.executable).parent
-README = (
-    "# Project\n\nIntro.\n\n## Results\n\nWhat the numbers mean: hand-written, kept.\n\n"
-    "{begin}\nold hand-written tables\n{end}\n\n## After\n\nKept too.\n"
-)
+from tests.bench.command import bench_main
+from tests.bench.report_fixtures import FIXTURES, report_of_everything, spoil_value
 
 
 def sections(markdown: str) -> dict[str, str]:
@@ -41,29 +34,16 @@ def expected_command(provenance: Path) -> str:
     return " ".join([Path(argv[0]).name, *argv[1:]])
 
 
-def report(results: Path, out: Path, *extra: str) -> subprocess.CompletedProcess:
-    argv = [str(BIN / "bench"), "report", "--results", str(results), "--out", str(out), *extra]
-    return subprocess.run(argv, capture_output=True, text=True, timeout=120, cwd=results.parent)
-
-
 @pytest.fixture(scope="module")
-def generated(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, Path, list[bytes]]:
-    """The fixtures copied to ``<tmp>/results``; ``bench report ... --readme README.md`` run twice (from
-    ``<tmp>``): the folder, the README, the first run's results.md, and the README's bytes after each run."""
-    root = tmp_path_factory.mktemp("md")
-    shutil.copytree(FIXTURES, root / "results")
-    readme = root / "README.md"
-    readme.write_text(README.format(begin=BEGIN, end=END))
-    after = []
-    for run in ("one", "two"):
-        proc = report(root / "results", root / run, "--readme", str(readme))
-        assert proc.returncode == 0, proc.stderr[-2000:]
-        after.append(readme.read_bytes())
-    return root, readme, root / "one" / "results.md", after
+def generated(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, Path]:
+    """``bench report --results results --out one --readme README.md`` run from a folder holding the fixtures as
+    ``results`` (read-only): the folder, the README after the run, the run's results.md."""
+    root = report_of_everything(tmp_path_factory)
+    return root, root / "README.md", root / "one" / "results.md"
 
 
 def test_every_block_has_its_numbers_and_the_command_that_made_them(generated) -> None:
-    root, _, results_md, _ = generated
+    root, _, results_md = generated
     text = results_md.read_text()
     blocks = sections(text)
     assert list(blocks) == [block.title for _, block in readme_blocks()]
@@ -147,18 +127,25 @@ def test_every_block_has_its_numbers_and_the_command_that_made_them(generated) -
     )
 
 
-def test_the_readme_between_its_markers_is_replaced_the_rest_kept_and_a_second_run_changes_nothing(generated) -> None:
-    root, readme, results_md, after = generated
-    assert after[0] == after[1]  # the second run of bench report --readme left the file as the first made it
-    text = after[0].decode()
+def test_the_readme_between_its_markers_is_replaced_the_rest_kept_and_a_second_run_changes_nothing(
+    generated, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    root, readme, results_md = generated
+    text = readme.read_text()
     assert text.startswith(
         "# Project\n\nIntro.\n\n## Results\n\nWhat the numbers mean: hand-written, kept.\n\n" + BEGIN + "\n\n"
     )
     assert text.endswith("\n\n" + END + "\n\n## After\n\nKept too.\n") and "old hand-written tables" not in text
     assert text.count(BEGIN) == 1 and text.count(END) == 1
     assert results_md.read_text().strip() in text
-    assert (root / "two" / "results.md").read_bytes() == results_md.read_bytes()
-    assert update_readme(readme, results_md.read_text()) is False and readme.read_bytes() == after[0]
+    # a second run's part in the README (bench.report's measure), from the same folder on a copy of it: the same
+    # results.md, and the README left as the first run made it
+    again = tmp_path / "README.md"
+    shutil.copy(readme, again)
+    monkeypatch.chdir(root)
+    second = results_markdown(root / "results", page=again)
+    assert second.encode() == results_md.read_bytes()
+    assert update_readme(again, second) is False and again.read_bytes() == readme.read_bytes()
     assert json.loads((root / "one" / "report.provenance.json").read_text())["files"][-1] == str(readme)
 
 
@@ -184,14 +171,18 @@ def test_a_malformed_csv_makes_only_its_block_say_so_and_a_missing_one_is_named(
             assert body.splitlines()[-1].startswith("Command: `") and "|" in body, title
 
 
-def test_a_readme_without_the_markers_is_refused_in_one_line_before_anything_is_built(tmp_path: Path) -> None:
+def test_a_readme_without_the_markers_is_refused_in_one_line_before_anything_is_built(
+    tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
     results = tmp_path / "results"
     shutil.copytree(FIXTURES / "warp", results / "warp")
     readme = tmp_path / "README.md"
     readme.write_text("# Project\n\nno markers here\n")
-    proc = report(results, tmp_path / "out", "--readme", str(readme))
-    errors = [line for line in proc.stderr.splitlines() if line.startswith("error:")]
-    assert proc.returncode == 2 and len(errors) == 1 and "Traceback" not in proc.stderr, proc.stderr
+    args = ("--results", str(results), "--out", str(tmp_path / "out"), "--readme", str(readme))
+    assert bench_main("report", *args, cwd=tmp_path) == 2
+    err = capsys.readouterr().err
+    errors = [line for line in err.splitlines() if line.startswith("error:")]
+    assert len(errors) == 1 and "Traceback" not in err, err
     assert f"has 0 '{BEGIN}' and 0 '{END}' lines" in errors[0] and "then run again" in errors[0]
     assert readme.read_text() == "# Project\n\nno markers here\n" and not (tmp_path / "out" / "report.html").exists()
     for text in (f"{BEGIN}\nonly the first\n", f"{END}\n{BEGIN}\n", f"{BEGIN}\n{END}\n{BEGIN}\n{END}\n"):
