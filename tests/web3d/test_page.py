@@ -4,8 +4,10 @@ and both canvases, frames keep coming while GIGAN's map is computed and a cloud 
 the page's camera matrices are gicore.camera's, recordings are path files the clients read, and the light slider
 moves the light and the GI.
 
-One page serves the whole module; each test first waits until no map is in flight. Skips, saying why, without
-Chromium, Playwright or web3d/static/node_modules.
+GIGAN's network is a stand-in that passes the DI through, at 64 px: what is checked here is the page, not the
+network (the shipped model runs in the browser in test_viewer.py, against GIModel.predict). One page serves the
+whole module; each test first waits until no map is in flight. Skips, saying why, without Chromium, Playwright or
+web3d/static/node_modules.
 """
 
 from __future__ import annotations
@@ -24,8 +26,11 @@ from gicore.path_file import read_path_file
 from gicore.paths import navigation, outside_navigation
 from gicore.scene import SceneSpec, load_scene
 from tests.helpers.browser import canvases, missing, viewer_page, wait
+from tests.helpers.cloud import passthrough_model
 
 SCENE = "lung_plane"
+#: The page's maps and canvases, in pixels: small, as each frame draws both panes in software.
+RESOLUTION = 64
 #: Path frames a replay plays (small: each frame draws both panes in software).
 REPLAYED = 6
 #: A canvas has changed when its mean |difference| is above this (0-255): the DI alone moves it by far more.
@@ -46,8 +51,10 @@ def page(tmp_path_factory: pytest.TempPathFactory) -> Any:
     from web3d.cli import WebConfig, cloud_for, prepare
     from web3d.serve import WebServer
 
-    assets = tmp_path_factory.mktemp("page") / "assets"
-    cfg = WebConfig(scene=SCENE, profiles=("lan",), listen="127.0.0.1:0", assets=assets, spp=1, every=1)
+    work = tmp_path_factory.mktemp("page")
+    model = passthrough_model(work / "model", RESOLUTION)
+    cfg = WebConfig(scene=SCENE, profiles=("lan",), listen="127.0.0.1:0", assets=work / "assets", spp=1, every=1,
+                    model=model)  # fmt: skip
     cloud = cloud_for(cfg, report=lambda line: None)
     site = prepare(cfg, cloud)
     with cloud, WebServer(site) as web, viewer_page(web.url) as page:
