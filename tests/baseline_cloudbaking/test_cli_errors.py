@@ -1,18 +1,20 @@
 """User errors of `cloudbaking-server` and `cloudbaking-prebake`: exit 2, one `error:` line naming the
-culprit, no traceback (docs/architecture.md, Errors)."""
+culprit, no traceback (docs/architecture.md, Errors). The commands run in-process under the same error policy
+(tests.helpers.cli.run_main); test_server_hardening runs each as its own process."""
 
 from __future__ import annotations
 
 import json
-import os
 import socket
-import subprocess
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
 
-from tests.helpers.cli import assert_error_line, run_command
-from tests.helpers.cloud import BIN, write_scenes
+from tests.helpers.cli import Outcome, assert_error_line, run_main
+from tests.helpers.cloud import write_scenes
+
+Command = Callable[..., Outcome]
 
 
 @pytest.fixture(scope="module")
@@ -20,25 +22,27 @@ def scenes_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return write_scenes(tmp_path_factory.mktemp("cli_scenes"))
 
 
-def prebake(*args: str) -> subprocess.CompletedProcess:
-    return run_command([str(BIN / "cloudbaking-prebake"), *args])
+@pytest.fixture
+def prebake(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capfd: pytest.CaptureFixture[str]) -> Command:
+    return lambda *args: run_main(["cloudbaking-prebake", *args], tmp_path, monkeypatch, capfd)
 
 
-def server(*args: str) -> subprocess.CompletedProcess:
-    return run_command([str(BIN / "cloudbaking-server"), *args])
+@pytest.fixture
+def server(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capfd: pytest.CaptureFixture[str]) -> Command:
+    return lambda *args: run_main(["cloudbaking-server", *args], tmp_path, monkeypatch, capfd)
 
 
-def test_prebake_unknown_scene(tmp_path: Path) -> None:
+def test_prebake_unknown_scene(prebake: Command, tmp_path: Path) -> None:
     assert_error_line(prebake("no_such_scene", "--store", str(tmp_path / "s")), "no_such_scene")
 
 
-def test_prebake_invalid_spec_file(tmp_path: Path) -> None:
+def test_prebake_invalid_spec_file(prebake: Command, tmp_path: Path) -> None:
     bad = tmp_path / "broken.json"
     bad.write_text(json.dumps({"name": "broken", "objects": [], "light": {"position": [0, 1, 0], "intensity": -1}}))
     assert_error_line(prebake(str(bad), "--store", str(tmp_path / "s")), "broken.json", "objects")
 
 
-def test_prebake_bad_options(tmp_path: Path) -> None:
+def test_prebake_bad_options(prebake: Command, tmp_path: Path) -> None:
     store = str(tmp_path / "s")
     assert_error_line(prebake("lung_plane", "--store", store, "--codec", "gif"), "--codec", "gif")
     assert_error_line(prebake("lung_plane", "--store", store, "--frames", "0"), "--frames")
@@ -65,14 +69,16 @@ def test_prebake_bad_options(tmp_path: Path) -> None:
         ("--workers", "100000", "--workers"),
     ],
 )
-def test_prebake_refuses_non_finite_and_huge_values(tmp_path: Path, option: str, value: str, culprit: str) -> None:
+def test_prebake_refuses_non_finite_and_huge_values(
+    prebake: Command, tmp_path: Path, option: str, value: str, culprit: str
+) -> None:
     """Every float is finite and every count bounded: one error line before anything is read or written."""
     store = tmp_path / "s"
     assert_error_line(prebake("lung_plane", "--store", str(store), option, value), culprit)
     assert not store.exists()
 
 
-def test_prebake_refuses_a_store_baked_from_another_spec(scenes_dir: Path, tmp_path: Path) -> None:
+def test_prebake_refuses_a_store_baked_from_another_spec(prebake: Command, scenes_dir: Path, tmp_path: Path) -> None:
     store = tmp_path / "s"
     spec = tmp_path / "ball.json"
     data = json.loads((scenes_dir / "ball_static.json").read_text())
@@ -88,7 +94,7 @@ def test_prebake_refuses_a_store_baked_from_another_spec(scenes_dir: Path, tmp_p
     )
 
 
-def test_server_bad_store_scenes_and_port(scenes_dir: Path, tmp_path: Path) -> None:
+def test_server_bad_store_scenes_and_port(server: Command, tmp_path: Path) -> None:
     afile = tmp_path / "afile"
     afile.write_text("x")
     assert_error_line(server("--store", str(afile), "--port", "0"), "--store", str(afile))
@@ -115,25 +121,19 @@ def test_server_bad_store_scenes_and_port(scenes_dir: Path, tmp_path: Path) -> N
         ("--log-level", "loud", "--log-level"),
     ],
 )
-def test_server_refuses_non_finite_and_huge_values(tmp_path: Path, option: str, value: str, culprit: str) -> None:
+def test_server_refuses_non_finite_and_huge_values(
+    server: Command, tmp_path: Path, option: str, value: str, culprit: str
+) -> None:
     store = tmp_path / "s"
     assert_error_line(server("--store", str(store), "--port", "0", option, value), culprit)
     assert not store.exists()
 
 
-def test_server_refuses_a_bad_environment_setting(tmp_path: Path) -> None:
+@pytest.mark.parametrize(("name", "value"), [("TOLERANCE_POSITION", "inf"), ("RESOLUTIONS", "[4]")])
+def test_server_refuses_a_bad_environment_setting(
+    server: Command, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, name: str, value: str
+) -> None:
     """A CLOUDBAKING_* setting the settings refuse (a non-finite tolerance, a resolution outside the one limit)
     is one line naming the variable."""
-    store = str(tmp_path / "s")
-    for env, culprit in (
-        ({"CLOUDBAKING_TOLERANCE_POSITION": "inf"}, "CLOUDBAKING_TOLERANCE_POSITION"),
-        ({"CLOUDBAKING_RESOLUTIONS": "[4]"}, "CLOUDBAKING_RESOLUTIONS"),
-    ):
-        result = subprocess.run(
-            [str(BIN / "cloudbaking-server"), "--store", store, "--port", "0"],
-            capture_output=True,
-            text=True,
-            timeout=90,
-            env=os.environ | env,
-        )
-        assert_error_line(result, culprit)
+    monkeypatch.setenv(f"CLOUDBAKING_{name}", value)
+    assert_error_line(server("--store", str(tmp_path / "s"), "--port", "0"), f"CLOUDBAKING_{name}")

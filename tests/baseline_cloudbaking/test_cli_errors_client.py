@@ -1,17 +1,22 @@
 """User errors of `cloudbaking-client`: exit 2, one `error:` line naming the culprit, no traceback (Errors).
-The server is checked at start, so an unreachable server or a dead link is one line, not a hang."""
+The server is checked at start, so an unreachable server or a dead link is one line, not a hang. The client
+runs in-process under the same error policy (tests.helpers.cli.run_main), except an unreachable server's
+case, which runs the installed console script as its own process."""
 
 from __future__ import annotations
 
 import json
 import socket
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
 
 from network_sim.process import network_sim
-from tests.helpers.cli import assert_error_line, run_command
-from tests.helpers.cloud import BIN, server_process, write_scenes
+from tests.helpers.cli import BIN, Outcome, assert_error_line, run_command, run_main
+from tests.helpers.cloud import server_process, write_scenes
+
+Client = Callable[..., Outcome]
 
 
 @pytest.fixture(scope="module")
@@ -25,9 +30,15 @@ def server(tmp_path_factory: pytest.TempPathFactory, scenes_dir: Path):
         yield url
 
 
-def client(server: str, out: Path, *args: str, scene: str | None = None):
-    argv = [str(BIN / "cloudbaking-client"), "--server", server, "--out", str(out), "--resolution", "64", "--spp", "4"]
-    return run_command([*argv, *args] + (["--scene", scene] if scene else []))
+def client_argv(server: str, out: Path, *args: str, scene: str | None = None) -> list[str]:
+    argv = ["cloudbaking-client", "--server", server, "--out", str(out), "--resolution", "64", "--spp", "4"]
+    return [*argv, *args] + (["--scene", scene] if scene else [])
+
+
+@pytest.fixture
+def client(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capfd: pytest.CaptureFixture[str]) -> Client:
+    """``cloudbaking-client`` in-process: (server, out, *options, scene=...)."""
+    return lambda *args, **scene: run_main(client_argv(*args, **scene), tmp_path, monkeypatch, capfd)
 
 
 def closed_port() -> int:
@@ -36,16 +47,16 @@ def closed_port() -> int:
         return sock.getsockname()[1]
 
 
-def test_unreachable_or_malformed_server_url(scenes_dir: Path, tmp_path: Path) -> None:
+def test_unreachable_or_malformed_server_url(client: Client, scenes_dir: Path, tmp_path: Path) -> None:
     scene = str(scenes_dir / "ball_moving.json")
-    assert_error_line(
-        client(f"http://127.0.0.1:{closed_port()}", tmp_path / "o", scene=scene), "--server", "cannot connect"
-    )
+    argv = client_argv(f"http://127.0.0.1:{closed_port()}", tmp_path / "o", scene=scene)
+    unreachable = run_command([str(BIN / argv[0]), *argv[1:]])  # the installed console script, as a process
+    assert_error_line(unreachable, "--server", "cannot connect")
     assert_error_line(client("ftp://127.0.0.1:21", tmp_path / "o", scene=scene), "--server", "ftp://")
     assert not (tmp_path / "o").exists()
 
 
-def test_a_dead_link_is_one_line_at_start(server: str, scenes_dir: Path, tmp_path: Path) -> None:
+def test_a_dead_link_is_one_line_at_start(client: Client, server: str, scenes_dir: Path, tmp_path: Path) -> None:
     with network_sim("proxy", "--upstream", server.removeprefix("http://"), "--rate-mbit", "0") as proxy:
         url = "http://{}:{}".format(*proxy.addr)
         args = ("--connect-timeout", "1", "--read-timeout", "1")
@@ -54,7 +65,7 @@ def test_a_dead_link_is_one_line_at_start(server: str, scenes_dir: Path, tmp_pat
         )
 
 
-def test_what_the_server_does_not_serve(server: str, scenes_dir: Path, tmp_path: Path) -> None:
+def test_what_the_server_does_not_serve(client: Client, server: str, scenes_dir: Path, tmp_path: Path) -> None:
     unknown = tmp_path / "not_on_server.json"
     unknown.write_text(
         json.dumps(json.loads((scenes_dir / "ball_static.json").read_text()) | {"name": "not_on_server"})
@@ -67,7 +78,7 @@ def test_what_the_server_does_not_serve(server: str, scenes_dir: Path, tmp_path:
     assert not (tmp_path / "o").exists()
 
 
-def test_bad_options(server: str, scenes_dir: Path, tmp_path: Path) -> None:
+def test_bad_options(client: Client, server: str, scenes_dir: Path, tmp_path: Path) -> None:
     scene = str(scenes_dir / "ball_moving.json")
     afile = tmp_path / "afile"
     afile.write_text("x")
@@ -93,7 +104,7 @@ def test_bad_options(server: str, scenes_dir: Path, tmp_path: Path) -> None:
         ("--seed", "-1", "--seed = -1 is below 0"),
     ],
 )
-def test_non_finite_and_huge_values(tmp_path: Path, option: str, value: str, culprit: str) -> None:
+def test_non_finite_and_huge_values(client: Client, tmp_path: Path, option: str, value: str, culprit: str) -> None:
     """Checked before the server is asked (so no server is needed): one error line naming the option."""
     result = client(f"http://127.0.0.1:{closed_port()}", tmp_path / "o", option, value)
     assert_error_line(result, culprit)

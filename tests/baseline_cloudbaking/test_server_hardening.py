@@ -5,7 +5,6 @@ to the scene's range, a bounded GI tree by default, and no absolute path in any 
 from __future__ import annotations
 
 import json
-import os
 import socket
 import subprocess
 import time
@@ -19,8 +18,8 @@ from baseline_cloudbaking.server.app import create_app
 from baseline_cloudbaking.server.errors import redact
 from baseline_cloudbaking.server.settings import Settings
 from baseline_cloudbaking.store import DEFAULT_BUDGET_BYTES, GITree
-from tests.helpers.cli import assert_error_line, check_user_error, run_script
-from tests.helpers.cloud import BIN, gimap_body, server_process, write_scenes
+from tests.helpers.cli import Outcome, assert_error_line, check_user_error, run_main, run_script
+from tests.helpers.cloud import gimap_body, server_process, write_scenes
 
 TIMEOUT_S = 60.0
 
@@ -79,18 +78,28 @@ def test_only_the_bytes_of_one_request_head_count_against_the_head_limit(tmp_pat
         assert httpx.get(f"{url}/v1/stats", timeout=TIMEOUT_S).json()["heads_too_large"] == 2
 
 
-def server_run(tmp_path: Path, env: dict[str, str], *args: str) -> subprocess.CompletedProcess:
-    argv = [str(BIN / "cloudbaking-server"), "--store", str(tmp_path / "s"), "--port", "0", *args]
-    return subprocess.run(argv, capture_output=True, text=True, timeout=TIMEOUT_S, env=os.environ | env)
+@pytest.fixture
+def server_run(tmp_path: Path, capfd: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch):
+    """``cloudbaking-server --store S --port 0 ARGS`` in-process (tests.helpers.cli.run_main) with the
+    environment variables ``env`` set for the run alone."""
+
+    def run(env: dict[str, str], *args: str) -> Outcome:
+        with monkeypatch.context() as patch:
+            for name, value in env.items():
+                patch.setenv(name, value)
+            argv = ["cloudbaking-server", "--store", str(tmp_path / "s"), "--port", "0", *args]
+            return run_main(argv, tmp_path, patch, capfd)
+
+    return run
 
 
-def test_settings_from_the_environment_are_checked_in_one_line(tmp_path: Path) -> None:
-    assert_error_line(server_run(tmp_path, {"CLOUDBAKING_RESOLUTIONS": "abc"}), "CLOUDBAKING_RESOLUTIONS", "JSON")
-    typo = server_run(tmp_path, {"CLOUDBAKING_SPPP": "4"})
+def test_settings_from_the_environment_are_checked_in_one_line(server_run, tmp_path: Path) -> None:
+    assert_error_line(server_run({"CLOUDBAKING_RESOLUTIONS": "abc"}), "CLOUDBAKING_RESOLUTIONS", "JSON")
+    typo = server_run({"CLOUDBAKING_SPPP": "4"})
     assert_error_line(typo, "CLOUDBAKING_SPPP", "CLOUDBAKING_MAX_SPP", "CLOUDBAKING_BUDGET_BYTES")
     for name, value in (("BUDGET_BYTES", "0"), ("MAX_BODY_BYTES", str(10**12)), ("SEED", "-1")):
-        assert_error_line(server_run(tmp_path, {f"CLOUDBAKING_{name}": value}), f"CLOUDBAKING_{name}")
-    assert_error_line(server_run(tmp_path, {}, "--graceful-timeout-s", "inf"), "--graceful-timeout-s")
+        assert_error_line(server_run({f"CLOUDBAKING_{name}": value}), f"CLOUDBAKING_{name}")
+    assert_error_line(server_run({}, "--graceful-timeout-s", "inf"), "--graceful-timeout-s")
     assert not (tmp_path / "s").exists()
 
 
@@ -120,18 +129,19 @@ def test_every_setting_is_an_option_that_names_its_variable_and_overrides_it(mon
     "argv", [["cloudbaking-server", "--port", "0"], ["cloudbaking-prebake", "lung_plane"]], ids=lambda a: a[0]
 )
 def test_an_empty_store_is_refused_and_writes_nothing(tmp_path: Path, argv: list[str]) -> None:
-    """``--store ""`` would be the working folder."""
+    """``--store ""`` would be the working folder. Each console script runs installed, as its own process (the
+    other command-line errors of the cloud-baking scripts run in-process)."""
     check_user_error(run_script([*argv, "--store", ""], cwd=tmp_path), "--store is empty")
 
 
-def test_a_store_whose_index_cannot_be_written_is_one_line_before_serving(tmp_path: Path) -> None:
+def test_a_store_whose_index_cannot_be_written_is_one_line_before_serving(server_run, tmp_path: Path) -> None:
     store = tmp_path / "s"
     GITree(store).close()
     index = store / "index.sqlite"
     if subprocess.run(["chattr", "+i", str(index)], capture_output=True).returncode != 0:
         pytest.skip("making the index read-only needs chattr +i: root on a file system with immutable files")
     try:
-        result = server_run(tmp_path, {})
+        result = server_run({})
     finally:
         subprocess.run(["chattr", "-i", str(index)], check=True)
     assert_error_line(result, "index.sqlite", "read-only")

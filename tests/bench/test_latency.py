@@ -1,20 +1,28 @@
-"""`bench latency` (Table 1): the whole bench end to end at 64² (server, proxy, both clients as processes),
-and its option checks (the link model's crossover: tests/network_sim/test_exchange.py)."""
+"""`bench latency` (Table 1): the whole bench end to end at 64² (server, proxy, both clients as processes: the
+one test of cloudbaking-client through a proxy against a server, and of both clients' CSVs end to end), and its
+option checks (the link model's crossover: tests/network_sim/test_exchange.py)."""
 
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
+from baseline_cloudbaking.client import STAGES
 from bench import latency
 from bench.latency import LatencyConfig
 from bench.runner import execute
+from gicore.frame_rows import read_csv_rows
 from gicore.results import read_rows
+from tests.helpers.cli import check_user_error, run_main
 from tests.helpers.cloud import passthrough_model, write_scenes
+
+#: Stages every frame that binds a cloud map reports: the local DI (with the surface mask the warp reads), the
+#: map's own stages (a miss), the pixel-level warp's, the composition.
+CLOUD_FRAME_STAGES = ("di", "request", "lookup", "render", "denoise", "encode", "server_other", "transfer", "decode")
+CLOUD_FRAME_STAGES += ("bind", "project", "splat", "fill", "compose")
+GIGAN_FRAME_STAGES = ("di", "gi_render", "inference", "bind", "project", "depth_test", "lookup", "fill", "compose")
 
 
 @pytest.mark.slow
@@ -74,10 +82,12 @@ def test_bench_latency_end_to_end(tmp_path: Path) -> None:
     # the prebaked store answered every request of its run; the cold one missed its first (later ones hit
     # only where this run had baked a map within the tolerance already)
     prebaked, cold = (
-        [r for r in _csv(out / "latency_runs" / f"cloud_rtt60_{s}_{renderer}" / "requests.csv") if r["status"] == "ok"]
+        [r for r in read_csv_rows(out / "latency_runs" / f"cloud_rtt60_{s}_{renderer}" / "requests.csv")
+         if r["status"] == "ok"]
         for s in ("prebaked", "cold")
-    )
+    )  # fmt: skip
     assert prebaked and {r["hit"] for r in prebaked} == {"1"} and cold[0]["hit"] == "0"
+    check_client_runs(out / "latency_runs", renderer, frames=cfg.frames, gt_every=cfg.gt_every)
     assert value("failed_requests", "value", profile="rtt60", store="cold") == 0
     ssim = [r for r in rows if r["metric"] == "ssim" and r["stat"] == "frame"]
     assert {(r["system"], r["config"]["store"]) for r in ssim} == {
@@ -107,19 +117,52 @@ def test_bench_latency_end_to_end(tmp_path: Path) -> None:
     }
 
 
-def _csv(path: Path) -> list[dict[str, str]]:
-    import csv
+def check_client_runs(runs: Path, renderer: str, frames: int, gt_every: int) -> None:
+    """What the client runs of the bench wrote: GIGAN's and the cloud client's frames (every stage of the frame
+    binding the run's first map, a miss for the cold store's client), the SSIM and LF error of every scored frame;
+    the cloud client's requests (the profile's 60 ms round trip in each one's request stage, the stages adding up
+    to its total) and summary; each run on the renderer it was asked for, with no fallback."""
+    for name, stages in (
+        (f"gigan_{renderer}", GIGAN_FRAME_STAGES),
+        (f"cloud_rtt60_cold_{renderer}", CLOUD_FRAME_STAGES),
+    ):
+        rows = read_csv_rows(runs / name / "frames.csv")
+        assert [r["frame"] for r in rows] == [str(f) for f in range(frames)]
+        first = rows[0]  # binds the run's first map
+        assert first["gi_new"] == "1" and all(float(first[f"{s}_ms"]) > 0 for s in stages), (name, first)
+        assert all(float(r["frame_ms"]) > 0 and float(r["valid_frac"]) > 0.5 for r in rows), name
+        scored = [f % gt_every == 0 for f in range(frames)]
+        assert [bool(r["ssim"]) for r in rows] == scored and all(0.2 < float(r["ssim"]) <= 1 for r in rows if r["ssim"])
+        assert [bool(r["lf_error"]) for r in rows] == scored
+        assert all(0 <= float(r["lf_error"]) <= 10 ** (-float(r["psnr"]) / 20) + 1e-9 for r in rows if r["lf_error"])
+        summary = json.loads((runs / name / "summary.json").read_text())
+        assert summary["renderer"] == summary["config"]["renderer"] == renderer, summary
+        assert "unavailable" not in (runs / name / "console.txt").read_text()
+    for store in ("prebaked", "cold"):
+        folder = runs / f"cloud_rtt60_{store}_{renderer}"
+        rows = read_csv_rows(folder / "frames.csv")
+        assert all(float(r["di_ms"]) > 0 and float(r["splat_ms"]) > 0 for r in rows), store
+        requests = read_csv_rows(folder / "requests.csv")
+        shown = [r for r in requests if r["total_ms"]]
+        assert shown and all(r["status"] in ("ok", "abandoned") for r in requests)
+        for r in shown:
+            assert float(r["request_ms"]) >= 59.0, r  # the profile's 2 x 30 ms round trip is in the request stage
+            parts = sum(float(r[f"{s}_ms"]) for s in STAGES if r[f"{s}_ms"]) + sum(
+                float(r[c]) for c in ("di_ms", "bind_ms", "warp_ms", "blend_ms")
+            )
+            assert float(r["total_ms"]) == pytest.approx(parts)
+        summary = json.loads((folder / "summary.json").read_text())
+        assert summary["requests"] == len(requests) and 0 < summary["mean_ssim"] <= 1
+        if store == "cold":
+            assert summary["misses"] >= 1 and shown[0]["hit"] == "0" and float(shown[0]["render_ms"]) > 0
 
-    with path.open(newline="") as fh:
-        return list(csv.DictReader(fh))
 
-
-def test_unknown_profile_is_a_user_error(tmp_path: Path) -> None:
-    proc = subprocess.run([sys.executable, "-m", "bench", "latency", "--profiles", "lan,moon", "--out", str(tmp_path)],
-                          capture_output=True, text=True, timeout=120)  # fmt: skip
-    assert proc.returncode == 2 and "Traceback" not in proc.stderr
-    [line] = [x for x in proc.stderr.splitlines() if x.startswith("error:")]
-    assert "--profiles 'moon'" in line and "wan" in line
+def test_unknown_profile_is_a_user_error(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capfd: pytest.CaptureFixture[str]
+) -> None:
+    argv = ["bench", "latency", "--profiles", "lan,moon", "--out", str(tmp_path / "out")]
+    line = check_user_error(run_main(argv, tmp_path, monkeypatch, capfd), "--profiles 'moon'")
+    assert "wan" in line  # the profiles it knows
 
 
 # -- totals and the renderers side by side, from client outputs written here -------------------------------------
