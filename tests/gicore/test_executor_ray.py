@@ -1,17 +1,16 @@
-"""The render executor on Ray: a local Ray instance (2 CPUs, started once for the module)
-renders a tiny data set and a tiny prebake identical to the local pool's, survives a worker killed
-mid-frame, cancels its tasks on Ctrl-C, and the command lines fail in one line where they should;
-`bench scaling` measures both executors and labels its projections."""
+"""The render executor on Ray: a local Ray instance (2 CPUs, started once for the module) renders a tiny data
+set and a tiny prebake identical to the local pool's, retries a task whose worker died (Ray reruns it whatever
+the job does, and a frame's bytes do not depend on the process that renders it: the pool comparison), cancels
+its tasks when the driver is interrupted, and `gicore-dataset --executor ray` as its own driver keeps whole
+frames on Ctrl-C. The command-line errors are tests/gicore/test_executor_cli.py's; `bench scaling` is
+tests/bench/test_scaling.py's."""
 
 from __future__ import annotations
 
-import math
 import os
 import shutil
 import signal
 import subprocess
-import sys
-import threading
 import time
 from collections.abc import Iterator
 from dataclasses import replace
@@ -19,27 +18,24 @@ from pathlib import Path
 
 import pytest
 
-from baseline_cloudbaking.bake import configuration_space
 from baseline_cloudbaking.prebake_cli import PrebakeConfig, prebake_scene
 from baseline_cloudbaking.protocol import unpack
-from baseline_cloudbaking.store import DEFAULT_LIGHT_CELL, GITree
-from baseline_cloudbaking.viewpoints import Tolerance
+from baseline_cloudbaking.store import GITree
 from gicore.dataset_cli import DatasetConfig, build_dataset
 from gicore.error_policy import UserError
 from gicore.executor import InProcess, LocalPool, RayExecutor, Task
 from gicore.fileio import TMP_MARKER
-from gicore.results import read_rows
-from gicore.scene import SceneSpec, builtin_scenes, load_scene
-from tests.helpers.cloud import BIN, write_scenes
+from gicore.scene import SceneSpec, load_scene
+from tests.helpers.cli import BIN, run_main
+from tests.helpers.cloud import write_scenes
 from tests.helpers.dataset import npz_arrays
+from tests.helpers.guards import HANG_GUARD_S
 
 #: 32², 2 + 1 frames at 4 spp with OIDN: every buffer and the denoiser, cheap on 2 cores.
 CFG = DatasetConfig(n_train=2, n_val=1, resolution=32, spp=4, denoise=True, seed=3)
-#: Frames slow enough (~0.4 s each on one thread) to kill or interrupt a worker in the middle of one.
+#: Frames slow enough (~0.4 s each on one thread) to interrupt a run in the middle of one.
 SLOW = replace(CFG, n_train=3, n_val=1, spp=1024)
 BAKE = PrebakeConfig(frames=10, codec="jpeg", resolution=32, spp=4, seed=3)
-#: Hang guard of every process and wait here, never a bound the tests judge (a busy 2-core machine is slow).
-TIMEOUT_S = 600
 
 
 @pytest.fixture(scope="module")
@@ -181,31 +177,6 @@ def test_prebake_on_ray_equals_the_local_pool_and_resumes(
     assert (again.baked, again.served) == (0, BAKE.frames)
 
 
-def test_a_worker_killed_mid_frame_is_retried_and_the_output_is_identical(
-    ray_address: str, spec: SceneSpec, slow_reference: Path, tmp_path: Path
-) -> None:
-    killed: list[int] = []
-    done = threading.Event()
-
-    def kill_one_busy_worker() -> None:
-        while not done.is_set() and not killed:
-            for pid in busy_ray_workers():
-                os.kill(pid, signal.SIGKILL)
-                killed.append(pid)
-                break
-            time.sleep(0.002)
-
-    killer = threading.Thread(target=kill_one_busy_worker)
-    killer.start()
-    try:
-        build_dataset(spec, tmp_path / spec.name, SLOW, RayExecutor(), progress=False)
-    finally:
-        done.set()
-        killer.join()
-    assert len(killed) == 1, "no worker was caught in the middle of a frame"
-    assert_same_dataset(slow_reference, tmp_path / spec.name)
-
-
 # --- the executor itself -----------------------------------------------------------------------------
 
 
@@ -255,124 +226,20 @@ def test_a_user_error_in_a_job_reaches_the_driver_whole(
     assert type(caught.value) is UserError and str(caught.value) == "job 7 names a missing file: give an existing one"
 
 
-# --- command lines -----------------------------------------------------------------------------------
-
-
-#: Runs a console script's main with Ray made unimportable, as on an install without the extra.
-WITHOUT_RAY = "import sys; sys.modules['ray'] = None; from {} import main; main()"
-MODULES = {
-    "gicore-dataset": "gicore.dataset_cli",
-    "cloudbaking-prebake": "baseline_cloudbaking.prebake_cli",
-    "bench": "bench.cli",
-}
-
-
-def run_cli(argv: list[str], cwd: Path, *, without_ray: bool = False) -> subprocess.CompletedProcess:
-    """Console script ``argv[0]`` with the arguments ``argv[1:]``."""
-    script = [sys.executable, "-c", WITHOUT_RAY.format(MODULES[argv[0]])] if without_ray else [str(BIN / argv[0])]
-    return subprocess.run([*script, *argv[1:]], cwd=cwd, capture_output=True, text=True, timeout=TIMEOUT_S)
-
-
-def one_error_line(proc: subprocess.CompletedProcess, culprit: str) -> None:
-    assert proc.returncode == 2, proc.stderr
-    errors = [line for line in proc.stderr.splitlines() if line.startswith("error:")]
-    assert len(errors) == 1 and culprit in errors[0], proc.stderr
-    assert "Traceback" not in proc.stderr
-
-
-DATASET = [
-    "gicore-dataset",
-    "ball_moving.json",
-    "--out",
-    "out",
-    "--train",
-    "1",
-    "--val",
-    "0",
-    "--resolution",
-    "8",
-    "--spp",
-    "1",
-    "--no-denoise",
-]
-PREBAKE = [
-    "cloudbaking-prebake",
-    "ball_moving.json",
-    "--store",
-    "store",
-    "--frames",
-    "2",
-    "--resolution",
-    "16",
-    "--spp",
-    "1",
-]
-
-
-@pytest.mark.parametrize("argv", [DATASET, PREBAKE], ids=["dataset", "prebake"])
-@pytest.mark.parametrize(
-    ("address", "culprit"),
-    [
-        ("127.0.0.1:1", "{} 127.0.0.1:1: no Ray cluster answers there (Connection refused)"),
-        ("headnode", "{} 'headnode' is neither 'auto' nor HOST:PORT"),
-        ("10.0.0.5:99999", "{} '10.0.0.5:99999' is neither 'auto' nor HOST:PORT"),
-    ],
-)
-def test_a_bad_ray_address_is_one_error_line(argv: list[str], address: str, culprit: str, scenes: Path) -> None:
-    # the culprit is the address check's, made before Ray is asked (which would reconnect for minutes)
-    one_error_line(
-        run_cli([*argv, "--executor", "ray", "--ray-address", address], scenes), culprit.format("--ray-address")
-    )
-    assert not (scenes / "out").exists() and not (scenes / "store" / "index.sqlite").exists()
-
-
-@pytest.mark.parametrize("argv", [DATASET, PREBAKE], ids=["dataset", "prebake"])
-def test_a_ray_address_without_executor_ray_is_one_error_line(argv: list[str], scenes: Path) -> None:
-    one_error_line(
-        run_cli([*argv, "--ray-address", "auto"], scenes),
-        "--ray-address needs --executor ray: add --executor ray, or leave out --ray-address",
-    )
-    assert not (scenes / "out").exists() and not (scenes / "store" / "index.sqlite").exists()
-
-
-NOT_INSTALLED = "needs Ray, which is not installed: install it with pip install '.[ray]'"
-
-
-@pytest.mark.parametrize(
-    ("argv", "culprit"),
-    [
-        ([*DATASET, "--executor", "ray"], f"--executor ray {NOT_INSTALLED}"),
-        ([*PREBAKE, "--executor", "ray"], f"--executor ray {NOT_INSTALLED}"),
-        (["bench", "scaling", "--quick", "--out", "out"], f"--executors ray {NOT_INSTALLED}"),
-    ],
-    ids=["dataset", "prebake", "bench-scaling"],
-)
-def test_ray_not_installed_names_the_extra(argv: list[str], culprit: str, scenes: Path) -> None:
-    one_error_line(run_cli(argv, scenes, without_ray=True), culprit)
-    assert not (scenes / "out").exists()
-
-
-def test_without_ray_the_local_paths_import_and_render(scenes: Path, tmp_path: Path) -> None:
-    imports = (
-        "import sys; import gicore, gicore.executor, gicore.dataset_cli, baseline_cloudbaking.prebake_cli, bench.cli; "
-        "assert 'ray' not in sys.modules"
-    )
-    assert (
-        subprocess.run([sys.executable, "-c", imports], capture_output=True, text=True, timeout=TIMEOUT_S).returncode
-        == 0
-    )
-    out = tmp_path / "out"
-    proc = run_cli([*DATASET[:3], str(out), *DATASET[4:]], scenes, without_ray=True)
-    assert proc.returncode == 0, proc.stderr
-    assert [p.name for p in out.rglob("*.npz")] == ["000000.npz"]
+# --- the command line as its own driver ------------------------------------------------------------
 
 
 @pytest.mark.slow
 def test_ctrl_c_of_a_ray_run_keeps_whole_frames_and_the_rerun_finishes_identical(
-    ray_address: str, scenes: Path, slow_reference: Path, tmp_path: Path
+    ray_address: str,
+    scenes: Path,
+    slow_reference: Path,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capfd: pytest.CaptureFixture[str],
 ) -> None:
     """gicore-dataset --executor ray --ray-address HOST:PORT as its own driver process joining the module's
-    instance."""
+    instance; the rerun joins it from this process (whose connection a command keeps)."""
     argv = [str(BIN / "gicore-dataset"), str(scenes / "ball_moving.json"), "--out", str(tmp_path)]
     argv += ["--executor", "ray", "--ray-address", ray_address]
     argv += [
@@ -394,7 +261,7 @@ def test_ctrl_c_of_a_ray_run_keeps_whole_frames_and_the_rerun_finishes_identical
     for _attempt in range(3):
         shutil.rmtree(root, ignore_errors=True)
         proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        deadline = time.monotonic() + TIMEOUT_S  # interrupt once the first frame is kept
+        deadline = time.monotonic() + HANG_GUARD_S  # interrupt once the first frame is kept
         while not list(root.rglob("*.npz")) and proc.poll() is None and time.monotonic() < deadline:
             time.sleep(0.01)
         assert list(root.rglob("*.npz")), "no frame was kept before the hang guard: " + str(proc.poll())
@@ -409,91 +276,7 @@ def test_ctrl_c_of_a_ray_run_keeps_whole_frames_and_the_rerun_finishes_identical
     reference = npz_arrays(slow_reference)
     for name, arrays in partial.items():
         assert all(arrays[k].tobytes() == reference[name][k].tobytes() for k in arrays), name
-    rerun = subprocess.run(argv, capture_output=True, text=True, timeout=TIMEOUT_S)
+    rerun = run_main(["gicore-dataset", *argv[1:]], tmp_path, monkeypatch, capfd)
     assert rerun.returncode == 0, rerun.stderr
     assert "ball_moving: 4 frames in" in rerun.stdout
     assert_same_dataset(slow_reference, root)
-
-
-# --- bench scaling ------------------------------------------------------------------------------------
-
-
-@pytest.mark.slow
-def test_bench_scaling_measures_every_executor_and_labels_the_projection(tmp_path: Path) -> None:
-    """A tiny `bench scaling` (its own Ray instance and simulated clusters, as a user runs it): every measured
-    point (local, Ray, 1 and 2 Ray nodes), the per-task overhead, and projections that follow from the measured
-    1-worker item time and say they are projections."""
-    tiny = [
-        "--resolution",
-        "16",
-        "--spp",
-        "1",
-        "--frames",
-        "2",
-        "--maps",
-        "2",
-        "--overhead-jobs",
-        "3",
-        "--project-workers",
-        "1,4",
-    ]
-    proc = subprocess.run(
-        [str(BIN / "bench"), "scaling", "--quick", *tiny, "--out", str(tmp_path)],
-        capture_output=True,
-        text=True,
-        timeout=480,
-    )
-    assert proc.returncode == 0, proc.stderr
-    rows = read_rows(tmp_path / "scaling.csv")
-
-    def only(**match: object) -> dict:
-        found = [r for r in rows if all((r[k] if k in r else r["config"].get(k)) == v for k, v in match.items())]
-        assert len(found) == 1, match
-        return found[0]
-
-    for ex in ("local", "ray", "ray-cluster"):
-        assert 0 < only(system=ex, metric="task_roundtrip", stat="median", workers=1)["value"] < 1000  # ms
-        for kind, unit in (("frame", "frames/s"), ("map", "maps/s")):
-            for workers in (1, 2):
-                row = only(system=ex, metric="throughput", workers=workers, kind=kind)
-                assert row["stat"] == "value" and row["unit"] == unit and row["value"] > 0
-            assert only(system=ex, metric="efficiency", workers=2, kind=kind)["value"] > 0
-    assert only(system="ray", metric="instance_start")["value"] > 0
-    for nodes in (1, 2):  # a cluster per point, as many 1-CPU nodes as workers
-        assert only(system="ray-cluster", metric="instance_start", nodes=nodes)["value"] > 0
-        for kind in ("frame", "map"):
-            assert 1 <= only(system="ray-cluster", metric="nodes_used", workers=nodes, kind=kind)["value"] <= nodes
-    assert "Two simulated Ray nodes (1 CPU each, sharing this machine's cores)" in (tmp_path / "scaling.md").read_text()
-    maps = {r["scene"]: r["value"] for r in rows if r["metric"] == "bake_maps"}
-    assert sorted(maps) == builtin_scenes() and all(0 < n <= 1500 for n in maps.values())
-    space = {r["scene"]: r["value"] for r in rows if r["metric"] == "space_maps"}
-    assert sorted(space) == builtin_scenes()
-    for scene, n in space.items():  # the whole space holds many more maps than one fly-through needs
-        assert n == configuration_space(load_scene(scene), Tolerance(), DEFAULT_LIGHT_CELL).size > 10 * maps[scene]
-
-    projected = [r for r in rows if r["metric"] in ("dataset_wall", "bake_wall", "space_wall")]
-    assert projected and all(
-        r["stat"] == "projection" and "linear scaling" in r["config"]["assumption"] for r in projected
-    )
-    for r in projected:
-        kind = "frame" if r["metric"] == "dataset_wall" else "map"
-        measured = only(system=r["system"], metric="item_time", workers=1, kind=kind)["value"]
-        assert r["config"]["measured_item_s"] == pytest.approx(measured)
-        per_item = measured * (r["config"]["resolution"] / 16) ** 2
-        if r["scene"] != "paper_5_scenes" or kind == "frame":  # per scene; the data set's one total
-            assert r["value"] == pytest.approx(
-                math.ceil(r["config"]["items"] / r["config"]["workers"]) * per_item / 3600
-            )
-    data = only(system="ray", metric="dataset_wall", workers=1)
-    assert data["config"]["items"] == 5 * 1600 and data["config"]["resolution"] == 512
-    assert data["value"] == pytest.approx(4 * only(system="ray", metric="dataset_wall", workers=4)["value"])
-    bake_total = only(system="local", scene="paper_5_scenes", metric="bake_wall", workers=4)["value"]
-    assert bake_total == pytest.approx(
-        sum(only(system="local", scene=s, metric="bake_wall", workers=4)["value"] for s in maps)
-    )
-    space_total = only(system="ray", scene="paper_5_scenes", metric="space_wall", workers=4)
-    assert space_total["config"]["items"] == sum(space.values()) and space_total["value"] == pytest.approx(
-        sum(only(system="ray", scene=s, metric="space_wall", workers=4)["value"] for s in space)
-    )
-    assert "PROJECTED, not measured" in (tmp_path / "scaling.md").read_text()
-    assert (tmp_path / "scaling.png").stat().st_size > 10_000
