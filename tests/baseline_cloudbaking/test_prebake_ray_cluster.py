@@ -2,7 +2,7 @@
 ``ray.cluster_utils.Cluster`` with two nodes of 1 CPU each bakes a small configuration space (6 maps at
 16², 1 spp); each task's node is recorded, both nodes work, the driver alone writes and the tree holds
 every configuration's map exactly once; the command line as its own driver, killed with -9, leaves no
-task rendering on the cluster, and its rerun completes the tree."""
+task rendering on the cluster, and its rerun (from this process, the cluster's driver) completes the tree."""
 
 from __future__ import annotations
 
@@ -25,14 +25,14 @@ from baseline_cloudbaking.viewpoints import Tolerance
 from gicore.executor import RayExecutor
 from gicore.scene import SceneSpec, load_scene
 from tests.gicore.test_executor_ray import busy_ray_workers
-from tests.helpers.cloud import BIN, write_scenes
+from tests.helpers.cli import BIN, run_main
+from tests.helpers.cloud import write_scenes
 from tests.helpers.guards import HANG_GUARD_S
 
 #: A tolerance of 1 scene unit / 30° and a 10-unit light cell: ball_moving's space is 3 views x 2 light states.
 TOLERANCE = Tolerance(1.0, 30.0)
 BAKE = PrebakeConfig(resolution=16, spp=1, tolerance=TOLERANCE, light_cell=10.0, space="all", seed=5)
 MAPS = 6
-TIMEOUT_S = 120
 
 
 @pytest.fixture(scope="module")
@@ -137,13 +137,18 @@ def prebake_argv(scenes: Path, store: Path, address: str) -> list[str]:
 
 @pytest.mark.slow
 def test_kill_9_of_the_driver_stops_its_tasks_and_the_rerun_completes(
-    cluster_address: str, scenes: Path, tmp_path: Path
+    cluster_address: str,
+    scenes: Path,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capfd: pytest.CaptureFixture[str],
 ) -> None:
     """The command line as its own driver on the cluster: killed with -9 while both nodes render, Ray fails
-    the dead owner's tasks (nothing keeps rendering) and the cluster lives on; the rerun bakes the rest."""
+    the dead owner's tasks (nothing keeps rendering) and the cluster lives on; the rerun bakes the rest (the
+    command's ``main`` in this process, which keeps its connection to the cluster and its warm workers)."""
     argv = prebake_argv(scenes, tmp_path, cluster_address)
     proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
-    deadline = time.monotonic() + TIMEOUT_S
+    deadline = time.monotonic() + HANG_GUARD_S
     while len(busy_ray_workers()) < 2 and proc.poll() is None and time.monotonic() < deadline:
         time.sleep(0.05)
     assert len(busy_ray_workers()) == 2, "both nodes should be rendering"
@@ -158,7 +163,7 @@ def test_kill_9_of_the_driver_stops_its_tasks_and_the_rerun_completes(
     assert partial < MAPS
 
     started = time.monotonic()
-    rerun = subprocess.run(argv, capture_output=True, text=True, timeout=TIMEOUT_S)
+    rerun = run_main(["cloudbaking-prebake", *argv[1:]], tmp_path, monkeypatch, capfd)
     print(f"rerun: {MAPS - partial} maps in {time.monotonic() - started:.1f} s")
     assert rerun.returncode == 0, rerun.stderr
     assert f"{MAPS}/{MAPS} configurations of the space stored; {MAPS - partial} maps baked now" in rerun.stdout
