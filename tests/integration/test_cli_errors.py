@@ -89,6 +89,7 @@ def workspace(tmp_path_factory: pytest.TempPathFactory, sphere_mesh_path: Path) 
     frame = ws / "ds_truncated" / "train" / "000001.npz"
     frame.write_bytes(frame.read_bytes()[:300])
 
+    # A one-step run of the smallest network: each case copies the workspace, so its checkpoint stays small.
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
     try:
@@ -493,11 +494,13 @@ def test_interrupted_dataset_keeps_whole_frames_and_resumes(
 
 @pytest.mark.slow
 def test_interrupted_training_resumes_from_its_checkpoint(
-    workspace: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capfd: pytest.CaptureFixture[str]
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capfd: pytest.CaptureFixture[str]
 ):
     import csv
 
-    shutil.copytree(workspace, tmp_path, dirs_exist_ok=True)
+    from tests.helpers.training import make_dataset
+
+    make_dataset(tmp_path / "ds", n_train=2, n_val=1)
     argv = [*TRAIN[:3], "run_int", "--ngf", "4", "--batch-size", "1", "--checkpoint-every", "1", "--no-progress"]
     checkpoint = tmp_path / "run_int" / "checkpoint.pt"
     status, err = signal_when(argv, tmp_path, lambda _: checkpoint.is_file(), signal.SIGINT)
@@ -507,7 +510,7 @@ def test_interrupted_training_resumes_from_its_checkpoint(
     resume = ["gigan-train", "--out", "run_int", "--resume", "--epochs", "2", "--no-progress"]
     resumed = run_main(resume, tmp_path, monkeypatch, capfd)
     assert resumed.returncode == 0, resumed.stderr
-    assert "stopped (epochs) at step 4, epoch 2" in resumed.stdout
+    assert "stopped (epochs) at step 4, epoch 2" in resumed.stdout  # batch 1: a step per frame and epoch
     with (tmp_path / "run_int" / "metrics.csv").open() as f:
         val_steps = [int(r["step"]) for r in csv.DictReader(f) if r["split"] == "val" and r["metric"] == "ssim"]
     assert val_steps == sorted(set(val_steps)), f"validation rows repeated after the resume: {val_steps}"
