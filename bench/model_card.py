@@ -7,7 +7,7 @@ compares the model's per-scene SSIM with DI alone.
 
 On a fresh checkout (``--quick`` without ``--run``) the whole chain runs here, small: a GIGAN trained for
 ``--train-steps`` on the small dataset of ``--scenes`` (``bench training``'s runs), exported into
-``<out>/export/<run>``, scored by ``bench quality`` into ``<out>/quality``.
+``<out>/export/<run>``, scored by ``bench quality`` on the same datasets into ``<out>/quality``.
 """
 
 from __future__ import annotations
@@ -110,7 +110,9 @@ def measure(cfg: ModelCardConfig, res: Results, quality: Bench) -> None:
         export_onnx(run, export)
     if quality_csv is None:  # only in the small chain (check()): score on the small datasets it trained on
         model = export / json.loads((export / "model.json").read_text())["files"]["fp32"]
-        scoring = dataclasses.replace(quality.config.quick(), scenes=cfg.scenes, models={cfg.system: model})
+        scoring = dataclasses.replace(
+            quality.config.quick(), scenes=cfg.scenes, models={cfg.system: model}, datasets=res.out / "dataset"
+        )
         scored = execute(quality, scoring, res.out / "quality", res.seed)
         res.files += scored
         quality_csv = scored[0]

@@ -45,3 +45,4 @@ def test_quick_runs_work_on_a_fresh_checkout(tmp_path: Path, capsys: pytest.Capt
         "file_size",
     }
     assert (out / "model_card.png").is_file() and (out / "quality" / "quality.csv").is_file()
+    assert not (out / "quality" / "dataset").exists()  # scored on the datasets it trained on, not rendered twice
