@@ -28,7 +28,7 @@ GIGAN_FRAME_STAGES = ("di", "gi_render", "inference", "bind", "project", "depth_
 @pytest.mark.slow
 def test_bench_latency_end_to_end(tmp_path: Path) -> None:
     scene = write_scenes(tmp_path / "scenes") / "ball_moving.json"
-    cfg = LatencyConfig(scenes=(str(scene),), profiles=("rtt60",), resolution=64, frames=12, every=2, spp=4, gt_every=4,
+    cfg = LatencyConfig(scenes=(str(scene),), profiles=("rtt60",), resolution=64, frames=8, every=2, spp=4, gt_every=4,
                         model=passthrough_model(tmp_path / "model"), sweep_max_rtt_ms=200.0,
                         renderers=("gl",))  # fmt: skip  # one renderer: the two side by side are tested below
     out = tmp_path / "out"
@@ -79,6 +79,9 @@ def test_bench_latency_end_to_end(tmp_path: Path) -> None:
         )
         assert value("crossover_rtt", "model", system="cloud_baking/gigan", cache=cache) >= 0
     assert value("total", profile="rtt60", cache="miss") > value("total", profile="rtt60", cache="hit")
+    # the prefetching twin on the prebaked store: how long its views waited for a map, not Table 1's stages
+    twin = {r["metric"] for r in rows if r["system"] == "cloud_baking_prefetch"}
+    assert twin == {"perceived", "in_tolerance", "requests", "ssim"}, twin
     # the prebaked store answered every request of its run; the cold one missed its first (later ones hit
     # only where this run had baked a map within the tolerance already)
     prebaked, cold = (
@@ -95,9 +98,9 @@ def test_bench_latency_end_to_end(tmp_path: Path) -> None:
         ("cloud_baking", "prebaked"),
         ("cloud_baking", "cold"),
     }
-    assert {r["config"]["frame"] for r in ssim} == {0, 4, 8} and all(0 < r["value"] <= 1 for r in ssim)
+    assert {r["config"]["frame"] for r in ssim} == {0, 4} and all(0 < r["value"] <= 1 for r in ssim)
     # each scored frame's GT was path-traced once and shared by every client run of the bench
-    assert len(list((out / "latency_runs" / "gt_cache").glob("*.npz"))) == 3
+    assert len(list((out / "latency_runs" / "gt_cache").glob("*.npz"))) == 2
 
     provenance = json.loads((out / "latency.provenance.json").read_text())
     assert provenance["settings"]["pinning"]["method"] in ("taskset -c", "none")

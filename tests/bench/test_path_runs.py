@@ -23,6 +23,7 @@ from gicore.path_file import Waypoint, read_path_file, write_path_file
 from gicore.paths import light_position
 from gicore.results import Results, read_rows
 from gicore.scene import SceneSpec, load_scene
+from tests.helpers.cli import check_user_error, run_main
 from tests.helpers.cloud import write_scenes
 from tests.helpers.guards import HANG_GUARD_S
 from tests.helpers.latency_runs import stand_in
@@ -48,23 +49,24 @@ def _session(spec: SceneSpec, file: Path, start_deg: float = 0.0, frames: int = 
     return write_path_file(file, spec.name, points, "recorded in gigan-web")
 
 
-def test_gigan_client_flies_a_path_file_and_writes_it_back(scene: Path, tmp_path: Path) -> None:
+def test_gigan_client_flies_a_path_file_and_writes_it_back(
+    scene: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capfd: pytest.CaptureFixture[str]
+) -> None:
     spec = load_scene(scene)
     session = _session(spec, tmp_path / "session.json")
-    base = [str(BIN / "gigan-client"), "--scene", str(scene), "--path", str(session), "--resolution", "16",
+    base = ["gigan-client", "--scene", str(scene), "--path", str(session), "--resolution", "16",
             "-k", "2", "--gi-source", "gt", "--spp", "1", "--no-denoise", "--renderer", "mitsuba"]  # fmt: skip
-    run = subprocess.run([*base, "--out", str(tmp_path / "run")], capture_output=True, text=True, timeout=HANG_GUARD_S)
+    run = subprocess.run([str(BIN / base[0]), *base[1:], "--out", str(tmp_path / "run")], capture_output=True,
+                         text=True, timeout=HANG_GUARD_S)  # fmt: skip
     assert run.returncode == 0, run.stderr
     assert run.stdout.startswith("3 frames,"), run.stdout
     with (tmp_path / "run" / "frames.csv").open() as fh:
         assert [row["frame"] for row in csv.DictReader(fh)] == ["0", "1", "2"]
     flown = read_path_file(tmp_path / "run" / "path.json", spec)
     assert flown == read_path_file(session, spec)  # replaying the run's path.json flies the same session
-    clash = subprocess.run([*base, "--frames", "5", "--out", str(tmp_path / "clash")], capture_output=True, text=True,
-                           timeout=HANG_GUARD_S)  # fmt: skip
-    errors = [line for line in clash.stderr.splitlines() if line.startswith("error:")]
-    assert clash.returncode == 2 and errors == ["error: --path and --frames conflict: --path sets what --frames would: "
-                                                "drop --frames"], clash.stderr  # fmt: skip
+    clash = run_main([*base, "--frames", "5", "--out", str(tmp_path / "clash")], tmp_path, monkeypatch, capfd)
+    line = check_user_error(clash, "--path and --frames conflict")  # in-process: the same policy, no new interpreter
+    assert line == "error: --path and --frames conflict: --path sets what --frames would: drop --frames"
     assert not (tmp_path / "clash").exists()
 
 
