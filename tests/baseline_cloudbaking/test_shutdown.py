@@ -69,8 +69,9 @@ def post(url: str, body: dict) -> httpx.Response:
     return httpx.post(f"{url}/v1/gimap", json=body, timeout=HANG_S)
 
 
-#: A miss that renders for seconds on CPU (a renderer compiled, then 512² at 256 spp), and one queued behind it.
-RENDERING = gimap_body(eye=(1.6, 1.1, 1.2), resolution=512, spp=256)
+#: A miss that renders for a second or more on CPU (a renderer compiled, then 512² at 64 spp: far longer than the
+#: two requests the test sends before its SIGTERM), and one queued behind it.
+RENDERING = gimap_body(eye=(1.6, 1.1, 1.2), resolution=512, spp=64)
 WAITING = gimap_body(eye=(-1.6, 1.1, 1.2), resolution=256, spp=256)
 
 
