@@ -12,6 +12,7 @@ import io
 import threading
 from functools import partial
 from http.server import SimpleHTTPRequestHandler, ThreadingHTTPServer
+from pathlib import Path
 
 import numpy as np
 import onnx
@@ -41,12 +42,31 @@ window.ready = true;
 
 @pytest.fixture(scope="module")
 def site(tmp_path_factory: pytest.TempPathFactory):
-    """A folder served on loopback: the page, onnxruntime-web's files and the rewritten model; and the
-    model's input and onnxruntime's output on it."""
+    """A folder served on loopback (the page, onnxruntime-web's files and the rewritten model) open in headless
+    Chromium; and the model's input and onnxruntime's output on it."""
     why = missing()
     if why:
         pytest.skip(f"onnxruntime-web cannot run here: {why}")
     root = tmp_path_factory.mktemp("subpixel_web")
+    x, expected = write_model(root)
+    (root / "index.html").write_text(PAGE)
+    (root / "ort").symlink_to(WEB_DIR / "node_modules" / "onnxruntime-web" / "dist")
+    handler = partial(SimpleHTTPRequestHandler, directory=str(root))
+    server = ThreadingHTTPServer(("127.0.0.1", 0), handler)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    try:
+        with chromium(SWIFTSHADER_WEBGPU) as browser:  # one browser and page for both back ends
+            page = browser.new_page()
+            page.goto(f"http://127.0.0.1:{server.server_port}/index.html")
+            page.wait_for_function("window.ready === true")
+            yield page, x, expected
+    finally:
+        server.shutdown()
+        server.server_close()
+
+
+def write_model(root: Path) -> tuple[np.ndarray, np.ndarray]:
+    """The rewritten decoder as ``root/model.onnx``; an input and onnxruntime's output on it."""
     torch.manual_seed(0)
     layers: list[torch.nn.Module] = []
     for i in range(LAYERS):  # a decoder from a 2x2 input: up layers on inputs of 2, 4, ..., 32 px
@@ -58,31 +78,16 @@ def site(tmp_path_factory: pytest.TempPathFactory):
     model, rewritten = subpixel_upsampling(onnx.load_from_string(buffer.getvalue()))
     assert rewritten == sum(2 * 2**i >= sp.MIN_SIDE for i in range(LAYERS))
     (root / "model.onnx").write_bytes(model.SerializeToString())
-    (root / "index.html").write_text(PAGE)
-    (root / "ort").symlink_to(WEB_DIR / "node_modules" / "onnxruntime-web" / "dist")
     x = np.random.default_rng(1).uniform(-1, 1, (1, CHANNELS, 2, 2)).astype(np.float32)
-    expected = ort.InferenceSession(model.SerializeToString(), providers=["CPUExecutionProvider"]).run(
-        None, {"input": x}
-    )[0]
-    handler = partial(SimpleHTTPRequestHandler, directory=str(root))
-    server = ThreadingHTTPServer(("127.0.0.1", 0), handler)
-    threading.Thread(target=server.serve_forever, daemon=True).start()
-    try:
-        yield f"http://127.0.0.1:{server.server_port}/index.html", x, expected
-    finally:
-        server.shutdown()
-        server.server_close()
+    session = ort.InferenceSession(model.SerializeToString(), providers=["CPUExecutionProvider"])
+    return x, session.run(None, {"input": x})[0]
 
 
 @pytest.mark.parametrize("backend", ["wasm", "webgpu"])
 def test_onnxruntime_web_computes_the_sub_pixel_graph_as_python_does(site, backend: str) -> None:
-    url, x, expected = site
-    with chromium(SWIFTSHADER_WEBGPU) as browser:
-        page = browser.new_page()
-        page.goto(url)
-        page.wait_for_function("window.ready === true")
-        if backend == "webgpu" and not page.evaluate("async () => !!(await navigator.gpu?.requestAdapter())"):
-            pytest.skip("this Chromium offers no WebGPU adapter, not even SwiftShader's")
-        out = page.evaluate("([b, x, s]) => window.predict(b, x, s)", [backend, x.ravel().tolist(), list(x.shape)])
+    page, x, expected = site
+    if backend == "webgpu" and not page.evaluate("async () => !!(await navigator.gpu?.requestAdapter())"):
+        pytest.skip("this Chromium offers no WebGPU adapter, not even SwiftShader's")
+    out = page.evaluate("([b, x, s]) => window.predict(b, x, s)", [backend, x.ravel().tolist(), list(x.shape)])
     error = np.abs(np.asarray(out, np.float32).reshape(expected.shape) - expected).max()
     assert error < 1e-5 * np.abs(expected).max()
