@@ -33,8 +33,9 @@ from tests.helpers.guards import HANG_GUARD_S
 
 #: 32², 2 + 1 frames at 4 spp with OIDN: every buffer and the denoiser, cheap on 2 cores.
 CFG = DatasetConfig(n_train=2, n_val=1, resolution=32, spp=4, denoise=True, seed=3)
-#: Frames slow enough (~0.4 s each on one thread) to interrupt a run in the middle of one.
-SLOW = replace(CFG, n_train=3, n_val=1, spp=1024)
+#: Frames slow enough (~0.4 s each on one thread) to interrupt a run in the middle of one; not denoised (CFG's
+#: frames test OIDN on Ray), which spares each worker the denoiser's start.
+SLOW = replace(CFG, n_train=3, n_val=1, spp=1024, denoise=False)
 BAKE = PrebakeConfig(frames=10, codec="jpeg", resolution=32, spp=4, seed=3)
 
 
@@ -177,6 +178,64 @@ def test_prebake_on_ray_equals_the_local_pool_and_resumes(
     assert (again.baked, again.served) == (0, BAKE.frames)
 
 
+# --- the command line as its own driver ------------------------------------------------------------
+# (before the tests below kill or cancel workers: the in-process rerun finds this module's workers warm)
+
+
+@pytest.mark.slow
+def test_ctrl_c_of_a_ray_run_keeps_whole_frames_and_the_rerun_finishes_identical(
+    ray_address: str,
+    scenes: Path,
+    slow_reference: Path,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capfd: pytest.CaptureFixture[str],
+) -> None:
+    """gicore-dataset --executor ray --ray-address HOST:PORT as its own driver process joining the module's
+    instance; the rerun joins it from this process (whose connection a command keeps)."""
+    argv = [str(BIN / "gicore-dataset"), str(scenes / "ball_moving.json"), "--out", str(tmp_path)]
+    argv += ["--executor", "ray", "--ray-address", ray_address]
+    argv += [
+        "--train",
+        str(SLOW.n_train),
+        "--val",
+        str(SLOW.n_val),
+        "--resolution",
+        str(SLOW.resolution),
+        "--spp",
+        str(SLOW.spp),
+        "--seed",
+        str(SLOW.seed),
+        "--no-denoise",
+    ]
+    root = tmp_path / "ball_moving"
+    # Ray 2.60's core worker sometimes aborts a driver interrupted while a task reply is in flight
+    # ("Check failed: ... Tried to complete task that was not pending", about 1 run in 5 here): an
+    # upstream bug, not ours. Such a run is tried again from scratch; any other outcome is judged.
+    for _attempt in range(3):
+        shutil.rmtree(root, ignore_errors=True)
+        proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        deadline = time.monotonic() + HANG_GUARD_S  # interrupt once the first frame is kept
+        while not list(root.rglob("*.npz")) and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert list(root.rglob("*.npz")), "no frame was kept before the hang guard: " + str(proc.poll())
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+        if "Tried to complete task that was not pending" not in err:
+            break
+    assert proc.returncode == 130, err
+    assert "interrupted: finished frames are kept" in err and "Traceback" not in err
+    partial = npz_arrays(root)
+    assert 1 <= len(partial) < SLOW.n_train + SLOW.n_val and not list(root.rglob(f"*{TMP_MARKER}*"))
+    reference = npz_arrays(slow_reference)
+    for name, arrays in partial.items():
+        assert all(arrays[k].tobytes() == reference[name][k].tobytes() for k in arrays), name
+    rerun = run_main(["gicore-dataset", *argv[1:]], tmp_path, monkeypatch, capfd)
+    assert rerun.returncode == 0, rerun.stderr
+    assert "ball_moving: 4 frames in" in rerun.stdout
+    assert_same_dataset(slow_reference, root)
+
+
 # --- the executor itself -----------------------------------------------------------------------------
 
 
@@ -224,59 +283,3 @@ def test_a_user_error_in_a_job_reaches_the_driver_whole(
     with pytest.raises(UserError) as caught:
         executor.run(Task(_marker, (str(tmp_path),), _refuse), [7], lambda job, result: None)
     assert type(caught.value) is UserError and str(caught.value) == "job 7 names a missing file: give an existing one"
-
-
-# --- the command line as its own driver ------------------------------------------------------------
-
-
-@pytest.mark.slow
-def test_ctrl_c_of_a_ray_run_keeps_whole_frames_and_the_rerun_finishes_identical(
-    ray_address: str,
-    scenes: Path,
-    slow_reference: Path,
-    tmp_path: Path,
-    monkeypatch: pytest.MonkeyPatch,
-    capfd: pytest.CaptureFixture[str],
-) -> None:
-    """gicore-dataset --executor ray --ray-address HOST:PORT as its own driver process joining the module's
-    instance; the rerun joins it from this process (whose connection a command keeps)."""
-    argv = [str(BIN / "gicore-dataset"), str(scenes / "ball_moving.json"), "--out", str(tmp_path)]
-    argv += ["--executor", "ray", "--ray-address", ray_address]
-    argv += [
-        "--train",
-        str(SLOW.n_train),
-        "--val",
-        str(SLOW.n_val),
-        "--resolution",
-        str(SLOW.resolution),
-        "--spp",
-        str(SLOW.spp),
-        "--seed",
-        str(SLOW.seed),
-    ]
-    root = tmp_path / "ball_moving"
-    # Ray 2.60's core worker sometimes aborts a driver interrupted while a task reply is in flight
-    # ("Check failed: ... Tried to complete task that was not pending", about 1 run in 5 here): an
-    # upstream bug, not ours. Such a run is tried again from scratch; any other outcome is judged.
-    for _attempt in range(3):
-        shutil.rmtree(root, ignore_errors=True)
-        proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        deadline = time.monotonic() + HANG_GUARD_S  # interrupt once the first frame is kept
-        while not list(root.rglob("*.npz")) and proc.poll() is None and time.monotonic() < deadline:
-            time.sleep(0.01)
-        assert list(root.rglob("*.npz")), "no frame was kept before the hang guard: " + str(proc.poll())
-        proc.send_signal(signal.SIGINT)
-        _, err = proc.communicate(timeout=60)
-        if "Tried to complete task that was not pending" not in err:
-            break
-    assert proc.returncode == 130, err
-    assert "interrupted: finished frames are kept" in err and "Traceback" not in err
-    partial = npz_arrays(root)
-    assert 1 <= len(partial) < SLOW.n_train + SLOW.n_val and not list(root.rglob(f"*{TMP_MARKER}*"))
-    reference = npz_arrays(slow_reference)
-    for name, arrays in partial.items():
-        assert all(arrays[k].tobytes() == reference[name][k].tobytes() for k in arrays), name
-    rerun = run_main(["gicore-dataset", *argv[1:]], tmp_path, monkeypatch, capfd)
-    assert rerun.returncode == 0, rerun.stderr
-    assert "ball_moving: 4 frames in" in rerun.stdout
-    assert_same_dataset(slow_reference, root)
