@@ -3,9 +3,8 @@ cloudbaking-server on a store prebaked along the path, a network-sim proxy per p
 the page's camera API once per profile, each system's frame times, map ages, perceived latency, stages and
 checks land in the CSV and its tables, the browser's prediction matches GIModel.predict. On the same page:
 switching the profile reaches the new proxy, both panes warp a stale map as the Python clients do, and the page's
-recording of the run is a session that
-``gigan-client --path`` flies to the same views and that drives ``bench latency --path`` and ``bench storage
---sessions-from``. No test bounds a time.
+recording of the run is a session whose views are the cameras the clients fly (``gigan-client --path``) and that
+drives ``bench latency --path`` and ``bench storage --sessions-from``. No test bounds a time.
 
 Without Chromium, Playwright or web3d/static/node_modules (``make setup`` runs npm ci) the tests skip and say which
 is missing.
@@ -18,8 +17,6 @@ import json
 import math
 import re
 import shutil
-import subprocess
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -52,7 +49,6 @@ RESPONSE_HEAD_BYTES = 1024
 #: How far along the scripted path the warps are compared from its first frame's maps (about 14°: holes behind
 #: the lung that the hole filling shows).
 STALE_FRAMES = 12
-BIN = Path(sys.executable).parent
 
 
 @pytest.fixture(scope="module")
@@ -218,17 +214,12 @@ def test_switching_the_profile_reaches_the_new_proxy(run) -> None:
         assert mine and sum(mine) <= link < sum(mine) + RESPONSE_HEAD_BYTES * len(mine), (profile, link, mine)
 
 
-def test_the_recorded_session_flies_through_gigan_client_to_the_same_views(run, tmp_path: Path) -> None:
-    spec = load_scene("lung_plane")
-    session = run["out"] / SESSION
-    argv = [str(BIN / "gigan-client"), "--scene", "lung_plane", "--path", str(session), "--resolution", "16",
-            "-k", "100000", "--gi-source", "gt", "--spp", "1", "--no-denoise"]  # fmt: skip
-    client = subprocess.run([*argv, "--out", str(tmp_path / "client")], capture_output=True, text=True, timeout=600)
-    assert client.returncode == 0, client.stderr
-    flown = read_path_file(tmp_path / "client" / "path.json", spec)
-    recorded = read_path_file(session, spec)
-    assert flown == recorded
-    # the page's matrices of each recorded view (set through its controls) against the client's cameras
+def test_the_recorded_session_flies_the_clients_through_the_same_views(run) -> None:
+    """The page's recording read as the clients read ``--path`` (gicore.path_file.flown_path reads it with
+    read_path_file): each recorded view's matrices, set through the page's controls, are the camera the clients fly
+    there. gigan-client flying a recorded-style path file and writing back the same one is
+    tests/bench/test_path_runs.py's."""
+    flown = read_path_file(run["out"] / SESSION, load_scene("lung_plane"))
     for doc, waypoint in zip(run["cameras"], flown.frames, strict=True):
         cam: Camera = waypoint.camera
         for name, matrix in (("view", cam.view()), ("proj", cam.proj()), ("view_proj", cam.view_proj())):
