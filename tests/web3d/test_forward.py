@@ -3,7 +3,7 @@ chosen store, the upstream's status, bytes, content type and X-GIMap-Hit back wi
 refused before forwarding with 415 (not JSON), 413 (too large as it arrives, whatever Content-Length says), 408
 (too slow), 422 (unknown profile or store), 503 (no server); 502 when the upstream fails, 504 when it is too
 slow. The upstreams here are small servers that answer what they were sent (the forwarding is under test; the
-end-to-end run with a real cloudbaking-server behind a real proxy is in test_cli.py)."""
+end-to-end run with a real cloudbaking-server behind a real proxy is in test_children.py)."""
 
 from __future__ import annotations
 
