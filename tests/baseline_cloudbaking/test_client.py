@@ -1,10 +1,12 @@
 """The cloud-baking client (baseline_cloudbaking.client): its remote GI source against a real server process,
-a server shut down mid-run, and dead links that must end in a timeout, never a hang. All on 127.0.0.1 with
-ephemeral ports, at 64². The client process end to end through a network proxy, beside gigan-client, on the GL
-renderer, is tests/bench/test_latency.py::test_bench_latency_end_to_end (the bench runs exactly that)."""
+the client process on the GL warp backend, a server shut down mid-run, and dead links that must end in a timeout,
+never a hang. All on 127.0.0.1 with ephemeral ports, at 64². The client process end to end through a network
+proxy, beside gigan-client, on the GL renderer, is tests/bench/test_latency.py::test_bench_latency_end_to_end
+(the bench runs exactly that)."""
 
 from __future__ import annotations
 
+import json
 import logging
 import subprocess
 import time
@@ -21,6 +23,7 @@ from gicore.paths import path_views
 from gicore.scene import load_scene
 from network_sim.process import Running, network_sim
 from tests.helpers.cloud import BIN, RES, SPP, server_process, write_scenes
+from tests.helpers.guards import HANG_GUARD_S
 
 
 @pytest.fixture(scope="module")
@@ -145,6 +148,28 @@ def test_timeouts_are_explicit() -> None:
     assert (timeout.connect, timeout.read, timeout.write, timeout.pool) == (2.0, 3.0, 3.0, 2.0)
     with pytest.raises(ValueError, match="read_timeout_s"):
         RemoteConfig("http://127.0.0.1:1", "s", read_timeout_s=0.0)
+
+
+def test_cloud_client_with_the_gl_warp_backend(server: str, scenes_dir: Path, tmp_path: Path) -> None:
+    """``cloudbaking-client --warp-backend gl`` (baseline_cloudbaking.gl_warp, tests in test_gl_warp.py): frames
+    warped and composed in GL, the GL warp's stages in the frame columns and in each request's warp time, and the
+    summary naming the backend that ran."""
+    from gicore.gl import gl_available
+
+    ok, why = gl_available()
+    if not ok:
+        pytest.skip(f"no OpenGL context: {why}")
+    argv = [str(BIN / "cloudbaking-client"), "--server", server, "--scene", str(scenes_dir / "ball_moving.json")]
+    argv += ["--frames", "4", "--resolution", str(RES), "-k", "2", "--spp", str(SPP), "--warp-backend", "gl"]
+    proc = subprocess.run([*argv, "--out", str(tmp_path / "out")], capture_output=True, text=True, timeout=HANG_GUARD_S)
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["warp_backend"] == "gl" and summary["config"]["warp_backend"] == "gl"
+    frames = read_csv_rows(tmp_path / "out" / "frames.csv")
+    assert "project_ms" not in frames[0] and float(frames[0]["bind_ms"]) > 0
+    assert all(float(r["splat_ms"]) > 0 and float(r["fill_ms"]) > 0 and float(r["valid_frac"]) > 0.5 for r in frames)
+    shown = [r for r in read_csv_rows(tmp_path / "out" / "requests.csv") if r["total_ms"]]
+    assert shown and all(float(r["warp_ms"]) > 0 for r in shown)
 
 
 def test_the_hold_asks_only_for_views_no_held_map_serves(server: str, scenes_dir: Path) -> None:
