@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Iterable
-from contextlib import ExitStack
+from contextlib import ExitStack, suppress
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, Literal
@@ -291,9 +291,12 @@ def prebake(
     name, spec = _scene(scene)
     if cfg.space == "all":
         space_of(spec, cfg)  # refused before the store or a Ray instance is touched
+    made_store = not store_folder(store).exists()
     folder = writable_dir(store_folder(store), name="--store")
     t0 = time.perf_counter()
     with ExitStack() as stack:
+        if made_store:  # a run refused before it stores a map (no Ray cluster answers, say) leaves no folder
+            stack.callback(_remove_if_empty, folder)
         try:
             stack.enter_context(exclusive_run(folder / ".prebake" / name))
         except FolderHeld as exc:
@@ -312,6 +315,11 @@ def prebake(
     if isinstance(pool, RayExecutor) and pool.nodes:
         per_node = ", ".join(f"{node[:12]} {n}" for node, n in sorted(pool.nodes.items()))
         typer.echo(f"{name}: maps per Ray node: {per_node}")
+
+
+def _remove_if_empty(folder: Path) -> None:
+    with suppress(OSError):
+        folder.rmdir()
 
 
 STORE_HELP = "GI-tree folder (created if missing; shared with cloudbaking-server --store)"

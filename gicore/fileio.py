@@ -86,14 +86,14 @@ def exclusive_run(folder: Path) -> Iterator[None]:
     ``folder`` is created if need be (UserError if it is a file or not writable); a folder another run
     holds is refused with :class:`FolderHeld`. The lock is an flock
     (the kernel drops it when its holder dies, however it dies) on a file that holds the holder's PID.
-    The lock file is removed when the run ends, and so is ``folder`` if this run created it and left it
-    empty (a run refused for bad input leaves no trace). A lock file that a killed run (kill -9, a lost
+    The lock file is removed when the run ends, and so are ``folder`` and the parents this run created, where it
+    left them empty (a run refused for bad input leaves no trace). A lock file that a killed run (kill -9, a lost
     machine) left behind is no longer locked: it is taken over, with one line on stderr naming the folder
     and the dead holder's PID. Removing a lock file races with a process that opened it just before: a
     run that locks a file no longer at ``folder/.lock`` therefore tries again.
     """
     folder = Path(folder)
-    created = not folder.exists()
+    created = [p for p in (folder, *folder.parents) if not p.exists()]  # deepest first
     writable_dir(folder)
     lock = folder / ".lock"
     while True:
@@ -122,6 +122,6 @@ def exclusive_run(folder: Path) -> Iterator[None]:
     finally:
         lock.unlink(missing_ok=True)  # while still holding it, so a waiting opener sees the inode change
         handle.close()
-        if created:
-            with suppress(OSError):
-                folder.rmdir()  # only if empty
+        with suppress(OSError):
+            for made in created:
+                made.rmdir()  # only if empty: the first that is not stops the walk up

@@ -45,7 +45,8 @@ def test_bench_scaling_measures_every_executor_and_labels_the_projection(tmp_pat
         return found[0]
 
     for ex in ("local", "ray", "ray-cluster"):
-        assert 0 < only(system=ex, metric="task_roundtrip", stat="median", workers=1)["value"] < 1000  # ms
+        roundtrip = only(system=ex, metric="task_roundtrip", stat="median", workers=1)
+        assert roundtrip["unit"] == "ms" and roundtrip["value"] > 0
         for kind, unit in (("frame", "frames/s"), ("map", "maps/s")):
             for workers in (1, 2):
                 row = only(system=ex, metric="throughput", workers=workers, kind=kind)

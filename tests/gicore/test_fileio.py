@@ -94,3 +94,12 @@ def test_sigterm_ends_a_command_as_an_interrupt_and_releases_the_lock(tmp_path: 
     assert proc.returncode == EXIT_INTERRUPTED == 130, err  # ended by the signal, not after its 60 s sleep
     assert err.strip() == "interrupted: run it again"
     assert not folder.exists()  # the lock removed, and the folder the run created with it
+
+
+def test_a_run_leaves_no_folder_it_created_and_left_empty(tmp_path: Path) -> None:
+    with exclusive_run(tmp_path / "store" / ".prebake" / "scene"):
+        assert (tmp_path / "store" / ".prebake" / "scene" / ".lock").is_file()
+    assert list(tmp_path.iterdir()) == []
+    with exclusive_run(tmp_path / "store" / ".prebake" / "scene"):
+        (tmp_path / "store" / "index.sqlite").touch()  # what the run stored stays, and the folders that hold it
+    assert sorted(p.name for p in (tmp_path / "store").iterdir()) == ["index.sqlite"]
