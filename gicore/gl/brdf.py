@@ -11,6 +11,8 @@ through visible-normal sampling); :func:`roughplastic_eval` is the BRDF times th
 
 from __future__ import annotations
 
+from functools import cache, lru_cache
+
 import numpy as np
 
 #: Mitsuba's ``roughplastic`` defaults as ``gicore.render`` uses them: polypropylene-like 1.45 over air.
@@ -71,10 +73,7 @@ def _sample_visible(wi: np.ndarray, u1: np.ndarray, u2: np.ndarray, alpha: float
 def _interface(wi: np.ndarray, alpha: float, eta: float, transmit: bool) -> float:
     """Mitsuba's ``eval_reflectance`` / ``eval_transmittance``: the energy a rough dielectric interface
     reflects (or transmits) for incident ``wi``, integrated over visible normals with Gauss-Legendre nodes."""
-    res = 32 if eta > 1 else 128
-    x, w = np.polynomial.legendre.leggauss(res)
-    u1, u2 = np.meshgrid(0.5 * x + 0.5, 0.5 * x + 0.5, indexing="ij")
-    weight = np.outer(w, w)
+    u1, u2, weight = _gauss_legendre_square(32 if eta > 1 else 128)
     m = _sample_visible(wi, u1, u2, alpha)
     cos_im = m @ wi
     f, cos_t, eta_ti = fresnel(cos_im, eta)
@@ -89,13 +88,25 @@ def _interface(wi: np.ndarray, alpha: float, eta: float, transmit: bool) -> floa
     return float(np.sum(g * weight) * 0.25)
 
 
+@cache
+def _gauss_legendre_square(res: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Gauss-Legendre nodes on the unit square, ``res`` per axis, and their weights (over [-1, 1]²)."""
+    x, w = np.polynomial.legendre.leggauss(res)
+    u1, u2 = np.meshgrid(0.5 * x + 0.5, 0.5 * x + 0.5, indexing="ij")
+    return u1, u2, np.outer(w, w)
+
+
+@lru_cache(maxsize=64)  # a scene has a few roughnesses; every renderer and asset export of a process shares them
 def roughplastic_tables(alpha: float, eta: float = ETA) -> tuple[np.ndarray, float]:
-    """(external transmittance at cos = linspace(0, 1, TABLE_RES), internal diffuse reflectance)."""
+    """(external transmittance at cos = linspace(0, 1, TABLE_RES), internal diffuse reflectance); the table
+    is read-only (it is shared)."""
     mu = np.maximum(1e-6, np.linspace(0.0, 1.0, TABLE_RES))
     wis = np.stack([np.sqrt(1.0 - mu**2), np.zeros_like(mu), mu], axis=-1)
     transmittance = np.array([_interface(wi, alpha, eta, transmit=True) for wi in wis])
     internal = np.mean([_interface(wi, alpha, 1.0 / eta, transmit=False) for wi in wis] * mu) * 2.0
-    return transmittance.astype(np.float32), float(internal)
+    table = transmittance.astype(np.float32)
+    table.setflags(write=False)
+    return table, float(internal)
 
 
 def _lerp_table(table: np.ndarray, x: np.ndarray) -> np.ndarray:
