@@ -202,7 +202,8 @@ async def _idle_flood(host: str, port: int, n: int, res: LoadResult, stop: async
 async def _side_load(
     host: str, port: int, miss_bodies: list[bytes], idle: int, idle_rate: float, hold_s: float
 ) -> LoadResult:
-    """The misses (all at once) and the idle flood, then ``hold_s`` more with the flood held."""
+    """The misses (all at once) and the idle flood, then ``hold_s`` more with the flood held, and on while the
+    server goes on closing idle connections (so that what it would close is not closed by this side first)."""
     res = LoadResult()
     stop = asyncio.Event()
     start = time.monotonic()
@@ -213,6 +214,10 @@ async def _side_load(
     while idle and res.idle_opened + sum(res.errors.values()) < idle and not flood.done():
         await asyncio.sleep(0.05)
     await asyncio.sleep(hold_s)
+    closed = -1
+    while idle and res.idle_closed_by_server != closed:  # a busy server is still working through the flood
+        closed = res.idle_closed_by_server
+        await asyncio.sleep(hold_s)
     res.side_window = (start, time.monotonic())
     stop.set()
     await flood
