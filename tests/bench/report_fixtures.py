@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from bench.report_md import BEGIN, END
-from tests.bench.command import bench_main
+from tests.helpers.cli import exit_status
 from tests.helpers.shared import shared_artifact
 
 FIXTURES = Path(__file__).parent / "fixtures" / "report_results"
@@ -38,7 +38,7 @@ def _report_everything(root: Path) -> None:
     shutil.copytree(FIXTURES, root / "results")
     (root / "README.md").write_text(README)
     args = ("--results", str(root / "results"), "--out", str(root / "one"), "--readme", str(root / "README.md"))
-    assert bench_main("report", *args, cwd=root) == 0  # run from root: the Markdown names the folder `results`
+    assert exit_status(["bench", "report", *args], root) == 0  # run from root: the Markdown names the folder `results`
 
 
 def report_of_everything(tmp_path_factory: pytest.TempPathFactory) -> Path:

@@ -8,14 +8,14 @@ from pathlib import Path
 import pytest
 
 from gicore.results import read_rows
-from tests.bench.command import bench_main
+from tests.helpers.cli import exit_status
 
 
 @pytest.mark.slow
 def test_quick_runs_work_on_a_fresh_checkout(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     """No data, no runs: --quick renders the small dataset, trains, exports and scores what it needs (~1 min)."""
     out = tmp_path / "out"
-    code = bench_main("training", "--quick", "--train-steps", "6", "--widths", "4", "--out", str(out))
+    code = exit_status(["bench", "training", "--quick", "--train-steps", "6", "--widths", "4", "--out", str(out)])
     assert code == 0, capsys.readouterr().err
     steps = {
         r["config"]["step"]
@@ -24,7 +24,9 @@ def test_quick_runs_work_on_a_fresh_checkout(tmp_path: Path, capsys: pytest.Capt
     }
     assert max(steps) == 6 and (out / "dataset" / "lung_plane" / "meta.json").is_file()
 
-    code = bench_main("quality", "--quick", "--scenes", "lung_plane", "--timing-repeats", "1", "--out", str(out))
+    code = exit_status(
+        ["bench", "quality", "--quick", "--scenes", "lung_plane", "--timing-repeats", "1", "--out", str(out)]
+    )
     assert code == 0, capsys.readouterr().err
     ssim = {r["system"]: r["value"] for r in read_rows(out / "quality.csv") if r["metric"] == "ssim"}
     assert ssim["gigan"] > ssim["di_only"]  # the shipped model adds GI that DI lacks, on the rendered held-out frames
@@ -32,8 +34,8 @@ def test_quick_runs_work_on_a_fresh_checkout(tmp_path: Path, capsys: pytest.Capt
     assert set(lf) == {"gigan", "di_only"} and all(0 < v < 0.1 for v in lf.values())
     assert {"quality_grid.png", "quality.png", "quality_pareto.png"} <= {p.name for p in out.iterdir()}
 
-    code = bench_main(
-        "model-card", "--quick", "--train-steps", "6", "--width", "4", "--out", str(out)
+    code = exit_status(
+        ["bench", "model-card", "--quick", "--train-steps", "6", "--width", "4", "--out", str(out)]
     )  # resumes the run above
     assert code == 0, capsys.readouterr().err
     card = (out / "export" / "gigan_ngf4" / "MODEL_CARD.md").read_text()

@@ -19,8 +19,8 @@ from pathlib import Path
 import pytest
 
 from gicore.results import read_rows
-from tests.bench.command import bench_main
 from tests.bench.report_fixtures import FIXTURES, report_of_everything, spoil_value
+from tests.helpers.cli import exit_status
 
 ROOT = Path(__file__).resolve().parents[2]
 CHROMIUM = Path("/usr/bin/chromium")
@@ -32,7 +32,7 @@ MIN_DRAWN = {"variants": 2}
 
 def build(results: Path, out: Path) -> tuple[Path, dict[str, dict]]:
     """Run ``bench report`` (its main, in this process); the HTML and each section's row of report.csv."""
-    assert bench_main("report", "--results", str(results), "--out", str(out)) == 0
+    assert exit_status(["bench", "report", "--results", str(results), "--out", str(out)]) == 0
     return drawn(out)
 
 
@@ -97,7 +97,7 @@ def test_a_csv_of_another_shape_is_malformed_not_a_crash(tmp_path: Path) -> None
 
 
 def test_a_missing_results_folder_is_one_error_line(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
-    assert bench_main("report", "--results", str(tmp_path / "nope"), "--out", str(tmp_path)) == 2
+    assert exit_status(["bench", "report", "--results", str(tmp_path / "nope"), "--out", str(tmp_path)]) == 2
     err = capsys.readouterr().err
     errors = [line for line in err.splitlines() if line.startswith("error:")]
     assert len(errors) == 1 and "--results" in errors[0] and "Traceback" not in err

@@ -18,8 +18,8 @@ from bench.report_md import BEGIN, END, results_markdown, update_readme
 from bench.report_md import blocks as readme_blocks
 from gicore.error_policy import UserError
 from gicore.results import read_rows
-from tests.bench.command import bench_main
 from tests.bench.report_fixtures import FIXTURES, report_of_everything, spoil_value
+from tests.helpers.cli import exit_status
 
 
 def sections(markdown: str) -> dict[str, str]:
@@ -179,7 +179,7 @@ def test_a_readme_without_the_markers_is_refused_in_one_line_before_anything_is_
     readme = tmp_path / "README.md"
     readme.write_text("# Project\n\nno markers here\n")
     args = ("--results", str(results), "--out", str(tmp_path / "out"), "--readme", str(readme))
-    assert bench_main("report", *args, cwd=tmp_path) == 2
+    assert exit_status(["bench", "report", *args], tmp_path) == 2
     err = capsys.readouterr().err
     errors = [line for line in err.splitlines() if line.startswith("error:")]
     assert len(errors) == 1 and "Traceback" not in err, err

@@ -21,7 +21,7 @@ from bench.runner import Bench, execute
 from bench.storage_config import StorageConfig
 from gicore.error_policy import UserError
 from gicore.results import Results, read_rows
-from tests.bench.command import bench_main
+from tests.helpers.cli import exit_status
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -58,7 +58,7 @@ def test_both_quick_presets_run_with_its_options_and_both_tables_print_once_at_t
     ran: list, capsys: pytest.CaptureFixture, tmp_path: Path, args: list[str], latency: dict, storage: dict
 ) -> None:
     # the registered command's real configs: their checks (the shipped model, the scene) pass before either runs
-    assert bench_main("run-default", *args, "--out", str(tmp_path)) == 0
+    assert exit_status(["bench", "run-default", *args, "--out", str(tmp_path)]) == 0
     assert [(name, cfg) for name, cfg, _ in ran] == [
         ("latency", dataclasses.replace(LatencyConfig.quick(), **latency)),
         ("storage", dataclasses.replace(StorageConfig.quick(), **storage)),
@@ -124,6 +124,6 @@ def test_make_run_is_bench_run_default_and_its_help_lists_its_options(
 ) -> None:
     monkeypatch.setenv("COLUMNS", "250")  # the help's lines unwrapped
     assert "$(PY) -m bench run-default --out $(OUT)" in (REPO / "Makefile").read_text()
-    assert bench_main("run-default", "--help") == 0
+    assert exit_status(["bench", "run-default", "--help"]) == 0
     help_text = capsys.readouterr().out
     assert "(make run)" in help_text and {"--scenes", "--renderers", "--frames", "--out"} <= set(help_text.split())

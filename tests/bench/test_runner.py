@@ -20,8 +20,7 @@ from gicore import option_groups
 from gicore.error_policy import UserError
 from gicore.results import COLUMNS, Results, read_rows
 from gicore.timing import summarize_ms, time_repeats
-from tests.bench.command import bench_main
-from tests.helpers.cli import assert_user_error
+from tests.helpers.cli import assert_user_error, exit_status
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -203,7 +202,7 @@ def test_execute_writes_csv_provenance_of_the_final_config_tables_and_figures(tm
 def test_bench_command_rejects_bad_input_with_one_error_line(
     args: list[str], culprit: str, capsys: pytest.CaptureFixture
 ) -> None:
-    assert bench_main(*args, cwd=REPO) == 2
+    assert exit_status(["bench", *args], REPO) == 2
     out, err = capsys.readouterr()
     errors = [line for line in err.splitlines() if line.startswith("error:")]
     assert len(errors) == 1 and culprit in errors[0], err

@@ -11,14 +11,23 @@ import pytest
 
 from bench.runner import execute
 from gicore.results import read_rows
-from tests.bench.command import bench_main
+from tests.helpers.cli import exit_status
 
 
 def test_tiny_render_run_through_the_command(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
-    code = bench_main(
-        "render", "--quick", "--resolution", "16", "--repeats", "1", "--gt-repeats", "1", "--gl-resolutions", "16",
-        "--gl-repeats", "1", "--out", str(tmp_path),
-    )  # fmt: skip
+    options = [
+        "--resolution",
+        "16",
+        "--repeats",
+        "1",
+        "--gt-repeats",
+        "1",
+        "--gl-resolutions",
+        "16",
+        "--gl-repeats",
+        "1",
+    ]
+    code = exit_status(["bench", "render", "--quick", *options, "--out", str(tmp_path)])
     out, err = capsys.readouterr()
     assert code == 0, err
     written = ["render.csv", "render.provenance.json", "render.md", "render.png", "render.svg"]

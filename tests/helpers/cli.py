@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import subprocess
 import sys
@@ -11,6 +12,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from importlib.metadata import entry_points
 from pathlib import Path
+from unittest import mock
 
 import pytest
 
@@ -60,22 +62,28 @@ def script_main(name: str) -> Callable[[], object]:
     return script.load()
 
 
-def run_main(argv: list[str], cwd: Path, monkeypatch: pytest.MonkeyPatch, capfd: pytest.CaptureFixture[str]) -> Outcome:
-    """:func:`run_script` in this process: :func:`script_main` of ``argv[0]`` runs with ``sys.argv`` set to
-    ``argv``, in ``cwd``, with the same environment, its output read at the file descriptors. No interpreter
-    start, so a run costs milliseconds; keep one :func:`run_script` per script for the real process."""
+def exit_status(argv: list[str], cwd: Path | None = None) -> int:
+    """Run :func:`script_main` of ``argv[0]`` in this process with ``sys.argv`` set to ``argv``, in ``cwd``
+    (default: the current folder), and return its exit status; its output goes where the test captures it."""
     main = script_main(argv[0])
+    with contextlib.chdir(cwd or Path.cwd()), mock.patch.object(sys, "argv", list(argv)):
+        with pytest.raises(SystemExit) as exited:
+            main()
+    return int(exited.value.code or 0)
+
+
+def run_main(argv: list[str], cwd: Path, monkeypatch: pytest.MonkeyPatch, capfd: pytest.CaptureFixture[str]) -> Outcome:
+    """:func:`run_script` in this process (:func:`exit_status`), with the same environment, its output read at
+    the file descriptors. No interpreter start, so a run costs milliseconds; keep one :func:`run_script` per
+    script for the real process."""
     before = snapshot(cwd)
     with monkeypatch.context() as patch:
-        patch.chdir(cwd)
-        patch.setattr(sys, "argv", list(argv))
         for name, value in SCRIPT_ENV.items():
             patch.setenv(name, value)
         capfd.readouterr()
-        with pytest.raises(SystemExit) as exit:
-            main()
+        code = exit_status(argv, cwd)
         out, err = capfd.readouterr()
-    return Outcome(tuple(argv), int(exit.value.code or 0), out, err, before, snapshot(cwd))
+    return Outcome(tuple(argv), code, out, err, before, snapshot(cwd))
 
 
 def check_user_error(outcome: Outcome, culprit: str) -> str:
