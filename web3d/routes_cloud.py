@@ -30,7 +30,7 @@ if TYPE_CHECKING:
 
 router = APIRouter()
 #: Upstream response headers the page reads, passed through.
-PASSED_HEADERS = ("X-GIMap-Hit", "Retry-After")
+PASSED_HEADERS = ("X-GIMap-Hit", "Content-Location", "Retry-After")
 #: The request body as OpenAPI states it (any JSON object: the cloud server validates it).
 _JSON_BODY = {"requestBody": {"required": True, "content": {"application/json": {"schema": {"type": "object"}}}}}
 

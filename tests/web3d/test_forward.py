@@ -1,5 +1,6 @@
 """gigan-web's POST /v1/gimap: forwarded body and content type unchanged to the chosen profile's server for the
-chosen store, the upstream's status, bytes, content type and X-GIMap-Hit back with X-Profile and X-Store;
+chosen store, the upstream's status, bytes, content type, X-GIMap-Hit and Content-Location (no other upstream
+header) back with X-Profile and X-Store;
 refused before forwarding with 415 (not JSON), 413 (too large as it arrives, whatever Content-Length says), 408
 (too slow), 422 (unknown profile or store), 503 (no server); 502 when the upstream fails, 504 when it is too
 slow. The upstreams here are small servers that answer what they were sent (the forwarding is under test; the
@@ -43,7 +44,8 @@ def upstream_app(name: str, scripted: bool) -> Starlette:
             "body": body.decode(errors="replace"),
             "content_type": request.headers["content-type"],
         }
-        headers = {"X-GIMap-Hit": "1", "Content-Type": ask.get("media", "application/x-gimap")}
+        headers = {"X-GIMap-Hit": "1", "Content-Location": f"/v1/maps/{name}", "X-Other": "not passed"}
+        headers["Content-Type"] = ask.get("media", "application/x-gimap")
         return Response(json.dumps(seen).encode(), status_code=int(ask.get("status", 200)), headers=headers)
 
     async def health(_: Request) -> Response:
@@ -111,7 +113,8 @@ def test_the_chosen_profile_and_store_reach_their_server_unchanged(web: WebServe
         r = post(web, query, body, **{"Content-Type": "application/json; charset=utf-8"})
         assert r.status_code == 200, (query, r.text)
         assert (r.headers["x-profile"], r.headers["x-store"], r.headers["x-gimap-hit"]) == (profile, store, "1")
-        assert r.headers["content-type"] == "application/x-gimap"
+        assert r.headers["content-type"] == "application/x-gimap" and "x-other" not in r.headers
+        assert r.headers["content-location"] == f"/v1/maps/{store}-{profile}"  # the stored map's address
         seen = r.json()
         assert seen == {
             "upstream": f"{store}-{profile}",

@@ -79,8 +79,9 @@ def run(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
 
 def warped_by_the_page(viewer: Any, made: dict[str, Any], shown: dict[str, Any]) -> dict[str, Any]:
     """Both canvases as the page draws path frame ``shown`` with the maps made at path frame ``made`` (settled
-    there first; the snapshot is taken as that frame is drawn, before any new map lands), and the cloud map
-    itself, asked of the server directly (a hit: the one the page got)."""
+    there first; the snapshot is taken as that frame is drawn, before any new map lands), and the stored cloud
+    map the pane shows, read from the server by the address the page got with it (the map of ``made``'s view, or
+    an earlier one where the GI period sent no request there)."""
     page = viewer.page
     drawn = page.evaluate("viewer.frames.length")
     page.evaluate("f => { viewer.setCamera(f.camera); viewer.setLight(f.light); }", made)
@@ -90,11 +91,9 @@ def warped_by_the_page(viewer: Any, made: dict[str, Any], shown: dict[str, Any])
     snapshot = page.evaluate("doc => viewer.replay(doc).then(() => viewer.snapshot())", doc)
     [server] = [line for line in viewer.children if line.startswith("cloudbaking-server, given store ")]
     url = re.search(r": (http://\S+) \(pid", server)[1]
-    camera = {k: made["camera"][k] for k in ("eye", "target", "up")} | {"fov": viewer.scene["gi_fov"]}
-    body = {"scene": viewer.scene["name"], "camera": camera, "light": made["light"], "codec": CFG.codec,
-            "resolution": viewer.scene["resolution"], "spp": CFG.spp}  # fmt: skip
-    answer = httpx.post(f"{url}/v1/gimap", json=body, timeout=PAGE_TIMEOUT_S)
-    assert answer.status_code == 200 and answer.headers["x-gimap-hit"] == "1", answer.text[:200]
+    assert re.fullmatch(r"/v1/maps/[0-9a-f]{64}", snapshot["cloud"]["map"] or ""), snapshot["cloud"]["map"]
+    answer = httpx.get(f"{url}{snapshot['cloud']['map']}", timeout=PAGE_TIMEOUT_S)
+    assert answer.status_code == 200, answer.text[:200]
     return {"snapshot": snapshot, "payload": answer.content, "shown": shown, "parity": page.evaluate("viewer.parity")}
 
 

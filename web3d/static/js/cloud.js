@@ -234,7 +234,8 @@ export class CloudSystem {
     if (this.bound) for (const t of [this.bound.gi, this.bound.depth]) gl.deleteTexture(t);
     const view = columnMajor(header.view);
     const proj = header.proj;
-    this.bound = { gi, depth: dt, invView: invert(view), focal: [proj[0][0], proj[1][1]], near: header.camera.near, n: w * h };
+    this.bound = { gi, depth: dt, invView: invert(view), focal: [proj[0][0], proj[1][1]], near: header.camera.near, n: w * h,
+      location: done.location };
     const bind = performance.now() - t1;
     const server = header.timings_ms || {};
     const total = server.total ?? 0;

@@ -142,8 +142,10 @@ function api(page) {
     await shadows.prefetch(doc.frames.map((f) => clampLight(f.light, scene.light_range)));
     return loop.play(replay);
   };
+  // Both canvases; the cloud pane's also names the stored map it shows (/v1/maps/{sha}).
   viewer.snapshot = () => ({
-    gigan: snapshot(page.glG, page.sceneG.diTarget), cloud: page.cloud ? snapshot(page.glC, page.sceneC.diTarget) : null,
+    gigan: snapshot(page.glG, page.sceneG.diTarget),
+    cloud: page.cloud ? { ...snapshot(page.glC, page.sceneC.diTarget), map: page.cloud.system.bound?.location } : null,
   });
 }
 

@@ -2,7 +2,7 @@
 // back-to-back frames, its thread runs a response's tasks only between them, so bytes read there would wait for
 // frames to be handed on. Given {id, url, body}, it POSTs the body, unpacks the GI-map payload, decodes the
 // image to an ImageBitmap and the depth to a Float32Array and transfers both back: {id, header, bitmap, depth,
-// h, w, bytes, times, scope}, or {id, error} (one line). `times` (ms since the epoch, for the page to put on its
+// h, w, bytes, times, scope, location (the stored map's /v1/maps/{sha})}, or {id, error} (one line). `times` (ms since the epoch, for the page to put on its
 // own clock): started, firstByte, arrived (the network stack's, from Resource Timing where it has the entry;
 // `timing` says which), and from, to: this decoding's start and end. `scope`: the global scope it ran in.
 
@@ -19,7 +19,7 @@ async function fetchMap(url, body) {
   performance.clearResourceTimings();
   const times = entry ? { started: entry.startTime, firstByte: entry.responseStart, arrived: entry.responseEnd }
     : { started, firstByte, arrived };
-  return { buffer, times, timing: entry ? "resource" : "script" };
+  return { buffer, times, timing: entry ? "resource" : "script", location: response.headers.get("Content-Location") };
 }
 
 async function decode(buffer) {
@@ -30,12 +30,12 @@ async function decode(buffer) {
 
 self.onmessage = async ({ data: { id, url, body } }) => {
   try {
-    const { buffer, times, timing } = await fetchMap(url, body);
+    const { buffer, times, timing, location } = await fetchMap(url, body);
     const from = performance.now();
     const map = await decode(buffer);
     const epoch = (t) => performance.timeOrigin + t;
     const all = { ...times, from, to: performance.now() };
-    const reply = { id, ...map, bytes: buffer.byteLength, timing, scope: self.constructor.name,
+    const reply = { id, ...map, bytes: buffer.byteLength, timing, location, scope: self.constructor.name,
       times: Object.fromEntries(Object.entries(all).map(([k, t]) => [k, epoch(t)])) };
     self.postMessage(reply, [map.bitmap, map.depth.buffer]);
   } catch (e) {
