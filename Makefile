@@ -15,13 +15,12 @@ run: setup
 	$(PY) -m bench run-default --out $(OUT)
 
 # Lint and format checks first (fast), then the tests: one pytest worker per core (pytest-xdist), each test file
-# on one worker, so a module's fixtures are built once, and the files that start Ray instances on the same one
-# (tests/conftest.py's groups). No test judges a wall-clock bound (those are `bench
+# on one worker, so a module's fixtures are built once. No test judges a wall-clock bound (those are `bench
 # load`'s and the other benches'), so none has to run alone: the load tests share the machine like the rest.
 test: setup
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
-	$(PY) -m pytest -q -n auto --dist loadgroup
+	$(PY) -m pytest -q -n auto --dist loadfile
 
 clean:
 	rm -rf $(OUT) .pytest_cache

@@ -16,16 +16,6 @@ import pytest
 RES = 32
 
 
-@pytest.hookimpl(tryfirst=True)  # before pytest-xdist reads the groups
-def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """``make test``'s ``--dist loadgroup`` runs each group on one worker. A module is its own group (its module
-    fixtures are built once, as with ``--dist loadfile``) unless it names one: the modules that start Ray
-    instances share ``ray``, so no two Ray instances and their daemons compete for the cores."""
-    for item in items:
-        if item.get_closest_marker("xdist_group") is None:
-            item.add_marker(pytest.mark.xdist_group(item.nodeid.split("::")[0]))
-
-
 def pytest_configure(config: pytest.Config) -> None:
     """Let the Ctrl-C tests' subprocesses see SIGINT even when the suite itself was started with SIGINT
     ignored (as a shell starts background jobs, `nohup ... &`): an ignored signal stays ignored across

@@ -29,9 +29,6 @@ from tests.helpers.cli import BIN, run_main
 from tests.helpers.cloud import write_scenes
 from tests.helpers.guards import HANG_GUARD_S
 
-#: The modules that start Ray instances run on one pytest-xdist worker, one after another (tests/conftest.py).
-pytestmark = pytest.mark.xdist_group("ray")
-
 #: A tolerance of 1 scene unit / 30° and a 10-unit light cell: ball_moving's space is 3 views x 2 light states.
 TOLERANCE = Tolerance(1.0, 30.0)
 BAKE = PrebakeConfig(resolution=16, spp=1, tolerance=TOLERANCE, light_cell=10.0, space="all", seed=5)

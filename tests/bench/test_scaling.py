@@ -18,9 +18,6 @@ from gicore.scene import builtin_scenes, load_scene
 from tests.helpers.cli import BIN
 from tests.helpers.guards import HANG_GUARD_S
 
-#: The modules that start Ray instances run on one pytest-xdist worker, one after another (tests/conftest.py).
-pytestmark = pytest.mark.xdist_group("ray")
-
 #: Measured at 16² (the projections scale by pixel count from it).
 RESOLUTION = 16
 #: Fly-through frames of the projected bakes: few, as their map count is only planned (nothing rendered).

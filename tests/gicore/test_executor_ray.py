@@ -31,9 +31,6 @@ from tests.helpers.cloud import write_scenes
 from tests.helpers.dataset import npz_arrays
 from tests.helpers.guards import HANG_GUARD_S
 
-#: The modules that start Ray instances run on one pytest-xdist worker, one after another (tests/conftest.py).
-pytestmark = pytest.mark.xdist_group("ray")
-
 #: 32², 2 + 1 frames at 4 spp with OIDN: every buffer and the denoiser, cheap on 2 cores.
 CFG = DatasetConfig(n_train=2, n_val=1, resolution=32, spp=4, denoise=True, seed=3)
 #: Frames slow enough (~0.4 s each on one thread) to interrupt a run in the middle of one; not denoised (CFG's
