@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Iterable
-from contextlib import ExitStack, suppress
+from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, Literal
@@ -40,9 +40,9 @@ from baseline_cloudbaking.store_errors import StoreConflict
 from baseline_cloudbaking.viewpoints import MapKey, Tolerance, Viewpoint, ViewSet
 from gicore import option_groups
 from gicore.camera import Camera
-from gicore.error_policy import UserError, entry_point, writable_dir
+from gicore.error_policy import UserError, entry_point
 from gicore.executor import Executor, ExecutorOptions, InProcess, RayExecutor, Task
-from gicore.fileio import FolderHeld, exclusive_run
+from gicore.fileio import FolderHeld, exclusive_run, made_folder
 from gicore.options import (
     FOV_DEGREES,
     FRAMES,
@@ -291,12 +291,10 @@ def prebake(
     name, spec = _scene(scene)
     if cfg.space == "all":
         space_of(spec, cfg)  # refused before the store or a Ray instance is touched
-    made_store = not store_folder(store).exists()
-    folder = writable_dir(store_folder(store), name="--store")
     t0 = time.perf_counter()
     with ExitStack() as stack:
-        if made_store:  # a run refused before it stores a map (no Ray cluster answers, say) leaves no folder
-            stack.callback(_remove_if_empty, folder)
+        # a run refused before it stores a map (no Ray cluster answers, say) leaves no folder
+        folder = stack.enter_context(made_folder(store_folder(store), name="--store"))
         try:
             stack.enter_context(exclusive_run(folder / ".prebake" / name))
         except FolderHeld as exc:
@@ -315,11 +313,6 @@ def prebake(
     if isinstance(pool, RayExecutor) and pool.nodes:
         per_node = ", ".join(f"{node[:12]} {n}" for node, n in sorted(pool.nodes.items()))
         typer.echo(f"{name}: maps per Ray node: {per_node}")
-
-
-def _remove_if_empty(folder: Path) -> None:
-    with suppress(OSError):
-        folder.rmdir()
 
 
 STORE_HELP = "GI-tree folder (created if missing; shared with cloudbaking-server --store)"

@@ -80,24 +80,54 @@ def _holder(handle: IO[bytes]) -> int | None:
 
 
 @contextmanager
+def made_folder(folder: Path, *, name: str = "--out") -> Iterator[Path]:
+    """``folder``, created as :func:`writable_dir` creates it (with parents; UserError naming ``name`` if it is a
+    file or not writable); on exit it and the parents made here are removed where they are left empty, so a run
+    refused before it wrote anything leaves no trace."""
+    folder = Path(folder)
+    created = [p for p in (folder, *folder.parents) if not p.exists()]  # deepest first
+    writable_dir(folder, name=name)
+    try:
+        yield folder
+    finally:
+        with suppress(OSError):
+            for made in created:
+                made.rmdir()  # only if empty: the first that is not stops the walk up
+
+
+@contextmanager
 def exclusive_run(folder: Path) -> Iterator[None]:
     """Hold ``folder/.lock`` for the duration of a run; a second run into the same folder is refused.
 
-    ``folder`` is created if need be (UserError if it is a file or not writable); a folder another run
-    holds is refused with :class:`FolderHeld`. The lock is an flock
+    ``folder`` is created if need be (:func:`made_folder`: removed again with the parents made for it where the
+    run left them empty); a folder another run holds is refused with :class:`FolderHeld`. The lock is an flock
     (the kernel drops it when its holder dies, however it dies) on a file that holds the holder's PID.
-    The lock file is removed when the run ends, and so are ``folder`` and the parents this run created, where it
-    left them empty (a run refused for bad input leaves no trace). A lock file that a killed run (kill -9, a lost
+    The lock file is removed when the run ends. A lock file that a killed run (kill -9, a lost
     machine) left behind is no longer locked: it is taken over, with one line on stderr naming the folder
     and the dead holder's PID. Removing a lock file races with a process that opened it just before: a
     run that locks a file no longer at ``folder/.lock`` therefore tries again.
     """
-    folder = Path(folder)
-    created = [p for p in (folder, *folder.parents) if not p.exists()]  # deepest first
-    writable_dir(folder)
-    lock = folder / ".lock"
+    with made_folder(folder) as folder:
+        lock = folder / ".lock"
+        handle = _take_lock(folder, lock)
+        try:
+            stale = _holder(handle)
+            if stale is not None:  # its holder wrote it and never removed it: it ended without clean-up
+                print(f"note: taking over the lock of {folder} left by process {stale}, which is gone", file=sys.stderr)
+            handle.seek(0)
+            handle.truncate()
+            handle.write(f"{os.getpid()}\n".encode())
+            handle.flush()
+            yield
+        finally:
+            lock.unlink(missing_ok=True)  # while still holding it, so a waiting opener sees the inode change
+            handle.close()
+
+
+def _take_lock(folder: Path, lock: Path) -> IO[bytes]:
+    """The open, flocked file at ``lock`` (FolderHeld if another run holds it)."""
     while True:
-        handle = open(lock, "a+b")  # closed below, or after the run
+        handle = open(lock, "a+b")  # closed by the caller after the run
         try:
             fcntl.flock(handle.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError as exc:
@@ -106,22 +136,7 @@ def exclusive_run(folder: Path) -> Iterator[None]:
             raise FolderHeld(folder, holder) from exc
         try:
             if os.fstat(handle.fileno()).st_ino == os.stat(lock).st_ino:
-                break
+                return handle
         except FileNotFoundError:
             pass
         handle.close()  # the previous holder removed this file after we opened it: lock the new one
-    try:
-        stale = _holder(handle)
-        if stale is not None:  # its holder wrote it and never removed it: that process ended without clean-up
-            print(f"note: taking over the lock of {folder} left by process {stale}, which is gone", file=sys.stderr)
-        handle.seek(0)
-        handle.truncate()
-        handle.write(f"{os.getpid()}\n".encode())
-        handle.flush()
-        yield
-    finally:
-        lock.unlink(missing_ok=True)  # while still holding it, so a waiting opener sees the inode change
-        handle.close()
-        with suppress(OSError):
-            for made in created:
-                made.rmdir()  # only if empty: the first that is not stops the walk up

@@ -16,6 +16,8 @@ from unittest import mock
 
 import pytest
 
+from tests.helpers.guards import HANG_GUARD_S
+
 BIN = Path(sys.executable).parent
 
 
@@ -110,13 +112,13 @@ def signal_when(argv: list[str], cwd: Path, ready: Callable[[subprocess.Popen], 
         [str(BIN / argv[0]), *argv[1:]], cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
     )
     try:
-        deadline = time.monotonic() + TIMEOUT_S
+        deadline = time.monotonic() + HANG_GUARD_S
         while not ready(proc):
             assert proc.poll() is None, f"{argv[0]} ended before it was ready: {proc.communicate()}"
-            assert time.monotonic() < deadline, f"{argv[0]} was not ready within {TIMEOUT_S} s"
+            assert time.monotonic() < deadline, f"{argv[0]} never became ready (hung)"
             time.sleep(0.05)
         proc.send_signal(sig)
-        _, err = proc.communicate(timeout=TIMEOUT_S)
+        _, err = proc.communicate(timeout=HANG_GUARD_S)
     finally:
         if proc.poll() is None:
             proc.kill()

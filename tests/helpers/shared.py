@@ -13,18 +13,11 @@ import pytest
 from filelock import FileLock
 
 
-def shared_root(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """The folder every worker of this run sees (xdist gives each worker its own basetemp below it)."""
-    base = tmp_path_factory.getbasetemp()
-    root = base.parent if base.name.startswith("popen-gw") else base
-    folder = root / "shared"
-    folder.mkdir(exist_ok=True)
-    return folder
-
-
 def shared_artifact(tmp_path_factory: pytest.TempPathFactory, name: str, build: Callable[[Path], None]) -> Path:
     """The folder ``name``, built by ``build(folder)`` once for the whole run; treat it as read-only."""
-    root = shared_root(tmp_path_factory)
+    base = tmp_path_factory.getbasetemp()
+    root = (base.parent if base.name.startswith("popen-gw") else base) / "shared"  # what every xdist worker sees
+    root.mkdir(exist_ok=True)
     folder, done = root / name, root / f"{name}.done"
     with FileLock(str(root / f"{name}.lock")):
         if not done.exists():
