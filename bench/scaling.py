@@ -17,7 +17,7 @@ from bench.present.declarations import Chart, Column, Figure, Rows, Table, flat,
 from bench.runner import Bench, Block
 from gicore import option_groups
 from gicore.error_policy import UserError
-from gicore.executor import INSTALL_RAY, Executor, LocalPool, RayExecutor, Task
+from gicore.executor import INSTALL_RAY, Executor, LocalPool, RayExecutor, Task, equal_priority_ray_workers
 from gicore.results import Results
 from gicore.scene import builtin_scenes, load_scene
 
@@ -110,6 +110,7 @@ def _ray_instance(res: Results, name: str, num_cpus: int) -> Iterator[None]:
     """A local Ray instance of ``num_cpus`` CPUs for the ``ray`` points (its start time recorded)."""
     import ray
 
+    equal_priority_ray_workers()  # as the local pool's workers: a like-for-like comparison on a busy machine
     t0 = time.perf_counter()
     ray.init(
         address="local", num_cpus=num_cpus, include_dashboard=False, log_to_driver=False, logging_level=logging.ERROR
@@ -129,6 +130,7 @@ def _ray_cluster(res: Results, name: str, nodes: int) -> Iterator[None]:
     import ray
     from ray.cluster_utils import Cluster
 
+    equal_priority_ray_workers()
     t0 = time.perf_counter()
     cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 1, "include_dashboard": False})
     try:

@@ -57,6 +57,8 @@ PR_SET_PDEATHSIG = 1
 RAY_OPTION = "--ray-address"
 START_RAY = "start one with `ray start --head` and give its address, or use --ray-address auto"
 INSTALL_RAY = "install it with pip install '.[ray]' (or leave out --executor ray to use local processes)"
+#: Ray's setting for its workers' niceness (Ray's default: 15, below everything else on the machine).
+RAY_WORKER_NICENESS = "RAY_worker_niceness"
 
 
 @dataclass(frozen=True)
@@ -296,6 +298,13 @@ def _check_reachable(address: str, option: str) -> None:
         raise UserError(f"{option} {address}: no Ray cluster answers there ({reason})", START_RAY) from None
 
 
+def equal_priority_ray_workers() -> None:
+    """Ray workers of the instances and nodes this process starts run at its own priority, as the local pool's
+    workers do: at Ray's default (nice 15), any busy process on the machine starves them and a render run on
+    Ray is many times slower than on the pool. A niceness the user set in the environment is kept."""
+    os.environ.setdefault(RAY_WORKER_NICENESS, "0")
+
+
 def connect_ray(address: str) -> bool:
     """Connect this process to Ray: ``auto`` joins the cluster named by ``RAY_ADDRESS`` or the one
     ``ray start`` runs on this machine, else starts a local instance; HOST:PORT joins that cluster's
@@ -317,6 +326,7 @@ def connect_ray(address: str) -> bool:
         _check_reachable(address, option)
     elif _host_port(os.environ.get("RAY_ADDRESS", "")) is not None:
         _check_reachable(os.environ["RAY_ADDRESS"], "RAY_ADDRESS")
+    equal_priority_ray_workers()
     try:
         ray.init(
             address=None if address == "auto" else address,

@@ -22,7 +22,7 @@ from baseline_cloudbaking.prebake_cli import PrebakeConfig, prebake_scene
 from baseline_cloudbaking.protocol import decode_payload
 from baseline_cloudbaking.store import GITree
 from baseline_cloudbaking.viewpoints import Tolerance
-from gicore.executor import RayExecutor
+from gicore.executor import RayExecutor, equal_priority_ray_workers
 from gicore.scene import SceneSpec, load_scene
 from tests.gicore.test_executor_ray import busy_ray_workers
 from tests.helpers.cli import BIN, run_main
@@ -41,6 +41,7 @@ def cluster_address() -> Iterator[str]:
     import ray
     from ray.cluster_utils import Cluster
 
+    equal_priority_ray_workers()
     cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 1, "include_dashboard": False})
     try:
         cluster.add_node(num_cpus=1)

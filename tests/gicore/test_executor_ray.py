@@ -23,7 +23,14 @@ from baseline_cloudbaking.protocol import unpack
 from baseline_cloudbaking.store import GITree
 from gicore.dataset_cli import DatasetConfig, build_dataset
 from gicore.error_policy import UserError
-from gicore.executor import InProcess, LocalPool, RayExecutor, Task
+from gicore.executor import (
+    RAY_WORKER_NICENESS,
+    InProcess,
+    LocalPool,
+    RayExecutor,
+    Task,
+    equal_priority_ray_workers,
+)
 from gicore.fileio import TMP_MARKER
 from gicore.scene import SceneSpec, load_scene
 from tests.helpers.cli import BIN, run_main
@@ -44,6 +51,7 @@ def ray_address() -> Iterator[str]:
     """A local Ray instance for the whole module (its start costs seconds); yields its head's address."""
     import ray
 
+    equal_priority_ray_workers()
     ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
     try:
         yield ray.get_runtime_context().gcs_address
@@ -237,6 +245,26 @@ def test_ctrl_c_of_a_ray_run_keeps_whole_frames_and_the_rerun_finishes_identical
 
 
 # --- the executor itself -----------------------------------------------------------------------------
+
+
+def _niceness() -> int:
+    return os.nice(0)
+
+
+def test_ray_workers_run_at_the_drivers_priority(ray_address: str) -> None:
+    """Ray's default niceness (15) would leave its workers starved beside any busy process."""
+    import ray
+
+    assert ray.get(ray.remote(_niceness).remote()) == _niceness()
+
+
+def test_a_niceness_the_user_chose_for_ray_workers_is_kept(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv(RAY_WORKER_NICENESS, "10")
+    equal_priority_ray_workers()
+    assert os.environ[RAY_WORKER_NICENESS] == "10"
+    monkeypatch.delenv(RAY_WORKER_NICENESS)
+    equal_priority_ray_workers()
+    assert os.environ[RAY_WORKER_NICENESS] == "0"
 
 
 def test_a_task_whose_worker_dies_is_retried(ray_address: str, tmp_path: Path) -> None:
