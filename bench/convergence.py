@@ -11,11 +11,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bench.present.declarations import Chart, Figure, wide
 from bench.runner import Bench
 from gicore import option_groups
 from gicore.metrics import all_metrics
 from gicore.paths import camera_path, light_position
+from gicore.present.declarations import Chart, Figure, wide
 from gicore.results import Results
 from gicore.scene import builtin_scenes, load_scene
 from gicore.timing import time_repeats

@@ -21,14 +21,13 @@ from typing import Any, Literal
 import numpy as np
 
 from bench.common import WARP_LABELS, make_warp
-from bench.exported_models import check_model_resolution
-from bench.present.declarations import Chart, Column, Figure, Rows, Table, per, pick, spread, unique, wide
 from bench.runner import FOV_DEGREES, Bench, Block, Section
 from gicore import option_groups
 from gicore.camera import Camera
+from gicore.present.declarations import Chart, Column, Figure, Rows, Table, per, pick, spread, unique, wide
 from gicore.results import Results
 from gigan_local.client import GI_SOURCES
-from gigan_local.inference import DEFAULT_MODEL
+from gigan_local.inference import DEFAULT_MODEL, check_model_resolution
 
 
 @dataclass(frozen=True)

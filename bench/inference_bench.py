@@ -29,13 +29,13 @@ from typing import Any
 
 import numpy as np
 
-from bench.exported_models import model_info
-from bench.present.declarations import Chart, Column, Figure, Rows, Table, wide
 from bench.runner import Bench
 from gicore import option_groups
 from gicore.error_policy import UserError
+from gicore.present.declarations import Chart, Column, Figure, Rows, Table, wide
 from gicore.results import Results
 from gicore.timing import time_repeats
+from gigan_local.inference import model_info
 
 #: Precisions the torch rows may run at (the ONNX rows take theirs from the model file).
 TORCH_PRECISIONS = ("fp32", "fp16", "bf16")

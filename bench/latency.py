@@ -13,7 +13,6 @@ from pathlib import Path
 from typing import Any, Literal
 
 from baseline_cloudbaking.codecs import CODEC_NAMES, DEFAULT_CODEC
-from bench.exported_models import check_model_resolution
 from bench.latency_record import CLOUD, CLOUD_PREFETCH, GIGAN, record
 from bench.latency_tables import PARTS
 from bench.processes import (
@@ -34,7 +33,7 @@ from gicore.blend import COMPOSITIONS
 from gicore.error_policy import UserError
 from gicore.results import Results
 from gicore.run_config import RENDERERS
-from gigan_local.inference import DEFAULT_MODEL
+from gigan_local.inference import DEFAULT_MODEL, check_model_resolution
 from network_sim.profiles import profiles_field
 
 CodecName = Literal[CODEC_NAMES]  # type: ignore[valid-type]

@@ -16,7 +16,7 @@ from bench.latency_record import (
     RENDERER_RATIO,
     TRANSMISSION_PARTS,
 )
-from bench.present.declarations import Chart, Column, Figure, Rows, Table, fill, flat, matches, per, unique
+from gicore.present.declarations import Chart, Column, Figure, Rows, Table, fill, flat, matches, per, unique
 
 #: Table 1's rows: (metric, label); sub-stages of transmission are indented.
 TABLE_ROWS = (

@@ -33,10 +33,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from bench.common import Target
-from bench.present.declarations import Column, Rows, Table, matches
 from bench.processes import check_served, client_cores, pinned_server, pinning, scene_folder
 from bench.runner import Bench, Block
 from gicore import option_groups
+from gicore.present.declarations import Column, Rows, Table, matches
 from gicore.results import Results
 
 if TYPE_CHECKING:

@@ -20,11 +20,11 @@ from functools import partial
 from pathlib import Path
 
 from bench.common import train_small, training_minutes
-from bench.present.declarations import Chart, Figure, flat, matches
 from bench.runner import Bench, execute
 from gicore import option_groups
 from gicore.error_policy import UserError
 from gicore.metrics import LF_SIGMA
+from gicore.present.declarations import Chart, Figure, flat, matches
 from gicore.results import Results, read_rows
 
 #: Where the logged step times were measured, by the run's last ``--device``.

@@ -9,7 +9,7 @@ from collections import Counter
 from typing import Any
 
 from bench.pareto_knobs import ABLATION, CLOUD, GIGAN, PER_FRAME, PER_MAP
-from bench.present.declarations import Chart, Column, Figure, Rows, Table
+from gicore.present.declarations import Chart, Column, Figure, Rows, Table
 
 
 def front_points(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:

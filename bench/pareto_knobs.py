@@ -15,12 +15,11 @@ from typing import Any
 import numpy as np
 
 from bench.common import WARP_LABELS
-from bench.exported_models import check_model_resolution, model_info
 from bench.runner import FOV_DEGREES, Bench, execute, find
 from gicore import option_groups
 from gicore.error_policy import UserError
 from gicore.results import Results, read_rows
-from gigan_local.inference import DEFAULT_MODEL
+from gigan_local.inference import DEFAULT_MODEL, check_model_resolution, model_info
 from network_sim.exchange import CloudCost
 from network_sim.profiles import profiles_field
 

@@ -15,7 +15,6 @@ import numpy as np
 
 from baseline_cloudbaking.client_run import check_server
 from baseline_cloudbaking.codecs import CODEC_NAMES, DEFAULT_CODEC
-from bench.present.declarations import Chart, Column, Figure, Rows, Table, fill, first, flat, matches, pick
 from bench.processes import (
     BIN,
     ask_path,
@@ -31,6 +30,7 @@ from bench.runner import Bench, Block, Section
 from gicore import option_groups
 from gicore.error_policy import UserError
 from gicore.frame_rows import read_csv_rows
+from gicore.present.declarations import Chart, Column, Figure, Rows, Table, fill, first, flat, matches, pick
 from gicore.results import Results
 from network_sim.profiles import profiles_field
 

@@ -14,8 +14,6 @@ from typing import Literal
 import numpy as np
 
 from bench.common import QUICK_DATASET
-from bench.exported_models import model_info
-from bench.present.declarations import Chart, Column, Figure, Image, Rows, Table, flat, matches, unique
 from bench.quality_grid import GRID_CAPTION, GridCell, grid_rows, save_grid
 from bench.runner import Bench, Block, Section
 from gicore import option_groups
@@ -24,12 +22,13 @@ from gicore.dataset_cli import FrameRenderer, build_dataset, render_inputs
 from gicore.error_policy import UserError
 from gicore.gl.lod import LOD_CHOICES
 from gicore.metrics import CHECKER_PERIOD, LF_SIGMA, all_metrics, checker_error, shadow_tint
+from gicore.present.declarations import Chart, Column, Figure, Image, Rows, Table, flat, matches, unique
 from gicore.results import Results
 from gicore.run_config import CLIENT_LOD
 from gicore.scene import SceneSpec, builtin_scenes, load_scene
 from gicore.timing import time_repeats
 from gicore.tonemap import tonemap
-from gigan_local.inference import DEFAULT_MODEL
+from gigan_local.inference import DEFAULT_MODEL, model_info
 
 UNITS = {"rmse": "1", "ssim": "1", "psnr": "dB", "lf_error": "1", "checker_error": "1", "shadow_tint": "1"}
 #: Titles of the bar plots: what each metric is and which way is better.

@@ -17,7 +17,6 @@ from bench import (
     latency,
     load,
     model_card,
-    network_selftest,
     pareto,
     prefetch,
     quality,
@@ -32,7 +31,8 @@ from bench import (
     viewer_bench,
     warp_bench,
 )
-from bench.runner import Bench, External
+from bench.runner import Bench, Block, External
+from network_sim import selftest, selftest_report
 
 #: Every ``bench`` subcommand but ``report``, in the order ``bench --help`` lists them.
 BENCHES: tuple[Bench, ...] = (
@@ -59,7 +59,13 @@ BENCHES: tuple[Bench, ...] = (
 )
 
 #: The CSVs of other programs that ``bench report`` shows as it shows a bench's.
-EXTERNALS: tuple[External, ...] = (network_selftest.SELFTEST,)
+EXTERNALS: tuple[External, ...] = (
+    External(
+        selftest.BENCH,
+        readme=Block("Network simulator", 90, make="network-sim selftest --out {out}/netself"),
+        parts=selftest_report.PARTS,
+    ),
+)
 
 
 def reported() -> tuple[Bench | External, ...]:

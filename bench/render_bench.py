@@ -31,7 +31,6 @@ from typing import Any
 
 import numpy as np
 
-from bench.present.declarations import Chart, Column, Figure, Rows, Table, flat, matches, unique
 from bench.runner import Bench
 from gicore import option_groups
 from gicore.camera import Camera
@@ -39,6 +38,7 @@ from gicore.error_policy import UserError
 from gicore.geometry import scene_objects
 from gicore.options import RESOLUTION
 from gicore.paths import camera_path, light_position
+from gicore.present.declarations import Chart, Column, Figure, Rows, Table, flat, matches, unique
 from gicore.results import Results
 from gicore.run_config import RENDERERS
 from gicore.scene import SceneSpec, builtin_scenes, load_scene

@@ -8,7 +8,7 @@ error against run time (``pareto``; hovering a point shows its full config) and 
 (``stability``). Each section reads its bench's ``<bench>.csv`` (found anywhere under ``--results``
 outside the ``--ignore`` folders; the newest run's when there are several, :func:`bench.runner.attempt`)
 and the ``<bench>.provenance.json`` beside it, and shows the parts the bench declares for the dashboard,
-drawn from those rows alone (:mod:`bench.present.html`: tables as HTML, figures as the SVG matplotlib draws,
+drawn from those rows alone (:mod:`gicore.present.html`: tables as HTML, figures as the SVG matplotlib draws,
 each mark with its tooltip). Each section names its provenance: command, git SHA, machine, date. This module
 only lays out the page; what a section holds is its bench's.
 
@@ -33,12 +33,12 @@ from pathlib import Path
 from typing import Any
 
 from bench import registry
-from bench.present.declarations import Rows, shown
-from bench.present.html import parts_html
 from bench.report_md import check_readme, results_markdown, update_readme
 from bench.runner import Bench, External, Section, attempt, need, provenance_fields
 from gicore.error_policy import UserError
 from gicore.fileio import atomic_write_bytes
+from gicore.present.declarations import Rows, shown
+from gicore.present.html import parts_html
 from gicore.results import Results
 
 ASSETS = Path(__file__).parent / "report_assets"

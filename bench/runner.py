@@ -2,7 +2,7 @@
 
 A bench module defines a frozen config dataclass (one option per field, documented by its ``#:`` comment,
 with a ``quick()`` preset), ``measure(cfg, results)``, its tables and figures declared once as data
-(:mod:`bench.present.declarations`) and ``BENCH = Bench(...)``; its line in ``bench/registry.py`` gives it its
+(:mod:`gicore.present.declarations`) and ``BENCH = Bench(...)``; its line in ``bench/registry.py`` gives it its
 subcommand, its dashboard section and its results block. The runner derives the options
 (:mod:`gicore.options`), adds ``--out``, ``--quick`` and ``--seed``, writes ``<out>/<bench>.csv`` and
 ``<out>/<bench>.provenance.json``, then the bench's tables (``<bench>.md``) and figures (PNG and SVG) from
@@ -25,9 +25,7 @@ from typing import Annotated, Any
 
 import typer
 
-from bench import present
-from bench.present.declarations import Rows
-from gicore import option_groups, options
+from gicore import option_groups, options, present
 from gicore.error_policy import writable_dir
 from gicore.options import (  # noqa: F401  (field_docs, check_config, config_dict: the bench API)
     FOV_DEGREES,
@@ -37,6 +35,7 @@ from gicore.options import (  # noqa: F401  (field_docs, check_config, config_di
     extra,
     field_docs,
 )
+from gicore.present.declarations import Rows
 from gicore.results import COLUMNS, Results, read_rows
 
 #: Option names the runner adds to every bench; config fields may not use them.
@@ -47,7 +46,7 @@ RESERVED = ("out", "quick", "seed")
 class Bench:
     """One ``bench`` subcommand: its config class (defaults, ``quick()`` preset), what it measures into a
     :class:`Results`, and what it shows of the resulting CSV (its tables and figures, declared once:
-    :mod:`bench.present`), written beside the CSV and shown by ``bench report``."""
+    :mod:`gicore.present`), written beside the CSV and shown by ``bench report``."""
 
     name: str
     config: type

@@ -13,11 +13,11 @@ from dataclasses import dataclass
 from functools import partial
 from typing import Any, Literal
 
-from bench.present.declarations import Chart, Column, Figure, Rows, Table, flat, matches, per, unique
 from bench.runner import Bench, Block
 from gicore import option_groups
 from gicore.error_policy import UserError
 from gicore.executor import INSTALL_RAY, Executor, LocalPool, RayExecutor, Task, equal_priority_ray_workers
+from gicore.present.declarations import Chart, Column, Figure, Rows, Table, flat, matches, per, unique
 from gicore.results import Results
 from gicore.scene import builtin_scenes, load_scene
 

@@ -24,7 +24,6 @@ from typing import Any
 
 import numpy as np
 
-from bench.present.declarations import Alert, Chart, Column, Figure, Rows, Table
 from bench.runner import Bench, Block, Section
 from bench.stability_cases import Case, Outcome, Rejected, Scene
 from bench.stability_images import composition_cases, inference_cases, render_cases, tonemap_cases, warp_cases
@@ -39,6 +38,7 @@ from bench.stability_io import (
 )
 from gicore import option_groups
 from gicore.error_policy import UserError
+from gicore.present.declarations import Alert, Chart, Column, Figure, Rows, Table
 from gicore.results import Results
 from gigan_local.inference import DEFAULT_MODEL
 

@@ -7,8 +7,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from bench.present.declarations import Chart, Column, Figure, Rows, Table, flat, matches, mib, per, unique
 from bench.storage_config import PAPER_TABLE2_GB, RAW_CODEC
+from gicore.present.declarations import Chart, Column, Figure, Rows, Table, flat, matches, mib, per, unique
 
 COMPOSED = {"blend": "GI + depth", "residual": "GI + DI + depth (residual composition)"}
 

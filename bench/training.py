@@ -19,10 +19,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from bench.common import train_small, training_minutes
-from bench.present.declarations import Chart, Figure, Rows, matches, pick, unique
 from bench.runner import Bench
 from gicore import option_groups
 from gicore.error_policy import UserError
+from gicore.present.declarations import Chart, Figure, Rows, matches, pick, unique
 from gicore.results import Results
 
 

@@ -28,13 +28,13 @@ from typing import Any
 
 import numpy as np
 
-from bench.present.declarations import Column, Rows, Table, first, matches, unique
 from bench.processes import BIN
 from bench.runner import Bench, Section
 from gicore import option_groups
 from gicore.cuda_probe import cuda_device_count
 from gicore.error_policy import UserError
 from gicore.mitsuba_variant import VARIANT_ENV, VariantChoice, choose_variant, cuda_variant_built, find_libllvm
+from gicore.present.declarations import Column, Rows, Table, first, matches, unique
 from gicore.results import Results, read_rows
 
 #: SSIM a variant's maps reach against the reference's, every map.

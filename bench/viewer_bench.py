@@ -4,7 +4,7 @@ One run starts what ``gigan-web`` starts (its own ``cloudbaking-server`` on a st
 cold, and a ``network-sim proxy`` per profile; or ``--server URL``), loads the page, and per profile replays
 a path file (``--path FILE``, else the scene's scripted path of ``--frames`` frames) through ``viewer.replay``:
 the camera API the page's controls drive, one path frame per drawn frame, while GIGAN's inference runs off the
-frame loop and cloud maps arrive when they arrive (:mod:`bench.viewer_page`). Per system and profile it reports
+frame loop and cloud maps arrive when they arrive (:mod:`web3d.headless`). Per system and profile it reports
 frame times (with a map in flight and without), frames drawn while each map was made, the age of the map each
 frame shows, perceived latency, and each map's stages (:mod:`bench.viewer_stats`); GIGAN's checks; then
 ``session.run`` timed in the browser and in Python on one tensor, the prediction's parity with Python and the
@@ -31,7 +31,6 @@ import numpy as np
 
 from bench.processes import ask_path, pinned_server, run_place
 from bench.runner import Bench, Block, Section
-from bench.viewer_page import WEBGL_FLAGS, Segment, missing, replay, viewer_page
 from bench.viewer_parity import Reference, canvas_stats, time_inference
 from bench.viewer_present import PARTS, SCREENSHOT
 from bench.viewer_stats import CLOUD, GIGAN, Replayed, record_checks, record_system
@@ -40,6 +39,7 @@ from gicore.error_policy import UserError
 from gicore.options import FRAMES, THREADS
 from gicore.results import Results
 from network_sim.profiles import profiles_field
+from web3d.headless import WEBGL_FLAGS, Segment, missing, replay, viewer_page
 
 #: The page's recording of the whole run, a path file.
 SESSION = "web_session.json"

@@ -1,4 +1,4 @@
-"""What ``bench web`` shows (:mod:`bench.present`): the screenshot; per system and profile its frame times, the
+"""What ``bench web`` shows (:mod:`gicore.present`): the screenshot; per system and profile its frame times, the
 frames drawn while a map was made, map age and perceived latency; each stage's median; GIGAN's checks (met or
 not); the inference timing and the parity checks."""
 
@@ -6,9 +6,9 @@ from __future__ import annotations
 
 from typing import Any
 
-from bench.present.declarations import Column, Image, Rows, Table, fill, first, matches, per, unique
 from bench.viewer_parity import PORT_BUFFERS
 from bench.viewer_stats import GIGAN
+from gicore.present.declarations import Column, Image, Rows, Table, fill, first, matches, per, unique
 
 SCREENSHOT = "web_screenshot.png"
 STAGES = ("gi_render", "inference", "transmission", "server", "decode", "di", "warp", "blend", "total")

@@ -1,4 +1,4 @@
-"""What ``bench web`` measures of one replay (:class:`bench.viewer_page.Segment`), from the page's own records
+"""What ``bench web`` measures of one replay (:class:`web3d.headless.Segment`), from the page's own records
 (``viewer.frames``, ``viewer.maps``, and the recording of every frame drawn: its camera and light), per system:
 
 - ``frame_ms`` by phase: ``all`` (the pane's whole time per frame), ``idle`` (no map in flight at any time of the

@@ -14,13 +14,13 @@ from typing import TYPE_CHECKING, Any, Literal
 import numpy as np
 
 from bench.common import WARP_LABELS
-from bench.present.declarations import Chart, Column, Figure, Rows, Table, wide
 from bench.runner import FOV_DEGREES, Bench, Block, Section
 from gicore import option_groups
 from gicore.camera import Camera
 from gicore.gl.lod import LOD_CHOICES, lod_value
 from gicore.metrics import ssim
 from gicore.paths import camera_path, light_position
+from gicore.present.declarations import Chart, Column, Figure, Rows, Table, wide
 from gicore.results import Results
 from gicore.run_config import CLIENT_LOD, RENDERERS, open_raster
 from gicore.scene import SceneSpec, load_scene

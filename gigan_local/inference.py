@@ -57,6 +57,29 @@ def check_model_option(path: str | Path, option: str = "--model") -> None:
     read_model_json(path)
 
 
+def model_info(path: str | Path, option: str = "--model") -> dict[str, Any]:
+    """What a run records of the exported model ``path`` (given as ``option``): its architecture, precision,
+    resolution and size, from the checked ``model.json`` beside it."""
+    check_model_option(path, option)
+    doc = read_model_json(path)
+    return {
+        "ngf": doc.get("ngf"),
+        "precision": next((k for k, v in doc.get("files", {}).items() if v == Path(path).name), "unknown"),
+        "model": doc.get("model"),
+        "resolution": int(doc["resolution"]),
+        "size_mib": round(Path(path).stat().st_size / 2**20, 2),
+    }
+
+
+def check_model_resolution(path: str | Path, resolution: int, option: str = "--model") -> None:
+    """UserError unless the exported model ``path`` runs at ``resolution`` (a U-Net is built for one frame size)."""
+    expected = model_info(path, option)["resolution"]
+    if expected != resolution:
+        raise UserError(
+            f"{option} {path} runs at {expected}² but --resolution is {resolution}", f"pass --resolution {expected}"
+        )
+
+
 class ExportedGenerator(ABC):
     """An exported generator ready to predict GI maps; a subclass brings the backend that runs it.
 

@@ -12,9 +12,9 @@ from pathlib import Path
 import pytest
 
 from bench import registry, report
-from bench.present.declarations import Chart, Column, Figure, Table, pick
 from bench.report_md import BEGIN, END
 from bench.runner import Bench, Block, Section, execute
+from gicore.present.declarations import Chart, Column, Figure, Table, pick
 from gicore.results import Results, read_rows
 
 

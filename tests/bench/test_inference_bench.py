@@ -7,9 +7,9 @@ from pathlib import Path
 import pytest
 
 from bench.inference_bench import BENCH, TABLE, InferenceConfig, _shipped, measure
-from bench.present import write_files
-from bench.present.markdown import table_text
 from gicore.error_policy import UserError
+from gicore.present import write_files
+from gicore.present.markdown import table_text
 from gicore.results import Results, read_rows
 
 
@@ -54,7 +54,7 @@ def test_inference_rows_and_the_warm_started_torch_generator_match_onnxruntime(t
         ({"backends": ("onnxruntime", "tensorrt")}, "--backends 'tensorrt' is not one of"),
         ({"precisions": ("fp8",)}, "--precisions 'fp8' is not one of"),
         ({"torch_device": "tpu"}, "--torch-device 'tpu' is not auto, cpu or cuda"),
-        ({"models": (Path("/nonexistent/model.onnx"),)}, "no such model file"),
+        ({"models": (Path("/nonexistent/model.onnx"),)}, "is not a file"),
     ],
 )
 def test_config_is_checked(changes, message) -> None:

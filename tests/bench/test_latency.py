@@ -188,8 +188,8 @@ def _cloud_run(folder: Path, di: float, hit: int) -> None:
 def test_totals_count_the_local_di_and_the_renderers_stand_side_by_side(tmp_path: Path) -> None:
     from bench.latency_record import CLOUD, GIGAN, gigan_samples, record
     from bench.latency_tables import PARTS, SHORT
-    from bench.present.markdown import table_text, tables_text
     from gicore.mitsuba_variant import mitsuba_choice
+    from gicore.present.markdown import table_text, tables_text
     from gicore.results import Results
 
     gl, mi = {"di": 2.0, "gi_render": 5.0}, {"di": 10.0, "gi_render": 15.0}

@@ -9,9 +9,9 @@ from pathlib import Path
 import pytest
 
 from bench.prefetch import BENCH, PrefetchConfig, record, run_metrics, targets
-from bench.present.markdown import tables_text
 from gicore.error_policy import UserError
 from gicore.options import build_config
+from gicore.present.markdown import tables_text
 from gicore.results import Results, read_rows
 
 HEAD = ("frame", "ssim", "in_tolerance", "perceived_ms", "perceived_map")

@@ -13,14 +13,14 @@ import pytest
 from PIL import Image
 
 from bench import model_card, quality
-from bench.present.declarations import shown
-from bench.present.html import parts_html
-from bench.present.markdown import table_text, tables_text
 from bench.quality_grid import grid_rows, lf_colours
 from bench.runner import execute
 from gicore.dataset import DatasetMeta, FrameRecord, load_frame, read_meta, save_frame, write_meta
 from gicore.error_policy import UserError
 from gicore.metrics import lf_error
+from gicore.present.declarations import shown
+from gicore.present.html import parts_html
+from gicore.present.markdown import table_text, tables_text
 from gicore.results import Results, read_rows
 from gicore.tonemap import inverse_tonemap, tonemap
 from tests.helpers.cloud import passthrough_model

@@ -7,7 +7,6 @@ from pathlib import Path
 
 import pytest
 
-from bench.present.markdown import tables_text
 from bench.render_bench import (
     CLIENT_PASSES,
     GL_LODS,
@@ -17,6 +16,7 @@ from bench.render_bench import (
     measure_client_passes,
 )
 from gicore.error_policy import UserError
+from gicore.present.markdown import tables_text
 from gicore.results import Results, read_rows
 
 

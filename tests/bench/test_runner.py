@@ -14,10 +14,10 @@ import typer
 from typer.testing import CliRunner
 
 from bench.cli import app
-from bench.present.declarations import Chart, Column, Figure, Table, pick
 from bench.runner import Bench, build_config, execute, field_docs, register
 from gicore import option_groups
 from gicore.error_policy import UserError
+from gicore.present.declarations import Chart, Column, Figure, Table, pick
 from gicore.results import COLUMNS, Results, read_rows
 from gicore.timing import summarize_ms, time_repeats
 from tests.helpers.cli import assert_user_error, exit_status
@@ -185,7 +185,7 @@ def test_execute_writes_csv_provenance_of_the_final_config_tables_and_figures(tm
         (["fov", "--gi-fovs", "90,180"], "--gi-fovs = 180.0 is above 179.0"),
         (["frequency", "--tau", "1.5"], "--tau = 1.5 is above 1.0"),
         (["run-default", "--scenes", "lung_plane,lung_cornell"], "--scenes has 2 values"),
-        (["quality", "--models", "gigan=missing.onnx"], "--models gigan missing.onnx: no such model file"),
+        (["quality", "--models", "gigan=missing.onnx"], "--models gigan missing.onnx is not a file"),
         (["quality", "--datasets", "tests"], "--datasets tests: no dataset of"),
         (["training"], "--runs is empty"),
         (["training", "--runs", "tests"], "--runs tests: tests/metrics.csv is missing"),

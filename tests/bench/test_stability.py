@@ -11,11 +11,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bench.present import write_files
 from bench.stability import BENCH, PASSED, STAGES, counts, judge, record, summary, verdict
 from bench.stability_cases import Case, Outcome, Rejected
 from bench.stability_io import DEAD_LINKS
 from gicore.error_policy import UserError
+from gicore.present import write_files
 from gicore.results import Results, read_rows
 
 BIN = Path(sys.executable).parent

@@ -7,8 +7,8 @@ from typing import Any
 
 import pytest
 
-from bench.viewer_page import Segment
 from bench.viewer_stats import GIGAN, Replayed, frames_during, perceived, phases
+from web3d.headless import Segment
 
 
 def pane(ms: float, sent: bool = False, landed: bool = False, inflight: bool = False, shown: int | None = 0) -> dict:

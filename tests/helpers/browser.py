@@ -1,6 +1,7 @@
 """Debian's Chromium, headless, driven by Playwright, for the tests that run the Web3D page or onnxruntime-web:
-the launching, page opening and waiting are bench web's (:mod:`bench.viewer_page`); :func:`missing` says why such
-a test cannot run here (its callers skip with that reason); :func:`canvases` reads both canvases' last frames."""
+the launching, page opening and waiting are the Web3D package's (:mod:`web3d.headless`, which bench web uses);
+:func:`missing` says why such a test cannot run here (its callers skip with that reason); :func:`canvases` reads
+both canvases' last frames."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from bench.viewer_page import (  # noqa: F401  (the helpers the browser tests use)
+from web3d.headless import (  # noqa: F401  (the helpers the browser tests use)
     CHROMIUM,
     NPM_FOLDERS,
     PAGE_TIMEOUT_S,

@@ -1,8 +1,8 @@
 """What a bench shows, declared once as data: its tables, figures, images and alerts.
 
 A declaration names the rows it shows (``rows`` / ``points``: a function of the bench's CSV rows, most often
-:func:`pick` or :func:`wide`), its columns or axes, and its captions; :mod:`bench.present.markdown`,
-:mod:`bench.present.html` and :mod:`bench.present.charts` render it. Cells, labels and tooltips are
+:func:`pick` or :func:`wide`), its columns or axes, and its captions; :mod:`gicore.present.markdown`,
+:mod:`gicore.present.html` and :mod:`gicore.present.charts` render it. Cells, labels and tooltips are
 ``str.format`` templates over one derived row (:func:`fill`): a field the row lacks, None or NaN shows as a dash.
 ``where`` says which outputs show a part: the dashboard, the README's results block, or both (a bench's own
 ``<bench>.md`` and figure files hold every part).

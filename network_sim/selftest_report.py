@@ -1,13 +1,12 @@
-"""What ``bench report`` shows of ``network-sim selftest``'s CSV (:mod:`network_sim.selftest`): it is no
-``bench`` subcommand, and the network simulator sits below ``bench`` (it cannot declare its README block
-itself), so its block is declared here and registered in :mod:`bench.registry` beside the benches'."""
+"""What a report shows of ``network-sim selftest``'s CSV (:mod:`network_sim.selftest`), declared as data
+(:mod:`gicore.present`): each check against its target, and the self-test's own figure. ``bench report``
+shows it beside the benches' (:mod:`bench.registry`)."""
 
 from __future__ import annotations
 
 import json
 
-from bench.present.declarations import Column, Image, Rows, Table
-from bench.runner import Block, External
+from gicore.present.declarations import Column, Image, Part, Rows, Table
 from network_sim.selftest import BENCH as NAME
 
 
@@ -29,22 +28,18 @@ def _met(rows: Rows) -> str:
     return f"{sum(r['value'] == 1 for r in targets)} of {len(targets)} targets met."
 
 
-SELFTEST = External(
-    NAME,
-    readme=Block("Network simulator", 90, make="network-sim selftest --out {out}/netself"),
-    parts=(
-        Table(
-            checks,
-            (
-                Column("check", "{check}"),
-                Column("metric", "{metric}"),
-                Column("configured", "{configured[value]:.4g} {configured[unit]}"),
-                Column("measured", "{measured[value]:.4g} {measured[unit]}"),
-                Column("target", "{target}"),
-                Column("met", "{met}"),
-            ),
-            caption=_met,
+PARTS: tuple[Part, ...] = (
+    Table(
+        checks,
+        (
+            Column("check", "{check}"),
+            Column("metric", "{metric}"),
+            Column("configured", "{configured[value]:.4g} {configured[unit]}"),
+            Column("measured", "{measured[value]:.4g} {measured[unit]}"),
+            Column("target", "{target}"),
+            Column("met", "{met}"),
         ),
-        Image(f"{NAME}.png"),  # the self-test's own figure, beside its CSV
+        caption=_met,
     ),
+    Image(f"{NAME}.png"),  # the self-test's own figure, beside its CSV
 )

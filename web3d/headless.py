@@ -5,7 +5,7 @@ moves the controls, as a person's drag would, one per drawn frame) behind a chos
 
 A replay starts settled at its first view (both panes' maps made there, nothing in flight) and ends settled at its
 last: its frames are every frame drawn in between, the path's own and those that land the last maps.
-docs/architecture.md, bench web.
+docs/architecture.md, Web3D viewer and bench web.
 """
 
 from __future__ import annotations

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 
-from bench.present.declarations import Column, Part, Rows, Table, fill, text, unique
+from gicore.present.declarations import Column, Part, Rows, Table, fill, text, unique
 
 
 def columns(table: Table, rows: Rows) -> tuple[Column, ...]:

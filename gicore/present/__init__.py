@@ -1,6 +1,6 @@
-"""What the benches show, declared once (:mod:`bench.present.declarations`) and rendered to Markdown
-(:mod:`bench.present.markdown`), the dashboard's HTML (:mod:`bench.present.html`) and figures
-(:mod:`bench.present.charts`: PNG and SVG from one matplotlib drawing). :func:`write_files` writes a bench
+"""What the benches show, declared once (:mod:`gicore.present.declarations`) and rendered to Markdown
+(:mod:`gicore.present.markdown`), the dashboard's HTML (:mod:`gicore.present.html`) and figures
+(:mod:`gicore.present.charts`: PNG and SVG from one matplotlib drawing). :func:`write_files` writes a bench
 run's own: ``<bench>.md`` (every table) and each figure's PNG and SVG beside the CSV."""
 
 from __future__ import annotations
@@ -8,10 +8,10 @@ from __future__ import annotations
 from collections.abc import Sequence
 from pathlib import Path
 
-from bench.present import charts
-from bench.present.declarations import Figure, Part, Rows
-from bench.present.markdown import tables_text
 from gicore.fileio import atomic_write_bytes
+from gicore.present import charts
+from gicore.present.declarations import Figure, Part, Rows
+from gicore.present.markdown import tables_text
 
 
 def write_files(name: str, parts: Sequence[Part], rows: Rows, out: Path) -> list[Path]:

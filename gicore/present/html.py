@@ -1,5 +1,5 @@
 """A bench's parts as the dashboard's HTML: tables (cells and captions are Markdown, rendered inline), figures
-as the inline SVG :mod:`bench.present.charts` draws, images as data URIs (the page opens offline), alerts."""
+as the inline SVG :mod:`gicore.present.charts` draws, images as data URIs (the page opens offline), alerts."""
 
 from __future__ import annotations
 
@@ -10,9 +10,9 @@ from functools import cache
 from pathlib import Path
 from typing import Any
 
-from bench.present import charts
-from bench.present.declarations import Alert, Figure, Image, Part, Rows, Table, fill, text
-from bench.present.markdown import columns, groups
+from gicore.present import charts
+from gicore.present.declarations import Alert, Figure, Image, Part, Rows, Table, fill, text
+from gicore.present.markdown import columns, groups
 
 
 def e(value: Any) -> str:

@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 from xml.dom import minidom
 
-from bench.present.declarations import Chart, Figure, Rows, fill, text, unique
+from gicore.present.declarations import Chart, Figure, Rows, fill, text, unique
 
 #: Marks' tooltips by the gid of the artist that drew them, in drawing order.
 Tips = dict[str, list[str]]
