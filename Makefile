@@ -14,13 +14,15 @@ $(STAMP): pyproject.toml scripts/setup.sh web3d/static/package-lock.json
 run: setup
 	$(PY) -m bench run-default --out $(OUT)
 
-# Lint and format checks first (fast), then the tests: one pytest worker per core (pytest-xdist), each test file
-# on one worker, so a module's fixtures are built once. No test judges a wall-clock bound (those are `bench
-# load`'s and the other benches'), so none has to run alone: the load tests share the machine like the rest.
+# Lint and format checks first (fast), then the tests on pytest-xdist workers, one more than the cores (many tests
+# wait on the servers, proxies and browsers they start), each test file on one worker so that a module's fixtures
+# are built once, the files with slow tests handed out first (tests/conftest.py). No test judges a wall-clock bound
+# (those are `bench load`'s and the other benches'), so none has to run alone.
+WORKERS := $(shell echo $$(( $$(nproc) + 1 )))
 test: setup
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
-	$(PY) -m pytest -q -n auto --dist loadfile
+	$(PY) -m pytest -q -n $(WORKERS) --dist loadfile --no-loadscope-reorder
 
 clean:
 	rm -rf $(OUT) .pytest_cache

@@ -24,6 +24,15 @@ def pytest_configure(config: pytest.Config) -> None:
         signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Modules with a slow test first (a stable sort: modules and their tests otherwise keep their order).
+    pytest-xdist hands each worker whole modules in this order (the Makefile's ``--dist loadfile
+    --no-loadscope-reorder``): a long module handed out last would keep one worker busy while the others wait,
+    and the short ones, last, fill the workers' ends evenly."""
+    slow = {item.path for item in items if item.get_closest_marker("slow")}
+    items.sort(key=lambda item: item.path not in slow)
+
+
 @pytest.fixture(scope="session")
 def sphere_mesh_path(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """An icosphere (642 vertices) stored as an OBJ user mesh."""

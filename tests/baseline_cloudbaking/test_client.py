@@ -46,6 +46,7 @@ def views(scenes_dir: Path, frames: int):
     return spec, [(cam.with_fov(90.0), light) for cam, light in path_views(spec, frames, 300, 0, 60.0, RES)]
 
 
+@pytest.mark.slow
 def test_remote_source_splits_a_miss_and_a_hit_into_stages(server: str, scenes_dir: Path) -> None:
     _, [(camera, light)] = views(scenes_dir, 1)
     camera = camera.with_fov(71.0)  # a GI format no other test asks for: the first request must miss

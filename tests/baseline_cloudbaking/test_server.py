@@ -43,6 +43,7 @@ def post(client: httpx.Client, body) -> httpx.Response:
     return client.post("/v1/gimap", content=content, headers={"content-type": "application/json"})
 
 
+@pytest.mark.slow
 def test_miss_renders_and_stores_then_the_same_request_hits(client: httpx.Client, server) -> None:
     body = gimap_body(eye=(1.5, 1.2, 1.3), light=[0.1, 2.2, 0.3], di=True)
     before = client.get("/v1/stats").json()
@@ -163,6 +164,7 @@ def test_wrong_method_and_path_are_4xx(client: httpx.Client) -> None:
     )
 
 
+@pytest.mark.slow
 def test_concurrent_misses_across_scenes_and_resolutions(client: httpx.Client) -> None:
     """Dr.Jit fails when two threads render two scenes at once (a procedural one especially; without the
     server's render lock this failed in 2 of 4 runs): every miss must still be a 200."""
@@ -262,6 +264,7 @@ def _spoil(body: dict) -> st.SearchStrategy:
 _request = st.one_of(_valid, _valid.flatmap(_spoil), st.lists(st.integers(), max_size=2), st.text(max_size=20))
 
 
+@pytest.mark.slow
 @settings(
     max_examples=120, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow]
 )

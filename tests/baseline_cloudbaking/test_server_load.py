@@ -130,6 +130,7 @@ def ring(n: int, scene: str = "ball_moving", radius: float = 2.0, **fields) -> l
     return [gimap_body(scene, eye=(radius * np.sin(a), 1.1, radius * np.cos(a)), **fields) for a in angles]
 
 
+@pytest.mark.slow
 def test_80_misses_and_hits_while_they_render(srv: Server) -> None:
     """80 misses at once: those beyond the queue are refused at once (503 + Retry-After), the admitted ones are
     baked, nothing else is a 5xx; hits are answered while the misses render and none waits for a render: the
@@ -161,6 +162,7 @@ def test_80_misses_and_hits_while_they_render(srv: Server) -> None:
     assert p99 <= 0.5 * one_render_ms, (p99, one_render_ms)
 
 
+@pytest.mark.slow
 def test_a_queued_miss_whose_client_left_is_dropped(srv: Server) -> None:
     """A slow miss holds the render thread; four misses queued behind it lose their clients: none of them
     is rendered (their views are not in the tree) and the stats count them dropped."""
@@ -198,6 +200,7 @@ def send_request(sock: socket.socket, body: dict) -> None:
 CONNECTIONS = ("connections_drained", "connections_timed_out", "connections_refused")
 
 
+@pytest.mark.slow
 def test_idle_connections_beyond_the_cap_are_closed_and_none_is_refused(tmp_path: Path, scenes_dir: Path) -> None:
     """600 connections that send nothing against a cap of 64 and an idle timeout longer than the test: every one
     beyond the cap is closed for a newer one, however slowly they arrive; no connection
@@ -339,6 +342,7 @@ def tiny_tmpfs(path: Path, size: str) -> Iterator[Path]:
         subprocess.run(["umount", "-l", str(path)], check=True)
 
 
+@pytest.mark.slow
 def test_a_full_disk_is_507_leaves_no_orphan_and_recovers_without_restart(tmp_path: Path, scenes_dir: Path) -> None:
     """The store on a 4 MiB tmpfs: once a filler file takes the space left, a miss is 507 with one line,
     no payload file is left unindexed, hits go on; with the filler gone the same miss is baked."""
@@ -466,6 +470,7 @@ def test_load_options_out_of_range_are_one_line(
     assert not store.exists()
 
 
+@pytest.mark.slow
 def test_the_cloud_client_honours_the_real_servers_503_and_retry_after(srv: Server) -> None:
     """A slow miss renders and QUEUE more wait: the client's miss is refused 503 with the server's Retry-After,
     recorded as overloaded, and the client sends nothing more until that time has passed."""

@@ -81,6 +81,7 @@ def stopping_detail(response: httpx.Response) -> None:
     assert detail["loc"] == ["server"] and detail["type"] == "stopping" and "stopping" in detail["msg"]
 
 
+@pytest.mark.slow
 def test_a_miss_rendering_at_sigterm_is_stored_and_answered_then_exit_0(tmp_path: Path, scenes_dir: Path) -> None:
     store = tmp_path / "store"
     with running(store, scenes_dir, "--graceful-timeout-s", str(HANG_S)) as (proc, url, stderr):
@@ -122,6 +123,7 @@ def test_a_render_past_the_graceful_timeout_at_ctrl_c_is_abandoned_unstored_then
         assert tree.entries() == [] and tree.verify() == []
 
 
+@pytest.mark.slow
 def test_kill_9_in_the_middle_of_bakes_leaves_no_torn_entry(tmp_path: Path, scenes_dir: Path) -> None:
     """Killed at two moments of a run of misses: each reopening finds every indexed payload whole and no file
     unindexed after its sweep."""

@@ -6,12 +6,15 @@ import json
 from dataclasses import replace
 from pathlib import Path
 
+import pytest
+
 from bench.load import BENCH, PHASES, TARGETS, LoadConfig
 from bench.runner import execute
 from gicore.results import read_rows
 from tests.helpers.cloud import write_scenes
 
 
+@pytest.mark.slow
 def test_load_bench_writes_every_phase_and_target(tmp_path: Path) -> None:
     spec = write_scenes(tmp_path / "scenes") / "ball_static.json"
     small = {"hit_clients": 2, "period_ms": 50.0, "misses": 12, "idle": 40, "max_connections": 16}

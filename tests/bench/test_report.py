@@ -55,6 +55,7 @@ def broken(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, di
     return build(results, tmp_path_factory.mktemp("report"))
 
 
+@pytest.mark.slow
 def test_every_section_renders_from_the_fixture_csvs(complete) -> None:
     html, sections = complete
     assert set(sections) == set(SECTIONS)

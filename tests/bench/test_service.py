@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import pytest
+
 from bench.runner import execute
 from bench.server_bench import BENCH, ServiceConfig
 from gicore.results import read_rows
@@ -12,6 +14,7 @@ from tests.helpers.cloud import write_scenes
 METRICS = ("miss_e2e", "miss_server", "hit_server", "hit_e2e", "load_latency", "load_throughput", "load_errors")
 
 
+@pytest.mark.slow
 def test_service_bench_measures_every_metric_against_a_real_server(tmp_path: Path) -> None:
     spec = write_scenes(tmp_path / "scenes") / "ball_static.json"
     cfg = ServiceConfig(

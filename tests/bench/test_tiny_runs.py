@@ -84,6 +84,7 @@ def test_training_curves_from_run_folders(tmp_path: Path) -> None:
     assert ">runA</text>" in (tmp_path / "out" / "training.svg").read_text()  # the run's curve, in the legend
 
 
+@pytest.mark.slow
 def test_tiny_warp_frequency_and_fov_runs(tmp_path: Path) -> None:
     """The three client benches end to end at 32², a few frames each: CSV, plots, and a sanity bound each."""
     from bench import fov, frequency, warp_bench

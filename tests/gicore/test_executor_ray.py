@@ -153,6 +153,7 @@ def _refuse(_: Path, job: int) -> int:
 # --- data set and prebake: Ray against the local pool ------------------------------------------------
 
 
+@pytest.mark.slow
 def test_dataset_on_ray_equals_the_local_pool_and_resumes(
     ray_address: str, spec: SceneSpec, pool_dataset: Path, tmp_path: Path
 ) -> None:

@@ -96,6 +96,7 @@ def test_a_graph_of_another_resolution_is_refused_on_torch(tmp_path: Path):
         TorchGIModel(folder / DEFAULT_MODEL.name, threads=1, warmup=0)
 
 
+@pytest.mark.slow
 def test_gigan_client_runs_the_model_on_the_backend_asked(make_spec, tmp_path: Path):
     """`gigan-client --inference torch` predicts its GI maps on torch and says so in its summary; an unknown
     backend is one error line."""

@@ -112,6 +112,7 @@ def viewer(argv: list[str], cwd: Path, env: dict[str, str] | None = None) -> Ite
             run.proc.wait()
 
 
+@pytest.mark.slow
 def test_children_serve_each_profile_and_store_and_sigterm_stops_them_all(tmp_path: Path) -> None:
     store = tmp_path / "store"
     store.mkdir()
@@ -165,6 +166,7 @@ def test_ctrl_c_leaves_no_child(tmp_path: Path, when: str, profiles: str) -> Non
     assert not Path(server.removeprefix("cloudbaking-server, given store ")).exists()  # the temporary store
 
 
+@pytest.mark.slow
 def test_sigkill_leaves_no_child(tmp_path: Path) -> None:
     """SIGKILL runs no cleanup in gigan-web: the kernel signals its children (parent-death signal), and they stop."""
     with viewer(["--scene", "lung_plane", "--profiles", "lan"], tmp_path) as run:

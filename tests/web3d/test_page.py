@@ -80,6 +80,7 @@ def drawn_after(page: Any, n: int) -> None:
     wait(page, "n => viewer.frames.length > n", n)
 
 
+@pytest.mark.slow
 def test_a_drag_and_a_wheel_move_the_camera_and_both_canvases(page: Any) -> None:
     settle(page)
     cam0, shot0, n = page.evaluate("viewer.camera()"), canvases(page), len(page.evaluate("viewer.frames"))

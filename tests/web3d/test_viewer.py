@@ -102,6 +102,7 @@ def rows_of(rows: list[dict], metric: str, stat: str | None = None, **config: An
     return [r for r in rows if matches(r, metric, stat, **config)]
 
 
+@pytest.mark.slow
 def test_the_path_replays_through_the_pages_controls_once_per_profile(run) -> None:
     replayed = [f for f in run["replayed"] if f is not None]
     assert replayed == [*range(CFG.frames)] * len(CFG.profiles)  # one path frame per drawn frame, in order
