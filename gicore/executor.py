@@ -43,8 +43,9 @@ CACHED_STATES = 2
 RAY_CONNECT_TIMEOUT_S = 5.0
 #: How often the driver wakes from waiting on Ray, so that Ctrl-C is handled promptly.
 RAY_POLL_S = 0.2
-#: How long an interrupted run keeps cancelling its outstanding Ray tasks until they have all ended (s).
-RAY_CANCEL_S = 10.0
+#: How long an interrupted run keeps cancelling its outstanding Ray tasks until they have all ended (s): on a busy
+#: machine Ray can take many seconds to hand a task to a worker, and a cancel sent meanwhile is lost.
+RAY_CANCEL_S = 30.0
 #: How often a pool worker's watchdog checks that the driver that started it is still its parent (s).
 PARENT_POLL_S = 0.5
 #: How long an ending pool waits for its killed workers and its manager thread (s).

@@ -117,9 +117,13 @@ class Stack:
                 raise Unavailable("the viewer's server is stopping")
             return self.children.enter_context(child)
 
+        future = self.spawner.submit(spawn)
         try:
-            return self.spawner.submit(spawn).result()
+            return future.result()
         except (RuntimeError, TimeoutError) as exc:  # it printed no 'listening on' line; Running stopped it
+            if not future.done() or future.exception() is not exc:
+                # Ctrl-C landed in the wait, whose lock clean-up raised over it: a stop, not the child's failure
+                raise KeyboardInterrupt from exc
             last = str(exc).strip().splitlines()[-1]
             raise Unavailable(f"{what} did not start ({last})") from None
 

@@ -292,9 +292,9 @@ def test_interrupting_the_driver_cancels_the_running_tasks(ray_address: str, tmp
         raise KeyboardInterrupt
 
     with pytest.raises(KeyboardInterrupt):
-        RayExecutor().run(Task(_marker, (str(tmp_path),), _sleep), [0.0, 60.0, 60.0, 60.0], interrupt)
-    # the 60 s sleeps were stopped: their workers are idle long before the sleeps could have ended
-    deadline = interrupted[0] + 40
+        RayExecutor().run(Task(_marker, (str(tmp_path),), _sleep), [0.0, *[HANG_GUARD_S] * 3], interrupt)
+    # the long sleeps were stopped: their workers are idle long before the sleeps could have ended
+    deadline = interrupted[0] + HANG_GUARD_S / 4
     while busy_ray_workers() and time.monotonic() < deadline:
         time.sleep(0.05)
     assert busy_ray_workers() == []

@@ -109,15 +109,16 @@ def test_hundred_concurrent_connections(server: Running) -> None:
 @pytest.mark.parametrize("delay_ms", [20.0, 120.0])
 def test_one_way_delay_within_tolerance(server: Running, delay_ms: float) -> None:
     """Never early; and late by the delay asked for, over what the same probes take through a proxy with no
-    delay in the same run (the proxy's own forwarding, which grows on a busy machine)."""
+    delay in the same run (the proxy's own forwarding). Each side's fastest probe is compared: the forwarding of
+    the others grows and varies with the load on the machine, the fastest's hardly."""
     with _proxy(server) as proxy:
         baseline = endpoint.probes(proxy.addr, 60, 0.01, TIMEOUT)
     with _proxy(server, "--delay-ms", f"{delay_ms:g}") as proxy:
         probes = endpoint.probes(proxy.addr, 60, 0.01, TIMEOUT)
     for direction in ("up_s", "down_s"):
         values = [getattr(p, direction) * 1e3 for p in probes]
-        forwarding = statistics.median(getattr(p, direction) * 1e3 for p in baseline)
-        added = statistics.median(values) - forwarding
+        forwarding = min(getattr(p, direction) * 1e3 for p in baseline)
+        added = min(values) - forwarding
         assert added == pytest.approx(delay_ms, abs=2.0 + 0.03 * delay_ms), (direction, forwarding)
         assert min(values) >= delay_ms - 0.05  # never early
 
