@@ -49,19 +49,18 @@ def read_model_json(path: str | Path) -> dict[str, Any]:
         ) from None
 
 
-def check_model_option(path: str | Path, option: str = "--model") -> None:
+def check_model_option(path: str | Path, option: str = "--model") -> dict[str, Any]:
     """UserError unless ``path`` (given as ``option``) is a file with a valid ``model.json`` beside it: what a
-    command checks before it starts work that will need the model."""
+    command checks before it starts work that will need the model. Returns that ``model.json``."""
     if not Path(path).is_file():
         raise UserError(f"{option} {path} is not a file", "give a .onnx file that gigan-export wrote")
-    read_model_json(path)
+    return read_model_json(path)
 
 
 def model_info(path: str | Path, option: str = "--model") -> dict[str, Any]:
     """What a run records of the exported model ``path`` (given as ``option``): its architecture, precision,
     resolution and size, from the checked ``model.json`` beside it."""
-    check_model_option(path, option)
-    doc = read_model_json(path)
+    doc = check_model_option(path, option)
     return {
         "ngf": doc.get("ngf"),
         "precision": next((k for k, v in doc.get("files", {}).items() if v == Path(path).name), "unknown"),
