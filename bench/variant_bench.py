@@ -31,9 +31,8 @@ import numpy as np
 from bench.processes import BIN
 from bench.runner import Bench, Section
 from gicore import option_groups
-from gicore.cuda_probe import cuda_device_count
 from gicore.error_policy import UserError
-from gicore.mitsuba_variant import VARIANT_ENV, VariantChoice, choose_variant, cuda_variant_built, find_libllvm
+from gicore.mitsuba_variant import VARIANT_ENV, VariantChoice, machine_choice
 from gicore.present.declarations import Column, Rows, Table, first, matches, unique
 from gicore.results import Results, read_rows
 
@@ -82,14 +81,13 @@ class VariantsConfig:
 def choice(device: str) -> VariantChoice:
     """The :class:`gicore.mitsuba_variant.VariantChoice` a process with ``GIGAN_MITSUBA_VARIANT=device`` makes on
     this machine; a device that cannot run here is a one-line user error before anything is baked."""
-    cuda = cuda_device_count() if device != "cpu" else 0
     try:
-        made = choose_variant(device, cuda, cuda_variant_built(), find_libllvm())
+        made = machine_choice(device)
     except UserError as exc:
         raise UserError(
             f"--variants {device}: {exc.what}", "bake it on a machine that has one, or leave it out"
         ) from None
-    if made.denoiser == "oidn" and importlib.util.find_spec("pyoidn") is None:
+    if made.needs_pyoidn and importlib.util.find_spec("pyoidn") is None:
         raise UserError(
             f"--variants {device}: its denoiser, OIDN, needs pyoidn, which is not installed",
             "pip install pyoidn, or give --reference the --out of a run made where it is",

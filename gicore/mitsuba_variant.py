@@ -5,7 +5,8 @@ takes ``auto`` (the default), ``cpu`` or ``cuda``:
 
 - ``cuda``: ``cuda_ad_rgb``, which needs a CUDA device (:func:`gicore.cuda_probe.cuda_device_count`) and a
   Mitsuba build with that variant; the GT is denoised by Mitsuba's own OptiX denoiser (part of the
-  driver, no wheel to install);
+  driver, no wheel to install), or, where the driver lacks that denoiser's weights file (some container
+  images mount the driver's libraries without it), by OIDN on the same CUDA device (``pyoidn``, through torch);
 - ``cpu``: ``llvm_ad_rgb``, which needs libLLVM >= 16 (older ones abort the process inside Dr.Jit, so the
   library is located before the import), else the ~45x slower ``scalar_rgb``; the GT is denoised by Intel
   Open Image Denoise (``pyoidn``);
@@ -42,14 +43,26 @@ class VariantChoice:
     """A process's Mitsuba variant, the denoiser of its GT renders, and the line that says why."""
 
     variant: str
-    #: "optix" (Mitsuba's, on the CUDA variant) or "oidn" (pyoidn, on the CPU variants).
+    #: "optix" (Mitsuba's, on the CUDA variant), "oidn-cuda" (pyoidn on the CUDA device, on the CUDA variant
+    #: where the driver has no OptiX denoiser weights) or "oidn" (pyoidn on the CPU, on the CPU variants).
     denoiser: str
     notice: str
 
+    @property
+    def needs_pyoidn(self) -> bool:
+        return self.denoiser.startswith("oidn")
 
-def choose_variant(asked: str, cuda_devices: int, cuda_variant_built: bool, libllvm: str | None) -> VariantChoice:
+
+#: Where the driver's OptiX library reads its denoiser's weights; without the file the denoiser cannot start.
+OPTIX_DENOISER_WEIGHTS = Path("/usr/share/nvidia/nvoptix.bin")
+
+
+def choose_variant(
+    asked: str, cuda_devices: int, cuda_variant_built: bool, libllvm: str | None, optix_weights: bool = True
+) -> VariantChoice:
     """The variant for ``GIGAN_MITSUBA_VARIANT=asked`` on a machine with ``cuda_devices`` CUDA devices, a Mitsuba
-    build that has (``cuda_variant_built``) or lacks the CUDA variant, and ``libllvm`` (a path, or None)."""
+    build that has (``cuda_variant_built``) or lacks the CUDA variant, ``libllvm`` (a path, or None), and a driver
+    that has (``optix_weights``) or lacks the OptiX denoiser's weights."""
     if asked not in DEVICES:
         raise UserError(f"{VARIANT_ENV}={asked!r} is not a device", f"set it to one of {', '.join(DEVICES)}")
     cuda_runs = cuda_devices > 0 and cuda_variant_built
@@ -57,6 +70,12 @@ def choose_variant(asked: str, cuda_devices: int, cuda_variant_built: bool, libl
         missing = "no CUDA device" if cuda_devices == 0 else f"this Mitsuba build has no {CUDA_VARIANT}"
         raise UserError(f"{VARIANT_ENV}=cuda but {missing}", f"set {VARIANT_ENV}=cpu or auto, or leave it unset")
     if asked != "cpu" and cuda_runs:
+        if not optix_weights:
+            notice = (
+                f"mitsuba: {CUDA_VARIANT} on the GPU, OIDN denoiser on the GPU: the driver has no OptiX denoiser "
+                f"weights ({OPTIX_DENOISER_WEIGHTS}) ({why(asked)})"
+            )
+            return VariantChoice(CUDA_VARIANT, "oidn-cuda", notice)
         notice = f"mitsuba: {CUDA_VARIANT} on the GPU, OptiX denoiser ({why(asked)})"
         return VariantChoice(CUDA_VARIANT, "optix", notice)
     reason = why(asked) if asked == "cpu" else "no CUDA device" if cuda_devices == 0 else f"no {CUDA_VARIANT} built"
@@ -95,20 +114,24 @@ def cuda_variant_built() -> bool:
     return any(glob.glob(str(Path(folder) / f"{CUDA_VARIANT}.*")) for folder in folders or [])
 
 
+def machine_choice(asked: str) -> VariantChoice:
+    """:func:`choose_variant` for ``asked`` on this machine; the CUDA probe runs only where CUDA could be asked for."""
+    cuda_devices = cuda_device_count() if asked in ("auto", "cuda") else 0
+    return choose_variant(asked, cuda_devices, cuda_variant_built(), find_libllvm(), OPTIX_DENOISER_WEIGHTS.is_file())
+
+
 @functools.cache
 def mitsuba_choice() -> VariantChoice:
-    """This process's choice (:func:`choose_variant` on ``GIGAN_MITSUBA_VARIANT`` and this machine), its notice
-    printed once on stderr. The CUDA probe runs only where the CUDA variant could be asked for."""
-    asked = os.environ.get(VARIANT_ENV, "auto").strip().lower() or "auto"
-    cuda_devices = cuda_device_count() if asked in ("auto", "cuda") else 0
-    choice = choose_variant(asked, cuda_devices, cuda_variant_built(), find_libllvm())
+    """This process's choice (:func:`machine_choice` of ``GIGAN_MITSUBA_VARIANT``), its notice printed once on
+    stderr."""
+    choice = machine_choice(os.environ.get(VARIANT_ENV, "auto").strip().lower() or "auto")
     if multiprocessing.parent_process() is None:
         print(choice.notice, file=sys.stderr, flush=True)
     return choice
 
 
 def check_denoiser(denoise: bool) -> None:
-    """Denoising the path-traced GT needs pyoidn on the CPU variants (OptiX comes with the CUDA one): say so
-    before any frame is rendered."""
-    if denoise and mitsuba_choice().denoiser == "oidn" and importlib.util.find_spec("pyoidn") is None:
+    """Denoising the path-traced GT needs pyoidn unless OptiX denoises (on the CUDA variant, where the driver has
+    its weights): say so before any frame is rendered."""
+    if denoise and mitsuba_choice().needs_pyoidn and importlib.util.find_spec("pyoidn") is None:
         raise UserError("denoising the GT renders needs pyoidn", "pip install pyoidn, or turn it off with --no-denoise")

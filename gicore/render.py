@@ -3,8 +3,8 @@
 
 This is the only module that imports Mitsuba. Its variant, and the denoiser of the GT, are chosen before the
 import by :mod:`gicore.mitsuba_variant` (``GIGAN_MITSUBA_VARIANT=auto|cpu|cuda``): ``cuda_ad_rgb`` with
-Mitsuba's OptiX denoiser where a CUDA device is present, else ``llvm_ad_rgb`` (libLLVM >= 16, located before
-the import; without one the ~45x slower ``scalar_rgb``) with Intel Open Image Denoise.
+Mitsuba's OptiX denoiser (or OIDN on the GPU) where a CUDA device is present, else ``llvm_ad_rgb`` (libLLVM
+>= 16, located before the import; without one the ~45x slower ``scalar_rgb``) with Intel Open Image Denoise.
 
 One :class:`Renderer` holds one compiled scene at one resolution. Cameras, the light and vertex
 texture coordinates are updated in place through ``mi.traverse`` (no recompilation). All passes share
@@ -316,7 +316,8 @@ class Renderer:
 
     def denoise(self, color: np.ndarray, gbuffers: dict[str, np.ndarray]) -> np.ndarray:
         """The HDR ``color`` denoised with albedo and normal guides by the variant's denoiser: Intel Open Image
-        Denoise on the CPU variants, Mitsuba's OptiX denoiser on the CUDA one."""
+        Denoise on the CPU variants, Mitsuba's OptiX denoiser on the CUDA one (OIDN on the CUDA device where the
+        driver lacks OptiX's weights; the copies to and from the device are part of the denoise)."""
         color, albedo = np.ascontiguousarray(color), np.ascontiguousarray(gbuffers["albedo"])
         if CHOICE.denoiser == "optix":
             if getattr(self, "_optix", None) is None:
@@ -328,7 +329,13 @@ class Renderer:
             return np.array(out, dtype=np.float32)
         import pyoidn
 
-        return pyoidn.denoise(color, albedo, np.ascontiguousarray(gbuffers["normal"]), hdr=True)
+        normal = np.ascontiguousarray(gbuffers["normal"])
+        if CHOICE.denoiser == "oidn-cuda":
+            import torch
+
+            on_gpu = [torch.from_numpy(a).cuda() for a in (color, albedo, normal)]
+            return pyoidn.denoise(*on_gpu, hdr=True).cpu().numpy()
+        return pyoidn.denoise(color, albedo, normal, hdr=True)
 
     def render_frame(
         self, camera: Camera, light=None, buffers=DATASET_BUFFERS, spp: int = 64, seed: int = 0, denoise: bool = False

@@ -37,6 +37,15 @@ def test_the_cuda_variant_where_it_runs_else_the_cpu_one(asked, devices, built, 
     assert "\n" not in choice.notice
 
 
+@pytest.mark.parametrize("asked", ["auto", "cuda"])
+def test_without_the_optix_weights_oidn_denoises_on_the_gpu(asked):
+    choice = choose_variant(asked, 1, True, LLVM, optix_weights=False)
+    assert (choice.variant, choice.denoiser, choice.needs_pyoidn) == ("cuda_ad_rgb", "oidn-cuda", True)
+    assert "OIDN denoiser on the GPU" in choice.notice and "nvoptix.bin" in choice.notice
+    assert "\n" not in choice.notice
+    assert choose_variant("cpu", 1, True, LLVM, optix_weights=False).denoiser == "oidn"
+
+
 def test_without_llvm_the_cpu_variant_is_scalar_and_the_notice_says_how_to_fix_it():
     choice = choose_variant("auto", 0, True, None)
     assert (choice.variant, choice.denoiser) == ("scalar_rgb", "oidn")
@@ -59,7 +68,7 @@ def test_a_variant_that_cannot_run_is_a_user_error(asked, devices, built, messag
 
 def test_optix_denoises_without_pyoidn_oidn_needs_it(monkeypatch):
     monkeypatch.setattr(mitsuba_variant.importlib.util, "find_spec", lambda name: None)
-    for denoiser in ("optix", "oidn"):
+    for denoiser in ("optix", "oidn", "oidn-cuda"):
         monkeypatch.setattr(mitsuba_variant, "mitsuba_choice", lambda d=denoiser: VariantChoice("v", d, "n"))
         check_denoiser(False)
         if denoiser == "optix":
