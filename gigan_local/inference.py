@@ -127,14 +127,18 @@ class ExportedGenerator(ABC):
         """Linear GI radiance (HxWx3 float32, C-contiguous) from the frame's buffers (name -> HxWxC linear
         arrays), host copies to and from the backend's device included. Not reentrant: the buffers are encoded
         into the model's one input array."""
+        self.check_frame_size(frame_buffers)
+        frame_to_input(frame_buffers, self.spec, out=self._input[0])
+        return output_to_radiance(self._run(self._input))
+
+    def check_frame_size(self, frame_buffers: dict[str, np.ndarray]) -> None:
+        """ValueError unless the frame's buffers are at the model's resolution."""
         sizes = {np.shape(frame_buffers[b])[:2] for b in self.spec.buffers if b in frame_buffers}
         if sizes - {(self.resolution, self.resolution)}:
             raise ValueError(
                 f"frame buffers are {' and '.join(f'{h}x{w}' for h, w in sorted(sizes))} but the model runs at "
                 f"{self.resolution}x{self.resolution}; render the GI-camera buffers at the model's resolution"
             )
-        frame_to_input(frame_buffers, self.spec, out=self._input[0])
-        return output_to_radiance(self._run(self._input))
 
 
 class GIModel(ExportedGenerator):

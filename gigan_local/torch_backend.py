@@ -4,10 +4,12 @@
 ``model.json``'s ``network`` describes (:func:`gigan_local.networks.define_G`), its weights read back from
 the file (:func:`gigan_local.warmstart.load_into`: batch norms the exporter folded into their convolutions
 come back exactly in eval mode), in eval mode. On a CUDA device it runs in float16, which every GPU that
-current torch builds support computes natively; the input is encoded into pinned host memory and copied
-to the device, and the output copied back, inside :meth:`predict` (so a client's ``inference`` stage
-counts the copies). Without CUDA it runs on the CPU in float32, where it matches onnxruntime on the same
-file to float rounding.
+current torch builds support computes natively. :meth:`TorchGIModel.predict` copies the frame's raw buffers
+to the device, encodes them there (:func:`encode_frame`, the torch twin of
+:func:`gigan_local.preprocess.frame_to_input`), runs the network, decodes its output to radiance there
+(:func:`decode_output`) and copies that back: a client's ``inference`` stage counts both copies, and no
+per-pixel encoding runs on the host. Without CUDA it runs on the CPU in float32, where it matches
+onnxruntime on the same file to float rounding.
 """
 
 from __future__ import annotations
@@ -17,9 +19,12 @@ from typing import Any
 
 import numpy as np
 
+from gicore.buffers import CHANNELS
 from gicore.cuda_probe import cuda_device_count
 from gicore.error_policy import UserError
+from gicore.tonemap import GAMMA, Y_MAX
 from gigan_local.inference import MODEL_JSON, ExportedGenerator, check_input_shape
+from gigan_local.preprocess import InputSpec
 
 
 def cuda_for_torch() -> bool:
@@ -73,6 +78,23 @@ class TorchGIModel(ExportedGenerator):
         self._host_input: Any = torch.zeros(shape, dtype=torch.float32, pin_memory=self.device.type == "cuda")
         return self._host_input.numpy()
 
+    def predict(self, frame_buffers: dict[str, np.ndarray]) -> np.ndarray:
+        """Linear GI radiance (HxWx3 float32) from the frame's buffers: encoded, predicted and decoded on the
+        device (see the module docstring); a NaN or Inf in a buffer is a ValueError, as on the host path."""
+        import torch
+
+        self.check_frame_size(frame_buffers)
+        with torch.inference_mode():
+            raw = {b: upload_buffer(b, frame_buffers, self.device) for b in self.spec.buffers}
+            finite = torch.stack([torch.isfinite(t).all() for t in raw.values()])
+            x = encode_frame(raw, self.spec).to(self.dtype)
+            radiance = decode_output(self.net(x[None])[0].float())
+            out, finite = radiance.cpu().numpy(), finite.cpu().numpy()  # .cpu() waits for the device
+        if not finite.all():
+            bad = [b for b, ok in zip(raw, finite) if not ok]
+            raise ValueError(f"buffer(s) {bad} contain NaN or Inf; fix the renderer output before feeding a network")
+        return out
+
     def _run(self, x: np.ndarray) -> np.ndarray:
         import torch
 
@@ -81,3 +103,44 @@ class TorchGIModel(ExportedGenerator):
             x_device = host.to(self.device, non_blocking=True).to(self.dtype)
             # .cpu() waits for the device, so the time of the whole call is what the network took
             return self.net(x_device)[0].float().cpu().numpy()
+
+
+def upload_buffer(name: str, frame: dict[str, np.ndarray], device: Any) -> Any:
+    """The frame's buffer ``name`` (HxWxC) as a float32 tensor on ``device``; a missing or misshapen buffer is
+    the error :func:`gigan_local.preprocess.frame_to_input` gives."""
+    import torch
+
+    if name not in frame:
+        raise KeyError(f"the frame lacks buffer(s) {[name]} that the model needs (it has {sorted(frame)})")
+    arr = np.asarray(frame[name], dtype=np.float32)
+    if arr.ndim != 3 or arr.shape[-1] != CHANNELS[name]:
+        raise ValueError(f"buffer {name!r} must be an HxWx{CHANNELS[name]} array, got shape {arr.shape}")
+    return torch.from_numpy(np.ascontiguousarray(arr)).to(device)
+
+
+def encode_frame(raw: dict[str, Any], spec: InputSpec) -> Any:
+    """The network input (CxHxW float32 in [-1, 1]) from raw HxWxC tensors: the encoding of
+    :func:`gigan_local.preprocess.encode_buffer`, on the tensors' device."""
+    import torch
+
+    def encoded(name: str, t: Any) -> Any:
+        if name == "di":
+            x = t.clamp_min(0.0)
+            return 2.0 * (x / (1.0 + x)) ** (1.0 / GAMMA) - 1.0
+        if name in ("albedo", "mask"):
+            return 2.0 * t.clamp(0.0, 1.0) - 1.0
+        if name == "normal":
+            return t
+        if name == "depth":
+            d = t.clamp_min(0.0)
+            return 2.0 * (d / (d + spec.depth_scale)) - 1.0
+        raise ValueError(f"buffer {name!r} has no encoding on the torch backend")
+
+    return torch.cat([encoded(b, raw[b]) for b in spec.buffers], dim=2).permute(2, 0, 1).contiguous()
+
+
+def decode_output(y: Any) -> Any:
+    """Linear radiance (HxWx3, contiguous) from the network output (3xHxW in [-1, 1]): the decoding of
+    :func:`gigan_local.preprocess.output_to_radiance`, on the tensor's device."""
+    display = ((y + 1.0) * 0.5).clamp(0.0, Y_MAX) ** GAMMA
+    return (display / (1.0 - display)).permute(1, 2, 0).contiguous()

@@ -16,7 +16,8 @@ from gicore.cuda_probe import cuda_device_count
 from gicore.error_policy import UserError
 from gigan_local.backend_choice import open_model, resolve_inference
 from gigan_local.inference import DEFAULT_MODEL, GIModel
-from gigan_local.torch_backend import TorchGIModel
+from gigan_local.preprocess import CHANNELS, frame_to_input, output_to_radiance
+from gigan_local.torch_backend import TorchGIModel, decode_output, encode_frame
 from tests.helpers.guards import HANG_GUARD_S
 
 #: Largest difference between the two backends' predictions (linear radiance) on the shipped model.
@@ -48,6 +49,33 @@ def test_torch_on_the_cpu_predicts_what_onnxruntime_predicts(frame, name):
     assert predicted.shape == reference.shape == (*frame["di"].shape[:2], 3) and predicted.flags.c_contiguous
     assert np.abs(predicted - reference).max() <= PREDICT_TOLERANCE
     assert reference.max() > 0.05  # real GI, not an all-dark map that any two backends agree on
+
+
+def test_the_device_encoding_is_the_host_encoding():
+    """encode_frame and decode_output (on the torch backend's device) against preprocess's numpy functions, on
+    buffers with negative, large and zero values."""
+    import torch
+
+    model_json = json.loads((DEFAULT_MODEL.parent / "model.json").read_text())
+    spec = GIModel(DEFAULT_MODEL, threads=1, warmup=0).spec
+    rng = np.random.default_rng(7)
+    frame = {b: (rng.standard_normal((24, 20, CHANNELS[b])) * 50.0).astype(np.float32) for b in spec.buffers}
+    frame[spec.buffers[0]][0, 0] = 0.0
+    encoded = encode_frame({b: torch.from_numpy(a) for b, a in frame.items()}, spec).numpy()
+    assert encoded.shape == (model_json["in_channels"], 24, 20)
+    np.testing.assert_allclose(encoded, frame_to_input(frame, spec), rtol=1e-6, atol=1e-6)
+    y = rng.uniform(-1.2, 1.2, (3, 24, 20)).astype(np.float32)
+    np.testing.assert_allclose(decode_output(torch.from_numpy(y)).numpy(), output_to_radiance(y), rtol=1e-5)
+
+
+def test_a_nan_in_a_buffer_is_an_error_naming_it(frame):
+    model = TorchGIModel(DEFAULT_MODEL, threads=1, warmup=0)
+    broken = frame | {"depth": frame["depth"].copy()}
+    broken["depth"][5, 5] = np.nan
+    with pytest.raises(ValueError, match=r"buffer\(s\) \['depth'\] contain NaN or Inf"):
+        model.predict(broken)
+    with pytest.raises(ValueError, match="must be an HxWx3 array"):
+        model.predict(frame | {"albedo": frame["albedo"][..., :1]})
 
 
 def test_auto_is_torch_on_cuda_and_onnxruntime_without():
