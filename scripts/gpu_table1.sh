@@ -18,12 +18,13 @@
 #    pyoidn; a failure is a line in the log, not the end of the run); bench render --quick --renderers gl at every
 #    resolution; bench report. What comes back: provenance.txt (GPU name, driver, CUDA, the Mitsuba variant and
 #    inference backend chosen), latency_table_<R>.md, variants.md, table1.md (bench report's results.md),
-#    results.tar.gz (every CSV, provenance JSON and figure), log.txt.
+#    results.tar.gz (every CSV, provenance JSON and figure of WORK, refreshed after each step), log.txt.
 # --dry-run does step 1 in a temporary folder and prints what steps 2 and 3 would install and run.
 #
 # Settings (environment): PYTHON (python3), FORCE (distributions installed even where present), RESOLUTIONS
 # (256 512), MODEL_<R>, STAGE (where wheels are reassembled: /tmp/gigan_gpu_wheels), GL_DEBS (.gl),
-# VARIANT_REFERENCE (.gpu_reference: the --out of `bench variants --quick --variants cpu` made with pyoidn).
+# VARIANT_REFERENCE (.gpu_reference: the --out of `bench variants --quick --variants cpu` made with pyoidn), WORK
+# (the benches' own folders: /tmp/gigan_gpu_results).
 set -euo pipefail
 
 PYTHON=${PYTHON:-python3}
@@ -124,8 +125,11 @@ fi
 
 # -- 3. measure -------------------------------------------------------------------------------------------------
 BIN=$("$PYTHON" -c 'import sys, pathlib; print(pathlib.Path(sys.executable).parent)')
-RESULTS=${DEST%/}/results
+# The benches' folders stay outside --out (a device run returns a few files, not a tree); results.tar.gz is
+# refreshed after every step, so a run stopped at its time limit still returns what finished.
+RESULTS=${WORK:-/tmp/gigan_gpu_results}
 act mkdir -p "$RESULTS"
+pack() { act tar czf "$DEST/results.tar.gz" --exclude=gt_cache --exclude="store_*" -C "$RESULTS" .; }  # maps and GT renders stay
 provenance() {
   nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv || echo "nvidia-smi: not found"
   nvidia-smi | grep -o 'CUDA Version: [0-9.]*' || true
@@ -152,6 +156,7 @@ for res in $RESOLUTIONS; do
   if [[ -z $model ]]; then say "skip latency at ${res}²: the shipped model runs at ${shipped_res}²; set MODEL_$res"; continue; fi
   act "$BIN/bench" latency --quick --resolution "$res" --model "$model" --out "$RESULTS/latency_$res"
   act cp "$RESULTS/latency_$res/latency.md" "$DEST/latency_table_$res.md"
+  pack
 done
 variants=(--quick)
 if [[ -d $VARIANT_REFERENCE ]]; then variants+=(--variants cuda --reference "$VARIANT_REFERENCE"); fi
@@ -160,7 +165,9 @@ if act "$BIN/bench" variants "${variants[@]}" --out "$RESULTS/variants"; then
 else
   say "bench variants failed (its error is above): no variants.md; the rest of the run goes on"
 fi
+pack
 act "$BIN/bench" render --quick --renderers gl --gl-resolutions "${RESOLUTIONS// /,}" --out "$RESULTS/render_gl"
+pack
 act "$BIN/bench" report --results "$RESULTS" --out "$RESULTS/report"
 act cp "$RESULTS/report/results.md" "$DEST/table1.md"
-act tar czf "$DEST/results.tar.gz" -C "$RESULTS" .
+pack

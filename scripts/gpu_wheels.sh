@@ -19,10 +19,11 @@ set -euo pipefail
 PYTHON=${PYTHON:-.venv/bin/python}
 PY_TAG=${PY_TAG:-312}
 # What the image lacks, then what it has but perhaps older than these need (gpu_table1.sh installs those only then):
-# the project's build backend, and the server's typing and HTTP stack.
+# the project's build backend, and the server's typing and HTTP stack (FastAPI imports opentelemetry-api). pyoidn
+# denoises on the GPU where the driver has no OptiX denoiser weights (gicore.mitsuba_variant).
 PACKAGES=${PACKAGES:-mitsuba drjit fastapi starlette uvicorn httptools pydantic pydantic-core pydantic-settings \
 python-dotenv annotated-types typing-inspection trimesh zstandard openexr moderngl glcontext fast-simplification \
-setuptools typing-extensions anyio click h11 annotated-doc}
+pyoidn cffi pycparser opentelemetry-api setuptools typing-extensions anyio click h11 annotated-doc}
 CARRY_MIB=${CARRY_MIB:-64}
 MARGIN_MIB=${MARGIN_MIB:-2}
 FROM=""
