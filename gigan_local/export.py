@@ -313,3 +313,53 @@ def rewrite_export(model_dir: Path, seed: int = 0) -> dict[str, float]:
         doc["graph_rewrite"] = {"layers": n, "max_abs_diff_vs_resize_graph": diffs}
         atomic_write_bytes(model_dir / MODEL_JSON, json.dumps(doc, indent=1).encode())
     return diffs
+
+
+def resize_export(model_dir: Path, out_dir: Path, resolution: int, seed: int = 0) -> dict[str, float]:
+    """The export in ``model_dir`` again in ``out_dir``, for frames of ``resolution``²: the same weights and graph,
+    its input and output sides set to ``resolution`` (a U-Net is fully convolutional at any side divisible by
+    2**n_down). Its cost is that of the network at the new side; its quality there is not what a model trained
+    at that side reaches, so ``model.json`` keeps the side it was trained at as ``trained_resolution``.
+
+    Returns max |onnxruntime - torch| per file on one random input at the new side, torch being the generator
+    built from the file's weights: the check that the resized graph computes the network."""
+    from gigan_local.config import NetworkConfig
+    from gigan_local.preprocess import InputSpec
+    from gigan_local.warmstart import load_into
+
+    fp32 = Path(model_dir) / FILES["fp32"]
+    if not fp32.is_file():
+        raise UserError(f"{fp32} is missing", "give a folder that gigan-export wrote")
+    doc = read_model_json(fp32)
+    network = NetworkConfig.from_dict(doc["network"])
+    try:
+        network.check_size(resolution)
+    except ValueError as e:
+        raise UserError(f"--resolution {resolution}: {e}", f"use a multiple of {2**network.n_down}") from None
+    graph32 = onnx.load(str(fp32))
+    for value in (*graph32.graph.input, *graph32.graph.output):
+        dims = value.type.tensor_type.shape.dim
+        dims[2].dim_value = dims[3].dim_value = resolution
+    del graph32.graph.value_info[:]  # shapes inferred at the old side
+    models = {"fp32": graph32} | ({"fp16": fp16_weights(graph32)} if "fp16" in doc["files"] else {})
+    generator = define_G(network)
+    load_into(generator, fp32, network, InputSpec.from_dict(doc["input"]), calibration=None)
+    x = np.random.default_rng(seed).uniform(-1, 1, (1, network.in_channels, resolution, resolution))
+    x = x.astype(np.float32)
+    with torch.no_grad():
+        ref = generator.eval()(torch.from_numpy(x)).numpy()
+    diffs = {k: float(np.abs(_ort_outputs(m.SerializeToString(), [x])[0] - ref).max()) for k, m in models.items()}
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    with exclusive_run(out_dir):
+        for k, model in models.items():
+            atomic_write_bytes(out_dir / FILES[k], model.SerializeToString())
+        resized = doc | {
+            "resolution": resolution,
+            "trained_resolution": int(doc.get("trained_resolution", doc["resolution"])),
+            "files": {k: FILES[k] for k in models},
+            "max_abs_diff_vs_torch": diffs,
+        }
+        resized.pop("int8", None)
+        atomic_write_bytes(out_dir / MODEL_JSON, json.dumps(resized, indent=1).encode())
+    return diffs

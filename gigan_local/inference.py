@@ -66,6 +66,8 @@ def model_info(path: str | Path, option: str = "--model") -> dict[str, Any]:
         "precision": next((k for k, v in doc.get("files", {}).items() if v == Path(path).name), "unknown"),
         "model": doc.get("model"),
         "resolution": int(doc["resolution"]),
+        # a model resized by gigan_local.resize_cli runs at a side it was not trained at
+        "trained_resolution": int(doc.get("trained_resolution", doc["resolution"])),
         "size_mib": round(Path(path).stat().st_size / 2**20, 2),
     }
 

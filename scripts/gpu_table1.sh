@@ -13,7 +13,7 @@
 #    EGL loaders).
 # 3. Measure, into --out (default $OUT, the device run's folder): per resolution of RESOLUTIONS, bench latency
 #    --quick (profiles lan and wan) with the shipped model, or MODEL_<R> where the shipped one is not at R (none:
-#    that resolution is skipped with a line); bench variants --quick (the server's bake on CUDA against the CPU's:
+#    the shipped weights resized to R by gigan_local.resize_cli, the network's cost at R); bench variants --quick (the server's bake on CUDA against the CPU's:
 #    SSIM >= 0.98 met or not; the CPU maps from VARIANT_REFERENCE where carried, else baked here, which needs
 #    pyoidn; a failure is a line in the log, not the end of the run); bench render --quick --renderers gl at every
 #    resolution; bench report. What comes back: provenance.txt (GPU name, driver, CUDA, the Mitsuba variant and
@@ -153,7 +153,11 @@ for res in $RESOLUTIONS; do
   model_var="MODEL_$res"
   model=${!model_var:-}
   if [[ -z $model && $res == "$shipped_res" ]]; then model=$shipped_model; fi
-  if [[ -z $model ]]; then say "skip latency at ${res}²: the shipped model runs at ${shipped_res}²; set MODEL_$res"; continue; fi
+  if [[ -z $model ]]; then  # the shipped weights at this side: its latency, not a model trained there
+    act "$PYTHON" -m gigan_local.resize_cli "$(dirname "$shipped_model")" --resolution "$res" --out "$RESULTS/model_$res"
+    model=$RESULTS/model_$res/$(basename "$shipped_model")
+    say "latency at ${res}²: the shipped ${shipped_res}² model resized (set MODEL_$res for a model trained at ${res}²)"
+  fi
   act "$BIN/bench" latency --quick --resolution "$res" --model "$model" --out "$RESULTS/latency_$res"
   act cp "$RESULTS/latency_$res/latency.md" "$DEST/latency_table_$res.md"
   pack

@@ -95,7 +95,9 @@ def test_dry_run_reassembles_skips_what_is_installed_and_prints_the_runs(batches
     assert "zz_not_installed-1.0" in install and "numpy-1.0.0" not in install
     assert "would run: " in out and "pip install --quiet --no-index --no-deps --no-build-isolation -e ." in out
     assert "bench latency --quick --resolution 256 --model " in out
-    assert "skip latency at 512²: the shipped model runs at 256²; set MODEL_512" in out
+    # no model trained at 512²: the shipped one resized, then measured at that side
+    assert "gigan_local.resize_cli " in out and "--resolution 512 --out /tmp/gigan_gpu_results/model_512" in out
+    assert "bench latency --quick --resolution 512 --model /tmp/gigan_gpu_results/model_512/model_fp16.onnx" in out
     # the bake on CUDA against the CPU's after the latency runs; the CPU maps from VARIANT_REFERENCE where carried
     assert out.index("bench variants --quick --out ") > out.index("bench latency --quick")
     env = {"VARIANT_REFERENCE": str(tmp_path)}
