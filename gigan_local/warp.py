@@ -50,16 +50,18 @@ def depth_slack(depth: np.ndarray) -> np.ndarray:
     not a slope; so does the frame's border (the texel beyond it counts as the texel itself).
     """
     d = np.asarray(depth, dtype=np.float32)
+    hit = d > 0
+    # + inf to a step whose far texel is background leaves it out of the minimum (and adds nothing else)
+    far = np.where(hit, np.float32(0.0), np.float32(np.inf))
     slack = np.zeros_like(d)
     for axis in (1, 0):
-        dv = np.moveaxis(d, axis, 0)  # the neighbours along ``axis`` are consecutive rows of this view
-        out = np.moveaxis(slack, axis, 0)[1:-1]
+        dv, fv = np.moveaxis(d, axis, 0), np.moveaxis(far, axis, 0)  # neighbours along ``axis``: consecutive rows
         steps = np.abs(np.diff(dv, axis=0))  # |d[i+1] - d[i]|
-        before = np.where(dv[:-2] > 0, steps[:-1], np.inf)  # to the previous texel, unless it is background
-        after = np.where(dv[2:] > 0, steps[1:], np.inf)
-        step = np.minimum(before, after)
-        out += np.where(step < np.inf, step, 0.0)
-    return np.where(d > 0, slack, 0.0).astype(np.float32)
+        step = np.minimum(steps[:-1] + fv[:-2], steps[1:] + fv[2:])  # to the previous texel, to the next
+        step[step == np.inf] = 0.0  # both neighbours background: no slope
+        np.moveaxis(slack, axis, 0)[1:-1] += step
+    slack *= hit
+    return slack
 
 
 @dataclass(frozen=True)
