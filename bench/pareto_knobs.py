@@ -245,9 +245,9 @@ def gigan_maps(ctx: Context, pts: Points) -> None:
 
 
 def _bake(ctx: Context, cam, light, spp: int, denoise: bool, renderer=None) -> np.ndarray:
-    r = renderer or ctx.renderer
-    img = r.render_gt(cam, light, spp=spp, seed=ctx.seed)
-    return r.denoise(img, r.render_gbuffers(cam, seed=ctx.seed)) if denoise else img
+    from gicore.ground_truth import render_gt
+
+    return render_gt(renderer or ctx.renderer, cam, light, spp, ctx.seed, denoise)
 
 
 def bake_spp(ctx: Context, pts: Points, from_dir: Path | None) -> None:
