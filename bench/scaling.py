@@ -4,7 +4,6 @@ and for baking GI trees (``stat = projection``, never a measurement; docs/archit
 
 from __future__ import annotations
 
-import logging
 import math
 import time
 from collections.abc import Iterator
@@ -16,7 +15,7 @@ from typing import Any, Literal
 from bench.runner import Bench, Block
 from gicore import option_groups
 from gicore.error_policy import UserError
-from gicore.executor import INSTALL_RAY, Executor, LocalPool, RayExecutor, Task, equal_priority_ray_workers
+from gicore.executor import INSTALL_RAY, Executor, LocalPool, RayExecutor, Task, local_ray, simulated_ray_cluster
 from gicore.present.declarations import Chart, Column, Figure, Rows, Table, flat, matches, per, unique
 from gicore.results import Results
 from gicore.scene import builtin_scenes, load_scene
@@ -107,43 +106,24 @@ def _wall(executor: Executor, task: Task, jobs: list) -> float:
 
 @contextmanager
 def _ray_instance(res: Results, name: str, num_cpus: int) -> Iterator[None]:
-    """A local Ray instance of ``num_cpus`` CPUs for the ``ray`` points (its start time recorded)."""
-    import ray
-
-    equal_priority_ray_workers()  # as the local pool's workers: a like-for-like comparison on a busy machine
+    """A local Ray instance of ``num_cpus`` CPUs for the ``ray`` points (its start time recorded); its workers run
+    at this process's priority, as the local pool's: a like-for-like comparison on a busy machine."""
     t0 = time.perf_counter()
-    ray.init(
-        address="local", num_cpus=num_cpus, include_dashboard=False, log_to_driver=False, logging_level=logging.ERROR
-    )
-    try:
-        start = time.perf_counter() - t0
-        res.add(system="ray", scene=name, metric="instance_start", value=start, unit="s", num_cpus=num_cpus)
+    with local_ray(num_cpus):
+        res.add(system="ray", scene=name, metric="instance_start", value=time.perf_counter() - t0, unit="s",
+                num_cpus=num_cpus)  # fmt: skip
         yield
-    finally:
-        ray.shutdown()
 
 
 @contextmanager
 def _ray_cluster(res: Results, name: str, nodes: int) -> Iterator[None]:
     """A Ray cluster of ``nodes`` nodes of 1 CPU each simulated on this machine, this process its driver
     (its start time recorded); every node stopped at the end."""
-    import ray
-    from ray.cluster_utils import Cluster
-
-    equal_priority_ray_workers()
     t0 = time.perf_counter()
-    cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 1, "include_dashboard": False})
-    try:
-        for _ in range(nodes - 1):
-            cluster.add_node(num_cpus=1)
-        cluster.wait_for_nodes()
-        ray.init(address=cluster.address, log_to_driver=False, logging_level=logging.ERROR)
-        start = time.perf_counter() - t0
-        res.add(system=CLUSTER, scene=name, metric="instance_start", value=start, unit="s", nodes=nodes)
+    with simulated_ray_cluster(nodes):
+        res.add(system=CLUSTER, scene=name, metric="instance_start", value=time.perf_counter() - t0, unit="s",
+                nodes=nodes)  # fmt: skip
         yield
-    finally:
-        ray.shutdown()
-        cluster.shutdown()
 
 
 @contextmanager

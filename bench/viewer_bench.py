@@ -8,7 +8,7 @@ frame loop and cloud maps arrive when they arrive (:mod:`web3d.headless`). Per s
 frame times (with a map in flight and without), frames drawn while each map was made, the age of the map each
 frame shows, perceived latency, and each map's stages (:mod:`bench.viewer_stats`); GIGAN's checks; then
 ``session.run`` timed in the browser and in Python on one tensor, the prediction's parity with Python and the
-WebGL2 port's buffers against GLRenderer's (:mod:`bench.viewer_parity`). Also written: ``web_screenshot.png``
+WebGL2 port's buffers against GLRenderer's (:mod:`web3d.parity`). Also written: ``web_screenshot.png``
 (both panes and their HUDs as the last replay draws its last path frame), ``web_session.json`` (the page's
 recording of every frame drawn: a path file the clients and benches replay) and, per profile, the bytes its proxy
 carried (its chunk log). docs/architecture.md, bench web.
@@ -31,7 +31,6 @@ import numpy as np
 
 from bench.processes import ask_path, pinned_server, run_place
 from bench.runner import Bench, Block, Section
-from bench.viewer_parity import Reference, canvas_stats, time_inference
 from bench.viewer_present import PARTS, SCREENSHOT
 from bench.viewer_stats import CLOUD, GIGAN, Replayed, record_checks, record_system
 from gicore import option_groups
@@ -40,6 +39,7 @@ from gicore.options import FRAMES, THREADS
 from gicore.results import Results
 from network_sim.profiles import profiles_field
 from web3d.headless import WEBGL_FLAGS, Segment, missing, replay, viewer_page
+from web3d.parity import Reference, canvas_stats, time_inference
 
 #: The page's recording of the whole run, a path file.
 SESSION = "web_session.json"

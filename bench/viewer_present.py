@@ -6,9 +6,9 @@ from __future__ import annotations
 
 from typing import Any
 
-from bench.viewer_parity import PORT_BUFFERS
 from bench.viewer_stats import GIGAN
 from gicore.present.declarations import Column, Image, Rows, Table, fill, first, matches, per, unique
+from web3d.parity import PORT_BUFFERS
 
 SCREENSHOT = "web_screenshot.png"
 STAGES = ("gi_render", "inference", "transmission", "server", "decode", "di", "warp", "blend", "total")

@@ -341,6 +341,42 @@ def connect_ray(address: str) -> bool:
 
 
 @contextmanager
+def local_ray(num_cpus: int) -> Iterator[str]:
+    """A new Ray instance of ``num_cpus`` CPUs on this machine, this process its driver and its workers at this
+    process's priority; yields the head's address (for other drivers to join); shut down at the end."""
+    import ray
+
+    equal_priority_ray_workers()
+    ray.init(
+        address="local", num_cpus=num_cpus, include_dashboard=False, log_to_driver=False, logging_level=logging.ERROR
+    )
+    try:
+        yield ray.get_runtime_context().gcs_address
+    finally:
+        ray.shutdown()
+
+
+@contextmanager
+def simulated_ray_cluster(nodes: int) -> Iterator[str]:
+    """``nodes`` Ray nodes of 1 CPU each simulated on this machine (Ray's ``cluster_utils``), this process their
+    driver; yields the head's address; every node stopped at the end."""
+    import ray
+    from ray.cluster_utils import Cluster
+
+    equal_priority_ray_workers()
+    cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 1, "include_dashboard": False})
+    try:
+        for _ in range(nodes - 1):
+            cluster.add_node(num_cpus=1)
+        cluster.wait_for_nodes()
+        ray.init(address=cluster.address, log_to_driver=False, logging_level=logging.ERROR)
+        yield cluster.address
+    finally:
+        ray.shutdown()
+        cluster.shutdown()
+
+
+@contextmanager
 def open_executor(workers: int | None = None, ray: str | None = None) -> Iterator[Executor]:
     """The executor a command line asks for. Without ``ray``: ``workers`` local processes (None or 1:
     this process). With ``ray`` (``auto`` or HOST:PORT, given by :data:`RAY_OPTION`): Ray tasks, at most

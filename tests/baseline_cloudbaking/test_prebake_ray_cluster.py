@@ -6,7 +6,6 @@ task rendering on the cluster, and its rerun (from this process, the cluster's d
 
 from __future__ import annotations
 
-import logging
 import os
 import signal
 import subprocess
@@ -22,7 +21,7 @@ from baseline_cloudbaking.prebake_cli import PrebakeConfig, prebake_scene
 from baseline_cloudbaking.protocol import decode_payload
 from baseline_cloudbaking.store import GITree
 from baseline_cloudbaking.viewpoints import Tolerance
-from gicore.executor import RayExecutor, equal_priority_ray_workers
+from gicore.executor import RayExecutor, simulated_ray_cluster
 from gicore.scene import SceneSpec, load_scene
 from tests.gicore.test_executor_ray import busy_ray_workers
 from tests.helpers.cli import BIN, run_main
@@ -38,19 +37,8 @@ MAPS = 6
 @pytest.fixture(scope="module")
 def cluster_address() -> Iterator[str]:
     """Two Ray nodes of 1 CPU each on this machine, this process their driver; both stopped at the end."""
-    import ray
-    from ray.cluster_utils import Cluster
-
-    equal_priority_ray_workers()
-    cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 1, "include_dashboard": False})
-    try:
-        cluster.add_node(num_cpus=1)
-        cluster.wait_for_nodes()
-        ray.init(address=cluster.address, log_to_driver=False, logging_level=logging.ERROR)
-        yield cluster.address
-    finally:
-        ray.shutdown()
-        cluster.shutdown()
+    with simulated_ray_cluster(2) as address:
+        yield address
 
 
 @pytest.fixture(scope="module")

@@ -30,6 +30,7 @@ from gicore.executor import (
     RayExecutor,
     Task,
     equal_priority_ray_workers,
+    local_ray,
 )
 from gicore.fileio import TMP_MARKER
 from gicore.scene import SceneSpec, load_scene
@@ -49,14 +50,8 @@ BAKE = PrebakeConfig(frames=10, codec="jpeg", resolution=32, spp=4, seed=3)
 @pytest.fixture(scope="module")
 def ray_address() -> Iterator[str]:
     """A local Ray instance for the whole module (its start costs seconds); yields its head's address."""
-    import ray
-
-    equal_priority_ray_workers()
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
-    try:
-        yield ray.get_runtime_context().gcs_address
-    finally:
-        ray.shutdown()
+    with local_ray(2) as address:
+        yield address
 
 
 @pytest.fixture(scope="module")

@@ -29,7 +29,6 @@ from bench.latency import LatencyConfig
 from bench.storage_config import StorageConfig
 from bench.storage_growth import fill_sessions, measure_growth, session_frames
 from bench.viewer_bench import BENCH, SESSION, WebBenchConfig, measure_viewer, open_viewer, record_links
-from bench.viewer_parity import floats
 from bench.viewer_present import SCREENSHOT
 from gicore import present
 from gicore.camera import Camera
@@ -41,6 +40,7 @@ from gicore.scene import load_scene
 from tests.helpers.browser import missing
 from tests.helpers.latency_runs import stand_in
 from web3d.headless import PAGE_TIMEOUT_S, settle, wait
+from web3d.parity import floats
 
 #: Four path frames per profile, a map asked for every two while the view moves; 1 spp maps, prebaked.
 CFG = WebBenchConfig(frames=4, every=2, spp=1, timing_runs=2, profiles=("lan", "wan"), timeout_s=300.0)

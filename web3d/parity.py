@@ -1,4 +1,4 @@
-"""The page against the Python clients it ports, for ``bench web``: the browser's prediction against
+"""The page against the Python clients it ports (``bench web`` and the page's tests): the browser's prediction against
 :class:`gigan_local.inference.GIModel`'s on the same G-buffers (``parity_*``), the WebGL2 port's DI and
 G-buffers against :class:`gicore.gl.GLRenderer`'s at the same GI camera (``port_*``), ``session.run`` timed in
 the browser and in Python on the same tensor, and what the canvases show (``canvas_*``).
