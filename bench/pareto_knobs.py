@@ -15,10 +15,10 @@ from typing import Any
 import numpy as np
 
 from bench.common import WARP_LABELS
-from bench.runner import FOV_DEGREES, Bench, execute, find
+from bench.runner import FOV_DEGREES, Bench, execute
 from gicore import option_groups
 from gicore.error_policy import UserError
-from gicore.results import Results, read_rows
+from gicore.results import Results, find_results, read_rows
 from gigan_local.inference import DEFAULT_MODEL, check_model_resolution, model_info
 from network_sim.exchange import CloudCost
 from network_sim.profiles import profiles_field
@@ -276,7 +276,7 @@ def _convergence_points(from_dir: Path, scene: str, resolution: int) -> list[dic
     """Points of the newest convergence.csv under ``from_dir`` with ``scene`` at ``resolution``: render time and
     1 - SSIM."""
 
-    for path in find(from_dir, "convergence"):
+    for path in find_results(from_dir, "convergence"):
         rows = [r for r in read_rows(path) if r["scene"] == scene and r["config"].get("resolution") == resolution]
         if rows:
             break
@@ -478,7 +478,7 @@ def per_frame(ctx: Context, pts: Points, res: Results, frequency: Bench) -> None
 
 def _frequency_rows(from_dir: Path, scene: str, source: str, resolution: int) -> tuple[list[dict[str, Any]], str]:
 
-    for path in find(from_dir, "frequency"):
+    for path in find_results(from_dir, "frequency"):
         rows = [
             r
             for r in read_rows(path)

@@ -34,12 +34,12 @@ from typing import Any
 
 from bench import registry
 from bench.report_md import check_readme, results_markdown, update_readme
-from bench.runner import Bench, External, Section, attempt, need, provenance_fields
+from bench.runner import Bench, External, Section, attempt, need
 from gicore.error_policy import UserError
 from gicore.fileio import atomic_write_bytes
 from gicore.present.declarations import Rows, shown
 from gicore.present.html import parts_html
-from gicore.results import Results
+from gicore.results import Results, provenance_fields
 
 ASSETS = Path(__file__).parent / "report_assets"
 

@@ -24,12 +24,13 @@ from pathlib import Path
 from typing import Any
 
 from bench import registry
-from bench.runner import Attempt, Bench, Block, External, attempt, need, provenance_fields
+from bench.runner import Attempt, Bench, Block, External, attempt, need
 from gicore.error_policy import UserError
 from gicore.fileio import atomic_write_bytes
 from gicore.present import charts
 from gicore.present.declarations import Figure, Image, Part, Rows, shown
 from gicore.present.markdown import tables_text
+from gicore.results import provenance_fields
 
 BEGIN, END = "<!-- results:begin -->", "<!-- results:end -->"
 

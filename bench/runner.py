@@ -13,11 +13,7 @@ report`` renders the same declarations. Dependencies run one way: this module <-
 
 from __future__ import annotations
 
-import csv
 import dataclasses
-import fnmatch
-import json
-import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -36,7 +32,7 @@ from gicore.options import (  # noqa: F401  (field_docs, check_config, config_di
     field_docs,
 )
 from gicore.present.declarations import Rows
-from gicore.results import COLUMNS, Results, read_rows
+from gicore.results import Malformed, Results, find_results, load_results, read_rows
 
 #: Option names the runner adds to every bench; config fields may not use them.
 RESERVED = ("out", "quick", "seed")
@@ -156,84 +152,6 @@ def need(rows: Rows, *metrics: str) -> None:
         raise ValueError(f"it has no {', '.join(missing)} rows")
 
 
-# --- finding a bench's results ----------------------------------------------------------------------------------
-
-
-class Malformed(ValueError):
-    """A CSV that is not a bench's tidy result."""
-
-
-def _provenance(csv_path: Path) -> dict[str, Any] | None:
-    path = csv_path.with_name(csv_path.stem + ".provenance.json")
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, ValueError):
-        return None
-    return data if isinstance(data, dict) else None
-
-
-def _finished(csv_path: Path) -> float:
-    prov = _provenance(csv_path) or {}
-    value = prov.get("finished_unix")
-    return float(value) if isinstance(value, (int, float)) else csv_path.stat().st_mtime
-
-
-def find(results: Path, bench: str, ignore: tuple[str, ...] = ()) -> list[Path]:
-    """Every ``<bench>.csv`` under ``results``, newest run first, except those inside a folder that one of the
-    ``ignore`` patterns (paths relative to ``results``, glob allowed) names."""
-
-    def ignored(path: Path) -> bool:
-        folders = [f.as_posix() for f in path.relative_to(results).parents if f != Path(".")]
-        return any(fnmatch.fnmatchcase(folder, pattern.strip("/")) for folder in folders for pattern in ignore)
-
-    return sorted((p for p in results.rglob(f"{bench}.csv") if not ignored(p)), key=_finished, reverse=True)
-
-
-def load(path: Path) -> Rows:
-    """The rows of a results CSV, or :class:`Malformed` saying what is wrong with it."""
-    try:
-        with path.open(newline="") as fh:
-            header = next(csv.reader(fh), None)
-        if header != list(COLUMNS):
-            raise Malformed(f"its columns are {header}, not {', '.join(COLUMNS)}")
-        rows = read_rows(path)
-    except (OSError, UnicodeDecodeError, csv.Error) as exc:
-        raise Malformed(f"it cannot be read ({exc})") from None
-    except (KeyError, ValueError, TypeError) as exc:
-        raise Malformed(f"a row does not parse ({type(exc).__name__}: {exc})") from None
-    if not rows:
-        raise Malformed("it has no rows")
-    if any(not isinstance(r["config"], dict) for r in rows):
-        raise Malformed("a config cell is not a JSON object")
-    return rows
-
-
-def provenance_fields(csv_path: Path) -> dict[str, str] | None:
-    """What the provenance JSON beside ``csv_path`` says, as text: the command (the program by its name, not
-    the path it was started by, and its arguments), git (short SHA; whether the tree had uncommitted
-    changes), machine, date, run and seed; None without one."""
-    prov = _provenance(csv_path)
-    if prov is None:
-        return None
-    argv = [str(a) for a in prov.get("argv") or []]
-    if argv:
-        argv[0] = "bench" if Path(argv[0]).name == "__main__.py" else Path(argv[0]).name
-    git = prov.get("git") or {}
-    m = prov.get("machine") or {}
-    finished = prov.get("finished_unix")
-    cpu = f"{m.get('cpu', '?')}, {m.get('cpu_count', '?')} cores"
-    return {
-        "command": " ".join(argv) or "(unknown)",
-        "git": (git.get("sha") or "unknown")[:12] + (" (uncommitted changes)" if git.get("dirty") else ""),
-        "machine": f"{cpu}, {m.get('platform', '?')}, Python {m.get('python', '?')}",
-        "date": time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime(finished))
-        if isinstance(finished, (int, float))
-        else "unknown",
-        "run": str(prov.get("run_id", "?")),
-        "seed": str(prov.get("seed", "?")),
-    }
-
-
 @dataclass
 class Attempt:
     """A bench's newest CSV under a results folder, drawn: status ``ok`` / ``missing`` / ``malformed``, what the
@@ -252,7 +170,7 @@ def attempt(bench: str, results: Path, draw: Callable[[Rows, Path], Any], ignore
     """Find the newest ``<bench>.csv`` under ``results`` (outside the ``ignore`` folders), load it and ``draw`` its
     rows and folder (a dashboard section or a README block): a CSV that is missing, or does not load or draw,
     comes back with its problem."""
-    found = find(results, bench, ignore)
+    found = find_results(results, bench, ignore)
     if not found:
         left_out = f" (leaving out {', '.join(ignore)})" if ignore else ""
         return Attempt("missing", problem=f"missing: no {bench}.csv under {results}{left_out}")
@@ -260,7 +178,7 @@ def attempt(bench: str, results: Path, draw: Callable[[Rows, Path], Any], ignore
     rel = str(path.relative_to(results))
     others = [str(p.relative_to(results)) for p in found[1:]]
     try:
-        rows = load(path)
+        rows = load_results(path)
         parts = draw(rows, path.parent)
     except Exception as exc:  # noqa: BLE001 -- any reason a CSV cannot be drawn is reported in its place, and the others still render
         why = " ".join(str(exc if isinstance(exc, Malformed) else f"{type(exc).__name__}: {exc}").split())

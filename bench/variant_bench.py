@@ -34,7 +34,7 @@ from gicore import option_groups
 from gicore.error_policy import UserError
 from gicore.mitsuba_variant import VARIANT_ENV, VariantChoice, machine_choice
 from gicore.present.declarations import Column, Rows, Table, first, matches, unique
-from gicore.results import Results, read_rows
+from gicore.results import Results, read_provenance, read_rows
 
 #: SSIM a variant's maps reach against the reference's, every map.
 SSIM_TARGET = 0.98
@@ -97,14 +97,12 @@ def choice(device: str) -> VariantChoice:
 
 def reference_settings(cfg: VariantsConfig) -> dict[str, Any]:
     """The provenance of the ``--reference`` run, checked to have baked maps of ``cfg``'s size, spp and count."""
-    path = Path(cfg.reference or "") / "variants.provenance.json"
-    try:
-        prov = json.loads(path.read_text())
-        settings = prov["settings"]
-    except (OSError, ValueError, KeyError, TypeError):
+    prov = read_provenance(Path(cfg.reference or "") / "variants.csv") or {}
+    settings = prov.get("settings")
+    if not isinstance(settings, dict):
         raise UserError(
-            f"--reference {cfg.reference}: no {path.name} there", "give the --out of a bench variants run"
-        ) from None
+            f"--reference {cfg.reference}: no variants.provenance.json there", "give the --out of a bench variants run"
+        )
     for name in SAME_MAPS:
         if settings.get(name) != json.loads(json.dumps(getattr(cfg, name))):
             raise UserError(

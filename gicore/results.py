@@ -1,7 +1,8 @@
 """Tidy, long-format benchmark results with provenance (docs/architecture.md, Results files).
 
 Every bench writes ``<out>/<bench>.csv`` with one row per measurement and ``<out>/<bench>.provenance.json``
-describing how the numbers were produced. Plots and dashboards read only these files.
+describing how the numbers were produced (:class:`Results`). Plots and dashboards read only these files
+(:func:`find_results`, :func:`load_results`, :func:`read_provenance`).
 
 CSV columns: ``run_id, bench, system, scene, metric, stat, value, unit, config`` where ``stat`` says what
 the value summarises (``value`` for a single measurement, ``median``/``p95``/``n`` for repeated timings)
@@ -11,6 +12,7 @@ and ``config`` is a compact JSON object of the knobs that produced the row (spp,
 from __future__ import annotations
 
 import csv
+import fnmatch
 import io
 import json
 import os
@@ -182,3 +184,82 @@ def read_rows(path: Path) -> list[dict[str, Any]]:
         row["value"] = float(row["value"])
         row["config"] = json.loads(row["config"]) if row["config"] else {}
     return rows
+
+
+# -- reading results back -------------------------------------------------------------------------------------
+
+
+class Malformed(ValueError):
+    """A CSV that is not a bench's tidy result."""
+
+
+def read_provenance(csv_path: Path) -> dict[str, Any] | None:
+    """The provenance JSON beside ``csv_path`` (``<bench>.provenance.json``), or None without a readable one."""
+    path = csv_path.with_name(csv_path.stem + ".provenance.json")
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    return data if isinstance(data, dict) else None
+
+
+def _finished(csv_path: Path) -> float:
+    prov = read_provenance(csv_path) or {}
+    value = prov.get("finished_unix")
+    return float(value) if isinstance(value, (int, float)) else csv_path.stat().st_mtime
+
+
+def find_results(results: Path, bench: str, ignore: tuple[str, ...] = ()) -> list[Path]:
+    """Every ``<bench>.csv`` under ``results``, newest run first, except those inside a folder that one of the
+    ``ignore`` patterns (paths relative to ``results``, glob allowed) names."""
+
+    def ignored(path: Path) -> bool:
+        folders = [f.as_posix() for f in path.relative_to(results).parents if f != Path(".")]
+        return any(fnmatch.fnmatchcase(folder, pattern.strip("/")) for folder in folders for pattern in ignore)
+
+    return sorted((p for p in results.rglob(f"{bench}.csv") if not ignored(p)), key=_finished, reverse=True)
+
+
+def load_results(path: Path) -> list[dict[str, Any]]:
+    """The rows of a results CSV, or :class:`Malformed` saying what is wrong with it."""
+    try:
+        with path.open(newline="") as fh:
+            header = next(csv.reader(fh), None)
+        if header != list(COLUMNS):
+            raise Malformed(f"its columns are {header}, not {', '.join(COLUMNS)}")
+        rows = read_rows(path)
+    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+        raise Malformed(f"it cannot be read ({exc})") from None
+    except (KeyError, ValueError, TypeError) as exc:
+        raise Malformed(f"a row does not parse ({type(exc).__name__}: {exc})") from None
+    if not rows:
+        raise Malformed("it has no rows")
+    if any(not isinstance(r["config"], dict) for r in rows):
+        raise Malformed("a config cell is not a JSON object")
+    return rows
+
+
+def provenance_fields(csv_path: Path) -> dict[str, str] | None:
+    """What the provenance JSON beside ``csv_path`` says, as text: the command (the program by its name, not
+    the path it was started by, and its arguments), git (short SHA; whether the tree had uncommitted
+    changes), machine, date, run and seed; None without one."""
+    prov = read_provenance(csv_path)
+    if prov is None:
+        return None
+    argv = [str(a) for a in prov.get("argv") or []]
+    if argv:
+        argv[0] = "bench" if Path(argv[0]).name == "__main__.py" else Path(argv[0]).name
+    git = prov.get("git") or {}
+    m = prov.get("machine") or {}
+    finished = prov.get("finished_unix")
+    cpu = f"{m.get('cpu', '?')}, {m.get('cpu_count', '?')} cores"
+    return {
+        "command": " ".join(argv) or "(unknown)",
+        "git": (git.get("sha") or "unknown")[:12] + (" (uncommitted changes)" if git.get("dirty") else ""),
+        "machine": f"{cpu}, {m.get('platform', '?')}, Python {m.get('python', '?')}",
+        "date": time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime(finished))
+        if isinstance(finished, (int, float))
+        else "unknown",
+        "run": str(prov.get("run_id", "?")),
+        "seed": str(prov.get("seed", "?")),
+    }
