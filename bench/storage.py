@@ -14,11 +14,12 @@ import numpy as np
 from baseline_cloudbaking.bake import BakedMap, PathFrame, bake_map, fly_through, gi_camera, map_header
 from baseline_cloudbaking.codecs import DEPTH_CODEC, get_codec
 from baseline_cloudbaking.codecs import measure as measure_codec
+from baseline_cloudbaking.growth import entry_frames
 from baseline_cloudbaking.protocol import pack
 from baseline_cloudbaking.viewpoints import Tolerance, Viewpoint, ViewSet, simulate_fill
 from bench.runner import Bench, Block, Section
 from bench.storage_config import COMPOSITIONS, StorageConfig
-from bench.storage_growth import SYSTEM, add_entry_bytes, entry_frames, measure_growth, paper_accounting, spread_picks
+from bench.storage_growth import SYSTEM, add_entry_bytes, measure_growth, paper_accounting, spread_picks
 from bench.storage_tables import PARTS
 from gicore.error_policy import writable_dir
 from gicore.metrics import ssim

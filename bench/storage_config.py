@@ -25,8 +25,6 @@ PAPER_TABLE2_GB = {"lung": 1.15, "digestive": 2.38, "vessels": 3.36, "model": 0.
 #: The paper's accounting: one uncompressed RGB8 GI map per frame, i.e. a tree that never reuses a map (Δ 0).
 RAW_CODEC = "rgb8"
 PAPER_TOLERANCE = Tolerance(0.0, 0.0)
-#: Frames of the light's schedule scanned for the light cells it reaches (the paper scenes' repeats every 2640).
-LIGHT_SCAN_FRAMES = 20_000
 
 
 @dataclass(frozen=True)

@@ -1,14 +1,14 @@
 """`bench storage`'s growth law: the GI tree under many user sessions (:mod:`gicore.sessions`, or recorded path
-files), filled by the store's own lookup rule; its saturation, the sessions until it passes the model or the
-paper's figure, bytes per entry measured on maps baked at entries spread over the tree; and the paper's
-accounting along the fly-through, decomposed."""
+files), filled by the store's own lookup rule (:mod:`baseline_cloudbaking.growth`); its saturation, the sessions
+until it passes the model or the paper's figure, bytes per entry measured on maps baked at entries spread over
+the tree; and the paper's accounting along the fly-through, decomposed."""
 
 from __future__ import annotations
 
 import json
 from collections import defaultdict
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from functools import partial
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -17,16 +17,24 @@ import numpy as np
 
 from baseline_cloudbaking.bake import BakedMap, PathFrame, bake_map, gi_camera, map_header
 from baseline_cloudbaking.codecs import DEPTH_CODEC, get_codec
+from baseline_cloudbaking.growth import (
+    SessionFill,
+    capacity,
+    fill_sessions,
+    first_session_over,
+    saturation_session,
+    session_frames,
+)
 from baseline_cloudbaking.protocol import pack
-from baseline_cloudbaking.viewpoints import Tolerance, Viewpoint, light_cell, simulate_fill
-from bench.storage_config import LIGHT_SCAN_FRAMES, PAPER_TABLE2_GB, PAPER_TOLERANCE, RAW_CODEC, StorageConfig
+from baseline_cloudbaking.viewpoints import simulate_fill
+from bench.storage_config import PAPER_TABLE2_GB, PAPER_TOLERANCE, RAW_CODEC, StorageConfig
 from gicore.camera import Camera
 from gicore.path_file import PathFile, read_sessions
-from gicore.paths import Light, frame_seed, light_position
+from gicore.paths import Light, frame_seed
 from gicore.render_cache import RenderCache
 from gicore.results import Results
 from gicore.scene import SceneSpec, load_scene
-from gicore.sessions import Session, navigable_views, plan_sessions, session_views
+from gicore.sessions import plan_sessions
 from gicore.tonemap import tonemap
 
 SYSTEM = "cloud_baking"
@@ -44,104 +52,6 @@ def add_entry_bytes(add: Callable[..., None], metric: str, values: Sequence[floa
     for stat, value, unit in (("mean", float(v.mean()), "bytes"), ("std", std, "bytes"), ("n", len(v), "count")):
         add(metric=metric, value=value, unit=unit, stat=stat, **row)
     return len(v), std
-
-
-def entry_frames(served: list[int]) -> list[int]:
-    """The frame that created each entry (entries are numbered in insertion order)."""
-    first: dict[int, int] = {}
-    for frame, entry in enumerate(served):
-        first.setdefault(entry, frame)
-    return [first[e] for e in range(len(first))]
-
-
-@dataclass(frozen=True)
-class SessionFrames:
-    """Every frame of a run of sessions as the GI tree sees it: GI camera and light, viewpoint, light cell
-    (None for a static light), and the frame count after each session."""
-
-    frames: list[tuple[Camera, Light]]
-    views: list[Viewpoint]
-    cells: list[tuple[int, int, int] | None]
-    ends: np.ndarray
-
-
-@dataclass(frozen=True)
-class SessionFill:
-    """The GI tree filled by the lookup rule along sessions: entries after each session, and the frame (GI
-    camera, light) that created each entry, in insertion order."""
-
-    entries: np.ndarray
-    creators: list[tuple[Camera, Light]]
-
-
-def session_frames(
-    spec: SceneSpec, sessions: Sequence[Session | PathFile], light_cell_size: float, fov: float
-) -> SessionFrames:
-    """The frames of ``sessions`` in turn at GI FOV ``fov``: seeded ones (:func:`gicore.sessions.session_views`)
-    or recorded ones (path files)."""
-    size = light_cell_size if spec.light.moves else None
-    frames: list[tuple[Camera, Light]] = []
-    views: list[Viewpoint] = []
-    ends = []
-    for session in sessions:
-        seen: dict[int, Viewpoint] = {}  # a session's laps repeat their cameras: one viewpoint per camera
-        if isinstance(session, PathFile):
-            flown = session.views(spec.resolution, fov)
-        else:
-            flown = session_views(spec, session, fov, spec.resolution)
-        for cam, light in flown:
-            if id(cam) not in seen:
-                seen[id(cam)] = Viewpoint.look_at(cam.origin, cam.target)
-            views.append(seen[id(cam)])
-            frames.append((cam, light))
-        ends.append(len(views))
-    cells = [light_cell(light, size) for _, light in frames]
-    return SessionFrames(frames, views, cells, np.asarray(ends))
-
-
-def fill_sessions(run: SessionFrames, tol: Tolerance) -> SessionFill:
-    """Walk the sessions' frames through one empty tree with the store's own rule
-    (:func:`baseline_cloudbaking.viewpoints.simulate_fill`: nearest stored viewpoint within ``tol`` in the same
-    light cell, else a new entry)."""
-    served = simulate_fill(run.views, run.cells, tol)
-    running = np.maximum.accumulate(served) + 1
-    return SessionFill(running[run.ends - 1], [run.frames[f] for f in entry_frames(served)])
-
-
-def capacity(spec: SceneSpec, tol: Tolerance, light_cell_size: float, samples: int, seed: int) -> dict[str, float]:
-    """What the tree holds once every configuration has been visited, estimated: the lookup rule over
-    ``samples`` viewpoints drawn uniformly from the navigable space (:func:`gicore.sessions.navigable_views`)
-    fills one light cell; times the light cells the light's schedule reaches. A lower estimate while the
-    last tenth of the samples still adds entries (``last_tenth_miss_rate``)."""
-    views = [Viewpoint.look_at(eye, target) for eye, target in navigable_views(spec, samples, seed)]
-    served = np.asarray(simulate_fill(views, [None] * samples, tol))
-    per_cell = int(served.max()) + 1
-    tail = served[int(0.9 * samples) :]
-    before = int(served[: int(0.9 * samples)].max()) + 1 if samples >= 10 else 0
-    size = light_cell_size if spec.light.moves else None
-    cells = len({light_cell(light_position(spec, f), size) for f in range(LIGHT_SCAN_FRAMES)})
-    return {
-        "entries": per_cell * cells,
-        "per_cell": per_cell,
-        "light_cells": cells,
-        "last_tenth_miss_rate": (per_cell - before) / max(len(tail), 1),
-    }
-
-
-def saturation_session(entries: np.ndarray, frames: int | np.ndarray, rate: float) -> int | None:
-    """The session count after which no later session adds more than ``rate`` × ``frames`` entries (``frames``:
-    one count for all, or each session's), with at
-    least max(2, n // 10) sessions seen after it (else None: not saturated within the sessions run)."""
-    added = np.diff(np.concatenate([[0], entries]))
-    over = np.flatnonzero(added > rate * frames)
-    k = int(over[-1]) + 1 if len(over) else 0  # sessions up to k still grew the tree by more
-    return max(k, 1) if len(entries) - k >= max(2, len(entries) // 10) else None
-
-
-def first_session_over(entries: np.ndarray, bytes_per_entry: float, limit: float) -> int | None:
-    """The first session count whose tree (entries × bytes per entry) exceeds ``limit`` bytes, or None."""
-    over = np.flatnonzero(entries * bytes_per_entry > limit)
-    return int(over[0]) + 1 if len(over) else None
 
 
 def _cached_bake(cfg: StorageConfig, renderer, spec: SceneSpec, camera: Camera, light: Light, seed: int) -> BakedMap:

@@ -12,11 +12,12 @@ from pathlib import Path
 
 import pytest
 
+from baseline_cloudbaking.growth import fill_sessions, session_frames
 from bench import latency
 from bench.latency import LatencyConfig
 from bench.runner import build_config
 from bench.storage_config import StorageConfig
-from bench.storage_growth import fill_sessions, measure_growth, session_frames
+from bench.storage_growth import measure_growth
 from gicore.camera import Camera
 from gicore.error_policy import UserError
 from gicore.path_file import Waypoint, read_path_file, write_path_file

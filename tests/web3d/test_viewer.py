@@ -24,10 +24,11 @@ import httpx
 import numpy as np
 import pytest
 
+from baseline_cloudbaking.growth import fill_sessions, session_frames
 from bench import latency
 from bench.latency import LatencyConfig
 from bench.storage_config import StorageConfig
-from bench.storage_growth import fill_sessions, measure_growth, session_frames
+from bench.storage_growth import measure_growth
 from bench.viewer_bench import BENCH, SESSION, WebBenchConfig, measure_viewer, open_viewer, record_links
 from bench.viewer_present import SCREENSHOT
 from gicore import present
