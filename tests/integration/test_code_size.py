@@ -66,9 +66,10 @@ def test_no_function_over_80_lines() -> None:
 
 @pytest.mark.xfail(
     strict=True,
-    reason="an open goal: bench/ is 32 % of the package lines (10,000 of 31,800); what other packages own (the "
-    "presentation layer, the page's driver, model metadata) is already below it; strict, so the test fails once the "
-    "goal is met and this mark must go",
+    reason="an open goal: bench/ is 30 % of the package lines (9,700 of 32,000); what other packages own (the "
+    "presentation layer, the page's driver and parity checks, model metadata, reading results back, the GI tree's "
+    "growth model, Ray's instances) is already below it; strict, so the test fails once the goal is met and this "
+    "mark must go",
 )
 def test_bench_is_at_most_a_quarter_of_the_packages() -> None:
     lines = {package: sum(map(line_count, python_files(package))) for package in PACKAGES}
