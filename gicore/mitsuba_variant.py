@@ -58,11 +58,17 @@ OPTIX_DENOISER_WEIGHTS = Path("/usr/share/nvidia/nvoptix.bin")
 
 
 def choose_variant(
-    asked: str, cuda_devices: int, cuda_variant_built: bool, libllvm: str | None, optix_weights: bool = True
+    asked: str,
+    cuda_devices: int,
+    cuda_variant_built: bool,
+    libllvm: str | None,
+    optix_weights: bool = True,
+    torch_cuda: bool = True,
 ) -> VariantChoice:
     """The variant for ``GIGAN_MITSUBA_VARIANT=asked`` on a machine with ``cuda_devices`` CUDA devices, a Mitsuba
-    build that has (``cuda_variant_built``) or lacks the CUDA variant, ``libllvm`` (a path, or None), and a driver
-    that has (``optix_weights``) or lacks the OptiX denoiser's weights."""
+    build that has (``cuda_variant_built``) or lacks the CUDA variant, ``libllvm`` (a path, or None), a driver
+    that has (``optix_weights``) or lacks the OptiX denoiser's weights, and a torch that can (``torch_cuda``) or
+    cannot hand OIDN CUDA tensors (the project's CPU wheel cannot: OIDN then denoises on the CPU)."""
     if asked not in DEVICES:
         raise UserError(f"{VARIANT_ENV}={asked!r} is not a device", f"set it to one of {', '.join(DEVICES)}")
     cuda_runs = cuda_devices > 0 and cuda_variant_built
@@ -71,11 +77,12 @@ def choose_variant(
         raise UserError(f"{VARIANT_ENV}=cuda but {missing}", f"set {VARIANT_ENV}=cpu or auto, or leave it unset")
     if asked != "cpu" and cuda_runs:
         if not optix_weights:
+            where = "the GPU" if torch_cuda else "the CPU (torch has no CUDA)"
             notice = (
-                f"mitsuba: {CUDA_VARIANT} on the GPU, OIDN denoiser on the GPU: the driver has no OptiX denoiser "
+                f"mitsuba: {CUDA_VARIANT} on the GPU, OIDN denoiser on {where}: the driver has no OptiX denoiser "
                 f"weights ({OPTIX_DENOISER_WEIGHTS}) ({why(asked)})"
             )
-            return VariantChoice(CUDA_VARIANT, "oidn-cuda", notice)
+            return VariantChoice(CUDA_VARIANT, "oidn-cuda" if torch_cuda else "oidn", notice)
         notice = f"mitsuba: {CUDA_VARIANT} on the GPU, OptiX denoiser ({why(asked)})"
         return VariantChoice(CUDA_VARIANT, "optix", notice)
     reason = why(asked) if asked == "cpu" else "no CUDA device" if cuda_devices == 0 else f"no {CUDA_VARIANT} built"
@@ -117,7 +124,18 @@ def cuda_variant_built() -> bool:
 def machine_choice(asked: str) -> VariantChoice:
     """:func:`choose_variant` for ``asked`` on this machine; the CUDA probe runs only where CUDA could be asked for."""
     cuda_devices = cuda_device_count() if asked in ("auto", "cuda") else 0
-    return choose_variant(asked, cuda_devices, cuda_variant_built(), find_libllvm(), OPTIX_DENOISER_WEIGHTS.is_file())
+    optix = OPTIX_DENOISER_WEIGHTS.is_file()
+    # torch (seconds to import) is asked only where OIDN would denoise next to the CUDA variant
+    torch_cuda = optix or cuda_devices == 0 or _torch_sees_cuda()
+    return choose_variant(asked, cuda_devices, cuda_variant_built(), find_libllvm(), optix, torch_cuda)
+
+
+def _torch_sees_cuda() -> bool:
+    if importlib.util.find_spec("torch") is None:
+        return False
+    import torch
+
+    return torch.cuda.is_available()
 
 
 @functools.cache

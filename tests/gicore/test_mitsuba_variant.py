@@ -44,6 +44,9 @@ def test_without_the_optix_weights_oidn_denoises_on_the_gpu(asked):
     assert "OIDN denoiser on the GPU" in choice.notice and "nvoptix.bin" in choice.notice
     assert "\n" not in choice.notice
     assert choose_variant("cpu", 1, True, LLVM, optix_weights=False).denoiser == "oidn"
+    # a torch without CUDA (the project's CPU wheel) cannot hand OIDN device tensors: OIDN runs on the CPU
+    on_cpu = choose_variant(asked, 1, True, LLVM, optix_weights=False, torch_cuda=False)
+    assert (on_cpu.variant, on_cpu.denoiser) == ("cuda_ad_rgb", "oidn") and "OIDN denoiser on the CPU" in on_cpu.notice
 
 
 def test_without_llvm_the_cpu_variant_is_scalar_and_the_notice_says_how_to_fix_it():
