@@ -4,7 +4,8 @@ The server's first byte on a connection picks its mode:
 
 - ``E`` echo: writes back every byte it reads, until EOF.
 - ``S`` sink: reads until EOF, then answers one JSON line: bytes, SHA-256, and the CLOCK_MONOTONIC times
-  of the first and last byte (goodput is measured where the bytes arrive).
+  of the goodput window's start (:func:`window_start`) and the last byte (goodput is measured where the bytes
+  arrive).
 - ``G`` source: reads ``!QQ`` (byte count, seed) and sends that many bytes of :func:`blocks`, then EOF.
 - ``P`` probe: for every ``!QQ`` (sequence number, client send time in ns) it receives, answers
   ``!QQQQ`` (sequence, client send time, server receive time, server send time). Client and server run
@@ -71,19 +72,19 @@ async def _handle(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) ->
                 writer.write(data)
                 await writer.drain()
         elif mode == b"S":
-            h, total, first_chunk, first, last = hashlib.sha256(), 0, 0, 0, 0
+            h, total, arrivals = hashlib.sha256(), 0, []
             while data := await reader.read(_READ_BYTES):
-                last = time.monotonic_ns()
-                if not total:
-                    first, first_chunk = last, len(data)
                 total += len(data)
+                arrivals.append((total, time.monotonic_ns()))
                 h.update(data)
+            start_bytes, start = window_start(arrivals)
+            last = arrivals[-1][1] if arrivals else 0
             report = {
                 "bytes": total,
                 "sha256": h.hexdigest(),
-                "first_ns": first,
+                "start_ns": start,
                 "last_ns": last,
-                "first_chunk": first_chunk,
+                "start_bytes": start_bytes,
             }
             writer.write(json.dumps(report).encode() + b"\n")
         elif mode == b"G":
@@ -150,15 +151,29 @@ class Transfer:
 
     nbytes: int
     intact: bool  # the SHA-256 matched the sent stream
-    first_s: float  # first byte arrived
+    start_s: float  # the goodput window's start (:func:`window_start`)
     last_s: float  # last byte arrived
-    first_chunk: int  # bytes of the first read (excluded from the goodput, which starts at first_s)
+    start_bytes: int  # bytes arrived by start_s (outside the window)
 
     @property
     def goodput_mbit(self) -> float:
-        """Receiver goodput after the first read, Mbit/s."""
-        span = self.last_s - self.first_s
-        return (self.nbytes - self.first_chunk) * 8 / span / 1e6 if span > 0 else float("nan")
+        """Receiver goodput over the window from ``start_s`` to the last byte, Mbit/s."""
+        span = self.last_s - self.start_s
+        return (self.nbytes - self.start_bytes) * 8 / span / 1e6 if span > 0 else float("nan")
+
+
+#: The goodput window opens at the first read by which this share of the bytes has arrived. A receiver scheduled
+#: late (a busy machine) reads the backlog of the link's first milliseconds at once; counted inside the window,
+#: those bytes would make the link look faster than its rate.
+WINDOW_START = 0.1
+
+
+def window_start(arrivals: list[tuple[int, int]]) -> tuple[int, int]:
+    """(bytes arrived, time) of the first read whose running total reaches :data:`WINDOW_START` of the whole;
+    ``arrivals``: each read's running total and time; (0, 0) without any."""
+    if not arrivals:
+        return 0, 0
+    return next(a for a in arrivals if a[0] >= WINDOW_START * arrivals[-1][0])
 
 
 def upload(addr: tuple[str, int], nbytes: int, seed: int, timeout: float) -> Transfer:
@@ -177,24 +192,25 @@ def upload(addr: tuple[str, int], nbytes: int, seed: int, timeout: float) -> Tra
     return Transfer(
         report["bytes"],
         report["bytes"] == nbytes and report["sha256"] == digest(nbytes, seed),
-        report["first_ns"] / 1e9,
+        report["start_ns"] / 1e9,
         report["last_ns"] / 1e9,
-        report["first_chunk"],
+        report["start_bytes"],
     )
 
 
 def download(addr: tuple[str, int], nbytes: int, seed: int, timeout: float) -> Transfer:
     """Fetch ``nbytes`` of the seeded stream from a source, timing the arrivals here."""
-    h, total, first_chunk, first, last = hashlib.sha256(), 0, 0, 0.0, 0.0
+    h, total, arrivals = hashlib.sha256(), 0, []
     with connect(addr, b"G", timeout) as sock:
         sock.sendall(SOURCE_REQUEST.pack(nbytes, seed))
         while data := sock.recv(_READ_BYTES):
-            last = time.monotonic()
-            if not total:
-                first, first_chunk = last, len(data)
             total += len(data)
+            arrivals.append((total, time.monotonic_ns()))
             h.update(data)
-    return Transfer(total, total == nbytes and h.hexdigest() == digest(nbytes, seed), first, last, first_chunk)
+    start_bytes, start = window_start(arrivals)
+    last = arrivals[-1][1] if arrivals else 0
+    intact = total == nbytes and h.hexdigest() == digest(nbytes, seed)
+    return Transfer(total, intact, start / 1e9, last / 1e9, start_bytes)
 
 
 def echo(addr: tuple[str, int], payload: bytes, timeout: float) -> bytes:

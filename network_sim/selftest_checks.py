@@ -311,7 +311,7 @@ class Measurements:
                             "rate_mbit": rate,
                             "direction": direction,
                             "bytes": nbytes,
-                            "seconds": result.last_s - result.first_s,
+                            "seconds": result.last_s - result.start_s,
                         },
                     )
                 )
@@ -329,8 +329,8 @@ class Measurements:
                     self.transfer(r)
                     for r in pool.map(lambda seed: endpoint.download(addr, nbytes, seed, _TIMEOUT_S), (1, 2))
                 ]
-        span = max(t.last_s for t in pair) - min(t.first_s for t in pair)
-        total = sum(t.nbytes - t.first_chunk for t in pair) * 8 / span / 1e6
+        span = max(t.last_s for t in pair) - min(t.start_s for t in pair)
+        total = sum(t.nbytes - t.start_bytes for t in pair) * 8 / span / 1e6
         config = {"rate_mbit": rate, "direction": "down", "connections": 2, "bytes_each": nbytes}
         self.add(
             Check(
@@ -452,7 +452,7 @@ class Measurements:
                 result = self.transfer(move(addr, nbytes, self.seed, _TIMEOUT_S))
                 delay = settings.delay_ms / 1e3
                 start, end = (
-                    result.first_s - origin - delay,
+                    result.start_s - origin - delay,
                     result.last_s - origin - delay,
                 )  # when the link delivered them
                 capacity = trace.capacity_bytes(start, end) * 8 / (end - start) / 1e6

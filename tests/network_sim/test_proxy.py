@@ -123,6 +123,20 @@ def test_one_way_delay_within_tolerance(server: Running, delay_ms: float) -> Non
         assert min(values) >= delay_ms - 0.05  # never early
 
 
+def test_a_late_first_read_does_not_make_the_link_look_faster() -> None:
+    """A receiver scheduled 80 ms late reads 1 KB, then the link's backlog at once, then 1 MB every 100 ms (10
+    MB/s): the goodput window opens once a tenth of the bytes is in, so the backlog is not counted as fast."""
+    ms = 1_000_000
+    arrivals = [(1_000, 0), (800_000, 1 * ms)] + [(800_000 + k * 1_000_000, (1 + 100 * k) * ms) for k in range(1, 10)]
+    start_bytes, start = endpoint.window_start(arrivals)
+    assert (start_bytes, start) == (1_800_000, 101 * ms)
+    transfer = endpoint.Transfer(arrivals[-1][0], True, start / 1e9, arrivals[-1][1] / 1e9, start_bytes)
+    assert transfer.goodput_mbit == pytest.approx(80.0)  # 1 MB per 100 ms
+    first_read = endpoint.Transfer(arrivals[-1][0], True, 0.0, arrivals[-1][1] / 1e9, 1_000)
+    assert first_read.goodput_mbit > 1.05 * 80.0  # the backlog counted from the first read: the bias removed
+    assert endpoint.window_start([]) == (0, 0)
+
+
 @pytest.mark.parametrize("rate_mbit", [4.0, 40.0])
 def test_goodput_within_tolerance(server: Running, rate_mbit: float) -> None:
     nbytes = int(rate_mbit * 1e6 / 8 * 1.0)  # 1 s of link time
@@ -140,9 +154,9 @@ def test_connections_share_the_rate(server: Running) -> None:
     with _proxy(server, "--rate-mbit", "8") as proxy:
         with ThreadPoolExecutor(2) as pool:
             pair = list(pool.map(lambda seed: endpoint.download(proxy.addr, nbytes, seed, TIMEOUT), (1, 2)))
-    span = max(t.last_s for t in pair) - min(t.first_s for t in pair)
+    span = max(t.last_s for t in pair) - min(t.start_s for t in pair)
     assert all(t.intact for t in pair)
-    assert sum(t.nbytes - t.first_chunk for t in pair) * 8 / span / 1e6 == pytest.approx(8.0, rel=0.07)
+    assert sum(t.nbytes - t.start_bytes for t in pair) * 8 / span / 1e6 == pytest.approx(8.0, rel=0.07)
 
 
 def _read_log(path: Path) -> list[dict[str, str]]:
