@@ -155,8 +155,8 @@ def serve_command(given: dict[str, Any]) -> None:
         site = prepare(cfg, cloud)  # rewritten whole on every start, so one cut short by a stop is simply redone
         with _started(cloud):
             server.attach(site)
-            typer.echo(f"serving {site.config['scene']} at {server.url}/ ({_describe(cfg, cloud)})")
-            server.serve_forever()
+            line = f"serving {site.config['scene']} at {server.url}/ ({_describe(cfg, cloud)})"
+            server.serve_forever(lambda: typer.echo(line))
 
 
 @contextmanager

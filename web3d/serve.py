@@ -20,6 +20,8 @@ from __future__ import annotations
 
 import socket
 import threading
+import time
+from collections.abc import Callable
 
 import uvicorn
 from fastapi import FastAPI, Response
@@ -154,11 +156,23 @@ class WebServer:
             raise RuntimeError(f"the viewer's server at {self.url} did not start")
         return self
 
-    def serve_forever(self) -> None:
+    def serve_forever(self, announce: Callable[[], None]) -> None:
         """Serve in this thread until SIGINT or SIGTERM (uvicorn finishes the requests in flight within the
-        graceful timeout, then raises the signal again)."""
+        graceful timeout, then raises the signal again); ``announce`` runs once uvicorn has started. Before that,
+        uvicorn is still importing its protocols and has not taken over the signals: a Ctrl-C that lands in an
+        import's lock clean-up is swallowed there ("Exception ignored"), and the viewer would serve on, so a
+        "serving" line printed earlier would invite a stop that can be lost."""
+        server = self._uvicorn()
+
+        def when_started() -> None:
+            while not (server.started or server.should_exit):
+                time.sleep(0.01)
+            if server.started:
+                announce()
+
+        threading.Thread(target=when_started, name="announce", daemon=True).start()
         try:
-            self._uvicorn().run(sockets=[self.socket])
+            server.run(sockets=[self.socket])
         finally:
             self.socket.close()
 
