@@ -109,8 +109,9 @@ def store_entries(store: Path) -> dict:
 
 
 def busy_ray_workers() -> list[int]:
-    """PIDs of Ray workers running a render job now (Ray titles a busy worker ``ray::<function>``:
-    ``gicore.executor.run_ray_job``)."""
+    """PIDs of this process's Ray workers running a render job now (Ray titles a busy worker ``ray::<function>``:
+    ``gicore.executor.run_ray_job``). Only descendants of this process count: the module's instance runs below
+    it, and other test processes (bench scaling, the cluster test) may run Ray jobs on the machine meanwhile."""
     pids = []
     for cmdline in Path("/proc").glob("[0-9]*/cmdline"):
         try:
@@ -118,7 +119,19 @@ def busy_ray_workers() -> list[int]:
                 pids.append(int(cmdline.parent.name))
         except OSError:  # the process ended while we looked
             continue
-    return pids
+    return [pid for pid in pids if _descends_from(pid, os.getpid())]
+
+
+def _descends_from(pid: int, ancestor: int) -> bool:
+    while pid > 1:
+        try:
+            # the parent is the 4th field of /proc/PID/stat, after the command in parentheses
+            pid = int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[1])
+        except (OSError, IndexError, ValueError):  # the process ended while we looked
+            return False
+        if pid == ancestor:
+            return True
+    return False
 
 
 # --- worker functions of the generic tests (module level: Ray workers import them by name) -----------
