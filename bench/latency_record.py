@@ -127,8 +127,8 @@ def record_backends(
     the run's summary.json says; for cloud baking, the server's Mitsuba variant and denoiser (``server_variant``,
     ``server_denoiser``): the server inherits this process's environment on this machine, so it makes this
     process's choice (:func:`gicore.mitsuba_variant.mitsuba_choice`)."""
+    from gicore.cuda_probe import cuda_for_torch
     from gicore.mitsuba_variant import mitsuba_choice
-    from gigan_local.torch_backend import cuda_for_torch
 
     for (system, profile, store, renderer), folder in runs.items():
         summary = json.loads((folder / "summary.json").read_text())

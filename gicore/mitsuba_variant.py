@@ -29,7 +29,7 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-from gicore.cuda_probe import cuda_device_count
+from gicore.cuda_probe import cuda_device_count, cuda_for_torch
 from gicore.error_policy import UserError
 
 #: The environment variable that picks the device, and its values.
@@ -126,16 +126,8 @@ def machine_choice(asked: str) -> VariantChoice:
     cuda_devices = cuda_device_count() if asked in ("auto", "cuda") else 0
     optix = OPTIX_DENOISER_WEIGHTS.is_file()
     # torch (seconds to import) is asked only where OIDN would denoise next to the CUDA variant
-    torch_cuda = optix or cuda_devices == 0 or _torch_sees_cuda()
+    torch_cuda = optix or cuda_devices == 0 or cuda_for_torch()
     return choose_variant(asked, cuda_devices, cuda_variant_built(), find_libllvm(), optix, torch_cuda)
-
-
-def _torch_sees_cuda() -> bool:
-    if importlib.util.find_spec("torch") is None:
-        return False
-    import torch
-
-    return torch.cuda.is_available()
 
 
 @functools.cache

@@ -1,6 +1,6 @@
 """Which backend runs GIGAN's generator: ``--inference auto|onnxruntime|torch``.
 
-``auto`` is torch where torch sees a CUDA device (:func:`gigan_local.torch_backend.cuda_for_torch`: float16
+``auto`` is torch where torch sees a CUDA device (:func:`gicore.cuda_probe.cuda_for_torch`: float16
 on the GPU, host copies counted in the inference stage) and onnxruntime on the CPU otherwise, the backend
 the shipped model was tuned for on two cores. Either backend can be forced; torch without CUDA runs float32
 on the CPU.
@@ -19,13 +19,13 @@ INFERENCE_BACKENDS = ("auto", "onnxruntime", "torch")
 
 def resolve_inference(asked: str, cuda: bool | None = None) -> str:
     """The backend ``--inference asked`` runs on: ``auto`` is torch where ``cuda`` (torch sees a CUDA device;
-    asked of :func:`gigan_local.torch_backend.cuda_for_torch` when None), else onnxruntime."""
+    asked of :func:`gicore.cuda_probe.cuda_for_torch` when None), else onnxruntime."""
     if asked not in INFERENCE_BACKENDS:
         raise UserError(f"--inference {asked!r} is not a backend", f"use one of {', '.join(INFERENCE_BACKENDS)}")
     if asked != "auto":
         return asked
     if cuda is None:
-        from gigan_local.torch_backend import cuda_for_torch
+        from gicore.cuda_probe import cuda_for_torch
 
         cuda = cuda_for_torch()
     return "torch" if cuda else "onnxruntime"

@@ -45,7 +45,7 @@ from onnx import TensorProto, helper, numpy_helper
 from gicore.error_policy import UserError
 from gicore.fileio import TMP_MARKER, atomic_write_bytes, exclusive_run
 from gigan_local.config import read_run_config
-from gigan_local.inference import FORMAT, MODEL_JSON, read_model_json
+from gigan_local.inference import FORMAT, MODEL_JSON, read_model_json, trained_resolution
 from gigan_local.networks import define_G
 from gigan_local.subpixel import GRAPH_NAME, subpixel_upsampling
 from gigan_local.train import CHECKPOINT, load_checkpoint
@@ -356,7 +356,7 @@ def resize_export(model_dir: Path, out_dir: Path, resolution: int, seed: int = 0
             atomic_write_bytes(out_dir / FILES[k], model.SerializeToString())
         resized = doc | {
             "resolution": resolution,
-            "trained_resolution": int(doc.get("trained_resolution", doc["resolution"])),
+            "trained_resolution": trained_resolution(doc),
             "files": {k: FILES[k] for k in models},
             "max_abs_diff_vs_torch": diffs,
         }

@@ -66,10 +66,15 @@ def model_info(path: str | Path, option: str = "--model") -> dict[str, Any]:
         "precision": next((k for k, v in doc.get("files", {}).items() if v == Path(path).name), "unknown"),
         "model": doc.get("model"),
         "resolution": int(doc["resolution"]),
-        # a model resized by gigan_local.resize_cli runs at a side it was not trained at
-        "trained_resolution": int(doc.get("trained_resolution", doc["resolution"])),
+        "trained_resolution": trained_resolution(doc),
         "size_mib": round(Path(path).stat().st_size / 2**20, 2),
     }
+
+
+def trained_resolution(doc: dict[str, Any]) -> int:
+    """The side the model of ``model.json`` ``doc`` was trained at: its ``resolution`` unless
+    :func:`gigan_local.export.resize_export` made it run at another."""
+    return int(doc.get("trained_resolution", doc["resolution"]))
 
 
 def check_model_resolution(path: str | Path, resolution: int, option: str = "--model") -> None:

@@ -69,10 +69,23 @@ class InputSpec:
         return strict_from_dict(cls, d, "input")
 
 
-def _checked(name: str, arr: np.ndarray) -> np.ndarray:
+def shaped(name: str, arr: np.ndarray) -> np.ndarray:
+    """Buffer ``name`` as a float32 array, a ValueError unless it is HxW x its channels."""
     arr = np.asarray(arr, dtype=np.float32)
     if arr.ndim != 3 or arr.shape[-1] != CHANNELS[name]:
         raise ValueError(f"buffer {name!r} must be an HxWx{CHANNELS[name]} array, got shape {arr.shape}")
+    return arr
+
+
+def require_buffers(frame: dict[str, np.ndarray], spec: InputSpec) -> None:
+    """KeyError naming the buffers ``spec`` needs that ``frame`` lacks."""
+    missing = [b for b in spec.buffers if b not in frame]
+    if missing:
+        raise KeyError(f"the frame lacks buffer(s) {missing} that the model needs (it has {sorted(frame)})")
+
+
+def _checked(name: str, arr: np.ndarray) -> np.ndarray:
+    arr = shaped(name, arr)
     if not np.all(np.isfinite(arr)):
         raise ValueError(f"buffer {name!r} contains NaN or Inf; fix the renderer output before feeding a network")
     return arr
@@ -105,9 +118,7 @@ def frame_to_input(frame: dict[str, np.ndarray], spec: InputSpec, out: np.ndarra
     """Frame buffers (name -> HxWxC linear arrays) to the network input, CxHxW float32 in [-1, 1], written
     into ``out`` (CxHxW float32, e.g. a model's preallocated input) when given: each buffer is encoded
     straight into its channels, with no concatenated copy."""
-    missing = [b for b in spec.buffers if b not in frame]
-    if missing:
-        raise KeyError(f"the frame lacks buffer(s) {missing} that the model needs (it has {sorted(frame)})")
+    require_buffers(frame, spec)
     sizes = {b: np.shape(frame[b])[:2] for b in spec.buffers}
     if len(set(sizes.values())) != 1:
         raise ValueError(f"the frame's buffers differ in size: {sizes}")

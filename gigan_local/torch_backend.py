@@ -14,27 +14,14 @@ onnxruntime on the same file to float rounding.
 
 from __future__ import annotations
 
-import importlib.util
 from typing import Any
 
 import numpy as np
 
-from gicore.buffers import CHANNELS
-from gicore.cuda_probe import cuda_device_count
 from gicore.error_policy import UserError
 from gicore.tonemap import GAMMA, Y_MAX
 from gigan_local.inference import MODEL_JSON, ExportedGenerator, check_input_shape
-from gigan_local.preprocess import InputSpec
-
-
-def cuda_for_torch() -> bool:
-    """Whether torch runs on a CUDA device here. The driver is asked first (:func:`cuda_device_count`), so a
-    machine without a GPU does not import torch (about 2 s) to find out."""
-    if cuda_device_count() == 0 or importlib.util.find_spec("torch") is None:
-        return False
-    import torch
-
-    return torch.cuda.is_available()
+from gigan_local.preprocess import InputSpec, require_buffers, shaped
 
 
 class TorchGIModel(ExportedGenerator):
@@ -83,9 +70,12 @@ class TorchGIModel(ExportedGenerator):
         device (see the module docstring); a NaN or Inf in a buffer is a ValueError, as on the host path."""
         import torch
 
+        require_buffers(frame_buffers, self.spec)
         self.check_frame_size(frame_buffers)
         with torch.inference_mode():
-            raw = {b: upload_buffer(b, frame_buffers, self.device) for b in self.spec.buffers}
+            # contiguous: torch takes no negative strides (a read-back flipped upright is such a view)
+            host = {b: np.ascontiguousarray(shaped(b, frame_buffers[b])) for b in self.spec.buffers}
+            raw = {b: torch.from_numpy(a).to(self.device) for b, a in host.items()}
             finite = torch.stack([torch.isfinite(t).all() for t in raw.values()])
             x = encode_frame(raw, self.spec).to(self.dtype)
             radiance = decode_output(self.net(x[None])[0].float())
@@ -103,19 +93,6 @@ class TorchGIModel(ExportedGenerator):
             x_device = host.to(self.device, non_blocking=True).to(self.dtype)
             # .cpu() waits for the device, so the time of the whole call is what the network took
             return self.net(x_device)[0].float().cpu().numpy()
-
-
-def upload_buffer(name: str, frame: dict[str, np.ndarray], device: Any) -> Any:
-    """The frame's buffer ``name`` (HxWxC) as a float32 tensor on ``device``; a missing or misshapen buffer is
-    the error :func:`gigan_local.preprocess.frame_to_input` gives."""
-    import torch
-
-    if name not in frame:
-        raise KeyError(f"the frame lacks buffer(s) {[name]} that the model needs (it has {sorted(frame)})")
-    arr = np.asarray(frame[name], dtype=np.float32)
-    if arr.ndim != 3 or arr.shape[-1] != CHANNELS[name]:
-        raise ValueError(f"buffer {name!r} must be an HxWx{CHANNELS[name]} array, got shape {arr.shape}")
-    return torch.from_numpy(np.ascontiguousarray(arr)).to(device)
 
 
 def encode_frame(raw: dict[str, Any], spec: InputSpec) -> Any:
