@@ -4,12 +4,13 @@ and one fragment pass projects, depth-tests the four bilinear taps and fills inv
 float32 arithmetic of :meth:`gigan_local.warp.StructureAwareWarp.resample` (docs/architecture.md,
 Structure-aware warping).
 
-Per map, :meth:`GLStructureWarp.bind` builds the numpy warp's :class:`~gigan_local.warp.GITexture` (the
-slope-scaled depth planes, the coarse fallback level, its mean) and uploads it: the map arrives in host memory
-from the model or the network either way. The taps are fetched texel by texel (no hardware filtering), with
-the weights rounded to 1/``SUBTEXEL`` as the numpy warp rounds them, so both warps read the same texels with
-the same weights; they differ only where float32 rounding (a fused multiply-add, a division) moves a weight
-across a rounding step or a tap across the depth test's bound.
+Per map, :meth:`GLStructureWarp.bind` uploads the map and its depth (they arrive in host memory from the model or
+the network either way) and draws the slope-scaled depth planes from the depth in a pass that computes
+:func:`~gigan_local.warp.depth_slack` texel by texel, in the same float32 operations, so the planes are the numpy
+warp's to the bit; only the small coarse fallback level and its mean are computed on the host. The taps are
+fetched texel by texel (no hardware filtering), with the weights rounded to 1/``SUBTEXEL`` as the numpy warp
+rounds them, so both warps read the same texels with the same weights; they differ only where float32 rounding (a
+fused multiply-add, a division) moves a weight across a rounding step or a tap across the depth test's bound.
 """
 
 from __future__ import annotations
@@ -21,12 +22,36 @@ import numpy as np
 from gicore.camera import Camera
 from gicore.gi_map import GIMap, Timings
 from gicore.gl.frame import ShaderWarp
-from gicore.gl.passes import Pass, Target, upload
+from gicore.gl.passes import Pass, Target, rewrite
 from gicore.timing import Stopwatch
-from gigan_local.warp import DEPTH_REL_TOL, SUBTEXEL, StructureAwareWarp
+from gigan_local.warp import DEPTH_REL_TOL, SUBTEXEL, checked_map, checked_options, fallback_level
 
 if TYPE_CHECKING:
     from gicore.gl.renderer import GLRenderer
+
+SLACK_FRAGMENT = """
+#version 330 core
+uniform sampler2D u_depth;  // the GI camera's linear view depth (0: background)
+layout(location = 0) out vec2 o;  // depth - slack, depth + slack; +inf, -inf on background
+
+const float INF = uintBitsToFloat(0x7f800000u);
+
+float axis_step(ivec2 p, ivec2 along, float d) {  // depth_slack along one axis: 0 on the frame's border
+    ivec2 a = p - along, b = p + along;
+    if (any(lessThan(a, ivec2(0))) || any(greaterThanEqual(b, textureSize(u_depth, 0)))) return 0.0;
+    float da = texelFetch(u_depth, a, 0).r, db = texelFetch(u_depth, b, 0).r;
+    float s = min(da > 0.0 ? abs(d - da) : INF, db > 0.0 ? abs(db - d) : INF);  // a background neighbour: none
+    return s == INF ? 0.0 : s;
+}
+
+void main() {
+    ivec2 p = ivec2(gl_FragCoord.xy);
+    float d = texelFetch(u_depth, p, 0).r;
+    if (!(d > 0.0)) { o = vec2(INF, -INF); return; }
+    float slack = axis_step(p, ivec2(1, 0), d) + axis_step(p, ivec2(0, 1), d);
+    o = vec2(d - slack, d + slack);
+}
+"""
 
 WARP_FRAGMENT = f"""
 #version 330 core
@@ -104,7 +129,7 @@ void main() {{
 class GLStructureWarp(ShaderWarp):
     """Alg. 1 in a GL pass on ``renderer`` (a :class:`gicore.gl.GLRenderer`): :meth:`bind` a GI map once, then
     :meth:`~gicore.gl.frame.ShaderWarp.frame` composes each frame; the same ``layer`` and ``depth_rel_tol`` as
-    :class:`~gigan_local.warp.StructureAwareWarp`, which builds each map's lookup texture here."""
+    :class:`~gigan_local.warp.StructureAwareWarp`."""
 
     name = "structure"
     raster = "uv"
@@ -112,35 +137,42 @@ class GLStructureWarp(ShaderWarp):
 
     def __init__(self, renderer: GLRenderer, layer: str = "radiance", depth_rel_tol: float = DEPTH_REL_TOL):
         super().__init__(renderer)
-        self.host = StructureAwareWarp(renderer, layer, depth_rel_tol)
-        self.layer = layer
+        self.layer, self.depth_rel_tol = checked_options(layer, depth_rel_tol)
         self._pass = Pass(self.ctx, WARP_FRAGMENT)
+        self._slack = Pass(self.ctx, SLACK_FRAGMENT)
         n = renderer.resolution
         self._out = Target.make(self.ctx, n, n, 4)
+        self._planes: Target | None = None
         self._textures: dict[str, Any] = {}
         self._uniforms: dict[str, Any] = {}
 
     def bind(self, gi: GIMap) -> Timings:
-        """Per GI map: the numpy warp's bind (the lookup texture, the GI camera's projection in the renderer's
-        vertex shader), then its planes, layer and coarse level uploaded."""
+        """Per GI map: its layer and depth uploaded, the depth planes drawn from the depth (:data:`SLACK_FRAGMENT`),
+        the coarse fallback level computed and uploaded, and the GI camera's projection set in the renderer's
+        vertex shader."""
         sw = Stopwatch()
-        self.host.bind(gi)
-        tex = self.host.texture
-        if tex.image.shape[2] != 3:
-            raise ValueError(f"the GL warp takes a 3-channel GI map, got {tex.image.shape[2]} channels")
-        th, tw = tex.depth.shape
-        planes = tex.planes[:2].reshape(2, th, tw).transpose(1, 2, 0)
-        self._textures = {"u_planes": upload(self.ctx, planes), "u_gi": upload(self.ctx, tex.image)}
-        self._textures["u_coarse"] = upload(self.ctx, tex.coarse)
-        tol = self.host.depth_rel_tol
+        image, depth, indirect = checked_map(gi.camera, gi.layer(self.layer), gi.depth, gi.indirect)
+        if image.shape[2] != 3:
+            raise ValueError(f"the GL warp takes a 3-channel GI map, got {image.shape[2]} channels")
+        coarse, step, mean = fallback_level(indirect, depth > 0)
+        textures = self._textures
+        for name, array in (("u_depth", depth), ("u_gi", image), ("u_coarse", coarse)):
+            textures[name] = rewrite(self.ctx, textures.get(name), array)
+        height, width = depth.shape
+        if self._planes is None or self._planes.size != (width, height):
+            self._planes = Target.make(self.ctx, width, height, 2)
+        self._slack.draw(self._planes, {"u_depth": textures["u_depth"]})
+        textures["u_planes"] = self._planes.texture
+        self.renderer.set_texcoord_projection(gi.camera)
+        tol = self.depth_rel_tol
         f32 = np.float32  # each constant as numpy rounds a python float against a float32 array
         self._uniforms = {
-            "u_w_row": tuple(float(v) for v in tex.camera.view_proj()[3].astype(f32)),
-            "u_near": float(f32(tex.camera.near)),
+            "u_w_row": tuple(float(v) for v in gi.camera.view_proj()[3].astype(f32)),
+            "u_near": float(f32(gi.camera.near)),
             "u_tol_hi": float(f32(1.0 + tol)),
             "u_tol_lo": float(f32(1.0 - tol)),
-            "u_inv_step": float(f32(1.0 / tex.coarse_step)),
-            "u_mean": tuple(float(v) for v in tex.mean),
+            "u_inv_step": float(f32(1.0 / step)),
+            "u_mean": tuple(float(v) for v in mean),
             "u_base": self.layer == "radiance",
         }
         self.ctx.finish()

@@ -90,26 +90,42 @@ class GITexture:
     ) -> GITexture:
         """``indirect`` (HxWxC, default ``image``) is what the fallback extrapolates: the GI map's
         indirect light when ``image`` is a full GI map that invalid pixels add to their current DI."""
-        image = np.asarray(image, dtype=np.float32)
-        depth = np.asarray(depth, dtype=np.float32)
-        indirect = image if indirect is None else np.asarray(indirect, dtype=np.float32)
-        if image.ndim != 3 or image.shape[:2] != (camera.height, camera.width):
-            raise ValueError(f"GI map must be {camera.height}x{camera.width}xC for its camera, got {image.shape}")
-        if depth.shape != image.shape[:2] or indirect.shape != image.shape:
-            raise ValueError(
-                f"GI depth must be {image.shape[:2]} and indirect {image.shape}, got {depth.shape} and {indirect.shape}"
-            )
-        if not (np.all(np.isfinite(image)) and np.all(np.isfinite(depth)) and np.all(np.isfinite(indirect))):
-            raise ValueError("GI map, GI depth or indirect map contains NaN or Inf")
+        image, depth, indirect = checked_map(camera, image, depth, indirect)
         slack = depth_slack(depth)
         hit = depth > 0
         planes = np.empty((2 + image.shape[2], depth.size), dtype=np.float32)
         np.copyto(planes[0], np.where(hit, depth - slack, np.inf).ravel())
         np.copyto(planes[1], np.where(hit, depth + slack, -np.inf).ravel())
         planes[2:] = image.reshape(depth.size, -1).T
-        step = max(1, -(-max(image.shape[:2]) // FALLBACK_TEXELS))
-        coarse, mean = _coarse_level(indirect, hit, step)
+        coarse, step, mean = fallback_level(indirect, hit)
         return cls(camera, image, depth, planes, coarse, step, mean)
+
+
+def checked_map(
+    camera: Camera, image: np.ndarray, depth: np.ndarray, indirect: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``image``, ``depth`` and ``indirect`` (default ``image``) as float32 arrays, checked against each other and
+    ``camera``: a shape that does not fit, a NaN or an Inf is a ValueError."""
+    image = np.asarray(image, dtype=np.float32)
+    depth = np.asarray(depth, dtype=np.float32)
+    indirect = image if indirect is None else np.asarray(indirect, dtype=np.float32)
+    if image.ndim != 3 or image.shape[:2] != (camera.height, camera.width):
+        raise ValueError(f"GI map must be {camera.height}x{camera.width}xC for its camera, got {image.shape}")
+    if depth.shape != image.shape[:2] or indirect.shape != image.shape:
+        raise ValueError(
+            f"GI depth must be {image.shape[:2]} and indirect {image.shape}, got {depth.shape} and {indirect.shape}"
+        )
+    if not (np.all(np.isfinite(image)) and np.all(np.isfinite(depth)) and np.all(np.isfinite(indirect))):
+        raise ValueError("GI map, GI depth or indirect map contains NaN or Inf")
+    return image, depth, indirect
+
+
+def fallback_level(indirect: np.ndarray, hit: np.ndarray) -> tuple[np.ndarray, int, np.ndarray]:
+    """The fallback's coarse level of ``indirect`` over the ``hit`` texels (about :data:`FALLBACK_TEXELS` across),
+    its texels per coarse texel, and the mean over all hit texels (:attr:`GITexture.coarse` and the rest)."""
+    step = max(1, -(-max(indirect.shape[:2]) // FALLBACK_TEXELS))
+    coarse, mean = _coarse_level(indirect, hit, step)
+    return coarse, step, mean
 
 
 def _block_sums(x: np.ndarray, step: int) -> np.ndarray:
@@ -132,6 +148,16 @@ def _coarse_level(image: np.ndarray, hit: np.ndarray, step: int) -> tuple[np.nda
     return push_pull(csum / np.maximum(wsum, 1.0)[..., None], np.minimum(wsum, 1.0)), mean.astype(np.float32)
 
 
+def checked_options(layer: str, depth_rel_tol: float) -> tuple[str, float]:
+    """A structure-aware warp's ``layer`` (one of :data:`gicore.gi_map.LAYERS`) and ``depth_rel_tol`` (>= 0),
+    checked: anything else is a ValueError."""
+    if layer not in LAYERS.values():
+        raise ValueError(f"layer must be one of {tuple(LAYERS.values())}, got {layer!r}")
+    if not depth_rel_tol >= 0.0:
+        raise ValueError(f"depth_rel_tol must be >= 0, got {depth_rel_tol}")
+    return layer, float(depth_rel_tol)
+
+
 class StructureAwareWarp:
     """Algorithm 1 on one renderer, as a :class:`gicore.loop.Warp`: :meth:`bind` a GI map once, then
     :meth:`warp` it to every frame.
@@ -147,13 +173,8 @@ class StructureAwareWarp:
     stages = ("bind", "project", "depth_test", "lookup", "fill")
 
     def __init__(self, renderer: Renderer, layer: str = "radiance", depth_rel_tol: float = DEPTH_REL_TOL):
-        if layer not in LAYERS.values():
-            raise ValueError(f"layer must be one of {tuple(LAYERS.values())}, got {layer!r}")
-        if not depth_rel_tol >= 0.0:
-            raise ValueError(f"depth_rel_tol must be >= 0, got {depth_rel_tol}")
         self.renderer = renderer
-        self.layer = layer
-        self.depth_rel_tol = float(depth_rel_tol)
+        self.layer, self.depth_rel_tol = checked_options(layer, depth_rel_tol)
         self.texture: GITexture | None = None
         self._w_row = np.zeros(4, dtype=np.float32)
 

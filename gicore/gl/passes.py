@@ -33,6 +33,17 @@ def upload(ctx: Any, array: np.ndarray) -> Any:
     return ctx.texture((a.shape[1], a.shape[0]), a.shape[2], a.tobytes(), dtype="f4")
 
 
+def rewrite(ctx: Any, texture: Any | None, array: np.ndarray) -> Any:
+    """``array`` in ``texture`` when its size and channels fit (written over, no new texture), else in a new one
+    (:func:`upload`)."""
+    a = np.ascontiguousarray(array, dtype=np.float32)
+    components = 1 if a.ndim == 2 else a.shape[-1]
+    if texture is None or texture.size != (a.shape[1], a.shape[0]) or texture.components != components:
+        return upload(ctx, a)
+    texture.write(a.tobytes())
+    return texture
+
+
 @dataclass
 class Target:
     """A float32 texture of ``components`` channels and the framebuffer that draws into it."""

@@ -2,7 +2,7 @@
 their numpy versions on llvmpipe, and `--warp-backend`'s choice.
 
 Bounds: the shaders compute the numpy warp's float32 operations in its order (the same taps, the weights rounded
-to 1/256 as numpy rounds them, the same depth planes and coarse level uploaded), and on llvmpipe the outputs are
+to 1/256 as numpy rounds them, the same depth planes drawn and coarse level uploaded), and on llvmpipe the outputs are
 identical (max abs 0 measured on lung_plane at 48² and 256²). The bounds leave room only for a compiler that
 reassociates float32 arithmetic (a fused multiply-add, a division as a reciprocal): a few ulps of values <= 1
 (< 1e-6), far below MAX_ABS; a different tap, weight or fallback would exceed it. Eq. 1's blend is two products
@@ -49,6 +49,28 @@ def test_gl_structure_warp_matches_numpy(lung, layer):
         print(f"{layer} {camera.origin}: {d}")
         assert d["max_abs"] <= MAX_ABS and d["mean_abs"] <= MEAN_ABS and d["valid_differs"] == 0.0
     assert 0.0 < expected[1].mean() < 1.0  # the farthest view has invalid pixels: the fallback is compared too
+
+
+def test_gl_bind_draws_the_numpy_depth_planes_to_the_bit(lung):
+    """The slack pass computes depth_slack's float32 operations texel by texel: the planes it draws from the map's
+    depth are GITexture's (borders, background holes and ±inf included), and a NaN map is refused before any
+    upload."""
+    from dataclasses import replace
+
+    from gigan_local.warp import GITexture
+
+    gl, _, _, gi = lung
+    depth = gi.depth.copy()
+    depth[::7, ::5] = 0.0  # background texels inside the surface: slopes to them are edges
+    gi = replace(gi, depth=depth)
+    shader = GLStructureWarp(gl, "radiance")
+    shader.bind(gi)
+    drawn = shader._planes.read()
+    texture = GITexture.build(gi.camera, gi.layer("radiance"), gi.depth, gi.indirect)
+    expected = texture.planes[:2].reshape(2, *depth.shape).transpose(1, 2, 0)
+    assert np.array_equal(drawn, expected) and np.isinf(drawn).any()
+    with pytest.raises(ValueError, match="NaN or Inf"):
+        shader.bind(replace(gi, depth=np.full_like(depth, np.nan)))
 
 
 @pytest.mark.parametrize("composition", ["blend", "residual"])
