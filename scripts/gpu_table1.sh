@@ -11,14 +11,18 @@
 #    wheel's version or newer is skipped); then the project itself, editable (its console scripts are what the
 #    benches start). GL: .gl/*.deb, where carried, are unpacked first (the device notes'
 #    EGL loaders).
-# 3. Measure, into --out (default $OUT, the device run's folder): per resolution of RESOLUTIONS, bench latency
-#    --quick (profiles lan and wan) with the shipped model, or MODEL_<R> where the shipped one is not at R (none:
-#    the shipped weights resized to R by gigan_local.resize_cli, the network's cost at R); bench variants --quick (the server's bake on CUDA against the CPU's:
-#    SSIM >= 0.98 met or not; the CPU maps from VARIANT_REFERENCE where carried, else baked here, which needs
-#    pyoidn; a failure is a line in the log, not the end of the run); bench render --quick --renderers gl at every
-#    resolution; bench report. What comes back: provenance.txt (GPU name, driver, CUDA, the Mitsuba variant and
-#    inference backend chosen), latency_table_<R>.md, variants.md, table1.md (bench report's results.md),
-#    results.tar.gz (every CSV, provenance JSON and figure of WORK, refreshed after each step), log.txt.
+# 3. Measure, into --out (default $OUT, the device run's folder):
+#    - the GPU-only tests (pytest; a failure is reported in the log, not the end of the run);
+#    - per resolution of RESOLUTIONS, bench latency --quick (profiles lan and wan) with the shipped model, or
+#      MODEL_<R> where the shipped one is not at R (none: the shipped weights resized to R by
+#      gigan_local.resize_cli, the network's cost at R);
+#    - bench render --quick --renderers gl at every resolution;
+#    - bench variants --quick (the server's bake on CUDA against the CPU's: SSIM >= 0.98 met or not; the CPU maps
+#      from VARIANT_REFERENCE where carried, else baked here, which needs pyoidn; a failure is a line in the log);
+#    - bench report.
+#    What comes back: provenance.txt (GPU name, driver, CUDA, the Mitsuba variant and inference backend chosen),
+#    latency_table_<R>.md, variants.md, table1.md (bench report's results.md), results.tar.gz (every CSV,
+#    provenance JSON and figure of WORK, refreshed after each step), log.txt.
 # --dry-run does step 1 in a temporary folder and prints what steps 2 and 3 would install and run.
 #
 # Settings (environment): PYTHON (python3), FORCE (distributions installed even where present), RESOLUTIONS
@@ -141,11 +145,21 @@ from gicore.gl import gl_available
 print("python", platform.python_version(), "torch", torch.__version__, "cuda", torch.version.cuda)
 print("mitsuba", mitsuba_choice().variant, "denoiser", mitsuba_choice().denoiser)
 print("inference (--inference auto)", resolve_inference("auto"))
+if resolve_inference("auto") == "torch":
+    from gigan_local.backend_choice import open_model
+    from gigan_local.inference import DEFAULT_MODEL
+    print("torch backend", open_model(DEFAULT_MODEL, "torch", threads=1, warmup=1).backend)
 print("gl", gl_available())
 EOF
 }
 if [[ $MODE == dry ]]; then echo "would write: $DEST/provenance.txt (nvidia-smi, python, torch, mitsuba, inference, gl)"; else
   provenance >"$DEST/provenance.txt" 2>&1
+fi
+# The tests that only a GPU runs (CUDA graph against eager kernels) and the GL warp against numpy on the GPU's own
+# GL: a failure is reported in the log and the measurements go on.
+gpu_tests=(tests/gigan_local/test_torch_backend.py tests/gigan_local/test_gl_warp.py)
+if ! act timeout 180 "$PYTHON" -m pytest -q -p no:cacheprovider "${gpu_tests[@]}"; then
+  say "GPU tests failed (above): the measurements go on"
 fi
 shipped=$("$PYTHON" -c 'from gigan_local.inference import DEFAULT_MODEL as m, read_model_json as r; print(m, r(m)["resolution"])')
 read -r shipped_model shipped_res <<<"$shipped"
@@ -162,6 +176,8 @@ for res in $RESOLUTIONS; do
   act cp "$RESULTS/latency_$res/latency.md" "$DEST/latency_table_$res.md"
   pack
 done
+act "$BIN/bench" render --quick --renderers gl --gl-resolutions "${RESOLUTIONS// /,}" --out "$RESULTS/render_gl"
+pack
 variants=(--quick)
 if [[ -d $VARIANT_REFERENCE ]]; then variants+=(--variants cuda --reference "$VARIANT_REFERENCE"); fi
 if act "$BIN/bench" variants "${variants[@]}" --out "$RESULTS/variants"; then
@@ -169,8 +185,6 @@ if act "$BIN/bench" variants "${variants[@]}" --out "$RESULTS/variants"; then
 else
   say "bench variants failed (its error is above): no variants.md; the rest of the run goes on"
 fi
-pack
-act "$BIN/bench" render --quick --renderers gl --gl-resolutions "${RESOLUTIONS// /,}" --out "$RESULTS/render_gl"
 pack
 act "$BIN/bench" report --results "$RESULTS" --out "$RESULTS/report"
 act cp "$RESULTS/report/results.md" "$DEST/table1.md"

@@ -78,6 +78,22 @@ def test_a_nan_in_a_buffer_is_an_error_naming_it(frame):
         model.predict(frame | {"albedo": frame["albedo"][..., :1]})
 
 
+@pytest.mark.skipif(not cuda_device_count(), reason="needs a CUDA GPU (the device machine); CI has none")
+def test_the_cuda_graph_predicts_what_the_eager_network_predicts(frame):
+    """On CUDA, predict replays the captured graph: the same radiance as the eager kernels on the same frame, and
+    the graph's outputs are copied out, so a later frame does not change an earlier prediction."""
+    import torch
+
+    model = TorchGIModel(DEFAULT_MODEL, threads=1, warmup=1)
+    assert model._captured is not None and model.backend.endswith("CUDA graph")
+    replayed = model.predict(frame)
+    with torch.inference_mode():
+        eager = model._forward({b: torch.from_numpy(np.ascontiguousarray(frame[b])).to("cuda") for b in model.buffers})
+    np.testing.assert_allclose(replayed, eager[0].cpu().numpy(), rtol=1e-2, atol=1e-3)
+    model.predict({b: np.zeros_like(a) for b, a in frame.items()})
+    np.testing.assert_array_equal(replayed, model.predict(frame))
+
+
 def test_auto_is_torch_on_cuda_and_onnxruntime_without():
     assert resolve_inference("auto", cuda=True) == "torch"
     assert resolve_inference("auto", cuda=False) == "onnxruntime"
