@@ -2,11 +2,14 @@
 their numpy versions on llvmpipe, and `--warp-backend`'s choice.
 
 Bounds: the shaders compute the numpy warp's float32 operations in its order (the same taps, the weights rounded
-to 1/256 as numpy rounds them, the same depth planes drawn and coarse level uploaded), and on llvmpipe the outputs are
-identical (max abs 0 measured on lung_plane at 48² and 256²). The bounds leave room only for a compiler that
-reassociates float32 arithmetic (a fused multiply-add, a division as a reciprocal): a few ulps of values <= 1
-(< 1e-6), far below MAX_ABS; a different tap, weight or fallback would exceed it. Eq. 1's blend is two products
-and a sum: equal up to one float32 rounding of each (rtol 2^-22).
+to 1/256 as numpy rounds them, the same depth planes drawn and coarse level uploaded), and on llvmpipe the outputs
+are identical (max abs 0 measured on lung_plane at 48² and 256²). A GPU's compiler may reassociate float32
+arithmetic (a fused multiply-add, a division as a reciprocal): a few ulps, and where that moves a bilinear weight
+across one of its 1/256 rounding steps, the pixel changes by 1/256 of the step between two neighbouring texels
+(measured on an H100: 1.3e-5 on values near 0.37, in a few pixels). So a pixel may differ by MAX_ABS plus
+2/256 of the map's largest neighbour step (one step in x, one in y), and at most MAX_SHARE of the pixels by
+more than MAX_ABS; a wrong tap, weight or fallback exceeds both. Eq. 1's blend is two products and a sum: equal
+up to one float32 rounding of each (rtol 2^-22).
 
 Skipped, with the reason, when no GL context opens.
 """
@@ -19,15 +22,21 @@ import pytest
 from gicore.gl import gl_available
 from gicore.run_config import PathRunConfig
 from gigan_local.gl_warp import GLStructureWarp
-from gigan_local.warp import StructureAwareWarp
-from tests.helpers.gl_warps import RES, differences, loop_frames, lung_scene
+from gigan_local.warp import SUBTEXEL, StructureAwareWarp
+from tests.helpers.gl_warps import RES, ULPS, contrast, differences, loop_frames, lung_scene
 
 OK, WHY = gl_available()
 if not OK:
     pytest.skip(f"no OpenGL context: {WHY}", allow_module_level=True)
 
-#: Largest |gl - numpy| of a warped or composed pixel, and of their mean (see the module docstring).
-MAX_ABS, MEAN_ABS = 1e-5, 1e-6
+#: |gl - numpy| of a warped or composed pixel from float32 rounding alone, and the share of pixels that may differ
+#: by more, by a weight's rounding step (see the module docstring).
+MAX_ABS, MAX_SHARE = ULPS, 0.01
+
+
+def rounding_step_bound(gi) -> float:
+    """The most a pixel of a map's warp may move when rounding moves its weights across 1/SUBTEXEL steps."""
+    return MAX_ABS + 2.0 * contrast(gi.radiance, reach=1) / SUBTEXEL
 
 
 @pytest.fixture(scope="module")
@@ -47,7 +56,7 @@ def test_gl_structure_warp_matches_numpy(lung, layer):
         expected = (expected[0], expected[1] | ~passes["mask"])
         d = differences(shader.warped(camera, light), expected)
         print(f"{layer} {camera.origin}: {d}")
-        assert d["max_abs"] <= MAX_ABS and d["mean_abs"] <= MEAN_ABS and d["valid_differs"] == 0.0
+        assert d["max_abs"] <= rounding_step_bound(gi) and d["differ"] <= MAX_SHARE and d["valid_differs"] == 0.0
     assert 0.0 < expected[1].mean() < 1.0  # the farthest view has invalid pixels: the fallback is compared too
 
 
@@ -80,7 +89,9 @@ def test_client_loop_frames_on_gl_equal_numpy_frames(lung, composition):
     frames = {"gl": loop_frames(lung, GLStructureWarp(gl, layer), composition)}
     frames["numpy"] = loop_frames(lung, StructureAwareWarp(gl, layer), composition)
     for a, b in zip(frames["gl"], frames["numpy"]):
-        assert np.abs(a.image - b.image).max() <= MAX_ABS and a.row["valid_frac"] == b.row["valid_frac"]
+        diff = np.abs(a.image - b.image).max(axis=-1)
+        assert diff.max() <= rounding_step_bound(lung[3]) and np.mean(diff > MAX_ABS) <= MAX_SHARE
+        assert a.row["valid_frac"] == b.row["valid_frac"]
     assert {"di_ms", "warp_ms", "compose_ms"} <= set(frames["gl"][0].row) and "project_ms" not in frames["gl"][0].row
     assert all(r.row["warp_ms"] > 0 for r in frames["gl"])
 
@@ -107,7 +118,8 @@ def test_gl_compose_equals_numpy_up_to_float32_rounding(lung):
 def test_warp_backend_choice(monkeypatch, capsys):
     import gicore.gl.frame as frame
 
-    assert frame.warp_backend("auto", "gl") == "numpy"  # llvmpipe here: numpy is the CPU default
+    monkeypatch.setattr(frame, "gl_info", lambda: {"GL_RENDERER": "llvmpipe (LLVM 15.0.6, 256 bits)"})
+    assert frame.warp_backend("auto", "gl") == "numpy"  # a CPU rasteriser: numpy is the default
     assert frame.warp_backend("gl", "gl") == "gl" and frame.warp_backend("numpy", "gl") == "numpy"
     assert frame.warp_backend("auto", "mitsuba") == "numpy" and capsys.readouterr().err == ""
     assert frame.warp_backend("gl", "mitsuba", warn=True) == "numpy"  # gl asked, no GL context opened
@@ -122,7 +134,7 @@ def test_warp_backend_choice(monkeypatch, capsys):
 
 def test_gigan_client_with_the_gl_warp_backend(make_spec, tmp_path):
     """``gigan-client --warp-backend gl``: frames warped and composed in GL, the GL warp's stage in the frame
-    columns, and the summary naming the backend that ran (auto picks numpy on llvmpipe)."""
+    columns, and the summary naming the backend that ran (auto: numpy on a CPU rasteriser, gl on a GPU)."""
     import json
 
     from gigan_local.client import ClientConfig, run
@@ -130,7 +142,9 @@ def test_gigan_client_with_the_gl_warp_backend(make_spec, tmp_path):
     spec_file = tmp_path / "scene.json"
     spec_file.write_text(json.dumps(make_spec(with_box=True).to_dict()))
     fields = dict(scene=str(spec_file), frames=4, resolution=32, every=2, orbit_frames=40, spp=2, denoise=False)
-    for backend, ran in (("gl", "gl"), ("auto", "numpy")):
+    from gicore.gl.frame import warp_backend
+
+    for backend, ran in (("gl", "gl"), ("auto", warp_backend("auto", "gl"))):
         summary = run(ClientConfig(**fields, warp_backend=backend), tmp_path / backend)
         assert summary["renderer"] == "gl" and summary["warp_backend"] == ran
         stage = {"gl": "warp_ms", "numpy": "project_ms"}[ran]
