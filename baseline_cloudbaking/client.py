@@ -20,8 +20,9 @@ import threading
 import time
 import weakref
 from collections import deque
-from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Protocol
 
 import httpx
 import numpy as np
@@ -451,3 +452,44 @@ class RemoteSource:
             stages=stages,
         )
         return record, gi, None
+
+
+class PathRequests(Protocol):
+    """What :func:`request_path_maps` reads of its caller's config (a bench's, e.g. ``bench latency``'s)."""
+
+    resolution: int
+    codec: str
+    spp: int
+    frames: int
+    orbit_frames: int
+    path: Path | None
+    read_timeout_s: float
+
+
+def request_path_maps(
+    url: str, scene: str, cfg: PathRequests, seed: int, *, residual: bool = False, off_path: bool = False
+) -> dict[str, int]:
+    """Ask ``url`` directly for the GI camera of every frame of the path (its ``path`` file, else the scripted
+    one from ``seed``), one request at a time (``off_path``: for one camera one unit above the first, which no
+    path frame is within tolerance of: it compiles the server's scene and passes and stores nothing a run
+    would hit); returns the hit and miss counts."""
+    from gicore.path_file import flown_path
+    from gicore.scene import load_scene
+
+    spec = load_scene(scene)
+    timeout = cfg.read_timeout_s
+    remote = RemoteConfig(url, Path(scene).stem, cfg.resolution, cfg.codec, cfg.spp, residual, spec.light.moves,
+                          read_timeout_s=timeout, deadline_s=2 * timeout, retry_after_s=0.0)  # fmt: skip
+    views = flown_path(spec, cfg, seed).views(cfg.resolution)[: 1 if off_path else None]
+    with RemoteSource(remote) as source:
+        for frame, (camera, light) in enumerate(views):
+            gi_camera = camera.with_fov(spec.camera.gi_fov)
+            if off_path:
+                gi_camera = replace(gi_camera, origin=tuple(np.add(camera.origin, (0.0, 1.0, 0.0))))
+            source.request(gi_camera, light, frame)
+            source.wait(2 * timeout + 10)
+    failed = [r for r in source.records if r["status"] != "ok"]
+    if failed:
+        raise RuntimeError(f"the server at {url} failed a request: {failed[0]['status']}: {failed[0]['error']}")
+    hits = sum(int(r["hit"]) for r in source.records)
+    return {"hits": hits, "misses": len(source.records) - hits}

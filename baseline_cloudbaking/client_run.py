@@ -1,11 +1,14 @@
 """A ``cloudbaking-client`` run (docs/architecture.md, Client loop): what it learns from the server at start-up
 (:func:`check_server`), its config (:class:`CloudClientConfig`), the path flown composing with the server's maps
-(:func:`run_client`), and its per-frame perceived latency and per-request rows.
+(:func:`run_client`), its per-frame perceived latency and per-request rows, what a run's files give back
+(:class:`RunMetrics`), and the fewest requests that could serve a path (:func:`request_floors`).
 """
 
 from __future__ import annotations
 
+import math
 import time
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
@@ -19,14 +22,22 @@ from baseline_cloudbaking.codecs import CODEC_NAMES, DEFAULT_CODEC
 from baseline_cloudbaking.request_policy import HOLDS, PREFETCH, LightCell, RequestPolicy, covers, viewpoint_of
 from baseline_cloudbaking.viewpoints import Tolerance, nearest
 from gicore.camera import Camera
+from gicore.frame_rows import read_csv_rows, scored_ssim
 from gicore.gi_map import GIMap
 from gicore.run_config import PathRunConfig
 
 if TYPE_CHECKING:
     from gicore.path_file import PathFile
+    from gicore.paths import Light
 
 #: Columns of ``requests.csv``: a request's record, then what the frame that bound its map spent on it.
 REQUEST_COLUMNS = (*RECORD_COLUMNS, "bound_frame", "di_ms", "bind_ms", "warp_ms", "blend_ms", "total_ms")
+#: The stages of a shown map's interaction latency in the order it goes through them (``requests.csv``'s ``*_ms``
+#: columns; ``warp``: the bind and the per-frame warp): :data:`TRANSMISSION_PARTS` are the parts of
+#: ``transmission``, not added again.
+REQUEST_STAGES = ("transmission", "request", "transfer", "lookup", "read", "render", "denoise", "encode",
+                  "server_other", "decode", "di", "warp", "blend")  # fmt: skip
+TRANSMISSION_PARTS = ("request", "transfer")
 
 
 @dataclass(frozen=True)
@@ -323,3 +334,120 @@ def request_summary(requests: list[dict[str, Any]]) -> dict[str, Any]:
         values = [float(r[column]) for r in ok if r[column] != ""]
         summary[f"median_{column}"] = float(np.median(values)) if values else None
     return summary
+
+
+def _cell(value: str | None) -> float | None:
+    return float(value) if value not in ("", None) else None
+
+
+def stage_samples(requests: list[dict[str, str]]) -> dict[str, dict[str, list[float]]]:
+    """Per-request stage times (ms) of a run's ``requests.csv`` rows by cache state (``hit``/``miss``), for the
+    requests whose map was shown (a ``total``): :data:`REQUEST_STAGES`, ``total``, ``pickup``, ``server``, and the
+    request and response bytes."""
+    out: dict[str, dict[str, list[float]]] = {}
+    for row in requests:
+        if row["status"] != "ok" or row["total_ms"] == "":
+            continue
+        samples = out.setdefault("hit" if row["hit"] == "1" else "miss", {})
+        values = {s: _cell(row[f"{s}_ms"]) for s in REQUEST_STAGES if s != "warp"}
+        values |= {
+            "warp": float(row["bind_ms"]) + float(row["warp_ms"]),
+            "total": float(row["total_ms"]),
+            "pickup": _cell(row["pickup_ms"]),
+        }
+        values |= {
+            "bytes_up": float(row["bytes_up"]),
+            "bytes_down": float(row["bytes_down"]),
+            "server": float(row["server_ms"]),
+        }
+        for name, value in values.items():
+            if value is not None:
+                samples.setdefault(name, []).append(value)
+    return out
+
+
+@dataclass(frozen=True)
+class RunMetrics:
+    """What one ``cloudbaking-client`` run measured, read back from its ``frames.csv`` and ``requests.csv``
+    (:meth:`read`)."""
+
+    #: Perceived latency (ms, :func:`perceived_latency`) per frame by the cache state of the request whose map
+    #: ended the wait: ``all`` (frames no map served as endless), ``hit`` and ``miss``.
+    perceived: dict[str, list[float]]
+    #: Frames no map of the run served.
+    censored: int
+    #: Share of frames whose shown map serves their own view.
+    in_tolerance: float
+    #: SSIM of each scored frame, by frame.
+    ssim: dict[int, float]
+    #: Requests sent, and those that failed (neither ``ok`` nor ``abandoned``).
+    requests: int
+    failed_requests: int
+    #: Bytes sent and received over all requests.
+    bytes_up: int
+    bytes_down: int
+    #: Latency (ms) of each request answered ``ok``.
+    request_latency: list[float]
+    #: Stage samples of the shown requests by cache state (:func:`stage_samples`).
+    stages: dict[str, dict[str, list[float]]]
+
+    @classmethod
+    def read(cls, folder: Path) -> RunMetrics:
+        """The metrics of the run whose files are under ``folder``."""
+        frames, requests = read_csv_rows(folder / "frames.csv"), read_csv_rows(folder / "requests.csv")
+        ok = [r for r in requests if r["status"] == "ok"]
+        hit_of = {int(r["frame"]): r["hit"] == "1" for r in ok}
+        perceived: dict[str, list[float]] = {"all": [], "hit": [], "miss": []}
+        for row in frames:
+            if row["perceived_ms"] == "":  # never served: in "all" as an endless wait
+                perceived["all"].append(math.inf)
+                continue
+            value = float(row["perceived_ms"])
+            perceived["all"].append(value)
+            perceived["hit" if hit_of[int(row["perceived_map"])] else "miss"].append(value)
+        return cls(
+            perceived=perceived,
+            censored=sum(r["perceived_ms"] == "" for r in frames),
+            in_tolerance=float(np.mean([int(r["in_tolerance"]) for r in frames])),
+            ssim=scored_ssim(frames),
+            requests=len(requests),
+            failed_requests=sum(r["status"] not in ("ok", "abandoned") for r in requests),
+            bytes_up=sum(int(r["bytes_up"]) for r in requests if r["bytes_up"] != ""),
+            bytes_down=sum(int(r["bytes_down"]) for r in requests if r["bytes_down"] != ""),
+            request_latency=[float(r["latency_ms"]) for r in ok],
+            stages=stage_samples(requests),
+        )
+
+    @property
+    def mean_ssim(self) -> float | None:
+        """Mean SSIM of the scored frames (None: none scored)."""
+        return float(np.mean(list(self.ssim.values()))) if self.ssim else None
+
+    def quantiles(self, cache: str = "all") -> dict[str, float]:
+        """Median and p95 of ``cache``'s perceived latency: order statistics, not interpolated, as frames no map
+        served are endless."""
+        waits = self.perceived[cache]
+        return {
+            stat: float(np.percentile(waits, q, method="inverted_cdf")) for stat, q in (("median", 50), ("p95", 95))
+        }
+
+
+def request_floors(
+    views: Iterable[tuple[Camera, Light]], gi_fov: float, store: Path, scene: str, server: ServerInfo
+) -> dict[str, int]:
+    """The fewest requests that can serve every GI view (``gi_fov``) of a path's ``views`` by ``server``'s rule
+    (:func:`~baseline_cloudbaking.viewpoints.fewest_maps`), with perfect foresight: ``prebaked``, from the maps of
+    ``scene`` in ``store`` (no request policy sends fewer against it); ``placed``, from maps centred on the views
+    themselves (a client choosing where maps are baked, on a cold store: each request a bake)."""
+    from baseline_cloudbaking.store import GITree
+    from baseline_cloudbaking.viewpoints import Viewpoint, fewest_maps, light_cell
+
+    eyes, cells = [], []
+    for camera, light in views:
+        gi = camera.with_fov(gi_fov)
+        eyes.append(Viewpoint.look_at(gi.origin, gi.target))
+        cells.append(light_cell(light, server.light_cell))
+    with GITree(store) as tree:
+        stored = [(e.view, e.key.light_cell) for e in tree.entries(scene)]
+    tol, own = server.tolerance, list(zip(eyes, cells, strict=True))
+    return {"prebaked": fewest_maps(eyes, cells, stored, tol), "placed": fewest_maps(eyes, cells, own, tol)}

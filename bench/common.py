@@ -13,8 +13,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from gicore.dataset_cli import DatasetConfig
 from gicore.gi_map import LAYERS
 from gicore.loop import Warp
@@ -79,16 +77,6 @@ def train_small(scenes: tuple[str, ...], widths: tuple[int, ...], steps: int, re
         train(cfg, run_dir, resume=(run_dir / "checkpoint.pt").is_file(), progress=False)
         runs.append(run_dir)
     return runs
-
-
-def training_minutes(step_seconds: list[tuple[int, float]], steps: tuple[int, ...] | list[int]) -> list[float]:
-    """Training minutes spent up to each of ``steps``, from (step, mean step seconds since the previous
-    row) rows; validation and checkpoint time is not counted. Steps past the last row extrapolate at
-    its rate (a run stopped before its next train row)."""
-    ends = np.array([0] + [s for s, _ in step_seconds], dtype=float)
-    cumulative = np.concatenate([[0.0], np.cumsum(np.diff(ends) * np.array([v for _, v in step_seconds]))])
-    last_rate = step_seconds[-1][1]
-    return [float(np.interp(s, ends, cumulative) + max(0, s - ends[-1]) * last_rate) / 60.0 for s in steps]
 
 
 # --- stated targets ------------------------------------------------------------------------------------------

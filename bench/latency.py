@@ -4,7 +4,6 @@ The rows: :mod:`bench.latency_record`; what the bench shows of them: :mod:`bench
 
 from __future__ import annotations
 
-import json
 import shutil
 import sys
 import time
@@ -12,25 +11,18 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
+from baseline_cloudbaking.client import request_path_maps
 from baseline_cloudbaking.codecs import CODEC_NAMES, DEFAULT_CODEC
+from baseline_cloudbaking.server.settings import check_served
 from bench.latency_record import CLOUD, CLOUD_PREFETCH, GIGAN, record
 from bench.latency_tables import PARTS
-from bench.processes import (
-    BIN,
-    ask_path,
-    check_served,
-    path_options,
-    pinned_proxy,
-    pinned_server,
-    run_client,
-    run_place,
-    threads,
-    with_path_frames,
-)
+from bench.processes import BIN, path_options, pinned_proxy, pinned_server, run_client, run_place, with_path_frames
 from bench.runner import Bench, Block, Section
 from gicore import option_groups
 from gicore.blend import COMPOSITIONS
+from gicore.cores import threads
 from gicore.error_policy import UserError
+from gicore.frame_rows import read_summary
 from gicore.results import Results
 from gicore.run_config import RENDERERS
 from gigan_local.inference import DEFAULT_MODEL, check_model_resolution
@@ -111,7 +103,7 @@ def available_renderers(asked: tuple[str, ...]) -> tuple[tuple[str, ...], dict[s
 def _ran_on(folder: Path, renderer: str) -> Path:
     """``folder`` (a client's output) after checking that its raster passes ran on ``renderer``: a client that
     fell back would put another renderer's times under this one's name."""
-    used = json.loads((folder / "summary.json").read_text())["renderer"]
+    used = read_summary(folder)["renderer"]
     if used != renderer:
         raise RuntimeError(f"the client in {folder} was asked for renderer {renderer} but ran {used}")
     return folder
@@ -152,7 +144,7 @@ def measure(cfg: LatencyConfig, res: Results) -> None:
     residual = cfg.composition == "residual"  # the first pass asks for the maps the runs will ask for
     with pinned_server(plan, work / "store_prebaked", scenes_dir) as warm:
         t0 = time.perf_counter()
-        first = ask_path(warm, scene, cfg, res.seed, residual=residual)
+        first = request_path_maps(warm, scene, cfg, res.seed, residual=residual)
         prebake = {"system": CLOUD, "scene": spec.name, "store": "prebaked", **common}
         res.add(metric="prebake_maps", value=first["misses"], unit="count", **prebake)
         res.add(metric="prebake_time", value=time.perf_counter() - t0, unit="s", stat="wall", **prebake)
@@ -174,7 +166,8 @@ def measure(cfg: LatencyConfig, res: Results) -> None:
                 store = work / f"store_cold_{profile}_{renderer}"
                 shutil.rmtree(store, ignore_errors=True)
                 with pinned_server(plan, store, scenes_dir) as cold:
-                    ask_path(cold, scene, cfg, res.seed, residual=residual, off_path=True)  # compiles every pass
+                    # one request off the path compiles every pass and stores nothing a run would hit
+                    request_path_maps(cold, scene, cfg, res.seed, residual=residual, off_path=True)
                     with pinned_proxy(plan, profile, cold, res.seed) as url:
                         runs[CLOUD, profile, "cold", renderer] = client(
                             [*cloud_argv, "--server", url], f"cloud_{profile}_cold", renderer

@@ -1,44 +1,26 @@
-"""`bench latency`'s rows from its client runs: each run's frames.csv and requests.csv (``gigan-client``,
-``cloudbaking-client``) read into stage timings per system, profile, cache state and renderer; the ratio of
-totals, the link model's check and crossover (:class:`network_sim.exchange.CloudCost`), perceived latency, SSIM
-along the path, and the renderers' ratios."""
+"""`bench latency`'s rows from its client runs, as each client reads its run's files back
+(:func:`gigan_local.client.stage_samples`, :class:`baseline_cloudbaking.client_run.RunMetrics`): stage timings per
+system, profile, cache state and renderer; the ratio of totals, the link model's check and crossover
+(:class:`network_sim.exchange.CloudCost`), perceived latency, SSIM along the path, and the renderers' ratios."""
 
 from __future__ import annotations
 
 import json
-import math
 from functools import partial
 from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
 
-from gicore.frame_rows import read_csv_rows
+from baseline_cloudbaking.client_run import REQUEST_STAGES, RunMetrics
+from gicore.frame_rows import read_csv_rows, read_summary, scored_ssim
 from gicore.results import Results
+from gigan_local.client import stage_samples
 from network_sim.exchange import CloudCost, sweep_link
 
 GIGAN, CLOUD = "gigan", "cloud_baking"
 #: The cloud client with --prefetch extrapolate (see the module docstring).
 CLOUD_PREFETCH = "cloud_baking_prefetch"
-#: GIGAN's stages, then cloud baking's, in the order a map goes through them (``total`` last).
-GIGAN_STAGES = ("di", "gi_render", "inference", "warp", "blend")
-CLOUD_STAGES = (
-    "transmission",
-    "request",
-    "transfer",
-    "lookup",
-    "read",
-    "render",
-    "denoise",
-    "encode",
-    "server_other",
-    "decode",
-    "di",
-    "warp",
-    "blend",
-)
-#: Sub-stages of ``transmission`` (its parts, not added again).
-TRANSMISSION_PARTS = ("request", "transfer")
 #: The renderers' ratio rows: numerator / denominator, each stage's median of one run over the other's.
 RENDERER_RATIO = ("gl", "mitsuba")
 
@@ -50,57 +32,6 @@ class Recorded(Protocol):
     codec: str
     sweep_rate_mbit: float | None
     sweep_max_rtt_ms: float
-
-
-def _f(value: str) -> float | None:
-    return float(value) if value not in ("", None) else None
-
-
-def gigan_samples(frames: list[dict[str, str]]) -> dict[str, list[float]]:
-    """Per-map stage times (ms) of a ``gigan-client`` run: one sample per frame that bound a new map."""
-    from gigan_local.gl_warp import GLStructureWarp
-    from gigan_local.warp import StructureAwareWarp
-
-    # the per-frame warp stages of the backend the run used (--warp-backend): its columns are the ones it has
-    per_frame = dict.fromkeys(s for w in (StructureAwareWarp, GLStructureWarp) for s in w.stages if s != "bind")
-    samples: dict[str, list[float]] = {s: [] for s in (*GIGAN_STAGES, "total")}
-    for row in (r for r in frames if r["gi_new"] == "1"):
-        stage = {
-            "di": float(row["di_ms"]),
-            "gi_render": float(row["gi_render_ms"]),
-            "inference": float(row["inference_ms"]),
-            "warp": float(row["bind_ms"]) + sum(float(row[f"{s}_ms"]) for s in per_frame if f"{s}_ms" in row),
-            "blend": float(row["compose_ms"]),
-        }
-        for name, ms in stage.items():
-            samples[name].append(ms)
-        samples["total"].append(sum(stage.values()))
-    return samples
-
-
-def cloud_samples(requests: list[dict[str, str]]) -> dict[str, dict[str, list[float]]]:
-    """Per-request stage times (ms) of a ``cloudbaking-client`` run by cache state (``hit``/``miss``), for
-    the requests whose map was shown (a ``total``); also the request and response bytes."""
-    out: dict[str, dict[str, list[float]]] = {}
-    for row in requests:
-        if row["status"] != "ok" or row["total_ms"] == "":
-            continue
-        samples = out.setdefault("hit" if row["hit"] == "1" else "miss", {})
-        values = {s: _f(row[f"{s}_ms"]) for s in CLOUD_STAGES if s != "warp"}
-        values |= {
-            "warp": float(row["bind_ms"]) + float(row["warp_ms"]),
-            "total": float(row["total_ms"]),
-            "pickup": _f(row["pickup_ms"]),
-        }
-        values |= {
-            "bytes_up": float(row["bytes_up"]),
-            "bytes_down": float(row["bytes_down"]),
-            "server": float(row["server_ms"]),
-        }
-        for name, value in values.items():
-            if value is not None:
-                samples.setdefault(name, []).append(value)
-    return out
 
 
 def record(
@@ -131,7 +62,7 @@ def record_backends(
     from gicore.mitsuba_variant import mitsuba_choice
 
     for (system, profile, store, renderer), folder in runs.items():
-        summary = json.loads((folder / "summary.json").read_text())
+        summary = read_summary(folder)
         ran: dict[str, Any] = {"renderer": renderer, "warp_backend": summary["warp_backend"]}
         if system == GIGAN:
             # torch runs on CUDA where torch sees a device (gigan_local.torch_backend); onnxruntime on the CPU
@@ -164,7 +95,7 @@ def record_renderer(
 def _record_gigan(res: Results, scene: str, cfg: Recorded, folder: Path, common: dict[str, Any]) -> float:
     """GIGAN's stage timings and SSIM rows; its median total."""
     frames = read_csv_rows(folder / "frames.csv")
-    gigan = gigan_samples(frames)
+    gigan = stage_samples(frames)
     for stage, values in gigan.items():
         res.add_timing(
             system=GIGAN,
@@ -175,7 +106,7 @@ def _record_gigan(res: Results, scene: str, cfg: Recorded, folder: Path, common:
             **common,
             model=cfg.model.name,
         )
-    _ssim_rows(res, scene, GIGAN, frames, {"profile": "none", "store": "none"} | common)
+    _ssim_rows(res, scene, GIGAN, scored_ssim(frames), {"profile": "none", "store": "none"} | common)
     return float(np.median(gigan["total"]))
 
 
@@ -188,17 +119,16 @@ def _record_cloud_runs(
     for (system, profile, store), folder in runs.items():
         if system not in (CLOUD, CLOUD_PREFETCH):
             continue
-        frames, requests = read_csv_rows(folder / "frames.csv"), read_csv_rows(folder / "requests.csv")
+        run = RunMetrics.read(folder)
         where = {"profile": profile, "store": store} | common
-        if store == "prebaked" and frames and "perceived_ms" in frames[0]:  # absent: no perceived rows
-            _perceived_rows(res, scene, system, frames, requests, where)
+        if store == "prebaked":
+            _perceived_rows(res, scene, system, run, where)
         if system == CLOUD_PREFETCH:  # its requests ask ahead: its per-map stages are no Table 1 column
             continue
-        for cache, samples in cloud_samples(requests).items():  # both stores' runs pooled
+        for cache, samples in run.stages.items():  # both stores' runs pooled
             cloud[profile, cache] = _pool([cloud.get((profile, cache), {}), samples])
-        failures = sum(r["status"] not in ("ok", "abandoned") for r in requests)
-        res.add(system=CLOUD, scene=scene, metric="failed_requests", value=failures, unit="count", **where)
-        _ssim_rows(res, scene, CLOUD, frames, where | {"codec": cfg.codec})
+        res.add(system=CLOUD, scene=scene, metric="failed_requests", value=run.failed_requests, unit="count", **where)
+        _ssim_rows(res, scene, CLOUD, run.ssim, where | {"codec": cfg.codec})
     return cloud
 
 
@@ -209,7 +139,7 @@ def _record_cloud_stages(
     from network_sim import profiles as profile_table
 
     add = partial(res.add, system=CLOUD, scene=scene, stat="median")
-    for stage in (*CLOUD_STAGES, "total", "pickup"):
+    for stage in (*REQUEST_STAGES, "total", "pickup"):
         if samples.get(stage):
             res.add_timing(
                 system=CLOUD, scene=scene, metric=stage, samples_s=[v / 1e3 for v in samples[stage]], **config
@@ -273,26 +203,21 @@ def _pool(groups: list[dict[str, list[float]]]) -> dict[str, list[float]]:
     return pooled
 
 
-def _perceived_rows(
-    res: Results, scene: str, system: str, frames: list[dict[str, str]], requests: list[dict[str, str]], config: dict
-) -> None:
+def _perceived_rows(res: Results, scene: str, system: str, run: RunMetrics, config: dict) -> None:
     """A cloud run's perceived latency (median, p95; never-served frames as endless), in-tolerance share, requests
     and mean SSIM (see the module docstring)."""
     add = partial(res.add, system=system, scene=scene, **config)
-    waits = [math.inf if r["perceived_ms"] == "" else float(r["perceived_ms"]) for r in frames]
-    for stat, q in (("median", 50), ("p95", 95)):
-        add(metric="perceived", value=float(np.percentile(waits, q, method="inverted_cdf")), unit="ms", stat=stat)
-    add(metric="in_tolerance", value=float(np.mean([int(r["in_tolerance"]) for r in frames])), unit="1")
-    add(metric="requests", value=len(requests), unit="count")
-    scored = [float(r["ssim"]) for r in frames if r.get("ssim")]
-    if system == CLOUD_PREFETCH and scored:  # the plain client's SSIM rows come with its Table 1 rows
-        add(metric="ssim", value=float(np.mean(scored)), unit="1", stat="mean")
+    for stat, value in run.quantiles().items():
+        add(metric="perceived", value=value, unit="ms", stat=stat)
+    add(metric="in_tolerance", value=run.in_tolerance, unit="1")
+    add(metric="requests", value=run.requests, unit="count")
+    if system == CLOUD_PREFETCH and run.ssim:  # the plain client's SSIM rows come with its Table 1 rows
+        add(metric="ssim", value=run.mean_ssim, unit="1", stat="mean")
 
 
-def _ssim_rows(res: Results, scene: str, system: str, frames: list[dict[str, str]], config: dict[str, Any]) -> None:
+def _ssim_rows(res: Results, scene: str, system: str, scored: dict[int, float], config: dict[str, Any]) -> None:
     add = partial(res.add, system=system, scene=scene, metric="ssim", unit="1", **config)
-    scored = [(int(r["frame"]), float(r["ssim"])) for r in frames if r.get("ssim")]
-    for frame, value in scored:
+    for frame, value in scored.items():
         add(value=value, stat="frame", frame=frame)
     if scored:
-        add(value=float(np.mean([v for _, v in scored])), stat="mean")
+        add(value=float(np.mean(list(scored.values()))), stat="mean")

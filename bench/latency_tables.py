@@ -7,16 +7,10 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from bench.latency_record import (
-    CLOUD,
-    CLOUD_PREFETCH,
-    CLOUD_STAGES,
-    GIGAN,
-    GIGAN_STAGES,
-    RENDERER_RATIO,
-    TRANSMISSION_PARTS,
-)
+from baseline_cloudbaking.client_run import REQUEST_STAGES, TRANSMISSION_PARTS
+from bench.latency_record import CLOUD, CLOUD_PREFETCH, GIGAN, RENDERER_RATIO
 from gicore.present.declarations import Chart, Column, Figure, Rows, Table, fill, flat, matches, per, unique
+from gigan_local.client import MAP_STAGES
 
 #: Table 1's rows: (metric, label); sub-stages of transmission are indented.
 TABLE_ROWS = (
@@ -303,9 +297,9 @@ def _short_notes(raw: Rows) -> str:
 def stage_bars(raw: Rows) -> list[dict[str, Any]]:
     """Each system's stage medians per profile and renderer (GIGAN's once per renderer: it needs no network)."""
     rows, out = with_renderer(raw), []
-    cloud_stages = tuple(s for s in CLOUD_STAGES if s not in TRANSMISSION_PARTS)
+    cloud_stages = tuple(s for s in REQUEST_STAGES if s not in TRANSMISSION_PARTS)
     for r in renderers_of(rows):
-        bars = [(f"GIGAN, {r}", GIGAN, {"profile": "none", "renderer": r}, GIGAN_STAGES)]
+        bars = [(f"GIGAN, {r}", GIGAN, {"profile": "none", "renderer": r}, MAP_STAGES)]
         bars += [
             (f"cloud {c}, {p}, {r}", CLOUD, {"profile": p, "cache": c, "renderer": r}, cloud_stages)
             for p in profiles_of(rows)

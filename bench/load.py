@@ -32,10 +32,12 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from baseline_cloudbaking.server.settings import check_served
 from bench.common import Target
-from bench.processes import check_served, client_cores, pinned_server, pinning, scene_folder
+from bench.processes import pinned_server, scene_folder
 from bench.runner import Bench, Block
 from gicore import option_groups
+from gicore.cores import client_cores, pinning
 from gicore.present.declarations import Column, Rows, Table, matches
 from gicore.results import Results
 

@@ -4,32 +4,21 @@ and their targets (docs/architecture.md, bench prefetch)."""
 
 from __future__ import annotations
 
-import json
-import math
 import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
-import numpy as np
-
-from baseline_cloudbaking.client_run import check_server
+from baseline_cloudbaking.client import request_path_maps
+from baseline_cloudbaking.client_run import RunMetrics, check_server, request_floors
 from baseline_cloudbaking.codecs import CODEC_NAMES, DEFAULT_CODEC
-from bench.processes import (
-    BIN,
-    ask_path,
-    check_served,
-    path_options,
-    pinned_proxy,
-    pinned_server,
-    run_client,
-    run_place,
-    with_path_frames,
-)
+from baseline_cloudbaking.server.settings import check_served
+from bench.processes import BIN, path_options, pinned_proxy, pinned_server, run_client, run_place, with_path_frames
 from bench.runner import Bench, Block, Section
 from gicore import option_groups
 from gicore.error_policy import UserError
-from gicore.frame_rows import read_csv_rows
+from gicore.frame_rows import read_summary
+from gicore.path_file import flown_path
 from gicore.present.declarations import Chart, Column, Figure, Rows, Table, fill, first, flat, matches, pick
 from gicore.results import Results
 from network_sim.profiles import profiles_field
@@ -95,10 +84,11 @@ def measure(cfg: PrefetchConfig, res: Results) -> None:
     prebaked = work / "store_prebaked"
     shutil.rmtree(prebaked, ignore_errors=True)
     with pinned_server(plan, prebaked, scenes_dir) as url:
-        misses = ask_path(url, scene, cfg, res.seed)["misses"]
+        misses = request_path_maps(url, scene, cfg, res.seed)["misses"]
         server = check_server(url, Path(scene).stem, cfg.resolution, cfg.codec, cfg.spp, cfg.read_timeout_s)
     res.add(system=SYSTEM, scene=spec.name, metric="prebake_maps", value=misses, unit="count", **common)
-    for store, floor in request_floors(spec, cfg, res.seed, prebaked, server).items():
+    views = flown_path(spec, cfg, res.seed).views(cfg.resolution)
+    for store, floor in request_floors(views, spec.camera.gi_fov, prebaked, spec.name, server).items():
         res.add(system=SYSTEM, scene=spec.name, metric="request_floor", value=floor, unit="count", store=store,
                 **common)  # fmt: skip
     argv = [str(BIN / "cloudbaking-client"), "--scene", scene, *path_options(cfg),
@@ -115,7 +105,7 @@ def measure(cfg: PrefetchConfig, res: Results) -> None:
             shutil.rmtree(store, ignore_errors=True)
             shutil.copytree(prebaked, store)
             with pinned_server(plan, store, scenes_dir) as url:
-                ask_path(url, scene, cfg, res.seed, off_path=True)  # compiles the scene and every pass
+                request_path_maps(url, scene, cfg, res.seed, off_path=True)  # compiles the scene and every pass
                 with pinned_proxy(plan, profile, url, res.seed) as proxied:
                     folder = run_client(plan, [*argv, *VARIANTS[variant], "--in-flight", str(in_flight[variant]),
                                             "--server", proxied], work / f"{profile}_{variant}", timeout)  # fmt: skip
@@ -126,76 +116,28 @@ def measure(cfg: PrefetchConfig, res: Results) -> None:
     targets(res, spec.name)
 
 
-def request_floors(spec: Any, cfg: PrefetchConfig, seed: int, prebaked: Path, server: Any) -> dict[str, int]:
-    """The fewest requests that can serve every GI view of the path by the server's rule
-    (:func:`baseline_cloudbaking.viewpoints.fewest_maps`), with perfect foresight: ``prebaked``, from the prebaked
-    store's maps (what every run's store holds: no request policy sends fewer); ``placed``, from maps centred on
-    the path's own views (a client that chose where the maps are baked, on a cold store: each request a bake)."""
-    from baseline_cloudbaking.store import GITree
-    from baseline_cloudbaking.viewpoints import Viewpoint, fewest_maps, light_cell
-    from gicore.path_file import flown_path
-
-    views, cells = [], []
-    for camera, light in flown_path(spec, cfg, seed).views(cfg.resolution):
-        gi = camera.with_fov(spec.camera.gi_fov)
-        views.append(Viewpoint.look_at(gi.origin, gi.target))
-        cells.append(light_cell(light, server.light_cell))
-    with GITree(prebaked) as tree:
-        stored = [(e.view, e.key.light_cell) for e in tree.entries(spec.name)]
-    tol, own = server.tolerance, list(zip(views, cells, strict=True))
-    return {"prebaked": fewest_maps(views, cells, stored, tol), "placed": fewest_maps(views, cells, own, tol)}
-
-
-def run_metrics(frames: list[dict[str, str]], requests: list[dict[str, str]]) -> dict[str, Any]:
-    """What one client run measured (module docstring): perceived latency samples (ms) by the cache state of
-    the map that ended each wait, censored frames, in-tolerance share, mean SSIM, request counts and bytes."""
-    hit_of = {int(r["frame"]): r["hit"] == "1" for r in requests if r["status"] == "ok"}
-    perceived: dict[str, list[float]] = {"all": [], "hit": [], "miss": []}
-    for row in frames:
-        if row["perceived_ms"] == "":  # never served: in "all" as an endless wait
-            perceived["all"].append(math.inf)
-            continue
-        value = float(row["perceived_ms"])
-        perceived["all"].append(value)
-        perceived["hit" if hit_of[int(row["perceived_map"])] else "miss"].append(value)
-    ssims = [float(r["ssim"]) for r in frames if r["ssim"] != ""]
-    ok = [r for r in requests if r["status"] == "ok"]
-    return {
-        "perceived": perceived,
-        "censored": sum(r["perceived_ms"] == "" for r in frames),
-        "in_tolerance": float(np.mean([int(r["in_tolerance"]) for r in frames])),
-        "ssim": float(np.mean(ssims)) if ssims else None,
-        "requests": len(requests),
-        "failed_requests": sum(r["status"] not in ("ok", "abandoned") for r in requests),
-        "bytes_up": sum(int(r["bytes_up"]) for r in requests if r["bytes_up"] != ""),
-        "bytes_down": sum(int(r["bytes_down"]) for r in requests if r["bytes_down"] != ""),
-        "request_latency": [float(r["latency_ms"]) for r in ok],
-    }
-
-
 def record(res: Results, scene: str, folder: Path, config: dict[str, Any]) -> None:
     """Rows of one client run (its ``frames.csv``, ``requests.csv`` and ``summary.json``)."""
-    m = run_metrics(read_csv_rows(folder / "frames.csv"), read_csv_rows(folder / "requests.csv"))
-    config = config | {"renderer": json.loads((folder / "summary.json").read_text())["renderer"]}
-    for cache, values in m["perceived"].items():
-        if values:  # order statistics, not interpolated: censored frames are infinite
-            for stat, q in (("median", 50), ("p95", 95)):
-                value = float(np.percentile(values, q, method="inverted_cdf"))
+    m = RunMetrics.read(folder)
+    config = config | {"renderer": read_summary(folder)["renderer"]}
+    for cache, values in m.perceived.items():
+        if values:
+            for stat, value in m.quantiles(cache).items():
                 res.add(system=SYSTEM, scene=scene, metric="perceived", value=value, unit="ms", stat=stat,
                         cache=cache, **config)  # fmt: skip
             res.add(system=SYSTEM, scene=scene, metric="perceived", value=len(values), unit="count", stat="n",
                     cache=cache, **config)  # fmt: skip
-    if m["request_latency"]:
-        samples = [v / 1e3 for v in m["request_latency"]]
+    if m.request_latency:
+        samples = [v / 1e3 for v in m.request_latency]
         res.add_timing(system=SYSTEM, scene=scene, metric="request_latency", samples_s=samples, **config)
-    res.add(system=SYSTEM, scene=scene, metric="censored", value=m["censored"], unit="frames", **config)
-    res.add(system=SYSTEM, scene=scene, metric="in_tolerance", value=m["in_tolerance"], unit="fraction", **config)
-    if m["ssim"] is not None:
-        res.add(system=SYSTEM, scene=scene, metric="ssim", value=m["ssim"], unit="ssim", stat="mean", **config)
-    for name in ("requests", "failed_requests"):
-        res.add(system=SYSTEM, scene=scene, metric=name, value=m[name], unit="count", **config)
-    for name in ("bytes_up", "bytes_down"):
-        res.add(system=SYSTEM, scene=scene, metric=name, value=m[name], unit="bytes", stat="total", **config)
+    res.add(system=SYSTEM, scene=scene, metric="censored", value=m.censored, unit="frames", **config)
+    res.add(system=SYSTEM, scene=scene, metric="in_tolerance", value=m.in_tolerance, unit="fraction", **config)
+    if m.mean_ssim is not None:
+        res.add(system=SYSTEM, scene=scene, metric="ssim", value=m.mean_ssim, unit="ssim", stat="mean", **config)
+    for name, value in (("requests", m.requests), ("failed_requests", m.failed_requests)):
+        res.add(system=SYSTEM, scene=scene, metric=name, value=value, unit="count", **config)
+    for name, value in (("bytes_up", m.bytes_up), ("bytes_down", m.bytes_down)):
+        res.add(system=SYSTEM, scene=scene, metric=name, value=value, unit="bytes", stat="total", **config)
 
 
 def targets(res: Results, scene: str) -> None:

@@ -18,9 +18,10 @@ import numpy as np
 from baseline_cloudbaking.codecs import CODEC_NAMES, DEFAULT_CODEC
 from baseline_cloudbaking.protocol import unpack
 from bench.common import Target
-from bench.processes import client_cores, pinned_server, pinning, scene_folder
+from bench.processes import pinned_server, scene_folder
 from bench.runner import Bench, Block
 from gicore import option_groups
+from gicore.cores import client_cores, pinning
 from gicore.present.declarations import Chart, Column, Derive, Figure, Rows, Table, Text, first, matches
 from gicore.results import Results
 

@@ -18,12 +18,13 @@ import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from bench.common import train_small, training_minutes
+from bench.common import train_small
 from bench.runner import Bench
 from gicore import option_groups
 from gicore.error_policy import UserError
 from gicore.present.declarations import Chart, Figure, Rows, matches, pick, unique
 from gicore.results import Results
+from gigan_local.model_card import training_minutes
 
 
 @dataclass(frozen=True)

@@ -6,7 +6,7 @@ a path file (``--path FILE``, else the scene's scripted path of ``--frames`` fra
 the camera API the page's controls drive, one path frame per drawn frame, while GIGAN's inference runs off the
 frame loop and cloud maps arrive when they arrive (:mod:`web3d.headless`). Per system and profile it reports
 frame times (with a map in flight and without), frames drawn while each map was made, the age of the map each
-frame shows, perceived latency, and each map's stages (:mod:`bench.viewer_stats`); GIGAN's checks; then
+frame shows, perceived latency, and each map's stages (:mod:`web3d.replay_stats`); GIGAN's checks; then
 ``session.run`` timed in the browser and in Python on one tensor, the prediction's parity with Python and the
 WebGL2 port's buffers against GLRenderer's (:mod:`web3d.parity`). Also written: ``web_screenshot.png``
 (both panes and their HUDs as the last replay draws its last path frame), ``web_session.json`` (the page's
@@ -29,10 +29,10 @@ from typing import Any, Literal
 
 import numpy as np
 
-from bench.processes import ask_path, pinned_server, run_place
+from baseline_cloudbaking.client import request_path_maps
+from bench.processes import pinned_server, run_place
 from bench.runner import Bench, Block, Section
 from bench.viewer_present import PARTS, SCREENSHOT
-from bench.viewer_stats import CLOUD, GIGAN, Replayed, record_checks, record_system
 from gicore import option_groups
 from gicore.error_policy import UserError
 from gicore.options import FRAMES, THREADS
@@ -40,9 +40,12 @@ from gicore.results import Results
 from network_sim.profiles import profiles_field
 from web3d.headless import WEBGL_FLAGS, Segment, missing, replay, viewer_page
 from web3d.parity import Reference, canvas_stats, time_inference
+from web3d.replay_stats import CLOUD, GIGAN, Replayed, SystemStats, records
 
 #: The page's recording of the whole run, a path file.
 SESSION = "web_session.json"
+#: The check: GIGAN's frame-time p95 with a map in flight at most this times its p95 without.
+IN_FLIGHT_BOUND = 2.0
 
 
 @dataclass(frozen=True)
@@ -136,10 +139,10 @@ def open_viewer(cfg: WebBenchConfig, results: Results) -> Iterator[Viewer]:
         run = SimpleNamespace(resolution=n, codec=cfg.codec, spp=cfg.spp, frames=cfg.frames, path=cfg.path,
                               orbit_frames=cfg.orbit_frames, read_timeout_s=cfg.timeout_s)  # fmt: skip
         if cfg.server:
-            ask_path(cfg.server, cfg.scenes[0], run, results.seed)
+            request_path_maps(cfg.server, cfg.scenes[0], run, results.seed)
         else:
             with pinned_server(plan, store, scenes_dir) as url:
-                ask_path(url, cfg.scenes[0], run, results.seed)
+                request_path_maps(url, cfg.scenes[0], run, results.seed)
     scene = {"name": spec.name, "gi_fov": spec.camera.gi_fov, "resolution": n,
              "light_cell": DEFAULT_LIGHT_CELL if spec.light.moves else None}  # fmt: skip
     with cloud, WebServer(site) as web, viewer_page(web.url, "record=1", WEBGL_FLAGS[cfg.webgl]) as page:
@@ -153,12 +156,7 @@ def measure_viewer(viewer: Viewer, cfg: WebBenchConfig, results: Results) -> Non
     last = viewer.profiles[-1]
     shot = {last: results.output(SCREENSHOT)}
     segments = [replay(page, viewer.doc, p, cfg.timeout_s, shot.get(p)) for p in viewer.profiles]
-    data = page.evaluate(
-        "({frames: viewer.frames, maps: viewer.maps, session: viewer.recording(), info: viewer.info, "
-        "parity: viewer.parity, snapshot: viewer.snapshot()})"
-    )
-    if len(data["session"]["frames"]) != len(data["frames"]):
-        raise RuntimeError("the page's recording does not hold one frame per frame drawn")
+    data = records(page)
     results.output(SESSION).write_text(json.dumps(data["session"]))
     reference = Reference(cfg.threads, cfg.scenes[0], cfg.model)
     browser_ms, python_ms = time_inference(page, reference.check(data["parity"]), cfg.timing_runs)
@@ -193,21 +191,78 @@ def record(res: Results, scene: dict[str, Any], segments: list[Segment], data: d
     """Per replay: both systems' rows, GIGAN's checks and the ratio of the median totals."""
     for segment in segments:
         run = Replayed.of(segment, data["frames"], data["maps"], data["session"]["frames"])
-        totals = {}
-        for system in (GIGAN, CLOUD):
-            record_system(res, run, system, scene, common)
-            maps = [m["total"] for m in run.maps if m["system"] == system]
-            totals[system] = float(np.median(maps)) if maps else math.nan
-        record_checks(res, run, scene["name"], common)
+        stats = {system: record_system(res, run, system, scene, common) for system in (GIGAN, CLOUD)}
+        totals = {s: float(np.median(x.stages["total"])) if x.frames else math.nan for s, x in stats.items()}
+        record_checks(res, stats[GIGAN], scene["name"], common | {"profile": run.profile})
         ratio = totals[CLOUD] / totals[GIGAN]
         res.add(system="both", scene=scene["name"], metric="total_ratio", value=ratio, unit="x", **common,
                 profile=run.profile)  # fmt: skip
 
 
+def _ms_as_s(values: list[float]) -> list[float]:
+    return [v / 1e3 for v in values]
+
+
+def _summary(res: Results, metric: str, values: list[float], unit: str, **where: Any) -> None:
+    for stat, value in (("median", np.median(values)), ("p95", np.percentile(values, 95))):
+        res.add(metric=metric, value=float(value), unit=unit, stat=stat, **where)
+
+
+def record_system(res: Results, run: Replayed, system: str, scene: dict, common: dict) -> SystemStats:
+    """The rows of ``system``'s measures in one replay (:class:`web3d.replay_stats.SystemStats`): per map
+    (``stat = map``) and summarised; ``scene``: name, gi_fov, resolution, light cell. Returns the measures."""
+    stats = SystemStats.of(run, system, scene["gi_fov"], scene["resolution"], scene["light_cell"])
+    where = {"system": system, "scene": scene["name"]} | common | {"profile": run.profile}
+    for stage, values in stats.stages.items():
+        if values:
+            res.add_timing(metric=stage, samples_s=_ms_as_s(values), **where)
+        for frame, v in zip(stats.frames, values):
+            res.add(metric=stage, value=v, unit="ms", stat="map", **where, frame=frame)
+    for phase, values in stats.phases.items():
+        if values:
+            res.add_timing(metric="frame_ms", samples_s=_ms_as_s(values), **where, phase=phase)
+    during = stats.during
+    for frame, count in during.items():
+        res.add(metric="frames_during_map", value=count, unit="frames", stat="map", **where, frame=frame)
+    if during:
+        for stat, value in (("min", min(during.values())), ("median", float(np.median(list(during.values()))))):
+            res.add(metric="frames_during_map", value=value, unit="frames", stat=stat, **where)
+    if stats.age_ms:
+        res.add_timing(metric="map_age_ms", samples_s=_ms_as_s(stats.age_ms), **where)
+        _summary(res, "map_age_frames", stats.age_frames, "frames", **where)
+    if stats.served:
+        res.add_timing(metric="perceived_ms", samples_s=_ms_as_s(stats.served), **where)
+    res.add(metric="censored", value=len(stats.perceived) - len(stats.served), unit="frames", **where)
+    if stats.perceived:
+        share = float(np.mean([r["in_tolerance"] for r in stats.perceived]))
+        res.add(metric="in_tolerance", value=share, unit="fraction", **where)
+    if stats.hit_rate is not None:
+        res.add(metric="hit_rate", value=stats.hit_rate, unit="fraction", **where)
+    return stats
+
+
+def record_checks(res: Results, gigan: SystemStats, scene: str, common: dict[str, Any]) -> None:
+    """The two checks on GIGAN's pane in one replay, as ``target_met`` rows (NaN: not measured in this replay)."""
+    where = {"system": GIGAN, "scene": scene} | common
+    flight, idle = gigan.phases["in_flight"], gigan.phases["idle"]
+    measured = float(np.percentile(flight, 95)) if flight else math.nan
+    baseline = float(np.percentile(idle, 95)) if idle else math.nan
+    ratio = measured / baseline if baseline > 0 else math.nan
+    met = math.nan if math.isnan(ratio) else float(ratio <= IN_FLIGHT_BOUND)
+    res.add(metric="frame_ms", value=met, unit="bool", stat="target_met", **where, ratio=ratio, measured=measured,
+            bound=IN_FLIGHT_BOUND * baseline, target=f"frame-time p95 with a map in flight <= {IN_FLIGHT_BOUND:g} x "
+            "its p95 with none (ms)")  # fmt: skip
+    during = gigan.during
+    fewest = min(during.values()) if during else math.nan
+    met = math.nan if not during else float(fewest >= 1)
+    res.add(metric="frames_during_map", value=met, unit="bool", stat="target_met", **where, measured=fewest,
+            bound=1, target="frames drawn while each map was made: fewest >= 1")  # fmt: skip
+
+
 def record_checks_and_timing(res: Results, scene: str, snapshot: dict, checks: dict, common: dict) -> None:
     """``session.run`` in both runtimes, the parity and port checks, and what the last frames' canvases show."""
     for runtime, values in (("onnxruntime-web", checks["browser_ms"]), ("onnxruntime-python", checks["python_ms"])):
-        res.add_timing(system=GIGAN, scene=scene, metric="inference_run", samples_s=[v / 1e3 for v in values],
+        res.add_timing(system=GIGAN, scene=scene, metric="inference_run", samples_s=_ms_as_s(values),
                        **common, runtime=runtime)  # fmt: skip
     ratio = float(np.median(checks["browser_ms"]) / np.median(checks["python_ms"]))
     res.add(system=GIGAN, scene=scene, metric="inference_ratio", value=ratio, unit="x", **common)

@@ -6,13 +6,13 @@ from __future__ import annotations
 
 from typing import Any
 
-from bench.viewer_stats import GIGAN
 from gicore.present.declarations import Column, Image, Rows, Table, fill, first, matches, per, unique
 from web3d.parity import PORT_BUFFERS
+from web3d.replay_stats import CLOUD, GIGAN
 
 SCREENSHOT = "web_screenshot.png"
 STAGES = ("gi_render", "inference", "transmission", "server", "decode", "di", "warp", "blend", "total")
-LABELS = {GIGAN: "GIGAN", "cloud_baking": "cloud baking"}
+LABELS = {GIGAN: "GIGAN", CLOUD: "cloud baking"}
 
 
 def _runs(rows: Rows) -> list[tuple[str, str]]:

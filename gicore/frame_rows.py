@@ -1,11 +1,12 @@
 """A client run's per-frame rows (:meth:`gicore.loop.ClientLoop.columns`): the run's summary (amortised frame
-rate, medians, mean quality) and the rows as CSV, written and read back.
+rate, medians, mean quality) and the rows as CSV, written and read back with the run's ``summary.json``.
 """
 
 from __future__ import annotations
 
 import csv
 import io
+import json
 import math
 from collections.abc import Iterable
 from pathlib import Path
@@ -64,3 +65,13 @@ def read_csv_rows(path: Path) -> list[dict[str, str]]:
     """The rows of a client run's CSV (``frames.csv``, ``requests.csv``) as text, an empty cell ``""``."""
     with path.open(newline="") as fh:
         return list(csv.DictReader(fh))
+
+
+def read_summary(folder: Path) -> dict[str, Any]:
+    """The ``summary.json`` a client run wrote under ``folder`` (``gigan-client``'s or ``cloudbaking-client``'s)."""
+    return json.loads((folder / "summary.json").read_text())
+
+
+def scored_ssim(rows: Iterable[dict[str, Any]]) -> dict[int, float]:
+    """SSIM of each frame scored against the GT (``--gt-every``), by frame, in the rows' order."""
+    return {int(r["frame"]): float(r["ssim"]) for r in rows if r.get("ssim", "") != ""}

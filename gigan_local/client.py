@@ -56,6 +56,9 @@ if TYPE_CHECKING:
 WARPS = ("structure", "none")
 #: GI sources: the ONNX generator, or the path-traced GT stand-in.
 GI_SOURCES = ("model", "gt")
+#: The stages of a map's interaction latency (:func:`stage_samples`): the DI of the frame showing it, the map's
+#: GI-camera render and inference, the warp and the blend.
+MAP_STAGES = ("di", "gi_render", "inference", "warp", "blend")
 
 
 @dataclass(frozen=True)
@@ -327,3 +330,25 @@ def _write_video(images: list[np.ndarray], path: Path) -> str | None:
         return None
     imageio.mimwrite(path, images, fps=30)
     return str(path)
+
+
+def stage_samples(frames: list[dict[str, str]]) -> dict[str, list[float]]:
+    """Per-map stage times (ms) of a run's ``frames.csv`` rows, :data:`MAP_STAGES` and their ``total``: one sample
+    per frame that bound a new map; ``warp`` is the bind and the per-frame warp stages of the backend the run used
+    (``--warp-backend``: the columns it has)."""
+    from gigan_local.gl_warp import GLStructureWarp
+
+    per_frame = dict.fromkeys(s for w in (StructureAwareWarp, GLStructureWarp) for s in w.stages if s != "bind")
+    samples: dict[str, list[float]] = {s: [] for s in (*MAP_STAGES, "total")}
+    for row in (r for r in frames if r["gi_new"] == "1"):
+        stage = {
+            "di": float(row["di_ms"]),
+            "gi_render": float(row["gi_render_ms"]),
+            "inference": float(row["inference_ms"]),
+            "warp": float(row["bind_ms"]) + sum(float(row[f"{s}_ms"]) for s in per_frame if f"{s}_ms" in row),
+            "blend": float(row["compose_ms"]),
+        }
+        for name, ms in stage.items():
+            samples[name].append(ms)
+        samples["total"].append(sum(stage.values()))
+    return samples

@@ -233,3 +233,14 @@ def _limits(constraints: list[Any], scale: float) -> dict[str, Any]:
         elif isinstance(c, MinLen):
             limits["min_len"] = c.min_length
     return limits
+
+
+def check_served(resolution: int) -> None:
+    """Refuse, before any process starts, a map resolution a server started from this environment would not
+    serve (its settings: the defaults, or CLOUDBAKING_RESOLUTIONS, which a child process inherits)."""
+    served = Settings().resolutions
+    if resolution not in served:
+        raise UserError(
+            f"--resolution {resolution} is not served by cloudbaking-server",
+            f"use one of {', '.join(map(str, served))}",
+        )

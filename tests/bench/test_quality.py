@@ -4,8 +4,6 @@ brighter by a known amount, scored with a real ONNX pass-through "generator" (no
 
 from __future__ import annotations
 
-import csv
-import json
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +22,7 @@ from gicore.present.markdown import table_text, tables_text
 from gicore.results import Results, read_rows
 from gicore.tonemap import inverse_tonemap, tonemap
 from tests.helpers.cloud import passthrough_model
+from tests.helpers.model_card import write_run_and_export
 
 RES = 64
 OFFSET = 0.05  # the GT is the DI brighter by this much, tone-mapped
@@ -131,30 +130,12 @@ def test_grid_rows_sign_and_layout() -> None:
 def test_model_card_and_report_show_the_low_frequency_error(scored: tuple[Path, Path], tmp_path: Path) -> None:
     out, _ = scored
     run, export = tmp_path / "run", tmp_path / "export"
-    run.mkdir()
-    export.mkdir()
-    train = {
-        "datasets": ["data/synthetic"],
-        "model": "gigan",
-        "lambda_L1": 100,
-        "lambda_gp": 10,
-        "n_critic": 5,
-        "lr": 2e-4,
-    }
-    train |= {"beta1": 0.5, "beta2": 0.999, "batch_size": 8, "crop": 64, "seed": 0, "max_val_frames": 2}
-    (run / "config.json").write_text(json.dumps({"train": train}))
-    with (run / "metrics.csv").open("w", newline="") as fh:
-        writer = csv.writer(fh)
-        writer.writerow(["run_id", "model", "epoch", "step", "split", "metric", "value", "unit"])
-        for metric, value in (("ssim", 0.9), ("psnr", 25.0), ("rmse", 0.05), ("lf_error", 0.0123)):
-            writer.writerow(["run", "gigan", 1, 4, "val", metric, value, "1"])
-        writer.writerow(["run", "gigan", 1, 4, "train", "step_seconds", 0.5, "s"])
-    (export / "model.onnx").write_bytes(b"x" * 1024)
-    doc = {"model": "unet", "ngf": 8, "n_down": 6, "input": {"buffers": ["di"]}, "in_channels": 3, "resolution": RES}
-    doc |= {"files": {"fp32": "model.onnx"}, "max_abs_diff_vs_torch": {"fp32": 1e-6}}
-    (export / "model.json").write_text(json.dumps(doc))
+    write_run_and_export(run, export, RES)
     res = Results("model-card", tmp_path / "card")
-    card = model_card.write_model_card(run, export, out / "quality.csv", "copy", "d", "t", res).read_text()
+    cfg = model_card.ModelCardConfig(run=run, export=export, quality_csv=out / "quality.csv", system="copy")
+    model_card.measure(cfg, res, quality.BENCH)
+    assert res.files == [export / "MODEL_CARD.md"]
+    card = res.files[0].read_text()
     lf = {r["system"]: r["value"] for r in read_rows(out / "quality.csv") if r["metric"] == "lf_error"}
     assert "| scene | SSIM | PSNR dB | RMSE | LF error | DI alone SSIM | DI alone LF error |" in card
     row = next(line for line in card.splitlines() if line.startswith("| synthetic |")).split(" | ")
@@ -249,7 +230,6 @@ def test_renderer_table_applies_the_rule() -> None:
 
 
 def test_renderers_option_is_checked(scored: tuple[Path, Path], tmp_path: Path, monkeypatch) -> None:
-    from gicore.error_policy import UserError
     from gicore.options import build_config
 
     _, data = scored
@@ -270,25 +250,3 @@ def test_renderers_option_is_checked(scored: tuple[Path, Path], tmp_path: Path, 
     cfg = quality.QualityConfig(datasets=data.parent, scenes=("synthetic",), models={}, renderers=("gl",))
     with pytest.raises(UserError, match="its scene spec does not load to render gl's"):
         quality.input_renderers(cfg, read_meta(data), data)
-
-
-def test_a_model_card_refuses_a_csv_scored_on_two_renderers(scored: tuple[Path, Path], tmp_path: Path) -> None:
-    out, _ = scored
-    rows = list(csv.DictReader((out / "quality.csv").open(newline="")))
-    gl = [r | {"config": json.dumps(json.loads(r["config"]) | {"renderer": "gl"})} for r in rows]
-    mixed = tmp_path / "quality.csv"
-    with mixed.open("w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows + gl)
-    (tmp_path / "run").mkdir()
-    (tmp_path / "run" / "config.json").write_text(json.dumps({"train": {}}))
-    (tmp_path / "run" / "metrics.csv").write_text(
-        "run_id,model,epoch,step,split,metric,value,unit\nr,g,1,1,val,ssim,0.9,1\n"
-    )
-    (tmp_path / "export").mkdir()
-    (tmp_path / "export" / "model.json").write_text("{}")
-    with pytest.raises(UserError, match="scores 'copy' on the inputs of renderers gl, mitsuba"):
-        model_card.write_model_card(
-            tmp_path / "run", tmp_path / "export", mixed, "copy", "d", "t", Results("c", tmp_path)
-        )

@@ -56,13 +56,6 @@ def test_tiny_convergence_run_writes_csv_and_plot(tmp_path: Path) -> None:
     assert rmse[("path", 4)] < rmse[("path", 1)]  # more samples, less error against the reference
 
 
-def test_training_minutes_sum_the_logged_step_times() -> None:
-    from bench.common import training_minutes
-
-    # 10 steps at 6 s, then 20 at 3 s; step 40 extrapolates at the last rate.
-    assert training_minutes([(10, 6.0), (30, 3.0)], [0, 5, 10, 30, 40]) == pytest.approx([0, 0.5, 1.0, 2.0, 2.5])
-
-
 def test_training_curves_from_run_folders(tmp_path: Path) -> None:
     from bench.training import BENCH, TrainingBenchConfig
 

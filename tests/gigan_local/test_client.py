@@ -17,7 +17,7 @@ import pytest
 from gicore.error_policy import UserError
 from gicore.frame_rows import amortized_fps
 from gicore.paths import camera_path, frame_seed, light_position
-from gigan_local.client import ClientConfig, run_client
+from gigan_local.client import ClientConfig, run_client, stage_samples
 
 RES = 32
 
@@ -141,6 +141,20 @@ def test_gigan_client_process_writes_csv(spec_file, tmp_path):
     assert summary["mean_lf_error"] == pytest.approx((float(rows[0]["lf_error"]) + float(rows[2]["lf_error"])) / 2)
     assert "LF error" in proc.stdout
     # a bad option as a real process: tests/integration/test_cli_errors.py, row client-unknown-warp
+
+
+def test_stage_samples_are_one_per_bound_map() -> None:
+    """A map's stages come from the frame that bound it (a frame binding none adds nothing); its warp is the bind
+    and the per-frame warp stages; its total, their sum."""
+    from gigan_local.warp import StructureAwareWarp
+
+    per_frame = {f"{s}_ms": "0.25" for s in StructureAwareWarp.stages if s != "bind"}  # project, depth_test, ...
+    bound = {"gi_new": "1", "di_ms": "2.0", "gi_render_ms": "5.0", "inference_ms": "20.0", "bind_ms": "1.0"}
+    bound |= per_frame | {"compose_ms": "0.5"}
+    samples = stage_samples([bound, bound | {"gi_new": "0", "di_ms": "100.0"}])
+    warp = 1.0 + 0.25 * len(per_frame)
+    assert samples == {"di": [2.0], "gi_render": [5.0], "inference": [20.0], "warp": [warp], "blend": [0.5],
+                       "total": [pytest.approx(2.0 + 5.0 + 20.0 + warp + 0.5)]}  # fmt: skip
 
 
 @pytest.fixture(scope="module")

@@ -226,8 +226,8 @@ def test_the_shipped_model_card_matches_its_files() -> None:
     the exported weights: each must be what the files and model.json say."""
     import re
 
-    from bench.model_card import UPSAMPLING_WORDS
     from gigan_local.inference import DEFAULT_MODEL
+    from gigan_local.model_card import UPSAMPLING_WORDS
 
     folder = DEFAULT_MODEL.parent
     card = (folder / "MODEL_CARD.md").read_text()

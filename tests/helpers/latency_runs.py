@@ -35,9 +35,8 @@ def stand_in(monkeypatch: pytest.MonkeyPatch) -> Told:
     monkeypatch.setattr(latency, "available_renderers", lambda asked: (("mitsuba",), {}))
     monkeypatch.setattr(latency, "pinned_server", process)
     monkeypatch.setattr(latency, "pinned_proxy", process)
-    monkeypatch.setattr(
-        latency, "ask_path", lambda url, scene, cfg, seed, **kw: told.asked.append(cfg) or {"misses": cfg.frames}
-    )
+    asked = lambda url, scene, cfg, seed, **kw: told.asked.append(cfg) or {"misses": cfg.frames}  # noqa: E731
+    monkeypatch.setattr(latency, "request_path_maps", asked)
     monkeypatch.setattr(latency, "run_client", lambda plan, argv, out, timeout: told.argvs.append(argv) or out)
     monkeypatch.setattr(latency, "_ran_on", lambda folder, renderer: folder)
     monkeypatch.setattr(

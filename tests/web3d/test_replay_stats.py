@@ -1,4 +1,4 @@
-"""bench web's statistics of one replay on hand-made page records (no browser): each frame's phase, the frames
+"""The statistics of one replay on hand-made page records (no browser): each frame's phase, the frames
 drawn while each map was made, and perceived latency by the GI tree's rule."""
 
 from __future__ import annotations
@@ -7,8 +7,8 @@ from typing import Any
 
 import pytest
 
-from bench.viewer_stats import GIGAN, Replayed, frames_during, perceived, phases
 from web3d.headless import Segment
+from web3d.replay_stats import GIGAN, Replayed, frames_during, perceived, phases
 
 
 def pane(ms: float, sent: bool = False, landed: bool = False, inflight: bool = False, shown: int | None = 0) -> dict:
