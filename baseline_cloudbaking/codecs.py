@@ -2,11 +2,11 @@
 
 ``jpeg``, ``webp``, ``avif``, ``png``: 8-bit, through the project's tone map (:func:`gicore.tonemap.tonemap`),
 decoded back through its inverse; ``exr-half``: OpenEXR half float; ``zstd-f16``: zstandard on the raw float16
-array. ``Codec.quantize`` is a codec's exact domain (a lossless codec decodes to it bit for bit) and
-``Codec.max_rmse`` its stated tone-mapped error bound on rendered maps (both tested); :func:`measure` reports
-bytes, encode and decode time, and the actual error. Depth travels with :data:`DEPTH_CODEC` (float16,
-delta-coded rows, split byte planes, zstandard): relative error <= 2^-11, far below the structure-aware warp's
-depth test. docs/architecture.md, Codecs.
+array; ``jpeg:75`` and the like set an 8-bit codec's quality (:func:`get_codec`). ``Codec.quantize`` is a
+codec's exact domain (a lossless codec decodes to it bit for bit) and ``Codec.max_rmse`` its stated tone-mapped
+error bound on rendered maps (both tested); :func:`measure` reports bytes, encode and decode time, and the
+actual error. Depth travels with :data:`DEPTH_CODEC` (float16, delta-coded rows, split byte planes, zstandard):
+relative error <= 2^-11, far below the structure-aware warp's depth test. docs/architecture.md, Codecs.
 """
 
 from __future__ import annotations
@@ -14,8 +14,8 @@ from __future__ import annotations
 import io
 import struct
 import time
-from dataclasses import dataclass
-from typing import Protocol
+from dataclasses import dataclass, replace
+from typing import Literal, Protocol
 
 import numpy as np
 import zstandard
@@ -236,15 +236,31 @@ CODECS: dict[str, Codec] = {
 CODEC_NAMES: tuple[str, ...] = tuple(CODECS)
 #: The codec a client, a prebake, a request and a bench use unless told otherwise (the one declaration).
 DEFAULT_CODEC = "jpeg"
+#: A codec name as an option or a request field: one of :data:`CODEC_NAMES`.
+CodecName = Literal[CODEC_NAMES]  # type: ignore[valid-type]
 DEPTH_CODEC = DepthF16()
 
 
-def get_codec(name: str) -> Codec:
-    """The codec called ``name``; ValueError lists the known ones."""
+#: The Pillow option that sets each 8-bit codec's quality (``NAME:QUALITY``, 1 to 100).
+QUALITY_OPTION = {"jpeg": "quality", "webp": "quality", "avif": "quality"}
+
+
+def get_codec(spec: str) -> Codec:
+    """The codec ``NAME``, or ``NAME:QUALITY`` for the codecs of :data:`QUALITY_OPTION`: the registry's settings
+    with the quality (1 to 100) replaced, named ``spec``. ValueError lists what is known."""
+    name, sep, quality = spec.partition(":")
     try:
-        return CODECS[name]
+        codec = CODECS[name]
     except KeyError:
         raise ValueError(f"unknown codec {name!r}; known codecs: {', '.join(CODEC_NAMES)}") from None
+    if not sep:
+        return codec
+    if not (
+        isinstance(codec, Pillow8Bit) and name in QUALITY_OPTION and quality.isdigit() and 1 <= int(quality) <= 100
+    ):
+        raise ValueError(f"codec {spec!r}: a quality 1 to 100 is known for {', '.join(QUALITY_OPTION)} only")
+    options = tuple((k, int(quality) if k == QUALITY_OPTION[name] else v) for k, v in codec.options)
+    return replace(codec, name=spec, options=options)
 
 
 @dataclass(frozen=True)

@@ -1,20 +1,32 @@
 """How the GI tree grows under user sessions: the frames of seeded or recorded sessions as the tree sees them,
 the tree filled along them by the store's own lookup rule (:func:`baseline_cloudbaking.viewpoints.simulate_fill`),
-what it holds once the whole navigable space has been visited, and when it saturates or passes a size."""
+what it holds once the whole navigable space has been visited, when it saturates or passes a size, and the bytes
+an entry takes (measured on maps baked at entries spread over the tree)."""
 
 from __future__ import annotations
 
+from collections import defaultdict
 from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+from baseline_cloudbaking.bake import BakedMap, bake_map, gi_camera, map_header
+from baseline_cloudbaking.codecs import DEPTH_CODEC, get_codec
+from baseline_cloudbaking.protocol import pack
 from baseline_cloudbaking.viewpoints import Tolerance, Viewpoint, light_cell, simulate_fill
 from gicore.camera import Camera
 from gicore.path_file import PathFile
-from gicore.paths import Light, light_position
+from gicore.paths import Light, frame_seed, light_position
+from gicore.render_cache import RenderCache
 from gicore.scene import SceneSpec
 from gicore.sessions import Session, navigable_views, session_views
+from gicore.tonemap import tonemap
+
+if TYPE_CHECKING:
+    from gicore.render import Renderer
 
 #: Frames of the light's schedule scanned for the light cells it reaches (the paper scenes' repeats every 2640).
 LIGHT_SCAN_FRAMES = 20_000
@@ -116,3 +128,65 @@ def first_session_over(entries: np.ndarray, bytes_per_entry: float, limit: float
     """The first session count whose tree (entries × bytes per entry) exceeds ``limit`` bytes, or None."""
     over = np.flatnonzero(entries * bytes_per_entry > limit)
     return int(over[0]) + 1 if len(over) else None
+
+
+def spread_picks(n: int, want: int) -> list[int]:
+    """Up to ``want`` indices of ``range(n)`` spread evenly, the first and the last included."""
+    return sorted({int(round(k)) for k in np.linspace(0, n - 1, min(want, n))})
+
+
+def rgb8(gi: np.ndarray) -> np.ndarray:
+    """A GI map as the paper stores it: tone-mapped, 8 bits per channel, uncompressed (HxWx3 uint8)."""
+    return np.round(np.clip(tonemap(gi), 0.0, 1.0) * 255.0).astype(np.uint8)
+
+
+def cached_bake(
+    cache: Path, renderer: Renderer, spec: SceneSpec, camera: Camera, light: Light, spp: int, seed: int
+) -> BakedMap:
+    """A GI map (GI + texel depth, no DI) from the render cache in ``cache``, baked and stored there on a miss:
+    the maps behind the bytes per entry are the same on every run, and baked once."""
+
+    def bake() -> dict[str, np.ndarray]:
+        baked = bake_map(renderer, camera, light, spp, seed, di=False)
+        times = np.array([baked.render_ms, baked.denoise_ms])
+        return {"gi": baked.gi, "depth": baked.depth, "times_ms": times}
+
+    key = ("gi_map", camera, list(light), spp, seed, renderer.resolution)
+    entry = RenderCache(cache, spec).fetch(key, bake)
+    return BakedMap(camera, entry["gi"], None, entry["depth"], *map(float, entry["times_ms"]))
+
+
+def entry_bytes(
+    spec: SceneSpec,
+    name: str,
+    creators: list[tuple[Camera, Light]],
+    resolutions: Sequence[int],
+    codecs: Sequence[str],
+    *,
+    spp: int,
+    samples: int,
+    cache: Path,
+    seed: int,
+) -> dict[tuple[int, str | None], list[int]]:
+    """Bytes per entry of scene ``name``'s tree, measured on ``samples`` maps baked (:func:`cached_bake`) at the
+    entries its ``creators`` made, spread over them (insertion order: over the sessions), per (resolution,
+    codec): the stored payload (GI + depth, as the blend composition stores it) per codec, and under codec
+    None the GI map uncompressed (:func:`rgb8`, the paper's accounting)."""
+    from gicore.render import Renderer
+
+    picks = spread_picks(len(creators), samples)
+    sizes: dict[tuple[int, str | None], list[int]] = defaultdict(list)
+    for resolution in resolutions:
+        renderer = Renderer(spec, resolution)
+        for i in picks:
+            cam, light = creators[i]
+            camera = gi_camera(spec, cam.origin, cam.target, cam.up, cam.fov, resolution)
+            baked = cached_bake(cache, renderer, spec, camera, light, spp, frame_seed(seed, f"growth/{name}", i))
+            sizes[(resolution, None)].append(len(rgb8(baked.gi).tobytes()))
+            depth = DEPTH_CODEC.encode(baked.depth)
+            for codec_name in codecs:
+                header = map_header(baked, name, codec_name, spp, light if spec.light.moves else None, 0.0)
+                sizes[(resolution, codec_name)].append(
+                    len(pack(header, {"gi": get_codec(codec_name).encode(baked.gi), "depth": depth}))
+                )
+    return sizes

@@ -37,7 +37,7 @@ from baseline_cloudbaking.bake import (
 from baseline_cloudbaking.codecs import CODEC_NAMES, DEFAULT_CODEC
 from baseline_cloudbaking.store import DEFAULT_LIGHT_CELL, GITree, store_folder
 from baseline_cloudbaking.store_errors import StoreConflict
-from baseline_cloudbaking.viewpoints import MapKey, Tolerance, Viewpoint, ViewSet
+from baseline_cloudbaking.viewpoints import CellViews, MapKey, Tolerance, Viewpoint
 from gicore import option_groups
 from gicore.camera import Camera
 from gicore.error_policy import UserError, entry_point
@@ -152,14 +152,11 @@ def bake_jobs(path: list[PathFrame], frames: Iterable[int], name: str, seed: int
 def plan(store: GITree, keys: list[MapKey], views: list[Viewpoint]) -> list[int]:
     """Frames of a path (``keys``/``views`` per frame) that need a new map: neither the store nor a map
     planned for an earlier frame serves them."""
-    planned: dict = {}
+    planned = CellViews()
     todo = []
     for i, (key, view) in enumerate(zip(keys, views, strict=True)):
-        if store.find(key, view) is not None:
-            continue
-        cell_views = planned.setdefault(key.light_cell, ViewSet())
-        if cell_views.nearest(view, store.tolerance) is None:
-            cell_views.add(view)
+        if store.find(key, view) is None and planned.find(view, key.light_cell, store.tolerance) is None:
+            planned.add(view, key.light_cell, i)
             todo.append(i)
     return todo
 

@@ -3,7 +3,7 @@ viewpoint within a :class:`Tolerance` of the request's, the nearest one winning 
 
 The rule is pure: the GI tree (:mod:`baseline_cloudbaking.store`) applies it to the viewpoints of its index,
 the clients to the maps they hold, and the benches and the prebaker to plan fills without a store
-(:class:`ViewSet`, :func:`simulate_fill`, :func:`fewest_maps`).
+(:class:`ViewSet`, :class:`CellViews`, :func:`simulate_fill`, :func:`fewest_maps`).
 """
 
 from __future__ import annotations
@@ -32,6 +32,15 @@ class Tolerance:
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0.0):
                 raise ValueError(f"tolerance {name} must be finite and >= 0, got {v}")
+
+    @classmethod
+    def parse(cls, text: str) -> Tolerance:
+        """The tolerance written ``DP:DTHETA`` (scene units : degrees), e.g. ``0.05:2``; ValueError otherwise."""
+        try:
+            dp, angle = (float(v) for v in text.split(":"))
+            return cls(dp, angle)
+        except ValueError:
+            raise ValueError(f"{text!r} is not DP:DTHETA, two finite numbers >= 0") from None
 
 
 @dataclass(frozen=True)
@@ -135,22 +144,38 @@ class ViewSet:
         return nearest(self._eyes[: self.n], self._dirs[: self.n], view, tol)
 
 
+class CellViews:
+    """Viewpoints in memory by light cell, each with an id: the GI tree's lookup over maps held without a store."""
+
+    def __init__(self) -> None:
+        self._cells: dict[Any, tuple[ViewSet, list[int]]] = {}
+
+    def add(self, view: Viewpoint, cell: Any, entry: int) -> None:
+        if cell not in self._cells:
+            self._cells[cell] = (ViewSet(), [])
+        views, ids = self._cells[cell]
+        views.add(view)
+        ids.append(entry)
+
+    def find(self, view: Viewpoint, cell: Any, tol: Tolerance) -> int | None:
+        """The id of the viewpoint in ``cell`` that serves ``view`` within ``tol`` (the nearest), or None."""
+        held = self._cells.get(cell)
+        found = None if held is None else held[0].nearest(view, tol)
+        return None if found is None else held[1][found[0]]
+
+
 def simulate_fill(views: list[Viewpoint], cells: list[Any], tol: Tolerance) -> list[int]:
     """Walk a path through an empty tree, inserting on every miss: returns, per frame, the index of
     the entry that serves it (entries are numbered in insertion order; a new index marks a miss)."""
-    sets: dict[Any, tuple[ViewSet, list[int]]] = {}
+    stored = CellViews()
     served: list[int] = []
     n_entries = 0
     for view, cell in zip(views, cells, strict=True):
-        vs, ids = sets.setdefault(cell, (ViewSet(), []))
-        found = vs.nearest(view, tol)
-        if found is None:
-            vs.add(view)
-            ids.append(n_entries)
-            n_entries += 1
-            served.append(ids[-1])
-        else:
-            served.append(ids[found[0]])
+        entry = stored.find(view, cell, tol)
+        if entry is None:
+            entry, n_entries = n_entries, n_entries + 1
+            stored.add(view, cell, entry)
+        served.append(entry)
     return served
 
 

@@ -8,11 +8,11 @@ repeats after a warm-up; the OIDN variant's time includes its G-buffer pass and 
 from __future__ import annotations
 
 from dataclasses import dataclass
-
-import numpy as np
+from functools import partial
 
 from bench.runner import Bench
 from gicore import option_groups
+from gicore.ground_truth import render_gt
 from gicore.metrics import all_metrics
 from gicore.paths import camera_path, light_position
 from gicore.present.declarations import Chart, Figure, wide
@@ -51,16 +51,10 @@ def measure(cfg: ConvergenceConfig, res: Results) -> None:
         renderer = Renderer(spec, cfg.resolution)
         camera = camera_path(spec, 1, seed=seed, resolution=cfg.resolution)[0]
         light = light_position(spec, 0)
-        reference = tonemap(renderer.render_gt(camera, light, spp=cfg.reference_spp, seed=seed + 10_000))
+        reference = tonemap(render_gt(renderer, camera, light, cfg.reference_spp, seed + 10_000, denoise=False))
         for spp in cfg.spps:
-
-            def raw(spp: int = spp) -> np.ndarray:
-                return renderer.render_gt(camera, light, spp=spp, seed=seed)
-
-            def denoised(spp: int = spp) -> np.ndarray:  # the guide pass is part of its cost
-                return renderer.denoise(raw(spp), renderer.render_gbuffers(camera, seed=seed))
-
-            for system, render in (("path", raw), ("path+oidn", denoised)):
+            for system, denoise in (("path", False), ("path+oidn", True)):  # OIDN's guide pass is part of its cost
+                render = partial(render_gt, renderer, camera, light, spp, seed, denoise)
                 samples, image = time_repeats(render, cfg.repeats)
                 where = {"system": system, "scene": name, "spp": spp, "resolution": cfg.resolution}
                 res.add_timing(metric="render_time", samples_s=samples, **where)

@@ -35,18 +35,14 @@ from gicore.error_policy import UserError
 from gicore.present.declarations import Chart, Column, Figure, Rows, Table, wide
 from gicore.results import Results
 from gicore.timing import time_repeats
-from gigan_local.inference import model_info
+from gigan_local.inference import DEFAULT_MODEL, ExportedGenerator, GIModel, check_model_option, model_info
 
 #: Precisions the torch rows may run at (the ONNX rows take theirs from the model file).
 TORCH_PRECISIONS = ("fp32", "fp16", "bf16")
 #: Where the torch input and output live during the timed call (see the module docstring).
 COPIES = ("device", "host")
-
-
-def _shipped(name: str) -> Path:
-    from gigan_local.inference import DEFAULT_MODEL
-
-    return DEFAULT_MODEL.parent / name
+#: The shipped model's fp32 file, beside its fp16 one (:data:`gigan_local.inference.DEFAULT_MODEL`).
+SHIPPED_FP32 = DEFAULT_MODEL.with_name("model_fp32.onnx")
 
 
 @dataclass(frozen=True)
@@ -54,7 +50,7 @@ class InferenceConfig:
     """Which model files, backends and settings to time."""
 
     #: Exported model files (``gigan-export``); the first is the reference of the error rows and the torch weights.
-    models: tuple[Path, ...] = field(default_factory=lambda: (_shipped("model_fp32.onnx"), _shipped("model_fp16.onnx")))
+    models: tuple[Path, ...] = (SHIPPED_FP32, DEFAULT_MODEL)
     scene: str = option_groups.scene(note="its GI-camera buffers are the network input")
     #: onnxruntime intra-op threads, one row set each.
     threads: tuple[int, ...] = (1, 2)
@@ -71,15 +67,12 @@ class InferenceConfig:
 
     @classmethod
     def quick(cls) -> InferenceConfig:
-        return cls(models=(_shipped("model_fp32.onnx"),), threads=(1,), repeats=5, warmup=2)
+        return cls(models=(SHIPPED_FP32,), threads=(1,), repeats=5, warmup=2)
 
     def check(self) -> None:
-        from gigan_local.inference import read_model_json
-
         inputs = set()
         for path in self.models:
-            model_info(Path(path), "--models")
-            doc = read_model_json(Path(path))
+            doc = check_model_option(Path(path), "--models")
             inputs.add((doc["resolution"], json.dumps(doc["input"], sort_keys=True)))
         if len(inputs) > 1:
             raise UserError(
@@ -97,27 +90,19 @@ class InferenceConfig:
             raise UserError(f"--torch-device {self.torch_device!r} is not auto, cpu or cuda", "pick one of those")
 
 
-def network_input(model_path: Path, scene: str) -> tuple[np.ndarray, str]:
-    """(The encoded 1xCxHxW input of ``scene``'s first GI camera at the model's resolution, the renderer that
-    rendered it)."""
-    from gicore.gl import GLRenderer, RasterUnavailable
+def network_input(model: ExportedGenerator, scene: str) -> tuple[np.ndarray, str]:
+    """(The encoded 1xCxHxW input of ``scene``'s first GI camera at ``model``'s resolution, the renderer that
+    rendered it: a model-source client's, :func:`gigan_local.client.open_renderers`)."""
     from gicore.paths import camera_path, light_position
-    from gicore.run_config import CLIENT_LOD, open_raster
     from gicore.scene import load_scene
-    from gigan_local.inference import read_model_json
-    from gigan_local.preprocess import InputSpec, frame_to_input
+    from gigan_local.client import ClientConfig, open_renderers
+    from gigan_local.preprocess import frame_to_input
 
-    doc = read_model_json(model_path)
-    resolution, spec_in = int(doc["resolution"]), InputSpec.from_dict(doc["input"])
-    spec = load_scene(scene)
-    raster, used = open_raster("gl", None, lambda: GLRenderer(spec, resolution, lod=CLIENT_LOD), RasterUnavailable)
-    if raster is None:
-        from gicore.render import Renderer
-
-        raster = Renderer(spec, resolution)
+    spec, resolution = load_scene(scene), model.resolution
+    _, raster, used = open_renderers(ClientConfig(scene=scene, resolution=resolution, gi_source="model"), spec)
     [local] = camera_path(spec, 1, seed=0, fov=spec.camera.local_fov, resolution=resolution)
     buffers = raster.render_di_gbuffers(local.with_fov(spec.camera.gi_fov), light_position(spec, 0), centre=True)
-    return frame_to_input(buffers, spec_in)[None], used
+    return frame_to_input(buffers, model.spec)[None], used
 
 
 def _errors(y: np.ndarray, reference: np.ndarray) -> dict[str, float]:
@@ -132,10 +117,8 @@ def _record(res: Results, system: str, scene: str, samples: list[float], y: np.n
 
 
 def measure(cfg: InferenceConfig, res: Results) -> None:
-    from gigan_local.inference import GIModel
-
-    x, res.settings["input_renderer"] = network_input(Path(cfg.models[0]), cfg.scene)
     reference = GIModel(cfg.models[0], cfg.threads[0], warmup=0)
+    x, res.settings["input_renderer"] = network_input(reference, cfg.scene)
     ref = np.asarray(reference.session.run(None, {reference.input_name: x})[0], np.float64)
     if "onnxruntime" in cfg.backends:
         for path in cfg.models:
@@ -155,11 +138,8 @@ def measure_torch(cfg: InferenceConfig, res: Results, x: np.ndarray, ref: np.nda
     """The torch rows (module docstring)."""
     import torch
 
-    from gigan_local.config import NetworkConfig
     from gigan_local.inference import read_model_json
-    from gigan_local.networks import define_G
-    from gigan_local.preprocess import InputSpec
-    from gigan_local.warmstart import load_into
+    from gigan_local.torch_backend import torch_generator
 
     device = cfg.torch_device
     if device == "auto":
@@ -170,11 +150,7 @@ def measure_torch(cfg: InferenceConfig, res: Results, x: np.ndarray, ref: np.nda
         {"name": torch.cuda.get_device_name()} if device == "cuda" else {"threads": torch.get_num_threads()}
     )
     path = Path(cfg.models[0])
-    doc = read_model_json(path)
-    network, spec = NetworkConfig.from_dict(doc["network"]), InputSpec.from_dict(doc["input"])
-    generator = define_G(network)
-    load_into(generator, path, network, spec, calibration=None)
-    generator.eval().to(device)
+    generator = torch_generator(path, read_model_json(path)).to(device)
 
     def synced(fn: Callable[[], Any]) -> Callable[[], Any]:
         def run() -> Any:

@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from baseline_cloudbaking.client import request_path_maps
-from baseline_cloudbaking.codecs import CODEC_NAMES, DEFAULT_CODEC
+from baseline_cloudbaking.codecs import DEFAULT_CODEC, CodecName
 from baseline_cloudbaking.server.settings import check_served
 from bench.latency_record import CLOUD, CLOUD_PREFETCH, GIGAN, record
 from bench.latency_tables import PARTS
@@ -27,8 +27,6 @@ from gicore.results import Results
 from gicore.run_config import RENDERERS
 from gigan_local.inference import DEFAULT_MODEL, check_model_resolution
 from network_sim.profiles import profiles_field
-
-CodecName = Literal[CODEC_NAMES]  # type: ignore[valid-type]
 
 
 @dataclass(frozen=True)

@@ -116,14 +116,6 @@ def _phase(url: str, cfg: LoadConfig, phase: str, hit: dict[str, Any], idle: int
     return res, {k: after[k] - before[k] for k in COUNTERS}
 
 
-def errors(res: LoadResult) -> int:
-    """Hits not answered 200, misses answered neither 200 nor 503 with Retry-After, failed connections."""
-    bad_hits = sum(n for status, n in res.hit_status.items() if status != 200)
-    bad_misses = sum(n for status, n in res.miss_status.items() if status not in (200, 503))
-    no_retry = res.miss_status.get(503, 0) - sum(res.retry_after.values())
-    return bad_hits + bad_misses + no_retry + sum(res.errors.values())
-
-
 def measure(cfg: LoadConfig, res: Results) -> None:
     from baseline_cloudbaking.server.loadtest import hit_request, idle_room, run_interruptibly, store
 
@@ -161,7 +153,7 @@ def _record(res: Results, cfg: LoadConfig, scene: str, phase: str, load: LoadRes
         add(metric="hit_latency", value=float(value), unit="ms", stat=stat)
     add(metric="hit_latency", value=int(np.isfinite(ms).sum()), unit="count", stat="n")
     first = [f"{k}: {v}" for k, v in list(load.errors.items())[:5]]
-    add(metric="errors", value=errors(load), unit="count", first=first)
+    add(metric="errors", value=load.failures(), unit="count", first=first)
     for status, count in sorted(load.miss_status.items()):
         add(metric="miss_status", value=count, unit="count", status=status)
     for counter, count in counters.items():

@@ -17,13 +17,13 @@ from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
 
-from bench.common import train_small
 from bench.runner import Bench, execute
 from gicore import option_groups
 from gicore.error_policy import UserError
 from gicore.present.declarations import Chart, Figure, flat, matches
 from gicore.results import Results, read_rows
 from gigan_local.model_card import ModelCard
+from gigan_local.train_small import train_small
 
 
 @dataclass(frozen=True)
@@ -85,13 +85,14 @@ def measure(cfg: ModelCardConfig, res: Results, quality: Bench) -> None:
     run, export, quality_csv = cfg.run, cfg.export, cfg.quality_csv
     dataset_command, train_command = cfg.dataset_command, cfg.train_command
     if run is None:  # the small chain; check() made sure train_steps is set
-        [run] = train_small(cfg.scenes, (cfg.width,), cfg.train_steps, res)
+        [run] = train_small(cfg.scenes, (cfg.width,), cfg.train_steps, res.out, res.seed)
         dataset_command = (
-            f"bench model-card --quick: bench.common.QUICK_DATASET of {', '.join(cfg.scenes)} "
+            f"bench model-card --quick: gigan_local.train_small.QUICK_DATASET of {', '.join(cfg.scenes)} "
             f"into {res.out / 'dataset'}"
         )
         train_command = (
-            f"bench model-card --quick: bench.common.train_small, GIGAN ngf {cfg.width}, {cfg.train_steps} steps"
+            f"bench model-card --quick: gigan_local.train_small.train_small, GIGAN ngf {cfg.width}, "
+            f"{cfg.train_steps} steps"
         )
     if export is None:
         from gigan_local.export import export_onnx

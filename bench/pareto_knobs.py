@@ -10,18 +10,22 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
-from bench.common import WARP_LABELS
+from bench.common import WARP_LABELS, WARPS
 from bench.runner import FOV_DEGREES, Bench, execute
 from gicore import option_groups
+from gicore.blend import COMPOSITIONS
 from gicore.error_policy import UserError
 from gicore.results import Results, find_results, read_rows
 from gigan_local.inference import DEFAULT_MODEL, check_model_resolution, model_info
 from network_sim.exchange import CloudCost
 from network_sim.profiles import profiles_field
+
+if TYPE_CHECKING:
+    from baseline_cloudbaking.viewpoints import Tolerance
 
 GIGAN, CLOUD, ABLATION = "gigan", "cloud_baking", "ablation"
 PER_MAP, PER_FRAME = "GI map", "frame"
@@ -78,9 +82,9 @@ class ParetoConfig:
     #: Per frame: GI periods k.
     ks: tuple[int, ...] = (1, 5, 10, 30)
     #: Per frame: warp methods.
-    warps: tuple[str, ...] = ("structure", "pixel", "none")
+    warps: tuple[Literal[WARPS], ...] = ("structure", "pixel", "none")
     #: Per frame: compositions.
-    compositions: tuple[str, ...] = ("blend", "residual")
+    compositions: tuple[Literal[COMPOSITIONS], ...] = ("blend", "residual")
     #: Per frame: client frames per configuration.
     frames: int = 60
     #: Per frame: score against path-traced GT every this many frames.
@@ -100,29 +104,20 @@ class ParetoConfig:
         )  # fmt: skip
 
     def check(self) -> None:
-        from baseline_cloudbaking.codecs import CODEC_NAMES
+        from baseline_cloudbaking.codecs import CODEC_NAMES, QUALITY_OPTION, get_codec
 
         for name, path in self.models.items():
             check_model_resolution(path, self.resolution, f"--models {name}")
         for spec in self.codecs:
-            name, _, quality = spec.partition(":")
-            if name not in CODEC_NAMES or (
-                quality and (name not in QUALITY_OPTION or not quality.isdigit() or not 1 <= int(quality) <= 100)
-            ):
+            try:
+                get_codec(spec)
+            except ValueError:
                 raise UserError(
                     f"--codecs {spec!r} is not NAME or NAME:QUALITY",
                     f"use {', '.join(CODEC_NAMES)}; quality 1-100 for {', '.join(QUALITY_OPTION)}",
-                )
+                ) from None
         for text in self.tolerances:
             parse_tolerance(text)
-        for value, option, allowed in (
-            (self.warps, "--warps", ("structure", "pixel", "none")),
-            (self.compositions, "--compositions", ("blend", "residual")),
-        ):
-            if set(value) - set(allowed):
-                raise UserError(
-                    f"{option} {','.join(value)} holds an unknown value", f"use some of {', '.join(allowed)}"
-                )
         if max(self.resolutions) > self.resolution:
             raise UserError(
                 f"--resolutions {max(self.resolutions)} exceeds --resolution {self.resolution}",
@@ -135,30 +130,17 @@ class ParetoConfig:
             )
 
 
-#: The Pillow option that sets each 8-bit codec's quality.
-QUALITY_OPTION = {"jpeg": "quality", "webp": "quality", "avif": "quality"}
+def parse_tolerance(text: str) -> Tolerance:
+    """A ``--tolerances`` value: its points warp a map by half of Δp and Δθ, so Δp > 0 and 0 < Δθ < 180."""
+    from baseline_cloudbaking.viewpoints import Tolerance
 
-
-def make_codec(spec: str):
-    """The codec of ``NAME`` or ``NAME:QUALITY`` (the registry's settings with the quality replaced)."""
-    from baseline_cloudbaking.codecs import get_codec
-
-    name, _, quality = spec.partition(":")
-    codec = get_codec(name)
-    if not quality:
-        return codec
-    options = tuple((k, int(quality) if k == QUALITY_OPTION[name] else v) for k, v in codec.options)
-    return replace(codec, name=spec, options=options)
-
-
-def parse_tolerance(text: str) -> tuple[float, float]:
     try:
-        dp, angle = (float(v) for v in text.split(":"))
-    except ValueError:
-        raise UserError(f"--tolerances {text!r} is not DP:DTHETA", "give e.g. 0.05:2 (scene units : degrees)") from None
-    if not (math.isfinite(dp) and math.isfinite(angle) and dp > 0 and 0 < angle < 180):
+        tol = Tolerance.parse(text)
+    except ValueError as exc:
+        raise UserError(f"--tolerances {exc}", "give e.g. 0.05:2 (scene units : degrees)") from None
+    if not (tol.position > 0 and 0 < tol.angle_deg < 180):
         raise UserError(f"--tolerances {text!r} is out of range", "Δp > 0 and 0 < Δθ < 180")
-    return dp, angle
+    return tol
 
 
 # -- measuring -------------------------------------------------------------------------------------------------
@@ -339,7 +321,7 @@ def bake_resolution(ctx: Context, pts: Points) -> dict[str, float]:
 def codecs_and_links(ctx: Context, pts: Points, bake_ms: float) -> dict[str, Any]:
     """Cloud baking per map: codec and quality × network profile × cache state. Returns the first codec's
     payload bytes, encode and decode times (the tolerance points' hit and miss paths)."""
-    from baseline_cloudbaking.codecs import DEPTH_CODEC
+    from baseline_cloudbaking.codecs import DEPTH_CODEC, get_codec
     from baseline_cloudbaking.protocol import pack
     from gicore.gi_map import texel_depth
     from network_sim import profiles
@@ -352,7 +334,7 @@ def codecs_and_links(ctx: Context, pts: Points, bake_ms: float) -> dict[str, Any
         maps.append((gi_cam, light, _bake(ctx, gi_cam, light, cfg.bake_spp, True), texel_depth(ctx.renderer, gi_cam)))
     first: dict[str, Any] = {}
     for spec in cfg.codecs:
-        codec = make_codec(spec)
+        codec = get_codec(spec)
         enc, dec, sizes, errors = [], [], [], []
         for gi_cam, light, image, depth in maps:
             e_ms, data = _median_ms(lambda image=image: codec.encode(image), cfg.repeats)
@@ -384,7 +366,7 @@ def codecs_and_links(ctx: Context, pts: Points, bake_ms: float) -> dict[str, Any
 
 def tolerances(ctx: Context, pts: Points, bake_ms: float, hit_path: dict[str, Any]) -> None:
     """Cloud baking per map: store tolerance (warped stale map at half the tolerance; hit-rate-weighted time)."""
-    from baseline_cloudbaking.viewpoints import Tolerance, Viewpoint, simulate_fill
+    from baseline_cloudbaking.viewpoints import Viewpoint, simulate_fill
     from baseline_cloudbaking.warp import PointCloud
     from gicore.gi_map import texel_depth
     from gicore.paths import camera_path
@@ -401,8 +383,8 @@ def tolerances(ctx: Context, pts: Points, bake_ms: float, hit_path: dict[str, An
     path = camera_path(ctx.spec, cfg.path_frames, seed=ctx.seed, fov=gi_fov, resolution=cfg.resolution)
     rng = np.random.default_rng(ctx.seed)
     for text in cfg.tolerances:
-        dp, angle = parse_tolerance(text)
-        tol = Tolerance(dp, angle)
+        tol = parse_tolerance(text)
+        dp, angle = tol.position, tol.angle_deg
         # a second fly-through near the first: eyes moved by dp/2, targets turned by about angle/2
         first = [Viewpoint.look_at(c.origin, c.target) for c in path]
         moved = []

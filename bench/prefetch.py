@@ -7,11 +7,11 @@ from __future__ import annotations
 import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 from baseline_cloudbaking.client import request_path_maps
 from baseline_cloudbaking.client_run import RunMetrics, check_server, request_floors
-from baseline_cloudbaking.codecs import CODEC_NAMES, DEFAULT_CODEC
+from baseline_cloudbaking.codecs import DEFAULT_CODEC, CodecName
 from baseline_cloudbaking.server.settings import check_served
 from bench.processes import BIN, path_options, pinned_proxy, pinned_server, run_client, run_place, with_path_frames
 from bench.runner import Bench, Block, Section
@@ -23,7 +23,6 @@ from gicore.present.declarations import Chart, Column, Figure, Rows, Table, fill
 from gicore.results import Results
 from network_sim.profiles import profiles_field
 
-CodecName = Literal[CODEC_NAMES]  # type: ignore[valid-type]
 SYSTEM = "cloud_baking"
 #: Variant -> the client's request-rule options (module docstring).
 VARIANTS = {

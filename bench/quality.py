@@ -13,22 +13,23 @@ from typing import Literal
 
 import numpy as np
 
-from bench.common import QUICK_DATASET
-from bench.quality_grid import GRID_CAPTION, GridCell, grid_rows, save_grid
+from bench.quality_grid import GRID_CAPTION, grid_rows
 from bench.runner import Bench, Block, Section
 from gicore import option_groups
-from gicore.dataset import INPUT_RENDERERS, DatasetMeta, frame_paths, load_frame, read_meta
-from gicore.dataset_cli import FrameRenderer, build_dataset, render_inputs
+from gicore.dataset import INPUT_RENDERERS, frame_paths, load_frame, read_meta
+from gicore.dataset_cli import inputs_renderer, render_inputs
 from gicore.error_policy import UserError
 from gicore.gl.lod import LOD_CHOICES
 from gicore.metrics import CHECKER_PERIOD, LF_SIGMA, all_metrics, checker_error, shadow_tint
 from gicore.present.declarations import Chart, Column, Figure, Image, Rows, Table, flat, matches, unique
+from gicore.present.sheet import Cell, save_sheet
 from gicore.results import Results
 from gicore.run_config import CLIENT_LOD
-from gicore.scene import SceneSpec, builtin_scenes, load_scene
+from gicore.scene import builtin_scenes
 from gicore.timing import time_repeats
 from gicore.tonemap import tonemap
 from gigan_local.inference import DEFAULT_MODEL, model_info
+from gigan_local.train_small import small_dataset
 
 UNITS = {"rmse": "1", "ssim": "1", "psnr": "dB", "lf_error": "1", "checker_error": "1", "shadow_tint": "1"}
 #: Titles of the bar plots: what each metric is and which way is better.
@@ -98,10 +99,7 @@ class QualityConfig:
 def dataset_root(cfg: QualityConfig, res: Results, scene: str) -> Path:
     """The dataset folder of ``scene``: under ``--datasets``, or rendered now into ``<out>/dataset``."""
     if cfg.datasets is None:
-        spec = load_scene(scene)
-        root = res.out / "dataset" / spec.name
-        build_dataset(spec, root, QUICK_DATASET, progress=False)
-        return root
+        return small_dataset(scene, res.out / "dataset")
     root = cfg.datasets / scene
     render = f"render it with `gicore-dataset {scene} --out {cfg.datasets} --val 10 --resolution 256`, or use --quick"
     if not (root / "meta.json").is_file():
@@ -111,26 +109,6 @@ def dataset_root(cfg: QualityConfig, res: Results, scene: str) -> Path:
     return root
 
 
-def input_renderers(cfg: QualityConfig, meta: DatasetMeta, root: Path) -> dict[str, FrameRenderer | None]:
-    """Per renderer of ``cfg.renderers``: None where the dataset's stored inputs are that renderer's, else the
-    :class:`FrameRenderer` that renders them now (UserError when the dataset's scene spec does not load)."""
-    out: dict[str, FrameRenderer | None] = {}
-    for renderer in cfg.renderers:
-        if renderer == meta.renderer and (renderer == "mitsuba" or meta.lod == cfg.gl_lod):
-            out[renderer] = None
-            continue
-        try:
-            spec = SceneSpec.from_dict(meta.scene)
-        except (OSError, ValueError) as err:
-            raise UserError(
-                f"{root} holds {meta.renderer} inputs and its scene spec does not load to render {renderer}'s"
-                f" ({' '.join(str(err).split())})",
-                f"leave {renderer} out of --renderers for it",
-            ) from None
-        out[renderer] = FrameRenderer(spec, meta.resolution, renderer, cfg.gl_lod)
-    return out
-
-
 def measure(cfg: QualityConfig, res: Results) -> None:
     from gigan_local.inference import GIModel
 
@@ -138,13 +116,13 @@ def measure(cfg: QualityConfig, res: Results) -> None:
     infos = {name: model_info(path, f"--models {name}") for name, path in cfg.models.items()}
     systems = ["di_only", *models]
     several = len(cfg.renderers) > 1
-    grid: list[list[GridCell]] = []
+    grid: list[list[Cell]] = []
     for scene in cfg.scenes:
         root = dataset_root(cfg, res, scene)
         meta = read_meta(root)
         paths = frame_paths(root, "val")[: cfg.max_frames]
         records = meta.split_frames("val")[: cfg.max_frames]
-        renderers = input_renderers(cfg, meta, root)
+        renderers = {r: inputs_renderer(meta, root, r, cfg.gl_lod, "--renderers") for r in cfg.renderers}
         scores: dict[tuple[str, str], list[dict[str, float]]] = {(n, r): [] for r in cfg.renderers for n in systems}
         levels: list[int] = []  # the levels of detail the gl inputs rendered now were drawn at
         for i, (record, path) in enumerate(zip(records, paths)):
@@ -191,7 +169,7 @@ def measure(cfg: QualityConfig, res: Results) -> None:
                 system=name, scene=scene, metric="inference_time", samples_s=samples, threads=cfg.threads, **infos[name]
             )
     if grid:
-        save_grid(grid, ["DI", "albedo", "normal", *models, "GT"], res.output("quality_grid.png"), GRID_CAPTION)
+        save_sheet(grid, ["DI", "albedo", "normal", *models, "GT"], res.output("quality_grid.png"), GRID_CAPTION)
 
 
 def add_comparisons(

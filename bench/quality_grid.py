@@ -1,13 +1,13 @@
-"""`bench quality`'s image grid (``quality_grid.png``): per frame, the inputs, each model's map and the GT, then
-each one's |error| and its low-frequency signed error, on fixed scales with their legends."""
+"""`bench quality`'s image grid (``quality_grid.png``, written by :func:`gicore.present.sheet.save_sheet`): per
+frame, the inputs, each model's map and the GT, then each one's |error| and its low-frequency signed error, on
+fixed scales with their legends."""
 
 from __future__ import annotations
-
-from pathlib import Path
 
 import numpy as np
 
 from gicore.metrics import LF_SIGMA, lf_difference
+from gicore.present.sheet import Cell
 
 #: The grid's |error| images show |tone-mapped prediction − GT| times this gain (white from 1 / gain = 0.25 up).
 GRID_ABS_GAIN = 4.0
@@ -15,8 +15,6 @@ GRID_ABS_GAIN = 4.0
 #: −GRID_LF_RANGE (blue: darker than GT) through 0 (white) to +GRID_LF_RANGE (red: brighter), clipped.
 GRID_LF_RANGE = 0.1
 GRID_LF_CMAP = "RdBu_r"
-#: One grid cell: an HxWx3 image in [0, 1] and the text drawn on it ("" for none).
-GridCell = tuple[np.ndarray, str]
 
 GRID_CAPTION = (  # ASCII: PIL's default font has no glyphs for sigma or the minus sign
     f"Per frame: row 1 inputs, maps, GT; row 2 |tone-mapped prediction - GT| x{GRID_ABS_GAIN:g} per channel (black 0, "
@@ -51,13 +49,13 @@ def _legend(shape: tuple[int, ...], ramp: np.ndarray) -> np.ndarray:
 
 def grid_rows(
     frame: dict[str, np.ndarray], maps: dict[str, np.ndarray], reference: np.ndarray, title: str
-) -> list[list[GridCell]]:
+) -> list[list[Cell]]:
     """The three grid rows of one frame: ``[DI, albedo, normal, models..., GT]``; then under DI and under each
     model its |error| image (:func:`abs_error_image`); then its low-frequency signed error (:func:`lf_colours`
     of :func:`gicore.metrics.lf_difference`'s channel mean) with the frame's lf_error written on it. Legends
     stand under albedo. ``maps``: tone-mapped, ``"di_only"`` (the DI input) and the models in column order;
     ``reference``: the tone-mapped GT."""
-    blank: GridCell = (np.ones_like(reference), "")
+    blank: Cell = (np.ones_like(reference), "")
     models = [n for n in maps if n != "di_only"]
     signed = {n: lf_difference(maps[n], reference) for n in maps}
     abs_cells = {n: (abs_error_image(maps[n], reference), "|error|") for n in maps}
@@ -77,43 +75,3 @@ def grid_rows(
         [abs_cells["di_only"], abs_legend, blank] + [abs_cells[n] for n in models] + [blank],
         [lf_cells["di_only"], lf_legend, blank] + [lf_cells[n] for n in models] + [blank],
     ]
-
-
-def save_grid(rows: list[list[GridCell]], labels: list[str], png: Path, caption: str = "") -> Path:
-    """Write the cells as one PNG: a header of column ``labels``, each cell's text on it, ``caption`` below."""
-    from PIL import Image, ImageDraw
-
-    sheet = np.concatenate([np.concatenate([img for img, _ in r], axis=1) for r in rows], axis=0)
-    header = 16
-    w = sheet.shape[1] // len(labels)
-    h = sheet.shape[0] // len(rows)
-    draw_probe = ImageDraw.Draw(Image.new("RGB", (1, 1)))
-    caption_lines = _wrap(caption, lambda t: draw_probe.textlength(t), sheet.shape[1] - 6) if caption else []
-    footer = 14 * len(caption_lines) + (4 if caption_lines else 0)
-    img = Image.new("RGB", (sheet.shape[1], sheet.shape[0] + header + footer), "white")
-    img.paste(Image.fromarray((np.clip(sheet, 0, 1) * 255).astype(np.uint8)), (0, header))
-    draw = ImageDraw.Draw(img)
-    for i, label in enumerate(labels):
-        draw.text((i * w + 3, 2), label, fill="black")
-    for r, row in enumerate(rows):
-        for c, (_, text) in enumerate(row):
-            if text:
-                x, y = c * w + 3, header + r * h + 3
-                draw.rectangle(draw.textbbox((x, y), text), fill="white")
-                draw.text((x, y), text, fill="black")
-    for k, line in enumerate(caption_lines):
-        draw.text((3, header + sheet.shape[0] + 2 + 14 * k), line, fill="black")
-    png.parent.mkdir(parents=True, exist_ok=True)  # with --datasets nothing else has made --out yet
-    img.save(png)
-    return png
-
-
-def _wrap(text: str, width_of, max_width: float) -> list[str]:
-    lines, line = [], ""
-    for word in text.split():
-        candidate = f"{line} {word}".strip()
-        if line and width_of(candidate) > max_width:
-            lines.append(line)
-            candidate = word
-        line = candidate
-    return [*lines, line] if line else lines

@@ -147,7 +147,7 @@ def measure_mitsuba_passes(cfg: RenderBenchConfig, res: Results) -> None:
 def _client_passes(renderer: Any, spec: SceneSpec, resolution: int, seed: int) -> dict[str, Callable[[], Any]]:
     """The clients' raster passes on ``renderer`` (GL or Mitsuba), each moving to the next frame's cameras
     and light on every call, as a client does."""
-    from gigan_local.warp import clip_xy
+    from gigan_local.warp import bind_coordinates
 
     n = 8
     local = camera_path(spec, n, seed=seed, fov=spec.camera.local_fov, resolution=resolution)
@@ -170,32 +170,20 @@ def _client_passes(renderer: Any, spec: SceneSpec, resolution: int, seed: int) -
 
         return render
 
-    project = getattr(renderer, "set_texcoord_projection", None)
-    if project is not None:  # GL: the vertex shader projects from the bound GI camera (as the warp binds it)
-        project(gi[0])
-    else:  # Mitsuba: per-vertex coordinates uploaded once per map (the warp's bind), not per frame
-        for obj in renderer.objects:
-            renderer.set_texcoords(obj.name, clip_xy(gi[0], obj.mesh.vertices))
+    bind_coordinates(renderer, gi[0])  # once per map, as the warp binds it, not per frame
     return {"gi_camera": gi_camera, "local_di": shown(None), "local_di_uv": shown("uv"), "local_di_mask": shown("mask")}
 
 
 def _lod_rows(res: Results, gl: Any, spec: SceneSpec, resolution: int, seed: int, config: dict[str, Any]) -> None:
     """For ``lod = auto``: the level each GI and local view of the timed path draws (:data:`LOD_VIEWS`: at the
     local views also the shown passes' level) and its G-buffer error against full detail at that view (mean and
-    max over the views)."""
-    from gicore.gl.lod import LOD_CHANNELS, lod_errors
+    max over the views: :meth:`gicore.gl.GLRenderer.level_error`)."""
+    from gicore.gl.lod import LOD_CHANNELS
 
     local = camera_path(spec, 8, seed=seed, fov=spec.camera.local_fov, resolution=resolution)
     gi = [c.with_fov(spec.camera.gi_fov) for c in local]
     for view, cams, shown in (("gi", gi, False), ("local", local, False), ("local_shown", local, True)):
-        levels, errors = [], []
-        for cam in cams:
-            gl.lod = level = gl.level_for(cam, shown=shown)
-            levels.append(level)
-            at_level = gl.render_gbuffers(cam)
-            gl.lod = 0
-            errors.append(lod_errors(at_level, gl.render_gbuffers(cam)))
-            gl.lod = "auto"
+        levels, errors = zip(*(gl.level_error(cam, shown) for cam in cams))
         for stat, fn in (("mean", np.mean), ("max", np.max)):
             add = partial(res.add, system="gl", scene=spec.name, unit="1", stat=stat, view=view, **config)
             add(metric="lod_level", value=float(fn(levels)))
@@ -236,12 +224,7 @@ def measure_client_passes(cfg: RenderBenchConfig, res: Results) -> None:
                     for mine, gpu, fns, (system, _, renderer) in zip(samples, gpu_samples, passes, renderers):
                         mine += time_repeats(fns[stage], 1, warmup=0)[0]
                         if system == "gl":  # a call of its own: reading the timer query waits for the GPU
-                            renderer.gpu_timing, renderer.draw_ms = True, None
-                            try:
-                                fns[stage]()
-                            finally:
-                                renderer.gpu_timing = False
-                            gpu.append(renderer.draw_ms / 1e3)
+                            gpu.append(renderer.gpu_draw_ms(fns[stage]) / 1e3)
                 for (system, extra, _), mine, gpu in zip(renderers, samples, gpu_samples):
                     timing = partial(res.add_timing, system=system, scene=spec.name, resolution=resolution,
                                      pass_set="client", **extra)  # fmt: skip

@@ -10,13 +10,14 @@ outside the ``--ignore`` folders; the newest run's when there are several, :func
 and the ``<bench>.provenance.json`` beside it, and shows the parts the bench declares for the dashboard,
 drawn from those rows alone (:mod:`gicore.present.html`: tables as HTML, figures as the SVG matplotlib draws,
 each mark with its tooltip). Each section names its provenance: command, git SHA, machine, date. This module
-only lays out the page; what a section holds is its bench's.
+only picks and orders the sections; the page's HTML is :mod:`gicore.present.html`'s, what a section holds is
+its bench's.
 
 A section whose CSV is missing, or malformed (wrong columns, unparsable values, or rows its bench never
 writes), says so and names the file; the others still render. The page is one self-contained file
-(``report.html``: style sheet and script from ``bench/report_assets`` inlined, no network access), so it
-opens offline. The run's own CSV (``report.csv``) has one row per section: the rows read, and the
-section's status (``ok`` / ``missing`` / ``malformed``) as ``stat``.
+(``report.html``, :func:`gicore.present.html.page`: no network access), so it opens offline. The run's own CSV
+(``report.csv``) has one row per section: the rows read, and the section's status (``ok`` / ``missing`` /
+``malformed``) as ``stat``.
 
 From the same CSVs it also writes ``results.md``, the README's results section (:mod:`bench.report_md`),
 and with ``--readme FILE`` puts that between the file's ``<!-- results:begin -->`` and
@@ -25,12 +26,10 @@ and with ``--readme FILE`` puts that between the file's ``<!-- results:begin -->
 
 from __future__ import annotations
 
-import html
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 from bench import registry
 from bench.report_md import check_readme, results_markdown, update_readme
@@ -38,10 +37,8 @@ from bench.runner import Bench, External, Section, attempt, need
 from gicore.error_policy import UserError
 from gicore.fileio import atomic_write_bytes
 from gicore.present.declarations import Rows, shown
-from gicore.present.html import parts_html
-from gicore.results import Results, provenance_fields
-
-ASSETS = Path(__file__).parent / "report_assets"
+from gicore.present.html import PageSection, e, page, parts_html, provenance_html
+from gicore.results import Results
 
 
 @dataclass(frozen=True)
@@ -93,28 +90,6 @@ def drawing(bench: Bench | External) -> Callable[[Rows, Path], str]:
     return draw
 
 
-# -- HTML of a section's parts -------------------------------------------------------------------------------
-def _e(text: Any) -> str:
-    return html.escape(str(text), quote=True)
-
-
-def provenance_html(csv_path: Path, results: Path) -> str:
-    prov = provenance_fields(csv_path)
-    shown = _e(csv_path.relative_to(results))
-    if prov is None:
-        missing = f"missing ({_e(csv_path.stem)}.provenance.json)"
-        return f'<dl class="prov"><dt>file</dt><dd><code>{shown}</code></dd><dt>provenance</dt><dd>{missing}</dd></dl>'
-    items = [
-        ("file", f"<code>{shown}</code>"),
-        ("command", f"<code>{_e(prov['command'])}</code>"),
-        ("git", f"<code>{_e(prov['git'])}</code>"),
-        ("machine", _e(prov["machine"])),
-        ("date", _e(prov["date"])),
-        ("run", f"<code>{_e(prov['run'])}</code>, seed {_e(prov['seed'])}"),
-    ]
-    return '<dl class="prov">' + "".join(f"<dt>{k}</dt><dd>{v}</dd>" for k, v in items) + "</dl>"
-
-
 # -- the page --------------------------------------------------------------------------------------------------
 @dataclass
 class Rendered:
@@ -135,46 +110,31 @@ def render(shown_bench: Bench | External, section: Section, results: Path, ignor
     bench = shown_bench.name
     a = attempt(bench, results, drawing(shown_bench), ignore)
     if a.path is None:
-        todo = f"run <code>bench {bench} --out {_e(results)}</code> (or into a folder under it)"
-        return Rendered(
-            bench, section, "missing", f'<p class="problem">{_e(a.problem)}; {todo}.</p>', problem=a.problem
-        )
+        todo = f"run <code>bench {bench} --out {e(results)}</code> (or into a folder under it)"
+        return Rendered(bench, section, "missing", f'<p class="problem">{e(a.problem)}; {todo}.</p>', problem=a.problem)
     prov = provenance_html(a.path, results)
     if a.status != "ok":
-        problem = f'<p class="problem">{_e(a.problem)}</p>'
+        problem = f'<p class="problem">{e(a.problem)}</p>'
         return Rendered(bench, section, a.status, prov + problem, a.rel, problem=a.problem, others=a.others)
-    note = f"<p>Newest of {len(a.others) + 1} runs; older: {_e(', '.join(a.others))}.</p>" if a.others else ""
+    note = f"<p>Newest of {len(a.others) + 1} runs; older: {e(', '.join(a.others))}.</p>" if a.others else ""
     return Rendered(bench, section, "ok", prov + note + a.parts, a.rel, a.rows, others=a.others)
 
 
-def page(parts: list[Rendered], results: Path) -> str:
-    css = (ASSETS / "report.css").read_text()
-    js = (ASSETS / "report.js").read_text()
-    nav = "".join(
-        f'<a class="{p.status}" href="#{p.section.key}">{_e(p.section.title.split(":")[0])}: {p.status}</a>'
-        for p in parts
-    )
-    sections = "".join(
-        f'<section id="{p.section.key}" data-status="{p.status}" data-bench="{p.bench}">'
-        f"<h2>{_e(p.section.title)}</h2>{p.body}</section>"
-        for p in parts
-    )
+def dashboard(parts: list[Rendered], results: Path) -> str:
+    """The page of the sections ``parts``, built now from the CSV files under ``results``."""
     made = time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime())
-    return (
-        '<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8">'
-        '<meta name="viewport" content="width=device-width, initial-scale=1">'
-        f"<title>GIGAN testbed results</title><style>{css}</style></head><body>"
-        f"<header><h1>GIGAN testbed: results dashboard</h1><p>Built {made} from the CSV files under "
-        f"<code>{_e(results)}</code> (bench report). Hover a chart mark for its values; Pareto points show their "
-        "full config.</p></header>"
-        f'<nav>{nav}</nav><main>{sections}</main><div id="tip" hidden></div><script>{js}</script></body></html>\n'
+    header = (
+        f"<h1>GIGAN testbed: results dashboard</h1><p>Built {made} from the CSV files under <code>{e(results)}</code> "
+        "(bench report). Hover a chart mark for its values; Pareto points show their full config.</p>"
     )
+    shown = [PageSection(p.section.key, p.section.title, p.status, p.bench, p.body) for p in parts]
+    return page(shown, "GIGAN testbed results", header)
 
 
 def measure(cfg: ReportConfig, res: Results) -> None:
     results = cfg.results.resolve()
     parts = [render(bench, section, results, cfg.ignore) for bench, section in sections()]
-    atomic_write_bytes(res.output("report.html"), page(parts, results).encode())
+    atomic_write_bytes(res.output("report.html"), dashboard(parts, results).encode())
     text = results_markdown(cfg.results, cfg.ignore, cfg.figures, cfg.readme)
     atomic_write_bytes(res.output("results.md"), text.encode())
     if cfg.readme is not None:

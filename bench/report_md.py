@@ -18,7 +18,6 @@ is its bench's.
 
 from __future__ import annotations
 
-import os
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -27,10 +26,8 @@ from bench import registry
 from bench.runner import Attempt, Bench, Block, External, attempt, need
 from gicore.error_policy import UserError
 from gicore.fileio import atomic_write_bytes
-from gicore.present import charts
-from gicore.present.declarations import Figure, Image, Part, Rows, shown
-from gicore.present.markdown import tables_text
-from gicore.results import provenance_fields
+from gicore.present.declarations import Rows, shown
+from gicore.present.markdown import figure_links, provenance_line, tables_text
 
 BEGIN, END = "<!-- results:begin -->", "<!-- results:end -->"
 
@@ -47,7 +44,7 @@ def shown_blocks() -> list[tuple[Bench | External, Block]]:
 
 def writing(bench: Bench | External, figures: Path | None, page: Path | None) -> Callable[[Rows, Path], list[str]]:
     """How a block's Markdown is made from its CSV's rows and folder: the bench's README tables, and with
-    ``figures`` its figures' links (:func:`figure_links`)."""
+    ``figures`` its figures' links (:func:`gicore.present.markdown.figure_links`)."""
 
     def write(rows: Rows, folder: Path) -> list[str]:
         need(rows, *bench.needs)
@@ -64,28 +61,11 @@ def make_command(bench: str, block: Block, results: Path) -> str:
 
 
 def command_line(a: Attempt) -> str:
-    """Where a block's numbers come from: the command, date and machine of its CSV. The git SHA stays in the
-    provenance JSON beside the CSV (and on the dashboard): this text is committed, a SHA in it would go stale."""
+    """Where a block's numbers come from (:func:`gicore.present.markdown.provenance_line`): its CSV, and how many
+    runs it is the newest of."""
     assert a.path is not None
     where = f"`{a.rel}`" + (f", the newest of {len(a.others) + 1} runs" if a.others else "")
-    prov = provenance_fields(a.path)
-    if prov is None:
-        return f"Command: unknown (no {a.path.stem}.provenance.json beside {where})."
-    return f"Command: `{prov['command']}` ({prov['date']}, {prov['machine']}; {where})."
-
-
-def figure_links(name: str, parts: list[Part], rows: Rows, folder: Path, figures: Path, page: Path) -> str:
-    """Each figure of ``parts`` drawn from ``rows`` (and each picture the bench wrote into ``folder``) as a PNG in
-    ``figures/<name>/``, linked as a Markdown image relative to ``page``, the file the text goes into."""
-    links = []
-    for part in parts:
-        if isinstance(part, Figure) and charts.render(part, rows, figures / name / f"{part.name}.png"):
-            links.append(figures / name / f"{part.name}.png")
-        elif isinstance(part, Image) and (folder / part.file).is_file():
-            links.append(figures / name / part.file)
-            links[-1].parent.mkdir(parents=True, exist_ok=True)
-            atomic_write_bytes(links[-1], (folder / part.file).read_bytes())
-    return "\n".join(f"![{t.stem}]({Path(os.path.relpath(t, page.parent)).as_posix()})" for t in links)
+    return provenance_line(a.path, where)
 
 
 def _shown(results: Path) -> Path:

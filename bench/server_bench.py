@@ -5,18 +5,15 @@ from __future__ import annotations
 
 import shutil
 import tempfile
-import threading
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 
-from baseline_cloudbaking.codecs import CODEC_NAMES, DEFAULT_CODEC
-from baseline_cloudbaking.protocol import unpack
+from baseline_cloudbaking.codecs import DEFAULT_CODEC, CodecName
 from bench.common import Target
 from bench.processes import pinned_server, scene_folder
 from bench.runner import Bench, Block
@@ -25,7 +22,6 @@ from gicore.cores import client_cores, pinning
 from gicore.present.declarations import Chart, Column, Derive, Figure, Rows, Table, Text, first, matches
 from gicore.results import Results
 
-CodecName = Literal[CODEC_NAMES]  # type: ignore[valid-type]
 SYSTEM = "cloud_baking"
 STATS = ("median", "p95", "p99")
 
@@ -74,70 +70,6 @@ class ServiceConfig:
         return cls(spp=16, sequential=50, per_client=20)
 
 
-def view_bodies(cfg: ServiceConfig, seed: int) -> list[bytes]:
-    """Request bodies of ``cfg.views`` GI cameras spread along the scene's fly-through (light at rest), as the
-    cloud client sends them."""
-    from baseline_cloudbaking.client import RemoteConfig
-    from gicore.paths import camera_path, light_position
-    from gicore.scene import load_scene
-
-    spec = load_scene(cfg.scenes[0])
-    cams = camera_path(spec, cfg.views, seed=seed, fov=spec.camera.gi_fov, resolution=cfg.resolution)
-    remote = RemoteConfig("", Path(cfg.scenes[0]).stem, cfg.resolution, cfg.codec, cfg.spp, False, False)
-    return [remote.body(c, light_position(spec, 0)) for c in cams]
-
-
-def _client(url: str, cfg: ServiceConfig):
-    import httpx
-
-    return httpx.Client(base_url=url, timeout=httpx.Timeout(cfg.read_timeout_s, connect=10.0))
-
-
-def timed_post(client, body: bytes) -> tuple[float, dict[str, Any]]:
-    """Round trip of one GI-map request (seconds, request sent to last byte read) and the payload header;
-    raises RuntimeError on a non-200 answer."""
-    t0 = time.perf_counter()
-    r = client.post("/v1/gimap", content=body, headers={"content-type": "application/json"})
-    elapsed = time.perf_counter() - t0
-    if r.status_code != 200:
-        raise RuntimeError(f"POST /v1/gimap answered {r.status_code}: {r.text[:500]}")
-    return elapsed, unpack(r.content)[0]
-
-
-def run_load(url: str, cfg: ServiceConfig, bodies: list[bytes]) -> tuple[list[float], int, float, list[str]]:
-    """``cfg.concurrency`` threads × ``cfg.per_client`` hit requests: latencies (s) of the good ones, the
-    error count, the wall time (s) from the common start to the last answer, and the first errors."""
-    start = threading.Barrier(cfg.concurrency + 1)
-    latencies: list[list[float]] = [[] for _ in range(cfg.concurrency)]
-    errors: list[list[str]] = [[] for _ in range(cfg.concurrency)]
-
-    def worker(i: int) -> None:
-        with _client(url, cfg) as client:
-            client.get("/health")  # open the keep-alive connection before the clock starts
-            start.wait()
-            for j in range(cfg.per_client):
-                try:
-                    seconds, header = timed_post(client, bodies[(i + j) % len(bodies)])
-                except Exception as exc:  # noqa: BLE001 - any failure of a request is a counted error
-                    errors[i].append(f"{type(exc).__name__}: {exc}"[:300])
-                    continue
-                if header.get("hit") is not True:
-                    errors[i].append("not a hit")
-                else:
-                    latencies[i].append(seconds)
-
-    threads = [threading.Thread(target=worker, args=(i,), daemon=True) for i in range(cfg.concurrency)]
-    for t in threads:
-        t.start()
-    start.wait(timeout=60.0)
-    t0 = time.perf_counter()
-    for t in threads:
-        t.join()
-    wall = time.perf_counter() - t0
-    flat_errors = [e for errs in errors for e in errs]
-    return [s for lat in latencies for s in lat], len(flat_errors), wall, flat_errors[:5]
-
-
 def _summary(add: Callable[..., None], metric: str, samples_ms: list[float], **config: Any) -> None:
     """Median, p95, p99, n and each sample of ``samples_ms``."""
     ms = np.asarray(samples_ms, dtype=np.float64)
@@ -149,9 +81,11 @@ def _summary(add: Callable[..., None], metric: str, samples_ms: list[float], **c
 
 
 def measure(cfg: ServiceConfig, res: Results) -> None:
+    from baseline_cloudbaking.server.loadtest import http_client, path_requests, run_closed_loop, timed_post
+
     scene_arg = cfg.scenes[0]
     scene, scenes_dir = Path(scene_arg).stem, scene_folder(scene_arg)
-    bodies = view_bodies(cfg, res.seed)
+    bodies = path_requests(scene_arg, cfg.views, cfg.resolution, cfg.codec, cfg.spp, res.seed)
     plan = pinning(cfg.pin)
     res.settings["pinning"] = plan
     common = {"resolution": cfg.resolution, "codec": cfg.codec, "spp": cfg.spp}
@@ -159,7 +93,11 @@ def measure(cfg: ServiceConfig, res: Results) -> None:
     res.out.mkdir(parents=True, exist_ok=True)
     work = Path(tempfile.mkdtemp(prefix="service_store_", dir=res.out))
     try:
-        with pinned_server(plan, work / "store", scenes_dir) as url, client_cores(plan), _client(url, cfg) as client:
+        with (
+            pinned_server(plan, work / "store", scenes_dir) as url,
+            client_cores(plan),
+            http_client(url, cfg.read_timeout_s) as client,
+        ):
             misses: list[tuple[float, dict[str, float]]] = []
             for body in bodies:
                 seconds, header = timed_post(client, body)
@@ -186,7 +124,9 @@ def measure(cfg: ServiceConfig, res: Results) -> None:
             _summary(add, "hit_server", total, part="total", **seq)
             _summary(add, "hit_e2e", e2e, **seq)
 
-            latencies, n_errors, wall, first_errors = run_load(url, cfg, bodies)
+            latencies, n_errors, wall, first_errors = run_closed_loop(
+                url, bodies, cfg.concurrency, cfg.per_client, cfg.read_timeout_s
+            )
     finally:
         shutil.rmtree(work, ignore_errors=True)
     load = common | {"clients": cfg.concurrency, "per_client": cfg.per_client, "views": len(bodies)}

@@ -14,12 +14,12 @@ import numpy as np
 from baseline_cloudbaking.bake import BakedMap, PathFrame, bake_map, fly_through, gi_camera, map_header
 from baseline_cloudbaking.codecs import DEPTH_CODEC, get_codec
 from baseline_cloudbaking.codecs import measure as measure_codec
-from baseline_cloudbaking.growth import entry_frames
+from baseline_cloudbaking.growth import entry_frames, spread_picks
 from baseline_cloudbaking.protocol import pack
-from baseline_cloudbaking.viewpoints import Tolerance, Viewpoint, ViewSet, simulate_fill
+from baseline_cloudbaking.viewpoints import CellViews, Tolerance, Viewpoint, simulate_fill
 from bench.runner import Bench, Block, Section
 from bench.storage_config import COMPOSITIONS, StorageConfig
-from bench.storage_growth import SYSTEM, add_entry_bytes, measure_growth, paper_accounting, spread_picks
+from bench.storage_growth import SYSTEM, add_entry_bytes, measure_growth, paper_accounting
 from bench.storage_tables import PARTS
 from gicore.error_policy import writable_dir
 from gicore.metrics import ssim
@@ -184,17 +184,10 @@ def _tolerance_knob(
         tol = Tolerance(position, angle)
         served = simulate_fill([f.view for f in frames], [f.cell for f in frames], tol)
         entries = entry_frames(served)
-        sets: dict = defaultdict(lambda: (ViewSet(), []))
+        stored = CellViews()  # the first pass's maps, each serving the second pass by the tree's rule
         for j in entries:
-            views, ids = sets[frames[j].cell]
-            views.add(frames[j].view)
-            ids.append(j)
-        hits = []
-        for i, f in enumerate(second):
-            views, ids = sets[f.cell]
-            found = views.nearest(f.view, tol)
-            if found is not None:
-                hits.append((i, ids[found[0]]))
+            stored.add(frames[j].view, frames[j].cell, j)
+        hits = [(i, j) for i, f in enumerate(second) if (j := stored.find(f.view, f.cell, tol)) is not None]
         row = {
             "knob_position": position,
             "knob_angle_deg": angle,

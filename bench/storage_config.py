@@ -6,9 +6,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
 
-from baseline_cloudbaking.codecs import CODEC_NAMES
+from baseline_cloudbaking.codecs import CODEC_NAMES, CodecName
 from baseline_cloudbaking.store import DEFAULT_LIGHT_CELL
 from baseline_cloudbaking.viewpoints import Tolerance
 from gicore import option_groups
@@ -18,7 +17,6 @@ from gicore.path_file import read_sessions
 from gicore.scene import builtin_scenes, load_scene
 from gigan_local.inference import DEFAULT_MODEL
 
-CodecName = Literal[CODEC_NAMES]  # type: ignore[valid-type]
 COMPOSITIONS = {"blend": ("gi", "depth"), "residual": ("gi", "di", "depth")}
 #: The paper's Table 2 (GB): GI tree per scene after its fly-through, and the one model for every scene.
 PAPER_TABLE2_GB = {"lung": 1.15, "digestive": 2.38, "vessels": 3.36, "model": 0.2}

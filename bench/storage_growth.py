@@ -6,7 +6,6 @@ the tree; and the paper's accounting along the fly-through, decomposed."""
 from __future__ import annotations
 
 import json
-from collections import defaultdict
 from collections.abc import Callable, Sequence
 from dataclasses import replace
 from functools import partial
@@ -15,34 +14,26 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from baseline_cloudbaking.bake import BakedMap, PathFrame, bake_map, gi_camera, map_header
-from baseline_cloudbaking.codecs import DEPTH_CODEC, get_codec
+from baseline_cloudbaking.bake import PathFrame
 from baseline_cloudbaking.growth import (
     SessionFill,
     capacity,
+    entry_bytes,
     fill_sessions,
     first_session_over,
     saturation_session,
     session_frames,
 )
-from baseline_cloudbaking.protocol import pack
 from baseline_cloudbaking.viewpoints import simulate_fill
 from bench.storage_config import PAPER_TABLE2_GB, PAPER_TOLERANCE, RAW_CODEC, StorageConfig
 from gicore.camera import Camera
 from gicore.path_file import PathFile, read_sessions
-from gicore.paths import Light, frame_seed
-from gicore.render_cache import RenderCache
+from gicore.paths import Light
 from gicore.results import Results
 from gicore.scene import SceneSpec, load_scene
 from gicore.sessions import plan_sessions
-from gicore.tonemap import tonemap
 
 SYSTEM = "cloud_baking"
-
-
-def spread_picks(n: int, want: int) -> list[int]:
-    """Up to ``want`` indices of ``range(n)`` spread evenly, the first and the last included."""
-    return sorted({int(round(k)) for k in np.linspace(0, n - 1, min(want, n))})
 
 
 def add_entry_bytes(add: Callable[..., None], metric: str, values: Sequence[float], **row: Any) -> tuple[int, float]:
@@ -54,48 +45,16 @@ def add_entry_bytes(add: Callable[..., None], metric: str, values: Sequence[floa
     return len(v), std
 
 
-def _cached_bake(cfg: StorageConfig, renderer, spec: SceneSpec, camera: Camera, light: Light, seed: int) -> BakedMap:
-    """A GI map (GI + texel depth, no DI) from ``cfg.map_cache``, baked and stored there on a miss."""
-
-    def bake() -> dict[str, np.ndarray]:
-        baked = bake_map(renderer, camera, light, cfg.spp, seed, di=False)
-        times = np.array([baked.render_ms, baked.denoise_ms])
-        return {"gi": baked.gi, "depth": baked.depth, "times_ms": times}
-
-    key = ("gi_map", camera, list(light), cfg.spp, seed, renderer.resolution)
-    entry = RenderCache(cfg.map_cache, spec).fetch(key, bake)
-    return BakedMap(camera, entry["gi"], None, entry["depth"], *map(float, entry["times_ms"]))
-
-
 def _growth_entry_bytes(
     cfg: StorageConfig, spec: SceneSpec, name: str, creators: list[tuple[Camera, Light]], seed: int
 ) -> dict[tuple[int, str], list[int]]:
-    """Bytes per entry, measured on ``growth_samples`` maps baked at entries spread over the session tree
-    (by insertion order, so over the sessions): the stored payload (GI + depth, blend) per codec, and the
-    GI map as uncompressed RGB8 (the paper's accounting), per resolution."""
-    from gicore.render import Renderer
-
-    picks = spread_picks(len(creators), cfg.growth_samples)
-    sizes: dict[tuple[int, str], list[int]] = defaultdict(list)
-    for resolution in cfg.resolutions:
-        renderer = Renderer(spec, resolution)
-        for i in picks:
-            cam, light = creators[i]
-            camera = gi_camera(spec, cam.origin, cam.target, cam.up, cam.fov, resolution)
-            baked = _cached_bake(cfg, renderer, spec, camera, light, frame_seed(seed, f"growth/{name}", i))
-            sizes[(resolution, RAW_CODEC)].append(len(rgb8(baked.gi).tobytes()))
-            depth = DEPTH_CODEC.encode(baked.depth)
-            for codec_name in cfg.codecs:
-                header = map_header(baked, name, codec_name, cfg.spp, light if spec.light.moves else None, 0.0)
-                sizes[(resolution, codec_name)].append(
-                    len(pack(header, {"gi": get_codec(codec_name).encode(baked.gi), "depth": depth}))
-                )
-    return sizes
-
-
-def rgb8(gi: np.ndarray) -> np.ndarray:
-    """A GI map as the paper stores it: tone-mapped, 8 bits per channel, uncompressed (HxWx3 uint8)."""
-    return np.round(np.clip(tonemap(gi), 0.0, 1.0) * 255.0).astype(np.uint8)
+    """Bytes per entry of the growth law (:func:`baseline_cloudbaking.growth.entry_bytes`) per (resolution, codec),
+    the uncompressed RGB8 maps' under :data:`RAW_CODEC`."""
+    sizes = entry_bytes(
+        spec, name, creators, cfg.resolutions, cfg.codecs, spp=cfg.spp, samples=cfg.growth_samples,
+        cache=cfg.map_cache, seed=seed,
+    )  # fmt: skip
+    return {(resolution, codec or RAW_CODEC): values for (resolution, codec), values in sizes.items()}
 
 
 def _growth_sessions_grid(n: int) -> list[int]:

@@ -18,13 +18,13 @@ import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from bench.common import train_small
 from bench.runner import Bench
 from gicore import option_groups
 from gicore.error_policy import UserError
 from gicore.present.declarations import Chart, Figure, Rows, matches, pick, unique
 from gicore.results import Results
 from gigan_local.model_card import training_minutes
+from gigan_local.train_small import train_small
 
 
 @dataclass(frozen=True)
@@ -59,7 +59,7 @@ class TrainingBenchConfig:
 
 def measure(cfg: TrainingBenchConfig, res: Results) -> None:
     runs = list(cfg.runs) + (
-        train_small(cfg.scenes, cfg.widths, cfg.train_steps, res) if cfg.train_steps is not None else []
+        train_small(cfg.scenes, cfg.widths, cfg.train_steps, res.out, res.seed) if cfg.train_steps is not None else []
     )
     for run_dir in runs:
         config = json.loads((run_dir / "config.json").read_text())["train"]

@@ -4,7 +4,6 @@ structure-aware (GIGAN, Alg. 1) 3D image warping, side by side in one run (docs/
 from __future__ import annotations
 
 import time
-import tracemalloc
 from collections import defaultdict
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -24,6 +23,7 @@ from gicore.present.declarations import Chart, Column, Figure, Rows, Table, wide
 from gicore.results import Results
 from gicore.run_config import CLIENT_LOD, RENDERERS, open_raster
 from gicore.scene import SceneSpec, load_scene
+from gicore.timing import peak_mib
 from gicore.tonemap import tonemap
 
 if TYPE_CHECKING:
@@ -62,34 +62,6 @@ class WarpBenchConfig:
     @classmethod
     def quick(cls) -> WarpBenchConfig:
         return cls(gi_frames=(0,), offsets=(1, 10, 20, 29), spp=16, repeats=5)
-
-
-def _peak_mib(fn: Callable[[], object]) -> float:
-    """Peak traced allocation (MiB) above the level before one call of ``fn``."""
-    tracemalloc.start()
-    base = tracemalloc.get_traced_memory()[0]
-    fn()
-    peak = tracemalloc.get_traced_memory()[1]
-    tracemalloc.stop()
-    return (peak - base) / 2**20
-
-
-def uv_errors(renderer, warper, gi_cam: Camera, local: Camera) -> dict[str, np.ndarray]:
-    """|interpolated - per-pixel projected| GI-map coordinates (px) on pixels in front of the GI camera
-    and inside its map, for homogeneous clip coordinates (the bound state) and per-vertex eq. 5 uv."""
-    uv_pass = renderer.render_uv(local)
-    coords, _ = warper.texel_coords(uv_pass)
-    ref, w = gi_cam.project_pixels(uv_pass["position"].astype(np.float64))
-    inside = uv_pass["textured"] & (w > gi_cam.near) & np.all((ref >= 0) & (ref <= gi_cam.width), axis=-1)
-    out = {"homogeneous clip (ours)": np.abs(coords - ref)[inside].max(axis=-1)}
-    for obj in renderer.objects:  # eq. 5 per vertex, interpolated as is (undefined where w <= 0)
-        uv, _ = gi_cam.project_uv(obj.mesh.vertices)
-        renderer.set_texcoords(obj.name, uv)
-    naive = renderer.render_uv(local)["uv"].astype(np.float64)
-    naive_px = np.stack([naive[..., 0] * gi_cam.width, (1.0 - naive[..., 1]) * gi_cam.height], axis=-1)
-    out["per-vertex uv (eq. 5)"] = np.abs(naive_px - ref)[inside].max(axis=-1)
-    warper.bind_texture(warper.texture)  # restore the homogeneous coordinates
-    return out
 
 
 def open_local_raster(cfg: WarpBenchConfig, spec: SceneSpec, renderer: Renderer) -> tuple[Any, str]:
@@ -189,7 +161,7 @@ def _measure_gi_frame(cfg: WarpBenchConfig, scene: _Scene, g: int, tally: _Tally
     for offset in cfg.offsets:
         _measure_offset(cfg, scene, g, offset, light, cloud, tally, res)
     last = scene.cams[(g + cfg.offsets[-1]) % cfg.orbit_frames]
-    for method, errors in uv_errors(scene.raster, scene.warper, gi.camera, last).items():
+    for method, errors in scene.warper.coordinate_errors(last).items():
         tally.uv_err[method].append(errors)
 
 
@@ -302,7 +274,7 @@ def _score_methods(
 
     gt = tonemap(render_gt(scene.renderer, cam, light, cfg.spp, scene.seed + 7919 * frame + 1, cfg.denoise))
     for m, fn in methods.items():
-        tally.peaks[m].append(_peak_mib(fn))
+        tally.peaks[m].append(peak_mib(fn))
         gi_w, valid, _ = fn()
         tally.quality[f"{m}/ssim"].append(ssim(tonemap(gi_w), gt))
         tally.quality[f"{m}/valid"].append(float(valid[mask].mean()) if mask.any() else 1.0)

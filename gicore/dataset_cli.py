@@ -193,6 +193,23 @@ def render_inputs(renderer: FrameRenderer, meta: DatasetMeta, record: FrameRecor
     return as_stored(out)
 
 
+def inputs_renderer(meta: DatasetMeta, root: Path, renderer: str, gl_lod: str, option: str) -> FrameRenderer | None:
+    """What gives the inputs of the dataset in ``root`` (``meta``) as ``renderer`` draws them (gl at ``gl_lod``):
+    None where its stored inputs already are those, else the :class:`FrameRenderer` for :func:`render_inputs`.
+    A dataset whose scene spec does not load is a UserError whose fix leaves ``renderer`` out of ``option``."""
+    if renderer == meta.renderer and (renderer == "mitsuba" or meta.lod == gl_lod):
+        return None
+    try:
+        spec = SceneSpec.from_dict(meta.scene)
+    except (OSError, ValueError) as err:
+        raise UserError(
+            f"{root} holds {meta.renderer} inputs and its scene spec does not load to render {renderer}'s"
+            f" ({' '.join(str(err).split())})",
+            f"leave {renderer} out of {option} for it",
+        ) from None
+    return FrameRenderer(spec, meta.resolution, renderer, gl_lod)
+
+
 def resolve_renderer(cfg: DatasetConfig) -> DatasetConfig:
     """``cfg`` with the renderer that will run: renderer gl without a GL context falls back to mitsuba after one
     warning line (as the clients do), so the dataset records what rendered it."""

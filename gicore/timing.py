@@ -1,8 +1,10 @@
-"""Timing conventions shared by every bench: warm-up runs, then repeats; report median and p95."""
+"""Timing conventions shared by every bench: warm-up runs, then repeats; report median and p95. Also a call's
+peak memory."""
 
 from __future__ import annotations
 
 import time
+import tracemalloc
 from collections.abc import Callable
 from typing import Any
 
@@ -27,6 +29,17 @@ def time_repeats(fn: Callable[[], Any], repeats: int = 5, warmup: int = 1) -> tu
 def summarize_ms(samples_s: list[float]) -> dict[str, float]:
     ms = np.asarray(samples_s, dtype=np.float64) * 1e3
     return {"median": float(np.median(ms)), "p95": float(np.percentile(ms, 95)), "n": float(len(ms))}
+
+
+def peak_mib(fn: Callable[[], object]) -> float:
+    """Peak traced allocation (MiB, :mod:`tracemalloc`: numpy's included) above the level before one call of
+    ``fn``."""
+    tracemalloc.start()
+    base = tracemalloc.get_traced_memory()[0]
+    fn()
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    return (peak - base) / 2**20
 
 
 class Stopwatch:

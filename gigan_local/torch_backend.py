@@ -17,6 +17,7 @@ onnxruntime on the same file to float rounding.
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -36,20 +37,7 @@ class TorchGIModel(ExportedGenerator):
         import onnx
         import torch
 
-        from gigan_local.config import NetworkConfig
-        from gigan_local.networks import define_G
-        from gigan_local.warmstart import load_into
-
-        try:
-            network = NetworkConfig.from_dict(self.config["network"])
-        except (KeyError, TypeError, ValueError) as e:
-            raise UserError(
-                f"{self.path.parent / MODEL_JSON} has no generator architecture ({type(e).__name__}: {e}), which the "
-                "torch backend builds",
-                "run it with --inference onnxruntime, or re-export it with gigan-export",
-            ) from None
-        net = define_G(network)
-        load_into(net, self.path, network, self.spec, calibration=None)
+        net = torch_generator(self.path, self.config)
         graph_input = onnx.load(str(self.path)).graph.input[0]
         check_input_shape(self, [d.dim_value or d.dim_param for d in graph_input.type.tensor_type.shape.dim][1:], shape)
         if torch.cuda.is_available():
@@ -58,7 +46,7 @@ class TorchGIModel(ExportedGenerator):
         else:
             self.device, self.dtype = torch.device("cpu"), torch.float32
             torch.set_num_threads(threads)
-        self.net = net.eval().to(self.device, self.dtype)
+        self.net = net.to(self.device, self.dtype)
         name = torch.cuda.get_device_name(self.device) if self.device.type == "cuda" else "cpu"
         self.backend = f"torch {self.device.type} {str(self.dtype).removeprefix('torch.')} ({name})"
         self._captured: CapturedForward | None = None
@@ -114,6 +102,27 @@ class TorchGIModel(ExportedGenerator):
             x_device = host.to(self.device, non_blocking=True).to(self.dtype)
             # .cpu() waits for the device, so the time of the whole call is what the network took
             return self.net(x_device)[0].float().cpu().numpy()
+
+
+def torch_generator(path: Path, config: dict[str, Any]) -> Any:
+    """The torch generator that ``model.json`` ``config`` describes, with the weights of the exported file
+    ``path`` (:func:`gigan_local.warmstart.load_into`), float32 on the CPU in eval mode; a UserError naming the
+    file where ``config`` has no architecture."""
+    from gigan_local.config import NetworkConfig
+    from gigan_local.networks import define_G
+    from gigan_local.warmstart import load_into
+
+    try:
+        network = NetworkConfig.from_dict(config["network"])
+    except (KeyError, TypeError, ValueError) as e:
+        raise UserError(
+            f"{path.parent / MODEL_JSON} has no generator architecture ({type(e).__name__}: {e}), which the torch "
+            "backend builds",
+            "run it with --inference onnxruntime, or re-export it with gigan-export",
+        ) from None
+    net = define_G(network)
+    load_into(net, path, network, InputSpec.from_dict(config["input"]), calibration=None)
+    return net.eval()
 
 
 def encode_frame(raw: dict[str, Any], spec: InputSpec) -> Any:

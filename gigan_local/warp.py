@@ -43,6 +43,18 @@ def clip_xy(camera: Camera, points: np.ndarray) -> np.ndarray:
     return np.asarray(points, dtype=np.float64) @ vp[:, :3].T + vp[:, 3]
 
 
+def bind_coordinates(renderer: Renderer, camera: Camera) -> None:
+    """Eq. 5 per vertex: every object's ``camera`` clip (x, y) as its texture coordinates. A renderer that
+    projects them in its vertex shader (:meth:`gicore.gl.GLRenderer.set_texcoord_projection`, as WebGL would) is
+    given the camera; on the others (Mitsuba) they are computed here and uploaded."""
+    project = getattr(renderer, "set_texcoord_projection", None)
+    if project is not None:
+        project(camera)
+    else:
+        for obj in renderer.objects:
+            renderer.set_texcoords(obj.name, clip_xy(camera, obj.mesh.vertices))
+
+
 def depth_slack(depth: np.ndarray) -> np.ndarray:
     """Per-texel depth change to the next texel, summed over x and y (HxW), the smaller side of each.
 
@@ -187,15 +199,8 @@ class StructureAwareWarp:
         return sw.ms
 
     def bind_texture(self, texture: GITexture) -> None:
-        """Eq. 5 per vertex: every object's GI-camera clip (x, y) as its texture coordinates. A renderer that
-        projects them in its vertex shader (:meth:`gicore.gl.GLRenderer.set_texcoord_projection`, as WebGL
-        would) is given the GI camera; on the others (Mitsuba) they are computed here and uploaded."""
-        project = getattr(self.renderer, "set_texcoord_projection", None)
-        if project is not None:
-            project(texture.camera)
-        else:
-            for obj in self.renderer.objects:
-                self.renderer.set_texcoords(obj.name, clip_xy(texture.camera, obj.mesh.vertices))
+        """``texture`` as the bound map, its GI camera's coordinates bound per vertex (:func:`bind_coordinates`)."""
+        bind_coordinates(self.renderer, texture.camera)
         self.texture = texture
         self._w_row = texture.camera.view_proj()[3].astype(np.float32)  # clip w = this row . (p, 1)
 
@@ -218,6 +223,25 @@ class StructureAwareWarp:
         idx = idx[front]
         coords[idx, 0], coords[idx, 1], ws[idx] = x[front] + 0.5, y[front] + 0.5, w[front]
         return coords.reshape(h, wd, 2), ws.reshape(h, wd)
+
+    def coordinate_errors(self, camera: Camera) -> dict[str, np.ndarray]:
+        """|interpolated - per-pixel projected| GI-map coordinates (px) at ``camera``, on pixels in front of the
+        bound GI camera and inside its map: for the bound clip coordinates, and for eq. 5's per-vertex uv
+        interpolated as is (undefined where w <= 0), the alternative the module docstring sets aside. The
+        bound coordinates are restored afterwards."""
+        gi_cam, renderer = self._bound().camera, self.renderer
+        uv_pass = renderer.render_uv(camera)
+        coords, _ = self.texel_coords(uv_pass)
+        ref, w = gi_cam.project_pixels(uv_pass["position"].astype(np.float64))
+        inside = uv_pass["textured"] & (w > gi_cam.near) & np.all((ref >= 0) & (ref <= gi_cam.width), axis=-1)
+        out = {"homogeneous clip (ours)": np.abs(coords - ref)[inside].max(axis=-1)}
+        for obj in renderer.objects:
+            renderer.set_texcoords(obj.name, gi_cam.project_uv(obj.mesh.vertices)[0])
+        naive = renderer.render_uv(camera)["uv"].astype(np.float64)
+        naive_px = np.stack([naive[..., 0] * gi_cam.width, (1.0 - naive[..., 1]) * gi_cam.height], axis=-1)
+        out["per-vertex uv (eq. 5)"] = np.abs(naive_px - ref)[inside].max(axis=-1)
+        self.bind_texture(self._bound())
+        return out
 
     def _bound(self) -> GITexture:
         if self.texture is None:

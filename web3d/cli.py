@@ -20,7 +20,7 @@ from typing import Any, Literal
 
 import typer
 
-from baseline_cloudbaking.codecs import CODEC_NAMES, DEFAULT_CODEC
+from baseline_cloudbaking.codecs import DEFAULT_CODEC, CodecName
 from gicore import option_groups
 from gicore.error_policy import UserError, entry_point, serving
 from gicore.options import (
@@ -44,7 +44,6 @@ from web3d.upstreams import OFF, Cloud, Fixed, Unavailable
 
 app = typer.Typer(add_completion=False, help="Serve the Web3D viewer: GIGAN and cloud baking side by side.")
 BACKENDS = ("auto", "wasm", "webgpu")
-CodecName = Literal[CODEC_NAMES]  # type: ignore[valid-type]
 
 
 @dataclass(frozen=True)

@@ -2,7 +2,9 @@
 
 One asyncio loop and a minimal HTTP/1.1 keep-alive client (no client library in the timed path, so the
 latencies are the server's and the loopback's, not a client's): paced hit clients that time each
-request, a burst of concurrent misses, and a flood of idle connections that send nothing.
+request, a burst of concurrent misses, and a flood of idle connections that send nothing. Beside it, a closed
+loop (:func:`run_closed_loop`): client threads sending hit requests back to back through httpx, as the cloud
+client does, for the throughput a server sustains (``bench service``).
 
     python -m baseline_cloudbaking.server.loadtest --url http://127.0.0.1:PORT --scene lung_plane \\
         --idle 20000 --misses 80 --hit-clients 32
@@ -29,12 +31,17 @@ from collections import Counter
 from collections.abc import Coroutine
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field, fields
-from typing import Any, TypeVar
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, TypeVar
 from urllib.parse import urlsplit
 
 import numpy as np
 
+from baseline_cloudbaking.protocol import unpack
 from baseline_cloudbaking.server.limits import fd_budget
+
+if TYPE_CHECKING:
+    import httpx
 
 
 def loopback(url: str) -> tuple[str, int]:
@@ -101,6 +108,13 @@ class LoadResult:
     def hits_sent_between(self, start: float, end: float) -> list[float]:
         """Latencies (ms) of the hits sent from ``start`` to ``end``."""
         return [ms for ms, at in zip(self.hit_ms, self.hit_at) if start <= at <= end]
+
+    def failures(self) -> int:
+        """Hits not answered 200, misses answered neither 200 nor 503 with Retry-After, failed connections."""
+        bad_hits = sum(n for status, n in self.hit_status.items() if status != 200)
+        bad_misses = sum(n for status, n in self.miss_status.items() if status not in (200, 503))
+        no_retry = self.miss_status.get(503, 0) - sum(self.retry_after.values())
+        return bad_hits + bad_misses + no_retry + sum(self.errors.values())
 
     def summary(self) -> dict[str, Any]:
         out = {f.name: getattr(self, f.name) for f in fields(self) if f.name not in _PER_REQUEST}
@@ -279,6 +293,62 @@ async def run_load(
     return res
 
 
+def http_client(url: str, read_timeout_s: float) -> httpx.Client:
+    """A keep-alive httpx client of the server at ``url`` (``read_timeout_s`` bounds a miss's render)."""
+    import httpx
+
+    return httpx.Client(base_url=url, timeout=httpx.Timeout(read_timeout_s, connect=10.0))
+
+
+def timed_post(client: httpx.Client, body: bytes) -> tuple[float, dict[str, Any]]:
+    """Round trip of one GI-map request (seconds, request sent to last byte read) and the payload header;
+    raises RuntimeError on a non-200 answer."""
+    t0 = time.perf_counter()
+    r = client.post("/v1/gimap", content=body, headers={"content-type": "application/json"})
+    elapsed = time.perf_counter() - t0
+    if r.status_code != 200:
+        raise RuntimeError(f"POST /v1/gimap answered {r.status_code}: {r.text[:500]}")
+    return elapsed, unpack(r.content)[0]
+
+
+def run_closed_loop(
+    url: str, bodies: list[bytes], clients: int, per_client: int, read_timeout_s: float
+) -> tuple[list[float], int, float, list[str]]:
+    """``clients`` threads, each sending ``per_client`` requests of stored views (``bodies`` in turn) back to
+    back: latencies (s) of the hits, the error count (failed requests and answers that are no hit), the wall
+    time (s) from the common start to the last answer, and the first errors."""
+    loopback(url)
+    start = threading.Barrier(clients + 1)
+    latencies: list[list[float]] = [[] for _ in range(clients)]
+    errors: list[list[str]] = [[] for _ in range(clients)]
+
+    def worker(i: int) -> None:
+        with http_client(url, read_timeout_s) as client:
+            client.get("/health")  # open the keep-alive connection before the clock starts
+            start.wait()
+            for j in range(per_client):
+                try:
+                    seconds, header = timed_post(client, bodies[(i + j) % len(bodies)])
+                except Exception as exc:  # noqa: BLE001 - any failure of a request is a counted error
+                    errors[i].append(f"{type(exc).__name__}: {exc}"[:300])
+                    continue
+                if header.get("hit") is not True:
+                    errors[i].append("not a hit")
+                else:
+                    latencies[i].append(seconds)
+
+    threads = [threading.Thread(target=worker, args=(i,), daemon=True) for i in range(clients)]
+    for t in threads:
+        t.start()
+    start.wait(timeout=60.0)
+    t0 = time.perf_counter()
+    for t in threads:
+        t.join()
+    wall = time.perf_counter() - t0
+    flat_errors = [e for errs in errors for e in errs]
+    return [s for lat in latencies for s in lat], len(flat_errors), wall, flat_errors[:5]
+
+
 T = TypeVar("T")
 
 
@@ -345,6 +415,19 @@ def gimap_request(scene: str, eye: tuple[float, float, float], resolution: int, 
 def hit_request(scene: str, resolution: int, spp: int) -> dict[str, Any]:
     """The one view every hit client asks for (stored first with :func:`store`)."""
     return gimap_request(scene, (0.0, 1.2, 2.0), resolution, spp)
+
+
+def path_requests(scene: str, views: int, resolution: int, codec: str, spp: int, seed: int) -> list[bytes]:
+    """Request bodies of ``views`` GI cameras spread along the fly-through of ``scene`` (a built-in name or a spec
+    file, served under its stem), the light at rest, as the cloud client sends them."""
+    from baseline_cloudbaking.client import RemoteConfig
+    from gicore.paths import camera_path, light_position
+    from gicore.scene import load_scene
+
+    spec = load_scene(scene)
+    cams = camera_path(spec, views, seed=seed, fov=spec.camera.gi_fov, resolution=resolution)
+    remote = RemoteConfig("", Path(scene).stem, resolution, codec, spp, False, False)
+    return [remote.body(c, light_position(spec, 0)) for c in cams]
 
 
 def miss_requests(scene: str, resolution: int, spp: int, n: int, offset: float = 0.0) -> list[dict[str, Any]]:

@@ -15,7 +15,7 @@ from typing import Annotated, Literal
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from baseline_cloudbaking.bake import SCENE_NAME
-from baseline_cloudbaking.codecs import CODEC_NAMES, DEFAULT_CODEC
+from baseline_cloudbaking.codecs import CODEC_NAMES, DEFAULT_CODEC, CodecName
 from gicore.camera import Camera
 from gicore.options import RESOLUTION_MAX, RESOLUTION_MIN, SPP_MAX
 
@@ -24,7 +24,6 @@ from gicore.options import RESOLUTION_MAX, RESOLUTION_MIN, SPP_MAX
 MAX_COORD = 1e4
 Coord = Annotated[float, Field(ge=-MAX_COORD, le=MAX_COORD, strict=True)]
 Vec3 = tuple[Coord, Coord, Coord]
-CodecName = Literal[CODEC_NAMES]  # type: ignore[valid-type]
 
 
 class _Strict(BaseModel):

@@ -15,6 +15,7 @@ while the light stays.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -33,6 +34,7 @@ from gicore.gl.lod import (
     LevelMesh,
     calibrate,
     calibration_views,
+    lod_errors,
     mesh_levels,
 )
 from gicore.gl.shaders import DIFFUSE_ROW, EMITTER_ROW, MATERIAL_VEC4S, SCENE_VERTEX, mat_bytes, scene_fragment
@@ -137,13 +139,10 @@ class GLRenderer:
         self.last_level = 0
         #: Shadow maps rendered so far (a static light renders one).
         self.shadow_updates = 0
-        #: Time each pass's draw calls (its shadow map included) on the GPU with a GL timer query; off by default,
-        #: since reading the query waits for the GPU before the read-back would.
-        self.gpu_timing = False
-        #: With :attr:`gpu_timing`: GPU time in ms of the last pass's draw calls, without its read-back to host
-        #: memory (what a client that keeps the pass on the GPU would pay).
-        self.draw_ms: float | None = None
+        # :meth:`gpu_draw_ms`'s GL timer query, whether it times the passes, and the last pass's GPU ms
         self._timer: Any = None
+        self._gpu_timing = False
+        self._draw_ms: float | None = None
         self._upload_geometry()
         self._programs: dict[tuple[str, bool], Any] = {}
         self._shadow = ShadowMap(ctx, self._vbo, self._ibo)
@@ -337,6 +336,13 @@ class GLRenderer:
             return self.calibrate_lod().level(camera, self.shown_lod_bound if shown else self.lod_bound)
         return int(self._lod)
 
+    def level_error(self, camera: Camera, shown: bool = False) -> tuple[int, dict[str, float]]:
+        """The level a pass at ``camera`` draws (:meth:`level_for`) and its G-buffer error against full detail
+        there (:func:`gicore.gl.lod.lod_errors`): what the renderer's ``lod`` costs at that view."""
+        level = self.level_for(camera, shown)
+        at_level, full = (self._gbuffers(self._draw("gbuffer", camera, k)) for k in (level, 0))
+        return level, lod_errors(at_level, full)
+
     def calibrate_lod(self) -> ErrorModel:
         """The calibrated error model of ``lod="auto"`` (measured on first call, see :mod:`gicore.gl.lod`)."""
         if self.lod_model is None:
@@ -375,15 +381,28 @@ class GLRenderer:
     # -- passes ----------------------------------------------------------------------------------
     def _draw(self, name: str, camera: Camera, level: int | None = None) -> Any:
         """Run pass ``name`` at ``camera`` (at ``level``, default :meth:`level_for`); returns its framebuffer
-        (read it with :meth:`_read`). With :attr:`gpu_timing` the draw calls are timed into :attr:`draw_ms`."""
-        if not self.gpu_timing:
+        (read it with :meth:`_read`). Inside :meth:`gpu_draw_ms` the draw calls are timed on the GPU."""
+        if not self._gpu_timing:
             return self._draw_calls(name, camera, level)
         if self._timer is None:
             self._timer = self.ctx.query(time=True)
         with self._timer:
             fbo = self._draw_calls(name, camera, level)
-        self.draw_ms = self._timer.elapsed / 1e6
+        self._draw_ms = self._timer.elapsed / 1e6
         return fbo
+
+    def gpu_draw_ms(self, run: Callable[[], Any]) -> float:
+        """GPU time in ms of the draw calls (its shadow map included) of the last pass ``run()`` draws here, by a
+        GL timer query: the pass without its read-back to host memory, what a client that keeps it on the GPU
+        pays. Time the call's wall clock apart: reading the query waits for the GPU before the read-back would."""
+        self._gpu_timing, self._draw_ms = True, None
+        try:
+            run()
+        finally:
+            self._gpu_timing = False
+        if self._draw_ms is None:
+            raise RuntimeError("the timed call drew no pass on this renderer")
+        return self._draw_ms
 
     def _draw_calls(self, name: str, camera: Camera, level: int | None) -> Any:
         self._check_camera(camera)

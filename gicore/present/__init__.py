@@ -1,7 +1,8 @@
 """What the benches show, declared once (:mod:`gicore.present.declarations`) and rendered to Markdown
-(:mod:`gicore.present.markdown`), the dashboard's HTML (:mod:`gicore.present.html`) and figures
-(:mod:`gicore.present.charts`: PNG and SVG from one matplotlib drawing). :func:`write_files` writes a bench
-run's own: ``<bench>.md`` (every table) and each figure's PNG and SVG beside the CSV."""
+(:mod:`gicore.present.markdown`), the dashboard's HTML and page (:mod:`gicore.present.html`) and figures
+(:mod:`gicore.present.charts`: PNG and SVG from one matplotlib drawing); a sheet of images as one PNG
+(:mod:`gicore.present.sheet`). :func:`write_files` writes a bench run's own: ``<bench>.md`` (every table) and
+each figure's PNG and SVG beside the CSV."""
 
 from __future__ import annotations
 

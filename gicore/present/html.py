@@ -1,11 +1,14 @@
-"""A bench's parts as the dashboard's HTML: tables (cells and captions are Markdown, rendered inline), figures
-as the inline SVG :mod:`gicore.present.charts` draws, images as data URIs (the page opens offline), alerts."""
+"""The dashboard's HTML: a bench's parts (tables, their cells and captions Markdown rendered inline; figures as
+the inline SVG :mod:`gicore.present.charts` draws; images as data URIs; alerts), a results CSV's provenance, and
+the page that holds the sections, one self-contained file (style sheet and script from ``assets/`` inlined), so
+that it opens offline."""
 
 from __future__ import annotations
 
 import base64
 import html
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
 from typing import Any
@@ -13,6 +16,9 @@ from typing import Any
 from gicore.present import charts
 from gicore.present.declarations import Alert, Figure, Image, Part, Rows, Table, fill, text
 from gicore.present.markdown import columns, groups
+from gicore.results import provenance_fields
+
+ASSETS = Path(__file__).parent / "assets"
 
 
 def e(value: Any) -> str:
@@ -84,3 +90,52 @@ def parts_html(parts: Iterable[Part], rows: Rows, folder: Path) -> str:
                 line = part.text(rows)
                 out.append(f'<p class="problem">{e(line)}</p>' if line else "")
     return "".join(out)
+
+
+def provenance_html(csv_path: Path, results: Path) -> str:
+    """Where a results CSV came from, as a definition list: the file (relative to ``results``), and from the
+    provenance JSON beside it the command, git SHA, machine, date, run and seed (or that it is missing)."""
+    prov = provenance_fields(csv_path)
+    shown = e(csv_path.relative_to(results))
+    if prov is None:
+        missing = f"missing ({e(csv_path.stem)}.provenance.json)"
+        return f'<dl class="prov"><dt>file</dt><dd><code>{shown}</code></dd><dt>provenance</dt><dd>{missing}</dd></dl>'
+    items = [
+        ("file", f"<code>{shown}</code>"),
+        ("command", f"<code>{e(prov['command'])}</code>"),
+        ("git", f"<code>{e(prov['git'])}</code>"),
+        ("machine", e(prov["machine"])),
+        ("date", e(prov["date"])),
+        ("run", f"<code>{e(prov['run'])}</code>, seed {e(prov['seed'])}"),
+    ]
+    return '<dl class="prov">' + "".join(f"<dt>{k}</dt><dd>{v}</dd>" for k, v in items) + "</dl>"
+
+
+@dataclass(frozen=True)
+class PageSection:
+    """One section of the page: its anchor, heading (the part before a colon names it in the navigation),
+    status (``ok``, or what went wrong, e.g. ``missing``), the name of what it shows, and its HTML."""
+
+    key: str
+    title: str
+    status: str
+    name: str
+    body: str
+
+
+def page(sections: Sequence[PageSection], title: str, header: str) -> str:
+    """The page: ``header`` (HTML) over a navigation bar that names each section with its status, then the
+    sections; a chart mark's tooltip shows on hover."""
+    css = (ASSETS / "report.css").read_text()
+    js = (ASSETS / "report.js").read_text()
+    nav = "".join(f'<a class="{s.status}" href="#{s.key}">{e(s.title.split(":")[0])}: {s.status}</a>' for s in sections)
+    body = "".join(
+        f'<section id="{s.key}" data-status="{s.status}" data-bench="{s.name}"><h2>{e(s.title)}</h2>{s.body}</section>'
+        for s in sections
+    )
+    return (
+        '<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8">'
+        '<meta name="viewport" content="width=device-width, initial-scale=1">'
+        f"<title>{e(title)}</title><style>{css}</style></head><body><header>{header}</header>"
+        f'<nav>{nav}</nav><main>{body}</main><div id="tip" hidden></div><script>{js}</script></body></html>\n'
+    )

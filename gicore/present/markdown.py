@@ -1,10 +1,16 @@
-"""Tables as Markdown: the README's results blocks and each bench's ``<bench>.md``."""
+"""Markdown: tables (the README's results blocks and each bench's ``<bench>.md``), figures drawn as PNG files and
+linked, and where a results CSV's numbers come from."""
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterable
+from pathlib import Path
 
-from gicore.present.declarations import Column, Part, Rows, Table, fill, text, unique
+from gicore.fileio import atomic_write_bytes
+from gicore.present import charts
+from gicore.present.declarations import Column, Figure, Image, Part, Rows, Table, fill, text, unique
+from gicore.results import provenance_fields
 
 
 def columns(table: Table, rows: Rows) -> tuple[Column, ...]:
@@ -51,3 +57,27 @@ def tables_text(parts: Iterable[Part], rows: Rows, level: int) -> str:
     """Every table of ``parts`` as Markdown, one after another."""
     shown = (table_text(p, rows, level) for p in parts if isinstance(p, Table))
     return "\n\n".join(t for t in shown if t)
+
+
+def figure_links(name: str, parts: list[Part], rows: Rows, folder: Path, figures: Path, page: Path) -> str:
+    """Each figure of ``parts`` drawn from ``rows`` (and each picture the bench wrote into ``folder``) as a PNG in
+    ``figures/<name>/``, linked as a Markdown image relative to ``page``, the file the text goes into."""
+    links = []
+    for part in parts:
+        if isinstance(part, Figure) and charts.render(part, rows, figures / name / f"{part.name}.png"):
+            links.append(figures / name / f"{part.name}.png")
+        elif isinstance(part, Image) and (folder / part.file).is_file():
+            links.append(figures / name / part.file)
+            links[-1].parent.mkdir(parents=True, exist_ok=True)
+            atomic_write_bytes(links[-1], (folder / part.file).read_bytes())
+    return "\n".join(f"![{t.stem}]({Path(os.path.relpath(t, page.parent)).as_posix()})" for t in links)
+
+
+def provenance_line(csv_path: Path, where: str) -> str:
+    """Where a results CSV's numbers come from, in one line: the command, date and machine from the provenance
+    JSON beside it, and ``where`` (the file as the text names it). The git SHA stays in the JSON (and on the
+    dashboard): this text is committed, a SHA in it would go stale."""
+    prov = provenance_fields(csv_path)
+    if prov is None:
+        return f"Command: unknown (no {csv_path.stem}.provenance.json beside {where})."
+    return f"Command: `{prov['command']}` ({prov['date']}, {prov['machine']}; {where})."

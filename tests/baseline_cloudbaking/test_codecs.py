@@ -91,6 +91,18 @@ def test_bad_maps_are_refused() -> None:
         get_codec("gif")
 
 
+def test_codec_quality_is_the_knob_it_claims() -> None:
+    rng = np.random.default_rng(0)
+    image = np.clip(rng.normal(0.5, 0.2, (64, 64, 3)), 0, None).astype(np.float32)
+    sizes = {q: len(get_codec(f"jpeg:{q}").encode(image)) for q in (20, 60, 95)}
+    assert sizes[20] < sizes[60] < sizes[95]
+    assert get_codec("jpeg:60").name == "jpeg:60" and dict(get_codec("jpeg:60").options)["quality"] == 60
+    assert get_codec("png") is CODECS["png"]
+    for bad in ("jpeg:101", "jpeg:0", "jpeg:", "png:50"):
+        with pytest.raises(ValueError, match="a quality 1 to 100 is known for jpeg, webp, avif only"):
+            get_codec(bad)
+
+
 # -- depth ------------------------------------------------------------------------------------------
 def test_depth_loss_is_far_below_the_warp_depth_test(baked: BakedMap) -> None:
     from gigan_local.warp import DEPTH_REL_TOL

@@ -17,6 +17,7 @@ import select
 import socket
 import subprocess
 import time
+from collections import Counter
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -26,7 +27,7 @@ import numpy as np
 import pytest
 
 from baseline_cloudbaking.protocol import MEDIA_TYPE, decode_payload
-from baseline_cloudbaking.server.loadtest import run_load
+from baseline_cloudbaking.server.loadtest import LoadResult, run_load
 from baseline_cloudbaking.server.routers.maps import CACHE_CONTROL
 from tests.helpers.cloud import BIN, gimap_body, write_scenes
 
@@ -130,6 +131,13 @@ def ring(n: int, scene: str = "ball_moving", radius: float = 2.0, **fields) -> l
     return [gimap_body(scene, eye=(radius * np.sin(a), 1.1, radius * np.cos(a)), **fields) for a in angles]
 
 
+def test_failures_are_wrong_answers_and_failed_connections() -> None:
+    res = LoadResult(hit_status=Counter({200: 9, 500: 1}), miss_status=Counter({200: 2, 503: 3, 404: 1}))
+    res.retry_after["2"] = 2  # one 503 came without Retry-After
+    res.errors["idle OSError"] = 1
+    assert res.failures() == 1 + 1 + 1 + 1
+
+
 @pytest.mark.slow
 def test_80_misses_and_hits_while_they_render(srv: Server) -> None:
     """80 misses at once: those beyond the queue are refused at once (503 + Retry-After), the admitted ones are
@@ -148,6 +156,7 @@ def test_80_misses_and_hits_while_they_render(srv: Server) -> None:
     # all 80 are sent at once and a render takes far longer than their arrival: most find the queue full
     assert refused >= 80 - 4 * (QUEUE + 1) and baked >= QUEUE + 1, summary
     assert sum(res.retry_after.values()) == refused and all(1 <= int(s) <= 60 for s in res.retry_after), summary
+    assert res.failures() == 0, summary
     assert counts == {"misses_refused": refused, "misses": baked, "hits": len(res.hit_ms)}, counts
     assert srv.stats()["misses_pending"] == 0
     assert srv.stderr.stat().st_size - log_before < 4096, srv.stderr.read_text()[-2000:]

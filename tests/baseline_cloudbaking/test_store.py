@@ -44,6 +44,13 @@ def tree(tmp_path: Path):
         yield t
 
 
+def test_a_tolerance_reads_from_dp_colon_dtheta() -> None:
+    assert Tolerance.parse("0.05:2") == Tolerance(0.05, 2.0)
+    for bad in ("0.1", "a:b", "0.1:2:3", "-1:2", "nan:2"):
+        with pytest.raises(ValueError, match=f"{bad!r} is not DP:DTHETA"):
+            Tolerance.parse(bad)
+
+
 def test_nearest_within_both_tolerances(tree: GITree) -> None:
     a = tree.insert(key(), view(0.0), blob(1))
     b = tree.insert(key(), view(0.15), blob(2))

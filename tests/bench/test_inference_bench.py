@@ -6,17 +6,17 @@ from pathlib import Path
 
 import pytest
 
-from bench.inference_bench import BENCH, TABLE, InferenceConfig, _shipped, measure
+from bench.inference_bench import BENCH, SHIPPED_FP32, TABLE, InferenceConfig, measure
 from gicore.error_policy import UserError
 from gicore.present import write_files
 from gicore.present.markdown import table_text
 from gicore.results import Results, read_rows
+from gigan_local.inference import DEFAULT_MODEL
 
 
 @pytest.mark.slow  # the shipped model at 256², onnxruntime and torch on the CPU (~8 s)
 def test_inference_rows_and_the_warm_started_torch_generator_match_onnxruntime(tmp_path: Path) -> None:
-    cfg = InferenceConfig(models=(_shipped("model_fp32.onnx"), _shipped("model_fp16.onnx")), threads=(1,),
-                          torch_device="cpu", repeats=3, warmup=1)  # fmt: skip
+    cfg = InferenceConfig(models=(SHIPPED_FP32, DEFAULT_MODEL), threads=(1,), torch_device="cpu", repeats=3, warmup=1)
     res = Results("inference", tmp_path, 0)
     measure(cfg, res)
     csv_path = res.write()
@@ -66,10 +66,10 @@ def test_models_of_different_inputs_are_refused(tmp_path: Path) -> None:
     import json
     import shutil
 
-    shipped = _shipped("model_fp16.onnx")
+    shipped = DEFAULT_MODEL
     other = tmp_path / "model_fp16.onnx"
     shutil.copy(shipped, other)
     doc = json.loads((shipped.parent / "model.json").read_text())
     (tmp_path / "model.json").write_text(json.dumps(doc | {"resolution": 128}))
     with pytest.raises(UserError, match="take different inputs"):
-        InferenceConfig(models=(_shipped("model_fp32.onnx"), other)).check()
+        InferenceConfig(models=(SHIPPED_FP32, other)).check()

@@ -14,12 +14,14 @@ from bench import model_card, quality
 from bench.quality_grid import grid_rows, lf_colours
 from bench.runner import execute
 from gicore.dataset import DatasetMeta, FrameRecord, load_frame, read_meta, save_frame, write_meta
+from gicore.dataset_cli import inputs_renderer
 from gicore.error_policy import UserError
 from gicore.metrics import lf_error
 from gicore.present.declarations import shown
 from gicore.present.html import parts_html
 from gicore.present.markdown import table_text, tables_text
 from gicore.results import Results, read_rows
+from gicore.run_config import CLIENT_LOD
 from gicore.tonemap import inverse_tonemap, tonemap
 from tests.helpers.cloud import passthrough_model
 from tests.helpers.model_card import write_run_and_export
@@ -247,6 +249,5 @@ def test_renderers_option_is_checked(scored: tuple[Path, Path], tmp_path: Path, 
         quality.QualityConfig(renderers=("gl",)).check()
     monkeypatch.undo()
     # A dataset whose scene spec does not load cannot be rendered again by another renderer: one clear error.
-    cfg = quality.QualityConfig(datasets=data.parent, scenes=("synthetic",), models={}, renderers=("gl",))
     with pytest.raises(UserError, match="its scene spec does not load to render gl's"):
-        quality.input_renderers(cfg, read_meta(data), data)
+        inputs_renderer(read_meta(data), data, "gl", CLIENT_LOD, "--renderers")
