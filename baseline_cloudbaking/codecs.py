@@ -247,7 +247,11 @@ QUALITY_OPTION = {"jpeg": "quality", "webp": "quality", "avif": "quality"}
 
 def get_codec(spec: str) -> Codec:
     """The codec ``NAME``, or ``NAME:QUALITY`` for the codecs of :data:`QUALITY_OPTION`: the registry's settings
-    with the quality (1 to 100) replaced, named ``spec``. ValueError lists what is known."""
+    with the quality (1 to 100) replaced, named ``spec``. ValueError lists what is known (also for a ``spec`` that is
+    not a string, as a payload header may hold)."""
+    if not isinstance(spec, str):
+        known = ", ".join(CODEC_NAMES)
+        raise ValueError(f"a codec is named by a string, not {type(spec).__name__}; known codecs: {known}")
     name, sep, quality = spec.partition(":")
     try:
         codec = CODECS[name]

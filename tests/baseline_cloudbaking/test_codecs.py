@@ -89,6 +89,9 @@ def test_bad_maps_are_refused() -> None:
         CODECS["zstd-f16"].encode(np.full((8, 8, 3), np.nan, dtype=np.float32))
     with pytest.raises(ValueError, match="known codecs: jpeg, webp, avif, png, exr-half, zstd-f16"):
         get_codec("gif")
+    for not_a_name in (123, None, ["jpeg"]):  # what a payload header may hold
+        with pytest.raises(ValueError, match="a codec is named by a string"):
+            get_codec(not_a_name)
 
 
 def test_codec_quality_is_the_knob_it_claims() -> None:
