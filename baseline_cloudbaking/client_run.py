@@ -10,7 +10,6 @@ import math
 import time
 from collections.abc import Iterable
 from dataclasses import dataclass, field
-from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
@@ -173,7 +172,7 @@ def run_client(
     """Fly the run's path (``flown``; default: :func:`gicore.path_file.flown_path` of ``cfg``) composing with
     ``server``'s maps; returns (per-frame rows, per-request rows,
     the renderer that ran the per-frame raster passes: ``"mitsuba"`` when ``gl`` was asked and no GL context
-    opened, see :func:`gicore.run_config.open_raster`).
+    opened, see :func:`gicore.gl.frame.open_client_raster`).
 
     The local DI and the warp's surface-mask pass use ``cfg.renderer``, the warp and the composition
     ``cfg.warp_backend`` (:func:`gicore.gl.frame.warp_backend`); the GT stays with Mitsuba. Composed
@@ -185,19 +184,16 @@ def run_client(
     from baseline_cloudbaking.gl_warp import GLPixelWarp
     from baseline_cloudbaking.warp import PixelWarp
     from gicore.gi_map import LAYERS
-    from gicore.gl import GLRenderer, RasterUnavailable
-    from gicore.gl.frame import warp_backend
+    from gicore.gl.frame import open_client_raster, warp_backend
     from gicore.loop import ClientLoop, LoopConfig, run_frames
     from gicore.path_file import flown_path
     from gicore.render import Renderer
-    from gicore.run_config import CLIENT_LOD, open_raster
     from gicore.scene import load_scene
 
     spec = load_scene(cfg.scene)
     remote = cfg.remote(server, spec.light.moves)
     renderer = Renderer(spec, cfg.resolution)
-    gl = partial(GLRenderer, spec, cfg.resolution, lod=CLIENT_LOD)
-    raster, used = open_raster(cfg.renderer, renderer, gl, RasterUnavailable)
+    raster, used = open_client_raster(cfg.renderer, spec, cfg.resolution, renderer)
     policy = cfg.policy(tolerance)
     held = policy.tolerance is not None
     loop_cfg = LoopConfig(

@@ -37,7 +37,7 @@ from baseline_cloudbaking.bake import (
 from baseline_cloudbaking.codecs import CODEC_NAMES, DEFAULT_CODEC
 from baseline_cloudbaking.store import DEFAULT_LIGHT_CELL, GITree, store_folder
 from baseline_cloudbaking.store_errors import StoreConflict
-from baseline_cloudbaking.viewpoints import CellViews, MapKey, Tolerance, Viewpoint
+from baseline_cloudbaking.viewpoints import CellViews, MapKey, Tolerance, Viewpoint, simulate_fill
 from gicore import option_groups
 from gicore.camera import Camera
 from gicore.error_policy import UserError, entry_point
@@ -167,6 +167,16 @@ def space_of(spec: SceneSpec, cfg: PrebakeConfig) -> ConfigurationSpace:
         return configuration_space(spec, cfg.tolerance, cfg.light_cell)
     except ValueError as exc:
         raise UserError(str(exc), "give a larger --tolerance-p / --tolerance-deg") from None
+
+
+def maps_to_bake(spec: SceneSpec, cfg: PrebakeConfig) -> int:
+    """Maps a prebake of ``spec`` with ``cfg`` bakes into an empty store, counted without rendering: the whole
+    configuration space, or the fly-through's frames that no map planned for an earlier frame serves (:func:`plan`'s
+    rule)."""
+    if cfg.space == "all":
+        return space_of(spec, cfg).size
+    path = fly_through(spec, cfg.frames, cfg.resolution, cfg.light_cell, cfg.seed, cfg.fov)
+    return len(set(simulate_fill([f.view for f in path], [f.cell for f in path], cfg.tolerance)))
 
 
 def prebake_scene(

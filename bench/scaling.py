@@ -185,38 +185,23 @@ def _overhead(res: Results, ex: str, name: str, executor: Executor, n: int) -> N
     )
 
 
-def bake_maps(frames: int, resolution: int) -> dict[str, int]:
-    """Maps a prebake of each built-in scene's ``frames``-frame fly-through bakes into an empty store
-    (the prebake's plan rule, default tolerance and light cell): counted, nothing rendered."""
-    from baseline_cloudbaking.bake import fly_through
-    from baseline_cloudbaking.store import DEFAULT_LIGHT_CELL
-    from baseline_cloudbaking.viewpoints import Tolerance, simulate_fill
+def prebake_maps(space: Literal["fly-through", "all"], frames: int, resolution: int) -> dict[str, int]:
+    """Maps a ``cloudbaking-prebake --space SPACE`` of each built-in scene bakes into an empty store (a
+    ``frames``-frame fly-through, or the whole configuration space; default tolerance and light cell)."""
+    from baseline_cloudbaking.prebake_cli import PrebakeConfig, maps_to_bake
 
-    out = {}
-    for scene in builtin_scenes():
-        path = fly_through(load_scene(scene), frames, resolution, DEFAULT_LIGHT_CELL)
-        out[scene] = len(set(simulate_fill([f.view for f in path], [f.cell for f in path], Tolerance())))
-    return out
-
-
-def space_maps() -> dict[str, int]:
-    """Maps of each built-in scene's whole configuration space (``cloudbaking-prebake --space all`` at the
-    default tolerance and light cell): counted, nothing rendered."""
-    from baseline_cloudbaking.bake import configuration_space
-    from baseline_cloudbaking.store import DEFAULT_LIGHT_CELL
-    from baseline_cloudbaking.viewpoints import Tolerance
-
-    return {s: configuration_space(load_scene(s), Tolerance(), DEFAULT_LIGHT_CELL).size for s in builtin_scenes()}
+    cfg = PrebakeConfig(frames=frames, resolution=resolution, space=space)
+    return {scene: maps_to_bake(load_scene(scene), cfg) for scene in builtin_scenes()}
 
 
 def _project(cfg: ScalingConfig, res: Results, name: str, item_s: dict[tuple[str, Kind], float]) -> None:
     """Projection rows (see the module docstring) from each executor's 1-worker item times."""
-    maps = bake_maps(cfg.bake_frames, cfg.bake_resolution)
+    maps = prebake_maps("fly-through", cfg.bake_frames, cfg.bake_resolution)
     for scene, n in maps.items():
         res.add(
             system="plan", scene=scene, metric="bake_maps", value=n, unit="count", fly_through_frames=cfg.bake_frames
         )
-    space = space_maps()
+    space = prebake_maps("all", cfg.bake_frames, cfg.bake_resolution)
     for scene, n in space.items():
         res.add(system="plan", scene=scene, metric="space_maps", value=n, unit="count")
     targets: list[tuple[Kind, str, int, dict[str, int]]] = [

@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from bench.processes import scene_folder
 from bench.runner import Bench, Block, Section
 from bench.stability_cases import Case, Outcome, Rejected, Scene
 from bench.stability_images import composition_cases, inference_cases, render_cases, tonemap_cases, warp_cases
@@ -33,7 +34,6 @@ from bench.stability_io import (
     link_model_cases,
     network_cases,
     server_cases,
-    server_process,
     store_cases,
 )
 from gicore import option_groups
@@ -188,6 +188,9 @@ def record(res: Results, scene: str, case: Case, v: Verdict) -> None:
 
 
 def measure(cfg: StabilityConfig, res: Results) -> None:
+    from baseline_cloudbaking.client import RemoteConfig
+    from web3d.children import start_server, url
+
     work = res.out / "stability_work"
     shutil.rmtree(work, ignore_errors=True)
     work.mkdir(parents=True)
@@ -197,8 +200,10 @@ def measure(cfg: StabilityConfig, res: Results) -> None:
     with ExitStack() as stack:
         todo = cases(cfg, s, work)
         if cfg.processes:
-            url = stack.enter_context(server_process(work / "server_store", scene, max(cfg.spp, 1)))
-            served = Served(url, Path(scene).stem, cfg.resolution, cfg.spp, cfg.case_timeout_s, cfg.client_timeout_s)
+            server = start_server(work / "server_store", scene_folder(scene), "--max-spp", str(max(cfg.spp, 1)))
+            remote = RemoteConfig(url(stack.enter_context(server)), Path(scene).stem, cfg.resolution, "jpeg", cfg.spp,
+                                  light_moves=s.spec.light.moves)  # fmt: skip
+            served = Served(remote, cfg.case_timeout_s, cfg.client_timeout_s)
             todo += server_cases(s, served) + network_cases(s, served, stack)
         for case in todo:
             v = judge(case, cfg.case_timeout_s)

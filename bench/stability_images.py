@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from bench.common import WARP_LABELS, make_warp
 from bench.stability_cases import Case, Outcome, Scene, max_rel, tm_rmse, with_nan
 
 
@@ -172,11 +173,9 @@ class Warps:
     """The warp cases' runs: each warp binds a GI map of the scene (made once per GI camera) and warps it."""
 
     def __init__(self, s: Scene) -> None:
-        from baseline_cloudbaking.warp import PixelWarp
-        from gigan_local.warp import StructureAwareWarp
-
         self.s = s
-        self.kinds = {"structure-aware": lambda: StructureAwareWarp(s.renderer), "pixel-level": PixelWarp}
+        #: Case label -> warp method (:data:`bench.common.WARPS`).
+        self.kinds = {WARP_LABELS[method]: method for method in ("structure", "pixel")}
         self.maps: dict[Any, Any] = {}
 
     def gi_map(self, camera: Any = None) -> Any:
@@ -189,7 +188,7 @@ class Warps:
         from gicore.blend import blend
         from gicore.loop import warp_view
 
-        w = self.kinds[kind]()
+        w = make_warp(self.kinds[kind], self.s.renderer)
         w.bind(gi)
         di, image, valid = warp_view(w, self.s.renderer, camera, self.s.light, seed=self.s.seed)
         return blend(di, image, 0.0), valid

@@ -9,15 +9,17 @@ import math
 import shutil
 from collections.abc import Callable, Iterator
 from contextlib import ExitStack, contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from bench.processes import scene_folder
 from bench.stability_cases import Case, Expect, Outcome, Rejected, Scene, max_rel, with_nan
 from network_sim.cli import DELAY_MS_MAX
+
+if TYPE_CHECKING:
+    from baseline_cloudbaking.client import RemoteConfig
 
 
 def codec_cases(s: Scene) -> list[Case]:
@@ -195,38 +197,32 @@ def link_model_cases() -> list[Case]:
 
 @dataclass(frozen=True)
 class Served:
-    """The real server the process cases ask, what they ask it for, and how long they wait."""
+    """The real server the process cases ask, how the cloud client asks it for the GI camera's map
+    (``remote``), and how long they wait."""
 
-    url: str
-    #: The scene as the server names it.
-    scene: str
-    resolution: int
-    spp: int
+    remote: RemoteConfig
     case_timeout_s: float
     #: The cloud client's connect and read timeout through a dead link (twice it: its deadline).
     client_timeout_s: float
 
     def body(self, s: Scene) -> dict[str, Any]:
-        """A valid request for the map at ``s``'s GI camera."""
-        camera = {"eye": list(s.gi_camera.origin), "target": list(s.gi_camera.target)}
-        body = {"scene": self.scene, "camera": camera, "resolution": self.resolution, "spp": self.spp, "codec": "jpeg"}
-        return body | ({"light": list(s.light)} if s.spec.light.moves else {})
+        """The cloud client's request for the map at ``s``'s GI camera."""
+        return json.loads(self.remote.body(s.gi_camera, s.light))
 
 
 def through_proxy(
     s: Scene, served: Served, stack: ExitStack, flags: list[str], timeout: float
 ) -> Callable[[], Outcome]:
     """A case's run: the cloud client asks for the GI camera's map through a real proxy with ``flags``."""
-    from baseline_cloudbaking.client import RemoteConfig, RemoteSource
-    from network_sim.process import network_sim
+    from baseline_cloudbaking.client import RemoteSource
+    from network_sim.process import proxy
+    from web3d.children import url
 
     def run() -> Outcome:
-        proxy = stack.enter_context(
-            network_sim("proxy", "--upstream", served.url.removeprefix("http://"), *flags, timeout=30.0)
-        )
-        remote = RemoteConfig(f"http://{proxy.addr[0]}:{proxy.addr[1]}", served.scene, served.resolution, "jpeg",
-                              served.spp, False, s.spec.light.moves, connect_timeout_s=timeout,
-                              read_timeout_s=timeout, deadline_s=2 * timeout, retry_after_s=0.0)  # fmt: skip
+        host, _, port = served.remote.server.removeprefix("http://").rpartition(":")
+        running = stack.enter_context(proxy((host, int(port)), *flags, timeout=30.0))
+        remote = replace(served.remote, server=url(running), connect_timeout_s=timeout, read_timeout_s=timeout,
+                         deadline_s=2 * timeout, retry_after_s=0.0)  # fmt: skip
         with RemoteSource(remote) as source:
             source.request(s.gi_camera, s.light, 0)
             if not source.wait(4 * timeout + 5.0):
@@ -263,8 +259,8 @@ def post(served: Served, content: bytes | str) -> Callable[[], Outcome]:
     from baseline_cloudbaking.protocol import decode_payload
 
     def run() -> Outcome:
-        r = httpx.post(f"{served.url}/v1/gimap", content=content, headers={"content-type": "application/json"},
-                       timeout=served.case_timeout_s)  # fmt: skip
+        r = httpx.post(f"{served.remote.server}/v1/gimap", content=content,
+                       headers={"content-type": "application/json"}, timeout=served.case_timeout_s)  # fmt: skip
         if r.status_code >= 500:
             raise RuntimeError(f"HTTP {r.status_code}: {r.text[:200]}")
         if r.status_code != 200:
@@ -326,12 +322,3 @@ def touching_light_case(s: Scene, served: Served) -> Case:
     name = "light 1e-4 from a surface" + ("" if inside else " (outside the scene's light range)")
     run = post(served, json.dumps(served.body(s) | {"light": list(light)}))
     return Case("server", name, "finite" if inside else "rejected", run)
-
-
-@contextmanager
-def server_process(store: Path, scene: str, max_spp: int) -> Iterator[str]:
-    """A real ``cloudbaking-server`` on an ephemeral port (serving ``scene``'s folder if it is a file); its URL."""
-    from web3d.children import start_server, url
-
-    with start_server(store, scene_folder(scene), "--max-spp", str(max_spp)) as server:
-        yield url(server)

@@ -13,8 +13,6 @@ rerunning resumes them) and plots those: a real, if tiny, width comparison.
 
 from __future__ import annotations
 
-import csv
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -23,7 +21,7 @@ from gicore import option_groups
 from gicore.error_policy import UserError
 from gicore.present.declarations import Chart, Figure, Rows, matches, pick, unique
 from gicore.results import Results
-from gigan_local.model_card import training_minutes
+from gigan_local.model_card import TrainingRun, training_minutes
 from gigan_local.train_small import train_small
 
 
@@ -62,21 +60,20 @@ def measure(cfg: TrainingBenchConfig, res: Results) -> None:
         train_small(cfg.scenes, cfg.widths, cfg.train_steps, res.out, res.seed) if cfg.train_steps is not None else []
     )
     for run_dir in runs:
-        config = json.loads((run_dir / "config.json").read_text())["train"]
-        with (run_dir / "metrics.csv").open(newline="") as fh:
-            for row in csv.DictReader(fh):
-                res.add(
-                    system=run_dir.name,
-                    scene="all",
-                    metric=f"{row['split']}_{row['metric']}",
-                    value=float(row["value"]),
-                    unit=row["unit"],
-                    step=int(row["step"]),
-                    epoch=int(row["epoch"]),
-                    model=row["model"],
-                    ngf=config["ngf"],
-                    n_critic=config["n_critic"],
-                )
+        config, metrics = TrainingRun.files(run_dir)
+        for row in metrics:
+            res.add(
+                system=run_dir.name,
+                scene="all",
+                metric=f"{row['split']}_{row['metric']}",
+                value=float(row["value"]),
+                unit=row["unit"],
+                step=int(row["step"]),
+                epoch=int(row["epoch"]),
+                model=row["model"],
+                ngf=config["ngf"],
+                n_critic=config["n_critic"],
+            )
 
 
 def ssim_by_minutes(rows: Rows) -> list[dict]:

@@ -16,7 +16,6 @@ carried (its chunk log). docs/architecture.md, bench web.
 
 from __future__ import annotations
 
-import csv
 import json
 import math
 import shutil
@@ -38,7 +37,8 @@ from gicore.error_policy import UserError
 from gicore.options import FRAMES, THREADS
 from gicore.results import Results
 from network_sim.profiles import profiles_field
-from web3d.headless import WEBGL_FLAGS, Segment, missing, replay, viewer_page
+from web3d.children import bytes_down
+from web3d.headless import WEBGL_FLAGS, Segment, missing, replay, served_page
 from web3d.parity import Reference, canvas_stats, time_inference
 from web3d.replay_stats import CLOUD, GIGAN, Replayed, SystemStats, records
 
@@ -117,7 +117,6 @@ def open_viewer(cfg: WebBenchConfig, results: Results) -> Iterator[Viewer]:
     from gicore.path_file import flown_path
     from gicore.paths import DEFAULT_LIGHT_CELL
     from web3d.cli import WebConfig, cloud_for, prepare
-    from web3d.serve import WebServer
 
     spec, scenes_dir, work, plan = run_place(cfg.scenes[0], results, "web_runs", pin=False)
     doc = flown_path(spec, cfg, results.seed).to_json()
@@ -145,8 +144,8 @@ def open_viewer(cfg: WebBenchConfig, results: Results) -> Iterator[Viewer]:
                 request_path_maps(url, cfg.scenes[0], run, results.seed)
     scene = {"name": spec.name, "gi_fov": spec.camera.gi_fov, "resolution": n,
              "light_cell": DEFAULT_LIGHT_CELL if spec.light.moves else None}  # fmt: skip
-    with cloud, WebServer(site) as web, viewer_page(web.url, "record=1", WEBGL_FLAGS[cfg.webgl]) as page:
-        yield Viewer(web.url, page, doc, cloud.profiles, scene, children, logs)
+    with served_page(site, "record=1", WEBGL_FLAGS[cfg.webgl]) as (url, page):
+        yield Viewer(url, page, doc, cloud.profiles, scene, children, logs)
 
 
 def measure_viewer(viewer: Viewer, cfg: WebBenchConfig, results: Results) -> None:
@@ -283,10 +282,8 @@ def record_links(res: Results, viewer: Viewer) -> None:
     if viewer.logs is None:
         return
     for profile in viewer.profiles:
-        with (viewer.logs / f"given_{profile}.csv").open(newline="") as fh:
-            down = sum(int(r["bytes"]) for r in csv.DictReader(fh) if r["direction"] == "down" and r["sent_s"])
-        res.add(system=CLOUD, scene=viewer.scene["name"], metric="link_bytes_down", value=down, unit="bytes",
-                profile=profile)  # fmt: skip
+        res.add(system=CLOUD, scene=viewer.scene["name"], metric="link_bytes_down",
+                value=bytes_down(viewer.logs, profile), unit="bytes", profile=profile)  # fmt: skip
 
 
 def measure(cfg: WebBenchConfig, results: Results) -> None:

@@ -16,12 +16,13 @@ from bench.common import WARP_LABELS
 from bench.runner import FOV_DEGREES, Bench, Block, Section
 from gicore import option_groups
 from gicore.camera import Camera
+from gicore.gl.frame import open_client_raster
 from gicore.gl.lod import LOD_CHOICES, lod_value
 from gicore.metrics import ssim
 from gicore.paths import camera_path, light_position
 from gicore.present.declarations import Chart, Column, Figure, Rows, Table, wide
 from gicore.results import Results
-from gicore.run_config import CLIENT_LOD, RENDERERS, open_raster
+from gicore.run_config import CLIENT_LOD, RENDERERS
 from gicore.scene import SceneSpec, load_scene
 from gicore.timing import peak_mib
 from gicore.tonemap import tonemap
@@ -62,15 +63,6 @@ class WarpBenchConfig:
     @classmethod
     def quick(cls) -> WarpBenchConfig:
         return cls(gi_frames=(0,), offsets=(1, 10, 20, 29), spp=16, repeats=5)
-
-
-def open_local_raster(cfg: WarpBenchConfig, spec: SceneSpec, renderer: Renderer) -> tuple[Any, str]:
-    """The renderer of the local passes for ``cfg.renderer`` and the name of the one that runs them (gl without
-    a context: ``renderer``, Mitsuba's, after one warning line)."""
-    from gicore.gl import GLRenderer, RasterUnavailable
-
-    gl = partial(GLRenderer, spec, cfg.resolution, lod=lod_value(cfg.gl_lod))
-    return open_raster(cfg.renderer, renderer, gl, RasterUnavailable)
 
 
 #: Each method's raster pass, and DI alone.
@@ -129,7 +121,7 @@ def _open_scene(cfg: WarpBenchConfig, name: str, seed: int) -> _Scene:
 
     spec = load_scene(name)
     renderer = Renderer(spec, cfg.resolution)
-    raster, used = open_local_raster(cfg, spec, renderer)
+    raster, used = open_client_raster(cfg.renderer, spec, cfg.resolution, renderer, lod_value(cfg.gl_lod))
     common: dict[str, Any] = {"resolution": cfg.resolution, "gi_fov": cfg.gi_fov, "local_fov": cfg.local_fov}
     common |= {"renderer": used} | ({"gl_lod": cfg.gl_lod} if used == "gl" else {})
     cams = camera_path(spec, cfg.orbit_frames, seed=seed, fov=cfg.local_fov, resolution=cfg.resolution)

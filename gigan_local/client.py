@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass, field
-from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
@@ -41,7 +40,7 @@ from gicore.mitsuba_variant import check_denoiser
 from gicore.options import THREADS
 from gicore.path_file import PathFile, flown_path, write_path_file
 from gicore.paths import Light, frame_seed
-from gicore.run_config import CLIENT_LOD, PathRunConfig, open_raster
+from gicore.run_config import PathRunConfig
 from gicore.scene import SceneSpec, load_scene
 from gicore.timing import Stopwatch
 from gicore.tonemap import tonemap
@@ -229,7 +228,7 @@ def open_renderers(
     ``renderer``: a Mitsuba renderer to share (it must render ``spec`` at the config's resolution); without
     one, one is opened where the run needs it (:func:`needs_path_tracer`) or GL does not open. With
     ``cfg.renderer == "gl"`` the raster passes get a :class:`gicore.gl.GLRenderer`, or Mitsuba's after one
-    warning when no GL context opens (:func:`gicore.run_config.open_raster`)."""
+    warning when no GL context opens (:func:`gicore.gl.frame.open_client_raster`)."""
     if renderer is not None and (renderer.spec.name, renderer.resolution) != (spec.name, cfg.resolution):
         raise ValueError(
             f"the shared renderer renders {renderer.spec.name} at {renderer.resolution}²"
@@ -237,10 +236,9 @@ def open_renderers(
         )
     if renderer is None and needs_path_tracer(cfg):
         renderer = _path_renderer(spec, cfg.resolution)
-    from gicore.gl import GLRenderer, RasterUnavailable
+    from gicore.gl.frame import open_client_raster
 
-    gl = partial(GLRenderer, spec, cfg.resolution, lod=CLIENT_LOD)
-    raster, used = open_raster(cfg.renderer, renderer, gl, RasterUnavailable)
+    raster, used = open_client_raster(cfg.renderer, spec, cfg.resolution, renderer)
     if raster is None:  # GL did not open and nothing had needed Mitsuba until now
         renderer = raster = _path_renderer(spec, cfg.resolution)
     return renderer, raster, used

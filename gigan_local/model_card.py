@@ -51,11 +51,17 @@ class TrainingRun:
     compute_min: float
     val: dict[str, float]
 
-    @classmethod
-    def read(cls, run_dir: Path) -> TrainingRun:
+    @staticmethod
+    def files(run_dir: Path) -> tuple[dict, list[dict[str, str]]]:
+        """The run folder's train config (``config.json``'s ``train``) and ``metrics.csv`` rows, as written (no
+        rows yet for a run stopped before its first log)."""
         train = json.loads((run_dir / "config.json").read_text())["train"]
         with (run_dir / "metrics.csv").open(newline="") as fh:
-            metrics = list(csv.DictReader(fh))
+            return train, list(csv.DictReader(fh))
+
+    @classmethod
+    def read(cls, run_dir: Path) -> TrainingRun:
+        train, metrics = cls.files(run_dir)
         last_step = max(int(r["step"]) for r in metrics)
         step_rows = sorted((int(r["step"]), float(r["value"])) for r in metrics if r["metric"] == "step_seconds")
         compute_min = training_minutes(step_rows, [last_step])[0] if step_rows else float("nan")

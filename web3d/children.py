@@ -12,6 +12,7 @@ proxies before their server, waits for a start still in progress, and removes th
 
 from __future__ import annotations
 
+import csv
 import functools
 import shutil
 import sys
@@ -36,6 +37,18 @@ def url(child: Running) -> str:
     """The base URL of a started server or proxy."""
     host, port = child.addr  # the server prints a URL, the proxy HOST:PORT
     return f"{host}:{port}" if host.startswith("http") else f"http://{host}:{port}"
+
+
+def chunk_log(logs: Path, store: str, profile: str) -> Path:
+    """The per-chunk log (``network-sim proxy --log``) of ``profile``'s proxy in front of ``store``'s server."""
+    return logs / f"{store}_{profile}.csv"
+
+
+def bytes_down(logs: Path, profile: str, store: str = "given") -> int:
+    """The bytes ``profile``'s proxy in front of ``store``'s server sent down to the page, from its chunk log in
+    ``logs`` (:func:`chunk_log`; complete once the proxy stopped)."""
+    with chunk_log(logs, store, profile).open(newline="") as fh:
+        return sum(int(r["bytes"]) for r in csv.DictReader(fh) if r["direction"] == "down" and r["sent_s"])
 
 
 def start_server(
@@ -100,7 +113,7 @@ class Stack:
         upstream = (host.removeprefix("http://"), port)
         args = ("--profile", profile, "--seed", str(self.seed))
         if self.logs is not None:  # what the proxy carried, chunk by chunk (written out as it stops)
-            args += ("--log", str(self.logs / f"{self.name}_{profile}.csv"))
+            args += ("--log", str(chunk_log(self.logs, self.name, profile)))
         start = functools.partial(proxy, upstream, *args, timeout=PROXY_START_S, die_with_parent=True)
         child = self._start(start, f"network-sim proxy {profile}")
         self.report(f"network-sim proxy {profile} -> {self.name} store: {url(child)} (pid {child.proc.pid})")
@@ -145,8 +158,8 @@ class ChildCloud:
     first is the page's default) in front of the ``given`` store's server (``store``, else a cold temporary
     one) and, beside a given store, a lazily started ``cold`` one. ``scenes``: the folder of a scene spec file
     the servers are given. ``report`` receives one line per child started. ``logs``: a folder where each proxy
-    writes its per-chunk log (``network-sim proxy --log``) as ``<store>_<profile>.csv``. Use as a context
-    manager: entering starts the given store's children, leaving stops them all."""
+    writes its per-chunk log (:func:`chunk_log`, :func:`bytes_down`). Use as a context manager: entering starts
+    the given store's children, leaving stops them all."""
 
     def __init__(
         self,

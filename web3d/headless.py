@@ -1,7 +1,8 @@
 """The Web3D page in headless Chromium (Playwright), as ``bench web`` and the browser tests drive it: launching
-Debian's Chromium with software or GPU WebGL, opening the page once ``window.viewer`` is ready, waiting on it,
-and replaying a path file through ``viewer.replay`` (the camera API the page's controls drive: each path frame
-moves the controls, as a person's drag would, one per drawn frame) behind a chosen network profile.
+Debian's Chromium with software or GPU WebGL, serving a site (:func:`served_page`) and opening the page once
+``window.viewer`` is ready, waiting on it, and replaying a path file through ``viewer.replay`` (the camera API the
+page's controls drive: each path frame moves the controls, as a person's drag would, one per drawn frame) behind
+a chosen network profile.
 
 A replay starts settled at its first view (both panes' maps made there, nothing in flight) and ends settled at its
 last: its frames are every frame drawn in between, the path's own and those that land the last maps.
@@ -14,7 +15,10 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from web3d.site import Site
 
 CHROMIUM = Path("/usr/bin/chromium")
 #: Chromium's software WebGL2 (SwiftShader through ANGLE), for a machine without a GPU.
@@ -87,6 +91,16 @@ def viewer_page(url: str, query: str = "", flags: list[str] = SWIFTSHADER) -> It
         page.goto(f"{url}/{'?' + query if query else ''}")
         wait(page, "window.viewer && (window.viewer.ready || window.viewer.error)")
         yield page
+
+
+@contextmanager
+def served_page(site: Site, query: str = "", flags: list[str] = SWIFTSHADER) -> Iterator[tuple[str, Any]]:
+    """``site``'s cloud side started, ``site`` served on a free loopback port (:class:`web3d.serve.WebServer`) and
+    the page open there (:func:`viewer_page`): (the site's URL, the page); all stopped after."""
+    from web3d.serve import WebServer
+
+    with site.cloud, WebServer(site) as web, viewer_page(web.url, query, flags) as page:
+        yield web.url, page
 
 
 def wait(page: Any, expression: str, arg: Any = None, timeout_s: float = PAGE_TIMEOUT_S) -> Any:

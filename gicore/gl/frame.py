@@ -6,28 +6,43 @@ only the composed frame comes back to host memory (docs/architecture.md, OpenGL 
 :class:`ShaderWarp` is the base of the warps' GL backends (``gigan_local.gl_warp``,
 ``baseline_cloudbaking.gl_warp``): each brings :meth:`ShaderWarp.draw`, its passes from the frame's textures
 to the warped layer. Stage times wait for the GPU (``glFinish``) at the end of each stage, so each stage holds
-its own GPU work and none is pushed into the read-back.
+its own GPU work and none is pushed into the read-back. :func:`open_client_raster` opens a client's raster
+renderer and :func:`warp_backend` picks the backend of its warp.
 """
 
 from __future__ import annotations
 
 import sys
+from functools import partial
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from gicore.gl.blend import GLCompose
-from gicore.gl.context import gl_info
+from gicore.gl.context import RasterUnavailable, gl_info
 from gicore.gl.passes import Target
-from gicore.run_config import WARP_BACKENDS
+from gicore.gl.renderer import GLRenderer
+from gicore.run_config import CLIENT_LOD, WARP_BACKENDS, open_raster
 from gicore.timing import Stopwatch
 
 if TYPE_CHECKING:
     from gicore.camera import Camera
-    from gicore.gl.renderer import GLRenderer
+    from gicore.render import Renderer
+    from gicore.scene import SceneSpec
 
 #: GL_RENDERER names (lower case) of rasterisers that run on the CPU.
 CPU_RASTERISERS = ("llvmpipe", "softpipe", "lavapipe", "swiftshader")
+
+
+def open_client_raster(
+    choice: str, spec: SceneSpec, resolution: int, path_renderer: Renderer | None, lod: str | int = CLIENT_LOD
+) -> tuple[Any, str]:
+    """The renderer of a client's per-frame raster passes for ``--renderer choice`` and the name of the one that
+    runs them: a :class:`GLRenderer` of ``spec`` at ``resolution`` and ``lod`` where a GL context opens, else
+    ``path_renderer`` (Mitsuba's; None where the caller has not opened one yet) after one warning line
+    (:func:`gicore.run_config.open_raster`)."""
+    gl = partial(GLRenderer, spec, resolution, lod=lod)
+    return open_raster(choice, path_renderer, gl, RasterUnavailable)
 
 
 def warp_backend(choice: str, renderer: str, warn: bool = False) -> str:

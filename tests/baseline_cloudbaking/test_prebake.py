@@ -17,10 +17,9 @@ from pathlib import Path
 
 import pytest
 
-from baseline_cloudbaking.bake import fly_through
+from baseline_cloudbaking.prebake_cli import PrebakeConfig, maps_to_bake
 from baseline_cloudbaking.protocol import decode_payload
-from baseline_cloudbaking.store import DEFAULT_LIGHT_CELL, GITree
-from baseline_cloudbaking.viewpoints import Tolerance, simulate_fill
+from baseline_cloudbaking.store import GITree
 from gicore.scene import load_scene
 from tests.baseline_cloudbaking.test_store import read_only
 from tests.helpers.cli import Outcome, run_main
@@ -46,9 +45,8 @@ def prebake_here(
 
 
 def expected_entries(spec_path: Path, frames: int) -> int:
-    """Maps the path needs, planned without a store (the same rule as the prebake's)."""
-    path = fly_through(load_scene(spec_path), frames, RES, DEFAULT_LIGHT_CELL)
-    return len(set(simulate_fill([f.view for f in path], [f.cell for f in path], Tolerance())))
+    """Maps the path needs, counted without a store (:func:`maps_to_bake`, which these tests hold to the prebake)."""
+    return maps_to_bake(load_scene(spec_path), PrebakeConfig(frames=frames, resolution=RES))
 
 
 def check_store(store: Path) -> int:

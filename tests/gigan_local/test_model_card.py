@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from gicore.error_policy import UserError
-from gigan_local.model_card import CARD_NAME, ModelCard, training_minutes
+from gigan_local.model_card import CARD_NAME, ModelCard, TrainingRun, training_minutes
 from tests.helpers.model_card import write_run_and_export
 
 SOURCE = Path("somewhere/quality.csv")
@@ -69,3 +69,14 @@ def test_a_card_refuses_rows_without_the_model_or_scored_on_two_renderers(folder
 def test_training_minutes_sum_the_logged_step_times() -> None:
     # 10 steps at 6 s, then 20 at 3 s; step 40 extrapolates at the last rate.
     assert training_minutes([(10, 6.0), (30, 3.0)], [0, 5, 10, 30, 40]) == pytest.approx([0, 0.5, 1.0, 2.0, 2.5])
+
+
+def test_a_run_folder_reads_as_its_config_and_metrics_rows_and_no_rows_is_told_apart(
+    folders: tuple[Path, Path],
+) -> None:
+    run, _ = folders
+    train, metrics = TrainingRun.files(run)
+    assert train["n_critic"] == 5 and {r["metric"] for r in metrics} >= {"step_seconds"}
+    header = (run / "metrics.csv").read_text().splitlines()[0]
+    (run / "metrics.csv").write_text(header + "\n")  # a run stopped before its first log
+    assert TrainingRun.files(run) == (train, [])

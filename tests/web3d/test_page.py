@@ -25,8 +25,9 @@ from gicore.camera import Camera
 from gicore.path_file import read_path_file
 from gicore.paths import navigation, outside_navigation
 from gicore.scene import SceneSpec, load_scene
-from tests.helpers.browser import canvases, missing, viewer_page, wait
+from tests.helpers.browser import canvases, missing, wait
 from tests.helpers.cloud import passthrough_model
+from web3d.headless import served_page
 
 SCENE = "lung_plane"
 #: The page's maps and canvases, in pixels: small, as each frame draws both panes in software.
@@ -49,7 +50,6 @@ def page(tmp_path_factory: pytest.TempPathFactory) -> Any:
     if why:
         pytest.skip(f"the Web3D page cannot run here: {why}")
     from web3d.cli import WebConfig, cloud_for, prepare
-    from web3d.serve import WebServer
 
     work = tmp_path_factory.mktemp("page")
     model = passthrough_model(work / "model", RESOLUTION)
@@ -57,7 +57,7 @@ def page(tmp_path_factory: pytest.TempPathFactory) -> Any:
                     model=model)  # fmt: skip
     cloud = cloud_for(cfg, report=lambda line: None)
     site = prepare(cfg, cloud)
-    with cloud, WebServer(site) as web, viewer_page(web.url) as page:
+    with served_page(site) as (_, page):
         yield page
 
 
