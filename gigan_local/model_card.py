@@ -62,6 +62,11 @@ class TrainingRun:
     @classmethod
     def read(cls, run_dir: Path) -> TrainingRun:
         train, metrics = cls.files(run_dir)
+        if not metrics:
+            raise UserError(
+                f"{run_dir / 'metrics.csv'} has no rows: the run stopped before its first log",
+                "resume it with gigan-train --resume, or give a run that has trained",
+            )
         last_step = max(int(r["step"]) for r in metrics)
         step_rows = sorted((int(r["step"]), float(r["value"])) for r in metrics if r["metric"] == "step_seconds")
         compute_min = training_minutes(step_rows, [last_step])[0] if step_rows else float("nan")

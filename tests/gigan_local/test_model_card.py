@@ -80,3 +80,5 @@ def test_a_run_folder_reads_as_its_config_and_metrics_rows_and_no_rows_is_told_a
     header = (run / "metrics.csv").read_text().splitlines()[0]
     (run / "metrics.csv").write_text(header + "\n")  # a run stopped before its first log
     assert TrainingRun.files(run) == (train, [])
+    with pytest.raises(UserError, match="has no rows: the run stopped before its first log"):
+        TrainingRun.read(run)
