@@ -370,8 +370,6 @@ class RunMetrics:
     #: Perceived latency (ms, :func:`perceived_latency`) per frame by the cache state of the request whose map
     #: ended the wait: ``all`` (frames no map served as endless), ``hit`` and ``miss``.
     perceived: dict[str, list[float]]
-    #: Frames no map of the run served.
-    censored: int
     #: Share of frames whose shown map serves their own view.
     in_tolerance: float
     #: SSIM of each scored frame, by frame.
@@ -403,7 +401,6 @@ class RunMetrics:
             perceived["hit" if hit_of[int(row["perceived_map"])] else "miss"].append(value)
         return cls(
             perceived=perceived,
-            censored=sum(r["perceived_ms"] == "" for r in frames),
             in_tolerance=float(np.mean([int(r["in_tolerance"]) for r in frames])),
             ssim=scored_ssim(frames),
             requests=len(requests),
@@ -413,6 +410,11 @@ class RunMetrics:
             request_latency=[float(r["latency_ms"]) for r in ok],
             stages=stage_samples(requests),
         )
+
+    @property
+    def censored(self) -> int:
+        """Frames no map of the run served (endless in :attr:`perceived`'s ``all``)."""
+        return sum(math.isinf(v) for v in self.perceived["all"])
 
     @property
     def mean_ssim(self) -> float | None:

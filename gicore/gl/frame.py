@@ -21,12 +21,12 @@ import numpy as np
 from gicore.gl.blend import GLCompose
 from gicore.gl.context import RasterUnavailable, gl_info
 from gicore.gl.passes import Target
-from gicore.gl.renderer import GLRenderer
 from gicore.run_config import CLIENT_LOD, WARP_BACKENDS, open_raster
 from gicore.timing import Stopwatch
 
 if TYPE_CHECKING:
     from gicore.camera import Camera
+    from gicore.gl.renderer import GLRenderer
     from gicore.render import Renderer
     from gicore.scene import SceneSpec
 
@@ -41,6 +41,8 @@ def open_client_raster(
     runs them: a :class:`GLRenderer` of ``spec`` at ``resolution`` and ``lod`` where a GL context opens, else
     ``path_renderer`` (Mitsuba's; None where the caller has not opened one yet) after one warning line
     (:func:`gicore.run_config.open_raster`)."""
+    from gicore.gl.renderer import GLRenderer  # the renderer's modules load only for a client that opens one
+
     gl = partial(GLRenderer, spec, resolution, lod=lod)
     return open_raster(choice, path_renderer, gl, RasterUnavailable)
 

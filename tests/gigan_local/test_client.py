@@ -312,7 +312,7 @@ def test_gl_without_a_context_falls_back_to_mitsuba(
 ):
     """``--renderer gl`` where no GL context opens: one line on stderr with the reason, the run on Mitsuba
     (frames as a mitsuba run's), and the summary saying which renderer ran."""
-    from gicore.gl import RasterUnavailable, context, frame
+    from gicore.gl import RasterUnavailable, context, renderer
     from gigan_local.client import run
 
     if failure == "no_context":  # EGL refuses, as on a machine without libEGL or a device
@@ -329,7 +329,7 @@ def test_gl_without_a_context_falls_back_to_mitsuba(
         def fails(*args, **kwargs):
             raise RasterUnavailable("eglInitialize failed (test)\nsecond line")
 
-        monkeypatch.setattr(frame, "GLRenderer", fails)
+        monkeypatch.setattr(renderer, "GLRenderer", fails)
     capsys.readouterr()
     summary = run(gl_config(spec_file, model64, renderer="gl", frames=2), tmp_path / "run")
     err = capsys.readouterr().err.strip().splitlines()
