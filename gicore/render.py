@@ -15,6 +15,7 @@ back inside that pixel.
 from __future__ import annotations
 
 import os
+from collections.abc import Collection
 
 import numpy as np
 
@@ -236,13 +237,16 @@ class Renderer:
         return self._split_gbuffers(camera, np.array(img, dtype=np.float32))
 
     def render_di_gbuffers(
-        self, camera: Camera, light=None, seed: int = 0, centre: bool = False
+        self, camera: Camera, light=None, seed: int = 0, centre: bool = False, buffers: Collection[str] = GBUFFERS
     ) -> dict[str, np.ndarray]:
-        """DI (1 spp) and the G-buffers of :meth:`render_gbuffers`: what a client renders per frame.
+        """DI (1 spp) and the G-buffers of :meth:`render_gbuffers` that ``buffers`` names (other names are
+        ignored): what a client renders per frame.
 
         Two passes: an AOV integrator nesting the DI path tracer gives the same pixels in one pass but
         was measured slower (``bench render``: 21 ms vs 7.2 + 8.4 ms on lung_plane at 256²)."""
-        return {"di": self.render_di(camera, light, spp=1, seed=seed)} | self.render_gbuffers(camera, seed, centre)
+        di = self.render_di(camera, light, spp=1, seed=seed)
+        gbuffers = self.render_gbuffers(camera, seed, centre)
+        return {"di": di} | {name: gbuffers[name] for name in buffers if name in gbuffers}
 
     @staticmethod
     def _split_gbuffers(camera: Camera, img: np.ndarray) -> dict[str, np.ndarray]:

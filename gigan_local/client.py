@@ -154,12 +154,12 @@ class ModelSource(SynchronousSource):
     def __init__(self, renderer: Renderer, model: ExportedGenerator, seed: int = 0):
         super().__init__()
         self.renderer, self.model, self.seed = renderer, model, seed
+        self._buffers = {*model.buffers, "depth"}  # the network's inputs and the map's depth
 
     def produce(self, camera: Camera, light: Light, frame: int) -> GIMap:
         sw = Stopwatch()
-        buffers = self.renderer.render_di_gbuffers(
-            camera, light, seed=frame_seed(self.seed, "gi_di", frame), centre=True
-        )
+        seed = frame_seed(self.seed, "gi_di", frame)
+        buffers = self.renderer.render_di_gbuffers(camera, light, seed, centre=True, buffers=self._buffers)
         sw.lap("gi_render")
         radiance = self.model.predict(buffers)
         sw.lap("inference")

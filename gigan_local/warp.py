@@ -140,22 +140,22 @@ def fallback_level(indirect: np.ndarray, hit: np.ndarray) -> tuple[np.ndarray, i
     return coarse, step, mean
 
 
-def _block_sums(x: np.ndarray, step: int) -> np.ndarray:
-    """Sums of ``x`` (h x w x ...) over ``step`` x ``step`` blocks (zero-padded at the far edges)."""
+def _blocks(x: np.ndarray, step: int) -> np.ndarray:
+    """``x`` (h x w x ...) as (h/step, step, w/step, step, ...) blocks, zero-padded at the far edges."""
     h, w = x.shape[:2]
     hb, wb = -(-h // step), -(-w // step)
     if h % step or w % step:
         x = np.pad(x, ((0, hb * step - h), (0, wb * step - w)) + ((0, 0),) * (x.ndim - 2))
-    x = x.reshape(hb, step, wb * step, *x.shape[2:]).sum(axis=1)  # rows first: whole rows add at once
-    return x.reshape(hb, wb, step, *x.shape[2:]).sum(axis=2)
+    return x.reshape(hb, step, wb, step, *x.shape[2:])
 
 
 def _coarse_level(image: np.ndarray, hit: np.ndarray, step: int) -> tuple[np.ndarray, np.ndarray]:
     """Averages of ``image`` over the ``hit`` texels of ``step`` x ``step`` blocks (blocks without any
     hit filled from their neighbours), and the mean over all hit texels (0 without any)."""
-    weight = hit.astype(np.float32)
-    csum = _block_sums(image * weight[..., None], step)
-    wsum = _block_sums(weight, step)
+    weight = _blocks(hit.astype(np.float32), step)
+    # one contraction weights and sums each block (no weighted copy of the image): it runs each GI map
+    csum = np.einsum("iajbc,iajb->ijc", _blocks(image, step), weight, optimize=True)
+    wsum = weight.sum(axis=(1, 3))
     mean = csum.sum(axis=(0, 1)) / max(float(wsum.sum()), 1.0)
     return push_pull(csum / np.maximum(wsum, 1.0)[..., None], np.minimum(wsum, 1.0)), mean.astype(np.float32)
 

@@ -26,7 +26,7 @@
 # --dry-run does step 1 in a temporary folder and prints what steps 2 and 3 would install and run.
 #
 # Settings (environment): PYTHON (python3), FORCE (distributions installed even where present), RESOLUTIONS
-# (256 512), MODEL_<R>, STAGE (where wheels are reassembled: /tmp/gigan_gpu_wheels), GL_DEBS (.gl),
+# (256 512), STEPS (which of step 3's parts run: tests latency render variants report, all by default), MODEL_<R>, STAGE (where wheels are reassembled: /tmp/gigan_gpu_wheels), GL_DEBS (.gl),
 # VARIANT_REFERENCE (.gpu_reference: the --out of `bench variants --quick --variants cpu` made with pyoidn), WORK
 # (the benches' own folders: /tmp/gigan_gpu_results).
 set -euo pipefail
@@ -34,6 +34,7 @@ set -euo pipefail
 PYTHON=${PYTHON:-python3}
 FORCE=${FORCE:-}
 RESOLUTIONS=${RESOLUTIONS:-256 512}
+STEPS=" ${STEPS:-tests latency render variants report} "
 GL_DEBS=${GL_DEBS:-.gl}
 VARIANT_REFERENCE=${VARIANT_REFERENCE:-.gpu_reference}
 MODE=run
@@ -58,6 +59,7 @@ if [[ $MODE == run ]]; then
 fi
 
 say() { echo "gpu_table1: $*"; }
+step() { [[ $STEPS == *" $1 "* ]]; }  # whether STEPS names step 3's part $1
 act() {  # run a command, or print it on a dry run
   if [[ $MODE == dry ]]; then echo "would run: $*"; else "$@"; fi
 }
@@ -158,12 +160,13 @@ fi
 # The tests that only a GPU runs (CUDA graph against eager kernels) and the GL warp against numpy on the GPU's own
 # GL: a failure is reported in the log and the measurements go on.
 gpu_tests=(tests/gigan_local/test_torch_backend.py tests/gigan_local/test_gl_warp.py)
-if ! act timeout 180 "$PYTHON" -m pytest -q -p no:cacheprovider "${gpu_tests[@]}"; then
+if step tests && ! act timeout 180 "$PYTHON" -m pytest -q -p no:cacheprovider "${gpu_tests[@]}"; then
   say "GPU tests failed (above): the measurements go on"
 fi
 shipped=$("$PYTHON" -c 'from gigan_local.inference import DEFAULT_MODEL as m, read_model_json as r; print(m, r(m)["resolution"])')
 read -r shipped_model shipped_res <<<"$shipped"
 for res in $RESOLUTIONS; do
+  step latency || break
   model_var="MODEL_$res"
   model=${!model_var:-}
   if [[ -z $model && $res == "$shipped_res" ]]; then model=$shipped_model; fi
@@ -176,16 +179,22 @@ for res in $RESOLUTIONS; do
   act cp "$RESULTS/latency_$res/latency.md" "$DEST/latency_table_$res.md"
   pack
 done
-act "$BIN/bench" render --quick --renderers gl --gl-resolutions "${RESOLUTIONS// /,}" --out "$RESULTS/render_gl"
-pack
-variants=(--quick)
-if [[ -d $VARIANT_REFERENCE ]]; then variants+=(--variants cuda --reference "$VARIANT_REFERENCE"); fi
-if act "$BIN/bench" variants "${variants[@]}" --out "$RESULTS/variants"; then
-  act cp "$RESULTS/variants/variants.md" "$DEST/variants.md"
-else
-  say "bench variants failed (its error is above): no variants.md; the rest of the run goes on"
+if step render; then
+  act "$BIN/bench" render --quick --renderers gl --gl-resolutions "${RESOLUTIONS// /,}" --out "$RESULTS/render_gl"
+  pack
 fi
-pack
-act "$BIN/bench" report --results "$RESULTS" --out "$RESULTS/report"
-act cp "$RESULTS/report/results.md" "$DEST/table1.md"
-pack
+if step variants; then
+  variants=(--quick)
+  if [[ -d $VARIANT_REFERENCE ]]; then variants+=(--variants cuda --reference "$VARIANT_REFERENCE"); fi
+  if act "$BIN/bench" variants "${variants[@]}" --out "$RESULTS/variants"; then
+    act cp "$RESULTS/variants/variants.md" "$DEST/variants.md"
+  else
+    say "bench variants failed (its error is above): no variants.md; the rest of the run goes on"
+  fi
+  pack
+fi
+if step report; then
+  act "$BIN/bench" report --results "$RESULTS" --out "$RESULTS/report"
+  act cp "$RESULTS/report/results.md" "$DEST/table1.md"
+  pack
+fi

@@ -40,7 +40,7 @@ def rewrite(ctx: Any, texture: Any | None, array: np.ndarray) -> Any:
     components = 1 if a.ndim == 2 else a.shape[-1]
     if texture is None or texture.size != (a.shape[1], a.shape[0]) or texture.components != components:
         return upload(ctx, a)
-    texture.write(a.tobytes())
+    texture.write(a)  # the array's buffer, not a bytes copy of it
     return texture
 
 

@@ -15,7 +15,7 @@ while the light stays.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from typing import Any
 
 import numpy as np
@@ -63,6 +63,8 @@ _PASSES = {
     "depth": (("DEPTH",), (3,)),
     "di_uv": (("UV", "DI"), (0, 2, 3, 4)),
 }
+#: Where each G-buffer is read back: (attachment, components) in the G-buffer passes.
+_GBUFFER_READS = {"albedo": (0, 3), "normal": (1, 3), "position": (2, 3), "depth": (3, 1)}
 #: Clip y negated: the image is rendered upside down, so that GL's bottom-up rows read back as an image's
 #: top-down rows, with no flip or copy (and window-space winding reversed: front faces are clockwise).
 _FLIP_Y = np.diag([1.0, -1.0, 1.0, 1.0])
@@ -151,6 +153,7 @@ class GLRenderer:
         # (:meth:`draw_di_raster`); on llvmpipe drawing into either costs the same
         self._targets = [ctx.texture(size, 1 if i == 3 else 4, dtype="f4") for i in range(5)]
         self._depth = ctx.depth_renderbuffer(size)
+        self._pixels: Any = None  # the pixel buffer read-backs go through (:meth:`_read_many`)
         self._fbos = {
             name: ctx.framebuffer([self._targets[i] for i in attachments], self._depth)
             for name, (_, attachments) in _PASSES.items()
@@ -471,23 +474,39 @@ class GLRenderer:
             "u_materials": self._materials,
         }
 
-    def _read(self, fbo: Any, attachment: int, components: int) -> np.ndarray:
-        """The leading ``components`` of one colour attachment as a new float32 HxWxC array (row 0 at the
-        top: the pass rendered upside down)."""
+    def _read_many(self, fbo: Any, reads: dict[str, tuple[int, int]]) -> dict[str, np.ndarray]:
+        """For each of ``reads`` (name: attachment, components), the leading ``components`` of that colour attachment
+        as a new float32 HxWxC array (row 0 at the top: the pass rendered upside down). They are copied on the
+        device into one pixel buffer and brought to the host in one transfer: one wait for the pass, not one each."""
         n = self.resolution
-        buf = bytearray(n * n * components * 4)
-        fbo.read_into(buf, components=components, attachment=attachment, dtype="f4")
-        return np.frombuffer(buf, dtype=np.float32).reshape(n, n, components)
+        sizes = {name: n * n * components * 4 for name, (_, components) in reads.items()}
+        total = sum(sizes.values())
+        if self._pixels is None or self._pixels.size < total:
+            self._pixels = self.ctx.buffer(reserve=total)
+        offset = 0
+        for name, (attachment, components) in reads.items():
+            fbo.read_into(self._pixels, components=components, attachment=attachment, dtype="f4", write_offset=offset)
+            offset += sizes[name]
+        host = bytearray(total)
+        self._pixels.read_into(host, size=total)
+        out, offset = {}, 0
+        for name, (_, components) in reads.items():
+            out[name] = np.frombuffer(host, np.float32, n * n * components, offset).reshape(n, n, components)
+            offset += sizes[name]
+        return out
 
-    def _gbuffers(self, fbo: Any) -> dict[str, np.ndarray]:
-        depth = self._read(fbo, 3, 1)
-        return {
-            "albedo": self._read(fbo, 0, 3),
-            "normal": self._read(fbo, 1, 3),
-            "depth": depth,
-            "position": self._read(fbo, 2, 3),
-            "mask": (depth > 0).astype(np.float32),
-        }
+    def _gbuffers(self, fbo: Any, wanted: Collection[str] = GBUFFERS, di: bool = False) -> dict[str, np.ndarray]:
+        """The ``wanted`` G-buffers (:data:`gicore.buffers.GBUFFERS`) of a pass into ``fbo``, and its DI (attachment
+        4) with ``di``; only what is asked for is read back (the mask comes from the depth)."""
+        reads = {name: _GBUFFER_READS[name] for name in GBUFFERS if name in wanted and name != "mask"}
+        if "mask" in wanted:
+            reads["depth"] = _GBUFFER_READS["depth"]
+        out = self._read_many(fbo, ({"di": (4, 3)} if di else {}) | reads)
+        if "mask" in wanted:
+            out["mask"] = (out["depth"] > 0).astype(np.float32)
+            if "depth" not in wanted:
+                del out["depth"]
+        return out
 
     def render_gbuffers(self, camera: Camera, seed: int = 0, centre: bool = True) -> dict[str, np.ndarray]:
         """Albedo, view-space normal (GL), linear view depth, world position and mask, at pixel centres.
@@ -500,15 +519,15 @@ class GLRenderer:
         """Direct illumination (diffuse + glossy, shadow-mapped) at pixel centres; deterministic (``spp``
         and ``seed`` exist for parity with ``gicore.render``)."""
         self._set_light(light)
-        return self._read(self._draw("di", camera), 0, 3)
+        return self._read_many(self._draw("di", camera), {"di": (0, 3)})["di"]
 
     def render_di_gbuffers(
-        self, camera: Camera, light=None, seed: int = 0, centre: bool = True
+        self, camera: Camera, light=None, seed: int = 0, centre: bool = True, buffers: Collection[str] = GBUFFERS
     ) -> dict[str, np.ndarray]:
-        """DI and the G-buffers in one pass (four render targets)."""
+        """DI and the G-buffers in one pass (five render targets); only the G-buffers ``buffers`` names are read
+        back (other names are ignored)."""
         self._set_light(light)
-        fbo = self._draw("di_gbuffer", camera)
-        return {"di": self._read(fbo, 4, 3)} | self._gbuffers(fbo)
+        return self._gbuffers(self._draw("di_gbuffer", camera), buffers, di=True)
 
     def render_uv(self, camera: Camera) -> dict[str, np.ndarray]:
         """The warp's pass at ``camera``, as ``gicore.render.Renderer.render_uv``: ``uv`` (HxWx2, the bound
@@ -516,15 +535,12 @@ class GLRenderer:
         ``mask`` and ``textured`` (HxW bool; the area light's quad is a surface but not textured)."""
         return self._uv_pass(self._draw("uv", camera))
 
-    def _uv_pass(self, fbo: Any) -> dict[str, np.ndarray]:
-        """The uv pass's outputs from ``fbo``, whose attachments 0-2 hold them (``uv`` and ``di_uv``)."""
-        code = self._read(fbo, 2, 1)[..., 0]
-        return {
-            "uv": self._read(fbo, 0, 2),
-            "position": self._read(fbo, 1, 3),
-            "mask": code > 0.5,
-            "textured": code > 1.5,
-        }
+    def _uv_pass(self, fbo: Any, di: bool = False) -> dict[str, np.ndarray]:
+        """The uv pass's outputs from ``fbo``, whose attachments 0-2 hold them (``uv`` and ``di_uv``), and with
+        ``di`` the DI (attachment 3 of ``di_uv``)."""
+        out = self._read_many(fbo, {"uv": (0, 2), "position": (1, 3), "code": (2, 1)} | ({"di": (3, 3)} if di else {}))
+        code = out.pop("code")[..., 0]
+        return out | {"mask": code > 0.5, "textured": code > 1.5}
 
     def render_di_raster(
         self, camera: Camera, light=None, raster: str | None = None, seed: int = 0
@@ -536,9 +552,9 @@ class GLRenderer:
         1; ``None`` (DI alone) an empty dict."""
         self.draw_di_raster(camera, light, raster)
         if raster == "uv":
-            fbo = self._fbos["di_uv"]
-            return self._read(fbo, 3, 3), self._uv_pass(fbo)
-        rgba = self._read(self._fbos["di"], 0, 4)
+            passes = self._uv_pass(self._fbos["di_uv"], di=True)
+            return passes.pop("di"), passes
+        rgba = self._read_many(self._fbos["di"], {"di": (0, 4)})["di"]
         passes = {} if raster is None else {"mask": rgba[..., 3] > 0.0}
         return np.ascontiguousarray(rgba[..., :3]), passes
 
@@ -559,7 +575,7 @@ class GLRenderer:
     def render_depth(self, camera: Camera) -> dict[str, np.ndarray]:
         """Linear view depth at pixel centres (HxW, 0 on background; ``gicore.gi_map.texel_depth``) and the
         surface mask (HxW bool): the pixel-level warp's passes."""
-        depth = self._read(self._draw("depth", camera), 0, 1)[..., 0]
+        depth = self._read_many(self._draw("depth", camera), {"depth": (0, 1)})["depth"][..., 0]
         return {"depth": depth, "mask": depth > 0}
 
     def render_gt(self, *args, **kwargs) -> np.ndarray:
@@ -573,7 +589,10 @@ class GLRenderer:
         if "gt" in wanted:
             raise ValueError("the GL renderer rasterises: 'gt' (path traced) comes from gicore.render (Mitsuba)")
         if set(GBUFFERS) & set(wanted):
-            out = self.render_di_gbuffers(camera, light) if "di" in wanted else self.render_gbuffers(camera)
+            if "di" in wanted:
+                out = self.render_di_gbuffers(camera, light, buffers=wanted)
+            else:
+                out = self._gbuffers(self._draw("gbuffer", camera), wanted)
         else:
             out = {"di": self.render_di(camera, light)}
         return {name: out[name] for name in wanted}

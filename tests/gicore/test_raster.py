@@ -194,6 +194,11 @@ def test_di_gbuffers_in_one_pass_equal_the_separate_passes(point_scene):
     np.testing.assert_array_equal(both["di"], gl.render_di(cam))
     for name, value in gl.render_gbuffers(cam).items():
         np.testing.assert_array_equal(both[name], value)
+    for wanted in (("depth",), ("mask", "normal"), ("di", "albedo", "position")):
+        some = gl.render_di_gbuffers(cam, buffers=wanted)  # the rest is not read back
+        assert some.keys() == {"di", *wanted}
+        for name in some:
+            np.testing.assert_array_equal(some[name], both[name])
 
 
 # -- shadow map ------------------------------------------------------------------------------------------
