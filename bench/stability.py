@@ -6,8 +6,9 @@ finite, within the case's error bound where a reference exists) or ``rejected`` 
 link). Stages: ``render``, ``tonemap``, ``inference``, ``warp``, ``composition``, ``codecs``, ``store``,
 ``network`` and ``server`` (see :func:`cases`). Each case runs in a worker thread with a time limit (past it:
 a hang); any other exception is a crash. Any failed case makes the command exit 2 naming it, after the files
-are written; crash tracebacks go to ``stability_failures.txt``. The cases: :mod:`bench.stability_cases`.
-docs/architecture.md, Numerical stability.
+are written; crash tracebacks go to ``stability_failures.txt``. What a case is: :mod:`gicore.stability`; the
+cases: each package's ``stability_cases`` module, and :mod:`bench.stability_network` for the cloud client
+through real proxies. docs/architecture.md, Numerical stability.
 """
 
 from __future__ import annotations
@@ -19,28 +20,26 @@ import time
 import traceback
 from contextlib import ExitStack
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from baseline_cloudbaking.stability_cases import Served, codec_cases, server_cases, store_cases
+from bench.common import WARP_LABELS, make_warp
 from bench.processes import scene_folder
 from bench.runner import Bench, Block, Section
-from bench.stability_cases import Case, Outcome, Rejected, Scene
-from bench.stability_images import composition_cases, inference_cases, render_cases, tonemap_cases, warp_cases
-from bench.stability_io import (
-    Served,
-    codec_cases,
-    link_model_cases,
-    network_cases,
-    server_cases,
-    store_cases,
-)
+from bench.stability_network import network_cases
 from gicore import option_groups
 from gicore.error_policy import UserError
 from gicore.present.declarations import Alert, Chart, Column, Figure, Rows, Table
 from gicore.results import Results
+from gicore.stability import Case, Outcome, Rejected, Scene
+from gicore.stability_cases import WarpFactory, composition_cases, render_cases, tonemap_cases, warp_cases
 from gigan_local.inference import DEFAULT_MODEL
+from gigan_local.stability_cases import inference_cases
+from network_sim.stability_cases import link_model_cases
 
 #: Outcomes of a case; the first two are passes.
 PASSED = ("finite", "rejected")
@@ -152,13 +151,18 @@ def judge(case: Case, timeout_s: float) -> Verdict:
 
 
 # -- the bench ------------------------------------------------------------------------------------------------
+def warps() -> dict[str, WarpFactory]:
+    """The warp cases' warps, both systems' (wired here: cross-system code lives in neither): label -> factory."""
+    return {WARP_LABELS[method]: partial(make_warp, method) for method in ("structure", "pixel")}
+
+
 def cases(cfg: StabilityConfig, s: Scene, work: Path) -> list[Case]:
     """Every case that needs no process (the process cases are added by :func:`measure`)."""
     return [
         *render_cases(s),
         *tonemap_cases(),
         *inference_cases(s, cfg.model),
-        *warp_cases(s),
+        *warp_cases(s, warps()),
         *composition_cases(),
         *codec_cases(s),
         *store_cases(work),

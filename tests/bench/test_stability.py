@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 
 from bench.stability import BENCH, PASSED, STAGES, counts, judge, record, summary, verdict
-from bench.stability_cases import Case, Outcome, Rejected
-from bench.stability_io import DEAD_LINKS
 from gicore.error_policy import UserError
 from gicore.present import write_files
 from gicore.results import Results, read_rows
+from gicore.stability import Case, Outcome, Rejected
+from network_sim.stability_cases import DEAD_LINKS
 
 BIN = Path(sys.executable).parent
 

@@ -13,8 +13,6 @@ import ast
 from collections.abc import Iterator
 from pathlib import Path
 
-import pytest
-
 ROOT = Path(__file__).resolve().parents[2]
 PACKAGES = ("gicore", "gigan_local", "baseline_cloudbaking", "network_sim", "bench", "web3d")
 MAX_MODULE_LINES = 600
@@ -64,14 +62,6 @@ def test_no_function_over_80_lines() -> None:
     assert not long, f"functions over {MAX_FUNCTION_LINES} lines:\n" + "\n".join(long)
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="an open goal: bench/ is 27 % of the package lines (8,750 of 32,400); what other packages own (the "
-    "presentation layer, the page's driver, replay records and parity checks, the model card and metadata, client "
-    "runs' metrics, reading results back, the GI tree's growth model, the core plan, Ray's instances) is already "
-    "below it; strict, so the test fails once the goal is met and this "
-    "mark must go",
-)
 def test_bench_is_at_most_a_quarter_of_the_packages() -> None:
     lines = {package: sum(map(line_count, python_files(package))) for package in PACKAGES}
     share = lines["bench"] / sum(lines.values())

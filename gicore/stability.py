@@ -1,8 +1,11 @@
-"""`bench stability`'s cases: what a case is (:class:`Case`: a stage, one extreme input, the behaviour expected
-and how it ran, :class:`Outcome`), the scene the render, warp, inference and server cases work on
-(:class:`Scene`), and how a case measures its error against a reference. The cases themselves are in
-:mod:`bench.stability_images` (render, tone map, inference, warp, composition) and :mod:`bench.stability_io`
-(codecs, store, network, server)."""
+"""What a numerical-stability case is and what cases share: a :class:`Case` runs one stage on one extreme
+input and expects ``finite`` or ``rejected`` (:class:`Outcome`, :class:`Rejected`); :class:`Scene` is the
+scene the render, warp, inference and server cases work on; :func:`tm_rmse`, :func:`max_rel` and
+:func:`with_nan` measure errors and spoil inputs.
+
+Each package declares the extreme inputs its own stages must survive as Cases in its ``stability_cases``
+module; ``bench stability`` judges, records and presents them (docs/architecture.md, Numerical stability).
+"""
 
 from __future__ import annotations
 

@@ -1,18 +1,23 @@
-"""`bench stability`'s cases of the stages that make images: render, tone map, inference, warp and composition
-(:mod:`bench.stability_cases` says what a case is)."""
+"""The extreme inputs gicore's own stages must survive, as :class:`gicore.stability.Case` lists: render, tone
+map, warp and composition. The warps themselves belong to the systems, so :func:`warp_cases` takes them as
+factories (``bench stability`` wires both systems' warps); ``bench stability`` judges every case."""
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import replace
-from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from bench.common import WARP_LABELS, make_warp
-from bench.stability_cases import Case, Outcome, Scene, max_rel, tm_rmse, with_nan
+from gicore.stability import Case, Outcome, Scene, max_rel, tm_rmse, with_nan
+
+if TYPE_CHECKING:
+    from gicore.loop import Warp
+
+#: Builds a warp (bound to a GI map by the case) for the scene's renderer.
+WarpFactory = Callable[[Any], "Warp"]
 
 
 def render_cases(s: Scene) -> list[Case]:
@@ -121,61 +126,13 @@ def tonemap_cases() -> list[Case]:
     ]
 
 
-def inference_cases(s: Scene, model_path: Path) -> list[Case]:
-    from gicore.render import Renderer
-    from gigan_local.inference import GIModel
-
-    state: dict[str, Any] = {}
-
-    def setup() -> Outcome:
-        model = GIModel(model_path, threads=2)
-        renderer = s.renderer if model.resolution == s.renderer.resolution else Renderer(s.spec, model.resolution)
-        camera = replace(s.gi_camera, width=model.resolution, height=model.resolution)
-        buffers = renderer.render_di_gbuffers(camera, s.light, seed=s.seed, centre=True)
-        state.update(model=model, renderer=renderer, camera=camera, buffers=buffers)
-        gt = renderer.render_gt(camera, s.light, spp=s.spp, seed=s.seed)
-        out = model.predict(buffers)
-        return Outcome(
-            (out,),
-            tm_rmse(out, gt),
-            "RMSE vs path-traced GT (tone-mapped)",
-            None,
-            f"{model_path.name} at {model.resolution}²",
-        )
-
-    def on(change: Callable[[dict[str, np.ndarray]], dict[str, np.ndarray]]) -> Callable[[], Outcome]:
-        return lambda: Outcome((state["model"].predict(change(dict(state["buffers"]))),))
-
-    def at_fov(fov: float) -> Callable[[], Outcome]:
-        def run() -> Outcome:
-            buffers = state["renderer"].render_di_gbuffers(
-                state["camera"].with_fov(fov), s.light, seed=s.seed, centre=True
-            )
-            return Outcome((state["model"].predict(buffers),))
-
-        return run
-
-    return [
-        Case("inference", "reference view (control)", "finite", setup),
-        Case("inference", "black buffers", "finite", on(lambda b: {k: np.zeros_like(v) for k, v in b.items()})),
-        Case("inference", "DI ×1e4", "finite", on(lambda b: b | {"di": b["di"] * 1e4})),
-        Case("inference", "DI 1e30 everywhere", "finite", on(lambda b: b | {"di": np.full_like(b["di"], 1e30)})),
-        Case("inference", "depth 1e4 everywhere", "finite", on(lambda b: b | {"depth": np.full_like(b["depth"], 1e4)})),
-        Case("inference", "GI camera FOV 1°", "finite", at_fov(1.0)),
-        Case("inference", "GI camera FOV 170°", "finite", at_fov(170.0)),
-        Case("inference", "NaN in DI", "rejected", on(lambda b: b | {"di": with_nan(b["di"])})),
-        Case("inference", "Inf in depth", "rejected", on(lambda b: b | {"depth": with_nan(b["depth"], math.inf)})),
-        Case("inference", "NaN in normal", "rejected", on(lambda b: b | {"normal": with_nan(b["normal"])})),
-    ]
-
-
 class Warps:
     """The warp cases' runs: each warp binds a GI map of the scene (made once per GI camera) and warps it."""
 
-    def __init__(self, s: Scene) -> None:
+    def __init__(self, s: Scene, warps: Mapping[str, WarpFactory]) -> None:
         self.s = s
-        #: Case label -> warp method (:data:`bench.common.WARPS`).
-        self.kinds = {WARP_LABELS[method]: method for method in ("structure", "pixel")}
+        #: Case label -> the factory of its warp.
+        self.kinds = dict(warps)
         self.maps: dict[Any, Any] = {}
 
     def gi_map(self, camera: Any = None) -> Any:
@@ -188,7 +145,7 @@ class Warps:
         from gicore.blend import blend
         from gicore.loop import warp_view
 
-        w = make_warp(self.kinds[kind], self.s.renderer)
+        w = self.kinds[kind](self.s.renderer)
         w.bind(gi)
         di, image, valid = warp_view(w, self.s.renderer, camera, self.s.light, seed=self.s.seed)
         return blend(di, image, 0.0), valid
@@ -235,8 +192,9 @@ class Warps:
         return run
 
 
-def warp_cases(s: Scene) -> list[Case]:
-    w = Warps(s)
+def warp_cases(s: Scene, warps: Mapping[str, WarpFactory]) -> list[Case]:
+    """Every warp case for each warp of ``warps`` (case label -> factory), in its order."""
+    w = Warps(s, warps)
     local, gi = s.local, s.gi_camera
     cases = []
     for kind in w.kinds:

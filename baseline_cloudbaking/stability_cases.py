@@ -1,6 +1,7 @@
-"""`bench stability`'s cases of the stages that store and carry GI maps: codecs, the store, the network (the link
-model, and real proxies between the cloud client and a real server) and the server's API
-(:mod:`bench.stability_cases` says what a case is)."""
+"""The extreme inputs cloud baking's own stages must survive, as :class:`gicore.stability.Case` lists: the
+codecs (extreme, black and tiny maps, NaN, truncated bytes, depth beyond float16), the GI tree (zero tolerance,
+far and near eyes, NaN viewpoints, a payload over budget) and the server's API (requests at the bounds and every
+kind of invalid one, to a real server: :class:`Served`); ``bench stability`` judges them."""
 
 from __future__ import annotations
 
@@ -8,15 +9,14 @@ import json
 import math
 import shutil
 from collections.abc import Callable, Iterator
-from contextlib import ExitStack, contextmanager
-from dataclasses import dataclass, replace
+from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from bench.stability_cases import Case, Expect, Outcome, Rejected, Scene, max_rel, with_nan
-from network_sim.cli import DELAY_MS_MAX
+from gicore.stability import Case, Outcome, Rejected, Scene, max_rel, with_nan
 
 if TYPE_CHECKING:
     from baseline_cloudbaking.client import RemoteConfig
@@ -154,47 +154,6 @@ def store_cases(work: Path) -> list[Case]:
     ]
 
 
-#: The dead and stiff links of the network cases: name -> one direction's settings (both directions alike).
-DEAD_LINKS = {
-    "zero bandwidth": {"rate_mbit": 0.0},
-    "100 % loss": {"loss": 1.0},
-    f"{DELAY_MS_MAX / 1e3:g} s one-way delay (the proxy's bound)": {"delay_ms": DELAY_MS_MAX},
-}
-
-
-def link_model_cases() -> list[Case]:
-    from network_sim.link import DOWN, UP, DirectionConfig, Link, LinkConfig
-
-    request, response = 600, 40_000
-
-    def exchange(settings: dict[str, float]) -> Callable[[], Outcome]:
-        def run() -> Outcome:
-            direction = DirectionConfig(**settings)
-            link = Link(LinkConfig(up=direction, down=direction))
-            arrived = link.message(0, UP, request, 0.0)
-            done = link.message(0, DOWN, response, arrived) if math.isfinite(arrived) else math.inf
-            if not math.isfinite(done):
-                raise Rejected(
-                    "the model never delivers the request/response (release time inf): a client sees its timeout"
-                )
-            expected = 2 * direction.delay_ms / 1e3
-            return Outcome(
-                (done,),
-                abs(done - expected) / expected,
-                "relative error vs 2 × one-way delay",
-                1e-9,
-                f"response after {done:.6g} s",
-            )
-
-        return run
-
-    expect: dict[str, Expect] = {name: "finite" if "delay" in name else "rejected" for name in DEAD_LINKS}
-    return [
-        Case("network", f"link model: {name}", expect[name], exchange(settings))
-        for name, settings in DEAD_LINKS.items()
-    ]
-
-
 @dataclass(frozen=True)
 class Served:
     """The real server the process cases ask, how the cloud client asks it for the GI camera's map
@@ -208,48 +167,6 @@ class Served:
     def body(self, s: Scene) -> dict[str, Any]:
         """The cloud client's request for the map at ``s``'s GI camera."""
         return json.loads(self.remote.body(s.gi_camera, s.light))
-
-
-def through_proxy(
-    s: Scene, served: Served, stack: ExitStack, flags: list[str], timeout: float
-) -> Callable[[], Outcome]:
-    """A case's run: the cloud client asks for the GI camera's map through a real proxy with ``flags``."""
-    from baseline_cloudbaking.client import RemoteSource
-    from network_sim.process import proxy
-    from web3d.children import url
-
-    def run() -> Outcome:
-        host, _, port = served.remote.server.removeprefix("http://").rpartition(":")
-        running = stack.enter_context(proxy((host, int(port)), *flags, timeout=30.0))
-        remote = replace(served.remote, server=url(running), connect_timeout_s=timeout, read_timeout_s=timeout,
-                         deadline_s=2 * timeout, retry_after_s=0.0)  # fmt: skip
-        with RemoteSource(remote) as source:
-            source.request(s.gi_camera, s.light, 0)
-            if not source.wait(4 * timeout + 5.0):
-                raise RuntimeError(
-                    f"the client's request is still in flight {4 * timeout + 5:g} s later despite its timeouts"
-                )
-            record = source.records[-1]
-            gi = source.latest()
-        if record["status"] != "ok":
-            raise Rejected(
-                f"client gave up after {float(record['latency_ms']) / 1e3:.2f} s: {record['status']}: {record['error']}"
-            )
-        return Outcome((gi.radiance, gi.depth), note=f"map in {float(record['latency_ms']):.0f} ms")
-
-    return run
-
-
-def network_cases(s: Scene, served: Served, stack: ExitStack) -> list[Case]:
-    """The cloud client through real proxies: a LAN profile (the control asks for the map the server case "valid
-    request" baked: a hit, with room for a miss's render), then each dead link, which its timeouts must end."""
-    control = through_proxy(s, served, stack, ["--profile", "lan"], served.case_timeout_s / 3)
-    cases = [Case("network", "proxy + client: LAN profile (control)", "finite", control)]
-    for name, settings in DEAD_LINKS.items():
-        flag, value = next(iter(settings.items()))
-        run = through_proxy(s, served, stack, [f"--{flag.replace('_', '-')}", f"{value:g}"], served.client_timeout_s)
-        cases.append(Case("network", f"proxy + client: {name}", "rejected", run))
-    return cases
 
 
 def post(served: Served, content: bytes | str) -> Callable[[], Outcome]:
