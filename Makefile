@@ -11,15 +11,13 @@ $(STAMP): pyproject.toml scripts/setup.sh web3d/static/package-lock.json
 	bash scripts/setup.sh
 	touch $(STAMP)
 
-# The project's modules compiled to bytecode once per command: where PYTHONDONTWRITEBYTECODE is set (as in many CI
-# images) no process writes it, and each of the hundreds of processes the suite starts would compile them again
-# (about 0.5 s per process that imports the packages). For the same reason the suite runs with it unset, so that
-# pytest keeps its rewritten test modules (each worker collects every one: 9 s instead of 14). __pycache__ is
+# Bytecode is written while the commands run: where PYTHONDONTWRITEBYTECODE is set (as in many CI images) each of
+# the hundreds of processes the suite starts would compile the packages again (about 0.5 s per process that imports
+# them), and each pytest worker would rewrite every test module it collects (9 s instead of 14). __pycache__ is
 # ignored by git.
-BYTECODE := $(PY) -m compileall -q -j 0 gicore gigan_local baseline_cloudbaking network_sim bench web3d tests
+unexport PYTHONDONTWRITEBYTECODE
 
 run: setup
-	$(BYTECODE)
 	$(PY) -m bench run-default --out $(OUT)
 
 # Lint and format checks first (fast), then the tests on pytest-xdist workers, one more than the cores (many tests
@@ -30,8 +28,7 @@ WORKERS := $(shell echo $$(( $$(nproc) + 1 )))
 test: setup
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
-	$(BYTECODE)
-	PYTHONDONTWRITEBYTECODE= $(PY) -m pytest -q -n $(WORKERS) --dist loadfile --no-loadscope-reorder
+	$(PY) -m pytest -q -n $(WORKERS) --dist loadfile --no-loadscope-reorder
 
 clean:
 	rm -rf $(OUT) .pytest_cache

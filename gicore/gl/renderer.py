@@ -498,15 +498,12 @@ class GLRenderer:
     def _gbuffers(self, fbo: Any, wanted: Collection[str] = GBUFFERS, di: bool = False) -> dict[str, np.ndarray]:
         """The ``wanted`` G-buffers (:data:`gicore.buffers.GBUFFERS`) of a pass into ``fbo``, and its DI (attachment
         4) with ``di``; only what is asked for is read back (the mask comes from the depth)."""
-        reads = {name: _GBUFFER_READS[name] for name in GBUFFERS if name in wanted and name != "mask"}
-        if "mask" in wanted:
-            reads["depth"] = _GBUFFER_READS["depth"]
+        needed = {*wanted, "depth"} if "mask" in wanted else set(wanted)
+        reads = {name: place for name, place in _GBUFFER_READS.items() if name in needed}
         out = self._read_many(fbo, ({"di": (4, 3)} if di else {}) | reads)
         if "mask" in wanted:
             out["mask"] = (out["depth"] > 0).astype(np.float32)
-            if "depth" not in wanted:
-                del out["depth"]
-        return out
+        return {name: out[name] for name in out if name in wanted or name == "di"}
 
     def render_gbuffers(self, camera: Camera, seed: int = 0, centre: bool = True) -> dict[str, np.ndarray]:
         """Albedo, view-space normal (GL), linear view depth, world position and mask, at pixel centres.
