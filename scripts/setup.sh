@@ -43,9 +43,13 @@ if [ ! -x .venv/bin/python ]; then
   "$PYTHON" -m venv .venv
 fi
 .venv/bin/python -m pip install -q --upgrade pip
-.venv/bin/python -m pip install -q "torch==2.13.0"
+# --no-compile: pip would compile all ~14,000 modules of the wheels (45 s of a 2-minute install), most of which no
+# command imports. The modules the commands do import are compiled once below, and the rest on first import.
+.venv/bin/python -m pip install -q --no-compile "torch==2.13.0"
 # ray: the optional extra behind --ray (gicore.executor), installed so that its tests run.
-.venv/bin/python -m pip install -q -e ".[test,ray]"
+.venv/bin/python -m pip install -q --no-compile -e ".[test,ray]"
+env -u PYTHONDONTWRITEBYTECODE .venv/bin/python -c \
+  "import torch, mitsuba, ray, onnx, onnxruntime, skimage, fastapi, uvicorn, httpx, matplotlib.pyplot, pytest"
 # The Web3D viewer's JavaScript (onnxruntime-web, fzstd) from web3d/static/package-lock.json; without npm the viewer,
 # bench web and tests/web3d are unavailable (the tests skip and say so).
 if command -v npm >/dev/null; then
