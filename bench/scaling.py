@@ -7,7 +7,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Iterator
-from contextlib import contextmanager, nullcontext
+from contextlib import AbstractContextManager, contextmanager, nullcontext
 from dataclasses import dataclass
 from functools import partial
 from typing import Any, Literal
@@ -22,7 +22,7 @@ from gicore.scene import builtin_scenes, load_scene
 
 Kind = Literal["frame", "map"]
 UNITS = {"frame": "frames/s", "map": "maps/s"}
-#: The executor whose N workers are N simulated Ray nodes of 1 CPU each.
+#: The executor on a simulated Ray cluster: as many nodes of 1 CPU as the largest worker count.
 CLUSTER = "ray-cluster"
 #: The scene column of totals over the paper's five scenes.
 ALL = "paper_5_scenes"
@@ -43,8 +43,9 @@ class ScalingConfig:
     maps: int = 4
     #: Worker counts (single-threaded processes).
     workers: tuple[int, ...] = (1, 2)
-    #: Executors compared: local spawned processes, Ray tasks on a local instance, Ray tasks on a cluster of one
-    #: 1-CPU node per worker simulated on this machine.
+    #: Executors compared: local spawned processes, Ray tasks on a local instance, Ray tasks on a cluster simulated
+    #: on this machine with one 1-CPU node per worker of the largest count (a point of N workers keeps N tasks in
+    #: flight on it).
     executors: tuple[Literal["local", "ray", "ray-cluster"], ...] = ("local", "ray", CLUSTER)
     #: No-op jobs timed for the per-task overhead.
     overhead_jobs: int = 100
@@ -127,17 +128,23 @@ def _ray_cluster(res: Results, name: str, nodes: int) -> Iterator[None]:
 
 
 @contextmanager
-def _executor(kind: str, workers: int, res: Results, name: str) -> Iterator[Executor]:
-    """``workers`` single-threaded workers of executor ``kind`` (``ray``: on the instance :func:`measure`
-    started; ``ray-cluster``: on a cluster of ``workers`` nodes started for this point)."""
+def _executor(kind: str, workers: int) -> Iterator[Executor]:
+    """``workers`` single-threaded workers of executor ``kind`` (on Ray: the instance or cluster that
+    :func:`_ray_for` started)."""
     if kind == "local":
         with LocalPool(workers, threads=1) as pool:
             yield pool
-    elif kind == "ray":
-        yield RayExecutor(workers, threads=1)
     else:
-        with _ray_cluster(res, name, workers):
-            yield RayExecutor(workers, threads=1)
+        yield RayExecutor(workers, threads=1)
+
+
+def _ray_for(kind: str, cfg: ScalingConfig, res: Results, name: str) -> AbstractContextManager[None]:
+    """What executor ``kind`` runs on for all its points: one Ray instance or cluster, started once, or nothing."""
+    if kind == "ray":
+        return _ray_instance(res, name, max(cfg.workers))
+    if kind == CLUSTER:
+        return _ray_cluster(res, name, max(cfg.workers))
+    return nullcontext()
 
 
 def measure(cfg: ScalingConfig, res: Results) -> None:
@@ -148,9 +155,9 @@ def measure(cfg: ScalingConfig, res: Results) -> None:
     common = {"resolution": cfg.resolution, "spp": cfg.spp, "threads_per_worker": 1}
     item_s: dict[tuple[str, Kind], float] = {}
     for ex in cfg.executors:
-        with _ray_instance(res, name, max(cfg.workers)) if ex == "ray" else nullcontext():
+        with _ray_for(ex, cfg, res, name):
             for workers in sorted(cfg.workers):
-                with _executor(ex, workers, res, name) as executor:
+                with _executor(ex, workers) as executor:
                     _overhead(res, ex, name, executor, cfg.overhead_jobs)
                     for kind, (task, jobs) in tasks.items():
                         warmup = _wall(executor, task, jobs[:warm])
@@ -262,9 +269,16 @@ PROJECTED = {
 
 
 # -- what it shows ------------------------------------------------------------------------------------------
-def _label(ex: str, workers: int) -> str:
-    """An executor's row name: a cluster point names its simulated nodes."""
-    return f"ray, {workers} node{'s' * (workers > 1)} x 1 CPU (simulated)" if ex == CLUSTER else ex
+def _cluster_nodes(rows: Rows) -> int:
+    """Nodes of the run's simulated cluster (0 without one)."""
+    return max(
+        (r["config"]["nodes"] for r in rows if matches(r, "instance_start") and r["system"] == CLUSTER), default=0
+    )
+
+
+def _label(ex: str, rows: Rows) -> str:
+    """An executor's row name: the cluster's names its simulated nodes."""
+    return f"ray, {_cluster_nodes(rows)} nodes x 1 CPU (simulated)" if ex == CLUSTER else ex
 
 
 def _executors(rows: Rows) -> list[str]:
@@ -272,7 +286,8 @@ def _executors(rows: Rows) -> list[str]:
 
 
 def _projected_on(executors: list[str]) -> list[str]:
-    """Executors the projection tables show: a simulated cluster's 1-node point is the ``ray`` one again."""
+    """Executors the projection tables show: the projections follow from the 1-worker item time, and one task at
+    a time on the simulated cluster is the ``ray`` instance's again."""
     return [ex for ex in executors if ex != CLUSTER] or executors
 
 
@@ -291,24 +306,25 @@ def measured(rows: Rows) -> list[dict]:
     for ex in _executors(rows):
         for w in sorted({r["config"]["workers"] for r in rows if r["metric"] == "throughput"}):
             get = partial(_value, rows, system=ex, workers=w)
-            row = {"label": _label(ex, w), "workers": w, "trip": get(metric="task_roundtrip", stat="median")}
+            row = {"label": _label(ex, rows), "workers": w, "trip": get(metric="task_roundtrip", stat="median")}
             row |= {"frames": get(metric="throughput", kind="frame"), "maps": get(metric="throughput", kind="map")}
             row["efficiency"] = 1.0 if w == 1 else get(metric="efficiency", kind="frame")
             out.append(row | {"batched": get(metric="task_overhead_batched")})
     return out
 
 
-def two_nodes(rows: Rows) -> str:
-    """The two-node sentence: maps/s and the no-op round trip of 2 simulated nodes against 1, nodes used."""
+def cluster_note(rows: Rows) -> str:
+    """The cluster's sentence: maps/s and the no-op round trip with 2 tasks in flight against 1, nodes used."""
     one, two = (_value(rows, system=CLUSTER, metric="throughput", workers=n, kind="map") for n in (1, 2))
     if math.isnan(two):
         return ""
     trips = [_value(rows, system=CLUSTER, metric="task_roundtrip", stat="median", workers=n) for n in (1, 2)]
     used = _value(rows, system=CLUSTER, metric="nodes_used", workers=2, kind="map")
+    nodes = _cluster_nodes(rows)
     return (
-        f"Two simulated Ray nodes (1 CPU each, sharing this machine's cores): {two:.3g} maps/s against {one:.3g} on "
-        f"one node ({two / one:.2f}x); no-op task round trip {trips[1]:.3g} ms against {trips[0]:.3g} ms; "
-        f"{used:.0f} of 2 nodes ran the timed maps."
+        f"A simulated Ray cluster of {nodes} nodes (1 CPU each, sharing this machine's cores): {two:.3g} maps/s with "
+        f"2 tasks in flight against {one:.3g} with 1 ({two / one:.2f}x); no-op task round trip {trips[1]:.3g} ms "
+        f"against {trips[0]:.3g} ms; {used:.0f} of {nodes} nodes ran the 2 tasks' timed maps."
     )
 
 
@@ -385,7 +401,7 @@ PARTS = (
             Column("no-op batched ms per job", "{batched:.3g}"),
         ),
         caption=_measured_caption,
-        notes=two_nodes,
+        notes=cluster_note,
     ),
     Table(
         projected,
@@ -410,7 +426,7 @@ PARTS = (
                 _maps,
                 "workers",
                 series="{name}",
-                xlabel="nodes (ray-cluster) or workers",
+                xlabel="workers (tasks in flight)",
                 ylabel="maps per second (measured)",
                 title="maps/s against Ray nodes (they share this machine's cores)",
             ),

@@ -19,8 +19,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from skimage.filters import gaussian
-from skimage.metrics import structural_similarity
 
 #: Standard deviation, in pixels at the evaluated resolution, of the Gaussian that :func:`lf_error` blurs
 #: the difference with (6 px at 256²: a few percent of the frame). At another resolution the same
@@ -69,6 +67,10 @@ def psnr(a: np.ndarray, b: np.ndarray, data_range: float = 1.0) -> float:
 
 def ssim(a: np.ndarray, b: np.ndarray) -> float:
     """Mean SSIM (Gaussian sigma 1.5, population covariance, data range 1), per channel averaged."""
+    # Imported here: scikit-image's filters bring scipy.ndimage (0.4 s), which the processes that import this
+    # module for its cheap metrics (the server, the proxies' clients) never need.
+    from skimage.metrics import structural_similarity
+
     a, b = _check_pair(a, b)
     return float(
         structural_similarity(
@@ -87,6 +89,8 @@ def lf_difference(a: np.ndarray, b: np.ndarray, sigma: float = LF_SIGMA) -> np.n
     """The signed difference ``a - b`` blurred by a Gaussian of ``sigma`` pixels, each channel on its own
     (no blur across channels), border mode :data:`LF_MODE`, kernel truncated at 4 sigma; same shape as the
     inputs. The map behind :func:`lf_error` (and ``bench quality``'s error images)."""
+    from skimage.filters import gaussian  # imported here, as in ssim
+
     a, b = _check_pair(a, b)
     if not (math.isfinite(sigma) and sigma >= 0.0):
         raise ValueError(f"sigma must be a finite number of pixels >= 0, got {sigma}")

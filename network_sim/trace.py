@@ -16,8 +16,10 @@ from __future__ import annotations
 
 import bisect
 import math
+import operator
 import re
 from dataclasses import dataclass
+from itertools import islice
 from pathlib import Path
 
 from gicore.error_policy import UserError
@@ -113,6 +115,24 @@ class Trace:
 
 def parse_lines(name: str, lines: list[str]) -> list[int]:
     """Validate trace lines and return the millisecond timestamps; errors name ``name`` and the line."""
+    ms = _parse_clean(lines)
+    return ms if ms is not None else _parse_checking(name, lines)
+
+
+def _parse_clean(lines: list[str]) -> list[int] | None:
+    """The timestamps of a well-formed trace (bare digits, non-decreasing, in range, last > 0) in one pass over
+    the lines in C; None for anything else, which :func:`_parse_checking` then reports by line. A shipped trace
+    holds ~50,000 lines, parsed by every process that validates a profile name."""
+    digits = len(str(MAX_TIMESTAMP_MS))
+    if not lines or not all(line.isdigit() and line.isascii() and len(line) <= digits for line in lines):
+        return None
+    ms = list(map(int, lines))
+    ordered = all(map(operator.le, ms, islice(ms, 1, None)))
+    return ms if ordered and ms[-1] <= MAX_TIMESTAMP_MS and ms[-1] > 0 else None
+
+
+def _parse_checking(name: str, lines: list[str]) -> list[int]:
+    """Line by line, the first fault named with its line (whitespace around a number is allowed)."""
     fix = (
         "each line must be one whole number of milliseconds, never smaller than the line before (Mahimahi trace format)"
     )

@@ -16,7 +16,7 @@ from gicore.error_policy import UserError
 from network_sim.link import DOWN, UP, DirectionConfig, Link, LinkConfig, standardized
 from network_sim.profiles import get as get_profile
 from network_sim.profiles import profiles
-from network_sim.trace import Trace, parse_lines
+from network_sim.trace import Trace, _parse_checking, _parse_clean, parse_lines
 from network_sim.tracegen import MODELS, generate, shipped_path, trace_stats
 
 
@@ -74,6 +74,16 @@ def test_malformed_trace_names_file_and_line(lines: list[str], line: int, what: 
     with pytest.raises(UserError) as err:
         parse_lines("bad.trace", lines)
     assert f"bad.trace line {line}" in str(err.value) and what in str(err.value)
+
+
+def test_the_quick_parse_of_a_clean_trace_is_the_checking_parse() -> None:
+    """Clean traces take a one-pass parse, anything else the line-by-line one; both agree where both run."""
+    for model in MODELS.values():
+        lines = shipped_path(model.file).read_text().splitlines()
+        assert _parse_clean(lines) == _parse_checking(model.file, lines)
+    assert _parse_checking("t", [" 1", "2\r"]) == [1, 2]  # whitespace is the checking parse's to allow
+    for lines in (["1", " 2"], ["2", "1"], ["0"], ["1", str(10**9 + 1)], ["1", "１"], []):
+        assert _parse_clean(lines) is None
 
 
 def test_empty_trace_file_is_rejected(tmp_path: Path) -> None:

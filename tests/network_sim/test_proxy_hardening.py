@@ -20,7 +20,7 @@ from network_sim.cli import link_config
 from network_sim.process import Running, network_sim, proxy
 from network_sim.proxy import MAX_HELD_BYTES, Proxy
 from network_sim.trace import MAX_BYTES, MAX_LINES, Trace
-from tests.helpers.cli import assert_user_error
+from tests.helpers.cli import assert_user_error, check_user_error, run_main
 
 TIMEOUT = 60.0
 
@@ -121,10 +121,13 @@ def test_a_trace_is_read_bounded(tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize("flag", ["--trace-up", "--trace-down"])
-def test_the_proxy_refuses_an_endless_or_binary_trace_with_one_line(tmp_path: Path, flag: str) -> None:
+def test_the_proxy_refuses_an_endless_or_binary_trace_with_one_line(
+    tmp_path: Path, flag: str, monkeypatch: pytest.MonkeyPatch, capfd
+) -> None:
     (tmp_path / "bin.trace").write_bytes(bytes(range(256)))
     for trace in ("/dev/zero", "bin.trace"):
-        assert_user_error(["network-sim", "proxy", "--upstream", "127.0.0.1:9", flag, trace], trace, tmp_path)
+        argv = ["network-sim", "proxy", "--upstream", "127.0.0.1:9", flag, trace]
+        check_user_error(run_main(argv, tmp_path, monkeypatch, capfd), trace)
 
 
 # -- the per-chunk log -------------------------------------------------------------------------------------------
@@ -217,10 +220,12 @@ def test_an_upstream_that_connects_after_its_client_left_is_closed() -> None:
 
 
 # -- rates: 0 is a dead link; a positive rate too small to ever finish a chunk is refused ------------------------
-def test_a_vanishing_rate_is_refused_in_one_line_and_zero_stays_a_dead_link(tmp_path: Path) -> None:
+def test_a_vanishing_rate_is_refused_in_one_line_and_zero_stays_a_dead_link(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capfd
+) -> None:
     for flag in ("--rate-mbit", "--rate-up-mbit"):
         argv = ["network-sim", "proxy", "--upstream", "127.0.0.1:9", flag, "1e-300"]
-        line = assert_user_error(argv, "rate_mbit = 1e-300", tmp_path)
+        line = check_user_error(run_main(argv, tmp_path, monkeypatch, capfd), "rate_mbit = 1e-300")
         assert "must be 0 (a dead link) or >= 0.001" in line
     assert link_config(rate_mbit=0.0).up.rate_mbit == 0.0 and link_config(rate_mbit=1e-3).down.rate_mbit == 1e-3
 
