@@ -110,7 +110,7 @@ def _phase(url: str, cfg: LoadConfig, phase: str, hit: dict[str, Any], idle: int
     res = run_interruptibly(
         run_load(url, hit, misses, hit_clients=cfg.hit_clients, period_s=cfg.period_ms / 1e3,
                  idle=idle if phase == "idle" else 0, idle_rate=cfg.idle_rate, settle_s=cfg.settle_s,
-                 hold_s=cfg.reference_s if phase == "alone" else None, max_s=3600.0)
+                 hold_s=cfg.reference_s if phase == "alone" else None, max_s=3600.0, keep=cfg.max_connections)
     )  # fmt: skip
     after = _stats(url)
     return res, {k: after[k] - before[k] for k in COUNTERS}

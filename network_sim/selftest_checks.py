@@ -95,6 +95,11 @@ class Check:
     ok: bool | None = None
     config: dict[str, Any] = field(default_factory=dict)
 
+    def __post_init__(self) -> None:
+        # A verdict computed with numpy is a numpy bool, which `is False` never matches: counted as a plain bool.
+        if self.ok is not None:
+            self.ok = bool(self.ok)
+
 
 def _within(measured: float, configured: float, tolerance: float) -> bool:
     return math.isfinite(measured) and abs(measured - configured) <= tolerance

@@ -86,6 +86,9 @@ class Conn:
             self.writer = None
 
 
+#: Seconds without a single idle connection closed after which a server short of its expected closes is taken to
+#: have stopped closing them (a CPU-starved one pauses for a second or two, not this long).
+STALL_S = 30.0
 #: Fields of :class:`LoadResult` that :meth:`LoadResult.summary` condenses instead of listing.
 _PER_REQUEST = ("hit_ms", "hit_at", "misses", "side_window")
 
@@ -214,10 +217,11 @@ async def _idle_flood(host: str, port: int, n: int, res: LoadResult, stop: async
 
 
 async def _side_load(
-    host: str, port: int, miss_bodies: list[bytes], idle: int, idle_rate: float, hold_s: float
+    host: str, port: int, miss_bodies: list[bytes], idle: int, idle_rate: float, hold_s: float, keep: int | None
 ) -> LoadResult:
     """The misses (all at once) and the idle flood, then ``hold_s`` more with the flood held, and on while the
-    server goes on closing idle connections (so that what it would close is not closed by this side first)."""
+    server goes on closing idle connections (so that what it would close is not closed by this side first), and
+    while it has closed fewer than all but ``keep`` of them (a starved server can close none for a second)."""
     res = LoadResult()
     stop = asyncio.Event()
     start = time.monotonic()
@@ -228,9 +232,13 @@ async def _side_load(
     while idle and res.idle_opened + sum(res.errors.values()) < idle and not flood.done():
         await asyncio.sleep(0.05)
     await asyncio.sleep(hold_s)
-    closed = -1
-    while idle and res.idle_closed_by_server != closed:  # a busy server is still working through the flood
-        closed = res.idle_closed_by_server
+    closed, last_close = -1, time.monotonic()
+    while idle:
+        now = time.monotonic()
+        if res.idle_closed_by_server != closed:  # a busy server is still working through the flood
+            closed, last_close = res.idle_closed_by_server, now
+        elif keep is None or closed >= res.idle_opened - keep or now - last_close > STALL_S:
+            break
         await asyncio.sleep(hold_s)
     res.side_window = (start, time.monotonic())
     stop.set()
@@ -243,9 +251,9 @@ def _ready() -> None:
 
 
 def _side_process(
-    host: str, port: int, miss_bodies: list[bytes], idle: int, idle_rate: float, hold_s: float
+    host: str, port: int, miss_bodies: list[bytes], idle: int, idle_rate: float, hold_s: float, keep: int | None
 ) -> LoadResult:
-    return asyncio.run(_side_load(host, port, miss_bodies, idle, idle_rate, hold_s))
+    return asyncio.run(_side_load(host, port, miss_bodies, idle, idle_rate, hold_s, keep))
 
 
 async def run_load(
@@ -259,13 +267,15 @@ async def run_load(
     idle_rate: float = 2000.0,
     settle_s: float = 3.0,
     hold_s: float | None = None,
+    keep: int | None = None,
     max_s: float = 120.0,
 ) -> LoadResult:
     """Hit clients (each a request every ``period_s``, their phases spread evenly over the period, as
     independent clients are not in lockstep) running while another process sends ``miss_bodies`` at once
     and opens ``idle`` idle connections, ``idle_rate`` a second (in its own process, so that its work does
-    not delay the hit clients' clocks), then holds them ``hold_s`` (default ``settle_s``); the hit clients run
-    ``settle_s`` before it (at most ``max_s`` in all)."""
+    not delay the hit clients' clocks), then holds them ``hold_s`` (default ``settle_s``), and with ``keep`` (the
+    server's connection cap) until the server has closed all the others; the hit clients run ``settle_s`` before
+    it (at most ``max_s`` in all)."""
     host, port = loopback(url)
     res = LoadResult()
     stop = asyncio.Event()
@@ -281,7 +291,7 @@ async def run_load(
             await asyncio.get_running_loop().run_in_executor(pool, _ready)
             await asyncio.sleep(settle_s)
             side = asyncio.get_running_loop().run_in_executor(
-                pool, _side_process, host, port, misses, idle, idle_rate, settle_s if hold_s is None else hold_s
+                pool, _side_process, host, port, misses, idle, idle_rate, settle_s if hold_s is None else hold_s, keep
             )
             other = await asyncio.wait_for(side, max_s)
     finally:

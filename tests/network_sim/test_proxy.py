@@ -340,6 +340,15 @@ def test_unreachable_upstream_after_start_closes_only_that_client() -> None:
             assert proxy.stderr().count("unreachable") == 2
 
 
+def test_a_verdict_computed_with_numpy_counts_as_missed() -> None:
+    import numpy as np
+
+    from network_sim.selftest_checks import Check
+
+    verdict = np.float64(2.0) <= 1.0  # a numpy bool, which `is False` does not match
+    assert Check("added RTT", "lan", "added_rtt", "p99", "ms", 2.0, 1.0, "<= 1 ms", verdict).ok is False
+
+
 @pytest.mark.slow
 def test_selftest_writes_tidy_results_and_counts_missed_targets(tmp_path: Path) -> None:
     """A miniature self-test (seconds, not minutes): every check lands in the CSV with its configured
