@@ -22,6 +22,7 @@ from __future__ import annotations
 import contextvars
 import dataclasses
 import inspect
+import linecache
 import math
 import re
 import types
@@ -65,12 +66,8 @@ def field_docs(cls: type) -> dict[str, str]:
     for klass in reversed(cls.__mro__):
         if not dataclasses.is_dataclass(klass):
             continue
-        try:
-            source = inspect.getsource(klass)
-        except (OSError, TypeError):  # made at run time (dataclasses.make_dataclass): metadata only
-            source = ""
         comment: list[str] = []
-        for line in source.splitlines():
+        for line in _class_lines(klass):
             text = line.strip()
             if text.startswith("#:"):
                 comment.append(text[2:].strip())
@@ -83,6 +80,29 @@ def field_docs(cls: type) -> dict[str, str]:
         if "help" in f.metadata:
             docs[f.name] = f.metadata["help"]
     return docs
+
+
+def _class_lines(klass: type) -> list[str]:
+    """The source lines of ``klass``'s body: from its ``class`` line to the next line indented no deeper. Found by
+    name in its module's cached lines, as :func:`inspect.getsource` parses the whole module for each class (a
+    tenth of a second per command start); that parse only where the name is ambiguous. Nothing for a class made at
+    run time (``dataclasses.make_dataclass``): its fields' metadata is all there is."""
+    try:
+        lines = linecache.getlines(inspect.getsourcefile(klass) or "")
+    except TypeError:  # a built-in
+        return []
+    heads = [i for i, line in enumerate(lines) if re.match(rf"\s*class {klass.__name__}\b", line)]
+    if len(heads) != 1:
+        try:
+            return inspect.getsource(klass).splitlines() if heads else []
+        except (OSError, TypeError):
+            return []
+    start = heads[0]
+    indent = len(lines[start]) - len(lines[start].lstrip())
+    end = start + 1
+    while end < len(lines) and (not lines[end].strip() or len(lines[end]) - len(lines[end].lstrip()) > indent):
+        end += 1
+    return lines[start:end]
 
 
 def option_name(f: dataclasses.Field) -> str:

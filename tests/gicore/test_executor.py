@@ -28,8 +28,9 @@ def _nothing() -> None:
 
 
 def _report_and_sleep(_: None, seconds: float) -> int:
-    """A job that says which worker runs it (on the driver's stdout, inherited), then sleeps."""
-    print(f"busy {os.getpid()}", flush=True)
+    """A job that says which worker runs it (on the driver's stdout, inherited), then sleeps. One write of a whole
+    line: the workers share the pipe, and a print's text and newline can reach it as two writes, interleaved."""
+    os.write(sys.stdout.fileno(), f"busy {os.getpid()}\n".encode())
     time.sleep(seconds)
     return os.getpid()
 

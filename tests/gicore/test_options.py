@@ -190,6 +190,30 @@ def test_every_field_needs_help_and_extras_may_not_shadow_fields() -> None:
     assert field_docs(RunConfig)["frames"] == "Frames to run."
 
 
+def _twin_one() -> type:
+    @dataclasses.dataclass
+    class Twin:
+        #: The first twin's field.
+        x: int = 1
+
+    return Twin
+
+
+def _twin_two() -> type:
+    @dataclasses.dataclass
+    class Twin:
+        #: The second twin's field.
+        x: int = 2
+
+    return Twin
+
+
+def test_field_docs_of_two_classes_of_one_name_are_each_their_own() -> None:
+    """A name that one module's source holds twice is found by the source parse, not the first match."""
+    assert field_docs(_twin_one()) == {"x": "The first twin's field."}
+    assert field_docs(_twin_two()) == {"x": "The second twin's field."}
+
+
 def test_shared_limits() -> None:
     assert (RESOLUTION["min"], RESOLUTION["max"], FRAMES["max"]) == (8, 2048, 100_000)
 

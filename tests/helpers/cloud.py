@@ -12,8 +12,6 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-import trimesh
-
 BIN = Path(sys.executable).parent
 #: The test maps' size and spp: enough to exercise every stage, cheap on 2 cores.
 RES, SPP = 64, 4
@@ -22,6 +20,8 @@ RES, SPP = 64, 4
 def write_scenes(folder: Path) -> Path:
     """``ball_moving`` (a sphere and a box in a Cornell box, light moving) and ``ball_static`` (the
     same on a white plane, static light) as JSON spec files in ``folder``; returns the folder."""
+    import trimesh  # here: importing it costs every pytest worker a second at collection
+
     folder.mkdir(parents=True, exist_ok=True)
     trimesh.creation.icosphere(subdivisions=3).export(folder / "sphere.obj")
     base: dict[str, Any] = {
