@@ -49,7 +49,8 @@ fi
 # ray: the optional extra behind --ray (gicore.executor), installed so that its tests run.
 .venv/bin/python -m pip install -q --no-compile -e ".[test,ray]"
 env -u PYTHONDONTWRITEBYTECODE .venv/bin/python -c \
-  "import torch, mitsuba, ray, onnx, onnxruntime, skimage, fastapi, uvicorn, httpx, matplotlib.pyplot, pytest"
+  "import torch, mitsuba, ray, onnx, onnxruntime, skimage, fastapi, uvicorn, httpx, matplotlib.pyplot, pytest" ||
+  echo "setup: importing the dependencies once failed (see above); they are compiled on first use instead" >&2
 # The Web3D viewer's JavaScript (onnxruntime-web, fzstd) from web3d/static/package-lock.json; without npm the viewer,
 # bench web and tests/web3d are unavailable (the tests skip and say so).
 if command -v npm >/dev/null; then
