@@ -276,9 +276,9 @@ def _cluster_nodes(rows: Rows) -> int:
     )
 
 
-def _label(ex: str, rows: Rows) -> str:
-    """An executor's row name: the cluster's names its simulated nodes."""
-    return f"ray, {_cluster_nodes(rows)} nodes x 1 CPU (simulated)" if ex == CLUSTER else ex
+def _label(ex: str, nodes: int) -> str:
+    """An executor's row name: the cluster's names its ``nodes`` simulated nodes."""
+    return f"ray, {nodes} nodes x 1 CPU (simulated)" if ex == CLUSTER else ex
 
 
 def _executors(rows: Rows) -> list[str]:
@@ -302,11 +302,11 @@ def _value(rows: list[dict], **match: Any) -> float:
 def measured(rows: Rows) -> list[dict]:
     """Per executor and worker count: frames/s, maps/s, efficiency against 1 worker, the no-op task's round trip
     and its batched cost."""
-    out = []
+    out, nodes = [], _cluster_nodes(rows)
     for ex in _executors(rows):
         for w in sorted({r["config"]["workers"] for r in rows if r["metric"] == "throughput"}):
             get = partial(_value, rows, system=ex, workers=w)
-            row = {"label": _label(ex, rows), "workers": w, "trip": get(metric="task_roundtrip", stat="median")}
+            row = {"label": _label(ex, nodes), "workers": w, "trip": get(metric="task_roundtrip", stat="median")}
             row |= {"frames": get(metric="throughput", kind="frame"), "maps": get(metric="throughput", kind="map")}
             row["efficiency"] = 1.0 if w == 1 else get(metric="efficiency", kind="frame")
             out.append(row | {"batched": get(metric="task_overhead_batched")})

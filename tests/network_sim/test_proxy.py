@@ -204,12 +204,11 @@ def test_jitter_never_reorders(server: Running, tmp_path: Path, dist: str) -> No
             float(r["release_s"]) for r in sorted(rows, key=lambda r: int(r["seq"])) if r["direction"] == direction
         ]
         assert len(releases) > 50 and all(a <= b for a, b in zip(releases, releases[1:]))
-    spread = statistics.pstdev(float(r["release_s"]) - float(r["ready_s"]) for r in rows if r["direction"] == "up")
-    # the jitter was really there: without it every chunk's release is its ready time plus the same delay (spread 0).
-    # Keeping stream order releases a chunk no earlier than the one before, which narrows the spread below the
-    # 30 ms asked for by how the messages were cut into chunks: 15 ms (pareto) and 25 ms (normal) on an idle
-    # machine, 8.8 ms (pareto) on a busy one.
-    assert spread > 0.003
+    # The jitter reached the process: without it every chunk is released at its ready time plus the same 40 ms
+    # (no spread); with it, the delays vary and none is negative. How wide the spread is depends on how the messages
+    # were cut into chunks, so it is the link model's test (tests/network_sim/test_link.py) that holds its size.
+    held = [float(r["release_s"]) - float(r["ready_s"]) for r in rows if r["direction"] == "up"]
+    assert min(held) >= 0 and statistics.pstdev(held) > 1e-6  # well above the rounding of the logged times
 
 
 def test_full_queue_is_backpressure_not_loss(server: Running, tmp_path: Path) -> None:
