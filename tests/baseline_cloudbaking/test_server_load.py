@@ -230,7 +230,10 @@ def test_idle_connections_beyond_the_cap_are_closed_and_none_is_refused(tmp_path
 
         summary = res.summary()
         assert not res.errors and set(res.hit_status) == {200} and res.idle_opened == idle, summary
-        until(lambda: counted()["connections_drained"] >= idle - cap, "the server drained the flood")
+        try:
+            until(lambda: counted()["connections_drained"] >= idle - cap, "the server drained the flood")
+        except AssertionError as timed_out:  # with both sides' counts, to tell which closes went uncounted
+            raise AssertionError(f"{timed_out}; server: {counted()}; flood: {summary}") from None
         counts = counted()
         print(f"{idle} idle connections + {HIT_CLIENTS} hit clients: {json.dumps(summary)} {counts}")
         assert idle - cap <= counts["connections_drained"] <= idle, counts  # only the idle ones, never a hit's
