@@ -15,8 +15,8 @@ Rows per phase, its load in their config (with ``side_s``: how long the side loa
 ``settle_s`` after its last answer or connection): ``hit_latency`` (ms; median, p99, max and n of the hits sent
 while the side load ran), ``errors`` (hits not answered 200, misses answered neither 200 nor 503 with
 Retry-After, connections that failed), ``miss_status`` (count per status) and ``connections`` (the server's
-counters: drained, timed_out, refused). Each target gets a row ``stat = target_met`` (1 or 0; the load it is
-stated at and the load it was run at in its config); a missed target is reported, not an error. Also written:
+counters: accepted, drained, timed_out, refused). Each target gets a row ``stat = target_met`` (1 or 0; the load it
+is stated at and the load it was run at in its config); a missed target is reported, not an error. Also written:
 ``load.md``.
 """
 
@@ -47,7 +47,7 @@ if TYPE_CHECKING:
 SYSTEM = "cloud_baking"
 PHASES = ("alone", "misses", "idle")
 #: The server's connection counters recorded per phase.
-COUNTERS = ("connections_drained", "connections_timed_out", "connections_refused")
+COUNTERS = ("connections_accepted", "connections_drained", "connections_timed_out", "connections_refused")
 
 
 @dataclass(frozen=True)

@@ -59,6 +59,7 @@ class ConnectionLimits:
         self.kept: OrderedDict[H11Protocol, float] = OrderedDict()
         self.closing: set[H11Protocol] = set()  # closed, connection_lost not yet called: still counted by uvicorn
         self.counters = {
+            "connections_accepted": 0,
             "connections_drained": 0,
             "connections_refused": 0,
             "connections_timed_out": 0,
@@ -199,6 +200,7 @@ def capped_protocol(limits: ConnectionLimits, base: type[H11Protocol] | None = N
 
         def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
             super().connection_made(transport)
+            limits.counters["connections_accepted"] += 1
             over = limits.over(len(self.connections))
             while over > 0 and limits.drain_one():
                 over -= 1

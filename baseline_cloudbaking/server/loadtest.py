@@ -25,6 +25,8 @@ import ipaddress
 import json
 import multiprocessing
 import signal
+import socket
+import struct
 import threading
 import time
 from collections import Counter
@@ -180,10 +182,17 @@ async def _miss(host: str, port: int, body: bytes, res: LoadResult) -> None:
         conn.close()
 
 
+#: SO_LINGER of a connection the flood abandons: closed with a reset, not a FIN.
+_RESET_ON_CLOSE = struct.pack("ii", 1, 0)
+
+
 async def _idle_flood(host: str, port: int, n: int, res: LoadResult, stop: asyncio.Event, rate: float) -> None:
     """Open ``n`` connections that send nothing, ``rate`` a second whether or not the earlier ones are through
     (independent clients: one whose handshake waits does not hold back the next), and hold each until the
-    server closes it or ``stop`` is set."""
+    server closes it or ``stop`` is set; then reset it. A flood overflows a server's listen backlog: the kernel
+    answers with SYN cookies and drops a completed handshake that finds the accept queue full, leaving a connection
+    the server never saw. A FIN would carry the cookie again and have the server accept it only to see it close;
+    a reset does not, so the server's count of accepted connections is of those that reached it while held."""
     held: set[asyncio.Task] = set()
 
     async def open_and_hold() -> None:
@@ -200,6 +209,8 @@ async def _idle_flood(host: str, port: int, n: int, res: LoadResult, stop: async
         except OSError:
             res.idle_closed_by_server += 1
         finally:
+            if stop.is_set():
+                writer.get_extra_info("socket").setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, _RESET_ON_CLOSE)
             writer.close()
 
     t0 = asyncio.get_running_loop().time()

@@ -206,15 +206,21 @@ def send_request(sock: socket.socket, body: dict) -> None:
     sock.sendall(head.encode() + data)
 
 
-CONNECTIONS = ("connections_drained", "connections_timed_out", "connections_refused")
+CONNECTIONS = ("connections_accepted", "connections_drained", "connections_timed_out", "connections_refused")
 
 
 @pytest.mark.slow
 def test_idle_connections_beyond_the_cap_are_closed_and_none_is_refused(tmp_path: Path, scenes_dir: Path) -> None:
     """600 connections that send nothing against a cap of 64 and an idle timeout longer than the test: every one
-    beyond the cap is closed for a newer one, however slowly they arrive; no connection
+    that reaches the server beyond the cap is closed for a newer one, however slowly they arrive; no connection
     is refused, no hit client loses its connection, every hit is answered and hits go on during the flood;
-    the log stays a few lines."""
+    the log stays a few lines.
+
+    A flood this fast overflows the listen backlog (64) of a busy server. The kernel then answers with SYN cookies
+    and drops a handshake whose accept queue is still full when it completes: the client holds a connection the
+    server never accepted (a client that sends a request retries it; an idle one never learns). So the test counts
+    what reached the server while the flood held it, by the server's ``connections_accepted`` (the flood resets
+    its connections when it lets go, so the dropped ones are not accepted late)."""
     idle, cap = 600, 64
     args = ("--max-connections", str(cap), "--idle-timeout-s", str(HANG_S))
     with server(tmp_path / "store", scenes_dir, *args) as srv:
@@ -224,21 +230,34 @@ def test_idle_connections_beyond_the_cap_are_closed_and_none_is_refused(tmp_path
         res = asyncio.run(
             run_load(srv.url, HIT, [], hit_clients=HIT_CLIENTS, period_s=PERIOD_S, idle=idle, settle_s=1.0, keep=cap)
         )
-
-        def counted() -> dict:
-            return delta(before, srv.stats(), *CONNECTIONS)
-
         summary = res.summary()
         assert not res.errors and set(res.hit_status) == {200} and res.idle_opened == idle, summary
+
+        polls = 0
+
+        def counted() -> dict:
+            """The server's counters over the run, with ``reached``: the flood's connections it accepted (all it
+            accepted but the hit clients' and those of the stats requests since ``before``, this one's included)."""
+            nonlocal polls
+            polls += 1
+            counts = delta(before, srv.stats(), *CONNECTIONS)
+            return counts | {"reached": counts["connections_accepted"] - HIT_CLIENTS - polls}
+
+        def drained() -> bool:
+            counts = counted()
+            return counts["connections_drained"] >= counts["reached"] - cap
+
         try:
-            until(lambda: counted()["connections_drained"] >= idle - cap, "the server drained the flood")
+            until(drained, "the server drained the flood")
         except AssertionError as timed_out:  # with both sides' counts, to tell which closes went uncounted
             raise AssertionError(f"{timed_out}; server: {counted()}; flood: {summary}") from None
         counts = counted()
         print(f"{idle} idle connections + {HIT_CLIENTS} hit clients: {json.dumps(summary)} {counts}")
-        assert idle - cap <= counts["connections_drained"] <= idle, counts  # only the idle ones, never a hit's
+        reached = counts["reached"]
+        assert idle // 2 <= reached <= idle, f"{reached} of the {idle} idle connections reached the server: {counts}"
+        assert reached - cap <= counts["connections_drained"] <= reached, counts  # only the idle ones, never a hit's
         assert counts["connections_timed_out"] == counts["connections_refused"] == 0, counts
-        assert res.idle_closed_by_server >= idle - cap, summary
+        assert res.idle_closed_by_server >= reached - cap, summary
         assert len(res.hits_sent_between(*res.side_window)) >= HIT_CLIENTS, summary
         assert srv.stderr.stat().st_size - log_before < 4096, srv.stderr.read_text()[-2000:]
 

@@ -16,7 +16,8 @@ def stats(service: ServiceDep, request: Request) -> dict[str, Any]:
     """``entries``, ``bytes``, ``budget_bytes``, ``by_scene_codec``, ``scenes`` (with their light level),
     the store's ``inserts``/``evictions``/``rejected``, this process's ``requests``/``hits``/``misses``,
     the miss queue's ``misses_pending``/``misses_refused``/``misses_dropped`` and, under cloudbaking-server,
-    ``connections_idle`` and ``connections_drained``/``connections_refused``/``connections_timed_out``."""
+    ``connections_idle`` and ``connections_accepted``/``connections_drained``/``connections_refused``/
+    ``connections_timed_out``."""
     out = service.stats()
     limits = getattr(request.app.state, "connections", None)
     if limits is not None:
