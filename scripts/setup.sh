@@ -39,6 +39,18 @@ if [ ! -x /usr/bin/chromium ]; then
     "(until then the dashboard's browser test is skipped; under CI=true it fails)."
 fi
 
+# The Web3D viewer's JavaScript (onnxruntime-web, fzstd) from web3d/static/package-lock.json, installed while pip
+# works (it needs nothing from Python); without npm the viewer, bench web and tests/web3d are unavailable (the tests
+# skip and say so).
+npm_pid=""
+if command -v npm >/dev/null; then
+  (cd web3d/static && npm ci --no-audit --no-fund --loglevel=error) &
+  npm_pid=$!
+  trap 'kill "$npm_pid" 2>/dev/null || true' EXIT
+else
+  echo "setup: npm is missing: the Web3D viewer (gigan-web, bench web) needs Node 20 + npm" >&2
+fi
+
 if [ ! -x .venv/bin/python ]; then
   "$PYTHON" -m venv .venv
 fi
@@ -51,11 +63,8 @@ fi
 env -u PYTHONDONTWRITEBYTECODE .venv/bin/python -c \
   "import torch, mitsuba, ray, onnx, onnxruntime, skimage, fastapi, uvicorn, httpx, matplotlib.pyplot, pytest" ||
   echo "setup: importing the dependencies once failed (see above); they are compiled on first use instead" >&2
-# The Web3D viewer's JavaScript (onnxruntime-web, fzstd) from web3d/static/package-lock.json; without npm the viewer,
-# bench web and tests/web3d are unavailable (the tests skip and say so).
-if command -v npm >/dev/null; then
-  (cd web3d/static && npm ci --no-audit --no-fund --loglevel=error) || echo "setup: npm ci in web3d/static/ failed: the Web3D viewer is unavailable" >&2
-else
-  echo "setup: npm is missing: the Web3D viewer (gigan-web, bench web) needs Node 20 + npm" >&2
+if [ -n "$npm_pid" ] && ! wait "$npm_pid"; then
+  echo "setup: npm ci in web3d/static/ failed: the Web3D viewer is unavailable" >&2
 fi
+trap - EXIT
 echo "setup: done (.venv)"
