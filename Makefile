@@ -20,11 +20,13 @@ unexport PYTHONDONTWRITEBYTECODE
 run: setup
 	$(PY) -m bench run-default --out $(OUT)
 
-# Lint and format checks first (fast), then the tests on pytest-xdist workers, one more than the cores (many tests
-# wait on the servers, proxies and browsers they start), each test file on one worker so that a module's fixtures
-# are built once, the files with slow tests handed out first (tests/conftest.py). No test judges a wall-clock bound
-# (those are `bench load`'s and the other benches'), so none has to run alone.
-WORKERS := $(shell echo $$(( $$(nproc) + 1 )))
+# Lint and format checks first (fast), then the tests on pytest-xdist workers, two more than the cores (many tests
+# wait on the servers, proxies and browsers they start, and beside other busy processes more workers take a larger
+# share of the cores: with two busy loops on 2 cores pytest took 7:52 and 8:15 with 4 workers, 9:04 with 3), each
+# test file on one worker so that a module's fixtures are built once, the files with slow tests handed out first
+# (tests/conftest.py). No test judges a wall-clock bound (those are `bench load`'s and the other benches'), so none
+# has to run alone.
+WORKERS := $(shell echo $$(( $$(nproc) + 2 )))
 test: setup
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .

@@ -27,6 +27,13 @@ def test_load_bench_writes_every_phase_and_target(tmp_path: Path) -> None:
         mine = {(r["metric"], r["stat"]) for r in rows if r["config"].get("phase") == phase}
         assert {("hit_latency", s) for s in ("median", "p99", "max", "n")} | {("errors", "value")} <= mine, phase
     assert {r["config"]["status"] for r in rows if r["metric"] == "miss_status"} <= {200, 503}
+    idle = {
+        r["config"]["counter"]: r["value"]
+        for r in rows
+        if r["metric"] == "connections" and r["config"]["phase"] == "idle"
+    }
+    assert set(idle) == {"accepted", "drained", "timed_out", "refused"}, idle
+    assert idle["accepted"] > idle["drained"] > 0, idle  # the hit clients' connections were accepted, not drained
     targets = [r for r in rows if r["stat"] == "target_met"]
     assert [r["config"]["target"] for r in targets] == [t.label for t, _ in TARGETS]
     assert {r["value"] for r in targets} <= {0, 1}
