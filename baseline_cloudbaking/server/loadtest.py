@@ -32,6 +32,7 @@ import time
 from collections import Counter
 from collections.abc import Coroutine
 from concurrent.futures import ProcessPoolExecutor
+from contextlib import suppress
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeVar
@@ -210,7 +211,8 @@ async def _idle_flood(host: str, port: int, n: int, res: LoadResult, stop: async
             res.idle_closed_by_server += 1
         finally:
             if stop.is_set():
-                writer.get_extra_info("socket").setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, _RESET_ON_CLOSE)
+                with suppress(OSError):  # a connection the server reset has no socket left to set
+                    writer.get_extra_info("socket").setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, _RESET_ON_CLOSE)
             writer.close()
 
     t0 = asyncio.get_running_loop().time()
