@@ -46,8 +46,6 @@ if TYPE_CHECKING:
 
 SYSTEM = "cloud_baking"
 PHASES = ("alone", "misses", "idle")
-#: The server's connection counters recorded per phase.
-COUNTERS = ("connections_accepted", "connections_drained", "connections_timed_out", "connections_refused")
 
 
 @dataclass(frozen=True)
@@ -103,6 +101,7 @@ def _stats(url: str) -> dict[str, Any]:
 
 def _phase(url: str, cfg: LoadConfig, phase: str, hit: dict[str, Any], idle: int) -> tuple[LoadResult, dict[str, int]]:
     """One phase's :class:`~baseline_cloudbaking.server.loadtest.LoadResult` and the server's counters over it."""
+    from baseline_cloudbaking.server.limits import COUNTERS
     from baseline_cloudbaking.server.loadtest import miss_requests, run_interruptibly, run_load
 
     misses = miss_requests(hit["scene"], cfg.resolution, cfg.spp, cfg.misses) if phase == "misses" else []

@@ -83,7 +83,7 @@ def field_docs(cls: type) -> dict[str, str]:
 
 
 def _class_lines(klass: type) -> list[str]:
-    """The source lines of ``klass``'s body: from its ``class`` line to the next line indented no deeper. Found by
+    """The source lines of ``klass``'s body: the block (:func:`inspect.getblock`) from its ``class`` line, found by
     name in its module's cached lines, as :func:`inspect.getsource` parses the whole module for each class (a
     tenth of a second per command start); that parse only where the name is ambiguous. Nothing for a class made at
     run time (``dataclasses.make_dataclass``): its fields' metadata is all there is."""
@@ -97,12 +97,7 @@ def _class_lines(klass: type) -> list[str]:
             return inspect.getsource(klass).splitlines() if heads else []
         except (OSError, TypeError):
             return []
-    start = heads[0]
-    indent = len(lines[start]) - len(lines[start].lstrip())
-    end = start + 1
-    while end < len(lines) and (not lines[end].strip() or len(lines[end]) - len(lines[end].lstrip()) > indent):
-        end += 1
-    return lines[start:end]
+    return inspect.getblock(lines[heads[0] :])
 
 
 def option_name(f: dataclasses.Field) -> str:

@@ -30,6 +30,8 @@ from uvicorn.protocols.http.h11_impl import H11Protocol
 #: File descriptors kept for everything but client connections (SQLite files of each worker thread,
 #: payload reads, the renderer's files, the listening socket).
 FD_RESERVE = 256
+#: What happened to the server's connections, counted in ``/v1/stats``.
+COUNTERS = ("connections_accepted", "connections_drained", "connections_timed_out", "connections_refused")
 #: How often an idle-connection timer rechecks (the timeout is enforced within this).
 _SWEEP_S = 0.25
 
@@ -58,13 +60,7 @@ class ConnectionLimits:
         self.fresh: OrderedDict[H11Protocol, float] = OrderedDict()
         self.kept: OrderedDict[H11Protocol, float] = OrderedDict()
         self.closing: set[H11Protocol] = set()  # closed, connection_lost not yet called: still counted by uvicorn
-        self.counters = {
-            "connections_accepted": 0,
-            "connections_drained": 0,
-            "connections_refused": 0,
-            "connections_timed_out": 0,
-            "heads_too_large": 0,
-        }
+        self.counters = dict.fromkeys(COUNTERS, 0) | {"heads_too_large": 0}
         self._sweeper: asyncio.TimerHandle | None = None
 
     @property

@@ -27,6 +27,7 @@ import numpy as np
 import pytest
 
 from baseline_cloudbaking.protocol import MEDIA_TYPE, decode_payload
+from baseline_cloudbaking.server.limits import COUNTERS
 from baseline_cloudbaking.server.loadtest import LoadResult, run_load
 from baseline_cloudbaking.server.routers.maps import CACHE_CONTROL
 from tests.helpers.cloud import BIN, gimap_body, write_scenes
@@ -206,9 +207,6 @@ def send_request(sock: socket.socket, body: dict) -> None:
     sock.sendall(head.encode() + data)
 
 
-CONNECTIONS = ("connections_accepted", "connections_drained", "connections_timed_out", "connections_refused")
-
-
 @pytest.mark.slow
 def test_idle_connections_beyond_the_cap_are_closed_and_none_is_refused(tmp_path: Path, scenes_dir: Path) -> None:
     """600 connections that send nothing against a cap of 64 and an idle timeout longer than the test: every one
@@ -240,7 +238,7 @@ def test_idle_connections_beyond_the_cap_are_closed_and_none_is_refused(tmp_path
             accepted but the hit clients' and those of the stats requests since ``before``, this one's included)."""
             nonlocal polls
             polls += 1
-            counts = delta(before, srv.stats(), *CONNECTIONS)
+            counts = delta(before, srv.stats(), *COUNTERS)
             return counts | {"reached": counts["connections_accepted"] - HIT_CLIENTS - polls}
 
         def drained() -> bool:

@@ -205,10 +205,11 @@ def test_jitter_never_reorders(server: Running, tmp_path: Path, dist: str) -> No
         ]
         assert len(releases) > 50 and all(a <= b for a, b in zip(releases, releases[1:]))
     # The jitter reached the process: without it every chunk is released at its ready time plus the same 40 ms
-    # (no spread); with it, the delays vary and none is negative. How wide the spread is depends on how the messages
-    # were cut into chunks, so it is the link model's test (tests/network_sim/test_link.py) that holds its size.
+    # (a spread of rounding only, 1e-15 of the delay); with it, the delays vary and none is negative. How wide the
+    # spread is depends on how the messages were cut into chunks, so it is the link model's test
+    # (tests/network_sim/test_link.py) that holds its size; here it only has to be far from none.
     held = [float(r["release_s"]) - float(r["ready_s"]) for r in rows if r["direction"] == "up"]
-    assert min(held) >= 0 and statistics.pstdev(held) > 1e-6  # well above the rounding of the logged times
+    assert min(held) >= 0 and statistics.pstdev(held) > 0.01 * statistics.fmean(held)
 
 
 def test_full_queue_is_backpressure_not_loss(server: Running, tmp_path: Path) -> None:
