@@ -13,7 +13,6 @@ when to ask (:mod:`baseline_cloudbaking.request_policy`); a ``cloudbaking-client
 
 from __future__ import annotations
 
-import email.utils
 import json
 import logging
 import threading
@@ -22,13 +21,13 @@ import weakref
 from collections import deque
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import Any, Protocol
 
 import httpx
 import numpy as np
 
-from baseline_cloudbaking.codecs import DEFAULT_CODEC, CodecError, get_codec
-from baseline_cloudbaking.protocol import MEDIA_TYPE, PayloadError, decode_payload
+from baseline_cloudbaking.codecs import DEFAULT_CODEC
+from baseline_cloudbaking.fetch import SERVER_STAGES, Fetcher, FetcherName, open_fetcher
 from baseline_cloudbaking.request_policy import (
     SEND_WHEN_ASKED,
     LightCell,
@@ -43,20 +42,14 @@ from gicore.gi_map import GIMap
 from gicore.paths import Light
 from gicore.run_config import PathRunConfig
 
-if TYPE_CHECKING:
-    pass
-
 log = logging.getLogger("cloudbaking.client")
 
-#: Server stages in the order a payload header reports them (``read`` for a hit; render, denoise,
-#: encode for a miss).
-SERVER_STAGES = ("lookup", "read", "render", "denoise", "encode")
 #: Every stage a map reports, in the order they happen.
 STAGES = ("request", *SERVER_STAGES, "server_other", "transfer", "decode")
 #: Columns of a request's record (``<stage>_ms`` for every stage of :data:`STAGES`).
 RECORD_COLUMNS = (
     "request_id", "frame", "status", "error", "hit", "requested_s", "bytes_up", "bytes_down",
-    *(f"{s}_ms" for s in STAGES), "server_ms", "transmission_ms", "latency_ms", "pickup_ms",
+    *(f"{s}_ms" for s in STAGES), "server_ms", "transmission_ms", "latency_ms", "pickup_ms", "handoff_ms",
 )  # fmt: skip
 
 
@@ -88,6 +81,9 @@ class RemoteConfig:
     deadline_s: float = 60.0
     #: After a failed request, no new one is sent for this long, s (a dead server is not asked every frame).
     retry_after_s: float = 1.0
+    #: Where requests run: process (a worker process per request slot, as a browser's web worker: the frame
+    #: loop never delays them) or thread (in the client's process; what a caller without a frame loop needs).
+    fetch: FetcherName = "process"
 
     def __post_init__(self) -> None:
         for name in ("connect_timeout_s", "read_timeout_s", "deadline_s"):
@@ -130,44 +126,6 @@ KEPT_MAPS = 4
 Job = tuple[Camera, Light, int, float, int]
 
 
-def retry_after_s(value: str | None, default: float, longest: float) -> float:
-    """Seconds a ``Retry-After`` header asks to wait (delay-seconds or an HTTP date), within [0, ``longest``];
-    ``default`` when absent or unreadable."""
-    if value is None:
-        return default
-    try:
-        seconds = float(int(value.strip()))
-    except ValueError:
-        try:
-            seconds = email.utils.parsedate_to_datetime(value).timestamp() - time.time()
-        except (TypeError, ValueError, OverflowError):
-            return default
-    return min(max(seconds, 0.0), longest)
-
-
-class RequestFailed(Exception):
-    """A request that produced no map: ``status`` says how (see :meth:`RemoteSource._fetch`);
-    ``retry_after_s``: how long the server asked the client to wait (None: not asked)."""
-
-    def __init__(self, status: str, message: str, retry_after_s: float | None = None):
-        super().__init__(message)
-        self.status = status
-        self.retry_after_s = retry_after_s
-
-
-def _header_bytes(headers: httpx.Headers) -> int:
-    """Bytes of an HTTP/1.1 header block: ``name: value\\r\\n`` per field and the closing blank line."""
-    return sum(len(k) + len(v) + 4 for k, v in headers.raw) + 2
-
-
-def _http_error(response: httpx.Response) -> str:
-    try:
-        detail = response.json().get("detail")
-    except ValueError:
-        detail = response.text[:200]
-    return f"HTTP {response.status_code}: {detail}"
-
-
 class RemoteSource:
     """GI maps from a cloud-baking server, fetched in a background thread (see the module docstring), sent
     when ``policy`` says so.
@@ -185,7 +143,8 @@ class RemoteSource:
         self.motion = MotionPredictor(policy.history)
         self.kept: deque[tuple[GIMap, LightCell]] = deque(maxlen=KEPT_MAPS)  # arrived maps, newest last
         self._view: tuple[Camera, LightCell] | None = None  # the last view asked for
-        self.client = httpx.Client(base_url=cfg.server, timeout=cfg.timeout())
+        # one fetcher per request slot, each its own connection (and, for ``process``, its own worker process)
+        self._fetchers: list[Fetcher] = open_fetchers(cfg, policy.in_flight)
         self.records: list[dict[str, Any]] = []
         self._t0 = time.perf_counter()
         self._cond = threading.Condition()
@@ -197,8 +156,8 @@ class RemoteSource:
         self._unpicked: dict[GIMap, dict[str, Any]] = {}  # the records of maps the loop has not taken yet
         self._cells: weakref.WeakKeyDictionary[GIMap, LightCell] = weakref.WeakKeyDictionary()
         self._threads = [
-            threading.Thread(target=self._work, name=f"gimap-requests-{i}", daemon=True)
-            for i in range(policy.in_flight)
+            threading.Thread(target=self._work, args=(fetcher,), name=f"gimap-requests-{i}", daemon=True)
+            for i, fetcher in enumerate(self._fetchers)
         ]
         for thread in self._threads:
             thread.start()
@@ -303,13 +262,12 @@ class RemoteSource:
         return None if self._serving(camera, self.policy.cell(light), in_flight=True) is not None else (camera, light)
 
     def warm_up(self, camera: Camera, light: Light) -> None:
-        """Open the keep-alive connection (``GET /v1/health``) and run the codec once, both untimed."""
-        codec = get_codec(self.cfg.codec)
-        codec.decode(codec.encode(np.zeros((8, 8, 3), np.float32)))
-        try:
-            self.client.get("/v1/health").raise_for_status()
-        except httpx.HTTPError as exc:
-            log.warning("warm-up: GET /v1/health failed (%s); the first request will open the connection", exc)
+        """Each fetcher opens its keep-alive connection (``GET /v1/health``) and runs the codec once, untimed."""
+        for fetcher in self._fetchers:
+            error = fetcher.warm_up()
+            if error is not None:
+                log.warning("warm-up: GET /v1/health failed (%s); the first request will open the connection", error)
+                return
 
     # -- lifecycle -------------------------------------------------------------------------------------
     def wait(self, timeout: float) -> bool:
@@ -337,9 +295,10 @@ class RemoteSource:
                 record["latency_ms"] = (time.perf_counter() - t_request) * 1e3
                 self.records.append(record)
             self._cond.notify_all()
+        for fetcher in self._fetchers:  # ends the requests in flight: their threads see the source closed
+            fetcher.close()
         for thread in self._threads:
             thread.join(timeout=1.0)
-        self.client.close()
 
     def __enter__(self) -> RemoteSource:
         return self
@@ -348,7 +307,7 @@ class RemoteSource:
         self.close()
 
     # -- the thread ------------------------------------------------------------------------------------
-    def _work(self) -> None:
+    def _work(self, fetcher: Fetcher) -> None:
         while True:
             with self._cond:
                 while not self._jobs and not self._closed:
@@ -358,7 +317,7 @@ class RemoteSource:
                 job = self._jobs.popleft()
                 self._in_flight.append(job)
             try:
-                record, gi, wait = self._fetch(*job)
+                record, gi, wait = self._fetch(fetcher, *job)
             except Exception:
                 if self._closed:  # the connection was closed under a request that close() abandoned
                     return
@@ -380,78 +339,40 @@ class RemoteSource:
                 self._cond.notify_all()
 
     def _fetch(
-        self, camera: Camera, light: Light, frame: int, t_request: float, request_id: int
+        self, fetcher: Fetcher, camera: Camera, light: Light, frame: int, t_request: float, request_id: int
     ) -> tuple[dict[str, Any], GIMap | None, float | None]:
-        """One request: its record, its map (None if it failed) and the wait the server asked for (None: none)."""
-        cfg = self.cfg
-        body = cfg.body(camera, light)
+        """One request: its record, its map (None if it failed) and the wait the server asked for (None: none).
+        ``decode`` runs from the response's last byte to the map in this process (for a ``process`` fetcher, the
+        hand-over from its worker included)."""
         record: dict[str, Any] = dict.fromkeys(RECORD_COLUMNS, "")
-        record |= {"request_id": request_id, "frame": frame, "status": "ok", "requested_s": t_request - self._t0}
-        headers = {"content-type": "application/json", "accept": MEDIA_TYPE}
-        try:
-            try:
-                with self.client.stream("POST", "/v1/gimap", content=body, headers=headers) as response:
-                    t_first = time.perf_counter()
-                    request_line = f"POST {response.request.url.raw_path.decode()} HTTP/1.1\r\n"
-                    record["bytes_up"] = len(request_line) + _header_bytes(response.request.headers) + len(body)
-                    if response.status_code == 503:  # overloaded: wait as long as the server asks
-                        response.read()
-                        wait = retry_after_s(response.headers.get("retry-after"), cfg.retry_after_s, cfg.deadline_s)
-                        raise RequestFailed("overloaded", _http_error(response), wait)
-                    if response.status_code != 200:
-                        response.read()
-                        raise RequestFailed("http_error", _http_error(response))
-                    chunks = []
-                    for chunk in response.iter_bytes():
-                        chunks.append(chunk)
-                        if time.perf_counter() - t_request > cfg.deadline_s:
-                            raise RequestFailed(
-                                "timeout", f"the response took longer than the {cfg.deadline_s:g} s deadline"
-                            )
-                    t_last = time.perf_counter()
-                    data = b"".join(chunks)
-                    record["bytes_down"] = (
-                        len(data) + _header_bytes(response.headers) + len(f"HTTP/1.1 {response.status_code} OK\r\n")
-                    )
-            except httpx.TimeoutException as exc:
-                raise RequestFailed("timeout", f"{type(exc).__name__} ({exc or 'no detail'})") from None
-            except httpx.TransportError as exc:
-                raise RequestFailed("connection", f"{type(exc).__name__} ({exc or 'no detail'})") from None
-            try:
-                payload = decode_payload(data)
-            except (PayloadError, CodecError) as exc:
-                raise RequestFailed("bad_payload", str(exc)) from None
-        except RequestFailed as exc:
-            record |= {"status": exc.status, "error": str(exc), "latency_ms": (time.perf_counter() - t_request) * 1e3}
-            log.warning("GI-map request %d (frame %d) failed: %s: %s", record["request_id"], frame, exc.status, exc)
-            return record, None, exc.retry_after_s
+        record |= {"request_id": request_id, "frame": frame, "requested_s": t_request - self._t0}
+        fetched = fetcher.fetch(self.cfg.body(camera, light), t_request)
         arrived = time.perf_counter()
-        server = {s: float(payload.timings_ms[s]) for s in SERVER_STAGES if s in payload.timings_ms}
-        server_ms = float(payload.timings_ms.get("total", sum(server.values())))
-        stages = {
-            "request": (t_first - t_request) * 1e3 - server_ms,
-            **server,
-            "server_other": server_ms - sum(server.values()),
-        }
-        stages |= {"transfer": (t_last - t_first) * 1e3, "decode": (arrived - t_last) * 1e3}
-        record |= {f"{s}_ms": ms for s, ms in stages.items()}
-        record |= {
-            "hit": int(bool(payload.hit)),
-            "server_ms": server_ms,
-            "transmission_ms": stages["request"] + stages["transfer"],
-            "latency_ms": (arrived - t_request) * 1e3,
-        }
-        gi = GIMap(
-            payload.camera,
-            payload.gi,
-            payload.depth,
-            payload.di,
-            frame=frame,
-            requested_at=t_request,
-            arrived_at=arrived,
-            stages=stages,
-        )
+        record |= fetched.fields | {"latency_ms": (arrived - t_request) * 1e3}
+        payload = fetched.payload
+        if payload is None:
+            status, error = record["status"], record["error"]
+            log.warning("GI-map request %d (frame %d) failed: %s: %s", request_id, frame, status, error)
+            return record, None, fetched.retry_after_s
+        record["decode_ms"] = (arrived - fetched.t_last) * 1e3
+        record["transmission_ms"] = record["request_ms"] + record["transfer_ms"]
+        stages = {s: float(record[f"{s}_ms"]) for s in STAGES if record[f"{s}_ms"] != ""}
+        gi = GIMap(payload.camera, payload.gi, payload.depth, payload.di, frame=frame, requested_at=t_request,
+                   arrived_at=arrived, stages=stages)  # fmt: skip
         return record, gi, None
+
+
+def open_fetchers(cfg: RemoteConfig, n: int) -> list[Fetcher]:
+    """``n`` fetchers of ``cfg.fetch``'s kind (:mod:`baseline_cloudbaking.fetch`), started together."""
+    fetchers = [open_fetcher(cfg) for _ in range(n)]
+    try:
+        for fetcher in fetchers:
+            fetcher.ready()
+    except BaseException:
+        for fetcher in fetchers:
+            fetcher.close()
+        raise
+    return fetchers
 
 
 class PathRequests(Protocol):
@@ -479,7 +400,8 @@ def request_path_maps(
     spec = load_scene(scene)
     timeout = cfg.read_timeout_s
     remote = RemoteConfig(url, Path(scene).stem, cfg.resolution, cfg.codec, cfg.spp, residual, spec.light.moves,
-                          read_timeout_s=timeout, deadline_s=2 * timeout, retry_after_s=0.0)  # fmt: skip
+                          read_timeout_s=timeout, deadline_s=2 * timeout, retry_after_s=0.0,
+                          fetch="thread")  # fmt: skip
     views = flown_path(spec, cfg, seed).views(cfg.resolution)[: 1 if off_path else None]
     with RemoteSource(remote) as source:
         for frame, (camera, light) in enumerate(views):

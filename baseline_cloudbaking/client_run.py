@@ -7,6 +7,7 @@
 from __future__ import annotations
 
 import math
+import sys
 import time
 from collections.abc import Iterable
 from dataclasses import dataclass, field
@@ -18,6 +19,7 @@ import numpy as np
 
 from baseline_cloudbaking.client import RECORD_COLUMNS, STAGES, RemoteConfig, RemoteSource
 from baseline_cloudbaking.codecs import CODEC_NAMES, DEFAULT_CODEC
+from baseline_cloudbaking.fetch import FetcherName
 from baseline_cloudbaking.request_policy import HOLDS, PREFETCH, LightCell, RequestPolicy, covers, viewpoint_of
 from baseline_cloudbaking.viewpoints import Tolerance, nearest
 from gicore.camera import Camera
@@ -138,8 +140,11 @@ class CloudClientConfig(PathRunConfig):
     #: Requests in flight at most, each on its own connection (with prefetch: successive views ahead, one
     #: tolerance crossing apart).
     in_flight: int = field(default=1, metadata={"min": 1, "max": 16})
-    #: Frames per second the frames are paced to, as a display refreshes (absent: as fast as they render).
-    frame_rate: float | None = field(default=None, metadata={"min": 1.0, "max": 1000.0})
+
+    #: Where the requests and their decode run: process (a worker process per request in flight, which the frame
+    #: loop never holds up) or thread (a thread of the client's process, which waits for the frame loop at every
+    #: step that needs the interpreter).
+    fetch: FetcherName = "process"
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -162,7 +167,7 @@ class CloudClientConfig(PathRunConfig):
         return RemoteConfig(
             server, self.server_name, self.resolution, self.codec, self.spp, di=self.composition == "residual",
             light_moves=light_moves, connect_timeout_s=self.connect_timeout, read_timeout_s=self.read_timeout,
-            deadline_s=self.deadline,
+            deadline_s=self.deadline, fetch=self.fetch,
         )  # fmt: skip
 
 
@@ -185,7 +190,7 @@ def run_client(
     from baseline_cloudbaking.warp import PixelWarp
     from gicore.gi_map import LAYERS
     from gicore.gl.frame import open_client_raster, warp_backend
-    from gicore.loop import ClientLoop, LoopConfig, run_frames
+    from gicore.loop import ClientLoop, FrameResult, LoopConfig, run_frames
     from gicore.path_file import flown_path
     from gicore.render import Renderer
     from gicore.scene import load_scene
@@ -205,26 +210,25 @@ def run_client(
     views = (flown or flown_path(spec, cfg, cfg.seed, cfg.local_fov_of(spec))).views(cfg.resolution)
     kept: dict[int, np.ndarray] = {}
     shown: list[tuple[float, float, GIMap | None, LightCell]] = []  # (start s, shown s, bound map, its cell)
-    next_start: list[float] = []
 
+    if cfg.fetch == "process":
+        # the thread that takes a map over from its worker needs the interpreter for a moment; the frame loop
+        # holds it, and gives it up only every switch interval (5 ms by default): ask for 0.5 ms
+        sys.setswitchinterval(min(sys.getswitchinterval(), 0.0005))
     with RemoteSource(remote, policy) as source:
         on_gl = warp_backend(cfg.warp_backend, used, warn=True) == "gl"
         warp = GLPixelWarp(raster, LAYERS[cfg.composition]) if on_gl else PixelWarp(LAYERS[cfg.composition])
         loop = ClientLoop(loop_cfg, raster, source, warp)
 
-        def keep(frame: int, result) -> None:
+        def keep(frame: int, result: FrameResult) -> None:
             end = time.perf_counter()
-            start = next_start[-1] if next_start else end - float(result.row["frame_ms"]) / 1e3
             gi = loop.bound
             cell = None if gi is None else source.cell_of(gi)
-            shown.append((start - source.started_at, end - source.started_at, gi, cell))
+            shown.append((result.started - source.started_at, end - source.started_at, gi, cell))
             if cfg.gt_every and frame % cfg.gt_every == 0:
                 kept[frame] = result.image
-            if cfg.frame_rate:  # the next frame starts on the display's next refresh after this one's start
-                time.sleep(max(0.0, start + 1.0 / cfg.frame_rate - time.perf_counter()))
-            next_start.append(time.perf_counter())
 
-        rows = run_frames(loop, views, None, keep)
+        rows = run_frames(loop, views, None, keep, cfg.frame_rate)
     gi_views = [(loop.gi_camera(camera), policy.cell(light)) for camera, light in views]
     perceived = perceived_latency(gi_views, shown, tolerance.tolerance)
     for row, extra in zip(rows, perceived, strict=True):

@@ -102,6 +102,21 @@ class GIMapPayload:
     di: np.ndarray | None
     depth: np.ndarray
 
+    @classmethod
+    def of(cls, header: dict[str, Any], gi: np.ndarray, di: np.ndarray | None, depth: np.ndarray) -> GIMapPayload:
+        """A payload from its header and its decoded sections; :class:`PayloadError` when they do not fit the
+        header's camera."""
+        try:
+            camera = Camera.from_dict(header["camera"])
+        except (KeyError, TypeError, ValueError) as exc:
+            raise PayloadError(f"payload header is not valid: {exc}") from None
+        shape = (camera.height, camera.width)
+        if gi.shape[:2] != shape or depth.shape != shape or (di is not None and di.shape != gi.shape):
+            raise PayloadError(
+                f"sections do not match the {shape[1]}x{shape[0]} camera: gi {gi.shape}, depth {depth.shape}"
+            )
+        return cls(header, camera, np.asarray(header["view"]), np.asarray(header["proj"]), gi, di, depth)
+
     @property
     def hit(self) -> bool | None:
         """Served from the GI tree (True), rendered for this request (False), or a stored file (None)."""
@@ -119,15 +134,9 @@ def decode_payload(data: bytes) -> GIMapPayload:
         raise PayloadError(f"payload lacks the gi or depth section; it has {sorted(sections)}")
     try:
         codec = get_codec(header["codec"])
-        camera = Camera.from_dict(header["camera"])
-    except (KeyError, TypeError, ValueError) as exc:
+    except (KeyError, ValueError) as exc:
         raise PayloadError(f"payload header is not valid: {exc}") from None
-    gi = codec.decode(bytes(sections["gi"]))  # CodecError (a ValueError) names the codec
-    di = codec.decode(bytes(sections["di"])) if "di" in sections else None
-    depth = DEPTH_CODEC.decode(bytes(sections["depth"]))
-    shape = (camera.height, camera.width)
-    if gi.shape[:2] != shape or depth.shape != shape or (di is not None and di.shape != gi.shape):
-        raise PayloadError(
-            f"sections do not match the {shape[1]}x{shape[0]} camera: gi {gi.shape}, depth {depth.shape}"
-        )
-    return GIMapPayload(header, camera, np.asarray(header["view"]), np.asarray(header["proj"]), gi, di, depth)
+    # the codecs read the sections where they lie in ``data`` (no copies); a CodecError (a ValueError) names the codec
+    gi = codec.decode(sections["gi"])
+    di = codec.decode(sections["di"]) if "di" in sections else None
+    return GIMapPayload.of(header, gi, di, DEPTH_CODEC.decode(sections["depth"]))

@@ -9,24 +9,31 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 from baseline_cloudbaking.client import request_path_maps
 from baseline_cloudbaking.codecs import DEFAULT_CODEC, CodecName
+from baseline_cloudbaking.fetch import FetcherName
 from baseline_cloudbaking.server.settings import check_served
+from bench.latency_alone import decode_floor, gigan_alone, local_alone, path_views, requests_alone, stored_payloads
+from bench.latency_floor import PARTS as FLOOR_PARTS
+from bench.latency_floor import Alone, machine, record_alone, record_floor_ratios, record_targets, report
 from bench.latency_record import CLOUD, CLOUD_PREFETCH, GIGAN, record
 from bench.latency_tables import PARTS
 from bench.processes import BIN, path_options, pinned_proxy, pinned_server, run_client, run_place, with_path_frames
 from bench.runner import Bench, Block, Section
 from gicore import option_groups
 from gicore.blend import COMPOSITIONS
-from gicore.cores import threads
+from gicore.cores import client_cores, threads
 from gicore.error_policy import UserError
 from gicore.frame_rows import read_summary
 from gicore.results import Results
 from gicore.run_config import RENDERERS
 from gigan_local.inference import DEFAULT_MODEL, check_model_resolution
 from network_sim.profiles import profiles_field
+
+if TYPE_CHECKING:
+    from gicore.scene import SceneSpec
 
 
 @dataclass(frozen=True)
@@ -64,6 +71,14 @@ class LatencyConfig:
     #: Requests in flight of a cloud client with --prefetch extrapolate run beside the plain one on the prebaked
     #: store (first renderer only; 0: none).
     prefetch_in_flight: int = field(default=3, metadata={"min": 0, "max": 16})
+    #: Frames per second both clients are paced to, as a display refreshes (none: each frame as soon as the last
+    #: is composed, which leaves the cloud client's requests less of its cores than a display would).
+    frame_rate: float | None = field(default=60.0, metadata={"min": 1.0, "max": 1000.0})
+    #: Where the cloud client's requests and decode run (cloudbaking-client --fetch).
+    fetch: FetcherName = "process"
+    #: Also measure every stage alone, on the clients' cores with nothing else running (Table 1's alone and
+    #: inflation columns, each system's floor).
+    alone: bool = True
 
     @classmethod
     def quick(cls) -> LatencyConfig:
@@ -125,6 +140,9 @@ def measure(cfg: LatencyConfig, res: Results) -> None:
     path_args = ["--scene", scene, *path_options(cfg), "--resolution", str(cfg.resolution), "-k", str(cfg.every),
                  "--spp", str(cfg.spp), "--gt-every", str(cfg.gt_every), "--composition", cfg.composition,
                  "--seed", str(res.seed), "--gt-cache", str(work / "gt_cache")]  # fmt: skip
+    if cfg.frame_rate:
+        path_args += ["--frame-rate", f"{cfg.frame_rate:g}"]
+    res.settings["frames_paced"] = f"{cfg.frame_rate:g} fps" if cfg.frame_rate else "unpaced"
     shutil.rmtree(work / "gt_cache", ignore_errors=True)  # rendered again by each bench run's code
 
     def client(argv: list[str], name: str, renderer: str) -> Path:
@@ -136,7 +154,7 @@ def measure(cfg: LatencyConfig, res: Results) -> None:
     gigan_argv = [str(BIN / "gigan-client"), *path_args, "--gi-source", "model", "--model", str(cfg.model),
                   "--threads", str(threads(plan, "client"))]  # fmt: skip
     runs = {(GIGAN, "none", "local", r): client(gigan_argv, "gigan", r) for r in renderers}
-    cloud_argv = [str(BIN / "cloudbaking-client"), *path_args, "--codec", cfg.codec,
+    cloud_argv = [str(BIN / "cloudbaking-client"), *path_args, "--codec", cfg.codec, "--fetch", cfg.fetch,
                   "--read-timeout", str(cfg.read_timeout_s), "--deadline", str(2 * cfg.read_timeout_s)]  # fmt: skip
     shutil.rmtree(work / "store_prebaked", ignore_errors=True)  # every run prebakes its own store
     residual = cfg.composition == "residual"  # the first pass asks for the maps the runs will ask for
@@ -159,6 +177,10 @@ def measure(cfg: LatencyConfig, res: Results) -> None:
                         runs[CLOUD_PREFETCH, profile, "prebaked", renderer] = client(
                             [*cloud_argv, *prefetch, "--server", url], f"cloud_prefetch_{profile}_prebaked", renderer
                         )
+        if cfg.alone:
+            alone = measure_alone(cfg, plan, scene, spec, warm, renderers, res.seed)
+            decode = decode_floor(stored_payloads(work / "store_prebaked", spec.name))
+        for profile in cfg.profiles:
             # a cold store per renderer: each run's requests miss as the other's did
             for renderer in renderers:
                 store = work / f"store_cold_{profile}_{renderer}"
@@ -173,6 +195,34 @@ def measure(cfg: LatencyConfig, res: Results) -> None:
                 shutil.rmtree(store, ignore_errors=True)
     shutil.rmtree(work / "store_prebaked", ignore_errors=True)
     record(res, spec.name, cfg, runs, common)
+    if cfg.alone:
+        warnings = record_alone(res, spec.name, alone)
+        record_floor_ratios(res, spec.name, alone)
+        report(warnings, record_targets(res, spec.name, decode, threads(plan, "client"), machine()))
+
+
+def measure_alone(
+    cfg: LatencyConfig, plan: dict[str, Any], scene: str, spec: SceneSpec, server: str, renderers: tuple[str, ...],
+    seed: int,
+) -> Alone:  # fmt: skip
+    """Every stage alone (:mod:`bench.latency_alone`) in this process on the clients' cores: GIGAN's loop per
+    renderer; per profile the requests through a fresh proxy in front of ``server`` (the prebaked store), and the
+    cloud client's loop on the first profile's maps per renderer (it does not depend on the profile)."""
+    views = path_views(spec, cfg, seed)
+    alone: Alone = {}
+    with client_cores(plan):
+        for renderer in renderers:
+            alone[GIGAN, "none", renderer] = gigan_alone(scene, cfg, renderer, seed, threads(plan, "client"),
+                                                         cfg.frame_rate)  # fmt: skip
+        local: dict[str, dict[str, list[float]]] = {}
+        for profile in cfg.profiles:
+            with pinned_proxy(plan, profile, server, seed) as url:
+                requests, maps = requests_alone(url, scene, spec, cfg, views)
+            for renderer in renderers:
+                if renderer not in local:
+                    local[renderer] = local_alone(spec, cfg, renderer, views, maps)
+                alone[CLOUD, profile, renderer] = requests | local[renderer]
+    return alone
 
 
 BENCH = Bench(
@@ -183,6 +233,6 @@ BENCH = Bench(
     "processes over simulated network profiles; ratios, crossover RTT, SSIM along the path.",
     dashboard=Section("table1", "Table 1: interaction latency", 10),
     readme=Block("Interaction latency, Table 1", 10),
-    parts=PARTS,
+    parts=(*PARTS, *FLOOR_PARTS),
     needs=("total", "total_ratio"),
 )

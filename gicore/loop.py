@@ -220,10 +220,12 @@ TAIL_COLUMNS = ("frame_ms", *QUALITY_COLUMNS)
 
 @dataclass
 class FrameResult:
-    """One composed frame (linear radiance, HxWx3) and its row."""
+    """One composed frame (linear radiance, HxWx3), its row, and when it started (``time.perf_counter``: its
+    camera moved)."""
 
     image: np.ndarray
     row: dict[str, Any]
+    started: float
 
 
 def _turn_deg(a: Camera, b: Camera) -> float:
@@ -297,6 +299,7 @@ class ClientLoop:
         The frame's DI and its warp's raster pass are one render (stage ``di``) after binding, since the
         structure-aware warp's pass interpolates the bound map's coordinates."""
         cfg = self.cfg
+        started = time.perf_counter()
         sw = Stopwatch()
         requested = self._wants_map(frame, camera) and self.source.request(self.gi_camera(camera), light, frame)
         gi = self._newest()
@@ -330,7 +333,7 @@ class ClientLoop:
         unknown = set(row) - set(columns)
         if unknown:  # a source or warp reported a stage it does not declare in its ``stages``
             raise RuntimeError(f"undeclared stage columns {sorted(unknown)}; add them to the source's or warp's stages")
-        return FrameResult(image, {c: row.get(c, "") for c in columns if c not in QUALITY_COLUMNS})
+        return FrameResult(image, {c: row.get(c, "") for c in columns if c not in QUALITY_COLUMNS}, started)
 
     def _render_and_compose(self, frame: int, camera: Camera, light: Light, sw: Stopwatch) -> tuple[np.ndarray, ...]:
         """The frame's DI and its warp's pass read back (stage ``di``), the warp's stages, then the composition
@@ -361,9 +364,12 @@ def run_frames(
     views: Sequence[tuple[Camera, Light]],
     ground_truth: GroundTruth | None = None,
     on_frame: Callable[[int, FrameResult], None] | None = None,
+    frame_rate: float | None = None,
 ) -> list[dict[str, Any]]:
     """Warm ``loop`` up at the first view, then run one frame per view; returns the rows (scored by
-    ``ground_truth`` where given). ``on_frame(frame, result)`` sees every composed frame."""
+    ``ground_truth`` where given). ``on_frame(frame, result)`` sees every composed frame. ``frame_rate``: frames
+    start no faster than this many per second, each on the first refresh of a display after the previous one's
+    start (None: each as soon as the previous one is composed)."""
     loop.warm_up(*views[0])
     rows = []
     for frame, (camera, light) in enumerate(views):
@@ -372,4 +378,6 @@ def run_frames(
         rows.append(result.row)
         if on_frame is not None:
             on_frame(frame, result)
+        if frame_rate:
+            time.sleep(max(0.0, result.started + 1.0 / frame_rate - time.perf_counter()))
     return rows

@@ -80,6 +80,9 @@ class PathRunConfig:
     #: a GPU; numpy on a CPU rasteriser such as llvmpipe, where numpy is as fast: docs/architecture.md, OpenGL
     #: passes).
     warp_backend: Literal[WARP_BACKENDS] = "auto"  # type: ignore[valid-type]
+    #: Frames per second the frames are paced to, as a display refreshes (absent: as fast as they render). Pace
+    #: both clients alike when comparing them: an unpaced client's frame loop leaves its other work less time.
+    frame_rate: float | None = field(default=None, metadata={"min": 1.0, "max": 1000.0})
 
     def __post_init__(self) -> None:
         try:

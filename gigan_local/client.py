@@ -278,7 +278,7 @@ def run_client(
     loop = ClientLoop(cfg.loop_config(spec), raster, source, make_warp(cfg.warp, raster, cfg.composition, backend))
     views = (flown or flown_path(spec, cfg, cfg.seed, local_fov)).views(cfg.resolution)
     ground_truth = cfg.ground_truth(renderer, spec) if cfg.gt_every else None
-    return run_frames(loop, views, ground_truth, on_frame)
+    return run_frames(loop, views, ground_truth, on_frame, cfg.frame_rate)
 
 
 def run(cfg: ClientConfig, out: Path, save_frames: bool = False, video: bool = False) -> dict[str, Any]:

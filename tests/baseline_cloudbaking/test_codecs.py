@@ -203,3 +203,18 @@ def test_malformed_payloads_are_payload_errors(baked: BakedMap) -> None:
             decode_payload(data)
     with pytest.raises(PayloadError, match="lacks the gi or depth"):
         decode_payload(pack({"codec": "jpeg"}, {"gi": b"x"}))
+
+
+def test_8bit_decode_by_table_equals_the_inverse_tone_map_bit_for_bit() -> None:
+    """The 8-bit codecs look each byte's linear value up in a table: the same float32 bits as the formula, for every
+    byte, in any position of an array of any shape (a vectorised kernel's lanes and tail alike)."""
+    from baseline_cloudbaking.codecs import Pillow8Bit, inverse_u8
+
+    rng = np.random.default_rng(4)
+    for shape in ((256,), (257, 131, 3), (1, 1, 3)):
+        q = rng.integers(0, 256, shape, dtype=np.uint8)
+        assert np.array_equal(Pillow8Bit._from_u8(q).view(np.uint32), inverse_u8(q).view(np.uint32))
+    every = np.arange(256, dtype=np.uint8)
+    assert np.array_equal(Pillow8Bit._from_u8(every).view(np.uint32), inverse_u8(every).view(np.uint32))
+    assert inverse_u8(every)[0] == 0.0 and np.all(np.diff(inverse_u8(every)) > 0)  # monotone, finite
+    assert np.isfinite(inverse_u8(every)).all()

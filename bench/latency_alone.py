@@ -1,0 +1,173 @@
+"""Each Table 1 stage alone (docs/architecture.md, Each stage alone): the same work as the client runs, on the same
+cores, inputs and cameras, with nothing else running in the process, so that a stage's cost in the loop can be set
+beside its cost alone (their ratio, the inflation, is what the harness or the client's plumbing adds).
+
+- cloud baking, per profile: each map of the run's path asked for one at a time through a fresh proxy of the
+  profile in front of the run's prebaked server (``request``, ``transfer``, the server's stages, ``decode``); then
+  the maps received composed along the path by the cloud client's own loop, fed by a source that hands them over at
+  once (``di``, ``warp``, ``blend``);
+- GIGAN: its client's loop along the path (it is one thread: its stages alone are its stages);
+- the libraries' floor of a decode: Pillow's decode of the map section plus zstandard's of the depth section, on
+  the stored payloads the hits serve (the target of the client's own decode).
+
+:func:`measure_alone` runs them inside the bench's process, pinned to the clients' cores.
+"""
+
+from __future__ import annotations
+
+import io
+import time
+from dataclasses import replace
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from baseline_cloudbaking.client import RemoteConfig, RemoteSource
+from baseline_cloudbaking.client_run import REQUEST_STAGES
+from gicore.gi_map import GIMap
+from gicore.loop import SynchronousSource
+
+if TYPE_CHECKING:
+    from bench.latency import LatencyConfig
+    from gicore.camera import Camera
+    from gicore.paths import Light
+    from gicore.scene import SceneSpec
+
+Samples = dict[str, list[float]]
+#: The cloud stages a served request reports (``warp`` is the bind plus the warp's per-frame stages).
+CLOUD_ALONE = tuple(s for s in REQUEST_STAGES if s not in ("render", "denoise", "encode"))
+
+
+class ReplaySource(SynchronousSource):
+    """Hands over the given maps one per request, in order and at once (the network and the decode left out)."""
+
+    name = "replay"
+
+    def __init__(self, maps: list[GIMap]):
+        super().__init__()
+        self._maps = [replace(gi, stages={}) for gi in maps]
+        self._next = 0
+
+    def produce(self, camera: Camera, light: Light, frame: int) -> GIMap:
+        if frame < 0:  # the warm-up: any map
+            return self._maps[0]
+        gi = self._maps[self._next % len(self._maps)]
+        self._next += 1
+        return gi
+
+
+def path_views(spec: SceneSpec, cfg: LatencyConfig, seed: int) -> list[tuple[Camera, Light]]:
+    """The local views of the run's path (the clients' own)."""
+    from gicore.path_file import flown_path
+
+    return flown_path(spec, cfg, seed, spec.camera.local_fov).views(cfg.resolution)
+
+
+def requests_alone(
+    url: str, scene: str, spec: SceneSpec, cfg: LatencyConfig, views: list[tuple[Camera, Light]]
+) -> tuple[Samples, list[GIMap]]:
+    """Ask ``url`` for the GI view of every k-th frame, one request at a time in a thread of this process (nothing
+    else runs): the stage samples of the served requests (:data:`CLOUD_ALONE`'s network and server stages,
+    ``transmission``, and the request's latency as ``round_trip``) and the maps received."""
+    remote = RemoteConfig(url, Path(scene).stem, cfg.resolution, cfg.codec, cfg.spp, cfg.composition == "residual",
+                          spec.light.moves, read_timeout_s=cfg.read_timeout_s, deadline_s=2 * cfg.read_timeout_s,
+                          retry_after_s=0.0, fetch="thread")  # fmt: skip
+    maps: list[GIMap] = []
+    with RemoteSource(remote) as source:
+        source.warm_up(*views[0])
+        for frame in range(0, len(views), cfg.every):
+            camera, light = views[frame]
+            source.request(camera.with_fov(spec.camera.gi_fov), light, frame)
+            source.wait(2 * cfg.read_timeout_s + 10)
+            gi = source.latest()
+            if gi is not None and gi.frame == frame:
+                maps.append(gi)
+    samples: Samples = {}
+    columns = {stage: f"{stage}_ms" for stage in CLOUD_ALONE} | {"round_trip": "latency_ms", "server": "server_ms"}
+    for record in (r for r in source.records if r["status"] == "ok"):
+        for stage, column in columns.items():
+            if record.get(column, "") != "":
+                samples.setdefault(stage, []).append(float(record[column]))
+    if not maps:
+        raise RuntimeError(f"no map came back from {url} while measuring the requests alone")
+    return samples, maps
+
+
+def local_alone(
+    spec: SceneSpec, cfg: LatencyConfig, renderer: str, views: list[tuple[Camera, Light]], maps: list[GIMap]
+) -> Samples:
+    """The cloud client's loop along the path with ``maps`` handed over every k frames: per bound map, ``di``,
+    ``warp`` (bind + the warp's stages) and ``blend`` (the composition)."""
+    from baseline_cloudbaking.gl_warp import GLPixelWarp
+    from baseline_cloudbaking.warp import PixelWarp
+    from gicore.gi_map import LAYERS
+    from gicore.gl.frame import open_client_raster, warp_backend
+    from gicore.loop import ClientLoop, LoopConfig, run_frames
+    from gicore.render import Renderer
+
+    raster, used = open_client_raster(renderer, spec, cfg.resolution, Renderer(spec, cfg.resolution))
+    layer = LAYERS[cfg.composition]
+    warp = GLPixelWarp(raster, layer) if warp_backend("auto", used) == "gl" else PixelWarp(layer)
+    loop_cfg = LoopConfig(every=cfg.every, gi_fov=spec.camera.gi_fov, composition=cfg.composition, seed=0)
+    rows = run_frames(ClientLoop(loop_cfg, raster, ReplaySource(maps), warp), views)
+    warp_stages = [s for s in warp.stages if s != "bind"]
+    samples: Samples = {"di": [], "warp": [], "blend": []}
+    for row in (r for r in rows if r["gi_new"]):
+        samples["di"].append(float(row["di_ms"]))
+        samples["warp"].append(float(row["bind_ms"]) + sum(float(row[f"{s}_ms"]) for s in warp_stages))
+        samples["blend"].append(float(row["compose_ms"]))
+    return samples
+
+
+def gigan_alone(
+    scene: str, cfg: LatencyConfig, renderer: str, seed: int, threads: int, frame_rate: float | None
+) -> Samples:
+    """GIGAN's client loop along the path in this process: its per-map stage samples."""
+    from gigan_local.client import ClientConfig, run_client, stage_samples
+
+    client = ClientConfig(scene=scene, frames=cfg.frames, resolution=cfg.resolution, every=cfg.every,
+                          orbit_frames=cfg.orbit_frames, path=cfg.path, composition=cfg.composition, spp=cfg.spp,
+                          seed=seed, renderer=renderer, gi_source="model", model=cfg.model, threads=threads,
+                          frame_rate=frame_rate)  # fmt: skip
+    rows = run_client(client)
+    return stage_samples([{k: str(v) for k, v in r.items()} for r in rows])
+
+
+def decode_floor(payloads: list[bytes], repeats: int = 3) -> dict[str, list[float]]:
+    """Per stored payload (ms, the median of ``repeats``): ``decode`` (the client's :func:`decode_payload`) and
+    ``library`` (Pillow's decode of the map section to RGB bytes plus zstandard's of the depth section: what no
+    decode of these bytes can skip)."""
+    import zstandard
+    from PIL import Image
+
+    from baseline_cloudbaking.codecs import ARRAY_HEADER_BYTES
+    from baseline_cloudbaking.protocol import decode_payload, unpack
+
+    def timed(work) -> float:
+        times = []
+        for _ in range(repeats + 1):  # the first is a warm-up
+            t0 = time.perf_counter()
+            work()
+            times.append((time.perf_counter() - t0) * 1e3)
+        return float(np.median(times[1:]))
+
+    def library(data: bytes) -> None:
+        _, sections = unpack(data)
+        with Image.open(io.BytesIO(sections["gi"])) as im:
+            np.asarray(im.convert("RGB"))
+        zstandard.ZstdDecompressor().decompress(sections["depth"][ARRAY_HEADER_BYTES:])
+
+    out: dict[str, list[float]] = {"decode": [], "library": []}
+    for data in payloads:
+        out["decode"].append(timed(lambda: decode_payload(data)))
+        out["library"].append(timed(lambda: library(data)))
+    return out
+
+
+def stored_payloads(store: Path, scene: str, limit: int = 40) -> list[bytes]:
+    """Up to ``limit`` payloads of ``scene`` in the GI tree at ``store`` (what its hits serve)."""
+    from baseline_cloudbaking.store import GITree
+
+    with GITree(store) as tree:
+        return [tree.payload_path(e.sha).read_bytes() for e in tree.entries(scene)[:limit]]
