@@ -6,6 +6,7 @@ system, profile, cache state and renderer; the ratio of totals, the link model's
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from functools import partial
 from pathlib import Path
 from typing import Any, Protocol
@@ -13,6 +14,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from baseline_cloudbaking.client_run import REQUEST_STAGES, RunMetrics
+from bench.intervals import add_interval, crossover_interval, ratio_interval, stream
 from gicore.frame_rows import read_csv_rows, read_summary, scored_ssim
 from gicore.results import Results
 from gigan_local.client import stage_samples
@@ -133,9 +135,10 @@ def _record_cloud_runs(
 
 
 def _record_cloud_stages(
-    res: Results, scene: str, profile: str, samples: dict[str, list[float]], gigan_total: float, config: dict
+    res: Results, scene: str, profile: str, samples: dict[str, list[float]], gigan: Sequence[float], config: dict
 ) -> None:
-    """Cloud baking's stage timings, bytes, the ratio of totals and the link model's total at ``profile``."""
+    """Cloud baking's stage timings, bytes, the ratio of totals (over GIGAN's per-map totals ``gigan``) with its
+    bootstrap interval (:mod:`bench.intervals`), and the link model's total at ``profile``."""
     from network_sim import profiles as profile_table
 
     add = partial(res.add, system=CLOUD, scene=scene, stat="median")
@@ -148,19 +151,26 @@ def _record_cloud_stages(
         add(metric=name, value=float(np.median(samples[name])), unit="B", **config)
     link = profile_table.get(profile).link(seed=res.seed)
     config = config | {"rtt_ms": link.rtt_s * 1e3}
-    ratio = float(np.median(samples["total"])) / gigan_total
+    ratio = float(np.median(samples["total"])) / float(np.median(gigan))
     add(system=f"{CLOUD}/{GIGAN}", metric="total_ratio", value=ratio, unit="1", **config)
+    interval = ratio_interval(samples["total"], gigan, stream(res.seed, "total_ratio", config))
+    add_interval(res, interval, system=f"{CLOUD}/{GIGAN}", scene=scene, metric="total_ratio", unit="1", **config)
     add(metric="total_model", value=CloudCost.of(samples).total_ms(link, starts=20), unit="ms", **config)
 
 
 def _record_crossover(
-    res: Results, scene: str, cfg: Recorded, pooled: dict[str, list[float]], gigan_total: float, config: dict
+    res: Results, scene: str, cfg: Recorded, pooled: dict[str, list[float]], gigan: Sequence[float], config: dict
 ) -> None:
-    """The link model with one cache state's pooled stages: the crossover RTT, and the ratio over an RTT sweep."""
-    cost = CloudCost.of(pooled)
+    """The link model with one cache state's pooled stages: the crossover RTT against the median of GIGAN's per-map
+    totals ``gigan`` with its bootstrap interval (:func:`bench.intervals.crossover_interval`), and the ratio over an
+    RTT sweep."""
+    cost, gigan_total = CloudCost.of(pooled), float(np.median(gigan))
     crossover = cost.crossover_rtt_ms(gigan_total, cfg.sweep_rate_mbit)
     add = partial(res.add, system=f"{CLOUD}/{GIGAN}", scene=scene, stat="model", **config)
     add(metric="crossover_rtt", value=crossover, unit="ms")
+    seed = stream(res.seed, "crossover_rtt", config)
+    interval = crossover_interval(pooled, gigan, cfg.sweep_rate_mbit, seed)
+    add_interval(res, interval, system=f"{CLOUD}/{GIGAN}", scene=scene, metric="crossover_rtt", unit="ms", **config)
     for rtt in np.linspace(0.0, cfg.sweep_max_rtt_ms, 26):
         total = cost.total_ms(sweep_link(float(rtt), cfg.sweep_rate_mbit))
         add(metric="ratio_model", value=total / gigan_total, unit="1", rtt_ms=float(rtt))

@@ -5,9 +5,11 @@ Table 1 of the README, and the figures (stage bars, the ratio of totals against 
 from __future__ import annotations
 
 import math
+from functools import partial
 from typing import Any
 
 from baseline_cloudbaking.client_run import REQUEST_STAGES, TRANSMISSION_PARTS
+from bench.intervals import cell, legend, level_of, recorded, suffix, too_few
 from bench.latency_record import CLOUD, CLOUD_PREFETCH, GIGAN, RENDERER_RATIO
 from gicore.present.declarations import Chart, Column, Figure, Rows, Table, fill, flat, matches, per, unique
 from gigan_local.client import MAP_STAGES
@@ -105,7 +107,8 @@ def what_ran(raw: Rows) -> str:
 # -- Table 1 in full ------------------------------------------------------------------------------------------
 def table1(raw: Rows) -> list[dict[str, Any]]:
     """Per profile: each stage's median and p95 per column (stages no column measured left out), the ratio of
-    totals, the link model's total and the maps measured; the profile's note on the pickup wait."""
+    totals with its interval (:func:`bench.intervals.cell`), the link model's total and the maps measured; the
+    profile's note on the pickup wait."""
     rows, columns = with_renderer(raw), _columns(raw)
     out = []
     for profile in profiles_of(rows):
@@ -125,13 +128,18 @@ def table1(raw: Rows) -> list[dict[str, Any]]:
             ]
 
         counts = [lookup(rows, s, "total", "n", **_where(s, c, profile, r)) or 0 for s, c, r, _ in columns]
+        gigan_n = {r: lookup(rows, GIGAN, "total", "n", profile="none", renderer=r) for _, _, r, _ in columns}
+        ratio = partial(cell, rows, f"{CLOUD}/{GIGAN}", "total_ratio", "median", fmt=".2f", even=1.0)
+        # each ratio's samples: its column's maps and GIGAN's on the same renderer
+        ratios = [
+            None if s == GIGAN else ratio((n, gigan_n[r]), profile=profile, cache=c, renderer=r)
+            for (s, c, r, _), n in zip(columns, counts)
+        ]
+        level = level_of(rows, "total_ratio")
+        shown = "" if level is None else f" [{level * 100:g} % interval]"
+        label = f"ratio of totals, cloud / GIGAN (same renderer){shown}"
         out += [
-            head
-            | {
-                "stage": "ratio of totals, cloud / GIGAN (same renderer)",
-                "fmt": ".2f",
-                "m": cloud(f"{CLOUD}/{GIGAN}", "total_ratio"),
-            },
+            head | {"stage": label, "fmt": "s", "m": ratios},
             head | {"stage": "total by the link model (check)", "fmt": ".1f", "m": cloud(CLOUD, "total_model")},
             head | {"stage": "maps measured", "fmt": ".0f", "m": counts},
         ]
@@ -216,18 +224,27 @@ def _perceived_notes(raw: Rows) -> str:
 
 
 def crossovers(raw: Rows) -> list[dict[str, Any]]:
-    out = []
-    for r in (flat(r) for r in with_renderer(raw) if r["metric"] == "crossover_rtt"):
-        v = r["value"]
-        shown = "0 (GIGAN is faster at any RTT)" if v == 0 else ("none up to a minute" if math.isinf(v) else f"{v:.0f}")
+    """Each crossover RTT with its interval (``interval``: the text after the value, :func:`bench.intervals.suffix`;
+    its samples: every profile's maps of the cache state, and GIGAN's)."""
+    rows, out = with_renderer(raw), []
+    for row in (r for r in rows if matches(r, "crossover_rtt", "model")):
+        r, v = flat(row), row["value"]
+        where = {"cache": r.get("cache"), "renderer": r["renderer"]}
+        cloud = sum(x["value"] for x in rows if x["system"] == CLOUD and matches(x, "total", "n", **where))
+        counts = (cloud, lookup(rows, GIGAN, "total", "n", profile="none", renderer=r["renderer"]))
+        interval = recorded(rows, row["system"], "crossover_rtt", **row["config"])
+        extra = suffix(interval, too_few(rows, "crossover_rtt", counts), ".0f")
+        value = "none up to a minute" if math.isinf(v) else f"{v:.0f}"
+        shown = f"0{extra} (GIGAN is faster at any RTT)" if v == 0 else value + extra
         rate = r.get("rate_mbit")
-        out.append(r | {"shown": shown, "rate": "unlimited" if rate is None else f"{rate:g} Mbit/s"})
+        out.append(r | {"shown": shown, "interval": extra, "rate": "unlimited" if rate is None else f"{rate:g} Mbit/s"})
     return out
 
 
 # -- the README's Table 1 in short ------------------------------------------------------------------------------
 def short(raw: Rows) -> list[dict[str, Any]]:
-    """One line per network profile and renderer: totals, the ratios and mean SSIM of each system."""
+    """One line per network profile and renderer: totals, the ratios (with their intervals,
+    :func:`bench.intervals.cell`) and mean SSIM of each system."""
     rows, out = with_renderer(raw), []
     rtt = {r["config"]["profile"]: r["config"].get("rtt_ms") for r in rows if matches(r, "total_ratio")}
     for profile, rtt_ms in rtt.items():
@@ -236,10 +253,13 @@ def short(raw: Rows) -> list[dict[str, Any]]:
             row = at | {
                 "rtt": rtt_ms,
                 "gigan": lookup(rows, GIGAN, "total", "median", profile="none", renderer=renderer),
+                "gigan_n": lookup(rows, GIGAN, "total", "n", profile="none", renderer=renderer),
             }
             for cache in ("hit", "miss"):
                 row[cache] = lookup(rows, CLOUD, "total", "median", cache=cache, **at)
-                row[f"{cache}_ratio"] = lookup(rows, f"{CLOUD}/{GIGAN}", "total_ratio", "median", cache=cache, **at)
+                counts = (lookup(rows, CLOUD, "total", "n", cache=cache, **at), row["gigan_n"])
+                ratio = cell(rows, f"{CLOUD}/{GIGAN}", "total_ratio", "median", counts, ".2f", 1.0, cache=cache, **at)
+                row[f"{cache}_ratio"] = ratio
             row["ssim"] = lookup(rows, GIGAN, "ssim", "mean", profile="none", renderer=renderer)
             row |= {store: lookup(rows, CLOUD, "ssim", "mean", store=store, **at) for store in ("prebaked", "cold")}
             out.append(row)
@@ -283,14 +303,15 @@ def _short_notes(raw: Rows) -> str:
             if math.isinf(r["value"])
             else f"beyond an RTT of {r['value']:.0f} ms"
         )
-        crossings.append(f"a cloud {r.get('cache')} {at} ({r['renderer']})")
+        crossings.append(f"a cloud {r.get('cache')} {at}{r['interval']} ({r['renderer']})")
     if crossings:
         lines.append(
             "Crossover (the link model with the measured stages): GIGAN's median total beats "
             + "; ".join(crossings)
             + "."
         )
-    return "\n".join([*lines, what_ran(raw)]).strip()
+    intervals = legend(rows, "total_ratio", "each system's maps; no clear winner: the ratio's interval holds 1")
+    return "\n".join(line for line in (*lines, intervals, what_ran(raw)) if line)
 
 
 # -- figures ---------------------------------------------------------------------------------------------------
@@ -355,7 +376,7 @@ SHORT = Table(
         Column("GIGAN", "{gigan:.1f}"),
         Column("cloud hit", "{hit:.1f}"),
         Column("cloud miss", "{miss:.1f}"),
-        Column("cloud / GIGAN: hit / miss", "{hit_ratio:.2f} / {miss_ratio:.2f}"),
+        Column("cloud / GIGAN: hit / miss", "{hit_ratio} / {miss_ratio}"),
         Column("mean SSIM vs GT: GIGAN / prebaked / cold", "{ssim:.3f} / {prebaked:.3f} / {cold:.3f}"),
     ),
     caption=_short_caption,
@@ -385,6 +406,7 @@ CROSSOVERS = Table(
         Column("link rate", "{rate}"),
     ),
     title="crossover: the RTT beyond which GIGAN's median total beats cloud baking's (link model, measured stages)",
+    notes=lambda rows: legend(rows, "crossover_rtt", "the cloud requests, each with its stages, and GIGAN's maps"),
     where="dashboard",
 )
 PARTS = (
