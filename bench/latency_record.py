@@ -82,20 +82,20 @@ def record_renderer(
 ) -> None:
     """Rows of one renderer's runs: stage timings, ratios, the link model's check and crossover, quality along
     the path."""
-    gigan_total = _record_gigan(res, scene, cfg, runs[GIGAN, "none", "local"], common)
+    gigan_totals = _record_gigan(res, scene, cfg, runs[GIGAN, "none", "local"], common)
     cloud = _record_cloud_runs(res, scene, cfg, runs, common)
     for (profile, cache), samples in cloud.items():
         config = {"profile": profile, "cache": cache, "codec": cfg.codec} | common
-        _record_cloud_stages(res, scene, profile, samples, gigan_total, config)
+        _record_cloud_stages(res, scene, profile, samples, gigan_totals, config)
     for cache in ("hit", "miss"):
         pooled = _pool([s for (_, c), s in cloud.items() if c == cache])
         if pooled.get("total"):
             config = {"cache": cache, "rate_mbit": cfg.sweep_rate_mbit, "codec": cfg.codec} | common
-            _record_crossover(res, scene, cfg, pooled, gigan_total, config)
+            _record_crossover(res, scene, cfg, pooled, gigan_totals, config)
 
 
-def _record_gigan(res: Results, scene: str, cfg: Recorded, folder: Path, common: dict[str, Any]) -> float:
-    """GIGAN's stage timings and SSIM rows; its median total."""
+def _record_gigan(res: Results, scene: str, cfg: Recorded, folder: Path, common: dict[str, Any]) -> list[float]:
+    """GIGAN's stage timings and SSIM rows; its per-map totals (ms)."""
     frames = read_csv_rows(folder / "frames.csv")
     gigan = stage_samples(frames)
     for stage, values in gigan.items():
@@ -109,7 +109,7 @@ def _record_gigan(res: Results, scene: str, cfg: Recorded, folder: Path, common:
             model=cfg.model.name,
         )
     _ssim_rows(res, scene, GIGAN, scored_ssim(frames), {"profile": "none", "store": "none"} | common)
-    return float(np.median(gigan["total"]))
+    return gigan["total"]
 
 
 def _record_cloud_runs(

@@ -344,7 +344,7 @@ def ratio_points(raw: Rows) -> list[dict[str, Any]]:
     measured = [
         flat(r) | {"name": f"{r['config']['cache']}, {r['config']['renderer']}", "measured": True}
         for r in rows
-        if matches(r, "total_ratio")
+        if matches(r, "total_ratio", "median")
     ]
     return model + measured
 

@@ -97,6 +97,34 @@ def test_bench_latency_end_to_end(tmp_path: Path) -> None:
         and "crossover" in table
     )
     assert {p.name for p in files} >= FILES
+    check_alone(rows, renderer)
+
+
+def check_alone(rows: list[dict], renderer: str) -> None:
+    """Every stage measured alone beside the loop: an ``alone`` and an ``inflation`` row for each of GIGAN's stages
+    and each of a cloud hit's, the floors' total adding up the stages alone, the floors' ratio and the targets."""
+    from bench.latency_floor import CLOUD_HIT_STAGES
+    from gigan_local.client import MAP_STAGES
+
+    def alone(system: str, stat: str, **config) -> dict[str, float]:
+        return {
+            r["metric"]: r["value"]
+            for r in rows
+            if r["system"] == system and r["stat"] == stat and r["config"].items() >= config.items()
+        }
+
+    gigan = alone("gigan", "alone", profile="none", renderer=renderer)
+    assert set(gigan) == {*MAP_STAGES, "total"}
+    assert gigan["total"] == pytest.approx(sum(gigan[s] for s in MAP_STAGES))
+    assert set(alone("gigan", "inflation", profile="none")) == set(MAP_STAGES)
+    cloud = alone("cloud_baking", "alone", profile="rtt60", cache="hit", renderer=renderer)
+    assert set(cloud) >= {"request", "transfer", "decode", "di", "warp", "blend", "transmission", "total"}
+    assert cloud["total"] == pytest.approx(sum(cloud[s] for s in CLOUD_HIT_STAGES if s in cloud))
+    assert cloud["request"] >= 59.0  # the profile's round trip is in the request alone too
+    [ratio] = [r for r in rows if r["metric"] == "total_ratio" and r["stat"] == "alone"]
+    assert ratio["value"] == pytest.approx(cloud["total"] / gigan["total"])
+    targets = {r["metric"] for r in rows if r["stat"] == "target_met"}
+    assert targets >= {"decode_floor", "inflation", "decode_inflation"}
 
 
 def check_client_runs(runs: Path, renderer: str, frames: int, gt_every: int) -> None:

@@ -80,7 +80,7 @@ def test_bench_latency_gives_every_client_the_path_file(
     told = stand_in(monkeypatch)
     argvs, asked, recorded = told.argvs, told.asked, told.recorded
     cfg = LatencyConfig(scenes=(str(scene),), profiles=("lan",), resolution=16, path=session, renderers=("mitsuba",),
-                        prefetch_in_flight=1)  # fmt: skip
+                        prefetch_in_flight=1, alone=False)  # fmt: skip  # the stages alone run in this process
     latency.measure(cfg, Results("latency", tmp_path / "out", 0))
     assert len(argvs) == 4  # gigan, cloud on the prebaked store, its prefetching twin, cloud on a cold store
     for argv in argvs:
