@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 
 from baseline_cloudbaking.client import RemoteConfig, RemoteSource
-from baseline_cloudbaking.fetch import retry_after_s
 from baseline_cloudbaking.client_run import CloudClientConfig, perceived_latency
+from baseline_cloudbaking.fetch import retry_after_s
 from baseline_cloudbaking.request_policy import MotionPredictor, RequestPolicy, covers
 from baseline_cloudbaking.viewpoints import Tolerance
 from gicore.camera import Camera
