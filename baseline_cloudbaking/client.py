@@ -186,10 +186,12 @@ class RemoteSource:
             self._cond.notify()
         return True
 
-    def latest(self) -> GIMap | None:
+    def latest(self, wait_s: float = 0.0) -> GIMap | None:
         """The held map that best serves the last view asked for (the newest when none does, or without a
-        tolerance)."""
+        tolerance); with none held, waits up to ``wait_s`` for one while a request is on its way."""
         with self._cond:
+            if not self.kept and wait_s > 0:
+                self._cond.wait_for(lambda: self.kept or not self._pending() or self._closed, timeout=wait_s)
             if not self.kept:
                 return None
             gi = self.kept[-1][0]

@@ -40,7 +40,8 @@ class GISource(Protocol):
     ``request`` starts making the map for ``frame`` at the GI ``camera`` under ``light`` and returns
     whether it did (False: the source is still busy with an earlier request, and nothing happened). A
     synchronous source finishes inside ``request``; a remote one works in a background thread.
-    ``latest`` returns the newest map that has arrived (or None), at once. ``warm_up`` runs the source's
+    ``latest`` returns the newest map that has arrived (or None), at once, or waiting up to ``wait_s`` seconds for
+    one while none has arrived and one is on its way. ``warm_up`` runs the source's
     passes once, untimed and without producing a map, so one-off compilation stays out of frame times.
     ``stages``: the names of the per-map costs its maps report (:attr:`GIMap.stages`).
     """
@@ -50,7 +51,7 @@ class GISource(Protocol):
 
     def request(self, camera: Camera, light: Light, frame: int) -> bool: ...
 
-    def latest(self) -> GIMap | None: ...
+    def latest(self, wait_s: float = 0.0) -> GIMap | None: ...
 
     def warm_up(self, camera: Camera, light: Light) -> None: ...
 
@@ -128,8 +129,8 @@ class SynchronousSource:
         self._latest = replace(gi, frame=frame, requested_at=t0, arrived_at=time.perf_counter())
         return True
 
-    def latest(self) -> GIMap | None:
-        return self._latest
+    def latest(self, wait_s: float = 0.0) -> GIMap | None:
+        return self._latest  # made inside request(): there is nothing to wait for
 
     def warm_up(self, camera: Camera, light: Light) -> None:
         self.produce(camera, light, -1)
@@ -285,11 +286,8 @@ class ClientLoop:
 
     def _newest(self) -> GIMap | None:
         """The newest arrived map; with none bound yet, wait for the first one (up to the timeout)."""
-        gi = self.source.latest()
-        deadline = time.perf_counter() + self.cfg.first_map_timeout_s
-        while gi is None and self.bound is None and not self._first_map_waited_out and time.perf_counter() < deadline:
-            time.sleep(0.0005)
-            gi = self.source.latest()
+        first = self.bound is None and not self._first_map_waited_out
+        gi = self.source.latest(self.cfg.first_map_timeout_s if first else 0.0)
         self._first_map_waited_out |= gi is None and self.bound is None
         return gi
 

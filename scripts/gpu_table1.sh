@@ -26,7 +26,8 @@
 # --dry-run does step 1 in a temporary folder and prints what steps 2 and 3 would install and run.
 #
 # Settings (environment): PYTHON (python3), FORCE (distributions installed even where present), RESOLUTIONS
-# (256 512), STEPS (which of step 3's parts run: tests latency render variants report, all by default), MODEL_<R>, STAGE (where wheels are reassembled: /tmp/gigan_gpu_wheels), GL_DEBS (.gl),
+# (256 512), LATENCY_OPTIONS (more options of bench latency, e.g. --renderers gl), STEPS (which of step 3's parts
+# run: tests latency render variants report, all by default), MODEL_<R>, STAGE (where wheels are reassembled: /tmp/gigan_gpu_wheels), GL_DEBS (.gl),
 # VARIANT_REFERENCE (.gpu_reference: the --out of `bench variants --quick --variants cpu` made with pyoidn), WORK
 # (the benches' own folders: /tmp/gigan_gpu_results).
 set -euo pipefail
@@ -34,6 +35,7 @@ set -euo pipefail
 PYTHON=${PYTHON:-python3}
 FORCE=${FORCE:-}
 RESOLUTIONS=${RESOLUTIONS:-256 512}
+LATENCY_OPTIONS=${LATENCY_OPTIONS:-}
 STEPS=" ${STEPS:-tests latency render variants report} "
 GL_DEBS=${GL_DEBS:-.gl}
 VARIANT_REFERENCE=${VARIANT_REFERENCE:-.gpu_reference}
@@ -175,7 +177,8 @@ for res in $RESOLUTIONS; do
     model=$RESULTS/model_$res/$(basename "$shipped_model")
     say "latency at ${res}²: the shipped ${shipped_res}² model resized (set MODEL_$res for a model trained at ${res}²)"
   fi
-  act "$BIN/bench" latency --quick --resolution "$res" --model "$model" --out "$RESULTS/latency_$res"
+  # shellcheck disable=SC2086  # LATENCY_OPTIONS is a list of options
+  act "$BIN/bench" latency --quick --resolution "$res" --model "$model" $LATENCY_OPTIONS --out "$RESULTS/latency_$res"
   act cp "$RESULTS/latency_$res/latency.md" "$DEST/latency_table_$res.md"
   pack
 done

@@ -120,12 +120,13 @@ def test_client_survives_the_server_shutting_down(scenes_dir: Path, tmp_path: Pa
 @pytest.mark.parametrize("link", [["--rate-mbit", "0"], ["--loss", "1"]], ids=["zero_rate", "full_loss"])
 def test_a_dead_link_ends_in_a_timeout_never_a_hang(server: str, scenes_dir: Path, link: list[str], caplog) -> None:
     """Nothing passes the proxy: the request fails at the read timeout and is logged; the loop waits once for
-    the first map (its timeout), then shows the DI without waiting again."""
+    the first map, until that request fails (not the first map's whole timeout: nothing is on its way any more),
+    then shows the DI without waiting again."""
     from baseline_cloudbaking.warp import PixelWarp
     from gicore.loop import ClientLoop, LoopConfig
     from gicore.render import Renderer
 
-    read_s, deadline_s, first_map_s = 0.5, 2.0, 1.5
+    read_s, deadline_s, first_map_s = 0.5, 2.0, 10.0
     spec, path = views(scenes_dir, 3)
     with network_sim("proxy", "--upstream", server.removeprefix("http://"), *link) as proxy:
         url = "http://{}:{}".format(*proxy.addr)
@@ -139,7 +140,7 @@ def test_a_dead_link_ends_in_a_timeout_never_a_hang(server: str, scenes_dir: Pat
     [record] = source.records
     assert record["status"] == "timeout" and 0.8 * read_s * 1e3 < record["latency_ms"] < 2 * deadline_s * 1e3
     assert source.latest() is None and any("failed: timeout" in m for m in caplog.messages)
-    assert 0.9 * first_map_s * 1e3 <= rows[0]["gi_wait_ms"] < 3 * first_map_s * 1e3, rows[0]
+    assert 0.8 * read_s * 1e3 <= rows[0]["gi_wait_ms"] < 0.5 * first_map_s * 1e3, rows[0]
     assert all(r["gi_wait_ms"] < 0.5 * read_s * 1e3 and r["valid_frac"] == 0 for r in rows[1:]), rows
     assert [r["gi_requested"] for r in rows] == [1, 0, 0]  # retry_after holds the next request back
 

@@ -119,6 +119,7 @@ class ThreadedSource:
     def __init__(self, delay_s: float, fail: bool = False):
         self.delay_s, self.fail = delay_s, fail
         self._latest: GIMap | None = None
+        self._arrived = threading.Event()
         self._busy = threading.Lock()
         self.threads: list[threading.Thread] = []
 
@@ -142,6 +143,7 @@ class ThreadedSource:
                         time.perf_counter(),
                         {"server": self.delay_s * 1e3},
                     )
+                    self._arrived.set()
             finally:
                 self._busy.release()
 
@@ -149,7 +151,9 @@ class ThreadedSource:
         self.threads[-1].start()
         return True
 
-    def latest(self) -> GIMap | None:
+    def latest(self, wait_s: float = 0.0) -> GIMap | None:
+        if self._latest is None and wait_s > 0:
+            self._arrived.wait(wait_s)
         return self._latest
 
     def warm_up(self, camera, light) -> None:
