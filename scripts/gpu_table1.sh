@@ -19,15 +19,16 @@
 #    - bench render --quick --renderers gl at every resolution;
 #    - bench variants --quick (the server's bake on CUDA against the CPU's: SSIM >= 0.98 met or not; the CPU maps
 #      from VARIANT_REFERENCE where carried, else baked here, which needs pyoidn; a failure is a line in the log);
-#    - bench report.
+#    - bench report;
+#    - scripts/gpu_probe.py (nvJPEG decode and CUDA-GL interop upload against the host path; a failure is a line).
 #    What comes back: provenance.txt (GPU name, driver, CUDA, the Mitsuba variant and inference backend chosen),
-#    latency_table_<R>.md, variants.md, table1.md (bench report's results.md), results.tar.gz (every CSV,
-#    provenance JSON and figure of WORK, refreshed after each step), log.txt.
+#    latency_table_<R>.md, variants.md, table1.md (bench report's results.md), probe.json, results.tar.gz (every
+#    CSV, provenance JSON and figure of WORK, refreshed after each step), log.txt.
 # --dry-run does step 1 in a temporary folder and prints what steps 2 and 3 would install and run.
 #
 # Settings (environment): PYTHON (python3), FORCE (distributions installed even where present), RESOLUTIONS
 # (256 512), LATENCY_OPTIONS (more options of bench latency, e.g. --renderers gl), STEPS (which of step 3's parts
-# run: tests latency render variants report, all by default), MODEL_<R>, STAGE (where wheels are reassembled: /tmp/gigan_gpu_wheels), GL_DEBS (.gl),
+# run: tests latency render variants report probe, all by default), MODEL_<R>, STAGE (where wheels are reassembled: /tmp/gigan_gpu_wheels), GL_DEBS (.gl),
 # VARIANT_REFERENCE (.gpu_reference: the --out of `bench variants --quick --variants cpu` made with pyoidn), WORK
 # (the benches' own folders: /tmp/gigan_gpu_results).
 set -euo pipefail
@@ -36,7 +37,7 @@ PYTHON=${PYTHON:-python3}
 FORCE=${FORCE:-}
 RESOLUTIONS=${RESOLUTIONS:-256 512}
 LATENCY_OPTIONS=${LATENCY_OPTIONS:-}
-STEPS=" ${STEPS:-tests latency render variants report} "
+STEPS=" ${STEPS:-tests latency render variants report probe} "
 GL_DEBS=${GL_DEBS:-.gl}
 VARIANT_REFERENCE=${VARIANT_REFERENCE:-.gpu_reference}
 MODE=run
@@ -200,4 +201,9 @@ if step report; then
   act "$BIN/bench" report --results "$RESULTS" --out "$RESULTS/report"
   act cp "$RESULTS/report/results.md" "$DEST/table1.md"
   pack
+fi
+# What a client path without host round trips would gain (nvJPEG, CUDA-GL interop): measured last, so that its
+# failure costs the tables nothing.
+if step probe && ! act timeout 180 "$PYTHON" scripts/gpu_probe.py --out "$DEST/probe.json"; then
+  say "gpu_probe failed (above): the tables are complete"
 fi
