@@ -20,8 +20,10 @@ from gicore import option_groups
 from gicore.error_policy import UserError, entry_point, serving, writable_dir
 from gicore.options import HOST_PORT, build_config, check_fields, config_command, split_host_port
 from network_sim import profiles as profile_table
+from network_sim.chunklog import LOG_FIX
+from network_sim.files import refuse_irregular
 from network_sim.link import DEFAULT_WINDOW_BYTES, JITTER_DISTS, DirectionConfig, LinkConfig
-from network_sim.proxy import IDLE_TIMEOUT_S, MAX_CONNECTIONS
+from network_sim.proxy import IDLE_MIN_BYTES, IDLE_TIMEOUT_S, MAX_CONNECTIONS
 from network_sim.trace import OPPORTUNITY_BYTES, Trace
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, help=__doc__.split("\n\n")[0])
@@ -77,10 +79,15 @@ class ProxyOptions:
     seed: int = option_groups.seed(note="the jitter and loss draws")
     #: Write one CSV row per chunk (arrival, admission, release, actual send time).
     log: Path | None = None
+    #: At exit write how late chunks were written after their release (per direction: chunks, p50, p99, max) and
+    #: whether the run was reliable (p99 <= max(0.1 RTT, 1 ms)), as JSON.
+    lateness: Path | None = None
     #: Client connections at once; one more is closed on accept (lowered to fit the file-descriptor limit).
     max_connections: int = field(default=MAX_CONNECTIONS, metadata={"min": 1, "max": 1_000_000})
-    #: A connection that moved no byte either way for this long, s, is closed on both sides.
+    #: A connection that moved fewer than --idle-min-bytes for this long, s, is closed on both sides.
     idle_timeout_s: float = field(default=IDLE_TIMEOUT_S, metadata={"min": 0.1, "max": IDLE_TIMEOUT_MAX_S})
+    #: Bytes a connection must move (read plus written, both legs) per idle timeout not to count as idle.
+    idle_min_bytes: int = field(default=IDLE_MIN_BYTES, metadata={"min": 1, "max": BUFFER_BYTES_MAX})
 
     def __post_init__(self) -> None:
         check_fields(self)  # code building the options meets the command line's limits
@@ -106,7 +113,7 @@ class ProxyOptions:
             if rate is not None:
                 changes.update(rate_mbit=rate, trace=None)
             if trace is not None:
-                changes["trace"] = Trace.load(trace)
+                changes["trace"] = Trace.load(trace, f"--trace-{name}")
             try:
                 return replace(current, **changes)
             except ValueError as exc:  # what the option limits cannot say, e.g. a rate that is neither 0 nor usable
@@ -127,16 +134,19 @@ def link_config(profile: str | None = None, **options: Any) -> LinkConfig:
 
 def proxy(given: dict[str, Any]) -> None:
     """Proxy TCP connections through an emulated link until SIGTERM/SIGINT."""
-    from network_sim.proxy import run
+    from network_sim.proxy import Settings, run
 
     with serving():
         opts = build_config(ProxyOptions, given)
         config = opts.link()
-        if opts.log is not None:
-            writable_dir(opts.log.parent, name="--log folder")
+        for option, path in (("--log", opts.log), ("--lateness", opts.lateness)):
+            if path is not None:  # before the upstream is checked: a FIFO would block the proxy once it opens it
+                refuse_irregular(path, option, LOG_FIX)
+                writable_dir(path.parent, name=f"{option} folder")
         assert opts.upstream is not None  # a required option
         listen, upstream = split_host_port(opts.listen, "--listen"), split_host_port(opts.upstream, "--upstream")
-        run(config, listen, upstream, opts.log, opts.max_connections, opts.idle_timeout_s)
+        settings = Settings(opts.log, opts.lateness, opts.max_connections, opts.idle_timeout_s, opts.idle_min_bytes)
+        run(config, listen, upstream, settings)
 
 
 config_command(app, ProxyOptions, proxy)

@@ -10,9 +10,11 @@ connections, as on one bottleneck link; each connection has its own FIFO, window
 reading its sender while the model has not admitted what it holds, the receiver's buffer is full or all
 connections together hold :data:`MAX_HELD_BYTES`: it never drops stream bytes. At most ``max_connections``
 client connections are kept (one more is closed on accept; refusals reported at most once per 10 s), and a
-connection that moved no byte for ``idle_timeout_s`` is closed on both sides, so held sockets give their slots
-back. SIGTERM/SIGINT: stop accepting, close every connection with FIN, write the log, exit 0. Not emulated: the
-TCP handshake, congestion control, loss bursts.
+connection that moved fewer than ``idle_min_bytes`` in the last ``idle_timeout_s`` (with none due) is closed on
+both sides, so held or trickling sockets give their slots back. Every run can keep a lateness summary (write
+time minus model release, :class:`~network_sim.chunklog.LatenessSummary`), written at exit. SIGTERM/SIGINT: stop
+accepting, close every connection with FIN, write the log and the summary, exit 0. Not emulated: the TCP
+handshake, congestion control, loss bursts.
 """
 
 from __future__ import annotations
@@ -27,10 +29,11 @@ import socket
 import sys
 from collections import deque
 from contextlib import suppress
+from dataclasses import dataclass
 from pathlib import Path
 
 from gicore.error_policy import UserError
-from network_sim.chunklog import ChunkLog
+from network_sim.chunklog import ChunkLog, LatenessSummary, lateness_report, write_lateness
 from network_sim.link import DOWN, UP, Chunk, Link, LinkConfig, Stream
 
 #: A timer that fires this close before its deadline counts as on time (asyncio runs handles due within
@@ -49,6 +52,10 @@ REFUSAL_REPORT_S = 10.0
 IDLE_TIMEOUT_S = 300.0
 #: Idle connections are looked for this many times per idle timeout (one is closed within 1.25 timeouts).
 IDLE_CHECKS = 4
+#: Default least bytes a connection must move (read plus written, both legs) per idle timeout not to be idle. A
+#: request and its answer move more; a client trickling a byte every 1.5 s (400 bytes per 300 s, 800 echoed)
+#: does not, so it cannot hold a slot, and holding all 1024 slots at the defaults takes 3.5 kB/s.
+IDLE_MIN_BYTES = 1024
 #: Most stream bytes held inside the emulated link, all connections together: past it no sender is read until
 #: half of it has been delivered (a 1024-connection flood through a long unshaped delay would otherwise hold
 #: every connection's window, 3 MiB each way).
@@ -97,7 +104,7 @@ class _Side(asyncio.Protocol):
         self.conn.side_connected(self)
 
     def data_received(self, data: bytes) -> None:
-        self.conn.active = self.conn.proxy.now()
+        self.conn.moved += len(data)
         self.conn.pipes[self.feeds].feed(data)
 
     def eof_received(self) -> bool:
@@ -205,7 +212,7 @@ class _Pipe:
             self.proxy.give(len(data))
             if transport is not None and not self.dst.lost:
                 transport.write(data)  # may pause writing: the receiver hold ends this loop
-                self.src.conn.active = now
+                self.src.conn.moved += len(data)
             self.proxy.logged(chunk, now)
         self._schedule_flush(now)
         self._maybe_finish()
@@ -254,13 +261,20 @@ class _Connection:
             DOWN: _Pipe(proxy, link.stream(conn_id, DOWN), self.upstream, self.client),
         }
         self.closed = False
-        #: When a byte was last read from or written to either leg (the model's clock).
-        self.active = proxy.now()
+        #: Bytes read from or written to either leg since the last idle check, and in each of the intervals
+        #: between the last checks (a connection's first interval is partial: it opened within it).
+        self.moved = 0
+        self.intervals: deque[int] = deque(maxlen=IDLE_CHECKS + 1)
 
-    def idle_since(self, t: float) -> bool:
-        """No byte moved since ``t`` and none is due: the link holds nothing it will ever deliver."""
+    def idle(self, min_bytes: int) -> bool:
+        """Close the interval since the last check: whether the connection moved fewer than ``min_bytes`` in the
+        last :data:`IDLE_CHECKS` whole intervals (one idle timeout) and has none due in the link."""
+        self.intervals.append(self.moved)
+        self.moved = 0
+        if len(self.intervals) <= IDLE_CHECKS:  # younger than one idle timeout of whole intervals
+            return False
         due = any(p.offer_timer is not None or p.flush_timer is not None for p in self.pipes.values())
-        return self.active <= t and not due
+        return sum(self.intervals) - self.intervals[0] < min_bytes and not due
 
     def pipe_into(self, side: _Side) -> _Pipe:
         return self.pipes[DOWN] if side is self.client else self.pipes[UP]
@@ -345,6 +359,8 @@ class Proxy:
         max_connections: int = MAX_CONNECTIONS,
         idle_timeout_s: float = IDLE_TIMEOUT_S,
         max_held_bytes: int = MAX_HELD_BYTES,
+        idle_min_bytes: int = IDLE_MIN_BYTES,
+        lateness: LatenessSummary | None = None,
     ) -> None:
         self.loop = asyncio.get_running_loop()
         self.link = Link(config)
@@ -358,7 +374,8 @@ class Proxy:
         self.refused = 0
         self._refused_reported = 0
         self._report: asyncio.TimerHandle | None = None
-        self.idle_timeout_s = idle_timeout_s
+        self.idle_timeout_s, self.idle_min_bytes = idle_timeout_s, idle_min_bytes
+        self.lateness = lateness
         #: Set by SIGTERM/SIGINT or by a fatal error (then in :attr:`error`): the proxy shuts down.
         self.stopped = asyncio.Event()
         self.error: UserError | None = None
@@ -422,7 +439,10 @@ class Proxy:
                 pipe.unhold("memory")
 
     def logged(self, chunk: Chunk, sent: float | None) -> None:
-        """Log a chunk; a log that cannot be written any more stops the proxy with that error."""
+        """Count a chunk's lateness and log it; a log that cannot be written any more stops the proxy with that
+        error."""
+        if self.lateness is not None:
+            self.lateness.add(chunk.direction, None if sent is None else sent - chunk.release)
         if self.log is None:
             return
         try:
@@ -444,8 +464,7 @@ class Proxy:
 
     def close_idle(self) -> None:
         """Close both legs of every connection idle for the idle timeout; check again a fraction of it later."""
-        since = self.now() - self.idle_timeout_s
-        for conn in [c for c in self.connections.values() if c.idle_since(since)]:
+        for conn in [c for c in self.connections.values() if c.idle(self.idle_min_bytes)]:
             conn.close()
         self._idle_check = self.loop.call_later(self.idle_timeout_s / IDLE_CHECKS, self.close_idle)
 
@@ -453,6 +472,26 @@ class Proxy:
         self._idle_check.cancel()
         for conn in list(self.connections.values()):
             conn.close()
+
+    def shut_down(self, lateness_path: Path | None) -> None:
+        """Close every connection, report the refusals not yet reported, close the log and write the lateness
+        summary to ``lateness_path``; the first failure is kept in :attr:`error`."""
+        self.close_all()
+        if self.refused > self._refused_reported:
+            self.report_refusals()
+        for finish in (self._close_log, lambda: self._write_lateness(lateness_path)):
+            try:
+                finish()
+            except UserError as exc:
+                self.error = self.error or exc
+
+    def _close_log(self) -> None:
+        if self.log is not None:
+            self.log.close()
+
+    def _write_lateness(self, path: Path | None) -> None:
+        if path is not None and self.lateness is not None:
+            write_lateness(path, lateness_report(self.lateness, self.link.config.rtt_s * 1e3))
 
 
 def check_upstream(upstream: tuple[str, int], timeout_s: float = 3.0) -> None:
@@ -468,19 +507,31 @@ def check_upstream(upstream: tuple[str, int], timeout_s: float = 3.0) -> None:
         ) from None
 
 
-async def serve(
-    config: LinkConfig,
-    listen: tuple[str, int],
-    upstream: tuple[str, int],
-    log_path: Path | None,
-    max_connections: int = MAX_CONNECTIONS,
-    idle_timeout_s: float = IDLE_TIMEOUT_S,
-) -> None:
+@dataclass(frozen=True)
+class Settings:
+    """What ``network-sim proxy`` takes beside its link and addresses (the CLI's options of the same names)."""
+
+    #: The per-chunk CSV log (:class:`~network_sim.chunklog.ChunkLog`).
+    log: Path | None = None
+    #: The lateness summary, JSON written at exit (:func:`~network_sim.chunklog.read_lateness`).
+    lateness: Path | None = None
+    max_connections: int = MAX_CONNECTIONS
+    idle_timeout_s: float = IDLE_TIMEOUT_S
+    idle_min_bytes: int = IDLE_MIN_BYTES
+
+
+async def serve(config: LinkConfig, listen: tuple[str, int], upstream: tuple[str, int], settings: Settings) -> None:
     """Run the proxy until SIGTERM or SIGINT (or until its log fails: that UserError is raised after the
     shutdown); prints ``listening on HOST:PORT`` first."""
     loop = asyncio.get_running_loop()
-    log = ChunkLog(log_path) if log_path is not None else None
-    proxy = Proxy(config, upstream, log, connection_budget(max_connections), idle_timeout_s)
+    log = ChunkLog(settings.log) if settings.log is not None else None
+    lateness = None
+    if settings.lateness is not None:  # a summary an earlier run left must not pass for this one's
+        settings.lateness.unlink(missing_ok=True)
+        lateness = LatenessSummary()
+    budget = connection_budget(settings.max_connections)
+    proxy = Proxy(config, upstream, log, budget, settings.idle_timeout_s, idle_min_bytes=settings.idle_min_bytes,
+                  lateness=lateness)  # fmt: skip
     for sig in (signal.SIGTERM, signal.SIGINT):  # before announcing the port: a signal right after it must stop cleanly
         loop.add_signal_handler(sig, proxy.stopped.set)
     try:
@@ -496,30 +547,16 @@ async def serve(
         await proxy.stopped.wait()
     finally:
         server.close()
-        proxy.close_all()
-        if proxy.refused > proxy._refused_reported:
-            proxy.report_refusals()
-        if proxy.log is not None:
-            try:
-                proxy.log.close()
-            except UserError as exc:
-                proxy.error = exc
+        proxy.shut_down(settings.lateness)
     if proxy.error is not None:
         raise proxy.error
 
 
-def run(
-    config: LinkConfig,
-    listen: tuple[str, int],
-    upstream: tuple[str, int],
-    log_path: Path | None = None,
-    max_connections: int = MAX_CONNECTIONS,
-    idle_timeout_s: float = IDLE_TIMEOUT_S,
-) -> None:
+def run(config: LinkConfig, listen: tuple[str, int], upstream: tuple[str, int], settings: Settings) -> None:
     """Check the upstream, then proxy on a precise event loop until signalled."""
     check_upstream(upstream)
     loop = new_event_loop()
     try:
-        loop.run_until_complete(serve(config, listen, upstream, log_path, max_connections, idle_timeout_s))
+        loop.run_until_complete(serve(config, listen, upstream, settings))
     finally:
         loop.close()

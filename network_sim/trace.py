@@ -9,7 +9,8 @@ does by default (``base_timestamp_ += schedule_.back()`` in Mahimahi's ``link_qu
 Parsing follows ``mm-link``'s rules (no empty lines, non-decreasing, at least one line, last timestamp
 > 0) but every error names the file *and the line*. A file is ASCII text of at most :data:`MAX_BYTES`
 (:data:`MAX_LINES` lines, timestamps up to :data:`MAX_TIMESTAMP_MS`); anything else (``/dev/zero``, a
-binary file) is refused with one error line before it is held in memory whole.
+binary file) is refused with one error line before it is held in memory whole, and so is anything but a regular
+file (a FIFO would block the read forever).
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from itertools import islice
 from pathlib import Path
 
 from gicore.error_policy import UserError
+from network_sim.files import open_regular
 
 #: Bytes one delivery opportunity may carry (Mahimahi's ``PACKET_SIZE``, one MTU).
 OPPORTUNITY_BYTES = 1500
@@ -53,11 +55,12 @@ class Trace:
         return cls(name, tuple(ms), ms[-1])
 
     @classmethod
-    def load(cls, path: Path | str) -> Trace:
-        """Parse a Mahimahi trace file; a malformed one raises :class:`UserError` naming file and line."""
+    def load(cls, path: Path | str, option: str = "trace") -> Trace:
+        """Parse a Mahimahi trace file; a malformed one raises :class:`UserError` naming file and line, anything
+        but a regular file (a FIFO, a device) one naming ``option`` (the command-line option that gave it)."""
         path = Path(path)
         try:
-            with path.open("rb") as fh:
+            with open_regular(path, option, "give a Mahimahi trace file", "rb") as fh:
                 data = fh.read(MAX_BYTES + 1)
         except OSError as exc:
             raise UserError(

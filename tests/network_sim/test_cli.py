@@ -5,6 +5,7 @@ port) a real process."""
 
 from __future__ import annotations
 
+import os
 import socket
 import subprocess
 import sys
@@ -36,6 +37,7 @@ def workspace(tmp_path_factory: pytest.TempPathFactory) -> Path:
     (root / "down.txt").write_text("10\n5\n")
     (root / "ok.txt").write_text("1\n")
     (root / "afile").write_text("not a folder")
+    os.mkfifo(root / "fifo")  # opened, it would block until its other end is opened: forever
     return root
 
 
@@ -67,6 +69,14 @@ CASES = [
     (["--listen", "127.0.0.1:65536"], "--listen '127.0.0.1:65536' is not HOST:PORT"),
     (["--upstream", "127.0.0.1"], "--upstream '127.0.0.1' is not HOST:PORT"),  # the last --upstream counts
     (["--log", "afile/chunks.csv"], "--log folder afile is a file"),
+    (["--log", "fifo"], "--log fifo is a FIFO, not a regular file"),
+    (["--log", "."], "--log . is a directory, not a regular file"),
+    (["--lateness", "fifo"], "--lateness fifo is a FIFO, not a regular file"),
+    (["--lateness", "/dev/null"], "--lateness /dev/null is a character device, not a regular file"),
+    (["--lateness", "afile/late.json"], "--lateness folder afile is a file"),
+    (["--trace-up", "fifo"], "--trace-up fifo is a FIFO, not a regular file"),
+    (["--trace-down", "fifo"], "--trace-down fifo is a FIFO, not a regular file"),
+    (["--idle-min-bytes", "0"], "--idle-min-bytes = 0 is below 1"),
     (["--max-connections", "0"], "--max-connections = 0 is below 1"),
     (["--max-connections", str(10**7)], "--max-connections = 10000000 is above 1000000"),
 ]

@@ -166,9 +166,27 @@ def test_connections_share_the_rate(server: Running) -> None:
     with _proxy(server, "--rate-mbit", "8") as proxy:
         with ThreadPoolExecutor(2) as pool:
             pair = list(pool.map(lambda seed: endpoint.download(proxy.addr, nbytes, seed, TIMEOUT), (1, 2)))
-    span = max(t.last_s for t in pair) - min(t.start_s for t in pair)
     assert all(t.intact for t in pair)
-    assert_rate(sum(t.nbytes - t.start_bytes for t in pair) * 8 / span / 1e6, 8.0)
+    assert_rate(endpoint.link_goodput_mbit(pair), 8.0)
+
+
+def test_the_link_goodput_of_downloads_served_one_after_the_other_is_the_rate() -> None:
+    """A shared FIFO serves two 1.25 MB downloads in turn at 10 Mbit/s (a 16 kB read every 12.8 ms, the second
+    from 1 s on): merged, their reads measure the rate; each download's own window, spanned from the earliest
+    start, leaves the second one's first tenth out of the bytes but not out of the time."""
+    step_ns, size, reads = 12_800_000, 16_000, 78
+
+    def download(first_ns: int) -> endpoint.Transfer:
+        arrivals = [(size * (i + 1), first_ns + i * step_ns) for i in range(reads)]
+        start_bytes, start = endpoint.window_start(arrivals)
+        return endpoint.Transfer(size * reads, True, start / 1e9, arrivals[-1][1] / 1e9, start_bytes, tuple(arrivals))
+
+    pair = [download(0), download(reads * step_ns)]
+    assert endpoint.link_goodput_mbit(pair) == pytest.approx(10.0)
+    span = max(t.last_s for t in pair) - min(t.start_s for t in pair)
+    assert sum(t.nbytes - t.start_bytes for t in pair) * 8 / span / 1e6 < 0.96 * 10.0  # the bias it removes
+    with pytest.raises(ValueError, match="arrivals"):
+        endpoint.link_goodput_mbit([endpoint.Transfer(1, True, 0.0, 1.0, 0)])
 
 
 def _read_log(path: Path) -> list[dict[str, str]]:
@@ -273,7 +291,8 @@ def test_sigint_also_stops_the_proxy(server: Running) -> None:
 
 def test_model_replays_the_logged_release_times(server: Running, tmp_path: Path) -> None:
     """Feed a fresh model the logged arrivals in the proxy's order: it reproduces every admission,
-    serialization, loss and release time exactly; and the proxy wrote chunks on time, never early."""
+    serialization, loss and release time exactly; and the proxy never wrote a chunk early. How late it wrote them
+    depends on the machine's load: each run reports that itself (``--lateness``, tests/network_sim/test_lateness.py)."""
     flags = dict(
         delay_ms=10.0, jitter_ms=4.0, jitter_dist="pareto", rate_mbit=30.0, queue_bytes=60_000, loss=0.02, seed=11
     )
@@ -320,7 +339,6 @@ def test_model_replays_the_logged_release_times(server: Running, tmp_path: Path)
         )
     lateness = [float(r["sent_s"]) - float(r["release_s"]) for r in rows]
     assert min(lateness) >= -1e-6
-    assert statistics.median(lateness) < 0.002
     assert any(float(r["lost"]) > 0 for r in rows)  # the replay covered losses too
 
 

@@ -1,12 +1,15 @@
-"""The proxy against a hostile or careless user: idle sockets give their slots back, trace files are read
-bounded and as text, an unwritable log and absurd flag values are one error line, floods leave it serving."""
+"""The proxy against a hostile or careless user: idle and trickling sockets give their slots back, trace files are
+read bounded and as text, a FIFO or device given as a file, an unwritable log and absurd flag values are one error
+line, floods leave it serving."""
 
 from __future__ import annotations
 
 import asyncio
+import os
 import socket
 import struct
 import sys
+import threading
 import time
 from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
@@ -77,17 +80,56 @@ def test_idle_sockets_give_their_slots_back(upstream: tuple[str, int]) -> None:
 
 
 def test_a_connection_that_moves_bytes_or_has_bytes_due_is_not_idle(upstream: tuple[str, int]) -> None:
-    """Echoes every 50 ms for 2.5 idle timeouts, and a round trip whose delay is 3 idle timeouts long,
-    both come through whole."""
+    """Echoes of 100 bytes every 50 ms for 2.5 idle timeouts (16 kB per timeout counted, 4 x 100 bytes per echo:
+    well over the default --idle-min-bytes even if a busy machine runs a tenth of them), and a round trip whose
+    delay is 3 idle timeouts long, both come through whole."""
     with proxy(upstream, "--idle-timeout-s", "2") as p:
         with endpoint.connect(p.addr, b"E", TIMEOUT) as sock:
             end = time.monotonic() + 5.0
             while time.monotonic() < end:
-                sock.sendall(b"k")
-                assert endpoint.recv_exactly(sock, 1) == b"k"
+                sock.sendall(b"k" * 100)
+                assert endpoint.recv_exactly(sock, 100) == b"k" * 100
                 time.sleep(0.05)
     with proxy(upstream, "--idle-timeout-s", "0.5", "--delay-ms", "1500") as p:
         assert echoes(p.addr, struct.pack("!Q", 7))
+
+
+def trickle(sock: socket.socket, stop: threading.Event, gap_s: float) -> None:
+    """Echo one byte every ``gap_s`` on ``sock`` until ``stop`` or the proxy closes it."""
+    try:
+        while not stop.wait(gap_s):
+            sock.sendall(b"t")
+            if sock.recv(1) != b"t":
+                return
+    except OSError:  # closed by the proxy: what the test waits for
+        return
+
+
+def test_trickling_clients_do_not_keep_their_slots(upstream: tuple[str, int]) -> None:
+    """Two clients echo a byte every 0.1 s (40 bytes a second counted) at a cap of 2 with a 1 s idle timeout and
+    --idle-min-bytes 400: the slots are theirs at first, but they move fewer bytes per timeout than the minimum, so
+    both are closed and a new client gets through; a third that moves 100 bytes every 20 ms is kept meanwhile."""
+    args = ("--max-connections", "3", "--idle-timeout-s", "1", "--idle-min-bytes", "400")
+    with proxy(upstream, *args) as p:
+        stop = threading.Event()
+        tricklers = [endpoint.connect(p.addr, b"E", TIMEOUT) for _ in range(2)]
+        threads = [threading.Thread(target=trickle, args=(s, stop, 0.1), daemon=True) for s in tricklers]
+        with endpoint.connect(p.addr, b"E", TIMEOUT) as busy:
+            try:
+                for t in threads:
+                    t.start()
+                assert not echoes(p.addr), "a fourth connection got through a cap of 3"
+                deadline = time.monotonic() + TIMEOUT
+                while any(t.is_alive() for t in threads):  # each ends once the proxy closed its socket
+                    assert time.monotonic() < deadline, "trickling connections kept their slots"
+                    busy.sendall(b"b" * 100)
+                    assert endpoint.recv_exactly(busy, 100) == b"b" * 100  # raises if the proxy closed it
+                    time.sleep(0.02)
+                assert echoes(p.addr)
+            finally:
+                stop.set()
+                for s in tricklers:
+                    s.close()
 
 
 # -- trace files: bounded, ASCII text, errors naming file and line ----------------------------------------------
@@ -112,8 +154,13 @@ def test_a_bad_trace_file_is_one_error_naming_file_and_line(
 
 
 def test_a_trace_is_read_bounded(tmp_path: Path) -> None:
-    with pytest.raises(UserError, match=f"trace /dev/zero is larger than {MAX_BYTES // 2**20} MiB"):
-        Trace.load("/dev/zero")  # endless: read no further than the bound
+    huge = tmp_path / "huge.trace"
+    with huge.open("wb") as fh:
+        fh.truncate(4 * MAX_BYTES)  # sparse: read no further than the bound
+    with pytest.raises(UserError, match=f"trace {huge} is larger than {MAX_BYTES // 2**20} MiB"):
+        Trace.load(huge)
+    with pytest.raises(UserError, match="trace /dev/zero is a character device, not a regular file"):
+        Trace.load("/dev/zero")  # endless: not read at all
     many = tmp_path / "many.trace"
     many.write_bytes(b"1\n" * (MAX_LINES + 1))
     with pytest.raises(UserError, match=f"has more than {MAX_LINES} lines"):
@@ -125,17 +172,30 @@ def test_the_proxy_refuses_an_endless_or_binary_trace_with_one_line(
     tmp_path: Path, flag: str, monkeypatch: pytest.MonkeyPatch, capfd
 ) -> None:
     (tmp_path / "bin.trace").write_bytes(bytes(range(256)))
-    for trace in ("/dev/zero", "bin.trace"):
+    os.mkfifo(tmp_path / "fifo.trace")  # read, it would block until a writer opened it: forever
+    for trace in ("/dev/zero", "bin.trace", "fifo.trace"):
         argv = ["network-sim", "proxy", "--upstream", "127.0.0.1:9", flag, trace]
-        check_user_error(run_main(argv, tmp_path, monkeypatch, capfd), trace)
+        line = check_user_error(run_main(argv, tmp_path, monkeypatch, capfd), trace)
+        assert trace == "bin.trace" or f"{flag} {trace} is a " in line
 
 
 # -- the per-chunk log -------------------------------------------------------------------------------------------
-def test_a_log_that_cannot_be_written_is_one_error_line(upstream: tuple[str, int], tmp_path: Path) -> None:
+@pytest.mark.parametrize(
+    ("log", "why"),
+    [
+        ("/dev/full", "is a character device, not a regular file"),
+        (".", "is a directory, not a regular file"),
+        ("fifo", "is a FIFO, not a regular file"),  # opened to write, it would block until a reader came
+        ("/proc/version", "cannot be written ("),  # regular, but the kernel takes no write
+    ],
+)
+def test_a_log_that_cannot_be_written_is_one_error_line(
+    upstream: tuple[str, int], tmp_path: Path, log: str, why: str
+) -> None:
     host, port = upstream
-    for log in ("/dev/full", str(tmp_path)):
-        line = assert_user_error(["network-sim", "proxy", "--upstream", f"{host}:{port}", "--log", log], log, tmp_path)
-        assert "cannot be written" in line
+    os.mkfifo(tmp_path / "fifo")
+    line = assert_user_error(["network-sim", "proxy", "--upstream", f"{host}:{port}", "--log", log], log, tmp_path)
+    assert f"--log {log} {why}" in line
 
 
 def test_a_log_that_fails_mid_run_stops_the_proxy_with_one_error_line(
