@@ -9,7 +9,8 @@ draw comes from a generator seeded by the caller (the run's seed): the same samp
 interval. A sample of fewer than :data:`MIN_SAMPLES` values gets no interval (None).
 
 The rows: beside the row of the statistic itself, ``stat`` ``ci_low`` and ``ci_high`` with the same system,
-metric and config plus ``ci`` (the level) and ``resamples`` (:func:`add_interval`)."""
+metric and config plus ``ci`` (the level), ``resamples`` and ``ci_over`` (what was resampled: ``maps`` or ``runs``;
+:func:`add_interval`)."""
 
 from __future__ import annotations
 
@@ -17,8 +18,8 @@ import json
 import math
 import zlib
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
-from typing import Any
+from dataclasses import dataclass, replace
+from typing import Any, Literal
 
 import numpy as np
 
@@ -40,12 +41,14 @@ Seed = int | Sequence[int]
 
 @dataclass(frozen=True)
 class Interval:
-    """A statistic's interval at ``level`` from ``resamples`` resamples."""
+    """A statistic's interval at ``level`` from ``resamples`` resamples of each system's ``maps`` or of the
+    repeated ``runs`` (``over``)."""
 
     low: float
     high: float
     level: float
     resamples: int
+    over: Literal["maps", "runs"] = "maps"
 
     def spans(self, value: float) -> bool:
         return self.low <= value <= self.high
@@ -82,7 +85,8 @@ def interval_over_runs(
     runs = _values(values)
     if runs.size < MIN_SAMPLES:
         return None
-    return _quantiles(_resampled(runs, np.random.default_rng(seed), resamples, np.mean), level, resamples)
+    interval = _quantiles(_resampled(runs, np.random.default_rng(seed), resamples, np.mean), level, resamples)
+    return replace(interval, over="runs")
 
 
 def crossover_interval(
@@ -123,7 +127,7 @@ def add_interval(res: Results, interval: Interval | None, **row: Any) -> None:
     if interval is None:
         return
     for stat, value in (("ci_low", interval.low), ("ci_high", interval.high)):
-        res.add(**row, stat=stat, value=value, ci=interval.level, resamples=interval.resamples)
+        res.add(**row, stat=stat, value=value, ci=interval.level, resamples=interval.resamples, ci_over=interval.over)
 
 
 def recorded(rows: Rows, system: str, metric: str, **config: Any) -> Interval | None:
@@ -136,7 +140,8 @@ def recorded(rows: Rows, system: str, metric: str, **config: Any) -> Interval | 
     if len(bounds) < 2:
         return None
     low, high = bounds["ci_low"], bounds["ci_high"]
-    return Interval(low["value"], high["value"], low["config"]["ci"], low["config"]["resamples"])
+    over = low["config"].get("ci_over", "maps")  # runs from before the repeats resampled maps
+    return Interval(low["value"], high["value"], low["config"]["ci"], low["config"]["resamples"], over)
 
 
 def level_of(rows: Rows, metric: str) -> float | None:
@@ -144,13 +149,17 @@ def level_of(rows: Rows, metric: str) -> float | None:
     return next((r["config"]["ci"] for r in rows if matches(r, metric, "ci_low")), None)
 
 
-def legend(rows: Rows, metric: str, resampled: str) -> str:
-    """A table's note on its intervals of ``metric``, saying what was ``resampled``; empty where the run recorded
-    none."""
-    row = next((r for r in rows if matches(r, metric, "ci_low")), None)
-    if row is None:
+def legend(rows: Rows, metric: str, maps: str) -> str:
+    """A table's note on its intervals of ``metric``, saying what was resampled: ``maps`` (what the per-map
+    bootstrap draws) or the repeated runs' own values; empty where the run recorded none."""
+    lows = [r for r in rows if matches(r, metric, "ci_low")]
+    if not lows:
         return ""
-    level, resamples = row["config"]["ci"] * 100, row["config"]["resamples"]
+    config = lows[0]["config"]
+    level, resamples = config["ci"] * 100, config["resamples"]
+    runs = f"the {config.get('repeats')} runs' own values, each from its run's maps (the interval of their mean)"
+    over = dict.fromkeys(r["config"].get("ci_over", "maps") for r in lows)
+    resampled = " or ".join(runs if o == "runs" else maps for o in over)
     return f"In square brackets: the {level:g} % percentile-bootstrap interval ({resamples} resamples of {resampled})."
 
 

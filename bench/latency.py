@@ -11,6 +11,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
+import numpy as np
+
 from baseline_cloudbaking.client import request_path_maps
 from baseline_cloudbaking.codecs import DEFAULT_CODEC, CodecName
 from baseline_cloudbaking.fetch import FetcherName
@@ -18,7 +20,7 @@ from baseline_cloudbaking.server.settings import check_served
 from bench.latency_alone import decode_floor, gigan_alone, local_alone, path_views, requests_alone, stored_payloads
 from bench.latency_floor import PARTS as FLOOR_PARTS
 from bench.latency_floor import Alone, machine, record_alone, record_floor_ratios, record_targets, report
-from bench.latency_record import CLOUD, CLOUD_PREFETCH, GIGAN, record
+from bench.latency_record import CLOUD, CLOUD_PREFETCH, GIGAN, pool, record
 from bench.latency_tables import PARTS
 from bench.processes import BIN, path_options, pinned_proxy, pinned_server, run_client, run_place, with_path_frames
 from bench.runner import Bench, Block, Section
@@ -79,10 +81,21 @@ class LatencyConfig:
     #: Also measure every stage alone, on the clients' cores with nothing else running (Table 1's alone and
     #: inflation columns, each system's floor).
     alone: bool = True
+    #: Run the whole measurement (every client run and the stages alone) this many times, each repeat in its own
+    #: folder (latency_runs/r0, r1, ...), and record the repeats pooled; from 3 on, each ratio's and crossover's
+    #: interval is over the runs (bench.latency_record), which shows how much runs vary, not only their maps.
+    repeats: int = field(default=1, metadata={"min": 1, "max": 20})
 
     @classmethod
     def quick(cls) -> LatencyConfig:
-        return cls(profiles=("lan", "wan"), frames=90, every=5, spp=16)
+        """Table 1 behind lan and wan along 200 frames (GI period k = 5: GIGAN's 40 maps), 16 spp. The sizing is
+        the cold store's: its client asks only when no map it holds or awaits is within the server's tolerance, so
+        it sends a request per miss, and a miss took 1 to 2 s on the 2-core Xeon (its path tracing shares the
+        cores with the client): one every 35 to 70 frames after the first two, so 90 frames measured 1 to 3 misses
+        and 150 frames 3 behind each profile. 200 frames give each miss column 3 or more, the fewest an interval
+        rests on. Here, with other jobs running, ``--renderers gl`` (make run's Table 1) took 3 min at 150 frames;
+        200 frames take about a third longer, and both renderers (the default) run every client twice."""
+        return cls(profiles=("lan", "wan"), frames=200, every=5, spp=16)
 
     def check(self) -> None:
         check_served(self.resolution)
@@ -122,6 +135,37 @@ def _ran_on(folder: Path, renderer: str) -> Path:
     return folder
 
 
+@dataclass(frozen=True)
+class _Place:
+    """What every repeat of a run shares: its config, scene, pinning plan and renderers, the clients' common
+    options and their time limit."""
+
+    cfg: LatencyConfig
+    spec: SceneSpec
+    scenes_dir: Path | None
+    plan: dict[str, Any]
+    renderers: tuple[str, ...]
+    seed: int
+    path_args: list[str]
+    per_run_s: float
+
+    def client(self, argv: list[str], out: Path, renderer: str) -> Path:
+        folder = run_client(self.plan, [*argv, "--renderer", renderer], out, self.per_run_s)
+        return _ran_on(folder, renderer)
+
+
+@dataclass(frozen=True)
+class _Repeat:
+    """One repeat of the measurement: its client runs' folders, its prebake (maps baked, seconds) and, where the
+    stages alone were measured, their samples and the decode floor's."""
+
+    runs: dict[tuple[str, str, str, str], Path]
+    prebake_maps: int
+    prebake_s: float
+    alone: Alone
+    decode: dict[str, list[float]]
+
+
 def measure(cfg: LatencyConfig, res: Results) -> None:
     scene = cfg.scenes[0]
     spec, scenes_dir, work, plan = run_place(scene, res, "latency_runs", cfg.pin)
@@ -133,8 +177,9 @@ def measure(cfg: LatencyConfig, res: Results) -> None:
         "frames": cfg.frames,
         "composition": cfg.composition,
         "spp": cfg.spp,
+        "repeats": cfg.repeats,
     }
-    per_run = (
+    per_run_s = (
         180.0 + cfg.frames * 2.0 + (cfg.frames // cfg.gt_every + 1 if cfg.gt_every else 0) * 20.0 + cfg.read_timeout_s
     )
     path_args = ["--scene", scene, *path_options(cfg), "--resolution", str(cfg.resolution), "-k", str(cfg.every),
@@ -143,62 +188,88 @@ def measure(cfg: LatencyConfig, res: Results) -> None:
     if cfg.frame_rate:
         path_args += ["--frame-rate", f"{cfg.frame_rate:g}"]
     res.settings["frames_paced"] = f"{cfg.frame_rate:g} fps" if cfg.frame_rate else "unpaced"
-    shutil.rmtree(work / "gt_cache", ignore_errors=True)  # rendered again by each bench run's code
-
-    def client(argv: list[str], name: str, renderer: str) -> Path:
-        folder = run_client(plan, [*argv, "--renderer", renderer], work / f"{name}_{renderer}", per_run)
-        return _ran_on(folder, renderer)
-
-    # Runs are keyed (system, profile, store, renderer); each renderer's run of a slot follows the other's at once,
-    # so the renderers' ratios compare runs taken minutes apart at most, under the same load.
-    gigan_argv = [str(BIN / "gigan-client"), *path_args, "--gi-source", "model", "--model", str(cfg.model),
-                  "--threads", str(threads(plan, "client"))]  # fmt: skip
-    runs = {(GIGAN, "none", "local", r): client(gigan_argv, "gigan", r) for r in renderers}
-    cloud_argv = [str(BIN / "cloudbaking-client"), *path_args, "--codec", cfg.codec, "--fetch", cfg.fetch,
-                  "--read-timeout", str(cfg.read_timeout_s), "--deadline", str(2 * cfg.read_timeout_s)]  # fmt: skip
-    shutil.rmtree(work / "store_prebaked", ignore_errors=True)  # every run prebakes its own store
-    residual = cfg.composition == "residual"  # the first pass asks for the maps the runs will ask for
-    with pinned_server(plan, work / "store_prebaked", scenes_dir) as warm:
-        t0 = time.perf_counter()
-        first = request_path_maps(warm, scene, cfg, res.seed, residual=residual)
-        prebake = {"system": CLOUD, "scene": spec.name, "store": "prebaked", **common}
-        res.add(metric="prebake_maps", value=first["misses"], unit="count", **prebake)
-        res.add(metric="prebake_time", value=time.perf_counter() - t0, unit="s", stat="wall", **prebake)
-        for profile in cfg.profiles:
-            # the prebaked store answers every renderer's run (its maps do not depend on the client's renderer)
-            for renderer in renderers:
-                with pinned_proxy(plan, profile, warm, res.seed) as url:
-                    runs[CLOUD, profile, "prebaked", renderer] = client(
-                        [*cloud_argv, "--server", url], f"cloud_{profile}_prebaked", renderer
-                    )
-                if cfg.prefetch_in_flight and renderer == renderers[0]:
-                    prefetch = ["--prefetch", "extrapolate", "--in-flight", str(cfg.prefetch_in_flight)]
-                    with pinned_proxy(plan, profile, warm, res.seed) as url:
-                        runs[CLOUD_PREFETCH, profile, "prebaked", renderer] = client(
-                            [*cloud_argv, *prefetch, "--server", url], f"cloud_prefetch_{profile}_prebaked", renderer
-                        )
-        if cfg.alone:
-            alone = measure_alone(cfg, plan, scene, spec, warm, renderers, res.seed)
-            decode = decode_floor(stored_payloads(work / "store_prebaked", spec.name))
-        for profile in cfg.profiles:
-            # a cold store per renderer: each run's requests miss as the other's did
-            for renderer in renderers:
-                store = work / f"store_cold_{profile}_{renderer}"
-                shutil.rmtree(store, ignore_errors=True)
-                with pinned_server(plan, store, scenes_dir) as cold:
-                    # one request off the path compiles every pass and stores nothing a run would hit
-                    request_path_maps(cold, scene, cfg, res.seed, residual=residual, off_path=True)
-                    with pinned_proxy(plan, profile, cold, res.seed) as url:
-                        runs[CLOUD, profile, "cold", renderer] = client(
-                            [*cloud_argv, "--server", url], f"cloud_{profile}_cold", renderer
-                        )
-                shutil.rmtree(store, ignore_errors=True)
-    shutil.rmtree(work / "store_prebaked", ignore_errors=True)
-    record(res, spec.name, cfg, runs, common)
+    # rendered again by each bench run's code; its repeats share it (the same path, seed and scored frames)
+    shutil.rmtree(work / "gt_cache", ignore_errors=True)
+    place = _Place(cfg, spec, scenes_dir, plan, renderers, res.seed, path_args, per_run_s)
+    # one repeat works in latency_runs itself, as runs did before there were repeats; several each in r<i>
+    repeats = [_repeat(place, work if cfg.repeats == 1 else work / f"r{i}") for i in range(cfg.repeats)]
+    prebake = {"system": CLOUD, "scene": spec.name, "store": "prebaked", **common}
+    res.add(metric="prebake_maps", value=repeats[0].prebake_maps, unit="count", **prebake)  # the same path each time
+    prebake_s = float(np.median([r.prebake_s for r in repeats]))
+    res.add(metric="prebake_time", value=prebake_s, unit="s", stat="wall", **prebake)
+    record(res, spec.name, cfg, {key: [r.runs[key] for r in repeats] for key in repeats[0].runs}, common)
     if cfg.alone:
+        alone = {key: pool([r.alone[key] for r in repeats]) for key in repeats[0].alone}
         warnings = record_alone(res, spec.name, alone)
         record_floor_ratios(res, spec.name, alone)
+        decode = pool([r.decode for r in repeats])
         report(warnings, record_targets(res, spec.name, decode, threads(plan, "client"), machine()))
+
+
+def _repeat(place: _Place, folder: Path) -> _Repeat:
+    """Every client run of the bench once, working in ``folder``: GIGAN's per renderer, then against a store
+    prebaked along the path the cloud client's per profile and renderer (and its prefetching twin), the stages
+    alone, and the cloud client's against a cold store per profile and renderer."""
+    cfg, scene, plan = place.cfg, place.cfg.scenes[0], place.plan
+    folder.mkdir(parents=True, exist_ok=True)
+    # Runs are keyed (system, profile, store, renderer); each renderer's run of a slot follows the other's at once,
+    # so the renderers' ratios compare runs taken minutes apart at most, under the same load.
+    gigan_argv = [str(BIN / "gigan-client"), *place.path_args, "--gi-source", "model", "--model", str(cfg.model),
+                  "--threads", str(threads(plan, "client"))]  # fmt: skip
+    runs = {(GIGAN, "none", "local", r): place.client(gigan_argv, folder / f"gigan_{r}", r) for r in place.renderers}
+    cloud_argv = [str(BIN / "cloudbaking-client"), *place.path_args, "--codec", cfg.codec, "--fetch", cfg.fetch,
+                  "--read-timeout", str(cfg.read_timeout_s), "--deadline", str(2 * cfg.read_timeout_s)]  # fmt: skip
+    store = folder / "store_prebaked"
+    shutil.rmtree(store, ignore_errors=True)  # every repeat prebakes its own store
+    residual = cfg.composition == "residual"  # the first pass asks for the maps the runs will ask for
+    alone: Alone = {}
+    decode: dict[str, list[float]] = {}
+    with pinned_server(plan, store, place.scenes_dir) as warm:
+        t0 = time.perf_counter()
+        first = request_path_maps(warm, scene, cfg, place.seed, residual=residual)
+        prebake_s = time.perf_counter() - t0
+        for profile in cfg.profiles:
+            # the prebaked store answers every renderer's run (its maps do not depend on the client's renderer)
+            for renderer in place.renderers:
+                with pinned_proxy(plan, profile, warm, place.seed) as url:
+                    runs[CLOUD, profile, "prebaked", renderer] = place.client(
+                        [*cloud_argv, "--server", url], folder / f"cloud_{profile}_prebaked_{renderer}", renderer
+                    )
+                if cfg.prefetch_in_flight and renderer == place.renderers[0]:
+                    prefetch = ["--prefetch", "extrapolate", "--in-flight", str(cfg.prefetch_in_flight)]
+                    with pinned_proxy(plan, profile, warm, place.seed) as url:
+                        runs[CLOUD_PREFETCH, profile, "prebaked", renderer] = place.client(
+                            [*cloud_argv, *prefetch, "--server", url],
+                            folder / f"cloud_prefetch_{profile}_prebaked_{renderer}",
+                            renderer,
+                        )
+        if cfg.alone:
+            alone = measure_alone(cfg, plan, scene, place.spec, warm, place.renderers, place.seed)
+            decode = decode_floor(stored_payloads(store, place.spec.name))
+        runs |= _cold_runs(place, folder, cloud_argv, residual)
+    shutil.rmtree(store, ignore_errors=True)
+    return _Repeat(runs, first["misses"], prebake_s, alone, decode)
+
+
+def _cold_runs(
+    place: _Place, folder: Path, cloud_argv: list[str], residual: bool
+) -> dict[tuple[str, str, str, str], Path]:
+    """The cloud client against a cold store per profile and renderer, each store its own: each run's requests
+    miss as the other's did."""
+    runs = {}
+    for profile in place.cfg.profiles:
+        for renderer in place.renderers:
+            store = folder / f"store_cold_{profile}_{renderer}"
+            shutil.rmtree(store, ignore_errors=True)
+            with pinned_server(place.plan, store, place.scenes_dir) as cold:
+                # one request off the path compiles every pass and stores nothing a run would hit
+                request_path_maps(cold, place.cfg.scenes[0], place.cfg, place.seed, residual=residual, off_path=True)
+                with pinned_proxy(place.plan, profile, cold, place.seed) as url:
+                    runs[CLOUD, profile, "cold", renderer] = place.client(
+                        [*cloud_argv, "--server", url], folder / f"cloud_{profile}_cold_{renderer}", renderer
+                    )
+            shutil.rmtree(store, ignore_errors=True)
+    return runs
 
 
 def measure_alone(

@@ -9,7 +9,7 @@ from functools import partial
 from typing import Any
 
 from baseline_cloudbaking.client_run import REQUEST_STAGES, TRANSMISSION_PARTS
-from bench.intervals import cell, legend, level_of, recorded, suffix, too_few
+from bench.intervals import MIN_SAMPLES, cell, legend, level_of, recorded, suffix, too_few
 from bench.latency_record import CLOUD, CLOUD_PREFETCH, GIGAN, RENDERER_RATIO
 from gicore.present.declarations import Chart, Column, Figure, Rows, Table, fill, flat, matches, per, unique
 from gigan_local.client import MAP_STAGES
@@ -107,8 +107,8 @@ def what_ran(raw: Rows) -> str:
 # -- Table 1 in full ------------------------------------------------------------------------------------------
 def table1(raw: Rows) -> list[dict[str, Any]]:
     """Per profile: each stage's median and p95 per column (stages no column measured left out), the ratio of
-    totals with its interval (:func:`bench.intervals.cell`), the link model's total and the maps measured; the
-    profile's note on the pickup wait."""
+    totals with its interval (:func:`bench.intervals.cell`) and what the interval rests on (:func:`rests_on`), the
+    link model's total and the maps measured; the profile's note on the pickup wait."""
     rows, columns = with_renderer(raw), _columns(raw)
     out = []
     for profile in profiles_of(rows):
@@ -138,12 +138,31 @@ def table1(raw: Rows) -> list[dict[str, Any]]:
         level = level_of(rows, "total_ratio")
         shown = "" if level is None else f" [{level * 100:g} % interval]"
         label = f"ratio of totals, cloud / GIGAN (same renderer){shown}"
+        out.append(head | {"stage": label, "fmt": "s", "m": ratios})
+        if level is not None:  # runs from before the intervals recorded none
+            rests = [
+                None if s == GIGAN else rests_on(rows, n, gigan_n[r], profile=profile, cache=c, renderer=r)
+                for (s, c, r, _), n in zip(columns, counts)
+            ]
+            out.append(head | {"stage": "the interval rests on (maps: cloud / GIGAN)", "fmt": "s", "m": rests})
         out += [
-            head | {"stage": label, "fmt": "s", "m": ratios},
             head | {"stage": "total by the link model (check)", "fmt": ".1f", "m": cloud(CLOUD, "total_model")},
             head | {"stage": "maps measured", "fmt": ".0f", "m": counts},
         ]
     return out
+
+
+def rests_on(rows: Rows, cloud_maps: float, gigan_maps: float | None, **where: Any) -> str:
+    """What the ratio's interval at ``where`` rests on: the maps of its cloud column and GIGAN's (and the repeats,
+    for an interval over runs), or that too few maps made none."""
+    if min(cloud_maps, gigan_maps or 0) < MIN_SAMPLES:
+        return "too few maps for an interval: raise --frames"
+    maps = f"{cloud_maps:.0f} / {gigan_maps:.0f}"
+    interval = recorded(rows, f"{CLOUD}/{GIGAN}", "total_ratio", **where)
+    if interval is None or interval.over == "maps":
+        return maps
+    repeats = next(r["config"]["repeats"] for r in rows if matches(r, "total_ratio", "ci_low", **where))
+    return f"{repeats} runs ({maps} in all)"
 
 
 def _pickup(rows: Rows, profile: str) -> str:
@@ -310,7 +329,8 @@ def _short_notes(raw: Rows) -> str:
             + "; ".join(crossings)
             + "."
         )
-    intervals = legend(rows, "total_ratio", "each system's maps; no clear winner: the ratio's interval holds 1")
+    intervals = legend(rows, "total_ratio", "each system's maps")
+    intervals += " No clear winner: the ratio's interval holds 1." if intervals else ""
     return "\n".join(line for line in (*lines, intervals, what_ran(raw)) if line)
 
 

@@ -127,8 +127,8 @@ def record_run(tmp_path: Path, miss_maps: int = 40) -> list[dict]:
     cfg = SimpleNamespace(sweep_rate_mbit=None, sweep_max_rtt_ms=100.0)
     for cache, median, maps in (("hit", GIGAN_MEDIAN, 40), ("miss", 10 * GIGAN_MEDIAN, miss_maps)):
         samples = cloud_stages(rng, maps, median)
-        _record_cloud_stages(res, "s", "lan", samples, gigan, {"profile": "lan", "cache": cache} | common)
-        _record_crossover(res, "s", cfg, samples, gigan, {"cache": cache, "rate_mbit": None} | common)
+        _record_cloud_stages(res, "s", "lan", [samples], [list(gigan)], {"profile": "lan", "cache": cache} | common)
+        _record_crossover(res, "s", cfg, [samples], [list(gigan)], {"cache": cache, "rate_mbit": None} | common)
     res.write()
     return read_rows(res.csv_path)
 
@@ -148,7 +148,7 @@ def test_the_rows_hold_each_interval_beside_its_value(tmp_path: Path) -> None:
             assert set(bounds) == {"ci_low", "ci_high"}
             for r in bounds.values():
                 assert r["system"] == ratio and r["unit"] == value["unit"]
-                assert r["config"] == value["config"] | {"ci": LEVEL, "resamples": RESAMPLES}
+                assert r["config"] == value["config"] | {"ci": LEVEL, "resamples": RESAMPLES, "ci_over": "maps"}
             assert bounds["ci_low"]["value"] <= value["value"] <= bounds["ci_high"]["value"]
 
 
@@ -174,6 +174,9 @@ def test_too_few_maps_say_so_and_runs_before_the_intervals_show_as_they_did(tmp_
     rows = record_run(tmp_path, miss_maps=2)
     _, hit, miss = ratio_cells(rows)
     assert miss.endswith(" (n < 3)") and "[" in hit, (hit, miss)
+    # GIGAN's column, the hit's, the miss's
+    rests = f"| — | 40 / {GIGAN_MAPS} | too few maps for an interval: raise --frames |"
+    assert f"| the interval rests on (maps: cloud / GIGAN) {rests}" in table_text(TABLE1, rows, 2)
     assert "| gl | miss | 0 (n < 3) (GIGAN is faster at any RTT) |" in table_text(CROSSOVERS, rows, 2)
     older = [r for r in rows if not r["stat"].startswith("ci_")]
     ratios = {r["config"]["cache"]: r["value"] for r in older if r["metric"] == "total_ratio"}

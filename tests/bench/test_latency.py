@@ -5,8 +5,10 @@ option checks (the link model's crossover: tests/network_sim/test_exchange.py)."
 from __future__ import annotations
 
 import json
+from functools import partial
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from baseline_cloudbaking.client import STAGES
@@ -190,17 +192,17 @@ def _write_csv(path: Path, rows: list[dict]) -> None:
         writer.writerows(rows)
 
 
-def _gigan_frames(di: float, gi_render: float) -> list[dict]:
+def _gigan_frames(di: float, gi_render: float, ssim: float = 0.9) -> list[dict]:
     """Two frames: the first binds a map (its stages in ms), the second binds none (its DI is no map's)."""
     from gigan_local.warp import StructureAwareWarp
 
     per_frame = {f"{s}_ms": 0.25 for s in StructureAwareWarp.stages if s != "bind"}
     bound = {"frame": 0, "gi_new": 1, "di_ms": di, "gi_render_ms": gi_render, "inference_ms": 20.0, "bind_ms": 1.0}
-    bound |= per_frame | {"compose_ms": 0.5, "ssim": 0.9}
+    bound |= per_frame | {"compose_ms": 0.5, "ssim": ssim}
     return [bound, bound | {"frame": 1, "gi_new": 0, "di_ms": 100.0, "ssim": ""}]
 
 
-def _cloud_run(folder: Path, di: float, hit: int) -> None:
+def _cloud_run(folder: Path, di: float, hit: int, perceived_ms: float = 90.0) -> None:
     from baseline_cloudbaking.client_run import REQUEST_COLUMNS
 
     stages = {"transmission": 70.0, "request": 65.0, "transfer": 5.0, "lookup": 0.1, "decode": 2.0, "blend": 0.5}
@@ -210,8 +212,30 @@ def _cloud_run(folder: Path, di: float, hit: int) -> None:
     request |= {"frame": 0, "latency_ms": 80.0, "di_ms": di, "bind_ms": 1.0, "warp_ms": 6.0, "pickup_ms": 3.0}
     request["total_ms"] = sum(stages.values()) - stages["transmission"] + di + 1.0 + 6.0
     _write_csv(folder / "requests.csv", [request])
-    perceived = {"in_tolerance": 1, "perceived_ms": 90.0, "perceived_map": 0}
+    perceived = {"in_tolerance": 1, "perceived_ms": perceived_ms, "perceived_map": 0}
     _write_csv(folder / "frames.csv", [{"frame": 0, "di_ms": di, "ssim": 0.95} | perceived])
+
+
+def _value(rows: list[dict], system: str, metric: str, stat: str, **config) -> float:
+    """The value of the one row of ``system``, ``metric``, ``stat`` and ``config``."""
+    [v] = [
+        r["value"]
+        for r in rows
+        if (r["system"], r["metric"], r["stat"]) == (system, metric, stat) and r["config"].items() >= config.items()
+    ]
+    return v
+
+
+def _summaries(runs: dict) -> None:
+    """What each client's summary.json says it ran."""
+    from bench.latency_record import GIGAN
+
+    for (system, *_, renderer), folders in runs.items():
+        summary = {"frames": 2, "renderer": renderer, "warp_backend": "gl" if renderer == "gl" else "numpy"}
+        for folder in folders:
+            (folder / "summary.json").write_text(
+                json.dumps(summary | ({"inference": "onnxruntime"} if system == GIGAN else {}))
+            )
 
 
 def test_totals_count_the_local_di_and_the_renderers_stand_side_by_side(tmp_path: Path) -> None:
@@ -227,29 +251,18 @@ def test_totals_count_the_local_di_and_the_renderers_stand_side_by_side(tmp_path
     runs = {}
     for renderer, times in (("gl", gl), ("mitsuba", mi)):
         _write_csv(tmp_path / f"gigan_{renderer}" / "frames.csv", _gigan_frames(**times))
-        runs[GIGAN, "none", "local", renderer] = tmp_path / f"gigan_{renderer}"
+        runs[GIGAN, "none", "local", renderer] = [tmp_path / f"gigan_{renderer}"]
         for store, hit in (("prebaked", 1), ("cold", 0)):
             folder = tmp_path / f"cloud_rtt60_{store}_{renderer}"
             _cloud_run(folder, times["di"], hit)
-            runs[CLOUD, "rtt60", store, renderer] = folder
-    for (system, *_, renderer), folder in runs.items():  # what each client's summary.json says it ran
-        summary = {"frames": 2, "renderer": renderer, "warp_backend": "gl" if renderer == "gl" else "numpy"}
-        (folder / "summary.json").write_text(
-            json.dumps(summary | ({"inference": "onnxruntime"} if system == GIGAN else {}))
-        )
+            runs[CLOUD, "rtt60", store, renderer] = [folder]
+    _summaries(runs)
     cfg = LatencyConfig(profiles=("rtt60",), sweep_max_rtt_ms=100.0)
     res = Results("latency", tmp_path / "out", 0)
-    record(res, "lung_plane", cfg, runs, {"resolution": 256, "k": 10, "frames": 2})
+    record(res, "lung_plane", cfg, runs, {"resolution": 256, "k": 10, "frames": 2, "repeats": 1})
     res.write()
     rows = read_rows(res.csv_path)
-
-    def value(system: str, metric: str, stat: str, **config) -> float:
-        [v] = [
-            r["value"]
-            for r in rows
-            if (r["system"], r["metric"], r["stat"]) == (system, metric, stat) and r["config"].items() >= config.items()
-        ]
-        return v
+    value = partial(_value, rows)
 
     gigan_total = {"gl": 2.0 + 5.0 + 21.0 + per_frame + 0.5, "mitsuba": 10.0 + 15.0 + 21.0 + per_frame + 0.5}
     for renderer, total in gigan_total.items():
@@ -289,6 +302,82 @@ def test_totals_count_the_local_di_and_the_renderers_stand_side_by_side(tmp_path
     assert f"| `rtt60` (60 ms) | mitsuba | {gigan_total['mitsuba']:.1f} |" in block
     assert f"gl / mitsuba in the same run, GIGAN: total {gl_over_mi:.2f}, warp 1.00, GI-camera render 0.33" in block
     assert ran in block
+
+
+def test_three_repeats_pool_their_maps_and_their_intervals_are_over_the_runs(tmp_path: Path) -> None:
+    """Each repeat's client outputs written here (one renderer, one map per run and cache state, each repeat's
+    timings apart): stage medians and counts over the pooled maps, perceived latency over the pooled frames, SSIM
+    per frame the repeats' mean; each ratio's and crossover's interval over the runs, holding their mean."""
+    from bench.intervals import recorded
+    from bench.latency_record import CLOUD, GIGAN, record
+    from bench.latency_tables import SHORT, TABLE1
+    from gicore.present.markdown import table_text
+    from gicore.results import Results
+
+    gi_render, di, ssim, perceived = (5.0, 8.0, 20.0), (2.0, 3.0, 10.0), (0.9, 0.8, 0.7), (90.0, 100.0, 110.0)
+    runs: dict = {}
+    for i in range(3):
+        folder = tmp_path / f"r{i}"
+        _write_csv(folder / "gigan_gl" / "frames.csv", _gigan_frames(di[0], gi_render[i], ssim[i]))
+        runs.setdefault((GIGAN, "none", "local", "gl"), []).append(folder / "gigan_gl")
+        for store, hit in (("prebaked", 1), ("cold", 0)):
+            _cloud_run(folder / f"cloud_rtt60_{store}_gl", di[i], hit, perceived[i])
+            runs.setdefault((CLOUD, "rtt60", store, "gl"), []).append(folder / f"cloud_rtt60_{store}_gl")
+    _summaries(runs)
+    res = Results("latency", tmp_path / "out", 0)
+    record(res, "lung_plane", LatencyConfig(profiles=("rtt60",), sweep_max_rtt_ms=100.0), runs,
+           {"resolution": 256, "k": 10, "frames": 2, "repeats": 3})  # fmt: skip
+    res.write()
+    rows = read_rows(res.csv_path)
+    value = partial(_value, rows)
+
+    gigan = [di[0] + g + 21.0 + 0.25 * 4 + 0.5 for g in gi_render]  # DI, GI camera, inference + bind, warp, blend
+    miss = [65.0 + 5.0 + 0.1 + 403.0 + 2.0 + d + 7.5 for d in di]  # as in the test above
+    assert value(GIGAN, "total", "median", repeats=3) == pytest.approx(gigan[1])
+    assert value(GIGAN, "gi_render", "median") == 8.0 and value(GIGAN, "total", "n") == 3
+    assert value(CLOUD, "total", "median", cache="miss") == pytest.approx(miss[1])
+    assert value(CLOUD, "di", "median", cache="hit") == 3.0 and value(CLOUD, "total", "n", cache="hit") == 3
+    assert value(CLOUD, "perceived", "median", store="prebaked") == 100.0
+    assert value(CLOUD, "perceived", "p95", store="prebaked") == 110.0
+    assert value(CLOUD, "requests", "value", store="prebaked") == 1 and value(GIGAN, "frames", "value") == 2
+    assert value(GIGAN, "ssim", "frame", frame=0) == pytest.approx(0.8)
+    ratio = value(f"{CLOUD}/{GIGAN}", "total_ratio", "median", cache="miss")
+    assert ratio == pytest.approx(miss[1] / gigan[1])  # the pooled maps' medians
+    per_run = [m / g for m, g in zip(miss, gigan, strict=True)]
+    interval = recorded(rows, f"{CLOUD}/{GIGAN}", "total_ratio", cache="miss", renderer="gl")
+    assert interval is not None and interval.over == "runs"
+    # the mean of resampled runs: within the runs' range and, at 95 %, around their mean
+    assert min(per_run) <= interval.low < np.mean(per_run) < interval.high <= max(per_run)
+    crossing = recorded(rows, f"{CLOUD}/{GIGAN}", "crossover_rtt", cache="hit", renderer="gl")
+    assert crossing is not None and crossing.over == "runs"
+    assert {r["config"]["ci_over"] for r in rows if r["stat"].startswith("ci_")} == {"runs"}
+
+    rests = "3 runs (3 / 3 in all)"
+    assert f"| the interval rests on (maps: cloud / GIGAN) | — | {rests} | {rests} |" in table_text(TABLE1, rows, 2)
+    assert "2000 resamples of the 3 runs' own values" in table_text(SHORT, rows, 2)
+
+
+def test_repeats_run_every_client_again_in_their_own_folders(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The processes are stood in for: each repeat runs every client and prebakes its own store in latency_runs/r<i>;
+    the recorder gets each run's folders in the repeats' order, and the prebake is one row."""
+    from gicore.results import Results
+    from tests.helpers.latency_runs import stand_in
+
+    told = stand_in(monkeypatch)
+    given: dict = {}
+    monkeypatch.setattr(latency, "record", lambda res, name, cfg, runs, common: given.update(runs=runs, common=common))
+    cfg = LatencyConfig(profiles=("lan",), resolution=16, frames=3, renderers=("mitsuba",), prefetch_in_flight=1,
+                        alone=False, repeats=3)  # fmt: skip
+    res = Results("latency", tmp_path / "out", 0)
+    latency.measure(cfg, res)
+    assert len(told.argvs) == 3 * 4  # gigan, cloud prebaked, its prefetching twin, cloud cold; each repeat
+    assert len(told.asked) == 3 * 2  # each repeat's prebake, and its cold store's compile request
+    work = tmp_path / "out" / "latency_runs"
+    assert len(given["runs"]) == 4 and given["common"]["repeats"] == 3
+    for (*_, renderer), folders in given["runs"].items():
+        assert [f.parent for f in folders] == [work / f"r{i}" for i in range(3)] and renderer == "mitsuba"
+    assert [r["metric"] for r in res.rows] == ["prebake_maps", "prebake_time"]
+    assert all(r["config"]["repeats"] == 3 for r in res.rows)
 
 
 def test_renderers_option(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture) -> None:
