@@ -5,17 +5,19 @@ for the chosen store (:mod:`web3d.upstreams`; absent: the first of each), throug
 :class:`httpx.AsyncClient` (made at startup, with connect and read timeouts). The upstream's status, bytes,
 content type, ``X-GIMap-Hit`` and ``Retry-After`` come back, with ``X-Profile`` and ``X-Store``. Refused
 before anything is forwarded: the cloud side off or its server unavailable (503), an unknown profile or store
-(422), a body that is not JSON (415), larger than ``max_body_bytes`` as it arrives whatever Content-Length
-says (413) or slower than ``body_timeout_s`` (408). An upstream that cannot be reached or breaks off is 502; one
-slower than ``read_timeout_s`` 504. Every refusal here is ``{"detail": "..."}``.
+(422), a body that is not JSON or a Content-Type that is not ASCII (415), larger than ``max_body_bytes`` as it
+arrives whatever Content-Length says (413) or slower than ``body_timeout_s`` (408). An upstream that cannot be
+reached or breaks off is 502; one slower than ``read_timeout_s`` 504. A request still forwarded
+``graceful_timeout_s`` after the server began to stop is answered 503 (as the cloud-baking server answers a miss
+it did not finish). Every refusal here is ``{"detail": "..."}``.
 """
 
 from __future__ import annotations
 
 import asyncio
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Awaitable
 from contextlib import asynccontextmanager
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import httpx
 from fastapi import APIRouter, FastAPI, HTTPException, Request, Response
@@ -29,6 +31,7 @@ if TYPE_CHECKING:
     from web3d.site import Site, WebSettings
 
 router = APIRouter()
+T = TypeVar("T")
 #: Upstream response headers the page reads, passed through.
 PASSED_HEADERS = ("X-GIMap-Hit", "Content-Location", "Retry-After")
 #: The request body as OpenAPI states it (any JSON object: the cloud server validates it).
@@ -40,9 +43,35 @@ async def lifespan(app: FastAPI) -> AsyncIterator[None]:
     """The one HTTP client every forwarded request uses (its connections to the upstreams are kept alive)."""
     settings: WebSettings = app.state.site.settings
     timeout = httpx.Timeout(settings.read_timeout_s, connect=settings.connect_timeout_s)
+    app.state.stopping = asyncio.Event()  # set when the server begins to stop (web3d.serve)
     async with httpx.AsyncClient(timeout=timeout) as client:
         app.state.client = client
         yield
+
+
+class Stopping(Exception):
+    """The server began to stop, and what a request waited for did not finish within the graceful timeout."""
+
+
+async def unless_stopping(app: FastAPI, call: Awaitable[T]) -> T:
+    """``call``'s result; :class:`Stopping` when the server begins to stop and ``call`` is not done
+    ``graceful_timeout_s`` later (uvicorn cancels it a little after that, which would answer 500)."""
+    task = asyncio.ensure_future(call)
+    deadline = asyncio.ensure_future(_stop_deadline(app))
+    try:
+        done, _ = await asyncio.wait((task, deadline), return_when=asyncio.FIRST_COMPLETED)
+    finally:
+        deadline.cancel()
+        if not task.done():
+            task.cancel()
+    if task not in done:
+        raise Stopping
+    return task.result()
+
+
+async def _stop_deadline(app: FastAPI) -> None:
+    await app.state.stopping.wait()
+    await asyncio.sleep(app.state.site.settings.graceful_timeout_s)
 
 
 def page_config(site: Site) -> dict[str, Any]:
@@ -106,17 +135,22 @@ async def gimap(request: Request, profile: str | None = None, store: str | None 
     media = request.headers.get("content-type", "")
     if media.split(";")[0].strip().lower() != "application/json":
         raise HTTPException(415, f"the request body must be application/json, not {media or 'untyped'}")
+    if not media.isascii():  # forwarded as it came, and an HTTP client sends only ASCII header values
+        raise HTTPException(415, "the Content-Type header must be ASCII: send Content-Type: application/json")
     try:
         body = await read_body(request, site.settings)
     except ClientDisconnect:
         return Response(status_code=499)  # nobody reads it
-    try:
-        url = await run_in_threadpool(cloud.upstream, profile, store)
-    except Unavailable as exc:
-        raise HTTPException(503, str(exc)) from None
     client: httpx.AsyncClient = request.app.state.client
     try:
-        answer = await client.post(f"{url}/v1/gimap", content=body, headers={"Content-Type": media})
+        url = await unless_stopping(request.app, run_in_threadpool(cloud.upstream, profile, store))
+        post = client.post(f"{url}/v1/gimap", content=body, headers={"Content-Type": media})
+        answer = await unless_stopping(request.app, post)
+    except Unavailable as exc:
+        raise HTTPException(503, str(exc)) from None
+    except Stopping:
+        msg = "gigan-web is stopping and did not get this map: retry once it runs again"
+        raise HTTPException(503, msg, headers={"Connection": "close"}) from None
     except httpx.TimeoutException:
         raise HTTPException(504, f"the cloud-baking server at {url} did not answer in time") from None
     except httpx.HTTPError as exc:

@@ -109,6 +109,20 @@ def allowed_hosts(host: str, sock: socket.socket) -> list[str]:
     return sorted(names)
 
 
+class _Uvicorn(uvicorn.Server):
+    """uvicorn's server that tells ``app`` when a stop begins (``app.state.stopping``, made by its lifespan)."""
+
+    def __init__(self, config: uvicorn.Config, app: FastAPI) -> None:
+        super().__init__(config)
+        self.app = app
+
+    async def shutdown(self, sockets: list[socket.socket] | None = None) -> None:
+        stopping = getattr(self.app.state, "stopping", None)  # absent when the app's startup failed
+        if stopping is not None:
+            stopping.set()
+        await super().shutdown(sockets)
+
+
 class WebServer:
     """The server for ``site`` on ``host:port`` (port 0: a free one); :attr:`url` is its address as soon as it
     is made. ``site`` may come later (:meth:`attach`), so that the address is taken before anything is
@@ -140,9 +154,10 @@ class WebServer:
             log_level="warning",
             access_log=False,
             backlog=ACCEPT_BACKLOG,
-            timeout_graceful_shutdown=settings.graceful_timeout_s,
+            # after the app's own deadline, which answers a request still forwarded 503 (routes_cloud.Stopping)
+            timeout_graceful_shutdown=settings.graceful_timeout_s + 1,
         )
-        self._server = uvicorn.Server(config)
+        self._server = _Uvicorn(config, app)
         return self._server
 
     def start(self) -> WebServer:

@@ -160,6 +160,17 @@ def test_the_body_must_be_json(web: WebServer) -> None:
     assert httpx.post(f"{web.url}/v1/gimap", content=b"{}", headers=headers | {"Content-Type": ""}).status_code == 415
 
 
+def test_a_content_type_that_is_not_ascii_is_415(web: WebServer, tracebacks) -> None:
+    """A byte past ASCII in a JSON Content-Type (forwarded as it came, which no HTTP client sends) is refused
+    before forwarding, with no traceback logged."""
+    for media in (b"application/json; charset=\xe9", b"application/json;\x80"):
+        with socket.create_connection(web.socket.getsockname()[:2], timeout=HANG_GUARD_S) as sock:
+            head = b"POST /v1/gimap HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\nContent-Length: 2\r\n"
+            sock.sendall(head + b"Content-Type: " + media + b"\r\n\r\n{}")
+            answer = b"".join(iter(lambda: sock.recv(65536), b""))
+        assert answer.startswith(b"HTTP/1.1 415 ") and b"ASCII" in answer, answer
+
+
 def test_a_body_over_the_limit_is_413_as_it_arrives(web: WebServer) -> None:
     limit = SETTINGS.max_body_bytes
     assert post(web, "", b" " * (limit + 1)).status_code == 413

@@ -1,11 +1,10 @@
 """gigan-web's server against malformed and hostile HTTP, on raw sockets: an HTTP/0.9 request line, a NUL in
 the path, a 256-character path segment, ``Content-Length: abc``, Content-Length beside chunked, a chunked body,
 a GET with a body, a second request hidden in a refused POST's body (desync), a head that never ends, and a
-traceback for none of them (the server's log is read)."""
+traceback for none of them (the server's log is read: the ``tracebacks`` fixture of conftest.py)."""
 
 from __future__ import annotations
 
-import logging
 import re
 import socket
 from collections.abc import Iterator
@@ -41,30 +40,6 @@ def exchange(web: WebServer, data: bytes) -> bytes:
 def statuses(answer: bytes) -> list[int]:
     """The status of each response in ``answer`` (a response's body may run into the next status line)."""
     return [int(code) for code in re.findall(rb"HTTP/1\.1 (\d{3}) ", answer)]
-
-
-class Collect(logging.Handler):
-    def __init__(self) -> None:
-        super().__init__(logging.WARNING)
-        self.records: list[logging.LogRecord] = []
-
-    def emit(self, record: logging.LogRecord) -> None:
-        self.records.append(record)
-
-
-@pytest.fixture
-def tracebacks() -> Iterator[list[logging.LogRecord]]:
-    """What the server logs during a test (uvicorn's loggers, which do not propagate to the root); none may
-    carry an exception."""
-    collect = Collect()
-    logger = logging.getLogger("uvicorn")
-    logger.addHandler(collect)
-    try:
-        yield collect.records
-    finally:
-        logger.removeHandler(collect)
-    failed = [r.getMessage() for r in collect.records if r.exc_info]
-    assert not failed, failed
 
 
 @pytest.mark.parametrize(

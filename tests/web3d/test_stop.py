@@ -1,0 +1,69 @@
+"""gigan-web as a process, stopped while it works (real processes on ephemeral ports): SIGTERM during a forwarded
+miss answers the browser 503 "stopping", as the cloud-baking server does, and exits 0 without a traceback;
+Ctrl-C while the modules still load exits as quietly."""
+
+from __future__ import annotations
+
+import signal
+import socket
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import httpx
+import pytest
+
+from tests.web3d.test_children import HANG_GUARD_S, assert_stopped_normally, viewer
+from web3d.site import WEB_DIR
+
+pytestmark = pytest.mark.skipif(
+    not (WEB_DIR / "node_modules" / "onnxruntime-web").is_dir(), reason="web3d/static/node_modules is missing"
+)
+
+
+@contextmanager
+def silent_upstream() -> Iterator[tuple[str, threading.Event]]:
+    """A server that reads requests and never answers (a miss path-traced for ever); yields its URL and an event
+    set once a request arrived."""
+    arrived = threading.Event()
+    held: list[socket.socket] = []
+    listener = socket.create_server(("127.0.0.1", 0))
+
+    def accept() -> None:
+        while True:
+            try:
+                conn, _ = listener.accept()
+            except OSError:  # closed: the test is over
+                return
+            held.append(conn)
+            if conn.recv(65536):
+                arrived.set()
+
+    threading.Thread(target=accept, daemon=True).start()
+    try:
+        yield f"http://127.0.0.1:{listener.getsockname()[1]}", arrived
+    finally:
+        listener.close()
+        for conn in held:
+            conn.close()
+
+
+@pytest.mark.slow
+def test_sigterm_during_a_forwarded_miss_answers_503_stopping(tmp_path: Path) -> None:
+    with (
+        silent_upstream() as (upstream, arrived),
+        viewer(["--scene", "lung_plane", "--server", upstream], tmp_path) as run,
+    ):
+        url = run.read_until("serving").split(" at ")[1].split()[0].rstrip("/")
+        answers: list[httpx.Response] = []
+        post = threading.Thread(
+            target=lambda: answers.append(httpx.post(f"{url}/v1/gimap", json={}, timeout=HANG_GUARD_S))
+        )
+        post.start()
+        assert arrived.wait(HANG_GUARD_S), "the request never reached the upstream"
+        err = run.stop_and_read(signal.SIGTERM)
+        post.join(HANG_GUARD_S)
+    (answer,) = answers
+    assert answer.status_code == 503 and "stopping" in answer.json()["detail"], answer.text
+    assert_stopped_normally(run.proc.returncode, err)
