@@ -6,14 +6,18 @@
 # Downloads, for CPython PY_TAG (312: the GPU image's Python 3.12) on manylinux x86_64, each of PACKAGES (the
 # project's dependencies, direct or not, that the GPU image lacks or may hold too old) at the version PYTHON's
 # environment holds, without dependencies (each one needed is named). --from DIR
-# takes the wheels from DIR instead of downloading them. A wheel over PART_MIB is split into parts of PART_MIB
+# takes the wheels from DIR instead of downloading them. Then (SLIM=1, the default) scripts/gpu_slim_wheel.py
+# rewrites them in place: mitsuba's and pyoidn's cut to the variants, plugins and OIDN devices the project loads
+# (it prints each one's size before and after), and all of them compressed with SLIM_ZIP (lzma: two batches where
+# deflate takes three; pip then needs Python's lzma module). A wheel over PART_MIB is split into parts of PART_MIB
 # (NAME.whl.part.aa, .ab, ...); every file then goes into one of OUT/batch1, OUT/batch2, ..., each small enough to
 # travel with the repository in one device run (CARRY_MIB in all, minus the tree's measured size and MARGIN_MIB),
 # and OUT/SHA256SUMS (each whole wheel's sha256) is copied into every batch, so that gpu_table1.sh can check each
 # wheel it reassembles. A wheel split across batches arrives over several runs on the same machine.
 #
 # Settings (environment): PYTHON (.venv/bin/python), PY_TAG (312), PACKAGES, CARRY_MIB (64), MARGIN_MIB (2),
-# PART_MIB (the smaller of 45 and what one batch may hold).
+# PART_MIB (the smaller of 45 and what one batch may hold), SLIM (1; 0: the wheels as published), SLIM_ZIP (lzma
+# or deflate).
 set -euo pipefail
 
 PYTHON=${PYTHON:-.venv/bin/python}
@@ -26,6 +30,8 @@ python-dotenv annotated-types typing-inspection trimesh zstandard openexr modern
 pyoidn cffi pycparser opentelemetry-api setuptools typing-extensions anyio click h11 annotated-doc}
 CARRY_MIB=${CARRY_MIB:-64}
 MARGIN_MIB=${MARGIN_MIB:-2}
+SLIM=${SLIM:-1}
+SLIM_ZIP=${SLIM_ZIP:-lzma}
 FROM=""
 if [[ ${1:-} == --from ]]; then FROM=${2:?--from needs a folder}; shift 2; fi
 OUT=${1:-.gpu_wheels}
@@ -64,6 +70,12 @@ else
     "${platforms[@]}" -d "$OUT/wheels" "${pins[@]}"
 fi
 
+if [[ $SLIM != 0 ]]; then
+  slim_before=$(du -cb "$OUT"/wheels/*.whl | tail -1 | cut -f1)
+  "$PYTHON" "$(dirname "$0")/gpu_slim_wheel.py" --compression "$SLIM_ZIP" "$OUT"/wheels/*.whl
+  slim_after=$(du -cb "$OUT"/wheels/*.whl | tail -1 | cut -f1)
+  echo "all wheels: $((slim_before / MIB)) MiB -> $((slim_after / MIB)) MiB (SLIM=0 keeps them as published)"
+fi
 (cd "$OUT/wheels" && sha256sum -- *.whl) >"$OUT/SHA256SUMS"
 for wheel in "$OUT"/wheels/*.whl; do
   if (($(stat -c %s "$wheel") > part_bytes)); then
