@@ -10,11 +10,11 @@ connections, as on one bottleneck link; each connection has its own FIFO, window
 reading its sender while the model has not admitted what it holds, the receiver's buffer is full or all
 connections together hold :data:`MAX_HELD_BYTES`: it never drops stream bytes. At most ``max_connections``
 client connections are kept (one more is closed on accept; refusals reported at most once per 10 s), and a
-connection that moved fewer than ``idle_min_bytes`` in the last ``idle_timeout_s`` (with none due) is closed on
-both sides, so held or trickling sockets give their slots back. Every run can keep a lateness summary (write
-time minus model release, :class:`~network_sim.chunklog.LatenessSummary`), written at exit. SIGTERM/SIGINT: stop
-accepting, close every connection with FIN, write the log and the summary, exit 0. Not emulated: the TCP
-handshake, congestion control, loss bursts.
+connection that moved fewer than ``idle_min_bytes`` in ``idle_timeout_s`` (checks that find its bytes due in the
+link skip it) is closed on both sides, so held or trickling sockets give their slots back. Every run can keep a
+lateness summary (write time minus model release, :class:`~network_sim.chunklog.LatenessSummary`), written at
+exit. SIGTERM/SIGINT: stop accepting, close every connection with FIN, write the log and the summary, exit 0.
+Not emulated: the TCP handshake, congestion control, loss bursts.
 """
 
 from __future__ import annotations
@@ -261,20 +261,22 @@ class _Connection:
             DOWN: _Pipe(proxy, link.stream(conn_id, DOWN), self.upstream, self.client),
         }
         self.closed = False
-        #: Bytes read from or written to either leg since the last idle check, and in each of the intervals
-        #: between the last checks (a connection's first interval is partial: it opened within it).
+        #: Bytes read from or written to either leg since the last idle check that found none of them in the link,
+        #: and in each interval between the last such checks (a connection's first one is partial).
         self.moved = 0
         self.intervals: deque[int] = deque(maxlen=IDLE_CHECKS + 1)
 
     def idle(self, min_bytes: int) -> bool:
-        """Close the interval since the last check: whether the connection moved fewer than ``min_bytes`` in the
-        last :data:`IDLE_CHECKS` whole intervals (one idle timeout) and has none due in the link."""
+        """At an idle check: whether the connection moved fewer than ``min_bytes`` in its last :data:`IDLE_CHECKS`
+        whole intervals (an idle timeout) between checks that found none of its bytes due in the link. A check
+        that finds bytes due skips it, and what it moves meanwhile counts toward the next interval: a round trip
+        longer than the timeout is no idleness."""
+        if any(p.offer_timer is not None or p.flush_timer is not None for p in self.pipes.values()):
+            return False
         self.intervals.append(self.moved)
         self.moved = 0
-        if len(self.intervals) <= IDLE_CHECKS:  # younger than one idle timeout of whole intervals
-            return False
-        due = any(p.offer_timer is not None or p.flush_timer is not None for p in self.pipes.values())
-        return sum(self.intervals) - self.intervals[0] < min_bytes and not due
+        # younger than one idle timeout of whole intervals: not judged yet
+        return len(self.intervals) > IDLE_CHECKS and sum(self.intervals) - self.intervals[0] < min_bytes
 
     def pipe_into(self, side: _Side) -> _Pipe:
         return self.pipes[DOWN] if side is self.client else self.pipes[UP]
