@@ -20,7 +20,7 @@ import time
 from dataclasses import dataclass
 from multiprocessing.connection import Connection
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal, Protocol
+from typing import Any, Literal, Protocol
 
 import httpx
 import numpy as np
@@ -28,8 +28,19 @@ import numpy as np
 from baseline_cloudbaking.codecs import CodecError, get_codec
 from baseline_cloudbaking.protocol import MEDIA_TYPE, GIMapPayload, PayloadError, decode_payload
 
-if TYPE_CHECKING:
-    from baseline_cloudbaking.client import RemoteConfig
+
+class RemoteConfig(Protocol):
+    """What a fetcher reads of its client's config (:class:`baseline_cloudbaking.client.RemoteConfig`)."""
+
+    server: str
+    codec: str
+    resolution: int
+    deadline_s: float
+    retry_after_s: float
+    fetch: str
+
+    def timeout(self) -> httpx.Timeout: ...
+
 
 #: Where a client's requests run: ``process`` (a worker process per request slot) or ``thread`` (in the client).
 FETCHERS = ("process", "thread")

@@ -1,16 +1,15 @@
-"""Each Table 1 stage alone (docs/architecture.md, Each stage alone): the same work as the client runs, on the same
-cores, inputs and cameras, with nothing else running in the process, so that a stage's cost in the loop can be set
-beside its cost alone (their ratio, the inflation, is what the harness or the client's plumbing adds).
+"""The cloud-baking client's stages alone (docs/architecture.md, Each stage alone): the same work as a client run,
+on the same inputs and cameras, with nothing else running in the process, so that a stage's cost in the loop can
+be set beside its cost alone (their ratio, the inflation, is what the client's plumbing adds):
 
-- cloud baking, per profile: each map of the run's path asked for one at a time through a fresh proxy of the
-  profile in front of the run's prebaked server (``request``, ``transfer``, the server's stages, ``decode``); then
-  the maps received composed along the path by the cloud client's own loop, fed by a source that hands them over at
-  once (``di``, ``warp``, ``blend``);
-- GIGAN: its client's loop along the path (it is one thread: its stages alone are its stages);
-- the libraries' floor of a decode: Pillow's decode of the map section plus zstandard's of the depth section, on
-  the stored payloads the hits serve (the target of the client's own decode).
+- :func:`requests_alone`: each map of a path asked for one at a time (``request``, ``transfer``, the server's
+  stages, ``decode``);
+- :func:`local_alone`: the maps received composed along the path by the client's own loop, fed by a source that
+  hands them over at once (``di``, ``warp``, ``blend``);
+- :func:`decode_floor`: the libraries' floor of a decode, Pillow's decode of the map section plus zstandard's of
+  the depth section, beside the client's own decode of the same bytes.
 
-:func:`measure_alone` runs them inside the bench's process, pinned to the clients' cores.
+``bench latency`` runs them, pinned to the clients' cores, beside GIGAN's loop.
 """
 
 from __future__ import annotations
@@ -19,22 +18,31 @@ import io
 import time
 from dataclasses import replace
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
-from baseline_cloudbaking.client import RemoteConfig, RemoteSource
+from baseline_cloudbaking.client import PathRequests, RemoteConfig, RemoteSource
 from baseline_cloudbaking.client_run import REQUEST_STAGES
 from gicore.gi_map import GIMap
 from gicore.loop import SynchronousSource
 
 if TYPE_CHECKING:
-    from bench.latency import LatencyConfig
     from gicore.camera import Camera
     from gicore.paths import Light
     from gicore.scene import SceneSpec
 
 Samples = dict[str, list[float]]
+
+
+class AloneRuns(PathRequests, Protocol):
+    """What the stages alone read of their caller's config (``bench latency``'s): the path's requests, every
+    ``every`` frames, composed by ``composition``."""
+
+    every: int
+    composition: str
+
+
 #: The cloud stages a served request reports (``warp`` is the bind plus the warp's per-frame stages).
 CLOUD_ALONE = tuple(s for s in REQUEST_STAGES if s not in ("render", "denoise", "encode"))
 
@@ -57,15 +65,8 @@ class ReplaySource(SynchronousSource):
         return gi
 
 
-def path_views(spec: SceneSpec, cfg: LatencyConfig, seed: int) -> list[tuple[Camera, Light]]:
-    """The local views of the run's path (the clients' own)."""
-    from gicore.path_file import flown_path
-
-    return flown_path(spec, cfg, seed, spec.camera.local_fov).views(cfg.resolution)
-
-
 def requests_alone(
-    url: str, scene: str, spec: SceneSpec, cfg: LatencyConfig, views: list[tuple[Camera, Light]]
+    url: str, scene: str, spec: SceneSpec, cfg: AloneRuns, views: list[tuple[Camera, Light]]
 ) -> tuple[Samples, list[GIMap]]:
     """Ask ``url`` for the GI view of every k-th frame, one request at a time in a thread of this process (nothing
     else runs): the stage samples of the served requests (:data:`CLOUD_ALONE`'s network and server stages,
@@ -95,7 +96,7 @@ def requests_alone(
 
 
 def local_alone(
-    spec: SceneSpec, cfg: LatencyConfig, renderer: str, views: list[tuple[Camera, Light]], maps: list[GIMap]
+    spec: SceneSpec, cfg: AloneRuns, renderer: str, views: list[tuple[Camera, Light]], maps: list[GIMap]
 ) -> Samples:
     """The cloud client's loop along the path with ``maps`` handed over every k frames: per bound map, ``di``,
     ``warp`` (bind + the warp's stages) and ``blend`` (the composition)."""
@@ -118,20 +119,6 @@ def local_alone(
         samples["warp"].append(float(row["bind_ms"]) + sum(float(row[f"{s}_ms"]) for s in warp_stages))
         samples["blend"].append(float(row["compose_ms"]))
     return samples
-
-
-def gigan_alone(
-    scene: str, cfg: LatencyConfig, renderer: str, seed: int, threads: int, frame_rate: float | None
-) -> Samples:
-    """GIGAN's client loop along the path in this process: its per-map stage samples."""
-    from gigan_local.client import ClientConfig, run_client, stage_samples
-
-    client = ClientConfig(scene=scene, frames=cfg.frames, resolution=cfg.resolution, every=cfg.every,
-                          orbit_frames=cfg.orbit_frames, path=cfg.path, composition=cfg.composition, spp=cfg.spp,
-                          seed=seed, renderer=renderer, gi_source="model", model=cfg.model, threads=threads,
-                          frame_rate=frame_rate)  # fmt: skip
-    rows = run_client(client)
-    return stage_samples([{k: str(v) for k, v in r.items()} for r in rows])
 
 
 def decode_floor(payloads: list[bytes], repeats: int = 3) -> dict[str, list[float]]:

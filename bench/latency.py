@@ -17,9 +17,9 @@ from baseline_cloudbaking.client import request_path_maps
 from baseline_cloudbaking.codecs import DEFAULT_CODEC, CodecName
 from baseline_cloudbaking.fetch import FetcherName
 from baseline_cloudbaking.server.settings import check_served
-from bench.latency_alone import decode_floor, gigan_alone, local_alone, path_views, requests_alone, stored_payloads
+from baseline_cloudbaking.stages_alone import decode_floor, local_alone, requests_alone, stored_payloads
 from bench.latency_floor import PARTS as FLOOR_PARTS
-from bench.latency_floor import Alone, machine, record_alone, record_floor_ratios, record_targets, report
+from bench.latency_floor import Alone, record_alone, record_floor_ratios, record_targets, report
 from bench.latency_record import CLOUD, CLOUD_PREFETCH, GIGAN, pool, record
 from bench.latency_tables import PARTS
 from bench.processes import BIN, path_options, pinned_proxy, pinned_server, run_client, run_place, with_path_frames
@@ -29,8 +29,10 @@ from gicore.blend import COMPOSITIONS
 from gicore.cores import client_cores, threads
 from gicore.error_policy import UserError
 from gicore.frame_rows import read_summary
-from gicore.results import Results
+from gicore.path_file import flown_path
+from gicore.results import Results, machine_text
 from gicore.run_config import RENDERERS
+from gigan_local.client import ClientConfig, stages_of_run
 from gigan_local.inference import DEFAULT_MODEL, check_model_resolution
 from network_sim.profiles import profiles_field
 
@@ -203,7 +205,7 @@ def measure(cfg: LatencyConfig, res: Results) -> None:
         warnings = record_alone(res, spec.name, alone)
         record_floor_ratios(res, spec.name, alone)
         decode = pool([r.decode for r in repeats])
-        report(warnings, record_targets(res, spec.name, decode, threads(plan, "client"), machine()))
+        report(warnings, record_targets(res, spec.name, decode, threads(plan, "client"), machine_text()))
 
 
 def _repeat(place: _Place, folder: Path) -> _Repeat:
@@ -280,15 +282,19 @@ def measure_alone(
     cfg: LatencyConfig, plan: dict[str, Any], scene: str, spec: SceneSpec, server: str, renderers: tuple[str, ...],
     seed: int,
 ) -> Alone:  # fmt: skip
-    """Every stage alone (:mod:`bench.latency_alone`) in this process on the clients' cores: GIGAN's loop per
-    renderer; per profile the requests through a fresh proxy in front of ``server`` (the prebaked store), and the
-    cloud client's loop on the first profile's maps per renderer (it does not depend on the profile)."""
-    views = path_views(spec, cfg, seed)
+    """Every stage alone in this process on the clients' cores: GIGAN's loop per renderer (one thread: its stages
+    alone are its stages, and the pair shows the measurement's noise); per profile the requests through a fresh
+    proxy in front of ``server`` (the prebaked store), and the cloud client's loop on the first profile's maps per
+    renderer (:mod:`baseline_cloudbaking.stages_alone`; it does not depend on the profile)."""
+    views = flown_path(spec, cfg, seed, spec.camera.local_fov).views(cfg.resolution)
     alone: Alone = {}
     with client_cores(plan):
         for renderer in renderers:
-            alone[GIGAN, "none", renderer] = gigan_alone(scene, cfg, renderer, seed, threads(plan, "client"),
-                                                         cfg.frame_rate)  # fmt: skip
+            gigan = ClientConfig(scene=scene, frames=cfg.frames, resolution=cfg.resolution, every=cfg.every,
+                                 orbit_frames=cfg.orbit_frames, path=cfg.path, composition=cfg.composition,
+                                 spp=cfg.spp, seed=seed, renderer=renderer, gi_source="model", model=cfg.model,
+                                 threads=threads(plan, "client"), frame_rate=cfg.frame_rate)  # fmt: skip
+            alone[GIGAN, "none", renderer] = stages_of_run(gigan)
         local: dict[str, dict[str, list[float]]] = {}
         for profile in cfg.profiles:
             with pinned_proxy(plan, profile, server, seed) as url:

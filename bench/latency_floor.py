@@ -1,4 +1,4 @@
-"""`bench latency`'s stages alone beside the loop (:mod:`bench.latency_alone` measures them): the rows, each
+"""`bench latency`'s stages alone beside the loop (measured by :mod:`baseline_cloudbaking.stages_alone`): the rows, each
 system's floor (the sum of its stages alone), the floor's ratio and crossover, the targets of a fair baseline, and
 the table that shows them (docs/architecture.md, Each stage alone).
 
@@ -10,8 +10,6 @@ alone); ``stat = "target_met"`` rows for the targets (:func:`record_targets`).
 
 from __future__ import annotations
 
-import shutil
-import subprocess
 import sys
 from functools import partial
 from typing import Any
@@ -20,7 +18,7 @@ import numpy as np
 
 from bench.latency_record import CLOUD, GIGAN
 from gicore.present.declarations import Column, Rows, Table, flat, matches
-from gicore.results import Results, machine_info
+from gicore.results import Results
 from gigan_local.client import MAP_STAGES
 from network_sim.exchange import CloudCost
 
@@ -39,20 +37,6 @@ Alone = dict[tuple[str, str, str], dict[str, list[float]]]
 
 def _row(rows: Rows, system: str, metric: str, stat: str, **config: Any) -> dict[str, Any] | None:
     return next((r for r in rows if r["system"] == system and matches(r, metric, stat, **config)), None)
-
-
-def machine() -> str:
-    """This machine in a few words: its CPU, its cores, and its NVIDIA GPU where one is seen."""
-    info = machine_info()
-    text = f"{info['cpu']}, {info['cpu_count']} cores"
-    if shutil.which("nvidia-smi"):
-        try:
-            gpu = subprocess.run(["nvidia-smi", "--query-gpu=name", "--format=csv,noheader"], capture_output=True,
-                                 text=True, timeout=20, check=True).stdout.strip().splitlines()  # fmt: skip
-        except (OSError, subprocess.SubprocessError):
-            gpu = []
-        text += f", {gpu[0]}" if gpu else ""
-    return text
 
 
 def record_alone(res: Results, scene: str, alone: Alone) -> list[str]:

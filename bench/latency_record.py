@@ -6,7 +6,7 @@ system, profile, cache state and renderer; the ratio of totals, the link model's
 Each client run may be repeated (``bench latency --repeats N``): the rows pool the repeats' per-map samples (stage
 medians, p95, counts, ratios and crossovers from the pooled maps; perceived latency from the pooled frames; SSIM
 per frame the mean over repeats; failed requests summed). Where every one of N >= 3 repeats measured a ratio or
-crossover, its interval is over the runs' own values (:func:`bench.intervals.interval_over_runs`), else the per-map
+crossover, its interval is over the runs' own values (:func:`gicore.intervals.interval_over_runs`), else the per-map
 bootstrap; its rows' ``ci_over`` says which."""
 
 from __future__ import annotations
@@ -21,20 +21,19 @@ from typing import Any, Protocol
 import numpy as np
 
 from baseline_cloudbaking.client_run import REQUEST_STAGES, RunMetrics
-from bench.intervals import (
+from gicore.frame_rows import read_csv_rows, read_summary, scored_ssim
+from gicore.intervals import (
     MIN_SAMPLES,
     Interval,
     Seed,
     add_interval,
-    crossover_interval,
     interval_over_runs,
     ratio_interval,
     stream,
 )
-from gicore.frame_rows import read_csv_rows, read_summary, scored_ssim
 from gicore.results import Results
 from gigan_local.client import stage_samples
-from network_sim.exchange import CloudCost, sweep_link
+from network_sim.exchange import CloudCost, crossover_interval, sweep_link
 
 GIGAN, CLOUD = "gigan", "cloud_baking"
 #: The cloud client with --prefetch extrapolate (see the module docstring).
@@ -202,7 +201,7 @@ def _record_crossover(
 ) -> None:
     """The link model with one cache state's stages (its ``repeats`` pooled): the crossover RTT against the median
     of GIGAN's per-map totals (``gigan``, per repeat) with its interval (:func:`_interval`; per map,
-    :func:`bench.intervals.crossover_interval`), and the ratio over an RTT sweep."""
+    :func:`network_sim.exchange.crossover_interval`), and the ratio over an RTT sweep."""
     pooled, gigan_maps, rate = pool(repeats), [v for totals in gigan for v in totals], cfg.sweep_rate_mbit
     cost, gigan_total = CloudCost.of(pooled), float(np.median(gigan_maps))
     crossover = cost.crossover_rtt_ms(gigan_total, rate)
@@ -250,13 +249,13 @@ def record_renderer_ratios(res: Results, scene: str) -> None:
 
 
 def _stream(seed: int, metric: str, config: dict[str, Any]) -> list[int]:
-    """The interval's seed stream (:func:`bench.intervals.stream`): a column draws the same stream however many
+    """The interval's seed stream (:func:`gicore.intervals.stream`): a column draws the same stream however many
     repeats pooled its maps."""
     return stream(seed, metric, {k: v for k, v in config.items() if k != "repeats"})
 
 
 def _interval(per_run: list[float | None], per_map: Callable[[], Interval | None], seed: Seed) -> Interval | None:
-    """The interval over the runs' own values where at least :data:`~bench.intervals.MIN_SAMPLES` repeats each
+    """The interval over the runs' own values where at least :data:`~gicore.intervals.MIN_SAMPLES` repeats each
     measured one (repeats vary more than one run's maps show: the load, the scheduler, the server's warm state);
     else ``per_map``'s bootstrap of the pooled maps."""
     if len(per_run) >= MIN_SAMPLES and all(v is not None for v in per_run):

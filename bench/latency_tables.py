@@ -9,8 +9,8 @@ from functools import partial
 from typing import Any
 
 from baseline_cloudbaking.client_run import REQUEST_STAGES, TRANSMISSION_PARTS
-from bench.intervals import MIN_SAMPLES, cell, legend, level_of, recorded, suffix, too_few
 from bench.latency_record import CLOUD, CLOUD_PREFETCH, GIGAN, RENDERER_RATIO
+from gicore.intervals import MIN_SAMPLES, cell, legend, level_of, recorded, suffix, too_few
 from gicore.present.declarations import Chart, Column, Figure, Rows, Table, fill, flat, matches, per, unique
 from gigan_local.client import MAP_STAGES
 
@@ -107,7 +107,7 @@ def what_ran(raw: Rows) -> str:
 # -- Table 1 in full ------------------------------------------------------------------------------------------
 def table1(raw: Rows) -> list[dict[str, Any]]:
     """Per profile: each stage's median and p95 per column (stages no column measured left out), the ratio of
-    totals with its interval (:func:`bench.intervals.cell`) and what the interval rests on (:func:`rests_on`), the
+    totals with its interval (:func:`gicore.intervals.cell`) and what the interval rests on (:func:`rests_on`), the
     link model's total and the maps measured; the profile's note on the pickup wait."""
     rows, columns = with_renderer(raw), _columns(raw)
     out = []
@@ -243,7 +243,7 @@ def _perceived_notes(raw: Rows) -> str:
 
 
 def crossovers(raw: Rows) -> list[dict[str, Any]]:
-    """Each crossover RTT with its interval (``interval``: the text after the value, :func:`bench.intervals.suffix`;
+    """Each crossover RTT with its interval (``interval``: the text after the value, :func:`gicore.intervals.suffix`;
     its samples: every profile's maps of the cache state, and GIGAN's)."""
     rows, out = with_renderer(raw), []
     for row in (r for r in rows if matches(r, "crossover_rtt", "model")):
@@ -263,7 +263,7 @@ def crossovers(raw: Rows) -> list[dict[str, Any]]:
 # -- the README's Table 1 in short ------------------------------------------------------------------------------
 def short(raw: Rows) -> list[dict[str, Any]]:
     """One line per network profile and renderer: totals, the ratios (with their intervals,
-    :func:`bench.intervals.cell`) and mean SSIM of each system."""
+    :func:`gicore.intervals.cell`) and mean SSIM of each system."""
     rows, out = with_renderer(raw), []
     rtt = {r["config"]["profile"]: r["config"].get("rtt_ms") for r in rows if matches(r, "total_ratio")}
     for profile, rtt_ms in rtt.items():

@@ -1,5 +1,6 @@
-"""Percentile-bootstrap confidence intervals of `bench latency`'s ratios of totals and crossover RTTs, the rows
-that record them and the cell text that shows them.
+"""Percentile-bootstrap confidence intervals of `bench latency`'s ratios of totals and crossover RTTs (the latter
+in :func:`network_sim.exchange.crossover_interval`, with the link model), the rows that record them and the cell
+text that shows them.
 
 Each system's per-map samples are independent, so a resample draws each system's maps with replacement apart
 (a cloud map keeps its stages together) and recomputes the statistic; the interval is the resampled statistics'
@@ -25,14 +26,11 @@ import numpy as np
 
 from gicore.present.declarations import Rows, matches
 from gicore.results import Results
-from network_sim.exchange import CloudCost
 
 LEVEL = 0.95
 RESAMPLES = 2000
 #: Fewer values than this make no interval: a resample of two values has three distinct medians.
 MIN_SAMPLES = 3
-#: What the link model reads of a cloud request (:meth:`CloudCost.of`), resampled together.
-COST_STAGES = ("total", "transmission", "server", "bytes_up", "bytes_down")
 #: Resampled values drawn at once: the batch of resamples of a large sample stays a few MiB.
 _BATCH = 1 << 19
 #: A seed: the run's seed alone, or with further integers that set one interval's stream apart.
@@ -69,12 +67,12 @@ def ratio_interval(
 ) -> Interval | None:
     """The interval of median(num) / median(den), the two samples independent (None: either has fewer than
     :data:`MIN_SAMPLES` values)."""
-    num, den = _values(num_samples), _values(den_samples)
+    num, den = values_of(num_samples), values_of(den_samples)
     if min(num.size, den.size) < MIN_SAMPLES:
         return None
     rng = np.random.default_rng(seed)
-    medians = [_resampled(v, rng, resamples, np.median) for v in (num, den)]
-    return _quantiles(medians[0] / medians[1], level, resamples)
+    medians = [resampled(v, rng, resamples, np.median) for v in (num, den)]
+    return quantiles(medians[0] / medians[1], level, resamples)
 
 
 def interval_over_runs(
@@ -82,43 +80,11 @@ def interval_over_runs(
 ) -> Interval | None:
     """The interval of the mean of per-run ``values`` (e.g. each run's ratio of totals), runs resampled (None:
     fewer than :data:`MIN_SAMPLES` runs)."""
-    runs = _values(values)
+    runs = values_of(values)
     if runs.size < MIN_SAMPLES:
         return None
-    interval = _quantiles(_resampled(runs, np.random.default_rng(seed), resamples, np.mean), level, resamples)
+    interval = quantiles(resampled(runs, np.random.default_rng(seed), resamples, np.mean), level, resamples)
     return replace(interval, over="runs")
-
-
-def crossover_interval(
-    stages: dict[str, Sequence[float]],
-    local_totals: Sequence[float],
-    rate_mbit: float | None,
-    seed: Seed,
-    level: float = LEVEL,
-    resamples: int = RESAMPLES,
-) -> Interval | None:
-    """The interval of :meth:`CloudCost.crossover_rtt_ms` of the cloud requests' ``stages`` against the median
-    of ``local_totals`` (GIGAN's per-map totals): each resample draws the requests (their stages together) and the
-    local maps apart. A resample's medians are order statistics of the samples, so resamples repeat the same
-    cost and local median: each distinct pair is solved once (2000 resamples of 40 requests took a second on a
-    2-core Xeon)."""
-    cloud = {name: _values(stages[name]) for name in COST_STAGES}
-    local = _values(local_totals)
-    n = cloud["total"].size
-    if min(n, local.size) < MIN_SAMPLES:
-        return None
-    rng = np.random.default_rng(seed)
-    local_medians = _resampled(local, rng, resamples, np.median)
-    solved: dict[tuple[CloudCost, float], float] = {}
-    crossovers = np.empty(resamples)
-    for i, local_ms in enumerate(local_medians):
-        picked = rng.integers(0, n, n)
-        cost = CloudCost.of({name: values[picked] for name, values in cloud.items()})
-        key = (cost, float(local_ms))
-        if key not in solved:
-            solved[key] = cost.crossover_rtt_ms(key[1], rate_mbit)
-        crossovers[i] = solved[key]
-    return _quantiles(crossovers, level, resamples)
 
 
 def add_interval(res: Results, interval: Interval | None, **row: Any) -> None:
@@ -201,11 +167,11 @@ def _number(value: float, fmt: str) -> str:
     return "∞" if math.isinf(value) else format(value, fmt)
 
 
-def _values(samples: Sequence[float]) -> np.ndarray:
+def values_of(samples: Sequence[float]) -> np.ndarray:
     return np.asarray(samples, dtype=np.float64).ravel()
 
 
-def _resampled(
+def resampled(
     values: np.ndarray, rng: np.random.Generator, resamples: int, statistic: Callable[..., np.ndarray]
 ) -> np.ndarray:
     """``statistic`` of ``resamples`` draws of ``values`` with replacement, drawn in batches."""
@@ -217,6 +183,6 @@ def _resampled(
     return np.concatenate(out)
 
 
-def _quantiles(statistics: np.ndarray, level: float, resamples: int) -> Interval:
+def quantiles(statistics: np.ndarray, level: float, resamples: int) -> Interval:
     low, high = np.quantile(statistics, [(1 - level) / 2, (1 + level) / 2], method="inverted_cdf")
     return Interval(float(low), float(high), level, resamples)

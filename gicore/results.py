@@ -17,6 +17,7 @@ import io
 import json
 import os
 import platform
+import shutil
 import subprocess
 import sys
 import time
@@ -76,7 +77,26 @@ def machine_info() -> dict[str, Any]:
         "python": platform.python_version(),
         "cpu": cpu,
         "cpu_count": os.cpu_count(),
+        "gpu": _nvidia_gpu(),
     }
+
+
+def _nvidia_gpu() -> str | None:
+    """The name of the first NVIDIA GPU ``nvidia-smi`` lists (None: none, or no nvidia-smi)."""
+    if shutil.which("nvidia-smi") is None:
+        return None
+    try:
+        out = subprocess.run(["nvidia-smi", "--query-gpu=name", "--format=csv,noheader"], capture_output=True,
+                             text=True, timeout=20, check=True).stdout  # fmt: skip
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return out.strip().splitlines()[0] if out.strip() else None
+
+
+def machine_text(info: dict[str, Any] | None = None) -> str:
+    """A machine (default: this one, :func:`machine_info`) in a few words: its CPU, cores and GPU."""
+    info = info or machine_info()
+    return f"{info['cpu']}, {info['cpu_count']} cores" + (f", {info['gpu']}" if info.get("gpu") else "")
 
 
 def package_versions() -> dict[str, str | None]:

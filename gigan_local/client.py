@@ -330,6 +330,11 @@ def _write_video(images: list[np.ndarray], path: Path) -> str | None:
     return str(path)
 
 
+def stages_of_run(cfg: ClientConfig) -> dict[str, list[float]]:
+    """Run ``cfg`` in this process: its per-map stage samples (:func:`stage_samples`)."""
+    return stage_samples([{k: str(v) for k, v in row.items()} for row in run_client(cfg)])
+
+
 def stage_samples(frames: list[dict[str, str]]) -> dict[str, list[float]]:
     """Per-map stage times (ms) of a run's ``frames.csv`` rows, :data:`MAP_STAGES` and their ``total``: one sample
     per frame that bound a new map; ``warp`` is the bind and the per-frame warp stages of the backend the run used

@@ -7,10 +7,12 @@ The times come from :mod:`network_sim.link`'s virtual-clock model, the same code
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
+from gicore.intervals import LEVEL, MIN_SAMPLES, RESAMPLES, Interval, Seed, quantiles, resampled, values_of
 from network_sim.link import DOWN, UP, DirectionConfig, Link, LinkConfig
 
 
@@ -76,3 +78,39 @@ class CloudCost:
             mid = 0.5 * (low + high)
             low, high = (mid, high) if gap(mid) < 0 else (low, mid)
         return 0.5 * (low + high)
+
+
+#: What the link model reads of a cloud request (:meth:`CloudCost.of`), resampled together.
+COST_STAGES = ("total", "transmission", "server", "bytes_up", "bytes_down")
+
+
+def crossover_interval(
+    stages: dict[str, Sequence[float]],
+    local_totals: Sequence[float],
+    rate_mbit: float | None,
+    seed: Seed,
+    level: float = LEVEL,
+    resamples: int = RESAMPLES,
+) -> Interval | None:
+    """The interval of :meth:`CloudCost.crossover_rtt_ms` of the cloud requests' ``stages`` against the median
+    of ``local_totals`` (GIGAN's per-map totals): each resample draws the requests (their stages together) and the
+    local maps apart. A resample's medians are order statistics of the samples, so resamples repeat the same
+    cost and local median: each distinct pair is solved once (2000 resamples of 40 requests took a second on a
+    2-core Xeon)."""
+    cloud = {name: values_of(stages[name]) for name in COST_STAGES}
+    local = values_of(local_totals)
+    n = cloud["total"].size
+    if min(n, local.size) < MIN_SAMPLES:
+        return None
+    rng = np.random.default_rng(seed)
+    local_medians = resampled(local, rng, resamples, np.median)
+    solved: dict[tuple[CloudCost, float], float] = {}
+    crossovers = np.empty(resamples)
+    for i, local_ms in enumerate(local_medians):
+        picked = rng.integers(0, n, n)
+        cost = CloudCost.of({name: values[picked] for name, values in cloud.items()})
+        key = (cost, float(local_ms))
+        if key not in solved:
+            solved[key] = cost.crossover_rtt_ms(key[1], rate_mbit)
+        crossovers[i] = solved[key]
+    return quantiles(crossovers, level, resamples)

@@ -308,9 +308,9 @@ def test_three_repeats_pool_their_maps_and_their_intervals_are_over_the_runs(tmp
     """Each repeat's client outputs written here (one renderer, one map per run and cache state, each repeat's
     timings apart): stage medians and counts over the pooled maps, perceived latency over the pooled frames, SSIM
     per frame the repeats' mean; each ratio's and crossover's interval over the runs, holding their mean."""
-    from bench.intervals import recorded
     from bench.latency_record import CLOUD, GIGAN, record
     from bench.latency_tables import SHORT, TABLE1
+    from gicore.intervals import recorded
     from gicore.present.markdown import table_text
     from gicore.results import Results
 

@@ -1,4 +1,4 @@
-"""Bootstrap intervals of `bench latency`'s ratios of totals and crossover RTTs (bench.intervals): coverage and
+"""Bootstrap intervals of `bench latency`'s ratios of totals and crossover RTTs (gicore.intervals): coverage and
 width on synthetic lognormal samples, reproducibility, too few samples, and how the rows and tables show them."""
 
 from __future__ import annotations
@@ -10,12 +10,12 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from bench.intervals import LEVEL, RESAMPLES, crossover_interval, interval_over_runs, ratio_interval
 from bench.latency_record import CLOUD, GIGAN, _record_cloud_stages, _record_crossover
 from bench.latency_tables import CROSSOVERS, SHORT, TABLE1
+from gicore.intervals import LEVEL, RESAMPLES, interval_over_runs, ratio_interval
 from gicore.present.markdown import table_text
 from gicore.results import Results, read_rows
-from network_sim.exchange import CloudCost
+from network_sim.exchange import CloudCost, crossover_interval
 
 #: Lognormal totals (ms): median and log-spread of each system, and how many maps each measured.
 GIGAN_MEDIAN, GIGAN_SIGMA, GIGAN_MAPS = 45.0, 0.3, 30
