@@ -20,7 +20,7 @@ from baseline_cloudbaking.server.settings import check_served
 from baseline_cloudbaking.stages_alone import decode_floor, local_alone, requests_alone, stored_payloads
 from bench.latency_floor import PARTS as FLOOR_PARTS
 from bench.latency_floor import Alone, record_alone, record_floor_ratios, record_targets, report
-from bench.latency_record import CLOUD, CLOUD_PREFETCH, GIGAN, pool, record
+from bench.latency_record import CLOUD, CLOUD_PREFETCH, GIGAN, LATENESS_FILE, pool, record
 from bench.latency_tables import PARTS
 from bench.processes import BIN, path_options, pinned_proxy, pinned_server, run_client, run_place, with_path_frames
 from bench.runner import Bench, Block, Section
@@ -233,10 +233,10 @@ def _repeat(place: _Place, folder: Path) -> _Repeat:
         for profile in cfg.profiles:
             # the prebaked store answers every renderer's run (its maps do not depend on the client's renderer)
             for renderer in place.renderers:
-                with pinned_proxy(plan, profile, warm, place.seed) as url:
-                    runs[CLOUD, profile, "prebaked", renderer] = place.client(
-                        [*cloud_argv, "--server", url], folder / f"cloud_{profile}_prebaked_{renderer}", renderer
-                    )
+                out = folder / f"cloud_{profile}_prebaked_{renderer}"
+                with pinned_proxy(plan, profile, warm, place.seed, out / LATENESS_FILE) as url:
+                    runs[CLOUD, profile, "prebaked", renderer] = place.client([*cloud_argv, "--server", url], out,
+                                                                              renderer)  # fmt: skip
                 if cfg.prefetch_in_flight and renderer == place.renderers[0]:
                     prefetch = ["--prefetch", "extrapolate", "--in-flight", str(cfg.prefetch_in_flight)]
                     with pinned_proxy(plan, profile, warm, place.seed) as url:
@@ -270,10 +270,10 @@ def _cold_runs(
             with pinned_server(place.plan, store, place.scenes_dir) as cold:
                 # one request off the path compiles every pass and stores nothing a run would hit
                 request_path_maps(cold, place.cfg.scenes[0], place.cfg, place.seed, residual=residual, off_path=True)
-                with pinned_proxy(place.plan, profile, cold, place.seed) as url:
-                    runs[CLOUD, profile, "cold", renderer] = place.client(
-                        [*cloud_argv, "--server", url], folder / f"cloud_{profile}_cold_{renderer}", renderer
-                    )
+                out = folder / f"cloud_{profile}_cold_{renderer}"
+                with pinned_proxy(place.plan, profile, cold, place.seed, out / LATENESS_FILE) as url:
+                    runs[CLOUD, profile, "cold", renderer] = place.client([*cloud_argv, "--server", url], out,
+                                                                          renderer)  # fmt: skip
             shutil.rmtree(store, ignore_errors=True)
     return runs
 

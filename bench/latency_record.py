@@ -41,6 +41,9 @@ CLOUD_PREFETCH = "cloud_baking_prefetch"
 #: The renderers' ratio rows: numerator / denominator, each stage's median of one run over the other's.
 RENDERER_RATIO = ("gl", "mitsuba")
 
+#: The file in a cloud client run's folder where its proxy wrote how late it wrote its chunks (``--lateness``).
+LATENESS_FILE = "proxy_lateness.json"
+
 Samples = dict[str, list[float]]
 #: Client runs by (system, profile, store, renderer): each repeat's output folder, every key as many.
 Runs = dict[tuple[str, str, str, str], list[Path]]
@@ -69,6 +72,27 @@ def record(
         record_renderer(res, scene, cfg, mine, common | {"renderer": renderer})
     record_backends(res, scene, runs, common)
     record_renderer_ratios(res, scene)
+    record_lateness(res, scene, runs, common)
+
+
+def record_lateness(res: Results, scene: str, runs: Runs, common: dict[str, Any]) -> None:
+    """The simulated network's own fidelity per cloud client run: how late its proxy wrote its chunks after the
+    link model's release (``network_sim`` ``proxy_lateness`` rows, ms, ``stat`` p50 and p99: the worst of its
+    repeats) and whether that stayed within the limit (``proxy_reliable``: 1 when every repeat's p99 is at most
+    :func:`network_sim.chunklog.lateness_limit_ms` of the profile's RTT, config ``limit_ms``)."""
+    from network_sim.chunklog import read_lateness
+
+    for (system, profile, store, renderer), folders in runs.items():
+        reports = [read_lateness(f / LATENESS_FILE) for f in folders if (f / LATENESS_FILE).is_file()]
+        if system != CLOUD or not reports:
+            continue
+        where = common | {"profile": profile, "store": store, "renderer": renderer, "limit_ms": reports[0]["limit_ms"]}
+        add = partial(res.add, system="network_sim", scene=scene, **where)
+        for stat in ("p50", "p99"):
+            values = [r["all"][f"{stat}_ms"] for r in reports if r["all"][f"{stat}_ms"] is not None]
+            if values:
+                add(metric="proxy_lateness", value=max(values), unit="ms", stat=stat)
+        add(metric="proxy_reliable", value=int(all(r["reliable"] for r in reports)), unit="bool")
 
 
 def record_backends(res: Results, scene: str, runs: Runs, common: dict[str, Any]) -> None:

@@ -113,7 +113,7 @@ def table1(raw: Rows) -> list[dict[str, Any]]:
     out = []
     for profile in profiles_of(rows):
         rtt = next((r["config"]["rtt_ms"] for r in rows if matches(r, "total_ratio", profile=profile)), None)
-        head = {"profile": profile, "rtt": rtt, "note": _pickup(rows, profile)}
+        head = {"profile": profile, "rtt": rtt, "note": f"{_pickup(rows, profile)} {fidelity(rows, profile)}".strip()}
         for metric, label in TABLE_ROWS:
             where = [_where(s, c, profile, r) for s, c, r, _ in columns]
             m = [lookup(rows, s, metric, "median", **w) for (s, *_), w in zip(columns, where)]
@@ -179,6 +179,23 @@ def _pickup(rows: Rows, profile: str) -> str:
         + " / ".join(f"{c} {r}" for r in renderers for c in ("hit", "miss"))
         + ")."
     )
+
+
+def fidelity(rows: Rows, profile: str) -> str:
+    """The simulated network's own timing at ``profile``: its proxies' p99 lateness per run, and a warning when
+    one was later than the limit (the link's timing was then the machine's, not the profile's)."""
+    late = [r for r in rows if r["system"] == "network_sim" and matches(r, "proxy_lateness", "p99", profile=profile)]
+    if not late:
+        return ""
+    runs = ", ".join(f"{r['config']['store']} {r['config']['renderer']} {r['value']:.2f}" for r in late)
+    limit = late[0]["config"]["limit_ms"]
+    bad = [r for r in rows if r["system"] == "network_sim" and matches(r, "proxy_reliable", profile=profile)]
+    verdict = (
+        "**UNRELIABLE**: a proxy wrote chunks later than that, so this profile's times hold the machine's delays"
+        if any(not r["value"] for r in bad)
+        else "within it: the link kept the profile's timing"
+    )
+    return f"The proxies' p99 lateness (ms; limit {limit:g}): {runs}; {verdict}."
 
 
 def _table1_columns(rows: Rows) -> tuple[Column, ...]:

@@ -64,13 +64,17 @@ def pinned_server(plan: dict[str, Any], store: Path, scenes_dir: Path | None, *o
 
 
 @contextmanager
-def pinned_proxy(plan: dict[str, Any], profile: str, upstream: str, seed: int) -> Iterator[str]:
-    """A pinned ``network-sim proxy --profile`` in front of ``upstream`` (a URL); yields the proxy's URL."""
+def pinned_proxy(
+    plan: dict[str, Any], profile: str, upstream: str, seed: int, lateness: Path | None = None
+) -> Iterator[str]:
+    """A pinned ``network-sim proxy --profile`` in front of ``upstream`` (a URL); yields the proxy's URL. With
+    ``lateness``, the proxy writes there, when it stops, how late it wrote its chunks (``--lateness``: the run's
+    own fidelity, :func:`network_sim.chunklog.read_lateness`)."""
     from network_sim.process import proxy
     from web3d.children import url
 
     host, _, port = upstream.removeprefix("http://").rpartition(":")
-    args = ("--profile", profile, "--seed", str(seed))
+    args = ("--profile", profile, "--seed", str(seed), *(("--lateness", str(lateness)) if lateness else ()))
     with proxy((host, int(port)), *args, timeout=60.0, prefix=taskset(plan, "proxy")) as running:
         yield url(running)
 

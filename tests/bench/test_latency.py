@@ -100,6 +100,13 @@ def test_bench_latency_end_to_end(tmp_path: Path) -> None:
     )
     assert {p.name for p in files} >= FILES
     check_alone(rows, renderer)
+    # the simulated network's own fidelity: each cloud run's proxy said how late it wrote its chunks
+    late = {(r["config"]["store"], r["stat"]): r["value"] for r in rows if r["metric"] == "proxy_lateness"}
+    assert {store for store, _ in late} == {"prebaked", "cold"}
+    assert all(0 <= late[store, "p50"] <= late[store, "p99"] for store in ("prebaked", "cold"))
+    reliable = [r for r in rows if r["metric"] == "proxy_reliable"]
+    assert len(reliable) == 2 and all(r["config"]["limit_ms"] == 6.0 for r in reliable)  # a tenth of 60 ms
+    assert "p99 lateness (ms; limit 6)" in table
 
 
 def check_alone(rows: list[dict], renderer: str) -> None:
