@@ -237,8 +237,9 @@ def test_the_recorded_session_drives_bench_latency_and_bench_storage(
     session = run["out"] / SESSION
     frames = len(read_path_file(session, load_scene("lung_plane")).frames)
     told = stand_in(monkeypatch)
-    cfg = LatencyConfig(profiles=("lan",), resolution=16, path=session, renderers=("mitsuba",), prefetch_in_flight=0,
-                        alone=False)
+    cfg = LatencyConfig(
+        profiles=("lan",), resolution=16, path=session, renderers=("mitsuba",), prefetch_in_flight=0, alone=False
+    )
     latency.measure(cfg, Results("latency", tmp_path / "latency", 0))
     assert told.argvs and all(argv[argv.index("--path") + 1] == str(session) for argv in told.argvs)
     assert told.recorded["cfg"].frames == frames and all(c.frames == frames for c in told.asked)
