@@ -6,6 +6,8 @@ The ``given`` store (``--store``, or else an empty temporary folder: a cold stor
 profile's proxy started before the page is served. Beside a given store, the ``cold`` state is a second server
 on an empty temporary folder, started with each of its proxies on the first request for it. A child that does
 not start is :class:`~web3d.upstreams.Unavailable` (the command's one error line, or a 503 for a lazy one).
+A child that ends while gigan-web runs (killed, crashed) is said in one stderr line and started again, a server
+with the proxies in front of it, at most ``MAX_RESTARTS`` times each; then its store answers 503 with the reason.
 Closing the cloud (on Ctrl-C, SIGTERM, or a start that failed) stops every child (SIGTERM, SIGKILL 10 s later),
 proxies before their server, waits for a start still in progress, and removes the temporary stores.
 """
@@ -31,6 +33,14 @@ BIN = Path(sys.executable).parent
 #: Seconds a server may take to print ``listening on`` (it imports its renderer) and a proxy.
 SERVER_START_S = 120.0
 PROXY_START_S = 60.0
+#: Times a child that ended is started again; past that its store answers 503 until gigan-web is restarted.
+MAX_RESTARTS = 3
+#: Seconds between two looks for children that ended (so that one is said and restarted without a request).
+WATCH_S = 1.0
+
+
+def warn(line: str) -> None:
+    print(line, file=sys.stderr, flush=True)
 
 
 def url(child: Running) -> str:
@@ -73,8 +83,10 @@ class Stack:
         report: Callable[[str], None],
         spawner: ThreadPoolExecutor,
         logs: Path | None = None,
+        warn: Callable[[str], None] = warn,
     ):
         self.name = name
+        self.warn = warn
         self.logs = logs
         self.store = store  # None: an empty temporary folder, made when the server starts
         self.scenes = scenes
@@ -86,17 +98,57 @@ class Stack:
         self.server: Running | None = None
         self.proxies: dict[str, Running] = {}
         self.closed = False
+        self.restarts: dict[str, int] = {}  # per child, e.g. "network-sim proxy lan"
+        self.broken: str | None = None  # why this store is unavailable for good (a child ended too often)
 
     def url(self, profile: str) -> str:
-        """The base URL of ``profile``'s proxy in front of this store's server, both started if need be."""
+        """The base URL of ``profile``'s proxy in front of this store's server, both started (or restarted) if
+        need be."""
         with self.lock:
             if self.closed:
                 raise Unavailable("the viewer's server is stopping")
+            if self.broken is not None:
+                raise Unavailable(self.broken)
+            self._revive()
             if self.server is None:
                 self.server = self._start_server()
             if profile not in self.proxies:
                 self.proxies[profile] = self._start_proxy(profile)
             return url(self.proxies[profile])
+
+    def revive(self) -> None:
+        """Restart what ended, unless this store is closed or broken (:meth:`_revive`)."""
+        with self.lock:
+            if not self.closed and self.broken is None:
+                self._revive()
+
+    def _revive(self) -> None:
+        """Restart a child that ended: the server with every proxy in front of it (they forward to its old port),
+        or a proxy; each end is said once (``warn``). Unavailable past MAX_RESTARTS of one child."""
+        if self.server is not None and self.server.proc.poll() is not None:
+            self._ended("cloudbaking-server", self.server)
+            profiles = list(self.proxies)
+            for child in self.proxies.values():
+                child.stop()
+            self.proxies = {}
+            self.server = self._start_server()
+            for profile in profiles:
+                self.proxies[profile] = self._start_proxy(profile)
+        for profile, child in list(self.proxies.items()):
+            if child.proc.poll() is not None:
+                self._ended(f"network-sim proxy {profile}", child)
+                self.proxies[profile] = self._start_proxy(profile)
+
+    def _ended(self, what: str, child: Running) -> None:
+        """Say that ``what`` ended; past MAX_RESTARTS the store is broken (Unavailable, for every request)."""
+        count = self.restarts[what] = self.restarts.get(what, 0) + 1
+        line = f"gigan-web: {what} of the {self.name} store (pid {child.proc.pid}) ended (exit status "
+        line += f"{child.proc.returncode})"
+        if count > MAX_RESTARTS:
+            self.broken = f"{what} of the {self.name} store ended {count} times; restart gigan-web"
+            self.warn(f"{line}, {count} times: restart gigan-web")
+            raise Unavailable(self.broken)
+        self.warn(f"{line}; starting it again ({count} of {MAX_RESTARTS})")
 
     def _start_server(self) -> Running:
         if self.store is None:
@@ -143,7 +195,7 @@ class Stack:
     def state(self, child: Running | None) -> str:
         if child is None:
             return "idle"
-        return "up" if child.proc.poll() is None else "down"
+        return "up" if child.proc.poll() is None and self.broken is None else "down"
 
     def close(self) -> None:
         """Stop the children, proxies first. A start in progress when the caller was interrupted is stopped by
@@ -169,12 +221,14 @@ class ChildCloud:
         seed: int = 0,
         report: Callable[[str], None] = print,
         logs: Path | None = None,
+        warn: Callable[[str], None] = warn,
     ) -> None:
         self._profiles = profiles
         self._spawner = ThreadPoolExecutor(1, thread_name_prefix="gigan-web-children")
-        self._stacks = {"given": Stack("given", store, scenes, seed, report, self._spawner, logs)}
+        self._stacks = {"given": Stack("given", store, scenes, seed, report, self._spawner, logs, warn)}
         if store is not None:
-            self._stacks["cold"] = Stack("cold", None, scenes, seed, report, self._spawner, logs)
+            self._stacks["cold"] = Stack("cold", None, scenes, seed, report, self._spawner, logs, warn)
+        self._closing = threading.Event()
 
     @property
     def profiles(self) -> tuple[str, ...]:
@@ -199,7 +253,17 @@ class ChildCloud:
         for profile in self._profiles:
             self._stacks["given"].url(profile)
 
+    def watch(self) -> None:
+        """Until closed, restart the children that ended (Stack.revive), so that an end is said when it happens."""
+        while not self._closing.wait(WATCH_S):
+            for stack in self._stacks.values():
+                try:
+                    stack.revive()
+                except Unavailable:  # said by the stack; its requests get it as their 503
+                    continue
+
     def close(self) -> None:
+        self._closing.set()
         for stack in self._stacks.values():
             stack.close()
         self._spawner.shutdown(wait=True)  # a start in flight finishes, sees ``closed`` and stops its child
@@ -210,6 +274,7 @@ class ChildCloud:
         except BaseException:  # a failed start, Ctrl-C or SIGTERM: nothing is left running
             self.close()
             raise
+        threading.Thread(target=self.watch, name="gigan-web-watch", daemon=True).start()
         return self
 
     def __exit__(self, *exc: object) -> None:

@@ -25,7 +25,7 @@ from fastapi.responses import JSONResponse
 from starlette.concurrency import run_in_threadpool
 from starlette.requests import ClientDisconnect
 
-from web3d.upstreams import Unavailable
+from web3d.upstreams import Cloud, Unavailable
 
 if TYPE_CHECKING:
     from web3d.site import Site, WebSettings
@@ -123,6 +123,25 @@ async def read_body(request: Request, settings: WebSettings) -> bytes:
     return b"".join(chunks)
 
 
+async def forward(app: FastAPI, profile: str, store: str, body: bytes, media: str) -> httpx.Response:
+    """The answer of ``profile``'s server for ``store`` to ``body``. When it cannot be reached (nothing was sent),
+    the cloud is asked again, which starts a child that ended anew, and a new address is tried once."""
+    cloud: Cloud = app.state.site.cloud
+    client: httpx.AsyncClient = app.state.client
+
+    async def post(url: str) -> httpx.Response:
+        return await unless_stopping(app, client.post(f"{url}/v1/gimap", content=body, headers={"Content-Type": media}))
+
+    url = await unless_stopping(app, run_in_threadpool(cloud.upstream, profile, store))
+    try:
+        return await post(url)
+    except httpx.ConnectError:
+        again = await unless_stopping(app, run_in_threadpool(cloud.upstream, profile, store))
+        if again == url:
+            raise
+        return await post(again)
+
+
 @router.post("/v1/gimap", openapi_extra=_JSON_BODY)
 async def gimap(request: Request, profile: str | None = None, store: str | None = None) -> Response:
     """The GI map the chosen profile's server for the chosen store answers (module docstring)."""
@@ -141,20 +160,18 @@ async def gimap(request: Request, profile: str | None = None, store: str | None 
         body = await read_body(request, site.settings)
     except ClientDisconnect:
         return Response(status_code=499)  # nobody reads it
-    client: httpx.AsyncClient = request.app.state.client
+    upstream = f"the cloud-baking server for the {store} store and profile {profile}"  # no address: it may be ours
     try:
-        url = await unless_stopping(request.app, run_in_threadpool(cloud.upstream, profile, store))
-        post = client.post(f"{url}/v1/gimap", content=body, headers={"Content-Type": media})
-        answer = await unless_stopping(request.app, post)
+        answer = await forward(request.app, profile, store, body, media)
     except Unavailable as exc:
         raise HTTPException(503, str(exc)) from None
     except Stopping:
         msg = "gigan-web is stopping and did not get this map: retry once it runs again"
         raise HTTPException(503, msg, headers={"Connection": "close"}) from None
     except httpx.TimeoutException:
-        raise HTTPException(504, f"the cloud-baking server at {url} did not answer in time") from None
+        raise HTTPException(504, f"{upstream} did not answer in time") from None
     except httpx.HTTPError as exc:
-        raise HTTPException(502, f"the cloud-baking server at {url} failed: {type(exc).__name__} {exc}") from None
+        raise HTTPException(502, f"{upstream} failed: {type(exc).__name__} {exc}".strip()) from None
     headers = {name: answer.headers[name] for name in PASSED_HEADERS if name in answer.headers}
     headers |= {"X-Profile": profile, "X-Store": store}
     headers["Content-Type"] = answer.headers.get("Content-Type", "application/octet-stream")
