@@ -9,13 +9,16 @@ not start is :class:`~web3d.upstreams.Unavailable` (the command's one error line
 A child that ends while gigan-web runs (killed, crashed) is said in one stderr line and started again, a server
 with the proxies in front of it, at most ``MAX_RESTARTS`` times each; then its store answers 503 with the reason.
 Closing the cloud (on Ctrl-C, SIGTERM, or a start that failed) stops every child (SIGTERM, SIGKILL 10 s later),
-proxies before their server, waits for a start still in progress, and removes the temporary stores.
+proxies before their server, waits for a start still in progress, and then removes the temporary stores. Those
+of a gigan-web killed by SIGKILL, which runs no clean-up, are removed by the next one that starts (:func:`sweep`).
 """
 
 from __future__ import annotations
 
 import csv
 import functools
+import os
+import re
 import shutil
 import sys
 import tempfile
@@ -47,6 +50,21 @@ def url(child: Running) -> str:
     """The base URL of a started server or proxy."""
     host, port = child.addr  # the server prints a URL, the proxy HOST:PORT
     return f"{host}:{port}" if host.startswith("http") else f"http://{host}:{port}"
+
+
+def sweep(folder: Path) -> None:
+    """Remove the temporary stores in ``folder`` that this user's gigan-web runs made and did not remove (killed
+    by SIGKILL): each folder's name holds the pid of the run that made it, which is no longer running."""
+    for path in folder.glob("gigan-web-*-store-*"):
+        made_by = re.fullmatch(r"gigan-web-(\d+)-\w+-store-\w+", path.name)
+        if made_by is None or path.is_symlink() or not path.is_dir() or path.stat().st_uid != os.getuid():
+            continue
+        try:
+            os.kill(int(made_by[1]), 0)
+        except ProcessLookupError:  # that run ended
+            shutil.rmtree(path, ignore_errors=True)
+        except PermissionError:  # another user's process runs under that pid
+            continue
 
 
 def chunk_log(logs: Path, store: str, profile: str) -> Path:
@@ -89,6 +107,7 @@ class Stack:
         self.warn = warn
         self.logs = logs
         self.store = store  # None: an empty temporary folder, made when the server starts
+        self.temporary: Path | None = None  # that folder, removed once every child has stopped
         self.scenes = scenes
         self.seed = seed
         self.report = report
@@ -152,8 +171,7 @@ class Stack:
 
     def _start_server(self) -> Running:
         if self.store is None:
-            self.store = Path(tempfile.mkdtemp(prefix=f"gigan-web-{self.name}-store-"))
-            self.children.callback(shutil.rmtree, self.store, ignore_errors=True)  # after the server stopped
+            self.store = self.temporary = Path(tempfile.mkdtemp(prefix=f"gigan-web-{os.getpid()}-{self.name}-store-"))
         start = functools.partial(start_server, self.store, self.scenes, die_with_parent=True)
         server = self._start(start, "cloudbaking-server")
         self.report(f"cloudbaking-server, {self.name} store {self.store}: {url(server)} (pid {server.proc.pid})")
@@ -249,7 +267,9 @@ class ChildCloud:
         }
 
     def start(self) -> None:
-        """Start the given store's server and every profile's proxy."""
+        """Remove what runs that were killed left (:func:`sweep`), then start the given store's server and every
+        profile's proxy."""
+        sweep(Path(tempfile.gettempdir()))
         for profile in self._profiles:
             self._stacks["given"].url(profile)
 
@@ -267,6 +287,9 @@ class ChildCloud:
         for stack in self._stacks.values():
             stack.close()
         self._spawner.shutdown(wait=True)  # a start in flight finishes, sees ``closed`` and stops its child
+        for stack in self._stacks.values():  # now: a server still starting would make its folder again
+            if stack.temporary is not None:
+                shutil.rmtree(stack.temporary, ignore_errors=True)
 
     def __enter__(self) -> ChildCloud:
         try:

@@ -10,7 +10,6 @@ from __future__ import annotations
 import os
 import re
 import select
-import shutil
 import signal
 import subprocess
 import sys
@@ -166,10 +165,21 @@ def test_ctrl_c_leaves_no_child(tmp_path: Path, when: str, profiles: str) -> Non
     assert not Path(server.removeprefix("cloudbaking-server, given store ")).exists()  # the temporary store
 
 
+def temporary(tmp: Path) -> list[Path]:
+    """The temporary stores in the folder ``tmp`` (gigan-web's TMPDIR)."""
+    return sorted(tmp.glob("gigan-web-*-store-*"))
+
+
 @pytest.mark.slow
-def test_sigkill_leaves_no_child(tmp_path: Path) -> None:
-    """SIGKILL runs no cleanup in gigan-web: the kernel signals its children (parent-death signal), and they stop."""
-    with viewer(["--scene", "lung_plane", "--profiles", "lan"], tmp_path) as run:
+def test_sigkill_leaves_no_child_and_the_next_start_removes_its_store(tmp_path: Path) -> None:
+    """SIGKILL runs no cleanup in gigan-web: the kernel signals its children (parent-death signal), and they stop;
+    the temporary store it leaves is removed by the next gigan-web that starts (not that of a run still alive)."""
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    alive = tmp / f"gigan-web-{os.getpid()}-given-store-alive"  # this test's process runs
+    alive.mkdir()
+    env = os.environ | {"TMPDIR": str(tmp)}
+    with viewer(["--scene", "lung_plane", "--profiles", "lan"], tmp_path, env) as run:
         run.read_until("serving")
         assert len(session_members(run.proc.pid)) == 1 + 2  # gigan-web, the server, the proxy
         run.proc.kill()
@@ -178,8 +188,29 @@ def test_sigkill_leaves_no_child(tmp_path: Path) -> None:
         while session_members(run.proc.pid) and time.monotonic() < deadline:
             time.sleep(0.2)
         assert session_members(run.proc.pid) == []
-    (server,) = [k for k in run.children() if k.startswith("cloudbaking-server")]
-    shutil.rmtree(server.removeprefix("cloudbaking-server, given store "), ignore_errors=True)  # nobody else can
+    (killed,) = set(temporary(tmp)) - {alive}
+    with viewer(["--scene", "lung_plane", "--profiles", "lan"], tmp_path, env) as second:
+        second.read_until("serving")
+        (started,) = set(temporary(tmp)) - {alive}
+        assert started != killed and not killed.exists()
+        assert_stopped_normally(0, second.stop_and_read(signal.SIGTERM))
+    assert temporary(tmp) == [alive]
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_a_stop_while_the_server_starts_leaves_no_store(tmp_path: Path, sig: int) -> None:
+    """The temporary store is made just before its server starts, and that server makes it again if it is gone:
+    a stop then waits for the start and stops the server before the folder is removed."""
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    with viewer(["--scene", "lung_plane", "--profiles", "lan"], tmp_path, os.environ | {"TMPDIR": str(tmp)}) as run:
+        deadline = time.monotonic() + HANG_GUARD_S
+        while not temporary(tmp):
+            assert time.monotonic() < deadline and run.proc.poll() is None, "no temporary store was made"
+            time.sleep(0.01)
+        err = run.stop_and_read(sig)
+        assert_stopped_normally(run.proc.returncode, err)
+    assert session_members(run.proc.pid) == [] and temporary(tmp) == []
 
 
 def test_a_server_that_does_not_start_is_one_error_line(tmp_path: Path) -> None:
