@@ -12,35 +12,39 @@ then open the printed address in Chrome or Chromium. Its options are derived fro
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Callable, Iterator
 from contextlib import ExitStack, contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
-import typer
+try:  # Ctrl-C while the modules load (a second or two) stops the service before it began: quietly, exit 0
+    import typer
 
-from baseline_cloudbaking.codecs import DEFAULT_CODEC, CodecName
-from gicore import option_groups
-from gicore.error_policy import UserError, entry_point, serving
-from gicore.options import (
-    FRAMES,
-    HOST_PORT,
-    THREADS,
-    build_config,
-    check_fields,
-    config_command,
-    split_host_port,
-)
-from gicore.scene import load_scene
-from gigan_local.inference import DEFAULT_MODEL, check_model_option
-from network_sim.profiles import profiles_field
-from web3d.children import ChildCloud
-from web3d.export import export_assets
-from web3d.routes_shadow import Shadows
-from web3d.serve import WebServer
-from web3d.site import WEB_DIR, Site
-from web3d.upstreams import OFF, Cloud, Fixed, Unavailable
+    from baseline_cloudbaking.codecs import DEFAULT_CODEC, CodecName
+    from gicore import option_groups
+    from gicore.error_policy import UserError, entry_point, serving
+    from gicore.options import (
+        FRAMES,
+        HOST_PORT,
+        THREADS,
+        build_config,
+        check_fields,
+        config_command,
+        split_host_port,
+    )
+    from gicore.scene import load_scene
+    from gigan_local.inference import DEFAULT_MODEL, check_model_option
+    from network_sim.profiles import profiles_field
+    from web3d.children import ChildCloud
+    from web3d.export import export_assets
+    from web3d.routes_shadow import Shadows
+    from web3d.serve import WebServer
+    from web3d.site import WEB_DIR, Site
+    from web3d.upstreams import OFF, Cloud, Fixed, Unavailable
+except KeyboardInterrupt:
+    sys.exit(0)
 
 app = typer.Typer(add_completion=False, help="Serve the Web3D viewer: GIGAN and cloud baking side by side.")
 BACKENDS = ("auto", "wasm", "webgpu")
@@ -178,7 +182,10 @@ def _describe(cfg: WebConfig, cloud: Cloud) -> str:
     return f"cloud baking: profiles {', '.join(cloud.profiles)}; stores {', '.join(cloud.stores)}"
 
 
-config_command(app, WebConfig, serve_command)
+try:  # the options' defaults are computed here (the profiles' traces are read): Ctrl-C still exits quietly
+    config_command(app, WebConfig, serve_command)
+except KeyboardInterrupt:
+    sys.exit(0)
 main = entry_point(app)
 
 if __name__ == "__main__":

@@ -7,6 +7,7 @@ from __future__ import annotations
 import signal
 import socket
 import threading
+import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -67,3 +68,14 @@ def test_sigterm_during_a_forwarded_miss_answers_503_stopping(tmp_path: Path) ->
     (answer,) = answers
     assert answer.status_code == 503 and "stopping" in answer.json()["detail"], answer.text
     assert_stopped_normally(run.proc.returncode, err)
+
+
+@pytest.mark.parametrize("delay_s", [0.1, 0.3, 0.5, 0.7, 0.9])
+def test_ctrl_c_while_it_loads_exits_quietly(tmp_path: Path, delay_s: float) -> None:
+    """SIGINT within its first second (importing its modules, computing its options' defaults, exporting the
+    scene) stops it as a stop once it serves does: exit 0, nothing on stderr."""
+    with viewer(["--scene", "lung_plane", "--no-cloud"], tmp_path) as run:
+        time.sleep(delay_s)
+        err = run.stop_and_read(signal.SIGINT)
+    assert_stopped_normally(run.proc.returncode, err)
+    assert err == ""
