@@ -4,10 +4,11 @@
 ``/config.json`` and the forwarding of ``/v1/gimap`` (:mod:`web3d.routes_cloud`), the shadow-map setups
 (:mod:`web3d.routes_shadow`). One origin serves everything the page loads, so the browser needs no CORS.
 
-Every response the app makes carries ``Cross-Origin-Opener-Policy: same-origin`` and
-``Cross-Origin-Embedder-Policy: require-corp`` (errors and 404s too): they make the page cross-origin isolated,
-which lets onnxruntime-web's wasm run with threads (SharedArrayBuffer). A request whose ``Host`` is not this
-server's (DNS rebinding) is refused 400. ``OPTIONS`` answers 204 with the path's ``Allow``.
+Every response carries ``Cross-Origin-Opener-Policy: same-origin``, ``Cross-Origin-Embedder-Policy: require-corp``
+and ``X-Content-Type-Options: nosniff`` (:data:`HEADERS`), the errors that uvicorn and the connection limits write
+themselves (400, 431, 503, 500) too: the first two make the page cross-origin isolated, which lets onnxruntime-web's
+wasm run with threads (SharedArrayBuffer). A request whose ``Host`` is not this server's (DNS rebinding) is refused
+400. ``OPTIONS`` answers 204 with the path's ``Allow``.
 
 uvicorn runs with :mod:`baseline_cloudbaking.server.limits`: at most ``max_connections`` open (an idle one is
 closed for a new one), every idle period ends with a whole request head within ``idle_timeout_s`` (a slow or
@@ -27,7 +28,7 @@ import uvicorn
 from fastapi import FastAPI, Response
 from starlette.middleware.trustedhost import TrustedHostMiddleware
 from starlette.routing import BaseRoute, Match, Mount
-from starlette.types import ASGIApp, Message, Receive, Scope, Send
+from starlette.types import ASGIApp, Receive, Scope, Send
 
 from baseline_cloudbaking.server.cli import ACCEPT_BACKLOG
 from baseline_cloudbaking.server.limits import ConnectionLimits, uvicorn_config
@@ -35,26 +36,17 @@ from web3d import routes_cloud, routes_shadow, routes_static
 from web3d.site import WEB_DIR as WEB_DIR  # where callers look for the page's folder
 from web3d.site import Site
 
-ISOLATION = [(b"cross-origin-opener-policy", b"same-origin"), (b"cross-origin-embedder-policy", b"require-corp")]
+#: Headers of every response: uvicorn's default headers, which it writes on its own errors too (an app's
+#: middleware would miss those, and a 500 that Starlette's outermost error handler writes).
+HEADERS = [
+    ("Cross-Origin-Opener-Policy", "same-origin"),
+    ("Cross-Origin-Embedder-Policy", "require-corp"),
+    ("X-Content-Type-Options", "nosniff"),
+]
 #: Hosts any loopback server answers to, besides the one it listens on.
 LOOPBACK_HOSTS = ("127.0.0.1", "localhost")
 #: Methods an ``OPTIONS`` answer may list (besides OPTIONS itself).
 METHODS = ("GET", "HEAD", "POST", "PUT", "PATCH", "DELETE")
-
-
-class Isolated:
-    """ASGI middleware: the cross-origin isolation headers on every response."""
-
-    def __init__(self, app: ASGIApp) -> None:
-        self.app = app
-
-    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        async def isolated(message: Message) -> None:
-            if message["type"] == "http.response.start":
-                message["headers"] = [*message.get("headers", []), *ISOLATION]
-            await send(message)
-
-        await self.app(scope, receive, isolated)
 
 
 class Options:
@@ -82,7 +74,6 @@ def create_app(site: Site, hosts: list[str] | None = None) -> FastAPI:
     app.router.routes.extend(routes_static.routes(site.assets, site.web))
     app.add_middleware(Options, routes=app.router.routes)
     app.add_middleware(TrustedHostMiddleware, allowed_hosts=hosts or list(LOOPBACK_HOSTS), www_redirect=False)
-    app.add_middleware(Isolated)  # added last: outermost, so the host check's refusal is isolated too
     return app
 
 
@@ -153,6 +144,7 @@ class WebServer:
             limits,
             log_level="warning",
             access_log=False,
+            headers=HEADERS,
             backlog=ACCEPT_BACKLOG,
             # after the app's own deadline, which answers a request still forwarded 503 (routes_cloud.Stopping)
             timeout_graceful_shutdown=settings.graceful_timeout_s + 1,

@@ -121,19 +121,13 @@ def busy(conn: H11Protocol) -> bool:
     return conn.cycle is not None and not conn.cycle.response_complete
 
 
-def _answer(status: str, loc: str, msg: str, kind: str, extra: str = "") -> bytes:
-    """A whole HTTP response, written before any request was parsed, closing the connection."""
+def _answer(status: str, loc: str, msg: str, kind: str, headers: list[tuple[bytes, bytes]]) -> bytes:
+    """A whole HTTP response, written before any request was parsed, closing the connection; ``headers``: the
+    server's default headers (uvicorn's Date and Server, and those its configuration adds) and any other."""
     body = json.dumps({"detail": [{"loc": [loc], "msg": msg, "type": kind}]}).encode()
-    head = (
-        f"HTTP/1.1 {status}\r\ncontent-type: application/json\r\n{extra}"
-        f"connection: close\r\ncontent-length: {len(body)}\r\n\r\n"
-    )
-    return head.encode() + body
-
-
-_REFUSAL = _answer(
-    "503 Service Unavailable", "connection", "the server is at its connection limit", "overloaded", "retry-after: 1\r\n"
-)
+    lines = b"".join(name + b": " + value + b"\r\n" for name, value in headers)
+    head = f"HTTP/1.1 {status}\r\ncontent-type: application/json\r\nconnection: close\r\ncontent-length: {len(body)}"
+    return head.encode() + b"\r\n" + lines + b"\r\n" + body
 
 
 def http_protocol() -> type[H11Protocol]:
@@ -146,6 +140,8 @@ def http_protocol() -> type[H11Protocol]:
     return HttpToolsProtocol  # type: ignore[return-value]
 
 
+#: What a connection refused at the limit is told.
+RETRY = (b"retry-after", b"1")
 #: What ends a request head.
 _HEAD_END = b"\r\n\r\n"
 
@@ -201,7 +197,8 @@ def capped_protocol(limits: ConnectionLimits, base: type[H11Protocol] | None = N
             while over > 0 and limits.drain_one():
                 over -= 1
             if over > 0:  # every other connection is busy: refuse this one
-                transport.write(_REFUSAL)
+                msg, headers = "the server is at its connection limit", [*self.server_state.default_headers, RETRY]
+                transport.write(_answer("503 Service Unavailable", "connection", msg, "overloaded", headers))
                 limits.close(self, "connections_refused")
                 return
             limits.became_idle(self, fresh=True)
@@ -217,7 +214,10 @@ def capped_protocol(limits: ConnectionLimits, base: type[H11Protocol] | None = N
             if self.head_bytes > limits.max_head_bytes and not self.transport.is_closing():
                 self.refused = True
                 msg = f"the request head exceeds {limits.max_head_bytes} bytes"
-                self.transport.write(_answer("431 Request Header Fields Too Large", "headers", msg, "too_large"))
+                headers = self.server_state.default_headers
+                self.transport.write(
+                    _answer("431 Request Header Fields Too Large", "headers", msg, "too_large", headers)
+                )
                 limits.close(self, "heads_too_large")
                 return
             if busy(self):

@@ -1,7 +1,8 @@
 """gigan-web's server against malformed and hostile HTTP, on raw sockets: an HTTP/0.9 request line, a NUL in
 the path, a 256-character path segment, ``Content-Length: abc``, Content-Length beside chunked, a chunked body,
 a GET with a body, a second request hidden in a refused POST's body (desync), a head that never ends, and a
-traceback for none of them (the server's log is read: the ``tracebacks`` fixture of conftest.py)."""
+traceback for none of them (the server's log is read: the ``tracebacks`` fixture of conftest.py); the errors that
+uvicorn, the connection limits and Starlette's error handler write carry the headers every response does."""
 
 from __future__ import annotations
 
@@ -11,8 +12,9 @@ from collections.abc import Iterator
 
 import pytest
 
-from web3d.serve import WebServer
+from web3d.serve import HEADERS, WebServer
 from web3d.site import Site, WebSettings
+from web3d.upstreams import Fixed
 
 HANG_GUARD_S = 60.0
 SETTINGS = WebSettings(idle_timeout_s=0.5, body_timeout_s=1.0)
@@ -105,3 +107,41 @@ def test_a_head_that_never_ends_is_closed(web: WebServer, tracebacks) -> None:
 def test_a_head_too_large_is_431(web: WebServer, tracebacks) -> None:
     huge = b"GET / HTTP/1.1\r\n" + HOST + b"X-Big: " + b"a" * (SETTINGS.max_head_bytes + 1) + b"\r\n\r\n"
     assert statuses(exchange(web, huge)) == [431]
+
+
+def head_lines(answer: bytes) -> set[str]:
+    """The header lines of the first response in ``answer``, lower-cased."""
+    return {line.decode().lower() for line in answer.partition(b"\r\n\r\n")[0].split(b"\r\n")[1:]}
+
+
+EVERY_RESPONSE = {f"{name}: {value}".lower() for name, value in HEADERS}
+
+
+def test_errors_written_outside_the_app_carry_every_responses_headers(web: WebServer, tracebacks) -> None:
+    huge = b"GET / HTTP/1.1\r\n" + HOST + b"X-Big: " + b"a" * (SETTINGS.max_head_bytes + 1) + b"\r\n\r\n"
+    for request, status in [(b"GET /\r\n\r\n", 400), (huge, 431), (b"GET / HTTP/1.1\r\nHost: evil\r\n\r\n", 400)]:
+        answer = exchange(web, request)
+        assert statuses(answer) == [status] and EVERY_RESPONSE <= head_lines(answer), answer
+
+
+def test_a_refusal_at_the_connection_limit_carries_them(tmp_path) -> None:
+    settings = WebSettings(max_connections=1, body_timeout_s=HANG_GUARD_S)
+    with WebServer(Site(tmp_path, {}, Fixed.direct("http://127.0.0.1:1"), settings=settings)) as server:
+        address = server.socket.getsockname()[:2]
+        with socket.create_connection(address, timeout=HANG_GUARD_S) as busy:  # a body still to come: busy
+            busy.sendall(
+                b"POST /v1/gimap HTTP/1.1\r\n" + HOST + b"Content-Type: application/json\r\nContent-Length: 9\r\n\r\n"
+            )
+            answer = exchange(server, b"")  # refused as it connects (sending would reset the connection)
+    assert statuses(answer) == [503] and EVERY_RESPONSE <= head_lines(answer), answer
+
+
+class Failing(Fixed):
+    def status(self) -> dict[str, dict[str, str]]:
+        raise RuntimeError("a bug")
+
+
+def test_a_500_carries_them(tmp_path) -> None:
+    with WebServer(Site(tmp_path, {}, Failing.direct("http://127.0.0.1:1"))) as server:
+        answer = exchange(server, b"GET /v1/status HTTP/1.1\r\n" + HOST + b"Connection: close\r\n\r\n")
+    assert statuses(answer) == [500] and EVERY_RESPONSE <= head_lines(answer), answer
