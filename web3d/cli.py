@@ -12,6 +12,7 @@ then open the printed address in Chrome or Chromium. Its options are derived fro
 
 from __future__ import annotations
 
+import errno
 import sys
 from collections.abc import Callable, Iterator
 from contextlib import ExitStack, contextmanager
@@ -151,9 +152,9 @@ def serve_command(given: dict[str, Any]) -> None:
         try:
             server = WebServer(None, host, port)  # the address first: a taken port fails before anything is written
         except OSError as exc:
-            raise UserError(
-                f"--listen {cfg.listen}: cannot listen ({exc.strerror or exc})", "pick a free port"
-            ) from None
+            taken = exc.errno in (errno.EADDRINUSE, errno.EACCES)  # in use, or a privileged port
+            todo = "pick a free port (0 picks one)" if taken else "give an address of this machine, e.g. 127.0.0.1:8080"
+            raise UserError(f"--listen {cfg.listen}: cannot listen ({exc.strerror or exc})", todo) from None
         cloud = cloud_for(cfg)
         site = prepare(cfg, cloud)  # rewritten whole on every start, so one cut short by a stop is simply redone
         with _started(cloud):

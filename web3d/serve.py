@@ -7,8 +7,8 @@
 Every response carries ``Cross-Origin-Opener-Policy: same-origin``, ``Cross-Origin-Embedder-Policy: require-corp``
 and ``X-Content-Type-Options: nosniff`` (:data:`HEADERS`), the errors that uvicorn and the connection limits write
 themselves (400, 431, 503, 500) too: the first two make the page cross-origin isolated, which lets onnxruntime-web's
-wasm run with threads (SharedArrayBuffer). A request whose ``Host`` is not this server's (DNS rebinding) is refused
-400. ``OPTIONS`` answers 204 with the path's ``Allow``.
+wasm run with threads (SharedArrayBuffer). A request whose ``Host`` names another server or port (DNS rebinding;
+:mod:`baseline_cloudbaking.server.hosts`) is refused 400. ``OPTIONS`` answers 204 with the path's ``Allow``.
 
 uvicorn runs with :mod:`baseline_cloudbaking.server.limits`: at most ``max_connections`` open (an idle one is
 closed for a new one), every idle period ends with a whole request head within ``idle_timeout_s`` (a slow or
@@ -22,15 +22,15 @@ from __future__ import annotations
 import socket
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 
 import uvicorn
 from fastapi import FastAPI, Response
-from starlette.middleware.trustedhost import TrustedHostMiddleware
 from starlette.routing import BaseRoute, Match, Mount
 from starlette.types import ASGIApp, Receive, Scope, Send
 
 from baseline_cloudbaking.server.cli import ACCEPT_BACKLOG
+from baseline_cloudbaking.server.hosts import LOOPBACK_HOSTS, HostCheck, allowed_hosts
 from baseline_cloudbaking.server.limits import ConnectionLimits, uvicorn_config
 from web3d import routes_cloud, routes_shadow, routes_static
 from web3d.site import WEB_DIR as WEB_DIR  # where callers look for the page's folder
@@ -43,8 +43,6 @@ HEADERS = [
     ("Cross-Origin-Embedder-Policy", "require-corp"),
     ("X-Content-Type-Options", "nosniff"),
 ]
-#: Hosts any loopback server answers to, besides the one it listens on.
-LOOPBACK_HOSTS = ("127.0.0.1", "localhost")
 #: Methods an ``OPTIONS`` answer may list (besides OPTIONS itself).
 METHODS = ("GET", "HEAD", "POST", "PUT", "PATCH", "DELETE")
 
@@ -65,15 +63,16 @@ class Options:
         await Response(status_code=204 if allowed else 404, headers=headers)(scope, receive, send)
 
 
-def create_app(site: Site, hosts: list[str] | None = None) -> FastAPI:
-    """The app serving ``site``; ``hosts``: the ``Host`` names it answers (default: loopback's)."""
+def create_app(site: Site, hosts: Collection[str] = LOOPBACK_HOSTS, port: int | None = None) -> FastAPI:
+    """The app serving ``site``; ``hosts``: the ``Host`` names it answers, ``port``: the one port a ``Host`` may
+    name (None: any)."""
     app = FastAPI(docs_url=None, redoc_url=None, openapi_url=None, lifespan=routes_cloud.lifespan)
     app.state.site = site
     app.include_router(routes_cloud.router)
     app.include_router(routes_shadow.router)
     app.router.routes.extend(routes_static.routes(site.assets, site.web))
     app.add_middleware(Options, routes=app.router.routes)
-    app.add_middleware(TrustedHostMiddleware, allowed_hosts=hosts or list(LOOPBACK_HOSTS), www_redirect=False)
+    app.add_middleware(HostCheck, names=hosts, port=port)
     return app
 
 
@@ -88,16 +87,6 @@ def allowed_methods(routes: list[BaseRoute], scope: Scope) -> set[str]:
         if methods:
             return methods
     return set()
-
-
-def allowed_hosts(host: str, sock: socket.socket) -> list[str]:
-    """The ``Host`` names a server listening on ``host`` (bound as ``sock``) answers: that name, the address
-    bound, loopback's; and this machine's names and addresses when it listens on every interface."""
-    names = {host, sock.getsockname()[0], *LOOPBACK_HOSTS}
-    if host in ("0.0.0.0", "::", ""):
-        names |= {socket.gethostname(), socket.getfqdn()}
-        names |= {str(info[4][0]) for info in socket.getaddrinfo(socket.gethostname(), None)}
-    return sorted(names)
 
 
 class _Uvicorn(uvicorn.Server):
@@ -120,7 +109,8 @@ class WebServer:
     exported. Use :meth:`start` (a background thread; :meth:`close` stops it) or :meth:`serve_forever`."""
 
     def __init__(self, site: Site | None, host: str = "127.0.0.1", port: int = 0) -> None:
-        self.socket = socket.create_server((host, port), backlog=ACCEPT_BACKLOG)
+        family = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)[0][0]  # AF_INET6 for [::1]
+        self.socket = socket.create_server((host, port), family=family, backlog=ACCEPT_BACKLOG)
         self.host = host
         self.site = site
         self._server: uvicorn.Server | None = None
@@ -132,13 +122,13 @@ class WebServer:
     @property
     def url(self) -> str:
         host, port = self.socket.getsockname()[:2]
-        return f"http://{host}:{port}"
+        return f"http://[{host}]:{port}" if ":" in host else f"http://{host}:{port}"
 
     def _uvicorn(self) -> uvicorn.Server:
         assert self.site is not None, "attach a site first"
         settings = self.site.settings
         limits = ConnectionLimits(settings.max_connections, settings.idle_timeout_s, settings.max_head_bytes)
-        app = create_app(self.site, allowed_hosts(self.host, self.socket))
+        app = create_app(self.site, allowed_hosts(self.host, self.socket), self.socket.getsockname()[1])
         config = uvicorn_config(
             app,
             limits,

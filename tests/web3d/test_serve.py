@@ -15,6 +15,7 @@ from gicore.geometry import scene_objects
 from gicore.gl.shadow import object_bounds
 from gicore.paths import light_bounds
 from gicore.scene import load_scene
+from tests.web3d.test_cli import IPV6
 from web3d.export import shadow_setup
 from web3d.routes_shadow import Shadows
 from web3d.routes_static import ASSET_FILES
@@ -93,6 +94,19 @@ def test_the_host_header_must_name_this_server(web: WebServer) -> None:
         assert get(web, "/config.json", headers={"Host": host}).status_code == 200, host
     for host in ("attacker.example", f"attacker.example:{port}", "127.0.0.2"):
         assert get(web, "/config.json", headers={"Host": host}).status_code == 400, host
+    for host in ("localhost:0", f"127.0.0.1:{port + 1}", "localhost:", "[127.0.0.1]", "127.0.0.1:x", ""):
+        assert get(web, "/config.json", headers={"Host": host}).status_code == 400, host
+
+
+@pytest.mark.skipif(not IPV6, reason="this machine has no IPv6 loopback")
+def test_a_bracketed_ipv6_host_is_this_server(tmp_path: Path) -> None:
+    with WebServer(Site(tmp_path, {"scene": "s"}), "::1", 0) as server:
+        port = server.socket.getsockname()[1]
+        assert server.url == f"http://[::1]:{port}"
+        for host in ("[::1]", f"[::1]:{port}", f"localhost:{port}"):
+            assert get(server, "/config.json", headers={"Host": host}).status_code == 200, host
+        for host in ("::1", f"::1:{port}", "[::1]:0", "[::2]", f"[::1]:{port}x"):
+            assert get(server, "/config.json", headers={"Host": host}).status_code == 400, host
 
 
 def test_files_carry_etags_and_caching_headers(web: WebServer) -> None:
