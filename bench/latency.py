@@ -75,9 +75,9 @@ class LatencyConfig:
     #: Requests in flight of a cloud client with --prefetch extrapolate run beside the plain one on the prebaked
     #: store (first renderer only; 0: none).
     prefetch_in_flight: int = field(default=3, metadata={"min": 0, "max": 16})
-    #: Frames per second both clients are paced to, as a display refreshes (none: each frame as soon as the last
+    #: Frames per second both clients are paced to, as a display refreshes (0: each frame as soon as the last
     #: is composed, which leaves the cloud client's requests less of its cores than a display would).
-    frame_rate: float | None = field(default=60.0, metadata={"min": 1.0, "max": 1000.0})
+    frame_rate: float = field(default=60.0, metadata={"min": 0.0, "max": 1000.0})
     #: Where the cloud client's requests and decode run (cloudbaking-client --fetch).
     fetch: FetcherName = "process"
     #: Also measure every stage alone, on the clients' cores with nothing else running (Table 1's alone and
@@ -293,7 +293,7 @@ def measure_alone(
             gigan = ClientConfig(scene=scene, frames=cfg.frames, resolution=cfg.resolution, every=cfg.every,
                                  orbit_frames=cfg.orbit_frames, path=cfg.path, composition=cfg.composition,
                                  spp=cfg.spp, seed=seed, renderer=renderer, gi_source="model", model=cfg.model,
-                                 threads=threads(plan, "client"), frame_rate=cfg.frame_rate)  # fmt: skip
+                                 threads=threads(plan, "client"), frame_rate=cfg.frame_rate or None)  # fmt: skip
             alone[GIGAN, "none", renderer] = stages_of_run(gigan)
         local: dict[str, dict[str, list[float]]] = {}
         for profile in cfg.profiles:
