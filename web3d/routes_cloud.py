@@ -9,13 +9,16 @@ before anything is forwarded: the cloud side off or its server unavailable (503)
 arrives whatever Content-Length says (413) or slower than ``body_timeout_s`` (408). An upstream that cannot be
 reached or breaks off is 502; one slower than ``read_timeout_s`` 504. A request still forwarded
 ``graceful_timeout_s`` after the server began to stop is answered 503 (as the cloud-baking server answers a miss
-it did not finish). Every refusal here is ``{"detail": "..."}``.
+it did not finish). Every refusal here is ``{"detail": "..."}``. ``/v1/status`` is asked of the cloud at most once
+a second (:class:`StatusCache`).
 """
 
 from __future__ import annotations
 
 import asyncio
+import time
 from collections.abc import AsyncIterator, Awaitable
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import asynccontextmanager
 from typing import TYPE_CHECKING, Any, TypeVar
 
@@ -44,9 +47,36 @@ async def lifespan(app: FastAPI) -> AsyncIterator[None]:
     settings: WebSettings = app.state.site.settings
     timeout = httpx.Timeout(settings.read_timeout_s, connect=settings.connect_timeout_s)
     app.state.stopping = asyncio.Event()  # set when the server begins to stop (web3d.serve)
-    async with httpx.AsyncClient(timeout=timeout) as client:
-        app.state.client = client
-        yield
+    app.state.status = StatusCache(app.state.site.cloud)
+    try:
+        async with httpx.AsyncClient(timeout=timeout) as client:
+            app.state.client = client
+            yield
+    finally:
+        app.state.status.close()
+
+
+class StatusCache:
+    """``cloud``'s status, asked at most once per ``max_age_s`` and shared by every request meanwhile, on a thread
+    of its own: a probe of a server that does not answer takes seconds, and a flood of them on the worker pool
+    would hold the workers that the static files need."""
+
+    def __init__(self, cloud: Cloud, max_age_s: float = 1.0) -> None:
+        self.cloud = cloud
+        self.max_age_s = max_age_s
+        self.prober = ThreadPoolExecutor(1, thread_name_prefix="gigan-web-status")
+        self.asked: asyncio.Future[dict[str, dict[str, str]]] | None = None
+        self.asked_at = 0.0
+
+    async def get(self) -> dict[str, dict[str, str]]:
+        asked = self.asked
+        if asked is None or (asked.done() and time.monotonic() - self.asked_at >= self.max_age_s):
+            self.asked_at = time.monotonic()
+            asked = self.asked = asyncio.get_running_loop().run_in_executor(self.prober, self.cloud.status)
+        return await asyncio.shield(asked)  # a request that goes away leaves the probe to the others
+
+    def close(self) -> None:
+        self.prober.shutdown(wait=False)
 
 
 class Stopping(Exception):
@@ -94,7 +124,7 @@ async def config(request: Request) -> JSONResponse:
 async def status(request: Request) -> JSONResponse:
     """Which profiles and stores answer now (``idle``: started on its first request)."""
     site: Site = request.app.state.site
-    state = await run_in_threadpool(site.cloud.status)
+    state = await request.app.state.status.get()
     return JSONResponse(state | {"scene": site.config.get("scene")}, headers={"Cache-Control": "no-store"})
 
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import select
 import socket
 import threading
 from collections.abc import Iterator
@@ -24,6 +25,8 @@ from starlette.requests import Request
 from starlette.responses import Response
 from starlette.routing import Route
 
+import web3d.upstreams
+from tests.web3d.test_stop import silent_upstream
 from web3d.serve import WebServer, create_app
 from web3d.site import Site, WebSettings
 from web3d.upstreams import Fixed
@@ -214,6 +217,28 @@ def test_no_server_for_a_pair_is_503(tmp_path: Path) -> None:
         status = httpx.get(f"{web.url}/v1/status").json()
         assert status["profiles"] == {"direct": "down"} and status["stores"] == {"given": "down"}
         assert post(web).status_code == 502
+
+
+def test_a_status_flood_with_a_silent_server_shares_one_probe_and_leaves_the_files_alone(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Sixty /v1/status requests while --server takes connections and never answers: one probe serves them all,
+    and a file asked for after them comes while they still wait (before, each probe held a worker)."""
+    monkeypatch.setattr(web3d.upstreams, "PROBE_TIMEOUT_S", HANG_GUARD_S)  # ends when the server closes
+    (tmp_path / "scene.json").write_text("{}")
+    with silent_upstream() as silent, WebServer(Site(tmp_path, {}, Fixed.direct(silent.url))) as web:
+        flood = [socket.create_connection(web.socket.getsockname()[:2], timeout=HANG_GUARD_S) for _ in range(60)]
+        for sock in flood:
+            sock.sendall(b"GET /v1/status HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n")
+        assert silent.arrived.wait(HANG_GUARD_S), "no probe reached the server"
+        assert httpx.get(f"{web.url}/assets/scene.json", timeout=HANG_GUARD_S).content == b"{}"
+        assert select.select(flood, [], [], 0)[0] == [], "a status was answered before the file"
+        assert len(silent.held) == 1
+        silent.held[0].close()  # the probe ends: the server is down
+        answers = [b"".join(iter(lambda sock=sock: sock.recv(65536), b"")) for sock in flood]
+    for sock in flood:
+        sock.close()
+    assert all(a.startswith(b"HTTP/1.1 200 ") and b'"direct":"down"' in a for a in answers), answers[0]
 
 
 schemathesis = pytest.importorskip("schemathesis")

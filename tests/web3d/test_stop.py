@@ -10,6 +10,7 @@ import threading
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import httpx
@@ -23,13 +24,21 @@ pytestmark = pytest.mark.skipif(
 )
 
 
+@dataclass
+class Silent:
+    """A server that reads requests and never answers: its URL, an event set once a request arrived, and the
+    connections it accepted."""
+
+    url: str
+    arrived: threading.Event = field(default_factory=threading.Event)
+    held: list[socket.socket] = field(default_factory=list)
+
+
 @contextmanager
-def silent_upstream() -> Iterator[tuple[str, threading.Event]]:
-    """A server that reads requests and never answers (a miss path-traced for ever); yields its URL and an event
-    set once a request arrived."""
-    arrived = threading.Event()
-    held: list[socket.socket] = []
+def silent_upstream() -> Iterator[Silent]:
+    """A :class:`Silent` server (a miss path-traced for ever, a health check never answered) on a free port."""
     listener = socket.create_server(("127.0.0.1", 0))
+    silent = Silent(f"http://127.0.0.1:{listener.getsockname()[1]}")
 
     def accept() -> None:
         while True:
@@ -37,32 +46,29 @@ def silent_upstream() -> Iterator[tuple[str, threading.Event]]:
                 conn, _ = listener.accept()
             except OSError:  # closed: the test is over
                 return
-            held.append(conn)
+            silent.held.append(conn)
             if conn.recv(65536):
-                arrived.set()
+                silent.arrived.set()
 
     threading.Thread(target=accept, daemon=True).start()
     try:
-        yield f"http://127.0.0.1:{listener.getsockname()[1]}", arrived
+        yield silent
     finally:
         listener.close()
-        for conn in held:
+        for conn in silent.held:
             conn.close()
 
 
 @pytest.mark.slow
 def test_sigterm_during_a_forwarded_miss_answers_503_stopping(tmp_path: Path) -> None:
-    with (
-        silent_upstream() as (upstream, arrived),
-        viewer(["--scene", "lung_plane", "--server", upstream], tmp_path) as run,
-    ):
+    with silent_upstream() as upstream, viewer(["--scene", "lung_plane", "--server", upstream.url], tmp_path) as run:
         url = run.read_until("serving").split(" at ")[1].split()[0].rstrip("/")
         answers: list[httpx.Response] = []
         post = threading.Thread(
             target=lambda: answers.append(httpx.post(f"{url}/v1/gimap", json={}, timeout=HANG_GUARD_S))
         )
         post.start()
-        assert arrived.wait(HANG_GUARD_S), "the request never reached the upstream"
+        assert upstream.arrived.wait(HANG_GUARD_S), "the request never reached the upstream"
         err = run.stop_and_read(signal.SIGTERM)
         post.join(HANG_GUARD_S)
     (answer,) = answers
