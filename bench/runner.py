@@ -6,8 +6,8 @@ with a ``quick()`` preset), ``measure(cfg, results)``, its tables and figures de
 subcommand, its dashboard section and its results block. The runner derives the options
 (:mod:`gicore.options`), adds ``--out``, ``--quick`` and ``--seed``, writes ``<out>/<bench>.csv`` and
 ``<out>/<bench>.provenance.json``, then the bench's tables (``<bench>.md``) and figures (PNG and SVG) from
-the CSV, and prints every path written; user errors raise :class:`gicore.error_policy.UserError`. ``bench
-report`` renders the same declarations. Dependencies run one way: this module <- each bench <-
+the CSV, and prints every path written, then the tables; user errors raise :class:`gicore.error_policy.UserError`.
+``bench report`` renders the same declarations. Dependencies run one way: this module <- each bench <-
 ``bench.registry`` <- the report and the command line. An example bench: docs/architecture.md, Bench runner.
 """
 
@@ -100,8 +100,12 @@ def register(app: typer.Typer, bench: Bench) -> Bench:
 
     def run(given: dict[str, Any], *, out: Path, quick: bool, seed: int) -> None:
         cfg = build_config(config, quick, given)
-        for path in execute(bench, cfg, writable_dir(out), seed):
+        written = execute(bench, cfg, writable_dir(out), seed)
+        for path in written:
             typer.echo(f"wrote {path}")
+        tables = [path for path in written if path.name == f"{bench.name}.md"]
+        for path in tables:  # the bench's tables, as they were written, so that a run shows its answer
+            typer.echo(f"\n{path.read_text()}")
 
     config_command(app, config, run, name=bench.name, help=bench.help, extras=extras, preset=config.quick())
     return bench

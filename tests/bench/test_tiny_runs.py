@@ -31,7 +31,9 @@ def test_tiny_render_run_through_the_command(tmp_path: Path, capsys: pytest.Capt
     out, err = capsys.readouterr()
     assert code == 0, err
     written = ["render.csv", "render.provenance.json", "render.md", "render.png", "render.svg"]
-    assert out.split() == [word for name in written for word in ("wrote", str(tmp_path / name))]
+    lines, table = out.split("\n\n", 1)  # every file written, then the tables the run wrote
+    assert lines.split() == [word for name in written for word in ("wrote", str(tmp_path / name))]
+    assert table.strip() == (tmp_path / "render.md").read_text().strip()
     rows = read_rows(tmp_path / "render.csv")
     assert {r["metric"] for r in rows} >= {"triangles", "di_1spp", "gt_256spp"}
     assert any(r["config"].get("pass_set") == "client" for r in rows)
