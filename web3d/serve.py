@@ -10,11 +10,12 @@ themselves (400, 431, 503, 500) too: the first two make the page cross-origin is
 wasm run with threads (SharedArrayBuffer). A request whose ``Host`` names another server or port (DNS rebinding;
 :mod:`baseline_cloudbaking.server.hosts`) is refused 400. ``OPTIONS`` answers 204 with the path's ``Allow``.
 
-uvicorn runs with :mod:`baseline_cloudbaking.server.limits`: at most ``max_connections`` open (an idle one is
-closed for a new one), every idle period ends with a whole request head within ``idle_timeout_s`` (a slow or
-unfinished head is closed), a head larger than ``max_head_bytes`` is answered 431; a request body must arrive
-within ``body_timeout_s`` (408). :class:`WebServer` serves in this thread (``gigan-web``) or in a background one
-(benches, tests) on a socket bound first, so port 0 gives a free port known before anything starts.
+uvicorn runs with :mod:`baseline_cloudbaking.server.limits`: at most ``max_connections`` open (an idle one is closed
+for a new one), every idle period ends with a whole request head within ``idle_timeout_s`` (a slow or unfinished
+head is closed), a head larger than ``max_head_bytes`` is answered 431; a request body must arrive within
+``body_timeout_s`` (408), and a reader must take some of its response within ``write_timeout_s``. :class:`WebServer`
+serves in this thread (``gigan-web``) or in a background one (benches, tests) on a socket bound first, so port 0
+gives a free port known before anything starts.
 """
 
 from __future__ import annotations
@@ -127,7 +128,9 @@ class WebServer:
     def _uvicorn(self) -> uvicorn.Server:
         assert self.site is not None, "attach a site first"
         settings = self.site.settings
-        limits = ConnectionLimits(settings.max_connections, settings.idle_timeout_s, settings.max_head_bytes)
+        limits = ConnectionLimits(
+            settings.max_connections, settings.idle_timeout_s, settings.max_head_bytes, settings.write_timeout_s
+        )
         app = create_app(self.site, allowed_hosts(self.host, self.socket), self.socket.getsockname()[1])
         config = uvicorn_config(
             app,

@@ -25,6 +25,9 @@ class WebSettings:
     connect_timeout_s: float = 10.0
     #: Seconds a forwarded request may take: a miss path-traces, and a cold server compiles its scene first.
     read_timeout_s: float = 600.0
+    #: Seconds a response may wait for the browser to take any of it; a reader that stalls is dropped, which
+    #: frees its connection slot.
+    write_timeout_s: float = 30.0
     #: Seconds a connection may stay without a whole request head (fresh, or kept alive after a response).
     idle_timeout_s: float = 5.0
     #: Open connections kept (a browser opens about six per origin).

@@ -11,6 +11,9 @@ and closed.
 Every idle period (a fresh connection, or after a response) must end with a whole request head within
 ``idle_timeout_s``, else the connection is closed. A request head (request line and headers, each request of
 a pipeline on its own, never its body) larger than ``max_head_bytes`` is answered 431 and the connection closed.
+With ``write_timeout_s``, a response whose reader takes nothing for that long (writes paused by the transport's
+flow control) is dropped and its connection closed: a busy connection is never drained, so stalled readers
+would otherwise hold every slot.
 """
 
 from __future__ import annotations
@@ -53,14 +56,21 @@ class ConnectionLimits:
     """The shared state of one server's connections: the idle ones (fresh: no request yet; kept: kept alive
     after a response), each in the order they became idle; those closed here and not yet gone; counters."""
 
-    def __init__(self, max_connections: int, idle_timeout_s: float, max_head_bytes: int = 16_384) -> None:
+    def __init__(
+        self,
+        max_connections: int,
+        idle_timeout_s: float,
+        max_head_bytes: int = 16_384,
+        write_timeout_s: float | None = None,
+    ) -> None:
         self.max_connections = max_connections
         self.idle_timeout_s = idle_timeout_s
         self.max_head_bytes = max_head_bytes
+        self.write_timeout_s = write_timeout_s  # None: a response may wait for its reader for ever
         self.fresh: OrderedDict[H11Protocol, float] = OrderedDict()
         self.kept: OrderedDict[H11Protocol, float] = OrderedDict()
         self.closing: set[H11Protocol] = set()  # closed, connection_lost not yet called: still counted by uvicorn
-        self.counters = dict.fromkeys(COUNTERS, 0) | {"heads_too_large": 0}
+        self.counters = dict.fromkeys(COUNTERS, 0) | {"heads_too_large": 0, "writes_stalled": 0}
         self._sweeper: asyncio.TimerHandle | None = None
 
     @property
@@ -168,6 +178,7 @@ def capped_protocol(limits: ConnectionLimits, base: type[H11Protocol] | None = N
         head_bytes = 0  # of the head in progress, or of the whole head that was too large
         tail = b""  # the last bytes received: a head end may straddle two chunks
         refused = False  # a head was too large: nothing more of this connection is parsed
+        stall: asyncio.TimerHandle | None = None  # drops the connection if its writes stay paused
 
         def on_message_begin(self) -> None:
             self.in_head = True
@@ -228,7 +239,29 @@ def capped_protocol(limits: ConnectionLimits, base: type[H11Protocol] | None = N
             if not self.transport.is_closing():
                 limits.became_idle(self, fresh=False)
 
+        def pause_writing(self) -> None:
+            """The reader takes less than is written: it must take some within ``write_timeout_s``."""
+            super().pause_writing()
+            if limits.write_timeout_s is not None and self.stall is None:
+                self.stall = asyncio.get_running_loop().call_later(limits.write_timeout_s, self.stalled)
+
+        def resume_writing(self) -> None:
+            super().resume_writing()
+            if self.stall is not None:
+                self.stall.cancel()
+                self.stall = None
+
+        def stalled(self) -> None:
+            """Nothing written was taken for ``write_timeout_s``: the response is dropped and its slot freed
+            (aborted: a close would wait for the reader to take the rest)."""
+            self.stall = None
+            limits.closing.add(self)
+            limits.counters["writes_stalled"] += 1
+            self.transport.abort()
+
         def connection_lost(self, exc: Exception | None) -> None:
+            if self.stall is not None:
+                self.stall.cancel()
             limits.lost(self)
             super().connection_lost(exc)
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import re
 import socket
+import time
 from collections.abc import Iterator
 
 import pytest
@@ -145,3 +146,40 @@ def test_a_500_carries_them(tmp_path) -> None:
     with WebServer(Site(tmp_path, {}, Failing.direct("http://127.0.0.1:1"))) as server:
         answer = exchange(server, b"GET /v1/status HTTP/1.1\r\n" + HOST + b"Connection: close\r\n\r\n")
     assert statuses(answer) == [500] and EVERY_RESPONSE <= head_lines(answer), answer
+
+
+def test_a_reader_that_stalls_is_dropped_and_frees_its_slot(tmp_path) -> None:
+    """A client with a 4 KiB receive buffer asks for a 64 MiB file and takes nothing: once the socket buffers are
+    full, it has write_timeout_s to take some, then its connection is dropped; with one slot, the next client is
+    refused until then and served after."""
+    size = 64 << 20  # more than the socket buffers between the two hold
+    (tmp_path / "scene.bin").write_bytes(bytes(size))
+    settings = WebSettings(max_connections=1, write_timeout_s=0.5)
+    with WebServer(Site(tmp_path, {}, settings=settings)) as server:
+        with socket.socket() as slow:
+            slow.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+            slow.settimeout(HANG_GUARD_S)
+            slow.connect(server.socket.getsockname()[:2])
+            slow.sendall(b"GET /assets/scene.bin HTTP/1.1\r\n" + HOST + b"\r\n")
+            deadline = time.monotonic() + HANG_GUARD_S  # a hang guard only
+            while (answer := refused_or(server, b"GET /config.json HTTP/1.1\r\n" + HOST + b"\r\n")) is None:
+                assert time.monotonic() < deadline, "the stalled reader still holds the one slot"
+                time.sleep(0.1)
+            assert statuses(answer) == [200], answer
+            received = 0
+            try:
+                while chunk := slow.recv(1 << 20):
+                    received += len(chunk)
+            except ConnectionResetError:  # dropped: aborted, not closed
+                pass
+    assert 0 < received < size
+
+
+def refused_or(web: WebServer, request: bytes) -> bytes | None:
+    """The answer to ``request`` (closing the connection), or None when the server refused the connection at its
+    limit (503, or a reset: the server closed it with the request unread)."""
+    try:
+        answer = exchange(web, request.replace(b"\r\n\r\n", b"\r\nConnection: close\r\n\r\n"))
+    except ConnectionResetError:
+        return None
+    return None if answer.startswith(b"HTTP/1.1 503 ") else answer
