@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import json
 import math
+import os
+import stat
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -31,6 +33,11 @@ from gicore.scene import SceneSpec
 FORMAT = "gigan-path/1"
 #: Largest path file read, bytes: FRAMES_MAX frames of about 400 bytes each, with room to spare.
 PATH_BYTES_MAX = 64 << 20
+#: Commas and brackets of a frame (16 and 6): a file with more than FRAMES_MAX frames' worth is refused unparsed,
+#: since parsing makes every value first (30 MB of empty frames took 850 MB).
+VALUES_PER_FRAME = 22
+#: Commas and brackets besides the frames' (the top object's, any in its texts).
+VALUES_SLACK = 4096
 #: How far outside the navigable envelope an eye may be, as a fraction of the scene's orbit radius (what a
 #: viewer's clamping and float rounding may leave).
 NAVIGATION_MARGIN = 0.02
@@ -125,17 +132,25 @@ def flown_path(spec: SceneSpec, cfg: Flies, seed: int, fov: float | None = None)
 
 # -- reading ------------------------------------------------------------------------------------------------
 def _load(path: Path) -> Any:
-    """The JSON document of ``path``, read up to :data:`PATH_BYTES_MAX` bytes."""
+    """The JSON document of ``path``, a regular file read up to :data:`PATH_BYTES_MAX` bytes and holding no more
+    JSON values than :data:`FRAMES_MAX` frames do (:data:`VALUES_PER_FRAME`), both checked before it is parsed."""
     try:
-        with Path(path).open("rb") as fh:
-            data = fh.read(PATH_BYTES_MAX + 1)
+        # non-blocking: a FIFO opens at once, without a writer, and is refused as no regular file
+        with os.fdopen(os.open(path, os.O_RDONLY | os.O_NONBLOCK), "rb") as fh:
+            info = os.fstat(fh.fileno())
+            if not stat.S_ISREG(info.st_mode):
+                raise UserError(f"path file {path} is not a regular file", "give a path file saved on disk")
+            data = fh.read(min(info.st_size, PATH_BYTES_MAX) + 1)  # read(n) takes n bytes of memory first
     except OSError as err:
         raise UserError(f"path file {path}: cannot be read ({err.strerror or err})", "give an existing file") from None
     if len(data) > PATH_BYTES_MAX:
         raise UserError(f"path file {path} is over {PATH_BYTES_MAX >> 20} MiB", f"give at most {FRAMES_MAX} frames")
+    # every value but a container's first follows a comma: commas and brackets bound the values parsing would make
+    if data.count(b",") + data.count(b"[") + data.count(b"{") > VALUES_PER_FRAME * FRAMES_MAX + VALUES_SLACK:
+        raise UserError(f"path file {path} holds more than {FRAMES_MAX} frames", f"give at most {FRAMES_MAX} frames")
     try:
         return json.loads(data)
-    except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as err:
+    except (ValueError, RecursionError) as err:  # ValueError: not JSON, not UTF-8, a number of over 4300 digits
         raise UserError(f"path file {path} is not JSON ({str(err).splitlines()[0][:80]})", _TODO) from None
 
 
@@ -255,7 +270,7 @@ def read_sessions(folder: Path, specs: Sequence[SceneSpec]) -> dict[str, list[Pa
     for file in files:
         doc = _load(file)
         scene = doc.get("scene") if isinstance(doc, dict) else None
-        if scene not in by_name:
+        if not isinstance(scene, str) or scene not in by_name:
             raise UserError(
                 f"path file {file} is for scene {scene!r:.60}, not one of {', '.join(by_name)}",
                 "add its scene to --scenes or move the file out of the folder",

@@ -6,6 +6,9 @@ from __future__ import annotations
 import copy
 import json
 import math
+import os
+import threading
+import tracemalloc
 from pathlib import Path
 from typing import Any
 
@@ -193,7 +196,12 @@ def test_a_static_light_must_stay_at_rest(plane: SceneSpec, tmp_path: Path) -> N
 def test_unreadable_oversized_and_overlong_files_are_one_error_line(
     plane: SceneSpec, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    cases = {"missing.json": None, "garbage.json": b"{not json", "binary.json": b"\xff\xfe\x00"}
+    cases = {
+        "missing.json": None,
+        "garbage.json": b"{not json",
+        "binary.json": b"\xff\xfe\x00",
+        "digits.json": b'{"format": ' + b"7" * 5000 + b"}",  # past Python's 4300-digit limit on int()
+    }
     for name, data in cases.items():
         if data is not None:
             (tmp_path / name).write_bytes(data)
@@ -222,3 +230,54 @@ def test_a_session_folder_is_read_by_scene(plane: SceneSpec, cornell: SceneSpec,
         read_sessions(tmp_path, [plane, cornell, load_scene("vessels_plane")])
     with pytest.raises(UserError, match="holds no \\*.json path files"):
         read_sessions(tmp_path / "nowhere", [plane])
+
+
+#: Seconds a read of a FIFO may take before the test calls it waiting for a writer (a hang guard: it is refused
+#: at once).
+FIFO_GUARD_S = 60.0
+
+
+def test_a_file_that_is_not_regular_is_refused_without_waiting(plane: SceneSpec, tmp_path: Path) -> None:
+    """A FIFO (opened, it would wait for a writer for ever), given as --path or in a session folder."""
+    fifo = tmp_path / "fifo.json"
+    os.mkfifo(fifo)
+    for read in (lambda: read_path_file(fifo, plane), lambda: read_sessions(tmp_path, [plane])):
+        outcome: list[BaseException | None] = []
+        reader = threading.Thread(target=lambda read=read: outcome.append(_raised(read)))
+        reader.start()
+        reader.join(FIFO_GUARD_S)
+        if reader.is_alive():  # let it go: a writer opens the FIFO and closes it at once
+            os.close(os.open(fifo, os.O_WRONLY | os.O_NONBLOCK))
+            pytest.fail("reading the FIFO waited for a writer")
+        assert isinstance(outcome[0], UserError) and f"{fifo} is not a regular file" in str(outcome[0]), outcome
+
+
+def _raised(call: Any) -> BaseException | None:
+    try:
+        call()
+    except BaseException as err:  # noqa: BLE001 - the test looks at what it was
+        return err
+    return None
+
+
+def test_millions_of_empty_frames_are_refused_before_they_are_parsed(plane: SceneSpec, tmp_path: Path) -> None:
+    """2 million empty frames (6 MB): refused on their count, before parsing makes a dict of each (which took
+    some 20 times the file's size)."""
+    file = tmp_path / "empty_frames.json"
+    file.write_bytes(b'{"format": "gigan-path/1", "scene": "lung_plane", "frames": [' + b"{}," * 2_000_000 + b"{}]}")
+    tracemalloc.start()
+    try:
+        with pytest.raises(UserError, match=f"holds more than {path_file.FRAMES_MAX} frames"):
+            read_path_file(file, plane)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 3 * file.stat().st_size, peak
+
+
+def test_a_scene_that_is_no_name_is_refused_in_a_session_folder(plane: SceneSpec, tmp_path: Path) -> None:
+    for scene in ([1, 2], {"name": "lung_plane"}, None, 3):
+        doc = _doc(plane) | {"scene": scene}
+        (tmp_path / "s.json").write_text(json.dumps(doc))
+        with pytest.raises(UserError, match="s.json is for scene .*, not one of lung_plane"):
+            read_sessions(tmp_path, [plane])
