@@ -28,6 +28,8 @@ GL_FROM_MITSUBA = np.diag([-1.0, 1.0, -1.0, 1.0])
 #: 32² scene against near 0.01 / far 100: DI and G-buffers match to 1e-6 for near down to 1e-17 and far up
 #: to 3e38 (float32's largest); near 1e-18 shifts DI by 1e-3, near 1e-19 or far 1e39 render black frames.
 NEAR_MIN, FAR_MAX = 1e-10, 1e30
+#: Largest coordinate of an origin or target: what the renderer represents (float32), with FAR_MAX's margin.
+COORD_MAX = FAR_MAX
 
 
 def _vec3(name: str, value: Any) -> tuple[float, float, float]:
@@ -96,13 +98,25 @@ class Camera:
                     f"camera.{name} must be an integer in [{RESOLUTION_MIN}, {RESOLUTION_MAX}], got {value}"
                 )
             object.__setattr__(self, name, int(value))
+        self._check_look_at()
+
+    def _check_look_at(self) -> None:
+        """The origin and target within reach, apart, and an up that is a direction off the view's."""
+        for name in ("origin", "target"):
+            point = getattr(self, name)
+            if max(abs(c) for c in point) > COORD_MAX:
+                raise ValueError(
+                    f"camera.{name} {list(point)} lies beyond ±{COORD_MAX:g} (what the renderer represents)"
+                )
         d = tuple(t - o for t, o in zip(self.target, self.origin))
         length = _norm(d)
         if length < 1e-9:
             raise ValueError("camera.origin and camera.target coincide; the view direction is undefined")
         up_length = _norm(self.up)
-        (a, b, c), (u, v, w) = (x / length for x in d), (x / max(up_length, 1e-300) for x in self.up)
-        if up_length < 1e-12 or _norm((b * w - c * v, c * u - a * w, a * v - b * u)) < 1e-6:
+        if up_length < 1e-12:  # a direction takes a length; (0, 0, 0) is none
+            raise ValueError(f"camera.up {list(self.up)} has no length; give the screen's up, e.g. [0, 1, 0]")
+        (a, b, c), (u, v, w) = (x / length for x in d), (x / up_length for x in self.up)
+        if _norm((b * w - c * v, c * u - a * w, a * v - b * u)) < 1e-6:
             raise ValueError(
                 f"camera.up {self.up} is parallel to the view direction (degenerate look-at); pick another up"
             )

@@ -53,10 +53,22 @@ def test_degenerate_look_at_rejected(up):
 
 
 def test_zero_up_and_coincident_origin_target_rejected():
-    with pytest.raises(ValueError, match=r"up"):
+    with pytest.raises(ValueError, match=r"camera.up \[0.0, 0.0, 0.0\] has no length"):
         Camera((0, 1, 3), (0, 0, 0), up=(0.0, 0.0, 0.0))
     with pytest.raises(ValueError, match=r"origin.*target|target.*origin"):
         Camera((1, 1, 1), (1, 1, 1))
+
+
+@pytest.mark.parametrize(
+    "origin,target,culprit",
+    [((1e308, 0.0, 0.0), (0.0, 0.0, 0.0), "origin"), ((0.0, 0.0, 1.0), (0.0, -1e31, 0.0), "target")],
+)
+def test_a_point_beyond_the_renderers_range_is_named(origin, target, culprit):
+    """An eye at 1e308 was called 'up is parallel' (the view direction's length overflowed)."""
+    with pytest.raises(ValueError, match=rf"camera.{culprit} .* lies beyond ±1e\+30") as err:
+        Camera(origin, target)
+    assert "parallel" not in str(err.value)
+    Camera((1e29, 0.0, 0.0), (0.0, 0.0, 0.0))  # far, but within reach
 
 
 @pytest.mark.parametrize("near,far", [(0.0, 1.0), (-1.0, 1.0), (2.0, 1.0), (1.0, 1.0)])

@@ -133,6 +133,8 @@ BROKEN = [
     ("short vector", lambda d, s: _frame(d).update(light=[1.0, 2.0]), "frame 1: light is not a list of 3"),
     ("eye == target", lambda d, s: _frame(d)["camera"].update(target=_frame(d)["camera"]["eye"]), "camera.eye and"),
     ("up parallel", lambda d, s: _look_along(d), "camera.up"),
+    ("up zero", lambda d, s: _frame(d)["camera"].update(up=[0, 0, 0]), "camera.up [0.0, 0.0, 0.0] has no length"),
+    ("eye far out", lambda d, s: _frame(d)["camera"].update(eye=[1e308, 1.2, 0]), "camera.eye [1e+308, 1.2, 0.0] lies"),
     ("fov 0", lambda d, s: _frame(d)["camera"].update(fov=0.0), "camera.fov"),
     ("fov 180", lambda d, s: _frame(d)["camera"].update(fov=180.0), "camera.fov"),
     ("near 0", lambda d, s: _frame(d)["camera"].update(near=0.0), "camera.near/far"),
