@@ -1,5 +1,5 @@
 """Rewrite the wheels that scripts/gpu_wheels.sh carries to a GPU machine into fewer bytes: every megabyte
-travels inside a device run's 64 MiB, and mitsuba's and pyoidn's wheels (150 MB) are mostly variants, plugins
+travels inside the 64 MiB a run on a GPU machine without network is given, and mitsuba's and pyoidn's wheels (150 MB) are mostly variants, plugins
 and devices the project never loads.
 
     python scripts/gpu_slim_wheel.py [--compression lzma|deflate] WHEEL...
@@ -20,10 +20,8 @@ and RECORD, recompressed (lzma only), and one line sums them.
 
 A slim wheel that lacks a file the rules require, or a library a kept one NEEDs (DT_NEEDED) and the wheel had,
 is an error: a new release that renames files stops here rather than on the GPU machine. lzma (the default)
-packs the libraries into about 2/3 of deflate's bytes (not OIDN's weights, which hardly compress), which is what
-fits the wheels into two device runs; pip reads it through Python's zipfile, which needs the lzma module
-(Ubuntu's, python.org's and uv's Python 3.12 have it; `python3 -c 'import lzma'` on the GPU machine says so).
-deflate is what every wheel tool reads.
+packs the libraries into about 2/3 of deflate's bytes, which fits the wheels into two runs; pip then needs
+Python's lzma module (`python3 -c 'import lzma'` on the GPU machine). deflate is what every wheel tool reads.
 """
 
 from __future__ import annotations
