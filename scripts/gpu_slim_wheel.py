@@ -1,6 +1,6 @@
-"""Rewrite the wheels that scripts/gpu_wheels.sh carries to a GPU machine into fewer bytes: every megabyte
-travels inside the 64 MiB a run on a GPU machine without network is given, and mitsuba's and pyoidn's wheels (150 MB) are mostly variants, plugins
-and devices the project never loads.
+"""Rewrite the wheels that scripts/gpu_wheels.sh carries to a GPU machine without network into fewer bytes: a
+run there copies at most 64 MiB, and mitsuba's and pyoidn's wheels (150 MB) are mostly variants, plugins and
+devices the project never loads.
 
     python scripts/gpu_slim_wheel.py [--compression lzma|deflate] WHEEL...
 

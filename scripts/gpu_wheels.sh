@@ -11,7 +11,7 @@
 # (it prints each one's size before and after), and all of them compressed with SLIM_ZIP (lzma: two batches where
 # deflate takes three; pip then needs Python's lzma module). A wheel over PART_MIB is split into parts of PART_MIB
 # (NAME.whl.part.aa, .ab, ...); every file then goes into one of OUT/batch1, OUT/batch2, ..., each small enough to
-# travel with the repository in one device run (CARRY_MIB in all, minus the tree's measured size and MARGIN_MIB),
+# travel with the repository in one run on the GPU machine (CARRY_MIB in all, minus the tree's measured size and MARGIN_MIB),
 # and OUT/SHA256SUMS (each whole wheel's sha256) is copied into every batch, so that gpu_table1.sh can check each
 # wheel it reassembles. A wheel split across batches arrives over several runs on the same machine.
 #
