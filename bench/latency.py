@@ -180,6 +180,7 @@ def measure(cfg: LatencyConfig, res: Results) -> None:
         "composition": cfg.composition,
         "spp": cfg.spp,
         "repeats": cfg.repeats,
+        "frame_rate": cfg.frame_rate,
     }
     per_run_s = (
         180.0 + cfg.frames * 2.0 + (cfg.frames // cfg.gt_every + 1 if cfg.gt_every else 0) * 20.0 + cfg.read_timeout_s

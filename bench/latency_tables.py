@@ -308,8 +308,16 @@ def _short_caption(raw: Rows) -> str:
     return (
         f"{rows[0]['scene']}, {c.get('resolution')}², {c.get('frames')} frames, GI period k = {c.get('k')}, "
         f"{c.get('spp')} spp + OIDN on the server, {c.get('codec')} maps; the clients' raster passes on "
-        f"{' and on '.join(renderers_of(rows))}; medians in ms."
+        f"{' and on '.join(renderers_of(rows))}{_pacing(c)}; medians in ms."
     )
+
+
+def _pacing(config: dict[str, Any]) -> str:
+    """How the run paced both clients' frames (nothing for runs from before it was recorded)."""
+    if "frame_rate" not in config:
+        return ""
+    rate = config["frame_rate"]
+    return f", both paced at {rate:g} frames/s" if rate else ", both unpaced"
 
 
 def _short_notes(raw: Rows) -> str:
