@@ -6,10 +6,11 @@ The socket is bound here, before uvicorn starts, so with ``--port 0`` the real p
 first stdout line is ``listening on http://HOST:PORT`` (flushed), and connections made after it wait
 in the listen backlog until the app is ready. Every setting (:class:`~baseline_cloudbaking.server.settings.Settings`)
 is an option, which overrides its ``CLOUDBAKING_*`` variable; ``--help`` names each one's variable.
-Under load (:mod:`~baseline_cloudbaking.server.limits`): at most ``--miss-queue`` misses wait (then 503 +
-Retry-After), at most ``--max-connections`` connections stay open (the longest-idle one is closed for a
-new one), a connection idle for ``--idle-timeout-s`` (or trickling its request head that long) is closed,
-and repeated log lines are throttled. SIGTERM and SIGINT (Ctrl-C) stop it alike: no new connection is taken,
+Under load (:mod:`~baseline_cloudbaking.server.limits`): at most ``--miss-queue`` misses wait (then 503 + Retry-
+After), at most ``--max-connections`` connections stay open (the longest-idle one is closed for a new one), a
+connection idle for ``--idle-timeout-s`` (or trickling its request head that long) is closed, and repeated log lines
+are throttled. On loopback (the default), a request whose ``Host`` names another server is refused 400 (DNS
+rebinding; ``--allowed-hosts`` adds names). SIGTERM and SIGINT (Ctrl-C) stop it alike: no new connection is taken,
 the miss being rendered is finished, stored and answered within ``--graceful-timeout-s`` (waiting misses are
 answered 503 at once), the GI tree is closed, and the process exits 0 (:mod:`~baseline_cloudbaking.server.stop`).
 """
@@ -128,6 +129,7 @@ def serve(given: dict[str, Any]) -> None:
         writable_dir(settings.store, name="--store")
         app, config = server_config(settings, opts.log_level)
         sock = bind(opts.host, opts.port)
+        guard_hosts(app, settings.allowed_hosts, opts.host, sock)
         actual_host, actual_port = sock.getsockname()[:2]
         shown = f"[{actual_host}]" if ":" in actual_host else actual_host
         print(f"listening on http://{shown}:{actual_port}", flush=True)
@@ -135,6 +137,17 @@ def serve(given: dict[str, Any]) -> None:
         # the switch interval (5 ms by default) while another computes, which a hit would pay several times.
         sys.setswitchinterval(SWITCH_INTERVAL_S)
         StoppingServer(config, app).run(sockets=[sock])
+
+
+def guard_hosts(app: FastAPI, extra: tuple[str, ...], host: str, sock: socket.socket) -> None:
+    """Refuse 400 a request whose ``Host`` names neither this server nor one of ``extra``
+    (:mod:`~baseline_cloudbaking.server.hosts`; any port: clients reach it through proxies), where it listens on
+    loopback (``host``, bound as ``sock``), which a page elsewhere reaches by DNS rebinding, or where ``extra``
+    names some; '*' among them answers any ``Host``."""
+    from baseline_cloudbaking.server.hosts import HostCheck, allowed_hosts, is_loopback
+
+    if "*" not in extra and (is_loopback(host) or extra):
+        app.add_middleware(HostCheck, names=[*allowed_hosts(host, sock), *extra])
 
 
 def server_config(settings: Settings, log_level: str) -> tuple[FastAPI, uvicorn.Config]:

@@ -72,7 +72,8 @@ class HostCheck:
         if scope["type"] == "http":
             given = Headers(scope=scope).get("host", "")
             host = parse_host(given)
-            if host is None or host[0] not in self.names or host[1] not in (None, self.port):
+            wrong_port = self.port is not None and host is not None and host[1] not in (None, self.port)
+            if host is None or host[0] not in self.names or wrong_port:
                 msg = f"Host {given!r} does not name this server: open it by its address"
                 await PlainTextResponse(msg, status_code=400)(scope, receive, send)
                 return

@@ -23,6 +23,7 @@ from pydantic import Field, field_validator
 from pydantic.fields import FieldInfo
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
+from baseline_cloudbaking.server.hosts import parse_host
 from baseline_cloudbaking.store import DEFAULT_BUDGET_BYTES, DEFAULT_LIGHT_CELL, store_folder
 from baseline_cloudbaking.viewpoints import Tolerance
 from gicore.error_policy import UserError
@@ -114,6 +115,23 @@ class Settings(BaseSettings):
         description="origins (scheme://host[:port]) whose pages may call the API from a browser; none by default, "
         "never '*'",
     )
+
+    allowed_hosts: tuple[str, ...] = Field(
+        (),
+        description="Host names a request may name besides the server's address and loopback's, a guard against "
+        "DNS rebinding; checked where the server listens on loopback or where this names one; '*': any",
+    )
+
+    @field_validator("allowed_hosts")
+    @classmethod
+    def _host_names(cls, hosts: tuple[str, ...]) -> tuple[str, ...]:
+        for host in hosts:
+            parsed = parse_host(host)
+            if host != "*" and (parsed is None or parsed[1] is not None):
+                raise ValueError(
+                    f"{host!r} is not a host name: give e.g. gi.example.org or 192.0.2.7 (no port), or '*'"
+                )
+        return tuple(host.lower() for host in hosts)
 
     @field_validator("cors_origins")
     @classmethod

@@ -15,6 +15,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from baseline_cloudbaking.server.app import create_app
+from baseline_cloudbaking.server.cli import guard_hosts
 from baseline_cloudbaking.server.errors import redact
 from baseline_cloudbaking.server.settings import Settings
 from baseline_cloudbaking.store import DEFAULT_BUDGET_BYTES, GITree
@@ -37,7 +38,7 @@ def read_until_closed(sock: socket.socket) -> bytes:
     return b"".join(chunks)
 
 
-HEALTH = b"GET /v1/health HTTP/1.1\r\nhost: x\r\n\r\n"
+HEALTH = b"GET /v1/health HTTP/1.1\r\nhost: 127.0.0.1\r\n\r\n"
 
 
 def test_only_the_bytes_of_one_request_head_count_against_the_head_limit(tmp_path: Path, scenes_dir: Path) -> None:
@@ -50,9 +51,8 @@ def test_only_the_bytes_of_one_request_head_count_against_the_head_limit(tmp_pat
         assert answers.count(b"HTTP/1.1 200") == 501 and b"HTTP/1.1 431" not in answers
         with socket.create_connection(address, timeout=TIMEOUT_S) as sock:  # a 1 MiB body: too large a body
             body = b"x" * (1 << 20)
-            head = (
-                f"POST /v1/gimap HTTP/1.1\r\nhost: x\r\ncontent-type: application/json\r\ncontent-length: {len(body)}"
-            )
+            head = "POST /v1/gimap HTTP/1.1\r\nhost: 127.0.0.1\r\ncontent-type: application/json\r\n"
+            head += f"content-length: {len(body)}"
             sock.sendall(head.encode() + b"\r\n\r\n")
             try:
                 sock.sendall(body)
@@ -76,6 +76,37 @@ def test_only_the_bytes_of_one_request_head_count_against_the_head_limit(tmp_pat
                 pass  # answered and closed
             assert read_until_closed(sock).startswith(b"HTTP/1.1 431")
         assert httpx.get(f"{url}/v1/stats", timeout=TIMEOUT_S).json()["heads_too_large"] == 2
+
+
+def test_on_loopback_a_host_that_names_another_server_is_400(tmp_path: Path, scenes_dir: Path) -> None:
+    """DNS rebinding: a page of attacker.example whose name now resolves to 127.0.0.1 sends its own name as
+    Host. Any port passes (clients reach the server through proxies); --allowed-hosts adds names, '*' any."""
+    cases = {
+        "": {"attacker.example": 400, "attacker.example:80": 400, "127.0.0.1:9": 200, "localhost": 200, "[::1]": 200},
+        "gi.example.org": {"gi.example.org": 200, "GI.example.org:8000": 200, "attacker.example": 400},
+        "*": {"attacker.example": 200},
+    }
+    for allowed, hosts in cases.items():
+        with server_process(tmp_path / "store", scenes_dir, *(["--allowed-hosts", allowed] if allowed else [])) as url:
+            for host, status in hosts.items():
+                r = httpx.get(f"{url}/v1/health", headers={"Host": host}, timeout=TIMEOUT_S)
+                assert r.status_code == status, (allowed, host, r.text)
+
+
+def test_an_allowed_host_with_a_port_is_refused_in_one_line() -> None:
+    with pytest.raises(ValueError, match="'gi.example.org:80' is not a host name"):
+        Settings(allowed_hosts=("gi.example.org:80",))
+
+
+def test_off_loopback_no_host_is_refused_unless_names_are_given(tmp_path: Path) -> None:
+    """Listening on every interface, a server is reached by names it cannot know: no check, unless it is told
+    which names are its own."""
+    with socket.create_server(("127.0.0.1", 0)) as sock:
+        for extra, status in (((), 200), (("gi.example.org",), 400)):
+            app = create_app(Settings(store=tmp_path / "s"))
+            guard_hosts(app, extra, "0.0.0.0", sock)
+            with TestClient(app) as client:
+                assert client.get("/v1/health", headers={"Host": "attacker.example"}).status_code == status
 
 
 @pytest.fixture
