@@ -22,6 +22,7 @@ import re
 import socket
 import sys
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
 import typer
@@ -125,6 +126,8 @@ def serve(given: dict[str, Any]) -> None:
         opts = build_config(CommandOptions, given)
         if opts.scenes is not None and not opts.scenes.is_dir():
             raise UserError(f"--scenes {opts.scenes} is not a folder", "give a folder of scene spec files")
+        for line in skipped_specs(opts.scenes) if opts.scenes is not None else ():
+            print(line, file=sys.stderr, flush=True)
         settings = load_settings(opts)
         writable_dir(settings.store, name="--store")
         app, config = server_config(settings, opts.log_level)
@@ -148,6 +151,28 @@ def guard_hosts(app: FastAPI, extra: tuple[str, ...], host: str, sock: socket.so
 
     if "*" not in extra and (is_loopback(host) or extra):
         app.add_middleware(HostCheck, names=[*allowed_hosts(host, sock), *extra])
+
+
+def skipped_specs(scenes: Path) -> list[str]:
+    """One line for each spec file (``.toml``, ``.json``) in ``scenes`` that the server will not serve, and why:
+    a request for it is refused, and a person who added it should hear so when the server starts."""
+    from baseline_cloudbaking.bake import SCENE_NAME, SPEC_SUFFIXES
+    from gicore.scene import SceneSpecError, load_scene
+
+    lines = []
+    for path in sorted(scenes.iterdir()):
+        if path.suffix not in SPEC_SUFFIXES:
+            continue
+        if not SCENE_NAME.match(path.stem):
+            why = "its name is no scene name (a letter or '_', then letters, digits or '_'; at most 64)"
+        else:
+            try:
+                load_scene(path)
+                continue
+            except (SceneSpecError, OSError) as err:
+                why = " ".join(str(err).split())[:300]
+        lines.append(f"cloudbaking-server: --scenes: skipped {path.name}: {why}")
+    return lines
 
 
 def server_config(settings: Settings, log_level: str) -> tuple[FastAPI, uvicorn.Config]:

@@ -5,6 +5,7 @@ to the scene's range, a bounded GI tree by default, and no absolute path in any 
 from __future__ import annotations
 
 import json
+import shutil
 import socket
 import subprocess
 import time
@@ -91,6 +92,22 @@ def test_on_loopback_a_host_that_names_another_server_is_400(tmp_path: Path, sce
             for host, status in hosts.items():
                 r = httpx.get(f"{url}/v1/health", headers={"Host": host}, timeout=TIMEOUT_S)
                 assert r.status_code == status, (allowed, host, r.text)
+
+
+def test_each_spec_the_server_skips_is_one_line_when_it_starts(tmp_path: Path, scenes_dir: Path) -> None:
+    scenes = tmp_path / "scenes"
+    shutil.copytree(scenes_dir, scenes)
+    (scenes / "broken.toml").write_text("name = [")
+    (scenes / "no_light.json").write_text(json.dumps({"name": "no_light", "objects": []}))
+    (scenes / "two words.json").write_text("{}")
+    (scenes / "notes.txt").write_text("not a spec")
+    with server_process(tmp_path / "store", scenes) as url:
+        assert httpx.get(f"{url}/v1/health", timeout=TIMEOUT_S).status_code == 200
+    said = (tmp_path / "store.server.stderr").read_text().splitlines()
+    prefix = "cloudbaking-server: --scenes: skipped "
+    skipped = [line.removeprefix(prefix) for line in said if line.startswith(prefix)]
+    assert [line.split(": ")[0] for line in skipped] == ["broken.toml", "no_light.json", "two words.json"], said
+    assert "cannot parse" in skipped[0] and "light" in skipped[1] and "no scene name" in skipped[2]
 
 
 def test_an_allowed_host_with_a_port_is_refused_in_one_line() -> None:
