@@ -13,12 +13,32 @@ import typer
 
 from gicore import option_groups
 from gicore.error_policy import UserError, entry_point
+from gicore.fileio import TMP_MARKER
 from gicore.options import build_config, config_command, extra, parse_options
-from gigan_local.config import BUDGET_FIELDS, TrainConfig, read_run_config
+from gigan_local.config import BUDGET_FIELDS, CONFIG, TrainConfig, read_run_config
 
 app = typer.Typer(
     add_completion=False, help="Train GIGAN, Deep Shading or Deep Illumination on gicore dataset folders."
 )
+
+
+#: What a training run's folder holds: gigan_local.train's CHECKPOINT and METRICS (importing it loads torch),
+#: the config, and the lock a run holds; and temporary files (TMP_MARKER) of writes cut short.
+RUN_FILES = frozenset({CONFIG, "checkpoint.pt", "metrics.csv", ".lock"})
+
+
+def check_new_out(out: Path) -> None:
+    """Refuse an ``--out`` holding anything but a training run's files: a new run would write among them (a
+    folder holding a run is refused by the training itself, which offers --resume)."""
+    if not out.is_dir():
+        return
+    others = sorted(p.name for p in out.iterdir() if p.name not in RUN_FILES and TMP_MARKER not in p.name)
+    if others:
+        shown = ", ".join(others[:3]) + (f" and {len(others) - 3} more" if len(others) > 3 else "")
+        raise UserError(
+            f"--out {out} is not a training run (it holds {shown})",
+            "give an empty or new folder, or --resume a run made by gigan-train",
+        )
 
 
 def train_command(given: dict[str, Any], *, out: Path, resume: bool, progress: bool, cache_frames: bool) -> None:
@@ -43,6 +63,7 @@ def train_command(given: dict[str, Any], *, out: Path, resume: bool, progress: b
                 "no dataset folders given",
                 "give at least one folder made by gicore-dataset (or --resume an existing run)",
             )
+        check_new_out(out)
         cfg = build_config(TrainConfig, given)
     from gigan_local.train import CHECKPOINT, train  # torch loads only once the options are known to be valid
 

@@ -304,6 +304,7 @@ CASES = [
     ),
     case(*TRAIN, "--crop", "64", culprit="crop 64 exceeds the frame size 32", id="train-crop-too-large"),
     case(*TRAIN[:3], "run", *TRAIN[4:], culprit="--out run already holds a run", id="train-rerun-refused"),
+    case(*TRAIN[:3], "ds", *TRAIN[4:], culprit="--out ds is not a training run (it holds", id="train-out-not-a-run"),
     case("gigan-train", "--out", "run", "--resume", "--ngf", "8", culprit="not ['ngf']", id="train-resume-changes-ngf"),
     case("gigan-train", "--out", "ds", "--resume", culprit="ds/config.json is missing", id="train-resume-not-a-run"),
     case(
@@ -443,6 +444,13 @@ def test_bad_input_is_one_clean_error_line(
     with exclusive_run(tmp_path / hold) if hold else nullcontext():
         outcome = run_script(argv, tmp_path) if process else run_main(argv, tmp_path, monkeypatch, capfd)
     check_user_error(outcome, culprit)
+
+
+def test_a_new_runs_out_may_hold_what_gigan_train_writes() -> None:
+    from gigan_local import train
+    from gigan_local.train_cli import RUN_FILES
+
+    assert {train.CHECKPOINT, train.METRICS} <= RUN_FILES
 
 
 def test_every_script_has_a_process_row():
