@@ -83,11 +83,13 @@ def chromium(flags: list[str] = SWIFTSHADER) -> Iterator[Any]:
 @contextmanager
 def viewer_page(url: str, query: str = "", flags: list[str] = SWIFTSHADER) -> Iterator[Any]:
     """The Web3D page at ``url/?query`` in a new headless Chromium, once ``window.viewer.ready``; a page error
-    raises RuntimeError with the page's message. The page's uncaught errors are kept in ``page.errors``."""
+    raises RuntimeError with the page's message. The page's uncaught errors are kept in ``page.errors``, its console
+    errors (a request that failed among them, the browser's own too) in ``page.console_errors``."""
     with chromium(flags) as browser:
         page = browser.new_page(viewport={"width": 1200, "height": 1000}, accept_downloads=True)
-        page.errors = []
+        page.errors, page.console_errors = [], []
         page.on("pageerror", lambda e: page.errors.append(str(e)))
+        page.on("console", lambda m: page.console_errors.append(m.text) if m.type == "error" else None)
         page.goto(f"{url}/{'?' + query if query else ''}")
         wait(page, "window.viewer && (window.viewer.ready || window.viewer.error)")
         yield page

@@ -23,7 +23,7 @@ import pytest
 
 from gicore.camera import Camera
 from gicore.path_file import read_path_file
-from gicore.paths import navigation, outside_navigation
+from gicore.paths import light_bounds, navigation, outside_navigation
 from gicore.scene import SceneSpec, load_scene
 from tests.helpers.browser import canvases, missing, wait
 from tests.helpers.cloud import passthrough_model
@@ -106,6 +106,60 @@ def test_a_drag_and_a_wheel_move_the_camera_and_both_canvases(page: Any) -> None
     cam2, shot2 = page.evaluate("viewer.camera()"), canvases(page)
     assert math.dist(cam2["eye"], cam2["target"]) < math.dist(cam1["eye"], cam1["target"]) - 1e-3
     assert all(v > CHANGED for v in changed(shot1, shot2).values()), changed(shot1, shot2)
+
+
+def test_the_page_loads_without_a_failed_request(page: Any) -> None:
+    """The browser's own requests too (a favicon the page did not name was a 404 on every load)."""
+    settle(page)
+    assert not [m for m in page.console_errors if "Failed to load resource" in m], page.console_errors
+
+
+def test_an_arrow_key_pans_noticeably(page: Any, spec: SceneSpec) -> None:
+    settle(page)
+    pose = path_frames(page, 1)["frames"][0]["camera"]
+    before = page.evaluate("p => viewer.setCamera(p)", {"eye": pose["eye"], "target": pose["target"]})
+    n = len(page.evaluate("viewer.frames"))
+    page.locator("#stage").press("ArrowLeft")
+    drawn_after(page, n)
+    after = page.evaluate("viewer.camera()")
+    # a pan moves the eye sideways: by 3 % of the orbit's radius at least (OrbitControls' default moved it 1 %)
+    assert math.dist(before["eye"], after["eye"]) > 0.03 * spec.camera.radius, (before["eye"], after["eye"])
+
+
+def test_a_key_on_a_light_slider_moves_the_light_a_twentieth_of_its_range(page: Any, spec: SceneSpec) -> None:
+    settle(page)
+    low, high = light_bounds(spec)
+    middle = [(lo + hi) / 2 for lo, hi in zip(low, high)]
+    page.evaluate("l => viewer.setLight(l)", middle)
+    page.locator("#light-x").press("ArrowRight")
+    assert page.evaluate("viewer.light()")[0] == pytest.approx(middle[0] + (high[0] - low[0]) / 20)
+    page.locator("#light-y").press("ArrowDown")
+    assert page.evaluate("viewer.light()")[1] == pytest.approx(middle[1] - (high[1] - low[1]) / 20)
+
+
+def test_stop_clears_the_recording_mark_at_once(page: Any) -> None:
+    """Stop is a click that changes no view: no frame may come to redraw the HUD, so the click does."""
+    settle(page)
+    page.evaluate("viewer.record(true)")
+    assert "● recording" in page.locator("#status").text_content()
+    with page.expect_download():
+        status = page.evaluate("""() => {
+          document.getElementById("record").click();
+          return document.getElementById("status").textContent;
+        }""")
+    assert "recording" not in status, status
+
+
+def test_the_shadow_setups_kept_are_bounded_dropping_the_least_recently_used(page: Any) -> None:
+    size, oldest, used, newest = page.evaluate("""async () => {
+      const { ShadowSetups } = await import("/js/light.js");
+      const setups = new ShadowSetups();
+      for (let i = 0; i < 4096; i++) setups.remember(`0,0,${i}`, { i });
+      setups.get([0, 0, 0]); // used: now the most recent
+      for (let i = 4096; i < 5000; i++) setups.remember(`0,0,${i}`, { i });
+      return [setups.cache.size, setups.cache.has("0,0,1"), setups.cache.has("0,0,0"), setups.cache.has("0,0,4999")];
+    }""")
+    assert (size, oldest, used, newest) == (4096, False, True, True)
 
 
 def test_frames_keep_coming_while_a_gigan_map_is_computed_and_a_cloud_map_decoded(page: Any) -> None:

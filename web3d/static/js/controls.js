@@ -7,6 +7,10 @@ import { OrbitControls } from "three/addons/controls/OrbitControls.js";
 import { clampToNavigation } from "./camera.js";
 
 const ZOOM_STEP = 1.1;
+// An arrow key's pan, in pixels of the canvases (OrbitControls' default, 7, moved the view by about 1 %), and
+// Shift/Ctrl + arrow's orbit (1: 0.7° a press).
+const KEY_PAN_PX = 40;
+const KEY_ROTATE = 4;
 const ZOOM_KEYS = { Equal: true, NumpadAdd: true, PageUp: true, Minus: false, NumpadSubtract: false, PageDown: false };
 
 export class Navigation {
@@ -17,6 +21,7 @@ export class Navigation {
     this.three.up.set(...camera.up);
     this.controls = new OrbitControls(this.three, surface);
     this.controls.listenToKeyEvents(surface); // arrows pan, Shift/Ctrl + arrows orbit
+    Object.assign(this.controls, { keyPanSpeed: KEY_PAN_PX, keyRotateSpeed: KEY_ROTATE });
     surface.addEventListener("keydown", (e) => {
       if (!(e.code in ZOOM_KEYS) || !this.controls.enabled) return;
       if (ZOOM_KEYS[e.code]) this.controls.dollyIn(ZOOM_STEP);

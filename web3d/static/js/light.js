@@ -5,6 +5,13 @@
 import { clampLight } from "./camera.js";
 
 const key = (light) => light.join(",");
+// Setups kept, the least recently used dropped past it (a light dragged for an hour makes one per step): more than a
+// replay's lights, whose setups are fetched before it plays.
+const CACHED = 4096;
+// A key press on a light slider moves the light by this share of its range (the slider's own step is finer, for
+// dragging it).
+const KEY_STEP = 1 / 20;
+const KEYS = { ArrowRight: 1, ArrowUp: 1, ArrowLeft: -1, ArrowDown: -1 };
 
 export class ShadowSetups {
   constructor() {
@@ -15,7 +22,7 @@ export class ShadowSetups {
   // The setup for `light`, or null while it is fetched (one fetch at a time; `onError` hears a failed one).
   get(light, onError) {
     const k = key(light);
-    if (this.cache.has(k)) return this.cache.get(k);
+    if (this.cache.has(k)) return this.remember(k, this.cache.get(k));
     if (!this.fetching) {
       this.fetching = this.fetch(light)
         .catch(onError)
@@ -28,7 +35,15 @@ export class ShadowSetups {
     const k = key(light);
     const r = await fetch(`/v1/shadow?light=${encodeURIComponent(k)}`);
     if (!r.ok) throw new Error(`/v1/shadow?light=${k} answered ${r.status}: ${await r.text()}`);
-    this.cache.set(k, await r.json());
+    this.remember(k, await r.json());
+  }
+
+  // `setup` cached as the most recently used, the least recently used dropped past CACHED; returns it.
+  remember(k, setup) {
+    this.cache.delete(k);
+    this.cache.set(k, setup);
+    if (this.cache.size > CACHED) this.cache.delete(this.cache.keys().next().value); // a Map keeps insertion order
+    return setup;
   }
 
   // Every setup of `lights` fetched, a few at a time (a replay's lights, before it starts).
@@ -41,8 +56,8 @@ export class ShadowSetups {
   }
 }
 
-// The requested light: two sliders (x, y) and Shift+drag on `surface` (a canvas width moves the light across its
-// range); z stays put. The frame loop reads `value`.
+// The requested light: two sliders (x, y; an arrow key moves it KEY_STEP of the range) and Shift+drag on `surface`
+// (a canvas width moves the light across its range); z stays put. The frame loop reads `value`.
 export class LightInput {
   constructor(range, light, sliders, surface) {
     this.range = range;
@@ -51,6 +66,11 @@ export class LightInput {
       const [lo, hi] = [range[0][axis], range[1][axis]];
       Object.assign(slider, { min: lo, max: hi, step: (hi - lo) / 1000 || 1, disabled: !(hi > lo) });
       slider.addEventListener("input", () => this.input(axis, Number(slider.value)));
+      slider.addEventListener("keydown", (e) => {
+        if (!(e.key in KEYS) || slider.disabled) return;
+        e.preventDefault(); // instead of the slider's own step
+        this.input(axis, this.value[axis] + KEYS[e.key] * KEY_STEP * (hi - lo));
+      });
     });
     this.set(light);
     this.dragOn(surface);

@@ -131,6 +131,7 @@ function api(page) {
   viewer.record = (on) => {
     recorder.set(Boolean(on));
     $("record").textContent = recorder.on ? "Stop and download" : "Record";
+    showHud(viewer, recorder.on); // now: no frame may come until something changes
   };
   viewer.recording = () => recorder.doc();
   viewer.replay = async (doc, { realtime = false } = {}) => {
