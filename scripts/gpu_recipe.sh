@@ -2,7 +2,7 @@
 # The GPU recipe: render training sets with Mitsuba's CUDA variant, then train GIGAN and its two rivals
 # side by side on one CUDA GPU for the same wall time each, and export them (ONNX, fp16).
 #
-# Nothing in the project needs a GPU; this is how the shipped model was trained where one was lent
+# Nothing in the project needs a GPU; this is how the shipped model was trained on a GPU machine without network
 # (see gigan_local/models/gigan_default/MODEL_CARD.md). Any CUDA machine with the project installed runs it:
 #
 #   MINUTES=6 bash scripts/gpu_recipe.sh

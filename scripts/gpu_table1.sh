@@ -9,9 +9,9 @@
 # 2. Install, without network: each wheel whose distribution PYTHON's environment lacks, holds at an older
 #    version, or is named in FORCE, with pip install --no-index --no-deps --find-links (what is there at the
 #    wheel's version or newer is skipped); then the project itself, editable (its console scripts are what the
-#    benches start). GL: .gl/*.deb, where carried, are unpacked first (the device notes'
-#    EGL loaders).
-# 3. Measure, into --out (default $OUT, the device run's folder):
+#    benches start). GL: .gl/*.deb, where carried, are unpacked first (the EGL loaders that
+#    machine lacks).
+# 3. Measure, into --out (default $OUT, the folder copied back from the GPU machine after the run):
 #    - the GPU-only tests (pytest; a failure is reported in the log, not the end of the run);
 #    - per resolution of RESOLUTIONS, bench latency --quick (profiles lan and wan) with the shipped model, or
 #      MODEL_<R> where the shipped one is not at R (none: the shipped weights resized to R by
@@ -134,7 +134,7 @@ fi
 
 # -- 3. measure -------------------------------------------------------------------------------------------------
 BIN=$("$PYTHON" -c 'import sys, pathlib; print(pathlib.Path(sys.executable).parent)')
-# The benches' folders stay outside --out (a device run returns a few files, not a tree); results.tar.gz is
+# The benches' folders stay outside --out (a run copies back a few files, not a tree); results.tar.gz is
 # refreshed after every step, so a run stopped at its time limit still returns what finished.
 RESULTS=${WORK:-/tmp/gigan_gpu_results}
 act mkdir -p "$RESULTS"

@@ -37,7 +37,7 @@ if [[ ${1:-} == --from ]]; then FROM=${2:?--from needs a folder}; shift 2; fi
 OUT=${1:-.gpu_wheels}
 MIB=$((1024 * 1024))
 
-# what a device run carries of the tree; a tracked file deleted here (not yet committed) is not carried
+# what a run copies of the tree to the GPU machine; a tracked file deleted here (not yet committed) is not copied
 tree_bytes=$(git ls-files -co --exclude-standard -z | { du -cb --files0-from=- 2>/dev/null || true; } | tail -1 | cut -f1)
 budget=$((CARRY_MIB * MIB - tree_bytes - MARGIN_MIB * MIB))
 if ((budget < MIB)); then
@@ -104,4 +104,4 @@ echo "$(wc -l <"$OUT/SHA256SUMS") wheels in ${#used[@]} batches of at most $((bu
 for ((b = 0; b < ${#used[@]}; b++)); do
   echo "  $OUT/batch$((b + 1)): $((used[b] / MIB)) MiB, $(find "$OUT/batch$((b + 1))" -name '*.whl*' | wc -l) files"
 done
-echo "Each device run carries one batch; every run but the last: bash scripts/gpu_table1.sh --stage-only --wheels $OUT"
+echo "Each run on the GPU machine copies one batch; every run but the last: bash scripts/gpu_table1.sh --stage-only --wheels $OUT"

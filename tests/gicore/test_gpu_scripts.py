@@ -1,4 +1,4 @@
-"""The GPU run's scripts: scripts/gpu_wheels.sh splits and batches wheels to fit one device run each, and
+"""The GPU run's scripts: scripts/gpu_wheels.sh splits and batches wheels to fit one copy to the GPU machine each, and
 scripts/gpu_table1.sh reassembles them, checks their hashes, skips what is installed and says what it would run
 (--dry-run), or lists what has not arrived yet (--stage-only); scripts/gpu_slim_wheel.py slims mitsuba's and
 pyoidn's wheels to what the project loads."""
@@ -38,7 +38,7 @@ pytestmark = pytest.mark.skipif(shutil.which("split") is None, reason="needs cor
 
 
 def _tree_bytes() -> int:
-    """The repository's tree as the device tool sends it (what gpu_wheels.sh subtracts from a run's bytes)."""
+    """The repository's tree as a run copies it to the GPU machine (what gpu_wheels.sh subtracts from a run's bytes)."""
     files = subprocess.run(
         ["git", "ls-files", "-co", "--exclude-standard", "-z"], cwd=ROOT, capture_output=True, check=True
     ).stdout.split(b"\0")

@@ -78,7 +78,7 @@ def test_a_nan_in_a_buffer_is_an_error_naming_it(frame):
         model.predict(frame | {"albedo": frame["albedo"][..., :1]})
 
 
-@pytest.mark.skipif(not cuda_device_count(), reason="needs a CUDA GPU (the device machine); CI has none")
+@pytest.mark.skipif(not cuda_device_count(), reason="needs a CUDA GPU; CI has none")
 def test_the_cuda_graph_predicts_what_the_eager_network_predicts(frame):
     """On CUDA, predict replays the captured graph: the same radiance as the eager kernels on the same frame, and
     the graph's outputs are copied out, so a later frame does not change an earlier prediction."""

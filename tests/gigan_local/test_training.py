@@ -266,7 +266,7 @@ def test_cuda_without_a_gpu_is_one_user_error_before_any_file(dataset, tmp_path,
         tiny_config(dataset, device="tpu")
 
 
-@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU (the device machine); CI has none")
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU; CI has none")
 def test_a_cuda_run_resumes_on_the_cpu(dataset, tmp_path):
     gpu = train(tiny_config(dataset, max_steps=2, device="cuda"), tmp_path / "run", progress=False)
     assert gpu.step == 2 and np.isfinite(gpu.val_metrics["ssim"])
