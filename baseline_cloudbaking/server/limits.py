@@ -167,18 +167,49 @@ def head_bytes(counted: int, was_in_head: bool, seen: bytes, received: int) -> i
     return (counted if was_in_head else 0) + received
 
 
+class WriteTimeout:
+    """Before uvicorn's protocol among a protocol's bases: a connection whose writes stay paused (its reader takes
+    nothing of what is written) for ``held_to.write_timeout_s`` is dropped, which frees its slot."""
+
+    held_to: ConnectionLimits
+    transport: asyncio.Transport
+    stall: asyncio.TimerHandle | None = None  # drops the connection if its writes stay paused
+
+    def pause_writing(self) -> None:
+        super().pause_writing()  # type: ignore[misc]
+        timeout = self.held_to.write_timeout_s
+        if timeout is not None and self.stall is None:
+            self.stall = asyncio.get_running_loop().call_later(timeout, self.stalled)
+
+    def resume_writing(self) -> None:
+        super().resume_writing()  # type: ignore[misc]
+        self.unstall()
+
+    def unstall(self) -> None:
+        if self.stall is not None:
+            self.stall.cancel()
+            self.stall = None
+
+    def stalled(self) -> None:
+        """Aborted, not closed: a close would wait for the reader to take the rest."""
+        self.stall = None
+        self.held_to.closing.add(self)  # type: ignore[arg-type]
+        self.held_to.counters["writes_stalled"] += 1
+        self.transport.abort()
+
+
 def capped_protocol(limits: ConnectionLimits, base: type[H11Protocol] | None = None) -> type[H11Protocol]:
     """uvicorn's protocol ``base`` (default :func:`http_protocol`) held to ``limits`` (pass it as
     ``uvicorn.Config(http=...)``); both of uvicorn's protocols keep ``connections`` and ``cycle`` alike. The head
     limit is counted here for httptools, whose parser calls ``on_message_begin`` and ``on_headers_complete``
     (it has no limit of its own); h11 keeps its own (``uvicorn.Config(h11_max_incomplete_event_size=...)``)."""
 
-    class CappedProtocol(base or http_protocol()):  # type: ignore[misc, valid-type]
+    class CappedProtocol(WriteTimeout, base or http_protocol()):  # type: ignore[misc, valid-type]
+        held_to = limits
         in_head = False  # a request head has begun and is not complete
         head_bytes = 0  # of the head in progress, or of the whole head that was too large
         tail = b""  # the last bytes received: a head end may straddle two chunks
         refused = False  # a head was too large: nothing more of this connection is parsed
-        stall: asyncio.TimerHandle | None = None  # drops the connection if its writes stay paused
 
         def on_message_begin(self) -> None:
             self.in_head = True
@@ -239,29 +270,8 @@ def capped_protocol(limits: ConnectionLimits, base: type[H11Protocol] | None = N
             if not self.transport.is_closing():
                 limits.became_idle(self, fresh=False)
 
-        def pause_writing(self) -> None:
-            """The reader takes less than is written: it must take some within ``write_timeout_s``."""
-            super().pause_writing()
-            if limits.write_timeout_s is not None and self.stall is None:
-                self.stall = asyncio.get_running_loop().call_later(limits.write_timeout_s, self.stalled)
-
-        def resume_writing(self) -> None:
-            super().resume_writing()
-            if self.stall is not None:
-                self.stall.cancel()
-                self.stall = None
-
-        def stalled(self) -> None:
-            """Nothing written was taken for ``write_timeout_s``: the response is dropped and its slot freed
-            (aborted: a close would wait for the reader to take the rest)."""
-            self.stall = None
-            limits.closing.add(self)
-            limits.counters["writes_stalled"] += 1
-            self.transport.abort()
-
         def connection_lost(self, exc: Exception | None) -> None:
-            if self.stall is not None:
-                self.stall.cancel()
+            self.unstall()
             limits.lost(self)
             super().connection_lost(exc)
 
