@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from bench.latency_record import CLOUD, GIGAN
+from gicore.intervals import LEVEL, MIN_SAMPLES, RESAMPLES, Interval, quantiles, resampled, stream, values_of
 from gicore.present.declarations import Column, Rows, Table, flat, matches
 from gicore.results import Results
 from gigan_local.client import MAP_STAGES
@@ -82,8 +83,11 @@ def record_floor_ratios(res: Results, scene: str, alone: Alone) -> None:
                           renderer=renderer)  # fmt: skip
         if gigan is None or cloud is None or loop_ratio is None:
             continue
-        add = partial(res.add, system=ratio_system, scene=scene, unit="1", stat="alone")
-        add(metric="total_ratio", value=cloud["value"] / gigan["value"], **loop_ratio["config"])
+        add = partial(res.add, system=ratio_system, scene=scene, unit="1", metric="total_ratio")
+        add(value=cloud["value"] / gigan["value"], stat="alone", **loop_ratio["config"])
+        interval = _floor_interval(res, alone, (profile, renderer), stream(res.seed, "floor_ratio", profile, renderer))
+        for stat, value in (("alone_ci_low", interval.low), ("alone_ci_high", interval.high)) if interval else ():
+            add(value=value, stat=stat, ci=interval.level, resamples=interval.resamples, **loop_ratio["config"])
         crossover = _row(res.rows, ratio_system, "crossover_rtt", "model", cache="hit", renderer=renderer)
         done = _row(res.rows, ratio_system, "crossover_rtt", "alone", cache="hit", renderer=renderer)
         if crossover is None or done is not None or not samples.get("server"):
@@ -97,6 +101,22 @@ def record_floor_ratios(res: Results, scene: str, alone: Alone) -> None:
         value = cost.crossover_rtt_ms(gigan["value"], rate)
         res.add(system=ratio_system, scene=scene, metric="crossover_rtt", value=value, unit="ms", stat="alone",
                 **crossover["config"] | {"from_profile": profile})  # fmt: skip
+
+
+def _floor_interval(res: Results, alone: Alone, at: tuple[str, str], seed: list[int]) -> Interval | None:
+    """The 95 % bootstrap interval of the floors' ratio at (profile, renderer): each stage's samples alone resampled
+    apart, their medians summed per system (the stages each floor adds up; None where one has under 3 samples)."""
+    rng = np.random.default_rng(seed)
+    floors = []
+    for system, profile in ((CLOUD, at[0]), (GIGAN, "none")):
+        samples = alone[system, profile, at[1]]
+        where = {"profile": profile, "renderer": at[1]}
+        stages = [r["metric"] for r in res.rows if r["system"] == system and matches(r, None, "alone", **where)
+                  and r["metric"] in (*MAP_STAGES, *CLOUD_HIT_STAGES)]  # fmt: skip
+        if any(len(samples.get(stage, ())) < MIN_SAMPLES for stage in stages):
+            return None
+        floors.append(sum(resampled(values_of(samples[stage]), rng, RESAMPLES, np.median) for stage in stages))
+    return quantiles(floors[0] / floors[1], LEVEL, RESAMPLES)
 
 
 def record_targets(
@@ -177,9 +197,17 @@ def floors(raw: Rows) -> list[dict[str, Any]]:
             "cloud": _value(raw, CLOUD, "total", "median", profile=c["profile"], cache="hit", **at),
             "cloud_floor": _value(raw, CLOUD, "total", "alone", profile=c["profile"], cache="hit", **at),
             "ratio": _value(raw, ratio_system, "total_ratio", "median", profile=c["profile"], cache="hit", **at),
-            "ratio_floor": r["value"], "cross": shown["model"], "cross_floor": shown["alone"],
+            "ratio_floor": _with_interval(raw, r), "cross": shown["model"], "cross_floor": shown["alone"],
         })  # fmt: skip
     return out
+
+
+def _with_interval(rows: Rows, floor_ratio: dict[str, Any]) -> str:
+    """The floors' ratio, with its interval where the run recorded one (``0.55 [0.50, 0.61]``)."""
+    c, value = floor_ratio["config"], floor_ratio["value"]
+    at = {"profile": c["profile"], "cache": "hit", "renderer": c["renderer"]}
+    low, high = (_value(rows, floor_ratio["system"], "total_ratio", f"alone_ci_{b}", **at) for b in ("low", "high"))
+    return f"{value:.2f}" if low is None or high is None else f"{value:.2f} [{low:.2f}, {high:.2f}]"
 
 
 def _value(rows: Rows, system: str, metric: str, stat: str, **config: Any) -> float | None:
@@ -230,7 +258,10 @@ FLOORS = Table(
         Column("profile, renderer", "`{profile}`, {renderer}"),
         Column("GIGAN: loop / floor", "{gigan:.1f} / {gigan_floor:.1f}"),
         Column("cloud hit: loop / floor", "{cloud:.1f} / {cloud_floor:.1f}"),
-        Column("cloud hit / GIGAN: loop / floor", "{ratio:.2f} / {ratio_floor:.2f}"),
+        Column(
+            "cloud hit / GIGAN: loop / floor",
+            "{ratio:.2f} / {ratio_floor}",
+        ),
         Column("hit crossover RTT (ms): loop / floor", "{cross:.0f} / {cross_floor:.0f}"),
     ),
     title="each system in the loop and at its floor (the sum of its stages alone), ms",

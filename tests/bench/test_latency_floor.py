@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from bench.latency_floor import INFLATION_WARN, record_alone, record_floor_ratios, record_targets
+from bench.latency_floor import INFLATION_WARN, floors, record_alone, record_floor_ratios, record_targets
 from bench.latency_record import CLOUD, GIGAN
 from gicore.results import Results
 
@@ -70,6 +70,14 @@ def test_the_floors_add_up_the_stages_alone_and_their_ratio_and_crossover_follow
     assert floor[f"{CLOUD}/{GIGAN}", "total_ratio"] == pytest.approx(sum(STAGES.values()) / sum(GIGAN_STAGES.values()))
     # at the floor the cloud hit is cheaper than in the loop: its crossover moves to a larger RTT
     assert floor[f"{CLOUD}/{GIGAN}", "crossover_rtt"] > 0
+    # the floors' ratio has its bootstrap interval (each stage alone resampled apart), around the ratio itself
+    bounds = {r["stat"]: r["value"] for r in res.rows if r["stat"] in ("alone_ci_low", "alone_ci_high")}
+    ratio = floor[f"{CLOUD}/{GIGAN}", "total_ratio"]
+    assert (
+        bounds["alone_ci_low"] <= ratio <= bounds["alone_ci_high"] and bounds["alone_ci_low"] < bounds["alone_ci_high"]
+    )
+    shown = floors([{**r, "config": dict(r["config"])} for r in res.rows])
+    assert shown[0]["ratio_floor"] == f"{ratio:.2f} [{low:.2f}, {high:.2f}]"
 
 
 def test_targets_say_met_or_missed_and_whether_they_apply(tmp_path) -> None:
