@@ -73,9 +73,8 @@ def test_the_floors_add_up_the_stages_alone_and_their_ratio_and_crossover_follow
     # the floors' ratio has its bootstrap interval (each stage alone resampled apart), around the ratio itself
     bounds = {r["stat"]: r["value"] for r in res.rows if r["stat"] in ("alone_ci_low", "alone_ci_high")}
     ratio = floor[f"{CLOUD}/{GIGAN}", "total_ratio"]
-    assert (
-        bounds["alone_ci_low"] <= ratio <= bounds["alone_ci_high"] and bounds["alone_ci_low"] < bounds["alone_ci_high"]
-    )
+    low, high = bounds["alone_ci_low"], bounds["alone_ci_high"]
+    assert low <= ratio <= high and low < high
     shown = floors([{**r, "config": dict(r["config"])} for r in res.rows])
     assert shown[0]["ratio_floor"] == f"{ratio:.2f} [{low:.2f}, {high:.2f}]"
 
