@@ -243,6 +243,9 @@ class ChildCloud:
     ) -> None:
         self._profiles = profiles
         self._spawner = ThreadPoolExecutor(1, thread_name_prefix="gigan-web-children")
+        # its thread started now, before any child: a stop landing in the submit that starts it left a thread that
+        # shutdown() does not wait for, whose server then made its temporary store again after the removal
+        self._spawner.submit(int).result()
         self._stacks = {"given": Stack("given", store, scenes, seed, report, self._spawner, logs, warn)}
         if store is not None:
             self._stacks["cold"] = Stack("cold", None, scenes, seed, report, self._spawner, logs, warn)
@@ -287,8 +290,9 @@ class ChildCloud:
         for stack in self._stacks.values():
             stack.close()
         self._spawner.shutdown(wait=True)  # a start in flight finishes, sees ``closed`` and stops its child
-        for stack in self._stacks.values():  # now: a server still starting would make its folder again
-            if stack.temporary is not None:
+        for stack in self._stacks.values():
+            stack.close()  # again: a start that saw ``closed`` unset just before may have added its child since
+            if stack.temporary is not None:  # now: a server still starting would make its folder again
                 shutil.rmtree(stack.temporary, ignore_errors=True)
 
     def __enter__(self) -> ChildCloud:
