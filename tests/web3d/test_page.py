@@ -231,7 +231,8 @@ def test_the_record_button_downloads_the_session(page: Any, spec: SceneSpec, tmp
     settle(page)
     page.click("#record")
     n = len(page.evaluate("viewer.frames"))
-    pose = path_frames(page, 1)["frames"][0]["camera"]
+    here = page.evaluate("viewer.camera()")["eye"]  # a pose it is not at: a camera set where it is draws nothing
+    pose = next(f["camera"] for f in path_frames(page, 2)["frames"] if f["camera"]["eye"] != here)
     page.evaluate("p => viewer.setCamera(p)", {"eye": pose["eye"], "target": pose["target"]})
     drawn_after(page, n)
     with page.expect_download() as download:
