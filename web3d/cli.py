@@ -12,15 +12,16 @@ then open the printed address in Chrome or Chromium. Its options are derived fro
 
 from __future__ import annotations
 
-import errno
 import sys
-from collections.abc import Callable, Iterator
-from contextlib import ExitStack, contextmanager
-from dataclasses import asdict, dataclass, field
-from pathlib import Path
-from typing import Any, Literal
 
 try:  # Ctrl-C while the modules load (a second or two) stops the service before it began: quietly, exit 0
+    import errno
+    from collections.abc import Callable, Iterator
+    from contextlib import ExitStack, contextmanager
+    from dataclasses import asdict, dataclass, field
+    from pathlib import Path
+    from typing import Any, Literal
+
     import typer
 
     from baseline_cloudbaking.codecs import DEFAULT_CODEC, CodecName

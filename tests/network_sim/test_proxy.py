@@ -150,11 +150,21 @@ def assert_rate(goodput_mbit: float, rate_mbit: float) -> None:
 
 
 @pytest.mark.parametrize("rate_mbit", [4.0, 40.0])
-def test_goodput_within_tolerance(server: Running, rate_mbit: float) -> None:
+def test_goodput_within_tolerance(server: Running, rate_mbit: float, tmp_path: Path) -> None:
+    """Both directions carry the rate. A proxy stalled by a starved machine writes what fell due meanwhile at once,
+    which a window opening after the stall measures as faster than the link: such a run, which the proxy's own
+    lateness report calls unreliable, is measured again (three runs at most); the last run is judged."""
+    from network_sim.chunklog import read_lateness
+
     nbytes = int(rate_mbit * 1e6 / 8 * 1.0)  # 1 s of link time
-    with _proxy(server, "--rate-mbit", f"{rate_mbit:g}", "--delay-ms", "5") as proxy:
-        down = endpoint.download(proxy.addr, nbytes, 1, TIMEOUT)
-        up = endpoint.upload(proxy.addr, nbytes, 2, TIMEOUT)
+    for attempt in range(3):
+        lateness = tmp_path / f"lateness_{attempt}.json"
+        with _proxy(server, "--rate-mbit", f"{rate_mbit:g}", "--delay-ms", "5", "--lateness", str(lateness)) as proxy:
+            down = endpoint.download(proxy.addr, nbytes, 1, TIMEOUT)
+            up = endpoint.upload(proxy.addr, nbytes, 2, TIMEOUT)
+        fast = max(down.goodput_mbit, up.goodput_mbit) > RATE_CEILING * rate_mbit
+        if not (fast and not read_lateness(lateness)["reliable"]):
+            break
     for result in (down, up):
         assert result.intact
         assert_rate(result.goodput_mbit, rate_mbit)
