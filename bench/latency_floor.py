@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from bench.latency_record import CLOUD, GIGAN
+from bench.latency_tables import lookup
 from gicore.intervals import LEVEL, MIN_SAMPLES, RESAMPLES, Interval, quantiles, resampled, stream, values_of
 from gicore.present.declarations import Column, Rows, Table, flat, matches
 from gicore.results import Results
@@ -192,11 +193,11 @@ def floors(raw: Rows) -> list[dict[str, Any]]:
         cross = {s: _row(raw, ratio_system, "crossover_rtt", s, cache="hit", **at) for s in ("model", "alone")}
         shown = {s: x and x["value"] for s, x in cross.items()}
         out.append(flat(r) | {
-            "gigan": _value(raw, GIGAN, "total", "median", profile="none", **at),
-            "gigan_floor": _value(raw, GIGAN, "total", "alone", profile="none", **at),
-            "cloud": _value(raw, CLOUD, "total", "median", profile=c["profile"], cache="hit", **at),
-            "cloud_floor": _value(raw, CLOUD, "total", "alone", profile=c["profile"], cache="hit", **at),
-            "ratio": _value(raw, ratio_system, "total_ratio", "median", profile=c["profile"], cache="hit", **at),
+            "gigan": lookup(raw, GIGAN, "total", "median", profile="none", **at),
+            "gigan_floor": lookup(raw, GIGAN, "total", "alone", profile="none", **at),
+            "cloud": lookup(raw, CLOUD, "total", "median", profile=c["profile"], cache="hit", **at),
+            "cloud_floor": lookup(raw, CLOUD, "total", "alone", profile=c["profile"], cache="hit", **at),
+            "ratio": lookup(raw, ratio_system, "total_ratio", "median", profile=c["profile"], cache="hit", **at),
             "ratio_floor": _with_interval(raw, r), "cross": shown["model"], "cross_floor": shown["alone"],
         })  # fmt: skip
     return out
@@ -206,13 +207,8 @@ def _with_interval(rows: Rows, floor_ratio: dict[str, Any]) -> str:
     """The floors' ratio, with its interval where the run recorded one (``0.55 [0.50, 0.61]``)."""
     c, value = floor_ratio["config"], floor_ratio["value"]
     at = {"profile": c["profile"], "cache": "hit", "renderer": c["renderer"]}
-    low, high = (_value(rows, floor_ratio["system"], "total_ratio", f"alone_ci_{b}", **at) for b in ("low", "high"))
+    low, high = (lookup(rows, floor_ratio["system"], "total_ratio", f"alone_ci_{b}", **at) for b in ("low", "high"))
     return f"{value:.2f}" if low is None or high is None else f"{value:.2f} [{low:.2f}, {high:.2f}]"
-
-
-def _value(rows: Rows, system: str, metric: str, stat: str, **config: Any) -> float | None:
-    row = _row(rows, system, metric, stat, **config)
-    return None if row is None else row["value"]
 
 
 def targets_shown(raw: Rows) -> list[dict[str, Any]]:
