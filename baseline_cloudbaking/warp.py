@@ -30,6 +30,7 @@ import numpy as np
 from gicore.camera import Camera
 from gicore.fill import push_pull
 from gicore.gi_map import LAYERS, GIMap, Timings
+from gicore.loop import HostWarp
 from gicore.timing import Stopwatch
 
 #: Footprint bound that only keeps integer coordinates finite: squares are clipped to the frame before
@@ -137,7 +138,7 @@ def _zbuffer(
         start = stop
 
 
-class PixelWarp:
+class PixelWarp(HostWarp):
     """Pixel-level warping as the cloud-baking client's :class:`gicore.loop.Warp`: :meth:`bind` unprojects a
     GI map's ``layer`` into a :class:`PointCloud`; :meth:`warp` splats it into the target view's surface mask
     (its ``raster`` pass) and fills the holes on surfaces (push-pull). The current DI is not used."""

@@ -223,7 +223,7 @@ def _time_backends(cfg: WarpBenchConfig, scene: _Scene, cam: Camera, light, clou
         return scene.warper.warp(cam, di, passes)[0] if m == "structure" else cloud.splat(cam, passes["mask"])[0]
 
     frames = {(m, "numpy"): partial(numpy_frame, m) for m in SYSTEMS}
-    frames |= {(m, "gl"): partial(scene.shaders[m].frame, cam, light) for m in SYSTEMS}
+    frames |= {(m, "gl"): partial(scene.shaders[m].frame, scene.raster, cam, light, "blend", 0.0, 0) for m in SYSTEMS}
     for fn in frames.values():
         for _ in range(cfg.warmup):
             fn()

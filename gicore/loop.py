@@ -17,7 +17,7 @@ import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
@@ -57,15 +57,16 @@ class GISource(Protocol):
 
 
 class Warp(Protocol):
-    """Brings a bound GI map to other views.
+    """Brings a bound GI map to other views and composes the frame.
 
-    ``bind(gi)``: the per-map work (returns its timings, stage ``bind``); ``warp(camera, di, passes)``: the
-    map's ``layer`` at ``camera``, complete (fallback or hole filling applied), as (HxWxC image, HxW valid
-    mask, stage timings); ``valid`` is False where the GI came from the fallback or hole filling, True where
-    it came from the map and on background (nothing to warp). ``di`` is the current frame's DI at ``camera``
-    (a fallback may use it) and ``passes`` the warp's ``raster`` pass (:data:`gicore.buffers.RASTERS`, None:
-    it reads none) rendered with it after ``bind`` (``render_di_raster``: one geometry pass on a GL
-    renderer). ``stages``: every stage name ``bind`` and ``warp`` report.
+    ``bind(gi)``: the per-map work (returns its timings, stage ``bind``). ``frame(renderer, camera, light,
+    composition, tau, seed)``: one whole frame with a map bound, as (HxWx3 linear image, HxW valid mask, ms of
+    ``di``, the warp's per-frame stages and ``compose``): the frame's DI and the warp's ``raster`` pass
+    (:data:`gicore.buffers.RASTERS`, None: it reads none) rendered on ``renderer`` (``seed``: the DI's draw), the
+    bound map's ``layer`` warped to ``camera`` (fallback or hole filling applied), composed with the DI. ``valid``
+    is False where the GI came from the fallback or hole filling, True where it came from the map and on
+    background (nothing to warp). :class:`HostWarp` does this on the host with numpy; ``gicore.gl.frame``'s
+    ``ShaderWarp`` in the GL renderer's context. ``stages``: every stage name ``bind`` and ``frame`` report.
     """
 
     name: str
@@ -75,32 +76,52 @@ class Warp(Protocol):
 
     def bind(self, gi: GIMap) -> Timings: ...
 
-    def warp(
-        self, camera: Camera, di: np.ndarray, passes: dict[str, np.ndarray]
+    def frame(
+        self, renderer: Renderer, camera: Camera, light: Light, composition: str, tau: float, seed: int
     ) -> tuple[np.ndarray, np.ndarray, Timings]: ...
 
 
-@runtime_checkable
-class FrameWarp(Protocol):
-    """A warp whose frames are drawn, warped and composed in the GL renderer's context (``gicore.gl.frame``):
-    :class:`Warp`'s attributes and ``bind``, and in place of ``warp``, ``frame(camera, light, composition,
-    tau)``: a whole frame with a map bound, as (HxWx3 image, HxW valid mask, ms of ``di``, its per-frame
-    ``stages`` and ``compose``); only the image and the mask are read back."""
+class HostWarp:
+    """Base of the warps whose per-frame work runs on the host: subclasses implement ``bind`` and :meth:`warp`;
+    :meth:`frame` renders the DI with the warp's pass, warps and composes with numpy."""
 
     name: str
     layer: str
     raster: str | None
     stages: tuple[str, ...]
+    _no_indirect: np.ndarray | None = None  # the residual's zero "indirect of the DI", kept between frames
 
-    def bind(self, gi: GIMap) -> Timings: ...
+    def bind(self, gi: GIMap) -> Timings:
+        raise NotImplementedError
+
+    def warp(
+        self, camera: Camera, di: np.ndarray, passes: dict[str, np.ndarray]
+    ) -> tuple[np.ndarray, np.ndarray, Timings]:
+        """The bound map's layer at ``camera``, complete, as (HxWxC image, HxW valid mask, stage timings); ``di``
+        is the current frame's DI at ``camera`` (a fallback may use it), ``passes`` the warp's raster pass."""
+        raise NotImplementedError
 
     def frame(
-        self, camera: Camera, light: Light, composition: str, tau: float
-    ) -> tuple[np.ndarray, np.ndarray, Timings]: ...
+        self, renderer: Renderer, camera: Camera, light: Light, composition: str, tau: float, seed: int
+    ) -> tuple[np.ndarray, np.ndarray, Timings]:
+        sw = Stopwatch()
+        di, passes = renderer.render_di_raster(camera, light, self.raster, seed=seed)
+        sw.lap("di")
+        warped, valid, timings = self.warp(camera, di, passes)
+        sw.ms |= timings
+        sw.restart()
+        if composition == "blend":
+            image = blend(di, warped, tau)
+        else:  # the warped layer is already indirect-only, so nothing is subtracted from it
+            if self._no_indirect is None or self._no_indirect.shape != di.shape:
+                self._no_indirect = np.zeros_like(di)
+            image = residual(di, warped, self._no_indirect)
+        sw.lap("compose")
+        return image, valid, sw.ms
 
 
 def warp_view(
-    warp: Warp, renderer: Renderer, camera: Camera, light: Light, seed: int = 0
+    warp: HostWarp, renderer: Renderer, camera: Camera, light: Light, seed: int = 0
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The bound map brought to ``camera`` as a client frame does it: (DI, warped layer, valid mask), the DI and
     the warp's raster pass rendered together on ``renderer``."""
@@ -136,7 +157,7 @@ class SynchronousSource:
         self.produce(camera, light, -1)
 
 
-class PasteWarp:
+class PasteWarp(HostWarp):
     """No warping: the bound map's layer is used as it is, so it must be made with the local camera's FOV
     (the paper's baseline without warping)."""
 
@@ -240,7 +261,7 @@ class ClientLoop:
     """One client: DI renders on ``renderer``, GI maps from ``source``, brought to each view by ``warp``
     (see the module docstring). :meth:`step` runs one frame."""
 
-    def __init__(self, cfg: LoopConfig, renderer: Renderer, source: GISource, warp: Warp | FrameWarp):
+    def __init__(self, cfg: LoopConfig, renderer: Renderer, source: GISource, warp: Warp):
         if warp.layer != LAYERS[cfg.composition]:
             raise ValueError(
                 f"the {cfg.composition} composition needs a warp of the {LAYERS[cfg.composition]!r} layer,"
@@ -251,7 +272,6 @@ class ClientLoop:
         self.source = source
         self.warp = warp
         self.bound: GIMap | None = None
-        self._no_indirect: np.ndarray | None = None
         self._first_map_waited_out = False  # the first map did not come in time: later frames do not wait
 
     def columns(self) -> tuple[str, ...]:
@@ -267,10 +287,7 @@ class ClientLoop:
         self.source.warm_up(self.gi_camera(camera), light)
         self.renderer.render_di_raster(camera, light)  # a frame before any map: DI alone
         self.warp.bind(GIMap.blank(self.gi_camera(camera)))
-        if isinstance(self.warp, FrameWarp):
-            self.warp.frame(camera, light, self.cfg.composition, self.cfg.tau)
-        else:
-            self.warp.warp(camera, *self.renderer.render_di_raster(camera, light, self.warp.raster))
+        self.warp.frame(self.renderer, camera, light, self.cfg.composition, self.cfg.tau, 0)
         self.bound = None
 
     def _wants_map(self, frame: int, camera: Camera) -> bool:
@@ -313,11 +330,15 @@ class ClientLoop:
             row |= {f"{s}_ms": ms for s, ms in gi.stages.items()}
             self.bound = gi
         sw.restart()
-        if self.bound is not None and isinstance(self.warp, FrameWarp):  # drawn, warped and composed in GL
-            image, valid, timings = self.warp.frame(camera, light, cfg.composition, cfg.tau)
-            sw.ms |= timings
+        seed = frame_seed(cfg.seed, "di", frame)
+        if self.bound is None:  # no map has arrived: the frame is its DI alone
+            image = self.renderer.render_di_raster(camera, light, None, seed=seed)[0]
+            valid = np.zeros(image.shape[:2], dtype=bool)
+            sw.lap("di")
+            sw.lap("compose")
         else:
-            image, valid = self._render_and_compose(frame, camera, light, sw)
+            image, valid, timings = self.warp.frame(self.renderer, camera, light, cfg.composition, cfg.tau, seed)
+            sw.ms |= timings
         gi = self.bound
         if gi is not None:
             row |= {
@@ -332,28 +353,6 @@ class ClientLoop:
         if unknown:  # a source or warp reported a stage it does not declare in its ``stages``
             raise RuntimeError(f"undeclared stage columns {sorted(unknown)}; add them to the source's or warp's stages")
         return FrameResult(image, {c: row.get(c, "") for c in columns if c not in QUALITY_COLUMNS}, started)
-
-    def _render_and_compose(self, frame: int, camera: Camera, light: Light, sw: Stopwatch) -> tuple[np.ndarray, ...]:
-        """The frame's DI and its warp's pass read back (stage ``di``), the warp's stages, then the composition
-        (``compose``): (image, valid mask); before any map the frame is its DI alone."""
-        cfg = self.cfg
-        raster = None if self.bound is None else self.warp.raster
-        di, passes = self.renderer.render_di_raster(camera, light, raster, seed=frame_seed(cfg.seed, "di", frame))
-        sw.lap("di")
-        if self.bound is None:  # no map has arrived: the frame is its DI alone
-            image, valid = di, np.zeros(di.shape[:2], dtype=bool)
-        else:
-            warped, valid, timings = self.warp.warp(camera, di, passes)
-            sw.ms |= timings
-            sw.restart()
-            if cfg.composition == "blend":
-                image = blend(di, warped, cfg.tau)
-            else:  # the warped layer is already indirect-only, so nothing is subtracted from it
-                if self._no_indirect is None or self._no_indirect.shape != di.shape:
-                    self._no_indirect = np.zeros_like(di)
-                image = residual(di, warped, self._no_indirect)
-        sw.lap("compose")
-        return image, valid
 
 
 # -- driving a loop along a path -------------------------------------------------------------------------

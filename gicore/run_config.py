@@ -26,7 +26,7 @@ if TYPE_CHECKING:
 #: (:class:`gicore.gl.GLRenderer`) or Mitsuba's centre-sampled passes (:class:`gicore.render.Renderer`).
 RENDERERS = ("gl", "mitsuba")
 #: Backends of a client's warp and composition (:attr:`PathRunConfig.warp_backend`): numpy on the passes read
-#: back, or shaders on the GL renderer's textures (a :class:`gicore.loop.FrameWarp`); auto picks per renderer.
+#: back, or shaders on the GL renderer's textures (``gicore.gl.frame.ShaderWarp``); auto picks per renderer.
 WARP_BACKENDS = ("auto", "numpy", "gl")
 #: The GL renderer's level of detail in both clients (``gicore.gl.GLRenderer(lod=...)``): per view, the coarsest
 #: level whose calibrated G-buffer error stays within its bound, as a real-time client draws. On llvmpipe the

@@ -21,6 +21,7 @@ import numpy as np
 from gicore.camera import Camera
 from gicore.fill import push_pull
 from gicore.gi_map import LAYERS, GIMap, Timings
+from gicore.loop import HostWarp
 from gicore.timing import Stopwatch
 
 if TYPE_CHECKING:
@@ -170,7 +171,7 @@ def checked_options(layer: str, depth_rel_tol: float) -> tuple[str, float]:
     return layer, float(depth_rel_tol)
 
 
-class StructureAwareWarp:
+class StructureAwareWarp(HostWarp):
     """Algorithm 1 on one renderer, as a :class:`gicore.loop.Warp`: :meth:`bind` a GI map once, then
     :meth:`warp` it to every frame.
 

@@ -71,7 +71,7 @@ def warp_backend(choice: str, renderer: str, warn: bool = False) -> str:
 
 class ShaderWarp:
     """A warp of the bound map whose per-frame work runs in ``renderer``'s GL context (a
-    :class:`gicore.loop.FrameWarp`). Subclasses set ``name``, ``layer``, ``raster`` and ``stages`` and implement
+    :class:`gicore.loop.Warp`). Subclasses set ``name``, ``layer``, ``raster`` and ``stages`` and implement
     ``bind`` and :meth:`draw`."""
 
     name: str
@@ -97,10 +97,13 @@ class ShaderWarp:
         sw.lap(stage)
 
     def frame(
-        self, camera: Camera, light: Any, composition: str = "blend", tau: float = 0.0
+        self, renderer: Renderer, camera: Camera, light: Any, composition: str, tau: float, seed: int
     ) -> tuple[np.ndarray, np.ndarray, dict[str, float]]:
-        """One composed frame at ``camera``: (HxWx3 linear radiance, HxW valid mask, ms of ``di``, the warp's
-        per-frame stages and ``compose``, the read-back included)."""
+        """One composed frame at ``camera`` (:meth:`gicore.loop.Warp.frame`; the raster draws no noise, so
+        ``seed`` is unused): (HxWx3 linear radiance, HxW valid mask, ms of ``di``, the warp's per-frame stages and
+        ``compose``, the read-back included)."""
+        if renderer is not self.renderer:
+            raise ValueError("a GL warp draws its frames with the GL renderer it was made on; pass that renderer")
         sw = Stopwatch()
         textures = self.renderer.draw_di_raster(camera, light, self.raster)
         self.lap(sw, "di")
