@@ -136,9 +136,14 @@ def checked_map(
 def fallback_level(indirect: np.ndarray, hit: np.ndarray) -> tuple[np.ndarray, int, np.ndarray]:
     """The fallback's coarse level of ``indirect`` over the ``hit`` texels (about :data:`FALLBACK_TEXELS` across),
     its texels per coarse texel, and the mean over all hit texels (:attr:`GITexture.coarse` and the rest)."""
-    step = max(1, -(-max(indirect.shape[:2]) // FALLBACK_TEXELS))
+    step = fallback_step(*indirect.shape[:2])
     coarse, mean = _coarse_level(indirect, hit, step)
     return coarse, step, mean
+
+
+def fallback_step(height: int, width: int) -> int:
+    """GI texels per texel of the fallback's coarse level of a ``height`` x ``width`` map."""
+    return max(1, -(-max(height, width) // FALLBACK_TEXELS))
 
 
 def _blocks(x: np.ndarray, step: int) -> np.ndarray:

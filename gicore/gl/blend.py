@@ -1,7 +1,8 @@
 """The composition (:mod:`gicore.blend`: eq. 1's blend, or the residual composition) as a GL pass, the last
 stage of a frame whose warp runs in shaders: the frame's DI and the warped layer are the renderer's and the
 warp's textures, and the composed frame, with the warp's valid mask in alpha, is the only thing read back
-(docs/architecture.md, Composition).
+(docs/architecture.md, Composition). The shader is ``compose.frag`` (:mod:`gicore.gl.sources`), which the Web3D
+page draws too.
 
 Eq. 1 is ``tau * di + (1 - tau) * gi`` with the weights rounded to float32 as numpy rounds them, so it equals
 :func:`gicore.blend.blend` up to float32 rounding; the residual composition adds the warped indirect layer
@@ -16,33 +17,16 @@ import numpy as np
 
 from gicore.blend import COMPOSITIONS
 from gicore.gl.passes import Pass, Target
-
-COMPOSE_FRAGMENT = """
-#version 330 core
-uniform sampler2D u_di;      // the frame's DI (rgb)
-uniform sampler2D u_warped;  // the warped layer (rgb), valid in alpha
-uniform float u_tau;         // eq. 1's weights: tau and 1 - tau
-uniform float u_one_minus_tau;
-layout(location = 0) out vec4 o;
-void main() {
-    ivec2 p = ivec2(gl_FragCoord.xy);
-    vec3 di = texelFetch(u_di, p, 0).rgb;
-    vec4 gi = texelFetch(u_warped, p, 0);
-#ifdef RESIDUAL
-    o = vec4(di + max(gi.rgb, 0.0), gi.a);
-#else
-    o = vec4(u_tau * di + u_one_minus_tau * gi.rgb, gi.a);
-#endif
-}
-"""
+from gicore.gl.sources import glsl
 
 
-def compose_fragment(composition: str) -> str:
-    """:data:`COMPOSE_FRAGMENT` for ``composition`` (:data:`gicore.blend.COMPOSITIONS`)."""
+def compose_fragment(composition: str, tonemapped: bool = False) -> str:
+    """``compose.frag`` for ``composition`` (:data:`gicore.blend.COMPOSITIONS`); ``tonemapped``: the frame
+    tone-mapped for a screen (the Web3D page's canvas), else linear radiance with the valid mask in alpha."""
     if composition not in COMPOSITIONS:
         raise ValueError(f"composition must be one of {COMPOSITIONS}, got {composition!r}")
-    head, rest = COMPOSE_FRAGMENT.lstrip().split("\n", 1)
-    return "\n".join([head, *(["#define RESIDUAL"] if composition == "residual" else []), rest])
+    defines = {"RESIDUAL": None} if composition == "residual" else {}
+    return glsl("compose.frag", defines | ({"TONEMAP": None} if tonemapped else {}))
 
 
 class GLCompose:

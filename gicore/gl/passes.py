@@ -4,7 +4,8 @@ backends draw with (``gigan_local.gl_warp``, ``baseline_cloudbaking.gl_warp``, :
 A :class:`Pass` is one program drawn into a :class:`Target`; its inputs are read with ``texelFetch`` (no
 filtering, no sampler state), so a texel holds exactly the float32 value its numpy counterpart holds. Texture
 rows are the image's rows (row 0 at the top), as :meth:`gicore.gl.GLRenderer.draw_di_raster` draws them, so
-numpy arrays upload (:func:`upload`) and read back (:meth:`Target.read`) with no flip. GLSL 330 core.
+numpy arrays upload (:func:`upload`) and read back (:meth:`Target.read`) with no flip. The sources are
+:mod:`gicore.gl.sources`'.
 """
 
 from __future__ import annotations
@@ -14,13 +15,10 @@ from typing import Any
 
 import numpy as np
 
+from gicore.gl.sources import glsl
+
 #: One triangle over the whole viewport (a fullscreen pass draws 3 vertices and no buffer).
-FULLSCREEN_VERTEX = """
-#version 330 core
-void main() {
-    gl_Position = vec4(float((gl_VertexID & 1) << 2) - 1.0, float((gl_VertexID & 2) << 1) - 1.0, 0.0, 1.0);
-}
-"""
+FULLSCREEN_VERTEX = glsl("fullscreen.vert")
 
 
 def upload(ctx: Any, array: np.ndarray) -> Any:

@@ -19,9 +19,10 @@ from __future__ import annotations
 
 import pytest
 
-from baseline_cloudbaking.gl_warp import GLPixelWarp, pyramid_sizes
+from baseline_cloudbaking.gl_warp import GLPixelWarp
 from baseline_cloudbaking.warp import PixelWarp
 from gicore.gl import gl_available
+from gicore.gl.fill import pyramid_sizes
 from tests.helpers.gl_warps import contrast, differences, loop_frames, lung_scene
 
 OK, WHY = gl_available()
