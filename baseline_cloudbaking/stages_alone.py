@@ -37,10 +37,13 @@ Samples = dict[str, list[float]]
 
 class AloneRuns(PathRequests, Protocol):
     """What the stages alone read of their caller's config (``bench latency``'s): the path's requests, every
-    ``every`` frames, composed by ``composition``."""
+    ``every`` frames, composed by ``composition``, at the loop's pace (``frame_rate`` frames/s; 0: unpaced). The
+    pace is a condition of the run, not the client's plumbing: a request after a frame's idle wait wakes sleeping
+    threads in the client, proxy and server, which back-to-back requests never do."""
 
     every: int
     composition: str
+    frame_rate: float
 
 
 #: The cloud stages a served request reports (``warp`` is the bind plus the warp's per-frame stages).
@@ -69,16 +72,20 @@ def requests_alone(
     url: str, scene: str, spec: SceneSpec, cfg: AloneRuns, views: list[tuple[Camera, Light]]
 ) -> tuple[Samples, list[GIMap]]:
     """Ask ``url`` for the GI view of every k-th frame, one request at a time in a thread of this process (nothing
-    else runs): the stage samples of the served requests (:data:`CLOUD_ALONE`'s network and server stages,
-    ``transmission``, and the request's latency as ``round_trip``) and the maps received."""
+    else runs), each when the loop's frame would ask it: the stage samples of the served requests
+    (:data:`CLOUD_ALONE`'s network and server stages, ``transmission``, and the request's latency as
+    ``round_trip``) and the maps received."""
     remote = RemoteConfig(url, Path(scene).stem, cfg.resolution, cfg.codec, cfg.spp, cfg.composition == "residual",
                           spec.light.moves, read_timeout_s=cfg.read_timeout_s, deadline_s=2 * cfg.read_timeout_s,
                           retry_after_s=0.0, fetch="thread")  # fmt: skip
     maps: list[GIMap] = []
     with RemoteSource(remote) as source:
         source.warm_up(*views[0])
+        start = time.perf_counter()
         for frame in range(0, len(views), cfg.every):
             camera, light = views[frame]
+            if cfg.frame_rate:  # asked when the loop's frame would ask: frame / frame_rate after the first
+                time.sleep(max(0.0, start + frame / cfg.frame_rate - time.perf_counter()))
             source.request(camera.with_fov(spec.camera.gi_fov), light, frame)
             source.wait(2 * cfg.read_timeout_s + 10)
             gi = source.latest()
@@ -99,7 +106,7 @@ def local_alone(
     spec: SceneSpec, cfg: AloneRuns, renderer: str, views: list[tuple[Camera, Light]], maps: list[GIMap]
 ) -> Samples:
     """The cloud client's loop along the path with ``maps`` handed over every k frames: per bound map, ``di``,
-    ``warp`` (bind + the warp's stages) and ``blend`` (the composition)."""
+    ``warp`` (bind + the warp's stages) and ``blend`` (the composition); frames at the loop's pace."""
     from baseline_cloudbaking.gl_warp import GLPixelWarp
     from baseline_cloudbaking.warp import PixelWarp
     from gicore.gi_map import LAYERS
@@ -111,7 +118,8 @@ def local_alone(
     layer = LAYERS[cfg.composition]
     warp = GLPixelWarp(raster, layer) if warp_backend("auto", used) == "gl" else PixelWarp(layer)
     loop_cfg = LoopConfig(every=cfg.every, gi_fov=spec.camera.gi_fov, composition=cfg.composition, seed=0)
-    rows = run_frames(ClientLoop(loop_cfg, raster, ReplaySource(maps), warp), views)
+    loop = ClientLoop(loop_cfg, raster, ReplaySource(maps), warp)
+    rows = run_frames(loop, views, frame_rate=cfg.frame_rate or None)
     warp_stages = [s for s in warp.stages if s != "bind"]
     samples: Samples = {"di": [], "warp": [], "blend": []}
     for row in (r for r in rows if r["gi_new"]):
