@@ -20,7 +20,7 @@ from gicore.config import strict_from_dict
 from gicore.error_policy import UserError
 from gicore.fileio import atomic_write_bytes
 from gicore.options import RESOLUTION_MAX
-from gigan_local.preprocess import InputSpec
+from gigan_local.preprocess import ALBEDO_FLOOR, InputSpec
 
 #: A run folder's config file: the TrainConfig and every NetworkConfig (see :func:`write_run_config`).
 CONFIG = "config.json"
@@ -131,6 +131,10 @@ class TrainConfig:
     buffers: list[str] = field(default_factory=lambda: list(GENERATOR_INPUTS))
     #: Depth that encodes to 0; absent: the median foreground depth of the training data.
     depth_scale: float | None = None
+    #: Albedo-demodulated input and output: the network sees the DI and predicts the GI divided by the first hit's
+    #: albedo (floor 0.05, gigan_local.preprocess), and clients multiply it back, so it learns light rather than
+    #: its training scenes' colours. Needs albedo among --buffers.
+    demodulate: bool = False
     resolution: int | None = option_groups.resolution(None, note="absent: read from the datasets, which must agree")
     #: Train on random crop x crop windows (cheaper steps); validation always uses whole frames.
     crop: int | None = field(default=None, metadata={"min": 1, "max": RESOLUTION_MAX})
@@ -212,7 +216,7 @@ class TrainConfig:
         if not self.lr > 0:
             raise ValueError(f"lr must be > 0, got {self.lr}")
         self.buffers = list(self.buffers)
-        InputSpec(tuple(self.buffers))  # names network inputs (the depth scale is checked once derived)
+        InputSpec(tuple(self.buffers), albedo_floor=self.albedo_floor)  # (the depth scale is checked once derived)
         self.datasets = [str(d) for d in self.datasets]
         if self.init_generator is not None:
             self.init_generator = str(self.init_generator)
@@ -224,11 +228,16 @@ class TrainConfig:
             raise ValueError("resolution is unknown; train() reads it from the datasets")
         return self.resolution if self.crop is None else self.crop
 
+    @property
+    def albedo_floor(self) -> float | None:
+        """The floor of the albedo the I/O is demodulated by (:attr:`InputSpec.albedo_floor`); None: radiance."""
+        return ALBEDO_FLOOR if self.demodulate else None
+
     def input_spec(self) -> InputSpec:
-        """The generator's input contract (buffers and depth scale)."""
+        """The generator's input contract (buffers, depth scale, demodulation)."""
         if self.depth_scale is None:
             raise ValueError("depth_scale is unknown; train() derives it from the training data")
-        return InputSpec(tuple(self.buffers), self.depth_scale)
+        return InputSpec(tuple(self.buffers), self.depth_scale, self.albedo_floor)
 
     def network_configs(self) -> dict[str, NetworkConfig]:
         """Architectures this run builds: ``G`` always, ``D`` for the adversarial models."""

@@ -105,7 +105,7 @@ class FrameDataset(Dataset):
         path = self.paths[index]
         frame = load_frame(path, [*self.spec.buffers, TARGET])
         try:
-            pair = frame_to_input(frame, self.spec), frame_to_target(frame)
+            pair = frame_to_input(frame, self.spec), frame_to_target(frame, self.spec)
         except ValueError as e:  # NaN/Inf or a wrong shape in a stored frame
             raise UserError(f"{path}: {e}", "delete the frame and rerun `gicore-dataset` to render it again") from e
         if self._cache is not None:

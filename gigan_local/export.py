@@ -55,7 +55,10 @@ INPUT_NAME, OUTPUT_NAME = "input", "output"
 TONEMAP_NOTE = (
     "Inputs and output are network values in [-1, 1] (gigan_local.preprocess): radiance is "
     "to_signed(tonemap(x)) with gicore.tonemap (Reinhard x/(1+x), then gamma 1/2.2); invert the output with "
-    "inverse_tonemap(from_signed(y)). GIModel.predict does both."
+    "inverse_tonemap(from_signed(y)). Where input.albedo_floor is set, the DI input and the output are shading: "
+    "radiance divided per channel by max(albedo, albedo_floor), or by 1 where the albedo is 0 in every channel "
+    "(no surface); multiply the decoded output by the same (gigan_local.preprocess.albedo_divisor). "
+    "GIModel.predict does all of it."
 )
 
 

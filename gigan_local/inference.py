@@ -2,7 +2,8 @@
 
 :class:`ExportedGenerator` loads a file written by ``gigan-export`` together with the ``model.json`` beside
 it, checks that the two agree, and turns frame buffers into linear GI radiance with the same encoding as
-training (``gigan_local.preprocess``); a backend brings only the network's run. :class:`GIModel` runs the
+training (``gigan_local.preprocess``: an albedo-demodulated model's shading is multiplied by the frame's albedo
+there); a backend brings only the network's run. :class:`GIModel` runs the
 ONNX graph on onnxruntime's CPU provider (needs no torch); :class:`gigan_local.torch_backend.TorchGIModel`
 runs the same weights on torch (fp16 on a CUDA GPU); :func:`gigan_local.backend_choice.open_model` picks
 one for ``--inference auto|onnxruntime|torch``. A missing, corrupt or mismatched model is a
@@ -136,7 +137,7 @@ class ExportedGenerator(ABC):
         into the model's one input array."""
         self.check_frame_size(frame_buffers)
         frame_to_input(frame_buffers, self.spec, out=self._input[0])
-        return output_to_radiance(self._run(self._input))
+        return output_to_radiance(self._run(self._input), self.spec, frame_buffers.get("albedo"))
 
     def check_frame_size(self, frame_buffers: dict[str, np.ndarray]) -> None:
         """ValueError unless the frame's buffers are at the model's resolution."""

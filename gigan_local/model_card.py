@@ -129,6 +129,16 @@ def _check_quality_rows(rows: list[dict], system: str, source: Path) -> None:
         )
 
 
+def _output_words(albedo_floor: float | None) -> str:
+    """What the model's output is: the GI image, or its shading (albedo-demodulated)."""
+    if albedo_floor is None:
+        return "output: the path-traced GI image, tone-mapped to [-1, 1] (`gicore.tonemap`). "
+    return (
+        f"output: the path-traced GI image's shading (divided by the first hit's albedo, floor {albedo_floor:g}; "
+        "the DI input likewise), tone-mapped to [-1, 1] (`gicore.tonemap`); the client multiplies the albedo back. "
+    )
+
+
 def _model_lines(
     name: str, model_doc: dict, training: TrainingRun, dataset_command: str, train_command: str
 ) -> list[str]:
@@ -140,8 +150,8 @@ def _model_lines(
         f"Generator `{model_doc['model']}` (U-Net, ngf {model_doc['ngf']}, {model_doc['n_down']} down-samplings, "
         f"{UPSAMPLING_WORDS[model_doc.get('network', {}).get('upsample', 'transposed')]}), "
         f"inputs {model_doc['input']['buffers']} ({model_doc['in_channels']} channels) at {model_doc['resolution']}², "
-        "output: the path-traced GI image, tone-mapped to [-1, 1] (`gicore.tonemap`). "
-        f"One model for the {len(train['datasets'])} scene(s) of its training data.",
+        + _output_words(model_doc["input"].get("albedo_floor"))
+        + f"One model for the {len(train['datasets'])} scene(s) of its training data.",
         "",
         "## Data",
         f"`{dataset_command}`",

@@ -19,6 +19,9 @@ Depth uses a scale ``s`` (``InputSpec.depth_scale``) rather than a per-frame min
 means one value in every frame; training sets ``s`` to the median foreground depth of its data (so the
 encoded depths spread around 0) and the exported model carries it in ``model.json``. World position is
 not an input: it depends on where the scene sits in the world, not on what the camera sees.
+
+A model with ``InputSpec.albedo_floor`` set is albedo-demodulated: ``di`` and ``gt`` are divided by
+:func:`albedo_divisor` before the tone map (shading: light, not colour); :func:`output_to_radiance` multiplies it back.
 """
 
 from __future__ import annotations
@@ -34,6 +37,12 @@ from gicore.tonemap import from_signed, inverse_tonemap, to_signed, tonemap
 
 #: Buffers a network may take as input (those with an encoding in the table above).
 INPUT_BUFFERS: tuple[str, ...] = ("di", "albedo", "normal", "depth", "mask")
+#: The albedo floor of a demodulated model (``gigan-train --demodulate``): 0.05 is just above the glossy coating's
+#: reflectance at normal incidence (0.034 at IOR 1.45), so a channel whose diffuse albedo is near 0 (a saturated
+#: colour's) keeps a shading of the same order as the other channels instead of its specular light times 1/albedo;
+#: and a silhouette pixel whose one G-buffer sample is a dark object while its GT also averages the white floor
+#: (albedo 0.8) is inflated at most 16-fold. Lower floors divide the coating's white light by ever smaller numbers.
+ALBEDO_FLOOR = 0.05
 
 
 @dataclass(frozen=True)
@@ -44,6 +53,9 @@ class InputSpec:
     buffers: tuple[str, ...] = GENERATOR_INPUTS
     #: View depth that encodes to 0 (i.e. d / (d + s) = 0.5); in scene units, > 0.
     depth_scale: float = 1.0
+    #: None: the DI input and the output are radiance. A floor in (0, 1]: both are shading, radiance divided by
+    #: :func:`albedo_divisor` with this floor (``albedo`` must be an input). A model.json without it: radiance.
+    albedo_floor: float | None = None
 
     def __post_init__(self) -> None:
         buffers = check_buffer_names(list(self.buffers))
@@ -54,6 +66,11 @@ class InputSpec:
             raise ValueError(f"the input buffer list is empty; give at least one of {list(INPUT_BUFFERS)}")
         if not (np.isfinite(self.depth_scale) and self.depth_scale > 0):
             raise ValueError(f"depth_scale must be a positive number (a typical view depth), got {self.depth_scale}")
+        if self.albedo_floor is not None:
+            if not 0.0 < self.albedo_floor <= 1.0:
+                raise ValueError(f"albedo_floor must be in (0, 1] or absent, got {self.albedo_floor}")
+            if "albedo" not in buffers:
+                raise ValueError("an albedo-demodulated model needs 'albedo' among its input buffers")
         object.__setattr__(self, "buffers", buffers)
 
     @property
@@ -62,7 +79,8 @@ class InputSpec:
         return sum(CHANNELS[b] for b in self.buffers)
 
     def to_dict(self) -> dict[str, Any]:
-        return {"buffers": list(self.buffers), "depth_scale": float(self.depth_scale)}
+        d: dict[str, Any] = {"buffers": list(self.buffers), "depth_scale": float(self.depth_scale)}
+        return d if self.albedo_floor is None else d | {"albedo_floor": float(self.albedo_floor)}
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> InputSpec:
@@ -129,20 +147,44 @@ def frame_to_input(frame: dict[str, np.ndarray], spec: InputSpec, out: np.ndarra
         raise ValueError(f"the input buffer is {out.dtype} {out.shape}, but these buffers make float32 {shape}")
     start = 0
     for b in spec.buffers:
-        encode_buffer(b, frame[b], spec.depth_scale, out=out[start : start + CHANNELS[b]].transpose(1, 2, 0))
+        arr = demodulated(frame, spec, b) if b == "di" else frame[b]
+        encode_buffer(b, arr, spec.depth_scale, out=out[start : start + CHANNELS[b]].transpose(1, 2, 0))
         start += CHANNELS[b]
     return out
 
 
-def frame_to_target(frame: dict[str, np.ndarray]) -> np.ndarray:
-    """The frame's ground-truth GI as the network target, 3xHxW float32 in [-1, 1]."""
+def frame_to_target(frame: dict[str, np.ndarray], spec: InputSpec) -> np.ndarray:
+    """The frame's ground-truth GI as the target of a network of ``spec``, 3xHxW float32 in [-1, 1]."""
     if TARGET not in frame:
         raise KeyError(f"the frame lacks the target buffer {TARGET!r} (it has {sorted(frame)})")
-    return np.ascontiguousarray(encode_buffer(TARGET, frame[TARGET]).transpose(2, 0, 1))
+    return np.ascontiguousarray(encode_buffer(TARGET, demodulated(frame, spec, TARGET)).transpose(2, 0, 1))
+
+
+def albedo_divisor(albedo: np.ndarray, floor: float) -> np.ndarray:
+    """What a demodulated model's radiance is divided by (and its output multiplied by): per channel
+    max(albedo, ``floor``) where a surface was hit, 1 where none was (albedo 0 in every channel: the background,
+    whose radiance is kept). HxWx3 float32."""
+    a = np.clip(shaped("albedo", albedo), 0.0, 1.0)
+    surface = a.max(axis=-1, keepdims=True) > 0.0
+    return np.where(surface, np.maximum(a, np.float32(floor)), np.float32(1.0))
+
+
+def demodulated(frame: dict[str, np.ndarray], spec: InputSpec, name: str) -> np.ndarray:
+    """Radiance buffer ``name`` of ``frame`` as a network of ``spec`` sees it: as it is, or divided by
+    :func:`albedo_divisor` of the frame's albedo for a demodulated model."""
+    if spec.albedo_floor is None:
+        return frame[name]
+    return _checked(name, frame[name]) / albedo_divisor(frame["albedo"], spec.albedo_floor)
+
+
+def input_albedo(x: np.ndarray, spec: InputSpec) -> np.ndarray:
+    """The albedo (HxWx3 in [0, 1]) that the network input ``x`` (CxHxW, :func:`frame_to_input`) encodes."""
+    start = sum(CHANNELS[b] for b in spec.buffers[: spec.buffers.index("albedo")])
+    return np.ascontiguousarray((np.asarray(x[start : start + 3], np.float32).transpose(1, 2, 0) + 1.0) * 0.5)
 
 
 def output_to_display(y: np.ndarray) -> np.ndarray:
-    """Network output 3xHxW in [-1, 1] to tone-mapped display values HxWx3 in [0, 1] (what metrics use),
+    """Network output 3xHxW in [-1, 1] to tone-mapped display values HxWx3 in [0, 1] of what it encodes,
     C-contiguous (the transpose is copied once, so what follows runs on contiguous memory)."""
     y = np.asarray(y, dtype=np.float32)
     if y.ndim != 3 or y.shape[0] != 3:
@@ -150,6 +192,13 @@ def output_to_display(y: np.ndarray) -> np.ndarray:
     return from_signed(np.ascontiguousarray(y.transpose(1, 2, 0))).astype(np.float32, copy=False)
 
 
-def output_to_radiance(y: np.ndarray) -> np.ndarray:
-    """Network output 3xHxW in [-1, 1] to linear GI radiance HxWx3 (inverse of the target encoding)."""
-    return inverse_tonemap(output_to_display(y))
+def output_to_radiance(y: np.ndarray, spec: InputSpec, albedo: np.ndarray | None = None) -> np.ndarray:
+    """Network output 3xHxW in [-1, 1] of a model of ``spec`` to linear GI radiance HxWx3 (inverse of the target
+    encoding): every GI map a model makes comes from here. A demodulated model's needs the frame's ``albedo``."""
+    radiance = inverse_tonemap(output_to_display(y))
+    if spec.albedo_floor is None:
+        return radiance
+    if albedo is None:
+        raise ValueError("an albedo-demodulated model's output needs the frame's albedo to become radiance")
+    radiance *= albedo_divisor(albedo, spec.albedo_floor)
+    return radiance

@@ -92,7 +92,7 @@ class TorchGIModel(ExportedGenerator):
 
         finite = torch.stack([torch.isfinite(t).all() for t in raw.values()])
         x = encode_frame(raw, self.spec).to(self.dtype)
-        return decode_output(self.net(x[None])[0].float()), finite
+        return decode_output(self.net(x[None])[0].float(), self.spec, raw.get("albedo")), finite
 
     def _run(self, x: np.ndarray) -> np.ndarray:
         import torch
@@ -132,7 +132,9 @@ def encode_frame(raw: dict[str, Any], spec: InputSpec) -> Any:
 
     def encoded(name: str, t: Any) -> Any:
         if name == "di":
-            x = t.clamp_min(0.0)
+            x = (t if spec.albedo_floor is None else t / albedo_divisor(raw["albedo"], spec.albedo_floor)).clamp_min(
+                0.0
+            )
             return 2.0 * (x / (1.0 + x)) ** (1.0 / GAMMA) - 1.0
         if name in ("albedo", "mask"):
             return 2.0 * t.clamp(0.0, 1.0) - 1.0
@@ -146,11 +148,25 @@ def encode_frame(raw: dict[str, Any], spec: InputSpec) -> Any:
     return torch.cat([encoded(b, raw[b]) for b in spec.buffers], dim=2).permute(2, 0, 1).contiguous()
 
 
-def decode_output(y: Any) -> Any:
-    """Linear radiance (HxWx3, contiguous) from the network output (3xHxW in [-1, 1]): the decoding of
+def decode_output(y: Any, spec: InputSpec, albedo: Any = None) -> Any:
+    """Linear radiance (HxWx3, contiguous) from the network output (3xHxW in [-1, 1]) of a model of ``spec``, times
+    :func:`albedo_divisor` of the frame's ``albedo`` (HxWx3) for a demodulated one: the decoding of
     :func:`gigan_local.preprocess.output_to_radiance`, on the tensor's device."""
     display = ((y + 1.0) * 0.5).clamp(0.0, Y_MAX) ** GAMMA
-    return (display / (1.0 - display)).permute(1, 2, 0).contiguous()
+    radiance = (display / (1.0 - display)).permute(1, 2, 0)
+    if spec.albedo_floor is None:
+        return radiance.contiguous()
+    if albedo is None:
+        raise ValueError("an albedo-demodulated model's output needs the frame's albedo to become radiance")
+    return (radiance * albedo_divisor(albedo, spec.albedo_floor)).contiguous()
+
+
+def albedo_divisor(albedo: Any, floor: float) -> Any:
+    """:func:`gigan_local.preprocess.albedo_divisor` of an HxWx3 tensor, on its device."""
+    import torch
+
+    a = albedo.clamp(0.0, 1.0)
+    return torch.where(a.amax(dim=-1, keepdim=True) > 0.0, a.clamp_min(floor), torch.ones_like(a))
 
 
 class CapturedForward:

@@ -39,10 +39,11 @@ from tqdm import tqdm
 from gicore.error_policy import UserError
 from gicore.fileio import atomic_write, atomic_write_bytes, exclusive_run
 from gicore.metrics import all_metrics
+from gicore.tonemap import tonemap
 from gigan_local.config import BUDGET_FIELDS, TrainConfig, read_run_config, write_run_config
 from gigan_local.data import FrameDataset, dataset_resolution, median_foreground_depth
 from gigan_local.models import BaseModel, create_model
-from gigan_local.preprocess import output_to_display
+from gigan_local.preprocess import input_albedo, output_to_radiance
 from gigan_local.warmstart import init_depth_scale, load_into
 
 CHECKPOINT = "checkpoint.pt"
@@ -140,7 +141,9 @@ def _check_resume(saved: TrainConfig, cfg: TrainConfig) -> None:
 
 @torch.no_grad()
 def validate(generator: torch.nn.Module, dataset: FrameDataset, max_frames: int | None = None) -> dict[str, float]:
-    """Mean RMSE/PSNR/SSIM/lf_error over (evenly spaced, at most ``max_frames``) whole frames, in eval mode."""
+    """Mean RMSE/PSNR/SSIM/lf_error over (evenly spaced, at most ``max_frames``) whole frames, in eval mode, of the
+    tone-mapped GI maps the output and the target decode to (:func:`output_to_radiance`: radiance and demodulated
+    models score alike)."""
     n = len(dataset) if max_frames is None else min(len(dataset), max_frames)
     indices = np.unique(np.linspace(0, len(dataset) - 1, n).round().astype(int))
     was_training = generator.training
@@ -150,7 +153,9 @@ def validate(generator: torch.nn.Module, dataset: FrameDataset, max_frames: int 
     for i in indices:
         x, y = dataset[int(i)]
         pred = generator(x[None].to(device))[0].cpu().numpy()
-        for k, v in all_metrics(output_to_display(pred), output_to_display(y.numpy())).items():
+        albedo = input_albedo(x.numpy(), dataset.spec) if dataset.spec.albedo_floor is not None else None
+        maps = [tonemap(output_to_radiance(out, dataset.spec, albedo)) for out in (pred, y.numpy())]
+        for k, v in all_metrics(*maps).items():
             totals[k] = totals.get(k, 0.0) + v
     generator.train(was_training)
     return {k: v / len(indices) for k, v in totals.items()}

@@ -69,10 +69,11 @@ def generator_weights(
             f"--init-generator {path} is a different generator than this run builds (model vs run: {diff})",
             "give the run the model's architecture (--model, --ngf, --n-down, --buffers) or start from random weights",
         )
-    if saved_spec.buffers != spec.buffers or not np.isclose(saved_spec.depth_scale, spec.depth_scale):
+    same_floor = saved_spec.albedo_floor == spec.albedo_floor
+    if saved_spec.buffers != spec.buffers or not np.isclose(saved_spec.depth_scale, spec.depth_scale) or not same_floor:
         raise UserError(
             f"--init-generator {path} encodes inputs {saved_spec.to_dict()}, this run {spec.to_dict()}",
-            "train on the model's buffers and leave the depth scale to the model",
+            "train on the model's buffers and demodulation (--demodulate), and leave the depth scale to the model",
         )
     try:
         graph = onnx.load(str(path)).graph

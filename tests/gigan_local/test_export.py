@@ -88,7 +88,7 @@ def test_gimodel_predicts_linear_radiance_like_torch(exported, variant):
     generator, _ = load_generator(run)
     with torch.no_grad():
         y = generator(torch.from_numpy(frame_to_input(frame, model.spec))[None])[0].numpy()
-    assert np.allclose(radiance, output_to_radiance(y), rtol=1e-2, atol=1e-3)
+    assert np.allclose(radiance, output_to_radiance(y, model.spec), rtol=1e-2, atol=1e-3)
 
 
 def test_int8_export_is_calibrated_quantized_and_close_to_fp32(exported, tmp_path):

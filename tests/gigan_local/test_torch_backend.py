@@ -7,6 +7,7 @@ import json
 import shutil
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -65,7 +66,16 @@ def test_the_device_encoding_is_the_host_encoding():
     assert encoded.shape == (model_json["in_channels"], 24, 20)
     np.testing.assert_allclose(encoded, frame_to_input(frame, spec), rtol=1e-6, atol=1e-6)
     y = rng.uniform(-1.2, 1.2, (3, 24, 20)).astype(np.float32)
-    np.testing.assert_allclose(decode_output(torch.from_numpy(y)).numpy(), output_to_radiance(y), rtol=1e-5)
+    np.testing.assert_allclose(decode_output(torch.from_numpy(y), spec).numpy(), output_to_radiance(y, spec), rtol=1e-5)
+    # albedo-demodulated: the DI divided and the output multiplied by the same albedo divisor on both
+    demodulated = replace(spec, albedo_floor=0.05)
+    frame["albedo"] = np.clip(frame["albedo"], 0.0, 1.0)
+    frame["albedo"][:3] = 0.0  # no surface
+    raw = {b: torch.from_numpy(a) for b, a in frame.items()}
+    encoded = encode_frame(raw, demodulated).numpy()
+    np.testing.assert_allclose(encoded, frame_to_input(frame, demodulated), rtol=1e-5, atol=1e-5)
+    decoded = decode_output(torch.from_numpy(y), demodulated, raw["albedo"]).numpy()
+    np.testing.assert_allclose(decoded, output_to_radiance(y, demodulated, frame["albedo"]), rtol=1e-5)
 
 
 def test_a_nan_in_a_buffer_is_an_error_naming_it(frame):

@@ -15,7 +15,14 @@ from gicore.error_policy import UserError
 from gigan_local.config import TrainConfig, read_run_config
 from gigan_local.data import FrameDataset
 from gigan_local.models import GIGAN, create_model
-from gigan_local.preprocess import InputSpec, frame_to_input, frame_to_target, output_to_radiance
+from gigan_local.preprocess import (
+    InputSpec,
+    albedo_divisor,
+    frame_to_input,
+    frame_to_target,
+    input_albedo,
+    output_to_radiance,
+)
 from gigan_local.train import METRIC_COLUMNS, TrainingDiverged, load_checkpoint, train
 from gigan_local.train_cli import app
 from tests.helpers.training import make_dataset, synthetic_frame, tiny_config
@@ -40,12 +47,43 @@ def test_preprocess_encodings_and_round_trip():
     assert np.all(x[9, :4] == -1.0)  # background depth
     frame["depth"][4:] = 2.0
     assert np.allclose(frame_to_input(frame, InputSpec(depth_scale=2.0))[9, 4:], 0.0)
-    assert np.allclose(output_to_radiance(frame_to_target(frame)), frame["gt"], rtol=1e-3, atol=1e-4)
+    spec = InputSpec(depth_scale=2.0)
+    assert np.allclose(output_to_radiance(frame_to_target(frame, spec), spec), frame["gt"], rtol=1e-3, atol=1e-4)
     frame["di"][0, 0, 0] = np.nan
     with pytest.raises(ValueError, match="'di' contains NaN"):
         frame_to_input(frame, InputSpec())
     with pytest.raises(ValueError, match="cannot be network inputs"):
         InputSpec(buffers=("di", "position"))
+
+
+def test_a_demodulated_model_sees_and_predicts_shading_and_gives_radiance_back():
+    """Albedo demodulation: DI and GT divided by max(albedo, floor) on surfaces, kept where no surface was hit; the
+    decoding multiplies the same back, so the round trip gives the GT; the colour of the albedo leaves the input."""
+    rng = np.random.default_rng(2)
+    frame = synthetic_frame(rng, 16)
+    frame["albedo"][:4] = 0.0  # background: no surface
+    frame["albedo"][4:8] = (0.9, 0.02, 0.5)  # a saturated colour: its green channel is floored
+    spec = InputSpec(depth_scale=2.0, albedo_floor=0.05)
+    divisor = albedo_divisor(frame["albedo"], 0.05)
+    assert np.all(divisor[:4] == 1.0) and np.allclose(divisor[4, 0], (0.9, 0.05, 0.5))
+    target = frame_to_target(frame, spec)
+    np.testing.assert_allclose(target, frame_to_target(frame | {"gt": frame["gt"] / divisor}, InputSpec()), atol=1e-6)
+    x = frame_to_input(frame, spec)
+    np.testing.assert_allclose(x[:3], frame_to_input(frame | {"di": frame["di"] / divisor}, InputSpec())[:3], atol=1e-6)
+    np.testing.assert_allclose(input_albedo(x, spec), np.clip(frame["albedo"], 0, 1), atol=1e-6)
+    radiance = output_to_radiance(target, spec, frame["albedo"])
+    np.testing.assert_allclose(radiance, frame["gt"], rtol=1e-3, atol=1e-4)
+    # the same light on two colours: the same shading in, the same shading out
+    grey = frame | {"albedo": np.full_like(frame["albedo"], 0.5), "gt": frame["gt"] * 0.5, "di": frame["di"] * 0.5}
+    blue = frame | {"albedo": np.full_like(frame["albedo"], (0.1, 0.3, 0.9)), "gt": frame["gt"] * (0.1, 0.3, 0.9)}
+    blue["di"] = frame["di"] * (0.1, 0.3, 0.9)
+    np.testing.assert_allclose(frame_to_target(grey, spec), frame_to_target(blue, spec), atol=1e-5)
+    with pytest.raises(ValueError, match="needs the frame's albedo"):
+        output_to_radiance(target, spec)
+    with pytest.raises(ValueError, match="needs 'albedo' among its input buffers"):
+        InputSpec(buffers=("di", "normal"), albedo_floor=0.05)
+    assert InputSpec.from_dict({"buffers": ["di", "albedo"], "depth_scale": 1.0}).albedo_floor is None  # old files
+    assert InputSpec.from_dict(spec.to_dict()) == spec
 
 
 def _fixed_batch(n: int, res: int) -> tuple[torch.Tensor, torch.Tensor]:
@@ -54,7 +92,7 @@ def _fixed_batch(n: int, res: int) -> tuple[torch.Tensor, torch.Tensor]:
     spec = InputSpec(depth_scale=2.0)
     return (
         torch.from_numpy(np.stack([frame_to_input(f, spec) for f in frames])),
-        torch.from_numpy(np.stack([frame_to_target(f) for f in frames])),
+        torch.from_numpy(np.stack([frame_to_target(f, spec) for f in frames])),
     )
 
 

@@ -98,6 +98,8 @@ def test_a_different_architecture_is_refused_naming_the_field() -> None:
         generator_weights(SHIPPED / "model_fp16.onnx", replace(net, width=net.width * 2), spec)
     with pytest.raises(UserError, match="encodes inputs"):
         generator_weights(SHIPPED / "model_fp16.onnx", net, InputSpec(("di", "albedo"), spec.depth_scale))
+    with pytest.raises(UserError, match="--demodulate"):  # the shipped model's output is radiance
+        generator_weights(SHIPPED / "model_fp16.onnx", net, replace(spec, albedo_floor=0.05))
 
 
 def test_a_missing_model_json_is_a_user_error(tmp_path: Path) -> None:
