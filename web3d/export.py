@@ -10,8 +10,9 @@
 - ``scene.json``: the header: byte offsets and counts, the draw ranges, the material tables (the shaders'
   ``u_materials``), the light (with the box it may move in, ``light_range``, and its rest point), the
   cameras' FOVs and clip distances, the navigable envelope (:func:`gicore.paths.navigation`), and the WebGL2
-  programs: ``gicore.gl.shaders``' GLSL 330 sources for the passes the page runs, with the version line
-  swapped for GLSL ES 3.00 and precision qualifiers added (that module is written so that this is the port);
+  programs of the scene's passes (:func:`web3d.shaders.scene_programs`);
+- ``shaders.json``: the WebGL2 programs of the warps, the hole filling, the composition and GIGAN's encoding,
+  from the sources the desktop GL passes compile (:func:`web3d.shaders.page_shaders`);
 - ``path.json``: the scripted fly-through as a path file (:mod:`gicore.path_file`), the cameras the Python
   clients fly; the page computes the matrices, and asks for a light's shadow setup (:func:`shadow_setup`);
 - ``model/``: the ONNX model and its ``model.json`` (input buffers, depth scale, resolution).
@@ -30,32 +31,17 @@ from gicore.geometry import scene_objects
 from gicore.gl.brdf import ETA, TABLE_RES, roughplastic_tables
 from gicore.gl.lod import LOD_RATIOS, mesh_levels
 from gicore.gl.renderer import AREA_SAMPLES, GLRenderer, _closed
-from gicore.gl.shaders import MATERIAL_VEC4S, SCENE_VERTEX, SHADOW_FRAGMENT, SHADOW_VERTEX, scene_fragment
+from gicore.gl.shaders import MATERIAL_VEC4S
 from gicore.gl.shadow import SHADOW_LOD, Bounds, fit_shadow_views, shadow_size_for
 from gicore.path_file import scripted_path, write_path_file
 from gicore.paths import light_bounds, navigation
-from gicore.scene import SceneSpec, load_scene
+from gicore.scene import load_scene
 from gigan_local.inference import DEFAULT_MODEL, read_model_json
+from web3d.shaders import page_shaders, scene_programs
 
 FORMAT = "gigan-web-assets/1"
 #: Floats per vertex: position, normal, albedo, material row (GLRenderer's layout).
 VERTEX_FLOATS = 10
-#: The page's passes: the scene program's defines and the colour attachment of the DI output.
-PASSES: dict[str, tuple[tuple[str, ...], int]] = {
-    "di_gbuffer": (("GBUFFER", "DI"), 4),
-    "di": (("DI",), 0),
-    "uv": (("UV",), 0),
-}
-_ES_HEAD = "#version 300 es\nprecision highp float;\nprecision highp int;\n"
-_ES_SAMPLERS = "precision highp sampler2DShadow;\nprecision highp sampler2D;\n"
-
-
-def to_es(source: str, fragment: bool) -> str:
-    """A ``#version 330 core`` shader as GLSL ES 3.00 (WebGL2): the version line and precision qualifiers."""
-    head, rest = source.lstrip().split("\n", 1)
-    if head.strip() != "#version 330 core":
-        raise ValueError(f"expected a '#version 330 core' shader, got {head!r}")
-    return _ES_HEAD + (_ES_SAMPLERS if fragment else "") + rest
 
 
 def _column_major(m: np.ndarray) -> list[float]:
@@ -67,25 +53,6 @@ def shadow_setup(bounds: list[Bounds], light: np.ndarray, size: int) -> dict[str
     column-major matrices, plain lists."""
     setup = fit_shadow_views(bounds, light, size)
     return setup | {"views": [_column_major(v) for v in setup["views"]], "atlas": list(setup["atlas"])}
-
-
-def _programs(spec: SceneSpec, material_rows: int) -> dict[str, dict[str, str]]:
-    area = spec.light.size > 0
-    programs = {}
-    for name, (defines, di_location) in PASSES.items():
-        for cube in (False, True) if "DI" in defines else (False,):
-            fragment = scene_fragment(
-                *defines,
-                di_location=di_location,
-                area_light=area,
-                cube_shadow=cube,
-                material_rows=material_rows,
-                light_samples=AREA_SAMPLES if area else 1,
-            )
-            key = name + ("_cube" if cube else "")
-            programs[key] = {"vertex": to_es(SCENE_VERTEX, False), "fragment": to_es(fragment, True)}
-    programs["shadow"] = {"vertex": to_es(SHADOW_VERTEX, False), "fragment": to_es(SHADOW_FRAGMENT, True)}
-    return programs
 
 
 def export_assets(
@@ -155,9 +122,10 @@ def export_assets(
         "camera": {"local_fov": c.local_fov, "gi_fov": c.gi_fov, "near": c.near, "far": c.far, "up": [0.0, 1.0, 0.0]},
         "navigation": navigation(spec),
         "shadow_size": shadow_size,
-        "programs": _programs(spec, len(table)),
+        "programs": scene_programs(spec, len(table)),
     }
     (out / "scene.json").write_text(json.dumps(header))
+    (out / "shaders.json").write_text(json.dumps(page_shaders(resolution, config["input"]["buffers"])))
     flown = scripted_path(spec, frames, orbit_frames, seed)
     write_path_file(out / "path.json", flown.scene, flown.frames, flown.source)
 

@@ -22,7 +22,9 @@ from starlette.staticfiles import PathLike, StaticFiles
 from starlette.types import Scope
 
 #: The exported files the page loads (web3d.export), relative to the assets folder.
-ASSET_FILES = frozenset({"scene.json", "scene.bin", "path.json", "model/model.onnx", "model/model.json"})
+ASSET_FILES = frozenset(
+    {"scene.json", "shaders.json", "scene.bin", "path.json", "model/model.onnx", "model/model.json"}
+)
 #: npm folders the page imports, by URL prefix: only these folders of ``web3d/static/node_modules`` are served.
 NPM_ROOTS = {
     "/npm/onnxruntime-web": "onnxruntime-web/dist",

@@ -14,7 +14,8 @@ from gicore.gl.renderer import object_bounds
 from gicore.path_file import read_path_file
 from gicore.paths import DEFAULT_LIGHT_CELL, camera_path, light_position, light_range, path_views
 from gicore.scene import load_scene
-from web3d.export import VERTEX_FLOATS, export_assets, shadow_setup, to_es
+from web3d.export import VERTEX_FLOATS, export_assets, shadow_setup
+from web3d.shaders import encode_writes, to_es
 
 
 @pytest.fixture(scope="module")
@@ -59,7 +60,7 @@ def test_the_programs_are_glsl_es_300_and_the_path_is_the_clients(exported) -> N
     assert "#define PASS_GBUFFER" in header["programs"]["di_gbuffer"]["fragment"]
     assert "#define CUBE_SHADOW" in header["programs"]["di_cube"]["fragment"]
     with pytest.raises(ValueError, match="330 core"):
-        to_es("#version 450\nvoid main() {}", fragment=True)
+        to_es("#version 450\nvoid main() {}")
     assert json.loads((out / "path.json").read_text())["format"] == "gigan-path/1"
     path = read_path_file(out / "path.json", spec)
     views = path_views(spec, 5, 10, 0, spec.camera.local_fov, header["resolution"])
@@ -67,6 +68,27 @@ def test_the_programs_are_glsl_es_300_and_the_path_is_the_clients(exported) -> N
     assert len({light for _, _, light in path.frames}) == 5  # the light moves
     model = json.loads((out / "model" / "model.json").read_text())
     assert (out / "model" / "model.onnx").stat().st_size > 1e6 and model["resolution"] == header["resolution"]
+
+
+def test_the_warp_fill_and_blend_programs_are_the_desktop_sources_as_glsl_es_300(exported) -> None:
+    """shaders.json: every program of the page's warps, hole filling, composition and GIGAN's encoding is a
+    source of gicore/gl/glsl or web3d/glsl with its includes resolved, ported by to_es alone."""
+    from gicore.gl.sources import glsl
+
+    shaders = json.loads((exported[2] / "shaders.json").read_text())
+    assert shaders["format"] == "gigan-web-shaders/1"
+    programs = shaders["programs"]
+    for name, program in programs.items():
+        for stage, source in program.items():
+            assert source.startswith("#version 300 es\nprecision highp float;"), (name, stage)
+            assert "#include" not in source and "#version 330" not in source, (name, stage)
+    assert programs["structure_warp"]["fragment"].endswith(glsl("structure_warp.frag").split("\n", 1)[1])
+    assert programs["pull"]["vertex"] == to_es(glsl("fullscreen.vert"))
+    assert "#define TONEMAP" in programs["compose"]["fragment"]
+    assert 0 < shaders["structure"]["u_step"] and shaders["pixel"]["empty"] > 1e30
+    assert encode_writes(["di", "depth"]) == (1, "o0 = vec4(e_di[0], e_di[1], e_di[2], e_depth[0]);")
+    targets, writes = encode_writes(["di", "albedo", "normal", "depth", "mask"])
+    assert targets == 3 and writes.endswith("o2 = vec4(e_normal[2], e_depth[0], e_mask[0], 0.0);")
 
 
 @pytest.fixture(scope="module")

@@ -1,115 +1,15 @@
 // Cloud baking in the browser: POST /v1/gimap (same origin: gigan-web forwards it to the server or to the
 // network-sim proxy) and decoding, both in a worker (map_worker.js), off the page's thread; pixel-level 3D warp
 // in shaders (baseline_cloudbaking.warp: every texel with a depth unprojected, projected into the local camera
-// and splatted as a z-tested square of its footprint; holes on surfaces filled by gicore.fill's push-pull pyramid
-// over the splats that landed on a surface), then eq. 1's blend.
+// and splatted as a square of its footprint, the nearest point winning; holes on surfaces filled by gicore.fill's
+// push-pull pyramid), then eq. 1's blend. The splat, fill and blend shaders are the desktop GL warp's
+// (baseline_cloudbaking.gl_warp), from shaders.json; they work in image rows, the page's frames have GL's.
 
-import { FULLSCREEN_VERTEX, TONEMAP_GLSL, bindTarget, bindTextures, fullscreen, program, setUniforms, sync, target,
-  texture } from "./glutil.js";
+import { bindTarget, bindTextures, copyFlipped, pass, programs, setUniforms, sync, target, texture } from "./glutil.js";
 import { Blend } from "./blend.js";
+import { PushPull } from "./fill.js";
 
-const SPLAT_VERTEX = `#version 300 es
-precision highp float;
-precision highp int;
-uniform highp sampler2D u_depth;  // the GI camera's linear view depth, rows top-down (0: background)
-uniform highp sampler2D u_gi;     // the 8-bit tone-mapped GI map, rows top-down
-uniform mat4 u_inv_view;          // GI camera: eye -> world
-uniform vec2 u_focal;             // GI camera: proj[0][0], proj[1][1]
-uniform mat4 u_target_vp;         // local camera
-uniform float u_target_focal_px;  // local camera: proj[0][0] * width / 2
-uniform float u_near;
-out vec3 v_gi;
-${TONEMAP_GLSL}
-void main() {
-  ivec2 size = textureSize(u_depth, 0);
-  ivec2 t = ivec2(gl_VertexID % size.x, gl_VertexID / size.x);
-  float d = texelFetch(u_depth, t, 0).r;
-  vec2 ndc = vec2(2.0 * (float(t.x) + 0.5) / float(size.x) - 1.0, 1.0 - 2.0 * (float(t.y) + 0.5) / float(size.y));
-  vec4 world = u_inv_view * vec4(ndc.x * d / u_focal.x, ndc.y * d / u_focal.y, -d, 1.0);
-  vec4 clip = u_target_vp * world;
-  if (d <= 0.0 || clip.w <= u_near) { gl_Position = vec4(2.0, 2.0, 2.0, 1.0); gl_PointSize = 1.0; return; }
-  // footprint: target pixels per source pixel at this point, rounded up (float noise must not make 1 into 2)
-  float scale = d / (u_focal.x * float(size.x) * 0.5) * u_target_focal_px / clip.w;
-  gl_PointSize = max(ceil(scale - 1e-3), 1.0);
-  gl_Position = clip;
-  v_gi = inverse_tonemap(min(texelFetch(u_gi, t, 0).rgb, vec3(254.5 / 255.0)));
-}`;
-
-const SPLAT_FRAGMENT = `#version 300 es
-precision highp float;
-in vec3 v_gi;
-out vec4 o;
-void main() { o = vec4(v_gi, 1.0); }`;
-
-// gicore.fill.push_pull, one pass per pyramid level. Texel (x, y) of a level in the image's row order (row 0 at
-// the top, as numpy's) is GL texel (x, h - 1 - y): the 2x2 blocks and the zero-weight padding of odd sizes fall
-// where push_pull's do. Levels hold colour premultiplied by the weight, the weight in alpha.
-const PYRAMID_GLSL = `
-ivec2 flip(ivec2 t, ivec2 size) { return ivec2(t.x, size.y - 1 - t.y); }  // image rows <-> GL rows
-`;
-
-// Pull: a level from the finer one, weight-normalised 2x2 sums with the weight clipped to 1. From the splat
-// (u_first), the weight is 1 where a point landed on a surface of the local view, else 0.
-const PULL_FRAGMENT = `#version 300 es
-precision highp float;
-precision highp int;
-uniform highp sampler2D u_fine;
-uniform highp sampler2D u_di;  // u_first: the local surface mask in alpha
-uniform bool u_first;
-out vec4 o;
-${PYRAMID_GLSL}
-vec4 fine(ivec2 t, ivec2 size) {
-  if (t.x >= size.x || t.y >= size.y) return vec4(0.0);  // padding
-  ivec2 g = flip(t, size);
-  vec4 c = texelFetch(u_fine, g, 0);
-  if (!u_first) return c;
-  float w = c.a > 0.0 && texelFetch(u_di, g, 0).a > 0.0 ? 1.0 : 0.0;
-  return vec4(c.rgb * w, w);
-}
-void main() {
-  ivec2 size = textureSize(u_fine, 0);
-  ivec2 t = 2 * flip(ivec2(gl_FragCoord.xy), (size + 1) / 2);
-  vec4 s = fine(t, size) + fine(t + ivec2(1, 0), size) + fine(t + ivec2(0, 1), size) + fine(t + ivec2(1, 1), size);
-  float w = min(s.a, 1.0);
-  o = vec4(s.rgb * (w / max(s.a, 1e-12)), w);
-}`;
-
-// Push, coarse to fine: a level's own premultiplied colour plus (1 - weight) x its coarser parent (pixels
-// repeated 2x2, as push_pull's); the coarsest level (u_top) is its colour over its weight.
-const PUSH_FRAGMENT = `#version 300 es
-precision highp float;
-precision highp int;
-uniform highp sampler2D u_pull;
-uniform highp sampler2D u_coarser;
-uniform bool u_top;
-out vec4 o;
-${PYRAMID_GLSL}
-void main() {
-  ivec2 p = ivec2(gl_FragCoord.xy);
-  vec4 c = texelFetch(u_pull, p, 0);
-  if (u_top) { o = vec4(c.rgb / max(c.a, 1e-12), 1.0); return; }
-  ivec2 parent = flip(flip(p, textureSize(u_pull, 0)) / 2, textureSize(u_coarser, 0));
-  o = vec4(c.rgb + (1.0 - c.a) * texelFetch(u_coarser, parent, 0).rgb, 1.0);
-}`;
-
-// The finest level: the splat where a point landed on a surface (alpha 1), its pushed parent elsewhere on
-// surfaces (alpha 0), 0 off them.
-const FILL_FRAGMENT = `#version 300 es
-precision highp float;
-precision highp int;
-uniform highp sampler2D u_splat;
-uniform highp sampler2D u_di;   // alpha: the local surface mask
-uniform highp sampler2D u_coarser;
-out vec4 o;
-${PYRAMID_GLSL}
-void main() {
-  ivec2 p = ivec2(gl_FragCoord.xy);
-  if (texelFetch(u_di, p, 0).a <= 0.0) { o = vec4(0.0); return; }
-  vec4 s = texelFetch(u_splat, p, 0);
-  if (s.a > 0.0) { o = vec4(s.rgb, 1.0); return; }
-  ivec2 parent = flip(flip(p, textureSize(u_splat, 0)) / 2, textureSize(u_coarser, 0));
-  o = vec4(texelFetch(u_coarser, parent, 0).rgb, 0.0);
-}`;
+const PROGRAMS = ["cloud_map", "pixel_splat", "pixel_resolve", "pull", "push"];
 
 function invert(m) {
   // a 4x4 column-major inverse (cofactors)
@@ -173,25 +73,21 @@ const onPageClock = ({ times, ...rest }) =>
   ({ ...rest, ...Object.fromEntries(Object.entries(times).map(([k, t]) => [k, t - performance.timeOrigin])) });
 
 export class CloudSystem {
-  constructor(gl, scene, config) {
+  constructor(gl, scene, config, shaders) {
     this.gl = gl;
     this.scene = scene;
     this.config = config;
     const n = scene.n;
-    this.splatProg = program(gl, SPLAT_VERTEX, SPLAT_FRAGMENT);
-    this.pullProg = program(gl, FULLSCREEN_VERTEX, PULL_FRAGMENT);
-    this.pushProg = program(gl, FULLSCREEN_VERTEX, PUSH_FRAGMENT);
-    this.fillProg = program(gl, FULLSCREEN_VERTEX, FILL_FRAGMENT);
-    this.blender = new Blend(gl);
-    this.splat = target(gl, n, n, [gl.RGBA16F]);
-    this.warped = target(gl, n, n, [gl.RGBA32F], { depth: false });
-    // push-pull levels 1.. (each half the last, rounded up, down to 1x1): the pull's and the push's
-    this.pulled = [];
-    this.pushed = [];
-    for (let size = Math.ceil(n / 2); this.pulled.at(-1)?.w !== 1; size = Math.ceil(size / 2)) {
-      this.pulled.push(target(gl, size, size, [gl.RGBA32F], { depth: false }));
-      this.pushed.push(target(gl, size, size, [gl.RGBA32F], { depth: false }));
-    }
+    this.progs = programs(gl, shaders, PROGRAMS);
+    this.empty = shaders.pixel.empty; // the splat targets' clear value: no point
+    this.blender = new Blend(gl, shaders);
+    const float = (formats) => target(gl, n, n, formats, { depth: false });
+    this.mask = float([gl.RGBA32F]); // the frame's DI, its surface mask in alpha, in image rows
+    this.nearest = float([gl.R32F]);
+    this.index = float([gl.R32F]);
+    this.fill = new PushPull(gl, { pull: this.progs.pull, push: this.progs.push }, n, n);
+    this.warped = float([gl.RGBA32F]); // GL rows, as the frame's DI
+    this.map = null; // the bound map's point cloud: points and colours (cloud_map), image rows
     this.bound = null;
     this.worker = new MapWorker();
   }
@@ -231,11 +127,8 @@ export class CloudSystem {
     const upload = performance.now() - t0;
     const decode = performance.now() - done.arrived;
     const t1 = performance.now();
-    if (this.bound) for (const t of [this.bound.gi, this.bound.depth]) gl.deleteTexture(t);
-    const view = columnMajor(header.view);
     const proj = header.proj;
-    this.bound = { gi, depth: dt, invView: invert(view), focal: [proj[0][0], proj[1][1]], near: header.camera.near, n: w * h,
-      location: done.location };
+    this.bind(gi, dt, invert(columnMajor(header.view)), [proj[0][0], proj[1][1]], done.location);
     const bind = performance.now() - t1;
     const server = header.timings_ms || {};
     const total = server.total ?? 0;
@@ -250,64 +143,63 @@ export class CloudSystem {
     };
   }
 
+  // A map's point cloud and colours drawn from its uploaded textures (cloud_map: the GI camera's eye -> world
+  // `invView`, its `focal` lengths), bound; the textures are deleted.
+  bind(gi, depth, invView, focal, location) {
+    const gl = this.gl;
+    const { w, h } = gi;
+    if (this.map?.w !== w || this.map?.h !== h) this.map = target(gl, w, h, [gl.RGBA32F, gl.RGBA32F], { depth: false });
+    pass(gl, this.progs.cloud_map, this.map, { u_depth: depth, u_gi: gi }, { u_inv_view: invView, u_focal: focal });
+    sync(gl, this.map, 0);
+    gl.deleteTexture(gi);
+    gl.deleteTexture(depth);
+    this.bound = { points: this.map.textures[0], colours: this.map.textures[1], n: w * h, location };
+  }
+
   // Compile and run every per-frame pass once on a blank 1x1 map (SwiftShader compiles on first draw), untimed.
   warmUp(frame, diTarget) {
     const gl = this.gl;
-    const gi = texture(gl, 1, 1, gl.RGBA8);
-    const depth = texture(gl, 1, 1, gl.R32F);
     const identity = new Float32Array([1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1]);
-    this.bound = { gi, depth, invView: identity, focal: [1, 1], near: frame.local.near, n: 1 };
+    this.bind(texture(gl, 1, 1, gl.RGBA8), texture(gl, 1, 1, gl.R32F), identity, [1, 1], null);
     this.warp(frame, diTarget);
     this.blend(diTarget, 0);
-    gl.deleteTexture(gi);
-    gl.deleteTexture(depth);
     this.bound = null;
   }
 
-  // Per frame: splat the bound map into the local camera, fill holes on surfaces (push-pull).
+  // Per frame (baseline_cloudbaking.gl_warp.GLPixelWarp.draw): the bound map splatted into the local camera, its
+  // winners' colours where the frame sees a surface, holes filled by push-pull; into this.warped (GL rows).
   warp(frame, diTarget) {
     const gl = this.gl;
-    const b = this.bound;
-    bindTarget(gl, this.splat);
-    gl.clearColor(0, 0, 0, 0);
-    gl.clearDepth(1);
-    gl.clear(gl.COLOR_BUFFER_BIT | gl.DEPTH_BUFFER_BIT);
-    gl.enable(gl.DEPTH_TEST);
-    gl.depthFunc(gl.LESS);
-    gl.disable(gl.CULL_FACE);
-    gl.useProgram(this.splatProg.p);
-    bindTextures(gl, this.splatProg, { u_depth: [4, b.depth], u_gi: [5, b.gi] });
-    setUniforms(gl, this.splatProg, {
-      u_inv_view: b.invView, u_focal: b.focal, u_target_vp: frame.local.view_proj,
-      u_target_focal_px: frame.local.proj[0] * this.scene.n / 2, u_near: frame.local.near,
-    });
-    gl.drawArrays(gl.POINTS, 0, b.n);
-    this.pushPull(diTarget);
+    copyFlipped(gl, diTarget, 0, this.mask);
+    this.splat(frame);
+    const mask = this.mask.textures[0];
+    pass(gl, this.progs.pixel_resolve, this.fill.level0,
+      { u_index: this.index.textures[0], u_colours: this.bound.colours, u_mask: mask });
+    copyFlipped(gl, this.fill.run(mask), 0, this.warped);
     sync(gl, this.warped, 0);
   }
 
-  // gicore.fill.push_pull of the splat over the local surface mask, into this.warped.
-  pushPull(diTarget) {
+  // The nearest point's depth per pixel, then the smallest index among the points at that depth, each pass
+  // MIN-blended into a target cleared to "no point".
+  splat(frame) {
     const gl = this.gl;
-    const pass = (prog, tgt, textures, uniforms) => {
+    const n = this.scene.n;
+    const prog = this.progs.pixel_splat;
+    gl.disable(gl.DEPTH_TEST);
+    gl.disable(gl.CULL_FACE);
+    gl.enable(gl.BLEND);
+    gl.blendEquation(gl.MIN);
+    for (const [tgt, other, index] of [[this.nearest, this.index, false], [this.index, this.nearest, true]]) {
       bindTarget(gl, tgt);
+      gl.clearBufferfv(gl.COLOR, 0, new Float32Array(4).fill(this.empty));
       gl.useProgram(prog.p);
-      bindTextures(gl, prog, textures);
-      setUniforms(gl, prog, uniforms);
-      fullscreen(gl);
-    };
-    const di = [5, diTarget.textures[0]];
-    this.pulled.forEach((level, i) => {
-      const fine = i === 0 ? this.splat : this.pulled[i - 1];
-      pass(this.pullProg, level, { u_fine: [4, fine.textures[0]], u_di: di }, { u_first: i === 0 });
-    });
-    for (let i = this.pushed.length - 1; i >= 0; i--) {
-      const coarser = this.pushed[i + 1] ?? this.pulled[i]; // the top reads no parent (any texture not drawn to)
-      pass(this.pushProg, this.pushed[i], { u_pull: [4, this.pulled[i].textures[0]], u_coarser: [6, coarser.textures[0]] },
-        { u_top: i === this.pushed.length - 1 });
+      bindTextures(gl, prog, { u_points: [4, this.bound.points], u_nearest: [5, other.textures[0]] });
+      setUniforms(gl, prog, { u_vp: frame.local.view_proj, u_near: frame.local.near,
+        u_focal_px: frame.local.proj[0] * n / 2, u_size: [n, n], u_index: index });
+      gl.drawArraysInstanced(gl.TRIANGLE_STRIP, 0, 4, this.bound.n);
     }
-    pass(this.fillProg, this.warped,
-      { u_splat: [4, this.splat.textures[0]], u_di: di, u_coarser: [6, this.pushed[0].textures[0]] }, {});
+    gl.blendEquation(gl.FUNC_ADD);
+    gl.disable(gl.BLEND);
   }
 
   blend(diTarget, tau) {

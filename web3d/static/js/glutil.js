@@ -1,4 +1,5 @@
-// WebGL2 plumbing shared by both systems: programs, float render targets, a full-screen pass, sync.
+// WebGL2 plumbing shared by both systems: programs (their sources come from web3d.export: scene.json's and
+// shaders.json's), float render targets, a full-screen pass, sync.
 
 export const ATTRIBS = ["in_pos", "in_nrm", "in_mat", "in_uv"];
 
@@ -7,6 +8,8 @@ export function context(canvas) {
   if (!gl) throw new Error("this browser has no WebGL2");
   // float colour attachments (G-buffers, GI maps) and their readback need this extension
   if (!gl.getExtension("EXT_color_buffer_float")) throw new Error("WebGL2 lacks EXT_color_buffer_float");
+  // the pixel-level warp's splat keeps the nearest point with MIN blending on float32 targets
+  if (!gl.getExtension("EXT_float_blend")) throw new Error("WebGL2 lacks EXT_float_blend");
   return gl;
 }
 
@@ -52,6 +55,7 @@ export function texture(gl, w, h, internal, { filter = gl.NEAREST, mips = false 
   const formats = {
     [gl.RGBA32F]: [gl.RGBA, gl.FLOAT],
     [gl.RGBA16F]: [gl.RGBA, gl.HALF_FLOAT],
+    [gl.RG32F]: [gl.RG, gl.FLOAT],
     [gl.R32F]: [gl.RED, gl.FLOAT],
     [gl.RGBA8]: [gl.RGBA, gl.UNSIGNED_BYTE],
     [gl.DEPTH_COMPONENT32F]: [gl.DEPTH_COMPONENT, gl.FLOAT],
@@ -119,22 +123,38 @@ export function sync(gl, t = null, attachment = 0) {
   }
 }
 
-export const FULLSCREEN_VERTEX = `#version 300 es
-void main() {
-  vec2 p = vec2(float((gl_VertexID & 1) * 4 - 1), float((gl_VertexID & 2) * 2 - 1));
-  gl_Position = vec4(p, 0.0, 1.0);
-}`;
-
-// The project's tone map (gicore.tonemap): Reinhard, then display gamma 2.2; and its inverse.
-export const TONEMAP_GLSL = `
-vec3 tonemap(vec3 x) { x = max(x, 0.0); return pow(x / (1.0 + x), vec3(1.0 / 2.2)); }
-vec3 inverse_tonemap(vec3 y) { y = pow(clamp(y, 0.0, 1.0 - 1e-5), vec3(2.2)); return y / (1.0 - y); }
-`;
-
 export function fullscreen(gl) {
   gl.disable(gl.DEPTH_TEST);
   gl.disable(gl.CULL_FACE);
   gl.drawArrays(gl.TRIANGLES, 0, 3);
+}
+
+// The programs `names` of shaders.json's (web3d.shaders.page_shaders), compiled, by name.
+export function programs(gl, shaders, names) {
+  return Object.fromEntries(names.map((name) => {
+    const src = shaders.programs[name];
+    if (!src) throw new Error(`shaders.json has no program ${name}: export the assets again`);
+    return [name, program(gl, src.vertex, src.fragment)];
+  }));
+}
+
+// One full-screen pass of `prog` into `tgt` (null: the canvas): `textures` {uniform: texture} on units 4, 5, ...
+export function pass(gl, prog, tgt, textures, uniforms = {}) {
+  bindTarget(gl, tgt);
+  gl.useProgram(prog.p);
+  bindTextures(gl, prog, Object.fromEntries(Object.entries(textures).map(([k, t], i) => [k, [4 + i, t]])));
+  setUniforms(gl, prog, uniforms);
+  fullscreen(gl);
+}
+
+// Colour attachment `attachment` of target `src` copied into `dst`'s first, upside down: GL's rows (row 0 at the
+// bottom, as the page draws its frames) to image rows (row 0 at the top, as the warps read maps), and back.
+export function copyFlipped(gl, src, attachment, dst) {
+  gl.bindFramebuffer(gl.READ_FRAMEBUFFER, src.fbo);
+  gl.readBuffer(gl.COLOR_ATTACHMENT0 + attachment);
+  gl.bindFramebuffer(gl.DRAW_FRAMEBUFFER, dst.fbo);
+  gl.blitFramebuffer(0, 0, src.w, src.h, 0, dst.h, dst.w, 0, gl.COLOR_BUFFER_BIT, gl.NEAREST);
+  gl.bindFramebuffer(gl.FRAMEBUFFER, null);
 }
 
 export function bindTextures(gl, prog, units) {

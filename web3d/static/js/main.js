@@ -64,13 +64,13 @@ function fillSelect(select, names, value, pick) {
 }
 
 // The cloud pane's side: its system, the profile and store selects, the request URL. Null when the cloud is off.
-function cloudSide(config, gl, scene, loop) {
+function cloudSide(config, gl, scene, shaders, loop) {
   if (!config.profiles?.length) {
     $("cloud-off").hidden = false;
     $("cloud-settings").hidden = true;
     return null;
   }
-  const system = new CloudSystem(gl, scene, config);
+  const system = new CloudSystem(gl, scene, config, shaders);
   const choose = (kind, names) => (name) => {
     if (!names.includes(name)) throw new Error(`set${kind}: ${name} is not one of ${names.join(", ")}`);
     viewer[kind.toLowerCase()] = name;
@@ -164,7 +164,7 @@ function wireInput(page) {
 }
 
 // The page's parts that need no model: both canvases' renderers, the camera and light inputs, the cloud side.
-async function parts(config, scene, bin, path) {
+async function parts(config, scene, shaders, bin, path) {
   const glG = context($("gigan"));
   const glC = context($("cloud"));
   const dbg = glG.getExtension("WEBGL_debug_renderer_info");
@@ -178,7 +178,7 @@ async function parts(config, scene, bin, path) {
   await page.shadows.prefetch([light]);
   page.navigation = new Navigation($("stage"), scene.camera, scene.navigation, first.camera);
   page.lightInput = new LightInput(scene.light_range, light, [$("light-x"), $("light-y")], $("stage"));
-  page.cloud = cloudSide(config, glC, page.sceneC, () => page.loop);
+  page.cloud = cloudSide(config, glC, page.sceneC, shaders, () => page.loop);
   page.loop = new FrameLoop({ viewer, navigation: page.navigation, light: page.lightInput, shadows: page.shadows,
     camera: scene.camera, tau: config.tau, start: { light, setup: page.shadows.get(light) }, fail,
     onFrame: (record, frame) => {
@@ -190,16 +190,16 @@ async function parts(config, scene, bin, path) {
 
 async function main() {
   const config = (viewer.config = await loadConfig());
-  const [scene, path, modelConfig, bin] = await Promise.all([
-    json("/assets/scene.json"), json("/assets/path.json"), json("/assets/model/model.json"),
-    fetch("/assets/scene.bin").then((r) => r.arrayBuffer()),
+  const [scene, shaders, path, modelConfig, bin] = await Promise.all([
+    json("/assets/scene.json"), json("/assets/shaders.json"), json("/assets/path.json"),
+    json("/assets/model/model.json"), fetch("/assets/scene.bin").then((r) => r.arrayBuffer()),
   ]);
-  const page = await parts(config, scene, bin, path);
+  const page = await parts(config, scene, shaders, bin, path);
   const loop = page.loop;
   const frame0 = loop.frameAt(page.navigation.pose());
   const cPane = page.cloud && cloudPane(page.cloud, page.sceneC, config.every);
   const { ort, session } = await openSession(config, viewer.info);
-  const gigan = new GiganSystem(page.glG, page.sceneG, modelConfig, session, ort);
+  const gigan = new GiganSystem(page.glG, page.sceneG, modelConfig, session, ort, shaders);
   const gPane = giganPane(gigan, page.sceneG, config.every);
   loop.panes = [gPane, cPane];
   await warmUp(gigan, gPane, frame0, config.tau);
