@@ -2,6 +2,7 @@
 
     gicore-dataset lung_plane digestive_cornell --out data/ds --train 120 --val 12 --resolution 256
     gicore-dataset lung_plane --out data/ds_gl --renderer gl   # inputs rasterised as the GL client does
+    gicore-dataset --random 200 --seed 3 --out data/random      # 200 randomised scenes (gicore.scene_draws)
 
 One folder per scene under ``--out``. ``--renderer`` picks what renders the inputs (DI + G-buffers): Mitsuba
 (1-spp DI, G-buffers at a random point of each pixel: what the shipped model trained on) or OpenGL
@@ -21,7 +22,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 import numpy as np
 import typer
@@ -52,16 +53,22 @@ from gicore.options import (
     check_fields,
     config_command,
     config_options,
+    extra,
 )
 from gicore.paths import camera_path, frame_seed, light_position
 from gicore.run_config import CLIENT_LOD, open_raster
 from gicore.scene import SceneSpec, load_scene
+from gicore.scene_draws import draw_scenes
 
 if TYPE_CHECKING:
     from gicore.gl import GLRenderer
     from gicore.render import Renderer
 
 app = typer.Typer(add_completion=False, help=__doc__)
+RANDOM_HELP = (
+    "Also render this many randomised scenes (shapes, colours, lights, environments drawn from --seed: "
+    "gicore.scene_draws), one folder each, with their card random_scenes.md/.json in --out"
+)
 #: Validation paths use a different trajectory seed, so they are held out from the training path.
 VAL_SEED_OFFSET = 7919
 
@@ -260,6 +267,7 @@ def dataset_command(
     given: dict[str, Any],
     *,
     scenes: list[str],
+    random: int,
     out: Path,
     executor: str | None,
     ray_address: str | None,
@@ -268,7 +276,10 @@ def dataset_command(
     """Render datasets for the given scenes."""
     cfg = build_config(DatasetConfig, given)
     run_on = build_options(ExecutorOptions, executor=executor, ray_address=ray_address, workers=workers)
+    if not scenes and random == 0:
+        raise UserError("no scenes given", "name built-in scenes or spec files, or ask for --random N scenes")
     specs = [load_scene(name) for name in scenes]  # every spec (and mesh) is checked before any rendering
+    specs += draw_scenes(cfg.seed, random, out) if random else []
     with run_on.open() as pool:
         for spec in specs:
             root = out / spec.name
@@ -286,7 +297,12 @@ config_command(
     DatasetConfig,
     dataset_command,
     extras=[
-        option_groups.scenes_argument(),
+        option_groups.scenes_argument(".toml or .json; none with --random"),
+        extra(
+            "random",
+            Annotated[int, typer.Option("--random", min=0, max=FRAMES_MAX, help=RANDOM_HELP)],
+            0,
+        ),
         option_groups.out("one sub-folder per scene", Path("data/datasets")),
         *config_options(ExecutorOptions),
     ],

@@ -132,9 +132,9 @@ def seed_parameter(note: str) -> inspect.Parameter:
     return extra("seed", Annotated[int, typer.Option("--seed", min=SEED["min"], max=SEED["max"], help=help_text)], 0)
 
 
-def scenes_argument() -> inspect.Parameter:
-    """The scenes as the command's arguments (``gicore-dataset SCENE...``)."""
-    return extra("scenes", Annotated[list[str], typer.Argument(help=with_note(SCENES_HELP, ".toml or .json"))])
+def scenes_argument(note: str = ".toml or .json") -> inspect.Parameter:
+    """The scenes as the command's arguments (``gicore-dataset SCENE...``), none by default."""
+    return extra("scenes", Annotated[list[str], typer.Argument(help=with_note(SCENES_HELP, note))], [])
 
 
 def scene_argument(note: str = "") -> inspect.Parameter:

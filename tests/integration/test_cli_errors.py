@@ -142,7 +142,7 @@ CLIENT = (
 
 CASES = [
     # gicore-dataset: scene specs and meshes are checked before anything renders or is written
-    case("gicore-dataset", "--out", "out", culprit="Missing argument 'scenes'", id="dataset-no-scenes"),
+    case("gicore-dataset", "--out", "out", culprit="no scenes given", id="dataset-no-scenes"),
     case("gicore-dataset", "nope", "--out", "out", culprit="no scene spec 'nope'", id="dataset-unknown-scene"),
     case(
         "gicore-dataset", "broken.toml", "--out", "out", culprit="broken.toml: cannot parse", id="dataset-spec-syntax"
