@@ -84,6 +84,9 @@ class RemoteConfig:
     #: Where requests run: process (a worker process per request slot, as a browser's web worker: the frame
     #: loop never delays them) or thread (in the client's process; what a caller without a frame loop needs).
     fetch: FetcherName = "process"
+    #: Keep an 8-bit codec's map as its display values (:attr:`GIMap.display`) for a warp that decodes them itself
+    #: (a GL warp, on the GPU, as the Web3D page does), instead of turning them into linear radiance on the host.
+    display: bool = False
 
     def __post_init__(self) -> None:
         for name in ("connect_timeout_s", "read_timeout_s", "deadline_s"):
@@ -360,7 +363,7 @@ class RemoteSource:
         record["transmission_ms"] = record["request_ms"] + record["transfer_ms"]
         stages = {s: float(record[f"{s}_ms"]) for s in STAGES if record[f"{s}_ms"] != ""}
         gi = GIMap(payload.camera, payload.gi, payload.depth, payload.di, frame=frame, requested_at=t_request,
-                   arrived_at=arrived, stages=stages)  # fmt: skip
+                   arrived_at=arrived, stages=stages, display=payload.display)  # fmt: skip
         return record, gi, None
 
 

@@ -1,7 +1,8 @@
 """GI-map codecs: one :class:`Codec` protocol, a registry, and the measurement every codec reports.
 
 ``jpeg``, ``webp``, ``avif``, ``png``: 8-bit, through the project's tone map (:func:`gicore.tonemap.tonemap`),
-decoded back through its inverse (a 256-entry table of it: the same bits as the formula, a third of its time);
+decoded back through its inverse (:func:`gicore.tonemap.linear_of_display`: a 256-entry table), or kept as the
+8-bit display values for a GL warp to decode on the GPU (:meth:`Pillow8Bit.decode_display`);
 ``exr-half``: OpenEXR half float; ``zstd-f16``: zstandard on the raw float16
 array; ``jpeg:75`` and the like set an 8-bit codec's quality (:func:`get_codec`). ``Codec.quantize`` is a
 codec's exact domain (a lossless codec decodes to it bit for bit) and ``Codec.max_rmse`` its stated tone-mapped
@@ -22,10 +23,8 @@ import numpy as np
 import zstandard
 
 from gicore.metrics import rmse, ssim
-from gicore.tonemap import inverse_tonemap, tonemap
+from gicore.tonemap import linear_of_display, tonemap
 
-#: The largest display value an 8-bit decode returns: the lower edge of the top bin (see module doc).
-_Y8_MAX = 254.5 / 255.0
 _F16_MAX = float(np.finfo(np.float16).max)
 _SHAPE = struct.Struct("<III")
 #: Bytes of the shape header before a zstd-coded array's compressed bytes (the depth section's, say).
@@ -64,16 +63,6 @@ def _check_map(image: np.ndarray) -> np.ndarray:
     return np.maximum(img, 0.0)
 
 
-def inverse_u8(q: np.ndarray) -> np.ndarray:
-    """The linear value of each 8-bit display value (the tone map's inverse, capped at :data:`_Y8_MAX`)."""
-    return inverse_tonemap(np.minimum(q.astype(np.float32) / 255.0, _Y8_MAX)).astype(np.float32)
-
-
-#: :func:`inverse_u8` of every byte: an 8-bit decode looks its pixels up here (the formula per pixel was most of
-#: a decode's time; each entry is the formula's own result, so the bits are the same).
-_FROM_U8 = inverse_u8(np.arange(256, dtype=np.uint8))
-
-
 @dataclass(frozen=True)
 class Pillow8Bit:
     """An 8-bit Pillow format on the tone-mapped map; ``options`` go to ``Image.save``."""
@@ -88,11 +77,7 @@ class Pillow8Bit:
         return np.rint(tonemap(_check_map(image)) * 255.0).astype(np.uint8)
 
     def quantize(self, image: np.ndarray) -> np.ndarray:
-        return self._from_u8(self._to_u8(image))
-
-    @staticmethod
-    def _from_u8(q: np.ndarray) -> np.ndarray:
-        return np.take(_FROM_U8, q)
+        return linear_of_display(self._to_u8(image))
 
     def encode(self, image: np.ndarray) -> bytes:
         from PIL import Image
@@ -102,6 +87,10 @@ class Pillow8Bit:
         return buf.getvalue()
 
     def decode(self, data: bytes | memoryview) -> np.ndarray:
+        return linear_of_display(self.decode_display(data))
+
+    def decode_display(self, data: bytes | memoryview) -> np.ndarray:
+        """The 8-bit display values (HxWx3 uint8) the bytes hold, not yet turned into linear radiance."""
         from PIL import Image, UnidentifiedImageError
 
         try:
@@ -111,7 +100,7 @@ class Pillow8Bit:
                 q = np.asarray(im if im.mode == "RGB" else im.convert("RGB"))
         except (UnidentifiedImageError, OSError, SyntaxError) as exc:
             raise CodecError(f"{self.name}: cannot decode {len(data)} bytes ({exc})") from None
-        return self._from_u8(q)
+        return q
 
 
 def _half(image: np.ndarray) -> np.ndarray:

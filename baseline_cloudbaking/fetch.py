@@ -147,7 +147,7 @@ def fetch(client: httpx.Client, cfg: RemoteConfig, body: bytes, t_request: float
     try:
         fields, data, t_last = _exchange(client, cfg, body, t_request)
         try:
-            payload = decode_payload(data)
+            payload = decode_payload(data, cfg.display)
         except (PayloadError, CodecError) as exc:
             raise RequestFailed("bad_payload", str(exc)) from None
     except RequestFailed as exc:
@@ -217,17 +217,22 @@ def _warm_up(client: httpx.Client, cfg: RemoteConfig) -> str | None:
     return None
 
 
-#: The arrays a worker hands back, in the order they lie in its shared block: (name, channels).
-_LAYOUT = (("gi", 3), ("di", 3), ("depth", 1))
+#: The arrays a worker hands back, in the order they lie in its shared block: (name, channels, type).
+_LAYOUT = (("gi", 3, np.float32), ("di", 3, np.float32), ("depth", 1, np.float32), ("display", 3, np.uint8))
+
+
+def _block_bytes(resolution: int) -> int:
+    """Bytes of a shared block with room for every array of :data:`_LAYOUT` at ``resolution``."""
+    return sum(resolution * resolution * c * np.dtype(t).itemsize for _, c, t in _LAYOUT)
 
 
 def _views(buffer: mmap.mmap, resolution: int) -> dict[str, np.ndarray]:
-    """Float32 views of each array of :data:`_LAYOUT` in ``buffer`` (flat, room for a map of ``resolution``)."""
+    """Views of each array of :data:`_LAYOUT` in ``buffer`` (flat, room for a map of ``resolution``)."""
     out, offset = {}, 0
-    for name, channels in _LAYOUT:
+    for name, channels, dtype in _LAYOUT:
         n = resolution * resolution * channels
-        out[name] = np.frombuffer(buffer, np.float32, n, offset)
-        offset += 4 * n
+        out[name] = np.frombuffer(buffer, dtype, n, offset)
+        offset += n * np.dtype(dtype).itemsize
     return out
 
 
@@ -263,11 +268,12 @@ def _serve(conn: Connection, cfg: RemoteConfig, path: str, resolution: int) -> N
         reply: dict[str, Any] = {"fields": fetched.fields, "t_last": fetched.t_last, "wait": fetched.retry_after_s}
         p = fetched.payload
         if p is not None:
-            arrays = {"gi": p.gi, "di": p.di, "depth": p.depth}
+            arrays = {"gi": p.gi, "di": p.di, "depth": p.depth, "display": p.display}
             reply |= {"header": p.header, "shapes": {k: None if a is None else a.shape for k, a in arrays.items()}}
             fits = all(a is None or a.size <= views[k].size for k, a in arrays.items())
             if not fits:  # a map larger than the block was made for: the run asked for another resolution
-                reply = {"fields": {"status": "bad_payload", "error": f"a {p.gi.shape} map exceeds {resolution}²"}}
+                error = f"a {p.depth.shape} map exceeds {resolution}²"
+                reply = {"fields": {"status": "bad_payload", "error": error}}
                 reply |= {"t_last": fetched.t_last, "wait": None}
             else:
                 for k, a in arrays.items():
@@ -284,8 +290,7 @@ class ProcessFetcher:
 
     def __init__(self, cfg: RemoteConfig):
         self.cfg = cfg
-        channels = sum(c for _, c in _LAYOUT)
-        self._path, self._buffer = _shared_file(4 * channels * cfg.resolution * cfg.resolution)
+        self._path, self._buffer = _shared_file(_block_bytes(cfg.resolution))
         self._views = _views(self._buffer, cfg.resolution)
         ctx = multiprocessing.get_context("spawn")  # the client's process holds a GL context and threads: no fork
         self._conn, child = ctx.Pipe()
@@ -320,7 +325,7 @@ class ProcessFetcher:
         payload = None
         if reply["fields"]["status"] == "ok":
             arrays = {k: self._copy(k, shape) for k, shape in reply["shapes"].items()}
-            payload = GIMapPayload.of(reply["header"], arrays["gi"], arrays["di"], arrays["depth"])
+            payload = GIMapPayload.of(reply["header"], arrays["gi"], arrays["di"], arrays["depth"], arrays["display"])
             reply["fields"]["handoff_ms"] = (time.perf_counter() - reply["t_decoded"]) * 1e3
         return Fetched(reply["fields"], payload, reply["t_last"], reply["wait"])
 

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from baseline_cloudbaking.codecs import DEPTH_CODEC, get_codec
+from baseline_cloudbaking.codecs import DEPTH_CODEC, Pillow8Bit, get_codec
 from gicore.camera import Camera
 
 MAGIC = b"GIM1"
@@ -92,30 +92,44 @@ def with_header(data: bytes, extra: dict[str, Any], drop: tuple[str, ...] = ()) 
 
 @dataclass(frozen=True)
 class GIMapPayload:
-    """A decoded payload: the GI map and what warping and composition need, at the GI ``camera``."""
+    """A decoded payload: the GI map (``gi`` linear, or ``display``: an 8-bit codec's HxWx3 uint8 values, when
+    asked to keep them) and what warping and composition need, at the GI ``camera``."""
 
     header: dict[str, Any]
     camera: Camera
     view: np.ndarray
     proj: np.ndarray
-    gi: np.ndarray
+    gi: np.ndarray | None
     di: np.ndarray | None
     depth: np.ndarray
+    display: np.ndarray | None = None
 
     @classmethod
-    def of(cls, header: dict[str, Any], gi: np.ndarray, di: np.ndarray | None, depth: np.ndarray) -> GIMapPayload:
-        """A payload from its header and its decoded sections; :class:`PayloadError` when they do not fit the
-        header's camera."""
+    def of(
+        cls,
+        header: dict[str, Any],
+        gi: np.ndarray | None,
+        di: np.ndarray | None,
+        depth: np.ndarray,
+        display: np.ndarray | None = None,
+    ) -> GIMapPayload:
+        """A payload from its header and its decoded sections (``gi`` or ``display``); :class:`PayloadError` when
+        they do not fit the header's camera."""
         try:
             camera = Camera.from_dict(header["camera"])
         except (KeyError, TypeError, ValueError) as exc:
             raise PayloadError(f"payload header is not valid: {exc}") from None
         shape = (camera.height, camera.width)
-        if gi.shape[:2] != shape or depth.shape != shape or (di is not None and di.shape != gi.shape):
-            raise PayloadError(
-                f"sections do not match the {shape[1]}x{shape[0]} camera: gi {gi.shape}, depth {depth.shape}"
-            )
-        return cls(header, camera, np.asarray(header["view"]), np.asarray(header["proj"]), gi, di, depth)
+        image = gi if gi is not None else display
+        if (
+            image is None
+            or image.shape[:2] != shape
+            or depth.shape != shape
+            or (di is not None and di.shape != image.shape)
+        ):
+            got = "no map" if image is None else f"gi {image.shape}"
+            raise PayloadError(f"sections do not match the {shape[1]}x{shape[0]} camera: {got}, depth {depth.shape}")
+        return cls(header, camera, np.asarray(header["view"]), np.asarray(header["proj"]), gi, di, depth, display)
 
     @property
     def hit(self) -> bool | None:
@@ -127,8 +141,9 @@ class GIMapPayload:
         return self.header.get("timings_ms", {})
 
 
-def decode_payload(data: bytes) -> GIMapPayload:
-    """Decode a payload (a server response or a stored file) into arrays and the GI camera."""
+def decode_payload(data: bytes, display: bool = False) -> GIMapPayload:
+    """Decode a payload (a server response or a stored file) into arrays and the GI camera. ``display``: an 8-bit
+    codec's map stays as its display values (``GIMapPayload.display``; a GL warp decodes them on the GPU)."""
     header, sections = unpack(data)
     if "gi" not in sections or "depth" not in sections:
         raise PayloadError(f"payload lacks the gi or depth section; it has {sorted(sections)}")
@@ -137,6 +152,8 @@ def decode_payload(data: bytes) -> GIMapPayload:
     except (KeyError, ValueError) as exc:
         raise PayloadError(f"payload header is not valid: {exc}") from None
     # the codecs read the sections where they lie in ``data`` (no copies); a CodecError (a ValueError) names the codec
-    gi = codec.decode(sections["gi"])
     di = codec.decode(sections["di"]) if "di" in sections else None
-    return GIMapPayload.of(header, gi, di, DEPTH_CODEC.decode(sections["depth"]))
+    depth = DEPTH_CODEC.decode(sections["depth"])
+    if display and isinstance(codec, Pillow8Bit):
+        return GIMapPayload.of(header, None, di, depth, codec.decode_display(sections["gi"]))
+    return GIMapPayload.of(header, codec.decode(sections["gi"]), di, depth)

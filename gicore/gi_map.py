@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from gicore.camera import Camera
+from gicore.tonemap import linear_of_display
 
 if TYPE_CHECKING:
     from gicore.render import Renderer
@@ -27,31 +28,46 @@ class GIMap:
     """A GI map at its GI ``camera`` (whose ``view()``/``proj()`` are the OpenGL matrices the warps use),
     with what warping and composition need, and when it was asked for and arrived.
 
-    ``radiance``: linear GI, HxWxC (C = 3 for real maps); ``depth``: linear view depth at texel centres,
-    HxW, 0 = background; ``di``: the direct illumination the map was made with at the same camera
-    (HxWxC), or None when the source did not send it (then :attr:`indirect` is unavailable);
+    ``linear``: linear GI, HxWxC (C = 3 for real maps), or None when the map arrived as ``display`` only: its
+    8-bit tone-mapped values (HxWx3 uint8, as an 8-bit codec carries them), which a GL warp uploads and decodes
+    on the GPU; :attr:`radiance` is the linear GI either way (from ``display`` on first use). ``depth``: linear
+    view depth at texel centres, HxW, 0 = background; ``di``: the direct illumination the map was made with at
+    the same camera (HxWxC), or None when the source did not send it (then :attr:`indirect` is unavailable);
     ``frame``: the frame that requested it; ``requested_at`` / ``arrived_at``: ``time.perf_counter()``
     stamps; ``stages``: what producing it cost, ms per stage (the source's :attr:`GISource.stages`).
     """
 
     camera: Camera
-    radiance: np.ndarray
+    linear: np.ndarray | None
     depth: np.ndarray
     di: np.ndarray | None = None
     frame: int = -1
     requested_at: float = 0.0
     arrived_at: float = 0.0
     stages: Timings = field(default_factory=dict)
+    display: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         shape = (self.camera.height, self.camera.width)
-        if self.radiance.ndim != 3 or self.radiance.shape[:2] != shape or self.depth.shape != shape:
+        image = self.linear if self.linear is not None else self.display
+        if image is None:
+            raise ValueError("a GI map needs its linear GI or its 8-bit display values")
+        if self.display is not None and (self.display.dtype != np.uint8 or self.display.shape[2:] != (3,)):
             raise ValueError(
-                f"GI map {self.radiance.shape} and depth {self.depth.shape} must be {shape[0]}x{shape[1]}(xC)"
+                f"a GI map's display values are HxWx3 uint8, got {self.display.dtype} {self.display.shape}"
+            )
+        if image.ndim != 3 or image.shape[:2] != shape or self.depth.shape != shape:
+            raise ValueError(
+                f"GI map {image.shape} and depth {self.depth.shape} must be {shape[0]}x{shape[1]}(xC)"
                 " like the GI camera"
             )
-        if self.di is not None and self.di.shape != self.radiance.shape:
-            raise ValueError(f"the GI map's DI is {self.di.shape}, its radiance {self.radiance.shape}")
+        if self.di is not None and self.di.shape != image.shape:
+            raise ValueError(f"the GI map's DI is {self.di.shape}, its radiance {image.shape}")
+
+    @cached_property
+    def radiance(self) -> np.ndarray:
+        """The linear GI, HxWxC: ``linear``, or ``display`` decoded (computed once, on first use)."""
+        return self.linear if self.linear is not None else linear_of_display(self.display)
 
     @cached_property
     def indirect(self) -> np.ndarray:

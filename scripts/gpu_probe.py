@@ -66,12 +66,13 @@ def gpu_decode(data: bytes, repeats: int) -> dict[str, Any]:
     import torchvision.io
     import zstandard
 
-    from baseline_cloudbaking.codecs import _FROM_U8, ARRAY_HEADER_BYTES
+    from baseline_cloudbaking.codecs import ARRAY_HEADER_BYTES
     from baseline_cloudbaking.protocol import decode_payload, unpack
+    from gicore.tonemap import LINEAR_OF_U8
 
     _, sections = unpack(data)
     jpeg = torch.frombuffer(bytearray(sections["gi"]), dtype=torch.uint8)
-    table = torch.from_numpy(_FROM_U8).cuda()
+    table = torch.from_numpy(LINEAR_OF_U8).cuda()
     sync = torch.cuda.synchronize
 
     def jpeg_on_gpu() -> torch.Tensor:
@@ -90,7 +91,7 @@ def gpu_decode(data: bytes, repeats: int) -> dict[str, Any]:
 
     cpu = decode_payload(data)
     gi, depth = jpeg_on_gpu().cpu().numpy(), depth_on_gpu().cpu().numpy()
-    steps = np.abs(np.searchsorted(_FROM_U8, gi) - np.searchsorted(_FROM_U8, cpu.gi)).max()
+    steps = np.abs(np.searchsorted(LINEAR_OF_U8, gi) - np.searchsorted(LINEAR_OF_U8, cpu.gi)).max()
     return {
         "cpu_decode": timed(lambda: decode_payload(data), repeats),
         "gpu_jpeg": timed(jpeg_on_gpu, repeats, sync),

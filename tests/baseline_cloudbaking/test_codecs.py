@@ -208,13 +208,28 @@ def test_malformed_payloads_are_payload_errors(baked: BakedMap) -> None:
 def test_8bit_decode_by_table_equals_the_inverse_tone_map_bit_for_bit() -> None:
     """The 8-bit codecs look each byte's linear value up in a table: the same float32 bits as the formula, for every
     byte, in any position of an array of any shape (a vectorised kernel's lanes and tail alike)."""
-    from baseline_cloudbaking.codecs import Pillow8Bit, inverse_u8
+    from gicore.tonemap import inverse_u8, linear_of_display
 
     rng = np.random.default_rng(4)
     for shape in ((256,), (257, 131, 3), (1, 1, 3)):
         q = rng.integers(0, 256, shape, dtype=np.uint8)
-        assert np.array_equal(Pillow8Bit._from_u8(q).view(np.uint32), inverse_u8(q).view(np.uint32))
+        assert np.array_equal(linear_of_display(q).view(np.uint32), inverse_u8(q).view(np.uint32))
     every = np.arange(256, dtype=np.uint8)
-    assert np.array_equal(Pillow8Bit._from_u8(every).view(np.uint32), inverse_u8(every).view(np.uint32))
+    assert np.array_equal(linear_of_display(every).view(np.uint32), inverse_u8(every).view(np.uint32))
     assert inverse_u8(every)[0] == 0.0 and np.all(np.diff(inverse_u8(every)) > 0)  # monotone, finite
     assert np.isfinite(inverse_u8(every)).all()
+
+
+def test_8bit_codecs_hand_their_display_values_over_as_they_decode_them() -> None:
+    """``decode_display`` is ``decode`` before the inverse tone map: a GL warp that decodes on the GPU starts from
+    the same bytes the host decode turns into radiance."""
+    from baseline_cloudbaking.codecs import get_codec
+    from gicore.tonemap import linear_of_display
+
+    image = np.random.default_rng(5).uniform(0.0, 4.0, (16, 24, 3)).astype(np.float32)
+    for name in ("jpeg", "png", "webp"):
+        codec = get_codec(name)
+        data = codec.encode(image)
+        display = codec.decode_display(data)
+        assert display.dtype == np.uint8 and display.shape == image.shape
+        assert np.array_equal(linear_of_display(display), codec.decode(data))

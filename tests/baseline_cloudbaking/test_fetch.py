@@ -14,6 +14,7 @@ import pytest
 
 from baseline_cloudbaking.client import RemoteConfig, RemoteSource
 from baseline_cloudbaking.fetch import ProcessFetcher, ThreadFetcher
+from gicore.gi_map import GIMap
 from gicore.paths import path_views
 from gicore.scene import load_scene
 from tests.helpers.cloud import RES, SPP, server_process, write_scenes
@@ -54,6 +55,27 @@ def test_a_worker_process_hands_back_the_arrays_a_thread_decodes(server) -> None
     assert theirs.payload.camera == mine.payload.camera
     assert theirs.fields["handoff_ms"] >= 0 and theirs.t_last <= time.perf_counter()
     assert _shared_files() <= before  # the shared block's file is gone once the worker mapped it
+
+
+def test_display_maps_come_back_as_their_8bit_values_and_decode_to_the_same_radiance(server) -> None:
+    """A client whose warp decodes on the GPU asks for display values: the worker hands back the 8-bit map (no
+    linear copy of it), and the GI map's radiance, decoded from it on first use, equals the host decode's."""
+    url, camera, light = server
+    linear_cfg = RemoteConfig(url, "ball_moving", RES, "jpeg", SPP)
+    display_cfg = RemoteConfig(url, "ball_moving", RES, "jpeg", SPP, display=True)
+    body = linear_cfg.body(camera, light)
+    fetchers = [ThreadFetcher(linear_cfg), ProcessFetcher(display_cfg), ThreadFetcher(display_cfg)]
+    try:
+        fetchers[1].ready()
+        fetchers[0].fetch(body, time.perf_counter())  # the first may miss: then all read the stored map
+        linear, *displays = (f.fetch(body, time.perf_counter()).payload for f in fetchers)
+    finally:
+        for f in fetchers:
+            f.close()
+    for payload in displays:
+        assert payload.gi is None and payload.display.dtype == np.uint8 and payload.display.shape == (RES, RES, 3)
+        gi = GIMap(payload.camera, payload.gi, payload.depth, payload.di, display=payload.display)
+        assert np.array_equal(gi.radiance, linear.gi) and np.array_equal(payload.depth, linear.depth)
 
 
 def test_a_failed_request_is_a_status_and_a_dead_worker_ends_its_request(server) -> None:
