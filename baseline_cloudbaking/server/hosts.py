@@ -3,8 +3,8 @@
 A page from another site can make the browser send requests to a server on this machine by having its own name
 resolve to 127.0.0.1 (DNS rebinding); the request then names that site in ``Host``. :class:`HostCheck` answers
 400 to a request whose ``Host`` names no address or name of this server (:func:`allowed_hosts`), or, where the
-server knows the port the browser reaches (gigan-web), another port. A bracketed IPv6 address (``[::1]:8080``)
-is a name like any other.
+server knows the port the browser reaches (gigan-web), another port, and to one with no ``Host`` or two. A
+bracketed IPv6 address (``[::1]:8080``) is a name like any other.
 """
 
 from __future__ import annotations
@@ -70,11 +70,11 @@ class HostCheck:
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] == "http":
-            given = Headers(scope=scope).get("host", "")
-            host = parse_host(given)
+            given = Headers(scope=scope).getlist("host")
+            host = parse_host(given[0]) if len(given) == 1 else None  # two: HTTP/1.1 says 400, not which to trust
             wrong_port = self.port is not None and host is not None and host[1] not in (None, self.port)
             if host is None or host[0] not in self.names or wrong_port:
-                msg = f"Host {given!r} does not name this server: open it by its address"
+                msg = f"Host {', '.join(given)!r} does not name this server: open it by its address"
                 await PlainTextResponse(msg, status_code=400)(scope, receive, send)
                 return
         await self.app(scope, receive, send)

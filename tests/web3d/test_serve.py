@@ -5,6 +5,7 @@ the Host check, every response cross-origin isolated, /config.json and /v1/shado
 from __future__ import annotations
 
 import json
+import socket
 from pathlib import Path
 
 import httpx
@@ -96,6 +97,12 @@ def test_the_host_header_must_name_this_server(web: WebServer) -> None:
         assert get(web, "/config.json", headers={"Host": host}).status_code == 400, host
     for host in ("localhost:0", f"127.0.0.1:{port + 1}", "localhost:", "[127.0.0.1]", "127.0.0.1:x", ""):
         assert get(web, "/config.json", headers={"Host": host}).status_code == 400, host
+    # a second Host is not looked past: HTTP/1.1 answers a request with two 400, whichever comes first
+    for hosts in ((f"127.0.0.1:{port}", "attacker.example"), ("attacker.example", f"127.0.0.1:{port}")):
+        head = "GET /config.json HTTP/1.1\r\n" + "".join(f"Host: {h}\r\n" for h in hosts) + "Connection: close\r\n\r\n"
+        with socket.create_connection(web.socket.getsockname()[:2], timeout=60) as sock:
+            sock.sendall(head.encode())
+            assert sock.recv(12) == b"HTTP/1.1 400", hosts
 
 
 @pytest.mark.skipif(not IPV6, reason="this machine has no IPv6 loopback")
