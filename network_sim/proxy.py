@@ -229,7 +229,8 @@ class _Pipe:
         if not never and (self.pending or self.waiting):
             return
         if not never and self.dst.transport is not None and not self.dst.lost and self.dst.transport.can_write_eof():
-            self.dst.transport.write_eof()
+            with suppress(OSError):  # the receiver reset and its connection_lost is yet to come: it ends the pipe
+                self.dst.transport.write_eof()
         self.discard()
         self.done = True
         self.proxy.connection_step(self.src.conn)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import asyncio
 import os
+import signal
 import socket
 import struct
 import sys
@@ -277,6 +278,20 @@ def test_an_upstream_that_connects_after_its_client_left_is_closed() -> None:
         return late
 
     assert asyncio.run(run()).closed
+
+
+def test_clients_that_leave_before_their_answer_cost_no_traceback(upstream: tuple[str, int]) -> None:
+    """Clients that send, half-close and leave at once: the answer and the EOF the proxy then forwards meet a reset
+    socket, which ends that connection quietly, and the proxy serves on."""
+    with proxy(upstream, "--delay-ms", "5") as running:
+        for _ in range(20):
+            with socket.create_connection(running.addr, timeout=TIMEOUT) as sock:
+                sock.sendall(b"E" + b"x" * 1000)
+                sock.shutdown(socket.SHUT_WR)
+        assert echoes(running.addr)  # released after theirs on the shared link: they have been written by then
+        running.proc.send_signal(signal.SIGTERM)
+        assert running.proc.wait(TIMEOUT) == 0
+        assert "Traceback" not in running.stderr(), running.stderr()
 
 
 # -- rates: 0 is a dead link; a positive rate too small to ever finish a chunk is refused ------------------------
