@@ -10,7 +10,7 @@ import math
 import sys
 import time
 from collections.abc import Iterable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
@@ -28,8 +28,12 @@ from gicore.gi_map import GIMap
 from gicore.run_config import PathRunConfig
 
 if TYPE_CHECKING:
+    from baseline_cloudbaking.gl_warp import GLPixelWarp
+    from baseline_cloudbaking.warp import PixelWarp
     from gicore.path_file import PathFile
     from gicore.paths import Light
+    from gicore.render import Renderer
+    from gicore.scene import SceneSpec
 
 #: Columns of ``requests.csv``: a request's record, then what the frame that bound its map spent on it.
 REQUEST_COLUMNS = (*RECORD_COLUMNS, "bound_frame", "di_ms", "bind_ms", "warp_ms", "blend_ms", "total_ms")
@@ -171,6 +175,25 @@ class CloudClientConfig(PathRunConfig):
         )  # fmt: skip
 
 
+def open_cloud_warp(
+    spec: SceneSpec, raster: str, resolution: int, composition: str, renderer: Renderer | None,
+    backend: str = "auto", warn: bool = False,
+) -> tuple[Any, str, PixelWarp | GLPixelWarp]:  # fmt: skip
+    """The cloud client's raster renderer (``--renderer raster``; ``renderer``, Mitsuba's, where GL does not open),
+    the name of the one that opened, and its warp of the ``composition``'s layer on ``--warp-backend backend``
+    (:func:`gicore.gl.frame.warp_backend`). The warp's ``takes_display`` says whether the client asks for 8-bit
+    maps as display values (the GL warp decodes them on the GPU)."""
+    from baseline_cloudbaking.gl_warp import GLPixelWarp
+    from baseline_cloudbaking.warp import PixelWarp
+    from gicore.gi_map import LAYERS
+    from gicore.gl.frame import open_client_raster, warp_backend
+
+    opened, used = open_client_raster(raster, spec, resolution, renderer)
+    layer = LAYERS[composition]
+    warp = GLPixelWarp(opened, layer) if warp_backend(backend, used, warn=warn) == "gl" else PixelWarp(layer)
+    return opened, used, warp
+
+
 def run_client(
     cfg: CloudClientConfig, server: str, tolerance: ServerInfo, flown: PathFile | None = None
 ) -> tuple[list[dict[str, Any]], list[dict[str, Any]], str]:
@@ -186,19 +209,16 @@ def run_client(
     source decides (:class:`RequestPolicy`). Each row also has :data:`PERCEIVED_COLUMNS`
     (:func:`perceived_latency`).
     """
-    from baseline_cloudbaking.gl_warp import GLPixelWarp
-    from baseline_cloudbaking.warp import PixelWarp
-    from gicore.gi_map import LAYERS
-    from gicore.gl.frame import open_client_raster, warp_backend
     from gicore.loop import ClientLoop, FrameResult, LoopConfig, run_frames
     from gicore.path_file import flown_path
     from gicore.render import Renderer
     from gicore.scene import load_scene
 
     spec = load_scene(cfg.scene)
-    remote = cfg.remote(server, spec.light.moves)
     renderer = Renderer(spec, cfg.resolution)
-    raster, used = open_client_raster(cfg.renderer, spec, cfg.resolution, renderer)
+    raster, used, warp = open_cloud_warp(spec, cfg.renderer, cfg.resolution, cfg.composition, renderer,
+                                         cfg.warp_backend, warn=True)  # fmt: skip
+    remote = replace(cfg.remote(server, spec.light.moves), display=warp.takes_display)
     policy = cfg.policy(tolerance)
     held = policy.tolerance is not None
     loop_cfg = LoopConfig(
@@ -216,8 +236,6 @@ def run_client(
         # holds it, and gives it up only every switch interval (5 ms by default): ask for 0.5 ms
         sys.setswitchinterval(min(sys.getswitchinterval(), 0.0005))
     with RemoteSource(remote, policy) as source:
-        on_gl = warp_backend(cfg.warp_backend, used, warn=True) == "gl"
-        warp = GLPixelWarp(raster, LAYERS[cfg.composition]) if on_gl else PixelWarp(LAYERS[cfg.composition])
         loop = ClientLoop(loop_cfg, raster, source, warp)
 
         def keep(frame: int, result: FrameResult) -> None:

@@ -3,10 +3,12 @@ bound map's point cloud is splatted into the frame and its holes are filled by a
 frame's surface mask (the DI target's alpha) read where the renderer drew it (docs/architecture.md,
 Pixel-level warping).
 
-Per map, :meth:`GLPixelWarp.bind` builds the numpy warp's :class:`~baseline_cloudbaking.warp.PointCloud` and
-uploads its points (one instance each) and colours as textures: the map arrives decoded in host memory either
-way (the Web3D page unprojects its maps in a shader into the same texture layout). Per frame, with the sources
-of :mod:`gicore.gl.sources` that the page draws too:
+Per map, :meth:`GLPixelWarp.bind` uploads the map and its depth and draws the numpy warp's
+:class:`~baseline_cloudbaking.warp.PointCloud` on the GPU (``pixel_cloud.frag``, as the Web3D page does): a
+point and a colour per texel, background texels pointless. A map that arrived as an 8-bit codec's display values
+(:attr:`gicore.gi_map.GIMap.display`) is uploaded as bytes and decoded there by the host decode's own table, so
+neither the decode nor the bind turns it into linear radiance on the host. Per frame, with the sources of
+:mod:`gicore.gl.sources` that the page draws too:
 
 1. **splat**: each point is projected as the numpy warp projects it and drawn as its ``k x k`` square, a quad
    whose corners lie on pixel edges (so every covered pixel centre is half a pixel inside it), clipped to the
@@ -24,7 +26,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from baseline_cloudbaking.warp import FOOTPRINT_EPS, MAX_FOOTPRINT, PointCloud
+from baseline_cloudbaking.warp import FOOTPRINT_EPS, MAX_FOOTPRINT
 from gicore.camera import Camera
 from gicore.gi_map import LAYERS, GIMap, Timings
 from gicore.gl.fill import PushPull
@@ -33,6 +35,7 @@ from gicore.gl.passes import Pass, Target, upload
 from gicore.gl.shaders import mat_bytes
 from gicore.gl.sources import glsl
 from gicore.timing import Stopwatch
+from gicore.tonemap import LINEAR_OF_U8
 
 if TYPE_CHECKING:
     from gicore.gl.renderer import GLRenderer
@@ -48,7 +51,7 @@ DEFINES = {"MAX_FOOTPRINT": MAX_FOOTPRINT, "FOOTPRINT_EPS": FOOTPRINT_EPS, "EMPT
 
 class GLPixelWarp(ShaderWarp):
     """Pixel-level warping in GL passes on ``renderer`` (a :class:`gicore.gl.GLRenderer`), the cloud-baking
-    client's warp with ``--warp-backend gl``: :meth:`bind` a map's point cloud once, then
+    client's warp with ``--warp-backend gl``: :meth:`bind` a map's point cloud once (drawn on the GPU), then
     :meth:`~gicore.gl.frame.ShaderWarp.frame` composes each frame (module docstring)."""
 
     name = "pixel"
@@ -61,38 +64,62 @@ class GLPixelWarp(ShaderWarp):
         super().__init__(renderer)
         self.layer = layer
         ctx, n = self.ctx, renderer.resolution
+        self._cloud = {shown: Pass(ctx, glsl("pixel_cloud.frag", {"DISPLAY": None} if shown else {}))
+                       for shown in (False, True)}  # fmt: skip
+        self._linear_of_u8 = upload(ctx, LINEAR_OF_U8[None, :])
         self._splat = Pass(ctx, glsl("pixel_splat.frag"), glsl("pixel_splat.vert", DEFINES))
         self._resolve = Pass(ctx, glsl("pixel_resolve.frag", DEFINES))
         self._nearest, self._index = Target.make(ctx, n, n, 1), Target.make(ctx, n, n, 1)
         self._fill = PushPull(ctx, n, n)
-        self.cloud: PointCloud | None = None
-        self._points: Any = None
-        self._colours: Any = None
+        self._map: tuple[Target, Target, Any] | None = None  # points, colours, the framebuffer drawing both
+        self._inputs: dict[str, Any] = {}  # the bound map's uploaded textures
+        self.n_points = 0  # texels of the bound map (the splat's instances); 0: none bound
+
+    @property
+    def takes_display(self) -> bool:
+        """Whether maps may come as 8-bit display values (:attr:`GIMap.display`): this warp decodes them itself,
+        on the GPU, where it brings the map's radiance (its indirect part is made on the host)."""
+        return self.layer == "radiance"
 
     def bind(self, gi: GIMap) -> Timings:
-        """Per GI map: the numpy warp's point cloud, its points and colours uploaded (point i at texel
-        (i % width, i / width), as the splat and the resolve read them)."""
+        """Per GI map: the map and its depth uploaded, and its point cloud drawn from them (module docstring)."""
         sw = Stopwatch()
-        cloud = PointCloud(gi.layer(self.layer), gi.depth, gi.camera)
-        n_points = cloud.points.shape[1]
-        if cloud.channels != 3 or n_points >= MAX_POINTS:
-            raise ValueError(f"the GL warp takes a 3-channel map of fewer than {MAX_POINTS} points")
-        width = gi.camera.width
-        rows = np.zeros((-(-max(n_points, 1) // width) * width, 7), np.float32)  # a texture is never empty
-        rows[:n_points, :3], rows[:n_points, 3] = cloud.points[:3].T, cloud.src_depth_over_focal
-        rows[:n_points, 4:] = cloud.colours
-        self._points = upload(self.ctx, rows[:, :4].reshape(-1, width, 4))
-        self._colours = upload(self.ctx, rows[:, 4:].reshape(-1, width, 3))
-        self.cloud = cloud
-        self.ctx.finish()
+        ctx, (h, w) = self.ctx, gi.depth.shape
+        if h * w >= MAX_POINTS:
+            raise ValueError(f"the GL warp takes maps of fewer than {MAX_POINTS} texels, got {w}x{h}")
+        shown = gi.display is not None and self.takes_display
+        if shown:
+            image = ctx.texture((w, h), 3, np.ascontiguousarray(gi.display), dtype="f1")  # texel = byte / 255
+        else:
+            image = upload(ctx, gi.layer(self.layer))
+        if self._map is None or self._map[0].size != (w, h):
+            points, colours = Target.make(ctx, w, h, 4), Target.make(ctx, w, h, 4)
+            self._map = (points, colours, ctx.framebuffer([points.texture, colours.texture]))
+        for texture in self._inputs.values():
+            texture.release()
+        self._inputs = {"u_depth": upload(ctx, gi.depth), "u_gi": image}
+        camera = gi.camera
+        uniforms = {"u_inv_view": mat_bytes(np.linalg.inv(camera.view())),
+                    "u_focal": tuple(float(np.float32(v)) for v in camera.proj()[[0, 1], [0, 1]])}  # fmt: skip
+        both = Target(self._map[0].texture, self._map[2], 4)
+        self._cloud[shown].draw(both, self._inputs | {"u_linear_of_u8": self._linear_of_u8}, uniforms)
+        self.n_points = w * h
+        ctx.finish()
         sw.lap("bind")
         return sw.ms
 
+    def drawn_points(self) -> np.ndarray:
+        """The bound map's point cloud as the GPU drew it, read back: per texel (image rows) world x, y, z and the
+        pixel's world size over its depth (all 0: background), for comparing with the numpy warp's (tests)."""
+        if self._map is None:
+            raise RuntimeError("no GI map is bound; call bind() first")
+        return self._map[0].read().reshape(-1, 4)
+
     def draw(self, camera: Camera, textures: dict[str, Any], sw: Stopwatch) -> Target:
-        if self.cloud is None:
+        if self._map is None or not self.n_points:
             raise RuntimeError("no GI map is bound; call bind() first")
         self._draw_splat(camera)
-        inputs = {"u_index": self._index.texture, "u_colours": self._colours, "u_mask": textures["di"]}
+        inputs = {"u_index": self._index.texture, "u_colours": self._map[1].texture, "u_mask": textures["di"]}
         self._resolve.draw(self._fill.level0, inputs)
         self.lap(sw, "splat")
         filled = self._fill.run(mask=textures["di"])
@@ -109,13 +136,13 @@ class GLPixelWarp(ShaderWarp):
             "u_focal_px": float(f32(camera.proj()[0, 0] * camera.width / 2.0)),
             "u_size": (float(camera.width), float(camera.height)),
         }
-        n_points = self.cloud.points.shape[1]
+        n_points = self.n_points
         ctx.enable(ctx.BLEND)
         ctx.blend_equation = ctx.MIN
         for target, index in ((self._nearest, False), (self._index, True)):
             target.fbo.clear(EMPTY, EMPTY, EMPTY, EMPTY)
             if n_points:
-                inputs = {"u_points": self._points} | ({"u_nearest": self._nearest.texture} if index else {})
+                inputs = {"u_points": self._map[0].texture} | ({"u_nearest": self._nearest.texture} if index else {})
                 self._splat.draw(target, inputs, uniforms | {"u_index": index}, self._splat.vao,
                                  mode=ctx.TRIANGLE_STRIP, vertices=4, instances=n_points)  # fmt: skip
         ctx.blend_equation = ctx.FUNC_ADD

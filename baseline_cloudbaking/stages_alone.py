@@ -7,7 +7,8 @@ be set beside its cost alone (their ratio, the inflation, is what the client's p
 - :func:`local_alone`: the maps received composed along the path by the client's own loop, fed by a source that
   hands them over at once (``di``, ``warp``, ``blend``);
 - :func:`decode_floor`: the libraries' floor of a decode, Pillow's decode of the map section plus zstandard's of
-  the depth section, beside the client's own decode of the same bytes.
+  the depth section, beside the client's own decodes of the same bytes (to linear radiance, and to display
+  values for a GL warp).
 
 ``bench latency`` runs them, pinned to the clients' cores, beside GIGAN's loop.
 """
@@ -18,14 +19,14 @@ import io
 import time
 from dataclasses import replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
 from baseline_cloudbaking.client import PathRequests, RemoteConfig, RemoteSource
 from baseline_cloudbaking.client_run import REQUEST_STAGES
 from gicore.gi_map import GIMap
-from gicore.loop import SynchronousSource
+from gicore.loop import SynchronousSource, Warp
 
 if TYPE_CHECKING:
     from gicore.camera import Camera
@@ -69,15 +70,16 @@ class ReplaySource(SynchronousSource):
 
 
 def requests_alone(
-    url: str, scene: str, spec: SceneSpec, cfg: AloneRuns, views: list[tuple[Camera, Light]]
+    url: str, scene: str, spec: SceneSpec, cfg: AloneRuns, views: list[tuple[Camera, Light]], display: bool = False
 ) -> tuple[Samples, list[GIMap]]:
     """Ask ``url`` for the GI view of every k-th frame, one request at a time in a thread of this process (nothing
     else runs), each when the loop's frame would ask it: the stage samples of the served requests
     (:data:`CLOUD_ALONE`'s network and server stages, ``transmission``, and the request's latency as
-    ``round_trip``) and the maps received."""
+    ``round_trip``) and the maps received; ``display``: 8-bit maps kept as display values, as a client whose warp
+    decodes them (:attr:`RemoteConfig.display`)."""
     remote = RemoteConfig(url, Path(scene).stem, cfg.resolution, cfg.codec, cfg.spp, cfg.composition == "residual",
                           spec.light.moves, read_timeout_s=cfg.read_timeout_s, deadline_s=2 * cfg.read_timeout_s,
-                          retry_after_s=0.0, fetch="thread")  # fmt: skip
+                          retry_after_s=0.0, fetch="thread", display=display)  # fmt: skip
     maps: list[GIMap] = []
     with RemoteSource(remote) as source:
         source.warm_up(*views[0])
@@ -103,20 +105,13 @@ def requests_alone(
 
 
 def local_alone(
-    spec: SceneSpec, cfg: AloneRuns, renderer: str, views: list[tuple[Camera, Light]], maps: list[GIMap]
+    spec: SceneSpec, cfg: AloneRuns, views: list[tuple[Camera, Light]], maps: list[GIMap], raster: Any, warp: Warp
 ) -> Samples:
-    """The cloud client's loop along the path with ``maps`` handed over every k frames: per bound map, ``di``,
-    ``warp`` (bind + the warp's stages) and ``blend`` (the composition); frames at the loop's pace."""
-    from baseline_cloudbaking.gl_warp import GLPixelWarp
-    from baseline_cloudbaking.warp import PixelWarp
-    from gicore.gi_map import LAYERS
-    from gicore.gl.frame import open_client_raster, warp_backend
+    """The cloud client's loop along the path on ``raster`` with ``warp`` (those of
+    :func:`baseline_cloudbaking.client_run.open_cloud_warp`) and ``maps`` handed over every k frames: per bound
+    map, ``di``, ``warp`` (bind + the warp's stages) and ``blend`` (the composition); frames at the loop's pace."""
     from gicore.loop import ClientLoop, LoopConfig, run_frames
-    from gicore.render import Renderer
 
-    raster, used = open_client_raster(renderer, spec, cfg.resolution, Renderer(spec, cfg.resolution))
-    layer = LAYERS[cfg.composition]
-    warp = GLPixelWarp(raster, layer) if warp_backend("auto", used) == "gl" else PixelWarp(layer)
     loop_cfg = LoopConfig(every=cfg.every, gi_fov=spec.camera.gi_fov, composition=cfg.composition, seed=0)
     loop = ClientLoop(loop_cfg, raster, ReplaySource(maps), warp)
     rows = run_frames(loop, views, frame_rate=cfg.frame_rate or None)
@@ -130,9 +125,10 @@ def local_alone(
 
 
 def decode_floor(payloads: list[bytes], repeats: int = 3) -> dict[str, list[float]]:
-    """Per stored payload (ms, the median of ``repeats``): ``decode`` (the client's :func:`decode_payload`) and
-    ``library`` (Pillow's decode of the map section to RGB bytes plus zstandard's of the depth section: what no
-    decode of these bytes can skip)."""
+    """Per stored payload (ms, the median of ``repeats``): ``decode`` (the client's :func:`decode_payload` to linear
+    radiance, for a warp on the host), ``display`` (to an 8-bit codec's display values, for a warp that decodes
+    them on the GPU) and ``library`` (Pillow's decode of the map section to RGB bytes plus zstandard's of the depth
+    section: what no decode of these bytes can skip)."""
     import zstandard
     from PIL import Image
 
@@ -153,9 +149,10 @@ def decode_floor(payloads: list[bytes], repeats: int = 3) -> dict[str, list[floa
             np.asarray(im.convert("RGB"))
         zstandard.ZstdDecompressor().decompress(sections["depth"][ARRAY_HEADER_BYTES:])
 
-    out: dict[str, list[float]] = {"decode": [], "library": []}
+    out: dict[str, list[float]] = {"decode": [], "display": [], "library": []}
     for data in payloads:
         out["decode"].append(timed(lambda: decode_payload(data)))
+        out["display"].append(timed(lambda: decode_payload(data, display=True)))
         out["library"].append(timed(lambda: library(data)))
     return out
 

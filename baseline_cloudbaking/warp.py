@@ -146,6 +146,9 @@ class PixelWarp(HostWarp):
     name = "pixel"
     raster = "mask"
     stages = ("bind", "project", "splat", "fill")
+    #: Maps come as linear radiance: the host decodes them (:class:`~baseline_cloudbaking.gl_warp.GLPixelWarp`
+    #: takes 8-bit display values and decodes them on the GPU).
+    takes_display = False
 
     def __init__(self, layer: str = "radiance"):
         if layer not in LAYERS.values():

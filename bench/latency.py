@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Any, Literal
 import numpy as np
 
 from baseline_cloudbaking.client import request_path_maps
+from baseline_cloudbaking.client_run import open_cloud_warp
 from baseline_cloudbaking.codecs import DEFAULT_CODEC, CodecName
 from baseline_cloudbaking.fetch import FetcherName
 from baseline_cloudbaking.server.settings import check_served
@@ -30,6 +31,7 @@ from gicore.cores import client_cores, threads
 from gicore.error_policy import UserError
 from gicore.frame_rows import read_summary
 from gicore.path_file import flown_path
+from gicore.render import Renderer
 from gicore.results import Results, machine_text
 from gicore.run_config import RENDERERS
 from gigan_local.client import ClientConfig, stages_of_run
@@ -285,8 +287,9 @@ def measure_alone(
 ) -> Alone:  # fmt: skip
     """Every stage alone in this process on the clients' cores: GIGAN's loop per renderer (one thread: its stages
     alone are its stages, and the pair shows the measurement's noise); per profile the requests through a fresh
-    proxy in front of ``server`` (the prebaked store), and the cloud client's loop on the first profile's maps per
-    renderer (:mod:`baseline_cloudbaking.stages_alone`; it does not depend on the profile)."""
+    proxy in front of ``server`` (the prebaked store; once per way the renderers' warps take maps: linear, or 8-bit
+    display values for a GL warp), and the cloud client's loop on the first profile's maps per renderer
+    (:mod:`baseline_cloudbaking.stages_alone`; it does not depend on the profile)."""
     views = flown_path(spec, cfg, seed, spec.camera.local_fov).views(cfg.resolution)
     alone: Alone = {}
     with client_cores(plan):
@@ -296,13 +299,19 @@ def measure_alone(
                                  spp=cfg.spp, seed=seed, renderer=renderer, gi_source="model", model=cfg.model,
                                  threads=threads(plan, "client"), frame_rate=cfg.frame_rate or None)  # fmt: skip
             alone[GIGAN, "none", renderer] = stages_of_run(gigan)
+        mitsuba = Renderer(spec, cfg.resolution)
+        warps = {r: open_cloud_warp(spec, r, cfg.resolution, cfg.composition, mitsuba) for r in renderers}
         local: dict[str, dict[str, list[float]]] = {}
         for profile in cfg.profiles:
-            with pinned_proxy(plan, profile, server, seed) as url:
-                requests, maps = requests_alone(url, scene, spec, cfg, views)
+            asked = {}  # per display mode (a GL warp's client keeps 8-bit maps as display values)
             for renderer in renderers:
+                raster, _, warp = warps[renderer]
+                if warp.takes_display not in asked:
+                    with pinned_proxy(plan, profile, server, seed) as url:
+                        asked[warp.takes_display] = requests_alone(url, scene, spec, cfg, views, warp.takes_display)
+                requests, maps = asked[warp.takes_display]
                 if renderer not in local:
-                    local[renderer] = local_alone(spec, cfg, renderer, views, maps)
+                    local[renderer] = local_alone(spec, cfg, views, maps, raster, warp)
                 alone[CLOUD, profile, renderer] = requests | local[renderer]
     return alone
 

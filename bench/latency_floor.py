@@ -124,7 +124,8 @@ def record_targets(
     res: Results, scene: str, decode: dict[str, list[float]], client_cores: int, where: str
 ) -> list[dict[str, Any]]:
     """The fair baseline's targets as ``target_met`` rows (config: ``target``, ``measured``, ``bound``, ``applies``,
-    ``machine``): the decode alone within :data:`DECODE_BOUND` of the libraries' decode of the same bytes; per
+    ``machine``): each decode alone (to linear, and to display values) within :data:`DECODE_BOUND` of the
+    libraries' decode of the same bytes; per
     renderer and profile, every cloud stage and the decode in the loop within :data:`INFLATION_WARN` of alone
     (where the client has 2 cores or more: with one, its frame loop and its requests share it), and the ``lan``
     request in the loop within it of the request alone. Returns the rows added."""
@@ -135,10 +136,11 @@ def record_targets(
                 target=text, measured=measured, bound=bound, applies=applies, machine=where, **config)  # fmt: skip
         added.append(res.rows[-1])
 
-    if decode["decode"]:
-        ratio = float(np.median(decode["decode"])) / float(np.median(decode["library"]))
-        target("decode_floor", "decode alone <= 1.3 x Pillow's + zstandard's decode of the same bytes", ratio,
-               DECODE_BOUND, maps=len(decode["decode"]))  # fmt: skip
+    for kind, to in (("decode", "linear, for a warp on the host"), ("display", "display values, for a GL warp")):
+        if decode.get(kind):  # runs from before the display decode have none
+            ratio = float(np.median(decode[kind])) / float(np.median(decode["library"]))
+            target(f"{kind}_floor", f"decode ({to}) alone <= 1.3 x Pillow's + zstandard's decode of the same bytes",
+                   ratio, DECODE_BOUND, maps=len(decode[kind]))  # fmt: skip
     inflations = [r for r in res.rows if r["system"] == CLOUD and r["stat"] == "inflation"]
     for key in dict.fromkeys((r["config"]["renderer"], r["config"]["profile"]) for r in inflations):
         renderer, profile = key

@@ -4,7 +4,7 @@ page's JavaScript):
 - the scene's passes (:mod:`gicore.gl.shaders`, per scene: its light, shadow layout and materials compiled in),
   in ``scene.json``;
 - the warps', the hole filling's and the composition's (:mod:`gicore.gl.sources`: ``gicore/gl/glsl/``) and the
-  page's own ports (``web3d/glsl/``: GIGAN's input encoding and output decoding, a cloud map's point cloud), in
+  page's own ports (``web3d/glsl/``: GIGAN's input encoding and output decoding), in
   ``shaders.json``, with the values their uniforms take from Python's constants.
 
 Each source is ``#version 330 core`` written in the subset GLSL ES 3.00 shares; :func:`to_es` swaps the version
@@ -26,6 +26,7 @@ from gicore.gl.renderer import AREA_SAMPLES
 from gicore.gl.shaders import SCENE_VERTEX, SHADOW_FRAGMENT, SHADOW_VERTEX, scene_fragment
 from gicore.gl.sources import glsl
 from gicore.scene import SceneSpec
+from gicore.tonemap import LINEAR_OF_U8
 from gigan_local.gl_warp import PASSES as STRUCTURE_PASSES
 from gigan_local.warp import DEPTH_REL_TOL, fallback_step
 
@@ -88,8 +89,8 @@ def encode_writes(buffers: list[str]) -> tuple[int, str]:
 def page_shaders(resolution: int, buffers: list[str]) -> dict[str, Any]:
     """``shaders.json``: the programs of the page's warps, hole filling, composition (tone-mapped for the
     canvas), GIGAN's encoding of ``buffers`` and decoding, and a cloud map's point cloud; the uniforms' values at
-    ``resolution`` (the depth test's tolerance and the fallback's coarse step, the splat's empty key); and the
-    encoding's channels and targets."""
+    ``resolution`` (the depth test's tolerance and the fallback's coarse step, the splat's empty key, the 8-bit
+    inverse tone map's table); and the encoding's channels and targets."""
     programs = {f"structure_{k}": _program(glsl(f"structure_{k}.frag", v)) for k, v in STRUCTURE_PASSES.items()}
     programs |= {k: _program(glsl(f"{k}.frag")) for k in ("pull", "push")}
     programs["pixel_splat"] = _program(glsl("pixel_splat.frag"), glsl("pixel_splat.vert", PIXEL_DEFINES))
@@ -97,10 +98,17 @@ def page_shaders(resolution: int, buffers: list[str]) -> dict[str, Any]:
     programs["compose"] = _program(compose_fragment("blend", tonemapped=True))
     targets, writes = encode_writes(buffers)
     programs["encode"] = _program(glsl("encode.frag", {"TARGETS": targets, "WRITES": writes}, PAGE_GLSL))
-    programs |= {k: _program(glsl(f"{k}.frag", folder=PAGE_GLSL)) for k in ("decode", "cloud_map")}
+    programs["decode"] = _program(glsl("decode.frag", folder=PAGE_GLSL))
+    programs["pixel_cloud"] = _program(glsl("pixel_cloud.frag", {"DISPLAY": None}))
     f32 = np.float32  # as the desktop warp rounds them
     step = fallback_step(resolution, resolution)
     structure = {"u_tol_hi": float(f32(1.0 + DEPTH_REL_TOL)), "u_tol_lo": float(f32(1.0 - DEPTH_REL_TOL))}
     structure |= {"u_inv_step": float(f32(1.0 / step)), "u_step": step}
     encode = {"channels": sum(CHANNELS[b] for b in buffers), "targets": targets}
-    return {"format": FORMAT, "programs": programs, "structure": structure, "pixel": {"empty": EMPTY}, "encode": encode}
+    return {
+        "format": FORMAT,
+        "programs": programs,
+        "structure": structure,
+        "pixel": {"empty": EMPTY, "linear_of_u8": LINEAR_OF_U8.tolist()},
+        "encode": encode,
+    }

@@ -4,7 +4,8 @@ OpenGL passes):
 
 - ``structure_slack.frag``, ``structure_coarse.frag``, ``structure_mean.frag``, ``structure_warp.frag``: the
   structure-aware warp (``gigan_local.gl_warp``): depth planes, coarse fallback level and its mean, lookup;
-- ``pixel_splat.vert``, ``pixel_splat.frag``, ``pixel_resolve.frag``: the pixel-level warp's splat
+- ``pixel_cloud.frag``, ``pixel_splat.vert``, ``pixel_splat.frag``, ``pixel_resolve.frag``: the pixel-level warp's
+  point cloud (the bound map and its depth unprojected on the GPU) and splat
   (``baseline_cloudbaking.gl_warp``);
 - ``pull.frag``, ``push.frag``: the push-pull hole filling (:mod:`gicore.gl.fill`);
 - ``compose.frag``: eq. 1 and the residual composition (:mod:`gicore.gl.blend`);

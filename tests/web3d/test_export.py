@@ -74,6 +74,7 @@ def test_the_warp_fill_and_blend_programs_are_the_desktop_sources_as_glsl_es_300
     """shaders.json: every program of the page's warps, hole filling, composition and GIGAN's encoding is a
     source of gicore/gl/glsl or web3d/glsl with its includes resolved, ported by to_es alone."""
     from gicore.gl.sources import glsl
+    from gicore.tonemap import LINEAR_OF_U8
 
     shaders = json.loads((exported[2] / "shaders.json").read_text())
     assert shaders["format"] == "gigan-web-shaders/1"
@@ -86,6 +87,9 @@ def test_the_warp_fill_and_blend_programs_are_the_desktop_sources_as_glsl_es_300
     assert programs["pull"]["vertex"] == to_es(glsl("fullscreen.vert"))
     assert "#define TONEMAP" in programs["compose"]["fragment"]
     assert 0 < shaders["structure"]["u_step"] and shaders["pixel"]["empty"] > 1e30
+    # the cloud map's point cloud: the desktop bind's source for 8-bit maps, decoding by the host decode's table
+    assert programs["pixel_cloud"]["fragment"] == to_es(glsl("pixel_cloud.frag", {"DISPLAY": None}))
+    assert np.array_equal(np.float32(shaders["pixel"]["linear_of_u8"]), LINEAR_OF_U8)
     assert encode_writes(["di", "depth"]) == (1, "o0 = vec4(e_di[0], e_di[1], e_di[2], e_depth[0]);")
     targets, writes = encode_writes(["di", "albedo", "normal", "depth", "mask"])
     assert targets == 3 and writes.endswith("o2 = vec4(e_normal[2], e_depth[0], e_mask[0], 0.0);")

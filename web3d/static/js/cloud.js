@@ -9,7 +9,7 @@ import { bindTarget, bindTextures, copyFlipped, pass, programs, setUniforms, syn
 import { Blend } from "./blend.js";
 import { PushPull } from "./fill.js";
 
-const PROGRAMS = ["cloud_map", "pixel_splat", "pixel_resolve", "pull", "push"];
+const PROGRAMS = ["pixel_cloud", "pixel_splat", "pixel_resolve", "pull", "push"];
 
 function invert(m) {
   // a 4x4 column-major inverse (cofactors)
@@ -80,6 +80,9 @@ export class CloudSystem {
     const n = scene.n;
     this.progs = programs(gl, shaders, PROGRAMS);
     this.empty = shaders.pixel.empty; // the splat targets' clear value: no point
+    // each byte's linear value (gicore.tonemap.LINEAR_OF_U8): the map's colours as the Python client decodes them
+    this.linearOfU8 = texture(gl, 256, 1, gl.R32F);
+    gl.texSubImage2D(gl.TEXTURE_2D, 0, 0, 0, 256, 1, gl.RED, gl.FLOAT, new Float32Array(shaders.pixel.linear_of_u8));
     this.blender = new Blend(gl, shaders);
     const float = (formats) => target(gl, n, n, formats, { depth: false });
     this.mask = float([gl.RGBA32F]); // the frame's DI, its surface mask in alpha, in image rows
@@ -87,7 +90,7 @@ export class CloudSystem {
     this.index = float([gl.R32F]);
     this.fill = new PushPull(gl, { pull: this.progs.pull, push: this.progs.push }, n, n);
     this.warped = float([gl.RGBA32F]); // GL rows, as the frame's DI
-    this.map = null; // the bound map's point cloud: points and colours (cloud_map), image rows
+    this.map = null; // the bound map's point cloud: points and colours (pixel_cloud), image rows
     this.bound = null;
     this.worker = new MapWorker();
   }
@@ -143,13 +146,14 @@ export class CloudSystem {
     };
   }
 
-  // A map's point cloud and colours drawn from its uploaded textures (cloud_map: the GI camera's eye -> world
+  // A map's point cloud and colours drawn from its uploaded textures (pixel_cloud: the GI camera's eye -> world
   // `invView`, its `focal` lengths), bound; the textures are deleted.
   bind(gi, depth, invView, focal, location) {
     const gl = this.gl;
     const { w, h } = gi;
     if (this.map?.w !== w || this.map?.h !== h) this.map = target(gl, w, h, [gl.RGBA32F, gl.RGBA32F], { depth: false });
-    pass(gl, this.progs.cloud_map, this.map, { u_depth: depth, u_gi: gi }, { u_inv_view: invView, u_focal: focal });
+    const inputs = { u_depth: depth, u_gi: gi, u_linear_of_u8: this.linearOfU8 };
+    pass(gl, this.progs.pixel_cloud, this.map, inputs, { u_inv_view: invView, u_focal: focal });
     sync(gl, this.map, 0);
     gl.deleteTexture(gi);
     gl.deleteTexture(depth);
