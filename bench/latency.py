@@ -31,7 +31,6 @@ from gicore.cores import client_cores, threads
 from gicore.error_policy import UserError
 from gicore.frame_rows import read_summary
 from gicore.path_file import flown_path
-from gicore.render import Renderer
 from gicore.results import Results, machine_text
 from gicore.run_config import RENDERERS
 from gigan_local.client import ClientConfig, stages_of_run
@@ -299,6 +298,8 @@ def measure_alone(
                                  spp=cfg.spp, seed=seed, renderer=renderer, gi_source="model", model=cfg.model,
                                  threads=threads(plan, "client"), frame_rate=cfg.frame_rate or None)  # fmt: skip
             alone[GIGAN, "none", renderer] = stages_of_run(gigan)
+        from gicore.render import Renderer  # Mitsuba loads where a run needs it, not with the bench's import
+
         mitsuba = Renderer(spec, cfg.resolution)
         warps = {r: open_cloud_warp(spec, r, cfg.resolution, cfg.composition, mitsuba) for r in renderers}
         local: dict[str, dict[str, list[float]]] = {}
