@@ -187,7 +187,7 @@ class Warps:
             radiance, depth = (
                 (with_nan(gi.radiance), gi.depth) if what == "radiance" else (gi.radiance, with_nan(gi.depth, math.inf))
             )
-            return Outcome(self.warped(kind, replace(gi, radiance=radiance, depth=depth), self.s.local))
+            return Outcome(self.warped(kind, replace(gi, linear=radiance, depth=depth, display=None), self.s.local))
 
         return run
 
