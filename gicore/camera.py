@@ -30,6 +30,9 @@ GL_FROM_MITSUBA = np.diag([-1.0, 1.0, -1.0, 1.0])
 NEAR_MIN, FAR_MAX = 1e-10, 1e30
 #: Largest coordinate of an origin or target: what the renderer represents (float32), with FAR_MAX's margin.
 COORD_MAX = FAR_MAX
+#: Narrowest field of view, degrees: far narrower than any lens, its focal factor 1 / tan(fov / 2) (1.1e8) well
+#: within float32 and the level-of-detail model (1e-300 overflowed both).
+FOV_MIN = 1e-6
 
 
 def _vec3(name: str, value: Any) -> tuple[float, float, float]:
@@ -57,7 +60,7 @@ def _norm(v: tuple[float, float, float]) -> float:
 class Camera:
     """A look-at pinhole camera.
 
-    ``fov`` is the horizontal field of view in degrees, strictly between 0 and 180. ``near``/``far`` are
+    ``fov`` is the horizontal field of view in degrees, at least :data:`FOV_MIN` and below 180. ``near``/``far`` are
     clip distances (only the GL projection and Mitsuba's clipping use them), within
     [:data:`NEAR_MIN`, :data:`FAR_MAX`]. ``up`` need not be
     orthogonal to the view direction but must not be parallel to it.
@@ -80,8 +83,8 @@ class Camera:
             if not math.isfinite(value):
                 raise ValueError(f"camera.{name} must be finite, got {value}")
             object.__setattr__(self, name, value)
-        if not 0.0 < self.fov < 180.0:
-            raise ValueError(f"camera.fov must lie strictly between 0 and 180 degrees, got {self.fov}")
+        if not FOV_MIN <= self.fov < 180.0:
+            raise ValueError(f"camera.fov must be at least {FOV_MIN:g} and below 180 degrees, got {self.fov}")
         if not NEAR_MIN <= self.near < self.far <= FAR_MAX:
             raise ValueError(
                 f"camera.near/far must satisfy {NEAR_MIN:g} <= near < far <= {FAR_MAX:g} "

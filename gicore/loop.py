@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 
 from gicore.blend import COMPOSITIONS, blend, residual
-from gicore.camera import Camera
+from gicore.camera import FOV_MIN, Camera
 from gicore.gi_map import LAYERS, GIMap, Timings
 from gicore.ground_truth import QUALITY_COLUMNS, UNSCORED
 from gicore.paths import Light, frame_seed
@@ -211,8 +211,8 @@ class LoopConfig:
     def __post_init__(self) -> None:
         if self.every < 1:
             raise ValueError(f"every (k) must be >= 1, got {self.every}")
-        if self.gi_fov is not None and not 0.0 < self.gi_fov < 180.0:
-            raise ValueError(f"gi_fov must lie strictly between 0 and 180 degrees, got {self.gi_fov}")
+        if self.gi_fov is not None and not FOV_MIN <= self.gi_fov < 180.0:
+            raise ValueError(f"gi_fov must be at least {FOV_MIN:g} and below 180 degrees, got {self.gi_fov}")
         for name in ("max_move", "max_turn"):
             value = getattr(self, name)
             if value is not None and not value > 0.0:

@@ -33,6 +33,7 @@ from typing import Annotated, Any, Literal
 
 import typer
 
+from gicore.camera import FOV_MIN
 from gicore.error_policy import RESOLUTION_MAX, RESOLUTION_MIN, SEED_MAX, UserError
 
 #: Most path-tracing samples per pixel a run may ask for (a 2048² map at 4096 spp takes hours on 2 cores).
@@ -48,8 +49,8 @@ SPP: Mapping[str, Any] = {"min": 1, "max": SPP_MAX}
 FRAMES: Mapping[str, Any] = {"min": 1, "max": FRAMES_MAX}
 #: Field metadata of a seed.
 SEED: Mapping[str, Any] = {"min": 0, "max": SEED_MAX}
-#: Field metadata of a camera field of view in degrees (cameras take 0 < FOV < 180).
-FOV_DEGREES: Mapping[str, Any] = {"max": 179.0}
+#: Field metadata of a camera field of view in degrees (cameras take FOV_MIN <= FOV < 180).
+FOV_DEGREES: Mapping[str, Any] = {"min": FOV_MIN, "max": 179.0}
 #: Field metadata of a thread or worker-process count.
 THREADS: Mapping[str, Any] = {"min": 1, "max": 256}
 #: Field metadata of a ``HOST:PORT`` address string (port 0 to 65535; 0: any free port).

@@ -23,7 +23,7 @@ from typing import Annotated, Any, Literal, get_args
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, Strict, ValidationError, model_validator
 
 from gicore.anatomy import AnatomyKind
-from gicore.camera import FAR_MAX, NEAR_MIN
+from gicore.camera import FAR_MAX, FOV_MIN, NEAR_MIN
 from gicore.error_policy import RESOLUTION_MAX, RESOLUTION_MIN, SEED_MAX, UserError
 from gicore.mesh import load_mesh
 
@@ -134,8 +134,8 @@ class CameraPathSpec(_Strict):
     azimuth_center: Degrees = 0.0
     azimuth_range: Real = Field(360.0, gt=0.0, le=360.0)
     wobble: Real = Field(0.15, ge=0.0, lt=1.0)
-    local_fov: Real = Field(60.0, gt=0.0, lt=180.0)
-    gi_fov: Real = Field(90.0, gt=0.0, lt=180.0)
+    local_fov: Real = Field(60.0, ge=FOV_MIN, lt=180.0)
+    gi_fov: Real = Field(90.0, ge=FOV_MIN, lt=180.0)
     #: Clip distances; the renderer represents [gicore.camera.NEAR_MIN, FAR_MAX] (measured, see there).
     near: Real = 0.01
     far: Real = 100.0

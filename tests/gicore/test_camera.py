@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from gicore.camera import Camera
+from gicore.camera import FOV_MIN, Camera
 from tests.conftest import RES
 
 
@@ -33,13 +33,13 @@ def test_wrong_vector_length_rejected():
         Camera((0.0, 1.0), (0.0, 0.0, 0.0))
 
 
-@pytest.mark.parametrize("fov", [0.0, -10.0, 180.0, 270.0])
+@pytest.mark.parametrize("fov", [0.0, -10.0, 180.0, 270.0, 1e-300, FOV_MIN / 2])
 def test_fov_out_of_range_names_fov(fov):
     with pytest.raises(ValueError, match=r"fov"):
         Camera((0, 1, 3), (0, 0, 0), fov=fov)
 
 
-@pytest.mark.parametrize("fov", [1.0, 20.0, 170.0, 179.0])
+@pytest.mark.parametrize("fov", [FOV_MIN, 1.0, 20.0, 170.0, 179.0])
 def test_fov_extremes_inside_range_accepted(fov):
     cam = Camera((0, 1, 3), (0, 0, 0), fov=fov)
     assert np.all(np.isfinite(cam.proj())) and np.all(np.isfinite(cam.view()))

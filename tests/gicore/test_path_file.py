@@ -137,6 +137,7 @@ BROKEN = [
     ("eye far out", lambda d, s: _frame(d)["camera"].update(eye=[1e308, 1.2, 0]), "camera.eye [1e+308, 1.2, 0.0] lies"),
     ("fov 0", lambda d, s: _frame(d)["camera"].update(fov=0.0), "camera.fov"),
     ("fov 180", lambda d, s: _frame(d)["camera"].update(fov=180.0), "camera.fov"),
+    ("fov too narrow", lambda d, s: _frame(d)["camera"].update(fov=1e-300), "camera.fov"),
     ("near 0", lambda d, s: _frame(d)["camera"].update(near=0.0), "camera.near/far"),
     ("far < near", lambda d, s: _frame(d)["camera"].update(far=0.01), "camera.near/far"),
     ("far too far", lambda d, s: _frame(d)["camera"].update(far=1e31), "camera.near/far"),

@@ -90,6 +90,7 @@ def test_unknown_scene_name():
         ),
         pytest.param(lambda d: d.update(camera={"gi_fov": 180.0}), r"camera\.gi_fov", id="gi_fov_180"),
         pytest.param(lambda d: d.update(camera={"local_fov": 0.0}), r"camera\.local_fov", id="local_fov_0"),
+        pytest.param(lambda d: d.update(camera={"gi_fov": 1e-300}), r"camera\.gi_fov", id="gi_fov_too_narrow"),
         pytest.param(lambda d: d.update(camera={"local_fov": math.nan}), r"camera\.local_fov", id="local_fov_nan"),
         pytest.param(
             lambda d: d.update(camera={"near": 1.0, "far": 0.5}), r"near = 1, far = 0\.5", id="far_below_near"
