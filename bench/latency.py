@@ -171,8 +171,8 @@ class _Repeat:
 
 def measure(cfg: LatencyConfig, res: Results) -> None:
     scene = cfg.scenes[0]
-    spec, scenes_dir, work, plan = run_place(scene, res, "latency_runs", cfg.pin)
-    cfg = with_path_frames(cfg, spec)
+    spec, scenes_dir, work, plan, flown = run_place(scene, res, "latency_runs", cfg.pin, cfg.path)
+    cfg = with_path_frames(cfg, flown)
     renderers, res.settings["renderers"] = available_renderers(cfg.renderers)
     common = {
         "resolution": cfg.resolution,

@@ -76,8 +76,8 @@ class PrefetchConfig:
 # -- measuring ----------------------------------------------------------------------------------------------
 def measure(cfg: PrefetchConfig, res: Results) -> None:
     scene = cfg.scenes[0]
-    spec, scenes_dir, work, plan = run_place(scene, res, "prefetch_runs", cfg.pin)
-    cfg = with_path_frames(cfg, spec)
+    spec, scenes_dir, work, plan, flown = run_place(scene, res, "prefetch_runs", cfg.pin, cfg.path)
+    cfg = with_path_frames(cfg, flown)
     common = {"resolution": cfg.resolution, "frames": cfg.frames, "orbit_frames": cfg.orbit_frames,
               "frame_rate": cfg.frame_rate, "spp": cfg.spp, "codec": cfg.codec}  # fmt: skip
     prebaked = work / "store_prebaked"

@@ -17,6 +17,7 @@ from gicore.cores import pinning, taskset, threads
 
 if TYPE_CHECKING:
     from baseline_cloudbaking.client import PathRequests
+    from gicore.path_file import PathFile
     from gicore.results import Results
     from gicore.scene import SceneSpec
 
@@ -35,16 +36,22 @@ class RunPlace(NamedTuple):
     work: Path
     #: The core plan (:func:`pinning`), also recorded in the provenance's ``settings.pinning``.
     plan: dict[str, Any]
+    #: The run's path file, read and checked against the scene (None: the scripted path).
+    flown: PathFile | None
 
 
-def run_place(scene: str, res: Results, folder: str, pin: bool) -> RunPlace:
-    """The :class:`RunPlace` of a run of ``scene`` working in ``res.out / folder``."""
+def run_place(scene: str, res: Results, folder: str, pin: bool, path: Path | None = None) -> RunPlace:
+    """The :class:`RunPlace` of a run of ``scene`` working in ``res.out / folder``, flying the path file ``path``
+    (read first: a refused one leaves no folder)."""
+    from gicore.path_file import read_path_file
     from gicore.scene import load_scene
 
+    spec = load_scene(scene)
+    flown = None if path is None else read_path_file(path, spec)
     work = res.out / folder
     work.mkdir(parents=True, exist_ok=True)
     res.settings["pinning"] = plan = pinning(pin)
-    return RunPlace(load_scene(scene), scene_folder(scene), work, plan)
+    return RunPlace(spec, scene_folder(scene), work, plan, flown)
 
 
 def scene_folder(scene: str) -> Path | None:
@@ -93,12 +100,9 @@ def run_client(plan: dict[str, Any], argv: list[str], out: Path, timeout_s: floa
     return out
 
 
-def with_path_frames(cfg: Any, spec: SceneSpec) -> Any:
-    """``cfg`` with ``frames`` the count of its ``path`` file (checked against ``spec``: one error line before
-    any process starts); ``cfg`` itself without one."""
-    from gicore.path_file import read_path_file
-
-    return cfg if cfg.path is None else replace(cfg, frames=len(read_path_file(cfg.path, spec).frames))
+def with_path_frames(cfg: Any, flown: PathFile | None) -> Any:
+    """``cfg`` with ``frames`` the count of its path file ``flown``; ``cfg`` itself without one."""
+    return cfg if flown is None else replace(cfg, frames=len(flown.frames))
 
 
 def path_options(cfg: PathRequests) -> list[str]:

@@ -22,7 +22,7 @@ from typing import Annotated, Any
 import typer
 
 from gicore import option_groups, options, present
-from gicore.error_policy import writable_dir
+from gicore.fileio import made_folder
 from gicore.options import (  # noqa: F401  (field_docs, check_config, config_dict: the bench API)
     FOV_DEGREES,
     check_config,
@@ -100,7 +100,8 @@ def register(app: typer.Typer, bench: Bench) -> Bench:
 
     def run(given: dict[str, Any], *, out: Path, quick: bool, seed: int) -> None:
         cfg = build_config(config, quick, given)
-        written = execute(bench, cfg, writable_dir(out), seed)
+        with made_folder(out) as folder:  # removed again if the run is refused before it writes
+            written = execute(bench, cfg, folder, seed)
         for path in written:
             typer.echo(f"wrote {path}")
         tables = [path for path in written if path.name == f"{bench.name}.md"]

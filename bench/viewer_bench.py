@@ -118,8 +118,8 @@ def open_viewer(cfg: WebBenchConfig, results: Results) -> Iterator[Viewer]:
     from gicore.paths import DEFAULT_LIGHT_CELL
     from web3d.cli import WebConfig, cloud_for, prepare
 
-    spec, scenes_dir, work, plan = run_place(cfg.scenes[0], results, "web_runs", pin=False)
-    doc = flown_path(spec, cfg, results.seed).to_json()
+    spec, scenes_dir, work, plan, flown = run_place(cfg.scenes[0], results, "web_runs", False, cfg.path)
+    doc = (flown if flown is not None else flown_path(spec, cfg, results.seed)).to_json()
     store = work / "store" if cfg.store == "prebaked" and cfg.server is None else None
     logs = None if cfg.server else work / "proxy_logs"
     for folder in (store, logs):

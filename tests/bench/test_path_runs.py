@@ -1,10 +1,12 @@
 """Runs that fly a path file: `gigan-client --path` on a recorded-style session of 3 frames (it writes back the
 path it flew), `bench latency --path` (every client gets the file, the bench counts its frames) and
-`bench storage --sessions-from` (recorded sessions are the growth law's sessions)."""
+`bench storage --sessions-from` (recorded sessions are the growth law's sessions); a path file a bench refuses is
+one error line that leaves no folder behind."""
 
 from __future__ import annotations
 
 import csv
+import json
 import math
 import subprocess
 import sys
@@ -24,7 +26,7 @@ from gicore.path_file import Waypoint, read_path_file, write_path_file
 from gicore.paths import light_position
 from gicore.results import Results, read_rows
 from gicore.scene import SceneSpec, load_scene
-from tests.helpers.cli import check_user_error, run_main
+from tests.helpers.cli import check_user_error, run_main, run_script
 from tests.helpers.cloud import write_scenes
 from tests.helpers.guards import HANG_GUARD_S
 from tests.helpers.latency_runs import stand_in
@@ -90,6 +92,18 @@ def test_bench_latency_gives_every_client_the_path_file(
     assert recorded["cfg"].frames == recorded["common"]["frames"] == 3
     with pytest.raises(UserError, match="--path and --orbit-frames conflict"):
         build_config(LatencyConfig, False, {"path": str(session), "orbit_frames": "90"})
+
+
+def test_a_refused_path_file_leaves_no_output_folder(scene: Path, tmp_path: Path) -> None:
+    """The file is read where the run's work folder would be made: refused, nothing under --out (nor --out)."""
+    spec = load_scene(scene)
+    session = _session(spec, tmp_path / "session.json")
+    doc = json.loads(session.read_text())
+    doc["frames"][1]["camera"]["up"] = [0, 0, 0]
+    session.write_text(json.dumps(doc))
+    for bench in ("latency", "prefetch", "web"):
+        argv = ["bench", bench, "--scenes", str(scene), "--path", "session.json", "--out", "out/deeper"]
+        check_user_error(run_script(argv, tmp_path), "session.json: frame 1: camera.up")
 
 
 def test_bench_storage_grows_its_tree_along_recorded_sessions(scene: Path, tmp_path: Path) -> None:
