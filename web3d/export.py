@@ -125,7 +125,7 @@ def export_assets(
         "programs": scene_programs(spec, len(table)),
     }
     (out / "scene.json").write_text(json.dumps(header))
-    (out / "shaders.json").write_text(json.dumps(page_shaders(resolution, config["input"]["buffers"])))
+    (out / "shaders.json").write_text(json.dumps(page_shaders(resolution, config["input"])))
     flown = scripted_path(spec, frames, orbit_frames, seed)
     write_path_file(out / "path.json", flown.scene, flown.frames, flown.source)
 

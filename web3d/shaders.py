@@ -86,9 +86,10 @@ def encode_writes(buffers: list[str]) -> tuple[int, str]:
     return targets, writes
 
 
-def page_shaders(resolution: int, buffers: list[str]) -> dict[str, Any]:
+def page_shaders(resolution: int, model_input: dict[str, Any]) -> dict[str, Any]:
     """``shaders.json``: the programs of the page's warps, hole filling, composition (tone-mapped for the
-    canvas), GIGAN's encoding of ``buffers`` and decoding, and a cloud map's point cloud; the uniforms' values at
+    canvas), GIGAN's encoding and decoding for ``model_input`` (``model.json``'s: the buffers, and the albedo floor
+    of a demodulated model), and a cloud map's point cloud; the uniforms' values at
     ``resolution`` (the depth test's tolerance and the fallback's coarse step, the splat's empty key, the 8-bit
     inverse tone map's table); and the encoding's channels and targets."""
     programs = {f"structure_{k}": _program(glsl(f"structure_{k}.frag", v)) for k, v in STRUCTURE_PASSES.items()}
@@ -96,9 +97,12 @@ def page_shaders(resolution: int, buffers: list[str]) -> dict[str, Any]:
     programs["pixel_splat"] = _program(glsl("pixel_splat.frag"), glsl("pixel_splat.vert", PIXEL_DEFINES))
     programs["pixel_resolve"] = _program(glsl("pixel_resolve.frag", PIXEL_DEFINES))
     programs["compose"] = _program(compose_fragment("blend", tonemapped=True))
+    buffers, albedo_floor = model_input["buffers"], model_input.get("albedo_floor")
     targets, writes = encode_writes(buffers)
-    programs["encode"] = _program(glsl("encode.frag", {"TARGETS": targets, "WRITES": writes}, PAGE_GLSL))
-    programs["decode"] = _program(glsl("decode.frag", folder=PAGE_GLSL))
+    demodulate = {} if albedo_floor is None else {"ALBEDO_FLOOR": float(albedo_floor)}
+    encode_defines = {"TARGETS": targets, "WRITES": writes} | demodulate
+    programs["encode"] = _program(glsl("encode.frag", encode_defines, PAGE_GLSL))
+    programs["decode"] = _program(glsl("decode.frag", demodulate, PAGE_GLSL))
     programs["pixel_cloud"] = _program(glsl("pixel_cloud.frag", {"DISPLAY": None}))
     f32 = np.float32  # as the desktop warp rounds them
     step = fallback_step(resolution, resolution)

@@ -89,16 +89,17 @@ def server_process(
             proc.wait(timeout=15)
 
 
-def passthrough_model(folder: Path, resolution: int = RES) -> Path:
+def passthrough_model(folder: Path, resolution: int = RES, albedo_floor: float | None = None) -> Path:
     """A real ONNX "generator" (one Slice node: it returns its DI input channels) with the model.json that
-    ``gigan-export`` writes: onnxruntime runs it at ``resolution`` like the shipped model at 256²."""
+    ``gigan-export`` writes: onnxruntime runs it at ``resolution`` like the shipped model at 256²; albedo-demodulated
+    with ``albedo_floor`` (it then returns the DI's shading, which the client multiplies back: the DI again)."""
     import onnx
     from onnx import TensorProto, helper
 
     from gigan_local.inference import FORMAT, MODEL_JSON
     from gigan_local.preprocess import InputSpec
 
-    spec = InputSpec()
+    spec = InputSpec(albedo_floor=albedo_floor)
     x = helper.make_tensor_value_info("x", TensorProto.FLOAT, [1, spec.in_channels, resolution, resolution])
     y = helper.make_tensor_value_info("y", TensorProto.FLOAT, [1, 3, resolution, resolution])
     consts = [helper.make_tensor(n, TensorProto.INT64, [1], [v]) for n, v in (("start", 0), ("end", 3), ("axis", 1))]

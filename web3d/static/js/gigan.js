@@ -78,15 +78,20 @@ export class GiganSystem {
     const gl = this.gl;
     gl.bindTexture(gl.TEXTURE_2D, this.output);
     gl.texSubImage2D(gl.TEXTURE_2D, 0, 0, 0, this.n, 3 * this.n, gl.RED, gl.FLOAT, y);
-    pass(gl, this.progs.decode, this.giMap, { u_y: this.output, u_di: this.scene.giTarget.textures[4] });
+    const gi = this.scene.giTarget;
+    pass(gl, this.progs.decode, this.giMap, { u_y: this.output, u_di: gi.textures[4], u_albedo: gi.textures[0] });
   }
 
-  // The tone-mapped display values HxWx3 of an output (gigan_local.preprocess.output_to_display).
-  display(y) {
-    const plane = this.n * this.n;
-    const out = new Float32Array(plane * 3);
-    for (let o = 0; o < plane; o++) {
-      for (let k = 0; k < 3; k++) out[o * 3 + k] = Math.min(Math.max((y[k * plane + o] + 1) * 0.5, 0), 1);
+  // The decoded GI map tone-mapped (gicore.tonemap), HxWx3 in image rows: what the parity check compares with
+  // tonemap(GIModel.predict(...)).
+  display() {
+    const px = readFloats(this.gl, this.giMap, 0);
+    const out = new Float32Array(this.n * this.n * 3);
+    for (let o = 0; o < this.n * this.n; o++) {
+      for (let k = 0; k < 3; k++) {
+        const x = Math.max(px[o * 4 + k], 0);
+        out[o * 3 + k] = Math.pow(x / (1 + x), 1 / 2.2);
+      }
     }
     return out;
   }
@@ -126,7 +131,7 @@ export class GiganSystem {
     const t1 = performance.now();
     this.bind(request.frame);
     const bind = performance.now() - t1;
-    if (request.kept) request.kept.display = this.display(y);
+    if (request.kept) request.kept.display = this.display();
     const s = request.stages;
     return { gi_render: s.gi_render, inference: s.encode + waited + decode, session_run: ms, bind };
   }
