@@ -21,7 +21,7 @@ from gicore.dataset_cli import inputs_renderer, render_inputs
 from gicore.error_policy import UserError
 from gicore.gl.lod import LOD_CHOICES
 from gicore.metrics import CHECKER_PERIOD, LF_SIGMA, all_metrics, checker_error, shadow_tint
-from gicore.present.declarations import Chart, Column, Figure, Image, Rows, Table, flat, matches, unique
+from gicore.present.declarations import Chart, Column, Figure, Image, Rows, Table, flat, matches, unique, wide
 from gicore.present.sheet import Cell, save_sheet
 from gicore.results import Results
 from gicore.run_config import CLIENT_LOD
@@ -74,6 +74,9 @@ class QualityConfig:
     renderers: tuple[Literal[INPUT_RENDERERS], ...] = ("mitsuba",)  # type: ignore[valid-type]
     #: Level of detail of the gl inputs (gicore.gl.GLRenderer's lod; default the clients': auto, per view).
     gl_lod: Literal[LOD_CHOICES] = CLIENT_LOD  # type: ignore[valid-type]
+    #: Score the held-out shapes and colours (gicore.heldout_cases, rendered into <datasets>/generalisation) instead
+    #: of --scenes: object PSNR, its gain over DI alone and chroma error per case, each target met or MISSED.
+    generalisation: bool = False
 
     @classmethod
     def quick(cls) -> QualityConfig:
@@ -111,6 +114,9 @@ def dataset_root(cfg: QualityConfig, res: Results, scene: str) -> Path:
 
 def measure(cfg: QualityConfig, res: Results) -> None:
     from gigan_local.inference import GIModel
+
+    if cfg.generalisation:
+        return measure_generalisation(cfg, res)
 
     models = {name: GIModel(path, threads=cfg.threads) for name, path in cfg.models.items()}
     infos = {name: model_info(path, f"--models {name}") for name, path in cfg.models.items()}
@@ -170,6 +176,21 @@ def measure(cfg: QualityConfig, res: Results) -> None:
             )
     if grid:
         save_sheet(grid, ["DI", "albedo", "normal", *models, "GT"], res.output("quality_grid.png"), GRID_CAPTION)
+
+
+def measure_generalisation(cfg: QualityConfig, res: Results) -> None:
+    from gigan_local.generalisation import UNITS as OBJECT_UNITS
+    from gigan_local.generalisation import score_models
+
+    root = (cfg.datasets or res.out / "dataset") / "generalisation"
+    rows, checks = score_models(cfg.models, root, cfg.max_frames, cfg.threads)
+    for r in rows:
+        unit = (UNITS | OBJECT_UNITS)[r["metric"]]
+        res.add(system=r["system"], scene=r["case"], metric=r["metric"], value=r["value"], unit=unit, stat="mean",
+                frames=r["frames"])  # fmt: skip
+    for c in checks:
+        res.add(system=c["system"], scene=c["case"], metric="generalisation", value=int(c["met"]), unit="bool",
+                stat="target_met", target=c["target"], measured=c["measured"])  # fmt: skip
 
 
 def add_comparisons(
@@ -309,6 +330,30 @@ PARTS = (
     Image("quality_grid.png", where="readme"),  # the grid: thousands of pixels tall, a file to open
     TABLE,
     RENDERERS,
+    Table(
+        lambda rows: wide(
+            rows, ("system", "scene"), {m: f"{m}/mean" for m in ("object_psnr", "gain_db", "chroma_error")}
+        ),
+        (
+            Column("system", "{system}"),
+            Column("case", "{scene}"),
+            Column("object PSNR (dB)", "{object_psnr:.1f}"),
+            Column("gain over DI alone (dB)", "{gain_db:+.1f}"),
+            Column("chroma error", "{chroma_error:.3f}"),
+        ),
+        caption="Held-out shapes and colours (gicore.heldout_cases), on the object's own pixels, tone-mapped.",
+    ),
+    Table(
+        lambda rows: [flat(r) | {"met": "met" if r["value"] else "MISSED"} for r in rows if r["stat"] == "target_met"],
+        (
+            Column("system", "{system}"),
+            Column("case", "{scene}"),
+            Column("target", "{target}"),
+            Column("measured", "{measured:.3f}"),
+            Column("met", "{met}"),
+        ),
+        notes=lambda rows: f"{sum(m := [r['value'] for r in rows if r['stat'] == 'target_met']):.0f} of {len(m)} met.",
+    ),
 )
 
 

@@ -11,7 +11,8 @@ The low-frequency error (:func:`lf_error`) is the mean absolute value of the Gau
 :data:`LF_SIGMA` pixels) difference: it measures brightness errors that cover many pixels ("blotches"),
 which SSIM barely sees and RMSE/PSNR mix with fine noise. The checkerboard error
 (:func:`checker_error`) is the opposite end: the part of the error that repeats on a small pixel tile,
-the signature of stride-2 transposed convolutions.
+the signature of stride-2 transposed convolutions. The object metrics (:func:`object_mask`, :func:`object_psnr`,
+:func:`chroma_error`) score one object's own pixels, which a frame-wide score dilutes with the floor's.
 """
 
 from __future__ import annotations
@@ -33,6 +34,11 @@ CHECKER_PERIOD = 4
 #: :func:`shadow_tint`'s mask: pixels whose tone-mapped DI luminance is below SHADOW_DI (direct light does
 #: not reach them) and whose GT luminance is above SHADOW_LIT (indirect light does).
 SHADOW_DI, SHADOW_LIT = 0.05, 0.02
+#: :func:`object_mask`'s tolerance per albedo channel: above the float16 storage's rounding (5e-4 near 1).
+OBJECT_TOL = 0.01
+#: :func:`chroma_error`'s lit pixels: tone-mapped GT channel mean above this (linear ~0.03); darker pixels' colour is
+#: mostly the GT's path-tracing noise.
+CHROMA_LIT = 0.2
 
 
 def _check_pair(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -151,6 +157,36 @@ def shadow_tint(a: np.ndarray, b: np.ndarray, di: np.ndarray) -> float:
         return 0.0
     e = (a - b)[mask]
     return float(np.mean(e[:, 0] - 0.5 * (e[:, 1] + e[:, 2])))
+
+
+def object_mask(albedo: np.ndarray, colour: tuple[float, float, float], tol: float = OBJECT_TOL) -> np.ndarray:
+    """The pixels (HxW bool) whose G-buffer ``albedo`` (HxWx3) is the object's ``colour`` within ``tol`` per channel:
+    an object's own pixels where no other surface shares its colour."""
+    return np.all(np.abs(np.asarray(albedo, np.float64) - np.asarray(colour, np.float64)) <= tol, axis=-1)
+
+
+def object_psnr(prediction: np.ndarray, reference: np.ndarray, mask: np.ndarray) -> float:
+    """PSNR in dB over the pixels of ``mask`` (all channels) of tone-mapped images; NaN where the mask is empty."""
+    a, b = _check_pair(prediction, reference)
+    if not mask.any():
+        return math.nan
+    err = float(np.sqrt(np.mean((a[mask] - b[mask]) ** 2)))
+    return math.inf if err == 0.0 else float(-20.0 * math.log10(err))
+
+
+def chroma_error(prediction: np.ndarray, reference: np.ndarray, mask: np.ndarray) -> float:
+    """Chroma error: the mean, over the pixels of ``mask`` that the (tone-mapped) ``reference`` lights (channel mean
+    above :data:`CHROMA_LIT`), of the L1 distance between the chromaticities r,g,b / (r + g + b) of ``prediction``
+    and ``reference``: 0 for the right colour at any brightness, up to 2 for pure red against pure green. NaN where
+    no such pixel is lit."""
+    a, b = _check_pair(prediction, reference)
+    lit = mask & (b.mean(axis=-1) > CHROMA_LIT)
+    if not lit.any():
+        return math.nan
+    pa, pb = a[lit], b[lit]
+    ca = pa / np.maximum(pa.sum(axis=-1, keepdims=True), 1e-12)
+    cb = pb / pb.sum(axis=-1, keepdims=True)
+    return float(np.mean(np.abs(ca - cb).sum(axis=-1)))
 
 
 def all_metrics(prediction: np.ndarray, reference: np.ndarray) -> dict[str, float]:
