@@ -1,17 +1,29 @@
 #!/usr/bin/env bash
-# The GPU recipe: render training sets with Mitsuba's CUDA variant, then train GIGAN and its two rivals
-# side by side on one CUDA GPU for the same wall time each, and export them (ONNX, fp16).
+# The GPU recipe: render training sets with Mitsuba's CUDA variant (the five paper scenes and randomised scenes:
+# shapes, colours, lights and environments drawn from a seed), then train GIGAN and its two rivals side by side on
+# one CUDA GPU for the same wall time each, on the same data and with the same output encoding, and export them
+# (ONNX, fp16).
 #
 # Nothing in the project needs a GPU; this is how the shipped model was trained on a GPU machine without network
-# (see gigan_local/models/gigan_default/MODEL_CARD.md). Any CUDA machine with the project installed runs it:
+# (see gigan_local/models/gigan_default/MODEL_CARD.md, which gives the settings of the shipped run: the five scenes
+# alone, RANDOM_SCENES=0 DEMODULATE=0). Any CUDA machine with the project installed runs it:
 #
-#   MINUTES=6 bash scripts/gpu_recipe.sh
+#   MINUTES=13 bash scripts/gpu_recipe.sh
+#
+# then, to judge the exports on what users bring and on the five scenes (CPU or GPU):
+#
+#   bench quality --generalisation --models gigan=runs/gpu/exports/gigan/model_fp16.onnx --out results/generalisation
+#   bench quality --models gigan=runs/gpu/exports/gigan/model_fp16.onnx --out results/quality
 #
 # Settings (environment): PYTHON (python3), WORK (runs/gpu: datasets/, runs/, exports/ below it),
 # SCENES (the five paper scenes), TRAIN_FRAMES (400 per scene), VAL_FRAMES (10), SPP (512),
 # DENOISE (0: the GT is the raw path-traced image; 1: OIDN-denoised, needs pyoidn), SEED (2: camera
 # paths apart from the default data sets' seeds 0 and 1, which stay the CPU-rendered held-out frames),
-# MINUTES (wall time per model), MODELS (gigan deep_illumination deep_shading), STAGES (render train export).
+# RANDOM_SCENES (400 randomised scenes; 0: none), RANDOM_FRAMES (8 training frames each, and one held-out),
+# RANDOM_SEED (3: the draws and their camera paths; the held-out generalisation cases are shapes and colours no
+# draw makes, on seed 7), DEMODULATE (1: every model sees and predicts albedo-demodulated shading, gigan-train
+# --demodulate; 0: radiance), MINUTES (wall time per model), MODELS (gigan deep_illumination deep_shading),
+# STAGES (render train export).
 set -euo pipefail
 
 PYTHON=${PYTHON:-python3}
@@ -22,6 +34,10 @@ VAL_FRAMES=${VAL_FRAMES:-10}
 SPP=${SPP:-512}
 DENOISE=${DENOISE:-0}
 SEED=${SEED:-2}
+RANDOM_SCENES=${RANDOM_SCENES:-400}
+RANDOM_FRAMES=${RANDOM_FRAMES:-8}
+RANDOM_SEED=${RANDOM_SEED:-3}
+DEMODULATE=${DEMODULATE:-1}
 MINUTES=${MINUTES:-6}
 MODELS=${MODELS:-gigan deep_illumination deep_shading}
 STAGES=${STAGES:-render train export}
@@ -56,6 +72,7 @@ wait_all() {  # $1: what the jobs were; the logs are named in $WORK
 
 datasets=()
 for scene in $SCENES; do datasets+=("$WORK/datasets/$scene"); done
+random_root="$WORK/datasets/random"
 
 if [[ " $STAGES " == *" render "* ]]; then
   denoise_flag=$([[ "$DENOISE" == 1 ]] && echo --denoise || echo --no-denoise)
@@ -64,12 +81,26 @@ if [[ " $STAGES " == *" render "* ]]; then
       --resolution 256 --spp "$SPP" "$denoise_flag" --seed "$SEED" >"$WORK/render_$scene.log" 2>&1 &
     pids+=($!)
   done
+  if [[ "$RANDOM_SCENES" -gt 0 ]]; then  # its card: $random_root/random_scenes.md
+    "$PYTHON" -m gicore.dataset_cli --random "$RANDOM_SCENES" --out "$random_root" --train "$RANDOM_FRAMES" \
+      --val 1 --resolution 256 --spp "$SPP" "$denoise_flag" --seed "$RANDOM_SEED" --workers 4 \
+      >"$WORK/render_random.log" 2>&1 &
+    pids+=($!)
+  fi
   wait_all render
 fi
 
 if [[ " $STAGES " == *" train "* ]]; then
+  if [[ "$RANDOM_SCENES" -gt 0 ]]; then  # scenes 0 .. RANDOM_SCENES - 1 of the seed, as the render stage drew them
+    for ((i = 0; i < RANDOM_SCENES; i++)); do
+      folder=$(printf '%s/random%s_%04d' "$random_root" "$RANDOM_SEED" "$i")
+      [[ -f "$folder/meta.json" ]] || { echo "error: $folder is missing; run STAGES=render first" >&2; exit 2; }
+      datasets+=("$folder")
+    done
+  fi
+  encoding=$([[ "$DEMODULATE" == 1 ]] && echo --demodulate || echo --no-demodulate)
   for model in $MODELS; do  # side by side: the same minutes of the same GPU for each
-    read -ra args <<<"$(model_args "$model")"
+    read -ra args <<<"$(model_args "$model") $encoding"
     OMP_NUM_THREADS=4 "$PYTHON" -m gigan_local.train_cli "${datasets[@]}" --out "$WORK/runs/$model" "${args[@]}" \
       --ngf 16 --batch-size 8 --lr 2e-4 --epochs 100000 --max-minutes "$MINUTES" --max-val-frames 10 --device cuda --no-progress \
       >"$WORK/train_$model.log" 2>&1 &
