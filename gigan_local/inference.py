@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from gicore.error_policy import UserError
-from gigan_local.preprocess import InputSpec, frame_to_input, output_to_radiance
+from gigan_local.preprocess import InputSpec, frame_divisor, frame_to_input, output_to_radiance
 
 MODEL_JSON = "model.json"
 FORMAT = "gigan-onnx/1"
@@ -136,8 +136,9 @@ class ExportedGenerator(ABC):
         arrays), host copies to and from the backend's device included. Not reentrant: the buffers are encoded
         into the model's one input array."""
         self.check_frame_size(frame_buffers)
-        frame_to_input(frame_buffers, self.spec, out=self._input[0])
-        return output_to_radiance(self._run(self._input), self.spec, frame_buffers.get("albedo"))
+        divisor = frame_divisor(frame_buffers, self.spec)  # once, for the encoding and the decoding
+        frame_to_input(frame_buffers, self.spec, out=self._input[0], divisor=divisor)
+        return output_to_radiance(self._run(self._input), self.spec, divisor)
 
     def check_frame_size(self, frame_buffers: dict[str, np.ndarray]) -> None:
         """ValueError unless the frame's buffers are at the model's resolution."""

@@ -132,10 +132,13 @@ def encode_buffer(name: str, arr: np.ndarray, depth_scale: float = 1.0, out: np.
     return out
 
 
-def frame_to_input(frame: dict[str, np.ndarray], spec: InputSpec, out: np.ndarray | None = None) -> np.ndarray:
+def frame_to_input(
+    frame: dict[str, np.ndarray], spec: InputSpec, out: np.ndarray | None = None, divisor: np.ndarray | None = None
+) -> np.ndarray:
     """Frame buffers (name -> HxWxC linear arrays) to the network input, CxHxW float32 in [-1, 1], written
     into ``out`` (CxHxW float32, e.g. a model's preallocated input) when given: each buffer is encoded
-    straight into its channels, with no concatenated copy."""
+    straight into its channels, with no concatenated copy. A demodulated model's DI is divided by ``divisor``, the
+    frame's :func:`frame_divisor` (computed here unless the caller, who needs it to decode, passes it)."""
     require_buffers(frame, spec)
     sizes = {b: np.shape(frame[b])[:2] for b in spec.buffers}
     if len(set(sizes.values())) != 1:
@@ -147,7 +150,9 @@ def frame_to_input(frame: dict[str, np.ndarray], spec: InputSpec, out: np.ndarra
         raise ValueError(f"the input buffer is {out.dtype} {out.shape}, but these buffers make float32 {shape}")
     start = 0
     for b in spec.buffers:
-        arr = demodulated(frame, spec, b) if b == "di" else frame[b]
+        arr = frame[b]
+        if b == "di" and spec.albedo_floor is not None:  # NaN or Inf stays so through it: the encoding refuses it
+            arr = np.asarray(arr, np.float32) / (frame_divisor(frame, spec) if divisor is None else divisor)
         encode_buffer(b, arr, spec.depth_scale, out=out[start : start + CHANNELS[b]].transpose(1, 2, 0))
         start += CHANNELS[b]
     return out
@@ -157,24 +162,26 @@ def frame_to_target(frame: dict[str, np.ndarray], spec: InputSpec) -> np.ndarray
     """The frame's ground-truth GI as the target of a network of ``spec``, 3xHxW float32 in [-1, 1]."""
     if TARGET not in frame:
         raise KeyError(f"the frame lacks the target buffer {TARGET!r} (it has {sorted(frame)})")
-    return np.ascontiguousarray(encode_buffer(TARGET, demodulated(frame, spec, TARGET)).transpose(2, 0, 1))
+    divisor = frame_divisor(frame, spec)
+    gt = frame[TARGET] if divisor is None else np.asarray(frame[TARGET], np.float32) / divisor
+    return np.ascontiguousarray(encode_buffer(TARGET, gt).transpose(2, 0, 1))
 
 
 def albedo_divisor(albedo: np.ndarray, floor: float) -> np.ndarray:
     """What a demodulated model's radiance is divided by (and its output multiplied by): per channel
     max(albedo, ``floor``) where a surface was hit, 1 where none was (albedo 0 in every channel: the background,
     whose radiance is kept). HxWx3 float32."""
-    a = np.clip(shaped("albedo", albedo), 0.0, 1.0)
-    surface = a.max(axis=-1, keepdims=True) > 0.0
-    return np.where(surface, np.maximum(a, np.float32(floor)), np.float32(1.0))
+    a = shaped("albedo", albedo)
+    divisor = np.clip(a, np.float32(floor), np.float32(1.0))  # max(clip(a, 0, 1), floor), as floor > 0
+    # per-channel maxima, not a.max(axis=-1): a reduction over a 3-wide last axis is several times slower
+    divisor[np.maximum(np.maximum(a[..., 0], a[..., 1]), a[..., 2]) <= 0.0] = 1.0
+    return divisor
 
 
-def demodulated(frame: dict[str, np.ndarray], spec: InputSpec, name: str) -> np.ndarray:
-    """Radiance buffer ``name`` of ``frame`` as a network of ``spec`` sees it: as it is, or divided by
-    :func:`albedo_divisor` of the frame's albedo for a demodulated model."""
-    if spec.albedo_floor is None:
-        return frame[name]
-    return _checked(name, frame[name]) / albedo_divisor(frame["albedo"], spec.albedo_floor)
+def frame_divisor(frame: dict[str, np.ndarray], spec: InputSpec) -> np.ndarray | None:
+    """What a model of ``spec`` divides the frame's radiance by: :func:`albedo_divisor` of its albedo for a
+    demodulated model, None for a radiance one."""
+    return None if spec.albedo_floor is None else albedo_divisor(frame["albedo"], spec.albedo_floor)
 
 
 def input_albedo(x: np.ndarray, spec: InputSpec) -> np.ndarray:
@@ -192,13 +199,14 @@ def output_to_display(y: np.ndarray) -> np.ndarray:
     return from_signed(np.ascontiguousarray(y.transpose(1, 2, 0))).astype(np.float32, copy=False)
 
 
-def output_to_radiance(y: np.ndarray, spec: InputSpec, albedo: np.ndarray | None = None) -> np.ndarray:
+def output_to_radiance(y: np.ndarray, spec: InputSpec, divisor: np.ndarray | None = None) -> np.ndarray:
     """Network output 3xHxW in [-1, 1] of a model of ``spec`` to linear GI radiance HxWx3 (inverse of the target
-    encoding): every GI map a model makes comes from here. A demodulated model's needs the frame's ``albedo``."""
+    encoding): every GI map a model makes comes from here. A demodulated model's is multiplied by ``divisor``, the
+    frame's :func:`frame_divisor`."""
     radiance = inverse_tonemap(output_to_display(y))
     if spec.albedo_floor is None:
         return radiance
-    if albedo is None:
-        raise ValueError("an albedo-demodulated model's output needs the frame's albedo to become radiance")
-    radiance *= albedo_divisor(albedo, spec.albedo_floor)
+    if divisor is None:
+        raise ValueError("an albedo-demodulated model's output needs the frame's albedo divisor to become radiance")
+    radiance *= divisor
     return radiance

@@ -43,7 +43,7 @@ from gicore.tonemap import tonemap
 from gigan_local.config import BUDGET_FIELDS, TrainConfig, read_run_config, write_run_config
 from gigan_local.data import FrameDataset, dataset_resolution, median_foreground_depth
 from gigan_local.models import BaseModel, create_model
-from gigan_local.preprocess import input_albedo, output_to_radiance
+from gigan_local.preprocess import albedo_divisor, input_albedo, output_to_radiance
 from gigan_local.warmstart import init_depth_scale, load_into
 
 CHECKPOINT = "checkpoint.pt"
@@ -153,8 +153,9 @@ def validate(generator: torch.nn.Module, dataset: FrameDataset, max_frames: int 
     for i in indices:
         x, y = dataset[int(i)]
         pred = generator(x[None].to(device))[0].cpu().numpy()
-        albedo = input_albedo(x.numpy(), dataset.spec) if dataset.spec.albedo_floor is not None else None
-        maps = [tonemap(output_to_radiance(out, dataset.spec, albedo)) for out in (pred, y.numpy())]
+        floor = dataset.spec.albedo_floor
+        divisor = None if floor is None else albedo_divisor(input_albedo(x.numpy(), dataset.spec), floor)
+        maps = [tonemap(output_to_radiance(out, dataset.spec, divisor)) for out in (pred, y.numpy())]
         for k, v in all_metrics(*maps).items():
             totals[k] = totals.get(k, 0.0) + v
     generator.train(was_training)

@@ -17,7 +17,7 @@ from gicore.cuda_probe import cuda_device_count
 from gicore.error_policy import UserError
 from gigan_local.backend_choice import open_model, resolve_inference
 from gigan_local.inference import DEFAULT_MODEL, GIModel
-from gigan_local.preprocess import CHANNELS, frame_to_input, output_to_radiance
+from gigan_local.preprocess import CHANNELS, frame_divisor, frame_to_input, output_to_radiance
 from gigan_local.torch_backend import TorchGIModel, decode_output, encode_frame
 from tests.helpers.guards import HANG_GUARD_S
 
@@ -75,7 +75,9 @@ def test_the_device_encoding_is_the_host_encoding():
     encoded = encode_frame(raw, demodulated).numpy()
     np.testing.assert_allclose(encoded, frame_to_input(frame, demodulated), rtol=1e-5, atol=1e-5)
     decoded = decode_output(torch.from_numpy(y), demodulated, raw["albedo"]).numpy()
-    np.testing.assert_allclose(decoded, output_to_radiance(y, demodulated, frame["albedo"]), rtol=1e-5)
+    np.testing.assert_allclose(
+        decoded, output_to_radiance(y, demodulated, frame_divisor(frame, demodulated)), rtol=1e-5
+    )
 
 
 def test_a_nan_in_a_buffer_is_an_error_naming_it(frame):

@@ -18,6 +18,7 @@ from gigan_local.models import GIGAN, create_model
 from gigan_local.preprocess import (
     InputSpec,
     albedo_divisor,
+    frame_divisor,
     frame_to_input,
     frame_to_target,
     input_albedo,
@@ -71,14 +72,15 @@ def test_a_demodulated_model_sees_and_predicts_shading_and_gives_radiance_back()
     x = frame_to_input(frame, spec)
     np.testing.assert_allclose(x[:3], frame_to_input(frame | {"di": frame["di"] / divisor}, InputSpec())[:3], atol=1e-6)
     np.testing.assert_allclose(input_albedo(x, spec), np.clip(frame["albedo"], 0, 1), atol=1e-6)
-    radiance = output_to_radiance(target, spec, frame["albedo"])
+    assert np.array_equal(frame_divisor(frame, spec), divisor) and frame_divisor(frame, InputSpec()) is None
+    radiance = output_to_radiance(target, spec, divisor)
     np.testing.assert_allclose(radiance, frame["gt"], rtol=1e-3, atol=1e-4)
     # the same light on two colours: the same shading in, the same shading out
     grey = frame | {"albedo": np.full_like(frame["albedo"], 0.5), "gt": frame["gt"] * 0.5, "di": frame["di"] * 0.5}
     blue = frame | {"albedo": np.full_like(frame["albedo"], (0.1, 0.3, 0.9)), "gt": frame["gt"] * (0.1, 0.3, 0.9)}
     blue["di"] = frame["di"] * (0.1, 0.3, 0.9)
     np.testing.assert_allclose(frame_to_target(grey, spec), frame_to_target(blue, spec), atol=1e-5)
-    with pytest.raises(ValueError, match="needs the frame's albedo"):
+    with pytest.raises(ValueError, match="needs the frame's albedo divisor"):
         output_to_radiance(target, spec)
     with pytest.raises(ValueError, match="needs 'albedo' among its input buffers"):
         InputSpec(buffers=("di", "normal"), albedo_floor=0.05)
