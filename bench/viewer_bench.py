@@ -9,9 +9,9 @@ frame times (with a map in flight and without), frames drawn while each map was 
 frame shows, perceived latency, and each map's stages (:mod:`web3d.replay_stats`); GIGAN's checks; then
 ``session.run`` timed in the browser and in Python on one tensor, the prediction's parity with Python and the
 WebGL2 port's buffers against GLRenderer's (:mod:`web3d.parity`). Also written: ``web_screenshot.png``
-(both panes and their HUDs as the last replay draws its last path frame), ``web_session.json`` (the page's
-recording of every frame drawn: a path file the clients and benches replay) and, per profile, the bytes its proxy
-carried (its chunk log). docs/architecture.md, bench web.
+(both panes and their HUDs as the last replay draws its last path frame), ``web_session.json`` (every frame
+the page drew, its camera and light: a path file the clients and benches replay) and, per profile, the bytes its
+proxy carried (its chunk log). docs/architecture.md, bench web.
 """
 
 from __future__ import annotations
@@ -113,7 +113,7 @@ class Viewer:
 @contextmanager
 def open_viewer(cfg: WebBenchConfig, results: Results) -> Iterator[Viewer]:
     """``gigan-web``'s site for ``cfg`` (its children started on a store prebaked first when asked) and the page
-    open on it, recording every frame drawn (``?record=1``); work files in ``results.out / web_runs``."""
+    open on it; work files in ``results.out / web_runs``."""
     from gicore.path_file import flown_path
     from gicore.paths import DEFAULT_LIGHT_CELL
     from web3d.cli import WebConfig, cloud_for, prepare
@@ -144,7 +144,7 @@ def open_viewer(cfg: WebBenchConfig, results: Results) -> Iterator[Viewer]:
                 request_path_maps(url, cfg.scenes[0], run, results.seed)
     scene = {"name": spec.name, "gi_fov": spec.camera.gi_fov, "resolution": n,
              "light_cell": DEFAULT_LIGHT_CELL if spec.light.moves else None}  # fmt: skip
-    with served_page(site, "record=1", WEBGL_FLAGS[cfg.webgl]) as (url, page):
+    with served_page(site, flags=WEBGL_FLAGS[cfg.webgl]) as (url, page):
         yield Viewer(url, page, doc, cloud.profiles, scene, children, logs)
 
 

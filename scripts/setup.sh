@@ -39,12 +39,13 @@ if [ ! -x /usr/bin/chromium ]; then
     "(until then the dashboard's browser test is skipped; under CI=true it fails)."
 fi
 
-# The Web3D viewer's JavaScript (onnxruntime-web, fzstd) from web3d/static/package-lock.json, installed while pip
-# works (it needs nothing from Python); without npm the viewer, bench web and tests/web3d are unavailable (the tests
-# skip and say so).
+# The Web3D viewer's JavaScript (onnxruntime-web, fzstd, three) and its type checker (TypeScript, a development
+# dependency: --include=dev whatever NODE_ENV says) from web3d/static/package-lock.json, installed while pip works (it
+# needs nothing from Python); without npm the viewer, bench web and tests/web3d are unavailable (the tests skip and
+# say so).
 npm_pid=""
 if command -v npm >/dev/null; then
-  (cd web3d/static && npm ci --no-audit --no-fund --loglevel=error) &
+  (cd web3d/static && npm ci --include=dev --no-audit --no-fund --loglevel=error) &
   npm_pid=$!
   trap 'kill "$npm_pid" 2>/dev/null || true' EXIT
 else

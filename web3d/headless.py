@@ -5,12 +5,15 @@ page's controls drive: each path frame moves the controls, as a person's drag wo
 a chosen network profile.
 
 A replay starts settled at its first view (both panes' maps made there, nothing in flight) and ends settled at its
-last: its frames are every frame drawn in between, the path's own and those that land the last maps.
+last: its frames are every frame drawn in between, the path's own and those that land the last maps. The page
+keeps only its last few thousand frame and map records (``viewer.frames``, ``viewer.maps``): an open page's
+:class:`Records` reads them as they come, whenever :func:`wait` and :func:`settle` wait on it.
 docs/architecture.md, Web3D viewer and bench web.
 """
 
 from __future__ import annotations
 
+import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -35,13 +38,19 @@ WEBGL_FLAGS = {
 NPM_FOLDERS = ("onnxruntime-web/dist", "fzstd/esm", "three/build", "three/examples/jsm")
 #: Seconds the page may take to load, or to do one step asked of it, on 2 busy cores (a hang guard).
 PAGE_TIMEOUT_S = 300.0
+#: Seconds between two reads of the page's records while waiting on it: the page keeps its last 4096 frames
+#: (loop.js, FRAMES_KEPT), over a minute at 60 frames a second.
+PULL_EVERY_S = 1.0
+#: The page's frame and map records from the given indices on (none while the page loads).
+PULL = """([f, m]) => window.viewer?.frames ? { frames: viewer.frames.since(f), maps: viewer.maps.since(m) }
+  : { frames: [], maps: [] }"""
 #: True once a whole tick of the page's frame loop has passed drawing nothing with no map in flight: nothing is
 #: due, so nothing will be drawn until something changes (the frame loop draws a tick only when something is new).
 SETTLED = """async () => {
-  const n = viewer.frames.length;
+  const n = viewer.frames.count;
   await new Promise((resolve) => requestAnimationFrame(() => requestAnimationFrame(resolve)));
-  const f = viewer.frames.at(-1);
-  return Boolean(viewer.error) || (viewer.frames.length === n && f !== undefined && !f.gigan.inflight
+  const f = viewer.frames.last();
+  return Boolean(viewer.error) || (viewer.frames.count === n && f !== undefined && !f.gigan.inflight
     && !(f.cloud && f.cloud.inflight));
 }"""
 #: Start a replay; ``window.benchReplay`` says when it has finished or failed.
@@ -49,6 +58,21 @@ START_REPLAY = """doc => {
   window.benchReplay = { done: false, error: null };
   viewer.replay(doc).then(() => (window.benchReplay.done = true), (e) => (window.benchReplay.error = String(e)));
 }"""
+
+
+class Records:
+    """Every frame the page drew and every GI map it made since it loaded, in order (``frames[i]`` is the page's
+    frame ``i``), read from the page's bounded records by :meth:`pull`."""
+
+    def __init__(self) -> None:
+        self.frames: list[dict[str, Any]] = []
+        self.maps: list[dict[str, Any]] = []
+
+    def pull(self, page: Any) -> None:
+        """Read the records the page added since the last pull (the page raises once some were dropped unread)."""
+        new = page.evaluate(PULL, [len(self.frames), len(self.maps)])
+        self.frames += new["frames"]
+        self.maps += new["maps"]
 
 
 def missing() -> str | None:
@@ -84,10 +108,11 @@ def chromium(flags: list[str] = SWIFTSHADER) -> Iterator[Any]:
 def viewer_page(url: str, query: str = "", flags: list[str] = SWIFTSHADER) -> Iterator[Any]:
     """The Web3D page at ``url/?query`` in a new headless Chromium, once ``window.viewer.ready``; a page error
     raises RuntimeError with the page's message. The page's uncaught errors are kept in ``page.errors``, its console
-    errors (a request that failed among them, the browser's own too) in ``page.console_errors``."""
+    errors (a request that failed among them, the browser's own too) in ``page.console_errors``, its records as
+    they are read in ``page.records`` (:class:`Records`)."""
     with chromium(flags) as browser:
         page = browser.new_page(viewport={"width": 1200, "height": 1000}, accept_downloads=True)
-        page.errors, page.console_errors = [], []
+        page.errors, page.console_errors, page.records = [], [], Records()
         page.on("pageerror", lambda e: page.errors.append(str(e)))
         page.on("console", lambda m: page.console_errors.append(m.text) if m.type == "error" else None)
         page.goto(f"{url}/{'?' + query if query else ''}")
@@ -106,9 +131,22 @@ def served_page(site: Site, query: str = "", flags: list[str] = SWIFTSHADER) -> 
 
 
 def wait(page: Any, expression: str, arg: Any = None, timeout_s: float = PAGE_TIMEOUT_S) -> Any:
-    """Wait until ``expression`` (a JS expression, or a function of ``arg``) is truthy in the page; raise with
-    the page's error when it has one."""
-    handle = page.wait_for_function(expression, arg=arg, timeout=timeout_s * 1e3, polling=50)
+    """Wait until ``expression`` (a JS expression, or a function of ``arg``) is truthy in the page, reading its
+    records meanwhile (:data:`PULL_EVERY_S`); raise with the page's error when it has one."""
+    from playwright.sync_api import TimeoutError as PageTimeout
+
+    deadline = time.monotonic() + timeout_s
+    while True:
+        page.records.pull(page)
+        left_s = deadline - time.monotonic()
+        slice_ms = max(min(left_s, PULL_EVERY_S), 1e-3) * 1e3
+        try:
+            handle = page.wait_for_function(expression, arg=arg, timeout=slice_ms, polling=50)
+            break
+        except PageTimeout:
+            if left_s <= PULL_EVERY_S:
+                raise
+    page.records.pull(page)
     error = page.evaluate("window.viewer && window.viewer.error") or (page.errors[0] if page.errors else None)
     if error:
         raise RuntimeError(f"the viewer failed: {error}")
@@ -117,10 +155,9 @@ def wait(page: Any, expression: str, arg: Any = None, timeout_s: float = PAGE_TI
 
 def settle(page: Any, timeout_s: float = PAGE_TIMEOUT_S) -> None:
     """Wait until the page has drawn a frame and has nothing in flight or due (:data:`SETTLED`)."""
-    import time
-
     deadline = time.monotonic() + timeout_s
     while not page.evaluate(SETTLED):
+        page.records.pull(page)
         if time.monotonic() > deadline:
             raise TimeoutError(f"the viewer did not settle within {timeout_s:g} s")
     wait(page, "true")  # raises with the page's error, if it has one
@@ -128,7 +165,7 @@ def settle(page: Any, timeout_s: float = PAGE_TIMEOUT_S) -> None:
 
 @dataclass(frozen=True)
 class Segment:
-    """One replay's share of the page's records: ``viewer.frames[frames[0]:frames[1]]`` and ``viewer.maps``
+    """One replay's share of the page's records: ``page.records.frames[frames[0]:frames[1]]`` and its ``maps``
     likewise, behind network ``profile``."""
 
     profile: str
@@ -137,7 +174,9 @@ class Segment:
 
 
 def counts(page: Any) -> tuple[int, int]:
-    return tuple(page.evaluate("[viewer.frames.length, viewer.maps.length]"))  # type: ignore[return-value]
+    """The frames drawn and the maps made so far (all of them read into ``page.records``)."""
+    page.records.pull(page)
+    return len(page.records.frames), len(page.records.maps)
 
 
 def replay(
@@ -153,7 +192,7 @@ def replay(
         "([profile, f]) => { viewer.setProfile(profile); viewer.setCamera(f.camera); viewer.setLight(f.light); }",
         [profile, first],
     )
-    wait(page, "n => viewer.frames.length > n", drawn, timeout_s)
+    wait(page, "n => viewer.frames.count > n", drawn, timeout_s)
     settle(page, timeout_s)
     frames0, maps0 = counts(page)
     page.evaluate(START_REPLAY, doc)

@@ -1,6 +1,6 @@
 """The Web3D page's own records of one replay (:class:`web3d.headless.Segment`), read from the page
-(:func:`records`: ``viewer.frames``, ``viewer.maps``, and the recording of every frame drawn: its camera and light)
-and interpreted per system (:class:`SystemStats`):
+(:func:`records`: every frame drawn, with its camera and light, and every map made, as
+:class:`web3d.headless.Records` read them) and interpreted per system (:class:`SystemStats`):
 
 - frame times by phase: ``all`` (the pane's whole time per frame), ``idle`` (no map in flight at any time of the
   frame), ``in_flight`` (drawn while a map was being made: the frame that sent the request, after sending it, and
@@ -20,6 +20,7 @@ from dataclasses import dataclass
 from typing import Any, NamedTuple
 
 from gicore.camera import Camera
+from gicore.path_file import FORMAT
 from web3d.headless import Segment
 
 GIGAN, CLOUD = "gigan", "cloud_baking"
@@ -30,20 +31,26 @@ STAGES = {
     CLOUD: ("transmission", "server", "decode", "di", "warp", "blend"),
 }
 PHASES = ("all", "idle", "in_flight", "landing")
-#: Everything the page recorded: its frames and maps, its recording (a path file), its renderer and runtime, the
-#: parity inputs of its first GI map and both canvases' last frames.
-READ_RECORDS = (
-    "({frames: viewer.frames, maps: viewer.maps, session: viewer.recording(), info: viewer.info, "
-    "parity: viewer.parity, snapshot: viewer.snapshot()})"
-)
+#: What the page holds besides its frames and maps: its scene, renderer and runtime, the parity inputs of its first
+#: GI map and both canvases' last frames.
+READ_PAGE = "({scene: viewer.config.scene, info: viewer.info, parity: viewer.parity, snapshot: viewer.snapshot()})"
+
+
+def session(scene: str, frames: list[dict[str, Any]]) -> dict[str, Any]:
+    """The frames drawn as a path file (:mod:`gicore.path_file`): each one's camera and light, ``t_ms`` from the
+    first's."""
+    t0 = frames[0]["t"] if frames else 0.0
+    views = [{"t_ms": f["t"] - t0, "camera": f["camera"], "light": f["light"]} for f in frames]
+    return {"format": FORMAT, "scene": scene, "source": "drawn in gigan-web", "frames": views}
 
 
 def records(page: Any) -> dict[str, Any]:
-    """The page's records (:data:`READ_RECORDS`), checked to hold one recorded frame per frame drawn."""
-    data = page.evaluate(READ_RECORDS)
-    if len(data["session"]["frames"]) != len(data["frames"]):
-        raise RuntimeError("the page's recording does not hold one frame per frame drawn")
-    return data
+    """The page's records: every frame drawn and map made (``page.records``, read up to now), the session of
+    the frames drawn (:func:`session`) and what :data:`READ_PAGE` reads."""
+    page.records.pull(page)
+    data = page.evaluate(READ_PAGE)
+    scene, frames = data.pop("scene"), page.records.frames
+    return data | {"frames": frames, "maps": page.records.maps, "session": session(scene, frames)}
 
 
 class Held(NamedTuple):

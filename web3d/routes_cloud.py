@@ -28,6 +28,7 @@ from fastapi.responses import JSONResponse
 from starlette.concurrency import run_in_threadpool
 from starlette.requests import ClientDisconnect
 
+from gicore.options import FRAMES_MAX
 from web3d.upstreams import Cloud, Unavailable
 
 if TYPE_CHECKING:
@@ -105,13 +106,15 @@ async def _stop_deadline(app: FastAPI) -> None:
 
 
 def page_config(site: Site) -> dict[str, Any]:
-    """``/config.json``: the page's settings, the cloud side's profiles and stores, and the default of each."""
+    """``/config.json``: the page's settings, the cloud side's profiles and stores, and the default of each; the
+    most frames a recording holds (a path file's, :data:`gicore.options.FRAMES_MAX`)."""
     profiles, stores = site.cloud.profiles, site.cloud.stores
     return site.config | {
         "profiles": list(profiles),
         "profile": profiles[0] if profiles else None,
         "stores": list(stores),
         "store": stores[0] if stores else None,
+        "record_frames_max": FRAMES_MAX,
     }
 
 

@@ -22,6 +22,7 @@ import numpy as np
 import pytest
 
 from gicore.camera import Camera
+from gicore.options import FRAMES_MAX
 from gicore.path_file import read_path_file
 from gicore.paths import light_bounds, navigation, outside_navigation
 from gicore.scene import SceneSpec, load_scene
@@ -36,7 +37,9 @@ RESOLUTION = 64
 REPLAYED = 6
 #: A canvas has changed when its mean |difference| is above this (0-255): the DI alone moves it by far more.
 CHANGED = 1.0
-IDLE = "(() => { const f = viewer.frames.at(-1); return f && !f.gigan.inflight && !(f.cloud && f.cloud.inflight); })()"
+IDLE = "(() => { const f = viewer.frames.last(); return f && !f.gigan.inflight && !(f.cloud && f.cloud.inflight); })()"
+#: Frames drawn and maps made so far.
+COUNTS = "[viewer.frames.count, viewer.maps.count]"
 
 
 @pytest.fixture(scope="module")
@@ -77,13 +80,13 @@ def changed(before: dict[str, np.ndarray], after: dict[str, np.ndarray]) -> dict
 
 
 def drawn_after(page: Any, n: int) -> None:
-    wait(page, "n => viewer.frames.length > n", n)
+    wait(page, "n => viewer.frames.count > n", n)
 
 
 @pytest.mark.slow
 def test_a_drag_and_a_wheel_move_the_camera_and_both_canvases(page: Any) -> None:
     settle(page)
-    cam0, shot0, n = page.evaluate("viewer.camera()"), canvases(page), len(page.evaluate("viewer.frames"))
+    cam0, shot0, n = page.evaluate("viewer.camera()"), canvases(page), page.evaluate("viewer.frames.count")
     assert set(shot0) == {"gigan", "cloud"}
     box = page.locator("#gigan").bounding_box()
     x, y = box["x"] + box["width"] / 2, box["y"] + box["height"] / 2
@@ -98,7 +101,7 @@ def test_a_drag_and_a_wheel_move_the_camera_and_both_canvases(page: Any) -> None
     assert cam1["target"] == pytest.approx(cam0["target"], abs=1e-9)
     assert all(v > CHANGED for v in changed(shot0, shot1).values()), changed(shot0, shot1)
 
-    n = len(page.evaluate("viewer.frames"))
+    n = page.evaluate("viewer.frames.count")
     page.mouse.move(x, y)
     page.mouse.wheel(0, -200)  # zoom in
     drawn_after(page, n)
@@ -118,7 +121,7 @@ def test_an_arrow_key_pans_noticeably(page: Any, spec: SceneSpec) -> None:
     settle(page)
     pose = path_frames(page, 1)["frames"][0]["camera"]
     before = page.evaluate("p => viewer.setCamera(p)", {"eye": pose["eye"], "target": pose["target"]})
-    n = len(page.evaluate("viewer.frames"))
+    n = page.evaluate("viewer.frames.count")
     page.locator("#stage").press("ArrowLeft")
     drawn_after(page, n)
     after = page.evaluate("viewer.camera()")
@@ -162,17 +165,59 @@ def test_the_shadow_setups_kept_are_bounded_dropping_the_least_recently_used(pag
     assert (size, oldest, used, newest) == (4096, False, True, True)
 
 
+def test_the_pages_histories_are_bounded_and_read_by_index(page: Any) -> None:
+    """viewer.frames and viewer.maps keep their last records (a driver reads what is new by index); asking for one
+    dropped is an error that says so."""
+    kept, since, recent, last, error = page.evaluate("""async () => {
+      const { History } = await import("/js/history.js");
+      const h = new History("frames", 4);
+      for (let i = 0; i < 10; i++) h.push({ i });
+      let error = null;
+      try { h.since(5); } catch (e) { error = e.message; }
+      return [[h.count, h.first], h.since(7).map((r) => r.i), h.recent(2).map((r) => r.i), h.last().i, error];
+    }""")
+    assert (kept, since, recent, last) == ([10, 6], [7, 8, 9], [8, 9], 9)
+    assert error == "frames 5 to 5 are no longer kept (the page keeps the last 4): read them more often"
+    capacities = page.evaluate("[viewer.frames.capacity, viewer.maps.capacity]")
+    assert capacities[0] >= 1000 and capacities[1] >= 100, capacities
+    assert page.evaluate("viewer.frames.since(viewer.frames.count)") == []
+
+
+def test_a_recording_stops_at_the_most_frames_a_path_file_holds_and_says_so(page: Any) -> None:
+    assert page.evaluate("viewer.config.record_frames_max") == FRAMES_MAX
+    held, full, words = page.evaluate("""async () => {
+      const { Recorder } = await import("/js/record.js");
+      const camera = { eye: [0, 0, 1], target: [0, 0, 0], up: [0, 1, 0], fov: 60, near: 0.1, far: 10 };
+      const recorder = new Recorder("lung_plane", 3);
+      recorder.set(true);
+      for (let t = 0; t < 5; t++) recorder.push(t, camera, [0, 1, 0]);
+      return [recorder.doc().frames.map((f) => f.t_ms), recorder.full, recorder.describe()];
+    }""")
+    assert (held, full) == ([0, 1, 2], True)
+    assert words == "● recording full at 3 frames, the most a path file holds: Stop downloads it"
+
+
+def test_the_hud_shows_each_panes_stages_as_text(page: Any) -> None:
+    settle(page)
+    for pane in ("gigan", "cloud"):
+        rows = page.locator(f"#hud-{pane} tr").all_text_contents()
+        assert rows[0] == "stage (ms)lastmedian" and rows[-2].startswith("total"), rows
+        assert re.fullmatch(r"maps\d+( \(medians of the last \d+\))?", rows[-1]), rows
+        assert page.locator(f"#hud-{pane} b").all_text_contents() == ["total"]
+        assert re.match(r"frame \d+\.\d ms · ", page.locator(f"#live-{pane}").text_content()), pane
+
+
 def test_frames_keep_coming_while_a_gigan_map_is_computed_and_a_cloud_map_decoded(page: Any) -> None:
     settle(page)
-    start = len(page.evaluate("viewer.frames"))
+    start, maps0 = page.evaluate(COUNTS)
     page.evaluate("doc => viewer.replay(doc)", path_frames(page, REPLAYED))
     settle(page)
-    frames = page.evaluate("viewer.frames")[start:]
-    cloud = [m for m in page.evaluate("viewer.maps") if m["system"] == "cloud_baking" and m["frame"] >= start]
+    frames = page.evaluate("i => viewer.frames.since(i)", start)
+    maps = page.evaluate("i => viewer.maps.since(i)", maps0)
+    cloud = [m for m in maps if m["system"] == "cloud_baking" and m["frame"] >= start]
     assert cloud and all(m["decoding"]["in"] == "DedicatedWorkerGlobalScope" for m in cloud), cloud
     assert all(0 < m["stages"]["decode_work"] <= m["stages"]["decode"] for m in cloud), cloud
     assert [f["replay"] for f in frames[:REPLAYED]] == list(range(REPLAYED))  # one path frame per drawn frame
-    maps = page.evaluate("viewer.maps")
     for system, pane in (("gigan", "gigan"), ("cloud_baking", "cloud")):
         first = min(m["frame"] for m in maps if m["system"] == system and m["frame"] >= start)
         # the frames drawn while that map was made (GIGAN: computed; cloud: fetched and decoded in the worker):
@@ -230,7 +275,7 @@ def test_a_recorded_replay_is_a_path_file_of_the_cameras_and_lights_replayed(
 def test_the_record_button_downloads_the_session(page: Any, spec: SceneSpec, tmp_path: Path) -> None:
     settle(page)
     page.click("#record")
-    n = len(page.evaluate("viewer.frames"))
+    n = page.evaluate("viewer.frames.count")
     here = page.evaluate("viewer.camera()")["eye"]  # a pose it is not at: a camera set where it is draws nothing
     pose = next(f["camera"] for f in path_frames(page, 2)["frames"] if f["camera"]["eye"] != here)
     page.evaluate("p => viewer.setCamera(p)", {"eye": pose["eye"], "target": pose["target"]})
@@ -247,7 +292,7 @@ def test_the_record_button_downloads_the_session(page: Any, spec: SceneSpec, tmp
 def test_the_light_slider_moves_the_light_and_the_gi(page: Any) -> None:
     settle(page)
     light0, shot0 = page.evaluate("viewer.light()"), canvases(page)
-    start = len(page.evaluate("viewer.frames"))
+    start, maps0 = page.evaluate(COUNTS)
     page.evaluate("viewer.record(true)")
     page.locator("#light-x").press("End")  # a person's keys on the slider: its largest x
     light1 = page.evaluate("viewer.light()")
@@ -256,4 +301,5 @@ def test_the_light_slider_moves_the_light_and_the_gi(page: Any) -> None:
     settle(page)
     page.evaluate("viewer.record(false)")
     assert all(v > CHANGED for v in changed(shot0, canvases(page)).values())
-    assert any(m["system"] == "gigan" and m["frame"] >= start for m in page.evaluate("viewer.maps"))  # new GI
+    new = page.evaluate("i => viewer.maps.since(i)", maps0)
+    assert any(m["system"] == "gigan" and m["frame"] >= start for m in new)  # new GI

@@ -14,6 +14,7 @@ import pytest
 
 from gicore.geometry import scene_objects
 from gicore.gl.shadow import object_bounds
+from gicore.options import FRAMES_MAX
 from gicore.paths import light_bounds
 from gicore.scene import load_scene
 from tests.web3d.test_cli import IPV6
@@ -151,7 +152,8 @@ def test_head_and_options_are_answered(web: WebServer) -> None:
 
 def test_config_names_no_profile_without_a_cloud_side(web: WebServer) -> None:
     config = json.loads(get(web, "/config.json").content)
-    assert config == {"scene": "lung_plane", "profiles": [], "profile": None, "stores": [], "store": None}
+    cloud_off = {"profiles": [], "profile": None, "stores": [], "store": None}
+    assert config == {"scene": "lung_plane", **cloud_off, "record_frames_max": FRAMES_MAX}
     assert get(web, "/v1/gimap", "POST", json={}).status_code == 503
     status = json.loads(get(web, "/v1/status").content)
     assert status == {"profiles": {}, "stores": {}, "scene": "lung_plane"}

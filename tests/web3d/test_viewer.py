@@ -66,13 +66,14 @@ def run(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     with open_viewer(CFG, results) as viewer:
         measure_viewer(viewer, CFG, results)  # what bench web's measure does inside its site
         page = viewer.page
-        replayed = page.evaluate("viewer.frames.map((f) => f.replay)")
+        page.records.pull(page)  # every frame drawn, read as they came (web3d.headless.Records)
+        replayed = [f["replay"] for f in page.records.frames]
         farther = scripted_path(load_scene("lung_plane"), STALE_FRAMES + 1, CFG.orbit_frames).to_json()["frames"]
         stale = warped_by_the_page(viewer, viewer.doc["frames"][0], farther[STALE_FRAMES])
         recorded = json.loads((out / SESSION).read_text())["frames"]
         cameras = page.evaluate("frames => frames.map((f) => viewer.setCamera(f.camera))", recorded)
         settle(page)  # the last view's maps landed: every request made has its map
-        maps = page.evaluate("viewer.maps")
+        maps = page.records.maps
     record_links(results, viewer)
     rows = read_rows(results.write())
     present.write_files(BENCH.name, BENCH.parts, rows, out)
@@ -85,9 +86,9 @@ def warped_by_the_page(viewer: Any, made: dict[str, Any], shown: dict[str, Any])
     map the pane shows, read from the server by the address the page got with it (the map of ``made``'s view, or
     an earlier one where the GI period sent no request there)."""
     page = viewer.page
-    drawn = page.evaluate("viewer.frames.length")
+    drawn = page.evaluate("viewer.frames.count")
     page.evaluate("f => { viewer.setCamera(f.camera); viewer.setLight(f.light); }", made)
-    wait(page, "n => viewer.frames.length > n", drawn)
+    wait(page, "n => viewer.frames.count > n", drawn)
     settle(page)
     doc = viewer.doc | {"frames": [shown]}
     snapshot = page.evaluate("doc => viewer.replay(doc).then(() => viewer.snapshot())", doc)

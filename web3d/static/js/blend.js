@@ -5,12 +5,21 @@
 import { pass, programs, sync } from "./glutil.js";
 
 export class Blend {
+  /**
+   * @param {import("./glutil.js").GL} gl
+   * @param {import("./glutil.js").Shaders} shaders
+   */
   constructor(gl, shaders) {
     this.gl = gl;
     this.prog = programs(gl, shaders, ["compose"]).compose;
   }
 
-  // tau * DI + (1 - tau) * warped onto the canvas (eq. 1), each weight rounded to float32 by WebGL.
+  /**
+   * tau * DI + (1 - tau) * warped onto the canvas (eq. 1), each weight rounded to float32 by WebGL.
+   * @param {WebGLTexture} diTexture
+   * @param {WebGLTexture} warpedTexture
+   * @param {number} tau
+   */
   draw(diTexture, warpedTexture, tau) {
     const gl = this.gl;
     pass(gl, this.prog, null, { u_di: diTexture, u_warped: warpedTexture }, { u_tau: tau, u_one_minus_tau: 1 - tau });

@@ -9,10 +9,26 @@ import { bindTarget, bindTextures, copyFlipped, pass, programs, setUniforms, syn
 import { Blend } from "./blend.js";
 import { PushPull } from "./fill.js";
 
-const PROGRAMS = ["pixel_cloud", "pixel_splat", "pixel_resolve", "pull", "push"];
+/** @typedef {import("./glutil.js").Target} Target */
+/** @typedef {import("./glutil.js").Texture} Texture */
+/** @typedef {import("./scene.js").Frame} Frame */
+/** @typedef {import("./payload.js").MapReply} MapReply */
+/**
+ * A map as it lands on the page: the worker's reply, its times on the page's clock.
+ * @typedef {Omit<MapReply, "times"> & MapReply["times"]} Landed
+ */
+/**
+ * A cloud map bound: its point cloud's points and colours (pixel_cloud), their count, the stored map's address.
+ * @typedef {{points: WebGLTexture, colours: WebGLTexture, n: number, location: string | null}} BoundMap
+ */
 
+const PROGRAMS = /** @type {const} */ (["pixel_cloud", "pixel_splat", "pixel_resolve", "pull", "push"]);
+
+/**
+ * A 4x4 column-major inverse (cofactors).
+ * @param {Float32Array} m
+ */
 function invert(m) {
-  // a 4x4 column-major inverse (cofactors)
   const inv = new Float32Array(16);
   const [a00, a01, a02, a03, a10, a11, a12, a13, a20, a21, a22, a23, a30, a31, a32, a33] = m;
   const b00 = a00 * a11 - a01 * a10, b01 = a00 * a12 - a02 * a10, b02 = a00 * a13 - a03 * a10;
@@ -31,6 +47,7 @@ function invert(m) {
   return inv;
 }
 
+/** @param {number[][]} rows */
 const columnMajor = (rows) => new Float32Array([0, 1, 2, 3].flatMap((c) => rows.map((r) => r[c])));
 
 // The maps fetched and decoded in a module worker (map_worker.js), so that a map's bytes need not wait for the
@@ -39,25 +56,35 @@ const columnMajor = (rows) => new Float32Array([0, 1, 2, 3].flatMap((c) => rows.
 class MapWorker {
   constructor() {
     this.worker = new Worker(new URL("./map_worker.js", import.meta.url), { type: "module" });
-    this.pending = new Map(); // id -> {resolve, reject}
+    /** @type {Map<number, {resolve: (landed: Landed) => void, reject: (error: Error) => void}>} */
+    this.pending = new Map();
     this.next = 0;
+    /** @type {Error | null} */
     this.failed = null;
+    /** @param {MessageEvent<MapReply | {id: number, error: string}>} event */
     this.worker.onmessage = ({ data }) => {
       const p = this.pending.get(data.id);
+      if (!p) return;
       this.pending.delete(data.id);
-      if (data.error) p.reject(new Error(data.error));
+      if ("error" in data) p.reject(new Error(data.error));
       else p.resolve(onPageClock(data));
     };
     this.worker.onerror = (e) => this.fail(e.message || "map_worker.js did not load");
     this.worker.onmessageerror = () => this.fail("a reply could not be read");
   }
 
+  /** @param {string} message */
   fail(message) {
     this.failed = new Error(`the cloud maps' worker: ${message}`);
-    for (const p of this.pending.values()) p.reject(this.failed);
+    for (const p of this.pending.values()) p.reject(/** @type {Error} */ (this.failed));
     this.pending.clear();
   }
 
+  /**
+   * @param {string} url
+   * @param {string} body
+   * @returns {Promise<Landed>}
+   */
   get(url, body) {
     if (this.failed) return Promise.reject(this.failed);
     const id = this.next++;
@@ -68,11 +95,24 @@ class MapWorker {
   }
 }
 
-// A reply's times (ms since the epoch) as performance.now() readings of the page.
-const onPageClock = ({ times, ...rest }) =>
-  ({ ...rest, ...Object.fromEntries(Object.entries(times).map(([k, t]) => [k, t - performance.timeOrigin])) });
+/**
+ * A reply's times (ms since the epoch) as performance.now() readings of the page.
+ * @param {MapReply} reply
+ * @returns {Landed}
+ */
+const onPageClock = ({ times, ...rest }) => {
+  const page = /** @type {MapReply["times"]} */ (
+    Object.fromEntries(Object.entries(times).map(([k, t]) => [k, t - performance.timeOrigin])));
+  return { ...rest, ...page };
+};
 
 export class CloudSystem {
+  /**
+   * @param {import("./glutil.js").GL} gl
+   * @param {import("./scene.js").SceneRenderer} scene
+   * @param {{scene: string, resolution: number, codec: string, spp: number}} config the request's settings
+   * @param {import("./glutil.js").Shaders} shaders
+   */
   constructor(gl, scene, config, shaders) {
     this.gl = gl;
     this.scene = scene;
@@ -84,17 +124,21 @@ export class CloudSystem {
     this.linearOfU8 = texture(gl, 256, 1, gl.R32F);
     gl.texSubImage2D(gl.TEXTURE_2D, 0, 0, 0, 256, 1, gl.RED, gl.FLOAT, new Float32Array(shaders.pixel.linear_of_u8));
     this.blender = new Blend(gl, shaders);
+    /** @param {number[]} formats */
     const float = (formats) => target(gl, n, n, formats, { depth: false });
     this.mask = float([gl.RGBA32F]); // the frame's DI, its surface mask in alpha, in image rows
     this.nearest = float([gl.R32F]);
     this.index = float([gl.R32F]);
     this.fill = new PushPull(gl, { pull: this.progs.pull, push: this.progs.push }, n, n);
     this.warped = float([gl.RGBA32F]); // GL rows, as the frame's DI
-    this.map = null; // the bound map's point cloud: points and colours (pixel_cloud), image rows
+    /** @type {Target | null} the bound map's point cloud: points and colours (pixel_cloud), image rows */
+    this.map = null;
+    /** @type {BoundMap | null} */
     this.bound = null;
     this.worker = new MapWorker();
   }
 
+  /** @param {Frame} frame */
   body(frame) {
     const c = this.config;
     return JSON.stringify({
@@ -106,6 +150,10 @@ export class CloudSystem {
 
   // The map at the frame's GI camera from `url` (/v1/gimap?profile=&store=), fetched and decoded (image, depth)
   // in the worker; resolves to what join() uploads and binds.
+  /**
+   * @param {Frame} frame
+   * @param {string} url
+   */
   request(frame, url) {
     return this.worker.get(url, this.body(frame));
   }
@@ -115,6 +163,7 @@ export class CloudSystem {
   // arrival until the map is uploaded: decoded in the worker, then the wait for the page's thread and its next
   // frame, and the upload: the page's own cost, as GIGAN's inference counts its wait), decode_work (the
   // worker's decoding alone, timed there), upload, bind. `decoding`: where the decoding ran and when (page clock).
+  /** @param {Landed} done */
   join(done) {
     const gl = this.gl;
     const { header, h, w } = done;
@@ -148,19 +197,31 @@ export class CloudSystem {
 
   // A map's point cloud and colours drawn from its uploaded textures (pixel_cloud: the GI camera's eye -> world
   // `invView`, its `focal` lengths), bound; the textures are deleted.
+  /**
+   * @param {Texture} gi
+   * @param {Texture} depth
+   * @param {Float32Array} invView
+   * @param {number[]} focal
+   * @param {string | null} location
+   */
   bind(gi, depth, invView, focal, location) {
     const gl = this.gl;
     const { w, h } = gi;
-    if (this.map?.w !== w || this.map?.h !== h) this.map = target(gl, w, h, [gl.RGBA32F, gl.RGBA32F], { depth: false });
+    const map = this.map?.w === w && this.map.h === h ? this.map
+      : (this.map = target(gl, w, h, [gl.RGBA32F, gl.RGBA32F], { depth: false }));
     const inputs = { u_depth: depth, u_gi: gi, u_linear_of_u8: this.linearOfU8 };
-    pass(gl, this.progs.pixel_cloud, this.map, inputs, { u_inv_view: invView, u_focal: focal });
-    sync(gl, this.map, 0);
+    pass(gl, this.progs.pixel_cloud, map, inputs, { u_inv_view: invView, u_focal: focal });
+    sync(gl, map, 0);
     gl.deleteTexture(gi);
     gl.deleteTexture(depth);
-    this.bound = { points: this.map.textures[0], colours: this.map.textures[1], n: w * h, location };
+    this.bound = { points: map.textures[0], colours: map.textures[1], n: w * h, location };
   }
 
-  // Compile and run every per-frame pass once on a blank 1x1 map (SwiftShader compiles on first draw), untimed.
+  /**
+   * Compile and run every per-frame pass once on a blank 1x1 map (SwiftShader compiles on first draw), untimed.
+   * @param {Frame} frame
+   * @param {Target} diTarget
+   */
   warmUp(frame, diTarget) {
     const gl = this.gl;
     const identity = new Float32Array([1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1]);
@@ -172,20 +233,30 @@ export class CloudSystem {
 
   // Per frame (baseline_cloudbaking.gl_warp.GLPixelWarp.draw): the bound map splatted into the local camera, its
   // winners' colours where the frame sees a surface, holes filled by push-pull; into this.warped (GL rows).
+  /**
+   * @param {Frame} frame
+   * @param {Target} diTarget
+   */
   warp(frame, diTarget) {
     const gl = this.gl;
+    const bound = this.bound;
+    if (!bound) throw new Error("the cloud pane warps with no map bound");
     copyFlipped(gl, diTarget, 0, this.mask);
-    this.splat(frame);
+    this.splat(frame, bound);
     const mask = this.mask.textures[0];
     pass(gl, this.progs.pixel_resolve, this.fill.level0,
-      { u_index: this.index.textures[0], u_colours: this.bound.colours, u_mask: mask });
+      { u_index: this.index.textures[0], u_colours: bound.colours, u_mask: mask });
     copyFlipped(gl, this.fill.run(mask), 0, this.warped);
     sync(gl, this.warped, 0);
   }
 
   // The nearest point's depth per pixel, then the smallest index among the points at that depth, each pass
   // MIN-blended into a target cleared to "no point".
-  splat(frame) {
+  /**
+   * @param {Frame} frame
+   * @param {BoundMap} bound
+   */
+  splat(frame, bound) {
     const gl = this.gl;
     const n = this.scene.n;
     const prog = this.progs.pixel_splat;
@@ -193,19 +264,25 @@ export class CloudSystem {
     gl.disable(gl.CULL_FACE);
     gl.enable(gl.BLEND);
     gl.blendEquation(gl.MIN);
-    for (const [tgt, other, index] of [[this.nearest, this.index, false], [this.index, this.nearest, true]]) {
+    /** @type {[Target, Target, boolean][]} */
+    const passes = [[this.nearest, this.index, false], [this.index, this.nearest, true]];
+    for (const [tgt, other, index] of passes) {
       bindTarget(gl, tgt);
       gl.clearBufferfv(gl.COLOR, 0, new Float32Array(4).fill(this.empty));
       gl.useProgram(prog.p);
-      bindTextures(gl, prog, { u_points: [4, this.bound.points], u_nearest: [5, other.textures[0]] });
+      bindTextures(gl, prog, { u_points: [4, bound.points], u_nearest: [5, other.textures[0]] });
       setUniforms(gl, prog, { u_vp: frame.local.view_proj, u_near: frame.local.near,
         u_focal_px: frame.local.proj[0] * n / 2, u_size: [n, n], u_index: index });
-      gl.drawArraysInstanced(gl.TRIANGLE_STRIP, 0, 4, this.bound.n);
+      gl.drawArraysInstanced(gl.TRIANGLE_STRIP, 0, 4, bound.n);
     }
     gl.blendEquation(gl.FUNC_ADD);
     gl.disable(gl.BLEND);
   }
 
+  /**
+   * @param {Target} diTarget
+   * @param {number} tau
+   */
   blend(diTarget, tau) {
     this.blender.draw(diTarget.textures[0], this.warped.textures[0], tau);
   }

@@ -8,10 +8,33 @@ import { copyFlipped, pass, programs, readFloats, sync, target, texture } from "
 import { Blend } from "./blend.js";
 import { PushPull } from "./fill.js";
 
-const PROGRAMS = ["structure_slack", "structure_coarse", "structure_mean", "structure_warp", "pull", "push", "encode",
-  "decode"];
+/** @typedef {import("./glutil.js").Target} Target */
+/** @typedef {import("./scene.js").Frame} Frame */
+/** @typedef {typeof import("onnxruntime-web")} Ort */
+/**
+ * What the page reads of model.json (gigan_local.export): the resolution and the input's buffers and depth scale.
+ * @typedef {{resolution: number, input: {buffers: string[], depth_scale: number}}} ModelConfig
+ */
+/**
+ * A map's first half (request): the frame, its stages so far (ms), what the parity check keeps (with `keep`: the
+ * G-buffers, the input and, once joined, the decoded map tone-mapped), session.run's promise and when it was posted.
+ * @typedef {{frame: Frame, stages: {gi_render: number, encode: number},
+ *   kept: {buffers: Record<string, Float32Array>, input: Float32Array, display?: Float32Array} | null,
+ *   run: Promise<{y: Float32Array, ms: number}>, posted: number}} GiganRequest
+ */
+
+const PROGRAMS = /** @type {const} */ (["structure_slack", "structure_coarse", "structure_mean", "structure_warp",
+  "pull", "push", "encode", "decode"]);
 
 export class GiganSystem {
+  /**
+   * @param {import("./glutil.js").GL} gl
+   * @param {import("./scene.js").SceneRenderer} scene
+   * @param {ModelConfig} modelConfig
+   * @param {import("onnxruntime-web").InferenceSession} session
+   * @param {Ort} ort
+   * @param {import("./glutil.js").Shaders} shaders
+   */
   constructor(gl, scene, modelConfig, session, ort, shaders) {
     this.gl = gl;
     this.scene = scene;
@@ -23,6 +46,7 @@ export class GiganSystem {
     this.progs = programs(gl, shaders, PROGRAMS);
     this.uniforms = shaders.structure; // the depth test's tolerance, the coarse level's step
     this.blender = new Blend(gl, shaders);
+    /** @type {(w: number, h: number, formats?: number[]) => Target} */
     const float = (w, h, formats = [gl.RGBA32F]) => target(gl, w, h, formats, { depth: false });
     this.giMap = float(n, n, [gl.RGBA32F, gl.RGBA32F]); // radiance, indirect light; image rows
     this.output = texture(gl, n, 3 * n, gl.R32F); // the generator's output planes, stacked
@@ -37,13 +61,16 @@ export class GiganSystem {
     this.fill = new PushPull(gl, { pull: this.progs.pull, push: this.progs.push }, coarse, coarse, 1); // + block sums
     this.mean = float(1, 1);
     this.warped = float(n, n);
+    /** @type {{wRow: number[], near: number, viewProj: Float32Array, coarse: Target} | null} */
     this.bound = null;
   }
 
   // The frame's GI-camera buffers read back as they are (rows bottom-up, RGBA): the parity check's input.
   readBuffers() {
     const t = this.scene.giTarget;
-    return Object.fromEntries([["albedo", 0], ["normal", 1], ["depth", 3], ["di", 4]].map(([k, a]) => [k, readFloats(this.gl, t, a)]));
+    /** @type {[string, number][]} */
+    const attachments = [["albedo", 0], ["normal", 1], ["depth", 3], ["di", 4]];
+    return Object.fromEntries(attachments.map(([k, a]) => [k, readFloats(this.gl, t, a)]));
   }
 
   // gigan_local.preprocess.frame_to_input on the GPU (the encoding shader, 4 channels per target), read back and
@@ -74,6 +101,7 @@ export class GiganSystem {
 
   // The generator's output (3xHxW in [-1, 1]) to linear radiance (gigan_local.preprocess.output_to_radiance) and
   // its indirect light over the GI camera's DI, in a shader, into the GI map's textures (image rows).
+  /** @param {Float32Array} y */
   decode(y) {
     const gl = this.gl;
     gl.bindTexture(gl.TEXTURE_2D, this.output);
@@ -97,31 +125,44 @@ export class GiganSystem {
   }
 
   // session.run on a tensor (its buffer moves to onnxruntime-web's proxy worker: the caller keeps no view of it).
+  /**
+   * @param {Float32Array} tensor
+   * @returns {Promise<{y: Float32Array, ms: number}>}
+   */
   async infer(tensor) {
     const n = this.n;
-    const feeds = { [this.session.inputNames[0]]: new this.ort.Tensor("float32", tensor, [1, tensor.length / (n * n), n, n]) };
+    const input = new this.ort.Tensor("float32", tensor, [1, tensor.length / (n * n), n, n]);
+    const feeds = { [this.session.inputNames[0]]: input };
     const t0 = performance.now();
     const result = await this.session.run(feeds);
     const ms = performance.now() - t0;
-    return { y: result[this.session.outputNames[0]].data, ms };
+    return { y: /** @type {Float32Array} */ (result[this.session.outputNames[0]].data), ms };
   }
 
   // A map's first half, at request time: DI + G-buffers at the GI camera, encoded and read back, and session.run
   // started (it runs in the worker). With `keep`, also the raw buffers and the input (the parity check's).
+  /**
+   * @param {Frame} frame
+   * @param {boolean} [keep]
+   * @returns {GiganRequest}
+   */
   request(frame, keep = false) {
-    const stages = {};
     let t0 = performance.now();
     sync(this.gl, this.scene.renderGI(frame), 0);
-    stages.gi_render = performance.now() - t0;
+    const giRender = performance.now() - t0;
     t0 = performance.now();
     const tensor = this.encode();
-    stages.encode = performance.now() - t0;
+    const stages = { gi_render: giRender, encode: performance.now() - t0 };
     const kept = keep ? { buffers: this.readBuffers(), input: tensor.slice() } : null;
     return { frame, stages, kept, run: this.infer(tensor), posted: performance.now() };
   }
 
   // Its second half, once session.run is done: the output decoded into the GI map and bound to the request's GI
   // camera. Stages: inference (encoding, the run as the page waited for it, decoding), session_run, bind.
+  /**
+   * @param {GiganRequest} request
+   * @param {{y: Float32Array, ms: number}} result
+   */
   join(request, { y, ms }) {
     const waited = performance.now() - request.posted;
     const t0 = performance.now();
@@ -139,6 +180,7 @@ export class GiganSystem {
   // Per map (gigan_local.gl_warp.GLStructureWarp.bind): the map's depth copied in image rows, its depth planes,
   // the coarse fallback level (block means of the indirect light, push-pull filled) and its mean; the GI camera's
   // projection row.
+  /** @param {Frame} frame */
   bind(frame) {
     const gl = this.gl;
     const p = this.progs;
@@ -155,18 +197,28 @@ export class GiganSystem {
   }
 
   // Per frame: the uv pass, then the warp (resample, depth test, fallback) into this.warped.
+  /**
+   * @param {Frame} frame
+   * @param {Target} diTarget
+   */
   warp(frame, diTarget) {
     const gl = this.gl;
-    const uv = this.scene.renderUV(frame, this.bound.viewProj);
+    const bound = this.bound;
+    if (!bound) throw new Error("GIGAN's pane warps with no map bound");
+    const uv = this.scene.renderUV(frame, bound.viewProj);
     const { u_tol_hi, u_tol_lo, u_inv_step } = this.uniforms;
     pass(gl, this.progs.structure_warp, this.warped, {
       u_uv: uv.textures[0], u_position: uv.textures[1], u_code: uv.textures[2], u_di: diTarget.textures[0],
-      u_planes: this.planes.textures[0], u_gi: this.giMap.textures[0], u_coarse: this.bound.coarse.textures[0],
+      u_planes: this.planes.textures[0], u_gi: this.giMap.textures[0], u_coarse: bound.coarse.textures[0],
       u_mean: this.mean.textures[0],
-    }, { u_w_row: this.bound.wRow, u_near: this.bound.near, u_tol_hi, u_tol_lo, u_inv_step, u_base: true });
+    }, { u_w_row: bound.wRow, u_near: bound.near, u_tol_hi, u_tol_lo, u_inv_step, u_base: true });
     sync(gl, this.warped, 0);
   }
 
+  /**
+   * @param {Target} diTarget
+   * @param {number} tau
+   */
   blend(diTarget, tau) {
     this.blender.draw(diTarget.textures[0], this.warped.textures[0], tau);
   }

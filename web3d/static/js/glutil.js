@@ -1,8 +1,29 @@
 // WebGL2 plumbing shared by both systems: programs (their sources come from web3d.export: scene.json's and
 // shaders.json's), float render targets, a full-screen pass, sync.
 
+/** @typedef {WebGL2RenderingContext} GL */
+/**
+ * A texture with its size, formats and mip levels.
+ * @typedef {WebGLTexture & {w: number, h: number, internal: number, format: number, type: number,
+ *   levels: number}} Texture
+ */
+/** @typedef {{fbo: WebGLFramebuffer, textures: Texture[], w: number, h: number}} Target */
+/** @typedef {{loc: WebGLUniformLocation | null, size: number, type: number}} Uniform */
+/** @typedef {{p: WebGLProgram, uniforms: Record<string, Uniform>}} Program */
+/** @typedef {{vertex: string, fragment: string}} ProgramSource */
+/** @typedef {number | boolean | number[] | Float32Array} UniformValue */
+/**
+ * shaders.json (web3d.shaders.page_shaders): the programs' sources and the constants Python owns.
+ * @typedef {object} Shaders
+ * @property {Record<string, ProgramSource>} programs
+ * @property {{empty: number, linear_of_u8: number[]}} pixel the splat's "no point"; each byte's linear value
+ * @property {Record<"u_step" | "u_tol_hi" | "u_tol_lo" | "u_inv_step", number>} structure the warp's constants
+ * @property {{channels: number, targets: number}} encode the model input's channels and the encoding's targets
+ */
+
 export const ATTRIBS = ["in_pos", "in_nrm", "in_mat", "in_uv"];
 
+/** @param {HTMLCanvasElement} canvas */
 export function context(canvas) {
   const gl = canvas.getContext("webgl2", { antialias: false, depth: false, preserveDrawingBuffer: true });
   if (!gl) throw new Error("this browser has no WebGL2");
@@ -13,10 +34,18 @@ export function context(canvas) {
   return gl;
 }
 
+/**
+ * @param {GL} gl
+ * @param {string} vertex
+ * @param {string} fragment
+ * @returns {Program}
+ */
 export function program(gl, vertex, fragment) {
   const p = gl.createProgram();
-  for (const [type, src] of [[gl.VERTEX_SHADER, vertex], [gl.FRAGMENT_SHADER, fragment]]) {
-    const s = gl.createShader(type);
+  /** @type {[number, string][]} */
+  const stages = [[gl.VERTEX_SHADER, vertex], [gl.FRAGMENT_SHADER, fragment]];
+  for (const [type, src] of stages) {
+    const s = /** @type {WebGLShader} */ (gl.createShader(type));
     gl.shaderSource(s, src);
     gl.compileShader(s);
     if (!gl.getShaderParameter(s, gl.COMPILE_STATUS)) throw new Error(`shader: ${gl.getShaderInfoLog(s)}`);
@@ -26,32 +55,49 @@ export function program(gl, vertex, fragment) {
   gl.linkProgram(p);
   if (!gl.getProgramParameter(p, gl.LINK_STATUS)) throw new Error(`link: ${gl.getProgramInfoLog(p)}`);
   // uniform locations and array sizes, so that arrays longer than what the compiler kept can be cut
+  /** @type {Record<string, Uniform>} */
   const uniforms = {};
   const n = gl.getProgramParameter(p, gl.ACTIVE_UNIFORMS);
   for (let i = 0; i < n; i++) {
-    const info = gl.getActiveUniform(p, i);
+    const info = /** @type {WebGLActiveInfo} */ (gl.getActiveUniform(p, i));
     const name = info.name.replace(/\[0\]$/, "");
     uniforms[name] = { loc: gl.getUniformLocation(p, info.name), size: info.size, type: info.type };
   }
   return { p, uniforms };
 }
 
-// Set uniforms by name; names the program does not use (compiled out) are skipped.
+/**
+ * Set uniforms by name; names the program does not use (compiled out) are skipped.
+ * @param {GL} gl
+ * @param {Program} prog
+ * @param {Record<string, UniformValue>} values
+ */
 export function setUniforms(gl, prog, values) {
   for (const [name, value] of Object.entries(values)) {
     const u = prog.uniforms[name];
     if (!u) continue;
     const t = u.type;
-    if (t === gl.FLOAT_MAT4) gl.uniformMatrix4fv(u.loc, false, value.slice(0, 16 * u.size));
+    if (typeof value === "number" || typeof value === "boolean") {
+      if (t === gl.FLOAT) gl.uniform1f(u.loc, Number(value));
+      else gl.uniform1i(u.loc, Number(value)); // int, bool, samplers
+    } else if (t === gl.FLOAT_MAT4) gl.uniformMatrix4fv(u.loc, false, value.slice(0, 16 * u.size));
     else if (t === gl.FLOAT_VEC4) gl.uniform4fv(u.loc, value.slice(0, 4 * u.size));
     else if (t === gl.FLOAT_VEC3) gl.uniform3fv(u.loc, value);
     else if (t === gl.FLOAT_VEC2) gl.uniform2fv(u.loc, value);
-    else if (t === gl.FLOAT) gl.uniform1fv(u.loc, typeof value === "number" ? [value] : value.slice(0, u.size));
-    else gl.uniform1i(u.loc, typeof value === "boolean" ? Number(value) : value); // int, bool, samplers
+    else gl.uniform1fv(u.loc, value.slice(0, u.size)); // a float array
   }
 }
 
+/**
+ * @param {GL} gl
+ * @param {number} w
+ * @param {number} h
+ * @param {number} internal
+ * @param {{filter?: number, mips?: boolean}} [options]
+ * @returns {Texture}
+ */
 export function texture(gl, w, h, internal, { filter = gl.NEAREST, mips = false } = {}) {
+  /** @type {Record<number, [number, number]>} */
   const formats = {
     [gl.RGBA32F]: [gl.RGBA, gl.FLOAT],
     [gl.RGBA16F]: [gl.RGBA, gl.HALF_FLOAT],
@@ -69,11 +115,18 @@ export function texture(gl, w, h, internal, { filter = gl.NEAREST, mips = false 
   gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MAG_FILTER, filter);
   gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_WRAP_S, gl.CLAMP_TO_EDGE);
   gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_WRAP_T, gl.CLAMP_TO_EDGE);
-  Object.assign(t, { w, h, internal, format, type, levels });
-  return t;
+  return Object.assign(t, { w, h, internal, format, type, levels });
 }
 
-// A framebuffer over colour textures (attachment i = textures[i]) with a depth buffer when asked.
+/**
+ * A framebuffer over colour textures (attachment i = textures[i]) with a depth buffer when asked.
+ * @param {GL} gl
+ * @param {number} w
+ * @param {number} h
+ * @param {number[]} internals
+ * @param {{depth?: boolean, mips?: number[]}} [options]
+ * @returns {Target}
+ */
 export function target(gl, w, h, internals, { depth = true, mips = [] } = {}) {
   const fbo = gl.createFramebuffer();
   gl.bindFramebuffer(gl.FRAMEBUFFER, fbo);
@@ -95,12 +148,22 @@ export function target(gl, w, h, internals, { depth = true, mips = [] } = {}) {
   return { fbo, textures, w, h };
 }
 
+/**
+ * @param {GL} gl
+ * @param {Target | null} t null: the canvas
+ */
 export function bindTarget(gl, t) {
   gl.bindFramebuffer(gl.FRAMEBUFFER, t ? t.fbo : null);
   gl.viewport(0, 0, t ? t.w : gl.drawingBufferWidth, t ? t.h : gl.drawingBufferHeight);
 }
 
-// Read one colour attachment as float RGBA (rows bottom-up, as GL stores them).
+/**
+ * Read one colour attachment as float RGBA (rows bottom-up, as GL stores them).
+ * @param {GL} gl
+ * @param {Target} t
+ * @param {number} attachment
+ * @param {Float32Array} [out]
+ */
 export function readFloats(gl, t, attachment, out) {
   gl.bindFramebuffer(gl.FRAMEBUFFER, t.fbo);
   gl.readBuffer(gl.COLOR_ATTACHMENT0 + attachment);
@@ -112,6 +175,11 @@ export function readFloats(gl, t, attachment, out) {
 // Wait until the GPU has finished what was issued (one texel read back: gl.finish() does not block in Chrome).
 const probeF = new Float32Array(4);
 const probeU = new Uint8Array(4);
+/**
+ * @param {GL} gl
+ * @param {Target | null} [t] null: the canvas
+ * @param {number} [attachment]
+ */
 export function sync(gl, t = null, attachment = 0) {
   gl.bindFramebuffer(gl.FRAMEBUFFER, t ? t.fbo : null);
   if (t) {
@@ -123,22 +191,37 @@ export function sync(gl, t = null, attachment = 0) {
   }
 }
 
+/** @param {GL} gl */
 export function fullscreen(gl) {
   gl.disable(gl.DEPTH_TEST);
   gl.disable(gl.CULL_FACE);
   gl.drawArrays(gl.TRIANGLES, 0, 3);
 }
 
-// The programs `names` of shaders.json's (web3d.shaders.page_shaders), compiled, by name.
+/**
+ * The programs `names` of shaders.json's (web3d.shaders.page_shaders), compiled, by name.
+ * @template {string} N
+ * @param {GL} gl
+ * @param {Shaders} shaders
+ * @param {readonly N[]} names
+ * @returns {Record<N, Program>}
+ */
 export function programs(gl, shaders, names) {
-  return Object.fromEntries(names.map((name) => {
+  return /** @type {Record<N, Program>} */ (Object.fromEntries(names.map((name) => {
     const src = shaders.programs[name];
     if (!src) throw new Error(`shaders.json has no program ${name}: export the assets again`);
     return [name, program(gl, src.vertex, src.fragment)];
-  }));
+  })));
 }
 
-// One full-screen pass of `prog` into `tgt` (null: the canvas): `textures` {uniform: texture} on units 4, 5, ...
+/**
+ * One full-screen pass of `prog` into `tgt` (null: the canvas): `textures` {uniform: texture} on units 4, 5, ...
+ * @param {GL} gl
+ * @param {Program} prog
+ * @param {Target | null} tgt
+ * @param {Record<string, WebGLTexture>} textures
+ * @param {Record<string, UniformValue>} [uniforms]
+ */
 export function pass(gl, prog, tgt, textures, uniforms = {}) {
   bindTarget(gl, tgt);
   gl.useProgram(prog.p);
@@ -149,6 +232,12 @@ export function pass(gl, prog, tgt, textures, uniforms = {}) {
 
 // Colour attachment `attachment` of target `src` copied into `dst`'s first, upside down: GL's rows (row 0 at the
 // bottom, as the page draws its frames) to image rows (row 0 at the top, as the warps read maps), and back.
+/**
+ * @param {GL} gl
+ * @param {Target} src
+ * @param {number} attachment
+ * @param {Target} dst
+ */
 export function copyFlipped(gl, src, attachment, dst) {
   gl.bindFramebuffer(gl.READ_FRAMEBUFFER, src.fbo);
   gl.readBuffer(gl.COLOR_ATTACHMENT0 + attachment);
@@ -157,8 +246,13 @@ export function copyFlipped(gl, src, attachment, dst) {
   gl.bindFramebuffer(gl.FRAMEBUFFER, null);
 }
 
+/**
+ * @param {GL} gl
+ * @param {Program} prog
+ * @param {Record<string, [number, WebGLTexture]>} units {uniformName: [unit, texture]}; units 1 and 3 belong to
+ *   the shadow map's samplers
+ */
 export function bindTextures(gl, prog, units) {
-  // units: {uniformName: [unit, texture]}; units 1 and 3 belong to the shadow map's samplers
   for (const [name, [unit, tex]] of Object.entries(units)) {
     gl.activeTexture(gl.TEXTURE0 + unit);
     gl.bindTexture(gl.TEXTURE_2D, tex);
@@ -167,6 +261,7 @@ export function bindTextures(gl, prog, units) {
   }
 }
 
+/** @param {number[]} values */
 export function median(values) {
   if (!values.length) return NaN;
   const s = [...values].sort((a, b) => a - b);

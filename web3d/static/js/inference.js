@@ -3,6 +3,11 @@
 // keeps drawing meanwhile). The WebGPU build when the browser has an adapter (and --backend allows it), else the
 // wasm-only build (half the wasm to compile).
 
+/**
+ * @param {{backend: string, threads: number}} config
+ * @param {Record<string, unknown>} info where it says which backend it runs and how
+ * @returns {Promise<{ort: typeof import("onnxruntime-web"), session: import("onnxruntime-web").InferenceSession}>}
+ */
 export async function openSession(config, info) {
   const adapter = config.backend !== "wasm" && "gpu" in navigator && (await navigator.gpu.requestAdapter().catch(() => null));
   if (config.backend === "webgpu" && !adapter) throw new Error("--backend webgpu: this browser has no WebGPU adapter");

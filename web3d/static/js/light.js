@@ -4,6 +4,14 @@
 
 import { clampLight } from "./camera.js";
 
+/** @typedef {import("./camera.js").Vec3} Vec3 */
+/**
+ * A light's shadow-map setup (web3d.export.shadow_setup): the atlas's size, one view-projection per face, ...
+ * @typedef {{atlas: [number, number], tile: number, views: Float32Array[] | number[][], far: number,
+ *   texel: number[], blocker_min: number}} ShadowSetup
+ */
+
+/** @param {number[]} light */
 const key = (light) => light.join(",");
 // Setups kept, the least recently used dropped past it (a light dragged for an hour makes one per step): more than a
 // replay's lights, whose setups are fetched before it plays.
@@ -11,18 +19,27 @@ const CACHED = 4096;
 // A key press on a light slider moves the light by this share of its range (the slider's own step is finer, for
 // dragging it).
 const KEY_STEP = 1 / 20;
+/** @type {Record<string, number>} */
 const KEYS = { ArrowRight: 1, ArrowUp: 1, ArrowLeft: -1, ArrowDown: -1 };
 
 export class ShadowSetups {
   constructor() {
+    /** @type {Map<string, ShadowSetup>} */
     this.cache = new Map();
+    /** @type {Promise<void> | null} */
     this.fetching = null;
   }
 
-  // The setup for `light`, or null while it is fetched (one fetch at a time; `onError` hears a failed one).
+  /**
+   * The setup for `light`, or null while it is fetched (one fetch at a time; `onError` hears a failed one).
+   * @param {number[]} light
+   * @param {(error: unknown) => void} onError
+   * @returns {ShadowSetup | null}
+   */
   get(light, onError) {
     const k = key(light);
-    if (this.cache.has(k)) return this.remember(k, this.cache.get(k));
+    const kept = this.cache.get(k);
+    if (kept) return this.remember(k, kept);
     if (!this.fetching) {
       this.fetching = this.fetch(light)
         .catch(onError)
@@ -31,6 +48,7 @@ export class ShadowSetups {
     return null;
   }
 
+  /** @param {number[]} light */
   async fetch(light) {
     const k = key(light);
     const r = await fetch(`/v1/shadow?light=${encodeURIComponent(k)}`);
@@ -38,19 +56,28 @@ export class ShadowSetups {
     this.remember(k, await r.json());
   }
 
-  // `setup` cached as the most recently used, the least recently used dropped past CACHED; returns it.
+  /**
+   * `setup` cached as the most recently used, the least recently used dropped past CACHED; returns it.
+   * @param {string} k
+   * @param {ShadowSetup} setup
+   */
   remember(k, setup) {
     this.cache.delete(k);
     this.cache.set(k, setup);
-    if (this.cache.size > CACHED) this.cache.delete(this.cache.keys().next().value); // a Map keeps insertion order
+    const oldest = this.cache.keys().next().value; // a Map keeps insertion order
+    if (this.cache.size > CACHED && oldest !== undefined) this.cache.delete(oldest);
     return setup;
   }
 
-  // Every setup of `lights` fetched, a few at a time (a replay's lights, before it starts).
+  /**
+   * Every setup of `lights` fetched, a few at a time (a replay's lights, before it starts).
+   * @param {number[][]} lights
+   * @param {number} [parallel]
+   */
   async prefetch(lights, parallel = 4) {
     const todo = [...new Set(lights.map(key))].filter((k) => !this.cache.has(k)).map((k) => k.split(",").map(Number));
     const worker = async () => {
-      while (todo.length) await this.fetch(todo.pop());
+      for (let light = todo.pop(); light; light = todo.pop()) await this.fetch(light);
     };
     await Promise.all(Array.from({ length: parallel }, worker));
   }
@@ -59,12 +86,21 @@ export class ShadowSetups {
 // The requested light: two sliders (x, y; an arrow key moves it KEY_STEP of the range) and Shift+drag on `surface`
 // (a canvas width moves the light across its range); z stays put. The frame loop reads `value`.
 export class LightInput {
+  /**
+   * @param {number[][]} range scene.json's light_range: [low, high]
+   * @param {number[]} light the first
+   * @param {HTMLInputElement[]} sliders x, y
+   * @param {HTMLElement} surface the element over both canvases
+   */
   constructor(range, light, sliders, surface) {
     this.range = range;
     this.sliders = sliders;
+    /** @type {number[]} */
+    this.value = [];
     sliders.forEach((slider, axis) => {
       const [lo, hi] = [range[0][axis], range[1][axis]];
-      Object.assign(slider, { min: lo, max: hi, step: (hi - lo) / 1000 || 1, disabled: !(hi > lo) });
+      Object.assign(slider, { min: String(lo), max: String(hi), step: String((hi - lo) / 1000 || 1) });
+      slider.disabled = !(hi > lo);
       slider.addEventListener("input", () => this.input(axis, Number(slider.value)));
       slider.addEventListener("keydown", (e) => {
         if (!(e.key in KEYS) || slider.disabled) return;
@@ -76,12 +112,17 @@ export class LightInput {
     this.dragOn(surface);
   }
 
+  /** @param {number[]} light */
   set(light) {
     this.value = clampLight(light, this.range);
-    this.sliders.forEach((slider, axis) => (slider.value = this.value[axis]));
+    this.sliders.forEach((slider, axis) => (slider.value = String(this.value[axis])));
     return this.value;
   }
 
+  /**
+   * @param {number} axis
+   * @param {number} v
+   */
   input(axis, v) {
     const light = [...this.value];
     light[axis] = v;
@@ -89,8 +130,11 @@ export class LightInput {
   }
 
   // Shift+drag: captured before the orbit controls see the pointer (they pan on Shift+drag otherwise).
+  /** @param {HTMLElement} surface */
   dragOn(surface) {
+    /** @type {number[] | null} */
     let last = null;
+    /** @param {PointerEvent} e */
     const move = (e) => {
       if (!last) return;
       const w = surface.clientWidth / 2 || 1; // one canvas
@@ -106,8 +150,8 @@ export class LightInput {
       document.removeEventListener("pointermove", move);
       document.removeEventListener("pointerup", up);
     };
-    surface.parentElement.addEventListener("pointerdown", (e) => {
-      if (!e.shiftKey || e.button !== 0 || !surface.contains(e.target)) return;
+    /** @type {HTMLElement} */ (surface.parentElement).addEventListener("pointerdown", (e) => {
+      if (!e.shiftKey || e.button !== 0 || !surface.contains(/** @type {Node} */ (e.target))) return;
       e.stopPropagation(); // the controls on `surface` never see it
       last = [e.clientX, e.clientY];
       document.addEventListener("pointermove", move);

@@ -8,6 +8,12 @@
 
 import { decodeDepth, decodeImage, unpack } from "./payload.js";
 
+/** @typedef {import("./payload.js").MapReply} MapReply */
+
+/**
+ * @param {string} url
+ * @param {string} body
+ */
 async function fetchMap(url, body) {
   const started = performance.now();
   const response = await fetch(url, { method: "POST", headers: { "Content-Type": "application/json" }, body });
@@ -15,30 +21,36 @@ async function fetchMap(url, body) {
   if (!response.ok) throw new Error(`/v1/gimap answered ${response.status}: ${await response.text()}`);
   const buffer = await response.arrayBuffer();
   const arrived = performance.now();
-  const entry = performance.getEntriesByType("resource").find((e) => e.name === url && e.startTime >= started - 1 && e.responseEnd > 0);
+  const entries = /** @type {PerformanceResourceTiming[]} */ (performance.getEntriesByType("resource"));
+  const entry = entries.find((e) => e.name === url && e.startTime >= started - 1 && e.responseEnd > 0);
   performance.clearResourceTimings();
   const times = entry ? { started: entry.startTime, firstByte: entry.responseStart, arrived: entry.responseEnd }
     : { started, firstByte, arrived };
   return { buffer, times, timing: entry ? "resource" : "script", location: response.headers.get("Content-Location") };
 }
 
+/** @param {ArrayBuffer} buffer */
 async function decode(buffer) {
   const { header, sections } = unpack(buffer);
   const bitmap = await decodeImage(header.codec, sections.gi);
   return { header, bitmap, ...decodeDepth(sections.depth) };
 }
 
+/** @param {MessageEvent<{id: number, url: string, body: string}>} event */
 self.onmessage = async ({ data: { id, url, body } }) => {
   try {
     const { buffer, times, timing, location } = await fetchMap(url, body);
     const from = performance.now();
     const map = await decode(buffer);
+    /** @param {number} t */
     const epoch = (t) => performance.timeOrigin + t;
     const all = { ...times, from, to: performance.now() };
+    const onEpoch = Object.fromEntries(Object.entries(all).map(([k, t]) => [k, epoch(t)]));
+    /** @type {MapReply} */
     const reply = { id, ...map, bytes: buffer.byteLength, timing, location, scope: self.constructor.name,
-      times: Object.fromEntries(Object.entries(all).map(([k, t]) => [k, epoch(t)])) };
+      times: /** @type {MapReply["times"]} */ (onEpoch) };
     self.postMessage(reply, [map.bitmap, map.depth.buffer]);
   } catch (e) {
-    self.postMessage({ id, error: String(e && e.message ? e.message : e) });
+    self.postMessage({ id, error: String(e instanceof Error ? e.message : e) });
   }
 };

@@ -5,14 +5,34 @@
 
 import { decompress } from "/npm/fzstd/index.mjs";
 
+/**
+ * The payload's JSON header as the page reads it: its sections, the GI camera's view and projection (rows), the
+ * store's answer and the server's stage timings.
+ * @typedef {{codec: string, sections: {name: string, bytes: number}[], view: number[][], proj: number[][],
+ *   hit: boolean, timings_ms?: Record<string, number>}} Header
+ */
+/**
+ * map_worker.js's reply for one map: the decoded image and depth, the payload's size, where the stored map lives
+ * (/v1/maps/{sha}), its times (ms since the epoch) and where and how they were taken; or {id, error}.
+ * @typedef {{id: number, header: Header, bitmap: ImageBitmap, depth: Float32Array, h: number, w: number,
+ *   bytes: number, timing: string, location: string | null, scope: string,
+ *   times: Record<"started" | "firstByte" | "arrived" | "from" | "to", number>}} MapReply
+ */
+
+/** @type {Record<string, string>} */
 const MEDIA = { jpeg: "image/jpeg", webp: "image/webp", png: "image/png", avif: "image/avif" };
 
+/**
+ * @param {ArrayBuffer} buffer
+ * @returns {{header: Header, sections: Record<string, Uint8Array<ArrayBuffer>>}}
+ */
 export function unpack(buffer) {
   const bytes = new Uint8Array(buffer);
   const magic = String.fromCharCode(...bytes.subarray(0, 4));
   if (magic !== "GIM1") throw new Error(`not a GI-map payload (starts with ${JSON.stringify(magic)})`);
   const n = new DataView(buffer).getUint32(4, true);
   const header = JSON.parse(new TextDecoder().decode(bytes.subarray(8, 8 + n)));
+  /** @type {Record<string, Uint8Array<ArrayBuffer>>} */
   const sections = {};
   let offset = 8 + n;
   for (const s of header.sections) {
@@ -23,6 +43,10 @@ export function unpack(buffer) {
   return { header, sections };
 }
 
+/**
+ * @param {string} codec
+ * @param {Uint8Array<ArrayBuffer>} data
+ */
 export async function decodeImage(codec, data) {
   const media = MEDIA[codec];
   if (!media) throw new Error(`the page decodes 8-bit images only, not ${codec}`);
@@ -43,7 +67,10 @@ const f16 = (() => {
   return table;
 })();
 
-// Depth (HxW float32, rows top-down) from its zstd-f16-delta bytes.
+/**
+ * Depth (HxW float32, rows top-down) from its zstd-f16-delta bytes.
+ * @param {Uint8Array} data
+ */
 export function decodeDepth(data) {
   const view = new DataView(data.buffer, data.byteOffset, data.byteLength);
   const h = view.getUint32(0, true);

@@ -3,10 +3,54 @@
 
 import { program, setUniforms, target, bindTarget, texture } from "./glutil.js";
 
+/** @typedef {import("./glutil.js").GL} GL */
+/** @typedef {import("./glutil.js").Program} Program */
+/** @typedef {import("./glutil.js").Target} Target */
+/** @typedef {import("./glutil.js").Texture} Texture */
+/** @typedef {import("./glutil.js").UniformValue} UniformValue */
+/** @typedef {import("./camera.js").Vec3} Vec3 */
+/** @typedef {import("./camera.js").WithMatrices<Float32Array>} GLCamera */
+/** @typedef {import("./light.js").ShadowSetup} ShadowSetup */
+/** @typedef {{tex: Texture, fbo: WebGLFramebuffer, key: string, setup: ShadowSetup}} ShadowMap */
+/**
+ * scene.json's camera: the path's first view, both fields of view, the clip planes.
+ * @typedef {{eye: Vec3, target: Vec3, up: Vec3, local_fov: number, gi_fov: number, near: number,
+ *   far: number}} SceneCamera
+ */
+/**
+ * A frame as the passes draw it: its local and GI cameras, its light and that light's shadow setup.
+ * @typedef {{local: GLCamera, gi: GLCamera, light: number[], shadow: ShadowSetup}} Frame
+ */
+/**
+ * scene.json (web3d.export): the byte ranges of scene.bin, the passes' programs, the materials, the light, the
+ * camera and its envelope.
+ * @typedef {object} SceneHeader
+ * @property {string} scene
+ * @property {number} resolution
+ * @property {number} triangles
+ * @property {number} vertex_floats
+ * @property {{offset: number, count: number}} vertices
+ * @property {{offset: number, count: number, culled: number}} indices
+ * @property {{offset: number, count: number}} shadow_vertices
+ * @property {{offset: number, count: number}} shadow_indices
+ * @property {Record<string, import("./glutil.js").ProgramSource>} programs
+ * @property {number[]} materials
+ * @property {{intensity: number, size: number, samples: number}} light
+ * @property {number} eta
+ * @property {SceneCamera} camera
+ * @property {import("./camera.js").Envelope} navigation
+ * @property {number[][]} light_range
+ */
+
 const UNIT_SHADOW = 1; // the depth-comparison sampler's texture unit
 const UNIT_SHADOW_RAW = 3; // the same texture without comparison (PCSS blocker search; area lights)
 
 export class SceneRenderer {
+  /**
+   * @param {GL} gl
+   * @param {SceneHeader} scene
+   * @param {ArrayBuffer} bin scene.bin
+   */
   constructor(gl, scene, bin) {
     this.gl = gl;
     this.scene = scene;
@@ -43,6 +87,7 @@ export class SceneRenderer {
     gl.bufferData(gl.ELEMENT_ARRAY_BUFFER, new Uint32Array(bin, si.offset, si.count), gl.STATIC_DRAW);
     gl.bindVertexArray(null);
 
+    /** @type {Record<string, Program>} */
     this.programs = {};
     for (const [name, src] of Object.entries(scene.programs)) this.programs[name] = program(gl, src.vertex, src.fragment);
     this.materials = new Float32Array(scene.materials);
@@ -66,9 +111,15 @@ export class SceneRenderer {
     gl.samplerParameteri(raw, gl.TEXTURE_MAG_FILTER, gl.NEAREST);
     gl.bindSampler(UNIT_SHADOW, compare);
     gl.bindSampler(UNIT_SHADOW_RAW, raw);
-    this.shadow = null; // {key, setup, tex, fbo}
+    /** @type {ShadowMap | null} */
+    this.shadow = null;
   }
 
+  /**
+   * @param {Program} prog
+   * @param {Record<string, UniformValue>} uniforms
+   * @param {Target} tgt
+   */
   drawScene(prog, uniforms, tgt) {
     const gl = this.gl;
     bindTarget(gl, tgt);
@@ -92,11 +143,15 @@ export class SceneRenderer {
     gl.bindVertexArray(null);
   }
 
-  // The shadow-map atlas for the frame's light (rendered when the light moved, as GLRenderer does).
+  /**
+   * The shadow-map atlas for the frame's light (rendered when the light moved, as GLRenderer does).
+   * @param {Frame} frame
+   * @returns {ShadowMap}
+   */
   ensureShadow(frame) {
     const gl = this.gl;
     const key = frame.light.join(",");
-    if (this.shadow && this.shadow.key === key) return;
+    if (this.shadow && this.shadow.key === key) return this.shadow;
     const setup = frame.shadow;
     const [aw, ah] = setup.atlas;
     if (!this.shadow || this.shadow.tex.w !== aw || this.shadow.tex.h !== ah) {
@@ -105,9 +160,9 @@ export class SceneRenderer {
       gl.bindFramebuffer(gl.FRAMEBUFFER, fbo);
       gl.framebufferTexture2D(gl.FRAMEBUFFER, gl.DEPTH_ATTACHMENT, gl.TEXTURE_2D, tex, 0);
       gl.drawBuffers([gl.NONE]);
-      this.shadow = { tex, fbo };
+      this.shadow = { tex, fbo, key, setup };
     }
-    const { tex, fbo } = this.shadow;
+    const fbo = this.shadow.fbo;
     gl.bindFramebuffer(gl.FRAMEBUFFER, fbo);
     gl.viewport(0, 0, aw, ah);
     gl.clearDepth(1);
@@ -124,12 +179,17 @@ export class SceneRenderer {
       gl.drawElements(gl.TRIANGLES, this.scene.shadow_indices.count, gl.UNSIGNED_INT, 0);
     });
     gl.bindVertexArray(null);
-    Object.assign(this.shadow, { key, setup });
+    return Object.assign(this.shadow, { key, setup });
   }
 
-  diUniforms(frame) {
+  /**
+   * @param {Frame} frame
+   * @param {ShadowMap} shadow its shadow map
+   * @returns {Record<string, UniformValue>}
+   */
+  diUniforms(frame, shadow) {
     const gl = this.gl;
-    const s = this.shadow.setup;
+    const { setup: s, tex } = shadow;
     const light = this.scene.light;
     const k = light.size > 0 ? light.samples : 1;
     const vps = new Float32Array(16 * 6);
@@ -137,9 +197,9 @@ export class SceneRenderer {
     const texel = new Float32Array(6);
     texel.set(s.texel);
     gl.activeTexture(gl.TEXTURE0 + UNIT_SHADOW);
-    gl.bindTexture(gl.TEXTURE_2D, this.shadow.tex);
+    gl.bindTexture(gl.TEXTURE_2D, tex);
     gl.activeTexture(gl.TEXTURE0 + UNIT_SHADOW_RAW);
-    gl.bindTexture(gl.TEXTURE_2D, this.shadow.tex);
+    gl.bindTexture(gl.TEXTURE_2D, tex);
     return {
       u_light: frame.light,
       u_intensity: light.intensity / (k * k),
@@ -157,32 +217,47 @@ export class SceneRenderer {
     };
   }
 
+  /** @param {GLCamera} cam */
   cameraUniforms(cam) {
     return { u_view_proj: cam.view_proj, u_view: cam.view, u_eye: cam.eye, u_project_uv: false };
   }
 
-  variant(name) {
-    return this.programs[this.shadow.setup.views.length === 6 ? `${name}_cube` : name];
+  /**
+   * @param {string} name
+   * @param {ShadowMap} shadow
+   */
+  variant(name, shadow) {
+    return this.programs[shadow.setup.views.length === 6 ? `${name}_cube` : name];
   }
 
-  // DI + G-buffers at the GI camera (one pass, five targets): GIGAN's generator input.
+  /**
+   * DI + G-buffers at the GI camera (one pass, five targets): GIGAN's generator input.
+   * @param {Frame} frame
+   */
   renderGI(frame) {
-    this.ensureShadow(frame);
-    const u = { ...this.cameraUniforms(frame.gi), ...this.diUniforms(frame) };
-    this.drawScene(this.variant("di_gbuffer"), u, this.giTarget);
+    const shadow = this.ensureShadow(frame);
+    const u = { ...this.cameraUniforms(frame.gi), ...this.diUniforms(frame, shadow) };
+    this.drawScene(this.variant("di_gbuffer", shadow), u, this.giTarget);
     return this.giTarget;
   }
 
-  // The local camera's DI (alpha 1 on surfaces: the surface mask).
+  /**
+   * The local camera's DI (alpha 1 on surfaces: the surface mask).
+   * @param {Frame} frame
+   */
   renderDI(frame) {
-    this.ensureShadow(frame);
-    const u = { ...this.cameraUniforms(frame.local), ...this.diUniforms(frame) };
-    this.drawScene(this.variant("di"), u, this.diTarget);
+    const shadow = this.ensureShadow(frame);
+    const u = { ...this.cameraUniforms(frame.local), ...this.diUniforms(frame, shadow) };
+    this.drawScene(this.variant("di", shadow), u, this.diTarget);
     return this.diTarget;
   }
 
   // The structure-aware warp's pass: the GI camera's clip (x, y) per vertex (eq. 5, projected in the vertex
   // shader), interpolated, with the world position and the surface code.
+  /**
+   * @param {Frame} frame
+   * @param {Float32Array} giViewProj
+   */
   renderUV(frame, giViewProj) {
     const u = { ...this.cameraUniforms(frame.local), u_project_uv: true, u_uv_proj: giViewProj };
     this.drawScene(this.programs.uv, u, this.uvTarget);
