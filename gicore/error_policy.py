@@ -10,9 +10,10 @@ released, worker processes stopped, nothing half-written kept). Then
 
 - a batch command (a dataset, a training, a bench, a client run) stopped before it finished prints one line
   ``interrupted: <what was kept and how to resume>`` on stderr and exits 130;
-- a service (a server, a proxy, a viewer) runs its body in :func:`serving`: a requested stop is how it ends
+- a service (a server, a proxy, a viewer; ``entry_point(app, services=...)``): a requested stop is how it ends
   normally, so once its in-flight work is finished or dropped it exits 0, silently.
 
+A service's console script is :func:`launch`: a stop that lands while its modules load ends it as quietly.
 Every entry point is built with :func:`entry_point`; no command catches errors itself::
 
     app = typer.Typer()
@@ -23,17 +24,18 @@ and ``pyproject.toml`` names ``package.module:main``.
 
 from __future__ import annotations
 
+import importlib
 import os
 import signal
 import sys
 import threading
-from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Callable, Collection, Sequence
 from pathlib import Path
 from types import FrameType
-from typing import Any, NoReturn
+from typing import TYPE_CHECKING, Any, NoReturn
 
-import typer
+if TYPE_CHECKING:  # imported by run(): launch() loads this module before any other of the program
+    import typer
 
 #: Exit status of a user error (as click's usage errors) and of a batch command stopped by SIGINT or SIGTERM
 #: (128 + SIGINT, what a shell reports for Ctrl-C).
@@ -41,30 +43,60 @@ EXIT_USER_ERROR = 2
 EXIT_INTERRUPTED = 130
 
 
+#: Which of a console script's commands are services: True (all of them), False (none), or their names.
+Services = bool | Collection[str]
+
+
+def is_service(services: Services, args: Sequence[str]) -> bool:
+    """Whether the command that ``args`` (the arguments after the script's name) runs is one of ``services``."""
+    if isinstance(services, bool):
+        return services
+    return bool(args) and args[0] in services
+
+
 def _interrupt_on_sigterm(signum: int, frame: FrameType | None) -> None:
     signal.signal(signal.SIGTERM, signal.SIG_DFL)  # a second SIGTERM during the clean-up ends the process at once
     raise KeyboardInterrupt
 
 
-def _catch_sigterm() -> Any:
-    """Make SIGTERM a :class:`KeyboardInterrupt`, as Ctrl-C is (main thread only, and only where SIGTERM has
-    its default action: an ignored one stays ignored); returns the handler to put back, or None if none was set."""
+class _StopLoading:
+    """The handler :func:`launch` installs: nothing has begun, so the process ends at once."""
+
+    def __init__(self, service: bool) -> None:
+        self.service = service
+
+    def __call__(self, signum: int, frame: FrameType | None) -> None:
+        if not self.service:
+            os.write(2, b"\ninterrupted: nothing was started; run the command again\n")
+        os._exit(0 if self.service else EXIT_INTERRUPTED)
+
+
+def launch(module: str, services: Services) -> None:
+    """A console script whose command's ``module`` is slow to import (its ``main`` an :func:`entry_point`): from
+    here until :func:`run` takes the signals over, a Ctrl-C or SIGTERM (one not ignored) ends the process at once,
+    as nothing has begun, a service with exit 0 and no word (as a stop once it serves), a batch command as an
+    interrupted one. Raised as a KeyboardInterrupt inside an import, it would be a traceback."""
+    if threading.current_thread() is threading.main_thread():
+        handler = _StopLoading(is_service(services, sys.argv[1:]))
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            if signal.getsignal(sig) in (signal.default_int_handler, signal.SIG_DFL):
+                signal.signal(sig, handler)
+    importlib.import_module(module).main()
+
+
+def _catch_signals() -> Any:
+    """Make SIGTERM a :class:`KeyboardInterrupt`, as Ctrl-C is, and Ctrl-C one again after
+    :func:`launch` (main thread only, and only where SIGTERM has its default action or the loading
+    one: an ignored one stays ignored); returns the SIGTERM handler to put back, or None if none was set."""
     if threading.current_thread() is not threading.main_thread():
         return None
-    if signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL:
+    if isinstance(signal.getsignal(signal.SIGINT), _StopLoading):
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+    previous = signal.getsignal(signal.SIGTERM)
+    if previous is not signal.SIG_DFL and not isinstance(previous, _StopLoading):
         return None
-    return signal.signal(signal.SIGTERM, _interrupt_on_sigterm)
-
-
-@contextmanager
-def serving() -> Iterator[None]:
-    """The body of a service: a stop requested by SIGINT or SIGTERM, which reaches it as a
-    :class:`KeyboardInterrupt` (or as a signal the service re-raises after its own graceful shutdown, as
-    uvicorn does), ends it normally, so the command exits 0. Clean-ups inside the body run first."""
-    try:
-        yield
-    except KeyboardInterrupt:
-        pass
+    signal.signal(signal.SIGTERM, _interrupt_on_sigterm)
+    return signal.SIG_DFL
 
 
 class UserError(Exception):
@@ -91,20 +123,28 @@ def _oserror_line(exc: OSError) -> str:
 
 
 def run(
-    app: typer.Typer, argv: Sequence[str] | None = None, *, prog_name: str | None = None, resume: str | None = None
+    app: typer.Typer,
+    argv: Sequence[str] | None = None,
+    *,
+    prog_name: str | None = None,
+    resume: str | None = None,
+    services: Services = False,
 ) -> NoReturn:
-    """Run a Typer app under the error policy and exit with its status.
+    """Run a Typer app under the error policy and exit with its status; a stop of one of ``services`` (see
+    :data:`Services`) exits 0, silently.
 
     The command is parsed and invoked here rather than through Typer's own ``main``, which would turn
     Ctrl-C into a silent exit status and print usage errors as a multi-line box.
     """
+    import typer
+
     args = list(sys.argv[1:] if argv is None else argv)
     debug = "--debug" in args
     if debug:
         args.remove("--debug")
     prog = prog_name or Path(sys.argv[0]).name
     command = typer.main.get_command(app)
-    previous_sigterm = _catch_sigterm()
+    previous_sigterm = _catch_signals()
     try:
         with command.make_context(prog, args) as ctx:
             command.invoke(ctx)
@@ -132,10 +172,10 @@ def run(
             raise
         _fail(_oserror_line(exc))
     except (KeyboardInterrupt, typer.Abort):
-        _interrupted(resume)
+        _stopped(resume, is_service(services, args))
     except Exception as exc:
         if not debug and _interrupt_behind(exc):  # e.g. Dr.Jit wraps a Ctrl-C during a render in a RuntimeError
-            _interrupted(resume)
+            _stopped(resume, is_service(services, args))
         raise
     finally:
         if previous_sigterm is not None:
@@ -155,7 +195,10 @@ def _interrupt_behind(exc: BaseException) -> bool:
     return False
 
 
-def _interrupted(resume: str | None) -> NoReturn:
+def _stopped(resume: str | None, service: bool) -> NoReturn:
+    """A requested stop: how a service ends normally (its clean-ups have run), a batch command's interruption."""
+    if service:
+        sys.exit(0)
     print(f"\ninterrupted: {resume or 'nothing half-written was kept; run the command again'}", file=sys.stderr)
     sys.exit(EXIT_INTERRUPTED)
 
@@ -165,11 +208,12 @@ def _fail(line: str) -> NoReturn:
     sys.exit(EXIT_USER_ERROR)
 
 
-def entry_point(app: typer.Typer, *, resume: str | None = None) -> Callable[[], NoReturn]:
-    """The console-script function for ``app``; ``resume`` tells an interrupted user how to go on."""
+def entry_point(app: typer.Typer, *, resume: str | None = None, services: Services = False) -> Callable[[], NoReturn]:
+    """The console-script function for ``app``; ``resume`` tells an interrupted user how to go on; ``services``:
+    the commands a stop ends normally (:data:`Services`)."""
 
     def main() -> NoReturn:
-        run(app, resume=resume)
+        run(app, resume=resume, services=services)
 
     return main
 

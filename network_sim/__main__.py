@@ -1,5 +1,5 @@
 """``python -m network_sim`` is ``network-sim``."""
 
-from network_sim.cli import main
+from network_sim import main
 
 main()

@@ -17,8 +17,9 @@ from typing import Annotated, Any, Literal
 import typer
 
 from gicore import option_groups
-from gicore.error_policy import UserError, entry_point, serving, writable_dir
+from gicore.error_policy import UserError, entry_point, writable_dir
 from gicore.options import HOST_PORT, build_config, check_fields, config_command, split_host_port
+from network_sim import SERVICES
 from network_sim import profiles as profile_table
 from network_sim.chunklog import LOG_FIX
 from network_sim.files import refuse_irregular
@@ -27,7 +28,7 @@ from network_sim.proxy import IDLE_MIN_BYTES, IDLE_TIMEOUT_S, MAX_CONNECTIONS
 from network_sim.trace import OPPORTUNITY_BYTES, Trace
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, help=__doc__.split("\n\n")[0])
-main = entry_point(app, resume="nothing is kept from an interrupted run; run the command again")
+main = entry_point(app, resume="nothing is kept from an interrupted run; run the command again", services=SERVICES)
 
 #: Largest one-way delay or jitter, ms: a minute (a GEO satellite hop is ~270 ms; more is a typo).
 DELAY_MS_MAX = 60_000.0
@@ -136,17 +137,16 @@ def proxy(given: dict[str, Any]) -> None:
     """Proxy TCP connections through an emulated link until SIGTERM/SIGINT."""
     from network_sim.proxy import Settings, run
 
-    with serving():
-        opts = build_config(ProxyOptions, given)
-        config = opts.link()
-        for option, path in (("--log", opts.log), ("--lateness", opts.lateness)):
-            if path is not None:  # before the upstream is checked: a FIFO would block the proxy once it opens it
-                refuse_irregular(path, option, LOG_FIX)
-                writable_dir(path.parent, name=f"{option} folder")
-        assert opts.upstream is not None  # a required option
-        listen, upstream = split_host_port(opts.listen, "--listen"), split_host_port(opts.upstream, "--upstream")
-        settings = Settings(opts.log, opts.lateness, opts.max_connections, opts.idle_timeout_s, opts.idle_min_bytes)
-        run(config, listen, upstream, settings)
+    opts = build_config(ProxyOptions, given)
+    config = opts.link()
+    for option, path in (("--log", opts.log), ("--lateness", opts.lateness)):
+        if path is not None:  # before the upstream is checked: a FIFO would block the proxy once it opens it
+            refuse_irregular(path, option, LOG_FIX)
+            writable_dir(path.parent, name=f"{option} folder")
+    assert opts.upstream is not None  # a required option
+    listen, upstream = split_host_port(opts.listen, "--listen"), split_host_port(opts.upstream, "--upstream")
+    settings = Settings(opts.log, opts.lateness, opts.max_connections, opts.idle_timeout_s, opts.idle_min_bytes)
+    run(config, listen, upstream, settings)
 
 
 config_command(app, ProxyOptions, proxy)
@@ -175,8 +175,7 @@ def server(given: dict[str, Any]) -> None:
     opts = build_config(ServerOptions, given)
     host, port = split_host_port(opts.listen, "--listen")
     try:
-        with serving():
-            asyncio.run(serve(host, port))
+        asyncio.run(serve(host, port))
     except OSError as exc:
         raise UserError(
             f"--listen {opts.listen}: cannot listen ({exc.strerror or exc})", "pick a free port, or 0 for any"

@@ -10,3 +10,11 @@
 This package sits beside ``bench``: it depends on ``gicore`` and on ``gigan_local``'s model files, and
 passes cloud-baking payloads through as bytes (the browser decodes them).
 """
+
+
+def main() -> None:
+    """``gigan-web``: :mod:`web3d.cli`, a service, loaded as :func:`gicore.error_policy.launch` loads one (a stop
+    while its modules load, a second or two, ends it quietly)."""
+    from gicore.error_policy import launch
+
+    launch("web3d.cli", services=True)

@@ -12,41 +12,36 @@ then open the printed address in Chrome or Chromium. Its options are derived fro
 
 from __future__ import annotations
 
-import sys
+import errno
+from collections.abc import Callable, Iterator
+from contextlib import ExitStack, contextmanager
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Literal
 
-try:  # Ctrl-C while the modules load (a second or two) stops the service before it began: quietly, exit 0
-    import errno
-    from collections.abc import Callable, Iterator
-    from contextlib import ExitStack, contextmanager
-    from dataclasses import asdict, dataclass, field
-    from pathlib import Path
-    from typing import Any, Literal
+import typer
 
-    import typer
-
-    from baseline_cloudbaking.codecs import DEFAULT_CODEC, CodecName
-    from gicore import option_groups
-    from gicore.error_policy import UserError, entry_point, serving
-    from gicore.options import (
-        FRAMES,
-        HOST_PORT,
-        THREADS,
-        build_config,
-        check_fields,
-        config_command,
-        split_host_port,
-    )
-    from gicore.scene import load_scene
-    from gigan_local.inference import DEFAULT_MODEL, check_model_option
-    from network_sim.profiles import profiles_field
-    from web3d.children import ChildCloud
-    from web3d.export import export_assets
-    from web3d.routes_shadow import Shadows
-    from web3d.serve import WebServer
-    from web3d.site import WEB_DIR, Site
-    from web3d.upstreams import OFF, Cloud, Fixed, Unavailable
-except KeyboardInterrupt:
-    sys.exit(0)
+from baseline_cloudbaking.codecs import DEFAULT_CODEC, CodecName
+from gicore import option_groups
+from gicore.error_policy import UserError, entry_point
+from gicore.options import (
+    FRAMES,
+    HOST_PORT,
+    THREADS,
+    build_config,
+    check_fields,
+    config_command,
+    split_host_port,
+)
+from gicore.scene import load_scene
+from gigan_local.inference import DEFAULT_MODEL, check_model_option
+from network_sim.profiles import profiles_field
+from web3d.children import ChildCloud
+from web3d.export import export_assets
+from web3d.routes_shadow import Shadows
+from web3d.serve import WebServer
+from web3d.site import WEB_DIR, Site
+from web3d.upstreams import OFF, Cloud, Fixed, Unavailable
 
 app = typer.Typer(add_completion=False, help="Serve the Web3D viewer: GIGAN and cloud baking side by side.")
 BACKENDS = ("auto", "wasm", "webgpu")
@@ -147,21 +142,20 @@ def prepare(cfg: WebConfig, cloud: Cloud) -> Site:
 def serve_command(given: dict[str, Any]) -> None:
     """Export the scene's assets, start the cloud side and serve the page until SIGINT or SIGTERM (a service: a
     stop exits 0, its children stopped)."""
-    with serving():
-        cfg = build_config(WebConfig, given)
-        host, port = split_host_port(cfg.listen, "--listen")
-        try:
-            server = WebServer(None, host, port)  # the address first: a taken port fails before anything is written
-        except OSError as exc:
-            taken = exc.errno in (errno.EADDRINUSE, errno.EACCES)  # in use, or a privileged port
-            todo = "pick a free port (0 picks one)" if taken else "give an address of this machine, e.g. 127.0.0.1:8080"
-            raise UserError(f"--listen {cfg.listen}: cannot listen ({exc.strerror or exc})", todo) from None
-        cloud = cloud_for(cfg)
-        site = prepare(cfg, cloud)  # rewritten whole on every start, so one cut short by a stop is simply redone
-        with _started(cloud):
-            server.attach(site)
-            line = f"serving {site.config['scene']} at {server.url}/ ({_describe(cfg, cloud)})"
-            server.serve_forever(lambda: typer.echo(line))
+    cfg = build_config(WebConfig, given)
+    host, port = split_host_port(cfg.listen, "--listen")
+    try:
+        server = WebServer(None, host, port)  # the address first: a taken port fails before anything is written
+    except OSError as exc:
+        taken = exc.errno in (errno.EADDRINUSE, errno.EACCES)  # in use, or a privileged port
+        todo = "pick a free port (0 picks one)" if taken else "give an address of this machine, e.g. 127.0.0.1:8080"
+        raise UserError(f"--listen {cfg.listen}: cannot listen ({exc.strerror or exc})", todo) from None
+    cloud = cloud_for(cfg)
+    site = prepare(cfg, cloud)  # rewritten whole on every start, so one cut short by a stop is simply redone
+    with _started(cloud):
+        server.attach(site)
+        line = f"serving {site.config['scene']} at {server.url}/ ({_describe(cfg, cloud)})"
+        server.serve_forever(lambda: typer.echo(line))
 
 
 @contextmanager
@@ -184,11 +178,8 @@ def _describe(cfg: WebConfig, cloud: Cloud) -> str:
     return f"cloud baking: profiles {', '.join(cloud.profiles)}; stores {', '.join(cloud.stores)}"
 
 
-try:  # the options' defaults are computed here (the profiles' traces are read): Ctrl-C still exits quietly
-    config_command(app, WebConfig, serve_command)
-except KeyboardInterrupt:
-    sys.exit(0)
-main = entry_point(app)
+config_command(app, WebConfig, serve_command)  # computes the options' defaults (reads the profiles' traces)
+main = entry_point(app, services=True)
 
 if __name__ == "__main__":
     main()

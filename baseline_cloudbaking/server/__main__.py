@@ -2,7 +2,7 @@
 
 import sys
 
-from baseline_cloudbaking.server.cli import main
+from baseline_cloudbaking.server import main
 
 sys.argv[0] = "cloudbaking-server"  # usage and error lines name the command as the console script does
 main()

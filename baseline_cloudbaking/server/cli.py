@@ -30,7 +30,7 @@ from pydantic import ValidationError
 from pydantic_settings import SettingsError
 
 from baseline_cloudbaking.server.settings import Settings, check_environment, env_name, given_settings, setting_options
-from gicore.error_policy import UserError, entry_point, serving, writable_dir
+from gicore.error_policy import UserError, entry_point, writable_dir
 from gicore.options import build_config, config_command, option_name
 
 if TYPE_CHECKING:
@@ -122,24 +122,23 @@ def serve(given: dict[str, Any]) -> None:
     """Serve GI maps over HTTP from the GI tree in --store."""
     from baseline_cloudbaking.server.stop import StoppingServer
 
-    with serving():
-        opts = build_config(CommandOptions, given)
-        if opts.scenes is not None and not opts.scenes.is_dir():
-            raise UserError(f"--scenes {opts.scenes} is not a folder", "give a folder of scene spec files")
-        for line in skipped_specs(opts.scenes) if opts.scenes is not None else ():
-            print(line, file=sys.stderr, flush=True)
-        settings = load_settings(opts)
-        writable_dir(settings.store, name="--store")
-        app, config = server_config(settings, opts.log_level)
-        sock = bind(opts.host, opts.port)
-        guard_hosts(app, settings.allowed_hosts, opts.host, sock)
-        actual_host, actual_port = sock.getsockname()[:2]
-        shown = f"[{actual_host}]" if ":" in actual_host else actual_host
-        print(f"listening on http://{shown}:{actual_port}", flush=True)
-        # The event loop, the hit threads and the miss thread share the GIL: a thread waiting for it waits up to
-        # the switch interval (5 ms by default) while another computes, which a hit would pay several times.
-        sys.setswitchinterval(SWITCH_INTERVAL_S)
-        StoppingServer(config, app).run(sockets=[sock])
+    opts = build_config(CommandOptions, given)
+    if opts.scenes is not None and not opts.scenes.is_dir():
+        raise UserError(f"--scenes {opts.scenes} is not a folder", "give a folder of scene spec files")
+    for line in skipped_specs(opts.scenes) if opts.scenes is not None else ():
+        print(line, file=sys.stderr, flush=True)
+    settings = load_settings(opts)
+    writable_dir(settings.store, name="--store")
+    app, config = server_config(settings, opts.log_level)
+    sock = bind(opts.host, opts.port)
+    guard_hosts(app, settings.allowed_hosts, opts.host, sock)
+    actual_host, actual_port = sock.getsockname()[:2]
+    shown = f"[{actual_host}]" if ":" in actual_host else actual_host
+    print(f"listening on http://{shown}:{actual_port}", flush=True)
+    # The event loop, the hit threads and the miss thread share the GIL: a thread waiting for it waits up to
+    # the switch interval (5 ms by default) while another computes, which a hit would pay several times.
+    sys.setswitchinterval(SWITCH_INTERVAL_S)
+    StoppingServer(config, app).run(sockets=[sock])
 
 
 def guard_hosts(app: FastAPI, extra: tuple[str, ...], host: str, sock: socket.socket) -> None:
@@ -207,4 +206,4 @@ def server_config(settings: Settings, log_level: str) -> tuple[FastAPI, uvicorn.
 
 config_command(app, CommandOptions, serve)
 
-main = entry_point(app, resume="nothing is lost: the GI tree keeps every finished map")
+main = entry_point(app, services=True)

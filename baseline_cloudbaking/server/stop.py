@@ -1,5 +1,5 @@
 """How ``cloudbaking-server`` stops (docs/architecture.md, Errors): SIGTERM exactly as Ctrl-C, and a requested
-stop ends in exit 0 (:func:`gicore.error_policy.serving`).
+stop ends in exit 0 (a service to :func:`gicore.error_policy.entry_point`).
 
 On either signal uvicorn stops taking connections and waits for the requests in progress;
 :class:`StoppingServer` first tells the map service (:meth:`~baseline_cloudbaking.server.service.MapService.stop`),

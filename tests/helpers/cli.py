@@ -7,6 +7,7 @@ import contextlib
 import os
 import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -106,17 +107,27 @@ def assert_user_error(argv: list[str], culprit: str, cwd: Path) -> str:
     return check_user_error(run_script(argv, cwd), culprit)
 
 
-def signal_when(argv: list[str], cwd: Path, ready: Callable[[subprocess.Popen], bool], sig: int) -> tuple[int, str]:
-    """Start console script ``argv``, send ``sig`` once ``ready(proc)`` holds; its exit status and stderr."""
+def signal_when(
+    argv: list[str],
+    cwd: Path,
+    ready: Callable[[subprocess.Popen], bool],
+    sig: int,
+    env: dict[str, str] | None = None,
+    delay_s: float = 0.0,
+    poll_s: float = 0.05,
+) -> tuple[int, str]:
+    """Start console script ``argv`` (in ``env``), send ``sig`` ``delay_s`` after ``ready(proc)`` holds (looked at
+    every ``poll_s``); its exit status and stderr."""
     proc = subprocess.Popen(
-        [str(BIN / argv[0]), *argv[1:]], cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+        [str(BIN / argv[0]), *argv[1:]], cwd=cwd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
     )
     try:
         deadline = time.monotonic() + HANG_GUARD_S
         while not ready(proc):
             assert proc.poll() is None, f"{argv[0]} ended before it was ready: {proc.communicate()}"
             assert time.monotonic() < deadline, f"{argv[0]} never became ready (hung)"
-            time.sleep(0.05)
+            time.sleep(poll_s)
+        time.sleep(delay_s)
         proc.send_signal(sig)
         _, err = proc.communicate(timeout=HANG_GUARD_S)
     finally:
@@ -141,3 +152,23 @@ def assert_error_line(result: subprocess.CompletedProcess, *culprits: str) -> No
     assert "Traceback" not in result.stderr
     for culprit in culprits:
         assert culprit in lines[-1], (culprit, lines[-1])
+
+
+def interpreter_started_marker(tmp_path: Path) -> tuple[dict[str, str], Path]:
+    """An environment whose ``sitecustomize`` creates a file once CPython's own start (its ``site`` import) is
+    over, and that file. A Ctrl-C before then is CPython's ("Fatal Python error: init_import_site"): no program
+    can catch it, so a test's delays count from this file, not from the ``exec``."""
+    hook, marker = tmp_path / "hook", tmp_path / "interpreter-started"
+    hook.mkdir()
+    (hook / "sitecustomize.py").write_text(f"open({str(marker)!r}, 'w').close()\n")
+    return {
+        **os.environ,
+        "PYTHONPATH": os.pathsep.join(filter(None, [str(hook), os.environ.get("PYTHONPATH")])),
+    }, marker
+
+
+def signal_after_start(argv: list[str], cwd: Path, sig: int, delay_s: float) -> tuple[int, str]:
+    """Start console script ``argv``, send ``sig`` ``delay_s`` after CPython's own start
+    (:func:`interpreter_started_marker`); its exit status and stderr."""
+    env, started = interpreter_started_marker(Path(tempfile.mkdtemp(dir=cwd)))
+    return signal_when(argv, cwd, lambda _: started.exists(), sig, env, delay_s, poll_s=0.002)

@@ -1,10 +1,9 @@
 """gigan-web as a process, stopped while it works (real processes on ephemeral ports): SIGTERM during a forwarded
 miss answers the browser 503 "stopping", as the cloud-baking server does, and exits 0 without a traceback;
-Ctrl-C while the modules still load exits as quietly."""
+Ctrl-C or SIGTERM while the modules still load exits as quietly."""
 
 from __future__ import annotations
 
-import os
 import signal
 import socket
 import threading
@@ -17,6 +16,7 @@ from pathlib import Path
 import httpx
 import pytest
 
+from tests.helpers.cli import interpreter_started_marker
 from tests.web3d.test_children import HANG_GUARD_S, assert_stopped_normally, viewer
 from web3d.site import WEB_DIR
 
@@ -77,23 +77,11 @@ def test_sigterm_during_a_forwarded_miss_answers_503_stopping(tmp_path: Path) ->
     assert_stopped_normally(run.proc.returncode, err)
 
 
-def interpreter_started_marker(tmp_path: Path) -> tuple[dict[str, str], Path]:
-    """An environment whose ``sitecustomize`` creates a file once CPython's own start (its ``site`` import) is
-    over, and that file. A Ctrl-C before then is CPython's ("Fatal Python error: init_import_site"): no program
-    can catch it, so the delays below count from this file, not from the ``exec``."""
-    hook, marker = tmp_path / "hook", tmp_path / "interpreter-started"
-    hook.mkdir()
-    (hook / "sitecustomize.py").write_text(f"open({str(marker)!r}, 'w').close()\n")
-    return {
-        **os.environ,
-        "PYTHONPATH": os.pathsep.join(filter(None, [str(hook), os.environ.get("PYTHONPATH")])),
-    }, marker
-
-
-@pytest.mark.parametrize("delay_s", [0.1, 0.3, 0.5, 0.7, 0.9])
-def test_ctrl_c_while_it_loads_exits_quietly(tmp_path: Path, delay_s: float) -> None:
-    """SIGINT within the first second of its own code (importing its modules, computing its options' defaults,
-    exporting the scene) stops it as a stop once it serves does: exit 0, nothing on stderr."""
+@pytest.mark.parametrize(("sig", "delay_s"), [(signal.SIGINT, d) for d in (0.1, 0.3, 0.5, 0.7, 0.9)] + [
+    (signal.SIGTERM, d) for d in (0.05, 0.3)])  # fmt: skip
+def test_a_stop_while_it_loads_exits_quietly(tmp_path: Path, sig: int, delay_s: float) -> None:
+    """Ctrl-C or SIGTERM within the first second of its own code (importing its modules, computing its options'
+    defaults, exporting the scene) stops it as a stop once it serves does: exit 0, nothing on stderr."""
     env, started = interpreter_started_marker(tmp_path)
     with viewer(["--scene", "lung_plane", "--no-cloud"], tmp_path, env) as run:
         deadline = time.monotonic() + HANG_GUARD_S
@@ -101,6 +89,6 @@ def test_ctrl_c_while_it_loads_exits_quietly(tmp_path: Path, delay_s: float) -> 
             assert time.monotonic() < deadline and run.proc.poll() is None, "the interpreter never started"
             time.sleep(0.005)
         time.sleep(delay_s)
-        err = run.stop_and_read(signal.SIGINT)
+        err = run.stop_and_read(sig)
     assert_stopped_normally(run.proc.returncode, err)
     assert err == ""
