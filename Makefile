@@ -25,7 +25,8 @@ run: setup
 # share of the cores: with two busy loops on 2 cores pytest took 7:52 and 8:15 with 4 workers, 9:04 with 3), each
 # test file on one worker so that a module's fixtures are built once, the files with slow tests handed out first
 # (tests/conftest.py). No test judges a wall-clock bound (those are `bench load`'s and the other benches'), so none
-# has to run alone.
+# has to run alone. The Web3D page's JavaScript checker (npm run check in web3d/static/, TypeScript from its
+# lockfile) runs as one of the tests, tests/web3d/test_page_checks.py, beside the others rather than before them.
 WORKERS := $(shell echo $$(( $$(nproc) + 2 )))
 test: setup
 	$(VENV)/bin/ruff check .
