@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import asyncio
 import math
-import resource
 import select
 import selectors
 import signal
@@ -33,6 +32,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from gicore.error_policy import UserError
+from gicore.fd_budget import connection_budget
 from network_sim.chunklog import ChunkLog, LatenessSummary, lateness_report, write_lateness
 from network_sim.link import DOWN, UP, Chunk, Link, LinkConfig, Stream
 
@@ -43,7 +43,8 @@ _EARLY_S = 1e-6
 CONNECT_TIMEOUT_S = 5.0
 #: Default cap on concurrent client connections.
 MAX_CONNECTIONS = 1024
-#: File descriptors kept for everything but proxied connections (listening socket, log, stdio).
+#: File descriptors kept for everything but proxied connections (listening socket, log, stdio); each proxied
+#: connection takes two (client and upstream legs).
 FD_RESERVE = 64
 #: Refused connections are reported at most this often, s.
 REFUSAL_REPORT_S = 10.0
@@ -335,21 +336,6 @@ class _Refused(asyncio.Protocol):
         transport.close()
 
 
-def connection_budget(wanted: int) -> int:
-    """``wanted`` lowered to what the file-descriptor limit holds (two sockets per proxied connection),
-    after raising the soft limit to the hard one."""
-    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
-    if soft != hard:
-        try:
-            resource.setrlimit(resource.RLIMIT_NOFILE, (hard, hard))
-            soft = hard
-        except (ValueError, OSError):
-            pass
-    if soft == resource.RLIM_INFINITY:
-        return wanted
-    return max(1, min(wanted, (soft - FD_RESERVE) // 2))
-
-
 class Proxy:
     """Accepts client connections (at most ``max_connections`` at once) and proxies each through the shared
     :class:`Link` model."""
@@ -532,7 +518,7 @@ async def serve(config: LinkConfig, listen: tuple[str, int], upstream: tuple[str
     if settings.lateness is not None:  # a summary an earlier run left must not pass for this one's
         settings.lateness.unlink(missing_ok=True)
         lateness = LatenessSummary()
-    budget = connection_budget(settings.max_connections)
+    budget, _ = connection_budget(settings.max_connections, FD_RESERVE, 2, who="network-sim proxy: --max-connections")
     proxy = Proxy(config, upstream, log, budget, settings.idle_timeout_s, idle_min_bytes=settings.idle_min_bytes,
                   lateness=lateness)  # fmt: skip
     for sig in (signal.SIGTERM, signal.SIGINT):  # before announcing the port: a signal right after it must stop cleanly

@@ -177,17 +177,13 @@ def skipped_specs(scenes: Path) -> list[str]:
 def server_config(settings: Settings, log_level: str) -> tuple[FastAPI, uvicorn.Config]:
     """The app for ``settings`` and uvicorn's configuration of it, held to the connection limits."""
     from baseline_cloudbaking.server.app import create_app
-    from baseline_cloudbaking.server.limits import ConnectionLimits, fd_budget, uvicorn_config
+    from baseline_cloudbaking.server.limits import FD_RESERVE, ConnectionLimits, uvicorn_config
     from baseline_cloudbaking.store import GITree
+    from gicore.fd_budget import connection_budget
 
-    max_connections, fd_limit = fd_budget(settings.max_connections)
-    if max_connections < settings.max_connections:
-        print(
-            f"cloudbaking-server: max_connections lowered to {max_connections} to fit the file-descriptor limit "
-            f"{fd_limit} (raise it with ulimit -n)",
-            file=sys.stderr,
-            flush=True,
-        )
+    max_connections, _ = connection_budget(
+        settings.max_connections, FD_RESERVE, who="cloudbaking-server: max_connections"
+    )
     limits = ConnectionLimits(max_connections, settings.idle_timeout_s, settings.max_header_bytes)
     # opened here, not at the app's startup: a store it cannot use is one error line, not uvicorn's traceback
     app = create_app(settings, GITree(settings.store, settings.budget_bytes, settings.tolerance))

@@ -1,5 +1,6 @@
-"""What keeps the server up under floods: a connection cap that drains idle connections, an idle timeout
-that also covers slow request heads, the file-descriptor budget, and logs that do not grow with a flood.
+"""What keeps the server up under floods: a connection cap that drains idle connections (fitted to the
+file-descriptor limit, :mod:`gicore.fd_budget`), an idle timeout that also covers slow request heads, and logs
+that do not grow with a flood.
 
 uvicorn's ``limit_concurrency`` counts idle connections too, so a flood of idle ones would answer every
 real request 503; and uvicorn times out only keep-alive connections that send nothing, not a fresh one,
@@ -21,7 +22,6 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
-import resource
 import time
 from collections import OrderedDict
 from typing import Any
@@ -31,25 +31,12 @@ from starlette.types import ASGIApp
 from uvicorn.protocols.http.h11_impl import H11Protocol
 
 #: File descriptors kept for everything but client connections (SQLite files of each worker thread,
-#: payload reads, the renderer's files, the listening socket).
+#: payload reads, the renderer's files, the listening socket): see gicore.fd_budget.
 FD_RESERVE = 256
 #: What happened to the server's connections, counted in ``/v1/stats``.
 COUNTERS = ("connections_accepted", "connections_drained", "connections_timed_out", "connections_refused")
 #: How often an idle-connection timer rechecks (the timeout is enforced within this).
 _SWEEP_S = 0.25
-
-
-def fd_budget(wanted: int) -> tuple[int, int]:
-    """Raise the soft file-descriptor limit to the hard one; returns (connections that fit, the limit)."""
-    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
-    if hard == resource.RLIM_INFINITY or soft < hard:
-        target = hard if hard != resource.RLIM_INFINITY else max(soft, 1 << 20)
-        try:
-            resource.setrlimit(resource.RLIMIT_NOFILE, (target, hard))
-            soft = target
-        except (ValueError, OSError):
-            pass
-    return max(8, min(wanted, soft - FD_RESERVE)), soft
 
 
 class ConnectionLimits:

@@ -41,7 +41,8 @@ from urllib.parse import urlsplit
 import numpy as np
 
 from baseline_cloudbaking.protocol import unpack
-from baseline_cloudbaking.server.limits import fd_budget
+from baseline_cloudbaking.server.limits import FD_RESERVE
+from gicore.fd_budget import connection_budget
 
 if TYPE_CHECKING:
     import httpx
@@ -140,7 +141,7 @@ def percentiles(name: str, ms: list[float]) -> dict[str, float]:
 def idle_room() -> int:
     """Idle connections this process can hold open: its file-descriptor limit, raised as the server raises its
     own, less the server's reserve for everything else."""
-    return fd_budget(1 << 30)[0]
+    return connection_budget(1 << 30, FD_RESERVE)[0]
 
 
 async def _hit_client(

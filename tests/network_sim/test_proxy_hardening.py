@@ -80,6 +80,25 @@ def test_idle_sockets_give_their_slots_back(upstream: tuple[str, int]) -> None:
             sock.close()
 
 
+def test_a_cap_beyond_the_file_descriptor_limit_is_lowered_and_said(upstream: tuple[str, int]) -> None:
+    """200 descriptors less the proxy's 64 hold 68 connections of two sockets each: the cap is lowered to that, in
+    one stderr line (the proxy lowered it without a word), and the 69th connection is refused."""
+    limit = ["prlimit", "--nofile=200:200"]
+    with proxy(upstream, "--max-connections", "1024", prefix=limit) as p:
+        said = [line for line in p.stderr().splitlines() if "lowered" in line]
+        assert said == [
+            "network-sim proxy: --max-connections lowered to 68 to fit the file-descriptor limit 200 (raise it with "
+            "ulimit -n)"
+        ], p.stderr()
+        held = [endpoint.connect(p.addr, b"E", TIMEOUT) for _ in range(68)]
+        for sock in held:
+            sock.sendall(b"x")
+            assert endpoint.recv_exactly(sock, 1) == b"x"
+        assert not echoes(p.addr), "a 69th connection got through"
+        for sock in held:
+            sock.close()
+
+
 def test_a_connection_that_moves_bytes_or_has_bytes_due_is_not_idle(upstream: tuple[str, int]) -> None:
     """Echoes of 100 bytes every 50 ms for 2.5 idle timeouts (16 kB per timeout counted, 4 x 100 bytes per echo:
     well over the default --idle-min-bytes even if a busy machine runs a tenth of them), and a round trip whose
