@@ -14,7 +14,9 @@ Every idle period (a fresh connection, or after a response) must end with a whol
 a pipeline on its own, never its body) larger than ``max_head_bytes`` is answered 431 and the connection closed.
 With ``write_timeout_s``, a response whose reader takes nothing for that long (writes paused by the transport's
 flow control) is dropped and its connection closed: a busy connection is never drained, so stalled readers
-would otherwise hold every slot.
+would otherwise hold every slot. None of this is a public setting of uvicorn's (``timeout_keep_alive`` and
+``h11_max_incomplete_event_size`` are used where they apply): its HTTP protocol classes are subclassed, and
+pyproject.toml pins the uvicorn versions the tests ran on.
 """
 
 from __future__ import annotations
