@@ -211,7 +211,7 @@ class _Pipe:
         while self.pending and self.pending[0][0].release <= now + _EARLY_S and "receiver" not in self.holds:
             chunk, data = self.pending.popleft()
             self.proxy.give(len(data))
-            if transport is not None and not self.dst.lost:
+            if transport is not None and not self.dst.lost and not transport.is_closing():  # closing: lost soon
                 transport.write(data)  # may pause writing: the receiver hold ends this loop
                 self.src.conn.moved += len(data)
             self.proxy.logged(chunk, now)

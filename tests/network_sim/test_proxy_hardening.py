@@ -21,6 +21,7 @@ import pytest
 from gicore.error_policy import UserError
 from network_sim import endpoint
 from network_sim.cli import link_config
+from network_sim.link import UP
 from network_sim.process import Running, network_sim, proxy
 from network_sim.proxy import MAX_HELD_BYTES, Proxy
 from network_sim.trace import MAX_BYTES, MAX_LINES, Trace
@@ -311,6 +312,38 @@ def test_clients_that_leave_before_their_answer_cost_no_traceback(upstream: tupl
         running.proc.send_signal(signal.SIGTERM)
         assert running.proc.wait(TIMEOUT) == 0
         assert "Traceback" not in running.stderr(), running.stderr()
+
+
+def test_nothing_is_written_to_a_leg_already_closing() -> None:
+    """A leg whose send failed (or that the proxy closed) is closing until its connection_lost comes: chunks
+    released meanwhile are dropped, not written (asyncio logs a warning for each write past the fifth, one per
+    chunk: a client streaming to a server that closed on it filled the proxy's stderr)."""
+
+    class Closing(asyncio.Transport):
+        writes = 0
+
+        def is_closing(self) -> bool:
+            return True
+
+        def write(self, data: bytes | bytearray | memoryview) -> None:
+            self.writes += 1
+
+        def close(self) -> None:
+            pass
+
+    async def run() -> Closing:
+        p = Proxy(link_config(), ("127.0.0.1", 9))
+        p.accept()  # a client connects
+        (conn,) = p.connections.values()
+        leg = Closing()
+        conn.upstream.connection_made(leg)
+        for _ in range(10):
+            conn.pipes[UP].feed(b"x" * 1000)  # unshaped: released and flushed at once
+        await asyncio.sleep(0)
+        p.close_all()
+        return leg
+
+    assert asyncio.run(run()).writes == 0
 
 
 # -- rates: 0 is a dead link; a positive rate too small to ever finish a chunk is refused ------------------------
